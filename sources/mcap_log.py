@@ -1,0 +1,588 @@
+"""MCAP measurement logs: write frames/truth/tracks, read them back robustly.
+
+File layout written by :class:`McapLogWriter`:
+
+* one ``Metadata`` record named :data:`METADATA_NAME` (``"bnptrack.scenario"``) with string
+  keys, e.g. ``{"scenario": "vo2017", "params": "vo2017", "seed": "1"}``;
+* channels ``/measurements``, ``/truth``, ``/tracks`` (registered on first use), message
+  encoding ``json``, schema encoding ``jsonschema`` (the schemas of :mod:`pipeline.codec`);
+* ``log_time = publish_time = stamp_ns``, ``sequence = frame index``;
+* small zstd chunks (4 KiB) and a flush every few writes, so a crash loses little.
+
+Reading streams the file record by record (``mcap.stream_reader.StreamReader``; no index or
+footer needed), so a truncated or corrupt file yields every readable frame and *then*
+raises :class:`McapLogError`, naming the file, the last good frame, the message count and
+the byte offset.  Invalid messages (bad schema, NaN, wrong field) and non-monotonic frame
+indices on ``/measurements`` raise :class:`McapLogError` too, wrapping the
+:class:`~pipeline.codec.CodecError` that names topic and frame.  Unknown topics are ignored;
+files without the metadata record and without ``/truth`` read fine.  Reading stops at the
+``DataEnd`` record, so a file whose summary section is damaged still reads completely.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Iterator
+
+from mcap.exceptions import EndOfFile, InvalidMagic
+from mcap.reader import SeekingReader
+from mcap.records import Channel, DataEnd, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from pipeline.codec import (
+    SCHEMA_VERSION,
+    TOPIC_MEASUREMENTS,
+    TOPIC_TRACKS,
+    TOPIC_TRUTH,
+    CodecError,
+    MeasurementsMsg,
+    TruthMsg,
+    decode_msg,
+    encode_measurements,
+    encode_tracks,
+    encode_truth,
+    estimate_from_msg,
+    frame_from_msg,
+    json_schema,
+    truth_from_msg,
+)
+from tracker.types import Estimate, Frame
+
+__all__ = [
+    "METADATA_NAME",
+    "DEFAULT_CHUNK_SIZE",
+    "McapLogError",
+    "McapLogWriter",
+    "LogContents",
+    "iter_frames",
+    "iter_tracks",
+    "read_log",
+    "read_metadata",
+    "copy_input_channels",
+]
+
+#: Name of the metadata record describing how a log was produced.
+METADATA_NAME = "bnptrack.scenario"
+#: Chunk size used by :class:`McapLogWriter` (small, so a cut file loses little).
+DEFAULT_CHUNK_SIZE = 4 * 1024
+#: Writes (``write_frame``/``write_tracks`` calls) between explicit flushes.
+DEFAULT_FLUSH_EVERY = 5
+
+_SCHEMA_NAMES = {
+    TOPIC_MEASUREMENTS: "bnptrack.Measurements",
+    TOPIC_TRUTH: "bnptrack.Truth",
+    TOPIC_TRACKS: "bnptrack.Tracks",
+}
+_INPUT_TOPICS = frozenset({TOPIC_MEASUREMENTS, TOPIC_TRUTH})
+
+
+# --------------------------------------------------------------------------- errors
+
+
+class McapLogError(Exception):
+    """A log that could not be read to its end.
+
+    Everything readable before the problem has already been yielded when this is raised.
+
+    Attributes
+    ----------
+    path: the file.
+    kind: ``"truncated"`` (the file ends early), ``"corrupt"`` (unreadable bytes) or
+        ``"invalid"`` (a message breaks the schema, or frame indices do not increase).
+    offset: byte offset up to which the file was read successfully.
+    n_messages: messages read so far (all topics; for ``"invalid"``, the 1-based number of the
+        offending message).
+    last_frame: last frame index delivered to the caller (``None`` if none).
+    reason: what went wrong (for ``"invalid"``, the CodecError text naming topic and frame).
+    topic, frame: topic and frame of the offending message, when known.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        kind: str,
+        offset: int,
+        n_messages: int,
+        last_frame: int | None,
+        reason: str,
+        topic: str | None = None,
+        frame: int | None = None,
+    ) -> None:
+        self.path = path
+        self.kind = kind
+        self.offset = offset
+        self.n_messages = n_messages
+        self.last_frame = last_frame
+        self.reason = reason
+        self.topic = topic
+        self.frame = frame
+        what = {"truncated": "truncated", "corrupt": "corrupt data", "invalid": "invalid message"}[kind]
+        where = (
+            f"after frame {last_frame}" if last_frame is not None else "before the first complete frame"
+        )
+        super().__init__(
+            f"{path}: {what} {where} (message {n_messages}, byte offset {offset}): {reason}"
+        )
+
+    def __reduce__(self):
+        return (
+            type(self),
+            (self.path, self.kind, self.offset, self.n_messages, self.last_frame,
+             self.reason, self.topic, self.frame),
+        )
+
+
+class _StreamFailure(Exception):
+    """Internal: the record stream broke (truncated or corrupt)."""
+
+    def __init__(self, kind: str, reason: str) -> None:
+        super().__init__(reason)
+        self.kind = kind
+        self.reason = reason
+
+
+# --------------------------------------------------------------------------- writer
+
+
+class McapLogWriter:
+    """Write frames, truth and tracks to an MCAP file (use as a context manager).
+
+    ``metadata`` (string keys and values; other values are converted with ``str``) is
+    written as the ``bnptrack.scenario`` record.  ``flush_every`` is the number of
+    ``write_frame``/``write_tracks`` calls between explicit flushes (each flush closes the
+    current chunk and flushes the OS file buffer; it does not fsync).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        metadata: dict[str, str] | None = None,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        *,
+        flush_every: int = DEFAULT_FLUSH_EVERY,
+        compression: str = "zstd",
+    ) -> None:
+        self.path = os.fspath(path)
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        if compression not in comp:
+            raise ValueError(f"compression must be one of {sorted(comp)}, got {compression!r}")
+        if flush_every < 1:
+            raise ValueError("flush_every must be >= 1")
+        self._file = open(self.path, "wb")
+        try:
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp[compression])
+            self._writer.start(profile="", library=f"bnptrack (schema v{SCHEMA_VERSION})")
+            if metadata is not None:
+                self._writer.add_metadata(
+                    METADATA_NAME, {str(k): str(v) for k, v in metadata.items()}
+                )
+            self._file.flush()
+        except BaseException:
+            self._file.close()
+            raise
+        self._channels: dict[str, int] = {}
+        self._flush_every = flush_every
+        self._since_flush = 0
+        self._closed = False
+        self.n_frames = 0
+        self.n_tracks = 0
+
+    # -- context manager -------------------------------------------------------------
+    def __enter__(self) -> "McapLogWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- writing ---------------------------------------------------------------------
+    def _channel(self, topic: str) -> int:
+        ch = self._channels.get(topic)
+        if ch is None:
+            schema = json.dumps(json_schema(topic), separators=(",", ":")).encode()
+            sid = self._writer.register_schema(_SCHEMA_NAMES[topic], "jsonschema", schema)
+            ch = self._writer.register_channel(
+                topic, "json", sid, metadata={"schema_version": str(SCHEMA_VERSION)}
+            )
+            self._channels[topic] = ch
+        return ch
+
+    def _put(self, topic: str, data: bytes, stamp_ns: int, frame: int) -> None:
+        stamp = int(stamp_ns)
+        self._writer.add_message(
+            self._channel(topic),
+            log_time=stamp,
+            data=data,
+            publish_time=stamp,
+            sequence=int(frame) & 0xFFFFFFFF,
+        )
+
+    def _tick(self) -> None:
+        self._since_flush += 1
+        if self._since_flush >= self._flush_every:
+            self.flush()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+
+    def write_frame(self, frame: Frame, run: str = "") -> None:
+        """Write ``/measurements`` (and ``/truth`` when ``frame.truth`` is not ``None``).
+
+        Both messages are encoded (and validated) before either is written.
+        """
+        self._check_open()
+        meas = encode_measurements(frame, run)
+        truth = (
+            encode_truth(frame.frame, frame.stamp_ns, frame.truth, run)
+            if frame.truth is not None
+            else None
+        )
+        self._put(TOPIC_MEASUREMENTS, meas, frame.stamp_ns, frame.frame)
+        if truth is not None:
+            self._put(TOPIC_TRUTH, truth, frame.stamp_ns, frame.frame)
+        self.n_frames += 1
+        self._tick()
+
+    def write_tracks(self, est: Estimate, run: str = "") -> None:
+        """Write one ``/tracks`` message."""
+        self._check_open()
+        self._put(TOPIC_TRACKS, encode_tracks(est, run), est.stamp_ns, est.frame)
+        self.n_tracks += 1
+        self._tick()
+
+    def flush(self) -> None:
+        """Close the current chunk and flush it to the OS."""
+        self._check_open()
+        self._writer.flush()
+        self._since_flush = 0
+
+    def close(self) -> None:
+        """Write the summary and footer and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _record_limit(size: int) -> int:
+    """Largest record length we try to read.
+
+    A valid record never exceeds the file; a length that runs past the end of the file but
+    is below this limit is read short and reported as truncation (the usual crash damage);
+    absurd lengths (corrupt bytes) are refused without allocating them.
+    """
+    return max(size, 16 * 2**20)
+
+
+class _Scanner:
+    """Stream the records of one file, decoding messages of the wanted topics.
+
+    Yields ``(topic, msg)`` and, when ``want_metadata``, ``(None, Metadata)``.  Raises
+    :class:`CodecError` for an invalid message and :class:`_StreamFailure` when the record
+    stream breaks.  ``offset`` / ``n_messages`` describe the progress so far.
+    """
+
+    def __init__(self, path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False):
+        self.path = os.fspath(path)
+        self.topics = frozenset(topics)
+        self.want_metadata = want_metadata
+        self.offset = 0
+        self.n_messages = 0
+
+    def __iter__(self) -> Iterator[tuple[str | None, Any]]:
+        try:
+            f = open(self.path, "rb")
+        except OSError as exc:
+            raise McapLogError(self.path, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
+        with f:
+            size = os.fstat(f.fileno()).st_size
+            reader = StreamReader(f, validate_crcs=True, record_size_limit=_record_limit(size))
+            records = reader.records
+            channels: dict[int, Channel] = {}
+            topics = self.topics
+            while True:
+                self.offset = f.tell()
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    return
+                except Exception as exc:  # anything the mcap library raises on bad bytes
+                    raise self._failure(exc, f, size) from exc
+                if isinstance(rec, Message):
+                    self.n_messages += 1
+                    ch = channels.get(rec.channel_id)
+                    if ch is None:
+                        raise _StreamFailure(
+                            "corrupt", f"message refers to unknown channel id {rec.channel_id}"
+                        )
+                    topic = ch.topic
+                    if topic not in topics:
+                        continue
+                    if ch.message_encoding != "json":
+                        raise CodecError(
+                            topic,
+                            None,
+                            f"unsupported message encoding {ch.message_encoding!r} (expected 'json')",
+                        )
+                    yield topic, decode_msg(topic, rec.data)
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                elif isinstance(rec, Metadata):
+                    if self.want_metadata:
+                        yield None, rec
+                elif isinstance(rec, DataEnd):
+                    self.offset = f.tell()
+                    return
+
+    @staticmethod
+    def _failure(exc: Exception, f: io.BufferedReader, size: int) -> _StreamFailure:
+        at_end = f.tell() >= size
+        if isinstance(exc, (EndOfFile, struct.error)) or (at_end and not isinstance(exc, InvalidMagic)):
+            detail = "" if isinstance(exc, EndOfFile) else f"; {type(exc).__name__}: {exc}"
+            return _StreamFailure(
+                "truncated", f"unexpected end of file (file has {size} bytes{detail})"
+            )
+        return _StreamFailure("corrupt", f"{type(exc).__name__}: {exc}")
+
+
+class _FramePairer:
+    """Pair ``/measurements`` with ``/truth`` of the same frame index, in order.
+
+    A frame is released as soon as both halves are seen, or (without truth) when the next
+    frame's measurements arrive or the stream ends.  Truth for a frame already released, or
+    for a frame without measurements, is dropped.
+    """
+
+    def __init__(self) -> None:
+        self.pending: MeasurementsMsg | None = None
+        self.truths: dict[int, TruthMsg] = {}
+        self.last_frame: int | None = None
+        self.saw_truth = False
+
+    def add_measurements(self, msg: MeasurementsMsg) -> list[tuple[MeasurementsMsg, TruthMsg | None]]:
+        if self.last_frame is not None and msg.frame <= self.last_frame:
+            raise CodecError(
+                TOPIC_MEASUREMENTS,
+                msg.frame,
+                f"frame index {msg.frame} is not greater than the previous frame "
+                f"{self.last_frame} (frame indices must increase)",
+            )
+        self.last_frame = msg.frame
+        out: list[tuple[MeasurementsMsg, TruthMsg | None]] = []
+        if self.pending is not None:
+            out.append((self.pending, None))
+            self.pending = None
+        if self.truths:
+            truth = self.truths.pop(msg.frame, None)
+            for k in [k for k in self.truths if k < msg.frame]:
+                del self.truths[k]
+        else:
+            truth = None
+        if truth is not None:
+            out.append((msg, truth))
+        else:
+            self.pending = msg
+        return out
+
+    def add_truth(self, msg: TruthMsg) -> list[tuple[MeasurementsMsg, TruthMsg | None]]:
+        self.saw_truth = True
+        if self.pending is not None and self.pending.frame == msg.frame:
+            pair = (self.pending, msg)
+            self.pending = None
+            return [pair]
+        if (self.last_frame is None or msg.frame > self.last_frame) and msg.frame not in self.truths:
+            self.truths[msg.frame] = msg
+        return []
+
+    def finish(self, complete_only: bool) -> list[tuple[MeasurementsMsg, TruthMsg | None]]:
+        """Release the pending frame.  With ``complete_only`` (the stream broke), a frame
+        whose truth may have been lost (the file has /truth) is dropped instead."""
+        pending, self.pending = self.pending, None
+        self.truths.clear()
+        if pending is None or (complete_only and self.saw_truth):
+            return []
+        return [(pending, None)]
+
+
+def _iter_log(
+    path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False
+) -> Iterator[tuple[str, Any]]:
+    """Yield ``("frame", (meas, truth|None))``, ``("tracks", TracksMsg)`` and
+    ``("metadata", dict)`` events in file order; raise McapLogError at the first problem."""
+    scanner = _Scanner(path, topics, want_metadata)
+    pairer = _FramePairer()
+    want_frames = TOPIC_MEASUREMENTS in scanner.topics
+    last_frame: int | None = None
+    try:
+        for topic, item in scanner:
+            if topic == TOPIC_MEASUREMENTS:
+                ready = pairer.add_measurements(item)
+            elif topic == TOPIC_TRUTH:
+                ready = pairer.add_truth(item)
+            elif topic == TOPIC_TRACKS:
+                if not want_frames:
+                    last_frame = item.frame
+                yield "tracks", item
+                continue
+            else:
+                if item.name == METADATA_NAME:
+                    yield "metadata", dict(item.metadata)
+                continue
+            for pair in ready:
+                last_frame = pair[0].frame
+                yield "frame", pair
+    except (CodecError, _StreamFailure) as exc:
+        for pair in pairer.finish(complete_only=True):
+            last_frame = pair[0].frame
+            yield "frame", pair
+        if isinstance(exc, CodecError):
+            raise McapLogError(
+                scanner.path, "invalid", scanner.offset, scanner.n_messages, last_frame,
+                str(exc), exc.topic, exc.frame,
+            ) from exc
+        raise McapLogError(
+            scanner.path, exc.kind, scanner.offset, scanner.n_messages, last_frame, exc.reason
+        ) from exc.__cause__
+    for pair in pairer.finish(complete_only=False):
+        yield "frame", pair
+
+
+def _pair_to_frame(pair: tuple[MeasurementsMsg, TruthMsg | None]) -> Frame:
+    meas, truth = pair
+    return frame_from_msg(meas, truth_from_msg(truth) if truth is not None else None)
+
+
+def iter_frames(path: str | os.PathLike) -> Iterator[Frame]:
+    """Yield the frames of a log in order, with ``.truth`` from ``/truth`` when present.
+
+    Raises :class:`McapLogError` after the last readable frame if the file is truncated,
+    corrupt, holds an invalid message or a non-increasing frame index on ``/measurements``.
+    """
+    for _, pair in _iter_log(path, _INPUT_TOPICS):
+        yield _pair_to_frame(pair)
+
+
+def iter_tracks(path: str | os.PathLike) -> Iterator[Estimate]:
+    """Yield the ``/tracks`` estimates of a log in file order (errors as :func:`iter_frames`)."""
+    for _, msg in _iter_log(path, {TOPIC_TRACKS}):
+        yield estimate_from_msg(msg)
+
+
+@dataclass
+class LogContents:
+    """Everything :func:`read_log` found in a file."""
+
+    path: str
+    metadata: dict[str, str] | None
+    frames: list[Frame] = field(default_factory=list)
+    tracks: list[Estimate] = field(default_factory=list)
+    #: The error that ended reading early (only with ``strict=False``).
+    error: McapLogError | None = None
+
+
+def read_log(path: str | os.PathLike, strict: bool = True) -> LogContents:
+    """Read a whole log (metadata, frames with truth, tracks) in one pass.
+
+    With ``strict=False`` a truncated/invalid file returns what was readable, with the
+    error in ``.error``, instead of raising.
+    """
+    out = LogContents(path=os.fspath(path), metadata=None)
+    try:
+        for kind, item in _iter_log(path, {TOPIC_MEASUREMENTS, TOPIC_TRUTH, TOPIC_TRACKS}, True):
+            if kind == "frame":
+                out.frames.append(_pair_to_frame(item))
+            elif kind == "tracks":
+                out.tracks.append(estimate_from_msg(item))
+            elif out.metadata is None:
+                out.metadata = item
+    except McapLogError as exc:
+        if strict:
+            raise
+        out.error = exc
+    return out
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, str] | None:
+    """The ``bnptrack.scenario`` metadata record, or ``None`` when the file has none.
+
+    Uses the summary index when the file has a complete one, else streams the file (without
+    decompressing chunks).  A file that is damaged after the record still returns it; a file
+    that is damaged before any record is found returns ``None``; a file that is not MCAP at
+    all raises :class:`McapLogError`.
+    """
+    spath = os.fspath(path)
+    try:
+        f = open(spath, "rb")
+    except OSError as exc:
+        raise McapLogError(spath, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        limit = _record_limit(size)
+        # Fast path: a complete summary that indexes every metadata record.
+        try:
+            summary = SeekingReader(f, record_size_limit=limit).get_summary()
+        except Exception:
+            summary = None
+        if (
+            summary is not None
+            and summary.statistics is not None
+            and summary.statistics.metadata_count == len(summary.metadata_indexes)
+        ):
+            try:
+                for index in summary.metadata_indexes:
+                    if index.name != METADATA_NAME:
+                        continue
+                    f.seek(index.offset)
+                    rec = next(StreamReader(f, skip_magic=True, record_size_limit=limit).records)
+                    if isinstance(rec, Metadata) and rec.name == METADATA_NAME:
+                        return dict(rec.metadata)
+                    break  # index does not point at the record: fall back to streaming
+                else:
+                    return None
+            except Exception:
+                pass
+        # Slow path: stream the data section.
+        f.seek(0)
+        records = StreamReader(f, emit_chunks=True, record_size_limit=limit).records
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                return None
+            except InvalidMagic as exc:
+                raise McapLogError(spath, "corrupt", 0, 0, None, f"not an MCAP file: {exc}") from exc
+            except Exception:
+                return None
+            if isinstance(rec, Metadata) and rec.name == METADATA_NAME:
+                return dict(rec.metadata)
+            if isinstance(rec, DataEnd):
+                return None
+
+
+def copy_input_channels(
+    src_path: str | os.PathLike, writer: McapLogWriter, run: str | None = None
+) -> int:
+    """Copy the ``/measurements`` and ``/truth`` of ``src_path`` into ``writer``.
+
+    Messages are decoded, validated and re-encoded (each keeps its own ``run`` unless ``run``
+    is given).  Returns the number of frames copied.  If the source is damaged, the readable
+    prefix has been copied when :class:`McapLogError` propagates.  The metadata record is not
+    copied: pass ``read_metadata(src_path)`` to the writer's constructor.
+    """
+    n = 0
+    for _, (meas, truth) in _iter_log(src_path, _INPUT_TOPICS):
+        frame = frame_from_msg(meas, truth_from_msg(truth) if truth is not None else None)
+        writer.write_frame(frame, run=meas.run if run is None else run)
+        n += 1
+    return n

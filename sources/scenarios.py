@@ -1,0 +1,302 @@
+r"""Ground-truth scenarios of the simulation study (``/work/shared/spec/scenarios.md``).
+
+A :class:`Scenario` is a frozen description of noiseless target trajectories: each
+:class:`TargetSpec` holds the state ``xstart`` one step *before* its birth scan, the state at
+scan ``birth`` is :math:`f(x_{start})` and every later scan applies the coordinated-turn
+transition :math:`f` again (no process noise).  A target is present at scans
+``birth..death`` inclusive.  Scans are numbered ``k = 1..K``.
+
+Registered scenarios (:data:`SCENARIOS`, :func:`get_scenario`):
+
+``vo2017``
+    The 10-target nonlinear example of Vo, Vo & Hoang (2017), Sec. IV.B, exactly as in their
+    MATLAB demo (``gen_truth.m``), ``wturn = 2 pi / 180``.  Targets 8, 9 and 10 leave the
+    2000 m sensor range near the end; they are then not detected (``P_D = 0``) but still count
+    in the truth (decided here).  Experiments 1 and 5.
+``dpy5``
+    Targets 1-5 of ``vo2017`` (same specs, same ids): experiment 4 (at most 5 targets).
+``proximity``
+    Experiment 2 (close proximity).  Five targets follow the *same* path, entering at
+    ``k = 0, 5, 20, 30, 40`` and leaving at ``k = 70, 100, 100, 45, 80``; ``k = 0`` is mapped
+    to scan 1 (present from the first scan), so the birth scans are 1, 5, 20, 30, 40 and the
+    last scans 70, 100, 100, 45, 80.  Target ``j`` at scan ``k`` is at the path state
+    :math:`s(k - b_j)` with :math:`s(0) = s_0` and :math:`s(t+1) = f(s(t))`, so all targets
+    pass the same points at different times.  Decided here: the path is a gentle
+    constant-turn arc inside the sensor field,
+
+    .. math:: s_0 = [-900,\ 18,\ 600,\ 6,\ -\pi/720]
+
+    (speed 19 m/s, turn rate -0.25 deg/s, clockwise).  Over 100 scans it runs from
+    (-900, 600) to about (953, 797); its range stays within 791-1243 m and ``p_y >= 600`` m
+    (bearing within (-56, 51) deg), well inside the 2000 m / +-90 deg field of view.  The
+    common ``xstart`` is :math:`f^{-1}(s_0)` (the transition run with period ``-T``), computed
+    for ``T = 1``.
+``snr``
+    Experiment 3 (varying SNR): 11 targets on straight lines (``omega = 0``) seen by a
+    range-only sensor; ``default_snr_db = -3`` (the paper's default; see
+    :meth:`Scenario.adapt_params`).  Decided here (state at the birth scan; ``xstart`` is
+    one step earlier, ``[px - vx T, vx, py - vy T, vy, 0]``):
+
+    ===  =======  =======  ======  ======  =====  =====  ============  ===========  ==============
+    id   px (m)   py (m)   vx      vy      birth  death  range0 (m)    speed (m/s)  range in life
+    ===  =======  =======  ======  ======  =====  =====  ============  ===========  ==============
+    T1   -1200    1200     10      -5      1      100    1697          11.2         736-1697
+    T2   300      400      8       6       1      90     500           10.0         500-1377
+    T3   1000     1200     -5      -12     1      80     1562          13.0         655-1562
+    T4   -400     300      -12     10      10     100    500           15.6         500-1905
+    T5   1500     600      -20     5       10     75     1616          20.6         946-1616
+    T6   0        1800     5       -20     20     100    1800          20.6         447-1800
+    T7   -800     600      25      0       20     85     1000          25.0         600-1020
+    T8   600      1500     -15     -5      30     95     1616          15.8         1233-1616
+    T9   200      900      6       2       40     100    922           6.3          922-1164
+    T10  -1000    1400     10      -20     50     90     1720          22.4         849-1720
+    T11  1200     300      -5      15      60     100    1237          15.8         1233-1345
+    ===  =======  =======  ======  ======  =====  =====  ============  ===========  ==============
+
+    Starting bearings spread over -53..76 deg; every target keeps ``p_y > 0`` (so it stays in
+    the +-90 deg field the detection model also applies to the range-only sensor) and a range
+    in (0, 2000) m while present.  Cardinality: 3 (k=1-9), 5 (10-19), 7 (20-29), 8 (30-39),
+    9 (40-49), 10 (50-59), 11 (60-75), 10 (76-80), 9 (81-85), 8 (86-90), 6 (91-95),
+    5 (96-100).
+
+The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
+from the parameter set); the scenario tables are defined for ``T = 1`` s.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from tracker.config import ConfigError
+from tracker.models.motion import CoordinatedTurn
+from tracker.models.params import ModelParams
+from tracker.types import STATE_DIM, Truth
+
+__all__ = [
+    "TargetSpec",
+    "Scenario",
+    "SCENARIOS",
+    "get_scenario",
+    "scenario_names",
+    "WTURN",
+    "PROXIMITY_PATH_START",
+]
+
+#: Turn-rate unit of Vo et al.'s scenario, rad/s.
+WTURN = 2.0 * np.pi / 180.0
+
+#: State of the close-proximity path at each target's first present scan.
+PROXIMITY_PATH_START = (-900.0, 18.0, 600.0, 6.0, -np.pi / 720.0)
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """One noiseless target: ``xstart`` is the state one scan before ``birth``.
+
+    Present at scans ``birth..death`` inclusive; the state at ``birth`` is ``f(xstart)``.
+    """
+
+    id: str
+    xstart: tuple[float, float, float, float, float]
+    birth: int
+    death: int
+
+    def __post_init__(self) -> None:
+        xs = tuple(float(v) for v in self.xstart)
+        if len(xs) != STATE_DIM:
+            raise ValueError(f"TargetSpec {self.id}: xstart needs {STATE_DIM} values")
+        object.__setattr__(self, "xstart", xs)
+        if not 1 <= self.birth <= self.death:
+            raise ValueError(
+                f"TargetSpec {self.id}: need 1 <= birth <= death, got {self.birth}..{self.death}"
+            )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named set of noiseless targets over ``K`` scans seen by one sensor ``kind``."""
+
+    name: str
+    description: str
+    K: int = 100
+    kind: Literal["bearing_range", "range"] = "bearing_range"
+    targets: tuple[TargetSpec, ...] = ()
+    default_snr_db: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "targets", tuple(self.targets))
+        ids = [t.id for t in self.targets]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"Scenario {self.name}: duplicate target ids {ids}")
+        for t in self.targets:
+            if t.death > self.K:
+                raise ValueError(f"Scenario {self.name}: {t.id} dies after K={self.K}")
+
+    # ------------------------------------------------------------------------------
+    @property
+    def ids(self) -> tuple[str, ...]:
+        return tuple(t.id for t in self.targets)
+
+    @property
+    def births(self) -> np.ndarray:
+        return np.array([t.birth for t in self.targets], dtype=int)
+
+    @property
+    def deaths(self) -> np.ndarray:
+        return np.array([t.death for t in self.targets], dtype=int)
+
+    def presence(self) -> np.ndarray:
+        """``(K, n)`` boolean: target ``j`` present at scan ``i + 1``."""
+        k = np.arange(1, self.K + 1)[:, None]
+        return (k >= self.births[None, :]) & (k <= self.deaths[None, :])
+
+    def states(self, T: float = 1.0) -> np.ndarray:
+        """``(K, n, 5)`` noiseless states; ``NaN`` where a target is absent (a fresh copy)."""
+        return _states(self, float(T)).copy()
+
+    def _compute_states(self, T: float) -> np.ndarray:
+        n = len(self.targets)
+        ct = CoordinatedTurn(T=float(T))
+        x = np.array([t.xstart for t in self.targets], dtype=float).reshape(n, STATE_DIM)
+        births = self.births
+        out = np.full((self.K, n, STATE_DIM), np.nan)
+        present = self.presence()
+        for i in range(self.K):
+            moving = births <= i + 1
+            if moving.any():
+                x[moving] = ct.f(x[moving])
+            out[i, present[i]] = x[present[i]]
+        out.flags.writeable = False
+        return out
+
+    def truth(self, T: float = 1.0) -> list[Truth]:
+        """Ground truth for scans ``1..K`` (index ``i`` holds scan ``i + 1``)."""
+        states = _states(self, float(T))  # cached, read-only; indexing below copies
+        present = self.presence()
+        ids = np.array(self.ids, dtype=object)
+        return [
+            Truth(tuple(ids[present[i]]), states[i, present[i]].reshape(-1, STATE_DIM))
+            for i in range(self.K)
+        ]
+
+    def cardinality(self) -> np.ndarray:
+        """``(K,)`` number of targets present at each scan."""
+        return self.presence().sum(axis=1)
+
+    def adapt_params(self, params: ModelParams) -> ModelParams:
+        """Apply the scenario's defaults to ``params``.
+
+        If the scenario has a ``default_snr_db`` (the ``snr`` scenario: -3 dB) and
+        ``params.snr_db`` is unset, return a copy with ``snr_db`` set; otherwise return
+        ``params`` unchanged.
+        """
+        if self.default_snr_db is not None and params.snr_db is None:
+            return msgspec.structs.replace(params, snr_db=float(self.default_snr_db))
+        return params
+
+
+@functools.lru_cache(maxsize=64)
+def _states(scenario: Scenario, T: float) -> np.ndarray:
+    return scenario._compute_states(T)
+
+
+# ----------------------------------------------------------------------------------
+# Scenario tables
+# ----------------------------------------------------------------------------------
+_VO2017_TABLE = [
+    ((1003.8676, -10.0, 1488.2543, -10.0, WTURN / 8), 1, 100),
+    ((-255.8857, 20.0, 1011.4102, 3.0, -WTURN / 3), 10, 100),
+    ((-1507.3806, 11.0, 256.7993, 10.0, -WTURN / 2), 10, 100),
+    ((-1500.0, 43.0, 250.0, 0.0, 0.0), 10, 66),
+    ((246.1324, 11.0, 738.9253, 5.0, WTURN / 4), 20, 80),
+    ((-242.6194, -12.0, 993.2007, -12.0, WTURN / 2), 40, 100),
+    ((1000.0, 0.0, 1500.0, -10.0, WTURN / 4), 40, 100),
+    ((250.0, -50.0, 750.0, 0.0, -WTURN / 4), 40, 80),
+    ((1000.0, -50.0, 1500.0, 0.0, -WTURN / 4), 60, 100),
+    ((250.0, -40.0, 750.0, 25.0, WTURN / 4), 60, 100),
+]
+
+_VO2017_TARGETS = tuple(
+    TargetSpec(f"T{i + 1}", xs, b, d) for i, (xs, b, d) in enumerate(_VO2017_TABLE)
+)
+
+# proximity: births/deaths of the paper (k = 0 mapped to scan 1)
+_PROX_BIRTHS = (1, 5, 20, 30, 40)
+_PROX_DEATHS = (70, 100, 100, 45, 80)
+# f^{-1}(s0): the CT transition over -T is its exact inverse (T = 1).
+_PROX_XSTART = tuple(
+    float(v) for v in CoordinatedTurn(T=-1.0).f(np.asarray(PROXIMITY_PATH_START, dtype=float))
+)
+_PROXIMITY_TARGETS = tuple(
+    TargetSpec(f"T{i + 1}", _PROX_XSTART, b, d)
+    for i, (b, d) in enumerate(zip(_PROX_BIRTHS, _PROX_DEATHS, strict=True))
+)
+
+# snr: state at the birth scan [px, vx, py, vy] (omega = 0), birth, death
+_SNR_TABLE = [
+    ((-1200.0, 10.0, 1200.0, -5.0), 1, 100),
+    ((300.0, 8.0, 400.0, 6.0), 1, 90),
+    ((1000.0, -5.0, 1200.0, -12.0), 1, 80),
+    ((-400.0, -12.0, 300.0, 10.0), 10, 100),
+    ((1500.0, -20.0, 600.0, 5.0), 10, 75),
+    ((0.0, 5.0, 1800.0, -20.0), 20, 100),
+    ((-800.0, 25.0, 600.0, 0.0), 20, 85),
+    ((600.0, -15.0, 1500.0, -5.0), 30, 95),
+    ((200.0, 6.0, 900.0, 2.0), 40, 100),
+    ((-1000.0, 10.0, 1400.0, -20.0), 50, 90),
+    ((1200.0, -5.0, 300.0, 15.0), 60, 100),
+]
+_SNR_TARGETS = tuple(
+    TargetSpec(f"T{i + 1}", (px - vx, vx, py - vy, vy, 0.0), b, d)
+    for i, ((px, vx, py, vy), b, d) in enumerate(_SNR_TABLE)
+)
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario(
+            "vo2017",
+            "Vo, Vo & Hoang (2017) Sec. IV.B: 10 coordinated-turn targets, bearing-range "
+            "sensor (experiments 1 and 5)",
+            targets=_VO2017_TARGETS,
+        ),
+        Scenario(
+            "dpy5",
+            "Targets 1-5 of vo2017 (experiment 4: DPY-STP vs GLMB, at most 5 targets)",
+            targets=_VO2017_TARGETS[:5],
+        ),
+        Scenario(
+            "proximity",
+            "Close proximity: 5 targets on the same constant-turn arc, entering at scans "
+            "1, 5, 20, 30, 40 and leaving at 70, 100, 100, 45, 80 (experiment 2)",
+            targets=_PROXIMITY_TARGETS,
+        ),
+        Scenario(
+            "snr",
+            "Varying SNR: 11 straight-line targets, range-only sensor, default SNR -3 dB "
+            "(experiment 3)",
+            targets=_SNR_TARGETS,
+            kind="range",
+            default_snr_db=-3.0,
+        ),
+    )
+}
+
+
+def scenario_names() -> tuple[str, ...]:
+    return tuple(SCENARIOS)
+
+
+def get_scenario(name: str) -> Scenario:
+    """Look a scenario up by name; raises :class:`ConfigError` listing the valid names."""
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown scenario {name!r}; valid scenarios: {', '.join(SCENARIOS)}"
+        ) from None

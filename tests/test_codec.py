@@ -1,0 +1,471 @@
+"""Tests for the versioned JSON message schema (pipeline.codec)."""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+
+import msgspec
+import numpy as np
+import pytest
+
+from pipeline import codec
+from pipeline.codec import (
+    MAX_MEASUREMENTS,
+    MAX_TRACKS,
+    SCHEMA_VERSION,
+    TOPIC_MEASUREMENTS,
+    TOPIC_TRACKS,
+    TOPIC_TRUTH,
+    CodecError,
+    MeasurementsMsg,
+    TracksMsg,
+    TruthMsg,
+    decode_measurements,
+    decode_measurements_msg,
+    decode_tracks,
+    decode_truth,
+    encode_measurements,
+    encode_tracks,
+    encode_truth,
+    json_schema,
+    validate_msg,
+)
+from tracker.types import Estimate, Frame, TrackEstimate, Truth
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def make_frame(rng, k=7, kind="bearing_range", m=20, stamp=None) -> Frame:
+    if kind == "bearing_range":
+        z = np.c_[rng.uniform(-np.pi, np.pi, m), rng.uniform(0.0, 2000.0, m)]
+    else:
+        z = rng.uniform(0.0, 2000.0, (m, 1))
+    return Frame(
+        frame=k,
+        stamp_ns=stamp if stamp is not None else 1_700_000_000_000_000_000 + k,
+        sensor="radar0",
+        kind=kind,
+        z=z,
+    )
+
+
+def make_truth(rng, n=4) -> Truth:
+    return Truth(ids=tuple(f"obj{i}" for i in range(n)), states=rng.normal(0, 100, (n, 5)))
+
+
+def make_estimate(rng, k=7, n=3, m=6) -> Estimate:
+    tracks = []
+    for i in range(n):
+        a = rng.normal(size=(5, 5))
+        tracks.append(
+            TrackEstimate(
+                label=f"t{i}",
+                state=rng.normal(0, 100, 5),
+                covariance=a @ a.T,
+                existence=float(rng.uniform()),
+            )
+        )
+    labels = [f"t{i}" for i in range(n)] + [None]
+    assignments = tuple(labels[int(j)] for j in rng.integers(0, n + 1, m))
+    return Estimate(
+        frame=k,
+        stamp_ns=123_456_789 + k,
+        tracks=tuple(tracks),
+        assignments=assignments,
+        assignment_prob=tuple(float(p) for p in rng.uniform(0, 1, m)),
+        diagnostics={"alpha": 1.25, "n_clusters": 3.0, "loglik": -123.456, "ms": 2.5},
+    )
+
+
+def assert_frames_equal(a: Frame, b: Frame) -> None:
+    assert (a.frame, a.stamp_ns, a.sensor, a.kind) == (b.frame, b.stamp_ns, b.sensor, b.kind)
+    assert a.z.shape == b.z.shape
+    assert np.array_equal(a.z, b.z)
+
+
+def assert_estimates_equal(a: Estimate, b: Estimate) -> None:
+    assert (a.frame, a.stamp_ns) == (b.frame, b.stamp_ns)
+    assert len(a.tracks) == len(b.tracks)
+    for s, t in zip(a.tracks, b.tracks):
+        assert s.label == t.label
+        assert np.array_equal(np.asarray(s.state), t.state)
+        assert np.array_equal(np.asarray(s.covariance), t.covariance)
+        assert t.covariance.shape == (5, 5)
+        assert s.existence == t.existence
+    assert tuple(a.assignments) == tuple(b.assignments)
+    assert tuple(a.assignment_prob) == tuple(b.assignment_prob)
+    assert a.diagnostics == b.diagnostics
+
+
+def raw(obj) -> bytes:
+    return json.dumps(obj).encode()
+
+
+def meas_obj(**over):
+    obj = {
+        "frame": 7,
+        "stamp_ns": 1000,
+        "sensor": "radar0",
+        "kind": "bearing_range",
+        "z": [[0.1, 10.0], [-0.2, 20.0]],
+    }
+    obj.update(over)
+    return obj
+
+
+def tracks_obj(**over):
+    obj = {
+        "frame": 7,
+        "stamp_ns": 1000,
+        "tracks": [
+            {"label": "t1", "state": [1.0] * 5, "covariance": [0.0] * 25, "existence": 0.9}
+        ],
+        "assignments": ["t1", None],
+        "assignment_prob": [0.8, 0.1],
+    }
+    obj.update(over)
+    return obj
+
+
+def truth_obj(**over):
+    obj = {"frame": 7, "stamp_ns": 1000, "objects": [{"id": "a", "state": [1.0] * 5}]}
+    obj.update(over)
+    return obj
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("kind", ["bearing_range", "range"])
+@pytest.mark.parametrize("m", [0, 1, 57])
+def test_measurements_round_trip(kind, m):
+    rng = np.random.default_rng(1 + m)
+    f = make_frame(rng, kind=kind, m=m)
+    g = decode_measurements(encode_measurements(f))
+    assert_frames_equal(f, g)
+    assert g.truth is None
+    assert g.z.dtype == np.float64
+
+
+def test_measurements_round_trip_edge_values():
+    z = np.array([[np.pi, 0.0], [-np.pi, 1e-300], [-0.0, 1e300], [1 / 3, 5e-324]])
+    f = Frame(0, 0, "s", "bearing_range", z)
+    g = decode_measurements(encode_measurements(f))
+    assert np.array_equal(g.z, z)
+    assert math.copysign(1.0, g.z[2, 0]) == -1.0  # -0.0 survives
+
+
+def test_measurements_json_field_names_and_run():
+    rng = np.random.default_rng(2)
+    f = make_frame(rng, k=3, m=2)
+    obj = json.loads(encode_measurements(f, run="run-42"))
+    assert set(obj) == {"v", "run", "frame", "stamp_ns", "sensor", "kind", "z"}
+    assert obj["v"] == SCHEMA_VERSION == 1
+    assert obj["run"] == "run-42"
+    assert obj["frame"] == 3 and obj["kind"] == "bearing_range" and obj["sensor"] == "radar0"
+    assert obj["z"] == f.z.tolist()
+    assert decode_measurements_msg(encode_measurements(f, run="run-42")).run == "run-42"
+
+
+def test_measurements_five_fields_only_decode():
+    f = decode_measurements(raw(meas_obj()))
+    assert f.frame == 7 and f.stamp_ns == 1000
+    assert np.array_equal(f.z, [[0.1, 10.0], [-0.2, 20.0]])
+    msg = decode_measurements_msg(raw(meas_obj()))
+    assert msg.v == 1 and msg.run == ""
+    g = decode_measurements(raw(meas_obj(kind="range", z=[[1.0], [2.5]])))
+    assert g.z.shape == (2, 1)
+
+
+def test_integer_json_numbers_accepted_as_floats():
+    f = decode_measurements(raw(meas_obj(z=[[0, 10]])))
+    assert f.z.dtype == np.float64 and np.array_equal(f.z, [[0.0, 10.0]])
+
+
+def test_numpy_scalars_encode():
+    rng = np.random.default_rng(3)
+    f = Frame(np.int64(4), np.int64(99), "s", "range", rng.uniform(0, 1, (3, 1)))
+    assert decode_measurements(encode_measurements(f)).frame == 4
+
+
+def test_truth_round_trip():
+    rng = np.random.default_rng(4)
+    t = make_truth(rng, 5)
+    data = encode_truth(11, 777, t, run="r")
+    obj = json.loads(data)
+    assert set(obj) == {"v", "run", "frame", "stamp_ns", "objects"}
+    assert set(obj["objects"][0]) == {"id", "state"}
+    k, stamp, u = decode_truth(data)
+    assert (k, stamp) == (11, 777)
+    assert u.ids == t.ids
+    assert np.array_equal(u.states, t.states)
+
+
+def test_truth_empty_round_trip():
+    t = Truth(ids=(), states=np.zeros((0, 5)))
+    k, stamp, u = decode_truth(encode_truth(0, 0, t))
+    assert u.ids == () and u.states.shape == (0, 5)
+
+
+def test_tracks_round_trip():
+    rng = np.random.default_rng(5)
+    est = make_estimate(rng)
+    data = encode_tracks(est, run="r1")
+    obj = json.loads(data)
+    assert set(obj) == {
+        "v", "run", "frame", "stamp_ns", "tracks", "assignments", "assignment_prob", "diagnostics",
+    }
+    assert set(obj["tracks"][0]) == {"label", "state", "covariance", "existence"}
+    assert len(obj["tracks"][0]["covariance"]) == 25
+    # row-major covariance
+    assert obj["tracks"][0]["covariance"][1] == est.tracks[0].covariance[0, 1]
+    assert obj["tracks"][0]["covariance"][5] == est.tracks[0].covariance[1, 0]
+    assert_estimates_equal(est, decode_tracks(data))
+
+
+def test_tracks_empty_and_default_diagnostics():
+    est = Estimate(frame=0, stamp_ns=0, tracks=())
+    out = decode_tracks(encode_tracks(est))
+    assert out.tracks == () and out.assignments == () and out.diagnostics == {}
+    # diagnostics is optional on decode
+    obj = tracks_obj()
+    assert "diagnostics" not in obj
+    assert decode_tracks(raw(obj)).diagnostics == {}
+
+
+def test_json_schema():
+    for t, topic in [
+        (MeasurementsMsg, TOPIC_MEASUREMENTS),
+        (TruthMsg, TOPIC_TRUTH),
+        (TracksMsg, TOPIC_TRACKS),
+    ]:
+        s = json_schema(t)
+        assert s == json_schema(topic)
+        json.dumps(s)
+        defs = s["$defs"][t.__name__]
+        assert "frame" in defs["properties"] and "v" in defs["properties"]
+        assert "v" not in defs["required"] and "run" not in defs["required"]
+        assert defs["additionalProperties"] is False
+    props = json_schema(MeasurementsMsg)["$defs"]["MeasurementsMsg"]["properties"]
+    assert props["kind"]["enum"] == ["bearing_range", "range"]
+    with pytest.raises(ValueError):
+        json_schema("/nope")
+
+
+# --------------------------------------------------------------------------- rejection
+
+
+def check_err(exc_info, topic, frame, *fragments):
+    e = exc_info.value
+    assert isinstance(e, ValueError)
+    assert e.topic == topic
+    assert e.frame == frame
+    text = str(e)
+    assert topic in text
+    if frame is not None:
+        assert f"frame {frame}" in text
+    for frag in fragments:
+        assert frag in text, text
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_encode_rejects_non_finite_measurement(bad):
+    rng = np.random.default_rng(6)
+    f = make_frame(rng, k=7, m=5)
+    z = f.z.copy()
+    z[3, 1] = bad
+    with pytest.raises(CodecError) as ei:
+        encode_measurements(Frame(7, 1, "s", "bearing_range", z))
+    check_err(ei, TOPIC_MEASUREMENTS, 7, "non-finite", "$.z[3][1]")
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        (b'{"frame": 7, "stamp_ns": 1, "sensor": "s", "kind": "range", "z": [[NaN]]}', "non-finite"),
+        (b'{"frame": 7, "stamp_ns": 1, "sensor": "s", "kind": "range", "z": [[Infinity]]}', "non-finite"),
+        (b'{"frame": 7, "stamp_ns": 1, "sensor": "s", "kind": "range", "z": [[null]]}', "$.z[0][0]"),
+        (b'{"frame": 7, "stamp_ns": 1, "sensor": "s", "kind": "range", "z": [[1e999]]}', "$.z[0][0]"),
+    ],
+)
+def test_decode_rejects_non_finite(text, fragment):
+    with pytest.raises(CodecError) as ei:
+        decode_measurements(text)
+    check_err(ei, TOPIC_MEASUREMENTS, 7, fragment)
+
+
+def test_validate_rejects_nan_in_hand_built_struct():
+    msg = MeasurementsMsg(frame=2, stamp_ns=0, sensor="s", kind="bearing_range", z=[[0.0, 1.0], [0.1, math.nan]])
+    with pytest.raises(CodecError) as ei:
+        validate_msg(msg)
+    check_err(ei, TOPIC_MEASUREMENTS, 2, "non-finite", "$.z[1][1]")
+    with pytest.raises(CodecError):
+        codec.encode_msg(msg)
+    tmsg = TracksMsg(
+        frame=3, stamp_ns=0, tracks=[], assignments=[None], assignment_prob=[math.nan]
+    )
+    with pytest.raises(CodecError) as ei:
+        validate_msg(tmsg)
+    check_err(ei, TOPIC_TRACKS, 3, "$.assignment_prob[0]")
+
+
+@pytest.mark.parametrize(
+    "over, frame, fragments",
+    [
+        ({"frame": -1}, -1, ["$.frame"]),
+        ({"stamp_ns": -5}, 7, ["$.stamp_ns"]),
+        ({"z": [[0.1]]}, 7, ["length 1, expected 2", "$.z[0]"]),
+        ({"z": [[0.1, 1.0], [0.2, 3.0, 4.0]]}, 7, ["$.z[1]"]),
+        ({"kind": "range", "z": [[1.0], [0.1, 2.0]]}, 7, ["length 2, expected 1", "$.z[1]"]),
+        ({"z": [[0.1, -1.0]]}, 7, ["range must be >= 0", "$.z[0][1]"]),
+        ({"kind": "range", "z": [[-0.5]]}, 7, ["range must be >= 0", "$.z[0][0]"]),
+        ({"z": [[0.0, 1.0], [3.2, 1.0]]}, 7, ["bearing", "$.z[1][0]"]),
+        ({"z": [[-3.15, 1.0]]}, 7, ["bearing", "$.z[0][0]"]),
+        ({"v": 2}, 7, ["unsupported schema version 2"]),
+        ({"v": 0}, 7, ["unsupported schema version 0"]),
+        ({"v": 2, "new_field": [1, 2]}, 7, ["unsupported schema version 2"]),
+        ({"extra": 1}, 7, ["unknown field", "extra"]),
+        ({"frame": "7"}, None, ["$.frame"]),
+        ({"frame": 7.5}, None, ["$.frame"]),
+        ({"z": "abc"}, 7, ["$.z"]),
+        ({"z": [["a", 1.0]]}, 7, ["$.z[0][0]"]),
+        ({"kind": "sonar"}, 7, ["$.kind"]),
+        ({"sensor": 5}, 7, ["$.sensor"]),
+        ({"run": None}, 7, ["$.run"]),
+    ],
+)
+def test_decode_measurements_rejects(over, frame, fragments):
+    with pytest.raises(CodecError) as ei:
+        decode_measurements(raw(meas_obj(**over)))
+    check_err(ei, TOPIC_MEASUREMENTS, frame, *fragments)
+
+
+def test_decode_rejects_missing_field_and_garbage():
+    obj = meas_obj()
+    del obj["kind"]
+    with pytest.raises(CodecError) as ei:
+        decode_measurements(raw(obj))
+    check_err(ei, TOPIC_MEASUREMENTS, 7, "kind")
+    with pytest.raises(CodecError) as ei:
+        decode_measurements(b"\x00\x01garbage")
+    assert ei.value.frame is None and "/measurements" in str(ei.value)
+    with pytest.raises(CodecError):
+        decode_measurements(b"[1, 2]")
+
+
+def test_too_many_measurements():
+    z = [[0.0, 1.0]] * (MAX_MEASUREMENTS + 1)
+    with pytest.raises(CodecError) as ei:
+        decode_measurements(raw(meas_obj(z=z)))
+    check_err(ei, TOPIC_MEASUREMENTS, 7, "$.z")
+    with pytest.raises(CodecError):
+        encode_measurements(Frame(7, 0, "s", "bearing_range", np.array(z)))
+    # the limit itself is fine
+    assert decode_measurements(raw(meas_obj(z=z[:-1]))).n_measurements == MAX_MEASUREMENTS
+
+
+@pytest.mark.parametrize(
+    "over, fragments",
+    [
+        ({"objects": [{"id": "a", "state": [1.0] * 4}]}, ["$.objects[0].state"]),
+        ({"objects": [{"id": "a", "state": [1.0] * 5}, {"id": "a", "state": [2.0] * 5}]}, ["duplicate", "$.objects[1]"]),
+        ({"objects": [{"id": 3, "state": [1.0] * 5}]}, ["$.objects[0].id"]),
+        ({"objects": [{"id": "a", "state": [1.0] * 5, "x": 1}]}, ["unknown field"]),
+        ({"v": 3}, ["unsupported schema version 3"]),
+        ({"frame": -2}, ["$.frame"]),
+    ],
+)
+def test_decode_truth_rejects(over, fragments):
+    with pytest.raises(CodecError) as ei:
+        decode_truth(raw(truth_obj(**over)))
+    frame = over.get("frame", 7)
+    check_err(ei, TOPIC_TRUTH, frame, *fragments)
+
+
+def test_encode_truth_rejects_nan():
+    t = Truth(ids=("a", "b"), states=np.array([[0.0] * 5, [0.0, 1.0, np.nan, 0.0, 0.0]]))
+    with pytest.raises(CodecError) as ei:
+        encode_truth(9, 0, t)
+    check_err(ei, TOPIC_TRUTH, 9, "non-finite", "$.objects[1].state[2]")
+
+
+def _track(**over):
+    t = {"label": "t1", "state": [1.0] * 5, "covariance": [0.0] * 25, "existence": 0.9}
+    t.update(over)
+    return t
+
+
+@pytest.mark.parametrize(
+    "over, fragments",
+    [
+        ({"tracks": [_track(covariance=[0.0] * 24)]}, ["$.tracks[0].covariance"]),
+        ({"tracks": [_track(state=[0.0] * 6)]}, ["$.tracks[0].state"]),
+        ({"tracks": [_track(existence=1.5)]}, ["$.tracks[0].existence"]),
+        ({"tracks": [_track(existence=-0.1)]}, ["$.tracks[0].existence"]),
+        ({"tracks": [_track(), _track()]}, ["duplicate", "t1"]),
+        ({"assignment_prob": [0.5, 1.01]}, ["$.assignment_prob[1]"]),
+        ({"assignment_prob": [0.5]}, ["len(assignments) = 2", "len(assignment_prob) = 1"]),
+        ({"assignments": ["t1", 3]}, ["$.assignments[1]"]),
+        ({"diagnostics": {"alpha": "x"}}, ["$.diagnostics"]),
+        ({"v": 2}, ["unsupported schema version 2"]),
+        ({"tracks": [_track(label=f"t{i}") for i in range(MAX_TRACKS + 1)]}, ["$.tracks"]),
+    ],
+)
+def test_decode_tracks_rejects(over, fragments):
+    with pytest.raises(CodecError) as ei:
+        decode_tracks(raw(tracks_obj(**over)))
+    check_err(ei, TOPIC_TRACKS, 7, *fragments)
+
+
+def test_encode_tracks_rejects_bad_estimates():
+    rng = np.random.default_rng(8)
+    est = make_estimate(rng, k=12)
+    bad_diag = Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments, est.assignment_prob, {"loglik": -np.inf})
+    with pytest.raises(CodecError) as ei:
+        encode_tracks(bad_diag)
+    check_err(ei, TOPIC_TRACKS, 12, "non-finite", "$.diagnostics.loglik")
+    t0 = est.tracks[0]
+    cov = t0.covariance.copy()
+    cov[2, 3] = np.nan
+    bad_cov = Estimate(12, 0, (TrackEstimate("x", t0.state, cov, 0.5),))
+    with pytest.raises(CodecError) as ei:
+        encode_tracks(bad_cov)
+    check_err(ei, TOPIC_TRACKS, 12, "non-finite", "$.tracks[0].covariance[13]")
+    mismatch = Estimate(12, 0, est.tracks, ("t0",), (0.5, 0.5))
+    with pytest.raises(CodecError):
+        encode_tracks(mismatch)
+    short_state = Estimate(12, 0, (TrackEstimate("x", np.zeros(4), np.eye(5), 0.5),))
+    with pytest.raises(CodecError) as ei:
+        encode_tracks(short_state)
+    check_err(ei, TOPIC_TRACKS, 12, "$.tracks[0].state")
+    neg = Estimate(-1, 0, ())
+    with pytest.raises(CodecError):
+        encode_tracks(neg)
+
+
+def test_codec_error_is_value_error_and_picklable():
+    with pytest.raises(ValueError):
+        decode_measurements(raw(meas_obj(frame=-1)))
+    e = CodecError("/measurements", 4, "boom")
+    e2 = pickle.loads(pickle.dumps(e))
+    assert (e2.topic, e2.frame, e2.message, str(e2)) == ("/measurements", 4, "boom", str(e))
+
+
+def test_codec_does_not_import_zenoh():
+    import subprocess
+    import sys
+
+    code = "import sys, pipeline.codec; assert 'zenoh' not in sys.modules, 'zenoh imported'"
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+
+
+def test_decode_msg_dispatch():
+    rng = np.random.default_rng(9)
+    f = make_frame(rng)
+    assert isinstance(codec.decode_msg(TOPIC_MEASUREMENTS, encode_measurements(f)), MeasurementsMsg)
+    with pytest.raises(ValueError):
+        codec.decode_msg("/other", b"{}")
+    assert isinstance(msgspec.json.decode(encode_measurements(f)), dict)

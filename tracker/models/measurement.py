@@ -1,0 +1,159 @@
+r"""Sensor models at a fixed sensor position (the origin by default).
+
+Bearing is measured from the :math:`+y` axis, positive towards :math:`+x`
+(Vo et al. 2017's convention; see ``docs/models.md`` for why we do not use the paper's
+:math:`\arctan(y/x)`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from tracker.models._gauss import gaussian_logpdf
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles to :math:`[-\\pi, \\pi)`."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class BearingRange:
+    r"""Bearing-range sensor (paper eq. (11) with the simulation section's :math:`R(\cdot)`).
+
+    .. math::
+
+        z = h(x) + w, \qquad
+        h(x) = \begin{bmatrix} \operatorname{atan2}(p_x - s_x,\; p_y - s_y) \\
+                               \sqrt{(p_x - s_x)^2 + (p_y - s_y)^2} \end{bmatrix},
+        \qquad w \sim \mathcal N\!\left(0, \operatorname{diag}(\sigma_\phi^2, \sigma_r^2)\right)
+
+    Bearing residuals are wrapped to :math:`[-\pi, \pi)`.
+    """
+
+    sigma_bearing: float = np.deg2rad(2.0)
+    sigma_range: float = 10.0
+    sensor_x: float = 0.0
+    sensor_y: float = 0.0
+
+    dim: int = 2
+    kind: str = "bearing_range"
+
+    @cached_property
+    def R(self) -> np.ndarray:
+        """Measurement noise covariance ``(2, 2)``."""
+        return np.diag([self.sigma_bearing**2, self.sigma_range**2])
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        """Noise-free measurement of ``(N, >=3)`` states -> ``(N, 2)``."""
+        x = np.asarray(x, dtype=float)
+        dx = x[..., 0] - self.sensor_x
+        dy = x[..., 2] - self.sensor_y
+        return np.stack([np.arctan2(dx, dy), np.hypot(dx, dy)], axis=-1)
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        r"""``(N, 2, n)`` Jacobian :math:`\partial h/\partial x` (zeros for velocity, turn rate).
+
+        .. math::
+            \frac{\partial\phi}{\partial p_x} = \frac{\Delta y}{r^2},\;
+            \frac{\partial\phi}{\partial p_y} = -\frac{\Delta x}{r^2},\;
+            \frac{\partial r}{\partial p_x} = \frac{\Delta x}{r},\;
+            \frac{\partial r}{\partial p_y} = \frac{\Delta y}{r}
+        """
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        dx = x[:, 0] - self.sensor_x
+        dy = x[:, 2] - self.sensor_y
+        r2 = np.maximum(dx**2 + dy**2, 1e-12)
+        r = np.sqrt(r2)
+        H = np.zeros((x.shape[0], 2, x.shape[1]))
+        H[:, 0, 0] = dy / r2
+        H[:, 0, 2] = -dx / r2
+        H[:, 1, 0] = dx / r
+        H[:, 1, 2] = dy / r
+        return H
+
+    def residual(self, z: np.ndarray, z_pred: np.ndarray) -> np.ndarray:
+        """``z - z_pred`` with the bearing component wrapped (broadcasts)."""
+        d = np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
+        d[..., 0] = wrap_angle(d[..., 0])
+        return d
+
+    def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
+        """Draw one noisy measurement per state row; bearing wrapped."""
+        zp = self.h(np.atleast_2d(x))
+        z = zp + rng.standard_normal(zp.shape) * np.array([self.sigma_bearing, self.sigma_range])
+        z[:, 0] = wrap_angle(z[:, 0])
+        return z
+
+    def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """:math:`\\log \\mathcal N(z; h(x), R)` for paired rows of ``z`` and ``x``."""
+        return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
+
+    def to_cartesian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""Convert ``(M, 2)`` bearing-range measurements to positions and covariances.
+
+        .. math::
+            p = s + r\,[\sin\phi, \cos\phi]^T, \qquad
+            P = J R J^T, \quad
+            J = \begin{bmatrix} r\cos\phi & \sin\phi \\ -r\sin\phi & \cos\phi \end{bmatrix}
+
+        Returns ``(M, 2)`` positions ``[p_x, p_y]`` and ``(M, 2, 2)`` first-order covariances.
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        phi, r = z[:, 0], z[:, 1]
+        s, c = np.sin(phi), np.cos(phi)
+        pos = np.stack([self.sensor_x + r * s, self.sensor_y + r * c], axis=-1)
+        J = np.empty((z.shape[0], 2, 2))
+        J[:, 0, 0] = r * c
+        J[:, 0, 1] = s
+        J[:, 1, 0] = -r * s
+        J[:, 1, 1] = c
+        cov = J @ self.R @ np.swapaxes(J, 1, 2)
+        return pos, cov
+
+
+@dataclass(frozen=True)
+class RangeOnly:
+    r"""Range-only sensor (the paper's varying-SNR experiment).
+
+    .. math::
+        z = \sqrt{(p_x - s_x)^2 + (p_y - s_y)^2} + w, \qquad w \sim \mathcal N(0, \sigma_r^2)
+    """
+
+    sigma_range: float = 10.0
+    sensor_x: float = 0.0
+    sensor_y: float = 0.0
+
+    dim: int = 1
+    kind: str = "range"
+
+    @cached_property
+    def R(self) -> np.ndarray:
+        return np.array([[self.sigma_range**2]])
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        return np.hypot(x[..., 0] - self.sensor_x, x[..., 2] - self.sensor_y)[..., None]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        dx = x[:, 0] - self.sensor_x
+        dy = x[:, 2] - self.sensor_y
+        r = np.maximum(np.hypot(dx, dy), 1e-6)
+        H = np.zeros((x.shape[0], 1, x.shape[1]))
+        H[:, 0, 0] = dx / r
+        H[:, 0, 2] = dy / r
+        return H
+
+    def residual(self, z: np.ndarray, z_pred: np.ndarray) -> np.ndarray:
+        return np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
+
+    def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
+        zp = self.h(np.atleast_2d(x))
+        return zp + self.sigma_range * rng.standard_normal(zp.shape)
+
+    def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)

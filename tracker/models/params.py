@@ -1,0 +1,118 @@
+"""Model parameter sets: sensor noise, P_D, clutter, P_S, process noise, field of view, birth.
+
+A parameter set is a named, typed, frozen struct.  The built-in sets ``vo2017`` (Vo, Vo & Hoang
+2017's demo) and ``paper`` (Moraffah & Papandreou-Suppappola) ship as TOML files in
+``tracker/params/``; every command accepts ``--params NAME|FILE.toml`` plus ``--set key=value``.
+See ``docs/models.md`` for the table of values and the choices made where the sources are silent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from tracker.config import ConfigError, apply_overrides, load_toml
+from tracker.models.clutter import Detection, UniformClutter
+from tracker.models.measurement import BearingRange, RangeOnly
+from tracker.models.motion import CoordinatedTurn
+
+Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+
+
+class BirthComponent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One labeled-multi-Bernoulli birth component: existence ``r`` and a Gaussian."""
+
+    r: Prob
+    mean: Annotated[list[float], msgspec.Meta(min_length=5, max_length=5)]
+    std: Annotated[list[float], msgspec.Meta(min_length=5, max_length=5)]
+
+
+class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Physical model parameters shared by the simulator and every tracker.
+
+    Angles in the TOML files are in degrees where the field name says so.
+    """
+
+    name: str
+    T: Positive = 1.0
+    sigma_accel: NonNeg = 5.0
+    """Process noise std of acceleration, m/s^2 (``s`` of the CT model)."""
+    sigma_turn_deg: NonNeg = 1.0
+    """Process noise std of the turn rate, deg/s."""
+    p_survival: Prob = 0.99
+    p_detect: Prob = 0.98
+    clutter_rate: NonNeg = 15.0
+    """Mean number of clutter measurements per scan."""
+    sigma_bearing_deg: Positive = 2.0
+    sigma_range: Positive = 10.0
+    range_max: Positive = 2000.0
+    bearing_half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 90.0
+    snr_db: float | None = None
+    """If set, measurement noise variance is scaled by ``10**(-snr_db/10)``."""
+    snr_pd_reference_db: float | None = None
+    """If set (with ``snr_db``), P_D follows the Swerling-I relation (see ``Detection``)."""
+    birth: list[BirthComponent] = msgspec.field(default_factory=list)
+
+    # --- model factories -------------------------------------------------------------
+    @property
+    def noise_scale(self) -> float:
+        """Variance multiplier from SNR: ``10**(-snr_db/10)`` (1 when no SNR is set)."""
+        return 1.0 if self.snr_db is None else 10.0 ** (-self.snr_db / 10.0)
+
+    def motion(self) -> CoordinatedTurn:
+        return CoordinatedTurn(self.T, self.sigma_accel, np.deg2rad(self.sigma_turn_deg))
+
+    def measurement(self, kind: str = "bearing_range") -> BearingRange | RangeOnly:
+        k = np.sqrt(self.noise_scale)
+        if kind == "bearing_range":
+            return BearingRange(np.deg2rad(self.sigma_bearing_deg) * k, self.sigma_range * k)
+        if kind == "range":
+            return RangeOnly(self.sigma_range * k)
+        raise ValueError(f"unknown sensor kind {kind!r}")
+
+    def clutter(self, kind: str = "bearing_range") -> UniformClutter:
+        half = np.deg2rad(self.bearing_half_fov_deg)
+        if kind == "bearing_range":
+            return UniformClutter(self.clutter_rate, (-half, 0.0), (half, self.range_max))
+        if kind == "range":
+            return UniformClutter(self.clutter_rate, (0.0,), (self.range_max,))
+        raise ValueError(f"unknown sensor kind {kind!r}")
+
+    def detection(self) -> Detection:
+        half = np.deg2rad(self.bearing_half_fov_deg)
+        return Detection(
+            self.p_detect,
+            self.range_max,
+            -half,
+            half,
+            snr_db=self.snr_db,
+            snr_reference_db=self.snr_pd_reference_db,
+        )
+
+
+BUILTIN_PARAMS = ("vo2017", "paper")
+
+
+def builtin_params_path(name: str) -> Path:
+    return Path(str(resources.files("tracker") / "params" / f"{name}.toml"))
+
+
+def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:
+    """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides."""
+    text = str(source)
+    if text in BUILTIN_PARAMS:
+        params = load_toml(builtin_params_path(text), ModelParams)
+    elif text.endswith(".toml") or Path(text).exists():
+        params = load_toml(text, ModelParams)
+    else:
+        raise ConfigError(
+            f"--params {text!r}: not a built-in set ({', '.join(BUILTIN_PARAMS)}) nor a .toml file"
+        )
+    return apply_overrides(params, overrides)

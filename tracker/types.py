@@ -1,0 +1,127 @@
+"""Plain data types that flow through bnptrack: frames in, estimates out.
+
+Every stage (offline ``bnptrack track``, the Zenoh pipeline, Monte Carlo experiments)
+passes the same few types, so the same tracker code runs everywhere.  They are frozen
+dataclasses over plain numpy arrays; arrays are batch-first (``(M, d)``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+SensorKind = Literal["bearing_range", "range"]
+
+#: Dimension of one measurement for each sensor kind.
+MEASUREMENT_DIM: dict[str, int] = {"bearing_range": 2, "range": 1}
+
+#: Object state layout used everywhere: ``[px, vx, py, vy, omega]``.
+STATE_DIM = 5
+POSITION_INDEX = (0, 2)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Ground-truth objects present at one frame.
+
+    ``ids`` are stable object identifiers (strings); ``states`` is ``(N, 5)``.
+    """
+
+    ids: tuple[str, ...]
+    states: np.ndarray
+
+    def __post_init__(self) -> None:
+        states = np.asarray(self.states, dtype=float).reshape(-1, STATE_DIM)
+        object.__setattr__(self, "states", states)
+        if len(self.ids) != states.shape[0]:
+            raise ValueError(
+                f"Truth: {len(self.ids)} ids but {states.shape[0]} states"
+            )
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(N, 2)`` positions ``[px, py]``."""
+        return self.states[:, POSITION_INDEX]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One scan of measurements from one sensor.
+
+    Attributes
+    ----------
+    frame:
+        Frame (scan) index, increasing by one per scan.
+    stamp_ns:
+        Sensor time stamp in nanoseconds.
+    sensor:
+        Sensor name (free text, e.g. ``"radar0"``).
+    kind:
+        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from +y towards +x)
+        or ``"range"`` (``z = [range_m]``).
+    z:
+        ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.
+    truth:
+        Ground truth at this frame when the source has it, else ``None``.
+    """
+
+    frame: int
+    stamp_ns: int
+    sensor: str
+    kind: SensorKind
+    z: np.ndarray
+    truth: Truth | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in MEASUREMENT_DIM:
+            raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r}")
+        z = np.asarray(self.z, dtype=float).reshape(-1, MEASUREMENT_DIM[self.kind])
+        object.__setattr__(self, "z", z)
+
+    @property
+    def n_measurements(self) -> int:
+        return int(self.z.shape[0])
+
+
+@dataclass(frozen=True)
+class TrackEstimate:
+    """One labelled object estimate: label, mean ``(5,)``, covariance ``(5, 5)``, existence."""
+
+    label: str
+    state: np.ndarray
+    covariance: np.ndarray
+    existence: float
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.state[list(POSITION_INDEX)]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A tracker's output for one frame.
+
+    ``assignments[m]`` is the label measurement ``m`` was assigned to (``None`` for clutter)
+    and ``assignment_prob[m]`` its posterior probability; ``diagnostics`` holds scalar
+    tracker diagnostics (alpha, d, number of clusters, log-likelihood, ms per frame).
+    """
+
+    frame: int
+    stamp_ns: int
+    tracks: tuple[TrackEstimate, ...]
+    assignments: tuple[str | None, ...] = ()
+    assignment_prob: tuple[float, ...] = ()
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(N, 2)`` estimated positions."""
+        if not self.tracks:
+            return np.zeros((0, 2))
+        return np.stack([t.position for t in self.tracks])
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(t.label for t in self.tracks)
