@@ -161,7 +161,9 @@ def _check_tracks(A: ArrayLike, name: str) -> np.ndarray:
 def _check_labelled_run(run: Sequence[LabelledScan], name: str) -> tuple[list[dict], int | None]:
     """Per-scan ``{label: (d,) position}`` dicts -> (list of dicts of arrays, d or None)."""
     if isinstance(run, (str, bytes, Mapping)) or not isinstance(run, Sequence):
-        raise ValueError(f"{name} must be a sequence (one entry per scan) of label -> position dicts")
+        raise ValueError(
+            f"{name} must be a sequence (one entry per scan) of label -> position dicts"
+        )
     out: list[dict] = []
     dim: int | None = None
     for k, scan in enumerate(run):
@@ -207,7 +209,7 @@ def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
         return OspaResult(c, 0.0, c)
     cost = D**p
     rows, cols = linear_sum_assignment(cost)
-    loc_term = math.fsum(cost[rows, cols]) / n  # fsum: exact, order-free (symmetry)
+    loc_term = math.fsum(cost[rows, cols]) / n  # correctly rounded, order-free
     card_term = c**p * (n - m) / n
     return OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
 
@@ -431,7 +433,9 @@ def ospa2_series(
             f"est_tracks and true_tracks must have one entry per scan: {len(est)} vs {len(true)}"
         )
     if d_est is not None and d_true is not None and d_est != d_true:
-        raise ValueError(f"est_tracks and true_tracks have mismatched dimensions: {d_est} vs {d_true}")
+        raise ValueError(
+            f"est_tracks and true_tracks have mismatched dimensions: {d_est} vs {d_true}"
+        )
     dim = d_est if d_est is not None else d_true
     out = np.zeros(len(est))
     if dim is None:

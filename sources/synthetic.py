@@ -65,7 +65,7 @@ class _Models:
 
     @classmethod
     def build(cls, params: ModelParams, kind: str) -> _Models:
-        return cls(kind, params.detection(), params.measurement(kind), params.clutter(kind))
+        return cls(kind, params.detection(kind), params.measurement(kind), params.clutter(kind))
 
     def measure(self, rng: np.random.Generator, truth: Truth) -> np.ndarray:
         d = MEASUREMENT_DIM[self.kind]

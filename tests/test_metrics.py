@@ -113,10 +113,11 @@ def test_ospa_empty_sets():
 
 
 def test_ospa_needs_optimal_assignment():
-    # Greedy nearest-first would pair (0,0)-(1,0) and leave (2,0)-(-1,0)=3: total 4 vs optimum 2+... check.
+    # Greedy nearest-first may pair (0,0)-(1,0) and be left with (2,0)-(-1,0) = 3 (mean 2);
+    # the optimum pairs (0,0)-(-1,0) and (2,0)-(1,0), both at distance 1.
     X = [[0, 0], [2, 0]]
     Y = [[1, 0], [-1, 0]]
-    assert ospa(X, Y).total == pytest.approx(brute_ospa(X, Y, 100, 1))
+    assert ospa(X, Y).total == 1.0 == brute_ospa(X, Y, 100, 1)
 
 
 def test_ospa_matches_brute_force_random():
@@ -136,7 +137,12 @@ def test_result_dataclasses():
         r.total = 1.0  # type: ignore[misc]
     g = gospa([[0, 0]], [])
     assert g.as_dict() == {
-        "total": 50.0, "localisation": 0.0, "missed": 50.0, "false": 0.0, "n_missed": 1, "n_false": 0
+        "total": 50.0,
+        "localisation": 0.0,
+        "missed": 50.0,
+        "false": 0.0,
+        "n_missed": 1,
+        "n_false": 0,
     }
     with pytest.raises(dataclasses.FrozenInstanceError):
         g.n_false = 3  # type: ignore[misc]
@@ -435,7 +441,9 @@ def test_ospa_metric_properties(X, Y, Z, c, p):
     dxy, dyx = ospa(X, Y, c, p), ospa(Y, X, c, p)
     dxz, dyz = ospa(X, Z, c, p).total, ospa(Y, Z, c, p).total
     assert ospa(X, X, c, p).total == 0.0
-    assert dxy == dyx
+    # symmetric up to rounding (near-tied assignments may be picked differently)
+    for a, b in zip(dataclasses.astuple(dxy), dataclasses.astuple(dyx)):
+        assert a == pytest.approx(b, rel=1e-12, abs=tol(c) * 1e-3)
     assert 0.0 <= dxy.total <= c * (1 + 1e-12)
     assert min(dxy.localisation, dxy.cardinality) >= 0.0
     assert dxy.total**p == pytest.approx(dxy.localisation**p + dxy.cardinality**p, rel=1e-9)
@@ -470,7 +478,9 @@ def track_triples(draw, n_tracks=1, max_w=6):
     """Three track sets (or single tracks) of ``(k, W, 2)`` over a shared window ``W``."""
     W = draw(st.integers(1, max_w))
     present = st.one_of(st.none(), st.tuples(coord, coord))
-    track = st.lists(present, min_size=W, max_size=W).filter(lambda r: any(x is not None for x in r))
+    track = st.lists(present, min_size=W, max_size=W).filter(
+        lambda r: any(x is not None for x in r)
+    )
     sizes = st.integers(n_tracks if n_tracks == 1 else 0, n_tracks)
     return tuple(tracks(*draw(st.lists(track, min_size=k, max_size=k))).reshape(-1, W, 2)
                  for k in (draw(sizes), draw(sizes), draw(sizes)))
@@ -493,7 +503,7 @@ def test_ospa2_metric_properties(xyz, c, p):
     X, Y, Z = xyz
     dxy = ospa2(X, Y, c, p)
     assert ospa2(X, X, c, p).total == 0.0
-    assert dxy == ospa2(Y, X, c, p)
+    assert dxy.total == pytest.approx(ospa2(Y, X, c, p).total, rel=1e-12, abs=tol(c) * 1e-3)
     assert 0.0 <= dxy.total <= c * (1 + 1e-12)
     if p == 1.0:
         assert dxy.total == dxy.localisation + dxy.cardinality

@@ -34,6 +34,7 @@ import msgspec
 import numpy as np
 
 from tracker import filtering as kf
+from tracker.base import BaseDistribution
 from tracker.gibbs import CLUTTER, NEW, GibbsProblem, run_gibbs
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
@@ -65,9 +66,12 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
     (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
     birth_velocity_std: Positive = 30.0
-    """Base distribution H: velocity std (m/s) of a new cluster."""
+    """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
     birth_turn_std_deg: Positive = 3.0
-    """Base distribution H: turn-rate std (deg/s) of a new cluster."""
+    """Base distribution H (uniform part): turn-rate std (deg/s) of a new cluster."""
+    base_uniform_weight: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
+    """Weight of the uniform part of H; the rest is the parameter set's birth regions
+    (1 = the paper's uninformative H)."""
     alpha: Positive = 0.1
     """Initial concentration alpha (kept fixed if ``infer_alpha`` is false)."""
     alpha_shape: Positive = 1.0
@@ -144,9 +148,12 @@ class BnpTracker:
     def motion(self):
         return self.params.motion()
 
+
     @cached_property
-    def detection(self):
-        return self.params.detection()
+    def base(self) -> BaseDistribution:
+        cfg = self.config
+        return BaseDistribution.from_params(self.params, cfg.base_uniform_weight, cfg.birth_velocity_std,
+                                            np.deg2rad(cfg.birth_turn_std_deg))
 
     @cached_property
     def alpha_grid(self) -> np.ndarray:
@@ -169,12 +176,12 @@ class BnpTracker:
         steps = 1 if state.frame < 0 else frame.frame - state.frame
         meas = self.params.measurement(frame.kind)
         clutter = self.params.clutter(frame.kind)
-        pred = self._predict(state, steps)
+        pred = self._predict(state, steps, frame.kind)
         innov = self._innovation(meas, pred)
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
-        born = self._births(frame, meas, result)
+        born = self._births(frame, meas, clutter, result)
         merged = _concat(existing, born)
         kept = self._prune(merged)
         alpha, d, hyper = self._hyper(rng, state, problem, result)
@@ -191,13 +198,15 @@ class BnpTracker:
                                    est.assignment_prob, diagnostics)
 
     # -- pieces ---------------------------------------------------------------------------
-    def _predict(self, state: BnpState, steps: int) -> _Prediction:
-        m, P = state.mean, state.cov
+    def _predict(self, state: BnpState, steps: int, kind: str) -> _Prediction:
+        """Transition (Algorithm 1, step 2): q = r * prod P_S(x) over the steps; phi = CT model."""
+        m, P, q = state.mean, state.cov, state.existence
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
         for _ in range(steps if state.n_clusters else 0):
             m, P = predict(self.motion, m, P)
-        q = state.existence * self.params.p_survival**steps
-        return _Prediction(m, P, q, self.detection.prob(m) if len(m) else np.zeros(0))
+            q = q * self.params.survival(m, kind)
+        p_detect = self.params.detection(kind).prob(m) if len(m) else np.zeros(0)
+        return _Prediction(m, P, q, p_detect)
 
     def _innovation(self, meas, pred: _Prediction):
         if self.config.filter == "ukf":
@@ -219,7 +228,7 @@ class BnpTracker:
             log_first=log_first,
             log_lik=log_lik,
             log_clutter=np.full(M, clutter.log_intensity),
-            log_new=np.full(M, clutter.log_density),
+            log_new=self.base.log_predictive(meas, clutter, Z),
             popularity=state.popularity,
             alpha=state.alpha,
             d=state.d,
@@ -256,37 +265,15 @@ class BnpTracker:
         pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
         return _Clusters(state.labels, mean, cov, r, pop)
 
-    def _births(self, frame: Frame, meas, result) -> "_Clusters":
+    def _births(self, frame: Frame, meas, clutter, result) -> "_Clusters":
+        """New clusters (case D3/P3) from measurements that opened one in some sweeps."""
         p_new = result.p_new
         idx = np.flatnonzero(p_new >= max(self.config.birth_min_prob, 1e-12))
         if idx.size == 0:
             return _Clusters.empty()
-        mean, cov = self._base_posterior(frame, meas, idx)
+        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind)
         labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
         return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
-
-    def _base_posterior(self, frame: Frame, meas, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Base distribution H conditioned on one measurement (case D3)."""
-        cfg = self.config
-        n = idx.size
-        z = frame.z[idx]
-        if frame.kind == "bearing_range":
-            pos, pcov = meas.to_cartesian(z)
-        else:  # range only: the bearing is unobserved; centre on the boresight, spread the arc
-            rng_m = z[:, 0]
-            half = np.deg2rad(self.params.bearing_half_fov_deg)
-            pos = np.stack([np.zeros(n), rng_m], axis=1)
-            pcov = np.zeros((n, 2, 2))
-            pcov[:, 0, 0] = (rng_m * 2 * half) ** 2 / 12.0
-            pcov[:, 1, 1] = meas.R[0, 0]
-        mean = np.zeros((n, 5))
-        mean[:, 0], mean[:, 2] = pos[:, 0], pos[:, 1]
-        cov = np.zeros((n, 5, 5))
-        cov[:, 0, 0], cov[:, 0, 2] = pcov[:, 0, 0], pcov[:, 0, 1]
-        cov[:, 2, 0], cov[:, 2, 2] = pcov[:, 1, 0], pcov[:, 1, 1]
-        cov[:, 1, 1] = cov[:, 3, 3] = cfg.birth_velocity_std**2
-        cov[:, 4, 4] = np.deg2rad(cfg.birth_turn_std_deg) ** 2
-        return mean, cov
 
     def _prune(self, c: "_Clusters") -> "_Clusters":
         keep = np.flatnonzero(c.existence >= self.config.prune_threshold)
@@ -328,22 +315,32 @@ class BnpTracker:
             TrackEstimate(lab, state.mean[i].copy(), state.cov[i].copy(), float(state.existence[i]))
             for i, lab in enumerate(state.labels) if lab in reported
         )
-        born_label = {int(lab.split(".")[1]): lab for lab in born.labels}
+        M = frame.n_measurements
+        # options per measurement: reported transitioned clusters, and its own newborn if reported
+        ex_labels = np.array(existing.labels, dtype=object)
+        ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
+        p_opts = result.p_cluster[ex_rep] if ex_rep.any() else np.zeros((0, M))
+        lab_opts = ex_labels[ex_rep]
+        born_p = np.zeros(M)
+        born_lab = np.full(M, None, dtype=object)
+        for lab in born.labels:
+            if lab in reported:
+                m = int(lab.split(".")[1])
+                born_p[m], born_lab[m] = result.p_new[m], lab
+        p_all = np.vstack([p_opts, born_p[None]])  # (R+1, M)
+        best = np.argmax(p_all, axis=0)
+        p_best = p_all[best, np.arange(M)]
+        p_none = np.clip(1.0 - p_all.sum(axis=0), 0.0, 1.0)
         assignments: list[str | None] = []
         probs: list[float] = []
-        for m in range(frame.n_measurements):
-            options = [(result.p_cluster[l, m], existing.labels[l]) for l in range(len(existing.labels))]
-            if m in born_label:
-                options.append((result.p_new[m], born_label[m]))
-            options = [(p, lab) for p, lab in options if lab in reported]
-            best = max(options, default=(0.0, None))
-            p_none = 1.0 - sum(p for p, _ in options)
-            if best[1] is None or p_none >= best[0]:
+        for m in range(M):
+            if p_best[m] <= p_none[m]:
                 assignments.append(None)
-                probs.append(float(np.clip(p_none, 0.0, 1.0)))
+                probs.append(float(p_none[m]))
             else:
-                assignments.append(best[1])
-                probs.append(float(best[0]))
+                b = int(best[m])
+                assignments.append(lab_opts[b] if b < lab_opts.size else born_lab[m])
+                probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
 
 

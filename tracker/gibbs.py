@@ -83,6 +83,7 @@ class GibbsResult:
     n_kept: int
 
 
+
 def initial_assignment(problem: GibbsProblem) -> np.ndarray:
     """Greedy start: each measurement to its best free cluster if that beats clutter and new."""
     N, M = problem.log_first.shape
@@ -148,6 +149,7 @@ def run_gibbs(
     tally_new = np.zeros(M)
     cl = c.tolist()
     cnt = counts.tolist()
+
     for s in range(sweeps):
         u_row = u_all[s]
         for m in range(M):
@@ -209,7 +211,7 @@ def run_gibbs(
 
 
 def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
-    """Unnormalised log posterior of an assignment vector (point or extended objects).
+    r"""Unnormalised log posterior of an assignment vector (point or extended objects).
 
     The product of the conditional weights in any order (the joint is exchangeable):
     clutter terms, the urn normaliser :math:`\prod_{i<M_o} (\alpha+V)/(\alpha+V+i)`,

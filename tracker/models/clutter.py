@@ -80,6 +80,8 @@ class Detection:
     snr_reference_db: float | None = None
     sensor_x: float = 0.0
     sensor_y: float = 0.0
+    range_only: bool = False
+    """A range-only sensor has no bearing limits (only the range limit applies)."""
 
     @cached_property
     def p_detect_effective(self) -> float:
@@ -90,15 +92,20 @@ class Detection:
         ref = 10.0 ** (self.snr_reference_db / 10.0)
         return float(self.p_detect ** ((1.0 + ref) / (1.0 + snr)))
 
-    def prob(self, x: np.ndarray) -> np.ndarray:
-        """``(N,)`` detection probabilities of ``(N, >=3)`` states."""
+    def visible(self, x: np.ndarray) -> np.ndarray:
+        """``(N,)`` booleans: the state's position lies inside the field of view."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         dx = x[:, 0] - self.sensor_x
         dy = x[:, 2] - self.sensor_y
         r = np.hypot(dx, dy)
+        if self.range_only:
+            return r <= self.range_max
         phi = np.arctan2(dx, dy)
-        visible = (r <= self.range_max) & (phi >= self.bearing_min) & (phi <= self.bearing_max)
-        return np.where(visible, self.p_detect_effective, 0.0)
+        return (r <= self.range_max) & (phi >= self.bearing_min) & (phi <= self.bearing_max)
+
+    def prob(self, x: np.ndarray) -> np.ndarray:
+        """``(N,)`` detection probabilities of ``(N, >=3)`` states."""
+        return np.where(self.visible(x), self.p_detect_effective, 0.0)
 
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
         """``(N,)`` boolean detection indicators."""

@@ -47,6 +47,9 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sigma_turn_deg: NonNeg = 1.0
     """Process noise std of the turn rate, deg/s."""
     p_survival: Prob = 0.99
+    p_survival_outside: Prob = 0.7
+    """Survival probability per scan of an object predicted outside the field of view
+    (trackers only; the surveillance region is the sensor's field of view)."""
     p_detect: Prob = 0.98
     clutter_rate: NonNeg = 15.0
     """Mean number of clutter measurements per scan."""
@@ -85,7 +88,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             return UniformClutter(self.clutter_rate, (0.0,), (self.range_max,))
         raise ValueError(f"unknown sensor kind {kind!r}")
 
-    def detection(self) -> Detection:
+    def detection(self, kind: str = "bearing_range") -> Detection:
         half = np.deg2rad(self.bearing_half_fov_deg)
         return Detection(
             self.p_detect,
@@ -94,7 +97,13 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             half,
             snr_db=self.snr_db,
             snr_reference_db=self.snr_pd_reference_db,
+            range_only=(kind == "range"),
         )
+
+    def survival(self, x: np.ndarray, kind: str = "bearing_range") -> np.ndarray:
+        """``(N,)`` P_S(x): ``p_survival`` inside the field of view, ``p_survival_outside`` beyond."""
+        inside = self.detection(kind).visible(x)
+        return np.where(inside, self.p_survival, self.p_survival_outside)
 
 
 BUILTIN_PARAMS = ("vo2017", "paper")

@@ -1,0 +1,95 @@
+"""Accuracy and speed of the BNP trackers on a scenario over many seeds.
+
+Prints, per tracker and parameter set: mean OSPA (total, localisation, cardinality; c=100,
+p=1, on position), OSPA(2) (window 10), mean |N_hat - N|, label switches per run and ms per
+frame (median, p95).  Each seed runs in its own process (``--workers``) and is timed on one
+core, so the ms figures are single-core figures.
+
+    python benchmarks/bnp_accuracy.py --trackers ddp dpyp --params vo2017 paper --seeds 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from sinks.metrics import ospa, ospa2_series  # noqa: E402
+from sources.scenarios import get_scenario  # noqa: E402
+from sources.synthetic import simulate_all  # noqa: E402
+from tracker.bnp_tracker import TRACKER_PRESETS, make_tracker  # noqa: E402
+from tracker.config import apply_overrides  # noqa: E402
+from tracker.models.params import load_params  # noqa: E402
+from tracker.state import run  # noqa: E402
+
+
+def label_switches(frames, estimates, gate: float = 100.0) -> int:
+    """Label changes of the track assigned to each true object (optimal assignment per frame,
+    pairs farther than ``gate`` unassigned); an object left unassigned keeps its last label."""
+    last: dict[str, str] = {}
+    switches = 0
+    for f, e in zip(frames, estimates):
+        if not e.tracks or not f.truth.ids:
+            continue
+        D = np.linalg.norm(f.truth.positions[:, None] - e.positions[None], axis=2)
+        rows, cols = linear_sum_assignment(np.minimum(D, gate))
+        for i, j in zip(rows, cols):
+            if D[i, j] >= gate:
+                continue
+            tid, lab = f.truth.ids[i], e.tracks[j].label
+            if tid in last and last[tid] != lab:
+                switches += 1
+            last[tid] = lab
+    return switches
+
+
+def one_run(job):
+    tracker_name, params_name, scenario, seed, overrides = job
+    params = get_scenario(scenario).adapt_params(load_params(params_name))
+    tracker = make_tracker(tracker_name, params, apply_overrides(TRACKER_PRESETS[tracker_name], overrides))
+    frames = simulate_all(get_scenario(scenario), params, seed)
+    rows, ests = [], []
+    for f, e, _ in run(tracker, frames, seed):
+        o = ospa(f.truth.positions, e.positions, c=100.0, p=1.0)
+        rows.append((o.total, o.localisation, o.cardinality, abs(len(e.tracks) - len(f.truth.ids)), e.diagnostics["ms"]))
+        ests.append(e)
+    true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
+    est_tracks = [{t.label: t.position for t in e.tracks} for e in ests]
+    o2 = ospa2_series(est_tracks, true_tracks, window=10, c=100.0, p=1.0)
+    r = np.array(rows)
+    return dict(ospa=r[:, 0].mean(), loc=r[:, 1].mean(), card=r[:, 2].mean(), ospa2=float(np.mean(o2)),
+                card_err=r[:, 3].mean(), switches=label_switches(frames, ests), ms=r[:, 4])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trackers", nargs="+", default=["ddp", "dpyp"])
+    ap.add_argument("--params", nargs="+", default=["vo2017", "paper"])
+    ap.add_argument("--scenario", default="vo2017")
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="tracker config override")
+    args = ap.parse_args()
+    print(f"scenario {args.scenario}, seeds 1..{args.seeds}, overrides {args.overrides or 'none'}")
+    print("| tracker | params | OSPA | loc | card | OSPA(2) w=10 | mean abs(N_hat-N) | label switches/run | ms/frame median | p95 |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    with ProcessPoolExecutor(args.workers) as pool:
+        for tr in args.trackers:
+            for pa in args.params:
+                jobs = [(tr, pa, args.scenario, s, args.overrides) for s in range(1, args.seeds + 1)]
+                res = list(pool.map(one_run, jobs))
+                ms = np.concatenate([r["ms"] for r in res])
+                mean = {k: np.mean([r[k] for r in res]) for k in ("ospa", "loc", "card", "ospa2", "card_err", "switches")}
+                print(f"| {tr} | {pa} | {mean['ospa']:.2f} | {mean['loc']:.2f} | {mean['card']:.2f} | {mean['ospa2']:.2f} | "
+                      f"{mean['card_err']:.3f} | {mean['switches']:.2f} | {np.median(ms):.2f} | {np.percentile(ms, 95):.2f} |",
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,432 @@
+"""Offline building blocks shared by the ``bnptrack`` commands (simulate, track, and later
+replay / experiment): resolving model parameters, tracker settings and ``--set`` overrides,
+and the offline tracking loop with per-frame metrics.
+
+Everything here is a plain function over plain data; the click commands in
+:mod:`pipeline.cli` only parse options, call these and print.  The tracker and the metrics
+(which pull in scipy) are imported where they are used, so ``bnptrack --help`` stays quick.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
+import numpy as np
+
+from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
+from sources.scenarios import get_scenario
+from sources.synthetic import simulate
+from tracker.config import ConfigError, apply_overrides, load_toml
+from tracker.models.params import ModelParams, load_params
+from tracker.state import run
+from tracker.types import Estimate, Frame
+
+if TYPE_CHECKING:
+    from tracker.bnp_tracker import BnpConfig, BnpTracker
+
+__all__ = [
+    "DEFAULT_PARAMS",
+    "TRACKERS",
+    "OSPA_C",
+    "OSPA_P",
+    "ParamsChoice",
+    "SimulationResult",
+    "FrameMetrics",
+    "TrackResult",
+    "format_overrides",
+    "parse_overrides",
+    "resolve_simulation_params",
+    "resolve_params",
+    "resolve_config",
+    "check_config",
+    "split_overrides",
+    "apply_split_overrides",
+    "build_tracker",
+    "simulate_to_log",
+    "frame_metrics",
+    "track_frames",
+    "track_log",
+    "default_tracks_path",
+    "check_output_path",
+]
+
+#: Parameter set used when neither ``--params`` nor the log says which one.
+DEFAULT_PARAMS = "vo2017"
+#: Trackers ``bnptrack track`` can run.
+TRACKERS = ("ddp", "dpyp")
+#: OSPA settings of the paper's experiments (cut-off in metres, order).
+OSPA_C = 100.0
+OSPA_P = 1.0
+
+_OVERRIDE_SEP = ";"
+
+
+# --------------------------------------------------------------------------- overrides
+
+
+def format_overrides(overrides: Sequence[str]) -> str:
+    """Join ``key=value`` overrides for the metadata record (``;``-separated)."""
+    return _OVERRIDE_SEP.join(o.strip() for o in overrides)
+
+
+def parse_overrides(text: str | None) -> tuple[str, ...]:
+    """Inverse of :func:`format_overrides` (empty or missing text: no overrides)."""
+    if not text:
+        return ()
+    return tuple(item.strip() for item in text.split(_OVERRIDE_SEP) if item.strip())
+
+
+def _struct_fields(cls: type[msgspec.Struct]) -> tuple[str, ...]:
+    return tuple(cls.__struct_fields__)
+
+
+def split_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Route ``--set`` items to (model parameters, tracker settings).
+
+    ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to :class:`BnpConfig`;
+    a bare ``KEY=V`` goes to whichever has the field (``ModelParams`` first).  Raises
+    :class:`ConfigError` naming the key when neither has it.
+    """
+    from tracker.bnp_tracker import BnpConfig
+
+    p_fields, t_fields = _struct_fields(ModelParams), _struct_fields(BnpConfig)
+    to_params: list[str] = []
+    to_tracker: list[str] = []
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected key=value")
+        head, dot, rest = key.partition(".")
+        if dot and head == "params":
+            to_params.append(f"{rest}={value}")
+        elif dot and head == "tracker":
+            to_tracker.append(f"{rest}={value}")
+        elif head in p_fields:
+            to_params.append(f"{key}={value}")
+        elif head in t_fields:
+            to_tracker.append(f"{key}={value}")
+        else:
+            raise ConfigError(
+                f"--set {item!r}: unknown key '{key}': not a model parameter "
+                f"({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
+                "use params.KEY or tracker.KEY to be explicit"
+            )
+    return tuple(to_params), tuple(to_tracker)
+
+
+def apply_split_overrides(
+    params: ModelParams, config: BnpConfig, overrides: Sequence[str]
+) -> tuple[ModelParams, BnpConfig]:
+    """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
+    p_over, t_over = split_overrides(overrides)
+    return apply_overrides(params, p_over), check_config(apply_overrides(config, t_over))
+
+
+# --------------------------------------------------------------------------- params
+
+
+@dataclass(frozen=True)
+class ParamsChoice:
+    """The model parameters a command uses, and where they came from.
+
+    ``source`` is the built-in name or file path; ``reason`` a short human explanation
+    (e.g. ``"from --params"``, ``"from the log's bnptrack.scenario record"``).
+    """
+
+    params: ModelParams
+    source: str
+    reason: str
+    overrides: tuple[str, ...] = ()
+
+    def describe(self) -> str:
+        extra = []
+        if self.overrides:
+            extra.append("overrides " + " ".join(self.overrides))
+        if self.params.snr_db is not None:
+            extra.append(f"snr_db {self.params.snr_db:g}")
+        tail = f"; {', '.join(extra)}" if extra else ""
+        return f"{self.source} ({self.reason}{tail})"
+
+
+def _with_snr(params: ModelParams, snr_db: float | None) -> ModelParams:
+    if snr_db is None:
+        return params
+    return msgspec.structs.replace(params, snr_db=float(snr_db))
+
+
+def resolve_simulation_params(
+    scenario: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
+) -> ModelParams:
+    """Parameters for simulating ``scenario``: the set, ``--set`` overrides, ``--snr``, then
+    the scenario's defaults (``Scenario.adapt_params``, e.g. -3 dB for ``snr``)."""
+    sc = get_scenario(scenario)
+    p = _with_snr(load_params(params, overrides), snr_db)
+    return sc.adapt_params(p)
+
+
+def resolve_params(
+    params_arg: str | None, metadata: Mapping[str, str] | None
+) -> ParamsChoice:
+    """Model parameters for tracking a log.
+
+    1. ``params_arg`` (``--params NAME|FILE.toml``) when given;
+    2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
+       (the ``--set`` items used when simulating) and its ``snr_db``;
+    3. else the :data:`DEFAULT_PARAMS` set.
+    """
+    if params_arg:
+        return ParamsChoice(load_params(params_arg), params_arg, "from --params")
+    meta = dict(metadata or {})
+    name = meta.get("params")
+    if name:
+        overrides = parse_overrides(meta.get("overrides"))
+        try:
+            p = load_params(name, overrides)
+            snr = meta.get("snr_db")
+            p = _with_snr(p, float(snr) if snr not in (None, "") else None)
+        except (ConfigError, ValueError) as exc:
+            raise ConfigError(
+                f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
+                "(pass --params NAME|FILE.toml)"
+            ) from None
+        return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
+    why = (
+        "default: the log has no bnptrack.scenario record"
+        if metadata is None
+        else "default: the log's bnptrack.scenario record names no params"
+    )
+    return ParamsChoice(load_params(DEFAULT_PARAMS), DEFAULT_PARAMS, why)
+
+
+# --------------------------------------------------------------------------- tracker config
+
+
+def check_config(config: BnpConfig) -> BnpConfig:
+    """Cross-field checks ``BnpConfig`` itself does not make."""
+    if config.burn_in >= config.sweeps:
+        raise ConfigError(
+            f"tracker settings: burn_in ({config.burn_in}) must be smaller than sweeps "
+            f"({config.sweeps}), otherwise no Gibbs sample is kept "
+            "(e.g. --set tracker.sweeps=10 --set tracker.burn_in=2)"
+        )
+    return config
+
+
+def resolve_config(tracker: str, config_arg: str | None) -> tuple[BnpConfig, str]:
+    """Tracker settings: a preset name or a TOML file of ``BnpConfig`` fields; default: the
+    preset named like the tracker.  Returns ``(config, description)``."""
+    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig
+
+    if tracker not in TRACKERS:
+        raise ConfigError(f"unknown tracker {tracker!r}; valid trackers: {', '.join(TRACKERS)}")
+    if not config_arg:
+        return check_config(TRACKER_PRESETS[tracker]), f"preset {tracker} (default for --tracker {tracker})"
+    if config_arg in TRACKER_PRESETS:
+        return check_config(TRACKER_PRESETS[config_arg]), f"preset {config_arg}"
+    if config_arg.endswith(".toml") or Path(config_arg).exists():
+        return check_config(load_toml(config_arg, BnpConfig)), f"file {config_arg}"
+    raise ConfigError(
+        f"--config {config_arg!r}: not a preset ({', '.join(TRACKER_PRESETS)}) nor a .toml file"
+    )
+
+
+def build_tracker(name: str, params: ModelParams, config: BnpConfig) -> BnpTracker:
+    """The tracker ``name`` (``ddp`` or ``dpyp``) with these parameters and settings."""
+    from tracker.bnp_tracker import make_tracker
+
+    if name not in TRACKERS:
+        raise ConfigError(f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}")
+    return make_tracker(name, params, config)
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """What :func:`simulate_to_log` wrote."""
+
+    path: str
+    frames: int
+    measurements: int
+    target_scans: int
+    size_bytes: int
+
+    @property
+    def mean_measurements(self) -> float:
+        return self.measurements / self.frames if self.frames else 0.0
+
+
+def simulate_to_log(
+    scenario: str,
+    params: ModelParams,
+    seed: int,
+    out: str | os.PathLike,
+    metadata: Mapping[str, str],
+) -> SimulationResult:
+    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log."""
+    sc = get_scenario(scenario)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    n_frames = n_meas = n_targets = 0
+    with McapLogWriter(out, dict(metadata)) as writer:
+        for frame in simulate(sc, params, seed):
+            writer.write_frame(frame)
+            n_frames += 1
+            n_meas += frame.n_measurements
+            n_targets += len(frame.truth.ids) if frame.truth is not None else 0
+    return SimulationResult(str(out), n_frames, n_meas, n_targets, out.stat().st_size)
+
+
+# --------------------------------------------------------------------------- tracking
+
+
+@dataclass(frozen=True)
+class FrameMetrics:
+    """Per-frame result of an offline run.  Truth-based fields are ``None`` without truth."""
+
+    frame: int
+    n_measurements: int
+    n_tracks: int
+    ms: float
+    n_true: int | None = None
+    ospa: float | None = None
+    ospa_localisation: float | None = None
+    ospa_cardinality: float | None = None
+    cardinality_error: float | None = None
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """An offline tracking run: per-frame metrics plus the error that ended it early, if any."""
+
+    tracker: str
+    frames: tuple[FrameMetrics, ...]
+    final_tracks: int
+    error: McapLogError | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frames)
+
+    def _truth_values(self, name: str) -> np.ndarray:
+        return np.array([getattr(f, name) for f in self.frames if getattr(f, name) is not None], float)
+
+    @property
+    def has_truth(self) -> bool:
+        return any(f.ospa is not None for f in self.frames)
+
+    @property
+    def mean_ospa(self) -> float | None:
+        v = self._truth_values("ospa")
+        return float(v.mean()) if v.size else None
+
+    @property
+    def mean_cardinality_error(self) -> float | None:
+        v = self._truth_values("cardinality_error")
+        return float(v.mean()) if v.size else None
+
+    @property
+    def ms(self) -> np.ndarray:
+        return np.array([f.ms for f in self.frames if math.isfinite(f.ms)], float)
+
+    @property
+    def ms_median(self) -> float | None:
+        v = self.ms
+        return float(np.median(v)) if v.size else None
+
+    @property
+    def ms_p95(self) -> float | None:
+        v = self.ms
+        return float(np.percentile(v, 95)) if v.size else None
+
+
+def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P) -> FrameMetrics:
+    """OSPA (on position) and cardinality error of one estimate against the frame's truth."""
+    from sinks.metrics import cardinality_error, ospa
+
+    ms = float(est.diagnostics.get("ms", float("nan")))
+    base = dict(frame=frame.frame, n_measurements=frame.n_measurements, n_tracks=len(est.tracks), ms=ms)
+    if frame.truth is None:
+        return FrameMetrics(**base)
+    o = ospa(frame.truth.positions, est.positions, c=c, p=p)
+    n_true = len(frame.truth.ids)
+    return FrameMetrics(
+        **base,
+        n_true=n_true,
+        ospa=o.total,
+        ospa_localisation=o.localisation,
+        ospa_cardinality=o.cardinality,
+        cardinality_error=cardinality_error(len(est.tracks), n_true),
+    )
+
+
+def track_frames(
+    tracker: BnpTracker,
+    frames: Iterable[Frame],
+    seed: int,
+    on_estimate: Callable[[Frame, Estimate], None] | None = None,
+) -> TrackResult:
+    """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
+
+    ``on_estimate(frame, estimate)`` is called after each frame (e.g. to write it).  If the
+    frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
+    and the error is returned in :attr:`TrackResult.error` instead of being raised.
+    """
+    rows: list[FrameMetrics] = []
+    final = 0
+    error: McapLogError | None = None
+    try:
+        for frame, est, _state in run(tracker, frames, seed):
+            if on_estimate is not None:
+                on_estimate(frame, est)
+            rows.append(frame_metrics(frame, est))
+            final = len(est.tracks)
+    except McapLogError as exc:
+        error = exc
+    return TrackResult(tracker.name, tuple(rows), final, error)
+
+
+def default_tracks_path(log: str | os.PathLike, tracker: str) -> Path:
+    """``<LOG stem>-<tracker>.tracks.mcap`` next to the log."""
+    log = Path(log)
+    return log.with_name(f"{log.stem}-{tracker}.tracks.mcap")
+
+
+def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
+    """Refuse an output path that is the input log itself."""
+    if Path(out).resolve() == Path(log).resolve():
+        raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
+
+
+def track_log(
+    log: str | os.PathLike,
+    out: str | os.PathLike,
+    tracker: BnpTracker,
+    seed: int,
+    metadata: Mapping[str, str] | None,
+) -> TrackResult:
+    """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
+    ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.
+
+    A damaged input is processed up to its readable end; the output then holds that prefix
+    and :attr:`TrackResult.error` holds the :class:`McapLogError`.
+    """
+    log, out = Path(log), Path(out)
+    check_output_path(log, out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with McapLogWriter(out, dict(metadata) if metadata is not None else None) as writer:
+
+        def write(frame: Frame, est: Estimate) -> None:
+            writer.write_frame(frame)
+            writer.write_tracks(est)
+
+        return track_frames(tracker, iter_frames(log), seed, write)
+
