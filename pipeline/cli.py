@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any, Callable
 
@@ -31,6 +32,7 @@ from pipeline.offline import (
     resolve_params,
     resolve_simulation_params,
     simulate_to_log,
+    split_overrides,
     track_log,
 )
 from sources.mcap_log import McapLogError, read_metadata
@@ -64,6 +66,10 @@ def _clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             return fn(*args, **kwargs)
         except click.ClickException:
             raise
+        except BrokenPipeError:  # e.g. `bnptrack schema /tracks | head`: stop quietly
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            raise SystemExit(141) from None
         except _EXPECTED as exc:
             if os.environ.get("BNPTRACK_DEBUG"):
                 raise
@@ -309,11 +315,12 @@ def track(
         out_meta["tracker_overrides"] = format_overrides(overrides)
 
     if not quiet:
+        p_over, t_over = split_overrides(overrides)
         _echo_rows(
             [
                 ("log", str(log)),
-                ("params", choice.describe()),
-                ("config", config_desc + (f"; --set {' '.join(overrides)}" if overrides else "")),
+                ("params", choice.describe(params, p_over)),
+                ("config", config_desc + (f"; --set {' '.join(t_over)}" if t_over else "")),
             ]
         )
     res = track_log(log, out, tracker, seed, out_meta)

@@ -44,7 +44,6 @@ __all__ = [
     "resolve_simulation_params",
     "resolve_params",
     "resolve_config",
-    "check_config",
     "split_overrides",
     "apply_split_overrides",
     "build_tracker",
@@ -126,7 +125,7 @@ def apply_split_overrides(
 ) -> tuple[ModelParams, BnpConfig]:
     """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
     p_over, t_over = split_overrides(overrides)
-    return apply_overrides(params, p_over), check_config(apply_overrides(config, t_over))
+    return apply_overrides(params, p_over), apply_overrides(config, t_over)
 
 
 # --------------------------------------------------------------------------- params
@@ -145,13 +144,19 @@ class ParamsChoice:
     reason: str
     overrides: tuple[str, ...] = ()
 
-    def describe(self) -> str:
+    def describe(self, final: ModelParams | None = None, overrides: Sequence[str] = ()) -> str:
+        """One line: source, reason, the log's overrides, extra ``--set`` items and the SNR
+        of ``final`` (the parameters after those items; default: :attr:`params`)."""
+        final = self.params if final is None else final
         extra = []
         if self.overrides:
-            extra.append("overrides " + " ".join(self.overrides))
-        if self.params.snr_db is not None:
-            extra.append(f"snr_db {self.params.snr_db:g}")
-        tail = f"; {', '.join(extra)}" if extra else ""
+            extra.append("log overrides " + " ".join(self.overrides))
+        if overrides:
+            extra.append("--set " + " ".join(overrides))
+        set_keys = {o.partition("=")[0].strip() for o in overrides}
+        if final.snr_db is not None and "snr_db" not in set_keys:
+            extra.append(f"snr_db {final.snr_db:g}")
+        tail = f"; {'; '.join(extra)}" if extra else ""
         return f"{self.source} ({self.reason}{tail})"
 
 
@@ -208,17 +213,6 @@ def resolve_params(
 # --------------------------------------------------------------------------- tracker config
 
 
-def check_config(config: BnpConfig) -> BnpConfig:
-    """Cross-field checks ``BnpConfig`` itself does not make."""
-    if config.burn_in >= config.sweeps:
-        raise ConfigError(
-            f"tracker settings: burn_in ({config.burn_in}) must be smaller than sweeps "
-            f"({config.sweeps}), otherwise no Gibbs sample is kept "
-            "(e.g. --set tracker.sweeps=10 --set tracker.burn_in=2)"
-        )
-    return config
-
-
 def resolve_config(tracker: str, config_arg: str | None) -> tuple[BnpConfig, str]:
     """Tracker settings: a preset name or a TOML file of ``BnpConfig`` fields; default: the
     preset named like the tracker.  Returns ``(config, description)``."""
@@ -227,11 +221,11 @@ def resolve_config(tracker: str, config_arg: str | None) -> tuple[BnpConfig, str
     if tracker not in TRACKERS:
         raise ConfigError(f"unknown tracker {tracker!r}; valid trackers: {', '.join(TRACKERS)}")
     if not config_arg:
-        return check_config(TRACKER_PRESETS[tracker]), f"preset {tracker} (default for --tracker {tracker})"
+        return TRACKER_PRESETS[tracker], f"preset {tracker} (default for --tracker {tracker})"
     if config_arg in TRACKER_PRESETS:
-        return check_config(TRACKER_PRESETS[config_arg]), f"preset {config_arg}"
+        return TRACKER_PRESETS[config_arg], f"preset {config_arg}"
     if config_arg.endswith(".toml") or Path(config_arg).exists():
-        return check_config(load_toml(config_arg, BnpConfig)), f"file {config_arg}"
+        return load_toml(config_arg, BnpConfig), f"file {config_arg}"
     raise ConfigError(
         f"--config {config_arg!r}: not a preset ({', '.join(TRACKER_PRESETS)}) nor a .toml file"
     )

@@ -192,6 +192,7 @@ def test_track_writes_tracks(vo_log, vo_tracks):
     for f_in, f_out, est in zip(inputs, frames, tracks):
         assert est.frame == f_out.frame == f_in.frame
         assert len(est.assignments) == f_in.n_measurements == len(est.assignment_prob)
+        assert {a for a in est.assignments if a is not None} <= set(est.labels)
         assert (f_out.z == f_in.z).all()
         assert f_out.truth is not None and f_out.truth.ids == f_in.truth.ids
         assert "ms" in est.diagnostics

@@ -56,7 +56,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     filter: Literal["ukf", "ekf"] = "ukf"
     gate_prob: OpenProb = 0.9999
     """Chi-square gate on the predictive density; pairs outside are impossible."""
-    existence_threshold: Prob = 0.5
+    existence_threshold: Prob = 0.4
     """Clusters with existence above this are reported as tracks."""
     prune_threshold: Prob = 1e-3
     birth_min_prob: Prob = 1e-3
@@ -88,6 +88,10 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Past frames' hyperparameter log-likelihood is multiplied by this each frame."""
     extended: bool = False
     """Allow several measurements per object per frame (case D1/P1); off for point objects."""
+
+    def __post_init__(self) -> None:
+        if self.burn_in >= self.sweeps:
+            raise ValueError(f"burn_in ({self.burn_in}) must be smaller than sweeps ({self.sweeps})")
 
 
 TRACKER_PRESETS: dict[str, BnpConfig] = {
