@@ -27,17 +27,23 @@ of new clusters opened by the other measurements.  For point objects a cluster h
 one measurement per frame (D1 has probability zero), which truncates the joint to a symmetric
 set; the conditionals above restricted to the allowed values are exactly its full conditionals.
 
-The kernel loops over measurements in plain Python on precomputed weights (the number of
-candidates per measurement is small after gating), using uniforms pre-drawn from the caller's
-``numpy.random.Generator`` so the result depends only on the generator's state.
+The sweeps run on a sparse (gated) candidate list per measurement, compiled with numba
+(``BNPTRACK_NO_JIT=1`` runs the same function interpreted), using uniforms pre-drawn from the
+caller's ``numpy.random.Generator`` so the result depends only on the generator's state.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
+
+try:  # a prebuilt wheel; the kernel also runs interpreted (BNPTRACK_NO_JIT=1)
+    from numba import njit as _njit
+except ImportError:  # pragma: no cover
+    _njit = None
 
 CLUTTER = -1
 NEW = -2
@@ -85,42 +91,129 @@ class GibbsResult:
 
 
 def initial_assignment(problem: GibbsProblem) -> np.ndarray:
-    """Greedy start: each measurement to its best free cluster if that beats clutter and new."""
+    """Greedy start: measurements in order of their best score take their best free cluster
+    when it beats both clutter and a new cluster (a cheap, valid state to start from)."""
     N, M = problem.log_first.shape
-    c = np.full(M, CLUTTER, dtype=int)
-    taken = np.zeros(N, dtype=bool)
+    c = np.full(M, CLUTTER, dtype=np.int64)
     if N == 0 or M == 0:
         return c
-    order = np.argsort(-problem.log_first.max(axis=0))
-    for m in order:
+    taken = np.zeros(N, dtype=bool)
+    alt = np.maximum(problem.log_clutter,
+                     math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
+    best = problem.log_first.max(axis=0)
+    for m in np.argsort(-best, kind="stable").tolist():
+        if best[m] <= alt[m]:
+            break  # later measurements score lower still
         col = np.where(taken, -np.inf, problem.log_first[:, m])
         l = int(np.argmax(col))
-        alt = max(problem.log_clutter[m], math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new[m])
-        if col[l] > alt:
+        if col[l] > alt[m]:
             c[m] = l
-            if not problem.extended:
-                taken[l] = True
+            taken[l] = not problem.extended
     return c
 
 
-def _candidates(problem: GibbsProblem):
-    """Per measurement: shift, clutter weight, new base weight, and (cluster, w_first, w_lik)."""
+@dataclass(frozen=True)
+class _Candidates:
+    """Sparse (CSR by measurement) view of the allowed clusters, weights scaled per measurement."""
+
+    ptr: np.ndarray  # (M+1,) int64
+    idx: np.ndarray  # (nnz,) cluster indices
+    w_first: np.ndarray  # (nnz,) exp(log_first - shift)
+    w_lik: np.ndarray  # (nnz,) exp(log_lik - shift)  (extended mode)
+    w_clutter: np.ndarray  # (M,)
+    w_new: np.ndarray  # (M,) exp(log_new - shift), before the urn weight
+
+
+def _candidates(problem: GibbsProblem) -> _Candidates:
     N, M = problem.log_first.shape
-    out = []
-    for m in range(M):
-        idx = np.flatnonzero(np.isfinite(problem.log_first[:, m])) if N else np.zeros(0, int)
-        logs = [problem.log_clutter[m], problem.log_new[m]]
-        logs.extend(problem.log_first[idx, m])
+    mt, lt = np.nonzero(np.isfinite(problem.log_first.T))  # sorted by measurement
+    lf = problem.log_first[lt, mt]
+    ll = problem.log_lik[lt, mt]
+    shift = np.maximum(problem.log_clutter, problem.log_new)
+    if mt.size:
+        np.maximum.at(shift, mt, lf)
         if problem.extended:
-            logs.extend(problem.log_lik[idx, m])
-        shift = max(logs)
-        wf = np.exp(problem.log_first[idx, m] - shift).tolist()
-        wl = np.exp(problem.log_lik[idx, m] - shift).tolist() if problem.extended else [0.0] * idx.size
-        out.append(
-            (math.exp(problem.log_clutter[m] - shift), math.exp(problem.log_new[m] - shift),
-             list(zip(idx.tolist(), wf, wl)))
+            np.maximum.at(shift, mt, ll)
+    shift = np.where(np.isfinite(shift), shift, 0.0)
+    ptr = np.zeros(M + 1, dtype=np.int64)
+    np.cumsum(np.bincount(mt, minlength=M), out=ptr[1:])
+    with np.errstate(under="ignore"):
+        return _Candidates(
+            ptr, lt.astype(np.int64), np.exp(lf - shift[mt]),
+            np.exp(ll - shift[mt]) if problem.extended else np.zeros(mt.size),
+            np.exp(problem.log_clutter - shift), np.exp(problem.log_new - shift),
         )
-    return out
+
+
+def _sweep_kernel(c, cnt, k_new, m_obj, total_mass, alpha, d, d_bar, extended, w_clutter, w_newbase,
+                  ptr, idx, w_first, w_lik, pop, u, burn_in, tally_cluster, tally_clutter, tally_new,
+                  opt_l, opt_w):
+    """The systematic-scan sweeps on plain arrays (compiled with numba when available).
+
+    Mutates ``c``, ``cnt`` and the tallies in place; the tallies are Rao-Blackwellised
+    (each visit adds its full conditional).
+    """
+    sweeps, M = u.shape
+    for s in range(sweeps):
+        for m in range(M):
+            cur = c[m]
+            if cur >= 0:
+                cnt[cur] -= 1
+                m_obj -= 1
+            elif cur == NEW:
+                k_new -= 1
+                m_obj -= 1
+            g = total_mass / (total_mass + m_obj)
+            wc = w_clutter[m]
+            wn = g * w_newbase[m] * (alpha + d * (d_bar + k_new))
+            total = wc + wn
+            n_opt = 0
+            for j in range(ptr[m], ptr[m + 1]):
+                l = idx[j]
+                n = cnt[l]
+                if n == 0:
+                    w = g * w_first[j]
+                elif extended:
+                    w = g * w_lik[j] * (n + pop[l] - d)
+                else:
+                    continue
+                if w > 0.0:
+                    opt_l[n_opt] = l
+                    opt_w[n_opt] = w
+                    n_opt += 1
+                    total += w
+            x = u[s, m] * total
+            if x < wc:
+                choice = CLUTTER
+            elif x < wc + wn:
+                choice = NEW
+            else:
+                x -= wc + wn
+                choice = opt_l[n_opt - 1] if n_opt > 0 else NEW  # round-off guard
+                for i in range(n_opt):
+                    if x < opt_w[i]:
+                        choice = opt_l[i]
+                        break
+                    x -= opt_w[i]
+            if s >= burn_in:
+                inv = 1.0 / total
+                tally_clutter[m] += wc * inv
+                tally_new[m] += wn * inv
+                for i in range(n_opt):
+                    tally_cluster[opt_l[i], m] += opt_w[i] * inv
+            c[m] = choice
+            if choice >= 0:
+                cnt[choice] += 1
+                m_obj += 1
+            elif choice == NEW:
+                k_new += 1
+                m_obj += 1
+
+
+if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
+    _sweeps = _njit(cache=True, nogil=True)(_sweep_kernel)
+else:  # pragma: no cover - numba missing or disabled: same code, interpreted
+    _sweeps = _sweep_kernel
 
 
 def run_gibbs(
@@ -132,82 +225,21 @@ def run_gibbs(
 ) -> GibbsResult:
     """Run ``sweeps`` systematic-scan sweeps; average the last ``sweeps - burn_in``."""
     N, M = problem.log_first.shape
-    c = initial_assignment(problem) if init is None else init.copy()
-    counts = np.zeros(N, dtype=int)
-    for m in range(M):
-        if c[m] >= 0:
-            counts[c[m]] += 1
-    k_new = int(np.sum(c == NEW))
-    m_obj = int(np.sum(c != CLUTTER))
-    total_mass = problem.alpha + problem.mass
-    cands = _candidates(problem)
-    pop = problem.popularity.tolist()
-    alpha, d, d_bar, ext = problem.alpha, problem.d, problem.d_bar, problem.extended
-    u_all = rng.random((sweeps, M))
+    c = (initial_assignment(problem) if init is None else np.asarray(init)).astype(np.int64)
+    cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
+    u = rng.random((sweeps, M))
+    cand = _candidates(problem)
     tally_cluster = np.zeros((N, M))
     tally_clutter = np.zeros(M)
     tally_new = np.zeros(M)
-    cl = c.tolist()
-    cnt = counts.tolist()
-
-    for s in range(sweeps):
-        u_row = u_all[s]
-        for m in range(M):
-            cur = cl[m]
-            if cur >= 0:
-                cnt[cur] -= 1
-                m_obj -= 1
-            elif cur == NEW:
-                k_new -= 1
-                m_obj -= 1
-            w_clutter, w_newbase, cand = cands[m]
-            g = total_mass / (total_mass + m_obj)
-            w_new = g * w_newbase * (alpha + d * (d_bar + k_new))
-            opts = []
-            total = w_clutter + w_new
-            for l, wf, wl in cand:
-                n = cnt[l]
-                if n == 0:
-                    w = g * wf
-                elif ext:
-                    w = g * wl * (n + pop[l] - d)
-                else:
-                    continue
-                if w > 0.0:
-                    opts.append((l, w))
-                    total += w
-            u = u_row[m] * total
-            if u < w_clutter:
-                choice = CLUTTER
-            elif u < w_clutter + w_new:
-                choice = NEW
-            else:
-                u -= w_clutter + w_new
-                choice = opts[-1][0] if opts else NEW  # round-off guard
-                for l, w in opts:
-                    if u < w:
-                        choice = l
-                        break
-                    u -= w
-            if s >= burn_in:  # Rao-Blackwellised tallies: the conditional, not the draw
-                inv = 1.0 / total
-                tally_clutter[m] += w_clutter * inv
-                tally_new[m] += w_new * inv
-                for l, w in opts:
-                    tally_cluster[l, m] += w * inv
-            cl[m] = choice
-            if choice >= 0:
-                cnt[choice] += 1
-                m_obj += 1
-            elif choice == NEW:
-                k_new += 1
-                m_obj += 1
+    _sweeps(c, cnt, int(np.sum(c == NEW)), int(np.sum(c != CLUTTER)), problem.alpha + problem.mass,
+            float(problem.alpha), float(problem.d), float(problem.d_bar), bool(problem.extended),
+            cand.w_clutter, cand.w_new, cand.ptr, cand.idx, cand.w_first, cand.w_lik,
+            np.asarray(problem.popularity, dtype=float), u, int(burn_in),
+            tally_cluster, tally_clutter, tally_new, np.zeros(max(N, 1), np.int64), np.zeros(max(N, 1)))
     kept = max(sweeps - burn_in, 1)
-    last = np.array(cl, dtype=int)
-    return GibbsResult(
-        tally_cluster / kept, tally_clutter / kept, tally_new / kept, last,
-        log_joint(problem, last), kept,
-    )
+    return GibbsResult(tally_cluster / kept, tally_clutter / kept, tally_new / kept, c,
+                       log_joint(problem, c), kept)
 
 
 def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
