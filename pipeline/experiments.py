@@ -1,0 +1,346 @@
+"""The paper's simulation study as Monte Carlo experiments: one command per experiment.
+
+``bnptrack experiment NAME --runs N --seed S --params vo2017|paper --out DIR`` runs every
+tracker of the experiment on ``N`` simulated realisations and writes a summary table
+(markdown + CSV), plots mirroring the paper's figures and, when the Rerun sink is installed,
+a ``.rrd`` of one representative run per tracker.
+
+Run ``i`` of experiment ``E`` with seed ``S`` draws its scenario and every tracker's random
+stream from ``SeedSequence(S, spawn_key=(crc32(E), i))`` alone, so any single run can be redone
+by itself and gives the same numbers, whichever executor ran it (local processes or a Dask
+cluster).
+"""
+
+from __future__ import annotations
+
+import csv
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tracker.config import ConfigError
+
+OSPA_C = 100.0
+OSPA_P = 1.0
+OSPA2_WINDOW = 10
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """One tracker of an experiment: its name (``ddp``/``dpyp``/``glmb``), preset, display label."""
+
+    name: str
+    preset: str
+    label: str
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One condition of an experiment (e.g. an SNR level): a label and parameter overrides."""
+
+    label: str
+    overrides: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    description: str
+    scenario: str
+    trackers: tuple[TrackerSpec, ...]
+    variants: tuple[Variant, ...] = (Variant("default"),)
+
+
+EXPERIMENTS: dict[str, Experiment] = {
+    e.name: e
+    for e in (
+        Experiment("ddp-vs-glmb", "DDP-EMM vs GLMB, 10 targets (paper experiment 1)", "vo2017",
+                   (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB"))),
+        Experiment("proximity", "Close proximity: 5 targets on one path (experiment 2)", "proximity",
+                   (TrackerSpec("ddp", "ddp-proximity", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB"))),
+        Experiment("snr", "Varying SNR, range-only, 11 targets (experiment 3)", "snr",
+                   (TrackerSpec("ddp", "ddp-snr", "DDP-EMM"),),
+                   (Variant("-3 dB", ("snr_db=-3",)), Variant("-5 dB", ("snr_db=-5",)),
+                    Variant("-10 dB", ("snr_db=-10",)))),
+        Experiment("dpy-vs-glmb", "DPY-STP vs GLMB, at most 5 targets (experiment 4)", "dpy5",
+                   (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("glmb", "glmb", "GLMB"))),
+        Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets (experiment 5)", "vo2017",
+                   (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("ddp", "ddp", "DDP-EMM"))),
+    )
+}
+
+
+def get_experiment(name: str) -> Experiment:
+    try:
+        return EXPERIMENTS[name]
+    except KeyError:
+        raise ConfigError(f"unknown experiment {name!r}; valid: {', '.join(EXPERIMENTS)}") from None
+
+
+def run_seed(experiment: str, seed: int, run: int) -> int:
+    """The integer seed of run ``run``: from ``SeedSequence(seed, spawn_key=(crc32(name), run))``."""
+    ss = np.random.SeedSequence(int(seed), spawn_key=(zlib.crc32(experiment.encode()), int(run)))
+    return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+
+
+@dataclass(frozen=True)
+class RunJob:
+    experiment: str
+    seed: int
+    run: int
+    params: str
+    variant: Variant
+    keep_tracks: bool = False
+
+
+@dataclass
+class TrackerRun:
+    """Per-frame series of one tracker on one run (arrays of length K)."""
+
+    ospa: np.ndarray
+    ospa_loc: np.ndarray
+    ospa_card: np.ndarray
+    ospa2: np.ndarray
+    gospa: np.ndarray
+    n_est: np.ndarray
+    ms: np.ndarray
+    positions: list | None = None  # per frame: (labels, (N, 2) positions), representative runs only
+
+
+@dataclass
+class RunResult:
+    job: RunJob
+    n_true: np.ndarray
+    trackers: dict[str, TrackerRun] = field(default_factory=dict)
+    truth: list | None = None  # per frame (ids, positions) when keep_tracks
+
+
+def execute_run(job: RunJob) -> RunResult:
+    """One Monte Carlo run: simulate the scenario, run every tracker, score every frame."""
+    from pipeline.offline import build_tracker, resolve_config
+    from sinks.metrics import gospa, ospa, ospa2_series
+    from sources.scenarios import get_scenario
+    from sources.synthetic import simulate_all
+    from tracker.config import apply_overrides
+    from tracker.models.params import load_params
+    from tracker.state import run as run_tracker
+
+    exp = get_experiment(job.experiment)
+    scenario = get_scenario(exp.scenario)
+    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
+    seed = run_seed(job.experiment, job.seed, job.run)
+    frames = simulate_all(scenario, params, seed)
+    n_true = np.array([len(f.truth.ids) for f in frames])
+    result = RunResult(job, n_true)
+    true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
+    if job.keep_tracks:
+        result.truth = [(f.truth.ids, f.truth.positions.copy()) for f in frames]
+    for spec in exp.trackers:
+        config, _ = resolve_config(spec.name, spec.preset)
+        tracker = build_tracker(spec.name, params, config)
+        rows, est_tracks, kept = [], [], []
+        for f, e, _ in run_tracker(tracker, frames, seed):
+            o = ospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P)
+            g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
+            rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
+            est_tracks.append({t.label: t.position for t in e.tracks})
+            if job.keep_tracks:
+                kept.append((e.labels, e.positions.copy()))
+        r = np.array(rows, dtype=float)
+        o2 = ospa2_series(est_tracks, true_tracks, window=OSPA2_WINDOW, c=OSPA_C, p=OSPA_P)
+        result.trackers[spec.label] = TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3],
+                                                 r[:, 4], r[:, 5], kept if job.keep_tracks else None)
+    return result
+
+
+# --------------------------------------------------------------------------- executors
+
+
+def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str | None = None,
+             progress: Callable[[int], None] | None = None) -> list[RunResult]:
+    """Run jobs on local processes (default) or a Dask cluster at ``cluster``; results in job order."""
+    if cluster:
+        return _run_dask(jobs, cluster, progress)
+    if workers == 1:
+        out = []
+        for job in jobs:
+            out.append(execute_run(job))
+            if progress:
+                progress(1)
+        return out
+    from concurrent.futures import ProcessPoolExecutor
+
+    results: list[RunResult | None] = [None] * len(jobs)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
+        from concurrent.futures import as_completed
+
+        for fut in as_completed(futures):
+            results[futures[fut]] = fut.result()
+            if progress:
+                progress(1)
+    return results  # type: ignore[return-value]
+
+
+def _run_dask(jobs: Sequence[RunJob], address: str, progress) -> list[RunResult]:
+    from distributed import Client, as_completed
+
+    with Client(address) as client:
+        futures = client.map(execute_run, list(jobs), pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list[RunResult | None] = [None] * len(jobs)
+        for fut in as_completed(futures):
+            results[index[fut.key]] = fut.result()
+            if progress:
+                progress(1)
+    return results  # type: ignore[return-value]
+
+
+# --------------------------------------------------------------------------- summaries
+
+METRICS = (("ospa", "OSPA"), ("ospa_loc", "OSPA loc"), ("ospa_card", "OSPA card"), ("ospa2", "OSPA(2)"),
+           ("gospa", "GOSPA"), ("card_err", "card. error"), ("ms", "ms/frame"))
+
+
+def summary_rows(results: Sequence[RunResult]) -> list[dict]:
+    """Mean and spread (std over runs of the per-run means) of every metric, per variant/tracker."""
+    rows = []
+    variants = list(dict.fromkeys(r.job.variant.label for r in results))
+    trackers = list(dict.fromkeys(t for r in results for t in r.trackers))
+    for v in variants:
+        runs = [r for r in results if r.job.variant.label == v]
+        for t in trackers:
+            per_run = {k: [] for k, _ in METRICS}
+            for r in runs:
+                tr = r.trackers[t]
+                per_run["ospa"].append(tr.ospa.mean())
+                per_run["ospa_loc"].append(tr.ospa_loc.mean())
+                per_run["ospa_card"].append(tr.ospa_card.mean())
+                per_run["ospa2"].append(tr.ospa2.mean())
+                per_run["gospa"].append(tr.gospa.mean())
+                per_run["card_err"].append(np.abs(tr.n_est - r.n_true).mean())
+                per_run["ms"].append(np.nanmedian(tr.ms))
+            row = {"variant": v, "tracker": t, "runs": len(runs)}
+            for k, _ in METRICS:
+                a = np.asarray(per_run[k], float)
+                row[k] = float(a.mean())
+                row[k + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
+            rows.append(row)
+    return rows
+
+
+def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
+    md, csv_path = out / "summary.md", out / "summary.csv"
+    with csv_path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    lines = [f"# {title}", "", "Mean over runs (± std of the per-run means). OSPA/OSPA(2)/GOSPA: c = 100 m, "
+             "p = 1, on position; OSPA(2) window 10 scans; ms/frame: per-run median.", "",
+             "| variant | tracker | runs | " + " | ".join(h for _, h in METRICS) + " |",
+             "|---|---|---|" + "---|" * len(METRICS)]
+    for r in rows:
+        cells = " | ".join(f"{r[k]:.2f} ± {r[k + '_std']:.2f}" for k, _ in METRICS)
+        lines.append(f"| {r['variant']} | {r['tracker']} | {r['runs']} | {cells} |")
+    md.write_text("\n".join(lines) + "\n")
+    return md, csv_path
+
+
+def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Path]:
+    """PNG figures mirroring the paper's: x/y vs time, cardinality, OSPA and its parts."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    variants = list(dict.fromkeys(r.job.variant.label for r in results))
+    for v in variants:
+        runs = [r for r in results if r.job.variant.label == v]
+        suffix = "" if len(variants) == 1 else "-" + v.replace(" ", "").replace("-", "m")
+        K = runs[0].n_true.size
+        k = np.arange(1, K + 1)
+        trackers = list(runs[0].trackers)
+        # cardinality
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.step(k, runs[0].n_true, where="mid", color="k", lw=2, label="true")
+        for t in trackers:
+            n = np.array([r.trackers[t].n_est for r in runs])
+            ax.plot(k, n.mean(0), label=f"{t} (mean)")
+            ax.fill_between(k, n.mean(0) - n.std(0), n.mean(0) + n.std(0), alpha=0.2)
+        ax.set(xlabel="scan k", ylabel="cardinality", title=f"{title} {v}: estimated vs true cardinality ({len(runs)} runs, ±1 std)")
+        ax.legend()
+        paths.append(_save(fig, out / f"cardinality{suffix}.png"))
+        # OSPA and its parts
+        fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        for ax, (key, name) in zip(axes, (("ospa", "OSPA"), ("ospa_loc", "localisation"), ("ospa_card", "cardinality"))):
+            for t in trackers:
+                a = np.array([getattr(r.trackers[t], key) for r in runs])
+                ax.plot(k, a.mean(0), label=t)
+                ax.fill_between(k, np.percentile(a, 10, 0), np.percentile(a, 90, 0), alpha=0.2)
+            ax.set(ylabel=f"{name} (m)")
+        axes[0].set_title(f"{title} {v}: OSPA (c=100, p=1), mean and 10-90% band over {len(runs)} runs")
+        axes[0].legend()
+        axes[-1].set_xlabel("scan k")
+        paths.append(_save(fig, out / f"ospa{suffix}.png"))
+        # x / y of the representative run
+        rep = next((r for r in runs if r.truth is not None), None)
+        if rep is not None:
+            fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+            for ax, dim, name in ((axes[0], 0, "x"), (axes[1], 1, "y")):
+                tk = [kk for kk, (ids, pos) in enumerate(rep.truth, 1) for _ in ids]
+                tv = [p[dim] for _, pos in rep.truth for p in pos]
+                ax.plot(tk, tv, "k.", ms=2, label="true")
+                for t, marker in zip(trackers, "o^sv"):
+                    ek = [kk for kk, (labs, pos) in enumerate(rep.trackers[t].positions, 1) for _ in labs]
+                    ev = [p[dim] for _, pos in rep.trackers[t].positions for p in pos]
+                    ax.plot(ek, ev, marker, ms=3, mfc="none", label=t)
+                ax.set(ylabel=f"{name} (m)")
+            axes[0].set_title(f"{title} {v}: true and estimated positions (run {rep.job.run})")
+            axes[0].legend(markerscale=2)
+            axes[1].set_xlabel("scan k")
+            paths.append(_save(fig, out / f"xy{suffix}.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
+    """One ``.rrd`` per tracker of the representative run (needs the Rerun sink)."""
+    try:
+        from sinks.rerun_sink import write_recording  # noqa: F401
+    except ImportError:
+        return []
+    from pipeline.offline import build_tracker, resolve_config
+    from sources.scenarios import get_scenario
+    from sources.synthetic import simulate_all
+    from tracker.config import apply_overrides
+    from tracker.models.params import load_params
+    from tracker.state import run as run_tracker
+
+    job = result.job
+    exp = get_experiment(job.experiment)
+    scenario = get_scenario(exp.scenario)
+    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
+    seed = run_seed(job.experiment, job.seed, job.run)
+    frames = simulate_all(scenario, params, seed)
+    paths = []
+    for spec in exp.trackers:
+        config, _ = resolve_config(spec.name, spec.preset)
+        ests = [e for _, e, _ in run_tracker(build_tracker(spec.name, params, config), frames, seed)]
+        path = out / f"{spec.name}-run{job.run}.rrd"
+        meta = {"experiment": job.experiment, "scenario": exp.scenario, "params": job.params,
+                "tracker": spec.name, "preset": spec.preset, "seed": str(seed), "variant": job.variant.label}
+        write_recording(path, frames, ests, meta)
+        paths.append(path)
+    return paths
