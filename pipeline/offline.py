@@ -28,7 +28,7 @@ from tracker.state import run
 from tracker.types import Estimate, Frame
 
 if TYPE_CHECKING:
-    from tracker.bnp_tracker import BnpConfig, BnpTracker
+    from tracker.registry import Tracker
 
 __all__ = [
     "DEFAULT_PARAMS",
@@ -57,8 +57,8 @@ __all__ = [
 
 #: Parameter set used when neither ``--params`` nor the log says which one.
 DEFAULT_PARAMS = "vo2017"
-#: Trackers ``bnptrack track`` can run.
-TRACKERS = ("ddp", "dpyp")
+#: Trackers ``bnptrack track`` can run (see :mod:`tracker.registry`).
+from tracker.registry import TRACKERS  # noqa: E402
 #: OSPA settings of the paper's experiments (cut-off in metres, order).
 OSPA_C = 100.0
 OSPA_P = 1.0
@@ -85,16 +85,19 @@ def _struct_fields(cls: type[msgspec.Struct]) -> tuple[str, ...]:
     return tuple(cls.__struct_fields__)
 
 
-def split_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+def split_overrides(
+    overrides: Sequence[str], config_cls: type[msgspec.Struct] | None = None
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Route ``--set`` items to (model parameters, tracker settings).
 
-    ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to :class:`BnpConfig`;
-    a bare ``KEY=V`` goes to whichever has the field (``ModelParams`` first).  Raises
-    :class:`ConfigError` naming the key when neither has it.
+    ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to the tracker's settings
+    (``config_cls``, default :class:`BnpConfig`); a bare ``KEY=V`` goes to whichever has the
+    field (``ModelParams`` first).  Raises :class:`ConfigError` naming the key when neither has it.
     """
-    from tracker.bnp_tracker import BnpConfig
+    if config_cls is None:
+        from tracker.bnp_tracker import BnpConfig as config_cls
 
-    p_fields, t_fields = _struct_fields(ModelParams), _struct_fields(BnpConfig)
+    p_fields, t_fields = _struct_fields(ModelParams), _struct_fields(config_cls)
     to_params: list[str] = []
     to_tracker: list[str] = []
     for item in overrides:
@@ -121,10 +124,10 @@ def split_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[st
 
 
 def apply_split_overrides(
-    params: ModelParams, config: BnpConfig, overrides: Sequence[str]
-) -> tuple[ModelParams, BnpConfig]:
+    params: ModelParams, config: msgspec.Struct, overrides: Sequence[str]
+) -> tuple[ModelParams, msgspec.Struct]:
     """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
-    p_over, t_over = split_overrides(overrides)
+    p_over, t_over = split_overrides(overrides, type(config))
     return apply_overrides(params, p_over), apply_overrides(config, t_over)
 
 
@@ -213,31 +216,34 @@ def resolve_params(
 # --------------------------------------------------------------------------- tracker config
 
 
-def resolve_config(tracker: str, config_arg: str | None) -> tuple[BnpConfig, str]:
-    """Tracker settings: a preset name or a TOML file of ``BnpConfig`` fields; default: the
-    preset named like the tracker.  Returns ``(config, description)``."""
-    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig
+def resolve_config(tracker: str, config_arg: str | None) -> tuple[msgspec.Struct, str]:
+    """Tracker settings: a preset name or a TOML file of the tracker's settings fields;
+    default: the preset named like the tracker.  Returns ``(config, description)``."""
+    from tracker.registry import kind
 
-    if tracker not in TRACKERS:
-        raise ConfigError(f"unknown tracker {tracker!r}; valid trackers: {', '.join(TRACKERS)}")
+    try:
+        k = kind(tracker)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     if not config_arg:
-        return TRACKER_PRESETS[tracker], f"preset {tracker} (default for --tracker {tracker})"
-    if config_arg in TRACKER_PRESETS:
-        return TRACKER_PRESETS[config_arg], f"preset {config_arg}"
+        return k.presets[tracker], f"preset {tracker} (default for --tracker {tracker})"
+    if config_arg in k.presets:
+        return k.presets[config_arg], f"preset {config_arg}"
     if config_arg.endswith(".toml") or Path(config_arg).exists():
-        return load_toml(config_arg, BnpConfig), f"file {config_arg}"
+        return load_toml(config_arg, k.config_cls), f"file {config_arg}"
     raise ConfigError(
-        f"--config {config_arg!r}: not a preset ({', '.join(TRACKER_PRESETS)}) nor a .toml file"
+        f"--config {config_arg!r}: not a preset of {tracker} ({', '.join(k.presets)}) nor a .toml file"
     )
 
 
-def build_tracker(name: str, params: ModelParams, config: BnpConfig) -> BnpTracker:
-    """The tracker ``name`` (``ddp`` or ``dpyp``) with these parameters and settings."""
-    from tracker.bnp_tracker import make_tracker
+def build_tracker(name: str, params: ModelParams, config: msgspec.Struct):
+    """The tracker ``name`` (see :mod:`tracker.registry`) with these parameters and settings."""
+    from tracker.registry import build
 
-    if name not in TRACKERS:
-        raise ConfigError(f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}")
-    return make_tracker(name, params, config)
+    try:
+        return build(name, params, config)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- simulate
@@ -363,7 +369,7 @@ def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSP
 
 
 def track_frames(
-    tracker: BnpTracker,
+    tracker: Tracker,
     frames: Iterable[Frame],
     seed: int,
     on_estimate: Callable[[Frame, Estimate], None] | None = None,
@@ -403,7 +409,7 @@ def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
 def track_log(
     log: str | os.PathLike,
     out: str | os.PathLike,
-    tracker: BnpTracker,
+    tracker: Tracker,
     seed: int,
     metadata: Mapping[str, str] | None,
 ) -> TrackResult:

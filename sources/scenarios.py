@@ -74,7 +74,7 @@ import numpy as np
 
 from tracker.config import ConfigError
 from tracker.models.motion import CoordinatedTurn
-from tracker.models.params import ModelParams
+from tracker.models.params import BirthComponent, ModelParams
 from tracker.types import STATE_DIM, Truth
 
 __all__ = [
@@ -127,6 +127,9 @@ class Scenario:
     kind: Literal["bearing_range", "range"] = "bearing_range"
     targets: tuple[TargetSpec, ...] = ()
     default_snr_db: float | None = None
+    birth: tuple[tuple[float, tuple[float, ...]], ...] | None = None
+    """Scenario-specific birth regions ``(r, mean)`` (std as in Vo's model), or ``None`` to keep
+    the parameter set's (Vo's four components, made for ``vo2017``/``dpy5``)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "targets", tuple(self.targets))
@@ -192,11 +195,17 @@ class Scenario:
         """Apply the scenario's defaults to ``params``.
 
         If the scenario has a ``default_snr_db`` (the ``snr`` scenario: -3 dB) and
-        ``params.snr_db`` is unset, return a copy with ``snr_db`` set; otherwise return
-        ``params`` unchanged.
+        ``params.snr_db`` is unset, ``snr_db`` is set.  If it has its own birth regions
+        (``proximity``: the path's entry point; ``snr``: the 11 entry points), they replace the
+        parameter set's, so the GLMB's birth model and the BNP trackers' base distribution know
+        where this scenario's objects appear, as Vo's components do for ``vo2017``.
         """
         if self.default_snr_db is not None and params.snr_db is None:
-            return msgspec.structs.replace(params, snr_db=float(self.default_snr_db))
+            params = msgspec.structs.replace(params, snr_db=float(self.default_snr_db))
+        if self.birth is not None:
+            std = list(_BIRTH_STD)
+            params = msgspec.structs.replace(
+                params, birth=[BirthComponent(r=r, mean=list(m), std=std) for r, m in self.birth])
         return params
 
 
@@ -256,6 +265,11 @@ _SNR_TARGETS = tuple(
     for i, ((px, vx, py, vy), b, d) in enumerate(_SNR_TABLE)
 )
 
+# Birth regions: Vo's convention (zero velocity mean, std [50, 50, 50, 50, 6 deg/s]).
+_BIRTH_STD = (50.0, 50.0, 50.0, 50.0, float(np.deg2rad(6.0)))
+_PROX_BIRTH = ((0.05, (PROXIMITY_PATH_START[0], 0.0, PROXIMITY_PATH_START[2], 0.0, 0.0)),)
+_SNR_BIRTH = tuple((0.03, (px, 0.0, py, 0.0, 0.0)) for (px, _vx, py, _vy), _b, _d in _SNR_TABLE)
+
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
@@ -275,6 +289,7 @@ SCENARIOS: dict[str, Scenario] = {
             "Close proximity: 5 targets on the same constant-turn arc, entering at scans "
             "1, 5, 20, 30, 40 and leaving at 70, 100, 100, 45, 80 (experiment 2)",
             targets=_PROXIMITY_TARGETS,
+            birth=_PROX_BIRTH,
         ),
         Scenario(
             "snr",
@@ -283,6 +298,7 @@ SCENARIOS: dict[str, Scenario] = {
             targets=_SNR_TARGETS,
             kind="range",
             default_snr_db=-3.0,
+            birth=_SNR_BIRTH,
         ),
     )
 }

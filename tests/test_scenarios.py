@@ -226,8 +226,19 @@ def test_adapt_params():
     assert snr.adapt_params(p).snr_db == -3.0
     assert snr.adapt_params(p).sigma_range == p.sigma_range
     p10 = load_params("vo2017", ["snr_db=-10"])
-    assert snr.adapt_params(p10) is p10
-    assert VO.adapt_params(p) is p
+    assert snr.adapt_params(p10).snr_db == -10.0
+    assert VO.adapt_params(p) is p  # vo2017 keeps the parameter set's (Vo's) birth regions
+
+
+def test_scenario_birth_regions_replace_the_parameter_sets():
+    p = load_params("vo2017")
+    prox = get_scenario("proximity").adapt_params(p)
+    assert len(prox.birth) == 1 and prox.birth[0].mean[0] == -900.0 and prox.birth[0].mean[2] == 600.0
+    snr = get_scenario("snr").adapt_params(p)
+    starts = get_scenario("snr").states()[get_scenario("snr").births - 1, np.arange(11)]
+    assert len(snr.birth) == 11
+    np.testing.assert_allclose([[b.mean[0], b.mean[2]] for b in snr.birth], starts[:, [0, 2]])
+    assert get_scenario("dpy5").adapt_params(p).birth == p.birth
 
 
 def test_target_spec_validation():

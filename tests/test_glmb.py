@@ -1,0 +1,407 @@
+"""GLMB baseline: Kalman equivalence, exact one-frame posterior, cardinality, accuracy,
+snapshots, determinism and estimate structure."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from functools import cached_property
+
+import msgspec
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from sinks.metrics import ospa
+from sources.scenarios import get_scenario
+from sources.synthetic import simulate_all
+from tracker.config import ConfigError, apply_overrides
+from tracker.glmb import (GLMB_PRESETS, GlmbConfig, GlmbState, candidate_sets, gibbs_chains,
+                          make_glmb, start_optimal)
+from tracker.models.params import BirthComponent, load_params
+from tracker.state import restore, run, snapshot
+from tracker.types import Frame
+
+
+# --------------------------------------------------------------------------------------
+# A linear Gaussian model set following the filtering protocol (injected into the GLMB)
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LinearMotion:
+    """Constant velocity in x and y, constant omega; ``x = [px, vx, py, vy, w]``."""
+
+    T: float = 1.0
+    q: float = 2.0
+    ndim: int = 5
+
+    @cached_property
+    def F(self) -> np.ndarray:
+        F = np.eye(5)
+        F[0, 1] = F[2, 3] = self.T
+        return F
+
+    @cached_property
+    def Q(self) -> np.ndarray:
+        T, q = self.T, self.q
+        blk = q**2 * np.array([[T**4 / 4, T**3 / 2], [T**3 / 2, T**2]])
+        Q = np.zeros((5, 5))
+        Q[:2, :2] = Q[2:4, 2:4] = blk
+        Q[4, 4] = 1e-4
+        return Q
+
+    def f(self, x):
+        return x @ self.F.T
+
+    def jacobian(self, x):
+        return np.broadcast_to(self.F, (x.shape[0], 5, 5)).copy()
+
+
+@dataclass(frozen=True)
+class PositionSensor:
+    sigma: float = 5.0
+    dim: int = 2
+
+    @cached_property
+    def H(self) -> np.ndarray:
+        H = np.zeros((2, 5))
+        H[0, 0] = H[1, 2] = 1.0
+        return H
+
+    @cached_property
+    def R(self) -> np.ndarray:
+        return self.sigma**2 * np.eye(2)
+
+    def h(self, x):
+        return x @ self.H.T
+
+    def jacobian(self, x):
+        return np.broadcast_to(self.H, (x.shape[0], 2, 5)).copy()
+
+    def residual(self, z, z_pred):
+        return np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
+
+
+@dataclass(frozen=True)
+class ConstDetection:
+    p: float
+
+    def prob(self, x):
+        return np.full(np.atleast_2d(x).shape[0], self.p)
+
+
+@dataclass(frozen=True)
+class Clutter:
+    log_intensity: float
+
+
+@dataclass(frozen=True)
+class LinearParams:
+    """Duck-typed ``ModelParams`` (the GLMB's model protocol) for a linear Gaussian world."""
+
+    birth: tuple
+    p_detect: float = 1.0
+    p_survival: float = 1.0
+    log_kappa: float = float(np.log(1e-9) - np.log(1e6))
+    sigma: float = 5.0
+
+    def motion(self):
+        return LinearMotion()
+
+    def measurement(self, kind):
+        return PositionSensor(self.sigma)
+
+    def clutter(self, kind):
+        return Clutter(self.log_kappa)
+
+    def detection(self, kind):
+        return ConstDetection(self.p_detect)
+
+    def survival(self, x, kind):
+        return np.full(np.atleast_2d(x).shape[0], self.p_survival)
+
+
+def _frame(k: int, z) -> Frame:
+    return Frame(k, int(k * 1e9), "test", "bearing_range", np.asarray(z, dtype=float).reshape(-1, 2))
+
+
+# --------------------------------------------------------------------------------------
+# Exactness
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("filt", ["ukf", "ekf"])
+@pytest.mark.parametrize("gap", [False, True])
+def test_single_linear_object_equals_kalman_filter(filt, gap):
+    """P_D = 1, P_S = 1, no clutter, one birth at the object: the GLMB's track is the KF."""
+    birth = BirthComponent(r=0.5, mean=[0.0, 10.0, 0.0, 5.0, 0.0], std=[20.0, 5.0, 20.0, 5.0, 0.05])
+    params = LinearParams(birth=(birth,))
+    tracker = make_glmb(params, GlmbConfig(filter=filt))
+    motion, sensor = LinearMotion(), PositionSensor()
+    rng = np.random.default_rng(5)
+    x = np.array([3.0, 11.0, -4.0, 4.0, 0.0])
+    frames_k = [1, 2, 3, 4, 5, 8, 9, 10] if gap else list(range(1, 11))
+    frames = []
+    for k in range(1, 11):
+        if k > 1:
+            x = motion.F @ x + rng.multivariate_normal(np.zeros(5), motion.Q)
+        if k in frames_k:
+            frames.append(_frame(k, sensor.H @ x + rng.normal(0.0, 5.0, 2)))
+    # hand-written Kalman filter
+    m = np.array(birth.mean)
+    P = np.diag(np.square(birth.std))
+    prev = None
+    for f in frames:
+        for _ in range(0 if prev is None else f.frame - prev):
+            m, P = motion.F @ m, motion.F @ P @ motion.F.T + motion.Q
+        S = sensor.H @ P @ sensor.H.T + sensor.R
+        K = P @ sensor.H.T @ np.linalg.inv(S)
+        m = m + K @ (f.z[0] - sensor.H @ m)
+        P = (np.eye(5) - K @ sensor.H) @ P
+        prev = f.frame
+    est = None
+    for _, est, _ in run(tracker, frames, seed=1):
+        pass
+    assert est.labels == ("1.0",)
+    (track,) = est.tracks
+    np.testing.assert_allclose(track.state, m, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(track.covariance, P, rtol=1e-8, atol=1e-8)
+    assert track.existence == pytest.approx(1.0, abs=1e-6)
+    assert est.assignments == ("1.0",) and est.assignment_prob[0] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_one_frame_posterior_matches_brute_force():
+    """Two tracks + one birth, two measurements, enough samples: the hypotheses are all the
+    feasible assignments with weights prod eta (Vo 2017's joint prediction-update)."""
+    ps, pd, r_b, log_kappa = 0.7, 0.7, 0.3, float(np.log(2e-4))
+    birth = BirthComponent(r=r_b, mean=[0.0, 0.0, 30.0, 0.0, 0.0], std=[30.0, 5.0, 30.0, 5.0, 0.05])
+    params = LinearParams(birth=(birth,), p_detect=pd, p_survival=ps, log_kappa=log_kappa)
+    cfg = GlmbConfig(max_hypotheses=5000, prune_threshold=0.0, gate_prob=1 - 1e-12)
+    tracker = make_glmb(params, cfg)
+    mean = np.array([[0.0, 1.0, 0.0, 0.0, 0.0], [20.0, -1.0, 10.0, 0.0, 0.0]])
+    cov = np.stack([np.diag([100.0, 4.0, 100.0, 4.0, 1e-3])] * 2)
+    state = GlmbState(1, int(1e9), ("0.0", "0.1"), mean, cov, np.array([[0, 1]]), np.zeros(1))
+    Z = np.array([[5.0, 3.0], [15.0, 12.0]])
+    new, est = tracker.step(state, _frame(2, Z), np.random.default_rng(0))
+
+    motion, sensor = LinearMotion(), PositionSensor()
+    ms = [motion.F @ m for m in mean] + [np.array(birth.mean)]
+    Ps = [motion.F @ P @ motion.F.T + motion.Q for P in cov] + [np.diag(np.square(birth.std))]
+    e = [ps, ps, r_b]
+    labels = ["0.0", "0.1", "2.0"]
+
+    def eta(i, j):  # j = -1 dies, 0 missed, 1..2 measurement
+        if j < 0:
+            return 1 - e[i]
+        if j == 0:
+            return e[i] * (1 - pd)
+        g = multivariate_normal(sensor.H @ ms[i], sensor.H @ Ps[i] @ sensor.H.T + sensor.R).pdf(Z[j - 1])
+        return e[i] * pd * g / np.exp(log_kappa)
+
+    brute = {}
+    label_p = dict.fromkeys(labels, 0.0)
+    pair_p: dict[tuple[str, int], float] = {}
+    for gam in itertools.product([-1, 0, 1, 2], repeat=3):
+        det = [j for j in gam if j > 0]
+        if len(det) != len(set(det)):
+            continue
+        w = float(np.prod([eta(i, j) for i, j in enumerate(gam)]))
+        brute[gam] = w
+    total = sum(brute.values())
+    for gam, w in brute.items():
+        for i, j in enumerate(gam):
+            if j >= 0:
+                label_p[labels[i]] += w / total
+            if j > 0:
+                pair_p[(labels[i], j - 1)] = pair_p.get((labels[i], j - 1), 0.0) + w / total
+    got = np.sort(np.exp(new.log_w))
+    want = np.sort(np.array(list(brute.values())) / total)
+    assert got.size == want.size == 44
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-15)
+    for t in est.tracks:
+        assert t.existence == pytest.approx(label_p[t.label], rel=1e-9)
+    for m, (lab, p) in enumerate(zip(est.assignments, est.assignment_prob)):
+        if lab is None:
+            assert p == pytest.approx(1 - sum(v for (_, mm), v in pair_p.items() if mm == m), rel=1e-9)
+        else:
+            assert p == pytest.approx(pair_p[(lab, m)], rel=1e-9)
+    np.testing.assert_allclose(new.cardinality().sum(), 1.0)
+
+
+def test_gibbs_respects_distinct_measurements_and_starts_at_optimum():
+    rng = np.random.default_rng(3)
+    E = np.log(rng.uniform(0.01, 1.0, size=(6, 2 + 4)))
+    E[2, 3] = -np.inf  # a gated pair
+    hyp = np.array([[0, 1, 2, 3], [1, 3, -1, -1]])
+    cand = candidate_sets(hyp, 4, 2)
+    start, ok = start_optimal(E, cand)
+    assert ok.all()
+    for h in range(2):
+        rows = cand[h][cand[h] >= 0]
+        best = max(
+            (g for g in itertools.product(range(6), repeat=rows.size)
+             if len([j for j in g if j >= 2]) == len({j for j in g if j >= 2})),
+            key=lambda g: sum(E[r, j] for r, j in zip(rows, g)))
+        assert tuple(start[h, : rows.size]) == best
+    length = np.array([30, 30])
+    samples = gibbs_chains(rng, E, cand, start, length)
+    assert samples.shape == (2 + 60, cand.shape[1])
+    for s, c in zip(samples, np.concatenate([[0, 1]] + [[0, 1]] * 30)):
+        det = s[(cand[c] >= 0) & (s >= 2)]
+        assert det.size == np.unique(det).size
+        assert np.all(s[cand[c] < 0] == -1)
+        assert np.all(np.isfinite(E[cand[c][cand[c] >= 0], s[cand[c] >= 0]]))
+
+
+# --------------------------------------------------------------------------------------
+# vo2017 behaviour
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def vo_params():
+    return load_params("vo2017")
+
+
+@pytest.fixture(scope="module")
+def vo_frames(vo_params):
+    return simulate_all(get_scenario("vo2017"), vo_params, 1)
+
+
+def estimates_equal(a, b) -> bool:
+    return (a.labels == b.labels and np.array_equal(a.positions, b.positions)
+            and a.assignments == b.assignments and a.assignment_prob == b.assignment_prob
+            and [t.existence for t in a.tracks] == [t.existence for t in b.tracks]
+            and all(np.array_equal(x.covariance, y.covariance) for x, y in zip(a.tracks, b.tracks)))
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_exact_cardinality_without_clutter(seed):
+    """Clutter-free, P_D = 0.999: the MAP cardinality equals the number of visible targets at
+    every frame except
+
+    * each target's first 2 frames (T3 and T4 share one birth component at frame 10, so one of
+      them can only be born at frame 11) and the frame after a death;
+    * the 5 frames after a target leaves the sensor range: its track, predicted outside the
+      field of view, survives with ``p_survival_outside = 0.7`` per frame and lingers;
+    * frames where a visible target was not detected (M < visible): there the posterior MAP
+      drops the track (dies 1 - P_S = 0.01 beats missed P_S (1 - P_D) = 0.00099) and the next
+      detection brings the same label back.
+    """
+    params = load_params("vo2017", ["clutter_rate=0.001", "p_detect=0.999"])
+    scenario = get_scenario("vo2017")
+    frames = simulate_all(scenario, params, seed)
+    present = scenario.presence()
+    states = scenario.states(params.T)
+    inside = np.array([[bool(params.detection().visible(x[None])[0]) if p else False
+                        for x, p in zip(states[k], present[k])] for k in range(scenario.K)])
+    births, deaths = scenario.births - 1, scenario.deaths - 1  # 0-based frame indices
+    checked, bad, missed_frames = 0, [], []
+    labels_at = {}
+    for f, e, _ in run(make_glmb(params), frames, seed):
+        k = f.frame - 1
+        labels_at[k] = set(e.labels)
+        n_vis = int(inside[k].sum())
+        if f.n_measurements < n_vis:
+            missed_frames.append(k)
+            continue
+        recent_birth = np.any((k - births >= 0) & (k - births < 2))
+        recent_death = np.any((k - deaths >= 1) & (k - deaths <= 1))
+        left = np.any(present[max(0, k - 4): k + 1] & ~inside[max(0, k - 4): k + 1])
+        if recent_birth or recent_death or left:
+            continue
+        checked += 1
+        if len(e.tracks) != n_vis:
+            bad.append((f.frame, len(e.tracks), n_vis))
+    assert bad == [] and checked >= 75
+    assert len(missed_frames) <= 3
+    for k in missed_frames:  # the re-detected target comes back with its old label
+        if k + 1 in labels_at and k - 1 in labels_at:
+            fresh = labels_at[k + 1] - labels_at[k - 1]
+            assert all(lab.split(".")[0] in (str(k + 1), str(k + 2)) for lab in fresh)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_tracks_vo2017_well(vo_params, seed):
+    frames = simulate_all(get_scenario("vo2017"), vo_params, seed)
+    o, card = [], []
+    for f, e, _ in run(make_glmb(vo_params), frames, seed):
+        o.append(ospa(f.truth.positions, e.positions, c=100.0, p=1.0).total)
+        card.append(abs(len(e.tracks) - len(f.truth.ids)))
+    # measured (seeds 1, 2): OSPA about 25-26.5 m, card error about 0.15-0.21
+    assert np.mean(o) < 30.0
+    assert np.mean(card) < 0.35
+
+
+def test_same_seed_same_output(vo_params, vo_frames):
+    tr = make_glmb(vo_params)
+    a = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
+    b = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
+    assert all(estimates_equal(x, y) for x, y in zip(a, b))
+
+
+def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames):
+    tr = make_glmb(vo_params)
+    full = [e for _, e, _ in run(tr, vo_frames[:36], 11)]
+    *_, (_, _, state) = run(tr, vo_frames[:18], 11)
+    restored = restore(snapshot(state), GlmbState)
+    assert restored.labels == state.labels and restored.frame == state.frame
+    for f in ("mean", "cov", "hyp_tracks", "log_w"):
+        np.testing.assert_array_equal(getattr(restored, f), getattr(state, f))
+        assert getattr(restored, f).dtype == getattr(state, f).dtype
+    resumed = [e for _, e, _ in run(tr, vo_frames[18:36], 11, restored)]
+    assert all(estimates_equal(x, y) for x, y in zip(full[18:], resumed))
+    # the initial state snapshots too
+    init = restore(snapshot(tr.initial_state()), GlmbState)
+    assert init.hyp_tracks.shape == (1, 0) and init.log_w.tolist() == [0.0]
+
+
+def test_estimate_structure_and_normalised_weights(vo_params, vo_frames):
+    tr = make_glmb(vo_params)
+    for f, e, st in run(tr, vo_frames[:30], 2):
+        assert len(e.assignments) == len(e.assignment_prob) == f.n_measurements
+        assert all(0.0 <= p <= 1.0 for p in e.assignment_prob)
+        assert len(set(e.labels)) == len(e.labels)
+        assert set(a for a in e.assignments if a is not None) <= set(e.labels)
+        assert all(0.0 <= t.existence <= 1.0 for t in e.tracks)
+        assert all(np.isfinite(v) for v in e.diagnostics.values())
+        assert {"n_hypotheses", "n_tracks", "map_cardinality", "ms"} <= set(e.diagnostics)
+        assert e.diagnostics["map_cardinality"] == len(e.tracks)
+        w = np.exp(st.log_w)
+        assert w.sum() == pytest.approx(1.0, abs=1e-12)
+        assert st.n_hypotheses <= tr.config.max_hypotheses_after
+        assert st.hyp_tracks.dtype == np.int64 and st.hyp_tracks.max(initial=-1) < st.n_tracks
+        for row in st.hyp_tracks:
+            r = row[row >= 0]
+            assert np.all(np.diff(r) > 0) and np.all(row[r.size:] == -1)
+            labs = [st.labels[i] for i in r]
+            assert len(set(labs)) == len(labs)
+        # every table row is used by some hypothesis
+        assert np.unique(st.hyp_tracks[st.hyp_tracks >= 0]).size == st.n_tracks
+
+
+def test_frame_gap_predicts_through(vo_params, vo_frames):
+    tr = make_glmb(vo_params)
+    frames = vo_frames[:30] + vo_frames[33:40]
+    ests = {f.frame: e for f, e, _ in run(tr, frames, 3)}
+    assert set(ests) == {f.frame for f in frames}
+    # labels of established tracks survive a 3-frame gap
+    assert set(ests[30].labels) & set(ests[34].labels)
+    with pytest.raises(ValueError, match="not after"):
+        *_, (_, _, st) = run(tr, vo_frames[:5], 3)
+        tr.step(st, vo_frames[2], np.random.default_rng(0))
+
+
+def test_config_is_strict_and_overridable(vo_params):
+    assert GLMB_PRESETS["glmb"] == GlmbConfig()
+    cfg = apply_overrides(GlmbConfig(), ["chain_length=5", "filter=ekf"])
+    assert cfg.chain_length == 5 and cfg.filter == "ekf"
+    with pytest.raises(ConfigError):
+        apply_overrides(GlmbConfig(), ["no_such_field=1"])
+    with pytest.raises(msgspec.ValidationError):
+        msgspec.convert({"gate_prob": 1.5}, GlmbConfig)
+    one = BirthComponent(r=0.1, mean=[0.0, 0.0, 1000.0, 0.0, 0.0], std=[50.0, 10.0, 50.0, 10.0, 0.01])
+    tr = make_glmb(vo_params, GlmbConfig(birth=[one]))
+    r, m, P = tr.birth
+    assert r.tolist() == [0.1] and m.shape == (1, 5) and P.shape == (1, 5, 5)

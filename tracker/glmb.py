@@ -1,0 +1,600 @@
+r"""GLMB baseline: joint prediction-update with Gibbs-sampled truncation.
+
+Vo, Vo & Hoang, "An Efficient Implementation of the Generalized Labeled Multi-Bernoulli
+Filter", IEEE TSP 65(8), 2017 (arXiv:1606.08350), Gaussian (UKF or EKF) implementation with a
+labeled multi-Bernoulli birth, as in the authors' ``jointglmb`` UKF demo.  ``docs/glmb.md``
+lists the equations, the caps and the measured accuracy.
+
+The GLMB filtering density :math:`\pi(X) = \Delta(X) \sum_{I, \xi} w^{(I,\xi)}
+\delta_I[\mathcal L(X)] [p^{(\xi)}]^X` is held as plain arrays (:class:`GlmbState`):
+
+* a **track table**: one row per (label, Gaussian) -- ``labels`` (T,), ``mean`` (T, 5),
+  ``cov`` (T, 5, 5); a row is one label's density :math:`p^{(\xi)}(\cdot, \ell)` under one
+  association history;
+* **hypotheses**: ``hyp_tracks`` (H, maxN) sorted track-table rows padded with ``-1`` and
+  normalised ``log_w`` (H,).
+
+One frame (:meth:`GlmbTracker.step`):
+
+1. predict every table row (the candidate survivors) and append the birth components;
+2. per candidate row, the log of the :math:`\eta` costs over the options *dies / missed /
+   detected by* :math:`z_j` (shared by all hypotheses; chi-square gating);
+3. per hypothesis, Gibbs chains over the assignment vector :math:`\gamma` of its survivors
+   plus the births, started at the optimal assignment, with a number of samples
+   proportional to :math:`\sqrt{w}` (the authors' allocation);
+4. distinct samples become child hypotheses (weight = parent weight x product of
+   :math:`\eta`), children with identical track sets are merged, pruned and capped;
+5. the new track table holds the (row, measurement) pairs used by the kept children, with
+   the Gaussian update computed once per pair.
+
+Everything random comes from the caller's ``rng``; ``step`` is a pure function.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Annotated, Any, Literal, Protocol
+
+import msgspec
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from tracker import filtering as kf
+from tracker.models.params import BirthComponent, ModelParams
+from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate
+
+__all__ = ["GlmbConfig", "GlmbState", "GlmbTracker", "GLMB_PRESETS", "make_glmb", "GlmbModel"]
+
+OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
+PosInt = Annotated[int, msgspec.Meta(ge=1)]
+
+#: option columns of the eta matrix: 0 = dies / not born, 1 = missed, 2 + j = detected by z_j
+_DIE, _MISS, _DET = 0, 1, 2
+
+
+class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Settings of the GLMB baseline (model physics live in ``ModelParams``)."""
+
+    filter: Literal["ukf", "ekf"] = "ukf"
+    """Gaussian approximation of the nonlinear models (UKF as in Vo's demo)."""
+    gate_prob: OpenProb = 0.99999
+    """Chi-square gate probability on the predicted measurement; pairs outside are impossible
+    (Vo's demo uses 0.9999999)."""
+    max_hypotheses: PosInt = 1000
+    """Requested Gibbs samples per frame over all parent hypotheses (the demo's ``H_upd``);
+    parent ``h`` gets ``round(max_hypotheses * sqrt(w_h) / sum sqrt(w))`` and at least one."""
+    max_hypotheses_after: PosInt = 500
+    """Cap on the number of hypotheses kept after pruning (the demo's ``H_max``)."""
+    prune_threshold: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 1e-15
+    """Hypotheses with normalised weight at or below this are dropped (``hyp_threshold``)."""
+    chain_length: PosInt = 10
+    """Maximum Gibbs sweeps per chain: a parent's request is split into parallel chains of at
+    most this many sweeps, all started at the same point (short-chain multi-simulation)."""
+    start: Literal["optimal", "missed"] = "optimal"
+    """Chain start: the optimal assignment (linear assignment, so each parent's best child is
+    always kept) or every candidate at its best of dies/missed (Vo's demo: all missed)."""
+    birth: list[BirthComponent] | None = None
+    """Labeled multi-Bernoulli birth; ``None`` uses the parameter set's ``birth`` list."""
+
+
+GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}
+
+
+class GlmbModel(Protocol):
+    """What the GLMB needs from a model set (``ModelParams`` satisfies it; tests inject others).
+
+    ``motion()`` and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
+    ``clutter(kind).log_intensity`` is :math:`\\log\\kappa(z)` (uniform clutter);
+    ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
+    """
+
+    birth: list[BirthComponent]
+
+    def motion(self) -> Any: ...
+    def measurement(self, kind: str) -> Any: ...
+    def clutter(self, kind: str) -> Any: ...
+    def detection(self, kind: str) -> Any: ...
+    def survival(self, x: np.ndarray, kind: str) -> np.ndarray: ...
+
+
+def _empty_hyps() -> np.ndarray:
+    return np.zeros((1, 0), dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class GlmbState:
+    """The GLMB density after ``frame`` (snapshot with :mod:`tracker.state`).
+
+    Track table: ``labels`` (T,), ``mean`` (T, 5), ``cov`` (T, 5, 5).  Hypotheses:
+    ``hyp_tracks`` (H, maxN) int64 sorted table rows padded with ``-1``; ``log_w`` (H,)
+    normalised log weights.  The initial state is the single empty hypothesis of weight 1.
+    """
+
+    frame: int = -1
+    stamp_ns: int = 0
+    labels: tuple[str, ...] = ()
+    mean: np.ndarray = field(default_factory=lambda: np.zeros((0, STATE_DIM)))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, STATE_DIM, STATE_DIM)))
+    hyp_tracks: np.ndarray = field(default_factory=_empty_hyps)
+    log_w: np.ndarray = field(default_factory=lambda: np.zeros(1))
+
+    @property
+    def n_tracks(self) -> int:
+        return len(self.labels)
+
+    @property
+    def n_hypotheses(self) -> int:
+        return int(self.log_w.shape[0])
+
+    def cardinality(self) -> np.ndarray:
+        """Cardinality distribution ``(maxN + 1,)``: :math:`\\rho(n) = \\sum_{|I|=n} w^{(I)}`."""
+        n = np.sum(self.hyp_tracks >= 0, axis=1)
+        return np.bincount(n, weights=np.exp(self.log_w), minlength=self.hyp_tracks.shape[1] + 1)
+
+
+# --------------------------------------------------------------------------------------
+# Per-frame intermediate data
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    """Predicted survivors (rows ``0..T-1``, the old table rows) then births (``T..T+B-1``)."""
+
+    labels: tuple[str, ...]
+    mean: np.ndarray
+    cov: np.ndarray
+    log_e: np.ndarray  # log P_S (survivors, over the gap) or log r_B (births)
+    log_not_e: np.ndarray  # log(1 - P_S) or log(1 - r_B)
+    p_detect: np.ndarray
+    n_survivors: int
+
+
+@dataclass(frozen=True)
+class _Children:
+    """Distinct child hypotheses as sorted pair keys ``row * (M + 1) + j`` (j = 0 missed,
+    1..M measurement j-1), padded with ``-1``, and their log weights (unnormalised)."""
+
+    keys: np.ndarray
+    log_w: np.ndarray
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class _Update:
+    """The new GLMB plus per-row data of this frame (measurement index or -1)."""
+
+    state: GlmbState
+    row_meas: np.ndarray
+
+
+# --------------------------------------------------------------------------------------
+# Pure array helpers
+# --------------------------------------------------------------------------------------
+
+
+def _log(x: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.log(x)
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    top = float(np.max(a))
+    return top + math.log(float(np.sum(np.exp(a - top)))) if math.isfinite(top) else top
+
+
+def group_logsumexp(values: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
+    """``out[g] = log sum_{i: groups[i] = g} exp(values[i])`` (vectorised)."""
+    top = np.full(n_groups, -np.inf)
+    np.maximum.at(top, groups, values)
+    safe = np.where(np.isfinite(top), top, 0.0)
+    sums = np.bincount(groups, weights=np.exp(values - safe[groups]), minlength=n_groups)
+    return safe + _log(sums)
+
+
+def eta_matrix(log_e: np.ndarray, log_not_e: np.ndarray, p_detect: np.ndarray,
+               log_lik: np.ndarray, log_kappa: float) -> np.ndarray:
+    r"""Log costs :math:`\log\eta_i(j)` of every candidate ``(N, M + 2)``.
+
+    Column 0 (:math:`j = -1`, dies / not born): :math:`1 - e_i`; column 1 (:math:`j = 0`,
+    missed): :math:`e_i (1 - P_D)`; column ``2 + m`` (detected by :math:`z_m`):
+    :math:`e_i P_D\, g(z_m \mid \cdot) / \kappa(z_m)`, where :math:`e_i = \bar P_S` for a
+    survivor and :math:`r_B` for a birth, :math:`g` the (gated) Gaussian predictive likelihood.
+    """
+    log_pd = _log(p_detect)
+    out = np.empty((log_e.shape[0], log_lik.shape[1] + 2))
+    out[:, _DIE] = log_not_e
+    out[:, _MISS] = log_e + _log(1.0 - p_detect)
+    out[:, _DET:] = (log_e + log_pd)[:, None] + log_lik - log_kappa
+    return out
+
+
+def candidate_sets(hyp_tracks: np.ndarray, n_survivors: int, n_births: int) -> np.ndarray:
+    """Candidate rows of every parent ``(H, maxN + B)``: its survivors then all births, -1 pad."""
+    H, width = hyp_tracks.shape
+    births = np.broadcast_to(n_survivors + np.arange(n_births), (H, n_births))
+    cand = np.concatenate([hyp_tracks, births], axis=1)
+    # move the -1 padding of the survivors to the end, keeping order
+    order = np.argsort(cand < 0, axis=1, kind="stable")
+    return np.take_along_axis(cand, order, axis=1)
+
+
+def allocate_samples(log_w: np.ndarray, total: int) -> np.ndarray:
+    r"""Requested samples per parent: :math:`\max(1, \mathrm{round}(N \sqrt{w_h} /
+    \sum_h \sqrt{w_h}))` (the authors' square-root allocation)."""
+    s = np.exp(0.5 * (log_w - np.max(log_w)))
+    return np.maximum(1, np.round(total * s / s.sum())).astype(np.int64)
+
+
+def start_optimal(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Optimal assignment of each parent (max sum of log eta, distinct measurements).
+
+    Returns the options ``(H, width)`` (-1 on padding) and a feasibility mask ``(H,)``; a
+    parent without any feasible assignment has zero-weight children only.  Where every
+    candidate's individually best option uses a different measurement, that is the optimum;
+    the other parents are solved by linear assignment (:func:`_assign`).
+    """
+    valid = cand >= 0
+    best = np.argmax(E, axis=1)
+    out = np.where(valid, best[np.where(valid, cand, 0)], -1)
+    det = np.where(out >= _DET, out, -1 - np.arange(out.shape[1]))  # distinct fillers
+    srt = np.sort(det, axis=1)
+    clash = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
+    ok = np.all(np.isfinite(E[np.where(valid, cand, 0), np.maximum(out, 0)]) | ~valid, axis=1)
+    hard = np.flatnonzero(clash | ~ok)
+    if hard.size:
+        out[hard], ok[hard] = _assign(E, cand[hard])
+    return out, ok
+
+
+def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Best options of each parent by linear assignment on the cost matrix
+    ``[-log eta(detections) | diag(-max(log eta(dies), log eta(missed)))]`` (padding rows
+    take their own dummy column at no cost).  Returns options ``(H, width)`` and
+    feasibility ``(H,)``."""
+    H, width = cand.shape
+    M = E.shape[1] - _DET
+    valid = cand >= 0
+    Ec = E[np.where(valid, cand, 0)]  # (H, width, M + 2)
+    no_det = np.where(Ec[..., _MISS] >= Ec[..., _DIE], _MISS, _DIE)
+    best_no = np.take_along_axis(Ec, no_det[..., None], axis=-1)[..., 0]
+    cost = np.full((H, width, M + width), np.inf)
+    cost[:, :, :M] = np.where(valid[..., None], -Ec[..., _DET:], np.inf)
+    diag = np.arange(width)
+    cost[:, diag, M + diag] = np.where(valid, -best_no, 0.0)
+    out = np.where(valid, no_det, -1)
+    ok = np.zeros(H, dtype=bool)
+    for h in range(H):
+        try:
+            r, c = linear_sum_assignment(cost[h])
+        except ValueError:  # infeasible
+            continue
+        det = c < M
+        out[h, r[det]] = _DET + c[det]
+        ok[h] = bool(np.isfinite(cost[h, r, c]).all())
+    return out, ok
+
+
+def start_missed(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each candidate at its best of dies/missed (Vo's demo starts all missed)."""
+    valid = cand >= 0
+    Ec = E[np.where(valid, cand, 0)]
+    opt = np.where(Ec[..., _MISS] >= Ec[..., _DIE], _MISS, _DIE)
+    best = np.take_along_axis(Ec, opt[..., None], axis=-1)[..., 0]
+    ok = np.all(np.isfinite(best) | ~valid, axis=1)
+    return np.where(valid, opt, -1), ok
+
+
+def _draw(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
+    """One categorical draw per row of the unnormalised probabilities ``p`` (rows > 0)."""
+    cdf = np.cumsum(p, axis=1)
+    u = rng.random(p.shape[0]) * cdf[:, -1]
+    idx = np.count_nonzero(cdf <= u[:, None], axis=1)
+    over = idx >= p.shape[1]  # u rounded up to the total: take the last positive entry
+    if np.any(over):
+        idx[over] = p.shape[1] - 1 - np.argmax(p[over, ::-1] > 0, axis=1)
+    return idx
+
+
+def gibbs_chains(rng: np.random.Generator, E: np.ndarray, cand: np.ndarray,
+                 start: np.ndarray, length: np.ndarray) -> np.ndarray:
+    r"""Run Gibbs chains in lockstep; returns every visited state ``(S, width)``.
+
+    Chain ``c`` has candidates ``cand[c]`` (-1 padded), starts at ``start[c]`` and makes
+    ``length[c]`` sweeps; ``length`` must be non-increasing (active chains are a prefix).
+    The output holds all starts, then the active chains' states after each sweep.  One sweep
+    updates each candidate ``i`` in turn from (Algorithm 1)
+
+    .. math:: p(\gamma_i = j \mid \gamma_{\bar i}) \propto \eta_i(j)\,
+              \big(1 - 1[j > 0,\ j \in \{\gamma_{1:i-1}, \gamma_{i+1:n}\}]\big)
+
+    (distinct measurements; "dies" and "missed" are never blocked).
+    """
+    C, width = cand.shape
+    # conditionals only involve one row of eta: scale each row by its maximum once
+    P = np.exp(E - np.max(E, axis=1, keepdims=True)) if E.size else np.ones_like(E)
+    gamma = start.copy()
+    taken = np.zeros((C, E.shape[1]), dtype=bool)
+    rc, cc = np.nonzero(gamma >= _DET)
+    taken[rc, gamma[rc, cc]] = True
+    slot_chains = [np.flatnonzero(cand[:, i] >= 0) for i in range(width)]
+    samples = [gamma.copy()]
+    for s in range(int(length.max(initial=0))):
+        k = int(np.count_nonzero(length > s))
+        for i in range(width):
+            ch = slot_chains[i]
+            ch = ch[: np.searchsorted(ch, k)]
+            if ch.size == 0:
+                continue
+            taken[ch, gamma[ch, i]] = False
+            new = _draw(rng, P[cand[ch, i]] * ~taken[ch])
+            taken[ch, new] = new >= _DET
+            gamma[ch, i] = new
+        samples.append(gamma[:k].copy())
+    return np.concatenate(samples, axis=0)
+
+
+def split_chains(n_req: np.ndarray, chain_length: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gibbs chains for per-parent requests: parent ``p``'s start is one sample and its other
+    ``n_req[p] - 1`` sweeps are split into near-equal chains of at most ``chain_length``
+    sweeps.  Returns ``(chain_parent, length)`` sorted by non-increasing length."""
+    n_chains = np.maximum(1, -(-(n_req - 1) // chain_length))
+    parent = np.repeat(np.arange(n_req.size), n_chains)
+    sweeps = np.repeat(n_req - 1, n_chains)
+    per = np.repeat(n_chains, n_chains)
+    pos = np.arange(parent.size) - np.repeat(np.cumsum(n_chains) - n_chains, n_chains)
+    length = sweeps // per + (pos < sweeps % per)
+    order = np.argsort(-length, kind="stable")
+    return parent[order], length[order]
+
+
+def sample_chains(length: np.ndarray) -> np.ndarray:
+    """Chain index of each row of :func:`gibbs_chains`' output (all starts, then the active
+    prefix after each sweep)."""
+    sweeps = [np.arange(np.count_nonzero(length > s)) for s in range(int(length.max(initial=0)))]
+    return np.concatenate([np.arange(length.size)] + sweeps)
+
+
+def assignment_log_eta(E: np.ndarray, cand: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+    r""":math:`\sum_i \log \eta_i(\gamma_i)` of each assignment (padding ignored)."""
+    valid = cand >= 0
+    return np.where(valid, E[np.where(valid, cand, 0), np.where(valid, gamma, 0)], 0.0).sum(axis=1)
+
+
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct rows of a 2-D int array (lexicographic order) and the inverse index."""
+    if a.shape[0] == 0:
+        return a, np.zeros(0, dtype=np.int64)
+    if a.shape[1] == 0:
+        return a[:1], np.zeros(a.shape[0], dtype=np.int64)
+    order = np.lexsort(a.T[::-1])
+    s = a[order]
+    new = np.concatenate([[True], np.any(s[1:] != s[:-1], axis=1)])
+    inv = np.empty(a.shape[0], dtype=np.int64)
+    inv[order] = np.cumsum(new) - 1
+    return s[new], inv
+
+
+def child_keys(cand: np.ndarray, gamma: np.ndarray, n_meas: int) -> np.ndarray:
+    """Sorted pair keys ``row * (M + 1) + j`` of each sample's existing labels, -1 padded.
+
+    ``j = gamma - 1``: 0 missed, ``1..M`` measurement ``j - 1``; dead / not-born candidates
+    and padding are dropped.
+    """
+    alive = (cand >= 0) & (gamma >= _MISS)
+    keys = np.where(alive, cand * (n_meas + 1) + (gamma - 1), np.iinfo(np.int64).max)
+    keys = np.sort(keys, axis=1)
+    width = int(alive.sum(axis=1).max(initial=0))
+    keys = keys[:, :width]
+    return np.where(keys == np.iinfo(np.int64).max, -1, keys)
+
+
+def merge_children(cand: np.ndarray, gamma: np.ndarray, log_w: np.ndarray, n_meas: int) -> _Children:
+    """Children as pair-key sets; zero-weight ones dropped, identical sets merged (their
+    weights summed: different parents can produce the same child, e.g. when the tracks
+    that tell them apart die)."""
+    finite = np.isfinite(log_w)
+    keys, inv = unique_rows(child_keys(cand[finite], gamma[finite], n_meas))
+    return _Children(keys, group_logsumexp(log_w[finite], inv, keys.shape[0]), int(log_w.size))
+
+
+def prune_and_cap(log_w: np.ndarray, threshold: float, cap: int) -> np.ndarray:
+    """Indices of hypotheses kept: normalised weight above ``threshold``, best ``cap``."""
+    w = np.exp(log_w - _logsumexp(log_w))
+    keep = np.flatnonzero(w > threshold)
+    if keep.size == 0:
+        keep = np.array([int(np.argmax(log_w))])
+    if keep.size > cap:
+        keep = keep[np.argsort(-log_w[keep], kind="stable")[:cap]]
+    return np.sort(keep)
+
+
+# --------------------------------------------------------------------------------------
+# The tracker
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GlmbTracker:
+    """Joint-prediction-update GLMB filter (Vo, Vo & Hoang 2017) with Gibbs truncation.
+
+    ``params`` is a :class:`~tracker.models.params.ModelParams` or any :class:`GlmbModel`.
+    """
+
+    params: Any
+    config: GlmbConfig = GlmbConfig()
+    name: str = "glmb"
+
+    @cached_property
+    def motion(self):
+        return self.params.motion()
+
+    @cached_property
+    def birth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Birth components: ``r`` (B,), means (B, 5), covariances (B, 5, 5)."""
+        comps = self.config.birth if self.config.birth is not None else self.params.birth
+        if not comps:
+            return np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM))
+        r = np.array([c.r for c in comps], dtype=float)
+        mean = np.array([c.mean for c in comps], dtype=float)
+        cov = np.stack([np.diag(np.square(np.asarray(c.std, dtype=float))) for c in comps])
+        return r, mean, cov
+
+    def initial_state(self) -> GlmbState:
+        return GlmbState()
+
+    # -- the step -----------------------------------------------------------------------
+    def step(self, state: GlmbState, frame: Frame, rng: np.random.Generator
+             ) -> tuple[GlmbState, Estimate]:
+        """Process one frame; returns the new state and the frame's estimate."""
+        t0 = time.perf_counter()
+        if frame.frame <= state.frame:
+            raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
+        steps = 1 if state.frame < 0 else frame.frame - state.frame
+        meas = self.params.measurement(frame.kind)
+        cands = self._candidates(state, steps, frame)
+        innov = self._innovation(meas, cands)
+        E = self._eta(meas, innov, cands, frame)
+        children = self._children(state, cands, E, rng)
+        upd = self._update(frame, meas, innov, cands, children)
+        est = self._estimate(upd, frame)
+        w = np.exp(upd.state.log_w)
+        card = upd.state.cardinality()
+        diagnostics = {
+            "n_hypotheses": float(upd.state.n_hypotheses),
+            "n_tracks": float(upd.state.n_tracks),
+            "map_cardinality": float(np.argmax(card)),
+            "mean_cardinality": float(np.dot(np.arange(card.size), card)),
+            "max_weight": float(np.max(w)),
+            "n_samples": float(children.n_samples),
+            "ms": (time.perf_counter() - t0) * 1e3,
+        }
+        return upd.state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
+                                   est.assignment_prob, diagnostics)
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _predict_fn(self):
+        return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
+
+    def _candidates(self, state: GlmbState, steps: int, frame: Frame) -> _Candidates:
+        r"""Survivors: ``steps`` predictions, :math:`\bar P_S = \prod_s P_S(m_s)` with
+        :math:`m_s` the mean before step ``s`` (the survival of the gap); then births."""
+        m, P = state.mean, state.cov
+        log_ps = np.zeros(len(m))
+        predict = self._predict_fn()
+        for _ in range(steps if len(m) else 0):
+            log_ps = log_ps + _log(self.params.survival(m, frame.kind))
+            m, P = predict(self.motion, m, P)
+        r, bm, bP = self.birth
+        labels = state.labels + tuple(f"{frame.frame}.{i}" for i in range(r.size))
+        mean = np.concatenate([m, bm])
+        cov = np.concatenate([P, bP])
+        log_e = np.concatenate([log_ps, _log(r)])
+        log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - r)])
+        pd = self.params.detection(frame.kind).prob(mean) if len(mean) else np.zeros(0)
+        return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m))
+
+    def _innovation(self, meas, cands: _Candidates) -> kf.Innovation:
+        if self.config.filter == "ukf":
+            return kf.ukf_innovation(meas, cands.mean, cands.cov)
+        return kf.ekf_innovation(meas, cands.mean, cands.cov)
+
+    def _eta(self, meas, innov: kf.Innovation, cands: _Candidates, frame: Frame) -> np.ndarray:
+        M = frame.n_measurements
+        if M and len(cands.mean):
+            log_lik = kf.log_likelihood_matrix(meas, innov, frame.z, self.config.gate_prob)
+        else:
+            log_lik = np.zeros((len(cands.mean), M))
+        log_kappa = float(self.params.clutter(frame.kind).log_intensity)
+        if not math.isfinite(log_kappa):
+            raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
+        return eta_matrix(cands.log_e, cands.log_not_e, cands.p_detect, log_lik, log_kappa)
+
+    def _children(self, state: GlmbState, cands: _Candidates, E: np.ndarray,
+                  rng: np.random.Generator) -> _Children:
+        """Gibbs-sampled distinct children of every parent, duplicates merged."""
+        cfg = self.config
+        cand = candidate_sets(state.hyp_tracks, cands.n_survivors, len(cands.labels) - cands.n_survivors)
+        start, ok = (start_optimal if cfg.start == "optimal" else start_missed)(E, cand)
+        parents = np.flatnonzero(ok)
+        if parents.size == 0:
+            raise RuntimeError("GLMB: no parent hypothesis has a feasible assignment")
+        cand, start, log_w = cand[parents], start[parents], state.log_w[parents]
+        chain_parent, length = split_chains(allocate_samples(log_w, cfg.max_hypotheses), cfg.chain_length)
+        samples = gibbs_chains(rng, E, cand[chain_parent], start[chain_parent], length)
+        owner = chain_parent[sample_chains(length)]
+        uniq, _ = unique_rows(np.column_stack([owner, samples]))
+        p_idx, gamma = uniq[:, 0], uniq[:, 1:]
+        log_w = log_w[p_idx] + assignment_log_eta(E, cand[p_idx], gamma)
+        return merge_children(cand[p_idx], gamma, log_w, E.shape[1] - _DET)
+
+    def _update(self, frame: Frame, meas, innov: kf.Innovation, cands: _Candidates,
+                children: _Children) -> _Update:
+        """Prune and cap the children, then build the new track table from their pairs."""
+        cfg = self.config
+        keep = prune_and_cap(children.log_w, cfg.prune_threshold, cfg.max_hypotheses_after)
+        keys = children.keys[keep]
+        log_w = children.log_w[keep]
+        log_w = log_w - _logsumexp(log_w)
+        used = np.unique(keys[keys >= 0])
+        M = frame.n_measurements
+        row, j = used // (M + 1), used % (M + 1)
+        mean = cands.mean[row].copy()
+        cov = cands.cov[row].copy()
+        det = j > 0
+        if np.any(det):
+            mean[det] = kf.update_pairs(meas, innov, cands.mean, frame.z, row[det], j[det] - 1)
+            cov[det] = innov.P_upd[row[det]]
+        # strip trailing all-padding columns; map keys to new rows (sorted keys -> sorted rows)
+        width = int(np.sum(keys >= 0, axis=1).max(initial=0))
+        keys = keys[:, :width]
+        hyp = np.where(keys >= 0, np.searchsorted(used, keys), -1).astype(np.int64)
+        labels = tuple(cands.labels[i] for i in row.tolist())
+        new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
+                        np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)
+        return _Update(new, (j - 1).astype(np.int64))
+
+    def _estimate(self, upd: _Update, frame: Frame) -> Estimate:
+        """MAP cardinality, best hypothesis of that cardinality, label marginals."""
+        st = upd.state
+        w = np.exp(st.log_w)
+        hyp = st.hyp_tracks
+        n = np.sum(hyp >= 0, axis=1)
+        card = np.bincount(n, weights=w)
+        n_map = int(np.argmax(card))
+        best = int(np.argmax(np.where(n == n_map, st.log_w, -np.inf)))
+        uniq_labels, label_id = np.unique(np.array(st.labels, dtype=object), return_inverse=True) \
+            if st.n_tracks else (np.zeros(0, dtype=object), np.zeros(0, dtype=np.int64))
+        label_id = np.asarray(label_id, dtype=np.int64).reshape(-1)
+        h_idx, slot = np.nonzero(hyp >= 0)
+        rows = hyp[h_idx, slot]
+        lab_of = label_id[rows]
+        existence = np.bincount(lab_of, weights=w[h_idx], minlength=uniq_labels.size)
+        best_rows = hyp[best][hyp[best] >= 0]
+        tracks = tuple(
+            TrackEstimate(st.labels[r], st.mean[r].copy(), st.cov[r].copy(),
+                          float(min(1.0, existence[label_id[r]])))
+            for r in best_rows.tolist()
+        )
+        M = frame.n_measurements
+        meas_of = upd.row_meas[rows]
+        det = meas_of >= 0
+        p_used = np.bincount(meas_of[det], weights=w[h_idx[det]], minlength=M)
+        pair_p = np.bincount(lab_of[det] * M + meas_of[det], weights=w[h_idx[det]],
+                             minlength=uniq_labels.size * M) if M else np.zeros(0)
+        assignments: list[str | None] = [None] * M
+        probs = [float(np.clip(1.0 - p_used[m], 0.0, 1.0)) for m in range(M)]
+        for r in best_rows.tolist():
+            m = int(upd.row_meas[r])
+            if m >= 0:
+                assignments[m] = st.labels[r]
+                probs[m] = float(np.clip(pair_p[label_id[r] * M + m], 0.0, 1.0))
+        return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def make_glmb(params: ModelParams | GlmbModel, config: GlmbConfig | None = None) -> GlmbTracker:
+    """The GLMB baseline with the ``glmb`` preset unless ``config`` is given."""
+    return GlmbTracker(params, config if config is not None else GLMB_PRESETS["glmb"], "glmb")

@@ -1,0 +1,78 @@
+"""The trackers bnptrack can run, by name: settings class, named presets and factory.
+
+Every tool (``bnptrack track``, the pipeline's tracker stage, experiments) builds trackers
+through :func:`build`, so a new tracker is one entry here plus its module.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+import msgspec
+
+from tracker.models.params import ModelParams
+
+
+class Tracker(Protocol):
+    """What every tracker offers: a name, an initial state and a pure step."""
+
+    name: str
+
+    def initial_state(self) -> Any: ...
+
+    def step(self, state: Any, frame: Any, rng: np.random.Generator) -> tuple[Any, Any]: ...
+
+
+@dataclass(frozen=True)
+class TrackerKind:
+    name: str
+    description: str
+    config_cls: type[msgspec.Struct]
+    presets: Mapping[str, msgspec.Struct]
+    factory: Callable[[ModelParams, Any], Any]
+
+
+def _bnp(name: str, description: str) -> TrackerKind:
+    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, make_tracker
+
+    return TrackerKind(name, description, BnpConfig, TRACKER_PRESETS,
+                       lambda params, config: make_tracker(name, params, config))
+
+
+def _glmb() -> TrackerKind:
+    from tracker.glmb import GLMB_PRESETS, GlmbConfig, make_glmb
+
+    return TrackerKind("glmb", "GLMB filter, joint prediction-update with Gibbs truncation (Vo et al. 2017)",
+                       GlmbConfig, GLMB_PRESETS, make_glmb)
+
+
+_KINDS: dict[str, Callable[[], TrackerKind]] = {
+    "ddp": lambda: _bnp("ddp", "DDP-EMM: dependent Dirichlet process tracker"),
+    "dpyp": lambda: _bnp("dpyp", "DPY-STP: dependent Pitman-Yor process tracker"),
+    "glmb": _glmb,
+}
+
+#: Names of the trackers, in display order.
+TRACKERS: tuple[str, ...] = tuple(_KINDS)
+
+
+def kind(name: str) -> TrackerKind:
+    """The tracker ``name``; a clear error lists the valid names."""
+    try:
+        return _KINDS[name]()
+    except KeyError:
+        raise ValueError(f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}") from None
+
+
+def build(name: str, params: ModelParams, config: msgspec.Struct | None = None):
+    """Build tracker ``name`` with ``config`` (default: its preset of the same name)."""
+    k = kind(name)
+    if config is None:
+        config = k.presets[name]
+    if not isinstance(config, k.config_cls):
+        raise ValueError(f"tracker {name!r} takes a {k.config_cls.__name__}, not a {type(config).__name__}")
+    return k.factory(params, config)
