@@ -152,8 +152,10 @@ def frame_loglik_grid(
     v = np.asarray(seated_popularity, dtype=float)
     n = np.asarray(seated_counts, dtype=int)
     used = n > 0
-    if used.any():
-        out = out + np.sum(log_rising(v[used][:, None, None] - d[None], n[used][:, None, None]), axis=0)
+    if used.any():  # depends on d only: evaluate on d's axis and broadcast over alpha
+        d_axis = d.reshape(1, -1) if d.ndim == 2 else d[None]
+        seated = np.sum(log_rising(v[used][:, None] - d_axis.ravel()[None], n[used][:, None]), axis=0)
+        out = out + seated.reshape(d_axis.shape)
     return out
 
 
