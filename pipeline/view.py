@@ -1,0 +1,307 @@
+"""Open a Rerun recording (``.rrd``) in the viewer, or render it to a PNG without a screen.
+
+Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
+(:func:`sinks.rerun_sink.rerun_cli`), so the viewer always matches the SDK that wrote the file.
+
+* :func:`open_viewer` runs ``rerun FILE.rrd`` (a window; needs a display), or serves the web
+  viewer on 127.0.0.1 with ``web=True``.
+* :func:`screenshot` starts the viewer headless (``rerun --headless``, rendering offscreen with
+  whatever Vulkan/GL adapter the machine has; on a server without a GPU that is Mesa's software
+  rasterizer, Debian package ``mesa-vulkan-drivers``), loads the file, puts the time cursor on a
+  frame (``--frame``, default: the last one), waits for the load to finish and saves a PNG of the
+  whole viewer through the viewer's control API (``rerun.experimental.ViewerClient``).  The
+  viewer listens on a free port of 127.0.0.1 only and is stopped afterwards.
+* :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run
+  (``bnptrack track --rrd``).
+
+Subprocesses run with :func:`sinks.rerun_sink.rerun_env`: the CLI's analytics off (``CI`` set)
+and its log quiet, except the interactive viewer of :func:`open_viewer`, which keeps the user's
+own ``rerun analytics`` choice.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from pipeline.offline import TrackResult
+    from tracker.bnp_tracker import BnpTracker
+    from tracker.models.params import ModelParams
+
+__all__ = ["ViewerUnavailable", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
+
+#: What a machine without a usable renderer needs (Debian/Ubuntu).
+RENDERER_HINT = (
+    "the viewer needs a Vulkan or OpenGL adapter; on a machine without a GPU install Mesa's "
+    "software renderer: `apt-get update && apt-get install -y mesa-vulkan-drivers`"
+)
+
+
+class ViewerUnavailable(RuntimeError):
+    """The Rerun viewer cannot run here (no CLI, no display, or no renderer)."""
+
+
+def _check_rrd(path: str | os.PathLike) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(2, "No such file", str(path))
+    return path
+
+
+def open_viewer(path: str | os.PathLike, *, web: bool = False,
+                extra_args: Sequence[str] = ()) -> int:
+    """Open ``path`` in the Rerun viewer and wait until it is closed; returns its exit code.
+
+    The viewer's own server listens on 127.0.0.1 only (``--bind 127.0.0.1``).  ``web=True``
+    serves the web viewer instead (``rerun FILE --bind 127.0.0.1 --web-viewer``; open the
+    printed URL in a browser).  Raises :class:`ViewerUnavailable` when there is no
+    display for the native viewer (Linux without ``DISPLAY`` / ``WAYLAND_DISPLAY``).
+    """
+    from sinks.rerun_sink import rerun_cli, rerun_env
+
+    path = _check_rrd(path)
+    cmd = [*rerun_cli(), str(path), "--bind", "127.0.0.1"]  # its server: this machine only
+    if web:
+        cmd += ["--web-viewer"]
+    elif sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise ViewerUnavailable(
+            "no display (neither DISPLAY nor WAYLAND_DISPLAY is set): use "
+            "`bnptrack view FILE.rrd --screenshot OUT.png` to render it headless, or `--web` to "
+            "serve the web viewer"
+        )
+    cmd += list(extra_args)
+    env = rerun_env(analytics=True, quiet=False)  # the user's own viewer, the user's settings
+    try:
+        return subprocess.call(cmd, env=env)
+    except OSError as exc:
+        raise ViewerUnavailable(f"cannot run `{cmd[0]}`: {exc}") from exc
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _tail(path: Path, n: int = 2000) -> str:
+    try:
+        return path.read_text(errors="replace")[-n:].strip()
+    except OSError:
+        return ""
+
+
+def _unavailable(log: Path, why: str) -> ViewerUnavailable:
+    out = _tail(log, 20000)
+    lines = [ln.strip() for ln in out.splitlines()]
+    key = [ln for ln in lines if ("panicked" in ln or "error" in ln.lower())
+           and "XDG_RUNTIME_DIR" not in ln]
+    said = "; ".join(key[:3]) or (lines[-1] if lines else "(no output)")
+    if any(s in out.lower() for s in ("render context", "graphics adapter", "no suitable adapter")):
+        return ViewerUnavailable(f"{why}: no renderer ({said}): {RENDERER_HINT}")
+    return ViewerUnavailable(f"{why}: {said}. If this is a missing renderer: {RENDERER_HINT}")
+
+
+def screenshot(
+    path: str | os.PathLike,
+    out_png: str | os.PathLike,
+    frame: int | None = None,
+    size: tuple[int, int] = (1600, 900),
+    timeout: float = 60.0,
+    *,
+    timeline: str = "frame",
+    view: str | None = None,
+) -> Path:
+    """Render ``path`` with the headless viewer at ``frame`` (default: the last) to ``out_png``.
+
+    The picture is the recording's own default blueprint (scene and time series) at ``size``
+    logical pixels, with the time cursor paused on ``frame`` of ``timeline``; ``view`` (the
+    start of a view's name, e.g. ``"scene"``) captures that view alone.  Raises
+    :class:`ViewerUnavailable` with the reason (e.g. no Vulkan/GL adapter: install
+    ``mesa-vulkan-drivers``) when the viewer cannot start or render, :class:`ValueError` for a
+    frame outside the recording, :class:`TimeoutError` after ``timeout`` seconds.
+    """
+    import tempfile
+
+    from sinks.rerun_sink import RerunToolError, rerun_cli, rerun_env
+
+    path = _check_rrd(path).resolve()
+    out_png = Path(out_png)
+    width, height = (int(v) for v in size)
+    if width < 64 or height < 64:
+        raise ValueError(f"size must be at least 64x64, got {width}x{height}")
+    try:
+        from rerun.experimental import ViewerClient
+    except ImportError as exc:  # pragma: no cover - other rerun-sdk versions
+        raise ViewerUnavailable(
+            f"rerun.experimental.ViewerClient is not available in this rerun-sdk ({exc}); "
+            "bnptrack needs rerun-sdk 0.41"
+        ) from exc
+    try:
+        cli = rerun_cli()
+    except RerunToolError as exc:
+        raise ViewerUnavailable(str(exc)) from exc
+
+    deadline = time.monotonic() + timeout
+    port = _free_port()
+    env = rerun_env()
+    env["RERUN_APP_ONLY"] = "true"
+    cmd = [*cli, "--headless", "--bind", "127.0.0.1", "--port", str(port),
+           "--window-size", f"{width}x{height}", "--hide-welcome-screen",
+           "--memory-limit", "2GB", "--server-memory-limit", "512MiB"]
+    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp:
+        log = Path(tmp) / "viewer.log"
+        with open(log, "wb") as log_f:
+            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log_f,
+                                    stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        try:
+            client = _connect(ViewerClient, proc, port, deadline, log)
+            _call(lambda: client.open(str(path)), proc, deadline, log)
+            state = _wait_loaded(client, proc, deadline, log)
+            rec = next((r for r in state.recordings if r.store_id == state.active_recording),
+                       state.recordings[0] if state.recordings else None)
+            if rec is None:
+                raise ViewerUnavailable(f"the viewer opened no recording from {path}")
+            tl = next((t for t in rec.timelines if t.name == timeline), None)
+            if tl is None or tl.start is None or tl.end is None:
+                names = ", ".join(t.name for t in rec.timelines) or "none"
+                raise ValueError(f"{path} has no data on timeline {timeline!r} (timelines: {names})")
+            k = tl.end if frame is None else int(frame)
+            if not tl.start <= k <= tl.end:
+                raise ValueError(f"frame {k} is outside the recording ({timeline} {tl.start}..{tl.end})")
+            _call(lambda: client.set_time(timeline, sequence=k, play_state="paused"), proc, deadline, log)
+            time.sleep(0.3)  # let the plots settle on the new cursor before painting
+            view_id = None
+            if view is not None:
+                match = [v for v in state.views if v.name.startswith(view)]
+                if not match:
+                    names = ", ".join(repr(v.name) for v in state.views)
+                    raise ValueError(f"no view named {view!r}... in the recording (views: {names})")
+                view_id = match[0].view_id
+            png = b""
+            for _ in range(2):  # the second paint has the layout of the first
+                png = _call(lambda: client.take_screenshot(view_id), proc, deadline, log)
+            if not png.startswith(b"\x89PNG"):
+                raise ViewerUnavailable("the viewer returned no PNG")
+            out_png.parent.mkdir(parents=True, exist_ok=True)
+            out_png.write_bytes(png)
+            return out_png
+        finally:
+            _stop(proc)
+
+
+def _call(fn: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
+    if proc.poll() is not None:
+        raise _unavailable(log, f"the headless viewer exited (code {proc.returncode})")
+    if time.monotonic() > deadline:
+        raise TimeoutError("the headless viewer did not answer in time")
+    try:
+        return fn()
+    except (RuntimeError, OSError) as exc:
+        try:  # a viewer that fails to start its renderer dies right after answering once
+            proc.wait(timeout=3)
+        except subprocess.TimeoutExpired:
+            raise exc from None
+        raise _unavailable(log, f"the headless viewer exited (code {proc.returncode})") from exc
+
+
+def _connect(client_cls: Any, proc: subprocess.Popen, port: int, deadline: float, log: Path) -> Any:
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    last: Exception | None = None
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise _unavailable(log, f"the headless viewer exited at start (code {proc.returncode})")
+        try:
+            client = client_cls(url)
+            client.get_state()
+            return client
+        except Exception as exc:  # not listening yet
+            last = exc
+            time.sleep(0.1)
+    raise TimeoutError(f"the headless viewer did not start listening on {url}: {last}")
+
+
+def _wait_loaded(client: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
+    while True:
+        state = _call(client.get_state, proc, deadline, log)
+        if not state.loading and state.recordings and state.recordings[0].timelines:
+            return state
+        if time.monotonic() > deadline:
+            raise TimeoutError("the headless viewer did not finish loading the recording in time")
+        time.sleep(0.1)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+def png_stats(png: str | os.PathLike | bytes) -> dict[str, float]:
+    """Width, height, luminance variance and number of distinct luminance values of a PNG
+    (Pillow, a dependency of rerun-sdk): enough to tell a rendered screenshot from a blank one."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    src = io.BytesIO(png) if isinstance(png, bytes) else Path(png)
+    with Image.open(src) as img:
+        lum = np.asarray(img.convert("L"), dtype=np.float64)
+    return {"width": float(lum.shape[1]), "height": float(lum.shape[0]),
+            "variance": float(lum.var()), "distinct": float(np.unique(lum).size)}
+
+
+def track_log_with_rrd(
+    log: str | os.PathLike,
+    out: str | os.PathLike,
+    rrd: str | os.PathLike,
+    tracker: BnpTracker,
+    seed: int,
+    metadata: Mapping[str, str] | None,
+    *,
+    params: ModelParams | None = None,
+) -> TrackResult:
+    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``.
+
+    Each frame is scored (:class:`sinks.rerun_sink.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
+    over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
+    with ``metadata`` (plus ``source_log``).  Like ``track_log``, a damaged input is processed
+    up to its readable end; both outputs then hold that prefix (the recording is finalised).
+    """
+    from pipeline.offline import check_output_path, track_frames
+    from sinks.rerun_sink import RerunSink, RunScorer
+    from sources.mcap_log import McapLogWriter, iter_frames
+    from tracker.types import Estimate, Frame
+
+    log, out, rrd = Path(log), Path(out), Path(rrd)
+    check_output_path(log, out)
+    check_output_path(log, rrd)
+    if rrd.resolve() == out.resolve():
+        raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = dict(metadata or {})
+    rrd_meta = {**meta, "source_log": str(log)}
+    scorer = RunScorer()
+    with McapLogWriter(out, meta if metadata is not None else None) as writer, \
+            RerunSink(rrd, metadata=rrd_meta, params=params) as sink:
+
+        def write(frame: Frame, est: Estimate) -> None:
+            writer.write_frame(frame)
+            writer.write_tracks(est)
+            sink.log(frame, est, **scorer.update(frame, est))
+
+        return track_frames(tracker, iter_frames(log), seed, write)

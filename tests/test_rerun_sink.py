@@ -1,0 +1,491 @@
+"""Rerun recordings (sinks/rerun_sink.py) and the viewer helpers (pipeline/view.py).
+
+Real files in tmp_path, read back with rerun's own chunk reader (``rerun.chunk.RrdReader``)
+and checked with the ``rerun`` CLI that ships in the rerun-sdk wheel.
+
+Analytics: rerun 0.41 has no analytics environment variable of its own (``RERUN_ANALYTICS`` is
+not read); its CLI and viewer skip analytics when ``CI`` is set, to any value.  ``CI`` is set
+here, before rerun is imported, so that every ``rerun`` subprocess of these tests inherits it
+(the SDK itself sends nothing); ``sinks.rerun_sink.rerun_env`` sets it for bnptrack's own
+subprocesses as well.  CI runs with ``CI=true`` anyway.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("CI", "1")  # before `import rerun`: no analytics from any rerun subprocess
+os.environ.setdefault("RUST_LOG", "error")
+
+import pickle  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+from collections import defaultdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from pipeline.view import ViewerUnavailable, png_stats, screenshot, track_log_with_rrd  # noqa: E402
+from sinks.metrics import ospa, ospa2_series  # noqa: E402
+from sinks.rerun_sink import (  # noqa: E402
+    PALETTE,
+    RerunSink,
+    RunScorer,
+    label_color,
+    repair,
+    rerun_cli,
+    rerun_env,
+    write_recording,
+)
+from sources.scenarios import get_scenario  # noqa: E402
+from sources.synthetic import simulate_all  # noqa: E402
+from tracker.bnp_tracker import make_tracker  # noqa: E402
+from tracker.models.params import load_params  # noqa: E402
+from tracker.state import run  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+N_FRAMES = 30
+META = {"scenario": "vo2017", "params": "vo2017", "tracker": "ddp", "seed": "1"}
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def rrd_verify(path: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*rerun_cli(), "rrd", "verify", str(path)], capture_output=True,
+                          text=True, timeout=60, env=rerun_env(), check=False)
+
+
+def read_rrd(path: Path) -> dict[str, list]:
+    """Entity path -> Arrow record batches of its chunks (the file's first recording)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        out[chunk.entity_path].append(chunk.to_record_batch())
+    return out
+
+
+def by_frame(batches: list, column: str) -> dict[int, object]:
+    """``frame`` -> value of ``column`` over the temporal rows of an entity."""
+    out: dict[int, object] = {}
+    for rb in batches:
+        names = rb.schema.names
+        if "frame" not in names or column not in names:
+            continue
+        for f, v in zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()):
+            if v is not None:
+                out[f] = v
+    return out
+
+
+def frames_in(path: Path) -> set[int]:
+    frames: set[int] = set()
+    for batches in read_rrd(path).values():
+        for rb in batches:
+            if "frame" in rb.schema.names:
+                frames.update(rb.column("frame").to_pylist())
+    return frames
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def vo_run():
+    params = load_params("vo2017")
+    frames = simulate_all(get_scenario("vo2017"), params, 1)[:N_FRAMES]
+    tracker = make_tracker("ddp", params)
+    estimates = [est for _f, est, _s in run(tracker, frames, 0)]
+    return params, frames, estimates
+
+
+@pytest.fixture(scope="module")
+def recording(vo_run, tmp_path_factory):
+    params, frames, estimates = vo_run
+    path = tmp_path_factory.mktemp("rrd") / "vo2017-s1-ddp.rrd"
+    write_recording(path, frames, estimates, META, params=params)
+    return path
+
+
+@pytest.fixture(scope="module")
+def contents(recording):
+    return read_rrd(recording)
+
+
+# --------------------------------------------------------------------------- content
+
+
+def test_recording_passes_rrd_verify(recording):
+    res = rrd_verify(recording)
+    assert res.returncode == 0, res.stderr
+
+
+def test_entity_tree_and_timelines(vo_run, contents):
+    _params, frames, estimates = vo_run
+    paths = set(contents)
+    expected = {
+        "/world", "/world/sensor", "/world/measurements", "/world/assignments", "/world/truth",
+        "/world/truth/trails", "/metrics/cardinality", "/metrics/ospa", "/metrics/ospa2",
+        "/diagnostics/alpha", "/diagnostics/d", "/diagnostics/n_clusters",
+        "/diagnostics/log_joint", "/diagnostics/ms", "/events", "/metadata",
+    }
+    assert expected <= paths, expected - paths
+    labels = {t.label for e in estimates for t in e.tracks}
+    assert labels, "the tracker reported no track in 30 frames"
+    for lab in labels:
+        assert f"/world/tracks/{lab}" in paths
+    # both timelines on every per-frame entity; exactly the 30 frames
+    temporal = [rb for rb in contents["/world/measurements"] if "frame" in rb.schema.names]
+    assert temporal and all("stamp" in rb.schema.names for rb in temporal)
+    assert by_frame(contents["/metrics/cardinality"], "Scalars:scalars").keys() == {f.frame for f in frames}
+    all_frames = set()
+    for batches in contents.values():
+        for b in batches:
+            if "frame" in b.schema.names:
+                all_frames.update(b.column("frame").to_pylist())
+    assert len(all_frames) == N_FRAMES
+    stamps = {}
+    for b in contents["/metrics/cardinality"]:
+        if "stamp" in b.schema.names:
+            ns = b.column("stamp").cast("int64").to_pylist()
+            stamps.update(zip(b.column("frame").to_pylist(), ns))
+    assert stamps == {f.frame: f.stamp_ns for f in frames}
+
+
+def test_ospa_in_recording_equals_sinks_metrics(vo_run, contents):
+    _params, frames, estimates = vo_run
+    rec = by_frame(contents["/metrics/ospa"], "Scalars:scalars")
+    assert len(rec) == N_FRAMES
+    for f, e in zip(frames, estimates):
+        o = ospa(f.truth.positions, e.positions, c=100.0, p=1.0)
+        assert rec[f.frame] == [o.total, o.localisation, o.cardinality]  # exact
+    card = by_frame(contents["/metrics/cardinality"], "Scalars:scalars")
+    assert all(card[f.frame] == [len(e.tracks), len(f.truth.ids)] for f, e in zip(frames, estimates))
+
+
+def test_ospa2_in_recording_equals_ospa2_series(vo_run, contents):
+    _params, frames, estimates = vo_run
+    est = [{t.label: t.position for t in e.tracks} for e in estimates]
+    true = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
+    series = ospa2_series(est, true, window=10, c=100.0, p=1.0)
+    rec = by_frame(contents["/metrics/ospa2"], "Scalars:scalars")
+    got = np.array([rec[f.frame][0] for f in frames])
+    np.testing.assert_allclose(got, series, rtol=0, atol=1e-12)
+
+
+def test_diagnostics_series(vo_run, contents):
+    _params, frames, estimates = vo_run
+    for key in ("alpha", "d", "n_clusters", "log_joint", "ms"):
+        rec = by_frame(contents[f"/diagnostics/{key}"], "Scalars:scalars")
+        assert [rec[f.frame][0] for f in frames] == [float(e.diagnostics[key]) for e in estimates]
+
+
+def test_tracks_positions_trails_and_clears(vo_run, contents):
+    _params, frames, estimates = vo_run
+    labels = {t.label for e in estimates for t in e.tracks}
+    final = set(estimates[-1].labels)
+    for lab in labels:
+        batches = contents[f"/world/tracks/{lab}"]
+        pos = by_frame(batches, "Points2D:positions")
+        strips = by_frame(batches, "LineStrips2D:strips")
+        alive = {f.frame: t for f, e in zip(frames, estimates) for t in e.tracks if t.label == lab}
+        assert pos.keys() == alive.keys()
+        for k, t in alive.items():
+            np.testing.assert_allclose(pos[k][0], t.position, rtol=1e-6, atol=1e-3)  # float32
+            trail, ellipse = strips[k]
+            assert 1 <= len(trail) <= 20
+            np.testing.assert_allclose(trail[-1], t.position, rtol=1e-6, atol=1e-3)
+            # 2-sigma ellipse: every vertex at Mahalanobis distance 2 of the position
+            P = t.covariance[np.ix_([0, 2], [0, 2])]
+            d = np.asarray(ellipse) - t.position
+            m2 = np.einsum("ki,ij,kj->k", d, np.linalg.inv(P), d)
+            np.testing.assert_allclose(m2, 4.0, rtol=1e-3)
+        clears = by_frame(batches, "Clear:is_recursive")
+        if lab in final:
+            assert not clears
+        else:  # an ended track is cleared at the first frame without it
+            last = max(alive)
+            assert clears == {last + 1: [True]}
+        # static style: label text and a fixed colour
+        static = [rb for rb in batches if "frame" not in rb.schema.names]
+        assert any(rb.column("Points2D:labels").to_pylist() == [[lab]] for rb in static
+                   if "Points2D:labels" in rb.schema.names)
+
+
+def test_measurements_coloured_by_assignment(vo_run, contents):
+    params, frames, estimates = vo_run
+    meas = contents["/world/measurements"]
+    pos = by_frame(meas, "Points2D:positions")
+    cls = by_frame(meas, "Points2D:class_ids")
+    lines = by_frame(contents["/world/assignments"], "LineStrips2D:strips")
+    model = params.measurement("bearing_range")
+    contexts = by_frame(contents["/world"], "AnnotationContext:context")
+    n_assigned = 0
+    for f, e in zip(frames, estimates):
+        xy = model.to_cartesian(f.z)[0]
+        np.testing.assert_allclose(pos[f.frame], xy, rtol=1e-6, atol=1e-2)
+        # class ids: 0 for clutter, else the label's class in the latest annotation context
+        ctx = contexts[max(k for k in contexts if k <= f.frame)]
+        names = {c["class_id"]: c["class_description"]["info"]["label"] for c in ctx[0]}
+        got = [names[c] for c in cls[f.frame]]
+        want = ["clutter" if a is None else a for a in e.assignments]
+        assert got == want
+        hit = [a is not None for a in e.assignments]
+        n_assigned += sum(hit)
+        assert len(lines.get(f.frame, [])) == sum(hit)
+        tpos = {t.label: t.position for t in e.tracks}
+        for line, m in zip(lines.get(f.frame, []), np.flatnonzero(hit)):
+            np.testing.assert_allclose(line[0], xy[m], atol=1e-2)
+            np.testing.assert_allclose(line[1], tpos[e.assignments[m]], atol=1e-2)
+    assert n_assigned > 0
+
+
+def test_truth_drawn(vo_run, contents):
+    _params, frames, _estimates = vo_run
+    crosses = by_frame(contents["/world/truth"], "LineStrips2D:strips")
+    trails = by_frame(contents["/world/truth/trails"], "LineStrips2D:strips")
+    for f in frames:
+        assert len(crosses[f.frame]) == 2 * len(f.truth.ids)
+        assert len(trails[f.frame]) == len(f.truth.ids)
+        for trail, p in zip(trails[f.frame], f.truth.positions):
+            np.testing.assert_allclose(trail[-1], p, atol=1e-2)
+
+
+def test_metadata_blueprint_and_events(recording, contents):
+    from rerun.chunk import RrdReader
+
+    doc = contents["/metadata"][0].column("TextDocument:text").to_pylist()[0][0]
+    for key, value in META.items():
+        assert f"| {key} | {value} |" in doc
+    assert "bnptrack_version" in doc
+    prop = contents["/__properties/bnptrack"][0]
+    assert prop.column("scenario").to_pylist() == [["vo2017"]]
+    reader = RrdReader(recording)
+    assert reader.recordings()[0].application_id == "bnptrack"
+    assert reader.blueprints(), "no default blueprint in the file"
+    texts = [t for rb in contents["/events"] for row in rb.column("TextLog:text").to_pylist()
+             for t in (row or [])]
+    assert any(t.endswith(" born") and t.startswith("track ") for t in texts)
+
+
+def test_scorer_matches_frame_metrics(vo_run):
+    from pipeline.offline import frame_metrics
+
+    _params, frames, estimates = vo_run
+    scorer = RunScorer()
+    for f, e in zip(frames, estimates):
+        o = scorer.update(f, e)["ospa"]
+        m = frame_metrics(f, e)
+        assert (o.total, o.localisation, o.cardinality) == (m.ospa, m.ospa_localisation,
+                                                            m.ospa_cardinality)
+
+
+def test_frames_without_truth_and_health(vo_run, tmp_path):
+    from dataclasses import replace
+
+    params, frames, estimates = vo_run
+    path = tmp_path / "no-truth.rrd"
+    with RerunSink(path, params=params, metadata={"scenario": "live"}) as sink:
+        for i, (f, e) in enumerate(zip(frames[:5], estimates[:5])):
+            sink.log(replace(f, truth=None), e,
+                     health={"frames_received": i + 1.0, "latency_ms": 2.5})
+    assert rrd_verify(path).returncode == 0
+    c = read_rrd(path)
+    assert "/world/truth" not in c or not by_frame(c["/world/truth"], "LineStrips2D:strips")
+    assert "/metrics/ospa" not in c or not by_frame(c["/metrics/ospa"], "Scalars:scalars")
+    assert by_frame(c["/health/frames_received"], "Scalars:scalars") == {
+        f.frame: [i + 1.0] for i, f in enumerate(frames[:5])}
+    assert by_frame(c["/metrics/cardinality"], "Scalars:scalars")[frames[0].frame] == [
+        float(len(estimates[0].tracks))]
+
+
+def test_range_only_measurements_are_rings(tmp_path):
+    params = load_params("vo2017")
+    scenario = get_scenario("snr")
+    params = scenario.adapt_params(params)
+    frames = simulate_all(scenario, params, 1)[:8]
+    estimates = [e for _f, e, _s in run(make_tracker("ddp", params), frames, 0)]
+    path = tmp_path / "snr.rrd"
+    write_recording(path, frames, estimates, {"scenario": "snr"}, params=params)
+    assert rrd_verify(path).returncode == 0
+    c = read_rrd(path)
+    rings = by_frame(c["/world/measurements/rings"], "LineStrips2D:strips")
+    pts = by_frame(c["/world/measurements"], "Points2D:positions")
+    for f in frames:
+        assert len(rings[f.frame]) == f.n_measurements
+        r = np.hypot(*np.asarray(pts[f.frame]).T)
+        np.testing.assert_allclose(r, f.z[:, 0], rtol=1e-5)  # each point lies on its ring
+
+
+def test_closed_sink_and_signal_handlers_restored(vo_run, tmp_path):
+    params, frames, estimates = vo_run
+    before = signal.getsignal(signal.SIGTERM)
+    sink = RerunSink(tmp_path / "x.rrd", params=params)
+    assert signal.getsignal(signal.SIGTERM) != before
+    sink.log(frames[0], estimates[0])
+    sink.close()
+    sink.close()  # idempotent
+    assert signal.getsignal(signal.SIGTERM) == before
+    with pytest.raises(RuntimeError, match="closed"):
+        sink.log(frames[1], estimates[1])
+
+
+def test_label_colours():
+    assert label_color("10.3") == label_color("10.3")
+    first = label_color("10.3")
+    assert first[:3] in PALETTE
+    assert label_color("10.3", taken=[first])[:3] != first[:3]
+    taken = [(*c, 255) for c in PALETTE]
+    assert label_color("x", taken=taken)[:3] in PALETTE  # all taken: still a palette colour
+
+
+# --------------------------------------------------------------------------- killed writers
+
+_WRITER = r"""
+import os, pickle, sys, time
+sys.path.insert(0, sys.argv[3])
+from sinks.rerun_sink import RerunSink
+frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
+sink = RerunSink(sys.argv[1], params=params, metadata={"scenario": "vo2017"})
+for f, e in zip(frames, estimates):
+    sink.log(f, e)
+    sink.flush(wait=True)
+    print(f.frame, flush=True)
+    time.sleep(0.2)
+sink.close()
+print("done", flush=True)
+"""
+
+
+def _start_writer(vo_run, tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    params, frames, estimates = vo_run
+    data = tmp_path / "run.pkl"
+    data.write_bytes(pickle.dumps((frames, estimates, params)))
+    out = tmp_path / "writer.rrd"
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(out), str(data), str(REPO)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=rerun_env())
+    return proc, out
+
+
+def _wait_frames(proc: subprocess.Popen, n: int, timeout: float = 90.0) -> list[int]:
+    """Frames the writer reports as flushed, once it has reported ``n`` of them."""
+    timer = threading.Timer(timeout, proc.kill)  # bounded: never wait forever on the child
+    timer.start()
+    seen: list[int] = []
+    try:
+        while len(seen) < n:
+            line = proc.stdout.readline()
+            if not line:
+                raise AssertionError(f"writer ended early: {proc.stderr.read()[-2000:]}")
+            seen.append(int(line))
+    finally:
+        timer.cancel()
+    return seen
+
+
+def test_sigkilled_writer_leaves_loadable_prefix_that_repair_fixes(vo_run, tmp_path):
+    proc, path = _start_writer(vo_run, tmp_path)
+    try:
+        seen = _wait_frames(proc, 6)
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    assert rrd_verify(path).returncode != 0  # no footer
+    with pytest.warns(Warning, match="no footer"):
+        loaded = frames_in(path)
+    assert set(seen) <= loaded  # every frame flushed before the kill loads
+    assert len(loaded) < N_FRAMES
+    fixed = repair(path, tmp_path / "fixed.rrd")
+    res = rrd_verify(fixed)
+    assert res.returncode == 0, res.stderr
+    assert set(seen) <= frames_in(fixed)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_finalises_the_recording(vo_run, tmp_path, sig):
+    proc, path = _start_writer(vo_run, tmp_path)
+    try:
+        seen = _wait_frames(proc, 4)
+        proc.send_signal(sig)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    # SIGTERM: the handler closes the sink, then the process dies by the signal as before;
+    # SIGINT: the handler closes the sink, then Python's KeyboardInterrupt ends the script.
+    assert proc.returncode != 0
+    res = rrd_verify(path)
+    assert res.returncode == 0, res.stderr
+    loaded = frames_in(path)
+    assert set(seen) <= loaded and len(loaded) < N_FRAMES
+
+
+def test_repair_argument_errors(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        repair(tmp_path / "missing.rrd", tmp_path / "out.rrd")
+    p = tmp_path / "a.rrd"
+    p.write_bytes(b"")
+    with pytest.raises(ValueError, match="overwrite"):
+        repair(p, p)
+
+
+# --------------------------------------------------------------------------- track --rrd
+
+
+def test_track_log_with_rrd(tmp_path):
+    from pipeline.offline import build_tracker, resolve_config
+
+    params = load_params("vo2017")
+    config, _ = resolve_config("ddp", None)
+    tracker = build_tracker("ddp", params, config)
+    log = REPO / "recordings" / "vo2017-s1.mcap"
+    out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"
+    res = track_log_with_rrd(log, out, rrd, tracker, 0, {"scenario": "vo2017", "seed": "1"},
+                             params=params)
+    assert res.error is None and out.is_file()
+    assert rrd_verify(rrd).returncode == 0
+    c = read_rrd(rrd)
+    rec = by_frame(c["/metrics/ospa"], "Scalars:scalars")
+    assert res.n_frames == 100
+    assert [rec[r.frame][0] for r in res.frames] == [r.ospa for r in res.frames]
+    with pytest.raises(ValueError, match="overwrite"):
+        track_log_with_rrd(log, out, out, tracker, 0, None)
+
+
+# --------------------------------------------------------------------------- screenshot
+
+
+def test_headless_screenshot_is_not_blank(recording, tmp_path):
+    """Needs a renderer: Mesa's software Vulkan (`apt-get install -y mesa-vulkan-drivers`).
+
+    Fails, on purpose, when the viewer cannot render here."""
+    out = tmp_path / "shot.png"
+    try:
+        screenshot(recording, out, frame=20, size=(1280, 720), timeout=90)
+    except ViewerUnavailable as exc:
+        pytest.fail(f"headless rendering is unavailable on this machine: {exc}")
+    stats = png_stats(out)
+    assert (stats["width"], stats["height"]) == (1280, 720)
+    assert stats["variance"] > 50.0, stats  # a blank frame has variance ~0
+    assert stats["distinct"] > 20, stats
+    with pytest.raises(ValueError, match="outside"):
+        screenshot(recording, tmp_path / "bad.png", frame=N_FRAMES + 50, timeout=90)
+
+
+def test_open_viewer_without_display_says_what_to_do(recording, monkeypatch):
+    from pipeline.view import open_viewer
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    if sys.platform.startswith("linux"):
+        with pytest.raises(ViewerUnavailable, match="--screenshot"):
+            open_viewer(recording)
+    with pytest.raises(FileNotFoundError):
+        open_viewer(recording.with_name("missing.rrd"))
