@@ -335,12 +335,57 @@ def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
     seed = run_seed(job.experiment, job.seed, job.run)
     frames = simulate_all(scenario, params, seed)
     paths = []
+    tag = "" if len(exp.variants) == 1 else "-" + job.variant.label.replace(" ", "").replace("-", "m")
     for spec in exp.trackers:
         config, _ = resolve_config(spec.name, spec.preset)
         ests = [e for _, e, _ in run_tracker(build_tracker(spec.name, params, config), frames, seed)]
-        path = out / f"{spec.name}-run{job.run}.rrd"
+        path = out / f"{spec.name}{tag}-run{job.run}.rrd"
         meta = {"experiment": job.experiment, "scenario": exp.scenario, "params": job.params,
                 "tracker": spec.name, "preset": spec.preset, "seed": str(seed), "variant": job.variant.label}
-        write_recording(path, frames, ests, meta)
+        write_recording(path, frames, ests, meta, params=params)
         paths.append(path)
     return paths
+
+
+@dataclass(frozen=True)
+class ExperimentOutput:
+    out: Path
+    summary_md: Path
+    summary_csv: Path
+    plots: tuple[Path, ...]
+    recordings: tuple[Path, ...]
+    rows: tuple[dict, ...]
+    seconds: float
+
+
+def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = "vo2017",
+                   out: Path | None = None, workers: int | None = None, cluster: str | None = None,
+                   quiet: bool = False, rrd: bool = True) -> ExperimentOutput:
+    """Run experiment ``name`` end to end and write its outputs into ``out``."""
+    import time
+
+    exp = get_experiment(name)
+    if runs < 1:
+        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    out = Path(out) if out is not None else Path("recordings") / "experiments" / f"{name}-{params}-s{seed}"
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [RunJob(name, seed, i, params, v, keep_tracks=(i == 0)) for v in exp.variants for i in range(runs)]
+    t0 = time.perf_counter()
+    if quiet:
+        results = run_jobs(jobs, workers=workers, cluster=cluster)
+    else:
+        from tqdm import tqdm
+
+        with tqdm(total=len(jobs), desc=name, unit="run") as bar:
+            results = run_jobs(jobs, workers=workers, cluster=cluster, progress=bar.update)
+    seconds = time.perf_counter() - t0
+    title = f"{name} ({exp.description}; params {params}, seed {seed}, {runs} runs)"
+    rows = summary_rows(results)
+    md, csv_path = write_summary(rows, out, title)
+    plots = write_plots(results, out, name)
+    recs: list[Path] = []
+    if rrd:
+        for v in exp.variants:
+            rep = next(r for r in results if r.job.variant == v and r.job.run == 0)
+            recs += write_representative_rrd(rep, out)
+    return ExperimentOutput(out, md, csv_path, tuple(plots), tuple(recs), tuple(rows), seconds)
