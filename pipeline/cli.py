@@ -369,5 +369,301 @@ def schema(topic: str) -> None:
     click.echo(json.dumps(json_schema(name), indent=2))
 
 
+# --------------------------------------------------------------------------- pipeline
+# (launch, replay, stage, router: the Zenoh pipeline; see docs/pipeline.md)
+
+_SET_HELP_PIPE = (
+    "Override a pipeline setting, KEY=VALUE with a dotted KEY of the pipeline file (VALUE is a "
+    "TOML literal), e.g. --set source.frames=20 --set tracker.seed=3 "
+    "--set tracker.overrides='[\"sweeps=10\"]'. Repeatable."
+)
+
+
+def _echo_err(msg: str) -> None:
+    click.echo(msg, err=True)
+
+
+def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
+    """Print a launch/replay result; raise CliError on failure."""
+    summary = res.summary or {}
+    if not quiet:
+        gaps = summary.get("gaps") or {}
+        gap_text = ", ".join(f"{k} {v}" for k, v in gaps.items() if v) or "none"
+        restarts = ", ".join(f"{k} {v}" for k, v in res.restarts.items() if v) or "none"
+        rows = [("run", res.run), ("out", f"{res.out}/")]
+        if summary:
+            rows.append(("frames", f"{summary.get('frames_written', 0)} "
+                                   f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
+            c = summary.get("counters") or {}
+            rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
+            lat = (c.get("latency_ms") or {})
+            if lat.get("p50") is not None:
+                note = "" if paced else " (frames published as fast as possible: includes queueing)"
+                rows.append(("latency", f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms{note}"))
+        rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
+        for f in res.files:
+            try:
+                rows.append(("wrote", f"{f} ({Path(f).stat().st_size} bytes)"))
+            except OSError:
+                pass
+        _echo_rows(rows)
+    if res.interrupted:
+        click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
+        raise SystemExit(130)
+    if not res.ok:
+        raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
+
+
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool) -> None:
+    from pipeline.launch import launch as _launch
+
+    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout)
+    _report_launch(res, quiet, paced=cfg.source.rate > 0)
+
+
+_TIMEOUT_OPT = click.option(
+    "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+    help="Stop everything and fail if the pipeline has not finished after this long.",
+)
+
+
+@main.command()
+@click.argument("pipeline_file", metavar="[PIPELINE.toml]", required=False,
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
+@click.option("--run", "run_id", default=None, metavar="RUN",
+              help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/<run>/.")
+@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT",
+              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one.")
+@_TIMEOUT_OPT
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@_clean_errors
+def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
+           out: Path | None, connect: tuple[str, ...], timeout: float | None, quiet: bool) -> None:
+    """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
+
+    With no PIPELINE.toml: a synthetic vo2017 source (seed 1) -> the DDP-EMM tracker
+    (seed 0) -> the recorder, over a Zenoh router the launcher opens on a free loopback
+    port. The sink writes <out>/tracks.mcap (input channels + /tracks, as `bnptrack
+    track`), <out>/run.rrd when the Rerun sink is installed, and <out>/sink.json. A
+    crashed stage is restarted (the tracker resumes from its snapshot). Ctrl-C stops every
+    stage and flushes the files. See docs/pipeline.md.
+
+    \b
+    Examples:
+      bnptrack launch
+      bnptrack launch --set source.frames=20 --set tracker.tracker=dpyp --out /tmp/r1
+      bnptrack launch my_pipeline.toml --run test-1
+    """
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import load_pipeline
+
+    cfg = load_pipeline(pipeline_file, overrides)
+    if run_id:
+        cfg = _ms.structs.replace(cfg, run=run_id)
+    if out:
+        cfg = _ms.structs.replace(cfg, out=str(out))
+    if connect:
+        cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
+            cfg.zenoh, embedded_router=False, connect=list(connect)))
+    _run_pipeline(cfg, timeout, quiet)
+
+
+@main.command()
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+              metavar="R", help="Replay speed against the log's time stamps (1 = real time).")
+@click.option("--as-fast-as-possible", "afap", is_flag=True, help="Publish frames without pacing.")
+@click.option("--tracker", "tracker_name", default="ddp", show_default=True,
+              help="Tracker: ddp = DDP-EMM, dpyp = DPY-STP (any name `bnptrack track` accepts).")
+@click.option("--config", "config_arg", metavar="NAME|FILE.toml", default=None,
+              help="Tracker settings preset or TOML file (as `bnptrack track --config`).")
+@click.option("--params", "params_arg", metavar="NAME|FILE.toml", default=None,
+              help="Model parameters. Default: the log's bnptrack.scenario record (as `track`).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Tracker seed.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
+@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/<run>/.")
+@_TIMEOUT_OPT
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@_clean_errors
+def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
+           params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
+           out: Path | None, timeout: float | None, quiet: bool) -> None:
+    """Replay an MCAP measurement log through the streaming pipeline.
+
+    Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
+    rate (only on the frames and their order) and equal `bnptrack track LOG --seed N` with
+    the same tracker. A truncated or corrupt LOG is replayed up to its last readable frame;
+    then the error says where it stopped and the exit code is 2.
+
+    \b
+    Examples:
+      bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
+      bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
+    """
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import load_pipeline
+
+    cfg = load_pipeline(None)
+    cfg = _ms.structs.replace(
+        cfg,
+        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate),
+        tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
+                                    config=config_arg or "", params=params_arg or ""),
+    )
+    from tracker.config import apply_overrides
+
+    cfg = apply_overrides(cfg, overrides)
+    if run_id:
+        cfg = _ms.structs.replace(cfg, run=run_id)
+    if out:
+        cfg = _ms.structs.replace(cfg, out=str(out))
+    _run_pipeline(cfg, timeout, quiet)
+
+
+@main.command()
+@click.argument("role", type=click.Choice(["source", "tracker", "sink"]))
+@click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
+@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
+@click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.")
+@click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).")
+@click.option("--mode", type=click.Choice(["client", "peer"]), default=None, help="Zenoh mode (default client).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
+@click.option("--name", default=None, help="Stage name (default: the role).")
+@click.option("--parent-pid", type=int, default=None, hidden=True)
+@click.option("--log-level", default="INFO", show_default=True, help="Logging level.")
+@_clean_errors
+def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tuple[str, ...],
+          listen: tuple[str, ...], mode: str | None, out: Path | None, overrides: tuple[str, ...],
+          name: str | None, parent_pid: int | None, log_level: str) -> None:
+    """Run one pipeline stage in this process (to place stages on different hosts).
+
+    Every stage of a run uses the same --run and reaches the others through a Zenoh router
+    (`bnptrack router`, or a launcher's embedded one). Exit codes: 0 done, 2 configuration
+    error, 3 the source's input ended on an error, 130 stopped by a signal, 1 crash.
+
+    \b
+    Example (three hosts, router on 10.0.0.5):
+      bnptrack router --listen tcp/0.0.0.0:7447
+      bnptrack stage sink    --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
+      bnptrack stage tracker --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
+      bnptrack stage source  --run r1 --connect tcp/10.0.0.5:7447 --set source.frames=50
+    """
+    from pipeline.launch import configure_logging, run_stage, stage_config
+    from pipeline.pipeline_config import load_pipeline
+
+    configure_logging(name or role, log_level)
+    cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=str(out) if out else None,
+                       connect=connect, listen=listen, mode=mode)
+    code = run_stage(role, cfg, name=name, parent_pid=parent_pid)
+    raise SystemExit(code)
+
+
+@main.command()
+@click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="Pipeline file: its [zenoh] table (TLS, router_extra) is used.")
+@click.option("--listen", multiple=True, metavar="ENDPOINT",
+              help="Endpoint(s) to listen on. Default: tcp/0.0.0.0:7447.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
+@_clean_errors
+def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple[str, ...]) -> None:
+    """Run a Zenoh router for pipeline stages on several hosts (until Ctrl-C).
+
+    \b
+    Example:
+      bnptrack router --listen tcp/0.0.0.0:7447
+    """
+    import signal as _signal
+    import threading as _threading
+
+    from pipeline.pipeline_config import load_pipeline
+    from pipeline.transport import Router
+
+    cfg = load_pipeline(pipeline_file, overrides)
+    stop = _threading.Event()
+    for sig in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(sig, lambda *_: stop.set())
+    with Router(cfg.zenoh, list(listen) or ["tcp/0.0.0.0:7447"]) as r:
+        click.echo(f"router listening on {', '.join(r.endpoints)} (Ctrl-C to stop)", err=True)
+        while not stop.wait(0.5):
+            pass
+
+
+@main.command()
+@click.option("--run", "run_id", required=True, metavar="RUN", help="Run id to watch.")
+@click.option("--connect", multiple=True, required=True, metavar="ENDPOINT", help="Router endpoint.")
+@click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="Pipeline file (for its [zenoh] TLS settings).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+              help="Stop after this long (default: until Ctrl-C).")
+@_clean_errors
+def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, overrides: tuple[str, ...],
+            duration: float | None) -> None:
+    """Watch a run's stages: liveliness, health counters, dead letters, end of stream.
+
+    \b
+    Example:
+      bnptrack monitor --run r1 --connect tcp/127.0.0.1:7447
+    """
+    import signal as _signal
+    import threading as _threading
+    import time as _time
+
+    from pipeline.launch import stage_config
+    from pipeline.pipeline_config import load_pipeline
+    from pipeline.transport import Bus
+
+    cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
+                       listen=(), mode=None)
+    stop = _threading.Event()
+    for sig in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(sig, lambda *_: stop.set())
+    end = _time.monotonic() + duration if duration else None
+    with Bus(cfg.run, "monitor", cfg.zenoh, cfg.delivery) as bus:
+        bus.subscribe(["health/*", "deadletter"], advanced=False)
+        bus.subscribe(["eos/*"])
+        shown: tuple = ()
+        while not stop.is_set() and (end is None or _time.monotonic() < end):
+            now = (bus.alive(), bus.alive("ready"))
+            if now != shown:
+                click.echo(f"alive: {', '.join(sorted(now[0])) or '(none)'}; "
+                           f"ready: {', '.join(sorted(now[1])) or '(none)'}")
+                shown = now
+            ev = bus.recv(0.2)
+            if ev is None:
+                continue
+            try:
+                doc = json.loads(ev.payload)
+            except ValueError:
+                click.echo(f"{ev.topic}: {len(ev.payload)} bytes (not JSON)")
+                continue
+            if ev.topic.startswith("health/"):
+                c = doc.get("counters", {})
+                lat = c.get("latency_ms") or {}
+                lat_text = (f" latency p50 {lat['p50']:.1f} ms p99 {lat['p99']:.1f} ms"
+                            if lat.get("p50") is not None else "")
+                click.echo(f"{doc.get('stage')}: pid {doc.get('pid')} received {c.get('received')} "
+                           f"accepted {c.get('accepted')} rejected {c.get('rejected')} dup "
+                           f"{c.get('duplicates')} gaps {c.get('gaps')} dropped {doc.get('dropped')} "
+                           f"backlog {doc.get('backlog')}{lat_text}")
+            elif ev.topic == "deadletter":
+                click.echo(f"dead letter from {doc.get('stage')}: {doc.get('topic')} seq {doc.get('seq')}: "
+                           f"{doc.get('reason')}")
+            else:
+                click.echo(f"{ev.topic}: last seq {doc.get('last_seq')}, {doc.get('frames')} frame(s)"
+                           + (f", gaps {doc['gaps']}" if doc.get("gaps") else "")
+                           + (f", error: {doc['error']}" if doc.get("error") else ""))
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

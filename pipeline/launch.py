@@ -1,0 +1,489 @@
+"""Run a pipeline: one OS process per stage, supervised (``bnptrack launch`` / ``replay``),
+and the entry point of one stage process (``bnptrack stage``).
+
+:class:`Launcher`:
+
+1. resolves the run id and the output directory (``recordings/<run>/``), removes a stale
+   ``tracker.snap`` there (a fresh launch never resumes an old run);
+2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
+   default) unless the pipeline names routers to ``connect`` to;
+3. writes ``<out>/pipeline.json`` (the resolved pipeline the stages read) and starts every
+   stage as ``python -m pipeline stage ROLE --pipeline <out>/pipeline.json`` in its own
+   session (so a terminal's Ctrl-C reaches the launcher only), logging to
+   ``<out>/logs/<stage>.log``; ``<out>/stages.json`` lists their pids and restarts;
+4. supervises: a stage that exits 0 is done (a source that exits 3 is done with a data
+   error), a stage that crashes (any other code, or a signal) is restarted up to
+   ``supervisor.max_restarts`` times; a configuration error (2) stops the pipeline;
+5. ends when every stage has exited (the source and the tracker leave once the sink has
+   recorded the end of stream); SIGINT / SIGTERM (or ``timeout``) stop every stage with
+   SIGTERM (they flush their files), then SIGKILL after ``supervisor.stop_timeout_s``.
+
+Health messages of every stage are appended to ``<out>/health.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from pipeline.pipeline_config import (
+    PipelineConfig,
+    check_run_id,
+    dump_pipeline,
+    resolve_run,
+)
+from pipeline.stages import (
+    EXIT_CONFIG,
+    EXIT_CRASH,
+    EXIT_DATA,
+    EXIT_OK,
+    EXIT_STOPPED,
+    SNAPSHOT_NAME,
+    STAGES,
+    SUMMARY_NAME,
+    StageContext,
+)
+from tracker.config import ConfigError
+
+__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging"]
+
+log = logging.getLogger("bnptrack.launch")
+
+_DATA_ERROR = "the source stopped on a data error (see its log)"
+
+
+def configure_logging(stage: str, level: str = "INFO") -> None:
+    logging.basicConfig(
+        level=getattr(logging, level.upper(), logging.INFO),
+        format=f"%(asctime)s.%(msecs)03d [{stage}] %(levelname)s %(message)s",
+        datefmt="%H:%M:%S",
+        stream=sys.stderr,
+        force=True,
+    )
+
+
+# --------------------------------------------------------------------------- one stage
+
+
+def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pid: int | None = None,
+              stop: threading.Event | None = None) -> int:
+    """Run one stage in this process until it finishes or is stopped; return its exit code.
+
+    Installs SIGINT/SIGTERM handlers (a second signal exits at once), watches
+    ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
+    and always closes it.
+    """
+    from pipeline.transport import Bus, TransportError
+
+    if role not in STAGES:
+        raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
+    name = name or role
+    stop = stop or threading.Event()
+    # Zenoh's threads run our (short) sample callbacks under the GIL: let them in sooner
+    # than the default 5 ms while the main thread computes
+    sys.setswitchinterval(0.001)
+    if threading.current_thread() is threading.main_thread():
+        def on_signal(signum: int, _frame: Any) -> None:
+            if stop.is_set():
+                os._exit(EXIT_STOPPED)
+            log.info("%s: %s: stopping (flushing files)", name, signal.Signals(signum).name)
+            stop.set()
+
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+    if parent_pid:
+        def watch() -> None:
+            while not stop.wait(0.5):
+                if os.getppid() != parent_pid:
+                    log.error("%s: the launcher (pid %d) is gone: stopping", name, parent_pid)
+                    stop.set()
+
+        threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    try:
+        bus = Bus(cfg.run, name, cfg.zenoh, cfg.delivery)
+    except TransportError as exc:
+        log.error("%s", exc)
+        return EXIT_CRASH
+    try:
+        stage = STAGES[role](StageContext(cfg, bus, stop, name))
+        prof_dir = os.environ.get("BNPTRACK_PROFILE")
+        if prof_dir:  # debugging aid: cProfile the stage into $BNPTRACK_PROFILE/<name>.prof
+            import cProfile
+
+            prof = cProfile.Profile()
+            try:
+                return prof.runcall(stage.run)
+            finally:
+                Path(prof_dir).mkdir(parents=True, exist_ok=True)
+                prof.dump_stats(str(Path(prof_dir) / f"{name}.prof"))
+        return stage.run()
+    except ConfigError as exc:
+        log.error("%s: configuration error: %s", name, exc)
+        return EXIT_CONFIG
+    finally:
+        bus.close()
+
+
+# --------------------------------------------------------------------------- supervisor
+
+
+@dataclass
+class StageProcess:
+    role: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    state: str = "pending"  # pending | running | done | failed | stopped
+    returncode: int | None = None
+    restart_at: float | None = None
+    history: list[dict] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict)
+
+    def start(self, env: dict[str, str]) -> None:
+        env = {**env, **self.env}
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "ab") as logf:
+            logf.write(f"--- start #{self.restarts} {time.strftime('%H:%M:%S')}\n".encode())
+            logf.flush()
+            self.proc = subprocess.Popen(
+                self.argv, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
+                env=env, start_new_session=True,
+            )
+        self.state = "running"
+        self.restart_at = None
+        self.history.append({"pid": self.proc.pid, "start": time.time()})
+
+    @property
+    def pid(self) -> int | None:
+        return self.proc.pid if self.proc is not None else None
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def signal(self, sig: int) -> None:
+        if self.alive():
+            try:
+                self.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+
+    def tail(self, n: int = 12) -> str:
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n:])
+
+
+@dataclass
+class LaunchResult:
+    run: str
+    out: Path
+    ok: bool
+    error: str = ""
+    interrupted: bool = False
+    files: list[str] = field(default_factory=list)
+    summary: dict | None = None
+    restarts: dict[str, int] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    endpoints: list[str] = field(default_factory=list)
+
+
+class Launcher:
+    """Start and supervise the stages of ``cfg`` (see the module docstring).
+
+    ``echo`` receives one-line progress messages (the CLI prints them on stderr).
+    ``timeout`` (seconds) stops the pipeline with an error if it has not finished.
+    """
+
+    def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
+                 timeout: float | None = None, python: str | None = None,
+                 log_level: str = "INFO") -> None:
+        self.cfg = resolve_run(cfg)
+        check_run_id(self.cfg.run)
+        self.out = Path(self.cfg.out)
+        self.echo = echo or (lambda msg: None)
+        self.timeout = timeout
+        self.python = python or sys.executable
+        self.log_level = log_level
+        self.stages: list[StageProcess] = []
+        self._stop = threading.Event()
+        self._stop_reason = ""
+        self.router = None
+        self.monitor = None
+        self.credentials: dict[str, str] = {}
+
+    # -- public ----------------------------------------------------------------------
+    def request_stop(self, reason: str = "interrupted") -> None:
+        self._stop_reason = self._stop_reason or reason
+        self._stop.set()
+
+    def run(self) -> LaunchResult:
+        t0 = time.monotonic()
+        cfg = self.cfg
+        self.out.mkdir(parents=True, exist_ok=True)
+        for stale in (SNAPSHOT_NAME, SUMMARY_NAME):
+            try:
+                (self.out / stale).unlink()
+            except FileNotFoundError:
+                pass
+        result = LaunchResult(run=cfg.run, out=self.out, ok=False)
+        try:
+            stage_cfg = self._network(cfg)
+            result.endpoints = list(stage_cfg.zenoh.connect)
+            cfg_path = self.out / "pipeline.json"
+            cfg_path.write_bytes(dump_pipeline(stage_cfg))
+            self._open_monitor(stage_cfg)
+            env = dict(os.environ)
+            env.setdefault("PYTHONUNBUFFERED", "1")
+            env.setdefault("RERUN_ANALYTICS", "0")
+            # children run this checkout even if the package is not installed
+            root = str(Path(__file__).resolve().parent.parent)
+            env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+            order = [r for r in ("sink", "tracker", "source") if r in cfg.stages]
+            for role in order:
+                argv = [self.python, "-m", "pipeline", "stage", role, "--pipeline", str(cfg_path),
+                        "--name", role, "--parent-pid", str(os.getpid()), "--log-level", self.log_level]
+                sp = StageProcess(role, argv, self.out / "logs" / f"{role}.log")
+                if role in self.credentials:
+                    sp.env = {"BNPTRACK_ZENOH_USER": role, "BNPTRACK_ZENOH_PASSWORD": self.credentials[role]}
+                self.stages.append(sp)
+                sp.start(env)
+            self._write_stages()
+            self.echo(f"run {cfg.run}: started {', '.join(f'{s.role} (pid {s.pid})' for s in self.stages)}"
+                      f"; zenoh {', '.join(stage_cfg.zenoh.connect) or 'peer mode'}; logs in {self.out / 'logs'}")
+            self._supervise(env, t0, result)
+        finally:
+            self._stop_all()
+            self._close_network()
+        result.elapsed_s = time.monotonic() - t0
+        result.restarts = {s.role: s.restarts for s in self.stages}
+        summary_path = self.out / SUMMARY_NAME
+        if summary_path.exists():
+            try:
+                result.summary = json.loads(summary_path.read_text())
+            except (OSError, json.JSONDecodeError):
+                result.summary = None
+        if result.summary:
+            result.files = [f for f in result.summary.get("files", []) if Path(f).exists()]
+            result.files.append(str(summary_path))
+            src_err = result.summary.get("source_error")
+            if src_err and (result.ok or result.error == _DATA_ERROR):
+                result.error = (f"{src_err} -- the pipeline processed the "
+                                f"{result.summary.get('frames_written', 0)} readable frame(s)")
+                result.ok = False
+        return result
+
+    # -- network -----------------------------------------------------------------------
+    def _network(self, cfg: PipelineConfig) -> PipelineConfig:
+        z = cfg.zenoh
+        if z.embedded_router:
+            from pipeline.transport import Router
+
+            if z.acl and not z.users_file:
+                # one random password per stage (and one for the launcher's monitor), given
+                # to each process in its environment only
+                import secrets
+
+                self.credentials = {name: secrets.token_urlsafe(18) for name in [*cfg.stages, "launcher"]}
+                users = self.out / "zenoh-users.txt"
+                fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+                with os.fdopen(fd, "w") as f:
+                    f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
+                z = msgspec.structs.replace(z, users_file=str(users))
+            self.router = Router(z)
+            connect = self.router.connect_endpoints
+            z = msgspec.structs.replace(z, embedded_router=False, connect=connect)
+        elif not z.connect and z.mode == "client":
+            raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
+                              "zenoh.embedded_router = true)")
+        return msgspec.structs.replace(cfg, zenoh=z)
+
+    def _open_monitor(self, cfg: PipelineConfig) -> None:
+        from pipeline.transport import Bus
+
+        z = cfg.zenoh
+        if "launcher" in self.credentials:
+            z = msgspec.structs.replace(z, user="launcher", password=self.credentials["launcher"])
+        try:
+            self.monitor = Bus(cfg.run, "launcher", z, cfg.delivery)
+            self.monitor.subscribe(["health/*", "deadletter"], advanced=False)
+        except Exception as exc:  # monitoring is optional
+            log.warning("launcher: no health monitor: %s", exc)
+            self.monitor = None
+        self._health_file = open(self.out / "health.jsonl", "ab")
+
+    def _drain_monitor(self) -> None:
+        if self.monitor is None:
+            return
+        while (ev := self.monitor.recv(0)) is not None:
+            rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
+            try:
+                rec["msg"] = json.loads(ev.payload)
+            except ValueError:
+                rec["raw"] = ev.payload[:200].decode("latin-1")
+            self._health_file.write(json.dumps(rec).encode() + b"\n")
+        self._health_file.flush()
+
+    def _close_network(self) -> None:
+        try:
+            self._drain_monitor()
+        except Exception:
+            pass
+        if self.monitor is not None:
+            self.monitor.close()
+            self.monitor = None
+        hf = getattr(self, "_health_file", None)
+        if hf is not None:
+            hf.close()
+        if self.router is not None:
+            self.router.close()
+            self.router = None
+
+    # -- supervision -------------------------------------------------------------------
+    def _write_stages(self) -> None:
+        doc = {s.role: {"pid": s.pid, "state": s.state, "restarts": s.restarts,
+                        "returncode": s.returncode, "log": str(s.log_path), "history": s.history}
+               for s in self.stages}
+        tmp = self.out / ".stages.json.tmp"
+        tmp.write_text(json.dumps(doc, indent=1))
+        os.replace(tmp, self.out / "stages.json")
+
+    def _supervise(self, env: dict[str, str], t0: float, result: LaunchResult) -> None:
+        sup = self.cfg.supervisor
+        data_error = ""
+        while True:
+            if self._stop.wait(0.05):
+                result.interrupted = self._stop_reason == "interrupted"
+                result.error = self._stop_reason
+                return
+            self._drain_monitor()
+            if self.timeout is not None and time.monotonic() - t0 > self.timeout:
+                result.error = f"timed out after {self.timeout:g} s"
+                return
+            changed = False
+            for sp in self.stages:
+                if sp.state == "running" and not sp.alive():
+                    rc = sp.proc.returncode
+                    sp.returncode = rc
+                    changed = True
+                    if rc == EXIT_OK or (rc == EXIT_DATA and sp.role == "source"):
+                        sp.state = "done"
+                        if rc == EXIT_DATA:
+                            data_error = _DATA_ERROR
+                        continue
+                    what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
+                    if rc == EXIT_CONFIG:
+                        sp.state = "failed"
+                        result.error = f"stage {sp.role}: configuration error:\n{sp.tail()}"
+                        return
+                    if sp.restarts >= sup.max_restarts:
+                        sp.state = "failed"
+                        result.error = (f"stage {sp.role} crashed ({what}) and was restarted "
+                                        f"{sp.restarts} time(s) already; giving up:\n{sp.tail()}")
+                        return
+                    sp.state = "restarting"
+                    sp.restart_at = time.monotonic() + sup.restart_backoff_s
+                    self.echo(f"stage {sp.role} (pid {sp.pid}) crashed ({what}); restarting "
+                              f"({sp.restarts + 1}/{sup.max_restarts})")
+                elif sp.state == "restarting" and time.monotonic() >= (sp.restart_at or 0):
+                    sp.restarts += 1
+                    sp.start(env)
+                    changed = True
+                    self.echo(f"stage {sp.role} restarted (pid {sp.pid})")
+            if changed:
+                self._write_stages()
+            if all(sp.state == "done" for sp in self.stages):
+                result.ok = not data_error
+                result.error = data_error
+                return
+            # a sink that finished while others linger: give them linger_s, then stop them
+            sinks_done = all(sp.state == "done" for sp in self.stages if sp.role == "sink")
+            if sinks_done and any(sp.role == "sink" for sp in self.stages):
+                if not hasattr(self, "_sink_done_at"):
+                    self._sink_done_at = time.monotonic()
+                elif time.monotonic() - self._sink_done_at > sup.linger_s:
+                    self.echo("the sink has finished; stopping the remaining stages")
+                    self._stop_all()
+                    for sp in self.stages:
+                        if sp.state != "done":
+                            sp.state = "done"
+                    result.ok = not data_error
+                    result.error = data_error
+                    return
+
+    def _stop_all(self) -> None:
+        running = [sp for sp in self.stages if sp.alive()]
+        if not running:
+            return
+        for sp in running:
+            sp.signal(signal.SIGTERM)
+        deadline = time.monotonic() + self.cfg.supervisor.stop_timeout_s
+        for sp in running:
+            try:
+                sp.proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.echo(f"stage {sp.role} (pid {sp.pid}) did not stop in time: SIGKILL")
+                sp.signal(signal.SIGKILL)
+                sp.proc.wait(5)
+            sp.returncode = sp.proc.returncode
+            if sp.state == "running":
+                sp.state = "stopped"
+        self._write_stages()
+
+
+def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
+           timeout: float | None = None, handle_signals: bool = True) -> LaunchResult:
+    """Run a pipeline to its end (the CLI's ``launch`` and ``replay``)."""
+    launcher = Launcher(cfg, echo=echo, timeout=timeout)
+    old: dict[int, Any] = {}
+    if handle_signals and threading.current_thread() is threading.main_thread():
+        def on_signal(signum: int, _frame: Any) -> None:
+            if echo:
+                echo(f"{signal.Signals(signum).name}: stopping every stage (flushing files)")
+            launcher.request_stop("interrupted")
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, on_signal)
+    try:
+        return launcher.run()
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def stage_config(base: PipelineConfig, *, run: str | None, out: str | None,
+                 connect: Sequence[str], listen: Sequence[str], mode: str | None) -> PipelineConfig:
+    """The configuration of a stage started by hand (``bnptrack stage``)."""
+    cfg = base
+    if run:
+        cfg = msgspec.structs.replace(cfg, run=check_run_id(run))
+    if not cfg.run:
+        raise ConfigError("--run RUN is required (every stage of a run must use the same run id)")
+    if out:
+        cfg = msgspec.structs.replace(cfg, out=str(out))
+    cfg = resolve_run(cfg)
+    z = cfg.zenoh
+    if connect:
+        z = msgspec.structs.replace(z, connect=list(connect))
+    if listen:
+        z = msgspec.structs.replace(z, listen=list(listen))
+    if mode:
+        z = msgspec.structs.replace(z, mode=mode)
+    z = msgspec.structs.replace(z, embedded_router=False)
+    if z.mode == "client" and not z.connect:
+        raise ConfigError("--connect tcp/HOST:PORT is required in client mode (the router's endpoint)")
+    return msgspec.structs.replace(cfg, zenoh=z)

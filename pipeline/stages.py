@@ -1,0 +1,1344 @@
+"""The pipeline's stage loops: source, tracker and sink around the pure pieces.
+
+Nothing here imports zenoh.  A stage talks to a *bus* with the interface of
+:class:`pipeline.transport.Bus` (``declare``, ``publish``, ``subscribe``, ``recv``,
+``declare_alive``, ``alive``, ``wait_alive`` (liveliness tokens ``alive`` and ``ready``),
+``dropped``, ``misses``, ``backlog``); the
+tests and the benchmark's in-process baseline use :class:`pipeline.membus.MemoryBus`.
+
+Delivery contract (see docs/pipeline.md):
+
+* every data sample carries the codec's JSON payload (its ``run`` must be the stage's run)
+  and an attachment ``{"seq": n, "t": publish_ns, "frame": k}``; ``seq`` numbers the
+  source's frames 0, 1, 2, ... (``frame`` numbers may skip); ``/tracks`` of frame ``seq``
+  carries the same ``seq``;
+* a consumer validates each sample (:class:`Intake`: size, attachment, schema, NaN/inf,
+  run id), rejects bad ones with a log line, a counter and a copy on ``deadletter``;
+* a :class:`Sequencer` per stream drops duplicates, reorders within ``delivery.window``
+  sequence numbers and declares a *gap* for a frame still missing when the window has
+  moved past it (or after end of stream and ``eos_grace_s`` without progress); a frame
+  arriving after its gap was declared is rejected as *late*.  All of this depends only on
+  the order in which samples arrive, never on timing, except the end-of-stream grace;
+* the tracker processes frames in sequence order (predicting through gaps), snapshots its
+  state atomically every ``snapshot_every`` frames and on shutdown, and resumes from the
+  snapshot when restarted.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from itertools import islice
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from pipeline.codec import (
+    TOPIC_MEASUREMENTS,
+    TOPIC_TRACKS,
+    TOPIC_TRUTH,
+    CodecError,
+    decode_msg,
+    encode_measurements,
+    encode_tracks,
+    encode_truth,
+    estimate_from_msg,
+    frame_from_msg,
+    truth_from_msg,
+)
+from pipeline.pipeline_config import PipelineConfig
+from tracker.config import ConfigError
+from tracker.types import Frame
+
+__all__ = [
+    "EXIT_OK",
+    "EXIT_CRASH",
+    "EXIT_CONFIG",
+    "EXIT_DATA",
+    "EXIT_STOPPED",
+    "GAP",
+    "NO_TRUTH",
+    "Sequencer",
+    "Counters",
+    "Intake",
+    "Accepted",
+    "StageInfo",
+    "EndOfStream",
+    "StageContext",
+    "SourceStage",
+    "TrackerStage",
+    "SinkStage",
+    "STAGES",
+    "write_atomic",
+    "read_snapshot",
+    "SNAPSHOT_NAME",
+    "SUMMARY_NAME",
+]
+
+log = logging.getLogger("bnptrack.stage")
+
+#: Exit codes of a stage process (the launcher restarts only on EXIT_CRASH / signals).
+EXIT_OK = 0
+EXIT_CRASH = 1
+EXIT_CONFIG = 2
+EXIT_DATA = 3
+EXIT_STOPPED = 130
+
+SNAPSHOT_NAME = "tracker.snap"
+SUMMARY_NAME = "sink.json"
+SNAPSHOT_FORMAT = 1
+
+#: Topic (bus-relative) of each codec topic.
+BUS_TOPIC = {TOPIC_MEASUREMENTS: "measurements", TOPIC_TRUTH: "truth", TOPIC_TRACKS: "tracks"}
+CODEC_TOPIC = {v: k for k, v in BUS_TOPIC.items()}
+
+#: Largest sequence number accepted (JSON-safe integer).
+MAX_SEQ = 2**53
+#: Bytes of a rejected payload copied to the dead-letter topic.
+DEADLETTER_COPY = 64 * 1024
+
+
+class _Marker:
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __repr__(self) -> str:
+        return self.name
+
+
+#: A frame declared missing by a :class:`Sequencer`.
+GAP = _Marker("GAP")
+#: Placeholder in the sink's truth stream for a frame the source sent without truth.
+NO_TRUTH = _Marker("NO_TRUTH")
+
+
+# --------------------------------------------------------------------------- sequencing
+
+
+class Sequencer:
+    """Dedupe, reorder within a window, declare gaps: in-order release of ``seq`` items.
+
+    ``push(seq, item)`` returns ``(status, released)`` where ``status`` is ``"accepted"``,
+    ``"duplicate"`` (already released or buffered) or ``"late"`` (its gap was declared)
+    and ``released`` a list of ``(seq, item)`` in sequence order, ``item`` being
+    :data:`GAP` for a missing frame.  The buffer never spans ``window`` or more sequence
+    numbers: a frame arriving ``window`` or more ahead of the next expected one releases
+    (or declares missing) everything at least ``window`` behind it.  The result depends
+    only on the order of the pushes.
+    """
+
+    def __init__(self, window: int, start: int = 0, name: str = "") -> None:
+        if window < 1:
+            raise ValueError("window must be >= 1")
+        self.window = int(window)
+        self.next = int(start)
+        self.name = name
+        self.buf: dict[int, Any] = {}
+        self.gaps: list[int] = []
+        self._gapset: set[int] = set()
+        self.accepted = 0
+        self.duplicates = 0
+        self.late = 0
+        self.max_seen = int(start) - 1
+
+    def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
+        seq = int(seq)
+        if seq < self.next:
+            if seq in self._gapset:
+                self.late += 1
+                return "late", []
+            self.duplicates += 1
+            return "duplicate", []
+        if seq in self.buf:
+            self.duplicates += 1
+            return "duplicate", []
+        self.accepted += 1
+        self.max_seen = max(self.max_seen, seq)
+        out: list[tuple[int, Any]] = []
+        if seq >= self.next + self.window:
+            out += self._advance_to(seq - self.window + 1)
+        self.buf[seq] = item
+        out += self._release()
+        return "accepted", out
+
+    def _advance_to(self, target: int) -> list[tuple[int, Any]]:
+        out: list[tuple[int, Any]] = []
+        while self.next < target:
+            s = self.next
+            if s in self.buf:
+                out.append((s, self.buf.pop(s)))
+            else:
+                self.gaps.append(s)
+                self._gapset.add(s)
+                out.append((s, GAP))
+            self.next += 1
+        return out
+
+    def _release(self) -> list[tuple[int, Any]]:
+        out: list[tuple[int, Any]] = []
+        while self.next in self.buf:
+            out.append((self.next, self.buf.pop(self.next)))
+            self.next += 1
+        return out
+
+    def mark_gaps(self, seqs: Iterable[int]) -> list[tuple[int, Any]]:
+        """Declare ``seqs`` missing now (e.g. the gaps an upstream stage reported)."""
+        for s in sorted(set(int(x) for x in seqs)):
+            if s >= self.next and s not in self.buf:
+                self.buf[s] = GAP
+                self.gaps.append(s)
+                self._gapset.add(s)
+        return self._release()
+
+    def flush_through(self, last: int) -> list[tuple[int, Any]]:
+        """Release everything up to ``last`` (inclusive), declaring what is missing."""
+        return self._advance_to(int(last) + 1) + self._release()
+
+    def complete_through(self, last: int) -> bool:
+        return self.next > last
+
+    @property
+    def pending(self) -> int:
+        return len(self.buf)
+
+
+# --------------------------------------------------------------------------- counters
+
+
+@dataclass
+class Counters:
+    """Health counters of one stage (published on ``health/<stage>``)."""
+
+    received: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    duplicates: int = 0
+    late: int = 0
+    gaps: int = 0
+    published: int = 0
+    processed: int = 0
+    restarts_resumed: int = 0
+    latency_ms: deque = field(default_factory=lambda: deque(maxlen=10_000))
+
+    def latency(self) -> dict[str, float | int | None]:
+        if not self.latency_ms:
+            return {"n": 0, "p50": None, "p99": None}
+        a = np.fromiter(self.latency_ms, float)
+        return {"n": int(a.size), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if k != "latency_ms"}
+        d["latency_ms"] = self.latency()
+        return d
+
+
+# --------------------------------------------------------------------------- control messages
+
+
+class StageInfo(msgspec.Struct, kw_only=True):
+    """``info/<stage>``: what a stage produces (cached for late joiners)."""
+
+    stage: str
+    run: str
+    kind: str = ""
+    metadata: dict[str, str] | None = None
+    tracker: str = ""
+    seed: int = 0
+    pid: int = 0
+
+
+class EndOfStream(msgspec.Struct, kw_only=True):
+    """``eos/<stage>``: the stage produced (or, for a sink, recorded) everything it will.
+
+    ``last_seq`` is the last sequence number of the stream (-1: empty), ``gaps`` the
+    sequence numbers it declared missing, ``error`` why the stream ended early (e.g. a
+    truncated log), ``complete`` false when it was stopped before its input ended.
+    """
+
+    stage: str
+    run: str
+    last_seq: int
+    frames: int = 0
+    gaps: list[int] = []
+    error: str = ""
+    complete: bool = True
+    files: list[str] = []
+
+
+_INFO_DEC = msgspec.json.Decoder(StageInfo)
+_EOS_DEC = msgspec.json.Decoder(EndOfStream)
+_JSON = msgspec.json.Encoder()
+
+
+# --------------------------------------------------------------------------- intake
+
+
+@dataclass(frozen=True)
+class Accepted:
+    """A validated data sample: sequence number, decoded message, attachment."""
+
+    seq: int
+    msg: Any
+    meta: dict
+    t_recv_ns: int
+
+
+class Intake:
+    """Validate incoming data samples; reject with a log line, a counter and a dead letter.
+
+    ``check(event)`` returns :class:`Accepted` or ``None`` (rejected).  Checks, in order:
+    payload size (``max_payload_bytes``), attachment (a JSON object with an integer
+    ``seq`` in ``[0, 2**53)``), the codec (schema, version, finite values, sizes), the
+    message's ``run`` (must be this run).
+    """
+
+    def __init__(self, stage: str, run: str, bus: Any, counters: Counters, max_payload_bytes: int) -> None:
+        self.stage = stage
+        self.run = run
+        self.bus = bus
+        self.counters = counters
+        self.max_payload = max_payload_bytes
+        self.rejected_by_topic: dict[str, int] = {}
+
+    def check(self, ev: Any) -> Accepted | None:
+        topic = ev.topic
+        codec_topic = CODEC_TOPIC.get(topic)
+        if codec_topic is None:
+            return self.reject(ev, None, f"unexpected topic {topic!r}")
+        if len(ev.payload) > self.max_payload:
+            return self.reject(
+                ev, None, f"payload of {len(ev.payload)} bytes exceeds the limit of {self.max_payload}"
+            )
+        meta = ev.meta
+        if meta is None:
+            return self.reject(ev, None, ev.meta_error or "missing attachment (sequence number)")
+        seq = meta.get("seq")
+        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq < MAX_SEQ:
+            return self.reject(ev, None, f"attachment seq must be an integer in [0, 2**53), got {seq!r}")
+        try:
+            msg = decode_msg(codec_topic, ev.payload)
+        except CodecError as exc:
+            return self.reject(ev, seq, str(exc))
+        if msg.run != self.run:
+            return self.reject(ev, seq, f"{codec_topic} frame {msg.frame}: run {msg.run!r} is not this run {self.run!r}")
+        frame = meta.get("frame")
+        if frame is not None and frame != msg.frame:
+            return self.reject(ev, seq, f"{codec_topic}: attachment frame {frame!r} != payload frame {msg.frame}")
+        return Accepted(seq, msg, meta, ev.t_recv_ns)
+
+    def reject(self, ev: Any, seq: int | None, reason: str) -> None:
+        self.counters.rejected += 1
+        self.rejected_by_topic[ev.topic] = self.rejected_by_topic.get(ev.topic, 0) + 1
+        n = self.counters.rejected
+        if n <= 20 or n % 100 == 0:
+            log.warning("%s: rejected %s sample (seq %s, %d bytes): %s [rejected so far: %d]",
+                        self.stage, ev.topic, seq, len(ev.payload), reason, n)
+        letter = {
+            "stage": self.stage,
+            "run": self.run,
+            "topic": ev.topic,
+            "seq": seq,
+            "reason": reason,
+            "size": len(ev.payload),
+            "truncated": len(ev.payload) > DEADLETTER_COPY,
+            "payload_b64": base64.b64encode(bytes(ev.payload[:DEADLETTER_COPY])).decode(),
+            "t_ns": time.time_ns(),
+        }
+        try:
+            self.bus.publish("deadletter", _JSON.encode(letter))
+        except Exception as exc:  # the dead letter is best effort
+            log.error("%s: could not publish a dead letter: %s", self.stage, exc)
+        return None
+
+
+# --------------------------------------------------------------------------- files
+
+
+def write_atomic(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: temp file in the same directory, fsync,
+    ``os.replace``, fsync of the directory."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    try:
+        dfd = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:
+        pass
+    finally:
+        os.close(dfd)
+
+
+class BackgroundWriter:
+    """Write files atomically (:func:`write_atomic`) on a background thread, so that fsync
+    stalls stay out of the frame loop.  ``submit`` replaces a pending write of the same path
+    (only the newest snapshot matters); ``flush`` waits until everything submitted is on
+    disk and re-raises a write error."""
+
+    def __init__(self) -> None:
+        self._cv = threading.Condition()
+        self._pending: dict[Path, bytes] = {}
+        self._busy = False
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+        self.writes = 0
+
+    def submit(self, path: Path, data: bytes) -> None:
+        with self._cv:
+            if self._error is not None:
+                err, self._error = self._error, None
+                raise err
+            self._pending[path] = data
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, name="snapshot-writer", daemon=True)
+                self._thread.start()
+            self._cv.notify_all()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._pending:
+                    self._cv.wait()
+                path, data = self._pending.popitem()
+                self._busy = True
+            try:
+                write_atomic(path, data)
+                self.writes += 1
+            except BaseException as exc:  # surfaced by the next submit/flush
+                log.error("could not write %s: %s", path, exc)
+                with self._cv:
+                    self._error = exc
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()
+
+    def flush(self, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while (self._pending or self._busy) and time.monotonic() < deadline:
+                self._cv.wait(0.05)
+            if self._error is not None:
+                err, self._error = self._error, None
+                raise err
+
+
+class Snapshot(msgspec.Struct, kw_only=True):
+    """``<out>/tracker.snap`` (msgpack): the tracker state after ``last_seq`` and the last
+    published ``/tracks`` samples (re-published on resume in case they were in flight)."""
+
+    format: int = SNAPSHOT_FORMAT
+    run: str
+    tracker: str
+    seed: int
+    last_seq: int
+    last_frame: int
+    state: bytes
+    recent: list[tuple[int, bytes, dict]] = []
+    gaps: list[int] = []
+    counters: dict[str, int] = {}
+    time_ns: int = 0
+
+
+def read_snapshot(path: str | os.PathLike) -> Snapshot:
+    """Load a tracker snapshot (raises ConfigError on a damaged file)."""
+    try:
+        data = Path(path).read_bytes()
+        snap = msgspec.msgpack.decode(data, type=Snapshot)
+    except (OSError, msgspec.DecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the tracker snapshot: {exc}") from None
+    if snap.format != SNAPSHOT_FORMAT:
+        raise ConfigError(f"{path}: snapshot format {snap.format} is not supported ({SNAPSHOT_FORMAT})")
+    return snap
+
+
+# --------------------------------------------------------------------------- context
+
+
+@dataclass
+class StageContext:
+    """What a stage needs: the (resolved) pipeline, its bus, a stop flag, its name."""
+
+    cfg: PipelineConfig
+    bus: Any
+    stop: threading.Event = field(default_factory=threading.Event)
+    name: str = ""
+
+    @property
+    def run(self) -> str:
+        return self.cfg.run
+
+    @property
+    def out(self) -> Path:
+        return Path(self.cfg.out)
+
+
+class _StageBase:
+    role = ""
+
+    def __init__(self, ctx: StageContext) -> None:
+        self.ctx = ctx
+        self.cfg = ctx.cfg
+        self.bus = ctx.bus
+        self.name = ctx.name or self.role
+        self.run_id = ctx.cfg.run
+        self.counters = Counters()
+        self.delivery = ctx.cfg.delivery
+        self._next_health = 0.0
+        self.eos_seen: dict[str, EndOfStream] = {}
+        self.eos_time: dict[str, float] = {}  # when each end of stream arrived (monotonic)
+        self.infos: dict[str, StageInfo] = {}
+
+    # -- health ----------------------------------------------------------------------
+    def health(self, force: bool = False, extra: dict | Callable[[], dict] | None = None) -> None:
+        """Publish ``health/<stage>`` if due (every ``delivery.health_period_s``) or ``force``;
+        ``extra`` (a dict, or a function returning one, called only when publishing) is
+        merged in."""
+        now = time.monotonic()
+        if not force and now < self._next_health:
+            return
+        if callable(extra):
+            extra = extra()
+        self._next_health = now + self.delivery.health_period_s
+        doc = {
+            "stage": self.name,
+            "role": self.role,
+            "run": self.run_id,
+            "pid": os.getpid(),
+            "t_ns": time.time_ns(),
+            "counters": self.counters.as_dict(),
+            "dropped": int(getattr(self.bus, "dropped", 0)),
+            "zenoh_misses": int(getattr(self.bus, "misses", 0)),
+            "backlog": int(getattr(self.bus, "backlog", 0)),
+        }
+        if extra:
+            doc.update(extra)
+        try:
+            self.bus.publish(f"health/{self.name}", _JSON.encode(doc))
+        except Exception as exc:
+            log.debug("%s: health publish failed: %s", self.name, exc)
+
+    # -- control ---------------------------------------------------------------------
+    def on_control(self, ev: Any) -> bool:
+        """Handle ``info/*`` and ``eos/*``; True if the event was a control message."""
+        topic = ev.topic
+        if topic.startswith("eos/"):
+            try:
+                eos = _EOS_DEC.decode(ev.payload)
+            except msgspec.DecodeError as exc:
+                log.warning("%s: ignoring a malformed %s message: %s", self.name, topic, exc)
+                return True
+            if eos.run == self.run_id:
+                stage = topic.split("/", 1)[1]
+                if stage not in self.eos_seen:
+                    self.eos_time[stage] = time.monotonic()
+                    log.info("%s: end of stream from %s (last seq %d%s)", self.name, stage, eos.last_seq,
+                             f", error: {eos.error}" if eos.error else "")
+                self.eos_seen[stage] = eos
+            return True
+        if topic.startswith("info/"):
+            try:
+                info = _INFO_DEC.decode(ev.payload)
+            except msgspec.DecodeError as exc:
+                log.warning("%s: ignoring a malformed %s message: %s", self.name, topic, exc)
+                return True
+            if info.run == self.run_id:
+                self.infos[topic.split("/", 1)[1]] = info
+            return True
+        return False
+
+    def publish_control(self, kind: str, obj: msgspec.Struct) -> None:
+        self.bus.publish(f"{kind}/{self.name}", _JSON.encode(obj))
+
+    def wait_done(self, stages: Iterable[str], poll: Callable[[Any], None] | None = None) -> bool:
+        """Serve (keep the session and caches up) until every stage in ``stages`` has sent
+        its end of stream, or stop.  Returns True if they all did."""
+        want = set(stages)
+        while not self.ctx.stop.is_set():
+            if want <= set(self.eos_seen):
+                return True
+            ev = self.bus.recv(0.1)
+            if ev is not None:
+                if not self.on_control(ev) and poll is not None:
+                    poll(ev)
+            self.health()
+        return want <= set(self.eos_seen)
+
+    def linger_until_alone(self, timeout: float) -> None:
+        """Keep the session open until no other stage of the run is alive (so that our
+        last messages are delivered), at most ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not self.ctx.stop.is_set():
+            if not (self.bus.alive() - {self.name}):
+                return
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self.on_control(ev)
+
+
+# --------------------------------------------------------------------------- source
+
+
+def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[Frame]]:
+    """The source's metadata record and its frames (``source.frames`` limits them)."""
+    sc = cfg.source
+    if sc.kind == "synthetic":
+        from pipeline.offline import format_overrides, resolve_simulation_params
+        from sources.scenarios import get_scenario
+        from sources.synthetic import simulate
+
+        try:
+            scenario = get_scenario(sc.scenario)
+        except (KeyError, ValueError) as exc:
+            raise ConfigError(f"source.scenario: {exc}") from None
+        params = resolve_simulation_params(sc.scenario, sc.params, sc.overrides, sc.snr_db)
+        metadata = {"scenario": sc.scenario, "params": sc.params, "seed": str(sc.seed)}
+        if params.snr_db is not None:
+            metadata["snr_db"] = repr(float(params.snr_db))
+        if sc.overrides:
+            metadata["overrides"] = format_overrides(sc.overrides)
+        frames: Iterator[Frame] = simulate(scenario, params, sc.seed, sensor=sc.sensor)
+    else:
+        from sources.mcap_log import McapLogError, iter_frames, read_metadata
+
+        if not sc.log:
+            raise ConfigError("source.log: an MCAP log is required when source.kind = 'mcap'")
+        if not Path(sc.log).is_file():
+            raise ConfigError(f"source.log: {sc.log}: no such file")
+        try:
+            metadata = read_metadata(sc.log)
+        except McapLogError as exc:  # not an MCAP file at all: nothing to replay
+            raise ConfigError(f"source.log: {exc}") from None
+        frames = iter_frames(sc.log)
+    if sc.frames:
+        frames = islice(frames, sc.frames)
+    return metadata, frames
+
+
+def _warm_imports(*modules: str) -> None:
+    """Import what a stage needs before it declares itself alive, so the first frame is not
+    delayed by imports (scipy, rerun: seconds on a busy machine)."""
+    import importlib
+
+    for m in modules:
+        importlib.import_module(m)
+
+
+def _warm_up(tracker: Any) -> None:
+    """Run a few throw-away steps on dummy frames so that lazily compiled kernels (numba) and
+    caches are ready before the first real frame; the tracker is a pure function of its
+    inputs, so this changes no result (the real run starts from ``initial_state()``)."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0)
+    try:
+        for kind, base in (("bearing_range", np.array([[0.1, 500.0], [0.2, 800.0], [-0.3, 1200.0], [0.5, 300.0]])),
+                           ("range", np.array([[500.0], [800.0], [1200.0]]))):
+            state = tracker.initial_state()
+            for k in range(1, 4):
+                z = base + k * np.where(np.arange(base.shape[1]) == base.shape[1] - 1, 5.0, 0.001)
+                state, _ = tracker.step(state, Frame(k, k * 10**9, "warm-up", kind, z), rng)
+    except Exception as exc:  # a tracker without a range model, say: warm-up is optional
+        log.debug("tracker warm-up skipped: %s", exc)
+    log.debug("tracker warm-up took %.2f s", time.perf_counter() - t0)
+
+
+class SourceStage(_StageBase):
+    """Publish frames (``measurements`` + ``truth``), then end of stream; serve the cache
+    until the ``done_by`` stages have finished."""
+
+    role = "source"
+
+    def run(self) -> int:
+        sc = self.cfg.source
+        bus = self.bus
+        metadata, frames = source_frames(self.cfg)
+        bus.declare(["measurements", "truth", f"info/{self.name}", f"eos/{self.name}"])
+        bus.subscribe(["eos/*"])
+        bus.declare_alive()
+        self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=sc.kind,
+                                               metadata=metadata, pid=os.getpid()))
+        bus.declare_alive("ready")
+        if sc.wait_for:
+            log.info("%s: waiting for %s to be ready", self.name, ", ".join(sc.wait_for))
+            deadline = time.monotonic() + sc.ready_timeout_s if sc.ready_timeout_s > 0 else math.inf
+            missing = set(sc.wait_for)
+            while not self.ctx.stop.is_set():
+                missing = bus.wait_alive(sc.wait_for, min(0.2, max(0.0, deadline - time.monotonic())), "ready")
+                if not missing or time.monotonic() >= deadline:
+                    break
+            if self.ctx.stop.is_set():
+                return EXIT_STOPPED
+            if missing:
+                log.warning("%s: %s not ready after %.0f s; publishing anyway (they will get the "
+                            "cache's history when they join)", self.name, ", ".join(sorted(missing)),
+                            sc.ready_timeout_s)
+        seq = -1
+        error = ""
+        t0 = time.monotonic()
+        stamp0: int | None = None
+        stopped = False
+        try:
+            for frame in frames:
+                if self.ctx.stop.is_set():
+                    stopped = True
+                    break
+                if sc.rate > 0:
+                    if stamp0 is None:
+                        stamp0 = frame.stamp_ns
+                    due = t0 + (frame.stamp_ns - stamp0) / 1e9 / sc.rate
+                    wait = due - time.monotonic()
+                    if wait > 0 and self.ctx.stop.wait(wait):
+                        stopped = True
+                        break
+                seq += 1
+                has_truth = frame.truth is not None
+                meas = encode_measurements(frame, self.run_id)
+                truth = encode_truth(frame.frame, frame.stamp_ns, frame.truth, self.run_id) if has_truth else None
+                t = time.time_ns()
+                bus.publish("measurements", meas, {"seq": seq, "t": t, "frame": frame.frame, "truth": has_truth})
+                if truth is not None:
+                    bus.publish("truth", truth, {"seq": seq, "t": t, "frame": frame.frame})
+                self.counters.published += 1
+                self.health()
+                while True:  # keep up with control messages without blocking
+                    ev = bus.recv(0)
+                    if ev is None:
+                        break
+                    self.on_control(ev)
+        except Exception as exc:
+            from sources.mcap_log import McapLogError
+
+            if not isinstance(exc, McapLogError):
+                raise
+            error = str(exc)
+            log.error("%s: %s", self.name, error)
+        if stopped:
+            log.info("%s: stopped after %d frame(s)", self.name, seq + 1)
+            self.health(force=True)
+            return EXIT_STOPPED
+        eos = EndOfStream(stage=self.name, run=self.run_id, last_seq=seq, frames=seq + 1, error=error)
+        self.publish_control("eos", eos)
+        log.info("%s: published %d frame(s) in %.2f s; waiting for %s to finish", self.name, seq + 1,
+                 time.monotonic() - t0, ", ".join(sc.done_by) or "nobody")
+        self.health(force=True)
+        done = self.wait_done(sc.done_by)
+        self.health(force=True)
+        if not done:
+            return EXIT_STOPPED
+        return EXIT_DATA if error else EXIT_OK
+
+
+# --------------------------------------------------------------------------- tracker
+
+
+class TrackerStage(_StageBase):
+    """Track the ``measurements`` stream in sequence order and publish ``tracks``.
+
+    Any tracker :func:`pipeline.offline.build_tracker` builds works (the state class comes
+    from ``tracker.initial_state()``).  Frame ``k`` uses ``tracker.state.frame_rng(seed, k)``
+    exactly like ``bnptrack track``, so the output depends only on the frames and their order.
+    """
+
+    role = "tracker"
+
+    def __init__(self, ctx: StageContext) -> None:
+        super().__init__(ctx)
+        self.tc = self.cfg.tracker
+        self.snap_path = self.ctx.out / SNAPSHOT_NAME
+        self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes)
+        self.seq = Sequencer(self.delivery.window, 0, "measurements")
+        self.tracker = None
+        self.state = None
+        self.last_seq = -1
+        self.last_frame = -1
+        self.recent: deque = deque(maxlen=max(self.delivery.window, self.tc.snapshot_every))
+        self.pending: list[Accepted] = []
+        self.restored: Snapshot | None = None
+        self.since_snapshot = 0
+        self.last_progress = time.monotonic()
+        self.step_ms: deque = deque(maxlen=10_000)
+        self.writer = BackgroundWriter()
+
+    # -- setup -------------------------------------------------------------------------
+    def _restore(self) -> None:
+        if not self.tc.resume or not self.snap_path.exists():
+            return
+        snap = read_snapshot(self.snap_path)
+        if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
+            raise ConfigError(
+                f"{self.snap_path}: snapshot of run {snap.run!r}, tracker {snap.tracker!r}, seed "
+                f"{snap.seed} does not match this stage (run {self.run_id!r}, tracker "
+                f"{self.tc.tracker!r}, seed {self.tc.seed}); delete it or set tracker.resume = false"
+            )
+        self.restored = snap
+        self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
+        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements")
+        self.seq.gaps = list(snap.gaps)
+        self.seq._gapset = set(snap.gaps)
+        self.counters.gaps = len(snap.gaps)
+        self.counters.processed = snap.counters.get("processed", 0)
+        self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
+        self.recent.extend(snap.recent)
+        log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
+                 snap.last_seq, snap.last_frame)
+
+    def _build(self, info: StageInfo) -> None:
+        from pipeline.offline import (
+            apply_split_overrides,
+            build_tracker,
+            format_overrides,
+            resolve_config,
+            resolve_params,
+        )
+        from tracker.state import restore
+
+        tc = self.tc
+        choice = resolve_params(tc.params or None, info.metadata)
+        config, _desc = resolve_config(tc.tracker, tc.config or None)
+        params, config = apply_split_overrides(choice.params, config, tc.overrides)
+        self.tracker = build_tracker(tc.tracker, params, config)
+        initial = self.tracker.initial_state()
+        if self.restored is not None:
+            self.state = restore(self.restored.state, type(initial))
+        else:
+            self.state = initial
+        _warm_up(self.tracker)
+        out_meta = dict(info.metadata or {})
+        out_meta.update(
+            tracker=tc.tracker,
+            tracker_seed=str(tc.seed),
+            tracker_params=choice.source,
+            tracker_config=tc.config or tc.tracker,
+        )
+        if tc.overrides:
+            out_meta["tracker_overrides"] = format_overrides(tc.overrides)
+        out_meta["run"] = self.run_id
+        self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=tc.tracker,
+                                               metadata=out_meta, tracker=tc.tracker, seed=tc.seed,
+                                               pid=os.getpid()))
+        log.info("%s: %s tracker, params %s, seed %d", self.name, tc.tracker,
+                 choice.describe(params), tc.seed)
+
+    # -- per frame ---------------------------------------------------------------------
+    def _process(self, released: list[tuple[int, Any]]) -> None:
+        from tracker.state import frame_rng
+
+        for s, item in released:
+            if item is GAP:
+                self.counters.gaps += 1
+                log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
+                self.last_seq = s
+                continue
+            acc: Accepted = item
+            frame = frame_from_msg(acc.msg)
+            if frame.frame <= self.last_frame:
+                self.intake.reject(
+                    _FakeEvent("measurements", b"", acc.t_recv_ns), s,
+                    f"frame {frame.frame} is not after the last processed frame {self.last_frame}",
+                )
+                self.last_seq = s
+                continue
+            t0 = time.perf_counter()
+            state, est = self.tracker.step(self.state, frame, frame_rng(self.tc.seed, frame.frame))
+            self.step_ms.append((time.perf_counter() - t0) * 1e3)
+            payload = encode_tracks(est, self.run_id)
+            # t: the source's publication time (end-to-end latency); t_in / t_out: when the
+            # tracker received the frame and published its tracks (latency breakdown)
+            meta = {"seq": s, "t": acc.meta.get("t", 0), "frame": frame.frame,
+                    "t_in": acc.t_recv_ns, "t_out": time.time_ns()}
+            self.bus.publish("tracks", payload, meta)
+            # the state advances only once its output is out (a snapshot is always consistent)
+            self.state, self.last_seq, self.last_frame = state, s, frame.frame
+            self.recent.append((s, payload, meta))
+            self.counters.processed += 1
+            self.counters.published += 1
+            self.since_snapshot += 1
+            if self.since_snapshot >= self.tc.snapshot_every:
+                self.snapshot()
+
+    def snapshot(self, wait: bool = False) -> None:
+        """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
+        if self.tracker is None or self.state is None:
+            return
+        from tracker.state import snapshot
+
+        snap = Snapshot(
+            run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
+            last_frame=self.last_frame, state=snapshot(self.state), recent=list(self.recent),
+            gaps=list(self.seq.gaps),
+            counters={"processed": self.counters.processed,
+                      "restarts_resumed": self.counters.restarts_resumed},
+            time_ns=time.time_ns(),
+        )
+        self.ctx.out.mkdir(parents=True, exist_ok=True)
+        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap))
+        self.since_snapshot = 0
+        if wait:
+            self.writer.flush()
+
+    def _on_data(self, ev: Any) -> None:
+        self.counters.received += 1
+        acc = self.intake.check(ev)
+        if acc is None:
+            return
+        t = acc.meta.get("t")
+        if isinstance(t, int):
+            self.counters.latency_ms.append((acc.t_recv_ns - t) / 1e6)
+        if self.tracker is None:
+            self.pending.append(acc)
+            return
+        self._push(acc)
+
+    def _push(self, acc: Accepted) -> None:
+        status, released = self.seq.push(acc.seq, acc)
+        if status == "accepted":
+            self.counters.accepted += 1
+            self.last_progress = time.monotonic()
+        elif status == "duplicate":
+            self.counters.duplicates += 1
+        else:
+            self.counters.late += 1
+            log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
+        if released:
+            self._process(released)
+
+    def _extra_health(self) -> dict:
+        a = np.fromiter(self.step_ms, float) if self.step_ms else np.zeros(0)
+        return {
+            "last_seq": self.last_seq,
+            "last_frame": self.last_frame,
+            "step_ms_p50": float(np.median(a)) if a.size else None,
+            "pending": self.seq.pending,
+        }
+
+    # -- loop --------------------------------------------------------------------------
+    def run(self) -> int:
+        bus = self.bus
+        _warm_imports("pipeline.offline", "tracker.bnp_tracker", "tracker.state")
+        self._restore()
+        bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
+        if self.restored is not None:
+            for s, payload, meta in self.restored.recent:
+                bus.publish("tracks", payload, meta)  # may have been in flight at the crash
+        bus.subscribe(["measurements", "info/*", "eos/*"])
+        bus.declare_alive()
+        finished = False
+        src_name = "source"
+        try:
+            while not self.ctx.stop.is_set():
+                ev = bus.recv(0.05)
+                if ev is not None:
+                    if self.on_control(ev):
+                        if self.tracker is None and src_name in self.infos:
+                            self._build(self.infos[src_name])
+                            bus.declare_alive("ready")
+                            for acc in self.pending:
+                                self._push(acc)
+                            self.pending.clear()
+                    elif ev.topic == "measurements":
+                        self._on_data(ev)
+                    else:
+                        log.debug("%s: ignoring %s", self.name, ev.topic)
+                self.health(extra=self._extra_health)
+                eos = self.eos_seen.get(src_name)
+                if eos is not None and self.tracker is not None and not finished:
+                    if not self.seq.complete_through(eos.last_seq):
+                        # grace counts from the later of the last progress and the end of stream
+                        idle = time.monotonic() - max(self.last_progress, self.eos_time[src_name])
+                        if idle >= self.delivery.eos_grace_s and bus.backlog == 0:
+                            log.warning("%s: end of stream: frames still missing after %.1f s without "
+                                        "progress are gaps", self.name, idle)
+                            self._process(self.seq.flush_through(eos.last_seq))
+                    if self.seq.complete_through(eos.last_seq):
+                        finished = True
+                        self.snapshot(wait=True)
+                        self.publish_control("eos", EndOfStream(
+                            stage=self.name, run=self.run_id, last_seq=eos.last_seq,
+                            frames=self.counters.processed, gaps=list(self.seq.gaps), error=eos.error))
+                        log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
+                                 self.counters.processed, len(self.seq.gaps),
+                                 ", ".join(self.tc.done_by) or "nobody")
+                        self.health(force=True, extra=self._extra_health)
+                if finished and set(self.tc.done_by) <= set(self.eos_seen):
+                    return EXIT_OK
+            return EXIT_STOPPED
+        finally:
+            try:
+                self.snapshot(wait=True)
+            finally:
+                self.health(force=True, extra=self._extra_health)
+
+
+@dataclass(frozen=True)
+class _FakeEvent:
+    topic: str
+    payload: bytes
+    t_recv_ns: int
+    meta: dict | None = None
+    meta_error: str | None = None
+
+
+# --------------------------------------------------------------------------- sink
+
+
+def _rerun_sink_module():
+    """``sinks.rerun_sink`` when it is installed (with rerun-sdk), else ``None``."""
+    try:
+        import sinks.rerun_sink as mod  # type: ignore[import-not-found]
+    except ImportError:
+        return None
+    return mod
+
+
+class SinkStage(_StageBase):
+    """Record the run: ``<out>/tracks.mcap`` (``/measurements``, ``/truth``, ``/tracks`` per
+    frame, in order, like ``bnptrack track``), ``<out>/run.rrd`` when the Rerun sink is
+    available, and ``<out>/sink.json`` (counts, gaps, latency).  Duplicate frames (e.g.
+    ``/tracks`` re-published by a restarted tracker) are dropped."""
+
+    role = "sink"
+
+    def __init__(self, ctx: StageContext) -> None:
+        super().__init__(ctx)
+        self.sc = self.cfg.sink
+        d = self.delivery
+        self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes)
+        self.streams: dict[str, Sequencer] = {
+            "measurements": Sequencer(d.window, 0, "measurements"),
+            "truth": Sequencer(d.window, 0, "truth"),
+        }
+        if self.sc.tracks:
+            self.streams["tracks"] = Sequencer(d.window, 0, "tracks")
+        self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
+        self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
+        self.next_write = 0
+        self.writer = None
+        self.rrd = None
+        self.scorer = None
+        self.frames_written = 0
+        self.tracks_written = 0
+        self.e2e_ms: list[float] = []
+        self.tracker_ms: list[float] = []
+        self.hop_ms: list[tuple[float, float, float]] = []
+        self.seq_written: list[int] = []
+        self.files: list[str] = []
+        self.held: list[tuple[int, Any, Any, Any]] = []
+        self.t_first_ns: int | None = None
+        self.t_last_ns: int | None = None
+        self.t_first_pub_ns: int | None = None
+
+    # -- output ------------------------------------------------------------------------
+    def _metadata(self) -> tuple[bool, dict[str, str] | None]:
+        """(known, metadata): the tracker's output record (or the source's when there is
+        no tracker stream)."""
+        if self.sc.tracks:
+            info = self.infos.get("tracker")
+        else:
+            info = self.infos.get("source")
+        if info is None:
+            return False, None
+        meta = dict(info.metadata) if info.metadata is not None else None
+        if meta is not None:
+            meta.setdefault("run", self.run_id)
+        return True, meta
+
+    def _open(self, force: bool = False) -> bool:
+        if self.writer is not None:
+            return True
+        known, meta = self._metadata()
+        if not known and not force:
+            return False
+        out = self.ctx.out
+        out.mkdir(parents=True, exist_ok=True)
+        if self.sc.mcap:
+            from sources.mcap_log import McapLogWriter
+
+            path = out / self.sc.mcap_name
+            self.writer = McapLogWriter(path, meta if meta is not None else {"run": self.run_id})
+            self.files.append(str(path))
+        else:
+            self.writer = _NullWriter()
+        if self.sc.rerun:
+            self._open_rrd(out / self.sc.rrd_name, meta)
+        self.bus.declare_alive("ready")
+        return True
+
+    def _open_rrd(self, path: Path, meta: dict[str, str] | None) -> None:
+        """Open ``run.rrd`` with ``sinks.rerun_sink.RerunSink`` when that module is present
+        (the hook: nothing else in the pipeline depends on it)."""
+        mod = _rerun_sink_module()
+        if mod is None:
+            log.info("%s: sinks.rerun_sink is not available: no %s", self.name, path.name)
+            return
+        params = None
+        try:
+            from pipeline.offline import resolve_params
+            from tracker.models.params import load_params
+
+            name = (meta or {}).get("tracker_params")
+            params = load_params(name) if name else resolve_params(None, meta).params
+        except Exception:  # the viewer falls back to its default field of view
+            params = None
+        try:
+            self.rrd = mod.RerunSink(path, recording_id=self.run_id, metadata=meta or {}, params=params,
+                                     handle_signals=False)
+            self.scorer = mod.RunScorer()
+            self.files.append(str(path))
+        except Exception as exc:  # the recording must not die for a viewer file
+            log.error("%s: Rerun sink disabled: %s", self.name, exc)
+            self.rrd = None
+
+    def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
+        frame = None
+        if meas is not GAP:
+            t = truth_from_msg(truth.msg) if truth is not GAP and truth is not NO_TRUTH else None
+            frame = frame_from_msg(meas.msg, t)
+            self.writer.write_frame(frame, self.run_id)
+            self.frames_written += 1
+        est = None
+        if tracks is not None and tracks is not GAP:
+            est = estimate_from_msg(tracks.msg)
+            self.writer.write_tracks(est, self.run_id)
+            self.tracks_written += 1
+            t_pub = tracks.meta.get("t")
+            if isinstance(t_pub, int) and t_pub > 0:
+                e2e = (tracks.t_recv_ns - t_pub) / 1e6
+                self.e2e_ms.append(e2e)
+                self.counters.latency_ms.append(e2e)
+                self.tracker_ms.append(float(est.diagnostics.get("ms", float("nan"))))
+                self.seq_written.append(s)
+                t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
+                if isinstance(t_in, int) and isinstance(t_out, int):
+                    self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6,
+                                        (tracks.t_recv_ns - t_out) / 1e6))
+                if self.t_first_pub_ns is None:
+                    self.t_first_pub_ns = t_pub
+            self.t_last_ns = tracks.t_recv_ns
+        if self.rrd is not None and frame is not None and est is not None:
+            try:
+                self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
+            except Exception as exc:
+                log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
+                self._close_rrd()
+
+    def _sink_health(self) -> dict:
+        return {"frames_written": self.frames_written, "next_seq": self.next_write}
+
+    def _health_scalars(self) -> dict[str, float]:
+        c = self.counters
+        out = {"received": c.received, "accepted": c.accepted, "rejected": c.rejected,
+               "duplicates": c.duplicates, "late": c.late, "gaps": c.gaps,
+               "dropped": float(getattr(self.bus, "dropped", 0))}
+        if self.e2e_ms:
+            out["latency_ms"] = self.e2e_ms[-1]
+        return {k: float(v) for k, v in out.items()}
+
+    def _close_rrd(self) -> None:
+        rrd, self.rrd = self.rrd, None
+        if rrd is not None:
+            try:
+                rrd.close()
+            except Exception as exc:
+                log.error("%s: closing the Rerun sink: %s", self.name, exc)
+
+    def _drain_ready(self) -> None:
+        """Write every frame for which each stream has released its item (or a gap)."""
+        if not self._open():
+            return
+        ready = self.ready
+        has_tracks = "tracks" in ready
+        while True:
+            s = self.next_write
+            if s not in ready["measurements"] or s not in ready["truth"]:
+                return
+            if has_tracks and s not in ready["tracks"]:
+                return
+            meas = ready["measurements"].pop(s)
+            truth = ready["truth"].pop(s)
+            tracks = ready["tracks"].pop(s) if has_tracks else None
+            if tracks is not None and tracks is not GAP and meas is not GAP and tracks.msg.frame != meas.msg.frame:
+                log.error("%s: seq %d: /tracks is for frame %d but /measurements is frame %d; "
+                          "dropping the tracks", self.name, s, tracks.msg.frame, meas.msg.frame)
+                self.counters.rejected += 1
+                tracks = GAP
+            self._write(s, meas, truth, tracks)
+            self.next_write += 1
+
+    # -- intake ------------------------------------------------------------------------
+    def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:
+        r = self.ready[stream]
+        for s, item in released:
+            if item is GAP:
+                self.counters.gaps += 1
+                log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
+            r[s] = item
+
+    def _push(self, stream: str, seq: int, item: Any) -> None:
+        status, released = self.streams[stream].push(seq, item)
+        if status == "accepted":
+            if item is not NO_TRUTH:
+                self.counters.accepted += 1
+            self.progress[stream] = time.monotonic()
+        elif status == "duplicate":
+            if item is not NO_TRUTH:
+                self.counters.duplicates += 1
+        else:
+            self.counters.late += 1
+            log.warning("%s: %s seq %d arrived after its gap was declared: rejected", self.name, stream, seq)
+        self._release(stream, released)
+
+    def _on_data(self, ev: Any) -> None:
+        if ev.topic not in self.streams:
+            return
+        self.counters.received += 1
+        acc = self.intake.check(ev)
+        if acc is None:
+            return
+        if self.t_first_ns is None:
+            self.t_first_ns = acc.t_recv_ns
+        self._push(ev.topic, acc.seq, acc)
+        if ev.topic == "measurements" and acc.meta.get("truth") is False:
+            self._push("truth", acc.seq, NO_TRUTH)
+
+    # -- completion --------------------------------------------------------------------
+    def _check_end(self) -> bool:
+        """True when everything up to the end of stream is released and written."""
+        src = self.eos_seen.get("source")
+        if src is None:
+            return False
+        last = src.last_seq
+        now = time.monotonic()
+        grace = self.delivery.eos_grace_s
+        done = True
+        for name, seq in self.streams.items():
+            upstream = "source"
+            if name == "tracks":
+                upstream = "tracker"
+                tr = self.eos_seen.get("tracker")
+                if tr is None:
+                    done = False
+                    continue
+                if tr.gaps and not getattr(seq, "_marked_upstream", False):
+                    self._release(name, seq.mark_gaps(tr.gaps))
+                    seq._marked_upstream = True  # type: ignore[attr-defined]
+                end = tr.last_seq
+            else:
+                end = last
+            if not seq.complete_through(end):
+                # grace counts from the later of the last progress and the end of stream
+                idle = now - max(self.progress[name], self.eos_time[upstream])
+                if idle >= grace and self.bus.backlog == 0:
+                    log.warning("%s: end of stream: %s still missing after %.1f s without progress "
+                                "are gaps", self.name, name, idle)
+                    self._release(name, seq.flush_through(end))
+                else:
+                    done = False
+        self._drain_ready()
+        return done and self.next_write > last
+
+    def _finalize(self, complete: bool) -> None:
+        if not complete:
+            # write what we have, in order: everything received so far, gaps for the holes
+            self._open(force=True)
+            top = max([self.next_write - 1] + [s.max_seen for s in self.streams.values()])
+            for name, seq in self.streams.items():
+                self._release(name, seq.flush_through(top))
+            self._drain_ready()
+        if self.writer is not None:
+            self.writer.close()
+        self._close_rrd()
+        gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
+        src = self.eos_seen.get("source")
+        fps = None
+        if self.t_first_pub_ns is not None and self.t_last_ns is not None and self.tracks_written > 1:
+            fps = self.tracks_written / max((self.t_last_ns - self.t_first_pub_ns) / 1e9, 1e-9)
+        summary = {
+            "run": self.run_id,
+            "complete": complete,
+            "frames_written": self.frames_written,
+            "tracks_written": self.tracks_written,
+            "last_seq": self.next_write - 1,
+            "gaps": gaps,
+            "source_error": src.error if src is not None else "",
+            "counters": self.counters.as_dict(),
+            "rejected_by_topic": self.intake.rejected_by_topic,
+            "dropped": int(getattr(self.bus, "dropped", 0)),
+            "zenoh_misses": int(getattr(self.bus, "misses", 0)),
+            "files": self.files,
+            "throughput_fps": fps,
+            "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
+                        "source_to_tracker_ms": [h[0] for h in self.hop_ms],
+                        "in_tracker_ms": [h[1] for h in self.hop_ms],
+                        "tracker_to_sink_ms": [h[2] for h in self.hop_ms]},
+        }
+        self.ctx.out.mkdir(parents=True, exist_ok=True)
+        path = self.ctx.out / SUMMARY_NAME
+        write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
+        self.files.append(str(path))
+        log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
+                 self.tracks_written,
+                 "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def run(self) -> int:
+        bus = self.bus
+        _warm_imports("sources.mcap_log", "pipeline.offline")
+        if self.sc.rerun:
+            _rerun_sink_module()
+        topics = ["measurements", "truth"] + (["tracks"] if self.sc.tracks else [])
+        bus.subscribe(topics + ["info/*", "eos/*"])
+        bus.declare([f"eos/{self.name}"])
+        bus.declare_alive()
+        complete = False
+        try:
+            while not self.ctx.stop.is_set():
+                ev = bus.recv(0.05)
+                if ev is not None:
+                    if not self.on_control(ev):
+                        self._on_data(ev)
+                    # take what is already queued before looking at completion
+                    while (ev := bus.recv(0)) is not None:
+                        if not self.on_control(ev):
+                            self._on_data(ev)
+                self._drain_ready()
+                self.health(extra=self._sink_health)
+                if self._check_end():
+                    complete = True
+                    break
+        finally:
+            self._finalize(complete)
+            self.health(force=True, extra=self._sink_health)
+        if not complete:
+            return EXIT_STOPPED
+        self.publish_control("eos", EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
+            gaps=sorted({g for v in self.streams.values() for g in v.gaps}),
+            error=self.eos_seen["source"].error, files=self.files))
+        self.linger_until_alone(self.cfg.supervisor.linger_s)
+        return EXIT_OK
+
+
+class _NullWriter:
+    def write_frame(self, *a: Any, **k: Any) -> None: ...
+    def write_tracks(self, *a: Any, **k: Any) -> None: ...
+    def close(self) -> None: ...
+
+
+STAGES: dict[str, type[_StageBase]] = {"source": SourceStage, "tracker": TrackerStage, "sink": SinkStage}

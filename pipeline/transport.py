@@ -1,0 +1,486 @@
+"""The one module of bnptrack that imports zenoh.
+
+It turns a :class:`~pipeline.pipeline_config.ZenohConfig` into Zenoh sessions and gives the
+stages a small, zenoh-free interface, :class:`Bus` (the in-memory twin used by the tests is
+:class:`pipeline.membus.MemoryBus`):
+
+* ``publish(topic, payload, meta)``: ``payload`` are the codec's JSON bytes, ``meta`` a small
+  dict sent as the sample's attachment (JSON): ``{"seq": n, "t": publish_ns, ...}``;
+* ``subscribe(patterns)`` then ``recv(timeout) -> Event``: every subscription is drained by a
+  callback on Zenoh's thread into one in-process queue (never blocking Zenoh; a sample that
+  would exceed ``delivery.queue_limit`` is dropped and counted in :attr:`Bus.dropped`);
+* ``declare_alive(kind)`` / ``alive(kind)`` / ``wait_alive(names, timeout, kind)``: liveliness
+  tokens ``bnptrack/<run>/alive/<stage>`` (the stage runs) and ``bnptrack/<run>/ready/<stage>``
+  (it can process its first frame: the source waits for these).
+
+Key expressions are scoped by run (:func:`key`): ``bnptrack/<run>/<topic>``.  Topics:
+
+=================  ===========================================================================
+``measurements``   frames from the source (advanced publisher: cache, miss detection)
+``truth``          ground truth from the source (same)
+``tracks``         estimates from the tracker (same)
+``info/<stage>``   a stage's stream description (cached, for late joiners)
+``eos/<stage>``    a stage's end of stream (cached)
+``health/<stage>`` periodic health counters (best effort)
+``deadletter``     copies of rejected payloads
+``alive/<stage>``  liveliness token (not a topic: see :meth:`Bus.declare_alive`)
+``ready/<stage>``  liveliness token: ready for the first frame
+=================  ===========================================================================
+
+Data and control topics use ``zenoh.ext``'s advanced publisher (reliable, congestion control
+BLOCK, a cache of ``delivery.cache_frames`` samples, sample-miss detection with periodic
+heartbeats, publisher detection) and advanced subscriber (history with late-publisher
+detection, recovery by heartbeat): a consumer that starts late or restarts receives the
+publisher's cache, a sample lost on the way is recovered from the cache.  zenoh.ext is
+marked unstable: bnptrack pins eclipse-zenoh to 1.10.x and keeps every use of it here.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import socket
+import threading
+import time
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import msgspec
+import zenoh
+import zenoh.ext as zext
+
+from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+from pipeline.transport_types import Event
+
+__all__ = [
+    "KEY_ROOT",
+    "DATA_TOPICS",
+    "Event",
+    "Bus",
+    "Router",
+    "key",
+    "free_port",
+    "session_config",
+    "TransportError",
+    "STAGE_KEYS",
+    "acl_config",
+]
+
+log = logging.getLogger("bnptrack.transport")
+
+KEY_ROOT = "bnptrack"
+#: Topics published with a cache of ``delivery.cache_frames`` samples.
+DATA_TOPICS = frozenset({"measurements", "truth", "tracks"})
+#: Cache size of control topics (``info/<stage>``, ``eos/<stage>``).
+CONTROL_CACHE = 16
+
+_META_ENC = msgspec.json.Encoder()
+_META_DEC = msgspec.json.Decoder(dict)
+
+
+class TransportError(RuntimeError):
+    """A Zenoh session could not be opened or configured."""
+
+
+def key(run: str, topic: str) -> str:
+    """``bnptrack/<run>/<topic>``."""
+    return f"{KEY_ROOT}/{run}/{topic}"
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that was free a moment ago on ``host``."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _resolve_port0(endpoints: Sequence[str]) -> list[str]:
+    """Replace a ``:0`` port with a free one (Zenoh does not report the port it bound)."""
+    out = []
+    for ep in endpoints:
+        proto, sep, rest = ep.partition("/")
+        host, colon, port = rest.rpartition(":")
+        if sep and colon and port == "0":
+            h = host.strip("[]") or "127.0.0.1"
+            ep = f"{proto}/{host}:{free_port(h if h != '0.0.0.0' else '127.0.0.1')}"
+        out.append(ep)
+    return out
+
+
+def session_config(
+    zcfg: ZenohConfig,
+    *,
+    mode: str | None = None,
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
+    router: bool = False,
+) -> zenoh.Config:
+    """A ``zenoh.Config`` for a stage (client/peer) or, with ``router``, for the router."""
+    conf = zenoh.Config()
+    ins = conf.insert_json5
+    ins("mode", json.dumps("router" if router else (mode or zcfg.mode)))
+    connect = list(zcfg.connect if connect is None else connect)
+    listen = list(zcfg.listen if listen is None else listen)
+    if connect:
+        ins("connect/endpoints", json.dumps(connect))
+    if listen or router:
+        ins("listen/endpoints", json.dumps(listen))
+    ins("scouting/multicast/enabled", json.dumps(bool(zcfg.multicast_scouting)))
+    if not router and connect and zcfg.connect_timeout_s > 0:
+        # keep trying to reach the router for a while at start-up (it may come up a moment
+        # later on another host) instead of failing at once
+        ins("connect/timeout_ms", json.dumps(int(zcfg.connect_timeout_s * 1000)))
+    tls = zcfg.tls
+    for name in (
+        "root_ca_certificate",
+        "listen_certificate",
+        "listen_private_key",
+        "connect_certificate",
+        "connect_private_key",
+    ):
+        value = getattr(tls, name)
+        if value:
+            ins(f"transport/link/tls/{name}", json.dumps(value))
+    if tls.mtls:
+        ins("transport/link/tls/enable_mtls", "true")
+    if not tls.verify_name_on_connect:
+        ins("transport/link/tls/verify_name_on_connect", "false")
+    if router:
+        if zcfg.users_file:
+            ins("transport/auth/usrpwd/dictionary_file", json.dumps(zcfg.users_file))
+        if zcfg.acl:
+            ins("access_control", json.dumps(acl_config()))
+    else:
+        user = os.environ.get("BNPTRACK_ZENOH_USER") or zcfg.user
+        password = os.environ.get("BNPTRACK_ZENOH_PASSWORD") or zcfg.password
+        if user:
+            ins("transport/auth/usrpwd/user", json.dumps(user))
+            ins("transport/auth/usrpwd/password", json.dumps(password))
+    for path, value in zcfg.extra.items():
+        ins(path, value)
+    if router:
+        for path, value in zcfg.router_extra.items():
+            ins(path, value)
+    return conf
+
+
+#: Keys (relative to ``bnptrack/<run>/``) each stage may put on (and reply from its cache).
+STAGE_KEYS: dict[str, tuple[str, ...]] = {
+    "source": ("measurements", "truth", "info/source", "eos/source", "health/source", "deadletter"),
+    "tracker": ("tracks", "info/tracker", "eos/tracker", "health/tracker", "deadletter"),
+    "sink": ("info/sink", "eos/sink", "health/sink", "deadletter"),
+}
+
+
+def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
+    """Zenoh ``access_control`` for a pipeline router: default deny; every authenticated
+    session may subscribe, query, declare queryables and liveliness tokens, and receive
+    data; the user named like a stage may put (and reply to history queries) only on that
+    stage's keys in any run (``bnptrack/*/<topic>`` and the advanced publisher's
+    ``.../<topic>/@adv/**`` keys: ``**`` does not match a verbatim ``@`` chunk, so those are
+    listed explicitly)."""
+    stage_keys = STAGE_KEYS if stage_keys is None else stage_keys
+    rules = [
+        {
+            "id": "infrastructure",
+            "messages": ["declare_subscriber", "declare_queryable", "query", "liveliness_token",
+                         "liveliness_query", "declare_liveliness_subscriber"],
+            "flows": ["ingress", "egress"],
+            "permission": "allow",
+            "key_exprs": ["**", "**/@adv/**"],
+        },
+        {
+            "id": "deliver",
+            "messages": ["put", "delete", "reply"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": ["**", "**/@adv/**"],
+        },
+    ]
+    subjects = [{"id": "anyone"}]
+    policies = [{"id": "everyone", "rules": ["infrastructure", "deliver"], "subjects": ["anyone"]}]
+    for stage, topics in stage_keys.items():
+        keys = []
+        for t in topics:
+            keys += [f"{KEY_ROOT}/*/{t}", f"{KEY_ROOT}/*/{t}/**", f"{KEY_ROOT}/*/{t}/@adv/**"]
+        rules.append({
+            "id": f"publish-{stage}",
+            "messages": ["put", "delete", "reply"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": keys,
+        })
+        subjects.append({"id": f"user-{stage}", "usernames": [stage]})
+        policies.append({"id": f"own-keys-{stage}", "rules": [f"publish-{stage}"], "subjects": [f"user-{stage}"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def _open(conf: zenoh.Config, what: str) -> zenoh.Session:
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:  # zenoh.ZError and friends
+        raise TransportError(f"cannot open the Zenoh session of {what}: {exc}") from exc
+
+
+class Router:
+    """A Zenoh router in this process (``mode: router``), listening on ``endpoints``.
+
+    Stages connect to it as clients.  ``tcp/127.0.0.1:0`` picks a free port; the endpoints
+    actually used are in :attr:`endpoints`.  Close it (or use ``with``).
+    """
+
+    def __init__(self, zcfg: ZenohConfig, listen: Sequence[str] | None = None, attempts: int = 5):
+        wanted = list(listen if listen is not None else zcfg.router_listen)
+        last: Exception | None = None
+        for _ in range(attempts):
+            eps = _resolve_port0(wanted)
+            try:
+                self.session = _open(session_config(zcfg, listen=eps, connect=[], router=True), "the router")
+            except TransportError as exc:  # port taken in between: try another
+                last = exc
+                if eps == wanted:
+                    break
+                continue
+            self.endpoints = eps
+            return
+        raise TransportError(f"router could not listen on {wanted}: {last}")
+
+    @property
+    def connect_endpoints(self) -> list[str]:
+        """Endpoints a client on this host uses (``0.0.0.0`` -> ``127.0.0.1``)."""
+        return [ep.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:") for ep in self.endpoints]
+
+    def close(self) -> None:
+        s, self.session = getattr(self, "session", None), None
+        if s is not None:
+            s.close()
+
+    def __enter__(self) -> "Router":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class Bus:
+    """A stage's connection to the run's topics (see the module docstring).
+
+    ``connect`` overrides ``zcfg.connect``.  Use as a context manager or call :meth:`close`:
+    a session left open keeps the process from exiting.
+    """
+
+    def __init__(
+        self,
+        run: str,
+        stage: str,
+        zcfg: ZenohConfig,
+        delivery: DeliveryConfig,
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
+    ) -> None:
+        self.run = run
+        self.stage = stage
+        self.delivery = delivery
+        self.prefix = f"{KEY_ROOT}/{run}/"
+        self._inbox: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self._pubs: dict[str, Any] = {}
+        self._subs: list[Any] = []
+        self._tokens: dict[str, Any] = {}
+        self._present: dict[str, set[str]] = {}
+        self._alive_lock = threading.Lock()
+        self._alive_changed = threading.Condition(self._alive_lock)
+        self._closed = False
+        self.dropped = 0
+        self.misses = 0
+        self.received = 0
+        self.session = _open(
+            session_config(zcfg, connect=connect, listen=listen), f"stage {stage!r} (run {run!r})"
+        )
+        try:
+            self._liveliness_subs = [
+                self.session.liveliness().declare_subscriber(self.prefix + f"{kind}/*", self._on_token, history=True)
+                for kind in ("alive", "ready")
+            ]
+        except BaseException:
+            self.session.close()
+            raise
+
+    # -- context -------------------------------------------------------------------------
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in [*self._tokens.values(), *self._liveliness_subs, *self._subs, *self._pubs.values()]:
+            if obj is None:
+                continue
+            try:
+                obj.undeclare()
+            except Exception:  # already gone
+                pass
+        self._subs.clear()
+        self._pubs.clear()
+        self.session.close()
+
+    # -- publishing ----------------------------------------------------------------------
+    def _publisher(self, topic: str):
+        pub = self._pubs.get(topic)
+        if pub is not None:
+            return pub
+        k = self.prefix + topic
+        if topic in DATA_TOPICS or topic.startswith(("info/", "eos/")):
+            cache = self.delivery.cache_frames if topic in DATA_TOPICS else CONTROL_CACHE
+            pub = zext.declare_advanced_publisher(
+                self.session,
+                k,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+                cache=zext.CacheConfig(
+                    cache,
+                    replies_config=zext.RepliesConfig(congestion_control=zenoh.CongestionControl.BLOCK),
+                ),
+                sample_miss_detection=zext.MissDetectionConfig(
+                    heartbeat=self.delivery.heartbeat_s, sporadic_heartbeat=None
+                ),
+                publisher_detection=True,
+            )
+        elif topic.startswith("health/"):
+            pub = self.session.declare_publisher(
+                k,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
+        else:  # deadletter and anything else: reliable, blocking
+            pub = self.session.declare_publisher(
+                k,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+            )
+        self._pubs[topic] = pub
+        return pub
+
+    def declare(self, topics: Iterable[str]) -> None:
+        """Declare publishers ahead of the first put (so subscribers can detect them)."""
+        for t in topics:
+            self._publisher(t)
+
+    def publish(self, topic: str, payload: bytes, meta: dict | None = None) -> None:
+        """Put ``payload`` on ``bnptrack/<run>/<topic>`` with ``meta`` as the attachment."""
+        pub = self._publisher(topic)
+        if meta is None:
+            pub.put(payload)
+        else:
+            pub.put(payload, attachment=_META_ENC.encode(meta))
+
+    # -- subscribing ---------------------------------------------------------------------
+    def subscribe(self, patterns: Iterable[str], advanced: bool = True) -> None:
+        """Subscribe to topics (``*`` allowed in a chunk, e.g. ``eos/*``).
+
+        ``advanced`` (data and control topics): history of late and restarted publishers,
+        recovery of missed samples.  Plain subscribers (health, deadletter) get live samples
+        only.
+        """
+        for pattern in patterns:
+            k = self.prefix + pattern
+            if advanced:
+                sub = zext.declare_advanced_subscriber(
+                    self.session,
+                    k,
+                    self._on_sample,
+                    history=zext.HistoryConfig(
+                        detect_late_publishers=True, max_samples=self.delivery.cache_frames
+                    ),
+                    recovery=zext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+                    subscriber_detection=True,
+                )
+                self._subs.append(sub)
+                self._subs.append(sub.sample_miss_listener(self._on_miss))
+            else:
+                self._subs.append(self.session.declare_subscriber(k, self._on_sample))
+
+    def _on_sample(self, sample: Any) -> None:
+        # Runs on a Zenoh thread: never block it.
+        try:
+            self.received += 1
+            if self._inbox.qsize() >= self.delivery.queue_limit:
+                self.dropped += 1
+                if self.dropped == 1 or self.dropped % 1000 == 0:
+                    log.error(
+                        "%s: in-process queue full (%d): dropped %d sample(s) so far",
+                        self.stage, self.delivery.queue_limit, self.dropped,
+                    )
+                return
+            k = str(sample.key_expr)
+            topic = k[len(self.prefix):] if k.startswith(self.prefix) else k
+            meta = None
+            err = None
+            att = sample.attachment
+            if att is not None:
+                try:
+                    meta = _META_DEC.decode(att.to_bytes())
+                except Exception as exc:
+                    err = f"attachment is not a JSON object: {exc}"
+            self._inbox.put(Event(topic, sample.payload.to_bytes(), meta, time.time_ns(), err))
+        except Exception:  # never let an exception escape into Zenoh's thread
+            log.exception("%s: failed to queue a sample", self.stage)
+
+    def _on_miss(self, miss: Any) -> None:
+        self.misses += int(miss.nb)
+        log.warning("%s: zenoh reports %d missed sample(s) from %s", self.stage, miss.nb, miss.source)
+
+    def recv(self, timeout: float | None = None) -> Event | None:
+        """Next received sample, or ``None`` after ``timeout`` seconds."""
+        try:
+            return self._inbox.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    @property
+    def backlog(self) -> int:
+        return self._inbox.qsize()
+
+    # -- liveliness ----------------------------------------------------------------------
+    def declare_alive(self, kind: str = "alive") -> None:
+        """Declare the liveliness token ``bnptrack/<run>/<kind>/<stage>``: ``alive`` once the
+        subscriptions exist, ``ready`` once the stage can process its first frame."""
+        if kind not in self._tokens:
+            self._tokens[kind] = self.session.liveliness().declare_token(f"{self.prefix}{kind}/{self.stage}")
+
+    def _on_token(self, sample: Any) -> None:
+        kind, _, name = str(sample.key_expr)[len(self.prefix):].partition("/")
+        with self._alive_changed:
+            names = self._present.setdefault(kind, set())
+            if sample.kind == zenoh.SampleKind.PUT:
+                names.add(name)
+            else:
+                names.discard(name)
+            self._alive_changed.notify_all()
+
+    def alive(self, kind: str = "alive") -> set[str]:
+        """Stages whose ``alive`` (or ``ready``) token is currently visible."""
+        with self._alive_lock:
+            return set(self._present.get(kind, ()))
+
+    def wait_alive(self, names: Iterable[str], timeout: float, kind: str = "alive") -> set[str]:
+        """Wait until every stage in ``names`` has its ``kind`` token (or ``timeout``); return
+        the missing ones."""
+        want = set(names)
+        deadline = time.monotonic() + timeout
+        with self._alive_changed:
+            while True:
+                missing = want - self._present.get(kind, set())
+                left = deadline - time.monotonic()
+                if not missing or left <= 0:
+                    return missing
+                self._alive_changed.wait(min(left, 0.2))

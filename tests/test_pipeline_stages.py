@@ -1,0 +1,517 @@
+"""Pipeline stage logic without Zenoh: sequencing (dedupe, reordering window, gaps), intake
+validation (malformed / NaN / wrong version / wrong run / oversize payloads) and whole
+source -> tracker -> sink runs over the in-memory bus (pipeline.membus)."""
+
+from __future__ import annotations
+
+import json
+import random
+import threading
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+
+from pipeline.codec import encode_measurements
+from pipeline.membus import MemoryNetwork
+from pipeline.pipeline_config import (
+    PipelineConfig,
+    default_pipeline,
+    load_pipeline,
+    resolve_run,
+)
+from pipeline.stages import (
+    EXIT_OK,
+    GAP,
+    STAGES,
+    SUMMARY_NAME,
+    Counters,
+    Intake,
+    Sequencer,
+    StageContext,
+    read_snapshot,
+    write_atomic,
+)
+from pipeline.transport_types import Event
+from sources.mcap_log import read_log
+from tracker.config import ConfigError, apply_overrides
+from tracker.types import Frame
+
+# --------------------------------------------------------------------------- Sequencer
+
+
+def _items(released):
+    return [(s, "GAP" if x is GAP else x) for s, x in released]
+
+
+def test_sequencer_in_order_and_duplicates():
+    q = Sequencer(window=4)
+    assert q.push(0, "a") == ("accepted", [(0, "a")])
+    assert q.push(1, "b") == ("accepted", [(1, "b")])
+    assert q.push(1, "b") == ("duplicate", [])
+    assert q.push(0, "a") == ("duplicate", [])
+    assert q.duplicates == 2 and q.accepted == 2 and q.next == 2
+
+
+def test_sequencer_reorders_within_window():
+    q = Sequencer(window=4)
+    assert q.push(2, "c") == ("accepted", [])
+    assert q.push(2, "c") == ("duplicate", [])  # duplicate of a buffered item
+    assert q.push(1, "b") == ("accepted", [])
+    assert q.pending == 2
+    assert q.push(0, "a")[1] == [(0, "a"), (1, "b"), (2, "c")]
+    assert q.gaps == [] and q.pending == 0
+
+
+def test_sequencer_declares_gap_when_window_passes_and_rejects_late():
+    q = Sequencer(window=3)
+    q.push(0, "a")
+    assert q.push(2, "c")[1] == []
+    assert q.push(3, "d")[1] == []
+    # seq 4 is 3 ahead of the missing seq 1: 1 becomes a gap, 2..4 are released
+    status, rel = q.push(4, "e")
+    assert status == "accepted"
+    assert _items(rel) == [(1, "GAP"), (2, "c"), (3, "d"), (4, "e")]
+    assert q.gaps == [1]
+    assert q.push(1, "b") == ("late", [])
+    assert q.late == 1
+
+
+def test_sequencer_far_ahead_frame_declares_everything_behind():
+    q = Sequencer(window=2)
+    assert _items(q.push(5, "f")[1]) == [(0, "GAP"), (1, "GAP"), (2, "GAP"), (3, "GAP")]
+    assert q.next == 4 and q.pending == 1
+    assert _items(q.push(4, "e")[1]) == [(4, "e"), (5, "f")]
+
+
+def test_sequencer_flush_and_mark_gaps():
+    q = Sequencer(window=32)
+    q.push(0, "a")
+    q.push(3, "d")
+    assert _items(q.flush_through(4)) == [(1, "GAP"), (2, "GAP"), (3, "d"), (4, "GAP")]
+    assert q.complete_through(4) and q.gaps == [1, 2, 4]
+    q2 = Sequencer(window=32)
+    q2.push(0, "a")
+    q2.push(2, "c")
+    assert _items(q2.mark_gaps([1])) == [(1, "GAP"), (2, "c")]
+
+
+def test_sequencer_is_deterministic_under_bounded_shuffles_and_duplicates():
+    """Any arrival order displaced by less than the window, with duplicates, releases
+    every item exactly once, in order, without gaps."""
+    rng = random.Random(7)
+    for _ in range(50):
+        n, window = 200, rng.randint(2, 16)
+        keys = sorted(range(n), key=lambda i: i + rng.uniform(0, window - 1))
+        arrivals = []
+        for s in keys:
+            arrivals.append(s)
+            if rng.random() < 0.2:
+                arrivals.append(s)  # duplicate right away
+            if rng.random() < 0.05 and arrivals:
+                arrivals.append(rng.choice(arrivals))  # an old duplicate
+        q = Sequencer(window)
+        out = []
+        for s in arrivals:
+            out += q.push(s, s)[1]
+        assert [s for s, _ in out] == list(range(n))
+        assert all(x == s for s, x in out)
+        assert q.gaps == []
+
+
+# --------------------------------------------------------------------------- intake
+
+
+class _Recorder:
+    def __init__(self):
+        self.published = []
+
+    def publish(self, topic, payload, meta=None):
+        self.published.append((topic, payload, meta))
+
+
+def _frame(k=3, z=((0.1, 100.0), (-0.2, 250.0))):
+    return Frame(frame=k, stamp_ns=k * 10**9, sensor="s", kind="bearing_range", z=np.array(z))
+
+
+def _ev(payload, meta=None, topic="measurements", err=None):
+    return Event(topic, payload, meta, 0, err)
+
+
+def _intake():
+    bus = _Recorder()
+    c = Counters()
+    return Intake("tracker", "runA", bus, c, max_payload_bytes=4096), bus, c
+
+
+def test_intake_accepts_a_valid_sample():
+    intake, bus, c = _intake()
+    acc = intake.check(_ev(encode_measurements(_frame(), "runA"), {"seq": 0, "frame": 3}))
+    assert acc is not None and acc.seq == 0 and acc.msg.frame == 3
+    assert c.rejected == 0 and bus.published == []
+
+
+@pytest.mark.parametrize(
+    "payload, meta, needle",
+    [
+        (b"{not json", {"seq": 1}, "measurements"),
+        (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[NaN,1.0]]}',
+         {"seq": 1}, "non-finite"),
+        (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[1e999,1.0]]}',
+         {"seq": 1}, ""),
+        (b'{"v":2,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[]}',
+         {"seq": 1}, "unsupported schema version"),
+        (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[0.1]]}',
+         {"seq": 1}, "$.z"),
+        (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[],"x":1}',
+         {"seq": 1}, "x"),
+        (None, {"seq": 1}, "run 'runB' is not this run"),
+        (None, None, "missing attachment"),
+        (None, {"seq": -1}, "seq must be an integer"),
+        (None, {"seq": "7"}, "seq must be an integer"),
+        (None, {"seq": 1, "frame": 4}, "attachment frame"),
+        (b"x" * 5000, {"seq": 1}, "exceeds the limit"),
+    ],
+)
+def test_intake_rejects_bad_samples_with_counter_and_deadletter(payload, meta, needle):
+    intake, bus, c = _intake()
+    if payload is None:
+        payload = encode_measurements(_frame(), "runB" if "runB" in needle else "runA")
+    assert intake.check(_ev(payload, meta)) is None
+    assert c.rejected == 1 and intake.rejected_by_topic == {"measurements": 1}
+    [(topic, letter, _)] = bus.published
+    assert topic == "deadletter"
+    doc = json.loads(letter)
+    assert doc["topic"] == "measurements" and doc["stage"] == "tracker" and needle in doc["reason"]
+    assert doc["size"] == len(payload)
+
+
+def test_intake_rejects_an_invalid_attachment():
+    intake, bus, c = _intake()
+    assert intake.check(_ev(encode_measurements(_frame(), "runA"), None, err="attachment is not a JSON object")) is None
+    assert "attachment" in json.loads(bus.published[0][1])["reason"]
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
+    cfg = default_pipeline()
+    assert cfg.source.kind == "synthetic" and cfg.tracker.tracker == "ddp" and cfg.zenoh.embedded_router
+    cfg2 = load_pipeline(None, ["source.frames=20", "tracker.tracker='dpyp'", "delivery.window=8"])
+    assert (cfg2.source.frames, cfg2.tracker.tracker, cfg2.delivery.window) == (20, "dpyp", 8)
+    f = tmp_path / "p.toml"
+    f.write_text('run = "abc"\n[source]\nscenario = "dpy5"\nframes = 5\n[zenoh]\nconnect = ["tcp/127.0.0.1:7447"]\n')
+    cfg3 = load_pipeline(f)
+    assert cfg3.run == "abc" and cfg3.source.scenario == "dpy5" and cfg3.zenoh.connect == ["tcp/127.0.0.1:7447"]
+    with pytest.raises(ConfigError, match="nope"):
+        load_pipeline(None, ["source.nope=1"])
+    with pytest.raises(ConfigError, match="run id"):
+        load_pipeline(None, ["run='a/b'"])
+    f.write_text("[source]\nframes = -1\n")
+    with pytest.raises(ConfigError, match="frames"):
+        load_pipeline(f)
+    r = resolve_run(cfg2)
+    assert r.run.startswith("vo2017-") and r.out == str(Path("recordings") / r.run)
+
+
+def test_write_atomic_replaces(tmp_path):
+    p = tmp_path / "x.bin"
+    write_atomic(p, b"one")
+    write_atomic(p, b"two")
+    assert p.read_bytes() == b"two" and [x.name for x in tmp_path.iterdir()] == ["x.bin"]
+
+
+# --------------------------------------------------------------------------- in-memory pipeline
+
+
+def _run_memory_pipeline(cfg: PipelineConfig, net: MemoryNetwork, roles=("sink", "tracker", "source"),
+                         timeout=120.0) -> dict[str, int]:
+    codes: dict[str, int] = {}
+    errors: list[BaseException] = []
+
+    def go(role: str) -> None:
+        bus = net.bus(cfg.run, role)
+        try:
+            codes[role] = STAGES[role](StageContext(cfg, bus, name=role)).run()
+        except BaseException as exc:  # pragma: no cover - surfaced below
+            errors.append(exc)
+        finally:
+            bus.close()
+
+    threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in roles]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout)
+    assert not errors, errors
+    assert not any(t.is_alive() for t in threads), "a stage did not finish"
+    return codes
+
+
+def _mem_cfg(tmp_path: Path, frames: int = 12, **extra: str) -> PipelineConfig:
+    overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
+                 "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
+                 "supervisor.linger_s=0.5"]
+    overrides += [f"{k}={v}" for k, v in extra.items()]
+    cfg = apply_overrides(PipelineConfig(run="mem", out=str(tmp_path / "out")), overrides)
+    return resolve_run(cfg)
+
+
+def _offline(cfg: PipelineConfig, drop: frozenset[int] = frozenset()):
+    """The offline result for the pipeline's synthetic frames (minus the dropped seqs)."""
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.stages import source_frames
+    from tracker.state import run
+
+    meta, frames = source_frames(cfg)
+    frames = [f for i, f in enumerate(frames) if i not in drop]
+    choice = resolve_params(None, meta)
+    conf, _ = resolve_config(cfg.tracker.tracker, None)
+    params, conf = apply_split_overrides(choice.params, conf, cfg.tracker.overrides)
+    tracker = build_tracker(cfg.tracker.tracker, params, conf)
+    return frames, [est for _, est, _ in run(tracker, frames, cfg.tracker.seed)]
+
+
+def _strip(est):
+    d = {k: v for k, v in est.diagnostics.items() if k != "ms"}
+    return (est.frame, est.labels, est.assignments, est.assignment_prob, d,
+            [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
+
+
+def test_memory_pipeline_equals_offline(tmp_path):
+    cfg = _mem_cfg(tmp_path)
+    codes = _run_memory_pipeline(cfg, MemoryNetwork())
+    assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    frames, ests = _offline(cfg)
+    assert [f.frame for f in log.frames] == [f.frame for f in frames]
+    assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, frames))
+    assert all(np.array_equal(a.truth.states, b.truth.states) for a, b in zip(log.frames, frames))
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    assert log.metadata["tracker"] == "ddp" and log.metadata["run"] == "mem"
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["complete"] and summary["frames_written"] == 12
+    snap = read_snapshot(Path(cfg.out) / "tracker.snap")
+    assert snap.last_seq == 11 and snap.run == "mem"
+
+
+def test_memory_pipeline_survives_duplicates_reordering_and_garbage(tmp_path):
+    """Duplicated, locally reordered and interleaved malformed samples: same output."""
+    cfg = _mem_cfg(tmp_path, frames=12)
+    net = MemoryNetwork()
+    held: dict[str, list] = {}
+    rng = random.Random(3)
+
+    def tap(run, topic, payload, att):
+        if topic not in ("measurements", "truth", "tracks"):
+            return [(payload, att)]
+        out = []
+        if rng.random() < 0.3:
+            out.append((b'{"v":1,"frame":"garbage"', att))
+        if rng.random() < 0.3:
+            bad = payload.replace(b'"z":[[', b'"z":[[NaN,1.0],[', 1) if topic == "measurements" else b"[]"
+            out.append((bad, att))
+        held.setdefault(topic, []).append((payload, att))
+        if len(held[topic]) >= 3 or json.loads(att or b"{}").get("seq", 0) >= 11 or topic == "tracks":
+            batch = held.pop(topic)
+            rng.shuffle(batch)  # reordered within 3 (< window)
+            out += batch + batch[:1]  # plus a duplicate
+        return out
+
+    net.tap = tap
+    codes = _run_memory_pipeline(cfg, net)
+    assert codes["sink"] == EXIT_OK and codes["tracker"] == EXIT_OK
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    _, ests = _offline(cfg)
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["counters"]["rejected"] > 0 and summary["counters"]["duplicates"] > 0
+    assert summary["gaps"] == {"measurements": [], "truth": [], "tracks": []}
+    letters = [json.loads(p) for (r, t, p, a) in net.history if t == "deadletter"]
+    assert letters and {d["stage"] for d in letters} <= {"tracker", "sink"}
+
+
+def test_memory_pipeline_reports_a_lost_frame_as_gap_and_predicts_through(tmp_path):
+    """A frame lost for good: the tracker and the sink report a gap after the window, and the
+    tracks equal an offline run without that frame (the tracker predicts through it)."""
+    cfg = _mem_cfg(tmp_path, frames=14, **{"delivery.window": "3"})
+    net = MemoryNetwork()
+
+    def tap(run, topic, payload, att):
+        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 5:
+            return []
+        return [(payload, att)]
+
+    net.tap = tap
+    # the memory network keeps history for late subscribers; drop seq 5 there as well
+    codes = _run_memory_pipeline(cfg, net)
+    assert codes["sink"] == EXIT_OK
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    frames, ests = _offline(cfg, drop=frozenset({5}))
+    assert [f.frame for f in log.frames] == [f.frame for f in frames]
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["gaps"]["measurements"] == [5] and summary["gaps"]["tracks"] == [5]
+    eos = [msgspec.json.decode(p) for (r, t, p, a) in net.history if t == "eos/tracker"]
+    assert eos and eos[-1]["gaps"] == [5]
+
+
+def test_memory_pipeline_missing_tail_becomes_gap_at_end_of_stream(tmp_path):
+    cfg = _mem_cfg(tmp_path, frames=8)
+    net = MemoryNetwork()
+
+    def tap(run, topic, payload, att):
+        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 7:
+            return []
+        return [(payload, att)]
+
+    net.tap = tap
+    _run_memory_pipeline(cfg, net)
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["complete"] and summary["gaps"]["measurements"] == [7]
+    assert summary["frames_written"] == 7 and summary["tracks_written"] == 7
+
+
+def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
+    """A tracker stopped mid-run and started again resumes from tracker.snap: together the
+    two runs publish every frame's tracks, equal to an uninterrupted run."""
+    cfg = _mem_cfg(tmp_path, frames=16, **{"source.done_by": "['tracker']",
+                                           "source.wait_for": "['tracker']",
+                                           "tracker.done_by": "[]"})
+    net = MemoryNetwork()
+    first_stop = threading.Event()
+    published = []
+
+    def tap(run, topic, payload, att):
+        if topic == "tracks":
+            published.append(json.loads(att)["seq"])
+            if len(published) == 7:
+                first_stop.set()  # stop the first tracker after 7 frames (snapshot at 4)
+        return [(payload, att)]
+
+    net.tap = tap
+    src_bus = net.bus(cfg.run, "source")
+    src = threading.Thread(target=lambda: STAGES["source"](StageContext(cfg, src_bus, name="source")).run(),
+                           daemon=True)
+    bus1 = net.bus(cfg.run, "tracker")
+    t1 = threading.Thread(target=lambda: STAGES["tracker"](StageContext(cfg, bus1, first_stop, "tracker")).run(),
+                          daemon=True)
+    t1.start()
+    src.start()
+    t1.join(60)
+    bus1.close()
+    assert not t1.is_alive()
+    snap = read_snapshot(Path(cfg.out) / "tracker.snap")
+    assert snap.last_seq >= 3
+    bus2 = net.bus(cfg.run, "tracker")
+    code = STAGES["tracker"](StageContext(cfg, bus2, name="tracker")).run()
+    bus2.close()
+    src.join(30)
+    src_bus.close()
+    assert code == EXIT_OK
+    assert sorted(set(published)) == list(range(16))
+    last = {}
+    for (r, t, p, a) in net.history:
+        if t == "tracks":
+            seq = json.loads(a)["seq"]
+            from pipeline.codec import decode_tracks
+
+            est = decode_tracks(p)
+            if seq in last:
+                assert _strip(last[seq]) == _strip(est)  # re-published frames are identical
+            last[seq] = est
+    _, ests = _offline(cfg)
+    assert [_strip(last[s]) for s in range(16)] == [_strip(e) for e in ests]
+
+
+def test_tracker_refuses_a_snapshot_of_another_run(tmp_path):
+    cfg = _mem_cfg(tmp_path, frames=4)
+    out = Path(cfg.out)
+    out.mkdir(parents=True)
+    from pipeline.stages import Snapshot
+
+    write_atomic(out / "tracker.snap", msgspec.msgpack.encode(
+        Snapshot(run="other", tracker="ddp", seed=0, last_seq=1, last_frame=2, state=b"")))
+    bus = MemoryNetwork().bus(cfg.run, "tracker")
+    with pytest.raises(ConfigError, match="does not match"):
+        STAGES["tracker"](StageContext(cfg, bus, name="tracker")).run()
+
+
+# --------------------------------------------------------------------------- docs and CLI
+
+
+def test_docs_pipeline_file_example_is_the_default():
+    """The annotated pipeline file in docs/pipeline.md parses and equals the defaults."""
+    import re
+    import tomllib
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "pipeline.md").read_text()
+    blocks = [b for b in re.findall(r"```toml\n(.*?)```", text, re.S) if "[supervisor]" in b]
+    assert len(blocks) == 1
+    cfg = msgspec.convert(tomllib.loads(blocks[0]), PipelineConfig)
+    assert cfg == default_pipeline()
+
+
+def test_pipeline_commands_have_help():
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    for cmd, words in [
+        ("launch", ["PIPELINE.toml", "--set", "--out", "--run", "--connect", "--timeout", "Example"]),
+        ("replay", ["LOG", "--rate", "--as-fast-as-possible", "--tracker", "--seed", "--out"]),
+        ("stage", ["source|tracker|sink", "--run", "--connect", "--pipeline", "--out", "Example"]),
+        ("router", ["--listen", "--pipeline"]),
+        ("monitor", ["--run", "--connect"]),
+    ]:
+        res = CliRunner().invoke(main, [cmd, "--help"])
+        assert res.exit_code == 0, res.output
+        for w in words:
+            assert w in res.output, (cmd, w)
+
+
+def test_acl_config_gives_each_stage_only_its_keys():
+    from pipeline.transport import acl_config
+
+    acl = acl_config()
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert "bnptrack/*/measurements" in rules["publish-source"]["key_exprs"]
+    assert "bnptrack/*/measurements/@adv/**" in rules["publish-source"]["key_exprs"]
+    assert not any("measurements" in k or "tracks" in k for k in rules["publish-sink"]["key_exprs"])
+    assert rules["publish-tracker"]["flows"] == ["ingress"]
+    subjects = {s["id"]: s.get("usernames") for s in acl["subjects"]}
+    assert subjects["user-tracker"] == ["tracker"]
+
+
+def _registry_trackers():
+    try:
+        from tracker.registry import TRACKERS
+    except ImportError:  # older layout
+        from pipeline.offline import TRACKERS
+    return list(TRACKERS)
+
+
+@pytest.mark.parametrize("name", _registry_trackers())
+def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
+    """The tracker stage takes whatever pipeline.offline.build_tracker builds (with its
+    snapshot/restore), so a tracker added to the registry works in the pipeline unchanged."""
+    from tracker.state import restore
+
+    cfg = resolve_run(apply_overrides(
+        PipelineConfig(run="reg", out=str(tmp_path / "out")),
+        ["source.frames=8", "sink.rerun=false", "tracker.snapshot_every=3", f"tracker.tracker='{name}'",
+         "delivery.eos_grace_s=0.3", "supervisor.linger_s=0.5"]))
+    codes = _run_memory_pipeline(cfg, MemoryNetwork())
+    assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    _, ests = _offline(cfg)
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    from pipeline.offline import build_tracker, resolve_config, resolve_params
+
+    tracker = build_tracker(name, resolve_params(None, log.metadata).params, resolve_config(name, None)[0])
+    snap = read_snapshot(Path(cfg.out) / "tracker.snap")
+    state = restore(snap.state, type(tracker.initial_state()))
+    assert snap.last_seq == 7 and snap.tracker == name and state is not None

@@ -1,0 +1,460 @@
+"""The streaming pipeline over real Zenoh sessions (loopback only, explicit
+tcp/127.0.0.1:PORT endpoints, multicast scouting off, every wait bounded).
+
+Each test runs stage processes (``python -m pipeline ...``); the whole file takes about a
+minute on two cores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+from sources.mcap_log import McapLogWriter, iter_frames, read_log, read_metadata
+
+ROOT = Path(__file__).resolve().parent.parent
+VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
+
+FAST = ["--set", "sink.rerun=false"]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["RERUN_ANALYTICS"] = "0"
+    return env
+
+
+def _popen(*args: str, log: Path | None = None, env: dict[str, str] | None = None) -> subprocess.Popen:
+    out = open(log, "ab") if log is not None else subprocess.PIPE
+    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=ROOT, env={**_env(), **(env or {})},
+                            stdout=out, stderr=subprocess.STDOUT if log is not None else subprocess.PIPE,
+                            start_new_session=True)
+
+
+def _wait(p: subprocess.Popen, timeout: float) -> tuple[int, str]:
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        out, err = p.communicate(timeout=10)
+        pytest.fail(f"process {p.args} did not finish in {timeout} s:\n{(out or b'').decode()}\n{(err or b'').decode()}")
+    text = (out or b"").decode() + (err or b"").decode()
+    return p.returncode, text
+
+
+def _cli(*args: str, timeout: float = 120) -> tuple[int, str]:
+    return _wait(_popen(*args), timeout)
+
+
+def _strip(est):
+    diag = {k: v for k, v in est.diagnostics.items() if k != "ms"}  # "ms" is wall-clock time
+    return (est.frame, est.stamp_ns, est.labels, est.assignments, est.assignment_prob, diag,
+            [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
+
+
+def _offline(log: Path, out: Path, tracker: str = "ddp", seed: int = 0, overrides=()) -> Path:
+    """What ``bnptrack track LOG --tracker T --seed S --out OUT`` writes (in-process)."""
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params, track_log
+
+    meta = read_metadata(log)
+    choice = resolve_params(None, meta)
+    config, _ = resolve_config(tracker, None)
+    params, config = apply_split_overrides(choice.params, config, overrides)
+    track_log(log, out, build_tracker(tracker, params, config), seed, meta)
+    return out
+
+
+def _assert_same_run(a: Path, b: Path, n: int | None = None) -> None:
+    """Same input frames and the same /tracks messages (up to the wall-clock ``ms``)."""
+    la, lb = read_log(a), read_log(b)
+    assert [f.frame for f in la.frames] == [f.frame for f in lb.frames]
+    for fa, fb in zip(la.frames, lb.frames):
+        assert np.array_equal(fa.z, fb.z) and fa.stamp_ns == fb.stamp_ns
+        assert (fa.truth is None) == (fb.truth is None)
+        if fa.truth is not None:
+            assert fa.truth.ids == fb.truth.ids and np.array_equal(fa.truth.states, fb.truth.states)
+    assert [_strip(e) for e in la.tracks] == [_strip(e) for e in lb.tracks]
+    if n is not None:
+        assert len(la.tracks) == n
+
+
+def _summary(out: Path) -> dict:
+    return json.loads((out / "sink.json").read_text())
+
+
+def _short_log(path: Path, n: int) -> Path:
+    """The first ``n`` frames of recordings/vo2017-s1.mcap (with its metadata record)."""
+    with McapLogWriter(path, read_metadata(VO2017)) as w:
+        for i, frame in enumerate(iter_frames(VO2017)):
+            if i == n:
+                break
+            w.write_frame(frame)
+    return path
+
+
+@pytest.fixture
+def router():
+    from pipeline.transport import Router
+
+    r = Router(ZenohConfig())
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+# --------------------------------------------------------------------------- tests
+
+
+def test_launch_default_end_to_end_equals_offline_track(tmp_path):
+    out = tmp_path / "run"
+    code, text = _cli("launch", "--set", "source.frames=20", "--run", "e2e-1", "--out", str(out),
+                      "--timeout", "150", timeout=180)
+    assert code == 0, text
+    assert "tracks.mcap" in text and str(out) in text
+    log = read_log(out / "tracks.mcap")
+    assert len(log.frames) == 20 and len(log.tracks) == 20
+    assert log.metadata["scenario"] == "vo2017" and log.metadata["tracker"] == "ddp"
+    # the input is the simulator's frames 1..20 ...
+    from sources.scenarios import get_scenario
+    from sources.synthetic import simulate
+    from pipeline.offline import resolve_simulation_params
+
+    sim = list(simulate(get_scenario("vo2017"), resolve_simulation_params("vo2017", "vo2017"), 1))[:20]
+    assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, sim))
+    # ... and the tracks are those of `bnptrack track` on that input
+    _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "offline.mcap"), 20)
+    s = _summary(out)
+    assert s["complete"] and s["counters"]["rejected"] == 0 and s["gaps"]["tracks"] == []
+    assert (out / "tracker.snap").exists() and (out / "health.jsonl").stat().st_size > 0
+    if s["files"] and any(f.endswith(".rrd") for f in s["files"]):
+        assert (out / "run.rrd").stat().st_size > 0
+
+
+def test_tracker_killed_and_restarted_resumes_with_identical_output(tmp_path):
+    out = tmp_path / "kill"
+    p = _popen("launch", "--set", "source.frames=60", "--set", "source.rate=25",
+               "--set", "tracker.snapshot_every=5", *FAST, "--run", "kill-1", "--out", str(out),
+               "--timeout", "150")
+    try:
+        deadline = time.monotonic() + 90
+        while not (out / "tracker.snap").exists():  # the tracker has processed >= 5 frames
+            assert time.monotonic() < deadline and p.poll() is None, "the tracker never snapshotted"
+            time.sleep(0.05)
+        time.sleep(0.3)
+        pid = json.loads((out / "stages.json").read_text())["tracker"]["pid"]
+        os.kill(pid, signal.SIGKILL)
+    finally:
+        code, text = _wait(p, 180)
+    assert code == 0, text
+    assert "crashed (killed by SIGKILL)" in text and "restarted" in text
+    stages = json.loads((out / "stages.json").read_text())
+    assert stages["tracker"]["restarts"] == 1
+    assert "resuming from" in (out / "logs" / "tracker.log").read_text()
+    s = _summary(out)
+    assert s["complete"] and s["gaps"] == {"measurements": [], "truth": [], "tracks": []}
+    assert s["counters"]["duplicates"] > 0  # the restarted tracker re-sent frames: dropped
+    _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "offline.mcap"), 60)
+
+
+def test_sigint_stops_every_stage_and_flushes_files(tmp_path):
+    out = tmp_path / "int"
+    p = _popen("launch", "--set", "source.rate=10", *FAST, "--run", "int-1", "--out", str(out), "--timeout", "150")
+    try:
+        deadline = time.monotonic() + 90
+        while not (out / "tracker.snap").exists():  # >= 10 frames through the tracker
+            assert time.monotonic() < deadline and p.poll() is None
+            time.sleep(0.05)
+        pids = {k: v["pid"] for k, v in json.loads((out / "stages.json").read_text()).items()}
+        os.kill(p.pid, signal.SIGINT)
+    finally:
+        code, text = _wait(p, 60)
+    assert code == 130, text
+    assert "Interrupted" in text
+    for pid in pids.values():  # every stage process is gone
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+    s = _summary(out)
+    assert not s["complete"] and s["frames_written"] >= 10
+    log = read_log(out / "tracks.mcap")
+    assert len(log.frames) == s["frames_written"] and len(log.tracks) == s["tracks_written"]
+    from mcap.reader import make_reader
+
+    with open(out / "tracks.mcap", "rb") as f:  # closed properly: summary and footer written
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count == 2 * s["frames_written"] + s["tracks_written"]
+    from pipeline.stages import read_snapshot
+
+    assert read_snapshot(out / "tracker.snap").last_seq >= 9
+    for role in ("source", "tracker", "sink"):
+        assert "SIGTERM: stopping" in (out / "logs" / f"{role}.log").read_text()
+
+
+def test_replay_is_rate_invariant_and_equals_track(tmp_path):
+    log = _short_log(tmp_path / "vo30.mcap", 30)
+    a, b = tmp_path / "afap", tmp_path / "rate"
+    pa = _popen("replay", str(log), "--as-fast-as-possible", "--seed", "2", *FAST, "--out", str(a),
+                "--timeout", "150")
+    pb = _popen("replay", str(log), "--rate", "40", "--seed", "2", *FAST, "--out", str(b), "--timeout", "150")
+    (ca, ta), (cb, tb) = _wait(pa, 180), _wait(pb, 180)
+    assert ca == 0, ta
+    assert cb == 0, tb
+    _assert_same_run(a / "tracks.mcap", b / "tracks.mcap", 30)
+    _assert_same_run(a / "tracks.mcap", _offline(log, tmp_path / "track.mcap", seed=2), 30)
+    assert read_log(a / "tracks.mcap").metadata["tracker_seed"] == "2"
+
+
+def test_two_runs_on_one_router_do_not_see_each_other(tmp_path, router):
+    ep = router.endpoints[0]
+    outs = [tmp_path / "one", tmp_path / "two"]
+    procs = [
+        _popen("launch", "--connect", ep, "--run", f"side-{i}", "--out", str(o),
+               "--set", "source.frames=15", "--set", f"source.seed={i + 1}", "--set", f"tracker.seed={i}",
+               *FAST, "--timeout", "150")
+        for i, o in enumerate(outs)
+    ]
+    results = [_wait(p, 180) for p in procs]
+    for code, text in results:
+        assert code == 0, text
+    for i, o in enumerate(outs):
+        s = _summary(o)
+        assert s["complete"] and s["counters"]["rejected"] == 0 and s["counters"]["duplicates"] == 0
+        assert s["counters"]["accepted"] == 45  # 15 x (measurements, truth, tracks): nothing foreign
+        log = read_log(o / "tracks.mcap")
+        assert log.metadata["seed"] == str(i + 1) and log.metadata["run"] == f"side-{i}"
+        _assert_same_run(o / "tracks.mcap", _offline(o / "tracks.mcap", tmp_path / f"off{i}.mcap", seed=i), 15)
+    a, b = read_log(outs[0] / "tracks.mcap"), read_log(outs[1] / "tracks.mcap")
+    assert not np.array_equal(a.frames[0].z, b.frames[0].z)
+
+
+def _stage(role: str, run: str, ep: str, out: Path, *sets: str) -> subprocess.Popen:
+    args = ["stage", role, "--run", run, "--connect", ep, "--out", str(out)]
+    for s in sets:
+        args += ["--set", s]
+    return _popen(*args, log=out.parent / f"{run}-{role}.log")
+
+
+def _wait_eos(bus, stage: str, timeout: float) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ev = bus.recv(0.2)
+        if ev is not None and ev.topic == f"eos/{stage}":
+            return json.loads(ev.payload)
+    pytest.fail(f"no end of stream from {stage} within {timeout} s")
+
+
+def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
+    """Source and tracker run to the end before the sink exists; the sink then receives the
+    cached history.  Malformed, NaN, wrong-run and unsequenced samples published on the
+    run's keys are rejected (counted, dead-lettered) and change nothing."""
+    from pipeline.codec import encode_measurements
+    from pipeline.transport import Bus
+    from tracker.types import Frame
+
+    ep, run, out = router.endpoints[0], "late-1", tmp_path / "late"
+    common = ["source.frames=12", "source.wait_for=['tracker']", "sink.rerun=false"]
+    procs = [_stage("tracker", run, ep, out, *common), _stage("source", run, ep, out, *common)]
+    intruder = Bus(run, "intruder", ZenohConfig(connect=[ep]), DeliveryConfig())
+    watcher = Bus(run, "watcher", ZenohConfig(connect=[ep]), DeliveryConfig())
+    try:
+        watcher.subscribe(["eos/*", "deadletter"])
+        eos = _wait_eos(watcher, "tracker", 90)
+        assert eos["last_seq"] == 11 and eos["gaps"] == []
+        good = Frame(frame=3, stamp_ns=3, sensor="x", kind="bearing_range", z=np.array([[0.1, 10.0]]))
+        intruder.publish("measurements", b"{definitely not json", {"seq": 2})
+        intruder.publish("measurements", encode_measurements(good, "other-run"), {"seq": 2, "frame": 3})
+        intruder.publish("measurements", encode_measurements(good, run))  # no sequence number
+        intruder.publish("tracks", b'{"v":1,"run":"late-1","frame":1,"stamp_ns":0,"tracks":[],'
+                                   b'"assignments":[],"assignment_prob":[NaN]}', {"seq": 0})
+        intruder.publish("truth", b'{"v":7,"run":"late-1","frame":1,"stamp_ns":0,"objects":[]}', {"seq": 0})
+        time.sleep(0.5)
+        sink = _stage("sink", run, ep, out, *common)
+        code, _ = _wait(sink, 120)
+        for p in procs:
+            assert _wait(p, 60)[0] == 0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+        intruder.close()
+        watcher.close()
+    assert code == 0, (out.parent / f"{run}-sink.log").read_text()
+    s = _summary(out)
+    assert s["complete"] and s["frames_written"] == 12 and s["gaps"]["measurements"] == []
+    assert s["rejected_by_topic"] == {"measurements": 3, "tracks": 1, "truth": 1}
+    sink_log = (out.parent / f"{run}-sink.log").read_text()
+    assert "rejected measurements sample" in sink_log and "non-finite" in sink_log
+    assert "unsupported schema version" in sink_log and "not this run" in sink_log
+    tracker_log = (out.parent / f"{run}-tracker.log").read_text()
+    assert tracker_log.count("rejected measurements sample") == 3
+    _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "off.mcap"), 12)
+
+
+def test_late_sink_beyond_the_cache_records_explicit_gaps(tmp_path, router):
+    ep, run, out = router.endpoints[0], "late-2", tmp_path / "late2"
+    common = ["source.frames=10", "source.wait_for=['tracker']", "sink.rerun=false",
+              "delivery.cache_frames=4", "delivery.eos_grace_s=1.5"]
+    procs = [_stage("tracker", run, ep, out, *common), _stage("source", run, ep, out, *common)]
+    from pipeline.transport import Bus
+
+    watcher = Bus(run, "watcher", ZenohConfig(connect=[ep]), DeliveryConfig())
+    try:
+        watcher.subscribe(["eos/*"])
+        _wait_eos(watcher, "tracker", 90)
+        code, _ = _wait(_stage("sink", run, ep, out, *common), 120)
+        for p in procs:
+            assert _wait(p, 60)[0] == 0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+        watcher.close()
+    assert code == 0
+    s = _summary(out)
+    assert s["complete"]
+    assert s["gaps"]["measurements"] == list(range(6)) and s["gaps"]["tracks"] == list(range(6))
+    log = read_log(out / "tracks.mcap")
+    assert [f.frame for f in log.frames] == [7, 8, 9, 10] and [e.frame for e in log.tracks] == [7, 8, 9, 10]
+    assert "recorded as a gap" in (out.parent / f"{run}-sink.log").read_text()
+
+
+def test_truncated_replay_replays_the_prefix_then_fails(tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(VO2017.read_bytes()[:40_000])
+    out = tmp_path / "trunc"
+    code, text = _cli("replay", str(cut), "--as-fast-as-possible", *FAST, "--out", str(out),
+                      "--timeout", "150", timeout=180)
+    assert code == 2, text
+    assert "truncated after frame" in text and "readable frame" in text
+    n = len(read_log(out / "tracks.mcap").tracks)
+    assert n > 10
+    offline = tmp_path / "off.mcap"
+    from sources.mcap_log import McapLogError
+
+    with pytest.raises(McapLogError):
+        list(iter_frames(cut))
+    _offline(cut, offline)
+    _assert_same_run(out / "tracks.mcap", offline, n)
+
+
+def test_stage_command_needs_a_run_and_a_router():
+    code, text = _cli("stage", "tracker", timeout=60)
+    assert code == 2 and "--run RUN is required" in text
+    code, text = _cli("stage", "tracker", "--run", "x", timeout=60)
+    assert code == 2 and "--connect" in text
+
+
+# --------------------------------------------------------------------------- multi-host: TLS + ACL
+
+
+def _make_certs(d: Path) -> dict[str, str]:
+    """A test CA and a router certificate for localhost / 127.0.0.1 (``cryptography``)."""
+    x509 = pytest.importorskip("cryptography.x509")
+    import datetime
+    import ipaddress
+
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def build(subject, issuer, pub, signer, ca: bool):
+        b = (x509.CertificateBuilder().subject_name(subject).issuer_name(issuer).public_key(pub)
+             .serial_number(x509.random_serial_number())
+             .not_valid_before(now - datetime.timedelta(minutes=5))
+             .not_valid_after(now + datetime.timedelta(hours=2))
+             .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
+        if ca:
+            b = b.add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
+                                              content_commitment=False, key_encipherment=False,
+                                              data_encipherment=False, key_agreement=False,
+                                              encipher_only=False, decipher_only=False), critical=True)
+        else:
+            b = (b.add_extension(x509.SubjectAlternativeName(
+                    [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
+                 .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False))
+        return b.sign(signer, hashes.SHA256())
+
+    ca_key, srv_key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "bnptrack test CA")])
+    ca = build(ca_name, ca_name, ca_key.public_key(), ca_key, True)
+    srv = build(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "localhost")]), ca_name,
+                srv_key.public_key(), ca_key, False)
+    pem = serialization.Encoding.PEM
+    files = {"ca": d / "ca.pem", "cert": d / "router.pem", "key": d / "router.key"}
+    files["ca"].write_bytes(ca.public_bytes(pem))
+    files["cert"].write_bytes(srv.public_bytes(pem))
+    files["key"].write_bytes(srv_key.private_bytes(pem, serialization.PrivateFormat.PKCS8,
+                                                   serialization.NoEncryption()))
+    return {k: str(v) for k, v in files.items()}
+
+
+def test_stages_over_tls_with_access_control(tmp_path):
+    """The multi-host recipe on loopback: a TLS router with usrpwd authentication and the
+    generated ACL; source, tracker and sink as separate `bnptrack stage` processes with their
+    own credentials.  A client without the CA, or with a wrong password, is refused; a stage
+    cannot put on another stage's keys."""
+    from pipeline.pipeline_config import TlsConfig
+    from pipeline.transport import Bus, Router, TransportError
+
+    certs = _make_certs(tmp_path)
+    users = tmp_path / "users.txt"
+    pw = {"source": "s3cret-src", "tracker": "s3cret-trk", "sink": "s3cret-snk", "watch": "w"}
+    users.write_text("".join(f"{u}:{p}\n" for u, p in pw.items()))
+    zr = ZenohConfig(tls=TlsConfig(root_ca_certificate=certs["ca"], listen_certificate=certs["cert"],
+                                   listen_private_key=certs["key"]),
+                     users_file=str(users), acl=True)
+    run, out = "secure-1", tmp_path / "secure"
+    common = ["source.frames=10", "sink.rerun=false", f"zenoh.tls.root_ca_certificate='{certs['ca']}'"]
+    with Router(zr, ["tls/127.0.0.1:0"]) as router:
+        ep = router.endpoints[0]
+        assert ep.startswith("tls/127.0.0.1:")
+        client = ZenohConfig(connect=[ep], connect_timeout_s=1.0)
+        with pytest.raises(TransportError):  # no CA: the router's certificate is not trusted
+            Bus(run, "x", msgspec_replace(client, user="sink", password=pw["sink"]), DeliveryConfig())
+        tls_client = msgspec_replace(client, tls=TlsConfig(root_ca_certificate=certs["ca"]))
+        with pytest.raises(TransportError):  # wrong password
+            Bus(run, "x", msgspec_replace(tls_client, user="sink", password="nope"), DeliveryConfig())
+        # a stage publishing on another stage's key: the router drops it
+        rogue = Bus(run, "rogue", msgspec_replace(tls_client, user="sink", password=pw["sink"]), DeliveryConfig())
+        procs = []
+        try:
+            rogue.publish("measurements", b"{rogue", {"seq": 0})
+            rogue.publish("tracks", b"{rogue", {"seq": 0})
+            for role in ("sink", "tracker", "source"):
+                env = {"BNPTRACK_ZENOH_USER": role, "BNPTRACK_ZENOH_PASSWORD": pw[role]}
+                args = ["stage", role, "--run", run, "--connect", ep, "--out", str(out)]
+                for s in common:
+                    args += ["--set", s]
+                procs.append(_popen(*args, log=tmp_path / f"{role}.log", env=env))
+            rc = {p.args[4]: _wait(p, 120)[0] for p in procs}
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    os.killpg(p.pid, signal.SIGKILL)
+            rogue.close()
+    assert rc == {"sink": 0, "tracker": 0, "source": 0}, [(tmp_path / f"{r}.log").read_text() for r in rc]
+    s = _summary(out)
+    assert s["complete"] and s["frames_written"] == 10 and s["counters"]["rejected"] == 0
+    assert "rejected" not in (tmp_path / "tracker.log").read_text()
+    _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "off.mcap"), 10)
+
+
+def msgspec_replace(obj, **kw):
+    import msgspec
+
+    return msgspec.structs.replace(obj, **kw)
