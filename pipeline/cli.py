@@ -232,15 +232,15 @@ def simulate(
     type=click.Choice(TRACKERS),
     default="ddp",
     show_default=True,
-    help="ddp = DDP-EMM, dpyp = DPY-STP.",
+    help="ddp = DDP-EMM, dpyp = DPY-STP, glmb = the GLMB baseline.",
 )
 @click.option(
     "--config",
     "config_arg",
     metavar="NAME|FILE.toml",
     default=None,
-    help="Tracker settings: a preset name (ddp, dpyp, ddp-proximity, ddp-snr, ...: "
-    "tracker.bnp_tracker.TRACKER_PRESETS) or a TOML file of BnpConfig fields. "
+    help="Tracker settings: a preset name (ddp, dpyp, ddp-proximity, ddp-snr for the BNP "
+    "trackers; glmb) or a TOML file of the tracker's settings fields (BnpConfig, GlmbConfig). "
     "Default: the preset named like --tracker.",
 )
 @click.option(
@@ -266,6 +266,14 @@ def simulate(
     help="Output MCAP file (input frames + /tracks). Default: <LOG stem>-<tracker>.tracks.mcap "
     "next to LOG.",
 )
+@click.option(
+    "--rrd",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="FILE.rrd",
+    help="Also record the run for the Rerun viewer (scene, assignments, tracks, truth, OSPA, "
+    "diagnostics); open it with `bnptrack view FILE.rrd`. See docs/rerun.md.",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -276,6 +284,7 @@ def track(
     overrides: tuple[str, ...],
     seed: int,
     out: Path | None,
+    rrd: Path | None,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -315,7 +324,7 @@ def track(
         out_meta["tracker_overrides"] = format_overrides(overrides)
 
     if not quiet:
-        p_over, t_over = split_overrides(overrides)
+        p_over, t_over = split_overrides(overrides, type(config))
         _echo_rows(
             [
                 ("log", str(log)),
@@ -323,7 +332,12 @@ def track(
                 ("config", config_desc + (f"; --set {' '.join(t_over)}" if t_over else "")),
             ]
         )
-    res = track_log(log, out, tracker, seed, out_meta)
+    if rrd is not None:
+        from pipeline.view import track_log_with_rrd
+
+        res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params)
+    else:
+        res = track_log(log, out, tracker, seed, out_meta)
     if not quiet:
         rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
         if res.has_truth:
@@ -338,11 +352,162 @@ def track(
             ("ms per frame", f"median {_fmt(res.ms_median)}, p95 {_fmt(res.ms_p95)}"),
             ("wrote", f"{out} ({out.stat().st_size} bytes)"),
         ]
+        if rrd is not None:
+            rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; bnptrack view {rrd})"))
         _echo_rows(rows)
     if res.error is not None:
         raise CliError(
             f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}"
         )
+
+
+# --------------------------------------------------------------------------- view
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 1600x900", param_hint="--size") from None
+    if w < 64 or h < 64:
+        raise click.BadParameter(f"{text!r}: at least 64x64", param_hint="--size")
+    return w, h
+
+
+@main.command()
+@click.argument("rrd", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="FILE.rrd")
+@click.option(
+    "--screenshot",
+    "screenshot_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="OUT.png",
+    help="Render the recording without a screen (headless viewer) to OUT.png instead of opening a window.",
+)
+@click.option(
+    "--frame",
+    type=int,
+    default=None,
+    metavar="K",
+    help="With --screenshot: the frame to show (time cursor on the frame timeline). Default: the last frame.",
+)
+@click.option("--size", default="1600x900", show_default=True, metavar="WxH", help="With --screenshot: picture size.")
+@click.option(
+    "--timeout", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
+    help="With --screenshot: give up after this many seconds."
+)
+@click.option("--web", is_flag=True, help="Serve the web viewer on 127.0.0.1 (open the printed URL) instead of a native window.")
+@click.option(
+    "--repair",
+    "repair_out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="OUT.rrd",
+    help="Rewrite a damaged recording (e.g. its writer was killed before the footer) into OUT.rrd, "
+    "keeping every readable chunk, and exit.",
+)
+@_clean_errors
+def view(
+    rrd: Path,
+    screenshot_path: Path | None,
+    frame: int | None,
+    size: str,
+    timeout: float,
+    web: bool,
+    repair_out: Path | None,
+) -> None:
+    """Open a Rerun recording (.rrd) in the Rerun viewer, or render it to a PNG.
+
+    FILE.rrd comes from `bnptrack track LOG --rrd FILE.rrd`, `bnptrack launch`/`replay`
+    (run.rrd) or `bnptrack experiment`: the 2-D scene (measurements coloured by the track
+    they were assigned to, grey clutter, tracks with label, trail and 2-sigma ellipse, ground
+    truth as grey crosses) beside the time series (cardinality, OSPA, OSPA(2), tracker
+    diagnostics). See docs/rerun.md.
+
+    Without options this runs the viewer that ships with rerun-sdk (`rerun FILE.rrd`) and
+    needs a display. --screenshot renders headless instead; on a machine without a GPU that
+    needs Mesa's software renderer (Debian: apt-get install -y mesa-vulkan-drivers).
+
+    \b
+    Examples:
+      bnptrack view recordings/vo2017-s1-ddp.rrd
+      bnptrack view recordings/vo2017-s1-ddp.rrd --screenshot shot.png --frame 60
+      bnptrack view broken.rrd --repair fixed.rrd
+    """
+    from pipeline.view import ViewerUnavailable, open_viewer, screenshot
+    from sinks.rerun_sink import RerunToolError, repair
+
+    if screenshot_path is None and frame is not None:
+        raise click.UsageError("--frame needs --screenshot")
+    try:
+        if repair_out is not None:
+            out = repair(rrd, repair_out)
+            click.echo(f"wrote {out} ({out.stat().st_size} bytes)")
+            return
+        if screenshot_path is not None:
+            w, h = _parse_size(size)
+            out = screenshot(rrd, screenshot_path, frame=frame, size=(w, h), timeout=timeout)
+            click.echo(f"wrote {out} ({w}x{h}, frame {'last' if frame is None else frame})")
+            return
+        code = open_viewer(rrd, web=web)
+    except (ViewerUnavailable, RerunToolError, TimeoutError) as exc:
+        raise CliError(str(exc)) from exc
+    if code:
+        raise CliError(f"the Rerun viewer exited with code {code}")
+
+
+# --------------------------------------------------------------------------- experiment
+
+
+@main.command()
+@click.argument("name", type=click.Choice(["ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp"]))
+@click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
+@click.option("--params", "params_name", type=click.Choice(["vo2017", "paper"]), default="vo2017",
+              show_default=True, help="Model parameter set.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/experiments/NAME-PARAMS-sSEED.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes (default: one per core).")
+@click.option("--cluster", metavar="ADDRESS", default=None,
+              help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes.")
+@click.option("--no-rrd", is_flag=True, help="Skip the .rrd recordings of the representative run.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no summary.")
+@_clean_errors
+def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | None, workers: int | None,
+               cluster: str | None, no_rrd: bool, quiet: bool) -> None:
+    """Run one of the paper's simulation experiments as a Monte Carlo study.
+
+    \b
+    ddp-vs-glmb   DDP-EMM vs GLMB, 10 targets (vo2017 scenario)
+    proximity     DDP-EMM vs GLMB, 5 targets on one path
+    snr           DDP-EMM, range-only, SNR -3/-5/-10 dB
+    dpy-vs-glmb   DPY-STP vs GLMB, 5 targets (dpy5)
+    dpy-vs-ddp    DPY-STP vs DDP-EMM, 10 targets
+
+    Writes summary.md / summary.csv (mean and spread over runs of OSPA and its parts,
+    OSPA(2), GOSPA, cardinality error, ms per frame), PNG plots mirroring the paper's
+    figures and one .rrd per tracker of run 0. Runs are seeded from (NAME, --seed, run
+    index): a run redone alone, locally or on a Dask cluster, gives the same numbers.
+
+    \b
+    Examples:
+      bnptrack experiment ddp-vs-glmb --runs 100
+      bnptrack experiment snr --runs 20 --params paper --out out/snr
+      bnptrack experiment dpy-vs-ddp --runs 1000 --cluster tcp://scheduler:8786
+    """
+    from pipeline.experiments import run_experiment
+
+    res = run_experiment(name, runs=runs, seed=seed, params=params_name, out=out, workers=workers,
+                         cluster=cluster, quiet=quiet, rrd=not no_rrd)
+    if not quiet:
+        click.echo(res.summary_md.read_text())
+        rows = [("took", f"{res.seconds:.1f} s for {len(res.rows) and res.rows[0]['runs']} run(s) per condition"),
+                ("summary", f"{res.summary_md} , {res.summary_csv}")]
+        rows += [("plot", str(p)) for p in res.plots]
+        rows += [("recording", str(p)) for p in res.recordings]
+        _echo_rows(rows)
 
 
 # --------------------------------------------------------------------------- schema

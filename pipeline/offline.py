@@ -412,9 +412,11 @@ def track_log(
     tracker: Tracker,
     seed: int,
     metadata: Mapping[str, str] | None,
+    on_estimate: Callable[[Frame, Estimate], None] | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
-    ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.
+    ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
+    called after each frame is written (e.g. a Rerun sink).
 
     A damaged input is processed up to its readable end; the output then holds that prefix
     and :attr:`TrackResult.error` holds the :class:`McapLogError`.
@@ -427,6 +429,8 @@ def track_log(
         def write(frame: Frame, est: Estimate) -> None:
             writer.write_frame(frame)
             writer.write_tracks(est)
+            if on_estimate is not None:
+                on_estimate(frame, est)
 
         return track_frames(tracker, iter_frames(log), seed, write)
 

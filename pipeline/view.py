@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from pipeline.offline import TrackResult
-    from tracker.bnp_tracker import BnpTracker
+    from tracker.registry import Tracker
     from tracker.models.params import ModelParams
 
 __all__ = ["ViewerUnavailable", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
@@ -269,7 +269,7 @@ def track_log_with_rrd(
     log: str | os.PathLike,
     out: str | os.PathLike,
     rrd: str | os.PathLike,
-    tracker: BnpTracker,
+    tracker: Tracker,
     seed: int,
     metadata: Mapping[str, str] | None,
     *,
@@ -282,26 +282,15 @@ def track_log_with_rrd(
     with ``metadata`` (plus ``source_log``).  Like ``track_log``, a damaged input is processed
     up to its readable end; both outputs then hold that prefix (the recording is finalised).
     """
-    from pipeline.offline import check_output_path, track_frames
+    from pipeline.offline import check_output_path, track_log
     from sinks.rerun_sink import RerunSink, RunScorer
-    from sources.mcap_log import McapLogWriter, iter_frames
-    from tracker.types import Estimate, Frame
 
     log, out, rrd = Path(log), Path(out), Path(rrd)
-    check_output_path(log, out)
     check_output_path(log, rrd)
     if rrd.resolve() == out.resolve():
         raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(metadata or {})
-    rrd_meta = {**meta, "source_log": str(log)}
+    rrd_meta = {**dict(metadata or {}), "source_log": str(log)}
     scorer = RunScorer()
-    with McapLogWriter(out, meta if metadata is not None else None) as writer, \
-            RerunSink(rrd, metadata=rrd_meta, params=params) as sink:
-
-        def write(frame: Frame, est: Estimate) -> None:
-            writer.write_frame(frame)
-            writer.write_tracks(est)
-            sink.log(frame, est, **scorer.update(frame, est))
-
-        return track_frames(tracker, iter_frames(log), seed, write)
+    with RerunSink(rrd, metadata=rrd_meta, params=params) as sink:
+        return track_log(log, out, tracker, seed, metadata,
+                         on_estimate=lambda frame, est: sink.log(frame, est, **scorer.update(frame, est)))

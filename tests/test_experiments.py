@@ -71,3 +71,19 @@ def test_summary_and_plots(local_results, tmp_path):
     paths = write_plots(local_results, tmp_path, "dpy-vs-ddp")
     assert {p.name for p in paths} == {"cardinality.png", "ospa.png", "xy.png"}
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_experiment_command_writes_outputs(tmp_path):
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+
+    out = tmp_path / "exp"
+    res = CliRunner().invoke(main, ["experiment", "dpy-vs-ddp", "--runs", "1", "--workers", "1",
+                                    "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "| default | DPY-STP | 1 |" in res.output
+    assert {p.name for p in out.iterdir()} >= {"summary.md", "summary.csv", "cardinality.png", "ospa.png",
+                                               "xy.png", "dpyp-run0.rrd", "ddp-run0.rrd"}
+    bad = CliRunner().invoke(main, ["experiment", "nope"])
+    assert bad.exit_code == 2 and "nope" in bad.output
