@@ -1,11 +1,11 @@
-"""Accuracy and speed of the BNP trackers on a scenario over many seeds.
+"""Accuracy and speed of any tracker (ddp, dpyp, glmb) on a scenario over many seeds.
 
 Prints, per tracker and parameter set: mean OSPA (total, localisation, cardinality; c=100,
 p=1, on position), OSPA(2) (window 10), mean |N_hat - N|, label switches per run and ms per
 frame (median, p95).  Each seed runs in its own process (``--workers``) and is timed on one
 core, so the ms figures are single-core figures.
 
-    python benchmarks/bnp_accuracy.py --trackers ddp dpyp --params vo2017 paper --seeds 20
+    python benchmarks/accuracy.py --trackers ddp dpyp glmb --params vo2017 paper --seeds 20
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from sinks.metrics import ospa, ospa2_series  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import TRACKER_PRESETS, make_tracker  # noqa: E402
+from tracker.registry import build, kind  # noqa: E402
 from tracker.config import apply_overrides  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
@@ -52,7 +52,7 @@ def label_switches(frames, estimates, gate: float = 100.0) -> int:
 def one_run(job):
     tracker_name, params_name, scenario, seed, overrides = job
     params = get_scenario(scenario).adapt_params(load_params(params_name))
-    tracker = make_tracker(tracker_name, params, apply_overrides(TRACKER_PRESETS[tracker_name], overrides))
+    tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], overrides))
     frames = simulate_all(get_scenario(scenario), params, seed)
     rows, ests = [], []
     for f, e, _ in run(tracker, frames, seed):
