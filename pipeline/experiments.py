@@ -107,7 +107,7 @@ class TrackerRun:
     gospa: np.ndarray
     n_est: np.ndarray
     ms: np.ndarray
-    positions: list | None = None  # per frame: (labels, (N, 2) positions), representative runs only
+    estimates: list | None = None  # per frame Estimate, representative runs only (keep_tracks)
 
 
 @dataclass
@@ -115,29 +115,33 @@ class RunResult:
     job: RunJob
     n_true: np.ndarray
     trackers: dict[str, TrackerRun] = field(default_factory=dict)
-    truth: list | None = None  # per frame (ids, positions) when keep_tracks
+    frames: list | None = None  # the run's frames (with truth) when keep_tracks
+
+
+def _run_setup(job: RunJob):
+    """The experiment, its scenario, the model parameters and the seed of one run."""
+    from sources.scenarios import get_scenario
+    from tracker.config import apply_overrides
+    from tracker.models.params import load_params
+
+    exp = get_experiment(job.experiment)
+    scenario = get_scenario(exp.scenario)
+    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
+    return exp, scenario, params, run_seed(job.experiment, job.seed, job.run)
 
 
 def execute_run(job: RunJob) -> RunResult:
     """One Monte Carlo run: simulate the scenario, run every tracker, score every frame."""
     from pipeline.offline import build_tracker, resolve_config
     from sinks.metrics import gospa, ospa, ospa2_series
-    from sources.scenarios import get_scenario
     from sources.synthetic import simulate_all
-    from tracker.config import apply_overrides
-    from tracker.models.params import load_params
     from tracker.state import run as run_tracker
 
-    exp = get_experiment(job.experiment)
-    scenario = get_scenario(exp.scenario)
-    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
-    seed = run_seed(job.experiment, job.seed, job.run)
+    exp, scenario, params, seed = _run_setup(job)
     frames = simulate_all(scenario, params, seed)
     n_true = np.array([len(f.truth.ids) for f in frames])
-    result = RunResult(job, n_true)
+    result = RunResult(job, n_true, frames=frames if job.keep_tracks else None)
     true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
-    if job.keep_tracks:
-        result.truth = [(f.truth.ids, f.truth.positions.copy()) for f in frames]
     for spec in exp.trackers:
         config, _ = resolve_config(spec.name, spec.preset)
         tracker = build_tracker(spec.name, params, config)
@@ -147,8 +151,7 @@ def execute_run(job: RunJob) -> RunResult:
             g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
             rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
             est_tracks.append({t.label: t.position for t in e.tracks})
-            if job.keep_tracks:
-                kept.append((e.labels, e.positions.copy()))
+            kept.append(e)
         r = np.array(rows, dtype=float)
         o2 = ospa2_series(est_tracks, true_tracks, window=OSPA2_WINDOW, c=OSPA_C, p=OSPA_P)
         result.trackers[spec.label] = TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3],
@@ -287,16 +290,16 @@ def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Pat
         axes[-1].set_xlabel("scan k")
         paths.append(_save(fig, out / f"ospa{suffix}.png"))
         # x / y of the representative run
-        rep = next((r for r in runs if r.truth is not None), None)
+        rep = next((r for r in runs if r.frames is not None), None)
         if rep is not None:
             fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
             for ax, dim, name in ((axes[0], 0, "x"), (axes[1], 1, "y")):
-                tk = [kk for kk, (ids, pos) in enumerate(rep.truth, 1) for _ in ids]
-                tv = [p[dim] for _, pos in rep.truth for p in pos]
+                tk = [f.frame for f in rep.frames for _ in f.truth.ids]
+                tv = [p[dim] for f in rep.frames for p in f.truth.positions]
                 ax.plot(tk, tv, "k.", ms=2, label="true")
                 for t, marker in zip(trackers, "o^sv"):
-                    ek = [kk for kk, (labs, pos) in enumerate(rep.trackers[t].positions, 1) for _ in labs]
-                    ev = [p[dim] for _, pos in rep.trackers[t].positions for p in pos]
+                    ek = [e.frame for e in rep.trackers[t].estimates for _ in e.tracks]
+                    ev = [p[dim] for e in rep.trackers[t].estimates for p in e.positions]
                     ax.plot(ek, ev, marker, ms=3, mfc="none", label=t)
                 ax.set(ylabel=f"{name} (m)")
             axes[0].set_title(f"{title} {v}: true and estimated positions (run {rep.job.run})")
@@ -316,33 +319,20 @@ def _save(fig, path: Path) -> Path:
 
 
 def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
-    """One ``.rrd`` per tracker of the representative run (needs the Rerun sink)."""
+    """One ``.rrd`` per tracker of a run kept with ``keep_tracks`` (needs the Rerun sink)."""
     try:
-        from sinks.rerun_sink import write_recording  # noqa: F401
+        from sinks.rerun_sink import write_recording
     except ImportError:
         return []
-    from pipeline.offline import build_tracker, resolve_config
-    from sources.scenarios import get_scenario
-    from sources.synthetic import simulate_all
-    from tracker.config import apply_overrides
-    from tracker.models.params import load_params
-    from tracker.state import run as run_tracker
-
     job = result.job
-    exp = get_experiment(job.experiment)
-    scenario = get_scenario(exp.scenario)
-    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
-    seed = run_seed(job.experiment, job.seed, job.run)
-    frames = simulate_all(scenario, params, seed)
-    paths = []
+    exp, _, params, seed = _run_setup(job)
     tag = "" if len(exp.variants) == 1 else "-" + job.variant.label.replace(" ", "").replace("-", "m")
+    paths = []
     for spec in exp.trackers:
-        config, _ = resolve_config(spec.name, spec.preset)
-        ests = [e for _, e, _ in run_tracker(build_tracker(spec.name, params, config), frames, seed)]
         path = out / f"{spec.name}{tag}-run{job.run}.rrd"
         meta = {"experiment": job.experiment, "scenario": exp.scenario, "params": job.params,
                 "tracker": spec.name, "preset": spec.preset, "seed": str(seed), "variant": job.variant.label}
-        write_recording(path, frames, ests, meta, params=params)
+        write_recording(path, result.frames, result.trackers[spec.label].estimates, meta, params=params)
         paths.append(path)
     return paths
 
