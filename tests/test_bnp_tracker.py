@@ -17,30 +17,15 @@ from tracker.state import restore, run, snapshot
 from tracker.types import Frame, Truth
 
 
-@pytest.fixture(scope="module")
-def vo_params():
-    return load_params("vo2017")
 
-
-@pytest.fixture(scope="module")
-def vo_frames(vo_params):
-    return simulate_all(get_scenario("vo2017"), vo_params, 1)
-
-
-def estimates_equal(a, b) -> bool:
-    return (a.labels == b.labels and np.array_equal(a.positions, b.positions)
-            and a.assignments == b.assignments and a.assignment_prob == b.assignment_prob
-            and all(np.array_equal(x.covariance, y.covariance) for x, y in zip(a.tracks, b.tracks)))
-
-
-def test_same_seed_same_output(vo_params, vo_frames):
+def test_same_seed_same_output(vo_params, vo_frames, estimates_equal):
     tr = make_tracker("ddp", vo_params)
     a = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     b = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     assert all(estimates_equal(x, y) for x, y in zip(a, b))
 
 
-def test_dpy_with_zero_discount_equals_ddp_draw_for_draw(vo_params, vo_frames):
+def test_dpy_with_zero_discount_equals_ddp_draw_for_draw(vo_params, vo_frames, estimates_equal):
     """DPY-STP with d = 0 (not inferred) is DDP-EMM: identical estimates and states."""
     ddp = make_tracker("ddp", vo_params)
     dpy = make_tracker("dpyp", vo_params, msgspec.structs.replace(TRACKER_PRESETS["dpyp"], d=0.0, infer_d=False))
@@ -58,7 +43,7 @@ def test_dpy_infers_discount(vo_params, vo_frames):
 
 
 @pytest.mark.parametrize("name", ["ddp", "dpyp"])
-def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames, name):
+def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames, name, estimates_equal):
     tr = make_tracker(name, vo_params)
     full = [e for _, e, _ in run(tr, vo_frames[:40], 11)]
     *_, (_, _, state) = run(tr, vo_frames[:20], 11)

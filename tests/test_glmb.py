@@ -259,22 +259,6 @@ def test_gibbs_respects_distinct_measurements_and_starts_at_optimum():
 # --------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def vo_params():
-    return load_params("vo2017")
-
-
-@pytest.fixture(scope="module")
-def vo_frames(vo_params):
-    return simulate_all(get_scenario("vo2017"), vo_params, 1)
-
-
-def estimates_equal(a, b) -> bool:
-    return (a.labels == b.labels and np.array_equal(a.positions, b.positions)
-            and a.assignments == b.assignments and a.assignment_prob == b.assignment_prob
-            and [t.existence for t in a.tracks] == [t.existence for t in b.tracks]
-            and all(np.array_equal(x.covariance, y.covariance) for x, y in zip(a.tracks, b.tracks)))
-
 
 @pytest.mark.parametrize("seed", [1, 4])
 def test_exact_cardinality_without_clutter(seed):
@@ -334,14 +318,14 @@ def test_tracks_vo2017_well(vo_params, seed):
     assert np.mean(card) < 0.35
 
 
-def test_same_seed_same_output(vo_params, vo_frames):
+def test_same_seed_same_output(vo_params, vo_frames, estimates_equal):
     tr = make_glmb(vo_params)
     a = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     b = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     assert all(estimates_equal(x, y) for x, y in zip(a, b))
 
 
-def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames):
+def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames, estimates_equal):
     tr = make_glmb(vo_params)
     full = [e for _, e, _ in run(tr, vo_frames[:36], 11)]
     *_, (_, _, state) = run(tr, vo_frames[:18], 11)

@@ -33,7 +33,6 @@ Paper mapping (Moraffah & Papandreou-Suppappola, Secs. 4-5):
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from scipy.special import gammaln

@@ -1,0 +1,33 @@
+"""Shared fixtures: the vo2017 parameter set and one simulated vo2017 run (seed 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sources.scenarios import get_scenario
+from sources.synthetic import simulate_all
+from tracker.models.params import load_params
+
+
+@pytest.fixture(scope="session")
+def vo_params():
+    return load_params("vo2017")
+
+
+@pytest.fixture(scope="session")
+def vo_frames(vo_params):
+    return simulate_all(get_scenario("vo2017"), vo_params, 1)
+
+
+@pytest.fixture(scope="session")
+def estimates_equal():
+    """Exact equality of two Estimates: labels, states, covariances, existence, assignments."""
+
+    def equal(a, b) -> bool:
+        return (a.labels == b.labels and np.array_equal(a.positions, b.positions)
+                and a.assignments == b.assignments and a.assignment_prob == b.assignment_prob
+                and [t.existence for t in a.tracks] == [t.existence for t in b.tracks]
+                and all(np.array_equal(x.covariance, y.covariance) for x, y in zip(a.tracks, b.tracks)))
+
+    return equal
