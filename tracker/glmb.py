@@ -27,6 +27,11 @@ One frame (:meth:`GlmbTracker.step`):
 5. the new track table holds the (row, measurement) pairs used by the kept children, with
    the Gaussian update computed once per pair.
 
+The Gibbs sweeps and the linear assignments run in numba-compiled kernels on plain arrays
+(``BNPTRACK_NO_JIT=1`` runs the same functions interpreted); the sweeps consume uniforms
+drawn up front from ``rng`` in the order of the vectorised reference
+:func:`gibbs_chains_numpy`, so the output is identical to it.
+
 Everything random comes from the caller's ``rng``; ``step`` is a pure function.
 """
 
@@ -41,7 +46,6 @@ from typing import Annotated, Any, Literal, Protocol
 
 import msgspec
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tracker import filtering as kf
 from tracker.models.params import BirthComponent, ModelParams
@@ -259,7 +263,8 @@ def start_optimal(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Best options of each parent by linear assignment on the cost matrix
     ``[-log eta(detections) | diag(-max(log eta(dies), log eta(missed)))]`` (padding rows
-    take their own dummy column at no cost).  Returns options ``(H, width)`` and
+    take their own dummy column at no cost), all parents in one call of the compiled
+    :func:`_lsap_kernel` (scipy's algorithm).  Returns options ``(H, width)`` and
     feasibility ``(H,)``."""
     H, width = cand.shape
     M = E.shape[1] - _DET
@@ -272,16 +277,103 @@ def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     diag = np.arange(width)
     cost[:, diag, M + diag] = np.where(valid, -best_no, 0.0)
     out = np.where(valid, no_det, -1)
-    ok = np.zeros(H, dtype=bool)
-    for h in range(H):
-        try:
-            r, c = linear_sum_assignment(cost[h])
-        except ValueError:  # infeasible
-            continue
-        det = c < M
-        out[h, r[det]] = _DET + c[det]
-        ok[h] = bool(np.isfinite(cost[h, r, c]).all())
+    # width <= M + width columns: every row is assigned and the row indices are 0..width-1
+    col = np.full((H, width), M, dtype=np.int64)
+    solved = np.zeros(H, dtype=bool)
+    _lsap_batch(cost, col, solved)
+    hh, ii = np.nonzero(solved[:, None] & (col < M))
+    out[hh, ii] = _DET + col[hh, ii]
+    ok = solved & np.all(np.isfinite(np.take_along_axis(cost, col[..., None], axis=2)[..., 0]), axis=1)
     return out, ok
+
+
+def _lsap_kernel(cost: np.ndarray, col: np.ndarray, solved: np.ndarray) -> None:  # pragma: no cover
+    """Minimum-cost assignment of every row of each ``cost[h]`` (rows <= columns, +inf =
+    forbidden): the shortest augmenting path algorithm (Crouse 2016) exactly as
+    ``scipy.optimize.linear_sum_assignment`` implements it, batched over ``h`` and compiled
+    with numba.  Writes ``col[h]`` (the column of each row) and ``solved[h]`` (False when
+    no finite assignment exists; ``col[h]`` is then left unchanged)."""
+    H, nr, nc = cost.shape
+    u = np.empty(nr)
+    v = np.empty(nc)
+    spc = np.empty(nc)
+    path = np.empty(nc, dtype=np.int64)
+    col4row = np.empty(nr, dtype=np.int64)
+    row4col = np.empty(nc, dtype=np.int64)
+    SR = np.empty(nr, dtype=np.bool_)
+    SC = np.empty(nc, dtype=np.bool_)
+    remaining = np.empty(nc, dtype=np.int64)
+    for h in range(H):
+        u[:] = 0.0
+        v[:] = 0.0
+        path[:] = -1
+        col4row[:] = -1
+        row4col[:] = -1
+        feasible = True
+        for cur in range(nr):
+            # augmenting path from row cur
+            min_val = 0.0
+            i = cur
+            n_rem = nc
+            for it in range(nc):
+                remaining[it] = nc - it - 1
+            SR[:] = False
+            SC[:] = False
+            spc[:] = np.inf
+            sink = -1
+            while sink == -1:
+                index = -1
+                lowest = np.inf
+                SR[i] = True
+                for it in range(n_rem):
+                    j = remaining[it]
+                    r = min_val + cost[h, i, j] - u[i] - v[j]
+                    if r < spc[j]:
+                        path[j] = i
+                        spc[j] = r
+                    if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
+                        lowest = spc[j]
+                        index = it
+                min_val = lowest
+                if min_val == np.inf:
+                    break
+                j = remaining[index]
+                if row4col[j] == -1:
+                    sink = j
+                else:
+                    i = row4col[j]
+                SC[j] = True
+                n_rem -= 1
+                remaining[index] = remaining[n_rem]
+            if sink < 0:
+                feasible = False
+                break
+            u[cur] += min_val
+            for i in range(nr):
+                if SR[i] and i != cur:
+                    u[i] += min_val - spc[col4row[i]]
+            for j in range(nc):
+                if SC[j]:
+                    v[j] -= min_val - spc[j]
+            j = sink
+            while True:
+                i = path[j]
+                row4col[j] = i
+                tmp = col4row[i]
+                col4row[i] = j
+                j = tmp
+                if i == cur:
+                    break
+        if feasible:
+            for i in range(nr):
+                col[h, i] = col4row[i]
+            solved[h] = True
+
+
+if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
+    _lsap_batch = _njit(cache=True, nogil=True)(_lsap_kernel)
+else:  # pragma: no cover - numba missing or disabled: same code, interpreted
+    _lsap_batch = _lsap_kernel
 
 
 def start_missed(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
