@@ -62,7 +62,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         Experiment("proximity", "Close proximity: 5 targets on one path (experiment 2)", "proximity",
                    (TrackerSpec("ddp", "ddp-proximity", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB"))),
         Experiment("snr", "Varying SNR, range-only, 11 targets (experiment 3)", "snr",
-                   (TrackerSpec("ddp", "ddp-snr", "DDP-EMM"),),
+                   (TrackerSpec("ddp", "ddp-snr", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB")),
                    (Variant("-3 dB", ("snr_db=-3",)), Variant("-5 dB", ("snr_db=-5",)),
                     Variant("-10 dB", ("snr_db=-10",)))),
         Experiment("dpy-vs-glmb", "DPY-STP vs GLMB, at most 5 targets (experiment 4)", "dpy5",

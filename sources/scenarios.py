@@ -127,6 +127,7 @@ class Scenario:
     kind: Literal["bearing_range", "range"] = "bearing_range"
     targets: tuple[TargetSpec, ...] = ()
     default_snr_db: float | None = None
+    default_range_clutter_rate: float | None = None
     birth: tuple[tuple[float, tuple[float, ...]], ...] | None = None
     """Scenario-specific birth regions ``(r, mean)`` (std as in Vo's model), or ``None`` to keep
     the parameter set's (Vo's four components, made for ``vo2017``/``dpy5``)."""
@@ -195,13 +196,16 @@ class Scenario:
         """Apply the scenario's defaults to ``params``.
 
         If the scenario has a ``default_snr_db`` (the ``snr`` scenario: -3 dB) and
-        ``params.snr_db`` is unset, ``snr_db`` is set.  If it has its own birth regions
+        ``params.snr_db`` is unset, ``snr_db`` is set; likewise ``default_range_clutter_rate``
+        (``snr``: 2 per scan) when ``params.range_clutter_rate`` is unset.  If it has its own birth regions
         (``proximity``: the path's entry point; ``snr``: the 11 entry points), they replace the
         parameter set's, so the GLMB's birth model and the BNP trackers' base distribution know
         where this scenario's objects appear, as Vo's components do for ``vo2017``.
         """
         if self.default_snr_db is not None and params.snr_db is None:
             params = msgspec.structs.replace(params, snr_db=float(self.default_snr_db))
+        if self.default_range_clutter_rate is not None and params.range_clutter_rate is None:
+            params = msgspec.structs.replace(params, range_clutter_rate=float(self.default_range_clutter_rate))
         if self.birth is not None:
             std = list(_BIRTH_STD)
             params = msgspec.structs.replace(
@@ -298,6 +302,7 @@ SCENARIOS: dict[str, Scenario] = {
             targets=_SNR_TARGETS,
             kind="range",
             default_snr_db=-3.0,
+            default_range_clutter_rate=2.0,
             birth=_SNR_BIRTH,
         ),
     )

@@ -176,3 +176,78 @@ def test_vo2017_accuracy(vo_params, seed):
     # one label covers >= 70 % of the life of at least 8 of the 10 objects (crossing objects
     # T2/T5 can swap labels once: a genuine ambiguity of bearing-range data)
     assert kept >= 8, kept
+
+
+def test_best_permutation_hand_values():
+    """Two clusters share two measurements: the joint optimum wins over each row's argmax."""
+    from tracker.bnp_tracker import best_permutation
+
+    p = np.array([[0.50, 0.45, 0.00],   # row argmax: m0
+                  [0.60, 0.30, 0.00],   # row argmax: m0 as well
+                  [0.00, 0.00, 0.02]])  # weak cluster: "missed" (0.98) beats m2 (0.02)
+    out = best_permutation(p)
+    # log 0.45 + log 0.60 > log 0.50 + log 0.30: cluster 0 takes m1, cluster 1 takes m0
+    expected = np.array([[0.0, 0.95, 0.0], [0.90, 0.0, 0.0], [0.0, 0.0, 0.02]])
+    assert np.allclose(out, expected)
+    assert np.allclose(out.sum(axis=1), p.sum(axis=1))  # detection probabilities unchanged
+
+
+def test_best_permutation_keeps_co_born_objects_apart(vo_params):
+    """vo2017's T3 and T4 are born together 40 m apart with different velocities.  Seed-pinned
+    (seed 2, 22 frames): the JPDA* update follows both; the moment-matched mixture lets one
+    cluster coalesce onto the other's object and T4 is lost (400 m from any track)."""
+    from tracker.state import frame_rng
+
+    seed = 2
+    frames = simulate_all(get_scenario("vo2017"), vo_params, seed)[:22]
+    worst = {}
+    for update in ("best-permutation", "mixture"):
+        tr = make_tracker("ddp", vo_params, BnpConfig(state_update=update))
+        st = tr.initial_state()
+        for f in frames:
+            st, _ = tr.step(st, f, frame_rng(seed, f.frame))
+        confirmed = st.mean[st.existence > 0.5][:, [0, 2]]
+        truth = dict(zip(frames[-1].truth.ids, frames[-1].truth.positions))
+        worst[update] = max(np.min(np.linalg.norm(confirmed - truth[t], axis=1)) for t in ("T3", "T4"))
+    assert worst["best-permutation"] < 60.0, worst
+    assert worst["mixture"] > 200.0, worst
+
+
+def _clusters(means, existences, std=10.0):
+    from tracker.bnp_tracker import _Clusters
+
+    means = np.asarray(means, dtype=float)
+    n = len(means)
+    cov = np.tile(np.diag([std**2, std**2, std**2, std**2, 1e-4]), (n, 1, 1))
+    return _Clusters(tuple(f"c{i}" for i in range(n)), means, cov, np.asarray(existences, float), np.ones(n))
+
+
+def test_merge_duplicates_hand_values():
+    """Two clusters 10 m apart (d^2 = 10^2 / (2 * 10^2) = 0.5) with existences 0.3 and 0.5 are
+    one object: existence 0.8, mean weighted 3:5, covariance with the spread term; the leader's
+    (higher existence) label stays.  A third far away is untouched."""
+    from tracker.bnp_tracker import merge_duplicates
+
+    c = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0], [500, 0, 0, 0, 0]], [0.3, 0.5, 0.9])
+    out = merge_duplicates(c, 9.0)
+    assert out.labels == ("c1", "c2")
+    assert np.allclose(out.existence, [0.8, 0.9])
+    assert np.allclose(out.mean[0], [10 * 5 / 8, 0, 0, 0, 0])
+    # var_x = 100 + (3/8)(5/8) 10^2 (mixture spread)
+    assert out.cov[0, 0, 0] == pytest.approx(100 + 3 / 8 * 5 / 8 * 100)
+    assert out.cov[0, 2, 2] == pytest.approx(100)
+    assert merge_duplicates(c, 0.0) is c  # 0 disables merging
+
+
+def test_merge_never_joins_two_objects_that_both_exist():
+    """Existences 0.9 and 0.6 sum above 1: two objects side by side (crossing), never merged;
+    beyond the distance gate nothing merges either."""
+    from tracker.bnp_tracker import merge_duplicates
+
+    both = _clusters([[0, 0, 0, 0, 0], [5, 0, 0, 0, 0]], [0.9, 0.6])
+    assert merge_duplicates(both, 9.0).labels == ("c0", "c1")
+    apart = _clusters([[0, 0, 0, 0, 0], [60, 0, 0, 0, 0]], [0.2, 0.3])  # d^2 = 18 > 9
+    assert merge_duplicates(apart, 9.0).labels == ("c0", "c1")
+    # velocity counts: same place, opposite 40 m/s velocities, d^2 = 80^2 / 200 = 32
+    crossing = _clusters([[0, 40, 0, 0, 0], [0, -40, 0, 0, 0]], [0.2, 0.3])
+    assert merge_duplicates(crossing, 9.0).labels == ("c0", "c1")

@@ -21,7 +21,7 @@ from tracker.models.params import load_params
 from tracker.types import Frame, Truth
 
 VO = get_scenario("vo2017")
-CLEAN = ["clutter_rate=0", "p_detect=1"]
+CLEAN = ["clutter_rate=0", "range_clutter_rate=0", "p_detect=1"]
 
 
 def _target_states(scenario: Scenario, tid: str) -> tuple[np.ndarray, np.ndarray]:
@@ -406,3 +406,19 @@ def test_measurement_order_is_shuffled():
     positions = np.array(positions)
     assert 0.3 < positions.mean() < 0.7
     assert (positions == 0).mean() < 0.3
+
+
+def test_snr_scenario_range_clutter_default_and_override():
+    """The snr scenario sets 2 range-only clutter returns per scan unless the user set a rate;
+    bearing-range clutter is untouched."""
+    import msgspec
+
+    from tracker.models.params import load_params
+
+    sc = get_scenario("snr")
+    p = sc.adapt_params(load_params("vo2017"))
+    assert p.clutter("range").rate == 2.0
+    assert p.clutter("bearing_range").rate == 15.0
+    mine = sc.adapt_params(msgspec.structs.replace(load_params("vo2017"), range_clutter_rate=7.0))
+    assert mine.clutter("range").rate == 7.0
+    assert get_scenario("vo2017").adapt_params(load_params("vo2017")).clutter("range").rate == 15.0

@@ -236,3 +236,13 @@ def test_compiled_kernel_equals_interpreted(monkeypatch):
     np.testing.assert_array_equal(compiled.last, interpreted.last)
     np.testing.assert_allclose(compiled.p_cluster, interpreted.p_cluster, rtol=1e-12, atol=0)
     np.testing.assert_allclose(compiled.p_new, interpreted.p_new, rtol=1e-12, atol=0)
+
+
+def test_grid_mean_hand_values():
+    """Posterior means of (alpha, d) on a 2 x 2 grid with weights 1, 1, 2, 4 (hand-computed)."""
+    from tracker.urn import grid_mean
+
+    log_post = np.log(np.array([[1.0, 1.0], [2.0, 4.0]])) + 7.0  # an offset must not matter
+    a, d = grid_mean(log_post, np.array([0.1, 1.0]), np.array([0.0, 0.5]))
+    assert a == pytest.approx((2 * 0.1 + 6 * 1.0) / 8)
+    assert d == pytest.approx((5 * 0.5) / 8)

@@ -11,12 +11,15 @@ Gaussian state, existence probability and popularity, plus the hyperparameters. 
 2. **Association** (Algorithm 2, eq. (13)-(14)): collapsed Gibbs sweeps over measurement
    assignments with the dependent Polya-urn weights of cases D1-D3 / P1-P3
    (:mod:`tracker.gibbs`), the EKF/UKF predictive likelihood, :math:`P_D`, and Poisson clutter.
-3. **Update**: each cluster's existence and Gaussian are the Gibbs-sample average
-   (moment-matched mixture over "missed" and "detected by :math:`z_m`"); each measurement
-   that opened a new cluster in some sweeps starts a cluster drawn from the base
-   distribution :math:`H` conditioned on it (case D3), with existence equal to that frequency.
-4. **Hyperparameters**: :math:`\alpha` by Escobar-West (:math:`d = 0`) or slice sampling,
-   :math:`d` by slice sampling (DPY-STP), on the popularity partition of confirmed clusters.
+3. **Update**: each cluster's existence is its Gibbs-averaged detection probability plus the
+   missed-detection term; its Gaussian is moment-matched over "missed" and "detected by the
+   measurement it takes in the most probable one-to-one assignment" (JPDA*; or over every
+   measurement, ``state_update = "mixture"``).  Each measurement that opened a new cluster in
+   some sweeps starts a cluster from the base distribution :math:`H` conditioned on it
+   (case D3/P3), with existence equal to that probability.
+4. **Hyperparameters**: :math:`(\alpha, d)` on a grid: the Gamma priors times each frame's
+   Poisson-urn likelihood of its last Gibbs sample, accumulated with forgetting; the next frame
+   uses the posterior mean (or one draw, ``hyper_estimate = "sample"``).
 
 ``docs/trackers.md`` maps every term of the paper to this code and lists the choices made
 where the paper is silent.
@@ -32,15 +35,17 @@ from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from tracker import filtering as kf
 from tracker.base import BaseDistribution
 from tracker.gibbs import CLUTTER, NEW, GibbsProblem, run_gibbs
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
-from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, log_gamma_prior, sample_grid
+from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
 
 _EPS = 1e-12
+_FORBIDDEN = 1e6  # assignment cost of an impossible pair
 
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
@@ -56,7 +61,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     filter: Literal["ukf", "ekf"] = "ukf"
     gate_prob: OpenProb = 0.9999
     """Chi-square gate on the predictive density; pairs outside are impossible."""
-    existence_threshold: Prob = 0.4
+    existence_threshold: Prob = 0.35
     """Clusters with existence above this are reported as tracks."""
     prune_threshold: Prob = 1e-3
     birth_min_prob: Prob = 1e-3
@@ -65,6 +70,15 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     popularity_decay: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
     (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
+    state_update: Literal["best-permutation", "mixture"] = "best-permutation"
+    """How a cluster's Gaussian takes its measurements: moment-matched over every measurement
+    it may have taken ("mixture", JPDA-like), or over "missed" and the one measurement it takes
+    in the most probable one-to-one assignment ("best-permutation", JPDA*), which keeps two
+    clusters that share a gate from coalescing."""
+    merge_distance: Annotated[float, msgspec.Meta(ge=0.0)] = 9.0
+    """Clusters whose position-velocity states are within this squared Mahalanobis distance
+    (summed covariances) and whose existences sum to at most 1 are one object split over
+    exclusive hypotheses: they are merged (existences added).  0 disables merging."""
     birth_velocity_std: Positive = 30.0
     """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
     birth_turn_std_deg: Positive = 3.0
@@ -84,6 +98,9 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_scale: Positive = 0.1
     """d ~ Gamma(shape, scale) truncated to [0, 1)."""
     infer_d: bool = False
+    hyper_estimate: Literal["mean", "sample"] = "mean"
+    """What the next frame's urn uses of the grid posterior of (alpha, d): its mean
+    (Rao-Blackwellised over the hyperparameter) or one draw (a plain Gibbs step)."""
     hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
     """Past frames' hyperparameter log-likelihood is multiplied by this each frame."""
     extended: bool = False
@@ -186,8 +203,7 @@ class BnpTracker:
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         born = self._births(frame, meas, clutter, result)
-        merged = _concat(existing, born)
-        kept = self._prune(merged)
+        kept = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance))
         alpha, d, hyper = self._hyper(rng, state, problem, result)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
                              kept.existence, kept.popularity, alpha, d, hyper)
@@ -253,6 +269,8 @@ class BnpTracker:
         w_miss = (1.0 - p_det) * eps_alive
         r = np.clip(p_det + w_miss, 0.0, 1.0)
         # moment-matched mixture (conditional on existence) of missed + each detection
+        if self.config.state_update == "best-permutation" and p_lm.size:
+            p_lm = best_permutation(p_lm)
         w = np.concatenate([w_miss[:, None], p_lm], axis=1) / np.maximum(r, _EPS)[:, None]
         if Z.shape[0]:
             mu = np.concatenate([pred.mean[:, None, :], kf.update_means(meas, innov, pred.mean, Z)], axis=1)
@@ -309,8 +327,11 @@ class BnpTracker:
         log_post = hyper + log_prior_a[:, None]
         if cfg.infer_d:
             log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
-        i, j = sample_grid(rng, log_post)
-        return float(self.alpha_grid[i]), float(self.d_grid[j]), hyper
+        if cfg.hyper_estimate == "sample":
+            i, j = sample_grid(rng, log_post)
+            return float(self.alpha_grid[i]), float(self.d_grid[j]), hyper
+        alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
 
     def _estimate(self, state: BnpState, frame: Frame, existing, born, result, problem) -> Estimate:
         thr = self.config.existence_threshold
@@ -363,6 +384,87 @@ class _Clusters:
     def take(self, idx: np.ndarray) -> "_Clusters":
         return _Clusters(tuple(self.labels[i] for i in idx.tolist()), self.mean[idx], self.cov[idx],
                          self.existence[idx], self.popularity[idx])
+
+
+def best_permutation(p_lm: np.ndarray) -> np.ndarray:
+    r"""Move each cluster's detection probability onto one measurement: the one it takes in the
+    most probable one-to-one assignment of the marginals (JPDA*, Blom & Bloem 2000).
+
+    ``p_lm[l, m] = Pr(c_m = l)``.  The assignment maximises
+    :math:`\sum_l \log p_{l, m(l)}` with "missed" (cost :math:`-\log(1 - \sum_m p_{lm})`) as
+    every cluster's private alternative; a cluster the assignment leaves missed keeps its mass on
+    its most likely measurement.  Row sums (detection probabilities) are unchanged.
+    """
+    N, M = p_lm.shape
+    p_det = p_lm.sum(axis=1)
+    live = np.flatnonzero(p_det > 1e-9)
+    out = np.zeros_like(p_lm)
+    if live.size == 0:
+        return out
+    L = live.size
+    cost = np.full((L, M + L), _FORBIDDEN)
+    with np.errstate(divide="ignore"):
+        cost[:, :M] = np.minimum(-np.log(p_lm[live]), _FORBIDDEN)
+        cost[np.arange(L), M + np.arange(L)] = -np.log(np.maximum(1.0 - p_det[live], 1e-300))
+    rows, cols = linear_sum_assignment(cost)
+    fallback = np.argmax(p_lm[live[rows]], axis=1)
+    chosen = np.where(cols < M, cols, fallback)
+    out[live[rows], chosen] = p_det[live[rows]]
+    return out
+
+
+_POS_VEL = np.array([0, 1, 2, 3])
+
+
+def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
+    r"""Merge clusters that are one object split over exclusive hypotheses.
+
+    A measurement that a young cluster and the base distribution explain about equally well
+    is shared between them, and the object's existence is split over duplicates.  Greedily, in
+    order of decreasing existence, a leader absorbs every cluster whose position-velocity state
+    lies within squared Mahalanobis distance ``max_d2`` of it (covariance :math:`P_i + P_j`)
+    while the existences absorbed so far sum to at most 1 (existences of exclusive hypotheses
+    add; two objects that both exist are never merged).  The merged cluster keeps the leader's
+    label and popularity, its existence is the sum, and its Gaussian is the existence-weighted
+    moment match.
+    """
+    n = len(c.labels)
+    if max_d2 <= 0.0 or n < 2:
+        return c
+    m = c.mean[:, _POS_VEL]
+    P = c.cov[:, _POS_VEL][:, :, _POS_VEL]
+    diff = m[:, None, :] - m[None, :, :]
+    S = P[:, None] + P[None, :]
+    d2 = np.einsum("ijk,ijk->ij", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+    order = np.argsort(-c.existence, kind="stable")
+    free = np.ones(n, dtype=bool)
+    groups: list[np.ndarray] = []
+    for i in order.tolist():
+        if not free[i]:
+            continue
+        group, total = [i], c.existence[i]
+        for j in order.tolist():
+            if free[j] and j != i and d2[i, j] <= max_d2 and total + c.existence[j] <= 1.0:
+                group.append(j)
+                total += c.existence[j]
+        free[group] = False
+        groups.append(np.array(group))
+    if len(groups) == n:
+        return c
+    leaders = np.array([g[0] for g in groups])
+    mean = np.empty((len(groups), c.mean.shape[1]))
+    cov = np.empty((len(groups), *c.cov.shape[1:]))
+    r = np.empty(len(groups))
+    for k, g in enumerate(groups):
+        w = c.existence[g]
+        r[k] = w.sum()
+        w = w / r[k]
+        mean[k] = w @ c.mean[g]
+        dev = c.mean[g] - mean[k]
+        cov[k] = np.einsum("g,gij->ij", w, c.cov[g]) + np.einsum("g,gi,gj->ij", w, dev, dev)
+    keep = np.argsort(leaders, kind="stable")  # keep the clusters' original order
+    return _Clusters(tuple(c.labels[leaders[k]] for k in keep), mean[keep], cov[keep],
+                     np.minimum(r[keep], 1.0), c.popularity[leaders[keep]])
 
 
 def _concat(a: _Clusters, b: _Clusters) -> _Clusters:

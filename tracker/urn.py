@@ -171,3 +171,10 @@ def sample_grid(rng: np.random.Generator, log_post: np.ndarray) -> tuple[int, ..
     p = np.exp(flat - flat.max())
     idx = int(np.searchsorted(np.cumsum(p), rng.random() * p.sum(), side="right"))
     return np.unravel_index(min(idx, flat.size - 1), log_post.shape)
+
+
+def grid_mean(log_post: np.ndarray, alpha: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """Posterior means of ``alpha`` (rows) and ``d`` (columns) under ``exp(log_post)`` on the grid."""
+    p = np.exp(log_post - log_post.max())
+    p /= p.sum()
+    return float(p.sum(axis=1) @ alpha), float(p.sum(axis=0) @ d)

@@ -53,6 +53,9 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     p_detect: Prob = 0.98
     clutter_rate: NonNeg = 15.0
     """Mean number of clutter measurements per scan."""
+    range_clutter_rate: NonNeg | None = None
+    """Mean clutter per scan of the range-only sensor (``None``: ``clutter_rate``).  The
+    ``snr`` scenario sets 2 (``docs/models.md``: range space is one-dimensional)."""
     sigma_bearing_deg: Positive = 2.0
     sigma_range: Positive = 10.0
     range_max: Positive = 2000.0
@@ -85,7 +88,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         if kind == "bearing_range":
             return UniformClutter(self.clutter_rate, (-half, 0.0), (half, self.range_max))
         if kind == "range":
-            return UniformClutter(self.clutter_rate, (0.0,), (self.range_max,))
+            rate = self.clutter_rate if self.range_clutter_rate is None else self.range_clutter_rate
+            return UniformClutter(rate, (0.0,), (self.range_max,))
         raise ValueError(f"unknown sensor kind {kind!r}")
 
     def detection(self, kind: str = "bearing_range") -> Detection:
