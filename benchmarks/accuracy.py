@@ -72,17 +72,19 @@ def main() -> None:
     ap.add_argument("--trackers", nargs="+", default=["ddp", "dpyp"])
     ap.add_argument("--params", nargs="+", default=["vo2017", "paper"])
     ap.add_argument("--scenario", default="vo2017")
-    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=20, help="number of seeds")
+    ap.add_argument("--first-seed", type=int, default=1, help="seeds run from this one")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="tracker config override")
     args = ap.parse_args()
-    print(f"scenario {args.scenario}, seeds 1..{args.seeds}, overrides {args.overrides or 'none'}")
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")
     print("| tracker | params | OSPA | loc | card | OSPA(2) w=10 | mean abs(N_hat-N) | label switches/run | ms/frame median | p95 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     with ProcessPoolExecutor(args.workers) as pool:
         for tr in args.trackers:
             for pa in args.params:
-                jobs = [(tr, pa, args.scenario, s, args.overrides) for s in range(1, args.seeds + 1)]
+                jobs = [(tr, pa, args.scenario, s, args.overrides) for s in seeds]
                 res = list(pool.map(one_run, jobs))
                 ms = np.concatenate([r["ms"] for r in res])
                 mean = {k: np.mean([r[k] for r in res]) for k in ("ospa", "loc", "card", "ospa2", "card_err", "switches")}

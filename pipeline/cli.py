@@ -482,7 +482,7 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
     \b
     ddp-vs-glmb   DDP-EMM vs GLMB, 10 targets (vo2017 scenario)
     proximity     DDP-EMM vs GLMB, 5 targets on one path
-    snr           DDP-EMM, range-only, SNR -3/-5/-10 dB
+    snr           DDP-EMM vs GLMB, range-only, SNR -3/-5/-10 dB
     dpy-vs-glmb   DPY-STP vs GLMB, 5 targets (dpy5)
     dpy-vs-ddp    DPY-STP vs DDP-EMM, 10 targets
 
