@@ -163,8 +163,9 @@ def test_vo2017_accuracy(vo_params, seed):
     ests = [e for _, e, _ in run(tr, frames, seed)]
     o = np.mean([ospa(f.truth.positions, e.positions, 100.0, 1.0).total for f, e in zip(frames, ests)])
     card = np.mean([abs(len(e.tracks) - len(f.truth.ids)) for f, e in zip(frames, ests)])
-    assert o < 32.0, o
-    assert card < 0.6, card
+    # measured (docs/trackers.md, "CI bounds"): OSPA 24.7 / 26.2 / 23.9 m on seeds 1 / 2 / 3
+    assert o < 28.5, o
+    assert card < 0.45, card
     labels = matched_labels(frames, ests)
     assert len(labels) == 10  # every object found
     sc = get_scenario("vo2017")
