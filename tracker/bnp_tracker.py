@@ -431,31 +431,47 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c
-    m = c.mean[:, _POS_VEL]
-    P = c.cov[:, _POS_VEL][:, :, _POS_VEL]
-    diff = m[:, None, :] - m[None, :, :]
-    S = P[:, None] + P[None, :]
-    d2 = np.einsum("ijk,ijk->ij", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    order = np.argsort(-c.existence, kind="stable")
+    r = c.existence
+    ii, jj = np.nonzero(np.triu(r[:, None] + r[None, :] <= 1.0, k=1))  # pairs that may both be one
+    if ii.size == 0:
+        return c
+    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
+    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
+    d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+    near = d2 <= max_d2
+    if not near.any():
+        return c
+    neighbours: dict[int, set[int]] = {}
+    for i, j in zip(ii[near].tolist(), jj[near].tolist()):
+        neighbours.setdefault(i, set()).add(j)
+        neighbours.setdefault(j, set()).add(i)
+    order = np.argsort(-r, kind="stable")
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
     free = np.ones(n, dtype=bool)
-    groups: list[np.ndarray] = []
+    groups: list[list[int]] = []
     for i in order.tolist():
         if not free[i]:
             continue
-        group, total = [i], c.existence[i]
-        for j in order.tolist():
-            if free[j] and j != i and d2[i, j] <= max_d2 and total + c.existence[j] <= 1.0:
+        group, total = [i], r[i]
+        for j in sorted(neighbours.get(i, ()), key=rank.__getitem__):  # decreasing existence
+            if free[j] and total + r[j] <= 1.0:
                 group.append(j)
-                total += c.existence[j]
+                total += r[j]
         free[group] = False
-        groups.append(np.array(group))
-    if len(groups) == n:
-        return c
+        groups.append(group)
+    return _merge_groups(c, groups)
+
+
+def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
+    """One cluster per group (leader first): existences added, existence-weighted moment match."""
     leaders = np.array([g[0] for g in groups])
-    mean = np.empty((len(groups), c.mean.shape[1]))
-    cov = np.empty((len(groups), *c.cov.shape[1:]))
-    r = np.empty(len(groups))
+    mean = c.mean[leaders].copy()
+    cov = c.cov[leaders].copy()
+    r = c.existence[leaders].copy()
     for k, g in enumerate(groups):
+        if len(g) == 1:
+            continue
         w = c.existence[g]
         r[k] = w.sum()
         w = w / r[k]
