@@ -83,6 +83,13 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     applied to every session the pipeline opens, ``router_extra`` only to the router (e.g.
     ``access_control``).
 
+    ``mode``: ``client`` stages reach each other through the router; ``peer`` stages connect
+    to the router too but send their data to each other directly (they learn each other's
+    ``listen`` endpoints by gossip; default a free loopback port), which saves a hop and the
+    router's work; ``auto`` (the default) is ``peer`` for the stages ``launch`` starts on its
+    embedded router, unless TLS, authentication or access control is configured (these need
+    every byte to pass the router: peer mode refuses them), and ``client`` otherwise.
+
     Authentication and access control: a session logs in with ``user`` / ``password``
     (Zenoh's usrpwd authentication; the environment variables ``BNPTRACK_ZENOH_USER`` and
     ``BNPTRACK_ZENOH_PASSWORD`` take precedence, so passwords need not be in files); a
@@ -93,7 +100,7 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     launcher generates one password per stage itself.
     """
 
-    mode: Literal["client", "peer"] = "client"
+    mode: Literal["auto", "client", "peer"] = "auto"
     embedded_router: bool = True
     router_listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:0"])
     connect: list[str] = msgspec.field(default_factory=list)
@@ -107,6 +114,24 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     acl: bool = False
     extra: dict[str, str] = msgspec.field(default_factory=dict)
     router_extra: dict[str, str] = msgspec.field(default_factory=dict)
+
+    @property
+    def secured(self) -> bool:
+        """TLS, authentication or access control is configured."""
+        return bool(self.acl or self.users_file or self.user or _tls_files(self.tls))
+
+    def __post_init__(self) -> None:
+        if self.mode == "peer" and self.secured:
+            raise ValueError(
+                "zenoh.mode = 'peer' cannot be combined with TLS, authentication or access "
+                "control: peers exchange data directly, past the router that enforces them "
+                "(use mode = 'client')"
+            )
+
+
+def _tls_files(tls: TlsConfig) -> bool:
+    return any((tls.root_ca_certificate, tls.listen_certificate, tls.listen_private_key,
+                tls.connect_certificate, tls.connect_private_key, tls.mtls))
 
 
 class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

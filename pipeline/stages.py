@@ -292,6 +292,7 @@ class Accepted:
     msg: Any
     meta: dict
     t_recv_ns: int
+    payload: bytes = b""
 
 
 class Intake:
@@ -335,7 +336,7 @@ class Intake:
         frame = meta.get("frame")
         if frame is not None and frame != msg.frame:
             return self.reject(ev, seq, f"{codec_topic}: attachment frame {frame!r} != payload frame {msg.frame}")
-        return Accepted(seq, msg, meta, ev.t_recv_ns)
+        return Accepted(seq, msg, meta, ev.t_recv_ns, ev.payload)
 
     def reject(self, ev: Any, seq: int | None, reason: str) -> None:
         self.counters.rejected += 1
@@ -1107,37 +1108,46 @@ class SinkStage(_StageBase):
             self.rrd = None
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
-        frame = None
+        """Record frame ``s``: the payloads go into tracks.mcap as received (they were
+        validated on receipt, and they are the codec's bytes: no decoding to numpy and
+        re-encoding); the Rerun sink, when on, gets them decoded."""
+        has_truth = truth is not GAP and truth is not NO_TRUTH
         if meas is not GAP:
-            t = truth_from_msg(truth.msg) if truth is not GAP and truth is not NO_TRUTH else None
-            frame = frame_from_msg(meas.msg, t)
-            self.writer.write_frame(frame, self.run_id)
+            m = meas.msg
+            self.writer.write_encoded_frame(meas.payload, truth.payload if has_truth else None,
+                                            m.stamp_ns, m.frame)
             self.frames_written += 1
-        est = None
         if tracks is not None and tracks is not GAP:
-            est = estimate_from_msg(tracks.msg)
-            self.writer.write_tracks(est, self.run_id)
+            self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
             self.tracks_written += 1
-            t_pub = tracks.meta.get("t")
-            if isinstance(t_pub, int) and t_pub > 0:
-                e2e = (tracks.t_recv_ns - t_pub) / 1e6
-                self.e2e_ms.append(e2e)
-                self.counters.latency_ms.append(e2e)
-                self.tracker_ms.append(float(est.diagnostics.get("ms", float("nan"))))
-                self.seq_written.append(s)
-                t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
-                if isinstance(t_in, int) and isinstance(t_out, int):
-                    self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6,
-                                        (tracks.t_recv_ns - t_out) / 1e6))
-                if self.t_first_pub_ns is None:
-                    self.t_first_pub_ns = t_pub
-            self.t_last_ns = tracks.t_recv_ns
-        if self.rrd is not None and frame is not None and est is not None:
-            try:
-                self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
-            except Exception as exc:
-                log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
-                self._close_rrd()
+            self._note_latency(s, tracks)
+        if self.rrd is not None and meas is not GAP and tracks is not None and tracks is not GAP:
+            frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
+            self._log_rrd(frame, estimate_from_msg(tracks.msg))
+
+    def _note_latency(self, s: int, tracks: Accepted) -> None:
+        """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
+        t_pub = tracks.meta.get("t")
+        self.t_last_ns = tracks.t_recv_ns
+        if not isinstance(t_pub, int) or t_pub <= 0:
+            return
+        e2e = (tracks.t_recv_ns - t_pub) / 1e6
+        self.e2e_ms.append(e2e)
+        self.counters.latency_ms.append(e2e)
+        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
+        self.seq_written.append(s)
+        t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
+        if isinstance(t_in, int) and isinstance(t_out, int):
+            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
+        if self.t_first_pub_ns is None:
+            self.t_first_pub_ns = t_pub
+
+    def _log_rrd(self, frame: Frame, est: Any) -> None:
+        try:
+            self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
+        except Exception as exc:
+            log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
+            self._close_rrd()
 
     def _sink_health(self) -> dict:
         return {"frames_written": self.frames_written, "next_seq": self.next_write}
@@ -1284,6 +1294,8 @@ class SinkStage(_StageBase):
             "zenoh_misses": int(getattr(self.bus, "misses", 0)),
             "files": self.files,
             "throughput_fps": fps,
+            "t_first_pub_ns": self.t_first_pub_ns,
+            "t_last_recv_ns": self.t_last_ns,
             "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
                         "source_to_tracker_ms": [h[0] for h in self.hop_ms],
                         "in_tracker_ms": [h[1] for h in self.hop_ms],
@@ -1336,8 +1348,8 @@ class SinkStage(_StageBase):
 
 
 class _NullWriter:
-    def write_frame(self, *a: Any, **k: Any) -> None: ...
-    def write_tracks(self, *a: Any, **k: Any) -> None: ...
+    def write_encoded_frame(self, *a: Any, **k: Any) -> None: ...
+    def write_encoded_tracks(self, *a: Any, **k: Any) -> None: ...
     def close(self) -> None: ...
 
 
