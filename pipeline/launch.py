@@ -50,6 +50,7 @@ from pipeline.stages import (
     EXIT_DATA,
     EXIT_OK,
     EXIT_STOPPED,
+    JOURNAL_NAME,
     SNAPSHOT_NAME,
     STAGES,
     SUMMARY_NAME,
@@ -242,7 +243,7 @@ class Launcher:
         t0 = time.monotonic()
         cfg = self.cfg
         self.out.mkdir(parents=True, exist_ok=True)
-        for stale in (SNAPSHOT_NAME, SUMMARY_NAME):
+        for stale in (SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME):
             try:
                 (self.out / stale).unlink()
             except FileNotFoundError:

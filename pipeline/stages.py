@@ -55,6 +55,7 @@ from pipeline.codec import (
     frame_from_msg,
     truth_from_msg,
 )
+from pipeline.journal import JOURNAL_NAME, TracksJournal
 from pipeline.pipeline_config import PipelineConfig
 from tracker.config import ConfigError
 from tracker.types import Frame
@@ -81,6 +82,7 @@ __all__ = [
     "write_atomic",
     "read_snapshot",
     "SNAPSHOT_NAME",
+    "JOURNAL_NAME",
     "SUMMARY_NAME",
 ]
 
@@ -95,7 +97,7 @@ EXIT_STOPPED = 130
 
 SNAPSHOT_NAME = "tracker.snap"
 SUMMARY_NAME = "sink.json"
-SNAPSHOT_FORMAT = 1
+SNAPSHOT_FORMAT = 2
 
 #: Topic (bus-relative) of each codec topic.
 BUS_TOPIC = {TOPIC_MEASUREMENTS: "measurements", TOPIC_TRUTH: "truth", TOPIC_TRACKS: "tracks"}
@@ -388,26 +390,42 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
         os.close(dfd)
 
 
+def _fsync_and_close(fds: Iterable[int]) -> None:
+    """fsync then close each descriptor (all of them are closed, the first error raised)."""
+    error: OSError | None = None
+    for fd in fds:
+        try:
+            os.fsync(fd)
+        except OSError as exc:
+            error = error or exc
+        finally:
+            os.close(fd)
+    if error is not None:
+        raise error
+
+
 class BackgroundWriter:
     """Write files atomically (:func:`write_atomic`) on a background thread, so that fsync
     stalls stay out of the frame loop.  ``submit`` replaces a pending write of the same path
-    (only the newest snapshot matters); ``flush`` waits until everything submitted is on
-    disk and re-raises a write error."""
+    (only the newest snapshot matters); ``sync_first`` are file descriptors to fsync (and
+    close) before the write, e.g. of a journal the snapshot relies on; ``flush`` waits until
+    everything submitted is on disk and re-raises a write error."""
 
     def __init__(self) -> None:
         self._cv = threading.Condition()
-        self._pending: dict[Path, bytes] = {}
+        self._pending: dict[Path, tuple[bytes, list[int]]] = {}
         self._busy = False
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
         self.writes = 0
 
-    def submit(self, path: Path, data: bytes) -> None:
+    def submit(self, path: Path, data: bytes, sync_first: Iterable[int] = ()) -> None:
         with self._cv:
             if self._error is not None:
                 err, self._error = self._error, None
                 raise err
-            self._pending[path] = data
+            fds = self._pending[path][1] if path in self._pending else []
+            self._pending[path] = (data, fds + list(sync_first))
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, name="snapshot-writer", daemon=True)
                 self._thread.start()
@@ -418,9 +436,10 @@ class BackgroundWriter:
             with self._cv:
                 while not self._pending:
                     self._cv.wait()
-                path, data = self._pending.popitem()
+                path, (data, fds) = self._pending.popitem()
                 self._busy = True
             try:
+                _fsync_and_close(fds)
                 write_atomic(path, data)
                 self.writes += 1
             except BaseException as exc:  # surfaced by the next submit/flush
@@ -443,8 +462,9 @@ class BackgroundWriter:
 
 
 class Snapshot(msgspec.Struct, kw_only=True):
-    """``<out>/tracker.snap`` (msgpack): the tracker state after ``last_seq`` and the last
-    published ``/tracks`` samples (re-published on resume in case they were in flight)."""
+    """``<out>/tracker.snap`` (msgpack): the tracker state after ``last_seq``.  The
+    ``/tracks`` samples published up to then are in the journal (:mod:`pipeline.journal`),
+    which a resumed tracker publishes again."""
 
     format: int = SNAPSHOT_FORMAT
     run: str
@@ -453,7 +473,6 @@ class Snapshot(msgspec.Struct, kw_only=True):
     last_seq: int
     last_frame: int
     state: bytes
-    recent: list[tuple[int, bytes, dict]] = []
     gaps: list[int] = []
     counters: dict[str, int] = {}
     time_ns: int = 0
@@ -770,7 +789,8 @@ class TrackerStage(_StageBase):
         self.state = None
         self.last_seq = -1
         self.last_frame = -1
-        self.recent: deque = deque(maxlen=max(self.delivery.window, self.tc.snapshot_every))
+        self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
+        self.history: list[tuple[int, bytes, dict]] = []  # journal samples to publish again
         self.pending: list[Accepted] = []
         self.restored: Snapshot | None = None
         self.since_snapshot = 0
@@ -780,9 +800,16 @@ class TrackerStage(_StageBase):
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> None:
-        if not self.tc.resume or not self.snap_path.exists():
+        """Resume from the snapshot when there is one (and ``resume``), and open the journal
+        cut back to it; its samples are published again by :meth:`run`."""
+        if not self.tc.resume:
+            self.journal.start()
             return
-        snap = read_snapshot(self.snap_path)
+        if self.snap_path.exists():
+            self._apply_snapshot(read_snapshot(self.snap_path))
+        self.history = self.journal.resume(self.last_seq)
+
+    def _apply_snapshot(self, snap: Snapshot) -> None:
         if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
             raise ConfigError(
                 f"{self.snap_path}: snapshot of run {snap.run!r}, tracker {snap.tracker!r}, seed "
@@ -797,7 +824,6 @@ class TrackerStage(_StageBase):
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
-        self.recent.extend(snap.recent)
         log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
                  snap.last_seq, snap.last_frame)
 
@@ -868,7 +894,7 @@ class TrackerStage(_StageBase):
             self.bus.publish("tracks", payload, meta)
             # the state advances only once its output is out (a snapshot is always consistent)
             self.state, self.last_seq, self.last_frame = state, s, frame.frame
-            self.recent.append((s, payload, meta))
+            self.journal.append(s, payload, meta)
             self.counters.processed += 1
             self.counters.published += 1
             self.since_snapshot += 1
@@ -883,14 +909,14 @@ class TrackerStage(_StageBase):
 
         snap = Snapshot(
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
-            last_frame=self.last_frame, state=snapshot(self.state), recent=list(self.recent),
-            gaps=list(self.seq.gaps),
+            last_frame=self.last_frame, state=snapshot(self.state), gaps=list(self.seq.gaps),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=time.time_ns(),
         )
         self.ctx.out.mkdir(parents=True, exist_ok=True)
-        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap))
+        fd = self.journal.dup_fd()
+        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
         self.since_snapshot = 0
         if wait:
             self.writer.flush()
@@ -936,9 +962,11 @@ class TrackerStage(_StageBase):
         _warm_imports("pipeline.offline", "tracker.bnp_tracker", "tracker.state")
         self._restore()
         bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
-        if self.restored is not None:
-            for s, payload, meta in self.restored.recent:
-                bus.publish("tracks", payload, meta)  # may have been in flight at the crash
+        for s, payload, meta in self.history:  # the run so far, into the new publisher's cache
+            bus.publish("tracks", payload, meta)
+        if self.history:
+            log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(self.history))
+        self.history = []
         bus.subscribe(["measurements", "info/*", "eos/*"])
         bus.declare_alive()
         finished = False
@@ -985,6 +1013,7 @@ class TrackerStage(_StageBase):
             try:
                 self.snapshot(wait=True)
             finally:
+                self.journal.close()
                 self.health(force=True, extra=self._extra_health)
 
 
