@@ -104,10 +104,12 @@ class Offline:
         for _ in run(self.tracker, self.frames[:20], seed):  # warm up (numba JIT), as the stage does
             pass
 
-    def fps(self) -> tuple[float, list[float]]:
-        t0 = time.perf_counter()
+    def fps(self) -> tuple[float, float, list[float]]:
+        """Frames per second, CPU ms per frame, and each frame's step time (ms)."""
+        t0, c0 = time.perf_counter(), time.process_time()
         ms = [est.diagnostics["ms"] for _, est, _ in run(self.tracker, self.frames, self.seed)]
-        return len(self.frames) / (time.perf_counter() - t0), ms
+        n = len(self.frames)
+        return n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n, ms
 
     def track_log_fps(self, out: Path) -> float:
         t0 = time.perf_counter()
@@ -246,13 +248,15 @@ def transport_floor(mode: str, rate: float, n: int = 400) -> dict:
 def throughput_rounds(off: Offline, log: Path, args, tmp: Path) -> dict:
     rounds = []
     for r in range(args.rounds):
-        fps_off, ms = off.fps()
+        fps_off, cpu_off, ms = off.fps()
         fast = pipeline(log, args.tracker, args.seed, tmp / f"fast{r}", 0.0, args.rerun, args.set)
-        rounds.append({"offline_fps": fps_off, "offline_step_ms": ms, "pipeline": fast,
-                       "ratio": fast["fps"] / fps_off})
+        rounds.append({"offline_fps": fps_off, "offline_cpu_ms_per_frame": cpu_off, "offline_step_ms": ms,
+                       "pipeline": fast, "ratio": fast["fps"] / fps_off,
+                       "cpu_ratio": cpu_off / fast["cpu_ms_per_frame"]["tracker"]})
         print(f"  round {r + 1}: offline {fps_off:6.1f} frames/s, pipeline {fast['fps']:6.1f} frames/s "
               f"= {fast['fps'] / fps_off:.2f} x  (load {fast['load_avg']:.2f})", flush=True)
-    return {"rounds": rounds, "ratio_median": float(np.median([r["ratio"] for r in rounds]))}
+    return {"rounds": rounds, "ratio_median": float(np.median([r["ratio"] for r in rounds])),
+            "cpu_ratio_median": float(np.median([r["cpu_ratio"] for r in rounds]))}
 
 
 def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict, load0: float) -> bool:
@@ -271,8 +275,11 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
           f"(per round: {', '.join(format(r['ratio'], '.2f') for r in rounds)})")
     cpu = {k: np.median([r["pipeline"]["cpu_ms_per_frame"].get(k, np.nan) for r in rounds]) for k in STAGES}
     cores = {k: np.median([r["pipeline"]["cpu_cores"].get(k, np.nan) for r in rounds]) for k in STAGES}
-    print("  CPU per frame while streaming: " + ", ".join(
+    cpu_off = np.median([r["offline_cpu_ms_per_frame"] for r in rounds])
+    print(f"  CPU per frame: offline {cpu_off:.2f} ms; pipeline stages while streaming: " + ", ".join(
         f"{k} {cpu[k]:.2f} ms ({cores[k]:.2f} core)" for k in STAGES))
+    print(f"  offline CPU / tracker stage CPU per frame: {thr['cpu_ratio_median']:.2f} (the throughput ratio "
+          "if the tracker stage had a core of its own)")
     added, e2e = paced["added_ms"], paced["e2e_ms"]
     print(f"latency, paced at {args.rate:g} frames/s ({paced['frames']} frames, load {paced['load_avg']:.2f}):")
     print(f"  source publish -> sink receipt:     p50 {pct(e2e, 50):.2f} ms, p99 {pct(e2e, 99):.2f} ms")

@@ -176,7 +176,7 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     params: str = ""
     overrides: list[str] = msgspec.field(default_factory=list)
     seed: NonNegInt = 0
-    snapshot_every: PosInt = 10
+    snapshot_every: PosInt = 50
     resume: bool = True
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
 

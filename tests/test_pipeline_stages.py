@@ -535,15 +535,21 @@ def _journal_records(n: int, start: int = 0) -> list[tuple[int, bytes, dict]]:
     return [(s, f'{{"frame": {s + 1}}}'.encode() * (s % 3 + 1), {"seq": s, "t": 1000 + s}) for s in range(start, n)]
 
 
+def _write_journal(path: Path, n: int) -> None:
+    from pipeline.journal import TracksJournal
+
+    j = TracksJournal(path, keep=100)
+    j.start()
+    for rec in _journal_records(n):
+        j.append(*rec)
+    j.close()
+
+
 def test_journal_round_trip_and_resume_cuts_back_to_the_snapshot(tmp_path):
     from pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
-    j = TracksJournal(path, keep=100)
-    j.start()
-    for rec in _journal_records(10):
-        j.append(*rec)
-    j.close()
+    _write_journal(path, 10)
     assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(10)
     j = TracksJournal(path, keep=100)
     assert j.resume(5) == _journal_records(6)  # the snapshot covers seq 0..5
@@ -558,11 +564,7 @@ def test_journal_reads_the_prefix_of_a_torn_or_damaged_file(tmp_path):
     from pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
-    j = TracksJournal(path, keep=100)
-    j.start()
-    for rec in _journal_records(6):
-        j.append(*rec)
-    j.close()
+    _write_journal(path, 6)
     data = path.read_bytes()
     ends = [r.end for r in read_journal(path)]
     path.write_bytes(data[: ends[3] + 5])  # killed in the middle of writing record 4

@@ -213,7 +213,8 @@ def test_tracker_then_sink_killed_still_gives_identical_output(tmp_path):
 
 def test_sigint_stops_every_stage_and_flushes_files(tmp_path):
     out = tmp_path / "int"
-    p = _popen("launch", "--set", "source.rate=10", *FAST, "--run", "int-1", "--out", str(out), "--timeout", "150")
+    p = _popen("launch", "--set", "source.rate=10", "--set", "tracker.snapshot_every=10", *FAST,
+               "--run", "int-1", "--out", str(out), "--timeout", "150")
     try:
         deadline = time.monotonic() + 90
         while not (out / "tracker.snap").exists():  # >= 10 frames through the tracker
