@@ -139,9 +139,9 @@ class CpuSampler:
         self._stop.set()
         self._thread.join()
 
-    def _cpu(self, pid: int) -> float | None:
+    def _cpu(self, pid: int, task: str = "") -> float | None:
         try:
-            f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            f = Path(f"/proc/{pid}{task}/stat").read_text().rsplit(")", 1)[1].split()
         except (OSError, IndexError):
             return None
         return (int(f[11]) + int(f[12])) / self._tck
@@ -153,6 +153,10 @@ class CpuSampler:
             except (OSError, ValueError):
                 continue
             row = {k: c for k, pid in pids.items() if (c := self._cpu(pid)) is not None}
+            # the tracker's main thread alone (the frame loop; the rest are Zenoh's threads
+            # and the snapshot writer)
+            if "tracker" in pids and (c := self._cpu(pids["tracker"], f"/task/{pids['tracker']}")) is not None:
+                row["tracker_main"] = c
             self.samples.append((time.time(), row))
 
     def used(self, t_a: float, t_b: float) -> dict[str, float]:
@@ -273,11 +277,16 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
     print(f"  offline, bnptrack track (MCAP I/O): {fps_track:7.1f} frames/s")
     print(f"  pipeline, as fast as possible:      {pipe_fps:7.1f} frames/s = {med:.2f} x offline in process "
           f"(per round: {', '.join(format(r['ratio'], '.2f') for r in rounds)})")
-    cpu = {k: np.median([r["pipeline"]["cpu_ms_per_frame"].get(k, np.nan) for r in rounds]) for k in STAGES}
+    cpu = {k: np.median([r["pipeline"]["cpu_ms_per_frame"].get(k, np.nan) for r in rounds])
+           for k in (*STAGES, "tracker_main")}
     cores = {k: np.median([r["pipeline"]["cpu_cores"].get(k, np.nan) for r in rounds]) for k in STAGES}
     cpu_off = np.median([r["offline_cpu_ms_per_frame"] for r in rounds])
     print(f"  CPU per frame: offline {cpu_off:.2f} ms; pipeline stages while streaming: " + ", ".join(
         f"{k} {cpu[k]:.2f} ms ({cores[k]:.2f} core)" for k in STAGES))
+    print(f"  of which the tracker's main thread (the frame loop): {cpu['tracker_main']:.2f} ms")
+    pstep = np.concatenate([r["pipeline"]["step_ms"] for r in rounds])
+    print(f"  tracker.step wall time: offline p50 {pct(step, 50):.2f} ms, mean {step.mean():.2f} ms; in the "
+          f"pipeline's tracker stage p50 {pct(pstep, 50):.2f} ms, mean {pstep.mean():.2f} ms")
     print(f"  offline CPU / tracker stage CPU per frame: {thr['cpu_ratio_median']:.2f} (the throughput ratio "
           "if the tracker stage had a core of its own)")
     added, e2e = paced["added_ms"], paced["e2e_ms"]
