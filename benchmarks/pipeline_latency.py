@@ -13,6 +13,8 @@ stamps made consecutive), then measures, in one invocation:
      ``/tracks`` receipt - first frame publication).  During it, the CPU time of each stage
      process is sampled from ``/proc``.
 
+   and, between the two, the *tracker stage's code without transport* (a ``TrackerStage`` on
+   an in-memory bus in this process: decoding, validation, step, encoding, journal, snapshots).
    The ratio reported is the median over the rounds of pipeline / offline.  ``bnptrack track``
    (MCAP in and out) runs once for reference.
 2. **Added latency**, in one *paced* run at ``--rate`` frames per second (well below the
@@ -110,6 +112,31 @@ class Offline:
         ms = [est.diagnostics["ms"] for _, est, _ in run(self.tracker, self.frames, self.seed)]
         n = len(self.frames)
         return n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n, ms
+
+    def stage_fps(self, out: Path) -> tuple[float, float]:
+        """The tracker stage's own code without transport: a ``TrackerStage`` on an in-memory
+        bus fed the encoded frames in this process (decode, validation, step, encoding,
+        journal, snapshots).  Frames per second and CPU ms per frame."""
+        from pipeline.codec import encode_measurements
+        from pipeline.membus import MemoryNetwork
+        from pipeline.pipeline_config import PipelineConfig, resolve_run
+        from pipeline.stages import StageContext, StageInfo, TrackerStage
+        from pipeline.transport_types import Event
+
+        cfg = resolve_run(PipelineConfig(run="inproc", out=str(out)))
+        stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("inproc", "tracker"), name="tracker"))
+        stage._restore()
+        stage._build(StageInfo(stage="source", run="inproc", metadata=self.meta))
+        events = [Event("measurements", encode_measurements(f, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0)
+                  for i, f in enumerate(self.frames)]
+        t0, c0 = time.perf_counter(), time.process_time()
+        for ev in events:
+            stage._on_data(ev)
+        stage.writer.flush()
+        n = len(events)
+        fps, cpu = n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n
+        stage.journal.close()
+        return fps, cpu
 
     def track_log_fps(self, out: Path) -> float:
         t0 = time.perf_counter()
@@ -253,8 +280,10 @@ def throughput_rounds(off: Offline, log: Path, args, tmp: Path) -> dict:
     rounds = []
     for r in range(args.rounds):
         fps_off, cpu_off, ms = off.fps()
+        fps_stage, cpu_stage = off.stage_fps(tmp / f"stage{r}")
         fast = pipeline(log, args.tracker, args.seed, tmp / f"fast{r}", 0.0, args.rerun, args.set)
         rounds.append({"offline_fps": fps_off, "offline_cpu_ms_per_frame": cpu_off, "offline_step_ms": ms,
+                       "stage_fps": fps_stage, "stage_cpu_ms_per_frame": cpu_stage,
                        "pipeline": fast, "ratio": fast["fps"] / fps_off,
                        "cpu_ratio": cpu_off / fast["cpu_ms_per_frame"]["tracker"]})
         print(f"  round {r + 1}: offline {fps_off:6.1f} frames/s, pipeline {fast['fps']:6.1f} frames/s "
@@ -274,6 +303,10 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
     print(f"throughput (median of {len(rounds)} interleaved rounds):")
     print(f"  offline, tracker in process:        {off_fps:7.1f} frames/s (step p50 {pct(step, 50):.2f} ms, "
           f"mean {step.mean():.2f} ms)")
+    stage_fps = np.median([r["stage_fps"] for r in rounds])
+    stage_cpu = np.median([r["stage_cpu_ms_per_frame"] for r in rounds])
+    print(f"  tracker stage code, no transport:   {stage_fps:7.1f} frames/s ({stage_cpu:.2f} ms CPU per frame; "
+          "in process, in-memory bus)")
     print(f"  offline, bnptrack track (MCAP I/O): {fps_track:7.1f} frames/s")
     print(f"  pipeline, as fast as possible:      {pipe_fps:7.1f} frames/s = {med:.2f} x offline in process "
           f"(per round: {', '.join(format(r['ratio'], '.2f') for r in rounds)})")

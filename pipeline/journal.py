@@ -12,10 +12,12 @@ File format (``<out>/tracker.journal``): a sequence of records, each
 ``[seq, payload, meta]``.  Reading stops at the first incomplete or damaged record (a
 process killed in the middle of a write), so the readable prefix is always usable.
 
-Consistency with the snapshot: a record is appended before the tracker's state advances, and
-:meth:`TracksJournal.dup_fd` lets the snapshot writer fsync the journal before it writes each snapshot, so every frame a
-snapshot covers is in the journal.  On resume, :meth:`TracksJournal.resume` cuts the journal
-back to the snapshot (the frames after it are recomputed, identically, and appended again).
+Consistency with the snapshot: a record is appended (buffered) before the tracker's state
+advances; :meth:`TracksJournal.dup_fd` flushes the journal and lets the snapshot writer fsync it
+before it writes each snapshot, so every frame a snapshot covers is in the journal.  A record
+lost with a killed process is after the last snapshot: it is recomputed anyway.  On resume,
+:meth:`TracksJournal.resume` cuts the journal back to the snapshot (the frames after it are
+recomputed, identically, and appended again).
 The journal keeps at most ``2 * keep`` records: it is compacted to the newest ``keep``
 (``delivery.cache_frames``: no cache holds more) when it grows past that.
 """
@@ -121,26 +123,30 @@ class TracksJournal:
         self._ends = []
 
     def append(self, seq: int, payload: bytes, meta: dict) -> None:
-        """Append one sample and hand it to the OS (it survives the process being killed)."""
+        """Append one sample (buffered: :meth:`dup_fd` hands everything to the OS before a
+        snapshot relies on it; a record lost with the process is after the last snapshot, so
+        it is recomputed and appended again on resume)."""
         if self._file is None:
             self.start()
-        rec = _encode(seq, payload, meta)
-        self._file.write(rec)
-        self._file.flush()
+        self._file.write(_encode(seq, payload, meta))
         self._ends.append(self._file.tell())
         if len(self._ends) > 2 * self.keep:
             self._compact()
 
     def dup_fd(self) -> int | None:
-        """A duplicate descriptor of the journal file, for a background thread to fsync
-        before it writes a snapshot that relies on the journal (then close it)."""
+        """Flush the journal to the OS and return a duplicate descriptor of its file, for a
+        background thread to fsync before it writes a snapshot that relies on it (then close
+        it)."""
         f = self._file
-        return None if f is None or f.closed else os.dup(f.fileno())
+        if f is None or f.closed:
+            return None
+        f.flush()
+        return os.dup(f.fileno())
 
     def _compact(self) -> None:
         """Keep the newest ``keep`` records (atomic rewrite)."""
         first = self._ends[-self.keep - 1]  # end of the last record dropped
-        self._file.close()
+        self._file.close()  # (flushes)
         tmp = self.path.with_name(f".{self.path.name}.tmp")
         with open(self.path, "rb") as src, open(tmp, "wb") as dst:
             src.seek(first)
