@@ -315,9 +315,8 @@ class Launcher:
                 z = msgspec.structs.replace(z, users_file=str(users))
             self.router = Router(z)
             connect = self.router.connect_endpoints
-            mode = z.mode if z.mode != "auto" else ("client" if z.secured else "peer")
-            z = msgspec.structs.replace(z, embedded_router=False, connect=connect, mode=mode)
-        elif not z.connect and z.mode != "peer":
+            z = msgspec.structs.replace(z, embedded_router=False, connect=connect)
+        elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
         return msgspec.structs.replace(cfg, zenoh=z)
@@ -498,8 +497,6 @@ def stage_config(base: PipelineConfig, *, run: str | None, out: str | None,
         z = msgspec.structs.replace(z, **changes)
     except ValueError as exc:  # ZenohConfig's cross-field checks
         raise ConfigError(str(exc)) from None
-    if z.mode == "auto":
-        z = msgspec.structs.replace(z, mode="client")
     if z.mode == "client" and not z.connect:
         raise ConfigError("--connect tcp/HOST:PORT is required in client mode (the router's endpoint)")
     return msgspec.structs.replace(cfg, zenoh=z)

@@ -83,12 +83,12 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     applied to every session the pipeline opens, ``router_extra`` only to the router (e.g.
     ``access_control``).
 
-    ``mode``: ``client`` stages reach each other through the router; ``peer`` stages connect
-    to the router too but send their data to each other directly (they learn each other's
-    ``listen`` endpoints by gossip; default a free loopback port), which saves a hop and the
-    router's work; ``auto`` (the default) is ``peer`` for the stages ``launch`` starts on its
-    embedded router, unless TLS, authentication or access control is configured (these need
-    every byte to pass the router: peer mode refuses them), and ``client`` otherwise.
+    ``mode``: ``client`` (the default) stages reach each other through the router; ``peer``
+    stages connect to the router too but send their data to each other directly (they learn
+    each other's ``listen`` endpoints by gossip; default a free loopback port), which saves a
+    hop and the router's work, but a stage that (re)starts while a publisher is live may miss
+    that publisher's history (docs/pipeline.md), and peer mode refuses TLS, authentication
+    and access control (these need every byte to pass the router).
 
     Authentication and access control: a session logs in with ``user`` / ``password``
     (Zenoh's usrpwd authentication; the environment variables ``BNPTRACK_ZENOH_USER`` and
@@ -100,7 +100,7 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     launcher generates one password per stage itself.
     """
 
-    mode: Literal["auto", "client", "peer"] = "auto"
+    mode: Literal["client", "peer"] = "client"
     embedded_router: bool = True
     router_listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:0"])
     connect: list[str] = msgspec.field(default_factory=list)
@@ -211,6 +211,12 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     eos_grace_s: Positive = 2.0
     max_payload_bytes: PosInt = 16 * 2**20
     health_period_s: Positive = 1.0
+
+    @property
+    def catch_up(self) -> int:
+        """The reordering window of a consumer until it has caught up with the history
+        (see :class:`pipeline.stages.Sequencer`): what the caches can hold."""
+        return max(self.window, self.cache_frames)
 
 
 class SupervisorConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -138,12 +138,20 @@ class Sequencer:
     numbers: a frame arriving ``window`` or more ahead of the next expected one releases
     (or declares missing) everything at least ``window`` behind it.  The result depends
     only on the order of the pushes.
+
+    ``catch_up`` (default: ``window``) is the window used until the stream has *caught up*,
+    i.e. until the buffer is empty for the first time: a consumer that starts late or
+    restarts receives the publishers' history (the frames from ``start`` on) and live frames
+    at the same time, in no guaranteed order, and the live frames must not push the history
+    out as gaps.  Consumers use the cache size: no history holds more.
     """
 
-    def __init__(self, window: int, start: int = 0, name: str = "") -> None:
-        if window < 1:
-            raise ValueError("window must be >= 1")
+    def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None) -> None:
+        if window < 1 or (catch_up is not None and catch_up < window):
+            raise ValueError("window must be >= 1 and catch_up >= window")
         self.window = int(window)
+        self.catch_up = int(catch_up) if catch_up is not None else self.window
+        self.caught_up = False
         self.next = int(start)
         self.name = name
         self.buf: dict[int, Any] = {}
@@ -168,10 +176,12 @@ class Sequencer:
         self.accepted += 1
         self.max_seen = max(self.max_seen, seq)
         out: list[tuple[int, Any]] = []
-        if seq >= self.next + self.window:
-            out += self._advance_to(seq - self.window + 1)
+        window = self.window if self.caught_up else self.catch_up
+        if seq >= self.next + window:
+            out += self._advance_to(seq - window + 1)
         self.buf[seq] = item
         out += self._release()
+        self.caught_up = self.caught_up or not self.buf
         return "accepted", out
 
     def _advance_to(self, target: int) -> list[tuple[int, Any]]:
@@ -784,7 +794,7 @@ class TrackerStage(_StageBase):
         self.tc = self.cfg.tracker
         self.snap_path = self.ctx.out / SNAPSHOT_NAME
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes)
-        self.seq = Sequencer(self.delivery.window, 0, "measurements")
+        self.seq = Sequencer(self.delivery.window, 0, "measurements", self.delivery.catch_up)
         self.tracker = None
         self.state = None
         self.last_seq = -1
@@ -818,7 +828,7 @@ class TrackerStage(_StageBase):
             )
         self.restored = snap
         self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
-        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements")
+        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements", self.delivery.catch_up)
         self.seq.gaps = list(snap.gaps)
         self.seq._gapset = set(snap.gaps)
         self.counters.gaps = len(snap.gaps)
@@ -1052,11 +1062,11 @@ class SinkStage(_StageBase):
         d = self.delivery
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes)
         self.streams: dict[str, Sequencer] = {
-            "measurements": Sequencer(d.window, 0, "measurements"),
-            "truth": Sequencer(d.window, 0, "truth"),
+            "measurements": Sequencer(d.window, 0, "measurements", d.catch_up),
+            "truth": Sequencer(d.window, 0, "truth", d.catch_up),
         }
         if self.sc.tracks:
-            self.streams["tracks"] = Sequencer(d.window, 0, "tracks")
+            self.streams["tracks"] = Sequencer(d.window, 0, "tracks", d.catch_up)
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
         self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
         self.next_write = 0

@@ -123,8 +123,6 @@ def session_config(
     conf = zenoh.Config()
     ins = conf.insert_json5
     mode = "router" if router else (mode or zcfg.mode)
-    if mode == "auto":  # what the launcher did not resolve: a stage started by hand
-        mode = "client"
     ins("mode", json.dumps(mode))
     connect = list(zcfg.connect if connect is None else connect)
     listen = list(zcfg.listen if listen is None else listen)

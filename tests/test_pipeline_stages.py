@@ -589,3 +589,22 @@ def test_journal_keeps_the_newest_records_when_it_grows(tmp_path):
     j.append(*_journal_records(10, start=9)[0])
     j.close()
     assert [r.seq for r in read_journal(path)] == [5, 6, 7, 8, 9]
+
+
+def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
+    """A restarted consumer gets live frames (here 40..44) before the history (0..39): until
+    it has caught up, the window is the cache size, so nothing becomes a gap; afterwards the
+    normal window applies again."""
+    q = Sequencer(window=4, catch_up=100)
+    released = []
+    for s in [40, 41, 42, *range(40), 43, 44]:
+        status, out = q.push(s, f"f{s}")
+        assert status == "accepted"
+        released += out
+    assert [s for s, _ in released] == list(range(45)) and not q.gaps and q.caught_up
+    status, out = q.push(50, "f50")  # caught up: a frame 4 or more ahead declares the hole
+    assert [s for s, item in out] == [45, 46] and q.gaps == [45, 46]
+    plain = Sequencer(window=4)  # without catch-up the live frames push the history out
+    for s in [40, 41, 42, 0]:
+        plain.push(s, s)
+    assert plain.gaps[:3] == [0, 1, 2]
