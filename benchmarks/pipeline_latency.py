@@ -1,35 +1,48 @@
-"""End-to-end latency and throughput of the Zenoh pipeline, next to the same tracker offline.
+"""Throughput and added latency of the Zenoh pipeline, next to the same tracker offline.
 
-Builds a long measurement log (``--runs`` vo2017 runs of 100 frames, seeds 1.., frame numbers
-and stamps made consecutive), then:
+Builds a measurement log (``--runs`` vo2017 runs of 100 frames, seeds 1.., frame numbers and
+stamps made consecutive), then measures, in one invocation:
 
-1. **offline**: the tracker over those frames in this process (``tracker.state.run``: no I/O;
-   warmed up, best of 3), and ``track_log`` (what ``bnptrack track`` does: read the MCAP log,
-   write tracks.mcap);
-2. **pipeline, as fast as possible**: ``bnptrack replay LOG --as-fast-as-possible`` (source,
-   tracker and sink processes over the launcher's embedded router); throughput = frames
-   recorded by the sink / (last ``/tracks`` receipt - first frame publication);
-3. **pipeline, paced** at ``--rate`` frames per second (below the tracker's capacity, so
-   frames do not queue): per-frame latency from the source's publication to the sink's
-   receipt of the frame's ``/tracks``, and the *added* latency = that minus the tracker's own
-   compute time for the frame (its ``ms`` diagnostic), with the per-hop breakdown;
-4. **transport floor**: one Zenoh hop between two bare processes through a router, at the
-   same rate (the pipeline makes two such hops).
+1. **Throughput**, in ``--rounds`` interleaved rounds (so that a change of machine load hits
+   both sides alike).  Each round runs
 
-    python benchmarks/pipeline_latency.py                    # 5 x 100 frames, ddp
-    python benchmarks/pipeline_latency.py --runs 10 --rate 50 --tracker dpyp --json out.json
+   * *offline*: the tracker over the frames in this process (``tracker.state.run``: no I/O,
+     frames already decoded, warmed up), frames / elapsed time;
+   * *pipeline*: ``bnptrack replay LOG --as-fast-as-possible`` (source, tracker and sink
+     processes, launched with the embedded router); frames recorded by the sink / (last
+     ``/tracks`` receipt - first frame publication).  During it, the CPU time of each stage
+     process is sampled from ``/proc``.
 
-The sink writes no ``.rrd`` here (``sink.rerun=false``) unless ``--rerun``.
+   and, between the two, the *tracker stage's code without transport* (a ``TrackerStage`` on
+   an in-memory bus in this process: decoding, validation, step, encoding, journal, snapshots).
+   The ratio reported is the median over the rounds of pipeline / offline.  ``bnptrack track``
+   (MCAP in and out) runs once for reference.
+2. **Added latency**, in one *paced* run at ``--rate`` frames per second (well below the
+   tracker's capacity, so that frames do not queue behind each other).  For each frame:
+   end-to-end = the sink's receipt of its ``/tracks`` - the source's publication of its
+   ``/measurements`` (same host, same clock); *added* = end-to-end - the tracker's own compute
+   for that frame (its ``ms`` diagnostic: the wall time of ``tracker.step``).  Added is what the
+   pipeline costs on top of the computation: two Zenoh hops, decoding and validation, encoding,
+   the journal, scheduling.  The per-hop breakdown comes from the tracker's ``t_in``/``t_out``.
+3. **Transport floor**: one Zenoh hop between two bare processes (the ``Bus`` the stages use),
+   in client mode through a router and in peer mode, at the same rate.
+
+    python benchmarks/pipeline_latency.py                    # 5 x 100 frames, ddp, 3 rounds
+    python benchmarks/pipeline_latency.py --tracker dpyp --rounds 5 --json out.json
+
+The sink writes no ``.rrd`` (``sink.rerun=false``) unless ``--rerun``.  Timings on a shared
+machine vary: the load average is printed beside the figures.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -52,6 +65,9 @@ from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate  # noqa: E402
 from tracker.state import run  # noqa: E402
 
+STAGES = ("source", "tracker", "sink")
+HOPS = ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms")
+
 
 def make_log(path: Path, runs: int) -> int:
     """``runs`` vo2017 runs back to back (seeds 1..runs), frames renumbered 1..100*runs."""
@@ -67,74 +83,163 @@ def make_log(path: Path, runs: int) -> int:
     return n
 
 
-def offline(log: Path, tracker_name: str, seed: int, tmp: Path) -> dict:
-    meta = read_metadata(log)
-    choice = resolve_params(None, meta)
-    config, _ = resolve_config(tracker_name, None)
-    tracker = build_tracker(tracker_name, choice.params, config)
-    frames = list(iter_frames(log))
-    for _ in run(tracker, frames[:20], seed):  # warm up (numba JIT), as the tracker stage does
-        pass
-    t_core, ms = math.inf, []
-    for _ in range(3):  # best of 3
+def load_avg() -> float:
+    return os.getloadavg()[0]
+
+
+def pct(a, q: float) -> float:
+    return float(np.percentile(np.asarray(a, float), q))
+
+
+# --------------------------------------------------------------------------- offline
+
+
+class Offline:
+    """The tracker over the log's frames in this process (decoded beforehand)."""
+
+    def __init__(self, log: Path, tracker_name: str, seed: int) -> None:
+        self.log, self.seed = log, seed
+        self.meta = read_metadata(log)
+        config, _ = resolve_config(tracker_name, None)
+        self.tracker = build_tracker(tracker_name, resolve_params(None, self.meta).params, config)
+        self.frames = list(iter_frames(log))
+        for _ in run(self.tracker, self.frames[:20], seed):  # warm up (numba JIT), as the stage does
+            pass
+
+    def fps(self) -> tuple[float, float, list[float]]:
+        """Frames per second, CPU ms per frame, and each frame's step time (ms)."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        ms = [est.diagnostics["ms"] for _, est, _ in run(self.tracker, self.frames, self.seed)]
+        n = len(self.frames)
+        return n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n, ms
+
+    def stage_fps(self, out: Path) -> tuple[float, float]:
+        """The tracker stage's own code without transport: a ``TrackerStage`` on an in-memory
+        bus fed the encoded frames in this process (decode, validation, step, encoding,
+        journal, snapshots).  Frames per second and CPU ms per frame."""
+        from pipeline.codec import encode_measurements
+        from pipeline.membus import MemoryNetwork
+        from pipeline.pipeline_config import PipelineConfig, resolve_run
+        from pipeline.stages import StageContext, StageInfo, TrackerStage
+        from pipeline.transport_types import Event
+
+        cfg = resolve_run(PipelineConfig(run="inproc", out=str(out)))
+        stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("inproc", "tracker"), name="tracker"))
+        stage._restore()
+        stage._build(StageInfo(stage="source", run="inproc", metadata=self.meta))
+        events = [Event("measurements", encode_measurements(f, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0)
+                  for i, f in enumerate(self.frames)]
+        t0, c0 = time.perf_counter(), time.process_time()
+        for ev in events:
+            stage._on_data(ev)
+        stage.writer.flush()
+        n = len(events)
+        fps, cpu = n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n
+        stage.journal.close()
+        return fps, cpu
+
+    def track_log_fps(self, out: Path) -> float:
         t0 = time.perf_counter()
-        ms_i = [est.diagnostics["ms"] for _, est, _ in run(tracker, frames, seed)]
-        if time.perf_counter() - t0 < t_core:
-            t_core, ms = time.perf_counter() - t0, ms_i
-    t0 = time.perf_counter()
-    track_log(log, tmp / "offline.mcap", tracker, seed, meta)
-    t_log = time.perf_counter() - t0
-    return {
-        "frames": len(frames),
-        "fps_core": len(frames) / t_core,
-        "fps_track_log": len(frames) / t_log,
-        "step_ms_p50": float(np.median(ms)),
-        "step_ms_p99": float(np.percentile(ms, 99)),
-    }
+        track_log(self.log, out, self.tracker, self.seed, self.meta)
+        return len(self.frames) / (time.perf_counter() - t0)
 
 
-def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, rerun: bool) -> dict:
+# --------------------------------------------------------------------------- pipeline
+
+
+class CpuSampler:
+    """Samples the CPU time (user + system) of the stage processes listed in
+    ``<out>/stages.json`` every ``period`` seconds, with wall-clock stamps."""
+
+    def __init__(self, out: Path, period: float = 0.05) -> None:
+        self.out, self.period = out, period
+        self.samples: list[tuple[float, dict[str, float]]] = []
+        self._stop = threading.Event()
+        self._tck = os.sysconf("SC_CLK_TCK")
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def __enter__(self) -> "CpuSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _cpu(self, pid: int, task: str = "") -> float | None:
+        try:
+            f = Path(f"/proc/{pid}{task}/stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            return None
+        return (int(f[11]) + int(f[12])) / self._tck
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                pids = {k: v["pid"] for k, v in json.loads((self.out / "stages.json").read_text()).items()}
+            except (OSError, ValueError):
+                continue
+            row = {k: c for k, pid in pids.items() if (c := self._cpu(pid)) is not None}
+            # the tracker's main thread alone (the frame loop; the rest are Zenoh's threads
+            # and the snapshot writer)
+            if "tracker" in pids and (c := self._cpu(pids["tracker"], f"/task/{pids['tracker']}")) is not None:
+                row["tracker_main"] = c
+            self.samples.append((time.time(), row))
+
+    def used(self, t_a: float, t_b: float) -> dict[str, float]:
+        """CPU seconds each stage used between wall-clock times ``t_a`` and ``t_b``."""
+        ts = [t for t, _ in self.samples]
+        i = max(0, int(np.searchsorted(ts, t_a)) - 1)
+        j = min(len(ts) - 1, int(np.searchsorted(ts, t_b)))
+        a, b = self.samples[i][1], self.samples[j][1]
+        return {k: b[k] - a[k] for k in b if k in a}
+
+
+def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, rerun: bool,
+             sets: list[str]) -> dict:
+    """One ``replay`` of ``log`` (in this process's launcher); the sink's figures."""
     cfg = load_pipeline(None, [
         "source.kind='mcap'", f"source.log='{log}'", f"source.rate={rate}",
         f"tracker.tracker='{tracker_name}'", f"tracker.seed={seed}", f"sink.rerun={str(rerun).lower()}",
+        *sets,
     ])
-    cfg = replace_struct(cfg, out=str(out), run=f"bench-{int(time.time())}-{int(rate)}")
-    t0 = time.perf_counter()
-    res = launch(cfg, timeout=1800, handle_signals=True)
-    wall = time.perf_counter() - t0
+    import msgspec
+
+    cfg = msgspec.structs.replace(cfg, out=str(out), run=f"bench-{out.name}-{os.getpid()}")
+    with CpuSampler(out) as cpu:
+        res = launch(cfg, timeout=1800, handle_signals=True)
     if not res.ok:
         raise SystemExit(f"pipeline failed: {res.error}")
     s = json.loads((out / "sink.json").read_text())
-    e2e = np.array(s["latency"]["e2e_ms"], float)
-    step = np.array(s["latency"]["tracker_ms"], float)
-    added = e2e - step
     lat = s["latency"]
-    hops = {k: float(np.percentile(np.array(lat[k], float), q))
-            for k in ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms") if lat.get(k)
-            for q in (50,)}
-    hops99 = {k: float(np.percentile(np.array(lat[k], float), 99))
-              for k in ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms") if lat.get(k)}
+    e2e, step = np.array(lat["e2e_ms"], float), np.array(lat["tracker_ms"], float)
+    window = (s["t_first_pub_ns"] / 1e9, s["t_last_recv_ns"] / 1e9)
+    used = cpu.used(*window)
+    n = s["tracks_written"]
     return {
-        "hops_p50": hops,
-        "hops_p99": hops99,
-        "frames": s["tracks_written"],
+        "frames": n,
         "gaps": sum(len(v) for v in s["gaps"].values()),
         "fps": s["throughput_fps"],
-        "wall_s_including_startup": wall,
-        "e2e_ms_p50": float(np.percentile(e2e, 50)),
-        "e2e_ms_p99": float(np.percentile(e2e, 99)),
-        "added_ms_p50": float(np.percentile(added, 50)),
-        "added_ms_p99": float(np.percentile(added, 99)),
-        "step_ms_p50": float(np.median(step)),
+        "e2e_ms": e2e.tolist(),
+        "added_ms": (e2e - step).tolist(),
+        "step_ms": step.tolist(),
+        "hops_ms": {k: lat[k] for k in HOPS},
+        "cpu_ms_per_frame": {k: 1e3 * v / n for k, v in used.items()},
+        "cpu_cores": {k: v / max(window[1] - window[0], 1e-9) for k, v in used.items()},
+        "load_avg": load_avg(),
     }
 
 
-def _floor_subscriber(endpoint: str, n: int) -> None:
-    """(child process) receive ``n`` samples and print their one-hop latencies as JSON."""
+# --------------------------------------------------------------------------- transport floor
+
+
+def _floor_subscriber(mode: str, endpoint: str, n: int) -> None:
+    """(child process) receive ``n`` samples; print their one-hop latencies as JSON, taken
+    when the main thread gets them (as a stage does)."""
     from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus
 
-    with Bus("floor", "sub", ZenohConfig(connect=[endpoint]), DeliveryConfig()) as bus:
+    with Bus("floor", "sub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.subscribe(["measurements"])
         bus.declare_alive("ready")
         lat = []
@@ -142,86 +247,131 @@ def _floor_subscriber(endpoint: str, n: int) -> None:
             ev = bus.recv(10)
             if ev is None:
                 break
-            lat.append((ev.t_recv_ns - ev.meta["t"]) / 1e6)
+            lat.append((time.time_ns() - ev.meta["t"]) / 1e6)
     print(json.dumps(lat))
 
 
-def transport_floor(rate: float, n: int = 400) -> dict:
-    """One Zenoh hop between two processes through a router (the same Bus the stages use),
-    ~700-byte samples at ``rate`` per second: the floor under the pipeline's per-hop latency."""
-    import subprocess
-
+def transport_floor(mode: str, rate: float, n: int = 400) -> dict:
+    """One Zenoh hop between two processes (client mode: through a router; peer mode: direct,
+    found through the router), ~1 KB samples at ``rate`` per second."""
     from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
         ep = router.endpoints[0]
-        child = subprocess.Popen([sys.executable, __file__, "--floor-subscriber", ep, str(n)],
+        child = subprocess.Popen([sys.executable, __file__, "--floor-subscriber", mode, ep, str(n)],
                                  stdout=subprocess.PIPE, text=True)
-        with Bus("floor", "pub", ZenohConfig(connect=[ep]), DeliveryConfig()) as bus:
+        with Bus("floor", "pub", ZenohConfig(mode=mode, connect=[ep]), DeliveryConfig()) as bus:
             if bus.wait_alive(["sub"], 60, "ready"):
                 raise SystemExit("floor subscriber did not start")
+            time.sleep(0.5)  # let the peers link up
             for i in range(n):
-                bus.publish("measurements", b"x" * 700, {"seq": i, "t": time.time_ns()})
+                bus.publish("measurements", b"x" * 950, {"seq": i, "t": time.time_ns()})
                 time.sleep(1.0 / rate)
             out, _ = child.communicate(timeout=60)
-    lat = np.array(json.loads(out), float)
-    return {"hop_ms_p50": float(np.percentile(lat, 50)), "hop_ms_p99": float(np.percentile(lat, 99))}
+    lat = json.loads(out)
+    return {"p50": pct(lat, 50), "p99": pct(lat, 99), "load_avg": load_avg()}
 
 
-def replace_struct(cfg, **kw):
-    import msgspec
+# --------------------------------------------------------------------------- report
 
-    return msgspec.structs.replace(cfg, **kw)
+
+def throughput_rounds(off: Offline, log: Path, args, tmp: Path) -> dict:
+    rounds = []
+    for r in range(args.rounds):
+        fps_off, cpu_off, ms = off.fps()
+        fps_stage, cpu_stage = off.stage_fps(tmp / f"stage{r}")
+        fast = pipeline(log, args.tracker, args.seed, tmp / f"fast{r}", 0.0, args.rerun, args.set)
+        rounds.append({"offline_fps": fps_off, "offline_cpu_ms_per_frame": cpu_off, "offline_step_ms": ms,
+                       "stage_fps": fps_stage, "stage_cpu_ms_per_frame": cpu_stage,
+                       "pipeline": fast, "ratio": fast["fps"] / fps_off,
+                       "cpu_ratio": cpu_off / fast["cpu_ms_per_frame"]["tracker"]})
+        print(f"  round {r + 1}: offline {fps_off:6.1f} frames/s, pipeline {fast['fps']:6.1f} frames/s "
+              f"= {fast['fps'] / fps_off:.2f} x  (load {fast['load_avg']:.2f})", flush=True)
+    return {"rounds": rounds, "ratio_median": float(np.median([r["ratio"] for r in rounds])),
+            "cpu_ratio_median": float(np.median([r["cpu_ratio"] for r in rounds]))}
+
+
+def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict, load0: float) -> bool:
+    rounds = thr["rounds"]
+    med = thr["ratio_median"]
+    off_fps = np.median([r["offline_fps"] for r in rounds])
+    pipe_fps = np.median([r["pipeline"]["fps"] for r in rounds])
+    step = np.concatenate([r["offline_step_ms"] for r in rounds])
+    print(f"\nlog {n} frames, tracker {args.tracker}, seed {args.seed}; load average at start {load0:.2f}, "
+          f"at end {load_avg():.2f} (2 cores)")
+    print(f"throughput (median of {len(rounds)} interleaved rounds):")
+    print(f"  offline, tracker in process:        {off_fps:7.1f} frames/s (step p50 {pct(step, 50):.2f} ms, "
+          f"mean {step.mean():.2f} ms)")
+    stage_fps = np.median([r["stage_fps"] for r in rounds])
+    stage_cpu = np.median([r["stage_cpu_ms_per_frame"] for r in rounds])
+    print(f"  tracker stage code, no transport:   {stage_fps:7.1f} frames/s ({stage_cpu:.2f} ms CPU per frame; "
+          "in process, in-memory bus)")
+    print(f"  offline, bnptrack track (MCAP I/O): {fps_track:7.1f} frames/s")
+    print(f"  pipeline, as fast as possible:      {pipe_fps:7.1f} frames/s = {med:.2f} x offline in process "
+          f"(per round: {', '.join(format(r['ratio'], '.2f') for r in rounds)})")
+    cpu = {k: np.median([r["pipeline"]["cpu_ms_per_frame"].get(k, np.nan) for r in rounds])
+           for k in (*STAGES, "tracker_main")}
+    cores = {k: np.median([r["pipeline"]["cpu_cores"].get(k, np.nan) for r in rounds]) for k in STAGES}
+    cpu_off = np.median([r["offline_cpu_ms_per_frame"] for r in rounds])
+    print(f"  CPU per frame: offline {cpu_off:.2f} ms; pipeline stages while streaming: " + ", ".join(
+        f"{k} {cpu[k]:.2f} ms ({cores[k]:.2f} core)" for k in STAGES))
+    print(f"  of which the tracker's main thread (the frame loop): {cpu['tracker_main']:.2f} ms")
+    pstep = np.concatenate([r["pipeline"]["step_ms"] for r in rounds])
+    print(f"  tracker.step wall time: offline p50 {pct(step, 50):.2f} ms, mean {step.mean():.2f} ms; in the "
+          f"pipeline's tracker stage p50 {pct(pstep, 50):.2f} ms, mean {pstep.mean():.2f} ms")
+    print(f"  offline CPU / tracker stage CPU per frame: {thr['cpu_ratio_median']:.2f} (the throughput ratio "
+          "if the tracker stage had a core of its own)")
+    added, e2e = paced["added_ms"], paced["e2e_ms"]
+    print(f"latency, paced at {args.rate:g} frames/s ({paced['frames']} frames, load {paced['load_avg']:.2f}):")
+    print(f"  source publish -> sink receipt:     p50 {pct(e2e, 50):.2f} ms, p99 {pct(e2e, 99):.2f} ms")
+    print(f"  added (minus tracker.step time):    p50 {pct(added, 50):.2f} ms, p99 {pct(added, 99):.2f} ms "
+          f"(step p50 {pct(paced['step_ms'], 50):.2f} ms)")
+    h = paced["hops_ms"]
+    print("  per hop p50 (p99): source -> tracker {:.2f} ({:.2f}) ms; in the tracker (decode, step, encode, "
+          "journal) {:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
+              *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
+    print("  transport floor, one hop p50 (p99): " + "; ".join(
+        f"{m} {f['p50']:.2f} ({f['p99']:.2f}) ms" for m, f in floors.items()) + " (the pipeline makes two)")
+    ok = med >= 0.9 and pct(added, 99) <= 2.0
+    print(f"targets (>= 0.9 x offline throughput, <= 2 ms p99 added): throughput "
+          f"{'met' if med >= 0.9 else 'NOT met'}, latency {'met' if pct(added, 99) <= 2.0 else 'NOT met'}")
+    return ok
 
 
 def main() -> None:
-    if len(sys.argv) == 4 and sys.argv[1] == "--floor-subscriber":
-        _floor_subscriber(sys.argv[2], int(sys.argv[3]))
+    if len(sys.argv) == 5 and sys.argv[1] == "--floor-subscriber":
+        _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]))
         return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5, help="vo2017 runs of 100 frames in the log")
     ap.add_argument("--tracker", default="ddp")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved offline/pipeline throughput rounds")
     ap.add_argument("--rate", type=float, default=40.0, help="paced run: frames per second")
     ap.add_argument("--rerun", action="store_true", help="also write run.rrd in the sink")
-    ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="pipeline override for the pipeline runs, e.g. zenoh.mode='client'")
+    ap.add_argument("--json", type=Path, default=None, help="write every figure here")
     args = ap.parse_args()
 
+    load0 = load_avg()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         log = tmp / "bench.mcap"
         n = make_log(log, args.runs)
-        print(f"log: {n} frames ({args.runs} x vo2017), tracker {args.tracker}, seed {args.seed}")
-        off = offline(log, args.tracker, args.seed, tmp)
-        fast = pipeline(log, args.tracker, args.seed, tmp / "fast", 0.0, args.rerun)
-        paced = pipeline(log, args.tracker, args.seed, tmp / "paced", args.rate, args.rerun)
-    floor = transport_floor(args.rate)
-    ratio = fast["fps"] / off["fps_core"]
-    print(f"offline, in process (tracker.step only):  {off['fps_core']:7.1f} frames/s "
-          f"(step p50 {off['step_ms_p50']:.2f} ms, p99 {off['step_ms_p99']:.2f} ms)")
-    print(f"offline, bnptrack track (MCAP in/out):    {off['fps_track_log']:7.1f} frames/s")
-    print(f"pipeline, as fast as possible:            {fast['fps']:7.1f} frames/s "
-          f"= {ratio:.2f} x offline in-process ({fast['frames']} frames, {fast['gaps']} gaps)")
-    print(f"pipeline, paced at {args.rate:g} frames/s: source -> sink latency p50 "
-          f"{paced['e2e_ms_p50']:.2f} ms, p99 {paced['e2e_ms_p99']:.2f} ms; added to the tracker's "
-          f"compute: p50 {paced['added_ms_p50']:.2f} ms, p99 {paced['added_ms_p99']:.2f} ms")
-    h50, h99 = paced["hops_p50"], paced["hops_p99"]
-    if h50:
-        print("  breakdown p50 (p99): source -> tracker {:.2f} ({:.2f}) ms, in the tracker (queue, "
-              "decode, step, encode; step alone p50 {:.2f}) {:.2f} ({:.2f}) ms, tracker -> sink {:.2f} "
-              "({:.2f}) ms".format(
-                  h50["source_to_tracker_ms"], h99["source_to_tracker_ms"], paced["step_ms_p50"],
-                  h50["in_tracker_ms"], h99["in_tracker_ms"], h50["tracker_to_sink_ms"],
-                  h99["tracker_to_sink_ms"]))
-    print(f"  transport floor: one Zenoh hop between two processes via a router, p50 "
-          f"{floor['hop_ms_p50']:.2f} ms, p99 {floor['hop_ms_p99']:.2f} ms (the pipeline has two hops)")
-    target_ok = ratio >= 0.9 and paced["added_ms_p99"] <= 2.0
-    print(f"target (>= 0.9 x throughput, <= 2 ms p99 added): {'met' if target_ok else 'NOT met'}")
+        print(f"log: {n} frames ({args.runs} x vo2017), tracker {args.tracker}; load average {load0:.2f}", flush=True)
+        off = Offline(log, args.tracker, args.seed)
+        thr = throughput_rounds(off, log, args, tmp)
+        fps_track = off.track_log_fps(tmp / "offline.mcap")
+        paced = pipeline(log, args.tracker, args.seed, tmp / "paced", args.rate, args.rerun, args.set)
+    floors = {mode: transport_floor(mode, args.rate) for mode in ("client", "peer")}
+    report(n, args, thr, fps_track, paced, floors, load0)
     if args.json:
-        args.json.write_text(json.dumps({"offline": off, "fast": fast, "paced": paced, "ratio": ratio,
-                                         "transport_floor": floor, "load_avg": os.getloadavg(),
-                                         "rate": args.rate, "tracker": args.tracker}, indent=1))
+        args.json.write_text(json.dumps({"throughput": thr, "fps_track_log": fps_track, "paced": paced,
+                                         "transport_floor": floors, "load_avg_start": load0,
+                                         "load_avg_end": load_avg(), "args": vars(args)},
+                                        indent=1, default=str))
 
 
 if __name__ == "__main__":

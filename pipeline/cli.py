@@ -699,7 +699,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
 @click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.")
 @click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).")
-@click.option("--mode", type=click.Choice(["client", "peer"]), default=None, help="Zenoh mode (default client).")
+@click.option("--mode", type=click.Choice(["client", "peer"]), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)

@@ -83,6 +83,13 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     applied to every session the pipeline opens, ``router_extra`` only to the router (e.g.
     ``access_control``).
 
+    ``mode``: ``client`` (the default) stages reach each other through the router; ``peer``
+    stages connect to the router too but send their data to each other directly (they learn
+    each other's ``listen`` endpoints by gossip; default a free loopback port), which saves a
+    hop and the router's work, but a stage that (re)starts while a publisher is live may miss
+    that publisher's history (docs/pipeline.md), and peer mode refuses TLS, authentication
+    and access control (these need every byte to pass the router).
+
     Authentication and access control: a session logs in with ``user`` / ``password``
     (Zenoh's usrpwd authentication; the environment variables ``BNPTRACK_ZENOH_USER`` and
     ``BNPTRACK_ZENOH_PASSWORD`` take precedence, so passwords need not be in files); a
@@ -107,6 +114,24 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     acl: bool = False
     extra: dict[str, str] = msgspec.field(default_factory=dict)
     router_extra: dict[str, str] = msgspec.field(default_factory=dict)
+
+    @property
+    def secured(self) -> bool:
+        """TLS, authentication or access control is configured."""
+        return bool(self.acl or self.users_file or self.user or _tls_files(self.tls))
+
+    def __post_init__(self) -> None:
+        if self.mode == "peer" and self.secured:
+            raise ValueError(
+                "zenoh.mode = 'peer' cannot be combined with TLS, authentication or access "
+                "control: peers exchange data directly, past the router that enforces them "
+                "(use mode = 'client')"
+            )
+
+
+def _tls_files(tls: TlsConfig) -> bool:
+    return any((tls.root_ca_certificate, tls.listen_certificate, tls.listen_private_key,
+                tls.connect_certificate, tls.connect_private_key, tls.mtls))
 
 
 class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -151,7 +176,7 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     params: str = ""
     overrides: list[str] = msgspec.field(default_factory=list)
     seed: NonNegInt = 0
-    snapshot_every: PosInt = 10
+    snapshot_every: PosInt = 50
     resume: bool = True
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
 
@@ -186,6 +211,12 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     eos_grace_s: Positive = 2.0
     max_payload_bytes: PosInt = 16 * 2**20
     health_period_s: Positive = 1.0
+
+    @property
+    def catch_up(self) -> int:
+        """The reordering window of a consumer until it has caught up with the history
+        (see :class:`pipeline.stages.Sequencer`): what the caches can hold."""
+        return max(self.window, self.cache_frames)
 
 
 class SupervisorConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

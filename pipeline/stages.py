@@ -55,6 +55,7 @@ from pipeline.codec import (
     frame_from_msg,
     truth_from_msg,
 )
+from pipeline.journal import JOURNAL_NAME, TracksJournal
 from pipeline.pipeline_config import PipelineConfig
 from tracker.config import ConfigError
 from tracker.types import Frame
@@ -81,6 +82,7 @@ __all__ = [
     "write_atomic",
     "read_snapshot",
     "SNAPSHOT_NAME",
+    "JOURNAL_NAME",
     "SUMMARY_NAME",
 ]
 
@@ -95,7 +97,7 @@ EXIT_STOPPED = 130
 
 SNAPSHOT_NAME = "tracker.snap"
 SUMMARY_NAME = "sink.json"
-SNAPSHOT_FORMAT = 1
+SNAPSHOT_FORMAT = 2
 
 #: Topic (bus-relative) of each codec topic.
 BUS_TOPIC = {TOPIC_MEASUREMENTS: "measurements", TOPIC_TRUTH: "truth", TOPIC_TRACKS: "tracks"}
@@ -136,12 +138,20 @@ class Sequencer:
     numbers: a frame arriving ``window`` or more ahead of the next expected one releases
     (or declares missing) everything at least ``window`` behind it.  The result depends
     only on the order of the pushes.
+
+    ``catch_up`` (default: ``window``) is the window used until the stream has *caught up*,
+    i.e. until the buffer is empty for the first time: a consumer that starts late or
+    restarts receives the publishers' history (the frames from ``start`` on) and live frames
+    at the same time, in no guaranteed order, and the live frames must not push the history
+    out as gaps.  Consumers use the cache size: no history holds more.
     """
 
-    def __init__(self, window: int, start: int = 0, name: str = "") -> None:
-        if window < 1:
-            raise ValueError("window must be >= 1")
+    def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None) -> None:
+        if window < 1 or (catch_up is not None and catch_up < window):
+            raise ValueError("window must be >= 1 and catch_up >= window")
         self.window = int(window)
+        self.catch_up = int(catch_up) if catch_up is not None else self.window
+        self.caught_up = False
         self.next = int(start)
         self.name = name
         self.buf: dict[int, Any] = {}
@@ -166,10 +176,12 @@ class Sequencer:
         self.accepted += 1
         self.max_seen = max(self.max_seen, seq)
         out: list[tuple[int, Any]] = []
-        if seq >= self.next + self.window:
-            out += self._advance_to(seq - self.window + 1)
+        window = self.window if self.caught_up else self.catch_up
+        if seq >= self.next + window:
+            out += self._advance_to(seq - window + 1)
         self.buf[seq] = item
         out += self._release()
+        self.caught_up = self.caught_up or not self.buf
         return "accepted", out
 
     def _advance_to(self, target: int) -> list[tuple[int, Any]]:
@@ -292,6 +304,7 @@ class Accepted:
     msg: Any
     meta: dict
     t_recv_ns: int
+    payload: bytes = b""
 
 
 class Intake:
@@ -335,7 +348,7 @@ class Intake:
         frame = meta.get("frame")
         if frame is not None and frame != msg.frame:
             return self.reject(ev, seq, f"{codec_topic}: attachment frame {frame!r} != payload frame {msg.frame}")
-        return Accepted(seq, msg, meta, ev.t_recv_ns)
+        return Accepted(seq, msg, meta, ev.t_recv_ns, ev.payload)
 
     def reject(self, ev: Any, seq: int | None, reason: str) -> None:
         self.counters.rejected += 1
@@ -387,26 +400,42 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
         os.close(dfd)
 
 
+def _fsync_and_close(fds: Iterable[int]) -> None:
+    """fsync then close each descriptor (all of them are closed, the first error raised)."""
+    error: OSError | None = None
+    for fd in fds:
+        try:
+            os.fsync(fd)
+        except OSError as exc:
+            error = error or exc
+        finally:
+            os.close(fd)
+    if error is not None:
+        raise error
+
+
 class BackgroundWriter:
     """Write files atomically (:func:`write_atomic`) on a background thread, so that fsync
     stalls stay out of the frame loop.  ``submit`` replaces a pending write of the same path
-    (only the newest snapshot matters); ``flush`` waits until everything submitted is on
-    disk and re-raises a write error."""
+    (only the newest snapshot matters); ``sync_first`` are file descriptors to fsync (and
+    close) before the write, e.g. of a journal the snapshot relies on; ``flush`` waits until
+    everything submitted is on disk and re-raises a write error."""
 
     def __init__(self) -> None:
         self._cv = threading.Condition()
-        self._pending: dict[Path, bytes] = {}
+        self._pending: dict[Path, tuple[bytes, list[int]]] = {}
         self._busy = False
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
         self.writes = 0
 
-    def submit(self, path: Path, data: bytes) -> None:
+    def submit(self, path: Path, data: bytes, sync_first: Iterable[int] = ()) -> None:
         with self._cv:
             if self._error is not None:
                 err, self._error = self._error, None
                 raise err
-            self._pending[path] = data
+            fds = self._pending[path][1] if path in self._pending else []
+            self._pending[path] = (data, fds + list(sync_first))
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, name="snapshot-writer", daemon=True)
                 self._thread.start()
@@ -417,9 +446,10 @@ class BackgroundWriter:
             with self._cv:
                 while not self._pending:
                     self._cv.wait()
-                path, data = self._pending.popitem()
+                path, (data, fds) = self._pending.popitem()
                 self._busy = True
             try:
+                _fsync_and_close(fds)
                 write_atomic(path, data)
                 self.writes += 1
             except BaseException as exc:  # surfaced by the next submit/flush
@@ -442,8 +472,9 @@ class BackgroundWriter:
 
 
 class Snapshot(msgspec.Struct, kw_only=True):
-    """``<out>/tracker.snap`` (msgpack): the tracker state after ``last_seq`` and the last
-    published ``/tracks`` samples (re-published on resume in case they were in flight)."""
+    """``<out>/tracker.snap`` (msgpack): the tracker state after ``last_seq``.  The
+    ``/tracks`` samples published up to then are in the journal (:mod:`pipeline.journal`),
+    which a resumed tracker publishes again."""
 
     format: int = SNAPSHOT_FORMAT
     run: str
@@ -452,7 +483,6 @@ class Snapshot(msgspec.Struct, kw_only=True):
     last_seq: int
     last_frame: int
     state: bytes
-    recent: list[tuple[int, bytes, dict]] = []
     gaps: list[int] = []
     counters: dict[str, int] = {}
     time_ns: int = 0
@@ -764,12 +794,13 @@ class TrackerStage(_StageBase):
         self.tc = self.cfg.tracker
         self.snap_path = self.ctx.out / SNAPSHOT_NAME
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes)
-        self.seq = Sequencer(self.delivery.window, 0, "measurements")
+        self.seq = Sequencer(self.delivery.window, 0, "measurements", self.delivery.catch_up)
         self.tracker = None
         self.state = None
         self.last_seq = -1
         self.last_frame = -1
-        self.recent: deque = deque(maxlen=max(self.delivery.window, self.tc.snapshot_every))
+        self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
+        self.history: list[tuple[int, bytes, dict]] = []  # journal samples to publish again
         self.pending: list[Accepted] = []
         self.restored: Snapshot | None = None
         self.since_snapshot = 0
@@ -779,9 +810,16 @@ class TrackerStage(_StageBase):
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> None:
-        if not self.tc.resume or not self.snap_path.exists():
+        """Resume from the snapshot when there is one (and ``resume``), and open the journal
+        cut back to it; its samples are published again by :meth:`run`."""
+        if not self.tc.resume:
+            self.journal.start()
             return
-        snap = read_snapshot(self.snap_path)
+        if self.snap_path.exists():
+            self._apply_snapshot(read_snapshot(self.snap_path))
+        self.history = self.journal.resume(self.last_seq)
+
+    def _apply_snapshot(self, snap: Snapshot) -> None:
         if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
             raise ConfigError(
                 f"{self.snap_path}: snapshot of run {snap.run!r}, tracker {snap.tracker!r}, seed "
@@ -790,13 +828,12 @@ class TrackerStage(_StageBase):
             )
         self.restored = snap
         self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
-        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements")
+        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements", self.delivery.catch_up)
         self.seq.gaps = list(snap.gaps)
         self.seq._gapset = set(snap.gaps)
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
-        self.recent.extend(snap.recent)
         log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
                  snap.last_seq, snap.last_frame)
 
@@ -867,7 +904,7 @@ class TrackerStage(_StageBase):
             self.bus.publish("tracks", payload, meta)
             # the state advances only once its output is out (a snapshot is always consistent)
             self.state, self.last_seq, self.last_frame = state, s, frame.frame
-            self.recent.append((s, payload, meta))
+            self.journal.append(s, payload, meta)
             self.counters.processed += 1
             self.counters.published += 1
             self.since_snapshot += 1
@@ -882,14 +919,14 @@ class TrackerStage(_StageBase):
 
         snap = Snapshot(
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
-            last_frame=self.last_frame, state=snapshot(self.state), recent=list(self.recent),
-            gaps=list(self.seq.gaps),
+            last_frame=self.last_frame, state=snapshot(self.state), gaps=list(self.seq.gaps),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=time.time_ns(),
         )
         self.ctx.out.mkdir(parents=True, exist_ok=True)
-        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap))
+        fd = self.journal.dup_fd()
+        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
         self.since_snapshot = 0
         if wait:
             self.writer.flush()
@@ -935,9 +972,11 @@ class TrackerStage(_StageBase):
         _warm_imports("pipeline.offline", "tracker.bnp_tracker", "tracker.state")
         self._restore()
         bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
-        if self.restored is not None:
-            for s, payload, meta in self.restored.recent:
-                bus.publish("tracks", payload, meta)  # may have been in flight at the crash
+        for s, payload, meta in self.history:  # the run so far, into the new publisher's cache
+            bus.publish("tracks", payload, meta)
+        if self.history:
+            log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(self.history))
+        self.history = []
         bus.subscribe(["measurements", "info/*", "eos/*"])
         bus.declare_alive()
         finished = False
@@ -984,6 +1023,7 @@ class TrackerStage(_StageBase):
             try:
                 self.snapshot(wait=True)
             finally:
+                self.journal.close()
                 self.health(force=True, extra=self._extra_health)
 
 
@@ -1022,11 +1062,11 @@ class SinkStage(_StageBase):
         d = self.delivery
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes)
         self.streams: dict[str, Sequencer] = {
-            "measurements": Sequencer(d.window, 0, "measurements"),
-            "truth": Sequencer(d.window, 0, "truth"),
+            "measurements": Sequencer(d.window, 0, "measurements", d.catch_up),
+            "truth": Sequencer(d.window, 0, "truth", d.catch_up),
         }
         if self.sc.tracks:
-            self.streams["tracks"] = Sequencer(d.window, 0, "tracks")
+            self.streams["tracks"] = Sequencer(d.window, 0, "tracks", d.catch_up)
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
         self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
         self.next_write = 0
@@ -1107,37 +1147,46 @@ class SinkStage(_StageBase):
             self.rrd = None
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
-        frame = None
+        """Record frame ``s``: the payloads go into tracks.mcap as received (they were
+        validated on receipt, and they are the codec's bytes: no decoding to numpy and
+        re-encoding); the Rerun sink, when on, gets them decoded."""
+        has_truth = truth is not GAP and truth is not NO_TRUTH
         if meas is not GAP:
-            t = truth_from_msg(truth.msg) if truth is not GAP and truth is not NO_TRUTH else None
-            frame = frame_from_msg(meas.msg, t)
-            self.writer.write_frame(frame, self.run_id)
+            m = meas.msg
+            self.writer.write_encoded_frame(meas.payload, truth.payload if has_truth else None,
+                                            m.stamp_ns, m.frame)
             self.frames_written += 1
-        est = None
         if tracks is not None and tracks is not GAP:
-            est = estimate_from_msg(tracks.msg)
-            self.writer.write_tracks(est, self.run_id)
+            self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
             self.tracks_written += 1
-            t_pub = tracks.meta.get("t")
-            if isinstance(t_pub, int) and t_pub > 0:
-                e2e = (tracks.t_recv_ns - t_pub) / 1e6
-                self.e2e_ms.append(e2e)
-                self.counters.latency_ms.append(e2e)
-                self.tracker_ms.append(float(est.diagnostics.get("ms", float("nan"))))
-                self.seq_written.append(s)
-                t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
-                if isinstance(t_in, int) and isinstance(t_out, int):
-                    self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6,
-                                        (tracks.t_recv_ns - t_out) / 1e6))
-                if self.t_first_pub_ns is None:
-                    self.t_first_pub_ns = t_pub
-            self.t_last_ns = tracks.t_recv_ns
-        if self.rrd is not None and frame is not None and est is not None:
-            try:
-                self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
-            except Exception as exc:
-                log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
-                self._close_rrd()
+            self._note_latency(s, tracks)
+        if self.rrd is not None and meas is not GAP and tracks is not None and tracks is not GAP:
+            frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
+            self._log_rrd(frame, estimate_from_msg(tracks.msg))
+
+    def _note_latency(self, s: int, tracks: Accepted) -> None:
+        """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
+        t_pub = tracks.meta.get("t")
+        self.t_last_ns = tracks.t_recv_ns
+        if not isinstance(t_pub, int) or t_pub <= 0:
+            return
+        e2e = (tracks.t_recv_ns - t_pub) / 1e6
+        self.e2e_ms.append(e2e)
+        self.counters.latency_ms.append(e2e)
+        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
+        self.seq_written.append(s)
+        t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
+        if isinstance(t_in, int) and isinstance(t_out, int):
+            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
+        if self.t_first_pub_ns is None:
+            self.t_first_pub_ns = t_pub
+
+    def _log_rrd(self, frame: Frame, est: Any) -> None:
+        try:
+            self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
+        except Exception as exc:
+            log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
+            self._close_rrd()
 
     def _sink_health(self) -> dict:
         return {"frames_written": self.frames_written, "next_seq": self.next_write}
@@ -1284,6 +1333,8 @@ class SinkStage(_StageBase):
             "zenoh_misses": int(getattr(self.bus, "misses", 0)),
             "files": self.files,
             "throughput_fps": fps,
+            "t_first_pub_ns": self.t_first_pub_ns,
+            "t_last_recv_ns": self.t_last_ns,
             "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
                         "source_to_tracker_ms": [h[0] for h in self.hop_ms],
                         "in_tracker_ms": [h[1] for h in self.hop_ms],
@@ -1336,8 +1387,8 @@ class SinkStage(_StageBase):
 
 
 class _NullWriter:
-    def write_frame(self, *a: Any, **k: Any) -> None: ...
-    def write_tracks(self, *a: Any, **k: Any) -> None: ...
+    def write_encoded_frame(self, *a: Any, **k: Any) -> None: ...
+    def write_encoded_tracks(self, *a: Any, **k: Any) -> None: ...
     def close(self) -> None: ...
 
 

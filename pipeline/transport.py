@@ -75,6 +75,8 @@ KEY_ROOT = "bnptrack"
 DATA_TOPICS = frozenset({"measurements", "truth", "tracks"})
 #: Cache size of control topics (``info/<stage>``, ``eos/<stage>``).
 CONTROL_CACHE = 16
+#: Where a peer-mode stage listens unless ``zenoh.listen`` says otherwise (a free loopback port).
+PEER_LISTEN = ("tcp/127.0.0.1:0",)
 
 _META_ENC = msgspec.json.Encoder()
 _META_DEC = msgspec.json.Decoder(dict)
@@ -120,12 +122,17 @@ def session_config(
     """A ``zenoh.Config`` for a stage (client/peer) or, with ``router``, for the router."""
     conf = zenoh.Config()
     ins = conf.insert_json5
-    ins("mode", json.dumps("router" if router else (mode or zcfg.mode)))
+    mode = "router" if router else (mode or zcfg.mode)
+    ins("mode", json.dumps(mode))
     connect = list(zcfg.connect if connect is None else connect)
     listen = list(zcfg.listen if listen is None else listen)
+    if mode == "peer" and not listen:
+        # a peer listens so that the others connect to it directly (they learn its
+        # endpoint by gossip through the router); Zenoh's default would be every interface
+        listen = list(PEER_LISTEN)
     if connect:
         ins("connect/endpoints", json.dumps(connect))
-    if listen or router:
+    if listen or mode != "client":
         ins("listen/endpoints", json.dumps(listen))
     ins("scouting/multicast/enabled", json.dumps(bool(zcfg.multicast_scouting)))
     if not router and connect and zcfg.connect_timeout_s > 0:
@@ -397,7 +404,7 @@ class Bus:
                 sub = zext.declare_advanced_subscriber(
                     self.session,
                     k,
-                    self._on_sample,
+                    self._handler(),
                     history=zext.HistoryConfig(
                         detect_late_publishers=True, max_samples=self.delivery.cache_frames
                     ),
@@ -407,7 +414,13 @@ class Bus:
                 self._subs.append(sub)
                 self._subs.append(sub.sample_miss_listener(self._on_miss))
             else:
-                self._subs.append(self.session.declare_subscriber(k, self._on_sample))
+                self._subs.append(self.session.declare_subscriber(k, self._handler()))
+
+    def _handler(self) -> Any:
+        """The subscription callback, run on Zenoh's network thread itself (``indirect=False``)
+        instead of a Python thread per subscription: one thread hand-off less per sample.
+        :meth:`_on_sample` only appends to a queue, so it holds that thread for microseconds."""
+        return zenoh.handlers.Callback(self._on_sample, indirect=False)
 
     def _on_sample(self, sample: Any) -> None:
         # Runs on a Zenoh thread: never block it.
@@ -449,6 +462,12 @@ class Bus:
     @property
     def backlog(self) -> int:
         return self._inbox.qsize()
+
+    def links(self) -> dict[str, int]:
+        """How many routers and peers this session is connected to (a peer-mode stage
+        shows its direct links to the other stages under ``peers``)."""
+        info = self.session.info
+        return {"routers": len(list(info.routers_zid())), "peers": len(list(info.peers_zid()))}
 
     # -- liveliness ----------------------------------------------------------------------
     def declare_alive(self, kind: str = "alive") -> None:

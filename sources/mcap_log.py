@@ -255,6 +255,30 @@ class McapLogWriter:
         self.n_tracks += 1
         self._tick()
 
+    def write_encoded_frame(
+        self, measurements: bytes, truth: bytes | None, stamp_ns: int, frame: int
+    ) -> None:
+        """Write a frame's ``/measurements`` (and ``/truth``) payloads as they are.
+
+        For payloads that were already validated by the codec (e.g. received and checked
+        by the pipeline's sink): the bytes go into the file without decoding or
+        re-encoding them.  Same records and flushing as :meth:`write_frame`.
+        """
+        self._check_open()
+        self._put(TOPIC_MEASUREMENTS, measurements, stamp_ns, frame)
+        if truth is not None:
+            self._put(TOPIC_TRUTH, truth, stamp_ns, frame)
+        self.n_frames += 1
+        self._tick()
+
+    def write_encoded_tracks(self, tracks: bytes, stamp_ns: int, frame: int) -> None:
+        """Write one already validated ``/tracks`` payload as it is (see
+        :meth:`write_encoded_frame`)."""
+        self._check_open()
+        self._put(TOPIC_TRACKS, tracks, stamp_ns, frame)
+        self.n_tracks += 1
+        self._tick()
+
     def flush(self) -> None:
         """Close the current chunk and flush it to the OS."""
         self._check_open()

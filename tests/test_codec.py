@@ -469,3 +469,28 @@ def test_decode_msg_dispatch():
     with pytest.raises(ValueError):
         codec.decode_msg("/other", b"{}")
     assert isinstance(msgspec.json.decode(encode_measurements(f)), dict)
+
+
+def test_encode_tracks_fast_path_gives_the_checked_bytes():
+    """encode_tracks checks the estimate on stacked arrays; its bytes are those of the
+    reference path (tracks_msg + validate_msg + encode), and whatever the fast check refuses
+    goes through the reference path, which raises the precise error (test above)."""
+    from pipeline.codec import _checked_tracks_msg, encode_msg, tracks_msg
+
+    rng = np.random.default_rng(11)
+    cases = [make_estimate(rng, k=k) for k in range(20)]
+    cases += [Estimate(frame=0, stamp_ns=0, tracks=()),
+              Estimate(frame=np.int64(3), stamp_ns=np.int64(9), tracks=cases[0].tracks,
+                       assignments=(None, "t0"), assignment_prob=(np.float64(0.0), 1.0),
+                       diagnostics={"alpha": np.float32(1.5)})]
+    for est in cases:
+        assert _checked_tracks_msg(est, "r") is not None
+        assert encode_tracks(est, "r") == encode_msg(tracks_msg(est, "r"))
+    t0 = cases[3].tracks[0]
+    for bad in (Estimate(1, 0, (t0, t0)),  # duplicate label
+                Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)),
+                Estimate(1, 0, (), ("a",), (np.nan,)),
+                Estimate(1, 2**63, ())):
+        assert _checked_tracks_msg(bad, "r") is None
+        with pytest.raises(CodecError):
+            encode_tracks(bad, "r")

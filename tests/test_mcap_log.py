@@ -495,3 +495,20 @@ def test_copy_input_channels_then_tracks(tmp_path):
     with open(dst, "rb") as fh:
         runs = {json.loads(m.data)["run"] for _, c, m in make_reader(fh).iter_messages() if c.topic != TOPIC_TRACKS}
     assert runs == {"run-1"}  # run ids of the input are kept
+
+
+def test_encoded_writes_equal_the_encoding_writes(tmp_path):
+    """write_encoded_frame / write_encoded_tracks (the pipeline's sink: validated payloads
+    as received) give the same messages, records and flushes as write_frame / write_tracks."""
+    from pipeline.codec import encode_measurements, encode_tracks, encode_truth
+
+    frames = make_frames(n=12)
+    rng = np.random.default_rng(1)
+    estimates = [make_estimate(rng, f) for f in frames]
+    a = write_log(tmp_path / "a.mcap", frames, estimates=estimates)
+    with McapLogWriter(tmp_path / "b.mcap", META) as w:
+        for f, e in zip(frames, estimates):
+            truth = None if f.truth is None else encode_truth(f.frame, f.stamp_ns, f.truth, "run-1")
+            w.write_encoded_frame(encode_measurements(f, "run-1"), truth, f.stamp_ns, f.frame)
+            w.write_encoded_tracks(encode_tracks(e, "run-1"), e.stamp_ns, e.frame)
+    assert (tmp_path / "b.mcap").read_bytes() == a.read_bytes()

@@ -384,12 +384,18 @@ def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     first_stop = threading.Event()
     published = []
 
+    second: list[int] = []  # what the restarted tracker publishes
+
     def tap(run, topic, payload, att):
         if topic == "tracks":
             published.append(json.loads(att)["seq"])
+            if first_done.is_set():
+                second.append(published[-1])
             if len(published) == 7:
                 first_stop.set()  # stop the first tracker after 7 frames (snapshot at 4)
         return [(payload, att)]
+
+    first_done = threading.Event()
 
     net.tap = tap
     src_bus = net.bus(cfg.run, "source")
@@ -405,6 +411,7 @@ def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     assert not t1.is_alive()
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
     assert snap.last_seq >= 3
+    first_done.set()
     bus2 = net.bus(cfg.run, "tracker")
     code = STAGES["tracker"](StageContext(cfg, bus2, name="tracker")).run()
     bus2.close()
@@ -412,6 +419,10 @@ def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     src_bus.close()
     assert code == EXIT_OK
     assert sorted(set(published)) == list(range(16))
+    # the restarted tracker published the journal up to its snapshot first, then the rest:
+    # its own cache holds the whole run (a consumer that joins later gets every frame)
+    assert second[: snap.last_seq + 1] == list(range(snap.last_seq + 1))
+    assert sorted(set(second)) == list(range(16))
     last = {}
     for (r, t, p, a) in net.history:
         if t == "tracks":
@@ -515,3 +526,85 @@ def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
     state = restore(snap.state, type(tracker.initial_state()))
     assert snap.last_seq == 7 and snap.tracker == name and state is not None
+
+
+# --------------------------------------------------------------------------- journal
+
+
+def _journal_records(n: int, start: int = 0) -> list[tuple[int, bytes, dict]]:
+    return [(s, f'{{"frame": {s + 1}}}'.encode() * (s % 3 + 1), {"seq": s, "t": 1000 + s}) for s in range(start, n)]
+
+
+def _write_journal(path: Path, n: int) -> None:
+    from pipeline.journal import TracksJournal
+
+    j = TracksJournal(path, keep=100)
+    j.start()
+    for rec in _journal_records(n):
+        j.append(*rec)
+    j.close()
+
+
+def test_journal_round_trip_and_resume_cuts_back_to_the_snapshot(tmp_path):
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 10)
+    assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(10)
+    j = TracksJournal(path, keep=100)
+    assert j.resume(5) == _journal_records(6)  # the snapshot covers seq 0..5
+    for rec in _journal_records(9, start=6):  # recomputed after the restart
+        j.append(*rec)
+    j.close()
+    assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(9)
+    assert TracksJournal(tmp_path / "none.journal", keep=5).resume(3) == []
+
+
+def test_journal_reads_the_prefix_of_a_torn_or_damaged_file(tmp_path):
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 6)
+    data = path.read_bytes()
+    ends = [r.end for r in read_journal(path)]
+    path.write_bytes(data[: ends[3] + 5])  # killed in the middle of writing record 4
+    assert [r.seq for r in read_journal(path)] == [0, 1, 2, 3]
+    broken = bytearray(data)
+    broken[ends[1] + 12] ^= 0xFF  # a flipped byte in record 2: its CRC fails
+    path.write_bytes(bytes(broken))
+    assert [r.seq for r in read_journal(path)] == [0, 1]
+    assert TracksJournal(path, keep=100).resume(10) == _journal_records(2)
+    assert path.stat().st_size == ends[1]  # the damaged tail is cut
+
+
+def test_journal_keeps_the_newest_records_when_it_grows(tmp_path):
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    j = TracksJournal(path, keep=4)
+    j.start()
+    for rec in _journal_records(9):  # compacted at the 9th record (> 2 x keep)
+        j.append(*rec)
+    assert len(j) == 4
+    j.append(*_journal_records(10, start=9)[0])
+    j.close()
+    assert [r.seq for r in read_journal(path)] == [5, 6, 7, 8, 9]
+
+
+def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
+    """A restarted consumer gets live frames (here 40..44) before the history (0..39): until
+    it has caught up, the window is the cache size, so nothing becomes a gap; afterwards the
+    normal window applies again."""
+    q = Sequencer(window=4, catch_up=100)
+    released = []
+    for s in [40, 41, 42, *range(40), 43, 44]:
+        status, out = q.push(s, f"f{s}")
+        assert status == "accepted"
+        released += out
+    assert [s for s, _ in released] == list(range(45)) and not q.gaps and q.caught_up
+    status, out = q.push(50, "f50")  # caught up: a frame 4 or more ahead declares the hole
+    assert [s for s, item in out] == [45, 46] and q.gaps == [45, 46]
+    plain = Sequencer(window=4)  # without catch-up the live frames push the history out
+    for s in [40, 41, 42, 0]:
+        plain.push(s, s)
+    assert plain.gaps[:3] == [0, 1, 2]

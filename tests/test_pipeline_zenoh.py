@@ -170,9 +170,54 @@ def test_tracker_killed_and_restarted_resumes_with_identical_output(tmp_path):
     _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "offline.mcap"), 60)
 
 
+def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline and p.poll() is None, what
+        time.sleep(0.05)
+
+
+def test_tracker_then_sink_killed_still_gives_identical_output(tmp_path):
+    """Double crash: the tracker is killed (and restarted), later the sink too.  The restarted
+    tracker published its journal again, so the restarted sink gets every frame's tracks
+    from the new tracker's cache: tracks.mcap equals an uninterrupted run."""
+    from pipeline.stages import read_snapshot
+
+    out = tmp_path / "double"
+    # 100 frames at 10 per second: the source is still publishing when the restarted tracker
+    # (a few seconds of imports and warm-up) has caught up and the sink is killed
+    p = _popen("launch", "--set", "source.frames=100", "--set", "source.rate=10",
+               "--set", "tracker.snapshot_every=5", *FAST, "--run", "double-1", "--out", str(out),
+               "--timeout", "150")
+    snap = out / "tracker.snap"
+
+    def stages() -> dict:
+        return json.loads((out / "stages.json").read_text())
+
+    try:
+        _wait_for("the tracker never snapshotted", snap.exists, p)
+        os.kill(stages()["tracker"]["pid"], signal.SIGKILL)
+        killed_at = read_snapshot(snap).last_seq
+        # the restarted tracker has resumed and gone on by a few snapshots
+        _wait_for("the tracker was not restarted", lambda: stages()["tracker"]["restarts"] == 1, p)
+        _wait_for("the restarted tracker made no progress",
+                  lambda: read_snapshot(snap).last_seq >= killed_at + 10, p)
+        assert not (out / "sink.json").exists(), "the run ended before the sink could be killed"
+        os.kill(stages()["sink"]["pid"], signal.SIGKILL)
+    finally:
+        code, text = _wait(p, 180)
+    assert code == 0, text
+    assert stages()["tracker"]["restarts"] == 1 and stages()["sink"]["restarts"] == 1, text
+    assert "published the" in (out / "logs" / "tracker.log").read_text()  # ... journal again
+    s = _summary(out)
+    assert s["complete"] and s["gaps"] == {"measurements": [], "truth": [], "tracks": []}
+    _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "offline.mcap"), 100)
+
+
 def test_sigint_stops_every_stage_and_flushes_files(tmp_path):
     out = tmp_path / "int"
-    p = _popen("launch", "--set", "source.rate=10", *FAST, "--run", "int-1", "--out", str(out), "--timeout", "150")
+    p = _popen("launch", "--set", "source.rate=10", "--set", "tracker.snapshot_every=10", *FAST,
+               "--run", "int-1", "--out", str(out), "--timeout", "150")
     try:
         deadline = time.monotonic() + 90
         while not (out / "tracker.snap").exists():  # >= 10 frames through the tracker
@@ -361,7 +406,8 @@ def test_stage_command_needs_a_run_and_a_router():
 
 
 def _make_certs(d: Path) -> dict[str, str]:
-    """A test CA and a router certificate for localhost / 127.0.0.1 (``cryptography``)."""
+    """A test CA, a router certificate for localhost / 127.0.0.1 and a client certificate
+    signed by that CA; a second CA and a client certificate signed by it (``cryptography``)."""
     from cryptography import x509  # a test dependency (pyproject [test]): fail, do not skip
     import datetime
     import ipaddress
@@ -372,7 +418,7 @@ def _make_certs(d: Path) -> dict[str, str]:
 
     now = datetime.datetime.now(datetime.timezone.utc)
 
-    def build(subject, issuer, pub, signer, ca: bool):
+    def build(subject, issuer, pub, signer, ca: bool, usage=ExtendedKeyUsageOID.SERVER_AUTH):
         b = (x509.CertificateBuilder().subject_name(subject).issuer_name(issuer).public_key(pub)
              .serial_number(x509.random_serial_number())
              .not_valid_before(now - datetime.timedelta(minutes=5))
@@ -386,20 +432,35 @@ def _make_certs(d: Path) -> dict[str, str]:
         else:
             b = (b.add_extension(x509.SubjectAlternativeName(
                     [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
-                 .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False))
+                 .add_extension(x509.ExtendedKeyUsage([usage]), critical=False))
         return b.sign(signer, hashes.SHA256())
 
-    ca_key, srv_key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
-    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "bnptrack test CA")])
-    ca = build(ca_name, ca_name, ca_key.public_key(), ca_key, True)
-    srv = build(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "localhost")]), ca_name,
-                srv_key.public_key(), ca_key, False)
+    def key():
+        return ec.generate_private_key(ec.SECP256R1())
+
+    def name(cn: str):
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+
     pem = serialization.Encoding.PEM
-    files = {"ca": d / "ca.pem", "cert": d / "router.pem", "key": d / "router.key"}
-    files["ca"].write_bytes(ca.public_bytes(pem))
-    files["cert"].write_bytes(srv.public_bytes(pem))
-    files["key"].write_bytes(srv_key.private_bytes(pem, serialization.PrivateFormat.PKCS8,
-                                                   serialization.NoEncryption()))
+    files: dict[str, Path] = {}
+
+    def save(tag: str, cert, k=None) -> None:
+        files[tag] = d / f"{tag}.pem"
+        files[tag].write_bytes(cert.public_bytes(pem))
+        if k is not None:
+            files[f"{tag}_key"] = d / f"{tag}.key"
+            files[f"{tag}_key"].write_bytes(k.private_bytes(pem, serialization.PrivateFormat.PKCS8,
+                                                            serialization.NoEncryption()))
+
+    client = ExtendedKeyUsageOID.CLIENT_AUTH
+    for prefix, cn in (("", "bnptrack test CA"), ("other_", "another CA")):
+        ca_key, srv_key, cli_key = key(), key(), key()
+        ca = build(name(cn), name(cn), ca_key.public_key(), ca_key, True)
+        save(f"{prefix}ca", ca)
+        save(f"{prefix}client", build(name("stage"), name(cn), cli_key.public_key(), ca_key, False, client), cli_key)
+        if not prefix:
+            save("cert", build(name("localhost"), name(cn), srv_key.public_key(), ca_key, False), srv_key)
+    files["key"] = files.pop("cert_key")
     return {k: str(v) for k, v in files.items()}
 
 
@@ -458,3 +519,76 @@ def msgspec_replace(obj, **kw):
     import msgspec
 
     return msgspec.structs.replace(obj, **kw)
+
+
+def _roundtrip(zcfg: ZenohConfig, run: str) -> bytes | None:
+    """Open two stage sessions with ``zcfg``; what one receives of the other's put."""
+    from pipeline.transport import Bus
+
+    with Bus(run, "a", zcfg, DeliveryConfig()) as a, Bus(run, "b", zcfg, DeliveryConfig()) as b:
+        b.subscribe(["deadletter"], advanced=False)
+        b.declare_alive("ready")
+        assert not a.wait_alive(["b"], 20, "ready")
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            a.publish("deadletter", b"hello", {"seq": 0})
+            ev = b.recv(0.2)
+            if ev is not None:
+                return ev.payload
+    return None
+
+
+def test_mutual_tls_refuses_clients_without_a_certificate_of_the_ca(tmp_path):
+    """Router with ``mtls = true``: a client needs a certificate signed by the CA.  Without
+    one, or with one from another CA, ``zenoh.open`` fails; with one, data flows."""
+    from pipeline.pipeline_config import TlsConfig
+    from pipeline.transport import Bus, Router, TransportError
+
+    c = _make_certs(tmp_path)
+    zr = ZenohConfig(tls=TlsConfig(root_ca_certificate=c["ca"], listen_certificate=c["cert"],
+                                   listen_private_key=c["key"], mtls=True))
+    with Router(zr, ["tls/127.0.0.1:0"]) as router:
+        ep = router.endpoints[0]
+
+        def client(**tls) -> ZenohConfig:
+            return ZenohConfig(mode="client", connect=[ep], connect_timeout_s=1.0,
+                               tls=TlsConfig(root_ca_certificate=c["ca"], **tls))
+
+        refused = {
+            "no client certificate": client(),
+            "no client certificate (mtls on)": client(mtls=True),
+            "certificate of another CA": client(connect_certificate=c["other_client"],
+                                                connect_private_key=c["other_client_key"], mtls=True),
+        }
+        for why, zcfg in refused.items():
+            with pytest.raises(TransportError):
+                Bus("mtls-1", "x", zcfg, DeliveryConfig()).close()
+                pytest.fail(f"the router accepted a client with {why}")
+        good = client(connect_certificate=c["client"], connect_private_key=c["client_key"], mtls=True)
+        assert _roundtrip(good, "mtls-1") == b"hello"
+
+
+def test_peer_mode_links_stages_directly(router):
+    """``zenoh.mode = "peer"``: stages that only know the router learn each other's loopback
+    endpoints by gossip and connect directly."""
+    from pipeline.transport import Bus
+
+    zcfg = ZenohConfig(mode="peer", connect=[router.endpoints[0]])
+    assert _roundtrip(zcfg, "peer-1") == b"hello"
+    with Bus("peer-2", "a", zcfg, DeliveryConfig()) as a, Bus("peer-2", "b", zcfg, DeliveryConfig()) as b:
+        deadline = time.monotonic() + 20
+        while a.links()["peers"] < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert a.links() == {"routers": 1, "peers": 1} and b.links()["peers"] == 1
+
+
+def test_peer_mode_refuses_tls_and_access_control():
+    from pipeline.pipeline_config import TlsConfig, load_pipeline
+    from tracker.config import ConfigError
+
+    for bad in ({"acl": True}, {"users_file": "u.txt"}, {"tls": TlsConfig(root_ca_certificate="ca.pem")}):
+        with pytest.raises(ValueError, match="peer"):
+            ZenohConfig(mode="peer", **bad)
+    with pytest.raises(ConfigError, match="peer"):
+        load_pipeline(None, ["zenoh.mode='peer'", "zenoh.acl=true"])
+    assert ZenohConfig(acl=True).mode == "client"
