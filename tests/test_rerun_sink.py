@@ -520,30 +520,38 @@ import pickle, sys, time
 sys.path.insert(0, sys.argv[3])
 from sinks.rerun_writer import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
-rec = RecordingProcess()
-rec.open(sys.argv[1], params=params)
-for f, e in zip(frames[:8], estimates[:8]):
-    rec.log(f, e)
-time.sleep(1.0)  # let the feeder thread write the frames into the pipe
-print("sent", flush=True)
-sys.stdin.read()  # until killed
+with RecordingProcess() as rec:
+    rec.open(sys.argv[1], params=params)
+    for f, e in zip(frames[:8], estimates[:8]):
+        rec.log(f, e)
+    time.sleep(1.0)  # let the feeder thread write the frames into the pipe
+    print("sent", flush=True)
+    sys.stdin.read()  # until a signal ends it
 """
 
 
-def test_recording_finalised_when_the_tracker_process_is_killed(vo_run, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_path, sig):
+    """SIGKILL: the child sees the end of its input and finalises the file.  SIGINT to the
+    whole process group (a Ctrl-C): the tracker's process closes the recording on its way out;
+    the child, in a session of its own, is not interrupted."""
     params, frames, estimates = vo_run
     data = tmp_path / "run.pkl"
     data.write_bytes(pickle.dumps((frames, estimates, params)))
-    path = tmp_path / "killed.rrd"
+    path = tmp_path / "stopped.rrd"
     proc = subprocess.Popen([sys.executable, "-c", _TRACKER, str(path), str(data), str(REPO)],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=rerun_env())
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=rerun_env(),
+                            start_new_session=True)
     try:
         assert proc.stdout.readline().strip() == "sent"
+        os.killpg(proc.pid, sig)
+        proc.wait(timeout=60)
     finally:
-        proc.kill()
-        proc.wait(timeout=30)
-    # the orphaned recording process sees the end of its input and finalises the file
-    deadline = time.monotonic() + 90
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    assert proc.returncode == -sig
+    deadline = time.monotonic() + 90  # after a SIGKILL the orphaned child finishes on its own
     while rrd_verify(path).returncode != 0:
         assert time.monotonic() < deadline, "the recording was not finalised"
         time.sleep(0.5)
