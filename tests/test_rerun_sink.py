@@ -17,6 +17,7 @@ import os
 os.environ.setdefault("CI", "1")  # before `import rerun`: no analytics from any rerun subprocess
 os.environ.setdefault("RUST_LOG", "error")
 
+import json  # noqa: E402
 import pickle  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
@@ -479,18 +480,62 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
     return {key: sorted(rows) for key, rows in out.items()}
 
 
-def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path):
+_TRACKER = r"""
+import json, pickle, sys
+sys.path.insert(0, sys.argv[3])
+from sinks.rerun_writer import RecordingProcess
+frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
+start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6] == "wait"
+with RecordingProcess(start=start) as rec:
+    print(type(rec._proc).__name__, flush=True)
+    rec.open(sys.argv[1], params=params, metadata=json.loads(sys.argv[7]))
+    for f, e in zip(frames[:n], estimates[:n]):
+        rec.log(f, e)  # in the pipe when it returns (the pipe holds far more than 8 frames)
+    print("sent", flush=True)
+    if wait:
+        sys.stdin.read()  # until a signal ends it
+"""
+_CHILD_KIND = {"fork": "_ForkedChild", "exec": "Popen"}
+
+
+def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tuple[subprocess.Popen, Path]:
+    """A tracker-like process that records ``n`` frames of ``vo_run`` through a
+    ``RecordingProcess(start=start)`` (rerun is not imported there, so ``fork`` is allowed),
+    then waits for a signal (``wait``) or closes the recording and exits."""
     params, frames, estimates = vo_run
-    path = tmp_path / "process.rrd"
-    with RecordingProcess() as rec:
-        rec.open(path, metadata=META, params=params)
-        for f, e in zip(frames, estimates):
-            rec.log(f, e)
-    assert rec.closed
+    data = tmp_path / "run.pkl"
+    data.write_bytes(pickle.dumps((frames, estimates, params)))
+    path = tmp_path / f"{start}.rrd"
+    args = [str(path), str(data), str(REPO), start, str(n), "wait" if wait else "exit", json.dumps(META)]
+    proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    assert proc.stdout.readline().strip() == _CHILD_KIND[start]
+    assert proc.stdout.readline().strip() == "sent"
+    return proc, path
+
+
+@pytest.mark.parametrize("start", ["fork", "exec"])
+def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path, start):
+    proc, path = start_tracker(vo_run, tmp_path, start, N_FRAMES, wait=False)
+    assert proc.wait(timeout=120) == 0
     assert rrd_verify(path).returncode == 0
     got, want = content_rows(path), content_rows(recording)
     assert got.keys() == want.keys()
     assert got == want
+
+
+def test_recording_process_in_this_process(vo_run, tmp_path):
+    """Here rerun is imported: ``auto`` starts a new interpreter and ``fork`` is refused."""
+    params, frames, estimates = vo_run
+    with pytest.raises(RuntimeError, match="use 'exec'"):
+        RecordingProcess(start="fork")
+    path = tmp_path / "here.rrd"
+    with RecordingProcess() as rec:
+        rec.open(path, metadata=META, params=params)
+        for f, e in zip(frames[:5], estimates[:5]):
+            rec.log(f, e)
+    assert rec.closed
+    assert frames_in(path) == {f.frame for f in frames[:5]}
 
 
 def test_recording_process_abort_and_child_failure(vo_run, tmp_path):
@@ -515,35 +560,15 @@ def test_recording_process_abort_and_child_failure(vo_run, tmp_path):
         rec.open(Path("/proc/no-such-dir/x.rrd"))
 
 
-_TRACKER = r"""
-import pickle, sys, time
-sys.path.insert(0, sys.argv[3])
-from sinks.rerun_writer import RecordingProcess
-frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
-with RecordingProcess() as rec:
-    rec.open(sys.argv[1], params=params)
-    for f, e in zip(frames[:8], estimates[:8]):
-        rec.log(f, e)
-    time.sleep(1.0)  # let the feeder thread write the frames into the pipe
-    print("sent", flush=True)
-    sys.stdin.read()  # until a signal ends it
-"""
-
-
+@pytest.mark.parametrize("start", ["fork", "exec"])
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
-def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_path, sig):
+def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_path, sig, start):
     """SIGKILL: the child sees the end of its input and finalises the file.  SIGINT to the
     whole process group (a Ctrl-C): the tracker's process closes the recording on its way out;
     the child, in a session of its own, is not interrupted."""
-    params, frames, estimates = vo_run
-    data = tmp_path / "run.pkl"
-    data.write_bytes(pickle.dumps((frames, estimates, params)))
-    path = tmp_path / "stopped.rrd"
-    proc = subprocess.Popen([sys.executable, "-c", _TRACKER, str(path), str(data), str(REPO)],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=rerun_env(),
-                            start_new_session=True)
+    _params, frames, _estimates = vo_run
+    proc, path = start_tracker(vo_run, tmp_path, start, 8, wait=True)
     try:
-        assert proc.stdout.readline().strip() == "sent"
         os.killpg(proc.pid, sig)
         proc.wait(timeout=60)
     finally:
@@ -552,12 +577,10 @@ def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_pat
             proc.wait(timeout=30)
     assert proc.returncode == -sig
     deadline = time.monotonic() + 90  # after a SIGKILL the orphaned child finishes on its own
-    while rrd_verify(path).returncode != 0:
+    while not (path.stat().st_size and rrd_verify(path).returncode == 0):  # (an empty file passes)
         assert time.monotonic() < deadline, "the recording was not finalised"
         time.sleep(0.5)
-    loaded = sorted(frames_in(path))
-    sent = [f.frame for f in frames[:8]]
-    assert loaded and loaded == sent[:len(loaded)]
+    assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
 
 
 def test_cli_track_rrd_end_to_end(tmp_path):
