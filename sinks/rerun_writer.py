@@ -71,6 +71,7 @@ CHILD_FLUSH_INTERVAL = 0.25
 _SOURCE_ROOT = Path(__file__).resolve().parents[1]
 _CHILD_CODE = "from sinks.rerun_writer import child_entry; child_entry()"
 _DONE = b"done\n"
+_REAPER = "rerun-recording-reaper"
 _PIPE_SIZE = 1 << 20
 _STDERR_TAIL = 4000
 
@@ -88,9 +89,12 @@ def _child_env() -> dict[str, str]:
 
 
 def fork_allowed() -> bool:
-    """Whether this process may fork the child: POSIX, no Python thread but this one, and
-    rerun not imported (its runtime threads would be missing in the fork)."""
-    return (hasattr(os, "fork") and threading.active_count() == 1
+    """Whether this process may fork the child: POSIX, no other Python thread (but the
+    reapers of earlier children, which only wait in ``waitpid``), and rerun not imported (its
+    runtime threads would be missing in the fork)."""
+    here = threading.current_thread()
+    others = [t for t in threading.enumerate() if t is not here and t.name != _REAPER]
+    return (hasattr(os, "fork") and not others
             and "rerun" not in sys.modules and "rerun_bindings" not in sys.modules)
 
 
@@ -272,7 +276,7 @@ class RecordingProcess:
         self._stderr.close()
         # the file is complete; the child exits on its own within some 10-30 ms.  A
         # (non-daemon) thread reaps it, so that this process's exit waits for it too
-        threading.Thread(target=self._proc.wait, name="rerun-recording-reaper").start()
+        threading.Thread(target=self._proc.wait, name=_REAPER).start()
 
     def abort(self) -> None:
         """Kill the child at once (no recording is finalised; idempotent)."""
