@@ -270,7 +270,9 @@ class RecordingProcess:
         if not (self._outbox.finish(deadline) and self._wait_done(deadline)):
             self._proc.kill()
             self._proc.wait()
+            self._proc.stdout.close()  # type: ignore[union-attr]
             raise RecordingError(self._failure(f"did not finish within {self.timeout:g} s"))
+        self._proc.stdout.close()  # type: ignore[union-attr]
         if self._proc.returncode is not None:  # ended without reporting the file complete
             raise RecordingError(self._failure(f"exited with code {self._proc.returncode}"))
         self._stderr.close()
@@ -286,6 +288,7 @@ class RecordingProcess:
         self._proc.kill()
         self._outbox.close()
         self._proc.wait()
+        self._proc.stdout.close()  # type: ignore[union-attr]
         self._stderr.close()
 
     def __enter__(self) -> RecordingProcess:
@@ -310,7 +313,10 @@ class RecordingProcess:
                 return False
             chunk = os.read(fd, 256)
             if not chunk:
-                self._proc.wait(timeout=max(deadline - time.monotonic(), 1.0))
+                try:
+                    self._proc.wait(timeout=max(deadline - time.monotonic(), 1.0))
+                except subprocess.TimeoutExpired:
+                    return False
                 return True
             said += chunk
         return True
