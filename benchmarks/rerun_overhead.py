@@ -1,22 +1,38 @@
-"""Cost of recording a run to Rerun (.rrd) next to the tracker's own cost, frame by frame.
+"""Cost of a Rerun recording (.rrd) in an offline `bnptrack track --rrd` run.
 
-Runs the DDP-EMM tracker over a simulated scenario (default vo2017, seed 1, 100 frames) and,
-interleaved frame by frame in the same process, logs every frame to a RerunSink.  The
-tracker's step, the scoring (OSPA, OSPA(2): sinks.metrics) and the sink's ``log`` are timed
-separately with ``time.perf_counter``, so machine load affects all of them alike.  Prints ms per
-frame (median, mean, p95) for each and the logging/tracker ratio; ``close()`` (footer) is
-timed apart.  Interleaving matters: Rerun encodes and writes on background threads, which
-compete with the tracker on the same cores exactly as they would in a real run.
+Two parts:
 
-    python benchmarks/rerun_overhead.py                     # vo2017, seed 1, ddp, 3 repeats
-    python benchmarks/rerun_overhead.py --flush-interval 0  # send every frame at once
-    python benchmarks/rerun_overhead.py --scenario snr --repeats 5
+1. The whole command, the figure the target of issue 6 names ("the sink adds under 10% to an
+   offline `bnptrack track --rrd` run"): ``python -m pipeline track LOG -q`` and the same with
+   ``--rrd FILE``, run alternately (A B A B ...) ``--repeats`` times each, so that the load of
+   other processes hits both alike.  For each: wall clock (``time.perf_counter`` around the
+   command) and CPU time (user + sys of the command and its children, from
+   ``resource.getrusage(RUSAGE_CHILDREN)``).  Prints the medians, the ratio of the medians and
+   the median of the per-pair ratios.  With ``--rrd`` the recording is written by a child process
+   (``sinks.rerun_writer``), so the wall clock shows what the user waits for and the CPU time
+   what the recording costs in all.
+2. Per frame, in this process: the tracker's step, the hand-off on the tracker's thread
+   (``RecordingProcess.log``: OSPA/OSPA(2) scoring, pickling, writing to the pipe) and the final
+   ``close`` (waiting for the child to write the last chunks and the footer; the child is given
+   ``--head-start`` seconds to import rerun first, as building the tracker gives it in
+   ``bnptrack track``); then the sink's
+   own work per frame (``RerunSink.log`` and ``close`` over the same frames, in this process:
+   the work the child does beside the tracker).
+
+    python benchmarks/rerun_overhead.py                        # vo2017-s1, ddp, 5 repeats
+    python benchmarks/rerun_overhead.py --repeats 10 --part command
+    python benchmarks/rerun_overhead.py --log recordings/snr-s1.mcap --part frame
+
+Prints the load average before and after: on a machine whose cores are busy with other work the
+child cannot overlap the tracker, and the wall ratio moves towards the CPU ratio.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -26,100 +42,152 @@ os.environ.setdefault("CI", "1")  # never phone home from a benchmark (rerun CLI
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
-from sinks.rerun_sink import RerunSink, RunScorer  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import make_tracker  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.state import frame_rng  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 
-def one_run(args: argparse.Namespace, out: Path) -> dict[str, np.ndarray | float]:
-    scenario = get_scenario(args.scenario)
-    params = scenario.adapt_params(load_params(args.params))
-    frames = simulate_all(scenario, params, args.seed)
-    tracker = make_tracker(args.tracker, params)
-    state = tracker.initial_state()
-    scorer = RunScorer()
-    meta = {"scenario": args.scenario, "params": args.params, "tracker": args.tracker,
-            "seed": str(args.seed)}
-    t_trk, t_score, t_log = [], [], []
-    cpu_trk = cpu_log = 0.0
-    sink = RerunSink(out, metadata=meta, params=params, flush_interval=args.flush_interval)
-    proc0, thr0 = time.process_time(), time.thread_time()
-    for frame in frames:
-        c0, t0 = time.thread_time(), time.perf_counter()
-        state, est = tracker.step(state, frame, frame_rng(args.tracker_seed, frame.frame))
-        c1, t1 = time.thread_time(), time.perf_counter()
-        scores = scorer.update(frame, est)
-        c2, t2 = time.thread_time(), time.perf_counter()
-        sink.log(frame, est, **scores)
-        c3, t3 = time.thread_time(), time.perf_counter()
-        t_trk.append(t1 - t0)
-        t_score.append(t2 - t1)
-        t_log.append(t3 - t2)
-        cpu_trk += c1 - c0
-        cpu_log += c3 - c2
-    c4, t4 = time.thread_time(), time.perf_counter()
-    sink.close()
-    c5, t5 = time.thread_time(), time.perf_counter()
-    cpu_log += c5 - c4
-    # CPU of every other thread of the process (Rerun's batcher and file writer, which only
-    # exist because of the sink), charged to logging
-    background = (time.process_time() - proc0) - (time.thread_time() - thr0)
-    return {"tracker": np.array(t_trk) * 1e3, "score": np.array(t_score) * 1e3,
-            "log": np.array(t_log) * 1e3, "close": (t5 - t4) * 1e3, "frames": len(frames),
-            "bytes": out.stat().st_size, "cpu_trk": cpu_trk * 1e3, "cpu_log": cpu_log * 1e3,
-            "cpu_bg": max(background, 0.0) * 1e3}
+# --------------------------------------------------------------------------- whole command
+
+
+def _timed(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall s, CPU s of the command and its children) of one run of ``cmd``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def command_part(args: argparse.Namespace, tmp: Path) -> None:
+    paths = [str(ROOT), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}  # this tree's code
+    base = [sys.executable, "-m", "pipeline", "track", str(args.log), "--tracker", args.tracker, "-q"]
+    plain = [*base, "--out", str(tmp / "plain.tracks.mcap")]
+    rrd = [*base, "--out", str(tmp / "rrd.tracks.mcap"), "--rrd", str(tmp / "run.rrd")]
+    _timed(plain, env)  # warm the page cache and numba's on-disk cache
+    _timed(rrd, env)
+    a, b = [], []
+    for i in range(args.repeats):
+        a.append(_timed(plain, env))
+        b.append(_timed(rrd, env))
+        if args.verbose:
+            print(f"  pair {i}: {a[-1][0]:.3f} s / {b[-1][0]:.3f} s wall ({b[-1][0] / a[-1][0]:.3f}), "
+                  f"load average {os.getloadavg()[0]:.2f}")
+    wa, ca = np.array(a).T
+    wb, cb = np.array(b).T
+    print(f"whole command, {args.repeats} alternating pairs: `bnptrack track {args.log} "
+          f"--tracker {args.tracker} -q` without / with --rrd")
+    print(f"  wall   median {np.median(wa):6.3f} s / {np.median(wb):6.3f} s   ratio of medians "
+          f"{np.median(wb) / np.median(wa):.3f}   median of pair ratios {np.median(wb / wa):.3f}   "
+          f"(pairs: min {np.min(wb / wa):.3f}, max {np.max(wb / wa):.3f})")
+    print(f"  CPU    median {np.median(ca):6.3f} s / {np.median(cb):6.3f} s   ratio of medians "
+          f"{np.median(cb) / np.median(ca):.3f}   (user + sys, the recording process included)")
+    print(f"  recording {(tmp / 'run.rrd').stat().st_size / 1024:.0f} KiB")
+
+
+# --------------------------------------------------------------------------- per frame
+
+
+def _setup(args: argparse.Namespace):
+    from pipeline.offline import build_tracker, resolve_config, resolve_params
+    from sources.mcap_log import iter_frames, read_metadata
+
+    meta = read_metadata(args.log)
+    params = resolve_params(None, meta).params
+    config, _ = resolve_config(args.tracker, None)
+    return build_tracker(args.tracker, params, config), params, list(iter_frames(args.log))
 
 
 def _row(name: str, ms: np.ndarray) -> str:
-    return (f"{name:<22} median {np.median(ms):7.3f}  mean {ms.mean():7.3f}  "
+    return (f"  {name:<36} median {np.median(ms):7.3f}  mean {ms.mean():7.3f}  "
             f"p95 {np.percentile(ms, 95):7.3f} ms/frame")
+
+
+def frame_part(args: argparse.Namespace, tmp: Path) -> None:
+    from sinks.rerun_writer import RecordingProcess
+    from tracker.state import run
+
+    tracker, params, frames = _setup(args)
+    step, hand, closes = [], [], []
+    for r in range(args.repeats):  # rerun is not imported here yet: the child is a fork
+        with RecordingProcess() as rec:
+            time.sleep(args.head_start)  # what building the tracker gives it in `bnptrack track`
+            rec.open(tmp / f"frame{r}.rrd", params=params)
+            it = run(tracker, frames, 0)
+            while True:
+                t0 = time.perf_counter()
+                item = next(it, None)
+                t1 = time.perf_counter()
+                if item is None:
+                    break
+                rec.log(item[0], item[1])
+                step.append(t1 - t0)
+                hand.append(time.perf_counter() - t1)
+            t0 = time.perf_counter()
+            rec.close()
+            closes.append(time.perf_counter() - t0)
+    kept = [(f, e) for f, e, _s in run(tracker, frames, 0)]
+    score, sink_log, sink_closes = _child_share(args, tmp, params, kept)
+    step_ms, hand_ms, score_ms, sink_ms = (np.array(v) * 1e3 for v in (step, hand, score, sink_log))
+    print(f"per frame, {len(frames)} frames x {args.repeats} runs of {args.tracker} on {args.log}")
+    print(_row("tracker step", step_ms))
+    print(_row("hand-off (score, pickle, write)", hand_ms))
+    print(_row("  of which scoring (measured apart)", score_ms))
+    print(f"  {'close (wait for the recording)':<36} {np.mean(closes) * 1e3:7.1f} ms per run")
+    print(f"  hand-off / tracker: medians {np.median(hand_ms) / np.median(step_ms):.3f}, whole run "
+          f"{hand_ms.sum() / step_ms.sum():.3f} (with close: "
+          f"{(hand_ms.sum() + sum(closes) * 1e3) / step_ms.sum():.3f})")
+    print("  the child's work, measured in this process:")
+    print(_row("RerunSink.log", sink_ms))
+    print(f"  {'RerunSink.close (last flush, footer)':<36} {np.mean(sink_closes) * 1e3:7.1f} ms per run")
+
+
+def _child_share(args: argparse.Namespace, tmp: Path, params, kept: list) -> tuple[list, list, list]:
+    """Scoring (s per frame), and ``RerunSink.log`` (s per frame) and ``close`` (s per run)
+    with the child's settings, over the frames and estimates ``kept``, in this process."""
+    from sinks.rerun_sink import RerunSink
+    from sinks.rerun_writer import CHILD_FLUSH_INTERVAL
+    from sinks.scoring import RunScorer
+
+    score, sink_log, sink_closes = [], [], []
+    for r in range(args.repeats):
+        scorer = RunScorer()
+        scores = []
+        for f, e in kept:
+            t0 = time.perf_counter()
+            scores.append(scorer.update(f, e))
+            score.append(time.perf_counter() - t0)
+        sink = RerunSink(tmp / f"sink{r}.rrd", params=params, handle_signals=False,
+                         flush_interval=CHILD_FLUSH_INTERVAL)
+        for (f, e), s in zip(kept, scores):
+            t0 = time.perf_counter()
+            sink.log(f, e, **s)
+            sink_log.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        sink.close()
+        sink_closes.append(time.perf_counter() - t0)
+    return score, sink_log, sink_closes
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenario", default="vo2017")
-    ap.add_argument("--params", default="vo2017")
-    ap.add_argument("--tracker", default="ddp", choices=("ddp", "dpyp"))
-    ap.add_argument("--seed", type=int, default=1, help="simulation seed")
-    ap.add_argument("--tracker-seed", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=3, help="runs; the figures pool all frames")
-    ap.add_argument("--flush-interval", type=float, default=1.0,
-                    help="RerunSink flush_interval in seconds (0: flush after every frame)")
+    ap.add_argument("--log", type=Path, default=ROOT / "recordings" / "vo2017-s1.mcap")
+    ap.add_argument("--tracker", default="ddp")
+    ap.add_argument("--repeats", type=int, default=5, help="pairs of commands / per-frame runs")
+    ap.add_argument("--part", choices=("all", "command", "frame"), default="all")
+    ap.add_argument("--verbose", "-v", action="store_true", help="print every pair of commands")
+    ap.add_argument("--head-start", type=float, default=1.5,
+                    help="per-frame part: seconds the recording process gets to import rerun "
+                    "before the first frame (bnptrack track builds the tracker meanwhile)")
     args = ap.parse_args()
-
-    pooled: dict[str, list] = {"tracker": [], "score": [], "log": []}
-    closes, size, n = [], 0, 0
-    cpu = {"cpu_trk": 0.0, "cpu_log": 0.0, "cpu_bg": 0.0}
+    print(f"{os.cpu_count()} cpu(s), load average {os.getloadavg()[0]:.2f} (1 min) at the start")
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(args.repeats):
-            res = one_run(args, Path(tmp) / f"run{r}.rrd")
-            for k in pooled:
-                pooled[k].append(res[k])
-            closes.append(res["close"])
-            for k in cpu:
-                cpu[k] += res[k]
-            size, n = res["bytes"], res["frames"]
-    trk, score, log = (np.concatenate(pooled[k]) for k in ("tracker", "score", "log"))
-    print(f"{args.scenario} seed {args.seed}, tracker {args.tracker}, {n} frames x {args.repeats} runs, "
-          f"flush_interval {args.flush_interval:g} s, {os.cpu_count()} cpu(s), "
-          f"load average {os.getloadavg()[0]:.2f}")
-    print(_row("tracker step", trk))
-    print(_row("scoring (OSPA, OSPA2)", score))
-    print(_row("rerun logging", log))
-    print(f"{'close (footer)':<22} {np.mean(closes):7.1f} ms per run; file {size / 1024:.0f} KiB per run")
-    frames_total = n * args.repeats
-    print("CPU time per frame (immune to other processes' load): "
-          f"tracker {cpu['cpu_trk'] / frames_total:.3f} ms, logging {cpu['cpu_log'] / frames_total:.3f} ms "
-          f"(incl. flushes and close) + Rerun background threads {cpu['cpu_bg'] / frames_total:.3f} ms")
-    print(f"logging / tracker: wall median {np.median(log) / np.median(trk):.3f}, "
-          f"wall total {log.sum() / trk.sum():.3f} "
-          f"(with close: {(log.sum() + sum(closes)) / trk.sum():.3f}), "
-          f"CPU {(cpu['cpu_log'] + cpu['cpu_bg']) / cpu['cpu_trk']:.3f}")
+        if args.part in ("all", "command"):
+            command_part(args, Path(tmp))
+        if args.part in ("all", "frame"):
+            frame_part(args, Path(tmp))
+    print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
 
 
 if __name__ == "__main__":

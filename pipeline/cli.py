@@ -35,6 +35,7 @@ from pipeline.offline import (
     split_overrides,
     track_log,
 )
+from sinks.rerun_writer import RecordingError, RecordingProcess
 from sources.mcap_log import McapLogError, read_metadata
 from sources.scenarios import get_scenario, scenario_names
 from tracker.config import ConfigError
@@ -54,7 +55,7 @@ class CliError(click.ClickException):
         super().__init__(" ".join(str(message).split()))
 
 
-_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError)
+_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError)
 
 
 def _clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -304,6 +305,12 @@ def track(
       bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
       bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
     """
+    # --rrd: start the recording process before anything else, so that its imports (rerun)
+    # run on the other core beside the tracker's (sinks.rerun_writer); the command's context
+    # closes it at the end whatever happens (track_log_with_rrd closes it first, normally)
+    recorder = None
+    if rrd is not None:
+        recorder = click.get_current_context().with_resource(RecordingProcess())
     metadata = read_metadata(log)
     choice = resolve_params(params_arg, metadata)
     config, config_desc = resolve_config(tracker_name, config_arg)
@@ -335,7 +342,8 @@ def track(
     if rrd is not None:
         from pipeline.view import track_log_with_rrd
 
-        res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params)
+        res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
+                                 recorder=recorder)
     else:
         res = track_log(log, out, tracker, seed, out_meta)
     if not quiet:

@@ -12,7 +12,7 @@ Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
   whole viewer through the viewer's control API (``rerun.experimental.ViewerClient``).  The
   viewer listens on a free port of 127.0.0.1 only and is stopped afterwards.
 * :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run
-  (``bnptrack track --rrd``).
+  (``bnptrack track --rrd``), written by a child process (:mod:`sinks.rerun_writer`).
 
 Subprocesses run with :func:`sinks.rerun_sink.rerun_env`: the CLI's analytics off (``CI`` set)
 and its log quiet, except the interactive viewer of :func:`open_viewer`, which keeps the user's
@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from pipeline.offline import TrackResult
+    from sinks.rerun_writer import RecordingProcess
     from tracker.registry import Tracker
     from tracker.models.params import ModelParams
 
@@ -274,23 +275,26 @@ def track_log_with_rrd(
     metadata: Mapping[str, str] | None,
     *,
     params: ModelParams | None = None,
+    recorder: RecordingProcess | None = None,
 ) -> TrackResult:
     """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``.
 
     Each frame is scored (:class:`sinks.rerun_sink.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
     over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
-    with ``metadata`` (plus ``source_log``).  Like ``track_log``, a damaged input is processed
-    up to its readable end; both outputs then hold that prefix (the recording is finalised).
+    with ``metadata`` (plus ``source_log``).  Both run in a child process
+    (:class:`sinks.rerun_writer.RecordingProcess`; pass ``recorder`` to have it started early,
+    e.g. before building the tracker, so its imports overlap the tracker's), which logs one
+    frame while the tracker computes the next.  Like ``track_log``, a damaged input is
+    processed up to its readable end; both outputs then hold that prefix (the recording is
+    finalised).  The recording is complete when this returns.
     """
     from pipeline.offline import check_output_path, track_log
-    from sinks.rerun_sink import RerunSink, RunScorer
+    from sinks.rerun_writer import RecordingProcess
 
     log, out, rrd = Path(log), Path(out), Path(rrd)
-    check_output_path(log, rrd)
-    if rrd.resolve() == out.resolve():
-        raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
-    rrd_meta = {**dict(metadata or {}), "source_log": str(log)}
-    scorer = RunScorer()
-    with RerunSink(rrd, metadata=rrd_meta, params=params) as sink:
-        return track_log(log, out, tracker, seed, metadata,
-                         on_estimate=lambda frame, est: sink.log(frame, est, **scorer.update(frame, est)))
+    with recorder if recorder is not None else RecordingProcess() as rec:
+        check_output_path(log, rrd)
+        if rrd.resolve() == out.resolve():
+            raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
+        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params)
+        return track_log(log, out, tracker, seed, metadata, on_estimate=rec.log)

@@ -33,8 +33,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial.distance import cdist
 
 __all__ = [
     "GospaResult",
@@ -195,7 +193,21 @@ def _cutoff_distances(X: np.ndarray, Y: np.ndarray, c: float) -> np.ndarray:
     """``(m, n)`` matrix of :math:`\\min(c, \\lVert x_i - y_j \\rVert)`."""
     if X.shape[0] == 0 or Y.shape[0] == 0:
         return np.empty((X.shape[0], Y.shape[0]))
+    from scipy.spatial.distance import cdist  # lazy, see _assign
+
     return np.minimum(cdist(X, Y), c)
+
+
+def _assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Optimal assignment (:func:`scipy.optimize.linear_sum_assignment`).
+
+    scipy is imported here, at the first score: importing ``scipy.optimize`` takes about 0.5 s,
+    which a process that only unpickles :class:`OspaResult` (the Rerun recording process, see
+    ``sinks.rerun_writer``) should not pay.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment(cost)
 
 
 def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
@@ -208,7 +220,7 @@ def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
     if m == 0:
         return OspaResult(c, 0.0, c)
     cost = D**p
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = _assign(cost)
     loc_term = math.fsum(cost[rows, cols]) / n  # correctly rounded, order-free
     card_term = c**p * (n - m) / n
     return OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
@@ -218,7 +230,7 @@ def _gospa_unchecked(D: np.ndarray, c: float, p: float, alpha: float) -> GospaRe
     """GOSPA from an ``(m, n)`` truth-by-estimate matrix of distances cut off at ``c``."""
     m, n = D.shape
     if m and n:
-        rows, cols = linear_sum_assignment(D**p)
+        rows, cols = _assign(D**p)
         d = D[rows, cols]
     else:
         d = np.empty(0)

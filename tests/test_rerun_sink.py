@@ -17,11 +17,13 @@ import os
 os.environ.setdefault("CI", "1")  # before `import rerun`: no analytics from any rerun subprocess
 os.environ.setdefault("RUST_LOG", "error")
 
+import json  # noqa: E402
 import pickle  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
+import time  # noqa: E402
 from collections import defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -40,6 +42,7 @@ from sinks.rerun_sink import (  # noqa: E402
     rerun_env,
     write_recording,
 )
+from sinks.rerun_writer import RecordingError, RecordingProcess  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.bnp_tracker import make_tracker  # noqa: E402
@@ -457,6 +460,140 @@ def test_track_log_with_rrd(tmp_path):
     assert [rec[r.frame][0] for r in res.frames] == [r.ospa for r in res.frames]
     with pytest.raises(ValueError, match="overwrite"):
         track_log_with_rrd(log, out, out, tracker, 0, None)
+
+
+# --------------------------------------------------------------------------- recording process
+
+
+def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
+    """(entity, column) -> the sorted ``(frame, value)`` rows of the recording, without what
+    differs from one write to the next (row ids, log_time, the start time)."""
+    skip = {"rerun.controls.RowId", "log_time", "frame", "RecordingInfo:start_time"}
+    out: dict[tuple[str, str], list[str]] = defaultdict(list)
+    for entity, batches in read_rrd(path).items():
+        for rb in batches:
+            names = rb.schema.names
+            frames = rb.column("frame").to_pylist() if "frame" in names else [None] * rb.num_rows
+            for name in names:
+                if name not in skip:
+                    out[(entity, name)] += [repr((f, v)) for f, v in zip(frames, rb.column(name).to_pylist())]
+    return {key: sorted(rows) for key, rows in out.items()}
+
+
+_TRACKER = r"""
+import json, pickle, sys
+sys.path.insert(0, sys.argv[3])
+from sinks.rerun_writer import RecordingProcess
+frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
+start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6] == "wait"
+with RecordingProcess(start=start) as rec:
+    print(type(rec._proc).__name__, flush=True)
+    rec.open(sys.argv[1], params=params, metadata=json.loads(sys.argv[7]))
+    for f, e in zip(frames[:n], estimates[:n]):
+        rec.log(f, e)  # in the pipe when it returns (the pipe holds far more than 8 frames)
+    print("sent", flush=True)
+    if wait:
+        sys.stdin.read()  # until a signal ends it
+"""
+_CHILD_KIND = {"fork": "_ForkedChild", "exec": "Popen"}
+
+
+def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tuple[subprocess.Popen, Path]:
+    """A tracker-like process that records ``n`` frames of ``vo_run`` through a
+    ``RecordingProcess(start=start)`` (rerun is not imported there, so ``fork`` is allowed),
+    then waits for a signal (``wait``) or closes the recording and exits."""
+    params, frames, estimates = vo_run
+    data = tmp_path / "run.pkl"
+    data.write_bytes(pickle.dumps((frames, estimates, params)))
+    path = tmp_path / f"{start}.rrd"
+    args = [str(path), str(data), str(REPO), start, str(n), "wait" if wait else "exit", json.dumps(META)]
+    proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    assert proc.stdout.readline().strip() == _CHILD_KIND[start]
+    assert proc.stdout.readline().strip() == "sent"
+    return proc, path
+
+
+@pytest.mark.parametrize("start", ["fork", "exec"])
+def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path, start):
+    proc, path = start_tracker(vo_run, tmp_path, start, N_FRAMES, wait=False)
+    assert proc.wait(timeout=120) == 0
+    assert rrd_verify(path).returncode == 0
+    got, want = content_rows(path), content_rows(recording)
+    assert got.keys() == want.keys()
+    assert got == want
+
+
+def test_recording_process_in_this_process(vo_run, tmp_path):
+    """Here rerun is imported: ``auto`` starts a new interpreter and ``fork`` is refused."""
+    params, frames, estimates = vo_run
+    with pytest.raises(RuntimeError, match="use 'exec'"):
+        RecordingProcess(start="fork")
+    path = tmp_path / "here.rrd"
+    with RecordingProcess() as rec:
+        rec.open(path, metadata=META, params=params)
+        for f, e in zip(frames[:5], estimates[:5]):
+            rec.log(f, e)
+    assert rec.closed
+    assert frames_in(path) == {f.frame for f in frames[:5]}
+
+
+def test_recording_process_abort_and_child_failure(vo_run, tmp_path):
+    params, frames, estimates = vo_run
+    with pytest.raises(KeyError):
+        with RecordingProcess() as rec:  # an error before open: the child is killed, no file
+            raise KeyError("before open")
+    assert rec.closed
+    rec = RecordingProcess()
+    with pytest.raises(RuntimeError, match="before open"):
+        rec.log(frames[0], estimates[0])
+    t0 = time.monotonic()
+    rec.close()  # before open: nothing to finalise, no wait for the child's imports
+    assert rec.closed and time.monotonic() - t0 < 5.0
+    assert not list(tmp_path.iterdir())
+    rec = RecordingProcess()
+    rec.open(tmp_path / "bad.rrd", params=params, trail=0)  # RerunSink refuses it in the child
+    rec.log(frames[0], estimates[0])
+    with pytest.raises(RecordingError, match="trail must be >= 1"):
+        rec.close()
+    with RecordingProcess() as rec, pytest.raises(OSError):  # an unwritable path fails at once
+        rec.open(Path("/proc/no-such-dir/x.rrd"))
+
+
+@pytest.mark.parametrize("start", ["fork", "exec"])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_path, sig, start):
+    """SIGKILL: the child sees the end of its input and finalises the file.  SIGINT to the
+    whole process group (a Ctrl-C): the tracker's process closes the recording on its way out;
+    the child, in a session of its own, is not interrupted."""
+    _params, frames, _estimates = vo_run
+    proc, path = start_tracker(vo_run, tmp_path, start, 8, wait=True)
+    try:
+        os.killpg(proc.pid, sig)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    assert proc.returncode == -sig
+    deadline = time.monotonic() + 90  # after a SIGKILL the orphaned child finishes on its own
+    while not (path.stat().st_size and rrd_verify(path).returncode == 0):  # (an empty file passes)
+        assert time.monotonic() < deadline, "the recording was not finalised"
+        time.sleep(0.5)
+    assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
+
+
+def test_cli_track_rrd_end_to_end(tmp_path):
+    log = REPO / "recordings" / "vo2017-s1.mcap"
+    out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"
+    env = {**rerun_env(), "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(out), "-q"]
+    res = subprocess.run([*cmd, "--rrd", str(rrd)], capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert rrd_verify(rrd).returncode == 0
+    assert frames_in(rrd) == set(range(1, 101))  # the log's 100 frames
+    res = subprocess.run([*cmd, "--rrd", str(out)], capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 2 and "overwrite" in res.stderr
 
 
 # --------------------------------------------------------------------------- screenshot
