@@ -569,31 +569,26 @@ class _StageBase:
     # -- control ---------------------------------------------------------------------
     def on_control(self, ev: Any) -> bool:
         """Handle ``info/*`` and ``eos/*``; True if the event was a control message."""
-        topic = ev.topic
-        if topic.startswith("eos/"):
-            try:
-                eos = _EOS_DEC.decode(ev.payload)
-            except msgspec.DecodeError as exc:
-                log.warning("%s: ignoring a malformed %s message: %s", self.name, topic, exc)
-                return True
-            if eos.run == self.run_id:
-                stage = topic.split("/", 1)[1]
-                if stage not in self.eos_seen:
-                    self.eos_time[stage] = time.monotonic()
-                    log.info("%s: end of stream from %s (last seq %d%s)", self.name, stage, eos.last_seq,
-                             f", error: {eos.error}" if eos.error else "")
-                self.eos_seen[stage] = eos
+        kind, _, stage = ev.topic.partition("/")
+        decoder = {"eos": _EOS_DEC, "info": _INFO_DEC}.get(kind)
+        if decoder is None:
+            return False
+        try:
+            msg = decoder.decode(ev.payload)
+        except msgspec.DecodeError as exc:
+            log.warning("%s: ignoring a malformed %s message: %s", self.name, ev.topic, exc)
             return True
-        if topic.startswith("info/"):
-            try:
-                info = _INFO_DEC.decode(ev.payload)
-            except msgspec.DecodeError as exc:
-                log.warning("%s: ignoring a malformed %s message: %s", self.name, topic, exc)
-                return True
-            if info.run == self.run_id:
-                self.infos[topic.split("/", 1)[1]] = info
+        if msg.run != self.run_id:
             return True
-        return False
+        if kind == "info":
+            self.infos[stage] = msg
+            return True
+        if stage not in self.eos_seen:
+            self.eos_time[stage] = time.monotonic()
+            log.info("%s: end of stream from %s (last seq %d%s)", self.name, stage, msg.last_seq,
+                     f", error: {msg.error}" if msg.error else "")
+        self.eos_seen[stage] = msg
+        return True
 
     def publish_control(self, kind: str, obj: msgspec.Struct) -> None:
         self.bus.publish(f"{kind}/{self.name}", _JSON.encode(obj))
