@@ -25,7 +25,14 @@ stamps made consecutive), then measures, in one invocation:
    pipeline costs on top of the computation: two Zenoh hops, decoding and validation, encoding,
    the journal, scheduling.  The per-hop breakdown comes from the tracker's ``t_in``/``t_out``.
 3. **Transport floor**: one Zenoh hop between two bare processes (the ``Bus`` the stages use),
-   in client mode through a router and in peer mode, at the same rate.
+   in client mode through a router and in peer mode, at the same rate; and the operating
+   system's own hop (a socketpair) for comparison.
+4. **Machine floor**: the offline tracker alone and beside bare Zenoh traffic (a router and a
+   publisher in one process, a subscriber in another, three samples of the pipeline's sizes
+   per frame at the offline frame rate: no tracker, codec or file), in ``--rounds``
+   interleaved rounds.  On a machine whose cores are independent the ratio is about 1; where
+   the transport's mere presence slows the tracker, no pipeline can reach a higher
+   throughput ratio than this one.
 
     python benchmarks/pipeline_latency.py                    # 5 x 100 frames, ddp, 3 rounds
     python benchmarks/pipeline_latency.py --tracker dpyp --rounds 5 --json out.json
@@ -39,6 +46,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import socket
+import struct
 import subprocess
 import sys
 import tempfile
@@ -273,6 +282,109 @@ def transport_floor(mode: str, rate: float, n: int = 400) -> dict:
     return {"p50": pct(lat, 50), "p99": pct(lat, 99), "load_avg": load_avg()}
 
 
+def socket_floor(rate: float, n: int = 400) -> dict:
+    """The operating system's own hop for comparison: 8-byte messages between two processes
+    over a socketpair, the receiver blocked in ``recv``, at ``rate`` per second."""
+    a, b = socket.socketpair()
+    pid = os.fork()
+    if pid == 0:  # the receiver
+        a.close()
+        lat = []
+        for _ in range(n):
+            sent = struct.unpack("q", b.recv(8))[0]  # (received before the clock is read)
+            lat.append((time.time_ns() - sent) / 1e6)
+        b.sendall(json.dumps(lat).encode() + b"\n")
+        os._exit(0)
+    b.close()
+    for _ in range(n):
+        a.send(struct.pack("q", time.time_ns()))
+        time.sleep(1.0 / rate)
+    lat = json.loads(a.makefile("rb").readline())
+    os.waitpid(pid, 0)
+    a.close()
+    return {"p50": pct(lat, 50), "p99": pct(lat, 99), "load_avg": load_avg()}
+
+
+# --------------------------------------------------------------------------- machine floor
+
+
+#: Payload sizes (bytes) of one frame's samples in the vo2017 pipeline: /measurements,
+#: /truth, /tracks (JSON; measured on seed 1, frame 50).
+TRAFFIC_SIZES = (1200, 500, 5800)
+
+
+def _traffic_publisher(endpoint_file: str, rate: float, seconds: float) -> None:
+    """(child process) A router and, in the same process, a publisher putting one frame's
+    samples (``TRAFFIC_SIZES``, on three topics) ``rate`` times per second for ``seconds``;
+    writes the router's endpoint to ``endpoint_file`` first and waits for the subscriber."""
+    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.transport import Bus, Router
+
+    with Router(ZenohConfig()) as router:
+        Path(endpoint_file).write_text(router.endpoints[0])
+        with Bus("traffic", "pub", ZenohConfig(connect=[router.endpoints[0]]), DeliveryConfig()) as bus:
+            bus.declare(["measurements", "truth", "tracks"])
+            if bus.wait_alive(["sub"], 60, "ready"):
+                raise SystemExit("traffic subscriber did not start")
+            payloads = [(t, b"x" * n) for t, n in zip(("measurements", "truth", "tracks"), TRAFFIC_SIZES)]
+            t0 = time.perf_counter()
+            i = 0
+            while time.perf_counter() - t0 < seconds:
+                for topic, payload in payloads:
+                    bus.publish(topic, payload, {"seq": i, "t": time.time_ns()})
+                i += 1
+                wait = t0 + i / rate - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            print(i, flush=True)
+
+
+def _traffic_subscriber(endpoint: str) -> None:
+    """(child process) Receive everything on the traffic run until stdin closes."""
+    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.transport import Bus
+
+    with Bus("traffic", "sub", ZenohConfig(connect=[endpoint]), DeliveryConfig()) as bus:
+        bus.subscribe(["measurements", "truth", "tracks"])
+        bus.declare_alive("ready")
+        stop = threading.Event()
+        threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+        n = 0
+        while not stop.is_set():
+            if bus.recv(0.1) is not None:
+                n += 1
+        print(n, flush=True)
+
+
+def machine_floor(off: Offline, rounds: int, tmp: Path) -> dict:
+    """The offline tracker alone, and beside bare Zenoh traffic (no tracker, no codec, no
+    files: a router, a publisher and a subscriber in two other processes) carrying the
+    pipeline's three samples per frame at the offline frame rate; interleaved rounds.  The
+    ratio is what the machine charges a tracker for the transport's mere presence: a
+    pipeline on this machine cannot reach a higher throughput ratio than it."""
+    out = []
+    for r in range(rounds):
+        fps_alone = off.fps()[0]
+        seconds = 1.5 * len(off.frames) / fps_alone + 1.0
+        ep_file = tmp / f"traffic{r}.ep"
+        pub = subprocess.Popen([sys.executable, __file__, "--traffic-publisher", str(ep_file), str(fps_alone),
+                                str(seconds)], stdout=subprocess.PIPE, text=True)
+        while not ep_file.exists() or not ep_file.read_text():
+            time.sleep(0.02)
+        sub = subprocess.Popen([sys.executable, __file__, "--traffic-subscriber", ep_file.read_text()],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # both up and streaming
+        fps_beside = off.fps()[0]
+        sent = int(pub.communicate(timeout=120)[0].split()[-1])
+        got = int(sub.communicate("", timeout=60)[0].split()[-1])
+        out.append({"alone_fps": fps_alone, "beside_fps": fps_beside, "ratio": fps_beside / fps_alone,
+                    "frames_sent": sent, "samples_received": got, "load_avg": load_avg()})
+        print(f"  floor round {r + 1}: offline alone {fps_alone:6.1f} frames/s, beside Zenoh traffic "
+              f"{fps_beside:6.1f} frames/s = {fps_beside / fps_alone:.2f} x  ({got}/{3 * sent} samples "
+              f"received; load {load_avg():.2f})", flush=True)
+    return {"rounds": out, "ratio_median": float(np.median([r["ratio"] for r in out]))}
+
+
 # --------------------------------------------------------------------------- report
 
 
@@ -292,7 +404,8 @@ def throughput_rounds(off: Offline, log: Path, args, tmp: Path) -> dict:
             "cpu_ratio_median": float(np.median([r["cpu_ratio"] for r in rounds]))}
 
 
-def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict, load0: float) -> bool:
+def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict, machine: dict,
+           load0: float) -> bool:
     rounds = thr["rounds"]
     med = thr["ratio_median"]
     off_fps = np.median([r["offline_fps"] for r in rounds])
@@ -332,7 +445,14 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
           "journal) {:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
               *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
     print("  transport floor, one hop p50 (p99): " + "; ".join(
-        f"{m} {f['p50']:.2f} ({f['p99']:.2f}) ms" for m, f in floors.items()) + " (the pipeline makes two)")
+        f"{m} {f['p50']:.2f} ({f['p99']:.2f}) ms" for m, f in floors.items() if m != "socket")
+        + " (the pipeline makes two); the OS's own hop (socketpair): "
+        f"{floors['socket']['p50']:.2f} ({floors['socket']['p99']:.2f}) ms")
+    mf = machine["rounds"]
+    print(f"machine floor: offline tracker beside bare Zenoh traffic (3 samples per frame at the offline rate; "
+          f"no tracker, codec or files) = {machine['ratio_median']:.2f} x alone (median of {len(mf)} rounds: "
+          f"{', '.join(format(r['ratio'], '.2f') for r in mf)}): the highest throughput ratio this machine "
+          "leaves a pipeline")
     ok = med >= 0.9 and pct(added, 99) <= 2.0
     print(f"targets (>= 0.9 x offline throughput, <= 2 ms p99 added): throughput "
           f"{'met' if med >= 0.9 else 'NOT met'}, latency {'met' if pct(added, 99) <= 2.0 else 'NOT met'}")
@@ -342,6 +462,12 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
 def main() -> None:
     if len(sys.argv) == 5 and sys.argv[1] == "--floor-subscriber":
         _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]))
+        return
+    if len(sys.argv) == 5 and sys.argv[1] == "--traffic-publisher":
+        _traffic_publisher(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
+        return
+    if len(sys.argv) == 3 and sys.argv[1] == "--traffic-subscriber":
+        _traffic_subscriber(sys.argv[2])
         return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5, help="vo2017 runs of 100 frames in the log")
@@ -365,11 +491,14 @@ def main() -> None:
         thr = throughput_rounds(off, log, args, tmp)
         fps_track = off.track_log_fps(tmp / "offline.mcap")
         paced = pipeline(log, args.tracker, args.seed, tmp / "paced", args.rate, args.rerun, args.set)
+        machine = machine_floor(off, args.rounds, tmp)
     floors = {mode: transport_floor(mode, args.rate) for mode in ("client", "peer")}
-    report(n, args, thr, fps_track, paced, floors, load0)
+    floors["socket"] = socket_floor(args.rate)
+    report(n, args, thr, fps_track, paced, floors, machine, load0)
     if args.json:
         args.json.write_text(json.dumps({"throughput": thr, "fps_track_log": fps_track, "paced": paced,
-                                         "transport_floor": floors, "load_avg_start": load0,
+                                         "transport_floor": floors, "machine_floor": machine,
+                                         "load_avg_start": load0,
                                          "load_avg_end": load_avg(), "args": vars(args)},
                                         indent=1, default=str))
 

@@ -10,7 +10,10 @@ Two parts:
    ``resource.getrusage(RUSAGE_CHILDREN)``).  Prints the medians, the ratio of the medians and
    the median of the per-pair ratios.  With ``--rrd`` the recording is written by a child process
    (``sinks.rerun_writer``), so the wall clock shows what the user waits for and the CPU time
-   what the recording costs in all.
+   what the recording costs in all.  Each round also runs the command without ``--rrd`` beside
+   a process that only imports rerun (``import sinks.rerun_sink``), started with it: the
+   machine's floor, the slowdown the recording's unavoidable import alone causes on the other
+   core (``--no-floor`` skips it).
 2. Per frame, in this process: the tracker's step, the hand-off on the tracker's thread
    (``RecordingProcess.log``: OSPA/OSPA(2) scoring, pickling, writing to the pipe) and the final
    ``close`` (waiting for the child to write the last chunks and the footer; the child is given
@@ -49,14 +52,25 @@ sys.path.insert(0, str(ROOT))
 # --------------------------------------------------------------------------- whole command
 
 
-def _timed(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
-    """(wall s, CPU s of the command and its children) of one run of ``cmd``."""
+def _timed(cmd: list[str], env: dict[str, str], beside: list[str] | None = None) -> tuple[float, float]:
+    """(wall s, CPU s of the command and its children) of one run of ``cmd``; with ``beside``,
+    that other command is started just before it (its CPU is not counted; it is waited for
+    after the timing)."""
+    other = subprocess.Popen(beside, env=env, stdout=subprocess.DEVNULL) if beside else None
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if other is not None:
+        other.wait()
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _ratios(name: str, base: np.ndarray, other: np.ndarray) -> str:
+    return (f"  {name:<44} median {np.median(other):6.3f} s   ratio of medians "
+            f"{np.median(other) / np.median(base):.3f}   median of pair ratios {np.median(other / base):.3f}   "
+            f"(pairs: min {np.min(other / base):.3f}, max {np.max(other / base):.3f})")
 
 
 def command_part(args: argparse.Namespace, tmp: Path) -> None:
@@ -65,22 +79,28 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
     base = [sys.executable, "-m", "pipeline", "track", str(args.log), "--tracker", args.tracker, "-q"]
     plain = [*base, "--out", str(tmp / "plain.tracks.mcap")]
     rrd = [*base, "--out", str(tmp / "rrd.tracks.mcap"), "--rrd", str(tmp / "run.rrd")]
+    # the machine's floor: the plain command beside a process that only imports rerun (what the
+    # recording process must do on the other core, without recording anything)
+    import_only = [sys.executable, "-c", "import numpy; import sinks.rerun_sink"]
     _timed(plain, env)  # warm the page cache and numba's on-disk cache
     _timed(rrd, env)
-    a, b = [], []
+    a, b, f = [], [], []
     for i in range(args.repeats):
         a.append(_timed(plain, env))
         b.append(_timed(rrd, env))
+        if args.floor:
+            f.append(_timed(plain, env, beside=import_only))
         if args.verbose:
-            print(f"  pair {i}: {a[-1][0]:.3f} s / {b[-1][0]:.3f} s wall ({b[-1][0] / a[-1][0]:.3f}), "
-                  f"load average {os.getloadavg()[0]:.2f}")
+            print(f"  round {i}: {a[-1][0]:.3f} s / {b[-1][0]:.3f} s wall ({b[-1][0] / a[-1][0]:.3f})"
+                  + (f", beside the import {f[-1][0]:.3f} s" if f else "")
+                  + f", load average {os.getloadavg()[0]:.2f}")
     wa, ca = np.array(a).T
     wb, cb = np.array(b).T
-    print(f"whole command, {args.repeats} alternating pairs: `bnptrack track {args.log} "
-          f"--tracker {args.tracker} -q` without / with --rrd")
-    print(f"  wall   median {np.median(wa):6.3f} s / {np.median(wb):6.3f} s   ratio of medians "
-          f"{np.median(wb) / np.median(wa):.3f}   median of pair ratios {np.median(wb / wa):.3f}   "
-          f"(pairs: min {np.min(wb / wa):.3f}, max {np.max(wb / wa):.3f})")
+    print(f"whole command, {args.repeats} alternating rounds: `bnptrack track {args.log} "
+          f"--tracker {args.tracker} -q` (median {np.median(wa):.3f} s wall) and:")
+    print(_ratios("with --rrd", wa, wb))
+    if f:
+        print(_ratios("without --rrd, beside `import sinks.rerun_sink`", wa, np.array(f).T[0]))
     print(f"  CPU    median {np.median(ca):6.3f} s / {np.median(cb):6.3f} s   ratio of medians "
           f"{np.median(cb) / np.median(ca):.3f}   (user + sys, the recording process included)")
     print(f"  recording {(tmp / 'run.rrd').stat().st_size / 1024:.0f} KiB")
@@ -177,6 +197,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5, help="pairs of commands / per-frame runs")
     ap.add_argument("--part", choices=("all", "command", "frame"), default="all")
     ap.add_argument("--verbose", "-v", action="store_true", help="print every pair of commands")
+    ap.add_argument("--no-floor", dest="floor", action="store_false",
+                    help="skip the third command of each round (plain, beside a process importing rerun)")
     ap.add_argument("--head-start", type=float, default=1.5,
                     help="per-frame part: seconds the recording process gets to import rerun "
                     "before the first frame (bnptrack track builds the tracker meanwhile)")

@@ -99,6 +99,7 @@ class TracksJournal:
         self.keep = int(keep)
         self._file: BinaryIO | None = None
         self._ends: list[int] = []  # end offset of each record in the file
+        self._base = 0  # where the first record starts (the file's size when no record is kept)
 
     def resume(self, through_seq: int) -> list[tuple[int, bytes, dict]]:
         """Open the journal after a restart: keep the records up to ``through_seq`` (the
@@ -113,6 +114,7 @@ class TracksJournal:
         with open(self.path, "ab") as f:  # create if missing, then cut what the snapshot does not cover
             f.truncate(cut)
         self._ends = [r.end for r in kept]
+        self._base = cut
         self._file = open(self.path, "ab")
         return [(s, r.payload, r.meta) for s, r in sorted(seen.items())]
 
@@ -121,6 +123,7 @@ class TracksJournal:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._ends = []
+        self._base = 0
 
     def append(self, seq: int, payload: bytes, meta: dict) -> None:
         """Append one sample (buffered: :meth:`dup_fd` hands everything to the OS before a
@@ -128,8 +131,10 @@ class TracksJournal:
         it is recomputed and appended again on resume)."""
         if self._file is None:
             self.start()
-        self._file.write(_encode(seq, payload, meta))
-        self._ends.append(self._file.tell())
+        record = _encode(seq, payload, meta)
+        self._file.write(record)
+        # offsets kept here: BufferedWriter.tell() is an lseek system call per record
+        self._ends.append((self._ends[-1] if self._ends else self._base) + len(record))
         if len(self._ends) > 2 * self.keep:
             self._compact()
 

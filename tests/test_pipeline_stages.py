@@ -591,6 +591,21 @@ def test_journal_keeps_the_newest_records_when_it_grows(tmp_path):
     assert [r.seq for r in read_journal(path)] == [5, 6, 7, 8, 9]
 
 
+def test_journal_compacts_right_after_a_resume(tmp_path):
+    """The journal keeps each record's end offset itself (no tell() per record): after a
+    resume that cut the file back, compaction must still cut exactly at record boundaries."""
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 6)
+    j = TracksJournal(path, keep=3)
+    assert j.resume(3) == _journal_records(4)
+    for rec in _journal_records(9, start=4):  # the 7th record (> 2 x keep) compacts to 4..6
+        j.append(*rec)
+    j.close()
+    assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(9, start=4)
+
+
 def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
     """A restarted consumer gets live frames (here 40..44) before the history (0..39): until
     it has caught up, the window is the cache size, so nothing becomes a gap; afterwards the
