@@ -9,11 +9,12 @@ recording's imports and vice versa.
 from __future__ import annotations
 
 from collections import deque
+from itertools import chain
 from typing import Any
 
 import numpy as np
 
-from sinks.metrics import ospa, ospa2
+from sinks.metrics import _cutoff_distances, _ospa_unchecked, _track_distances, ospa
 from tracker.types import Estimate, Frame
 
 __all__ = ["RunScorer", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
@@ -34,36 +35,45 @@ class RunScorer:
     ``pipeline.offline.frame_metrics`` computes it; OSPA(2) at frame k is
     :func:`sinks.metrics.ospa2` over the last ``window`` frames, the value
     :func:`sinks.metrics.ospa2_series` gives at k for the whole run.
+
+    It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame, so it keeps
+    each scan as (labels, ``(n, 2)`` positions) and goes straight to the metrics' kernels;
+    the public functions' checks run only for a scan with a non-finite position, where they
+    raise their error.
     """
 
     def __init__(self, c: float = OSPA_C, p: float = OSPA_P, window: int = OSPA2_WINDOW,
                  q: float = 1.0) -> None:
         self.c, self.p, self.q, self.window = float(c), float(p), float(q), int(window)
-        self._est: deque[dict[str, np.ndarray]] = deque(maxlen=self.window)
-        self._true: deque[dict[str, np.ndarray]] = deque(maxlen=self.window)
+        self._est: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
+        self._true: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
 
     def update(self, frame: Frame, estimate: Estimate) -> dict[str, Any]:
-        self._est.append({t.label: np.asarray(t.position, dtype=float) for t in estimate.tracks})
+        est = estimate.positions
+        self._est.append((tuple(t.label for t in estimate.tracks), est))
         if frame.truth is None:
-            self._true.append({})
+            self._true.append(((), _NO_POSITIONS))
             return {"ospa": None, "ospa2": None}
         truth = frame.truth
-        self._true.append(dict(zip(truth.ids, truth.positions)))
-        o = ospa(truth.positions, estimate.positions, c=self.c, p=self.p)
-        X, Y = _window(list(self._est)), _window(list(self._true))
-        if X.shape[0] == 0 and Y.shape[0] == 0:
-            o2 = 0.0
-        else:
-            o2 = ospa2(X, Y, c=self.c, p=self.p, q=self.q).total
+        true = truth.positions
+        self._true.append((tuple(truth.ids), true))
+        if not (np.isfinite(est).all() and np.isfinite(true).all()):
+            ospa(true, est, c=self.c, p=self.p)  # raises, naming the bad position
+        o = _ospa_unchecked(_cutoff_distances(true, est, self.c), self.c, self.p)
+        X, Y = _window(self._est), _window(self._true)
+        o2 = _ospa_unchecked(_track_distances(X, Y, self.c, self.q), self.c, self.p).total
         return {"ospa": o, "ospa2": float(o2)}
 
 
-def _window(run: list[dict[str, np.ndarray]]) -> np.ndarray:
-    """``(n_labels, W, 2)`` NaN-padded tracks of the labels present in ``run`` (first-seen order)."""
-    labels = dict.fromkeys(label for scan in run for label in scan)
-    index = {label: i for i, label in enumerate(labels)}
+_NO_POSITIONS = np.zeros((0, 2))
+
+
+def _window(run: deque[tuple[tuple[str, ...], np.ndarray]]) -> np.ndarray:
+    """``(n_labels, W, 2)`` NaN-padded tracks of the labels present in ``run`` (first-seen
+    order): one fancy-indexed write per scan."""
+    index = {label: i for i, label in enumerate(dict.fromkeys(chain.from_iterable(lab for lab, _ in run)))}
     arr = np.full((len(index), len(run), 2), np.nan)
-    for t, scan in enumerate(run):
-        for label, pos in scan.items():
-            arr[index[label], t] = pos
+    for t, (labels, pos) in enumerate(run):
+        if labels:
+            arr[[index[label] for label in labels], t] = pos
     return arr

@@ -287,6 +287,29 @@ def test_scorer_matches_frame_metrics(vo_run):
                                                             m.ospa_cardinality)
 
 
+def test_scorer_ospa2_matches_the_metrics_module(vo_run):
+    """The scorer's own window arrays and kernels give exactly what ``ospa2_series`` gives for
+    the whole run (window 10), frame by frame; a frame without truth scores nothing."""
+    from dataclasses import replace
+
+    _params, frames, estimates = vo_run
+    scorer = RunScorer()
+    got = [scorer.update(f, e)["ospa2"] for f, e in zip(frames, estimates)]
+    est_run = [{t.label: t.position for t in e.tracks} for e in estimates]
+    true_run = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
+    assert got == ospa2_series(est_run, true_run, window=10).tolist()
+    assert scorer.update(replace(frames[0], truth=None), estimates[0]) == {"ospa": None, "ospa2": None}
+
+
+def test_scorer_rejects_a_non_finite_estimate(vo_run):
+    from dataclasses import replace
+
+    _params, frames, estimates = vo_run
+    bad_track = replace(estimates[5].tracks[0], state=np.full(5, np.nan))
+    with pytest.raises(ValueError, match="NaN|finite"):
+        RunScorer().update(frames[5], replace(estimates[5], tracks=(bad_track, *estimates[5].tracks[1:])))
+
+
 def test_frames_without_truth_and_health(vo_run, tmp_path):
     from dataclasses import replace
 
