@@ -21,11 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sinks.scoring import OSPA2_WINDOW, OSPA_C, OSPA_P
 from tracker.config import ConfigError
-
-OSPA_C = 100.0
-OSPA_P = 1.0
-OSPA2_WINDOW = 10
 
 
 @dataclass(frozen=True)

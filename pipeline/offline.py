@@ -59,9 +59,10 @@ __all__ = [
 DEFAULT_PARAMS = "vo2017"
 #: Trackers ``bnptrack track`` can run (see :mod:`tracker.registry`).
 from tracker.registry import TRACKERS  # noqa: E402
-#: OSPA settings of the paper's experiments (cut-off in metres, order).
-OSPA_C = 100.0
-OSPA_P = 1.0
+#: OSPA settings of the paper's experiments (cut-off in metres, order): one definition, in
+#: :mod:`sinks.scoring`.
+from sinks.metrics import OspaResult  # noqa: E402
+from sinks.scoring import OSPA_C, OSPA_P  # noqa: E402
 
 _OVERRIDE_SEP = ";"
 
@@ -302,6 +303,13 @@ class FrameMetrics:
     ospa_cardinality: float | None = None
     cardinality_error: float | None = None
 
+    @property
+    def ospa_result(self) -> OspaResult | None:
+        """The OSPA of this frame as :class:`sinks.metrics.OspaResult` (``None`` without truth)."""
+        if self.ospa is None:
+            return None
+        return OspaResult(self.ospa, self.ospa_localisation, self.ospa_cardinality)
+
 
 @dataclass(frozen=True)
 class TrackResult:
@@ -372,11 +380,12 @@ def track_frames(
     tracker: Tracker,
     frames: Iterable[Frame],
     seed: int,
-    on_estimate: Callable[[Frame, Estimate], None] | None = None,
+    on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
 
-    ``on_estimate(frame, estimate)`` is called after each frame (e.g. to write it).  If the
+    ``on_estimate(frame, estimate, metrics)`` is called after each frame is scored (e.g. to
+    write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
     frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
     and the error is returned in :attr:`TrackResult.error` instead of being raised.
     """
@@ -385,9 +394,10 @@ def track_frames(
     error: McapLogError | None = None
     try:
         for frame, est, _state in run(tracker, frames, seed):
+            row = frame_metrics(frame, est)
             if on_estimate is not None:
-                on_estimate(frame, est)
-            rows.append(frame_metrics(frame, est))
+                on_estimate(frame, est, row)
+            rows.append(row)
             final = len(est.tracks)
     except McapLogError as exc:
         error = exc
@@ -412,7 +422,7 @@ def track_log(
     tracker: Tracker,
     seed: int,
     metadata: Mapping[str, str] | None,
-    on_estimate: Callable[[Frame, Estimate], None] | None = None,
+    on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
@@ -426,11 +436,11 @@ def track_log(
     out.parent.mkdir(parents=True, exist_ok=True)
     with McapLogWriter(out, dict(metadata) if metadata is not None else None) as writer:
 
-        def write(frame: Frame, est: Estimate) -> None:
+        def write(frame: Frame, est: Estimate, metrics: FrameMetrics) -> None:
             writer.write_frame(frame)
             writer.write_tracks(est)
             if on_estimate is not None:
-                on_estimate(frame, est)
+                on_estimate(frame, est, metrics)
 
         return track_frames(tracker, iter_frames(log), seed, write)
 

@@ -297,4 +297,5 @@ def track_log_with_rrd(
         if rrd.resolve() == out.resolve():
             raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
         rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params)
-        return track_log(log, out, tracker, seed, metadata, on_estimate=rec.log)
+        return track_log(log, out, tracker, seed, metadata,
+                         on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result))

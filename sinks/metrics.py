@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import asdict, dataclass
+from itertools import chain
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -182,6 +183,11 @@ def _check_labelled_run(run: Sequence[LabelledScan], name: str) -> tuple[list[di
     return out, dim
 
 
+def _as_scans(run: list[dict], dim: int) -> list[tuple[tuple[Hashable, ...], np.ndarray]]:
+    """Checked ``{label: position}`` scans as (labels, ``(n, dim)`` positions)."""
+    return [(tuple(scan), np.array(list(scan.values()), dtype=float).reshape(len(scan), dim)) for scan in run]
+
+
 # --------------------------------------------------------------------------- hot path
 
 
@@ -265,14 +271,15 @@ def _track_distances(X: np.ndarray, Y: np.ndarray, c: float, q: float) -> np.nda
     return mean if q == 1.0 else mean ** (1.0 / q)
 
 
-def _window_tracks(run: list[dict], start: int, stop: int, dim: int) -> np.ndarray:
-    """``(n_labels, stop - start, dim)`` NaN-padded array of the labels present in the window."""
-    labels = dict.fromkeys(label for scan in run[start:stop] for label in scan)
-    index = {label: i for i, label in enumerate(labels)}
-    arr = np.full((len(index), stop - start, dim), np.nan)
-    for t, scan in enumerate(run[start:stop]):
-        for label, pos in scan.items():
-            arr[index[label], t] = pos
+def _window_tracks(run: Sequence[tuple[tuple[Hashable, ...], np.ndarray]], dim: int) -> np.ndarray:
+    """``(n_labels, len(run), dim)`` NaN-padded array of the labels present in ``run``
+    (first-seen order), each scan given as (labels, ``(n, dim)`` positions): one indexed write
+    per scan.  Shared by :func:`ospa2_series` and :class:`sinks.scoring.RunScorer`."""
+    index = {label: i for i, label in enumerate(dict.fromkeys(chain.from_iterable(lab for lab, _ in run)))}
+    arr = np.full((len(index), len(run), dim), np.nan)
+    for t, (labels, pos) in enumerate(run):
+        if labels:
+            arr[[index[label] for label in labels], t] = pos
     return arr
 
 
@@ -452,10 +459,11 @@ def ospa2_series(
     out = np.zeros(len(est))
     if dim is None:
         return out
+    est_scans, true_scans = _as_scans(est, dim), _as_scans(true, dim)
     for k in range(len(est)):
         start = max(0, k - int(window) + 1)
-        X = _window_tracks(est, start, k + 1, dim)
-        Y = _window_tracks(true, start, k + 1, dim)
+        X = _window_tracks(est_scans[start:k + 1], dim)
+        Y = _window_tracks(true_scans[start:k + 1], dim)
         out[k] = _ospa_unchecked(_track_distances(X, Y, c, q), c, p).total
     return out
 

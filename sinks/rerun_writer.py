@@ -58,6 +58,7 @@ from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 from sinks.scoring import RunScorer
 
 if TYPE_CHECKING:
+    from sinks.metrics import OspaResult
     from tracker.models.params import ModelParams
     from tracker.types import Estimate, Frame
 
@@ -249,12 +250,13 @@ class RecordingProcess:
         sink_kwargs.setdefault("flush_interval", CHILD_FLUSH_INTERVAL)
         self._put(("open", os.fspath(path), dict(metadata or {}), params, sink_kwargs))
 
-    def log(self, frame: Frame, estimate: Estimate) -> None:
+    def log(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> None:
         """Score one frame and hand it, its estimate and the scores to the child (pickled now:
-        later changes to the objects do not reach the recording)."""
+        later changes to the objects do not reach the recording).  ``ospa_result``: the frame's OSPA
+        if the caller has computed it already (see :meth:`RunScorer.update`)."""
         if self.path is None:
             raise RuntimeError("RecordingProcess.log before open")
-        self._put(("frame", frame, estimate, self._scorer.update(frame, estimate)))
+        self._put(("frame", frame, estimate, self._scorer.update(frame, estimate, ospa_result)))
 
     def close(self) -> None:
         """End the input and wait until the child reports the file complete; raises

@@ -9,17 +9,17 @@ recording's imports and vice versa.
 from __future__ import annotations
 
 from collections import deque
-from itertools import chain
 from typing import Any
 
 import numpy as np
 
-from sinks.metrics import _cutoff_distances, _ospa_unchecked, _track_distances, ospa
+from sinks.metrics import OspaResult, _cutoff_distances, _ospa_unchecked, _track_distances, _window_tracks, ospa
 from tracker.types import Estimate, Frame
 
 __all__ = ["RunScorer", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
 
-#: OSPA cut-off (m) and order of the recordings (same as ``bnptrack track``).
+#: OSPA cut-off (m) and order of the paper's experiments: ``bnptrack track``, the experiments
+#: and the recordings all use these.
 OSPA_C = 100.0
 OSPA_P = 1.0
 #: OSPA(2) sliding window in scans (and its inner order q = 1).
@@ -37,7 +37,8 @@ class RunScorer:
     :func:`sinks.metrics.ospa2_series` gives at k for the whole run.
 
     It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame, so it keeps
-    each scan as (labels, ``(n, 2)`` positions) and goes straight to the metrics' kernels;
+    each scan as (labels, ``(n, 2)`` positions) and goes straight to the metrics' kernels
+    (the OSPA(2) window is built by the same ``_window_tracks`` as ``ospa2_series``'s);
     the public functions' checks run only for a scan with a non-finite position, where they
     raise their error.
     """
@@ -48,9 +49,12 @@ class RunScorer:
         self._est: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
         self._true: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
 
-    def update(self, frame: Frame, estimate: Estimate) -> dict[str, Any]:
+    def update(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> dict[str, Any]:
+        """The frame's scores.  ``ospa_result``: its OSPA if the caller has it already (the same
+        value, e.g. ``pipeline.offline.FrameMetrics.ospa_result``: ``bnptrack track --rrd``
+        scores every frame for its summary anyway); otherwise computed here."""
         est = estimate.positions
-        self._est.append((tuple(t.label for t in estimate.tracks), est))
+        self._est.append((estimate.labels, est))
         if frame.truth is None:
             self._true.append(((), _NO_POSITIONS))
             return {"ospa": None, "ospa2": None}
@@ -59,21 +63,11 @@ class RunScorer:
         self._true.append((tuple(truth.ids), true))
         if not (np.isfinite(est).all() and np.isfinite(true).all()):
             ospa(true, est, c=self.c, p=self.p)  # raises, naming the bad position
-        o = _ospa_unchecked(_cutoff_distances(true, est, self.c), self.c, self.p)
-        X, Y = _window(self._est), _window(self._true)
+        o = ospa_result if ospa_result is not None else _ospa_unchecked(
+            _cutoff_distances(true, est, self.c), self.c, self.p)
+        X, Y = _window_tracks(list(self._est), 2), _window_tracks(list(self._true), 2)
         o2 = _ospa_unchecked(_track_distances(X, Y, self.c, self.q), self.c, self.p).total
         return {"ospa": o, "ospa2": float(o2)}
 
 
 _NO_POSITIONS = np.zeros((0, 2))
-
-
-def _window(run: deque[tuple[tuple[str, ...], np.ndarray]]) -> np.ndarray:
-    """``(n_labels, W, 2)`` NaN-padded tracks of the labels present in ``run`` (first-seen
-    order): one fancy-indexed write per scan."""
-    index = {label: i for i, label in enumerate(dict.fromkeys(chain.from_iterable(lab for lab, _ in run)))}
-    arr = np.full((len(index), len(run), 2), np.nan)
-    for t, (labels, pos) in enumerate(run):
-        if labels:
-            arr[[index[label] for label in labels], t] = pos
-    return arr

@@ -279,12 +279,15 @@ def test_scorer_matches_frame_metrics(vo_run):
     from pipeline.offline import frame_metrics
 
     _params, frames, estimates = vo_run
-    scorer = RunScorer()
+    scorer, reusing = RunScorer(), RunScorer()
     for f, e in zip(frames, estimates):
-        o = scorer.update(f, e)["ospa"]
+        scores = scorer.update(f, e)
+        o = scores["ospa"]
         m = frame_metrics(f, e)
         assert (o.total, o.localisation, o.cardinality) == (m.ospa, m.ospa_localisation,
                                                             m.ospa_cardinality)
+        # bnptrack track --rrd hands the summary's OSPA over instead of computing it again
+        assert reusing.update(f, e, m.ospa_result) == scores
 
 
 def test_scorer_ospa2_matches_the_metrics_module(vo_run):
