@@ -242,18 +242,12 @@ class McapLogWriter:
             if frame.truth is not None
             else None
         )
-        self._put(TOPIC_MEASUREMENTS, meas, frame.stamp_ns, frame.frame)
-        if truth is not None:
-            self._put(TOPIC_TRUTH, truth, frame.stamp_ns, frame.frame)
-        self.n_frames += 1
-        self._tick()
+        self.write_encoded_frame(meas, truth, frame.stamp_ns, frame.frame)
 
     def write_tracks(self, est: Estimate, run: str = "") -> None:
         """Write one ``/tracks`` message."""
         self._check_open()
-        self._put(TOPIC_TRACKS, encode_tracks(est, run), est.stamp_ns, est.frame)
-        self.n_tracks += 1
-        self._tick()
+        self.write_encoded_tracks(encode_tracks(est, run), est.stamp_ns, est.frame)
 
     def write_encoded_frame(
         self, measurements: bytes, truth: bytes | None, stamp_ns: int, frame: int
