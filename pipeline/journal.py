@@ -4,8 +4,8 @@ A Zenoh publisher's cache lives and dies with its process.  When the tracker is 
 restarted, its new publisher starts with an empty cache, so a consumer that (re)joins later
 (a sink restarted after the tracker was) could not get the tracks of the frames before the
 restart.  The journal closes that hole: the tracker appends each sample it publishes, and a
-restarted tracker publishes the journal again (up to its last snapshot) before it goes on,
-so its cache holds the whole run again.
+restarted tracker publishes the journal again (its newest ``keep`` records up to its last
+snapshot) before it goes on, so its cache holds what it held before the restart.
 
 File format (``<out>/tracker.journal``): a sequence of records, each
 ``uint32 length | uint32 crc32(body) | body`` (little endian), ``body`` the msgpack of
@@ -103,12 +103,11 @@ class TracksJournal:
 
     def resume(self, through_seq: int) -> list[tuple[int, bytes, dict]]:
         """Open the journal after a restart: keep the records up to ``through_seq`` (the
-        snapshot's last sequence number; -1: none), cut the rest, and return the kept
-        samples in sequence order (one per ``seq``)."""
+        snapshot's last sequence number; -1: none), cut the rest, and return the newest
+        ``keep`` of the kept samples (no publisher cache holds more), in sequence order.
+        The records in the file are in sequence order with unique ``seq`` by construction:
+        a resume cuts everything after the snapshot, and appends only add higher ones."""
         kept = [r for r in read_journal(self.path) if r.seq <= through_seq]
-        seen: dict[int, JournalRecord] = {}
-        for r in kept:
-            seen.setdefault(r.seq, r)
         cut = kept[-1].end if kept else 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "ab") as f:  # create if missing, then cut what the snapshot does not cover
@@ -116,7 +115,7 @@ class TracksJournal:
         self._ends = [r.end for r in kept]
         self._base = cut
         self._file = open(self.path, "ab")
-        return [(s, r.payload, r.meta) for s, r in sorted(seen.items())]
+        return [(r.seq, r.payload, r.meta) for r in kept[-self.keep:]]
 
     def start(self) -> None:
         """Open a new, empty journal (a fresh run)."""

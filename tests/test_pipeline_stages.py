@@ -599,11 +599,27 @@ def test_journal_compacts_right_after_a_resume(tmp_path):
     path = tmp_path / "tracker.journal"
     _write_journal(path, 6)
     j = TracksJournal(path, keep=3)
-    assert j.resume(3) == _journal_records(4)
+    assert j.resume(3) == _journal_records(4, start=1)  # the file keeps 0..3, resume returns the newest 3
     for rec in _journal_records(9, start=4):  # the 7th record (> 2 x keep) compacts to 4..6
         j.append(*rec)
     j.close()
     assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(9, start=4)
+
+
+def test_journal_resume_returns_at_most_keep_records_the_newest(tmp_path):
+    """The file may hold up to 2 x keep records, but no publisher cache holds more than
+    ``keep``: resume returns (for publishing again) only the newest ``keep`` of the records
+    the snapshot covers; the file itself is cut only after the snapshot."""
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 9)
+    j = TracksJournal(path, keep=4)
+    assert j.resume(7) == _journal_records(8, start=4)  # the snapshot covers 0..7
+    assert len(j) == 8
+    j.close()
+    assert [r.seq for r in read_journal(path)] == list(range(8))
+    assert TracksJournal(path, keep=10).resume(7) == _journal_records(8)  # fewer than keep: all
 
 
 def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
