@@ -12,8 +12,9 @@ File format (``<out>/tracker.journal``): a sequence of records, each
 ``[seq, payload, meta]``.  Reading stops at the first incomplete or damaged record (a
 process killed in the middle of a write), so the readable prefix is always usable.
 
-Consistency with the snapshot: a record is appended (buffered) before the tracker's state
-advances; :meth:`TracksJournal.dup_fd` flushes the journal and lets the snapshot writer fsync it
+Consistency with the snapshot: for each frame the tracker publishes the sample, then
+advances its state, then appends the record (buffered), all before the next frame or snapshot;
+:meth:`TracksJournal.dup_fd` flushes the journal and lets the snapshot writer fsync it
 before it writes each snapshot, so every frame a snapshot covers is in the journal.  A record
 lost with a killed process is after the last snapshot: it is recomputed anyway.  On resume,
 :meth:`TracksJournal.resume` cuts the journal back to the snapshot (the frames after it are
@@ -127,9 +128,11 @@ class TracksJournal:
     def append(self, seq: int, payload: bytes, meta: dict) -> None:
         """Append one sample (buffered: :meth:`dup_fd` hands everything to the OS before a
         snapshot relies on it; a record lost with the process is after the last snapshot, so
-        it is recomputed and appended again on resume)."""
+        it is recomputed and appended again on resume).  Raises RuntimeError when the
+        journal is not open (:meth:`start` or :meth:`resume` first; never reopened here,
+        which would wipe the file)."""
         if self._file is None:
-            self.start()
+            raise RuntimeError(f"{self.path}: journal is not open (call start() or resume() first)")
         record = _encode(seq, payload, meta)
         self._file.write(record)
         # offsets kept here: BufferedWriter.tell() is an lseek system call per record

@@ -622,6 +622,22 @@ def test_journal_resume_returns_at_most_keep_records_the_newest(tmp_path):
     assert TracksJournal(path, keep=10).resume(7) == _journal_records(8)  # fewer than keep: all
 
 
+def test_journal_append_when_not_open_raises_and_keeps_the_file(tmp_path):
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 3)
+    rec = _journal_records(4, start=3)[0]
+    with pytest.raises(RuntimeError, match="not open"):
+        TracksJournal(path, keep=100).append(*rec)  # neither start() nor resume()
+    j = TracksJournal(path, keep=100)
+    j.resume(2)
+    j.close()
+    with pytest.raises(RuntimeError, match="not open"):
+        j.append(*rec)  # after close
+    assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(3)
+
+
 def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
     """A restarted consumer gets live frames (here 40..44) before the history (0..39): until
     it has caught up, the window is the cache size, so nothing becomes a gap; afterwards the
