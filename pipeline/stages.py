@@ -414,11 +414,21 @@ def _fsync_and_close(fds: Iterable[int]) -> None:
         raise error
 
 
+def _close_all(fds: Iterable[int]) -> None:
+    """Close each descriptor (errors ignored: nothing is left to do with them)."""
+    for fd in fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
 class BackgroundWriter:
     """Write files atomically (:func:`write_atomic`) on a background thread, so that fsync
     stalls stay out of the frame loop.  ``submit`` replaces a pending write of the same path
     (only the newest snapshot matters); ``sync_first`` are file descriptors to fsync (and
-    close) before the write, e.g. of a journal the snapshot relies on; ``flush`` waits until
+    close) before the write, e.g. of a journal the snapshot relies on (the writer owns them
+    from the call on: they are closed even when ``submit`` raises); ``flush`` waits until
     everything submitted is on disk and re-raises a write error."""
 
     def __init__(self) -> None:
@@ -430,12 +440,14 @@ class BackgroundWriter:
         self.writes = 0
 
     def submit(self, path: Path, data: bytes, sync_first: Iterable[int] = ()) -> None:
+        new_fds = list(sync_first)  # ours from here on: closed on every path
         with self._cv:
             if self._error is not None:
                 err, self._error = self._error, None
+                _close_all(new_fds)
                 raise err
             fds = self._pending[path][1] if path in self._pending else []
-            self._pending[path] = (data, fds + list(sync_first))
+            self._pending[path] = (data, fds + new_fds)
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, name="snapshot-writer", daemon=True)
                 self._thread.start()

@@ -223,6 +223,30 @@ def test_write_atomic_replaces(tmp_path):
     assert p.read_bytes() == b"two" and [x.name for x in tmp_path.iterdir()] == ["x.bin"]
 
 
+def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
+    """A pending write error is raised by the next submit; the descriptors handed to that
+    submit (the writer owns them) are closed all the same."""
+    import os
+    import time
+
+    from pipeline.stages import BackgroundWriter
+
+    w = BackgroundWriter()
+    w.submit(tmp_path / "missing-dir" / "x.snap", b"data")  # fails on the writer thread
+    deadline = time.monotonic() + 10
+    while w._error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert w._error is not None
+    fd = os.open(tmp_path / "journal", os.O_WRONLY | os.O_CREAT)
+    with pytest.raises(OSError):
+        w.submit(tmp_path / "x.snap", b"data", (fd,))
+    with pytest.raises(OSError):
+        os.fstat(fd)  # closed
+    w.submit(tmp_path / "x.snap", b"data")  # the error was reported once
+    w.flush()
+    assert (tmp_path / "x.snap").read_bytes() == b"data"
+
+
 # --------------------------------------------------------------------------- in-memory pipeline
 
 
