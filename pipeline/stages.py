@@ -290,6 +290,8 @@ class EndOfStream(msgspec.Struct, kw_only=True):
 
 _INFO_DEC = msgspec.json.Decoder(StageInfo)
 _EOS_DEC = msgspec.json.Decoder(EndOfStream)
+#: Decoder of each control topic kind (``<kind>/<stage>``).
+_CONTROL_DEC = {"eos": _EOS_DEC, "info": _INFO_DEC}
 _JSON = msgspec.json.Encoder()
 
 
@@ -582,7 +584,7 @@ class _StageBase:
     def on_control(self, ev: Any) -> bool:
         """Handle ``info/*`` and ``eos/*``; True if the event was a control message."""
         kind, _, stage = ev.topic.partition("/")
-        decoder = {"eos": _EOS_DEC, "info": _INFO_DEC}.get(kind)
+        decoder = _CONTROL_DEC.get(kind)
         if decoder is None:
             return False
         try:
