@@ -216,6 +216,16 @@ def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
     assert r.run.startswith("vo2017-") and r.out == str(Path("recordings") / r.run)
 
 
+def test_tls_file_fields_are_the_file_fields_of_tls_config():
+    from pipeline.pipeline_config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
+
+    assert TLS_FILE_FIELDS == tuple(f for f in TlsConfig.__struct_fields__ if f not in ("mtls", "verify_name_on_connect"))
+    tls = TlsConfig(root_ca_certificate="ca.pem", connect_private_key="k.pem")
+    assert tls.files() == {"root_ca_certificate": "ca.pem", "connect_private_key": "k.pem"}
+    assert ZenohConfig(tls=tls).secured and ZenohConfig(tls=TlsConfig(mtls=True)).secured
+    assert not ZenohConfig().secured and not TlsConfig().files()
+
+
 def test_write_atomic_replaces(tmp_path):
     p = tmp_path / "x.bin"
     write_atomic(p, b"one")
