@@ -1234,15 +1234,20 @@ class SinkStage(_StageBase):
             if has_tracks and s not in ready["tracks"]:
                 return
             meas = ready["measurements"].pop(s)
-            truth = ready["truth"].pop(s)
-            tracks = ready["tracks"].pop(s) if has_tracks else None
-            if tracks is not None and tracks is not GAP and meas is not GAP and tracks.msg.frame != meas.msg.frame:
-                log.error("%s: seq %d: /tracks is for frame %d but /measurements is frame %d; "
-                          "dropping the tracks", self.name, s, tracks.msg.frame, meas.msg.frame)
-                self.counters.rejected += 1
-                tracks = GAP
+            truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas)
+            tracks = self._same_frame(s, "tracks", ready["tracks"].pop(s), meas) if has_tracks else None
             self._write(s, meas, truth, tracks)
             self.next_write += 1
+
+    def _same_frame(self, s: int, stream: str, item: Any, meas: Any) -> Any:
+        """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if
+        either is missing; otherwise :data:`GAP` (dropped, logged, counted as rejected)."""
+        if item is GAP or item is NO_TRUTH or meas is GAP or item.msg.frame == meas.msg.frame:
+            return item
+        log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
+                  self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
+        self.counters.rejected += 1
+        return GAP
 
     # -- intake ------------------------------------------------------------------------
     def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:

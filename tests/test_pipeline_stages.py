@@ -408,6 +408,43 @@ def test_memory_pipeline_missing_tail_becomes_gap_at_end_of_stream(tmp_path):
     assert summary["frames_written"] == 7 and summary["tracks_written"] == 7
 
 
+def test_sink_drops_a_truth_of_another_frame_like_mismatched_tracks(tmp_path):
+    """A /truth sample whose frame (valid, consistent with its attachment) is not the frame
+    of the /measurements of the same seq is dropped, logged and counted, the way a /tracks
+    mismatch is: the frame is written without truth."""
+    cfg = _mem_cfg(tmp_path, frames=8)
+    net = MemoryNetwork()
+    truths: dict[int, tuple[bytes, dict]] = {}
+
+    def tap(run, topic, payload, att):
+        if topic == "truth" and att:
+            meta = json.loads(att)
+            truths[meta["seq"]] = (payload, meta)
+            if meta["seq"] == 4:  # the truth of seq 3 (frame and attachment agree) as seq 4
+                old_payload, old_meta = truths[3]
+                return [(old_payload, json.dumps({**meta, "frame": old_meta["frame"]}).encode())]
+        return [(payload, att)]
+
+    net.tap = tap
+    codes = _run_memory_pipeline(cfg, net)
+    assert codes["sink"] == EXIT_OK
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    frames, ests = _offline(cfg)
+    assert [f.frame for f in log.frames] == [f.frame for f in frames]
+    assert log.frames[4].truth is None
+    assert all(np.array_equal(a.truth.states, b.truth.states)
+               for i, (a, b) in enumerate(zip(log.frames, frames)) if i != 4)
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["complete"] and summary["frames_written"] == 8 and summary["tracks_written"] == 8
+    assert summary["counters"]["rejected"] == 1 and summary["gaps"]["truth"] == []
+    from pipeline.codec import TOPIC_TRUTH
+    from sources.mcap_log import _Scanner
+
+    truth_frames = [m.frame for _, m in _Scanner(Path(cfg.out) / "tracks.mcap", {TOPIC_TRUTH})]
+    assert truth_frames == [f.frame for i, f in enumerate(frames) if i != 4]  # no stray truth of frame 3
+
+
 def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     """A tracker stopped mid-run and started again resumes from tracker.snap: together the
     two runs publish every frame's tracks, equal to an uninterrupted run."""
