@@ -4,16 +4,17 @@ A Zenoh publisher's cache lives and dies with its process.  When the tracker is 
 restarted, its new publisher starts with an empty cache, so a consumer that (re)joins later
 (a sink restarted after the tracker was) could not get the tracks of the frames before the
 restart.  The journal closes that hole: the tracker appends each sample it publishes, and a
-restarted tracker publishes the journal again (up to its last snapshot) before it goes on,
-so its cache holds the whole run again.
+restarted tracker publishes the journal again (its newest ``keep`` records up to its last
+snapshot) before it goes on, so its cache holds what it held before the restart.
 
 File format (``<out>/tracker.journal``): a sequence of records, each
 ``uint32 length | uint32 crc32(body) | body`` (little endian), ``body`` the msgpack of
 ``[seq, payload, meta]``.  Reading stops at the first incomplete or damaged record (a
 process killed in the middle of a write), so the readable prefix is always usable.
 
-Consistency with the snapshot: a record is appended (buffered) before the tracker's state
-advances; :meth:`TracksJournal.dup_fd` flushes the journal and lets the snapshot writer fsync it
+Consistency with the snapshot: for each frame the tracker publishes the sample, then
+advances its state, then appends the record (buffered), all before the next frame or snapshot;
+:meth:`TracksJournal.dup_fd` flushes the journal and lets the snapshot writer fsync it
 before it writes each snapshot, so every frame a snapshot covers is in the journal.  A record
 lost with a killed process is after the last snapshot: it is recomputed anyway.  On resume,
 :meth:`TracksJournal.resume` cuts the journal back to the snapshot (the frames after it are
@@ -103,12 +104,11 @@ class TracksJournal:
 
     def resume(self, through_seq: int) -> list[tuple[int, bytes, dict]]:
         """Open the journal after a restart: keep the records up to ``through_seq`` (the
-        snapshot's last sequence number; -1: none), cut the rest, and return the kept
-        samples in sequence order (one per ``seq``)."""
+        snapshot's last sequence number; -1: none), cut the rest, and return the newest
+        ``keep`` of the kept samples (no publisher cache holds more), in sequence order.
+        The records in the file are in sequence order with unique ``seq`` by construction:
+        a resume cuts everything after the snapshot, and appends only add higher ones."""
         kept = [r for r in read_journal(self.path) if r.seq <= through_seq]
-        seen: dict[int, JournalRecord] = {}
-        for r in kept:
-            seen.setdefault(r.seq, r)
         cut = kept[-1].end if kept else 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "ab") as f:  # create if missing, then cut what the snapshot does not cover
@@ -116,7 +116,7 @@ class TracksJournal:
         self._ends = [r.end for r in kept]
         self._base = cut
         self._file = open(self.path, "ab")
-        return [(s, r.payload, r.meta) for s, r in sorted(seen.items())]
+        return [(r.seq, r.payload, r.meta) for r in kept[-self.keep:]]
 
     def start(self) -> None:
         """Open a new, empty journal (a fresh run)."""
@@ -128,9 +128,11 @@ class TracksJournal:
     def append(self, seq: int, payload: bytes, meta: dict) -> None:
         """Append one sample (buffered: :meth:`dup_fd` hands everything to the OS before a
         snapshot relies on it; a record lost with the process is after the last snapshot, so
-        it is recomputed and appended again on resume)."""
+        it is recomputed and appended again on resume).  Raises RuntimeError when the
+        journal is not open (:meth:`start` or :meth:`resume` first; never reopened here,
+        which would wipe the file)."""
         if self._file is None:
-            self.start()
+            raise RuntimeError(f"{self.path}: journal is not open (call start() or resume() first)")
         record = _encode(seq, payload, meta)
         self._file.write(record)
         # offsets kept here: BufferedWriter.tell() is an lseek system call per record

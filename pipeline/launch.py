@@ -139,7 +139,8 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
 
 
 def _log_cpu(name: str) -> None:
-    """Log the CPU time this process used (the benchmark reads it per stage)."""
+    """Log the CPU time this process used (for the reader of the stage's log; the
+    benchmark samples /proc itself)."""
     t = os.times()
     log.info("%s: cpu user %.3f s, system %.3f s", name, t.user, t.system)
 

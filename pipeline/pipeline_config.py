@@ -30,6 +30,7 @@ from tracker.config import ConfigError, apply_overrides, convert, load_toml
 
 __all__ = [
     "RUN_RE",
+    "TLS_FILE_FIELDS",
     "TlsConfig",
     "ZenohConfig",
     "SourceConfig",
@@ -55,6 +56,16 @@ NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 
 
+#: The fields of :class:`TlsConfig` that name PEM files (in Zenoh: ``transport/link/tls/<name>``).
+TLS_FILE_FIELDS = (
+    "root_ca_certificate",
+    "listen_certificate",
+    "listen_private_key",
+    "connect_certificate",
+    "connect_private_key",
+)
+
+
 class TlsConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """TLS files (PEM).  Empty strings are left out of the Zenoh configuration.
 
@@ -71,6 +82,10 @@ class TlsConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     connect_private_key: str = ""
     mtls: bool = False
     verify_name_on_connect: bool = True
+
+    def files(self) -> dict[str, str]:
+        """The file fields that are set (:data:`TLS_FILE_FIELDS` order), name -> path."""
+        return {name: getattr(self, name) for name in TLS_FILE_FIELDS if getattr(self, name)}
 
 
 class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -118,7 +133,7 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     @property
     def secured(self) -> bool:
         """TLS, authentication or access control is configured."""
-        return bool(self.acl or self.users_file or self.user or _tls_files(self.tls))
+        return bool(self.acl or self.users_file or self.user or self.tls.files() or self.tls.mtls)
 
     def __post_init__(self) -> None:
         if self.mode == "peer" and self.secured:
@@ -127,11 +142,6 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                 "control: peers exchange data directly, past the router that enforces them "
                 "(use mode = 'client')"
             )
-
-
-def _tls_files(tls: TlsConfig) -> bool:
-    return any((tls.root_ca_certificate, tls.listen_certificate, tls.listen_private_key,
-                tls.connect_certificate, tls.connect_private_key, tls.mtls))
 
 
 class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

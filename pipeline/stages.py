@@ -56,7 +56,7 @@ from pipeline.codec import (
     truth_from_msg,
 )
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.pipeline_config import PipelineConfig
+from pipeline.pipeline_config import DeliveryConfig, PipelineConfig
 from tracker.config import ConfigError
 from tracker.types import Frame
 
@@ -161,6 +161,11 @@ class Sequencer:
         self.duplicates = 0
         self.late = 0
         self.max_seen = int(start) - 1
+
+    @classmethod
+    def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
+        """A consumer's sequencer with the pipeline's ``window`` and ``catch_up``."""
+        return cls(delivery.window, start, name, delivery.catch_up)
 
     def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
         seq = int(seq)
@@ -290,6 +295,8 @@ class EndOfStream(msgspec.Struct, kw_only=True):
 
 _INFO_DEC = msgspec.json.Decoder(StageInfo)
 _EOS_DEC = msgspec.json.Decoder(EndOfStream)
+#: Decoder of each control topic kind (``<kind>/<stage>``).
+_CONTROL_DEC = {"eos": _EOS_DEC, "info": _INFO_DEC}
 _JSON = msgspec.json.Encoder()
 
 
@@ -304,7 +311,7 @@ class Accepted:
     msg: Any
     meta: dict
     t_recv_ns: int
-    payload: bytes = b""
+    payload: bytes
 
 
 class Intake:
@@ -414,11 +421,21 @@ def _fsync_and_close(fds: Iterable[int]) -> None:
         raise error
 
 
+def _close_all(fds: Iterable[int]) -> None:
+    """Close each descriptor (errors ignored: nothing is left to do with them)."""
+    for fd in fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
 class BackgroundWriter:
     """Write files atomically (:func:`write_atomic`) on a background thread, so that fsync
     stalls stay out of the frame loop.  ``submit`` replaces a pending write of the same path
     (only the newest snapshot matters); ``sync_first`` are file descriptors to fsync (and
-    close) before the write, e.g. of a journal the snapshot relies on; ``flush`` waits until
+    close) before the write, e.g. of a journal the snapshot relies on (the writer owns them
+    from the call on: they are closed even when ``submit`` raises); ``flush`` waits until
     everything submitted is on disk and re-raises a write error."""
 
     def __init__(self) -> None:
@@ -430,12 +447,14 @@ class BackgroundWriter:
         self.writes = 0
 
     def submit(self, path: Path, data: bytes, sync_first: Iterable[int] = ()) -> None:
+        new_fds = list(sync_first)  # ours from here on: closed on every path
         with self._cv:
             if self._error is not None:
                 err, self._error = self._error, None
+                _close_all(new_fds)
                 raise err
             fds = self._pending[path][1] if path in self._pending else []
-            self._pending[path] = (data, fds + list(sync_first))
+            self._pending[path] = (data, fds + new_fds)
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, name="snapshot-writer", daemon=True)
                 self._thread.start()
@@ -570,7 +589,7 @@ class _StageBase:
     def on_control(self, ev: Any) -> bool:
         """Handle ``info/*`` and ``eos/*``; True if the event was a control message."""
         kind, _, stage = ev.topic.partition("/")
-        decoder = {"eos": _EOS_DEC, "info": _INFO_DEC}.get(kind)
+        decoder = _CONTROL_DEC.get(kind)
         if decoder is None:
             return False
         try:
@@ -789,13 +808,12 @@ class TrackerStage(_StageBase):
         self.tc = self.cfg.tracker
         self.snap_path = self.ctx.out / SNAPSHOT_NAME
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes)
-        self.seq = Sequencer(self.delivery.window, 0, "measurements", self.delivery.catch_up)
+        self.seq = Sequencer.for_delivery(self.delivery, 0, "measurements")
         self.tracker = None
         self.state = None
         self.last_seq = -1
         self.last_frame = -1
         self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
-        self.history: list[tuple[int, bytes, dict]] = []  # journal samples to publish again
         self.pending: list[Accepted] = []
         self.restored: Snapshot | None = None
         self.since_snapshot = 0
@@ -804,15 +822,15 @@ class TrackerStage(_StageBase):
         self.writer = BackgroundWriter()
 
     # -- setup -------------------------------------------------------------------------
-    def _restore(self) -> None:
+    def _restore(self) -> list[tuple[int, bytes, dict]]:
         """Resume from the snapshot when there is one (and ``resume``), and open the journal
-        cut back to it; its samples are published again by :meth:`run`."""
+        cut back to it; returns its samples, which :meth:`run` publishes again."""
         if not self.tc.resume:
             self.journal.start()
-            return
+            return []
         if self.snap_path.exists():
             self._apply_snapshot(read_snapshot(self.snap_path))
-        self.history = self.journal.resume(self.last_seq)
+        return self.journal.resume(self.last_seq)
 
     def _apply_snapshot(self, snap: Snapshot) -> None:
         if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
@@ -823,7 +841,7 @@ class TrackerStage(_StageBase):
             )
         self.restored = snap
         self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
-        self.seq = Sequencer(self.delivery.window, snap.last_seq + 1, "measurements", self.delivery.catch_up)
+        self.seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
         self.seq.gaps = list(snap.gaps)
         self.seq._gapset = set(snap.gaps)
         self.counters.gaps = len(snap.gaps)
@@ -965,13 +983,13 @@ class TrackerStage(_StageBase):
     def run(self) -> int:
         bus = self.bus
         _warm_imports("pipeline.offline", "tracker.bnp_tracker", "tracker.state")
-        self._restore()
+        history = self._restore()
         bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
-        for s, payload, meta in self.history:  # the run so far, into the new publisher's cache
+        for s, payload, meta in history:  # the run so far, into the new publisher's cache
             bus.publish("tracks", payload, meta)
-        if self.history:
-            log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(self.history))
-        self.history = []
+        if history:
+            log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(history))
+        del history  # free the payloads (run() lasts as long as the run)
         bus.subscribe(["measurements", "info/*", "eos/*"])
         bus.declare_alive()
         finished = False
@@ -1057,11 +1075,11 @@ class SinkStage(_StageBase):
         d = self.delivery
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes)
         self.streams: dict[str, Sequencer] = {
-            "measurements": Sequencer(d.window, 0, "measurements", d.catch_up),
-            "truth": Sequencer(d.window, 0, "truth", d.catch_up),
+            "measurements": Sequencer.for_delivery(d, 0, "measurements"),
+            "truth": Sequencer.for_delivery(d, 0, "truth"),
         }
         if self.sc.tracks:
-            self.streams["tracks"] = Sequencer(d.window, 0, "tracks", d.catch_up)
+            self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
         self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
         self.next_write = 0
@@ -1216,15 +1234,20 @@ class SinkStage(_StageBase):
             if has_tracks and s not in ready["tracks"]:
                 return
             meas = ready["measurements"].pop(s)
-            truth = ready["truth"].pop(s)
-            tracks = ready["tracks"].pop(s) if has_tracks else None
-            if tracks is not None and tracks is not GAP and meas is not GAP and tracks.msg.frame != meas.msg.frame:
-                log.error("%s: seq %d: /tracks is for frame %d but /measurements is frame %d; "
-                          "dropping the tracks", self.name, s, tracks.msg.frame, meas.msg.frame)
-                self.counters.rejected += 1
-                tracks = GAP
+            truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas)
+            tracks = self._same_frame(s, "tracks", ready["tracks"].pop(s), meas) if has_tracks else None
             self._write(s, meas, truth, tracks)
             self.next_write += 1
+
+    def _same_frame(self, s: int, stream: str, item: Any, meas: Any) -> Any:
+        """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if
+        either is missing; otherwise :data:`GAP` (dropped, logged, counted as rejected)."""
+        if item is GAP or item is NO_TRUTH or meas is GAP or item.msg.frame == meas.msg.frame:
+            return item
+        log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
+                  self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
+        self.counters.rejected += 1
+        return GAP
 
     # -- intake ------------------------------------------------------------------------
     def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:

@@ -140,16 +140,8 @@ def session_config(
         # later on another host) instead of failing at once
         ins("connect/timeout_ms", json.dumps(int(zcfg.connect_timeout_s * 1000)))
     tls = zcfg.tls
-    for name in (
-        "root_ca_certificate",
-        "listen_certificate",
-        "listen_private_key",
-        "connect_certificate",
-        "connect_private_key",
-    ):
-        value = getattr(tls, name)
-        if value:
-            ins(f"transport/link/tls/{name}", json.dumps(value))
+    for name, value in tls.files().items():
+        ins(f"transport/link/tls/{name}", json.dumps(value))
     if tls.mtls:
         ins("transport/link/tls/enable_mtls", "true")
     if not tls.verify_name_on_connect:

@@ -216,11 +216,45 @@ def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
     assert r.run.startswith("vo2017-") and r.out == str(Path("recordings") / r.run)
 
 
+def test_tls_file_fields_are_the_file_fields_of_tls_config():
+    from pipeline.pipeline_config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
+
+    assert TLS_FILE_FIELDS == tuple(f for f in TlsConfig.__struct_fields__ if f not in ("mtls", "verify_name_on_connect"))
+    tls = TlsConfig(root_ca_certificate="ca.pem", connect_private_key="k.pem")
+    assert tls.files() == {"root_ca_certificate": "ca.pem", "connect_private_key": "k.pem"}
+    assert ZenohConfig(tls=tls).secured and ZenohConfig(tls=TlsConfig(mtls=True)).secured
+    assert not ZenohConfig().secured and not TlsConfig().files()
+
+
 def test_write_atomic_replaces(tmp_path):
     p = tmp_path / "x.bin"
     write_atomic(p, b"one")
     write_atomic(p, b"two")
     assert p.read_bytes() == b"two" and [x.name for x in tmp_path.iterdir()] == ["x.bin"]
+
+
+def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
+    """A pending write error is raised by the next submit; the descriptors handed to that
+    submit (the writer owns them) are closed all the same."""
+    import os
+    import time
+
+    from pipeline.stages import BackgroundWriter
+
+    w = BackgroundWriter()
+    w.submit(tmp_path / "missing-dir" / "x.snap", b"data")  # fails on the writer thread
+    deadline = time.monotonic() + 10
+    while w._error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert w._error is not None
+    fd = os.open(tmp_path / "journal", os.O_WRONLY | os.O_CREAT)
+    with pytest.raises(OSError):
+        w.submit(tmp_path / "x.snap", b"data", (fd,))
+    with pytest.raises(OSError):
+        os.fstat(fd)  # closed
+    w.submit(tmp_path / "x.snap", b"data")  # the error was reported once
+    w.flush()
+    assert (tmp_path / "x.snap").read_bytes() == b"data"
 
 
 # --------------------------------------------------------------------------- in-memory pipeline
@@ -372,6 +406,43 @@ def test_memory_pipeline_missing_tail_becomes_gap_at_end_of_stream(tmp_path):
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["complete"] and summary["gaps"]["measurements"] == [7]
     assert summary["frames_written"] == 7 and summary["tracks_written"] == 7
+
+
+def test_sink_drops_a_truth_of_another_frame_like_mismatched_tracks(tmp_path):
+    """A /truth sample whose frame (valid, consistent with its attachment) is not the frame
+    of the /measurements of the same seq is dropped, logged and counted, the way a /tracks
+    mismatch is: the frame is written without truth."""
+    cfg = _mem_cfg(tmp_path, frames=8)
+    net = MemoryNetwork()
+    truths: dict[int, tuple[bytes, dict]] = {}
+
+    def tap(run, topic, payload, att):
+        if topic == "truth" and att:
+            meta = json.loads(att)
+            truths[meta["seq"]] = (payload, meta)
+            if meta["seq"] == 4:  # the truth of seq 3 (frame and attachment agree) as seq 4
+                old_payload, old_meta = truths[3]
+                return [(old_payload, json.dumps({**meta, "frame": old_meta["frame"]}).encode())]
+        return [(payload, att)]
+
+    net.tap = tap
+    codes = _run_memory_pipeline(cfg, net)
+    assert codes["sink"] == EXIT_OK
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    frames, ests = _offline(cfg)
+    assert [f.frame for f in log.frames] == [f.frame for f in frames]
+    assert log.frames[4].truth is None
+    assert all(np.array_equal(a.truth.states, b.truth.states)
+               for i, (a, b) in enumerate(zip(log.frames, frames)) if i != 4)
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert summary["complete"] and summary["frames_written"] == 8 and summary["tracks_written"] == 8
+    assert summary["counters"]["rejected"] == 1 and summary["gaps"]["truth"] == []
+    from pipeline.codec import TOPIC_TRUTH
+    from sources.mcap_log import _Scanner
+
+    truth_frames = [m.frame for _, m in _Scanner(Path(cfg.out) / "tracks.mcap", {TOPIC_TRUTH})]
+    assert truth_frames == [f.frame for i, f in enumerate(frames) if i != 4]  # no stray truth of frame 3
 
 
 def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
@@ -599,11 +670,43 @@ def test_journal_compacts_right_after_a_resume(tmp_path):
     path = tmp_path / "tracker.journal"
     _write_journal(path, 6)
     j = TracksJournal(path, keep=3)
-    assert j.resume(3) == _journal_records(4)
+    assert j.resume(3) == _journal_records(4, start=1)  # the file keeps 0..3, resume returns the newest 3
     for rec in _journal_records(9, start=4):  # the 7th record (> 2 x keep) compacts to 4..6
         j.append(*rec)
     j.close()
     assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(9, start=4)
+
+
+def test_journal_resume_returns_at_most_keep_records_the_newest(tmp_path):
+    """The file may hold up to 2 x keep records, but no publisher cache holds more than
+    ``keep``: resume returns (for publishing again) only the newest ``keep`` of the records
+    the snapshot covers; the file itself is cut only after the snapshot."""
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 9)
+    j = TracksJournal(path, keep=4)
+    assert j.resume(7) == _journal_records(8, start=4)  # the snapshot covers 0..7
+    assert len(j) == 8
+    j.close()
+    assert [r.seq for r in read_journal(path)] == list(range(8))
+    assert TracksJournal(path, keep=10).resume(7) == _journal_records(8)  # fewer than keep: all
+
+
+def test_journal_append_when_not_open_raises_and_keeps_the_file(tmp_path):
+    from pipeline.journal import TracksJournal, read_journal
+
+    path = tmp_path / "tracker.journal"
+    _write_journal(path, 3)
+    rec = _journal_records(4, start=3)[0]
+    with pytest.raises(RuntimeError, match="not open"):
+        TracksJournal(path, keep=100).append(*rec)  # neither start() nor resume()
+    j = TracksJournal(path, keep=100)
+    j.resume(2)
+    j.close()
+    with pytest.raises(RuntimeError, match="not open"):
+        j.append(*rec)  # after close
+    assert [(r.seq, r.payload, r.meta) for r in read_journal(path)] == _journal_records(3)
 
 
 def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
