@@ -107,7 +107,7 @@ class Offline:
     """The tracker over the log's frames in this process (decoded beforehand)."""
 
     def __init__(self, log: Path, tracker_name: str, seed: int) -> None:
-        self.log, self.seed = log, seed
+        self.log, self.seed, self.tracker_name = log, seed, tracker_name
         self.meta = read_metadata(log)
         config, _ = resolve_config(tracker_name, None)
         self.tracker = build_tracker(tracker_name, resolve_params(None, self.meta).params, config)
@@ -128,11 +128,12 @@ class Offline:
         journal, snapshots).  Frames per second and CPU ms per frame."""
         from pipeline.codec import encode_measurements
         from pipeline.membus import MemoryNetwork
-        from pipeline.pipeline_config import PipelineConfig, resolve_run
+        from pipeline.pipeline_config import PipelineConfig, TrackerStageConfig, resolve_run
         from pipeline.stages import StageContext, StageInfo, TrackerStage
         from pipeline.transport_types import Event
 
-        cfg = resolve_run(PipelineConfig(run="inproc", out=str(out)))
+        cfg = resolve_run(PipelineConfig(run="inproc", out=str(out), tracker=TrackerStageConfig(
+            tracker=self.tracker_name, seed=self.seed)))
         stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("inproc", "tracker"), name="tracker"))
         stage._restore()
         stage._build(StageInfo(stage="source", run="inproc", metadata=self.meta))
