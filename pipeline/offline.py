@@ -189,29 +189,50 @@ def resolve_params(
     2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
        (the ``--set`` items used when simulating) and its ``snr_db``;
     3. else the :data:`DEFAULT_PARAMS` set.
+
+    When the record names a known scenario, its defaults are applied as ``simulate`` applied
+    them (:meth:`Scenario.adapt_params`: birth regions, SNR, range clutter), in every case.
     """
-    if params_arg:
-        return ParamsChoice(load_params(params_arg), params_arg, "from --params")
     meta = dict(metadata or {})
-    name = meta.get("params")
-    if name:
-        overrides = parse_overrides(meta.get("overrides"))
-        try:
-            p = load_params(name, overrides)
-            snr = meta.get("snr_db")
-            p = _with_snr(p, float(snr) if snr not in (None, "") else None)
-        except (ConfigError, ValueError) as exc:
-            raise ConfigError(
-                f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
-                "(pass --params NAME|FILE.toml)"
-            ) from None
-        return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
-    why = (
-        "default: the log has no bnptrack.scenario record"
-        if metadata is None
-        else "default: the log's bnptrack.scenario record names no params"
-    )
-    return ParamsChoice(load_params(DEFAULT_PARAMS), DEFAULT_PARAMS, why)
+    if params_arg:
+        choice = ParamsChoice(load_params(params_arg), params_arg, "from --params")
+    elif meta.get("params"):
+        choice = _params_from_record(meta)
+    else:
+        why = (
+            "default: the log has no bnptrack.scenario record"
+            if metadata is None
+            else "default: the log's bnptrack.scenario record names no params"
+        )
+        choice = ParamsChoice(load_params(DEFAULT_PARAMS), DEFAULT_PARAMS, why)
+    return _adapt_to_scenario(choice, meta.get("scenario"))
+
+
+def _params_from_record(meta: Mapping[str, str]) -> ParamsChoice:
+    name = meta["params"]
+    overrides = parse_overrides(meta.get("overrides"))
+    try:
+        p = load_params(name, overrides)
+        snr = meta.get("snr_db")
+        p = _with_snr(p, float(snr) if snr not in (None, "") else None)
+    except (ConfigError, ValueError) as exc:
+        raise ConfigError(
+            f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
+            "(pass --params NAME|FILE.toml)"
+        ) from None
+    return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
+
+
+def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoice:
+    """Apply the defaults of the scenario a log's record names (unknown names: unchanged)."""
+    if not scenario:
+        return choice
+    try:
+        sc = get_scenario(scenario)
+    except ConfigError:
+        return choice
+    return ParamsChoice(sc.adapt_params(choice.params), choice.source,
+                        f"{choice.reason}; with scenario {scenario}'s defaults", choice.overrides)
 
 
 # --------------------------------------------------------------------------- tracker config

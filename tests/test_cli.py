@@ -327,3 +327,16 @@ def test_schema_tracks_fields():
 def test_schema_unknown_topic():
     res = invoke("schema", "/nope")
     assert res.exit_code == 2 and "/nope" in res.output
+
+
+def test_resolve_params_applies_the_logs_scenario_defaults():
+    """A log simulated from a scenario is tracked with that scenario's defaults (birth regions,
+    SNR, range clutter), as ``simulate`` and ``experiment`` use them: proximity's birth region is
+    its path's entry point, not the parameter set's; snr's -3 dB and 2 range-clutter per scan."""
+    prox = resolve_params(None, {"scenario": "proximity", "params": "vo2017", "seed": "1"})
+    assert [(b.mean[0], b.mean[2]) for b in prox.params.birth] == [(-900.0, 600.0)]
+    assert "proximity" in prox.reason
+    snr = resolve_params("vo2017", {"scenario": "snr", "params": "paper", "seed": "1"})
+    assert snr.params.snr_db == -3.0 and snr.params.range_clutter_rate == 2.0
+    plain = resolve_params(None, {"params": "vo2017"})
+    assert plain.params.snr_db is None and plain.params.range_clutter_rate is None
