@@ -51,8 +51,10 @@ def label_switches(frames, estimates, gate: float = 100.0) -> int:
 
 def one_run(job):
     tracker_name, params_name, scenario, seed, overrides = job
-    params = get_scenario(scenario).adapt_params(load_params(params_name))
-    tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], overrides))
+    p_over = [o.partition(".")[2] for o in overrides if o.startswith("params.")]
+    t_over = [o.removeprefix("tracker.") for o in overrides if not o.startswith("params.")]
+    params = apply_overrides(get_scenario(scenario).adapt_params(load_params(params_name)), p_over)
+    tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], t_over))
     frames = simulate_all(get_scenario(scenario), params, seed)
     rows, ests = [], []
     for f, e, _ in run(tracker, frames, seed):
@@ -75,7 +77,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20, help="number of seeds")
     ap.add_argument("--first-seed", type=int, default=1, help="seeds run from this one")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--set", dest="overrides", action="append", default=[], help="tracker config override")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="override: params.KEY=V (model parameters) or [tracker.]KEY=V (tracker settings)")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")

@@ -129,8 +129,9 @@ class Scenario:
     default_snr_db: float | None = None
     default_range_clutter_rate: float | None = None
     birth: tuple[tuple[float, tuple[float, ...]], ...] | None = None
-    """Scenario-specific birth regions ``(r, mean)`` (std as in Vo's model), or ``None`` to keep
-    the parameter set's (Vo's four components, made for ``vo2017``/``dpy5``)."""
+    """Scenario-specific birth regions ``(r, mean)`` (std as in Vo's model): prior knowledge of
+    where this scene's objects appear (``vo2017``/``dpy5``: Vo's four components), or ``None``
+    to keep the parameter set's (which ship none: objects may appear anywhere)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "targets", tuple(self.targets))
@@ -271,6 +272,10 @@ _SNR_TARGETS = tuple(
 
 # Birth regions: Vo's convention (zero velocity mean, std [50, 50, 50, 50, 6 deg/s]).
 _BIRTH_STD = (50.0, 50.0, 50.0, 50.0, float(np.deg2rad(6.0)))
+#: Vo, Vo & Hoang's four labeled multi-Bernoulli birth components (gen_model.m), the prior
+#: knowledge of where vo2017's (and dpy5's) objects appear.
+_VO_BIRTH = ((0.02, (-1500.0, 0.0, 250.0, 0.0, 0.0)), (0.02, (-250.0, 0.0, 1000.0, 0.0, 0.0)),
+             (0.03, (250.0, 0.0, 750.0, 0.0, 0.0)), (0.03, (1000.0, 0.0, 1500.0, 0.0, 0.0)))
 _PROX_BIRTH = ((0.05, (PROXIMITY_PATH_START[0], 0.0, PROXIMITY_PATH_START[2], 0.0, 0.0)),)
 _SNR_BIRTH = tuple((0.03, (px, 0.0, py, 0.0, 0.0)) for (px, _vx, py, _vy), _b, _d in _SNR_TABLE)
 
@@ -282,11 +287,13 @@ SCENARIOS: dict[str, Scenario] = {
             "Vo, Vo & Hoang (2017) Sec. IV.B: 10 coordinated-turn targets, bearing-range "
             "sensor (experiments 1 and 5)",
             targets=_VO2017_TARGETS,
+            birth=_VO_BIRTH,
         ),
         Scenario(
             "dpy5",
             "Targets 1-5 of vo2017 (experiment 4: DPY-STP vs GLMB, at most 5 targets)",
             targets=_VO2017_TARGETS[:5],
+            birth=_VO_BIRTH,
         ),
         Scenario(
             "proximity",

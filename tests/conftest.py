@@ -12,7 +12,8 @@ from tracker.models.params import load_params
 
 @pytest.fixture(scope="session")
 def vo_params():
-    return load_params("vo2017")
+    """The vo2017 parameter set with the vo2017 scenario's birth regions (Vo's four)."""
+    return get_scenario("vo2017").adapt_params(load_params("vo2017"))
 
 
 @pytest.fixture(scope="session")

@@ -335,8 +335,8 @@ def test_exact_cardinality_without_clutter(seed):
       drops the track (dies 1 - P_S = 0.01 beats missed P_S (1 - P_D) = 0.00099) and the next
       detection brings the same label back.
     """
-    params = load_params("vo2017", ["clutter_rate=0.001", "p_detect=0.999"])
     scenario = get_scenario("vo2017")
+    params = scenario.adapt_params(load_params("vo2017", ["clutter_rate=0.001", "p_detect=0.999"]))
     frames = simulate_all(scenario, params, seed)
     present = scenario.presence()
     states = scenario.states(params.T)

@@ -227,7 +227,7 @@ def test_adapt_params():
     assert snr.adapt_params(p).sigma_range == p.sigma_range
     p10 = load_params("vo2017", ["snr_db=-10"])
     assert snr.adapt_params(p10).snr_db == -10.0
-    assert VO.adapt_params(p) is p  # vo2017 keeps the parameter set's (Vo's) birth regions
+    assert VO.adapt_params(p).birth == get_scenario("dpy5").adapt_params(p).birth  # Vo's regions
 
 
 def test_scenario_birth_regions_replace_the_parameter_sets():
@@ -238,7 +238,10 @@ def test_scenario_birth_regions_replace_the_parameter_sets():
     starts = get_scenario("snr").states()[get_scenario("snr").births - 1, np.arange(11)]
     assert len(snr.birth) == 11
     np.testing.assert_allclose([[b.mean[0], b.mean[2]] for b in snr.birth], starts[:, [0, 2]])
-    assert get_scenario("dpy5").adapt_params(p).birth == p.birth
+    vo = get_scenario("dpy5").adapt_params(p)
+    assert [b.r for b in vo.birth] == [0.02, 0.02, 0.03, 0.03]
+    assert [(b.mean[0], b.mean[2]) for b in vo.birth] == [(-1500, 250), (-250, 1000), (250, 750), (1000, 1500)]
+    assert vo.birth[0].std == [50.0, 50.0, 50.0, 50.0, pytest.approx(np.deg2rad(6.0))]
 
 
 def test_target_spec_validation():

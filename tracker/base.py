@@ -5,19 +5,22 @@ sampler needs the predictive density of a measurement under :math:`H`,
 :math:`u_H(z) = \int R(z \mid x)\, dH(x)` (eq. (14)), and the new cluster's parameter is
 :math:`H` conditioned on its measurement, :math:`dH_\ell \propto R(z \mid x)\, dH` (eq. (14)).
 
-We use
+We use a birth *intensity* that is a sum of independent sources, normalised into :math:`H`:
 
 .. math::
-    H = w_0\, \mathcal U_{\text{FOV}} + (1 - w_0) \sum_i \frac{r_i}{\sum_j r_j}
-        \mathcal N(x; \mu_i, \Sigma_i)
+    H = \frac{\lambda_U}{\lambda_U + \sum_j r_j}\, \mathcal U_{\text{FOV}}
+        + \sum_i \frac{r_i}{\lambda_U + \sum_j r_j}\, \mathcal N(x; \mu_i, \Sigma_i)
 
 * :math:`\mathcal U_\text{FOV}`: positions uniform over the sensor's field of view *in
   measurement coordinates* (so :math:`u(z) = 1/|V|`, the clutter density), velocity
   :math:`\mathcal N(0, \sigma_v^2 I)`, turn rate :math:`\mathcal N(0, \sigma_\omega^2)`: the
-  paper's uninformative choice (its NIW has a near-zero mean and a vague scale).
-* The Gaussian components are the parameter set's birth regions (the labeled multi-Bernoulli
-  birth of the GLMB baseline), so both trackers get the same prior knowledge.  With
-  ``w_0 = 1`` (or a parameter set without birth components) :math:`H` is purely uniform.
+  paper's uninformative choice (its NIW has a near-zero mean and a vague scale).  Objects may
+  appear anywhere (case D3/P3 with no prior knowledge of where).
+* :math:`\lambda_U` = ``params.birth_rate``: expected new objects per scan appearing anywhere.
+* The Gaussian components are the parameter set's optional birth regions (the labeled
+  multi-Bernoulli birth of the GLMB baseline), each with its expected births per scan
+  :math:`r_i`: prior knowledge of where objects appear, an informative part of :math:`H` that
+  adds to the uniform part instead of replacing it.  Without regions :math:`H` is uniform.
 """
 
 from __future__ import annotations
@@ -50,15 +53,16 @@ class BaseDistribution:
     _innovations: dict = field(default_factory=dict, compare=False, repr=False)
 
     @staticmethod
-    def from_params(params: ModelParams, uniform_weight: float, velocity_std: float,
-                    turn_std: float) -> "BaseDistribution":
-        comps = params.birth
-        if not comps or uniform_weight >= 1.0:
+    def from_params(params: ModelParams, velocity_std: float, turn_std: float) -> "BaseDistribution":
+        """:math:`H` of ``params``: uniform weight ``birth_rate / (birth_rate + sum r)``."""
+        comps = [c for c in params.birth if c.r > 0.0]
+        total = params.birth_rate + sum(c.r for c in comps)
+        if not comps or total <= 0.0:
             w = np.zeros(0)
             means, covs, uniform_weight = np.zeros((0, 5)), np.zeros((0, 5, 5)), 1.0
         else:
-            r = np.array([c.r for c in comps])
-            w = (1.0 - uniform_weight) * r / r.sum()
+            w = np.array([c.r for c in comps]) / total
+            uniform_weight = params.birth_rate / total
             means = np.array([c.mean for c in comps], dtype=float)
             covs = np.stack([np.diag(np.square(c.std)) for c in comps])
         return BaseDistribution(w, means, covs, float(uniform_weight), velocity_std, turn_std,

@@ -64,8 +64,13 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     existence_threshold: Prob = 0.35
     """Clusters with existence above this are reported as tracks."""
     prune_threshold: Prob = 1e-3
-    birth_min_prob: Prob = 1e-3
-    """A measurement opens a cluster when it was 'new' in at least this fraction of sweeps."""
+    """Clusters whose existence is below ``min(prune_threshold, birth_prune_fraction * p_birth)``
+    are dropped; ``p_birth`` is the probability that a measurement far from every cluster
+    opens a new one (``BnpTracker.birth_probability``).  Tying the floor to ``p_birth`` means
+    no fixed threshold can stop births, however dense the clutter."""
+    birth_prune_fraction: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
+    """A cluster is kept while its existence is at least this fraction of ``p_birth``: a
+    newborn survives its birth frame, and is dropped after a missed first re-detection."""
     max_clusters: Annotated[int, msgspec.Meta(ge=1)] = 200
     popularity_decay: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
@@ -83,9 +88,6 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
     birth_turn_std_deg: Positive = 3.0
     """Base distribution H (uniform part): turn-rate std (deg/s) of a new cluster."""
-    base_uniform_weight: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
-    """Weight of the uniform part of H; the rest is the parameter set's birth regions
-    (1 = the paper's uninformative H)."""
     alpha: Positive = 0.1
     """Initial concentration alpha (kept fixed if ``infer_alpha`` is false)."""
     alpha_shape: Positive = 1.0
@@ -103,6 +105,11 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (Rao-Blackwellised over the hyperparameter) or one draw (a plain Gibbs step)."""
     hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
     """Past frames' hyperparameter log-likelihood is multiplied by this each frame."""
+    birth_lag: Annotated[int, msgspec.Meta(ge=0, le=50)] = 4
+    """The hyperparameter likelihood counts the new clusters of frame ``k - birth_lag`` by their
+    existence at frame ``k`` (fixed-lag smoothing): at its birth frame a new object's
+    measurement is 'new' with probability ~ alpha / lambda_c, so counting that frame's sample
+    would drive alpha towards 0 (see docs/trackers.md).  0 counts the current sample."""
     extended: bool = False
     """Allow several measurements per object per frame (case D1/P1); off for point objects."""
 
@@ -118,8 +125,11 @@ TRACKER_PRESETS: dict[str, BnpConfig] = {
     "dpyp": BnpConfig(d=0.1, infer_d=True),
     # Experiment 2 (close proximity): alpha ~ Gamma(1, 0.3).
     "ddp-proximity": BnpConfig(alpha_scale=0.3),
-    # Experiment 3 (varying SNR): alpha ~ Gamma(1, 0.2).
-    "ddp-snr": BnpConfig(alpha_scale=0.2),
+    # Experiment 3 (varying SNR): alpha ~ Gamma(1, 0.2).  Range-only tracks cannot be localised
+    # (position is known up to a rotation about the sensor), so they keep losing their
+    # measurements to new clusters; counting the current sample's new clusters (birth_lag = 0)
+    # keeps alpha high enough to re-open them (docs/trackers.md, "Births").
+    "ddp-snr": BnpConfig(alpha_scale=0.2, birth_lag=0),
 }
 
 
@@ -173,8 +183,14 @@ class BnpTracker:
     @cached_property
     def base(self) -> BaseDistribution:
         cfg = self.config
-        return BaseDistribution.from_params(self.params, cfg.base_uniform_weight, cfg.birth_velocity_std,
-                                            np.deg2rad(cfg.birth_turn_std_deg))
+        return BaseDistribution.from_params(self.params, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
+
+    def birth_probability(self, alpha: float, clutter) -> float:
+        r"""``p_birth``: probability that a measurement no cluster explains opens a new one,
+        :math:`\alpha w_0 u / (\lambda_c \kappa + \alpha w_0 u)` with the uniform part of
+        :math:`H` (:math:`u = \kappa`, both uniform over the field of view in measurement space)."""
+        new = alpha * self.base.uniform_weight
+        return float(new / (clutter.rate + new)) if new > 0 else 0.0
 
     @cached_property
     def alpha_grid(self) -> np.ndarray:
@@ -202,14 +218,16 @@ class BnpTracker:
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
-        born = self._births(frame, meas, clutter, result)
-        kept = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance))
-        alpha, d, hyper = self._hyper(rng, state, problem, result)
+        floor = self._prune_floor(state.alpha, clutter)
+        born = self._births(frame, meas, clutter, result, floor)
+        kept = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
+        alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
                              kept.existence, kept.popularity, alpha, d, hyper)
         est = self._estimate(new_state, frame, existing, born, result, problem)
         diagnostics = {
             "alpha": alpha, "d": d, "n_clusters": float(new_state.n_clusters),
+            "p_birth": self.birth_probability(state.alpha, clutter),
             "n_tracks": float(len(est.tracks)),
             "log_joint": result.log_joint if math.isfinite(result.log_joint) else 0.0,
             "ms": (time.perf_counter() - t0) * 1e3,
@@ -287,24 +305,32 @@ class BnpTracker:
         pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
         return _Clusters(state.labels, mean, cov, r, pop)
 
-    def _births(self, frame: Frame, meas, clutter, result) -> "_Clusters":
-        """New clusters (case D3/P3) from measurements that opened one in some sweeps."""
+    def _prune_floor(self, alpha: float, clutter) -> float:
+        """Existence below which a cluster is dropped (``BnpConfig.prune_threshold``)."""
+        cfg = self.config
+        p_birth = self.birth_probability(alpha, clutter)
+        return min(cfg.prune_threshold, cfg.birth_prune_fraction * p_birth) if p_birth > 0 else cfg.prune_threshold
+
+    def _births(self, frame: Frame, meas, clutter, result, floor: float) -> "_Clusters":
+        """New clusters (case D3/P3): every measurement whose Rao-Blackwellised probability of
+        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut)."""
         p_new = result.p_new
-        idx = np.flatnonzero(p_new >= max(self.config.birth_min_prob, 1e-12))
+        idx = np.flatnonzero(p_new >= max(floor, 1e-300))
         if idx.size == 0:
             return _Clusters.empty()
         mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind)
         labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
         return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
 
-    def _prune(self, c: "_Clusters") -> "_Clusters":
-        keep = np.flatnonzero(c.existence >= self.config.prune_threshold)
+    def _prune(self, c: "_Clusters", floor: float) -> "_Clusters":
+        keep = np.flatnonzero(c.existence >= floor)
         if keep.size > self.config.max_clusters:
             order = np.argsort(-c.existence[keep], kind="stable")
             keep = np.sort(keep[order[: self.config.max_clusters]])
         return c.take(keep)
 
-    def _hyper(self, rng, state: BnpState, problem: GibbsProblem, result) -> tuple[float, float, np.ndarray]:
+    def _hyper(self, rng, state: BnpState, problem: GibbsProblem, result, kept: "_Clusters",
+               frame: int) -> tuple[float, float, np.ndarray]:
         """Grid-Gibbs step for (alpha, d) given this frame's last Gibbs sample.
 
         The log-likelihood of past frames is kept on the grid (with forgetting), so the
@@ -315,10 +341,12 @@ class BnpTracker:
             return state.alpha, state.d, state.hyper_loglik
         last = result.last
         counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
+        n_new_sample = int(np.sum(last == NEW))
+        n_new = n_new_sample if cfg.birth_lag == 0 else _born_at(kept, frame - cfg.birth_lag)
         frame_ll = frame_loglik_grid(
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
-            n_object=int(np.sum(last != CLUTTER)), n_new=int(np.sum(last == NEW)),
+            n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
             seated_popularity=state.popularity, seated_counts=counts,
         )
         hyper = cfg.hyper_forgetting * state.hyper_loglik + frame_ll
@@ -424,8 +452,9 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     order of decreasing existence, a leader absorbs every cluster whose position-velocity state
     lies within squared Mahalanobis distance ``max_d2`` of it (covariance :math:`P_i + P_j`)
     while the existences absorbed so far sum to at most 1 (existences of exclusive hypotheses
-    add; two objects that both exist are never merged).  The merged cluster keeps the leader's
-    label and popularity, its existence is the sum, and its Gaussian is the existence-weighted
+    add; two objects that both exist are never merged).  The merged cluster keeps the label of
+    its oldest member (the object's identity: a newborn duplicate never renames a track, nor
+    counts as a second birth of the object) and the leader's popularity, its existence is the sum, and its Gaussian is the existence-weighted
     moment match.
     """
     n = len(c.labels)
@@ -479,8 +508,22 @@ def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
         dev = c.mean[g] - mean[k]
         cov[k] = np.einsum("g,gij->ij", w, c.cov[g]) + np.einsum("g,gi,gj->ij", w, dev, dev)
     keep = np.argsort(leaders, kind="stable")  # keep the clusters' original order
-    return _Clusters(tuple(c.labels[leaders[k]] for k in keep), mean[keep], cov[keep],
+    labels = [min((c.labels[i] for i in g), key=_birth_frame) for g in groups]
+    return _Clusters(tuple(labels[k] for k in keep), mean[keep], cov[keep],
                      np.minimum(r[keep], 1.0), c.popularity[leaders[keep]])
+
+
+def _birth_frame(label: str) -> int:
+    """Birth frame of a cluster label ``"<frame>.<measurement>"`` (labels sort by it)."""
+    head, _, _ = label.partition(".")
+    return int(head) if head.lstrip("-").isdigit() else 0
+
+
+def _born_at(c: _Clusters, frame: int) -> float:
+    """Expected number of objects born at ``frame``: the summed existence of the clusters whose
+    label (``"<birth frame>.<measurement>"``) says they were born then."""
+    prefix = f"{frame}."
+    return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lab.startswith(prefix)))
 
 
 def _concat(a: _Clusters, b: _Clusters) -> _Clusters:

@@ -124,8 +124,8 @@ def frame_loglik_grid(
     *,
     mass: float,
     d_bar: float,
-    n_object: int,
-    n_new: int,
+    n_object: float,
+    n_new: float,
     seated_popularity: np.ndarray,
     seated_counts: np.ndarray,
 ) -> np.ndarray:
@@ -140,14 +140,18 @@ def frame_loglik_grid(
             + \sum_{j=0}^{K_\text{new}-1} \log(\alpha + d(\bar D + j))
             + \sum_l \log (v_l - d)^{\overline{n_l}} .
 
-    ``alpha`` and ``d`` broadcast (e.g. ``(A, 1)`` and ``(1, D)``).
+    ``alpha`` and ``d`` broadcast (e.g. ``(A, 1)`` and ``(1, D)``).  ``n_object`` and
+    ``n_new`` may be expected (fractional) counts: the last, partial new table enters with
+    its fraction as the exponent of its factor.
     """
     alpha = np.asarray(alpha, dtype=float)
     d = np.asarray(d, dtype=float)
     total = alpha + mass
     out = -total + n_object * np.log(total) - log_rising(total, n_object)
-    for j in range(n_new):
-        out = out + np.log(alpha + d * (d_bar + j))
+    j = 0
+    while j < n_new:
+        out = out + min(1.0, n_new - j) * np.log(alpha + d * (d_bar + j))
+        j += 1
     v = np.asarray(seated_popularity, dtype=float)
     n = np.asarray(seated_counts, dtype=int)
     used = n > 0

@@ -64,6 +64,12 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """If set, measurement noise variance is scaled by ``10**(-snr_db/10)``."""
     snr_pd_reference_db: float | None = None
     """If set (with ``snr_db``), P_D follows the Swerling-I relation (see ``Detection``)."""
+    birth_rate: NonNeg = 0.1
+    """Expected number of new objects per scan appearing *anywhere* in the field of view, in
+    addition to the birth regions of ``birth`` (whose ``r`` are their own expected births per
+    scan).  The uninformative part of the birth model: the BNP trackers' base distribution H
+    weighs its uniform part by ``birth_rate / (birth_rate + sum r)``, and the GLMB's adaptive
+    birth uses it as ``lambda_B``.  0 allows births only at the birth regions."""
     birth: list[BirthComponent] = msgspec.field(default_factory=list)
 
     # --- model factories -------------------------------------------------------------
