@@ -51,9 +51,10 @@ def label_switches(frames, estimates, gate: float = 100.0) -> int:
 
 def one_run(job):
     tracker_name, params_name, scenario, seed, overrides = job
-    params = get_scenario(scenario).adapt_params(load_params(params_name))
+    sc = get_scenario(scenario, seed=seed)  # a generated family (random): the scene of this seed
+    params = sc.adapt_params(load_params(params_name))
     tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], overrides))
-    frames = simulate_all(get_scenario(scenario), params, seed)
+    frames = simulate_all(sc, params, seed)
     rows, ests = [], []
     for f, e, _ in run(tracker, frames, seed):
         o = ospa(f.truth.positions, e.positions, c=100.0, p=1.0)

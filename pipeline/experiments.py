@@ -66,6 +66,10 @@ EXPERIMENTS: dict[str, Experiment] = {
                    (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("glmb", "glmb", "GLMB"))),
         Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets (experiment 5)", "vo2017",
                    (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("ddp", "ddp", "DDP-EMM"))),
+        Experiment("random", "Objects born anywhere: 20-30 objects, 3 crossing pairs, no birth "
+                   "regions (generated random family; each run draws its own scene)", "random",
+                   (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("dpyp", "dpyp", "DPY-STP"),
+                    TrackerSpec("glmb", "glmb", "GLMB"))),
     )
 }
 
@@ -116,15 +120,20 @@ class RunResult:
 
 
 def _run_setup(job: RunJob):
-    """The experiment, its scenario, the model parameters and the seed of one run."""
-    from sources.scenarios import get_scenario
+    """The experiment, its scenario, the model parameters and the seed of one run.
+
+    A generated scenario (``random``) draws its scene from the run's seed (and the
+    variant's ``scene.*`` overrides), so every run has its own scene."""
+    from pipeline.offline import resolve_scenario, split_scene_overrides
     from tracker.config import apply_overrides
     from tracker.models.params import load_params
 
     exp = get_experiment(job.experiment)
-    scenario = get_scenario(exp.scenario)
-    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
-    return exp, scenario, params, run_seed(job.experiment, job.seed, job.run)
+    seed = run_seed(job.experiment, job.seed, job.run)
+    scenario = resolve_scenario(exp.scenario, seed, job.variant.overrides)
+    _, model_over = split_scene_overrides(job.variant.overrides)
+    params = scenario.adapt_params(apply_overrides(load_params(job.params), model_over))
+    return exp, scenario, params, seed
 
 
 def execute_run(job: RunJob) -> RunResult:

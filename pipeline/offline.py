@@ -20,7 +20,7 @@ import msgspec
 import numpy as np
 
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
-from sources.scenarios import get_scenario
+from sources.scenarios import get_scenario, is_generated
 from sources.synthetic import simulate
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
@@ -42,6 +42,11 @@ __all__ = [
     "format_overrides",
     "parse_overrides",
     "resolve_simulation_params",
+    "resolve_scenario",
+    "split_scene_overrides",
+    "simulation_metadata",
+    "format_crossings",
+    "parse_crossings",
     "resolve_params",
     "resolve_config",
     "split_overrides",
@@ -170,14 +175,74 @@ def _with_snr(params: ModelParams, snr_db: float | None) -> ModelParams:
     return msgspec.structs.replace(params, snr_db=float(snr_db))
 
 
+_SCENE_PREFIX = "scene."
+
+
+def split_scene_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Split ``--set`` items into (``scene.KEY=V`` items without the prefix, the others)."""
+    scene, rest = [], []
+    for item in overrides:
+        item = item.strip()
+        if item.startswith(_SCENE_PREFIX):
+            scene.append(item[len(_SCENE_PREFIX):])
+        else:
+            rest.append(item)
+    return tuple(scene), tuple(rest)
+
+
+def resolve_scenario(scenario: str, seed: int, overrides: Sequence[str] = ()):
+    """The :class:`~sources.scenarios.Scenario` to simulate: a fixed table, or a generated
+    family's scene for the scene seed ``seed`` (the run's seed) and the ``scene.*`` items of
+    ``overrides`` (other items are ignored here)."""
+    scene, _ = split_scene_overrides(overrides)
+    return get_scenario(scenario, seed=seed, scene=scene)
+
+
 def resolve_simulation_params(
     scenario: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
 ) -> ModelParams:
-    """Parameters for simulating ``scenario``: the set, ``--set`` overrides, ``--snr``, then
-    the scenario's defaults (``Scenario.adapt_params``, e.g. -3 dB for ``snr``)."""
-    sc = get_scenario(scenario)
-    p = _with_snr(load_params(params, overrides), snr_db)
+    """Parameters for simulating ``scenario``: the set, ``--set`` overrides (``scene.*`` items
+    are left to :func:`resolve_scenario`), ``--snr``, then the scenario's defaults
+    (``Scenario.adapt_params``, e.g. -3 dB for ``snr``, no birth regions for ``random``)."""
+    _, model_over = split_scene_overrides(overrides)
+    sc = get_scenario(scenario, seed=0) if is_generated(scenario) else get_scenario(scenario)
+    p = _with_snr(load_params(params, model_over), snr_db)
     return sc.adapt_params(p)
+
+
+def simulation_metadata(
+    scenario, params_name: str, seed: int, params: ModelParams, overrides: Sequence[str] = ()
+) -> dict[str, str]:
+    """The ``bnptrack.scenario`` record of a simulated log: scenario, params, seed, plus
+    snr_db and the model ``overrides`` when used; for a generated scene also ``scene_seed``,
+    its ``scene`` overrides (``;``-separated, without ``scene.``) and its ``crossings``
+    (``id_a,id_b,scan`` items, ``;``-separated)."""
+    scene, model_over = split_scene_overrides(overrides)
+    meta = {"scenario": scenario.name, "params": params_name, "seed": str(seed)}
+    if params.snr_db is not None:
+        meta["snr_db"] = repr(float(params.snr_db))
+    if model_over:
+        meta["overrides"] = format_overrides(model_over)
+    if scenario.seed is not None:
+        meta["scene_seed"] = str(scenario.seed)
+        if scene:
+            meta["scene"] = format_overrides(scene)
+        meta["crossings"] = format_crossings(scenario.crossings)
+    return meta
+
+
+def format_crossings(crossings: Sequence[tuple[str, str, int]]) -> str:
+    """``(id_a, id_b, scan)`` triples as ``id_a,id_b,scan;...`` (metadata text)."""
+    return _OVERRIDE_SEP.join(f"{a},{b},{int(k)}" for a, b, k in crossings)
+
+
+def parse_crossings(text: str | None) -> tuple[tuple[str, str, int], ...]:
+    """Inverse of :func:`format_crossings` (empty or missing text: no pairs)."""
+    out = []
+    for item in parse_overrides(text):
+        a, b, k = (v.strip() for v in item.split(","))
+        out.append((a, b, int(k)))
+    return tuple(out)
 
 
 def resolve_params(
@@ -187,7 +252,8 @@ def resolve_params(
 
     1. ``params_arg`` (``--params NAME|FILE.toml``) when given;
     2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
-       (the ``--set`` items used when simulating) and its ``snr_db``;
+       (the ``--set`` items used when simulating) and its ``snr_db``; for a generated
+       scenario (``random``, ``random-cv``) also its ``adapt_params``: no birth regions;
     3. else the :data:`DEFAULT_PARAMS` set.
     """
     if params_arg:
@@ -205,6 +271,9 @@ def resolve_params(
                 f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
                 "(pass --params NAME|FILE.toml)"
             ) from None
+        scen = meta.get("scenario", "")
+        if is_generated(scen):  # no birth regions, as when it was simulated
+            p = get_scenario(scen, seed=0).adapt_params(p)
         return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
     why = (
         "default: the log has no bnptrack.scenario record"
@@ -271,9 +340,11 @@ def simulate_to_log(
     seed: int,
     out: str | os.PathLike,
     metadata: Mapping[str, str],
+    overrides: Sequence[str] = (),
 ) -> SimulationResult:
-    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log."""
-    sc = get_scenario(scenario)
+    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log; a
+    generated scenario's scene is drawn from ``seed`` and the ``scene.*`` ``overrides``."""
+    sc = resolve_scenario(scenario, seed, overrides)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_frames = n_meas = n_targets = 0

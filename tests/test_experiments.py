@@ -30,7 +30,7 @@ def same(a, b) -> bool:
 
 
 def test_experiments_cover_the_paper():
-    assert set(EXPERIMENTS) == {"ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp"}
+    assert set(EXPERIMENTS) == {"ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp", "random"}
     assert [v.label for v in get_experiment("snr").variants] == ["-3 dB", "-5 dB", "-10 dB"]
     with pytest.raises(ConfigError, match="unknown experiment"):
         get_experiment("nope")
