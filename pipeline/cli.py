@@ -362,6 +362,10 @@ def track(
                 ("mean OSPA", f"{_fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
             )
             rows.append(("mean card. error", _fmt(res.mean_cardinality_error)))
+            if res.crossings is not None:
+                kept = sum(p.kept for p in res.crossings.pairs)
+                rows.append(("crossings kept", f"{kept}/{len(res.crossings.pairs)} pairs keep both "
+                             "labels (scan c-5 vs c+5, gate 100 m)"))
         else:
             rows.append(("mean OSPA", "n/a (the log has no /truth)"))
         rows += [
@@ -477,7 +481,7 @@ def view(
 
 
 @main.command()
-@click.argument("name", type=click.Choice(["ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp"]))
+@click.argument("name", type=click.Choice(["ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp", "random"]))
 @click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
               help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
@@ -502,9 +506,11 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
     snr           DDP-EMM vs GLMB, range-only, SNR -3/-5/-10 dB
     dpy-vs-glmb   DPY-STP vs GLMB, 5 targets (dpy5)
     dpy-vs-ddp    DPY-STP vs DDP-EMM, 10 targets
+    random        DDP-EMM, DPY-STP and GLMB on generated random scenes (no birth regions)
 
     Writes summary.md / summary.csv (mean and spread over runs of OSPA and its parts,
-    OSPA(2), GOSPA, cardinality error, ms per frame), PNG plots mirroring the paper's
+    OSPA(2), GOSPA, cardinality error, ms per frame; for random also the fraction of
+    crossing pairs that keep both labels), PNG plots mirroring the paper's
     figures and one .rrd per tracker of run 0. Runs are seeded from (NAME, --seed, run
     index): a run redone alone, locally or on a Dask cluster, gives the same numbers.
 

@@ -55,6 +55,7 @@ __all__ = [
     "simulate_to_log",
     "frame_metrics",
     "track_frames",
+    "score_crossings",
     "track_log",
     "default_tracks_path",
     "check_output_path",
@@ -66,7 +67,7 @@ DEFAULT_PARAMS = "vo2017"
 from tracker.registry import TRACKERS  # noqa: E402
 #: OSPA settings of the paper's experiments (cut-off in metres, order): one definition, in
 #: :mod:`sinks.scoring`.
-from sinks.metrics import OspaResult  # noqa: E402
+from sinks.metrics import CrossingResult, OspaResult  # noqa: E402
 from sinks.scoring import OSPA_C, OSPA_P  # noqa: E402
 
 _OVERRIDE_SEP = ";"
@@ -271,10 +272,12 @@ def resolve_params(
                 f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
                 "(pass --params NAME|FILE.toml)"
             ) from None
+        reason = "from the log's bnptrack.scenario record"
         scen = meta.get("scenario", "")
         if is_generated(scen):  # no birth regions, as when it was simulated
             p = get_scenario(scen, seed=0).adapt_params(p)
-        return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
+            reason += f"; {scen} scene: no birth regions"
+        return ParamsChoice(p, name, reason, overrides)
     why = (
         "default: the log has no bnptrack.scenario record"
         if metadata is None
@@ -390,6 +393,8 @@ class TrackResult:
     frames: tuple[FrameMetrics, ...]
     final_tracks: int
     error: McapLogError | None = None
+    crossings: CrossingResult | None = None
+    """Label keeping through the log's crossing pairs (``None``: no pairs or no truth)."""
 
     @property
     def n_frames(self) -> int:
@@ -452,6 +457,7 @@ def track_frames(
     frames: Iterable[Frame],
     seed: int,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
+    crossings: Sequence[tuple[str, str, int]] = (),
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
 
@@ -459,10 +465,13 @@ def track_frames(
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
     frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
     and the error is returned in :attr:`TrackResult.error` instead of being raised.
+    ``crossings`` (``(id_a, id_b, scan)``, e.g. a ``random`` log's record) are scored with
+    :func:`sinks.metrics.crossing_label_keeping` into :attr:`TrackResult.crossings`.
     """
     rows: list[FrameMetrics] = []
     final = 0
     error: McapLogError | None = None
+    seen: list[tuple[Frame, Estimate]] = []
     try:
         for frame, est, _state in run(tracker, frames, seed):
             row = frame_metrics(frame, est)
@@ -470,9 +479,31 @@ def track_frames(
                 on_estimate(frame, est, row)
             rows.append(row)
             final = len(est.tracks)
+            if crossings:
+                seen.append((frame, est))
     except McapLogError as exc:
         error = exc
-    return TrackResult(tracker.name, tuple(rows), final, error)
+    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings))
+
+
+def score_crossings(
+    seen: Sequence[tuple[Frame, Estimate]], crossings: Sequence[tuple[str, str, int]]
+) -> CrossingResult | None:
+    """Label keeping through ``crossings`` over consecutive frames with truth; pairs whose
+    crossing scan is not among the frames are left out (``None`` when none is left)."""
+    from sinks.metrics import crossing_label_keeping
+
+    if not seen or any(f.truth is None for f, _ in seen):
+        return None
+    scans = [f.frame for f, _ in seen]
+    if scans != list(range(scans[0], scans[0] + len(scans))):
+        return None
+    pairs = [c for c in crossings if scans[0] <= int(c[2]) <= scans[-1]]
+    if not pairs:
+        return None
+    true = [dict(zip(f.truth.ids, f.truth.positions)) for f, _ in seen]
+    est = [{t.label: t.position for t in e.tracks} for _, e in seen]
+    return crossing_label_keeping(true, est, pairs, first_scan=scans[0])
 
 
 def default_tracks_path(log: str | os.PathLike, tracker: str) -> Path:
@@ -497,7 +528,8 @@ def track_log(
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
-    called after each frame is written (e.g. a Rerun sink).
+    called after each frame is written (e.g. a Rerun sink).  The record's ``crossings``
+    (a generated ``random`` scene) are scored (:attr:`TrackResult.crossings`).
 
     A damaged input is processed up to its readable end; the output then holds that prefix
     and :attr:`TrackResult.error` holds the :class:`McapLogError`.
@@ -513,5 +545,6 @@ def track_log(
             if on_estimate is not None:
                 on_estimate(frame, est, metrics)
 
-        return track_frames(tracker, iter_frames(log), seed, write)
+        crossings = parse_crossings((metadata or {}).get("crossings"))
+        return track_frames(tracker, iter_frames(log), seed, write, crossings)
 

@@ -154,6 +154,8 @@ def test_cli_simulate_random_and_track(tmp_path):
                                    str(tmp_path / "t.mcap")])
     assert tr.exit_code == 0, tr.output
     assert "mean OSPA" in tr.output and "n/a" not in tr.output.split("mean OSPA")[1].split("\n")[0]
+    assert "no birth regions" in tr.output
+    assert "crossings kept" in tr.output and "/3 pairs keep both labels" in tr.output
     bad = CliRunner().invoke(main, ["simulate", "--scenario", "random", "--set", "scene.nope=1",
                                     "--out", str(tmp_path / "b.mcap")])
     assert bad.exit_code == 2 and "unknown key 'scene.nope'" in bad.output
