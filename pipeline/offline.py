@@ -199,6 +199,16 @@ def resolve_scenario(scenario: str, seed: int, overrides: Sequence[str] = ()):
     return get_scenario(scenario, seed=seed, scene=scene)
 
 
+def _adapting_scenario(name: str):
+    """The scenario whose ``adapt_params`` applies: the fixed table, or a generated family's
+    template (the same for every scene of the family: no birth regions)."""
+    if is_generated(name):
+        from sources.scene_families import family_template
+
+        return family_template(name)
+    return get_scenario(name)
+
+
 def resolve_simulation_params(
     scenario: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
 ) -> ModelParams:
@@ -206,7 +216,7 @@ def resolve_simulation_params(
     are left to :func:`resolve_scenario`), ``--snr``, then the scenario's defaults
     (``Scenario.adapt_params``, e.g. -3 dB for ``snr``, no birth regions for ``random``)."""
     _, model_over = split_scene_overrides(overrides)
-    sc = get_scenario(scenario, seed=0) if is_generated(scenario) else get_scenario(scenario)
+    sc = _adapting_scenario(scenario)
     p = _with_snr(load_params(params, model_over), snr_db)
     return sc.adapt_params(p)
 
@@ -275,7 +285,7 @@ def resolve_params(
         reason = "from the log's bnptrack.scenario record"
         scen = meta.get("scenario", "")
         if is_generated(scen):  # no birth regions, as when it was simulated
-            p = get_scenario(scen, seed=0).adapt_params(p)
+            p = _adapting_scenario(scen).adapt_params(p)
             reason += f"; {scen} scene: no birth regions"
         return ParamsChoice(p, name, reason, overrides)
     why = (

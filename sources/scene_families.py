@@ -56,6 +56,7 @@ __all__ = [
     "scene_rng",
     "scene_config",
     "generate_scene",
+    "family_template",
     "in_field",
     "CROSSING_MIN_SIDE",
 ]
@@ -273,6 +274,16 @@ def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object,
         if len(objs) == 2:
             return objs[0], objs[1], c
     raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
+
+
+def family_template(name: str):
+    """A target-less :class:`Scenario` of family ``name``: what every scene of the family
+    shares (sensor kind, ``K``, no birth regions), for :meth:`Scenario.adapt_params` without
+    drawing a scene."""
+    from sources.scenarios import Scenario
+
+    scene_config(name)  # validates the name
+    return Scenario(name, _DESCRIPTIONS[name], K=FAMILIES[name].K, birth=())
 
 
 def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):

@@ -160,3 +160,15 @@ def test_cli_simulate_random_and_track(tmp_path):
                                     "--out", str(tmp_path / "b.mcap")])
     assert bad.exit_code == 2 and "unknown key 'scene.nope'" in bad.output
     assert len(bad.output.strip().splitlines()) == 1
+
+
+def test_family_template_and_explicit_params():
+    from sources.scene_families import family_template
+
+    t = family_template("random")
+    assert t.targets == () and t.birth == () and t.K == 100 and t.kind == "bearing_range"
+    assert t.adapt_params(load_params("vo2017")).birth == []
+    # track --params NAME: the named set as it is (its birth regions kept)
+    meta = {"scenario": "random", "params": "vo2017", "seed": "1"}
+    assert len(resolve_params("vo2017", meta).params.birth) == 4
+    assert "no birth regions" in resolve_params(None, meta).reason
