@@ -308,8 +308,10 @@ def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoi
         sc = _adapting_scenario(scenario)
     except ConfigError:
         return choice
-    return ParamsChoice(sc.adapt_params(choice.params), choice.source,
-                        f"{choice.reason}; with scenario {scenario}'s defaults", choice.overrides)
+    params = sc.adapt_params(choice.params)
+    regions = f"{len(params.birth)} birth regions" if params.birth else "no birth regions"
+    return ParamsChoice(params, choice.source, f"{choice.reason}; scenario {scenario}: {regions}",
+                        choice.overrides)
 
 
 # --------------------------------------------------------------------------- tracker config

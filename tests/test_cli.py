@@ -335,7 +335,7 @@ def test_resolve_params_applies_the_logs_scenario_defaults():
     its path's entry point, not the parameter set's; snr's -3 dB and 2 range-clutter per scan."""
     prox = resolve_params(None, {"scenario": "proximity", "params": "vo2017", "seed": "1"})
     assert [(b.mean[0], b.mean[2]) for b in prox.params.birth] == [(-900.0, 600.0)]
-    assert "proximity" in prox.reason
+    assert "scenario proximity: 1 birth regions" in prox.reason
     snr = resolve_params("vo2017", {"scenario": "snr", "params": "paper", "seed": "1"})
     assert snr.params.snr_db == -3.0 and snr.params.range_clutter_rate == 2.0
     plain = resolve_params(None, {"params": "vo2017"})

@@ -146,7 +146,7 @@ def test_params_builtin_values_and_overrides(tmp_path):
     vo = load_params("vo2017")
     assert (vo.sigma_accel, vo.p_survival, vo.p_detect, vo.clutter_rate) == (5.0, 0.99, 0.98, 15.0)
     assert vo.measurement().sigma_bearing == pytest.approx(np.deg2rad(2.0))
-    assert vo.birth == [] and vo.birth_rate == 0.1  # where objects appear is the scenario's
+    assert vo.birth == [] and vo.birth_rate is None and vo.anywhere_birth_rate == 0.1  # where: the scenario
     paper = load_params("paper")
     assert (paper.sigma_accel, paper.p_survival, paper.sigma_range) == (15.0, 0.95, 5.0)
     snr = load_params("vo2017", ["snr_db=-10"])

@@ -118,8 +118,8 @@ def test_scene_overrides_and_errors():
 
 
 def test_no_birth_regions_after_adapt_params():
-    base = load_params("vo2017")
-    assert len(base.birth) == 4
+    base = get_scenario("vo2017").adapt_params(load_params("vo2017"))
+    assert len(base.birth) == 4  # Vo's regions, from the vo2017 scenario
     for name in ("random", "random-cv"):
         assert get_scenario(name, 1).adapt_params(base).birth == []
         assert resolve_simulation_params(name, "vo2017", ("scene.n_objects=9",)).birth == []
@@ -168,7 +168,7 @@ def test_family_template_and_explicit_params():
     t = family_template("random")
     assert t.targets == () and t.birth == () and t.K == 100 and t.kind == "bearing_range"
     assert t.adapt_params(load_params("vo2017")).birth == []
-    # track --params NAME: the named set as it is (its birth regions kept)
+    # track --params NAME of a random log: the named set with the scene's defaults (no regions)
     meta = {"scenario": "random", "params": "vo2017", "seed": "1"}
-    assert len(resolve_params("vo2017", meta).params.birth) == 4
+    assert resolve_params("vo2017", meta).params.birth == []
     assert "no birth regions" in resolve_params(None, meta).reason

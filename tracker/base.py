@@ -16,7 +16,8 @@ We use a birth *intensity* that is a sum of independent sources, normalised into
   :math:`\mathcal N(0, \sigma_v^2 I)`, turn rate :math:`\mathcal N(0, \sigma_\omega^2)`: the
   paper's uninformative choice (its NIW has a near-zero mean and a vague scale).  Objects may
   appear anywhere (case D3/P3 with no prior knowledge of where).
-* :math:`\lambda_U` = ``params.birth_rate``: expected new objects per scan appearing anywhere.
+* :math:`\lambda_U` = ``params.anywhere_birth_rate``: expected new objects per scan appearing
+  anywhere (default 0.1; the scenarios whose regions cover all their births state 0.01).
 * The Gaussian components are the parameter set's optional birth regions (the labeled
   multi-Bernoulli birth of the GLMB baseline), each with its expected births per scan
   :math:`r_i`: prior knowledge of where objects appear, an informative part of :math:`H` that
@@ -56,13 +57,13 @@ class BaseDistribution:
     def from_params(params: ModelParams, velocity_std: float, turn_std: float) -> "BaseDistribution":
         """:math:`H` of ``params``: uniform weight ``birth_rate / (birth_rate + sum r)``."""
         comps = [c for c in params.birth if c.r > 0.0]
-        total = params.birth_rate + sum(c.r for c in comps)
+        total = params.anywhere_birth_rate + sum(c.r for c in comps)
         if not comps or total <= 0.0:
             w = np.zeros(0)
             means, covs, uniform_weight = np.zeros((0, 5)), np.zeros((0, 5, 5)), 1.0
         else:
             w = np.array([c.r for c in comps]) / total
-            uniform_weight = params.birth_rate / total
+            uniform_weight = params.anywhere_birth_rate / total
             means = np.array([c.mean for c in comps], dtype=float)
             covs = np.stack([np.diag(np.square(c.std)) for c in comps])
         return BaseDistribution(w, means, covs, float(uniform_weight), velocity_std, turn_std,

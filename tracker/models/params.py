@@ -26,6 +26,11 @@ Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
+#: Expected new objects per scan appearing anywhere, when neither the parameter set nor the
+#: scenario states it (docs/models.md).
+DEFAULT_BIRTH_RATE = 0.1
+
+
 class BirthComponent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """One labeled-multi-Bernoulli birth component: existence ``r`` and a Gaussian."""
 
@@ -64,15 +69,21 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """If set, measurement noise variance is scaled by ``10**(-snr_db/10)``."""
     snr_pd_reference_db: float | None = None
     """If set (with ``snr_db``), P_D follows the Swerling-I relation (see ``Detection``)."""
-    birth_rate: NonNeg = 0.1
+    birth_rate: NonNeg | None = None
     """Expected number of new objects per scan appearing *anywhere* in the field of view, in
     addition to the birth regions of ``birth`` (whose ``r`` are their own expected births per
-    scan).  The uninformative part of the birth model: the BNP trackers' base distribution H
-    weighs its uniform part by ``birth_rate / (birth_rate + sum r)``, and the GLMB's adaptive
+    scan); ``None``: :data:`DEFAULT_BIRTH_RATE`, or the scenario's (``anywhere_birth_rate``).
+    The uninformative part of the birth model: the BNP trackers' base distribution H weighs
+    its uniform part by ``rate / (rate + sum r)`` (1 without regions), and the GLMB's adaptive
     birth uses it as ``lambda_B``.  0 allows births only at the birth regions."""
     birth: list[BirthComponent] = msgspec.field(default_factory=list)
 
     # --- model factories -------------------------------------------------------------
+    @property
+    def anywhere_birth_rate(self) -> float:
+        """``birth_rate``, or :data:`DEFAULT_BIRTH_RATE` when unset."""
+        return DEFAULT_BIRTH_RATE if self.birth_rate is None else float(self.birth_rate)
+
     @property
     def noise_scale(self) -> float:
         """Variance multiplier from SNR: ``10**(-snr_db/10)`` (1 when no SNR is set)."""
