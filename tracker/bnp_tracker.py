@@ -41,7 +41,7 @@ from tracker import filtering as kf
 from tracker.base import BaseDistribution
 from tracker.gibbs import CLUTTER, NEW, GibbsProblem, run_gibbs
 from tracker.models.params import ModelParams
-from tracker.types import Estimate, Frame, TrackEstimate
+from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows
 from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
 
 _EPS = 1e-12
@@ -194,6 +194,7 @@ class BnpTracker:
         t0 = time.perf_counter()
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
+        check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
         steps = 1 if state.frame < 0 else frame.frame - state.frame
         meas = self.params.measurement(frame.kind)
         clutter = self.params.clutter(frame.kind)
@@ -271,17 +272,7 @@ class BnpTracker:
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p_lm.size:
             p_lm = best_permutation(p_lm)
-        w = np.concatenate([w_miss[:, None], p_lm], axis=1) / np.maximum(r, _EPS)[:, None]
-        if Z.shape[0]:
-            mu = np.concatenate([pred.mean[:, None, :], kf.update_means(meas, innov, pred.mean, Z)], axis=1)
-        else:
-            mu = pred.mean[:, None, :]
-        mean = np.einsum("nk,nki->ni", w, mu)
-        dev = mu - mean[:, None, :]
-        spread = np.einsum("nk,nki,nkj->nij", w, dev, dev)
-        w_det = w[:, 1:].sum(axis=1)
-        cov = w[:, :1, None] * pred.cov + w_det[:, None, None] * innov.P_upd + spread
-        cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, p_lm, r)
         n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
         rho = self.config.popularity_decay
         pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
@@ -367,6 +358,28 @@ class BnpTracker:
                 assignments.append(lab_opts[b] if b < lab_opts.size else born_lab[m])
                 probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, p_lm: np.ndarray,
+                  r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each cluster's Gaussian moment-matched over "missed" (weight ``w_miss / r``) and
+    "updated with ``z_m``" (weight ``p_lm / r``), computed only for the pairs that carry
+    weight: a pair the sampler never used (gated out, or a non-finite measurement) never
+    enters the arithmetic, so no ``0 * NaN`` can reach a state."""
+    inv_r = 1.0 / np.maximum(r, _EPS)
+    w0 = w_miss * inv_r  # (N,)
+    ti, mi = np.nonzero(p_lm > 0.0)
+    wp = p_lm[ti, mi] * inv_r[ti]  # (L,)
+    mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
+    mean = w0[:, None] * pred.mean
+    np.add.at(mean, ti, wp[:, None] * mu)
+    dev0 = pred.mean - mean
+    dev = mu - mean[ti]
+    cov = w0[:, None, None] * (pred.cov + dev0[:, :, None] * dev0[:, None, :])
+    w_det = np.bincount(ti, weights=wp, minlength=len(r))
+    cov += w_det[:, None, None] * innov.P_upd
+    np.add.at(cov, ti, wp[:, None, None] * dev[:, :, None] * dev[:, None, :])
+    return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
 
 @dataclass(frozen=True)
