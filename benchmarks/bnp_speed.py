@@ -1,7 +1,9 @@
-"""ms per frame of DDP-EMM and DPY-STP on vo2017 (one process, one core), with the Gibbs
-sweeps compiled by numba and, in the same run, interpreted (the same kernel function).
+"""ms per frame of DDP-EMM and DPY-STP on vo2017 (one process, one core), in the same run:
+the session-3 sampler (one chain, single-site moves only: ``swap_moves=false chains=1``) and
+today's default (two chains with pair exchanges), compiled by numba, and the default with
+every kernel interpreted (the same functions).
 
-    python benchmarks/bnp_speed.py --seeds 3
+    taskset -c 0 python3 benchmarks/bnp_speed.py --seeds 3
 
 The first frame of the compiled run includes loading numba's on-disk cache; it is excluded
 (``--warmup`` frames per run are dropped from the statistics).
@@ -13,6 +15,7 @@ import argparse
 import os
 import sys
 
+import msgspec
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
@@ -20,14 +23,15 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import tracker.gibbs as gibbs  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import make_tracker  # noqa: E402
+from tracker.bnp_tracker import TRACKER_PRESETS, make_tracker  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
 
 
-def ms_per_frame(name: str, seeds: int, warmup: int) -> np.ndarray:
+def ms_per_frame(name: str, seeds: int, warmup: int, old: bool = False) -> np.ndarray:
     params = load_params("vo2017")
-    tracker = make_tracker(name, params)
+    cfg = TRACKER_PRESETS[name]
+    tracker = make_tracker(name, params, msgspec.structs.replace(cfg, swap_moves=False, chains=1) if old else cfg)
     out = []
     for seed in range(1, seeds + 1):
         frames = simulate_all(get_scenario("vo2017"), params, seed)
@@ -41,17 +45,22 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--warmup", type=int, default=1)
     args = ap.parse_args()
-    compiled = gibbs._sweeps
-    print("| tracker | kernel | ms/frame median | p95 | ratio to compiled (median) |")
-    print("|---|---|---|---|---|")
+    compiled = {k: getattr(gibbs, k) for k in gibbs.interpreted_kernels()}
+    print("| tracker | sampler | kernel | ms/frame median | p95 | ratio to default compiled (median) |")
+    print("|---|---|---|---|---|---|")
     for name in ("ddp", "dpyp"):
-        gibbs._sweeps = compiled
+        old = ms_per_frame(name, args.seeds, args.warmup, old=True)
         a = ms_per_frame(name, args.seeds, args.warmup)
-        gibbs._sweeps = gibbs._sweep_kernel
+        for k, fn in gibbs.interpreted_kernels().items():
+            setattr(gibbs, k, fn)
         b = ms_per_frame(name, args.seeds, args.warmup)
-        gibbs._sweeps = compiled
-        print(f"| {name} | numba | {np.median(a):.2f} | {np.percentile(a, 95):.2f} | 1.00 |")
-        print(f"| {name} | interpreted | {np.median(b):.2f} | {np.percentile(b, 95):.2f} | {np.median(b) / np.median(a):.1f} |")
+        for k, fn in compiled.items():
+            setattr(gibbs, k, fn)
+        ref = np.median(a)
+        for label, kernel, x in (("1 chain, no swaps", "numba", old), ("default", "numba", a),
+                                 ("default", "interpreted", b)):
+            print(f"| {name} | {label} | {kernel} | {np.median(x):.2f} | {np.percentile(x, 95):.2f} "
+                  f"| {np.median(x) / ref:.2f} |")
 
 
 if __name__ == "__main__":

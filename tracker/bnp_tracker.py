@@ -56,8 +56,14 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Settings of the DDP-EMM / DPY-STP trackers (model physics live in ``ModelParams``)."""
 
     sweeps: Annotated[int, msgspec.Meta(ge=1)] = 30
-    """Gibbs sweeps per frame (including burn-in)."""
+    """Gibbs sweeps per chain and frame (including burn-in)."""
     burn_in: Annotated[int, msgspec.Meta(ge=0)] = 5
+    swap_moves: bool = True
+    """After each single-site sweep, propose exchanging the assignments of every pair of
+    measurements that share a gated cluster (Metropolis-Hastings, exact joint ratio)."""
+    chains: Annotated[int, msgspec.Meta(ge=1, le=8)] = 2
+    """Gibbs chains per frame, each of ``sweeps`` sweeps, from the greedy and the reversed
+    greedy start; their average gives the marginals, their spread the R-hat diagnostic."""
     filter: Literal["ukf", "ekf"] = "ukf"
     gate_prob: OpenProb = 0.9999
     """Chi-square gate on the predictive density; pairs outside are impossible."""
@@ -201,7 +207,8 @@ class BnpTracker:
         pred = self._predict(state, steps, frame.kind)
         innov = self._innovation(meas, pred)
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
-        result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in)
+        result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
+                           chains=self.config.chains)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         born = self._births(frame, meas, clutter, result)
         kept = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance))
@@ -213,6 +220,8 @@ class BnpTracker:
             "alpha": alpha, "d": d, "n_clusters": float(new_state.n_clusters),
             "n_tracks": float(len(est.tracks)),
             "log_joint": result.log_joint if math.isfinite(result.log_joint) else 0.0,
+            "rhat_max": result.rhat_max,
+            "swap_accept": result.swaps_accepted / max(result.swaps_proposed, 1),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
