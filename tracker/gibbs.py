@@ -103,24 +103,35 @@ def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarr
     compete for one cluster, the weaker one takes it, an over-dispersed second start for the
     between-chain R-hat."""
     N, M = problem.log_first.shape
-    c = np.full(M, CLUTTER, dtype=np.int64)
     if N == 0 or M == 0:
-        return c
-    taken = np.zeros(N, dtype=bool)
+        return np.full(M, CLUTTER, dtype=np.int64)
     alt = np.maximum(problem.log_clutter,
                      math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
     best = problem.log_first.max(axis=0)
-    order = np.argsort(best if reverse else -best, kind="stable").tolist()
+    order = np.argsort(best if reverse else -best, kind="stable")
+    return _greedy(np.ascontiguousarray(problem.log_first, dtype=float), alt, best, order, bool(problem.extended),
+                   not reverse)
+
+
+def _greedy(log_first, alt, best, order, extended, stop_early):
+    """The greedy pass of :func:`initial_assignment` on plain arrays (compiled with numba).
+    ``stop_early``: in decreasing order, stop at the first measurement whose best score does
+    not beat its alternatives (the session-3 start, kept draw for draw)."""
+    N, M = log_first.shape
+    c = np.full(M, CLUTTER, dtype=np.int64)
+    taken = np.zeros(N, dtype=np.bool_)
     for m in order:
         if best[m] <= alt[m]:
-            if reverse:
-                continue
-            break  # later measurements score lower still
-        col = np.where(taken, -np.inf, problem.log_first[:, m])
-        l = int(np.argmax(col))
-        if col[l] > alt[m]:
-            c[m] = l
-            taken[l] = not problem.extended
+            if stop_early:
+                break
+            continue
+        top, l_top = -np.inf, -1
+        for l in range(N):
+            if not taken[l] and log_first[l, m] > top:
+                top, l_top = log_first[l, m], l
+        if l_top >= 0 and top > alt[m]:
+            c[m] = l_top
+            taken[l_top] = not extended
     return c
 
 
@@ -298,8 +309,9 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
     return accepted
 
 
-_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel)
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy)
 if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
+    _greedy = _njit(cache=True, nogil=True)(_greedy)
     # the helpers are replaced by their compiled versions, which the compiled driver calls
     _half_add = _njit(cache=True, nogil=True, inline="always")(_half_add)
     _own_weight = _njit(cache=True, nogil=True)(_own_weight)
@@ -313,7 +325,7 @@ else:  # pragma: no cover - numba missing or disabled: same code, interpreted
 def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
-    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps")
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy")
     return dict(zip(names, _KERNELS_PY))
 
 
@@ -385,7 +397,8 @@ def split_rhat(hs: np.ndarray, hss: np.ndarray, n: int) -> float:
     mean = hs / n
     var = np.maximum(hss - n * mean * mean, 0.0) / (n - 1)
     W = var.mean(axis=0)
-    b_over_n = mean.var(axis=0, ddof=1)
+    dev = mean - mean.mean(axis=0)
+    b_over_n = np.einsum("ck,ck->k", dev, dev) / (mean.shape[0] - 1)  # variance of the means
     v_plus = (n - 1) / n * W + b_over_n
     live = v_plus > 1e-6
     if not live.any():
