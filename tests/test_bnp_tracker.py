@@ -128,15 +128,22 @@ def test_range_only_frames_run():
 
 def test_range_only_tracks_the_cardinality():
     """snr scenario at -3 dB, 2 clutter returns per scan (docs/results.md, experiment 3): before
-    duplicate merging DDP-EMM reported no track at all; measured now (seed 1): mean abs
-    cardinality error 1.02 against 7.8 objects on average, undercounting by about one."""
+    duplicate merging DDP-EMM reported no track at all.  Mean abs cardinality error against
+    7.8 objects on average, seeds 1-3: 0.97 / 1.40 / 0.90 with the session-3 sampler (one
+    chain, single-site moves), 1.63 / 1.70 / 0.85 with two chains and pair exchanges, which
+    mix where single-site moves stuck (seeds 1-12: mean 1.12 against 1.29, paired median
+    difference -0.04; docs/trackers.md, "Gibbs mixing")."""
     params = get_scenario("snr").adapt_params(load_params("vo2017"))
-    frames = simulate_all(get_scenario("snr"), params, 1)
     tr = make_tracker("ddp", params, TRACKER_PRESETS["ddp-snr"])
-    n_est = np.array([len(e.tracks) for _, e, _ in run(tr, frames, 1)])
-    n_true = np.array([len(f.truth.ids) for f in frames])
-    assert np.mean(np.abs(n_est - n_true)) < 1.5
-    assert np.mean(n_est[20:] >= 4) > 0.9  # tracks are reported once objects have entered
+    errs, late = [], []
+    for seed in (1, 2, 3):
+        frames = simulate_all(get_scenario("snr"), params, seed)
+        n_est = np.array([len(e.tracks) for _, e, _ in run(tr, frames, seed)])
+        n_true = np.array([len(f.truth.ids) for f in frames])
+        errs.append(np.mean(np.abs(n_est - n_true)))
+        late.append(np.mean(n_est[20:] >= 4))
+    assert np.mean(errs) < 1.6 and max(errs) < 2.0
+    assert min(late) > 0.9  # tracks are reported once objects have entered
 
 
 def test_config_validation_and_toml(tmp_path):

@@ -277,8 +277,12 @@ def test_encode_rejects_non_finite_measurement(bad):
     f = make_frame(rng, k=7, m=5)
     z = f.z.copy()
     z[3, 1] = bad
+    with pytest.raises(ValueError, match=r"^Frame 7: measurement row 3 is not finite"):
+        Frame(7, 1, "s", "bearing_range", z)  # refused at construction (tracker/types.py)
+    edited = Frame(7, 1, "s", "bearing_range", f.z.copy())
+    edited.z[3, 1] = bad  # written in place after construction: the encoder still refuses it
     with pytest.raises(CodecError) as ei:
-        encode_measurements(Frame(7, 1, "s", "bearing_range", z))
+        encode_measurements(edited)
     check_err(ei, TOPIC_MEASUREMENTS, 7, "non-finite", "$.z[3][1]")
 
 

@@ -429,7 +429,7 @@ def test_bad_measurement_in_file_names_topic_and_frame(tmp_path, bad_z, fragment
     assert [g.frame for g in got] == [0, 1, 2, 3, 4]
     assert err is not None and err.kind == "invalid"
     msg = str(err)
-    assert str(path) in msg and "/measurements frame 5" in msg and fragment in msg
+    assert str(path) in msg and "/measurements frame 5" in msg and fragment in msg and "\n" not in msg
     assert err.frame == 5 and err.last_frame == 4 and err.n_messages == 6
 
 

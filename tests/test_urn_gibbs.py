@@ -231,7 +231,9 @@ def test_compiled_kernel_equals_interpreted(monkeypatch):
     prob = toy_problem([0.3, 0.5, 0.61, 0.33, 0.95], [1.0, 2.0], [0.3, 0.6], 0.05, 0.5, 0.25, 2.0,
                        extended=True, pop=[1.0, 3.0])
     compiled = run_gibbs(prob, np.random.default_rng(1), 200, 20)
-    monkeypatch.setattr(g, "_sweeps", g._sweep_kernel)
+    for name, fn in g.interpreted_kernels().items():
+        monkeypatch.setattr(g, name, fn)
+    assert g._site_pass is g._KERNELS_PY[0]
     interpreted = run_gibbs(prob, np.random.default_rng(1), 200, 20)
     np.testing.assert_array_equal(compiled.last, interpreted.last)
     np.testing.assert_allclose(compiled.p_cluster, interpreted.p_cluster, rtol=1e-12, atol=0)

@@ -41,7 +41,7 @@ from tracker import filtering as kf
 from tracker.base import BaseDistribution
 from tracker.gibbs import CLUTTER, NEW, GibbsProblem, run_gibbs
 from tracker.models.params import ModelParams
-from tracker.types import Estimate, Frame, TrackEstimate
+from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows
 from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
 
 _EPS = 1e-12
@@ -56,8 +56,14 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Settings of the DDP-EMM / DPY-STP trackers (model physics live in ``ModelParams``)."""
 
     sweeps: Annotated[int, msgspec.Meta(ge=1)] = 30
-    """Gibbs sweeps per frame (including burn-in)."""
+    """Gibbs sweeps per chain and frame (including burn-in)."""
     burn_in: Annotated[int, msgspec.Meta(ge=0)] = 5
+    swap_moves: bool = True
+    """After each single-site sweep, propose exchanging the assignments of every pair of
+    measurements that share a gated cluster (Metropolis-Hastings, exact joint ratio)."""
+    chains: Annotated[int, msgspec.Meta(ge=1, le=8)] = 2
+    """Gibbs chains per frame, each of ``sweeps`` sweeps, from the greedy and the reversed
+    greedy start; their average gives the marginals, their spread the R-hat diagnostic."""
     filter: Literal["ukf", "ekf"] = "ukf"
     gate_prob: OpenProb = 0.9999
     """Chi-square gate on the predictive density; pairs outside are impossible."""
@@ -210,13 +216,15 @@ class BnpTracker:
         t0 = time.perf_counter()
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
+        check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
         steps = 1 if state.frame < 0 else frame.frame - state.frame
         meas = self.params.measurement(frame.kind)
         clutter = self.params.clutter(frame.kind)
         pred = self._predict(state, steps, frame.kind)
         innov = self._innovation(meas, pred)
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
-        result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in)
+        result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
+                           chains=self.config.chains)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         floor = self._prune_floor(state.alpha, clutter)
         born = self._births(frame, meas, clutter, result, floor)
@@ -230,6 +238,8 @@ class BnpTracker:
             "p_birth": self.birth_probability(state.alpha, clutter),
             "n_tracks": float(len(est.tracks)),
             "log_joint": result.log_joint if math.isfinite(result.log_joint) else 0.0,
+            "rhat_max": result.rhat_max,
+            "swap_accept": result.swaps_accepted / max(result.swaps_proposed, 1),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
@@ -289,17 +299,7 @@ class BnpTracker:
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p_lm.size:
             p_lm = best_permutation(p_lm)
-        w = np.concatenate([w_miss[:, None], p_lm], axis=1) / np.maximum(r, _EPS)[:, None]
-        if Z.shape[0]:
-            mu = np.concatenate([pred.mean[:, None, :], kf.update_means(meas, innov, pred.mean, Z)], axis=1)
-        else:
-            mu = pred.mean[:, None, :]
-        mean = np.einsum("nk,nki->ni", w, mu)
-        dev = mu - mean[:, None, :]
-        spread = np.einsum("nk,nki,nkj->nij", w, dev, dev)
-        w_det = w[:, 1:].sum(axis=1)
-        cov = w[:, :1, None] * pred.cov + w_det[:, None, None] * innov.P_upd + spread
-        cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, p_lm, r)
         n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
         rho = self.config.popularity_decay
         pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
@@ -395,6 +395,28 @@ class BnpTracker:
                 assignments.append(lab_opts[b] if b < lab_opts.size else born_lab[m])
                 probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, p_lm: np.ndarray,
+                  r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each cluster's Gaussian moment-matched over "missed" (weight ``w_miss / r``) and
+    "updated with ``z_m``" (weight ``p_lm / r``), computed only for the pairs that carry
+    weight: a pair the sampler never used (gated out, or a non-finite measurement) never
+    enters the arithmetic, so no ``0 * NaN`` can reach a state."""
+    inv_r = 1.0 / np.maximum(r, _EPS)
+    w0 = w_miss * inv_r  # (N,)
+    ti, mi = np.nonzero(p_lm > 0.0)
+    wp = p_lm[ti, mi] * inv_r[ti]  # (L,)
+    mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
+    mean = w0[:, None] * pred.mean
+    np.add.at(mean, ti, wp[:, None] * mu)
+    dev0 = pred.mean - mean
+    dev = mu - mean[ti]
+    cov = w0[:, None, None] * (pred.cov + dev0[:, :, None] * dev0[:, None, :])
+    w_det = np.bincount(ti, weights=wp, minlength=len(r))
+    cov += w_det[:, None, None] * innov.P_upd
+    np.add.at(cov, ti, wp[:, None, None] * dev[:, :, None] * dev[:, None, :])
+    return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
 
 @dataclass(frozen=True)

@@ -434,13 +434,16 @@ def log_likelihood_matrix(meas, innov: Innovation, Z: np.ndarray,
 
     with :math:`D^2_{nm}` from :func:`mahalanobis_matrix` (wrapped residuals).  If
     ``gate_prob`` is given, entries with :math:`D^2_{nm} > \chi^2_d{}^{-1}(p_G)` are
-    ``-inf``.  (No gate-probability renormalisation is applied; that is the caller's model.)
+    ``-inf``; a NaN distance (non-finite measurement or prediction) is ``-inf`` with or without a
+    gate.  (No gate-probability renormalisation is applied; that is the caller's model.)
     """
     D2 = mahalanobis_matrix(meas, innov, Z)
     d = innov.z_pred.shape[-1]
     out = -0.5 * (D2 + (d * _LOG_2PI + innov.log_det_S)[:, None])
     if gate_prob is not None:
-        out[D2 > gate_threshold(gate_prob, d)] = -np.inf
+        out[~(D2 <= gate_threshold(gate_prob, d))] = -np.inf  # a NaN distance is outside the gate
+    else:
+        out[np.isnan(D2)] = -np.inf
     return out
 
 

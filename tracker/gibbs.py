@@ -78,7 +78,7 @@ class GibbsResult:
 
     ``p_cluster[l, m] = Pr(c_m = l)``, ``p_clutter[m]``, ``p_new[m]``; ``last`` is the final
     assignment vector (cluster index, ``CLUTTER`` or ``NEW``); ``log_joint`` its unnormalised
-    log posterior (up to a constant); ``n_kept`` the number of kept sweeps.
+    log posterior (up to a constant); ``n_kept`` the number of kept sweeps (all chains).
     """
 
     p_cluster: np.ndarray
@@ -87,28 +87,51 @@ class GibbsResult:
     last: np.ndarray
     log_joint: float
     n_kept: int
+    rhat_max: float = 1.0
+    """Largest split-chain R-hat of the assignment probabilities (:func:`split_rhat`)."""
+    swaps_accepted: int = 0
+    """Accepted pair exchanges, out of ``swaps_proposed`` (pairs x sweeps x chains)."""
+    swaps_proposed: int = 0
 
 
 
-def initial_assignment(problem: GibbsProblem) -> np.ndarray:
+def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarray:
     """Greedy start: measurements in order of their best score take their best free cluster
-    when it beats both clutter and a new cluster (a cheap, valid state to start from)."""
+    when it beats both clutter and a new cluster (a cheap, valid state to start from).
+
+    ``reverse`` visits the measurements from the lowest best score up: where two measurements
+    compete for one cluster, the weaker one takes it, an over-dispersed second start for the
+    between-chain R-hat."""
     N, M = problem.log_first.shape
-    c = np.full(M, CLUTTER, dtype=np.int64)
     if N == 0 or M == 0:
-        return c
-    taken = np.zeros(N, dtype=bool)
+        return np.full(M, CLUTTER, dtype=np.int64)
     alt = np.maximum(problem.log_clutter,
                      math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
     best = problem.log_first.max(axis=0)
-    for m in np.argsort(-best, kind="stable").tolist():
+    order = np.argsort(best if reverse else -best, kind="stable")
+    return _greedy(np.ascontiguousarray(problem.log_first, dtype=float), alt, best, order, bool(problem.extended),
+                   not reverse)
+
+
+def _greedy(log_first, alt, best, order, extended, stop_early):
+    """The greedy pass of :func:`initial_assignment` on plain arrays (compiled with numba).
+    ``stop_early``: in decreasing order, stop at the first measurement whose best score does
+    not beat its alternatives (the session-3 start, kept draw for draw)."""
+    N, M = log_first.shape
+    c = np.full(M, CLUTTER, dtype=np.int64)
+    taken = np.zeros(N, dtype=np.bool_)
+    for m in order:
         if best[m] <= alt[m]:
-            break  # later measurements score lower still
-        col = np.where(taken, -np.inf, problem.log_first[:, m])
-        l = int(np.argmax(col))
-        if col[l] > alt[m]:
-            c[m] = l
-            taken[l] = not problem.extended
+            if stop_early:
+                break
+            continue
+        top, l_top = -np.inf, -1
+        for l in range(N):
+            if not taken[l] and log_first[l, m] > top:
+                top, l_top = log_first[l, m], l
+        if l_top >= 0 and top > alt[m]:
+            c[m] = l_top
+            taken[l_top] = not extended
     return c
 
 
@@ -145,75 +168,173 @@ def _candidates(problem: GibbsProblem) -> _Candidates:
         )
 
 
-def _sweep_kernel(c, cnt, k_new, m_obj, total_mass, alpha, d, d_bar, extended, w_clutter, w_newbase,
-                  ptr, idx, w_first, w_lik, pop, u, burn_in, tally_cluster, tally_clutter, tally_new,
-                  opt_l, opt_w):
-    """The systematic-scan sweeps on plain arrays (compiled with numba when available).
-
-    Mutates ``c``, ``cnt`` and the tallies in place; the tallies are Rao-Blackwellised
-    (each visit adds its full conditional).
-    """
-    sweeps, M = u.shape
-    for s in range(sweeps):
-        for m in range(M):
-            cur = c[m]
-            if cur >= 0:
-                cnt[cur] -= 1
-                m_obj -= 1
-            elif cur == NEW:
-                k_new -= 1
-                m_obj -= 1
-            g = total_mass / (total_mass + m_obj)
-            wc = w_clutter[m]
-            wn = g * w_newbase[m] * (alpha + d * (d_bar + k_new))
-            total = wc + wn
-            n_opt = 0
-            for j in range(ptr[m], ptr[m + 1]):
-                l = idx[j]
-                n = cnt[l]
-                if n == 0:
-                    w = g * w_first[j]
-                elif extended:
-                    w = g * w_lik[j] * (n + pop[l] - d)
-                else:
-                    continue
-                if w > 0.0:
-                    opt_l[n_opt] = l
-                    opt_w[n_opt] = w
-                    n_opt += 1
-                    total += w
-            x = u[s, m] * total
-            if x < wc:
-                choice = CLUTTER
-            elif x < wc + wn:
-                choice = NEW
+def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u_row,
+               keep, half, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+    """One systematic-scan sweep of single-site full-conditional draws (mutates ``c``, ``cnt``,
+    ``st = [K_new, M_o]`` and, when ``keep``, the Rao-Blackwellised tallies: each visit adds
+    its full conditional to ``tally_cluster``/``tally_cn``, and to the split-half sums
+    ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``)."""
+    total_mass, alpha, d, d_bar = par[0], par[1], par[2], par[3]
+    M = c.shape[0]
+    nnz = idx.shape[0]
+    for m in range(M):
+        cur = c[m]
+        if cur >= 0:
+            cnt[cur] -= 1
+        if cur != CLUTTER:
+            st[1] -= 1
+        if cur == NEW:
+            st[0] -= 1
+        g = total_mass / (total_mass + st[1])
+        wc = w_clutter[m]
+        wn = g * w_newbase[m] * (alpha + d * (d_bar + st[0]))
+        total = wc + wn
+        n_opt = 0
+        for j in range(ptr[m], ptr[m + 1]):
+            l = idx[j]
+            n = cnt[l]
+            if n == 0:
+                w = g * w_first[j]
+            elif extended:
+                w = g * w_lik[j] * (n + pop[l] - d)
             else:
-                x -= wc + wn
-                choice = opt_l[n_opt - 1] if n_opt > 0 else NEW  # round-off guard
+                continue
+            if w > 0.0:
+                opt_l[n_opt] = l
+                opt_w[n_opt] = w
+                opt_j[n_opt] = j
+                n_opt += 1
+                total += w
+        x = u_row[m] * total
+        if x < wc:
+            choice = CLUTTER
+        elif x < wc + wn:
+            choice = NEW
+        else:
+            x -= wc + wn
+            choice = opt_l[n_opt - 1] if n_opt > 0 else NEW  # round-off guard
+            for i in range(n_opt):
+                if x < opt_w[i]:
+                    choice = opt_l[i]
+                    break
+                x -= opt_w[i]
+        if keep:
+            inv = 1.0 / total
+            tally_cn[0, m] += wc * inv
+            tally_cn[1, m] += wn * inv
+            for i in range(n_opt):
+                tally_cluster[opt_l[i], m] += opt_w[i] * inv
+            if half >= 0:
+                _half_add(hs, hss, half, nnz + m, wc * inv)
+                _half_add(hs, hss, half, nnz + M + m, wn * inv)
                 for i in range(n_opt):
-                    if x < opt_w[i]:
-                        choice = opt_l[i]
-                        break
-                    x -= opt_w[i]
-            if s >= burn_in:
-                inv = 1.0 / total
-                tally_clutter[m] += wc * inv
-                tally_new[m] += wn * inv
-                for i in range(n_opt):
-                    tally_cluster[opt_l[i], m] += opt_w[i] * inv
-            c[m] = choice
-            if choice >= 0:
-                cnt[choice] += 1
-                m_obj += 1
-            elif choice == NEW:
-                k_new += 1
-                m_obj += 1
+                    _half_add(hs, hss, half, opt_j[i], opt_w[i] * inv)
+        c[m] = choice
+        if choice >= 0:
+            cnt[choice] += 1
+        if choice != CLUTTER:
+            st[1] += 1
+        if choice == NEW:
+            st[0] += 1
 
 
+def _half_add(hs, hss, h, k, v):
+    hs[h, k] += v
+    hss[h, k] += v * v
+
+
+def _own_weight(m, ch, w_clutter, w_newbase, ptr, idx, w_first):
+    """Measurement ``m``'s own factor of the joint for value ``ch`` (scaled like the sweeps):
+    clutter ``lambda_c kappa``, new ``u_H`` (the urn factors of a swap cancel), or the D2/P2
+    weight of a cluster holding only ``m`` (0 when gated out)."""
+    if ch == CLUTTER:
+        return w_clutter[m]
+    if ch == NEW:
+        return w_newbase[m]
+    for j in range(ptr[m], ptr[m + 1]):
+        if idx[j] == ch:
+            return w_first[j]
+    return 0.0
+
+
+def _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row):
+    r"""Metropolis-Hastings exchange of two measurements' assignments, for every pair that
+    shares a candidate cluster (a fixed list; each exchange is its own inverse, so the
+    proposal is symmetric).  An exchange keeps every count (:math:`M_o`, :math:`K_\text{new}`,
+    cluster sizes), so the joint ratio is the product of the two measurements' own factors.
+    In extended mode clusters holding several measurements are left alone.  Returns the
+    number of accepted exchanges."""
+    accepted = 0
+    for p in range(pair_a.shape[0]):
+        a = pair_a[p]
+        b = pair_b[p]
+        ca = c[a]
+        cb = c[b]
+        if ca == cb:
+            continue
+        if extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1)):
+            continue
+        new = (_own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
+               * _own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first))
+        if new <= 0.0:
+            continue
+        old = (_own_weight(a, ca, w_clutter, w_newbase, ptr, idx, w_first)
+               * _own_weight(b, cb, w_clutter, w_newbase, ptr, idx, w_first))
+        if u_row[p] * old < new:
+            c[a] = cb
+            c[b] = ca
+            accepted += 1
+    return accepted
+
+
+def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
+                  pair_a, pair_b, burn_in, h0, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+    """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
+
+    Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
+    split-chain halves ``h0`` and ``h0 + 1`` of the R-hat sums (the middle one is dropped when
+    ``n`` is odd)."""
+    sweeps = u.shape[0]
+    kept = sweeps - burn_in
+    half_len = kept // 2
+    accepted = 0
+    for s in range(sweeps):
+        i = s - burn_in
+        half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
+        _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
+                   i >= 0, half, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+        if u_swap.shape[1] > 0:
+            accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
+                                   u_swap[s])
+    return accepted
+
+
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy)
 if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
+    _greedy = _njit(cache=True, nogil=True)(_greedy)
+    # the helpers are replaced by their compiled versions, which the compiled driver calls
+    _half_add = _njit(cache=True, nogil=True, inline="always")(_half_add)
+    _own_weight = _njit(cache=True, nogil=True)(_own_weight)
+    _site_pass = _njit(cache=True, nogil=True)(_site_pass)
+    _swap_pass = _njit(cache=True, nogil=True)(_swap_pass)
     _sweeps = _njit(cache=True, nogil=True)(_sweep_kernel)
 else:  # pragma: no cover - numba missing or disabled: same code, interpreted
     _sweeps = _sweep_kernel
+
+
+def interpreted_kernels() -> dict[str, object]:
+    """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
+    compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy")
+    return dict(zip(names, _KERNELS_PY))
+
+
+def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``a < b`` of measurements whose gates share at least one cluster."""
+    B = np.isfinite(problem.log_first).astype(np.int64)  # (N, M)
+    share = np.triu(B.T @ B, k=1)
+    a, b = np.nonzero(share)
+    return a.astype(np.int64), b.astype(np.int64)
 
 
 def run_gibbs(
@@ -222,24 +343,68 @@ def run_gibbs(
     sweeps: int,
     burn_in: int,
     init: np.ndarray | None = None,
+    swaps: bool = True,
+    chains: int = 1,
 ) -> GibbsResult:
-    """Run ``sweeps`` systematic-scan sweeps; average the last ``sweeps - burn_in``."""
+    """Run ``chains`` chains of ``sweeps`` sweeps each (single-site pass, then the exchange
+    pass unless ``swaps`` is false); average the last ``sweeps - burn_in`` of every chain.
+
+    Chain 0 starts from ``init`` (default: the greedy start), odd chains from the reversed
+    greedy start.  ``last``/``log_joint`` are chain 0's final state.  ``swaps=False`` with one
+    chain is the session-3 sampler draw for draw (it draws no extra uniforms)."""
     N, M = problem.log_first.shape
-    c = (initial_assignment(problem) if init is None else np.asarray(init)).astype(np.int64)
-    cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
-    u = rng.random((sweeps, M))
     cand = _candidates(problem)
-    tally_cluster = np.zeros((N, M))
-    tally_clutter = np.zeros(M)
-    tally_new = np.zeros(M)
-    _sweeps(c, cnt, int(np.sum(c == NEW)), int(np.sum(c != CLUTTER)), problem.alpha + problem.mass,
-            float(problem.alpha), float(problem.d), float(problem.d_bar), bool(problem.extended),
-            cand.w_clutter, cand.w_new, cand.ptr, cand.idx, cand.w_first, cand.w_lik,
-            np.asarray(problem.popularity, dtype=float), u, int(burn_in),
-            tally_cluster, tally_clutter, tally_new, np.zeros(max(N, 1), np.int64), np.zeros(max(N, 1)))
-    kept = max(sweeps - burn_in, 1)
-    return GibbsResult(tally_cluster / kept, tally_clutter / kept, tally_new / kept, c,
-                       log_joint(problem, c), kept)
+    pair_a, pair_b = swap_pairs(problem) if swaps and N else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    K = cand.idx.size + 2 * M
+    tally_cluster, tally_cn = np.zeros((N, M)), np.zeros((2, M))
+    hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
+    par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar], dtype=float)
+    pop = np.asarray(problem.popularity, dtype=float)
+    opt = max(N, 1)
+    scratch = (np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64))
+    accepted, first = 0, None
+    for k in range(chains):
+        start = init if k == 0 and init is not None else initial_assignment(problem, reverse=k % 2 == 1)
+        c = np.asarray(start).astype(np.int64)
+        cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
+        st = np.array([np.sum(c == NEW), np.sum(c != CLUTTER)], dtype=np.int64)
+        u = rng.random((sweeps, M))
+        u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
+        accepted += _sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
+                            cand.idx, cand.w_first, cand.w_lik, pop, u, u_swap, pair_a, pair_b, int(burn_in),
+                            2 * k, tally_cluster, tally_cn, hs, hss, *scratch)
+        first = c if first is None else first
+    kept = max(sweeps - burn_in, 1) * chains
+    return GibbsResult(tally_cluster / kept, tally_cn[0] / kept, tally_cn[1] / kept, first,
+                       log_joint(problem, first), kept, split_rhat(hs, hss, (sweeps - burn_in) // 2),
+                       int(accepted), int(pair_a.size * sweeps * chains))
+
+
+def split_rhat(hs: np.ndarray, hss: np.ndarray, n: int) -> float:
+    r"""Largest split-chain :math:`\hat R` (Gelman et al., BDA3 eq. 11.4) over every
+    Rao-Blackwellised assignment probability, from the half-chains' sums ``hs`` and sums of
+    squares ``hss`` (``(2 * chains, K)``, ``n`` sweeps each).
+
+    :math:`W` is the mean within-half-chain variance, :math:`B/n` the variance of the
+    half-chain means, :math:`\hat R = \sqrt{((n-1)/n\, W + B/n) / W}`.  Quantities whose
+    pooled standard deviation is below 1e-3 count as converged (R-hat 1), e.g. a measurement
+    no other measurement competes with; a quantity constant within each half-chain but
+    different between them (a stuck chain) is capped at 1000.  With one chain a chain stuck
+    in one mode for all its sweeps looks converged; two chains from different starts (the
+    tracker's default) see it.  Fewer than 2 sweeps per half-chain: 1 (undefined)."""
+    if n < 2 or hs.shape[1] == 0:
+        return 1.0
+    mean = hs / n
+    var = np.maximum(hss - n * mean * mean, 0.0) / (n - 1)
+    W = var.mean(axis=0)
+    dev = mean - mean.mean(axis=0)
+    b_over_n = np.einsum("ck,ck->k", dev, dev) / (mean.shape[0] - 1)  # variance of the means
+    v_plus = (n - 1) / n * W + b_over_n
+    live = v_plus > 1e-6
+    if not live.any():
+        return 1.0
+    r = np.sqrt(v_plus[live] / np.maximum(W[live], 1e-12))
+    return float(min(r.max(), 1000.0))
 
 
 def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:

@@ -46,6 +46,19 @@ class Truth:
         return self.states[:, POSITION_INDEX]
 
 
+def check_finite_rows(frame: int, z: np.ndarray) -> None:
+    """Raise ``ValueError`` naming the frame and the first measurement row with a NaN or inf.
+
+    A non-finite measurement would poison every moment-matched track update downstream, so it
+    is refused at the edge; the pipeline's codec refuses it earlier still (a rejected sample).
+    """
+    bad = ~np.isfinite(z).all(axis=1)
+    if bad.any():
+        m = int(np.argmax(bad))
+        raise ValueError(f"Frame {frame}: measurement row {m} is not finite: {z[m].tolist()}"
+                         f" ({int(bad.sum())} such row(s))")
+
+
 @dataclass(frozen=True)
 class Frame:
     """One scan of measurements from one sensor.
@@ -62,7 +75,8 @@ class Frame:
         ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from +y towards +x)
         or ``"range"`` (``z = [range_m]``).
     z:
-        ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.
+        ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.  Every entry must be
+        finite: construction raises ``ValueError`` naming the frame and the row otherwise.
     truth:
         Ground truth at this frame when the source has it, else ``None``.
     """
@@ -78,6 +92,7 @@ class Frame:
         if self.kind not in MEASUREMENT_DIM:
             raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r}")
         z = np.asarray(self.z, dtype=float).reshape(-1, MEASUREMENT_DIM[self.kind])
+        check_finite_rows(self.frame, z)
         object.__setattr__(self, "z", z)
 
     @property
