@@ -3,6 +3,8 @@ and the entry point of one stage process (``bnptrack stage``).
 
 :class:`Launcher`:
 
+0. validates the whole pipeline (:func:`pipeline.preflight.check_pipeline`): a
+   configuration error is raised before any process starts or any file is written;
 1. resolves the run id and the output directory (``recordings/<run>/``), removes a stale
    ``tracker.snap`` there (a fresh launch never resumes an old run);
 2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
@@ -44,6 +46,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
+from pipeline.preflight import check_pipeline
 from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
@@ -243,6 +246,7 @@ class Launcher:
     def run(self) -> LaunchResult:
         t0 = time.monotonic()
         cfg = self.cfg
+        check_pipeline(cfg)  # every configuration error before anything starts or is written
         self.out.mkdir(parents=True, exist_ok=True)
         for stale in (SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME):
             try:

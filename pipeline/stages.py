@@ -56,7 +56,7 @@ from pipeline.codec import (
     truth_from_msg,
 )
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.pipeline_config import DeliveryConfig, PipelineConfig
+from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, TrackerStageConfig
 from tracker.config import ConfigError
 from tracker.types import Frame
 
@@ -677,6 +677,19 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
     return metadata, frames
 
 
+def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:
+    """The tracker stage's tracker, as ``bnptrack track`` builds it: model parameters from
+    ``tc.params`` or the source's metadata record, the settings preset or file, then the
+    ``--set`` items of ``tc.overrides``.  Returns ``(tracker, ParamsChoice, params)``;
+    raises :class:`ConfigError` (the launcher calls this before starting any process)."""
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+
+    choice = resolve_params(tc.params or None, metadata)
+    config, _desc = resolve_config(tc.tracker, tc.config or None)
+    params, config = apply_split_overrides(choice.params, config, tc.overrides)
+    return build_tracker(tc.tracker, params, config), choice, params
+
+
 def _warm_imports(*modules: str) -> None:
     """Import what a stage needs before it declares itself alive, so the first frame is not
     delayed by imports (scipy, rerun: seconds on a busy machine)."""
@@ -851,20 +864,11 @@ class TrackerStage(_StageBase):
                  snap.last_seq, snap.last_frame)
 
     def _build(self, info: StageInfo) -> None:
-        from pipeline.offline import (
-            apply_split_overrides,
-            build_tracker,
-            format_overrides,
-            resolve_config,
-            resolve_params,
-        )
+        from pipeline.offline import format_overrides
         from tracker.state import restore
 
         tc = self.tc
-        choice = resolve_params(tc.params or None, info.metadata)
-        config, _desc = resolve_config(tc.tracker, tc.config or None)
-        params, config = apply_split_overrides(choice.params, config, tc.overrides)
-        self.tracker = build_tracker(tc.tracker, params, config)
+        self.tracker, choice, params = build_stage_tracker(tc, info.metadata)
         initial = self.tracker.initial_state()
         if self.restored is not None:
             self.state = restore(self.restored.state, type(initial))

@@ -1,0 +1,85 @@
+"""Validate a whole pipeline before any process starts (``bnptrack launch`` / ``replay``).
+
+:func:`check_pipeline` runs, in the launcher's process, every check a stage would run at
+start-up: the source (kind, scenario, parameter set and overrides, or the MCAP log and its
+metadata record), the tracker (name, settings preset or file, model parameters and
+``tracker.overrides``, built exactly as :func:`pipeline.stages.build_stage_tracker` builds
+it), the Zenoh endpoints and files, and the output paths.  A mistake raises
+:class:`tracker.config.ConfigError` with the message ``bnptrack track`` gives for it; the
+CLI prints it on one line, exits 2 and nothing has been started or written.
+
+The stages still check their own configuration (a stage started by hand, ``bnptrack
+stage``, has no launcher in front of it).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pipeline.pipeline_config import PipelineConfig
+from tracker.config import ConfigError
+
+__all__ = ["check_pipeline"]
+
+
+def check_pipeline(cfg: PipelineConfig) -> None:
+    """Raise :class:`ConfigError` if any stage of ``cfg`` would refuse its configuration.
+
+    ``cfg`` must be resolved (:func:`pipeline.pipeline_config.resolve_run`): ``out`` set.
+    """
+    metadata = _check_source(cfg) if "source" in cfg.stages else None
+    if "tracker" in cfg.stages:
+        from pipeline.stages import build_stage_tracker
+
+        build_stage_tracker(cfg.tracker, metadata)
+    _check_sink(cfg)
+    _check_zenoh(cfg)
+    _check_out(Path(cfg.out))
+
+
+def _check_source(cfg: PipelineConfig) -> dict[str, str] | None:
+    """The source's metadata record (what the tracker stage will receive), or an error."""
+    from pipeline.stages import source_frames
+
+    metadata, frames = source_frames(cfg)
+    close = getattr(frames, "close", None)
+    if close is not None:  # a generator: nothing was read yet
+        close()
+    return metadata
+
+
+def _check_sink(cfg: PipelineConfig) -> None:
+    for key in ("mcap_name", "rrd_name"):
+        name = getattr(cfg.sink, key)
+        if not name or Path(name).name != name or name in (".", ".."):
+            raise ConfigError(f"sink.{key}: {name!r} must be a file name (no directory part)")
+
+
+def _check_zenoh(cfg: PipelineConfig) -> None:
+    z = cfg.zenoh
+    if not z.embedded_router and not z.connect and z.mode == "client":
+        raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
+                          "zenoh.embedded_router = true)")
+    files = {f"zenoh.tls.{k}": v for k, v in z.tls.files().items()}
+    if z.users_file:
+        files["zenoh.users_file"] = z.users_file
+    for key, path in files.items():
+        if not Path(path).is_file():
+            raise ConfigError(f"{key}: {path}: no such file")
+
+
+def _check_out(out: Path) -> None:
+    """``out`` is a directory, or can be created: its nearest existing ancestor is a
+    writable directory."""
+    if out.exists():
+        if not out.is_dir():
+            raise ConfigError(f"--out {out}: exists and is not a directory")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise ConfigError(f"--out {out}: the directory is not writable")
+        return
+    parent = out.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"--out {out}: cannot create it ({parent} is not a writable directory)")
