@@ -546,9 +546,12 @@ def schema(topic: str) -> None:
 # (launch, replay, stage, router: the Zenoh pipeline; see docs/pipeline.md)
 
 _SET_HELP_PIPE = (
-    "Override a pipeline setting, KEY=VALUE with a dotted KEY of the pipeline file (VALUE is a "
-    "TOML literal), e.g. --set source.frames=20 --set tracker.seed=3 "
-    "--set tracker.overrides='[\"sweeps=10\"]'. Repeatable."
+    "Override a setting, KEY=VALUE (VALUE is a TOML literal). source.KEY, sink.KEY, delivery.KEY, "
+    "zenoh.KEY and tracker.KEY of the tracker stage (tracker, config, params, seed, ...) are keys "
+    "of the pipeline file; params.KEY, tracker.KEY of the tracker's settings and a bare KEY mean "
+    "what they mean in `bnptrack track` (a bare KEY: model parameters first, then tracker "
+    "settings), e.g. --set source.frames=20 --set tracker.seed=3 --set tracker.sweeps=10 "
+    "--set p_detect=0.9. Repeatable."
 )
 
 
@@ -690,9 +693,9 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
-    from tracker.config import apply_overrides
+    from pipeline.pipeline_config import apply_pipeline_overrides
 
-    cfg = apply_overrides(cfg, overrides)
+    cfg = apply_pipeline_overrides(cfg, overrides)
     if run_id:
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:

@@ -90,3 +90,54 @@ def test_check_pipeline_accepts_the_default_and_a_replay(vo_log, tmp_path):
     assert not (tmp_path / "a").exists()
     src = msgspec.structs.replace(cfg.source, kind="mcap", log=str(vo_log))
     check_pipeline(msgspec.structs.replace(cfg, source=src))
+
+
+# --------------------------------------------------------------------------- --set keys
+
+
+def test_set_keys_route_like_track_plus_the_pipeline_tables():
+    from pipeline.pipeline_config import load_pipeline, split_pipeline_overrides
+
+    items = ["p_detect=0.9", "tracker.sweeps=5", "params.clutter_rate=3", "source.frames=2",
+             "tracker.seed=3", "run=abc", "sink.rerun=false", "tracker.tracker=dpyp", "burn_in=1"]
+    pipe, model = split_pipeline_overrides(items)
+    assert pipe == ("source.frames=2", "tracker.seed=3", "run=abc", "sink.rerun=false", "tracker.tracker=dpyp")
+    assert model == ("p_detect=0.9", "tracker.sweeps=5", "params.clutter_rate=3", "burn_in=1")
+    cfg = load_pipeline(None, items)
+    assert cfg.tracker.overrides == list(model)
+    assert (cfg.tracker.seed, cfg.tracker.tracker, cfg.source.frames, cfg.run, cfg.sink.rerun) == (
+        3, "dpyp", 2, "abc", False)
+    # the explicit pipeline key still works, and the tracker's items come after it
+    cfg = load_pipeline(None, ["tracker.overrides=['sweeps=9']", "p_detect=0.8"])
+    assert cfg.tracker.overrides == ["sweeps=9", "p_detect=0.8"]
+    with pytest.raises(Exception, match="expected key=value"):
+        split_pipeline_overrides(["p_detect"])
+
+
+def test_unknown_bare_set_key_gives_tracks_error(vo_log, tmp_path):
+    out = tmp_path / "r"
+    res = bnptrack("replay", vo_log, "--set", "foo=1", "--out", out)
+    assert_refused(res, out, "--set 'foo=1': unknown key 'foo': not a model parameter")
+    res = bnptrack("launch", "--set", "source.foo=1", "--out", out)
+    assert_refused(res, out, "unknown key 'source.foo'")
+
+
+def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
+    """``replay LOG --set p_detect=0.9 --set sweeps=8 --set tracker.burn_in=2`` runs the tracker
+    ``track LOG`` runs with the same ``--set`` items: the same /tracks (first 6 frames)."""
+    from sources.mcap_log import iter_tracks
+
+    sets = ["--set", "p_detect=0.9", "--set", "sweeps=8", "--set", "tracker.burn_in=2"]
+    off = tmp_path / "off.mcap"
+    res = bnptrack("track", vo_log, *sets, "--out", off, "-q")
+    assert res.returncode == 0, res.stderr
+    out = tmp_path / "r"
+    res = bnptrack("replay", vo_log, "--as-fast-as-possible", *sets, "--set", "source.frames=6",
+                   "--set", "sink.rerun=false", "--out", out, "-q", "--timeout", "150", timeout=180)
+    assert res.returncode == 0, res.stderr
+    strip = lambda e: (e.frame, e.labels, e.assignments, [t.state.tolist() for t in e.tracks])  # noqa: E731
+    got = [strip(e) for e in iter_tracks(out / "tracks.mcap")]
+    want = [strip(e) for e in iter_tracks(off)][:6]
+    assert len(got) == 6 and got == want
+    meta = __import__("sources.mcap_log", fromlist=["read_metadata"]).read_metadata(out / "tracks.mcap")
+    assert meta["tracker_overrides"] == "p_detect=0.9;sweeps=8;tracker.burn_in=2"
