@@ -782,10 +782,14 @@ def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
               help="Stop after this long (default: until Ctrl-C).")
+@click.option("--connect-timeout", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              metavar="SECONDS", help="Give up when no router answers within this long.")
 @_clean_errors
 def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, overrides: tuple[str, ...],
-            duration: float | None) -> None:
+            duration: float | None, connect_timeout: float) -> None:
     """Watch a run's stages: liveliness, health counters, dead letters, end of stream.
+
+    With no router at --connect: one line `Error: no router at ...` and exit code 2.
 
     \b
     Example:
@@ -795,12 +799,15 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
     import threading as _threading
     import time as _time
 
+    import msgspec as _ms
+
     from pipeline.launch import stage_config
     from pipeline.pipeline_config import load_pipeline
     from pipeline.transport import Bus
 
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
                        listen=(), mode=None)
+    cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(cfg.zenoh, connect_timeout_s=connect_timeout))
     stop = _threading.Event()
     for sig in (_signal.SIGINT, _signal.SIGTERM):
         _signal.signal(sig, lambda *_: stop.set())

@@ -89,7 +89,7 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
     and always closes it.
     """
-    from pipeline.transport import Bus, TransportError
+    from pipeline.transport import Bus, NoRouterError, TransportError
 
     if role not in STAGES:
         raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
@@ -117,6 +117,8 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
         threading.Thread(target=watch, name="parent-watch", daemon=True).start()
     try:
         bus = Bus(cfg.run, name, cfg.zenoh, cfg.delivery)
+    except NoRouterError:
+        raise  # a configuration error: `bnptrack stage` prints it on one line, exit 2
     except TransportError as exc:
         log.error("%s", exc)
         return EXIT_CRASH
@@ -191,6 +193,22 @@ class StageProcess:
                 self.proc.send_signal(sig)
             except ProcessLookupError:
                 pass
+
+    def error_line(self) -> str:
+        """The stage's configuration error, from its log: its ``Error: ...`` line (printed by
+        the ``stage`` command) or its ``configuration error: ...`` log record; else the last
+        lines of the log."""
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if line.startswith("Error: "):
+                return line[len("Error: "):]
+            head, sep, msg = line.partition("configuration error: ")
+            if sep and " ERROR " in head:
+                return msg
+        return " / ".join(lines[-3:])
 
     def tail(self, n: int = 12) -> str:
         try:
@@ -402,7 +420,8 @@ class Launcher:
                     what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
                     if rc == EXIT_CONFIG:
                         sp.state = "failed"
-                        result.error = f"stage {sp.role}: configuration error:\n{sp.tail()}"
+                        result.error = (f"stage {sp.role}: configuration error: {sp.error_line()} "
+                                        f"(log: {sp.log_path})")
                         return
                     if sp.restarts >= sup.max_restarts:
                         sp.state = "failed"

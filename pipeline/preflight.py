@@ -28,14 +28,14 @@ def check_pipeline(cfg: PipelineConfig) -> None:
 
     ``cfg`` must be resolved (:func:`pipeline.pipeline_config.resolve_run`): ``out`` set.
     """
+    _check_sink(cfg)
+    _check_out(Path(cfg.out))
+    _check_zenoh(cfg)
     metadata = _check_source(cfg) if "source" in cfg.stages else None
-    if "tracker" in cfg.stages:
+    if "tracker" in cfg.stages:  # last: it imports the tracker (about a second)
         from pipeline.stages import build_stage_tracker
 
         build_stage_tracker(cfg.tracker, metadata)
-    _check_sink(cfg)
-    _check_zenoh(cfg)
-    _check_out(Path(cfg.out))
 
 
 def _check_source(cfg: PipelineConfig) -> dict[str, str] | None:
@@ -61,12 +61,24 @@ def _check_zenoh(cfg: PipelineConfig) -> None:
     if not z.embedded_router and not z.connect and z.mode == "client":
         raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                           "zenoh.embedded_router = true)")
+    if not z.embedded_router and z.mode == "client":
+        _check_routers(z.connect)
     files = {f"zenoh.tls.{k}": v for k, v in z.tls.files().items()}
     if z.users_file:
         files["zenoh.users_file"] = z.users_file
     for key, path in files.items():
         if not Path(path).is_file():
             raise ConfigError(f"{key}: {path}: no such file")
+
+
+def _check_routers(endpoints: list[str]) -> None:
+    """Some router accepts connections at ``endpoints`` (``tcp/`` and ``tls/`` are probed);
+    otherwise every stage would wait ``connect_timeout_s`` and fail."""
+    from pipeline.transport_types import listening
+
+    if listening(endpoints) is False:
+        raise ConfigError(f"no router at {', '.join(endpoints)}: start one with "
+                          f"`bnptrack router --listen {endpoints[0]}`")
 
 
 def _check_out(out: Path) -> None:

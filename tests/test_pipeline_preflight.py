@@ -141,3 +141,68 @@ def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     assert len(got) == 6 and got == want
     meta = __import__("sources.mcap_log", fromlist=["read_metadata"]).read_metadata(out / "tracks.mcap")
     assert meta["tracker_overrides"] == "p_detect=0.9;sweeps=8;tracker.burn_in=2"
+
+
+# --------------------------------------------------------------------------- no router
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_monitor_without_a_router_is_one_line_exit_2_without_the_10_s_wait():
+    import time
+
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    t0 = time.monotonic()
+    res = bnptrack("monitor", "--run", "r1", "--connect", ep, "--duration", "30")
+    elapsed = time.monotonic() - t0
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.splitlines() == [
+        f"Error: no router at {ep}: start one with `bnptrack router --listen {ep}`, "
+        "or connect to the endpoint `bnptrack launch` printed"]
+    assert elapsed < 9.0  # the connect timeout is 1 s, not the stages' 10 s (generous bound)
+
+
+def test_stage_and_launch_without_a_router_are_one_line_exit_2(tmp_path):
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    out = tmp_path / "s"
+    res = bnptrack("stage", "sink", "--run", "r1", "--connect", ep, "--out", out,
+                   "--set", "zenoh.connect_timeout_s=0.5")
+    assert res.returncode == 2
+    assert res.stderr.splitlines()[-1].startswith(f"Error: no router at {ep}: start one with")
+    assert_refused(bnptrack("launch", "--connect", ep, "--out", out), out,
+                   f"no router at {ep}: start one with `bnptrack router --listen {ep}`")
+
+
+def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
+    from pipeline.launch import StageProcess
+
+    log = tmp_path / "tracker.log"
+    sp = StageProcess("tracker", [], log)
+    log.write_text("--- start #0 17:05:42\n17:05:44.083 [tracker] ERROR tracker: configuration error: "
+                   "unknown tracker 'foo'; valid trackers: ddp\n17:05:44.086 [tracker] INFO tracker: cpu\n")
+    assert sp.error_line() == "unknown tracker 'foo'; valid trackers: ddp"
+    log.write_text("17:05:44.083 [tracker] INFO x\nError: no router at tcp/h:1: start one\n")
+    assert sp.error_line() == "no router at tcp/h:1: start one"
+    log.write_text("a\nb\nc\nd\n")
+    assert sp.error_line() == "b / c / d"
+
+
+def test_listening_probes_tcp_and_tls_endpoints_only():
+    import socket
+
+    from pipeline.transport_types import listening
+
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen()
+        port = srv.getsockname()[1]
+        assert listening([f"tcp/127.0.0.1:{port}"]) is True
+        assert listening([f"tcp/127.0.0.1:{_free_port()}", f"tls/localhost:{port}"]) is True
+    assert listening([f"tcp/127.0.0.1:{_free_port()}"]) is False
+    assert listening(["udp/127.0.0.1:7447"]) is None and listening([]) is None
