@@ -275,6 +275,16 @@ def simulate(
     help="Also record the run for the Rerun viewer (scene, assignments, tracks, truth, OSPA, "
     "diagnostics); open it with `bnptrack view FILE.rrd`. See docs/rerun.md.",
 )
+@click.option(
+    "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
+    help="A frame more than N frame numbers after the previous one ends the run with an error "
+    "(the tracker predicts through every skipped frame).",
+)
+@click.option(
+    "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
+    metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
+    "frame's (a time stamp that goes back is always an error).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -286,6 +296,8 @@ def track(
     seed: int,
     out: Path | None,
     rrd: Path | None,
+    max_frame_gap: int,
+    max_gap_s: float,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -297,7 +309,8 @@ def track(
     error when the log has truth, the final number of tracks and the time per frame.
 
     A truncated or corrupt LOG is processed up to its last readable frame; that prefix is
-    written, then the error is reported and the exit code is 2.
+    written, then the error is reported and the exit code is 2. So is a frame that jumps
+    beyond --max-frame-gap / --max-gap-s, or that does not come after the previous one.
 
     \b
     Examples:
@@ -319,6 +332,9 @@ def track(
     if out is None:
         out = default_tracks_path(log, tracker_name)
     check_output_path(log, out)
+    from tracker.types import FrameBounds
+
+    bounds = FrameBounds(max_frame_gap, max_gap_s)
 
     out_meta = dict(metadata or {})
     out_meta.update(
@@ -343,9 +359,9 @@ def track(
         from pipeline.view import track_log_with_rrd
 
         res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
-                                 recorder=recorder)
+                                 recorder=recorder, bounds=bounds)
     else:
-        res = track_log(log, out, tracker, seed, out_meta)
+        res = track_log(log, out, tracker, seed, out_meta, bounds=bounds)
     if not quiet:
         rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
         if res.has_truth:

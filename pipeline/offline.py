@@ -25,7 +25,7 @@ from sources.synthetic import simulate
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
 from tracker.state import run
-from tracker.types import Estimate, Frame
+from tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
 
 if TYPE_CHECKING:
     from tracker.registry import Tracker
@@ -313,12 +313,13 @@ class FrameMetrics:
 
 @dataclass(frozen=True)
 class TrackResult:
-    """An offline tracking run: per-frame metrics plus the error that ended it early, if any."""
+    """An offline tracking run: per-frame metrics plus the error that ended it early, if any
+    (a damaged log, or a frame beyond the :class:`tracker.types.FrameBounds`)."""
 
     tracker: str
     frames: tuple[FrameMetrics, ...]
     final_tracks: int
-    error: McapLogError | None = None
+    error: McapLogError | FrameBoundError | None = None
 
     @property
     def n_frames(self) -> int:
@@ -381,25 +382,28 @@ def track_frames(
     frames: Iterable[Frame],
     seed: int,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
+    bounds: FrameBounds | None = None,
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
 
     ``on_estimate(frame, estimate, metrics)`` is called after each frame is scored (e.g. to
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
-    frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
-    and the error is returned in :attr:`TrackResult.error` instead of being raised.
+    frame source raises :class:`McapLogError` (a damaged log), or a frame breaks ``bounds``
+    (default :class:`FrameBounds`: at most 1000 frames and 3600 s after the previous one;
+    checked before the frame reaches the tracker), the frames before it are kept and the
+    error is returned in :attr:`TrackResult.error` instead of being raised.
     """
     rows: list[FrameMetrics] = []
     final = 0
-    error: McapLogError | None = None
+    error: McapLogError | FrameBoundError | None = None
     try:
-        for frame, est, _state in run(tracker, frames, seed):
+        for frame, est, _state in run(tracker, bounded_frames(frames, bounds or FrameBounds()), seed):
             row = frame_metrics(frame, est)
             if on_estimate is not None:
                 on_estimate(frame, est, row)
             rows.append(row)
             final = len(est.tracks)
-    except McapLogError as exc:
+    except (McapLogError, FrameBoundError) as exc:
         error = exc
     return TrackResult(tracker.name, tuple(rows), final, error)
 
@@ -423,13 +427,14 @@ def track_log(
     seed: int,
     metadata: Mapping[str, str] | None,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
+    bounds: FrameBounds | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
     called after each frame is written (e.g. a Rerun sink).
 
-    A damaged input is processed up to its readable end; the output then holds that prefix
-    and :attr:`TrackResult.error` holds the :class:`McapLogError`.
+    A damaged input is processed up to its readable end (a frame beyond ``bounds`` ends it
+    too); the output then holds that prefix and :attr:`TrackResult.error` holds the error.
     """
     log, out = Path(log), Path(out)
     check_output_path(log, out)
@@ -442,5 +447,5 @@ def track_log(
             if on_estimate is not None:
                 on_estimate(frame, est, metrics)
 
-        return track_frames(tracker, iter_frames(log), seed, write)
+        return track_frames(tracker, iter_frames(log), seed, write, bounds)
 

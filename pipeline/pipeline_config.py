@@ -215,6 +215,13 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     consumers (history).  ``queue_limit``: frames a consumer buffers in memory before it
     drops (and counts) new ones.  ``eos_grace_s``: after end of stream, how long a consumer
     waits without progress for missing frames before declaring them gaps.
+
+    Bounds on what a valid-looking sample can do: a sample whose sequence number is more than
+    ``max_seq_ahead`` (at least the catch-up window) past the next one a consumer expects is
+    rejected and counted (no frame of a cache can be that far ahead); a frame more than
+    ``max_frame_gap`` frame numbers, or ``max_gap_s`` seconds of time stamp, after the previous
+    processed frame (or not after it) is rejected and counted by the tracker and the sink
+    (:class:`tracker.types.FrameBounds`; ``bnptrack track --max-frame-gap / --max-gap-s``).
     """
 
     window: PosInt = 32
@@ -224,6 +231,9 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     eos_grace_s: Positive = 2.0
     max_payload_bytes: PosInt = 16 * 2**20
     health_period_s: Positive = 1.0
+    max_seq_ahead: PosInt = 100_000
+    max_frame_gap: PosInt = 1000
+    max_gap_s: Positive = 3600.0
 
     @property
     def catch_up(self) -> int:
