@@ -44,6 +44,9 @@ __all__ = ["main", "CliError"]
 
 #: Exit code of every reported (non-crash) failure.
 EXIT_ERROR = 2
+#: Exit code of a pipeline run that ended with an incomplete output (gaps, rejected frames,
+#: a stage that gave up); see docs/pipeline.md.
+EXIT_INCOMPLETE = 3
 
 
 class CliError(click.ClickException):
@@ -53,6 +56,12 @@ class CliError(click.ClickException):
 
     def __init__(self, message: str) -> None:
         super().__init__(" ".join(str(message).split()))
+
+
+class IncompleteError(CliError):
+    """``launch`` / ``replay``: the run ended but its output is incomplete (exit code 3)."""
+
+    exit_code = EXIT_INCOMPLETE
 
 
 _EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError)
@@ -588,6 +597,9 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
             c = summary.get("counters") or {}
             rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
+            from pipeline.launch import describe_missing
+
+            rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             lat = (c.get("latency_ms") or {})
             if lat.get("p50") is not None:
                 note = "" if paced else " (frames published as fast as possible: includes queueing)"
@@ -602,6 +614,8 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
     if res.interrupted:
         click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
         raise SystemExit(130)
+    if res.incomplete:
+        raise IncompleteError(f"output incomplete: {res.incomplete} -- files are in {res.out}/")
     if not res.ok:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
 

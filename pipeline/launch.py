@@ -61,7 +61,7 @@ from pipeline.stages import (
 )
 from tracker.config import ConfigError
 
-__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging"]
+__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging", "describe_missing"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -220,11 +220,18 @@ class StageProcess:
 
 @dataclass
 class LaunchResult:
+    """The end of a launch.  ``ok``: every stage finished and the output is complete.
+    ``incomplete`` (exit code 3): what the output lacks, when the run ended but its output is
+    incomplete (gaps, rejected frames, a stage that gave up: ``gave_up`` names it);
+    ``error`` (exit code 2): why the run failed otherwise."""
+
     run: str
     out: Path
     ok: bool
     error: str = ""
     interrupted: bool = False
+    incomplete: str = ""
+    gave_up: str = ""
     files: list[str] = field(default_factory=list)
     summary: dict | None = None
     restarts: dict[str, int] = field(default_factory=dict)
@@ -317,6 +324,14 @@ class Launcher:
                 result.error = (f"{src_err} -- the pipeline processed the "
                                 f"{result.summary.get('frames_written', 0)} readable frame(s)")
                 result.ok = False
+        if result.gave_up:
+            result.incomplete = result.error
+            missing = describe_missing(result.summary)
+            if missing:
+                result.incomplete += f"; {missing}"
+        elif result.ok:
+            result.incomplete = describe_missing(result.summary)
+            result.ok = not result.incomplete
         return result
 
     # -- network -----------------------------------------------------------------------
@@ -426,7 +441,8 @@ class Launcher:
                     if sp.restarts >= sup.max_restarts:
                         sp.state = "failed"
                         result.error = (f"stage {sp.role} crashed ({what}) and was restarted "
-                                        f"{sp.restarts} time(s) already; giving up:\n{sp.tail()}")
+                                        f"{sp.restarts} time(s) already; giving up (log: {sp.log_path})")
+                        result.gave_up = sp.role
                         return
                     sp.state = "restarting"
                     sp.restart_at = time.monotonic() + sup.restart_backoff_s
@@ -476,6 +492,36 @@ class Launcher:
             if sp.state == "running":
                 sp.state = "stopped"
         self._write_stages()
+
+
+def _ranges(seqs: Sequence[int], limit: int = 8) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"`` (at most ``limit`` ranges, then ``"..."``)."""
+    parts: list[str] = []
+    start = prev = None
+    for x in [*seqs, None]:
+        if x is not None and prev is not None and x == prev + 1:
+            prev = x
+            continue
+        if start is not None:
+            parts.append(str(start) if start == prev else f"{start}-{prev}")
+        start = prev = x
+    more = len(parts) > limit
+    return ", ".join(parts[:limit]) + (f", ... ({len(seqs)} in all)" if more else "")
+
+
+def describe_missing(summary: dict | None) -> str:
+    """One line saying what a run's output lacks (``""``: it is complete), from the sink's
+    ``sink.json``: no summary, a sink that stopped before the end of stream, and each
+    ``missing`` entry (topic, sequence numbers, why)."""
+    if not summary:
+        return f"the sink wrote no {SUMMARY_NAME}"
+    parts = []
+    if not summary.get("complete", False):
+        parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
+    for m in summary.get("missing") or []:
+        seqs = m.get("seqs") or []
+        parts.append(f"{m.get('topic')} of {len(seqs)} frame(s), seq {_ranges(seqs)}: {m.get('why')}")
+    return "; ".join(parts)
 
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,

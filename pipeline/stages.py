@@ -1131,6 +1131,7 @@ class SinkStage(_StageBase):
         self.last_frame = -1
         self.last_stamp_ns: int | None = None
         self.rejected_seqs: list[int] = []
+        self.mismatched: dict[str, list[int]] = {}
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
         self.t_first_pub_ns: int | None = None
@@ -1300,6 +1301,7 @@ class SinkStage(_StageBase):
         log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
                   self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
         self.counters.rejected += 1
+        self.mismatched.setdefault(stream, []).append(s)
         return GAP
 
     # -- intake ------------------------------------------------------------------------
@@ -1390,6 +1392,7 @@ class SinkStage(_StageBase):
             self.writer.close()
         self._close_rrd()
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
+        missing = self._missing()
         src = self.eos_seen.get("source")
         fps = None
         if self.t_first_pub_ns is not None and self.t_last_ns is not None and self.tracks_written > 1:
@@ -1401,6 +1404,8 @@ class SinkStage(_StageBase):
             "tracks_written": self.tracks_written,
             "last_seq": self.next_write - 1,
             "gaps": gaps,
+            "output_complete": complete and not missing,
+            "missing": missing,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
             "rejected_by_topic": self.intake.rejected_by_topic,
@@ -1422,6 +1427,29 @@ class SinkStage(_StageBase):
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
                  "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def _missing(self) -> list[dict[str, Any]]:
+        """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
+        sequence numbers (and the frame numbers where known) -- for ``sink.json``, the
+        launcher's exit code 3 and its summary."""
+        out: list[dict[str, Any]] = []
+        tr = self.eos_seen.get("tracker")
+        by_tracker = set(tr.rejected) if tr is not None else set()
+
+        def add(topic: str, seqs: Iterable[int], why: str) -> None:
+            seqs = sorted(set(seqs))
+            if seqs:
+                out.append({"topic": f"/{topic}", "seqs": seqs, "why": why})
+
+        for name, seq in self.streams.items():
+            add(name, [g for g in seq.gaps if g not in by_tracker],
+                "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
+        add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
+        add("measurements", self.rejected_seqs,
+            "the sink rejected the frame (frame bounds; none of its messages were written)")
+        for name, seqs in self.mismatched.items():
+            add(name, seqs, "for another frame than its /measurements (dropped)")
+        return out
 
     def run(self) -> int:
         bus = self.bus
