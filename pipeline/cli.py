@@ -620,12 +620,18 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
 
 
-def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool) -> None:
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False) -> None:
     from pipeline.launch import launch as _launch
 
-    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout)
+    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout, overwrite=overwrite)
     _report_launch(res, quiet, paced=cfg.source.rate > 0)
 
+
+_OVERWRITE_OPT = click.option(
+    "--overwrite", is_flag=True,
+    help="Replace the files of an earlier run in the output directory (without it, such a "
+    "directory is refused with exit code 2; a directory with a live run is always refused).",
+)
 
 _TIMEOUT_OPT = click.option(
     "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
@@ -644,10 +650,12 @@ _TIMEOUT_OPT = click.option(
 @click.option("--connect", "connect", multiple=True, metavar="ENDPOINT",
               help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one.")
 @_TIMEOUT_OPT
+@_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 @_clean_errors
 def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, connect: tuple[str, ...], timeout: float | None, quiet: bool) -> None:
+           out: Path | None, connect: tuple[str, ...], timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
     """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
 
     With no PIPELINE.toml: a synthetic vo2017 source (seed 1) -> the DDP-EMM tracker
@@ -675,7 +683,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     if connect:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
             cfg.zenoh, embedded_router=False, connect=list(connect)))
-    _run_pipeline(cfg, timeout, quiet)
+    _run_pipeline(cfg, timeout, quiet, overwrite)
 
 
 @main.command()
@@ -695,11 +703,12 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
 @_TIMEOUT_OPT
+@_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, timeout: float | None, quiet: bool) -> None:
+           out: Path | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -730,7 +739,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    _run_pipeline(cfg, timeout, quiet)
+    _run_pipeline(cfg, timeout, quiet, overwrite)
 
 
 @main.command()

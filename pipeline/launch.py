@@ -5,6 +5,8 @@ and the entry point of one stage process (``bnptrack stage``).
 
 0. validates the whole pipeline (:func:`pipeline.preflight.check_pipeline`): a
    configuration error is raised before any process starts or any file is written;
+   An output directory that holds another run's files is refused unless ``overwrite``;
+   one that another launcher holds (its lock, ``<out>/.bnptrack.lock``) always;
 1. resolves the run id and the output directory (``recordings/<run>/``), removes a stale
    ``tracker.snap`` there (a fresh launch never resumes an old run);
 2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
@@ -46,7 +48,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
-from pipeline.preflight import check_pipeline
+from pipeline.preflight import check_pipeline, lock_out, run_files
 from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
@@ -248,8 +250,9 @@ class Launcher:
 
     def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
                  timeout: float | None = None, python: str | None = None,
-                 log_level: str = "INFO") -> None:
+                 log_level: str = "INFO", overwrite: bool = False) -> None:
         self.cfg = resolve_run(cfg)
+        self.overwrite = overwrite
         check_run_id(self.cfg.run)
         self.out = Path(self.cfg.out)
         self.echo = echo or (lambda msg: None)
@@ -271,13 +274,17 @@ class Launcher:
     def run(self) -> LaunchResult:
         t0 = time.monotonic()
         cfg = self.cfg
-        check_pipeline(cfg)  # every configuration error before anything starts or is written
+        check_pipeline(cfg, self.overwrite)  # every error before anything starts or is written
         self.out.mkdir(parents=True, exist_ok=True)
-        for stale in (SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME):
-            try:
-                (self.out / stale).unlink()
-            except FileNotFoundError:
-                pass
+        lock = lock_out(self.out)  # held until this process exits: no second launch here
+        try:
+            return self._run_locked(t0)
+        finally:
+            os.close(lock)
+
+    def _run_locked(self, t0: float) -> LaunchResult:
+        cfg = self.cfg
+        self._remove_earlier_run()
         result = LaunchResult(run=cfg.run, out=self.out, ok=False)
         try:
             stage_cfg = self._network(cfg)
@@ -333,6 +340,21 @@ class Launcher:
             result.incomplete = describe_missing(result.summary)
             result.ok = not result.incomplete
         return result
+
+    def _remove_earlier_run(self) -> None:
+        """Remove the files an earlier run left in ``out`` (only there with ``overwrite``:
+        :func:`check_pipeline` refuses them otherwise), so that none is mistaken for this
+        run's (a stale snapshot would even be resumed)."""
+        for name in {*run_files(self.cfg), SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME}:
+            path = self.out / name
+            if path.is_dir():  # logs/
+                for f in path.glob("*.log"):
+                    f.unlink()
+                continue
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                pass
 
     # -- network -----------------------------------------------------------------------
     def _network(self, cfg: PipelineConfig) -> PipelineConfig:
@@ -525,9 +547,11 @@ def describe_missing(summary: dict | None) -> str:
 
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
-           timeout: float | None = None, handle_signals: bool = True) -> LaunchResult:
-    """Run a pipeline to its end (the CLI's ``launch`` and ``replay``)."""
-    launcher = Launcher(cfg, echo=echo, timeout=timeout)
+           timeout: float | None = None, handle_signals: bool = True,
+           overwrite: bool = False) -> LaunchResult:
+    """Run a pipeline to its end (the CLI's ``launch`` and ``replay``).  An ``out`` that holds
+    another run is refused unless ``overwrite``; one that holds a live run always."""
+    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite)
     old: dict[int, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         def on_signal(signum: int, _frame: Any) -> None:

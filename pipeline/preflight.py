@@ -23,13 +23,15 @@ from tracker.config import ConfigError
 __all__ = ["check_pipeline"]
 
 
-def check_pipeline(cfg: PipelineConfig) -> None:
-    """Raise :class:`ConfigError` if any stage of ``cfg`` would refuse its configuration.
+def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
+    """Raise :class:`ConfigError` if any stage of ``cfg`` would refuse its configuration, or
+    if ``out`` holds a live run, or another run and not ``overwrite``.
 
     ``cfg`` must be resolved (:func:`pipeline.pipeline_config.resolve_run`): ``out`` set.
     """
     _check_sink(cfg)
     _check_out(Path(cfg.out))
+    _check_taken(cfg, overwrite)
     _check_zenoh(cfg)
     metadata = _check_source(cfg) if "source" in cfg.stages else None
     if "tracker" in cfg.stages:  # last: it imports the tracker (about a second)
@@ -79,6 +81,59 @@ def _check_routers(endpoints: list[str]) -> None:
     if listening(endpoints) is False:
         raise ConfigError(f"no router at {', '.join(endpoints)}: start one with "
                           f"`bnptrack router --listen {endpoints[0]}`")
+
+
+#: The lock a launcher holds on its output directory while it runs (``fcntl.flock``).
+LOCK_NAME = ".bnptrack.lock"
+
+
+def run_files(cfg: PipelineConfig) -> list[str]:
+    """The files of a run in ``cfg.out`` (any of them means the directory holds a run)."""
+    from pipeline.stages import JOURNAL_NAME, SNAPSHOT_NAME, SUMMARY_NAME
+
+    names = ["pipeline.json", "stages.json", SUMMARY_NAME, SNAPSHOT_NAME, JOURNAL_NAME,
+             cfg.sink.mcap_name, cfg.sink.rrd_name, "health.jsonl", "logs"]
+    out = Path(cfg.out)
+    return [n for n in names if (out / n).exists()]
+
+
+def lock_out(out: Path) -> int:
+    """Create and lock ``out/.bnptrack.lock`` for this process (the caller keeps the
+    descriptor open for the run); :class:`ConfigError` if another launcher holds it."""
+    import fcntl
+
+    fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise ConfigError(f"--out {out}: a run is live there (launcher pid {holder}); "
+                          "use another --out") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd
+
+
+def _check_taken(cfg: PipelineConfig, overwrite: bool) -> None:
+    """Refuse an output directory that holds a live run (always), or another run's files
+    (unless ``overwrite``)."""
+    out = Path(cfg.out)
+    if not out.is_dir():
+        return
+    if (out / LOCK_NAME).exists():
+        os.close(lock_out(out))  # raises if a launcher holds it
+    found = run_files(cfg)
+    if found and not overwrite:
+        run = ""
+        try:
+            import json
+
+            run = json.loads((out / "pipeline.json").read_text()).get("run", "")
+        except (OSError, ValueError, AttributeError):
+            pass
+        raise ConfigError(f"--out {out}: holds {'run ' + repr(run) if run else 'another run'} "
+                          f"({', '.join(found)}); use another --out, or --overwrite to replace it")
 
 
 def _check_out(out: Path) -> None:

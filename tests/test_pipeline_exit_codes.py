@@ -132,3 +132,49 @@ def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
         f"(frame bounds; none of its messages were written) -- files are in {out}/")
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["frames_written"] == 10 and s["output_complete"] is False
+
+
+# --------------------------------------------------------------------------- a taken --out
+
+
+def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
+    import signal
+    import time
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "r"
+
+    def launch(*extra, run="first"):
+        return subprocess.run([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", run,
+                               "-q", "--set", "source.frames=3", "--set", "sink.rerun=false",
+                               "--set", "tracker.overrides=['sweeps=8', 'burn_in=2']", "--timeout", "150",
+                               *extra], capture_output=True, text=True, timeout=200, env=env)
+
+    assert launch().returncode == 0
+    first = (out / "tracks.mcap").read_bytes()
+    res = launch(run="second")
+    assert res.returncode == 2 and res.stderr.splitlines() == [
+        f"Error: --out {out}: holds run 'first' (pipeline.json, stages.json, sink.json, tracker.snap, "
+        "tracker.journal, tracks.mcap, health.jsonl, logs); use another --out, or --overwrite to replace it"]
+    assert (out / "tracks.mcap").read_bytes() == first
+    res = launch("--overwrite", run="second")
+    assert res.returncode == 0, res.stderr
+    assert json.loads((out / "pipeline.json").read_text())["run"] == "second"
+    assert json.loads((out / "sink.json").read_text())["run"] == "second"
+    # a live run: refused even with --overwrite, and its files are left alone
+    live = subprocess.Popen([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", "live",
+                             "--overwrite", "-q", "--set", "source.frames=1000", "--set", "source.rate=2",
+                             "--set", "sink.rerun=false"], env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "stages.json").exists() or json.loads((out / "pipeline.json").read_text())["run"] != "live":
+            assert time.monotonic() < deadline and live.poll() is None
+            time.sleep(0.1)
+        res = launch("--overwrite", run="third")
+        assert res.returncode == 2 and res.stderr.splitlines() == [
+            f"Error: --out {out}: a run is live there (launcher pid {live.pid}); use another --out"]
+        assert json.loads((out / "pipeline.json").read_text())["run"] == "live"
+    finally:
+        live.send_signal(signal.SIGINT)
+        live.wait(60)
+    assert live.returncode == 130
