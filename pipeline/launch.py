@@ -4,11 +4,12 @@ and the entry point of one stage process (``bnptrack stage``).
 :class:`Launcher`:
 
 0. validates the whole pipeline (:func:`pipeline.preflight.check_pipeline`): a
-   configuration error is raised before any process starts or any file is written;
-   An output directory that holds another run's files is refused unless ``overwrite``;
-   one that another launcher holds (its lock, ``<out>/.bnptrack.lock``) always;
-1. resolves the run id and the output directory (``recordings/<run>/``), removes a stale
-   ``tracker.snap`` there (a fresh launch never resumes an old run);
+   configuration error is raised before any process starts or any file is written; an
+   output directory that holds another run's files is refused unless ``overwrite``, one
+   that another launcher holds (its lock, ``<out>/.bnptrack.lock``) always;
+1. resolves the run id and the output directory (``recordings/<run>/``), locks it and,
+   with ``overwrite``, removes the earlier run's files (a fresh launch never resumes an
+   old run);
 2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
    default) unless the pipeline names routers to ``connect`` to;
 3. writes ``<out>/pipeline.json`` (the resolved pipeline the stages read) and starts every
@@ -48,7 +49,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
-from pipeline.preflight import check_pipeline, lock_out, run_files
+from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
@@ -278,6 +279,7 @@ class Launcher:
         self.out.mkdir(parents=True, exist_ok=True)
         lock = lock_out(self.out)  # held until this process exits: no second launch here
         try:
+            refuse_other_run(cfg, self.overwrite)
             return self._run_locked(t0)
         finally:
             os.close(lock)

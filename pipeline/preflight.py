@@ -123,6 +123,13 @@ def _check_taken(cfg: PipelineConfig, overwrite: bool) -> None:
         return
     if (out / LOCK_NAME).exists():
         os.close(lock_out(out))  # raises if a launcher holds it
+    refuse_other_run(cfg, overwrite)
+
+
+def refuse_other_run(cfg: PipelineConfig, overwrite: bool) -> None:
+    """:class:`ConfigError` if ``cfg.out`` holds another run's files and not ``overwrite``
+    (the launcher checks again once it holds the lock: a run may have ended in between)."""
+    out = Path(cfg.out)
     found = run_files(cfg)
     if found and not overwrite:
         run = ""
