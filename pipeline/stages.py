@@ -134,7 +134,8 @@ class Sequencer:
     ``push(seq, item)`` returns ``(status, released)`` where ``status`` is ``"accepted"``,
     ``"duplicate"`` (already released or buffered), ``"late"`` (its gap was declared) or
     ``"far"`` (``max_ahead`` or more past the next expected number: not accepted, nothing
-    declared; ``max_ahead`` is at least ``catch_up``, default unbounded) and ``released`` a list of ``(seq, item)`` in sequence order, ``item`` being
+    declared; ``max_ahead`` is at least ``catch_up``, default unbounded) and ``released`` a
+    list of ``(seq, item)`` in sequence order, ``item`` being
     :data:`GAP` for a missing frame.  The buffer never spans ``window`` or more sequence
     numbers: a frame arriving ``window`` or more ahead of the next expected one releases
     (or declares missing) everything at least ``window`` behind it.  The result depends
@@ -1430,8 +1431,7 @@ class SinkStage(_StageBase):
 
     def _missing(self) -> list[dict[str, Any]]:
         """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
-        sequence numbers (and the frame numbers where known) -- for ``sink.json``, the
-        launcher's exit code 3 and its summary."""
+        sequence numbers -- for ``sink.json``, the launcher's exit code 3 and its summary."""
         out: list[dict[str, Any]] = []
         tr = self.eos_seen.get("tracker")
         by_tracker = set(tr.rejected) if tr is not None else set()
