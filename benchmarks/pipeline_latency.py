@@ -219,7 +219,7 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     with CpuSampler(out) as cpu:
         res = launch(cfg, timeout=1800, handle_signals=True)
     if not res.ok:
-        raise SystemExit(f"pipeline failed: {res.error}")
+        raise SystemExit(f"pipeline failed: {res.error or res.incomplete}")
     s = json.loads((out / "sink.json").read_text())
     lat = s["latency"]
     e2e, step = np.array(lat["e2e_ms"], float), np.array(lat["tracker_ms"], float)

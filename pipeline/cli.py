@@ -46,6 +46,9 @@ __all__ = ["main", "CliError"]
 
 #: Exit code of every reported (non-crash) failure.
 EXIT_ERROR = 2
+#: Exit code of a pipeline run that ended with an incomplete output (gaps, rejected frames,
+#: a stage that gave up); see docs/pipeline.md.
+EXIT_INCOMPLETE = 3
 
 
 class CliError(click.ClickException):
@@ -55,6 +58,12 @@ class CliError(click.ClickException):
 
     def __init__(self, message: str) -> None:
         super().__init__(" ".join(str(message).split()))
+
+
+class IncompleteError(CliError):
+    """``launch`` / ``replay``: the run ended but its output is incomplete (exit code 3)."""
+
+    exit_code = EXIT_INCOMPLETE
 
 
 _EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError)
@@ -284,6 +293,16 @@ def simulate(
     help="Also record the run for the Rerun viewer (scene, assignments, tracks, truth, OSPA, "
     "diagnostics); open it with `bnptrack view FILE.rrd`. See docs/rerun.md.",
 )
+@click.option(
+    "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
+    help="A frame more than N frame numbers after the previous one ends the run with an error "
+    "(the tracker predicts through every skipped frame).",
+)
+@click.option(
+    "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
+    metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
+    "frame's (a time stamp that goes back is always an error).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -295,6 +314,8 @@ def track(
     seed: int,
     out: Path | None,
     rrd: Path | None,
+    max_frame_gap: int,
+    max_gap_s: float,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -306,7 +327,8 @@ def track(
     error when the log has truth, the final number of tracks and the time per frame.
 
     A truncated or corrupt LOG is processed up to its last readable frame; that prefix is
-    written, then the error is reported and the exit code is 2.
+    written, then the error is reported and the exit code is 2. So is a frame that jumps
+    beyond --max-frame-gap / --max-gap-s, or that does not come after the previous one.
 
     \b
     Examples:
@@ -328,6 +350,9 @@ def track(
     if out is None:
         out = default_tracks_path(log, tracker_name)
     check_output_path(log, out)
+    from tracker.types import FrameBounds
+
+    bounds = FrameBounds(max_frame_gap, max_gap_s)
 
     out_meta = dict(metadata or {})
     out_meta.update(
@@ -352,9 +377,9 @@ def track(
         from pipeline.view import track_log_with_rrd
 
         res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
-                                 recorder=recorder)
+                                 recorder=recorder, bounds=bounds)
     else:
-        res = track_log(log, out, tracker, seed, out_meta)
+        res = track_log(log, out, tracker, seed, out_meta, bounds=bounds)
     if not quiet:
         rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
         if res.has_truth:
@@ -561,9 +586,12 @@ def schema(topic: str) -> None:
 # (launch, replay, stage, router: the Zenoh pipeline; see docs/pipeline.md)
 
 _SET_HELP_PIPE = (
-    "Override a pipeline setting, KEY=VALUE with a dotted KEY of the pipeline file (VALUE is a "
-    "TOML literal), e.g. --set source.frames=20 --set tracker.seed=3 "
-    "--set tracker.overrides='[\"sweeps=10\"]'. Repeatable."
+    "Override a setting, KEY=VALUE (VALUE is a TOML literal). source.KEY, sink.KEY, delivery.KEY, "
+    "zenoh.KEY and tracker.KEY of the tracker stage (tracker, config, params, seed, ...) are keys "
+    "of the pipeline file; params.KEY, tracker.KEY of the tracker's settings and a bare KEY mean "
+    "what they mean in `bnptrack track` (a bare KEY: model parameters first, then tracker "
+    "settings), e.g. --set source.frames=20 --set tracker.seed=3 --set tracker.sweeps=10 "
+    "--set p_detect=0.9. Repeatable."
 )
 
 
@@ -584,6 +612,9 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
             c = summary.get("counters") or {}
             rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
+            from pipeline.launch import describe_missing
+
+            rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             lat = (c.get("latency_ms") or {})
             if lat.get("p50") is not None:
                 note = "" if paced else " (frames published as fast as possible: includes queueing)"
@@ -598,16 +629,24 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
     if res.interrupted:
         click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
         raise SystemExit(130)
+    if res.incomplete:
+        raise IncompleteError(f"output incomplete: {res.incomplete} -- files are in {res.out}/")
     if not res.ok:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
 
 
-def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool) -> None:
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False) -> None:
     from pipeline.launch import launch as _launch
 
-    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout)
+    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout, overwrite=overwrite)
     _report_launch(res, quiet, paced=cfg.source.rate > 0)
 
+
+_OVERWRITE_OPT = click.option(
+    "--overwrite", is_flag=True,
+    help="Replace the files of an earlier run in the output directory (without it, such a "
+    "directory is refused with exit code 2; a directory with a live run is always refused).",
+)
 
 _TIMEOUT_OPT = click.option(
     "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
@@ -626,10 +665,12 @@ _TIMEOUT_OPT = click.option(
 @click.option("--connect", "connect", multiple=True, metavar="ENDPOINT",
               help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one.")
 @_TIMEOUT_OPT
+@_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 @_clean_errors
 def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, connect: tuple[str, ...], timeout: float | None, quiet: bool) -> None:
+           out: Path | None, connect: tuple[str, ...], timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
     """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
 
     With no PIPELINE.toml: a synthetic vo2017 source (seed 1) -> the DDP-EMM tracker
@@ -657,7 +698,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     if connect:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
             cfg.zenoh, embedded_router=False, connect=list(connect)))
-    _run_pipeline(cfg, timeout, quiet)
+    _run_pipeline(cfg, timeout, quiet, overwrite)
 
 
 @main.command()
@@ -677,11 +718,12 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
 @_TIMEOUT_OPT
+@_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, timeout: float | None, quiet: bool) -> None:
+           out: Path | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -705,14 +747,14 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
-    from tracker.config import apply_overrides
+    from pipeline.pipeline_config import apply_pipeline_overrides
 
-    cfg = apply_overrides(cfg, overrides)
+    cfg = apply_pipeline_overrides(cfg, overrides)
     if run_id:
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    _run_pipeline(cfg, timeout, quiet)
+    _run_pipeline(cfg, timeout, quiet, overwrite)
 
 
 @main.command()
@@ -794,10 +836,14 @@ def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
               help="Stop after this long (default: until Ctrl-C).")
+@click.option("--connect-timeout", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              metavar="SECONDS", help="Give up when no router answers within this long.")
 @_clean_errors
 def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, overrides: tuple[str, ...],
-            duration: float | None) -> None:
+            duration: float | None, connect_timeout: float) -> None:
     """Watch a run's stages: liveliness, health counters, dead letters, end of stream.
+
+    With no router at --connect: one line `Error: no router at ...` and exit code 2.
 
     \b
     Example:
@@ -807,12 +853,15 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
     import threading as _threading
     import time as _time
 
+    import msgspec as _ms
+
     from pipeline.launch import stage_config
     from pipeline.pipeline_config import load_pipeline
     from pipeline.transport import Bus
 
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
                        listen=(), mode=None)
+    cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(cfg.zenoh, connect_timeout_s=connect_timeout))
     stop = _threading.Event()
     for sig in (_signal.SIGINT, _signal.SIGTERM):
         _signal.signal(sig, lambda *_: stop.set())

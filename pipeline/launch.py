@@ -3,8 +3,13 @@ and the entry point of one stage process (``bnptrack stage``).
 
 :class:`Launcher`:
 
-1. resolves the run id and the output directory (``recordings/<run>/``), removes a stale
-   ``tracker.snap`` there (a fresh launch never resumes an old run);
+0. validates the whole pipeline (:func:`pipeline.preflight.check_pipeline`): a
+   configuration error is raised before any process starts or any file is written; an
+   output directory that holds another run's files is refused unless ``overwrite``, one
+   that another launcher holds (its lock, ``<out>/.bnptrack.lock``) always;
+1. resolves the run id and the output directory (``recordings/<run>/``), locks it and,
+   with ``overwrite``, removes the earlier run's files (a fresh launch never resumes an
+   old run);
 2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
    default) unless the pipeline names routers to ``connect`` to;
 3. writes ``<out>/pipeline.json`` (the resolved pipeline the stages read) and starts every
@@ -44,6 +49,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
+from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
@@ -58,7 +64,7 @@ from pipeline.stages import (
 )
 from tracker.config import ConfigError
 
-__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging"]
+__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging", "describe_missing"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -86,7 +92,7 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
     and always closes it.
     """
-    from pipeline.transport import Bus, TransportError
+    from pipeline.transport import Bus, NoRouterError, TransportError
 
     if role not in STAGES:
         raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
@@ -114,6 +120,8 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
         threading.Thread(target=watch, name="parent-watch", daemon=True).start()
     try:
         bus = Bus(cfg.run, name, cfg.zenoh, cfg.delivery)
+    except NoRouterError:
+        raise  # a configuration error: `bnptrack stage` prints it on one line, exit 2
     except TransportError as exc:
         log.error("%s", exc)
         return EXIT_CRASH
@@ -189,6 +197,22 @@ class StageProcess:
             except ProcessLookupError:
                 pass
 
+    def error_line(self) -> str:
+        """The stage's configuration error, from its log: its ``Error: ...`` line (printed by
+        the ``stage`` command) or its ``configuration error: ...`` log record; else the last
+        lines of the log."""
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if line.startswith("Error: "):
+                return line[len("Error: "):]
+            head, sep, msg = line.partition("configuration error: ")
+            if sep and " ERROR " in head:
+                return msg
+        return " / ".join(lines[-3:])
+
     def tail(self, n: int = 12) -> str:
         try:
             lines = self.log_path.read_text(errors="replace").splitlines()
@@ -199,11 +223,18 @@ class StageProcess:
 
 @dataclass
 class LaunchResult:
+    """The end of a launch.  ``ok``: every stage finished and the output is complete.
+    ``incomplete`` (exit code 3): what the output lacks, when the run ended but its output is
+    incomplete (gaps, rejected frames, a stage that gave up: ``gave_up`` names it);
+    ``error`` (exit code 2): why the run failed otherwise."""
+
     run: str
     out: Path
     ok: bool
     error: str = ""
     interrupted: bool = False
+    incomplete: str = ""
+    gave_up: str = ""
     files: list[str] = field(default_factory=list)
     summary: dict | None = None
     restarts: dict[str, int] = field(default_factory=dict)
@@ -220,8 +251,9 @@ class Launcher:
 
     def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
                  timeout: float | None = None, python: str | None = None,
-                 log_level: str = "INFO") -> None:
+                 log_level: str = "INFO", overwrite: bool = False) -> None:
         self.cfg = resolve_run(cfg)
+        self.overwrite = overwrite
         check_run_id(self.cfg.run)
         self.out = Path(self.cfg.out)
         self.echo = echo or (lambda msg: None)
@@ -243,12 +275,18 @@ class Launcher:
     def run(self) -> LaunchResult:
         t0 = time.monotonic()
         cfg = self.cfg
+        check_pipeline(cfg, self.overwrite)  # every error before anything starts or is written
         self.out.mkdir(parents=True, exist_ok=True)
-        for stale in (SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME):
-            try:
-                (self.out / stale).unlink()
-            except FileNotFoundError:
-                pass
+        lock = lock_out(self.out)  # held until this process exits: no second launch here
+        try:
+            refuse_other_run(cfg, self.overwrite)
+            return self._run_locked(t0)
+        finally:
+            os.close(lock)
+
+    def _run_locked(self, t0: float) -> LaunchResult:
+        cfg = self.cfg
+        self._remove_earlier_run()
         result = LaunchResult(run=cfg.run, out=self.out, ok=False)
         try:
             stage_cfg = self._network(cfg)
@@ -295,7 +333,30 @@ class Launcher:
                 result.error = (f"{src_err} -- the pipeline processed the "
                                 f"{result.summary.get('frames_written', 0)} readable frame(s)")
                 result.ok = False
+        if result.gave_up:
+            result.incomplete = result.error
+            missing = describe_missing(result.summary)
+            if missing:
+                result.incomplete += f"; {missing}"
+        elif result.ok:
+            result.incomplete = describe_missing(result.summary)
+            result.ok = not result.incomplete
         return result
+
+    def _remove_earlier_run(self) -> None:
+        """Remove the files an earlier run left in ``out`` (only there with ``overwrite``:
+        :func:`check_pipeline` refuses them otherwise), so that none is mistaken for this
+        run's (a stale snapshot would even be resumed)."""
+        for name in {*run_files(self.cfg), SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME}:
+            path = self.out / name
+            if path.is_dir():  # logs/
+                for f in path.glob("*.log"):
+                    f.unlink()
+                continue
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                pass
 
     # -- network -----------------------------------------------------------------------
     def _network(self, cfg: PipelineConfig) -> PipelineConfig:
@@ -398,12 +459,14 @@ class Launcher:
                     what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
                     if rc == EXIT_CONFIG:
                         sp.state = "failed"
-                        result.error = f"stage {sp.role}: configuration error:\n{sp.tail()}"
+                        result.error = (f"stage {sp.role}: configuration error: {sp.error_line()} "
+                                        f"(log: {sp.log_path})")
                         return
                     if sp.restarts >= sup.max_restarts:
                         sp.state = "failed"
                         result.error = (f"stage {sp.role} crashed ({what}) and was restarted "
-                                        f"{sp.restarts} time(s) already; giving up:\n{sp.tail()}")
+                                        f"{sp.restarts} time(s) already; giving up (log: {sp.log_path})")
+                        result.gave_up = sp.role
                         return
                     sp.state = "restarting"
                     sp.restart_at = time.monotonic() + sup.restart_backoff_s
@@ -455,10 +518,42 @@ class Launcher:
         self._write_stages()
 
 
+def _ranges(seqs: Sequence[int], limit: int = 8) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"`` (at most ``limit`` ranges, then ``"..."``)."""
+    parts: list[str] = []
+    start = prev = None
+    for x in [*seqs, None]:
+        if x is not None and prev is not None and x == prev + 1:
+            prev = x
+            continue
+        if start is not None:
+            parts.append(str(start) if start == prev else f"{start}-{prev}")
+        start = prev = x
+    more = len(parts) > limit
+    return ", ".join(parts[:limit]) + (f", ... ({len(seqs)} in all)" if more else "")
+
+
+def describe_missing(summary: dict | None) -> str:
+    """One line saying what a run's output lacks (``""``: it is complete), from the sink's
+    ``sink.json``: no summary, a sink that stopped before the end of stream, and each
+    ``missing`` entry (topic, sequence numbers, why)."""
+    if not summary:
+        return f"the sink wrote no {SUMMARY_NAME}"
+    parts = []
+    if not summary.get("complete", False):
+        parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
+    for m in summary.get("missing") or []:
+        seqs = m.get("seqs") or []
+        parts.append(f"{m.get('topic')} of {len(seqs)} frame(s), seq {_ranges(seqs)}: {m.get('why')}")
+    return "; ".join(parts)
+
+
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
-           timeout: float | None = None, handle_signals: bool = True) -> LaunchResult:
-    """Run a pipeline to its end (the CLI's ``launch`` and ``replay``)."""
-    launcher = Launcher(cfg, echo=echo, timeout=timeout)
+           timeout: float | None = None, handle_signals: bool = True,
+           overwrite: bool = False) -> LaunchResult:
+    """Run a pipeline to its end (the CLI's ``launch`` and ``replay``).  An ``out`` that holds
+    another run is refused unless ``overwrite``; one that holds a live run always."""
+    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite)
     old: dict[int, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         def on_signal(signum: int, _frame: Any) -> None:

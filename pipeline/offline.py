@@ -25,7 +25,7 @@ from sources.synthetic import simulate
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
 from tracker.state import run
-from tracker.types import Estimate, Frame
+from tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
 
 if TYPE_CHECKING:
     from tracker.registry import Tracker
@@ -415,12 +415,13 @@ class FrameMetrics:
 
 @dataclass(frozen=True)
 class TrackResult:
-    """An offline tracking run: per-frame metrics plus the error that ended it early, if any."""
+    """An offline tracking run: per-frame metrics plus the error that ended it early, if any
+    (a damaged log, or a frame beyond the :class:`tracker.types.FrameBounds`)."""
 
     tracker: str
     frames: tuple[FrameMetrics, ...]
     final_tracks: int
-    error: McapLogError | None = None
+    error: McapLogError | FrameBoundError | None = None
     crossings: CrossingResult | None = None
     """Label keeping through the log's crossing pairs (``None``: no pairs or no truth)."""
 
@@ -486,22 +487,25 @@ def track_frames(
     seed: int,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
     crossings: Sequence[tuple[str, str, int]] = (),
+    bounds: FrameBounds | None = None,
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
 
     ``on_estimate(frame, estimate, metrics)`` is called after each frame is scored (e.g. to
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
-    frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
-    and the error is returned in :attr:`TrackResult.error` instead of being raised.
+    frame source raises :class:`McapLogError` (a damaged log), or a frame breaks ``bounds``
+    (default :class:`FrameBounds`: at most 1000 frames and 3600 s after the previous one;
+    checked before the frame reaches the tracker), the frames before it are kept and the
+    error is returned in :attr:`TrackResult.error` instead of being raised.
     ``crossings`` (``(id_a, id_b, scan)``, e.g. a ``random`` log's record) are scored with
     :func:`sinks.metrics.crossing_label_keeping` into :attr:`TrackResult.crossings`.
     """
     rows: list[FrameMetrics] = []
     final = 0
-    error: McapLogError | None = None
+    error: McapLogError | FrameBoundError | None = None
     seen: list[tuple[Frame, Estimate]] = []
     try:
-        for frame, est, _state in run(tracker, frames, seed):
+        for frame, est, _state in run(tracker, bounded_frames(frames, bounds or FrameBounds()), seed):
             row = frame_metrics(frame, est)
             if on_estimate is not None:
                 on_estimate(frame, est, row)
@@ -509,7 +513,7 @@ def track_frames(
             final = len(est.tracks)
             if crossings:
                 seen.append((frame, est))
-    except McapLogError as exc:
+    except (McapLogError, FrameBoundError) as exc:
         error = exc
     return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings))
 
@@ -553,14 +557,15 @@ def track_log(
     seed: int,
     metadata: Mapping[str, str] | None,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
+    bounds: FrameBounds | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
     called after each frame is written (e.g. a Rerun sink).  The record's ``crossings``
     (a generated ``random`` scene) are scored (:attr:`TrackResult.crossings`).
 
-    A damaged input is processed up to its readable end; the output then holds that prefix
-    and :attr:`TrackResult.error` holds the :class:`McapLogError`.
+    A damaged input is processed up to its readable end (a frame beyond ``bounds`` ends it
+    too); the output then holds that prefix and :attr:`TrackResult.error` holds the error.
     """
     log, out = Path(log), Path(out)
     check_output_path(log, out)
@@ -574,5 +579,5 @@ def track_log(
                 on_estimate(frame, est, metrics)
 
         crossings = parse_crossings((metadata or {}).get("crossings"))
-        return track_frames(tracker, iter_frames(log), seed, write, crossings)
+        return track_frames(tracker, iter_frames(log), seed, write, crossings, bounds)
 

@@ -2,8 +2,9 @@
 
 A pipeline file is TOML (or the JSON the launcher writes for its stages) validated into
 :class:`PipelineConfig`, a frozen ``msgspec`` struct; ``--set key=value`` overrides use
-dotted keys (``--set source.frames=20 --set tracker.tracker='"dpyp"'``), applied by
-:func:`tracker.config.apply_overrides`.  Every field has a default, so an empty file (or no
+dotted keys (``--set source.frames=20 --set tracker.tracker='"dpyp"'``), and the keys of
+``bnptrack track --set`` (``params.KEY``, ``tracker.KEY`` of the tracker's settings, a bare
+KEY) reach the tracker (:func:`apply_pipeline_overrides`).  Every field has a default, so an empty file (or no
 file: :func:`default_pipeline`) is the embedded default pipeline::
 
     synthetic vo2017 source (seed 1)  ->  DDP-EMM tracker (seed 0)  ->  sink (tracks.mcap)
@@ -41,6 +42,8 @@ __all__ = [
     "PipelineConfig",
     "default_pipeline",
     "load_pipeline",
+    "split_pipeline_overrides",
+    "apply_pipeline_overrides",
     "dump_pipeline",
     "check_run_id",
     "make_run_id",
@@ -213,6 +216,13 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     consumers (history).  ``queue_limit``: frames a consumer buffers in memory before it
     drops (and counts) new ones.  ``eos_grace_s``: after end of stream, how long a consumer
     waits without progress for missing frames before declaring them gaps.
+
+    Bounds on what a valid-looking sample can do: a sample whose sequence number is more than
+    ``max_seq_ahead`` (at least the catch-up window) past the next one a consumer expects is
+    rejected and counted (no frame of a cache can be that far ahead); a frame more than
+    ``max_frame_gap`` frame numbers, or ``max_gap_s`` seconds of time stamp, after the previous
+    processed frame (or not after it) is rejected and counted by the tracker and the sink
+    (:class:`tracker.types.FrameBounds`; ``bnptrack track --max-frame-gap / --max-gap-s``).
     """
 
     window: PosInt = 32
@@ -222,6 +232,9 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     eos_grace_s: Positive = 2.0
     max_payload_bytes: PosInt = 16 * 2**20
     health_period_s: Positive = 1.0
+    max_seq_ahead: PosInt = 100_000
+    max_frame_gap: PosInt = 1000
+    max_gap_s: Positive = 3600.0
 
     @property
     def catch_up(self) -> int:
@@ -283,10 +296,55 @@ def load_pipeline(path: str | os.PathLike | None, overrides: Sequence[str] = ())
         cfg = convert(data, PipelineConfig, str(p))
     else:
         cfg = load_toml(path, PipelineConfig)
+    return apply_pipeline_overrides(cfg, overrides)
+
+
+def split_pipeline_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Route ``--set`` items of a pipeline command to (pipeline keys, tracker model keys).
+
+    The keys mean what they mean in ``bnptrack track``, plus the pipeline's own tables:
+
+    * ``source.KEY``, ``sink.KEY``, ``delivery.KEY``, ``zenoh.KEY``, ``supervisor.KEY`` and
+      the top-level ``run``, ``out``, ``stages``: the pipeline file's keys;
+    * ``tracker.KEY`` where KEY is a field of :class:`TrackerStageConfig` (``tracker``,
+      ``config``, ``params``, ``overrides``, ``seed``, ...): the tracker stage;
+    * ``tracker.KEY`` for any other KEY (a tracker setting, e.g. ``tracker.sweeps``),
+      ``params.KEY`` (a model parameter) and a bare ``KEY``: the tracker's ``--set`` items,
+      appended to ``tracker.overrides`` and resolved as in ``track`` (a bare KEY: model
+      parameters first, then the tracker's settings), so ``--set p_detect=0.9`` sets the
+      tracker's model.  (The simulated source's model is ``source.overrides``.)
+    """
+    top = set(PipelineConfig.__struct_fields__)
+    stage_keys = set(TrackerStageConfig.__struct_fields__)
+    to_pipe: list[str] = []
+    to_model: list[str] = []
+    for item in overrides:
+        key, sep, _value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected key=value")
+        head, dot, rest = key.partition(".")
+        if head == "tracker" and dot and rest.partition(".")[0] not in stage_keys:
+            to_model.append(item.strip())
+        elif head in top:
+            to_pipe.append(item)
+        else:
+            to_model.append(item.strip())
+    return tuple(to_pipe), tuple(to_model)
+
+
+def apply_pipeline_overrides(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
+    """Apply ``--set`` items (see :func:`split_pipeline_overrides`); the tracker's items
+    are appended to ``tracker.overrides`` (checked by :mod:`pipeline.preflight`)."""
+    to_pipe, to_model = split_pipeline_overrides(overrides)
     try:
-        return apply_overrides(cfg, overrides)
+        cfg = apply_overrides(cfg, to_pipe)
     except ValueError as exc:  # __post_init__ errors surface as ValidationError -> ConfigError
         raise ConfigError(str(exc)) from None
+    if to_model:
+        tc = msgspec.structs.replace(cfg.tracker, overrides=[*cfg.tracker.overrides, *to_model])
+        cfg = msgspec.structs.replace(cfg, tracker=tc)
+    return cfg
 
 
 def dump_pipeline(cfg: PipelineConfig) -> bytes:

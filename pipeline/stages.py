@@ -56,9 +56,9 @@ from pipeline.codec import (
     truth_from_msg,
 )
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.pipeline_config import DeliveryConfig, PipelineConfig
+from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, TrackerStageConfig
 from tracker.config import ConfigError
-from tracker.types import Frame
+from tracker.types import Frame, FrameBounds
 
 __all__ = [
     "EXIT_OK",
@@ -132,8 +132,10 @@ class Sequencer:
     """Dedupe, reorder within a window, declare gaps: in-order release of ``seq`` items.
 
     ``push(seq, item)`` returns ``(status, released)`` where ``status`` is ``"accepted"``,
-    ``"duplicate"`` (already released or buffered) or ``"late"`` (its gap was declared)
-    and ``released`` a list of ``(seq, item)`` in sequence order, ``item`` being
+    ``"duplicate"`` (already released or buffered), ``"late"`` (its gap was declared) or
+    ``"far"`` (``max_ahead`` or more past the next expected number: not accepted, nothing
+    declared; ``max_ahead`` is at least ``catch_up``, default unbounded) and ``released`` a
+    list of ``(seq, item)`` in sequence order, ``item`` being
     :data:`GAP` for a missing frame.  The buffer never spans ``window`` or more sequence
     numbers: a frame arriving ``window`` or more ahead of the next expected one releases
     (or declares missing) everything at least ``window`` behind it.  The result depends
@@ -146,11 +148,14 @@ class Sequencer:
     out as gaps.  Consumers use the cache size: no history holds more.
     """
 
-    def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None) -> None:
+    def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None,
+                 max_ahead: int | None = None) -> None:
         if window < 1 or (catch_up is not None and catch_up < window):
             raise ValueError("window must be >= 1 and catch_up >= window")
         self.window = int(window)
         self.catch_up = int(catch_up) if catch_up is not None else self.window
+        self.max_ahead = max(int(max_ahead), self.catch_up) if max_ahead is not None else None
+        self.far = 0
         self.caught_up = False
         self.next = int(start)
         self.name = name
@@ -164,11 +169,16 @@ class Sequencer:
 
     @classmethod
     def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
-        """A consumer's sequencer with the pipeline's ``window`` and ``catch_up``."""
-        return cls(delivery.window, start, name, delivery.catch_up)
+        """A consumer's sequencer with the pipeline's ``window``, ``catch_up`` and
+        ``max_seq_ahead``."""
+        return cls(delivery.window, start, name, delivery.catch_up, delivery.max_seq_ahead)
 
     def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
         seq = int(seq)
+        if self.max_ahead is not None and seq - self.next >= self.max_ahead:
+            # never declare (and allocate) max_ahead or more gaps at once for one sample
+            self.far += 1
+            return "far", []
         if seq < self.next:
             if seq in self._gapset:
                 self.late += 1
@@ -279,8 +289,10 @@ class EndOfStream(msgspec.Struct, kw_only=True):
     """``eos/<stage>``: the stage produced (or, for a sink, recorded) everything it will.
 
     ``last_seq`` is the last sequence number of the stream (-1: empty), ``gaps`` the
-    sequence numbers it declared missing, ``error`` why the stream ended early (e.g. a
-    truncated log), ``complete`` false when it was stopped before its input ended.
+    sequence numbers it declared missing, ``rejected`` those whose sample it received but
+    refused (the tracker: a frame beyond the frame bounds; no output for them), ``error`` why
+    the stream ended early (e.g. a truncated log), ``complete`` false when it was stopped
+    before its input ended.
     """
 
     stage: str
@@ -288,6 +300,7 @@ class EndOfStream(msgspec.Struct, kw_only=True):
     last_seq: int
     frames: int = 0
     gaps: list[int] = []
+    rejected: list[int] = []
     error: str = ""
     complete: bool = True
     files: list[str] = []
@@ -505,6 +518,8 @@ class Snapshot(msgspec.Struct, kw_only=True):
     gaps: list[int] = []
     counters: dict[str, int] = {}
     time_ns: int = 0
+    last_stamp_ns: int | None = None
+    rejected: list[int] = []
 
 
 def read_snapshot(path: str | os.PathLike) -> Snapshot:
@@ -676,6 +691,19 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
     return metadata, frames
 
 
+def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:
+    """The tracker stage's tracker, as ``bnptrack track`` builds it: model parameters from
+    ``tc.params`` or the source's metadata record, the settings preset or file, then the
+    ``--set`` items of ``tc.overrides``.  Returns ``(tracker, ParamsChoice, params)``;
+    raises :class:`ConfigError` (the launcher calls this before starting any process)."""
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+
+    choice = resolve_params(tc.params or None, metadata)
+    config, _desc = resolve_config(tc.tracker, tc.config or None)
+    params, config = apply_split_overrides(choice.params, config, tc.overrides)
+    return build_tracker(tc.tracker, params, config), choice, params
+
+
 def _warm_imports(*modules: str) -> None:
     """Import what a stage needs before it declares itself alive, so the first frame is not
     delayed by imports (scipy, rerun: seconds on a busy machine)."""
@@ -812,6 +840,9 @@ class TrackerStage(_StageBase):
         self.state = None
         self.last_seq = -1
         self.last_frame = -1
+        self.last_stamp_ns: int | None = None
+        self.bounds = FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s)
+        self.rejected_seqs: list[int] = []
         self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
         self.pending: list[Accepted] = []
         self.restored: Snapshot | None = None
@@ -840,6 +871,8 @@ class TrackerStage(_StageBase):
             )
         self.restored = snap
         self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
+        self.last_stamp_ns = snap.last_stamp_ns
+        self.rejected_seqs = list(snap.rejected)
         self.seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
         self.seq.gaps = list(snap.gaps)
         self.seq._gapset = set(snap.gaps)
@@ -850,20 +883,11 @@ class TrackerStage(_StageBase):
                  snap.last_seq, snap.last_frame)
 
     def _build(self, info: StageInfo) -> None:
-        from pipeline.offline import (
-            apply_split_overrides,
-            build_tracker,
-            format_overrides,
-            resolve_config,
-            resolve_params,
-        )
+        from pipeline.offline import format_overrides
         from tracker.state import restore
 
         tc = self.tc
-        choice = resolve_params(tc.params or None, info.metadata)
-        config, _desc = resolve_config(tc.tracker, tc.config or None)
-        params, config = apply_split_overrides(choice.params, config, tc.overrides)
-        self.tracker = build_tracker(tc.tracker, params, config)
+        self.tracker, choice, params = build_stage_tracker(tc, info.metadata)
         initial = self.tracker.initial_state()
         if self.restored is not None:
             self.state = restore(self.restored.state, type(initial))
@@ -898,11 +922,10 @@ class TrackerStage(_StageBase):
                 continue
             acc: Accepted = item
             frame = frame_from_msg(acc.msg)
-            if frame.frame <= self.last_frame:
-                self.intake.reject(
-                    _FakeEvent("measurements", b"", acc.t_recv_ns), s,
-                    f"frame {frame.frame} is not after the last processed frame {self.last_frame}",
-                )
+            why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
+            if why is not None:  # before the tracker predicts through the jump
+                self.intake.reject(_FakeEvent("measurements", acc.payload, acc.t_recv_ns), s, why)
+                self.rejected_seqs.append(s)
                 self.last_seq = s
                 continue
             t0 = time.perf_counter()
@@ -916,6 +939,7 @@ class TrackerStage(_StageBase):
             self.bus.publish("tracks", payload, meta)
             # the state advances only once its output is out (a snapshot is always consistent)
             self.state, self.last_seq, self.last_frame = state, s, frame.frame
+            self.last_stamp_ns = frame.stamp_ns
             self.journal.append(s, payload, meta)
             self.counters.processed += 1
             self.counters.published += 1
@@ -932,6 +956,7 @@ class TrackerStage(_StageBase):
         snap = Snapshot(
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
             last_frame=self.last_frame, state=snapshot(self.state), gaps=list(self.seq.gaps),
+            last_stamp_ns=self.last_stamp_ns, rejected=list(self.rejected_seqs),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=time.time_ns(),
@@ -963,6 +988,9 @@ class TrackerStage(_StageBase):
             self.last_progress = time.monotonic()
         elif status == "duplicate":
             self.counters.duplicates += 1
+        elif status == "far":
+            self.intake.reject(_FakeEvent("measurements", acc.payload, acc.t_recv_ns), acc.seq,
+                               _far_reason(self.seq, acc.seq))
         else:
             self.counters.late += 1
             log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
@@ -1023,7 +1051,8 @@ class TrackerStage(_StageBase):
                         self.snapshot(wait=True)
                         self.publish_control("eos", EndOfStream(
                             stage=self.name, run=self.run_id, last_seq=eos.last_seq,
-                            frames=self.counters.processed, gaps=list(self.seq.gaps), error=eos.error))
+                            frames=self.counters.processed, gaps=list(self.seq.gaps),
+                            rejected=list(self.rejected_seqs), error=eos.error))
                         log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
                                  self.counters.processed, len(self.seq.gaps),
                                  ", ".join(self.tc.done_by) or "nobody")
@@ -1037,6 +1066,11 @@ class TrackerStage(_StageBase):
             finally:
                 self.journal.close()
                 self.health(force=True, extra=self._extra_health)
+
+
+def _far_reason(seq: Sequencer, s: int) -> str:
+    return (f"seq {s} is {s - seq.next} past the next expected {seq.next} (the limit is "
+            f"delivery.max_seq_ahead = {seq.max_ahead})")
 
 
 @dataclass(frozen=True)
@@ -1093,6 +1127,11 @@ class SinkStage(_StageBase):
         self.seq_written: list[int] = []
         self.files: list[str] = []
         self.held: list[tuple[int, Any, Any, Any]] = []
+        self.bounds = FrameBounds(d.max_frame_gap, d.max_gap_s)
+        self.last_frame = -1
+        self.last_stamp_ns: int | None = None
+        self.rejected_seqs: list[int] = []
+        self.mismatched: dict[str, list[int]] = {}
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
         self.t_first_pub_ns: int | None = None
@@ -1235,8 +1274,24 @@ class SinkStage(_StageBase):
             meas = ready["measurements"].pop(s)
             truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas)
             tracks = self._same_frame(s, "tracks", ready["tracks"].pop(s), meas) if has_tracks else None
-            self._write(s, meas, truth, tracks)
+            if self._in_bounds(s, meas):
+                self._write(s, meas, truth, tracks)
             self.next_write += 1
+
+    def _in_bounds(self, s: int, meas: Any) -> bool:
+        """Whether frame ``s`` may be recorded: its frame number and stamp advance within
+        the frame bounds (as the tracker checks them); otherwise none of its messages are
+        written, and it is rejected and counted."""
+        if meas is GAP:
+            return True
+        m = meas.msg
+        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
+        if why is not None:
+            self.intake.reject(_FakeEvent("measurements", meas.payload, meas.t_recv_ns), s, why)
+            self.rejected_seqs.append(s)
+            return False
+        self.last_frame, self.last_stamp_ns = m.frame, m.stamp_ns
+        return True
 
     def _same_frame(self, s: int, stream: str, item: Any, meas: Any) -> Any:
         """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if
@@ -1246,6 +1301,7 @@ class SinkStage(_StageBase):
         log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
                   self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
         self.counters.rejected += 1
+        self.mismatched.setdefault(stream, []).append(s)
         return GAP
 
     # -- intake ------------------------------------------------------------------------
@@ -1266,6 +1322,10 @@ class SinkStage(_StageBase):
         elif status == "duplicate":
             if item is not NO_TRUTH:
                 self.counters.duplicates += 1
+        elif status == "far":
+            if item is not NO_TRUTH:
+                self.intake.reject(_FakeEvent(stream, item.payload, item.t_recv_ns), seq,
+                                   _far_reason(self.streams[stream], seq))
         else:
             self.counters.late += 1
             log.warning("%s: %s seq %d arrived after its gap was declared: rejected", self.name, stream, seq)
@@ -1302,8 +1362,8 @@ class SinkStage(_StageBase):
                 if tr is None:
                     done = False
                     continue
-                if tr.gaps and not getattr(seq, "_marked_upstream", False):
-                    self._release(name, seq.mark_gaps(tr.gaps))
+                if (tr.gaps or tr.rejected) and not getattr(seq, "_marked_upstream", False):
+                    self._release(name, seq.mark_gaps([*tr.gaps, *tr.rejected]))
                     seq._marked_upstream = True  # type: ignore[attr-defined]
                 end = tr.last_seq
             else:
@@ -1332,6 +1392,7 @@ class SinkStage(_StageBase):
             self.writer.close()
         self._close_rrd()
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
+        missing = self._missing()
         src = self.eos_seen.get("source")
         fps = None
         if self.t_first_pub_ns is not None and self.t_last_ns is not None and self.tracks_written > 1:
@@ -1343,6 +1404,8 @@ class SinkStage(_StageBase):
             "tracks_written": self.tracks_written,
             "last_seq": self.next_write - 1,
             "gaps": gaps,
+            "output_complete": complete and not missing,
+            "missing": missing,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
             "rejected_by_topic": self.intake.rejected_by_topic,
@@ -1364,6 +1427,28 @@ class SinkStage(_StageBase):
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
                  "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def _missing(self) -> list[dict[str, Any]]:
+        """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
+        sequence numbers -- for ``sink.json``, the launcher's exit code 3 and its summary."""
+        out: list[dict[str, Any]] = []
+        tr = self.eos_seen.get("tracker")
+        by_tracker = set(tr.rejected) if tr is not None else set()
+
+        def add(topic: str, seqs: Iterable[int], why: str) -> None:
+            seqs = sorted(set(seqs))
+            if seqs:
+                out.append({"topic": f"/{topic}", "seqs": seqs, "why": why})
+
+        for name, seq in self.streams.items():
+            add(name, [g for g in seq.gaps if g not in by_tracker],
+                "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
+        add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
+        add("measurements", self.rejected_seqs,
+            "the sink rejected the frame (frame bounds; none of its messages were written)")
+        for name, seqs in self.mismatched.items():
+            add(name, seqs, "for another frame than its /measurements (dropped)")
+        return out
 
     def run(self) -> int:
         bus = self.bus

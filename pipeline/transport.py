@@ -41,6 +41,7 @@ import json
 import logging
 import os
 import queue
+import re
 import socket
 import threading
 import time
@@ -52,7 +53,7 @@ import zenoh
 import zenoh.ext as zext
 
 from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
-from pipeline.transport_types import Event
+from pipeline.transport_types import Event, listening
 
 __all__ = [
     "KEY_ROOT",
@@ -82,8 +83,13 @@ _META_ENC = msgspec.json.Encoder()
 _META_DEC = msgspec.json.Decoder(dict)
 
 
-class TransportError(RuntimeError):
-    """A Zenoh session could not be opened or configured."""
+class TransportError(ConnectionError):
+    """A Zenoh session could not be opened or configured (an ``OSError``: the CLI reports
+    it on one line with exit code 2)."""
+
+
+class NoRouterError(TransportError):
+    """No Zenoh router answered at the endpoints a session was to connect to."""
 
 
 def key(run: str, topic: str) -> str:
@@ -217,11 +223,27 @@ def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
             "policies": policies}
 
 
-def _open(conf: zenoh.Config, what: str) -> zenoh.Session:
+#: Zenoh appends the Rust source location of an error (`` at /path/file.rs:123.``).
+_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?\s*$")
+
+
+def _open(conf: zenoh.Config, what: str, connect: Sequence[str] = ()) -> zenoh.Session:
+    """``zenoh.open``; a failure is a one-line :class:`TransportError`, and
+    :class:`NoRouterError` with a hint when no router answered at ``connect``."""
     try:
         return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError and friends
-        raise TransportError(f"cannot open the Zenoh session of {what}: {exc}") from exc
+        text = _RUST_LOCATION.sub("", " ".join(str(exc).split()))
+        if connect and "Unable to connect" in text and listening(connect) is not True:
+            eps = ", ".join(connect)
+            raise NoRouterError(
+                f"no router at {eps}: start one with `bnptrack router --listen {connect[0]}`, "
+                "or connect to the endpoint `bnptrack launch` printed"
+            ) from exc
+        hint = ""
+        if connect and "Unable to connect" in text:
+            hint = " (a router is listening there: check the TLS certificates, user and password)"
+        raise TransportError(f"cannot open the Zenoh session of {what}: {text}{hint}") from exc
 
 
 class Router:
@@ -296,7 +318,8 @@ class Bus:
         self.misses = 0
         self.received = 0
         self.session = _open(
-            session_config(zcfg, connect=connect, listen=listen), f"stage {stage!r} (run {run!r})"
+            session_config(zcfg, connect=connect, listen=listen), f"stage {stage!r} (run {run!r})",
+            list(zcfg.connect if connect is None else connect),
         )
         try:
             self._liveliness_subs = [

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from sinks.rerun_writer import RecordingProcess
     from tracker.registry import Tracker
     from tracker.models.params import ModelParams
+    from tracker.types import FrameBounds
 
 __all__ = ["ViewerUnavailable", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
 
@@ -276,6 +277,7 @@ def track_log_with_rrd(
     *,
     params: ModelParams | None = None,
     recorder: RecordingProcess | None = None,
+    bounds: FrameBounds | None = None,
 ) -> TrackResult:
     """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``.
 
@@ -298,4 +300,5 @@ def track_log_with_rrd(
             raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
         rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params)
         return track_log(log, out, tracker, seed, metadata,
-                         on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result))
+                         on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result),
+                         bounds=bounds)

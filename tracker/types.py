@@ -7,6 +7,7 @@ dataclasses over plain numpy arrays; arrays are batch-first (``(M, d)``).
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -140,3 +141,61 @@ class Estimate:
     @property
     def labels(self) -> tuple[str, ...]:
         return tuple(t.label for t in self.tracks)
+
+
+# --------------------------------------------------------------------------- frame bounds
+
+
+class FrameBoundError(ValueError):
+    """A frame advances beyond :class:`FrameBounds` (or does not advance at all)."""
+
+
+@dataclass(frozen=True)
+class FrameBounds:
+    """How far one frame may advance past the previous one.
+
+    A tracker predicts through every skipped frame (``steps = frame - previous frame``), so an
+    unbounded jump (a corrupt or forged frame number, e.g. 10^9) would cost work in proportion
+    to the jump.  Each frame must come after the previous one by at most ``max_frame_gap``
+    frame numbers, and its time stamp may not go back nor advance by more than ``max_gap_s``
+    seconds.  The first frame of a stream is not bounded.
+    """
+
+    max_frame_gap: int = 1000
+    max_gap_s: float = 3600.0
+
+    def __post_init__(self) -> None:
+        if self.max_frame_gap < 1 or not self.max_gap_s > 0:
+            raise ValueError("max_frame_gap must be >= 1 and max_gap_s > 0")
+
+    def violation(self, prev_frame: int, prev_stamp_ns: int | None, frame: int, stamp_ns: int) -> str | None:
+        """Why ``(frame, stamp_ns)`` may not follow ``(prev_frame, prev_stamp_ns)``, or ``None``.
+        ``prev_frame < 0``: no previous frame; ``prev_stamp_ns`` ``None``: its stamp is unknown."""
+        if prev_frame < 0:
+            return None
+        if frame <= prev_frame:
+            return f"frame {frame} is not after the last processed frame {prev_frame}"
+        if frame - prev_frame > self.max_frame_gap:
+            return (f"frame {frame} jumps {frame - prev_frame} frames after frame {prev_frame} "
+                    f"(more than max_frame_gap = {self.max_frame_gap})")
+        if prev_stamp_ns is None:
+            return None
+        dt = (stamp_ns - prev_stamp_ns) / 1e9
+        if dt < 0:
+            return f"frame {frame}: time stamp {stamp_ns} ns is before that of frame {prev_frame} ({prev_stamp_ns} ns)"
+        if dt > self.max_gap_s:
+            return (f"frame {frame}: time stamp {dt:.6g} s after frame {prev_frame} "
+                    f"(more than max_gap_s = {self.max_gap_s:g})")
+        return None
+
+
+def bounded_frames(frames: Iterable[Frame], bounds: FrameBounds = FrameBounds()) -> Iterator[Frame]:
+    """``frames``, raising :class:`FrameBoundError` at the first frame that breaks ``bounds``
+    (before it reaches a tracker)."""
+    prev_frame, prev_stamp = -1, None
+    for f in frames:
+        why = bounds.violation(prev_frame, prev_stamp, f.frame, f.stamp_ns)
+        if why is not None:
+            raise FrameBoundError(why)
+        prev_frame, prev_stamp = f.frame, f.stamp_ns
+        yield f

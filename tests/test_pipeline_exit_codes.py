@@ -1,0 +1,180 @@
+"""The exit code and the summary tell the truth (issue 17 item 1): a run whose output is
+incomplete (a gap, a rejected frame, a stage that gave up) ends with exit code 3 and says
+what is missing and where."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
+from pipeline.launch import LaunchResult, Launcher, _ranges, describe_missing
+from pipeline.membus import MemoryNetwork
+from pipeline.stages import EXIT_OK, SUMMARY_NAME
+from sources.mcap_log import McapLogWriter
+from sources.scenarios import get_scenario
+from sources.synthetic import simulate_all
+from tracker.models.params import load_params
+
+from test_frame_bounds import _forge_seq
+from test_pipeline_stages import _mem_cfg, _run_memory_pipeline
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _summary(cfg) -> dict:
+    return json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+
+
+def test_ranges_and_describe_missing_reference_text():
+    assert _ranges([1, 2, 3, 7, 9, 10]) == "1-3, 7, 9-10"
+    assert _ranges(list(range(0, 40, 2)), limit=3) == "0, 2, 4, ... (20 in all)"
+    assert describe_missing({"complete": True, "missing": []}) == ""
+    assert describe_missing(None) == "the sink wrote no sink.json"
+    text = describe_missing({"complete": False, "last_seq": 8, "missing": [
+        {"topic": "/tracks", "seqs": [5, 6], "why": "no /tracks from the tracker (gap)"}]})
+    assert text == ("the sink stopped before the end of stream (after seq 8); "
+                    "/tracks of 2 frame(s), seq 5-6: no /tracks from the tracker (gap)")
+
+
+def test_complete_memory_run_has_nothing_missing(tmp_path):
+    cfg = _mem_cfg(tmp_path, frames=6)
+    assert _run_memory_pipeline(cfg, MemoryNetwork())["sink"] == EXIT_OK
+    s = _summary(cfg)
+    assert s["output_complete"] is True and s["missing"] == [] and describe_missing(s) == ""
+
+
+def test_a_lost_frame_is_named_missing_in_every_stream(tmp_path):
+    cfg = _mem_cfg(tmp_path, frames=10, **{"delivery.window": "3"})
+    net = MemoryNetwork()
+
+    def tap(run, topic, payload, att):
+        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 5:
+            return []
+        return [(payload, att)]
+
+    net.tap = tap
+    _run_memory_pipeline(cfg, net)
+    s = _summary(cfg)
+    assert s["complete"] is True and s["output_complete"] is False
+    assert s["missing"] == [
+        {"topic": "/measurements", "seqs": [5], "why": "never received (gap)"},
+        {"topic": "/truth", "seqs": [5], "why": "never received (gap)"},
+        {"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"},
+    ]
+    assert describe_missing(s).startswith("/measurements of 1 frame(s), seq 5: never received (gap)")
+
+
+def test_a_rejected_frame_is_named_missing(tmp_path):
+    cfg = _mem_cfg(tmp_path, frames=8)
+    net = MemoryNetwork()
+    net.tap = _forge_seq(4, 10**9)
+    _run_memory_pipeline(cfg, net)
+    s = _summary(cfg)
+    assert s["output_complete"] is False
+    topics = {(m["topic"], tuple(m["seqs"]), m["why"].split(" (")[0]) for m in s["missing"]}
+    assert topics == {("/tracks", (4,), "the tracker rejected the frame"),
+                      ("/measurements", (4,), "the sink rejected the frame"),
+                      ("/truth", (4,), "for another frame than its /measurements")}
+
+
+def test_report_launch_exits_3_naming_what_is_missing(tmp_path, capsys):
+    summary = {"complete": True, "frames_written": 9, "tracks_written": 9, "gaps": {}, "counters": {},
+               "missing": [{"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"}]}
+    res = LaunchResult(run="r", out=tmp_path, ok=False, summary=summary,
+                       incomplete=describe_missing(summary))
+    with pytest.raises(IncompleteError) as exc:
+        _report_launch(res, quiet=False)
+    assert exc.value.exit_code == EXIT_INCOMPLETE == 3
+    assert exc.value.message == (f"output incomplete: /tracks of 1 frame(s), seq 5: no /tracks from the "
+                                 f"tracker (gap) -- files are in {tmp_path}/")
+    assert "missing           /tracks of 1 frame(s), seq 5" in capsys.readouterr().out
+
+
+def test_a_stage_that_gives_up_makes_the_launch_incomplete(tmp_path):
+    """Every stage 'crashes' at once (the stage command is /bin/false): after
+    ``max_restarts`` restarts the launcher gives up, and the result is incomplete (exit 3)."""
+    from pipeline.pipeline_config import load_pipeline
+
+    cfg = load_pipeline(None, ["supervisor.max_restarts=1", "supervisor.restart_backoff_s=0",
+                               "supervisor.stop_timeout_s=5", f"out='{tmp_path / 'o'}'", "run='gu'"])
+    res = Launcher(cfg, python="/bin/false", timeout=60).run()
+    assert not res.ok and res.gave_up in ("sink", "tracker", "source")
+    assert res.incomplete.startswith(f"stage {res.gave_up} crashed (exit code 1) and was restarted 1 "
+                                     "time(s) already; giving up (log: ")
+    assert res.incomplete.endswith("; the sink wrote no sink.json")
+
+
+def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
+    """A real launch (Zenoh): the tracker and the sink reject frames 10^9 + k after frame 10."""
+    frames = simulate_all(get_scenario("vo2017"), load_params("vo2017"), 1)[:13]
+    log = tmp_path / "jump.mcap"
+    with McapLogWriter(log, {"scenario": "vo2017", "params": "vo2017", "seed": "1"}) as w:
+        for f in frames:
+            w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=10**9 + f.frame))
+    out = tmp_path / "r"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run([sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible",
+                          "--set", "sweeps=8", "--set", "burn_in=2", "--set", "sink.rerun=false",
+                          "--out", str(out), "--timeout", "150", "-q"],
+                         capture_output=True, text=True, timeout=200, env=env)
+    assert res.returncode == 3, res.stderr
+    assert res.stderr.splitlines()[-1] == (
+        "Error: output incomplete: /tracks of 3 frame(s), seq 10-12: the tracker rejected the frame (frame "
+        "bounds; see the dead letters); /measurements of 3 frame(s), seq 10-12: the sink rejected the frame "
+        f"(frame bounds; none of its messages were written) -- files are in {out}/")
+    s = json.loads((out / SUMMARY_NAME).read_text())
+    assert s["frames_written"] == 10 and s["output_complete"] is False
+
+
+# --------------------------------------------------------------------------- a taken --out
+
+
+def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
+    import signal
+    import time
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "r"
+
+    def launch(*extra, run="first"):
+        return subprocess.run([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", run,
+                               "-q", "--set", "source.frames=3", "--set", "sink.rerun=false",
+                               "--set", "tracker.overrides=['sweeps=8', 'burn_in=2']", "--timeout", "150",
+                               *extra], capture_output=True, text=True, timeout=200, env=env)
+
+    assert launch().returncode == 0
+    first = (out / "tracks.mcap").read_bytes()
+    res = launch(run="second")
+    assert res.returncode == 2 and res.stderr.splitlines() == [
+        f"Error: --out {out}: holds run 'first' (pipeline.json, stages.json, sink.json, tracker.snap, "
+        "tracker.journal, tracks.mcap, health.jsonl, logs); use another --out, or --overwrite to replace it"]
+    assert (out / "tracks.mcap").read_bytes() == first
+    res = launch("--overwrite", run="second")
+    assert res.returncode == 0, res.stderr
+    assert json.loads((out / "pipeline.json").read_text())["run"] == "second"
+    assert json.loads((out / "sink.json").read_text())["run"] == "second"
+    # a live run: refused even with --overwrite, and its files are left alone
+    live = subprocess.Popen([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", "live",
+                             "--overwrite", "-q", "--set", "source.frames=1000", "--set", "source.rate=2",
+                             "--set", "sink.rerun=false"], env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "stages.json").exists() or json.loads((out / "pipeline.json").read_text())["run"] != "live":
+            assert time.monotonic() < deadline and live.poll() is None
+            time.sleep(0.1)
+        res = launch("--overwrite", run="third")
+        assert res.returncode == 2 and res.stderr.splitlines() == [
+            f"Error: --out {out}: a run is live there (launcher pid {live.pid}); use another --out"]
+        assert json.loads((out / "pipeline.json").read_text())["run"] == "live"
+    finally:
+        live.send_signal(signal.SIGINT)
+        live.wait(60)
+    assert live.returncode == 130
