@@ -35,7 +35,6 @@ from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tracker import filtering as kf
 from tracker.base import BaseDistribution
@@ -445,6 +444,8 @@ def best_permutation(p_lm: np.ndarray) -> np.ndarray:
     every cluster's private alternative; a cluster the assignment leaves missed keeps its mass on
     its most likely measurement.  Row sums (detection probabilities) are unchanged.
     """
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.5 s to import
+
     N, M = p_lm.shape
     p_det = p_lm.sum(axis=1)
     live = np.flatnonzero(p_det > 1e-9)

@@ -32,12 +32,14 @@ measurement is used, so it is computed once per track (``Innovation.P_upd``) and
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from functools import lru_cache
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
 __all__ = [
     "UnscentedParams",
@@ -400,7 +402,13 @@ def gate_threshold(gate_prob: float, dim: int) -> float:
     r"""Squared-Mahalanobis gate :math:`\chi^2_d{}^{-1}(p_G)` (cached ``chi2.ppf``)."""
     if not 0.0 < gate_prob < 1.0:
         raise ValueError(f"gate_prob must be in (0, 1), got {gate_prob}")
-    return float(chi2.ppf(gate_prob, dim))
+    if dim == 1:  # closed forms of chi2.ppf (no scipy import on the hot path)
+        return NormalDist().inv_cdf(0.5 + 0.5 * gate_prob) ** 2
+    if dim == 2:
+        return -2.0 * math.log1p(-gate_prob)
+    from scipy.special import gammaincinv
+
+    return float(2.0 * gammaincinv(dim / 2.0, gate_prob))
 
 
 def _residuals(meas, innov: Innovation, Z: np.ndarray) -> np.ndarray:

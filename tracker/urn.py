@@ -35,12 +35,13 @@ from __future__ import annotations
 
 
 import numpy as np
-from scipy.special import gammaln
 
 
 def log_rising(x: float | np.ndarray, n: int | np.ndarray) -> np.ndarray:
     """:math:`\\log x^{\\overline{n}} = \\log\\Gamma(x+n) - \\log\\Gamma(x)` (``n >= 0``, ``x > 0``)."""
     x = np.asarray(x, dtype=float)
+    from scipy.special import gammaln  # lazy: scipy.special costs ~0.5 s to import
+
     return gammaln(x + n) - gammaln(x)
 
 
