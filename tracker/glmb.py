@@ -307,6 +307,31 @@ def start_optimal(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_assign_dense` on the candidates that have a measurement in their gate only:
+    the others (e.g. most adaptive births) cannot compete for a measurement, so their best
+    option is their best of dies/missed whatever the rest does (same result, smaller
+    problems)."""
+    valid = cand >= 0
+    safe = np.where(valid, cand, 0)
+    gated = valid & np.isfinite(E[:, _DET:]).any(axis=1)[safe]
+    Ec = E[safe]
+    no_det = np.where(Ec[..., _MISS] >= Ec[..., _DIE], _MISS, _DIE)
+    best_no = np.take_along_axis(Ec, no_det[..., None], axis=-1)[..., 0]
+    out = np.where(valid, no_det, -1)
+    ok = np.all(np.isfinite(best_no) | ~valid | gated, axis=1)
+    order = np.argsort(~gated, axis=1, kind="stable")
+    width = int(gated.sum(axis=1).max(initial=0))
+    if width == 0:
+        return out, ok
+    order = order[:, :width]
+    sub = np.where(np.take_along_axis(gated, order, axis=1), np.take_along_axis(cand, order, axis=1), -1)
+    sub_out, sub_ok = _assign_dense(E, sub)
+    hh, ii = np.nonzero(sub >= 0)
+    out[hh, order[hh, ii]] = sub_out[hh, ii]
+    return out, ok & sub_ok
+
+
+def _assign_dense(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Best options of each parent by linear assignment on the cost matrix
     ``[-log eta(detections) | diag(-max(log eta(dies), log eta(missed)))]`` (padding rows
     take their own dummy column at no cost), all parents in one call of the compiled
