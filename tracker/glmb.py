@@ -59,13 +59,13 @@ except ImportError:  # pragma: no cover
 
 __all__ = ["GlmbConfig", "GlmbState", "GlmbTracker", "GLMB_PRESETS", "make_glmb", "GlmbModel",
            "adaptive_birth_existence", "measurement_state_prior", "marginals",
-           "estimate_map_cardinality", "estimate_marginal_labels"]
+           "map_cardinality_rows", "continuity_rows", "marginal_label_rows", "estimate_from_rows"]
 
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
 PosInt = Annotated[int, msgspec.Meta(ge=1)]
 PosFloat = Annotated[float, msgspec.Meta(gt=0.0)]
 BirthModel = Literal["auto", "static", "adaptive", "both"]
-Estimator = Literal["map-cardinality", "marginal-labels"]
+Estimator = Literal["map-cardinality", "continuity", "marginal-labels"]
 
 #: option columns of the eta matrix: 0 = dies / not born, 1 = missed, 2 + j = detected by z_j
 _DIE, _MISS, _DET = 0, 1, 2
@@ -116,8 +116,14 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Adaptive birth: std of the zero-mean turn-rate prior, deg/s (Vo's birth components)."""
     estimator: Estimator = "map-cardinality"
     """``"map-cardinality"``: the best hypothesis of the MAP cardinality (Vo's demo);
-    ``"marginal-labels"``: the MAP-cardinality number of labels with the largest marginal
-    existence, each with its marginal (moment-matched) density."""
+    ``"continuity"``: the MAP-cardinality hypothesis that continues the most of the last
+    estimate's tracks among those within ``continuity_ratio`` of the best
+    (:func:`continuity_rows`); ``"marginal-labels"``: the MAP-cardinality number of labels
+    with the largest marginal existence, each with its best association history
+    (:func:`marginal_label_rows`)."""
+    continuity_ratio: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.5
+    """``continuity`` / ``marginal-labels``: an estimate that continues the previous one is
+    kept while its weight is at least this fraction of the best alternative's."""
 
 
 GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}
@@ -171,6 +177,9 @@ class GlmbState:
     birth_r_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r"""``(M,)`` :math:`r_U(z)`: posterior probability that ``birth_z[m]`` was assigned to a
     track (sum of the weights of the hypotheses that use it)."""
+    est_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Table rows reported by the last estimate (the ``marginal-labels`` estimator follows
+    their association histories)."""
 
     @property
     def n_tracks(self) -> int:
@@ -221,10 +230,12 @@ class _Children:
 
 @dataclass(frozen=True)
 class _Update:
-    """The new GLMB plus per-row data of this frame (measurement index or -1)."""
+    """The new GLMB plus per-row data of this frame: the measurement index (or -1) and the
+    previous table row it continues (or -1 for a birth)."""
 
     state: GlmbState
     row_meas: np.ndarray
+    parent_row: np.ndarray
 
 
 # --------------------------------------------------------------------------------------
@@ -787,12 +798,11 @@ class GlmbTracker:
         children = self._children(state, cands, E, rng)
         upd = self._update(frame, meas, innov, cands, children)
         marg = marginals(upd.state, upd.row_meas, frame.n_measurements)
-        if self.config.estimator == "marginal-labels":
-            est = estimate_marginal_labels(upd.state, upd.row_meas, marg, frame)
-        else:
-            est = estimate_map_cardinality(upd.state, upd.row_meas, marg, frame)
+        rows = self._estimate_rows(upd, marg, state.est_rows)
+        est = estimate_from_rows(upd.state, upd.row_meas, marg, frame, rows)
         new = dataclasses.replace(upd.state, birth_frame=frame.frame, birth_kind=frame.kind,
-                                  birth_z=frame.z.copy(), birth_r_u=np.clip(marg.p_used, 0.0, 1.0))
+                                  birth_z=frame.z.copy(), birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
+                                  est_rows=rows)
         card = new.cardinality()
         diagnostics = {
             "n_hypotheses": float(new.n_hypotheses),
@@ -899,6 +909,15 @@ class GlmbTracker:
         log_w = log_w[p_idx] + assignment_log_eta(E, cand[p_idx], gamma)
         return merge_children(cand[p_idx], gamma, log_w, E.shape[1] - _DET)
 
+    def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
+        """Table rows of this frame's estimate, by ``config.estimator``."""
+        continues = np.isin(upd.parent_row, prev_rows)
+        if self.config.estimator == "continuity":
+            return continuity_rows(upd.state, marg, continues, self.config.continuity_ratio)
+        if self.config.estimator == "marginal-labels":
+            return marginal_label_rows(upd.state, marg, continues, self.config.continuity_ratio)
+        return map_cardinality_rows(upd.state, marg)
+
     def _update(self, frame: Frame, meas, innov: kf.Innovation, cands: _Candidates,
                 children: _Children) -> _Update:
         """Prune and cap the children, then build the new track table from their pairs."""
@@ -923,7 +942,8 @@ class GlmbTracker:
         labels = tuple(cands.labels[i] for i in row.tolist())
         new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
                         np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)
-        return _Update(new, (j - 1).astype(np.int64))
+        parent = np.where(row < cands.n_survivors, row, -1).astype(np.int64)
+        return _Update(new, (j - 1).astype(np.int64), parent)
 
 
 def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
@@ -956,63 +976,75 @@ def _map_cardinality(st: GlmbState, w: np.ndarray) -> tuple[int, np.ndarray]:
     return int(np.argmax(np.bincount(n, weights=w))), n
 
 
-def estimate_map_cardinality(st: GlmbState, row_meas: np.ndarray, mg: _Marginals,
-                             frame: Frame) -> Estimate:
-    """Vo's ``extract_estimates``: the MAP cardinality :math:`\\hat n`, then the
-    highest-weight hypothesis with :math:`\\hat n` labels; its rows are the tracks and its
-    measurement assignments the ``assignments`` (existence = the label's marginal)."""
+def map_cardinality_rows(st: GlmbState, mg: _Marginals) -> np.ndarray:
+    """Vo's ``extract_estimates``: the MAP cardinality :math:`\\hat n`, then the rows of the
+    highest-weight hypothesis with :math:`\\hat n` labels."""
     n_map, n = _map_cardinality(st, mg.w)
     best = int(np.argmax(np.where(n == n_map, st.log_w, -np.inf)))
-    best_rows = st.hyp_tracks[best][st.hyp_tracks[best] >= 0]
+    return st.hyp_tracks[best][st.hyp_tracks[best] >= 0].astype(np.int64)
+
+
+def continuity_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ratio: float) -> np.ndarray:
+    r"""Label-consistent MAP extraction: among the hypotheses with the MAP cardinality
+    :math:`\hat n` whose weight is at least ``ratio`` times the best of them, the one whose
+    rows continue the most of the rows the previous estimate reported (``continues`` (T,):
+    the row's parent was reported), ties broken by weight.  With ``ratio = 1`` this is
+    :func:`map_cardinality_rows`; below 1 the estimate keeps following its own association
+    histories (and so its labels) unless another labelling is more than ``1 / ratio`` times
+    as likely -- a streaming, hysteresis form of Vo's track-based extraction.  The reported
+    set is always one hypothesis (no two labels on one object)."""
+    n_map, n = _map_cardinality(st, mg.w)
+    log_w = np.where(n == n_map, st.log_w, -np.inf)
+    cand = np.flatnonzero(log_w >= np.max(log_w) + math.log(ratio))
+    hyp = st.hyp_tracks[cand]
+    cont = np.sum((hyp >= 0) & continues[np.maximum(hyp, 0)], axis=1)
+    h = cand[np.lexsort((-st.log_w[cand], -cont))[0]]
+    return st.hyp_tracks[h][st.hyp_tracks[h] >= 0].astype(np.int64)
+
+
+def marginal_label_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ratio: float) -> np.ndarray:
+    r"""Label-marginal extraction: the MAP cardinality :math:`\hat n`, then the :math:`\hat n`
+    labels with the largest existence :math:`r(\ell)` (ties: label order); each label's state
+    is one of its rows (association histories): the row with the largest weight
+    :math:`\sum_{h \ni \text{row}} w_h`, except that a row continuing the row the previous
+    estimate reported for the label (``continues`` (T,)) is preferred if its weight is at least
+    ``ratio`` times that.  Per-label choices: two labels can report the same object when the
+    posterior is split between labellings.  Returns the rows, one per label."""
+    n_map, _ = _map_cardinality(st, mg.w)
+    if n_map == 0:
+        return np.zeros(0, dtype=np.int64)
+    chosen = np.zeros(mg.n_labels, dtype=bool)
+    chosen[np.argsort(-mg.existence, kind="stable")[:n_map]] = True
+    row_w = np.bincount(mg.rows, weights=mg.w[mg.h_idx], minlength=st.n_tracks)
+    top = np.zeros(mg.n_labels)
+    np.maximum.at(top, mg.label_id, row_w)
+    keep = continues & (row_w >= ratio * top[mg.label_id])
+    score = row_w + 2.0 * keep  # row weights are <= 1: continuing rows first
+    order = np.lexsort((-score, mg.label_id))
+    first = np.concatenate([[True], mg.label_id[order][1:] != mg.label_id[order][:-1]])
+    best = order[first]  # one row per label, in label order
+    return np.sort(best[chosen[mg.label_id[best]]]).astype(np.int64)
+
+
+def estimate_from_rows(st: GlmbState, row_meas: np.ndarray, mg: _Marginals, frame: Frame,
+                       rows: np.ndarray) -> Estimate:
+    """The estimate made of the table rows ``rows`` (one per label): their Gaussians, the
+    labels' marginal existence, and as ``assignments`` the measurements those rows used
+    (with the pair's posterior probability; other measurements: ``None`` with the clutter
+    probability :math:`1 - r_U(z)`)."""
     tracks = tuple(
         TrackEstimate(st.labels[r], st.mean[r].copy(), st.cov[r].copy(),
                       float(min(1.0, mg.existence[mg.label_id[r]])))
-        for r in best_rows.tolist()
+        for r in rows.tolist()
     )
     M = frame.n_measurements
     assignments: list[str | None] = [None] * M
     probs = [float(np.clip(1.0 - mg.p_used[m], 0.0, 1.0)) for m in range(M)]
-    for r in best_rows.tolist():
+    for r in rows.tolist():
         m = int(row_meas[r])
         if m >= 0:
             assignments[m] = st.labels[r]
             probs[m] = float(np.clip(mg.pair_p[mg.label_id[r] * M + m], 0.0, 1.0))
-    return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
-
-
-def estimate_marginal_labels(st: GlmbState, row_meas: np.ndarray, mg: _Marginals,
-                             frame: Frame) -> Estimate:
-    r"""Label-marginal estimate: the MAP cardinality :math:`\hat n`, then the :math:`\hat n`
-    labels with the largest existence :math:`r(\ell)` (ties: label order), each with its
-    marginal density :math:`p(x, \ell) = \sum_{I \ni \ell} w(I)\, p^{(I)}(x, \ell) / r(\ell)`
-    moment-matched (the GLMB -> LMB approximation of Reuter et al. 2014).  A measurement is
-    assigned to the reported label with the largest pair probability if that beats clutter
-    (:math:`1 - r_U(z)`) and every unreported label."""
-    n_map, _ = _map_cardinality(st, mg.w)
-    order = np.argsort(-mg.existence, kind="stable")[:n_map]
-    chosen = np.sort(order)
-    row_w = np.bincount(mg.rows, weights=mg.w[mg.h_idx], minlength=st.n_tracks)
-    lab_w = np.bincount(mg.label_id, weights=row_w, minlength=mg.n_labels)
-    mean = np.zeros((mg.n_labels, STATE_DIM))
-    np.add.at(mean, mg.label_id, row_w[:, None] * st.mean)
-    mean /= np.where(lab_w > 0, lab_w, 1.0)[:, None]
-    dev = st.mean - mean[mg.label_id]
-    cov = np.zeros((mg.n_labels, STATE_DIM, STATE_DIM))
-    np.add.at(cov, mg.label_id, row_w[:, None, None] * (st.cov + dev[:, :, None] * dev[:, None, :]))
-    cov /= np.where(lab_w > 0, lab_w, 1.0)[:, None, None]
-    first_row = np.full(mg.n_labels, st.n_tracks, dtype=np.int64)
-    np.minimum.at(first_row, mg.label_id, np.arange(st.n_tracks))
-    tracks = tuple(TrackEstimate(st.labels[int(first_row[l])], mean[l], 0.5 * (cov[l] + cov[l].T),
-                                 float(min(1.0, mg.existence[l]))) for l in chosen.tolist())
-    M = frame.n_measurements
-    assignments: list[str | None] = [None] * M
-    probs = [float(np.clip(1.0 - mg.p_used[m], 0.0, 1.0)) for m in range(M)]
-    if M and mg.n_labels:
-        pair = mg.pair_p.reshape(mg.n_labels, M)
-        best = np.argmax(pair, axis=0)
-        for m in np.flatnonzero(np.isin(best, chosen) & (pair[best, np.arange(M)] > 1.0 - mg.p_used)).tolist():
-            assignments[m] = st.labels[int(first_row[best[m]])]
-            probs[m] = float(np.clip(pair[best[m], m], 0.0, 1.0))
     return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
 
 
