@@ -30,14 +30,16 @@ from pipeline.offline import (
     format_overrides,
     resolve_config,
     resolve_params,
+    resolve_scenario,
     resolve_simulation_params,
+    simulation_metadata,
     simulate_to_log,
     split_overrides,
     track_log,
 )
 from sinks.rerun_writer import RecordingError, RecordingProcess
 from sources.mcap_log import McapLogError, read_metadata
-from sources.scenarios import get_scenario, scenario_names
+from sources.scenarios import scenario_names
 from tracker.config import ConfigError
 
 __all__ = ["main", "CliError"]
@@ -100,7 +102,9 @@ def _fmt(value: float | None, spec: str = ".2f") -> str:
 
 _SET_HELP_SIM = (
     "Override one model parameter, KEY=VALUE (VALUE is a TOML literal), e.g. "
-    "--set p_detect=0.9 --set clutter_rate=30. Repeatable."
+    "--set p_detect=0.9 --set clutter_rate=30; scene.KEY=VALUE sets a parameter of a "
+    "generated scenario (random, random-cv), e.g. --set scene.n_objects=25 "
+    "--set scene.crossing_pairs=3 (docs/models.md). Repeatable."
 )
 _SET_HELP_TRACK = (
     "Override a setting, KEY=VALUE (VALUE is a TOML literal). params.KEY goes to the model "
@@ -192,16 +196,17 @@ def simulate(
       bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap
       bnptrack simulate --scenario snr --snr -10 --seed 3
       bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
+      bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
+
+    The generated scenarios (random, random-cv) draw their scene from --seed too (the
+    record then also holds scene_seed, the scene.* settings and the crossing pairs).
     """
     params = resolve_simulation_params(scenario, params_arg, overrides, snr_db)
+    scene = resolve_scenario(scenario, seed, overrides)
     if out is None:
         out = Path("recordings") / f"{scenario}-s{seed}.mcap"
-    metadata = {"scenario": scenario, "params": params_arg, "seed": str(seed)}
-    if params.snr_db is not None:
-        metadata["snr_db"] = repr(float(params.snr_db))
-    if overrides:
-        metadata["overrides"] = format_overrides(overrides)
-    res = simulate_to_log(scenario, params, seed, out, metadata)
+    metadata = simulation_metadata(scene, params_arg, seed, params, overrides)
+    res = simulate_to_log(scenario, params, seed, out, metadata, overrides)
     if quiet:
         return
     extra = []
@@ -209,9 +214,13 @@ def simulate(
         extra.append("overrides " + " ".join(overrides))
     if params.snr_db is not None:
         extra.append(f"snr_db {params.snr_db:g}")
+    rows = [("scenario", f"{scenario} ({scene.kind} sensor)")]
+    if scene.seed is not None:
+        pairs = ", ".join(f"{a}/{b}@{k}" for a, b, k in scene.crossings) or "none"
+        rows.append(("scene", f"seed {scene.seed}: {len(scene.targets)} objects, "
+                              f"crossing pairs {pairs}; no birth regions"))
     _echo_rows(
-        [
-            ("scenario", f"{scenario} ({get_scenario(scenario).kind} sensor)"),
+        rows + [
             ("params", params_arg + (f" ({', '.join(extra)})" if extra else "")),
             ("seed", str(seed)),
             ("frames", str(res.frames)),
@@ -353,6 +362,10 @@ def track(
                 ("mean OSPA", f"{_fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
             )
             rows.append(("mean card. error", _fmt(res.mean_cardinality_error)))
+            if res.crossings is not None:
+                kept = sum(p.kept for p in res.crossings.pairs)
+                rows.append(("crossings kept", f"{kept}/{len(res.crossings.pairs)} pairs keep both "
+                             "labels (scan c-5 vs c+5, gate 100 m)"))
         else:
             rows.append(("mean OSPA", "n/a (the log has no /truth)"))
         rows += [
@@ -468,7 +481,7 @@ def view(
 
 
 @main.command()
-@click.argument("name", type=click.Choice(["ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp"]))
+@click.argument("name", type=click.Choice(["ddp-vs-glmb", "proximity", "snr", "dpy-vs-glmb", "dpy-vs-ddp", "random"]))
 @click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
               help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
@@ -493,9 +506,11 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
     snr           DDP-EMM vs GLMB, range-only, SNR -3/-5/-10 dB
     dpy-vs-glmb   DPY-STP vs GLMB, 5 targets (dpy5)
     dpy-vs-ddp    DPY-STP vs DDP-EMM, 10 targets
+    random        DDP-EMM, DPY-STP and GLMB on generated random scenes (no birth regions)
 
     Writes summary.md / summary.csv (mean and spread over runs of OSPA and its parts,
-    OSPA(2), GOSPA, cardinality error, ms per frame), PNG plots mirroring the paper's
+    OSPA(2), GOSPA, cardinality error, ms per frame; for random also the fraction of
+    crossing pairs that keep both labels), PNG plots mirroring the paper's
     figures and one .rrd per tracker of run 0. Runs are seeded from (NAME, --seed, run
     index): a run redone alone, locally or on a Dask cluster, gives the same numbers.
 

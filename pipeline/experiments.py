@@ -66,6 +66,10 @@ EXPERIMENTS: dict[str, Experiment] = {
                    (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("glmb", "glmb", "GLMB"))),
         Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets (experiment 5)", "vo2017",
                    (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("ddp", "ddp", "DDP-EMM"))),
+        Experiment("random", "Objects born anywhere: 20-30 objects, 3 crossing pairs, no birth "
+                   "regions (generated random family; each run draws its own scene)", "random",
+                   (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("dpyp", "dpyp", "DPY-STP"),
+                    TrackerSpec("glmb", "glmb", "GLMB"))),
     )
 }
 
@@ -105,6 +109,7 @@ class TrackerRun:
     n_est: np.ndarray
     ms: np.ndarray
     estimates: list | None = None  # per frame Estimate, representative runs only (keep_tracks)
+    crossings_kept: np.ndarray | None = None  # (pairs,) bool: pair kept both labels (random)
 
 
 @dataclass
@@ -116,21 +121,26 @@ class RunResult:
 
 
 def _run_setup(job: RunJob):
-    """The experiment, its scenario, the model parameters and the seed of one run."""
-    from sources.scenarios import get_scenario
+    """The experiment, its scenario, the model parameters and the seed of one run.
+
+    A generated scenario (``random``) draws its scene from the run's seed (and the
+    variant's ``scene.*`` overrides), so every run has its own scene."""
+    from pipeline.offline import resolve_scenario, split_scene_overrides
     from tracker.config import apply_overrides
     from tracker.models.params import load_params
 
     exp = get_experiment(job.experiment)
-    scenario = get_scenario(exp.scenario)
-    params = scenario.adapt_params(apply_overrides(load_params(job.params), job.variant.overrides))
-    return exp, scenario, params, run_seed(job.experiment, job.seed, job.run)
+    seed = run_seed(job.experiment, job.seed, job.run)
+    scenario = resolve_scenario(exp.scenario, seed, job.variant.overrides)
+    _, model_over = split_scene_overrides(job.variant.overrides)
+    params = scenario.adapt_params(apply_overrides(load_params(job.params), model_over))
+    return exp, scenario, params, seed
 
 
 def execute_run(job: RunJob) -> RunResult:
     """One Monte Carlo run: simulate the scenario, run every tracker, score every frame."""
     from pipeline.offline import build_tracker, resolve_config
-    from sinks.metrics import gospa, ospa, ospa2_series
+    from sinks.metrics import crossing_label_keeping, gospa, ospa, ospa2_series
     from sources.synthetic import simulate_all
     from tracker.state import run as run_tracker
 
@@ -151,8 +161,12 @@ def execute_run(job: RunJob) -> RunResult:
             kept.append(e)
         r = np.array(rows, dtype=float)
         o2 = ospa2_series(est_tracks, true_tracks, window=OSPA2_WINDOW, c=OSPA_C, p=OSPA_P)
+        cross = None
+        if scenario.crossings:
+            res = crossing_label_keeping(true_tracks, est_tracks, scenario.crossings)
+            cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
         result.trackers[spec.label] = TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3],
-                                                 r[:, 4], r[:, 5], kept if job.keep_tracks else None)
+                                                 r[:, 4], r[:, 5], kept if job.keep_tracks else None, cross)
     return result
 
 
@@ -228,8 +242,23 @@ def summary_rows(results: Sequence[RunResult]) -> list[dict]:
                 a = np.asarray(per_run[k], float)
                 row[k] = float(a.mean())
                 row[k + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
+            row.update(_crossing_summary([r.trackers[t].crossings_kept for r in runs]))
             rows.append(row)
     return rows
+
+
+def _crossing_summary(per_run: Sequence[np.ndarray | None]) -> dict:
+    """``crossings_kept``: the fraction of all crossing pairs of all runs that kept both
+    labels (std: of the per-run fractions); ``crossing_pairs``: their number.  Empty when the
+    scenario has no crossing pairs."""
+    kept = [np.asarray(k, bool) for k in per_run if k is not None and len(k)]
+    if not kept:
+        return {}
+    frac = np.array([k.mean() for k in kept])
+    allk = np.concatenate(kept)
+    return {"crossings_kept": float(allk.mean()),
+            "crossings_kept_std": float(frac.std(ddof=1)) if frac.size > 1 else 0.0,
+            "crossing_pairs": int(allk.size)}
 
 
 def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
@@ -238,12 +267,16 @@ def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+    metrics = list(METRICS) + ([("crossings_kept", "crossings kept")] if "crossings_kept" in rows[0] else [])
     lines = [f"# {title}", "", "Mean over runs (± std of the per-run means). OSPA/OSPA(2)/GOSPA: c = 100 m, "
-             "p = 1, on position; OSPA(2) window 10 scans; ms/frame: per-run median.", "",
-             "| variant | tracker | runs | " + " | ".join(h for _, h in METRICS) + " |",
-             "|---|---|---|" + "---|" * len(METRICS)]
+             "p = 1, on position; OSPA(2) window 10 scans; ms/frame: per-run median."
+             + (" Crossings kept: fraction of all crossing pairs whose two objects keep their track "
+                "label from scan c-5 to c+5 (Hungarian, gate 100 m; ± std of the per-run fractions)."
+                if len(metrics) > len(METRICS) else ""), "",
+             "| variant | tracker | runs | " + " | ".join(h for _, h in metrics) + " |",
+             "|---|---|---|" + "---|" * len(metrics)]
     for r in rows:
-        cells = " | ".join(f"{r[k]:.2f} ± {r[k + '_std']:.2f}" for k, _ in METRICS)
+        cells = " | ".join(f"{r[k]:.2f} ± {r[k + '_std']:.2f}" for k, _ in metrics)
         lines.append(f"| {r['variant']} | {r['tracker']} | {r['runs']} | {cells} |")
     md.write_text("\n".join(lines) + "\n")
     return md, csv_path
@@ -266,7 +299,9 @@ def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Pat
         trackers = list(runs[0].trackers)
         # cardinality
         fig, ax = plt.subplots(figsize=(8, 4))
-        ax.step(k, runs[0].n_true, where="mid", color="k", lw=2, label="true")
+        same = all(np.array_equal(r.n_true, runs[0].n_true) for r in runs)
+        n_true = runs[0].n_true if same else np.mean([r.n_true for r in runs], axis=0)
+        ax.step(k, n_true, where="mid", color="k", lw=2, label="true" if same else "true (mean)")
         for t in trackers:
             n = np.array([r.trackers[t].n_est for r in runs])
             ax.plot(k, n.mean(0), label=f"{t} (mean)")

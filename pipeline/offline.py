@@ -20,7 +20,7 @@ import msgspec
 import numpy as np
 
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
-from sources.scenarios import get_scenario
+from sources.scenarios import get_scenario, is_generated
 from sources.synthetic import simulate
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
@@ -42,6 +42,11 @@ __all__ = [
     "format_overrides",
     "parse_overrides",
     "resolve_simulation_params",
+    "resolve_scenario",
+    "split_scene_overrides",
+    "simulation_metadata",
+    "format_crossings",
+    "parse_crossings",
     "resolve_params",
     "resolve_config",
     "split_overrides",
@@ -50,6 +55,7 @@ __all__ = [
     "simulate_to_log",
     "frame_metrics",
     "track_frames",
+    "score_crossings",
     "track_log",
     "default_tracks_path",
     "check_output_path",
@@ -61,7 +67,7 @@ DEFAULT_PARAMS = "vo2017"
 from tracker.registry import TRACKERS  # noqa: E402
 #: OSPA settings of the paper's experiments (cut-off in metres, order): one definition, in
 #: :mod:`sinks.scoring`.
-from sinks.metrics import OspaResult  # noqa: E402
+from sinks.metrics import CrossingResult, OspaResult  # noqa: E402
 from sinks.scoring import OSPA_C, OSPA_P  # noqa: E402
 
 _OVERRIDE_SEP = ";"
@@ -170,14 +176,84 @@ def _with_snr(params: ModelParams, snr_db: float | None) -> ModelParams:
     return msgspec.structs.replace(params, snr_db=float(snr_db))
 
 
+_SCENE_PREFIX = "scene."
+
+
+def split_scene_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Split ``--set`` items into (``scene.KEY=V`` items without the prefix, the others)."""
+    scene, rest = [], []
+    for item in overrides:
+        item = item.strip()
+        if item.startswith(_SCENE_PREFIX):
+            scene.append(item[len(_SCENE_PREFIX):])
+        else:
+            rest.append(item)
+    return tuple(scene), tuple(rest)
+
+
+def resolve_scenario(scenario: str, seed: int, overrides: Sequence[str] = ()):
+    """The :class:`~sources.scenarios.Scenario` to simulate: a fixed table, or a generated
+    family's scene for the scene seed ``seed`` (the run's seed) and the ``scene.*`` items of
+    ``overrides`` (other items are ignored here)."""
+    scene, _ = split_scene_overrides(overrides)
+    return get_scenario(scenario, seed=seed, scene=scene)
+
+
+def _adapting_scenario(name: str):
+    """The scenario whose ``adapt_params`` applies: the fixed table, or a generated family's
+    template (the same for every scene of the family: no birth regions)."""
+    if is_generated(name):
+        from sources.scene_families import family_template
+
+        return family_template(name)
+    return get_scenario(name)
+
+
 def resolve_simulation_params(
     scenario: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
 ) -> ModelParams:
-    """Parameters for simulating ``scenario``: the set, ``--set`` overrides, ``--snr``, then
-    the scenario's defaults (``Scenario.adapt_params``, e.g. -3 dB for ``snr``)."""
-    sc = get_scenario(scenario)
-    p = _with_snr(load_params(params, overrides), snr_db)
+    """Parameters for simulating ``scenario``: the set, ``--set`` overrides (``scene.*`` items
+    are left to :func:`resolve_scenario`), ``--snr``, then the scenario's defaults
+    (``Scenario.adapt_params``, e.g. -3 dB for ``snr``, no birth regions for ``random``)."""
+    _, model_over = split_scene_overrides(overrides)
+    sc = _adapting_scenario(scenario)
+    p = _with_snr(load_params(params, model_over), snr_db)
     return sc.adapt_params(p)
+
+
+def simulation_metadata(
+    scenario, params_name: str, seed: int, params: ModelParams, overrides: Sequence[str] = ()
+) -> dict[str, str]:
+    """The ``bnptrack.scenario`` record of a simulated log: scenario, params, seed, plus
+    snr_db and the model ``overrides`` when used; for a generated scene also ``scene_seed``,
+    its ``scene`` overrides (``;``-separated, without ``scene.``) and its ``crossings``
+    (``id_a,id_b,scan`` items, ``;``-separated)."""
+    scene, model_over = split_scene_overrides(overrides)
+    meta = {"scenario": scenario.name, "params": params_name, "seed": str(seed)}
+    if params.snr_db is not None:
+        meta["snr_db"] = repr(float(params.snr_db))
+    if model_over:
+        meta["overrides"] = format_overrides(model_over)
+    if scenario.seed is not None:
+        meta["scene_seed"] = str(scenario.seed)
+        if scene:
+            meta["scene"] = format_overrides(scene)
+        meta["crossings"] = format_crossings(scenario.crossings)
+    return meta
+
+
+def format_crossings(crossings: Sequence[tuple[str, str, int]]) -> str:
+    """``(id_a, id_b, scan)`` triples as ``id_a,id_b,scan;...`` (metadata text)."""
+    return _OVERRIDE_SEP.join(f"{a},{b},{int(k)}" for a, b, k in crossings)
+
+
+def parse_crossings(text: str | None) -> tuple[tuple[str, str, int], ...]:
+    """Inverse of :func:`format_crossings` (empty or missing text: no pairs)."""
+    out = []
+    for item in parse_overrides(text):
+        a, b, k = (v.strip() for v in item.split(","))
+        out.append((a, b, int(k)))
+    return tuple(out)
 
 
 def resolve_params(
@@ -187,7 +263,8 @@ def resolve_params(
 
     1. ``params_arg`` (``--params NAME|FILE.toml``) when given;
     2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
-       (the ``--set`` items used when simulating) and its ``snr_db``;
+       (the ``--set`` items used when simulating) and its ``snr_db``; for a generated
+       scenario (``random``, ``random-cv``) also its ``adapt_params``: no birth regions;
     3. else the :data:`DEFAULT_PARAMS` set.
     """
     if params_arg:
@@ -205,7 +282,12 @@ def resolve_params(
                 f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
                 "(pass --params NAME|FILE.toml)"
             ) from None
-        return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
+        reason = "from the log's bnptrack.scenario record"
+        scen = meta.get("scenario", "")
+        if is_generated(scen):  # no birth regions, as when it was simulated
+            p = _adapting_scenario(scen).adapt_params(p)
+            reason += f"; {scen} scene: no birth regions"
+        return ParamsChoice(p, name, reason, overrides)
     why = (
         "default: the log has no bnptrack.scenario record"
         if metadata is None
@@ -271,9 +353,11 @@ def simulate_to_log(
     seed: int,
     out: str | os.PathLike,
     metadata: Mapping[str, str],
+    overrides: Sequence[str] = (),
 ) -> SimulationResult:
-    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log."""
-    sc = get_scenario(scenario)
+    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log; a
+    generated scenario's scene is drawn from ``seed`` and the ``scene.*`` ``overrides``."""
+    sc = resolve_scenario(scenario, seed, overrides)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_frames = n_meas = n_targets = 0
@@ -319,6 +403,8 @@ class TrackResult:
     frames: tuple[FrameMetrics, ...]
     final_tracks: int
     error: McapLogError | None = None
+    crossings: CrossingResult | None = None
+    """Label keeping through the log's crossing pairs (``None``: no pairs or no truth)."""
 
     @property
     def n_frames(self) -> int:
@@ -381,6 +467,7 @@ def track_frames(
     frames: Iterable[Frame],
     seed: int,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
+    crossings: Sequence[tuple[str, str, int]] = (),
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
 
@@ -388,10 +475,13 @@ def track_frames(
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
     frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
     and the error is returned in :attr:`TrackResult.error` instead of being raised.
+    ``crossings`` (``(id_a, id_b, scan)``, e.g. a ``random`` log's record) are scored with
+    :func:`sinks.metrics.crossing_label_keeping` into :attr:`TrackResult.crossings`.
     """
     rows: list[FrameMetrics] = []
     final = 0
     error: McapLogError | None = None
+    seen: list[tuple[Frame, Estimate]] = []
     try:
         for frame, est, _state in run(tracker, frames, seed):
             row = frame_metrics(frame, est)
@@ -399,9 +489,31 @@ def track_frames(
                 on_estimate(frame, est, row)
             rows.append(row)
             final = len(est.tracks)
+            if crossings:
+                seen.append((frame, est))
     except McapLogError as exc:
         error = exc
-    return TrackResult(tracker.name, tuple(rows), final, error)
+    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings))
+
+
+def score_crossings(
+    seen: Sequence[tuple[Frame, Estimate]], crossings: Sequence[tuple[str, str, int]]
+) -> CrossingResult | None:
+    """Label keeping through ``crossings`` over consecutive frames with truth; pairs whose
+    crossing scan is not among the frames are left out (``None`` when none is left)."""
+    from sinks.metrics import crossing_label_keeping
+
+    if not seen or any(f.truth is None for f, _ in seen):
+        return None
+    scans = [f.frame for f, _ in seen]
+    if scans != list(range(scans[0], scans[0] + len(scans))):
+        return None
+    pairs = [c for c in crossings if scans[0] <= int(c[2]) <= scans[-1]]
+    if not pairs:
+        return None
+    true = [dict(zip(f.truth.ids, f.truth.positions)) for f, _ in seen]
+    est = [{t.label: t.position for t in e.tracks} for _, e in seen]
+    return crossing_label_keeping(true, est, pairs, first_scan=scans[0])
 
 
 def default_tracks_path(log: str | os.PathLike, tracker: str) -> Path:
@@ -426,7 +538,8 @@ def track_log(
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
-    called after each frame is written (e.g. a Rerun sink).
+    called after each frame is written (e.g. a Rerun sink).  The record's ``crossings``
+    (a generated ``random`` scene) are scored (:attr:`TrackResult.crossings`).
 
     A damaged input is processed up to its readable end; the output then holds that prefix
     and :attr:`TrackResult.error` holds the :class:`McapLogError`.
@@ -442,5 +555,6 @@ def track_log(
             if on_estimate is not None:
                 on_estimate(frame, est, metrics)
 
-        return track_frames(tracker, iter_frames(log), seed, write)
+        crossings = parse_crossings((metadata or {}).get("crossings"))
+        return track_frames(tracker, iter_frames(log), seed, write, crossings)
 

@@ -148,8 +148,9 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The measurement source.
 
     ``kind = "synthetic"`` simulates ``scenario`` with ``params`` (+ ``overrides``) and
-    ``seed``, like ``bnptrack simulate``; ``kind = "mcap"`` replays the frames of ``log``.
-    ``frames`` > 0 stops after that many frames.  ``rate`` paces publication against the
+    ``seed``, like ``bnptrack simulate`` (a generated scenario, ``random`` or ``random-cv``,
+    draws its scene from ``seed`` and the ``scene.KEY=V`` items of ``overrides``);
+    ``kind = "mcap"`` replays the frames of ``log``.  ``frames`` > 0 stops after that many frames.  ``rate`` paces publication against the
     frames' time stamps (1 = real time, 10 = ten times faster); 0 = as fast as possible.
     ``wait_for`` lists the stages whose liveliness token the source waits for before the
     first frame (``ready_timeout_s`` bounds the wait; 0 = wait forever), ``done_by`` the

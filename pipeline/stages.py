@@ -645,20 +645,19 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
     """The source's metadata record and its frames (``source.frames`` limits them)."""
     sc = cfg.source
     if sc.kind == "synthetic":
-        from pipeline.offline import format_overrides, resolve_simulation_params
-        from sources.scenarios import get_scenario
+        from pipeline.offline import (
+            resolve_scenario,
+            resolve_simulation_params,
+            simulation_metadata,
+        )
         from sources.synthetic import simulate
 
         try:
-            scenario = get_scenario(sc.scenario)
+            scenario = resolve_scenario(sc.scenario, sc.seed, sc.overrides)
         except (KeyError, ValueError) as exc:
             raise ConfigError(f"source.scenario: {exc}") from None
         params = resolve_simulation_params(sc.scenario, sc.params, sc.overrides, sc.snr_db)
-        metadata = {"scenario": sc.scenario, "params": sc.params, "seed": str(sc.seed)}
-        if params.snr_db is not None:
-            metadata["snr_db"] = repr(float(params.snr_db))
-        if sc.overrides:
-            metadata["overrides"] = format_overrides(sc.overrides)
+        metadata = simulation_metadata(scenario, sc.params, sc.seed, params, sc.overrides)
         frames: Iterator[Frame] = simulate(scenario, params, sc.seed, sensor=sc.sensor)
     else:
         from sources.mcap_log import McapLogError, iter_frames, read_metadata

@@ -59,6 +59,20 @@ Registered scenarios (:data:`SCENARIOS`, :func:`get_scenario`):
     9 (40-49), 10 (50-59), 11 (60-75), 10 (76-80), 9 (81-85), 8 (86-90), 6 (91-95),
     5 (96-100).
 
+Generated families (:mod:`sources.scene_families`; :func:`get_scenario` with a scene ``seed``
+and ``scene`` settings):
+
+``random``
+    20-30 coordinated-turn objects born anywhere in the field (range 150-1900 m, bearing
+    within +-85 deg while present; a trajectory leaving that box is truncated) at random
+    scans, lifetimes 15-100 scans, speeds 5-40 m/s, turn rates up to 3 deg/s (a quarter
+    straight), plus 3 crossing pairs within 20 m of each other at a recorded scan
+    (:attr:`Scenario.crossings`).  No birth regions (``birth = ()``: ``adapt_params`` sets
+    ``birth = []``).  Experiment ``random``.
+``random-cv``
+    Held-out family: 8-15 straight constant-velocity objects, 2-25 m/s, births in 3 bursts,
+    no crossing pairs, no birth regions.
+
 The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
 from the parameter set); the scenario tables are defined for ``T = 1`` s.
 """
@@ -66,6 +80,7 @@ from the parameter set); the scenario tables are defined for ``T = 1`` s.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -83,6 +98,7 @@ __all__ = [
     "SCENARIOS",
     "get_scenario",
     "scenario_names",
+    "is_generated",
     "WTURN",
     "PROXIMITY_PATH_START",
 ]
@@ -130,7 +146,15 @@ class Scenario:
     default_range_clutter_rate: float | None = None
     birth: tuple[tuple[float, tuple[float, ...]], ...] | None = None
     """Scenario-specific birth regions ``(r, mean)`` (std as in Vo's model), or ``None`` to keep
-    the parameter set's (Vo's four components, made for ``vo2017``/``dpy5``)."""
+    the parameter set's (Vo's four components, made for ``vo2017``/``dpy5``); ``()`` = none
+    at all (the generated families: objects appear anywhere)."""
+    crossings: tuple[tuple[str, str, int], ...] = ()
+    """Crossing pairs ``(id_a, id_b, scan)``: the two targets are within 20 m at ``scan``
+    (generated ``random`` family; see :func:`sinks.metrics.crossing_label_keeping`)."""
+    seed: int | None = None
+    """Scene seed of a generated family (``None`` for the fixed tables)."""
+    scene: tuple[str, ...] = ()
+    """The ``scene.*`` overrides a generated scene was built with (without ``scene.``)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "targets", tuple(self.targets))
@@ -140,6 +164,12 @@ class Scenario:
         for t in self.targets:
             if t.death > self.K:
                 raise ValueError(f"Scenario {self.name}: {t.id} dies after K={self.K}")
+        object.__setattr__(self, "crossings", tuple(
+            (str(a), str(b), int(k)) for a, b, k in self.crossings))
+        object.__setattr__(self, "scene", tuple(self.scene))
+        for a, b, _k in self.crossings:
+            if a not in ids or b not in ids:
+                raise ValueError(f"Scenario {self.name}: crossing ({a}, {b}) names unknown targets")
 
     # ------------------------------------------------------------------------------
     @property
@@ -200,7 +230,8 @@ class Scenario:
         (``snr``: 2 per scan) when ``params.range_clutter_rate`` is unset.  If it has its own birth regions
         (``proximity``: the path's entry point; ``snr``: the 11 entry points), they replace the
         parameter set's, so the GLMB's birth model and the BNP trackers' base distribution know
-        where this scenario's objects appear, as Vo's components do for ``vo2017``.
+        where this scenario's objects appear, as Vo's components do for ``vo2017``.  An empty
+        ``birth`` (the generated families) sets ``birth = []``: no birth regions at all.
         """
         if self.default_snr_db is not None and params.snr_db is None:
             params = msgspec.structs.replace(params, snr_db=float(self.default_snr_db))
@@ -310,14 +341,43 @@ SCENARIOS: dict[str, Scenario] = {
 
 
 def scenario_names() -> tuple[str, ...]:
-    return tuple(SCENARIOS)
+    """The fixed scenarios, then the generated families."""
+    from sources.scene_families import family_names
+
+    return tuple(SCENARIOS) + family_names()
 
 
-def get_scenario(name: str) -> Scenario:
-    """Look a scenario up by name; raises :class:`ConfigError` listing the valid names."""
-    try:
+def is_generated(name: str) -> bool:
+    """Whether ``name`` is a generated family (its scene depends on a seed)."""
+    from sources.scene_families import FAMILIES
+
+    return name in FAMILIES
+
+
+def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = ()) -> Scenario:
+    """Look a scenario up by name; raises :class:`ConfigError` listing the valid names.
+
+    A generated family (``random``, ``random-cv``; :mod:`sources.scene_families`) is built
+    from the scene ``seed`` (required) and ``scene`` overrides (``KEY=VALUE``, no ``scene.``
+    prefix); the fixed scenarios ignore ``seed`` and reject ``scene`` overrides.
+    """
+    if name in SCENARIOS:
+        if scene:
+            raise ConfigError(
+                f"scene.* settings ({'; '.join(scene)}) apply only to the generated scenarios "
+                f"({', '.join(scenario_names()[len(SCENARIOS):])}), not to {name!r}")
         return SCENARIOS[name]
-    except KeyError:
+    if not is_generated(name):
         raise ConfigError(
-            f"unknown scenario {name!r}; valid scenarios: {', '.join(SCENARIOS)}"
-        ) from None
+            f"unknown scenario {name!r}; valid scenarios: {', '.join(scenario_names())}"
+        )
+    if seed is None:
+        raise ConfigError(f"scenario {name!r} is generated: it needs a scene seed")
+    return _generated(name, int(seed), tuple(scene))
+
+
+@functools.lru_cache(maxsize=32)
+def _generated(name: str, seed: int, scene: tuple[str, ...]) -> Scenario:
+    from sources.scene_families import generate_scene
+
+    return generate_scene(name, seed, scene)

@@ -517,3 +517,85 @@ def test_ospa2_single_scan_equals_ospa(X, Y, c, p):
     r = ospa(X, Y, c, p)
     for a, b in zip(dataclasses.astuple(r2), dataclasses.astuple(r)):
         assert a == pytest.approx(b, rel=1e-9, abs=tol(c))
+
+
+# --------------------------------------------------------------------------- crossings
+
+
+def _crossing_run(labels_a, labels_b, *, K=21, lost_b_at=()):
+    """Two objects crossing at scan 11 (x = 10 * (k - 11), y = +-5 (k - 11)); tracks sit 3 m
+    off each object and carry ``labels_a[k-1]`` / ``labels_b[k-1]``; object b's track is
+    missing at the scans in ``lost_b_at``."""
+    true, est = [], []
+    for k in range(1, K + 1):
+        pa = np.array([10.0 * (k - 11), 5.0 * (k - 11)])
+        pb = np.array([10.0 * (k - 11), -5.0 * (k - 11)])
+        true.append({"A": pa, "B": pb})
+        scan = {labels_a[k - 1]: pa + [0.0, 3.0]}
+        if k not in lost_b_at:
+            scan[labels_b[k - 1]] = pb + [0.0, -3.0]
+        est.append(scan)
+    return true, est
+
+
+def test_crossing_label_keeping_kept_swapped_lost():
+    from sinks.metrics import crossing_label_keeping
+
+    K = 21
+    true, est = _crossing_run(["t1"] * K, ["t2"] * K)
+    res = crossing_label_keeping(true, est, [("A", "B", 11)])
+    p = res.pairs[0]
+    assert res.fraction_kept == 1.0 and p.kept
+    assert (p.before, p.after) == (6, 16)
+    assert p.labels_before == ("t1", "t2") and p.labels_after == ("t1", "t2")
+    # swapped after the crossing: the track labelled t2 follows A from scan 12 on
+    swap_a = ["t1"] * 11 + ["t2"] * 10
+    swap_b = ["t2"] * 11 + ["t1"] * 10
+    res = crossing_label_keeping(*_crossing_run(swap_a, swap_b), [("A", "B", 11)])
+    assert res.fraction_kept == 0.0
+    assert res.pairs[0].labels_after == ("t2", "t1") and not res.pairs[0].kept
+    # B's track missing at scan 16 (c + 5): not kept, B unassigned there
+    res = crossing_label_keeping(*_crossing_run(["t1"] * K, ["t2"] * K, lost_b_at=(16,)),
+                                 [("A", "B", 11)])
+    assert res.pairs[0].labels_after == ("t1", None) and res.fraction_kept == 0.0
+    # lost only at the crossing scan itself: still kept (only c -+ 5 are checked)
+    res = crossing_label_keeping(*_crossing_run(["t1"] * K, ["t2"] * K, lost_b_at=(11,)),
+                                 [("A", "B", 11)])
+    assert res.fraction_kept == 1.0
+    # a new label for B after the crossing (track restarted): not kept
+    res = crossing_label_keeping(*_crossing_run(["t1"] * K, ["t2"] * 11 + ["t9"] * 10),
+                                 [("A", "B", 11)])
+    assert res.pairs[0].labels_after == ("t1", "t9") and not res.pairs[0].kept
+
+
+def test_crossing_label_keeping_gate_clipping_and_fraction():
+    from sinks.metrics import crossing_label_keeping
+
+    K = 21
+    true, est = _crossing_run(["t1"] * K, ["t2"] * K)
+    # gate below the 3 m offset: nothing is assigned, not kept
+    res = crossing_label_keeping(true, est, [("A", "B", 11)], gate=2.0)
+    assert res.pairs[0].labels_before == (None, None) and res.fraction_kept == 0.0
+    # clipping to both lifetimes: B present only from scan 9 (c - 2) -> checked at 9 and 16
+    true2 = [dict(s) for s in true]
+    for k in range(1, 9):
+        del true2[k - 1]["B"]
+    p = crossing_label_keeping(true2, est, [("A", "B", 11)]).pairs[0]
+    assert (p.before, p.after) == (9, 16) and p.kept
+    # first_scan shifts the numbering; two pairs, one kept, one swapped -> 0.5
+    swap = crossing_label_keeping(*_crossing_run(["t1"] * 11 + ["t2"] * 10,
+                                                 ["t2"] * 11 + ["t1"] * 10), [("A", "B", 11)])
+    assert swap.fraction_kept == 0.0
+    t3 = [{**s, "C": s["A"] + [0.0, 500.0], "D": s["B"] + [0.0, -500.0]} for s in true]
+    e3 = [{**s, "u": t3[k]["C"], "v": t3[k]["D"] if k < 13 else t3[k]["C"] + [0, 1e3]}
+          for k, s in enumerate(est)]
+    res = crossing_label_keeping(t3, e3, [("A", "B", 111), ("C", "D", 111)], first_scan=101)
+    assert [p.kept for p in res.pairs] == [True, False] and res.fraction_kept == 0.5
+    assert res.pairs[1].labels_after == ("u", None)
+    assert math.isnan(crossing_label_keeping(true, est, []).fraction_kept)
+    with pytest.raises(ValueError, match="outside"):
+        crossing_label_keeping(true, est, [("A", "B", 30)])
+    with pytest.raises(ValueError, match="never present"):
+        crossing_label_keeping(true, est, [("A", "Z", 11)])
+    with pytest.raises(ValueError, match="scans"):
+        crossing_label_keeping(true, est[:-1], [("A", "B", 11)])

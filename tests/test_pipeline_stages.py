@@ -726,3 +726,24 @@ def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
     for s in [40, 41, 42, 0]:
         plain.push(s, s)
     assert plain.gaps[:3] == [0, 1, 2]
+
+
+def test_memory_pipeline_with_a_generated_random_source(tmp_path):
+    """A synthetic source of the generated ``random`` scenario: the scene comes from
+    source.seed and the scene.* items of source.overrides; the tracker gets no birth regions."""
+    from pipeline.offline import parse_crossings, resolve_params
+    from sources.scenarios import get_scenario
+
+    cfg = _mem_cfg(tmp_path, frames=8, **{"source.scenario": '"random"', "source.seed": "3",
+                                          "source.overrides": "['scene.n_objects=22']"})
+    codes = _run_memory_pipeline(cfg, MemoryNetwork())
+    assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    sc = get_scenario("random", 3, ("n_objects=22",))
+    assert log.metadata["scene_seed"] == "3" and log.metadata["scene"] == "n_objects=22"
+    assert parse_crossings(log.metadata["crossings"]) == sc.crossings
+    assert resolve_params(None, log.metadata).params.birth == []
+    assert [len(f.truth.ids) for f in log.frames] == sc.cardinality()[:8].tolist()
+    frames, ests = _offline(cfg)
+    assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, frames, strict=True))
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]

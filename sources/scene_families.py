@@ -1,0 +1,315 @@
+r"""Seeded generated scenario families: ``random`` and the held-out ``random-cv``.
+
+A family is a pure function ``(family name, scene seed, family parameters) -> Scenario``
+(:func:`generate_scene`).  The parameters are a :class:`SceneFamily` (``--set scene.KEY=VALUE``
+on the command line, see :func:`scene_config`); the scene's random stream is
+:func:`scene_rng`, ``SeedSequence(seed, spawn_key=(0, crc32(name)))``, disjoint from the
+measurement streams of :func:`sources.synthetic.frame_rng` (``spawn_key=(k,)``), so one seed
+drives both the scene and its measurements without the two sharing draws.
+
+The field (decided here): the ``vo2017`` sensor (bearing-range at the origin, bearing in
+(-90, 90) deg from +y, range 0-2000 m).  Every object stays *inside* the box
+``range_min <= r <= range_max`` (default 150-1900 m) and ``|bearing| <= bearing_max_deg``
+(default 85 deg) at every scan it is present, so it is always observable (``P_D`` applies).
+An object whose trajectory would leave the box is **truncated**: its life ends at the last
+scan inside (crossing-pair objects: also its life begins at the first scan inside); a draw
+that keeps fewer than ``life_min`` scans (crossing objects: fewer than 7 scans on either
+side of the crossing) is redrawn.
+
+``random`` (defaults of :class:`SceneFamily`)
+    ``N`` objects, uniform in 20-30 (``n_objects`` fixes it).  Each free object: birth scan
+    uniform in ``1..K - life_min + 1``, planned lifetime uniform in 15-100 scans (clipped to
+    ``K = 100``), position uniform over the area of the box, heading uniform, speed uniform
+    in 5-40 m/s, turn rate 0 with probability ``straight_fraction`` (0.25), else uniform in
+    +-3 deg/s (coordinated-turn model, noiseless).  Plus ``crossing_pairs`` (3) pairs: a
+    crossing scan ``c`` uniform in ``8..K-7``, a crossing point in the box, the two objects
+    placed ``sep`` apart around it (``sep`` uniform in ``0..crossing_sep``, default 10 m, so
+    within 20 m) with headings 30-150 deg apart, and each propagated backwards (the
+    coordinated turn with period ``-T`` is the exact inverse) and forwards from ``c``.  The
+    pairs are recorded in :attr:`Scenario.crossings` as ``(id_a, id_b, c)``.  No birth
+    regions: :meth:`Scenario.adapt_params` sets ``birth = []``.
+``random-cv`` (held-out family, different defaults)
+    8-15 straight-line constant-velocity objects (``turn_max_deg = 0``), speeds 2-25 m/s,
+    lifetimes 20-100, births in ``bursts = 3`` bursts: each object is born at a burst scan
+    (uniform in ``1..K - life_min + 1``) plus 0-2 scans; no crossing pairs; no birth regions.
+
+Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
+are defined for ``T = 1`` s (the crossing distance holds for that period).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+
+from tracker.config import ConfigError, apply_overrides
+from tracker.models.motion import CoordinatedTurn
+
+__all__ = [
+    "SceneFamily",
+    "FAMILIES",
+    "family_names",
+    "scene_rng",
+    "scene_config",
+    "generate_scene",
+    "family_template",
+    "in_field",
+    "CROSSING_MIN_SIDE",
+]
+
+#: Scans a crossing-pair object is present on each side of its crossing scan (at least).
+CROSSING_MIN_SIDE = 7
+_MAX_TRIES = 2000
+
+
+class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Parameters of a generated family (``--set scene.KEY=VALUE``).  Angles in degrees."""
+
+    n_objects: int = 0
+    """Number of objects; 0 = uniform in ``n_min..n_max``."""
+    n_min: int = 20
+    n_max: int = 30
+    crossing_pairs: int = 3
+    crossing_sep: float = 10.0
+    """Largest separation (m) of a crossing pair at its crossing scan (at most 20)."""
+    life_min: int = 15
+    life_max: int = 100
+    speed_min: float = 5.0
+    speed_max: float = 40.0
+    turn_max_deg: float = 3.0
+    """Largest |turn rate| in deg/s (0 = straight lines only)."""
+    straight_fraction: float = 0.25
+    bursts: int = 0
+    """0: birth scans uniform; else births at this many burst scans (+0..burst_spread)."""
+    burst_spread: int = 2
+    range_min: float = 150.0
+    range_max: float = 1900.0
+    bearing_max_deg: float = 85.0
+    K: int = 100
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.n_objects >= 0, "n_objects must be >= 0"),
+            (1 <= self.n_min <= self.n_max, "need 1 <= n_min <= n_max"),
+            (self.crossing_pairs >= 0, "crossing_pairs must be >= 0"),
+            (0.0 <= self.crossing_sep <= 20.0, "crossing_sep must be in [0, 20] m"),
+            (self.K >= 2 * CROSSING_MIN_SIDE + 1, f"K must be >= {2 * CROSSING_MIN_SIDE + 1}"),
+            (1 <= self.life_min <= self.life_max, "need 1 <= life_min <= life_max"),
+            (self.life_min <= self.K, "life_min must be <= K"),
+            (0.0 < self.speed_min <= self.speed_max, "need 0 < speed_min <= speed_max"),
+            (0.0 <= self.turn_max_deg <= 30.0, "turn_max_deg must be in [0, 30]"),
+            (0.0 <= self.straight_fraction <= 1.0, "straight_fraction must be in [0, 1]"),
+            (self.bursts >= 0 and self.burst_spread >= 0, "bursts, burst_spread must be >= 0"),
+            (0.0 <= self.range_min < self.range_max <= 2000.0,
+             "need 0 <= range_min < range_max <= 2000"),
+            (0.0 < self.bearing_max_deg < 90.0, "bearing_max_deg must be in (0, 90)"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+        if 2 * self.crossing_pairs > (self.n_objects or self.n_min):
+            raise ValueError("2 * crossing_pairs must not exceed the number of objects")
+
+
+#: The registered families and their default parameters.
+FAMILIES: dict[str, SceneFamily] = {
+    "random": SceneFamily(),
+    "random-cv": SceneFamily(
+        n_min=8, n_max=15, crossing_pairs=0, life_min=20, speed_min=2.0, speed_max=25.0,
+        turn_max_deg=0.0, straight_fraction=1.0, bursts=3,
+    ),
+}
+
+_DESCRIPTIONS = {
+    "random": "Generated: 20-30 coordinated-turn objects born anywhere at random scans, "
+              "5-40 m/s, |turn| <= 3 deg/s, 3 crossing pairs (within 20 m); no birth regions",
+    "random-cv": "Generated (held-out): 8-15 straight constant-velocity objects, 2-25 m/s, "
+                 "births in 3 bursts; no birth regions",
+}
+
+
+def family_names() -> tuple[str, ...]:
+    return tuple(FAMILIES)
+
+
+def scene_rng(name: str, seed: int) -> np.random.Generator:
+    """The scene's random stream: ``SeedSequence(seed, spawn_key=(0, crc32(name)))``."""
+    key = (0, zlib.crc32(name.encode()))
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=key))
+
+
+def scene_config(name: str, overrides: Sequence[str] = ()) -> SceneFamily:
+    """The family's parameters with ``KEY=VALUE`` overrides (keys without ``scene.``).
+
+    Raises :class:`ConfigError` naming a bad key or value.
+    """
+    try:
+        base = FAMILIES[name]
+    except KeyError:
+        raise ConfigError(
+            f"scenario {name!r} is not generated; scene.* settings apply only to "
+            f"{', '.join(FAMILIES)}"
+        ) from None
+    wrapped = apply_overrides(_Wrapped(base), [f"scene.{o.strip()}" for o in overrides])
+    return wrapped.scene
+
+
+class _Wrapped(msgspec.Struct, frozen=True):
+    """``scene.KEY`` overrides resolve against this, so errors name the full key."""
+
+    scene: SceneFamily
+
+
+# ----------------------------------------------------------------------------------
+# Geometry
+# ----------------------------------------------------------------------------------
+def in_field(states: np.ndarray, fam: SceneFamily) -> np.ndarray:
+    """``(...)`` bool: position of ``(..., 5)`` states inside the family's box."""
+    px, py = states[..., 0], states[..., 2]
+    r = np.hypot(px, py)
+    bearing = np.arctan2(px, py)
+    return ((r >= fam.range_min) & (r <= fam.range_max)
+            & (np.abs(bearing) <= np.deg2rad(fam.bearing_max_deg)))
+
+
+def _propagate(x: np.ndarray, steps: int, T: float) -> np.ndarray:
+    """``(steps + 1, 5)``: ``x`` and ``steps`` noiseless transitions with period ``T``."""
+    ct = CoordinatedTurn(T=T)
+    out = np.empty((steps + 1, 5))
+    out[0] = x
+    for i in range(steps):
+        out[i + 1] = ct.f(out[i])
+    return out
+
+
+def _inside_run(traj: np.ndarray, fam: SceneFamily) -> int:
+    """Length of the leading run of ``traj`` inside the box."""
+    inside = in_field(traj, fam)
+    return int(inside.size if inside.all() else np.argmin(inside))
+
+
+def _position(rng: np.random.Generator, fam: SceneFamily) -> np.ndarray:
+    """A position uniform over the area of the box."""
+    r = np.sqrt(rng.uniform(fam.range_min**2, fam.range_max**2))
+    b = np.deg2rad(rng.uniform(-fam.bearing_max_deg, fam.bearing_max_deg))
+    return np.array([r * np.sin(b), r * np.cos(b)])
+
+
+def _velocity(rng: np.random.Generator, fam: SceneFamily, heading: float) -> np.ndarray:
+    """``[vx, vy, omega]``: random speed along ``heading`` (rad from +x), random turn rate."""
+    speed = rng.uniform(fam.speed_min, fam.speed_max)
+    straight = fam.turn_max_deg == 0.0 or rng.uniform() < fam.straight_fraction
+    omega = 0.0 if straight else np.deg2rad(rng.uniform(-fam.turn_max_deg, fam.turn_max_deg))
+    return np.array([speed * np.cos(heading), speed * np.sin(heading), omega])
+
+
+def _state(pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+    return np.array([pos[0], vel[0], pos[1], vel[1], vel[2]])
+
+
+# ----------------------------------------------------------------------------------
+# Objects
+# ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Object:
+    x_birth: np.ndarray  # state at the birth scan
+    birth: int
+    death: int
+
+
+def _birth_scan(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> int:
+    last = fam.K - fam.life_min + 1
+    if bursts.size:
+        b = int(rng.choice(bursts)) + int(rng.integers(0, fam.burst_spread + 1))
+        return min(b, last)
+    return int(rng.integers(1, last + 1))
+
+
+def _free_object(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> _Object:
+    """One object born in the box, truncated when it leaves (redrawn if too short)."""
+    for _ in range(_MAX_TRIES):
+        b = _birth_scan(rng, fam, bursts)
+        life = int(rng.integers(fam.life_min, fam.life_max + 1))
+        d = min(b + life - 1, fam.K)
+        x = _state(_position(rng, fam), _velocity(rng, fam, rng.uniform(-np.pi, np.pi)))
+        kept = _inside_run(_propagate(x, d - b, 1.0), fam)
+        if kept >= fam.life_min:
+            return _Object(x, b, b + kept - 1)
+    raise ConfigError("scene: could not place an object inside the field; relax the scene.* settings")
+
+
+def _crossing_side(x_c: np.ndarray, steps: int, T: float, fam: SceneFamily) -> tuple[np.ndarray, int]:
+    """Trajectory from the crossing state over ``steps`` scans (``T = -1``: backwards),
+    truncated at leaving the box; returns it and the scans kept beyond ``c``."""
+    traj = _propagate(x_c, steps, T)
+    kept = _inside_run(traj, fam)
+    return traj, kept - 1
+
+
+def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object, _Object, int]:
+    """Two objects within ``crossing_sep`` m of each other at a random crossing scan."""
+    m = CROSSING_MIN_SIDE
+    for _ in range(_MAX_TRIES):
+        c = int(rng.integers(m + 1, fam.K - m + 1))
+        p = _position(rng, fam)
+        sep = rng.uniform(0.0, fam.crossing_sep)
+        phi = rng.uniform(-np.pi, np.pi)
+        off = 0.5 * sep * np.array([np.cos(phi), np.sin(phi)])
+        h_a = rng.uniform(-np.pi, np.pi)
+        h_b = h_a + rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 150.0))
+        objs = []
+        for pos, heading in ((p + off, h_a), (p - off, h_b)):
+            x_c = _state(pos, _velocity(rng, fam, heading))
+            life = int(rng.integers(max(fam.life_min, 2 * m + 1), max(fam.life_max, 2 * m + 1) + 1))
+            before = int(rng.integers(m, life - m))  # scans before c, then after = life-1-before
+            back, n_back = _crossing_side(x_c, min(before, c - 1), -1.0, fam)
+            _, n_fwd = _crossing_side(x_c, min(life - 1 - before, fam.K - c), 1.0, fam)
+            if n_back < m or n_fwd < m:
+                break
+            objs.append(_Object(back[n_back], c - n_back, c + n_fwd))
+        if len(objs) == 2:
+            return objs[0], objs[1], c
+    raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
+
+
+def family_template(name: str):
+    """A target-less :class:`Scenario` of family ``name``: what every scene of the family
+    shares (sensor kind, ``K``, no birth regions), for :meth:`Scenario.adapt_params` without
+    drawing a scene."""
+    from sources.scenarios import Scenario
+
+    scene_config(name)  # validates the name
+    return Scenario(name, _DESCRIPTIONS[name], K=FAMILIES[name].K, birth=())
+
+
+def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
+    """The scene of family ``name`` for ``seed`` and ``scene.*`` ``overrides`` (a :class:`Scenario`)."""
+    from sources.scenarios import Scenario, TargetSpec
+
+    fam = scene_config(name, overrides)
+    rng = scene_rng(name, seed)
+    n = fam.n_objects or int(rng.integers(fam.n_min, fam.n_max + 1))
+    bursts = np.sort(rng.integers(1, fam.K - fam.life_min + 2, size=fam.bursts))
+    objs: list[_Object] = []
+    pairs: list[tuple[int, int, int]] = []
+    for _ in range(fam.crossing_pairs):
+        a, b, c = _crossing_pair(rng, fam)
+        pairs.append((len(objs), len(objs) + 1, c))
+        objs += [a, b]
+    objs += [_free_object(rng, fam, bursts) for _ in range(n - len(objs))]
+    order = sorted(range(n), key=lambda j: (objs[j].birth, j))
+    ident = {j: f"T{rank + 1}" for rank, j in enumerate(order)}
+    inv = CoordinatedTurn(T=-1.0)
+    targets = tuple(
+        TargetSpec(ident[j], tuple(inv.f(objs[j].x_birth)), objs[j].birth, objs[j].death)
+        for j in order
+    )
+    crossings = tuple((ident[a], ident[b], c) for a, b, c in pairs)
+    return Scenario(
+        name, _DESCRIPTIONS[name], K=fam.K, targets=targets, birth=(), crossings=crossings,
+        seed=int(seed), scene=tuple(overrides),
+    )
