@@ -99,7 +99,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``"static"``: the birth regions only; ``"adaptive"``: measurement-driven births only
     (Reuter et al. 2014); ``"both"``; ``"auto"``: ``"adaptive"`` when there are no birth
     regions, else ``"static"`` (``docs/glmb.md`` measures the choice)."""
-    birth_rate: PosFloat = 0.1
+    birth_rate: PosFloat = 0.2
     r"""Adaptive birth: :math:`\lambda_B`, the expected number of new objects per scan, spread
     over the previous scan's measurements by how unlikely each was to be assigned."""
     birth_r_max: OpenProb = 0.5
@@ -114,7 +114,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Adaptive birth: std of the zero-mean velocity prior per axis, m/s."""
     birth_turn_std_deg: PosFloat = 6.0
     """Adaptive birth: std of the zero-mean turn-rate prior, deg/s (Vo's birth components)."""
-    estimator: Estimator = "map-cardinality"
+    estimator: Estimator = "continuity"
     """``"map-cardinality"``: the best hypothesis of the MAP cardinality (Vo's demo);
     ``"continuity"``: the MAP-cardinality hypothesis that continues the most of the last
     estimate's tracks among those within ``continuity_ratio`` of the best
