@@ -110,7 +110,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     birth_min_share: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 1e-3
     """Adaptive birth: a measurement whose birth existence is below this fraction of the
     largest one of its scan gets no Bernoulli (relative, so it cannot remove every birth)."""
-    birth_velocity_std: PosFloat = 30.0
+    birth_velocity_std: PosFloat = 20.0
     """Adaptive birth: std of the zero-mean velocity prior per axis, m/s."""
     birth_turn_std_deg: PosFloat = 6.0
     """Adaptive birth: std of the zero-mean turn-rate prior, deg/s (Vo's birth components)."""
