@@ -37,6 +37,7 @@ Everything random comes from the caller's ``rng``; ``step`` is a pure function.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -56,10 +57,15 @@ try:  # the Gibbs sweeps also run interpreted (BNPTRACK_NO_JIT=1)
 except ImportError:  # pragma: no cover
     _njit = None
 
-__all__ = ["GlmbConfig", "GlmbState", "GlmbTracker", "GLMB_PRESETS", "make_glmb", "GlmbModel"]
+__all__ = ["GlmbConfig", "GlmbState", "GlmbTracker", "GLMB_PRESETS", "make_glmb", "GlmbModel",
+           "adaptive_birth_existence", "measurement_state_prior", "marginals",
+           "map_cardinality_rows", "continuity_rows", "marginal_label_rows", "estimate_from_rows"]
 
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
 PosInt = Annotated[int, msgspec.Meta(ge=1)]
+PosFloat = Annotated[float, msgspec.Meta(gt=0.0)]
+BirthModel = Literal["auto", "static", "adaptive", "both"]
+Estimator = Literal["map-cardinality", "continuity", "marginal-labels"]
 
 #: option columns of the eta matrix: 0 = dies / not born, 1 = missed, 2 + j = detected by z_j
 _DIE, _MISS, _DET = 0, 1, 2
@@ -87,7 +93,37 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Chain start: the optimal assignment (linear assignment, so each parent's best child is
     always kept) or every candidate at its best of dies/missed (Vo's demo: all missed)."""
     birth: list[BirthComponent] | None = None
-    """Labeled multi-Bernoulli birth; ``None`` uses the parameter set's ``birth`` list."""
+    """Static labeled multi-Bernoulli birth regions; ``None`` uses the parameter set's
+    ``birth`` list (``[]``: none)."""
+    birth_model: BirthModel = "auto"
+    """``"static"``: the birth regions only; ``"adaptive"``: measurement-driven births only
+    (Reuter et al. 2014); ``"both"``; ``"auto"``: ``"adaptive"`` when there are no birth
+    regions, else ``"static"`` (``docs/glmb.md`` measures the choice)."""
+    birth_rate: PosFloat = 0.2
+    r"""Adaptive birth: :math:`\lambda_B`, the expected number of new objects per scan, spread
+    over the previous scan's measurements by how unlikely each was to be assigned."""
+    birth_r_max: OpenProb = 0.5
+    r"""Adaptive birth: cap :math:`r_{B,\max}` on one measurement's birth existence."""
+    max_births: PosInt = 50
+    """Adaptive birth: at most this many birth Bernoullis per scan (the measurements with the
+    largest unassigned probability; a cap on the cost, never zero births)."""
+    birth_min_share: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 1e-3
+    """Adaptive birth: a measurement whose birth existence is below this fraction of the
+    largest one of its scan gets no Bernoulli (relative, so it cannot remove every birth)."""
+    birth_velocity_std: PosFloat = 20.0
+    """Adaptive birth: std of the zero-mean velocity prior per axis, m/s."""
+    birth_turn_std_deg: PosFloat = 6.0
+    """Adaptive birth: std of the zero-mean turn-rate prior, deg/s (Vo's birth components)."""
+    estimator: Estimator = "continuity"
+    """``"map-cardinality"``: the best hypothesis of the MAP cardinality (Vo's demo);
+    ``"continuity"``: the MAP-cardinality hypothesis that continues the most of the last
+    estimate's tracks among those within ``continuity_ratio`` of the best
+    (:func:`continuity_rows`); ``"marginal-labels"``: the MAP-cardinality number of labels
+    with the largest marginal existence, each with its best association history
+    (:func:`marginal_label_rows`)."""
+    continuity_ratio: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.5
+    """``continuity`` / ``marginal-labels``: an estimate that continues the previous one is
+    kept while its weight is at least this fraction of the best alternative's."""
 
 
 GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}
@@ -99,6 +135,7 @@ class GlmbModel(Protocol):
     ``motion()`` and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
     ``clutter(kind).log_intensity`` is :math:`\\log\\kappa(z)` (uniform clutter);
     ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
+    Adaptive births also need ``measurement(kind).to_cartesian(Z) -> (pos (M, 2), cov (M, 2, 2))``.
     """
 
     birth: list[BirthComponent]
@@ -121,6 +158,8 @@ class GlmbState:
     Track table: ``labels`` (T,), ``mean`` (T, 5), ``cov`` (T, 5, 5).  Hypotheses:
     ``hyp_tracks`` (H, maxN) int64 sorted table rows padded with ``-1``; ``log_w`` (H,)
     normalised log weights.  The initial state is the single empty hypothesis of weight 1.
+    ``birth_*``: the last frame's measurements and their assignment probabilities, from
+    which the next frame's adaptive births are built.
     """
 
     frame: int = -1
@@ -130,6 +169,17 @@ class GlmbState:
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, STATE_DIM, STATE_DIM)))
     hyp_tracks: np.ndarray = field(default_factory=_empty_hyps)
     log_w: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    birth_frame: int = -1
+    """Frame of ``birth_z`` (the last processed frame; ``-1``: none)."""
+    birth_kind: str = "bearing_range"
+    birth_z: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """The last frame's measurements ``(M, d)``: the adaptive births of the next frame."""
+    birth_r_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    r"""``(M,)`` :math:`r_U(z)`: posterior probability that ``birth_z[m]`` was assigned to a
+    track (sum of the weights of the hypotheses that use it)."""
+    est_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Table rows reported by the last estimate (the ``marginal-labels`` estimator follows
+    their association histories)."""
 
     @property
     def n_tracks(self) -> int:
@@ -161,6 +211,11 @@ class _Candidates:
     log_not_e: np.ndarray  # log(1 - P_S) or log(1 - r_B)
     p_detect: np.ndarray
     n_survivors: int
+    n_adaptive: int = 0
+
+    @property
+    def n_births(self) -> int:
+        return len(self.labels) - self.n_survivors
 
 
 @dataclass(frozen=True)
@@ -175,10 +230,12 @@ class _Children:
 
 @dataclass(frozen=True)
 class _Update:
-    """The new GLMB plus per-row data of this frame (measurement index or -1)."""
+    """The new GLMB plus per-row data of this frame: the measurement index (or -1) and the
+    previous table row it continues (or -1 for a birth)."""
 
     state: GlmbState
     row_meas: np.ndarray
+    parent_row: np.ndarray
 
 
 # --------------------------------------------------------------------------------------
@@ -261,6 +318,31 @@ def start_optimal(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_assign_dense` on the candidates that have a measurement in their gate only:
+    the others (e.g. most adaptive births) cannot compete for a measurement, so their best
+    option is their best of dies/missed whatever the rest does (same result, smaller
+    problems)."""
+    valid = cand >= 0
+    safe = np.where(valid, cand, 0)
+    gated = valid & np.isfinite(E[:, _DET:]).any(axis=1)[safe]
+    Ec = E[safe]
+    no_det = np.where(Ec[..., _MISS] >= Ec[..., _DIE], _MISS, _DIE)
+    best_no = np.take_along_axis(Ec, no_det[..., None], axis=-1)[..., 0]
+    out = np.where(valid, no_det, -1)
+    ok = np.all(np.isfinite(best_no) | ~valid | gated, axis=1)
+    order = np.argsort(~gated, axis=1, kind="stable")
+    width = int(gated.sum(axis=1).max(initial=0))
+    if width == 0:
+        return out, ok
+    order = order[:, :width]
+    sub = np.where(np.take_along_axis(gated, order, axis=1), np.take_along_axis(cand, order, axis=1), -1)
+    sub_out, sub_ok = _assign_dense(E, sub)
+    hh, ii = np.nonzero(sub >= 0)
+    out[hh, order[hh, ii]] = sub_out[hh, ii]
+    return out, ok & sub_ok
+
+
+def _assign_dense(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Best options of each parent by linear assignment on the cost matrix
     ``[-log eta(detections) | diag(-max(log eta(dies), log eta(missed)))]`` (padding rows
     take their own dummy column at no cost), all parents in one call of the compiled
@@ -594,6 +676,71 @@ def prune_and_cap(log_w: np.ndarray, threshold: float, cap: int) -> np.ndarray:
     return np.sort(keep)
 
 
+def adaptive_birth_existence(r_u: np.ndarray, rate: float, r_max: float, max_births: int,
+                             min_share: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Existence of the adaptive births (Reuter, Vo, Vo & Dietmayer 2014, "The labeled
+    multi-Bernoulli filter", adaptive birth procedure):
+
+    .. math:: r_B(z) = \min\Big(r_{B,\max},\ \lambda_B \frac{1 - r_U(z)}{\sum_{z'} (1 - r_U(z'))}\Big)
+
+    for the measurements ``z`` of the previous scan, :math:`r_U(z)` the posterior probability
+    that ``z`` was assigned to a track.  Bounded: only the ``max_births`` measurements with
+    the largest :math:`r_B` (ties: lower index), and none whose :math:`r_B` is below
+    ``min_share`` times the largest (so the set is empty only when every measurement was
+    surely assigned).  Returns the kept measurement indices (increasing) and their
+    :math:`r_B`.
+    """
+    unassigned = np.clip(1.0 - np.asarray(r_u, dtype=float), 0.0, 1.0)
+    total = float(unassigned.sum())
+    if total <= 0.0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    r = np.minimum(r_max, rate * unassigned / total)
+    order = np.argsort(-r, kind="stable")[:max_births]
+    keep = np.sort(order[(r[order] >= min_share * r[order[0]]) & (r[order] > 0.0)])
+    return keep.astype(np.int64), r[keep]
+
+
+def measurement_state_prior(pos: np.ndarray, pos_cov: np.ndarray, velocity_std: float,
+                            turn_std: float) -> tuple[np.ndarray, np.ndarray]:
+    """State ``(M, 5)`` and covariance ``(M, 5, 5)`` of objects seen at ``pos`` ``(M, 2)`` with
+    covariance ``pos_cov`` ``(M, 2, 2)`` (the sensor's inverse model): zero-mean velocity with
+    std ``velocity_std`` per axis and zero-mean turn rate with std ``turn_std``, independent."""
+    n = pos.shape[0]
+    mean = np.zeros((n, STATE_DIM))
+    mean[:, 0], mean[:, 2] = pos[:, 0], pos[:, 1]
+    cov = np.zeros((n, STATE_DIM, STATE_DIM))
+    ix = np.ix_(np.arange(n), [0, 2], [0, 2])
+    cov[ix] = pos_cov
+    cov[:, 1, 1] = cov[:, 3, 3] = velocity_std**2
+    cov[:, 4, 4] = turn_std**2
+    return mean, cov
+
+
+@dataclass(frozen=True)
+class _Births:
+    """Birth Bernoullis of one frame: labels, existence ``r`` (B,), Gaussians."""
+
+    labels: tuple[str, ...]
+    r: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    n_adaptive: int = 0
+
+
+@dataclass(frozen=True)
+class _Marginals:
+    """Per-frame marginals of the updated GLMB (shared by the estimators and the births)."""
+
+    w: np.ndarray  # (H,) hypothesis weights
+    h_idx: np.ndarray  # (P,) hypothesis of each (hypothesis, slot) entry
+    rows: np.ndarray  # (P,) its table row
+    label_id: np.ndarray  # (T,) index of each row's label in the sorted distinct labels
+    n_labels: int
+    existence: np.ndarray  # (L,) r(l) = sum_{I contains l} w(I)
+    p_used: np.ndarray  # (M,) r_U(z_m) = sum_{h uses z_m} w_h
+    pair_p: np.ndarray  # (L * M,) weight of the hypotheses assigning z_m to label l
+
+
 # --------------------------------------------------------------------------------------
 # The tracker
 # --------------------------------------------------------------------------------------
@@ -625,6 +772,14 @@ class GlmbTracker:
         cov = np.stack([np.diag(np.square(np.asarray(c.std, dtype=float))) for c in comps])
         return r, mean, cov
 
+    @cached_property
+    def birth_model(self) -> str:
+        """The birth model in use (``"auto"`` resolved: adaptive without birth regions)."""
+        mode = self.config.birth_model
+        if mode == "auto":
+            return "static" if self.birth[0].size else "adaptive"
+        return mode
+
     def initial_state(self) -> GlmbState:
         return GlmbState()
 
@@ -642,20 +797,26 @@ class GlmbTracker:
         E = self._eta(meas, innov, cands, frame)
         children = self._children(state, cands, E, rng)
         upd = self._update(frame, meas, innov, cands, children)
-        est = self._estimate(upd, frame)
-        w = np.exp(upd.state.log_w)
-        card = upd.state.cardinality()
+        marg = marginals(upd.state, upd.row_meas, frame.n_measurements)
+        rows = self._estimate_rows(upd, marg, state.est_rows)
+        est = estimate_from_rows(upd.state, upd.row_meas, marg, frame, rows)
+        new = dataclasses.replace(upd.state, birth_frame=frame.frame, birth_kind=frame.kind,
+                                  birth_z=frame.z.copy(), birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
+                                  est_rows=rows)
+        card = new.cardinality()
         diagnostics = {
-            "n_hypotheses": float(upd.state.n_hypotheses),
-            "n_tracks": float(upd.state.n_tracks),
+            "n_hypotheses": float(new.n_hypotheses),
+            "n_tracks": float(new.n_tracks),
             "map_cardinality": float(np.argmax(card)),
             "mean_cardinality": float(np.dot(np.arange(card.size), card)),
-            "max_weight": float(np.max(w)),
+            "max_weight": float(np.max(marg.w)),
             "n_samples": float(children.n_samples),
+            "n_births": float(cands.n_births),
+            "n_adaptive_births": float(cands.n_adaptive),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
-        return upd.state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                                   est.assignment_prob, diagnostics)
+        return new, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
+                             est.assignment_prob, diagnostics)
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict_fn(self):
@@ -670,14 +831,49 @@ class GlmbTracker:
         for _ in range(steps if len(m) else 0):
             log_ps = log_ps + _log(self.params.survival(m, frame.kind))
             m, P = predict(self.motion, m, P)
-        r, bm, bP = self.birth
-        labels = state.labels + tuple(f"{frame.frame}.{i}" for i in range(r.size))
-        mean = np.concatenate([m, bm])
-        cov = np.concatenate([P, bP])
-        log_e = np.concatenate([log_ps, _log(r)])
-        log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - r)])
+        b = self._births(state, frame)
+        labels = state.labels + b.labels
+        mean = np.concatenate([m, b.mean])
+        cov = np.concatenate([P, b.cov])
+        log_e = np.concatenate([log_ps, _log(b.r)])
+        log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - b.r)])
         pd = self.params.detection(frame.kind).prob(mean) if len(mean) else np.zeros(0)
-        return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m))
+        return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
+                           b.n_adaptive)
+
+    def _births(self, state: GlmbState, frame: Frame) -> _Births:
+        """This frame's birth Bernoullis: the static regions (labels ``"k.i"``, ``i`` the
+        component) and/or the adaptive births (labels ``"k.zj"``, ``j`` the index of the
+        measurement of the previous processed frame), per :attr:`birth_model`."""
+        r, bm, bP = self.birth
+        static = _Births(tuple(f"{frame.frame}.{i}" for i in range(r.size)), r, bm, bP)
+        if self.birth_model == "static":
+            return static
+        adaptive = self._adaptive_births(state, frame)
+        if self.birth_model == "adaptive":
+            return adaptive
+        return _Births(static.labels + adaptive.labels, np.concatenate([r, adaptive.r]),
+                       np.concatenate([bm, adaptive.mean]), np.concatenate([bP, adaptive.cov]),
+                       adaptive.n_adaptive)
+
+    def _adaptive_births(self, state: GlmbState, frame: Frame) -> _Births:
+        r"""Reuter et al. (2014) adaptive birth: one Bernoulli per kept measurement ``z`` of
+        the previous processed frame with :math:`r_B(z)` from
+        :func:`adaptive_birth_existence` and the measurement-conditioned prior
+        (:func:`measurement_state_prior` of the sensor's ``to_cartesian``) predicted to this
+        frame with the motion model."""
+        cfg = self.config
+        idx, r = adaptive_birth_existence(state.birth_r_u, cfg.birth_rate, cfg.birth_r_max,
+                                          cfg.max_births, cfg.birth_min_share)
+        if state.birth_frame < 0 or idx.size == 0:
+            return _Births((), np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM)))
+        pos, pcov = self.params.measurement(state.birth_kind).to_cartesian(state.birth_z[idx])
+        m, P = measurement_state_prior(pos, pcov, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
+        predict = self._predict_fn()
+        for _ in range(frame.frame - state.birth_frame):
+            m, P = predict(self.motion, m, P)
+        labels = tuple(f"{frame.frame}.z{j}" for j in idx.tolist())
+        return _Births(labels, r, m, P, idx.size)
 
     def _innovation(self, meas, cands: _Candidates) -> kf.Innovation:
         if self.config.filter == "ukf":
@@ -713,6 +909,15 @@ class GlmbTracker:
         log_w = log_w[p_idx] + assignment_log_eta(E, cand[p_idx], gamma)
         return merge_children(cand[p_idx], gamma, log_w, E.shape[1] - _DET)
 
+    def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
+        """Table rows of this frame's estimate, by ``config.estimator``."""
+        continues = np.isin(upd.parent_row, prev_rows)
+        if self.config.estimator == "continuity":
+            return continuity_rows(upd.state, marg, continues, self.config.continuity_ratio)
+        if self.config.estimator == "marginal-labels":
+            return marginal_label_rows(upd.state, marg, continues, self.config.continuity_ratio)
+        return map_cardinality_rows(upd.state, marg)
+
     def _update(self, frame: Frame, meas, innov: kf.Innovation, cands: _Candidates,
                 children: _Children) -> _Update:
         """Prune and cap the children, then build the new track table from their pairs."""
@@ -737,44 +942,110 @@ class GlmbTracker:
         labels = tuple(cands.labels[i] for i in row.tolist())
         new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
                         np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)
-        return _Update(new, (j - 1).astype(np.int64))
+        parent = np.where(row < cands.n_survivors, row, -1).astype(np.int64)
+        return _Update(new, (j - 1).astype(np.int64), parent)
 
-    def _estimate(self, upd: _Update, frame: Frame) -> Estimate:
-        """MAP cardinality, best hypothesis of that cardinality, label marginals."""
-        st = upd.state
-        w = np.exp(st.log_w)
-        hyp = st.hyp_tracks
-        n = np.sum(hyp >= 0, axis=1)
-        card = np.bincount(n, weights=w)
-        n_map = int(np.argmax(card))
-        best = int(np.argmax(np.where(n == n_map, st.log_w, -np.inf)))
-        uniq_labels, label_id = np.unique(np.array(st.labels, dtype=object), return_inverse=True) \
-            if st.n_tracks else (np.zeros(0, dtype=object), np.zeros(0, dtype=np.int64))
-        label_id = np.asarray(label_id, dtype=np.int64).reshape(-1)
-        h_idx, slot = np.nonzero(hyp >= 0)
-        rows = hyp[h_idx, slot]
-        lab_of = label_id[rows]
-        existence = np.bincount(lab_of, weights=w[h_idx], minlength=uniq_labels.size)
-        best_rows = hyp[best][hyp[best] >= 0]
-        tracks = tuple(
-            TrackEstimate(st.labels[r], st.mean[r].copy(), st.cov[r].copy(),
-                          float(min(1.0, existence[label_id[r]])))
-            for r in best_rows.tolist()
-        )
-        M = frame.n_measurements
-        meas_of = upd.row_meas[rows]
-        det = meas_of >= 0
-        p_used = np.bincount(meas_of[det], weights=w[h_idx[det]], minlength=M)
-        pair_p = np.bincount(lab_of[det] * M + meas_of[det], weights=w[h_idx[det]],
-                             minlength=uniq_labels.size * M) if M else np.zeros(0)
-        assignments: list[str | None] = [None] * M
-        probs = [float(np.clip(1.0 - p_used[m], 0.0, 1.0)) for m in range(M)]
-        for r in best_rows.tolist():
-            m = int(upd.row_meas[r])
-            if m >= 0:
-                assignments[m] = st.labels[r]
-                probs[m] = float(np.clip(pair_p[label_id[r] * M + m], 0.0, 1.0))
-        return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
+    r"""Label existences :math:`r(\ell) = \sum_{I \ni \ell} w(I)`, measurement use
+    :math:`r_U(z) = \sum_{h \text{ uses } z} w_h` and label-measurement pair weights of an
+    updated GLMB (``row_meas``: the measurement of each table row this frame, or -1)."""
+    w = np.exp(st.log_w)
+    hyp = st.hyp_tracks
+    if st.n_tracks:
+        uniq, label_id = np.unique(np.array(st.labels, dtype=object), return_inverse=True)
+        n_labels = uniq.size
+    else:
+        n_labels, label_id = 0, np.zeros(0, dtype=np.int64)
+    label_id = np.asarray(label_id, dtype=np.int64).reshape(-1)
+    h_idx, slot = np.nonzero(hyp >= 0)
+    rows = hyp[h_idx, slot]
+    lab_of = label_id[rows]
+    existence = np.bincount(lab_of, weights=w[h_idx], minlength=n_labels)
+    meas_of = row_meas[rows]
+    det = meas_of >= 0
+    p_used = np.bincount(meas_of[det], weights=w[h_idx[det]], minlength=n_meas)
+    pair_p = np.bincount(lab_of[det] * n_meas + meas_of[det], weights=w[h_idx[det]],
+                         minlength=n_labels * n_meas) if n_meas else np.zeros(0)
+    return _Marginals(w, h_idx, rows, label_id, n_labels, existence, p_used, pair_p)
+
+
+def _map_cardinality(st: GlmbState, w: np.ndarray) -> tuple[int, np.ndarray]:
+    """MAP cardinality and the cardinality of each hypothesis."""
+    n = np.sum(st.hyp_tracks >= 0, axis=1)
+    return int(np.argmax(np.bincount(n, weights=w))), n
+
+
+def map_cardinality_rows(st: GlmbState, mg: _Marginals) -> np.ndarray:
+    """Vo's ``extract_estimates``: the MAP cardinality :math:`\\hat n`, then the rows of the
+    highest-weight hypothesis with :math:`\\hat n` labels."""
+    n_map, n = _map_cardinality(st, mg.w)
+    best = int(np.argmax(np.where(n == n_map, st.log_w, -np.inf)))
+    return st.hyp_tracks[best][st.hyp_tracks[best] >= 0].astype(np.int64)
+
+
+def continuity_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ratio: float) -> np.ndarray:
+    r"""Label-consistent MAP extraction: among the hypotheses with the MAP cardinality
+    :math:`\hat n` whose weight is at least ``ratio`` times the best of them, the one whose
+    rows continue the most of the rows the previous estimate reported (``continues`` (T,):
+    the row's parent was reported), ties broken by weight.  With ``ratio = 1`` this is
+    :func:`map_cardinality_rows`; below 1 the estimate keeps following its own association
+    histories (and so its labels) unless another labelling is more than ``1 / ratio`` times
+    as likely -- a streaming, hysteresis form of Vo's track-based extraction.  The reported
+    set is always one hypothesis (no two labels on one object)."""
+    n_map, n = _map_cardinality(st, mg.w)
+    log_w = np.where(n == n_map, st.log_w, -np.inf)
+    cand = np.flatnonzero(log_w >= np.max(log_w) + math.log(ratio))
+    hyp = st.hyp_tracks[cand]
+    cont = np.sum((hyp >= 0) & continues[np.maximum(hyp, 0)], axis=1)
+    h = cand[np.lexsort((-st.log_w[cand], -cont))[0]]
+    return st.hyp_tracks[h][st.hyp_tracks[h] >= 0].astype(np.int64)
+
+
+def marginal_label_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ratio: float) -> np.ndarray:
+    r"""Label-marginal extraction: the MAP cardinality :math:`\hat n`, then the :math:`\hat n`
+    labels with the largest existence :math:`r(\ell)` (ties: label order); each label's state
+    is one of its rows (association histories): the row with the largest weight
+    :math:`\sum_{h \ni \text{row}} w_h`, except that a row continuing the row the previous
+    estimate reported for the label (``continues`` (T,)) is preferred if its weight is at least
+    ``ratio`` times that.  Per-label choices: two labels can report the same object when the
+    posterior is split between labellings.  Returns the rows, one per label."""
+    n_map, _ = _map_cardinality(st, mg.w)
+    if n_map == 0:
+        return np.zeros(0, dtype=np.int64)
+    chosen = np.zeros(mg.n_labels, dtype=bool)
+    chosen[np.argsort(-mg.existence, kind="stable")[:n_map]] = True
+    row_w = np.bincount(mg.rows, weights=mg.w[mg.h_idx], minlength=st.n_tracks)
+    top = np.zeros(mg.n_labels)
+    np.maximum.at(top, mg.label_id, row_w)
+    keep = continues & (row_w >= ratio * top[mg.label_id])
+    score = row_w + 2.0 * keep  # row weights are <= 1: continuing rows first
+    order = np.lexsort((-score, mg.label_id))
+    first = np.concatenate([[True], mg.label_id[order][1:] != mg.label_id[order][:-1]])
+    best = order[first]  # one row per label, in label order
+    return np.sort(best[chosen[mg.label_id[best]]]).astype(np.int64)
+
+
+def estimate_from_rows(st: GlmbState, row_meas: np.ndarray, mg: _Marginals, frame: Frame,
+                       rows: np.ndarray) -> Estimate:
+    """The estimate made of the table rows ``rows`` (one per label): their Gaussians, the
+    labels' marginal existence, and as ``assignments`` the measurements those rows used
+    (with the pair's posterior probability; other measurements: ``None`` with the clutter
+    probability :math:`1 - r_U(z)`)."""
+    tracks = tuple(
+        TrackEstimate(st.labels[r], st.mean[r].copy(), st.cov[r].copy(),
+                      float(min(1.0, mg.existence[mg.label_id[r]])))
+        for r in rows.tolist()
+    )
+    M = frame.n_measurements
+    assignments: list[str | None] = [None] * M
+    probs = [float(np.clip(1.0 - mg.p_used[m], 0.0, 1.0)) for m in range(M)]
+    for r in rows.tolist():
+        m = int(row_meas[r])
+        if m >= 0:
+            assignments[m] = st.labels[r]
+            probs[m] = float(np.clip(mg.pair_p[mg.label_id[r] * M + m], 0.0, 1.0))
+    return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
 
 
 def make_glmb(params: ModelParams | GlmbModel, config: GlmbConfig | None = None) -> GlmbTracker:

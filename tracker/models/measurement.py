@@ -126,6 +126,8 @@ class RangeOnly:
     sigma_range: float = 10.0
     sensor_x: float = 0.0
     sensor_y: float = 0.0
+    half_fov: float = np.pi / 2
+    """Half-width of the bearing field of view (rad); only :meth:`to_cartesian` uses it."""
 
     dim: int = 1
     kind: str = "range"
@@ -157,3 +159,29 @@ class RangeOnly:
 
     def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
+
+    def to_cartesian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""Moment-matched position of ``(M, 1)`` range measurements: the bearing is not
+        observed, so the object is anywhere on the arc of radius ``r`` inside the field of
+        view.  With :math:`\phi \sim \mathcal U(-h, h)` (``h = half_fov``) and
+        :math:`\rho \sim \mathcal N(r, \sigma_r^2)`, :math:`p = s + \rho [\sin\phi, \cos\phi]^T`:
+
+        .. math::
+            E[p] = s + r\,[0,\ \tfrac{\sin h}{h}]^T, \qquad
+            \operatorname{Cov}[p] = (r^2 + \sigma_r^2)\operatorname{diag}(a, b)
+                - r^2 \big(\tfrac{\sin h}{h}\big)^2 e_y e_y^T,
+
+        :math:`a = \tfrac12 - \tfrac{\sin 2h}{4h}`, :math:`b = \tfrac12 + \tfrac{\sin 2h}{4h}`
+        (the exact first two moments of that arc distribution).  Returns ``(M, 2)`` positions
+        and ``(M, 2, 2)`` covariances.
+        """
+        r = np.atleast_2d(np.asarray(z, dtype=float))[:, 0]
+        h = float(self.half_fov)
+        c = np.sin(h) / h
+        a, b = 0.5 - np.sin(2 * h) / (4 * h), 0.5 + np.sin(2 * h) / (4 * h)
+        pos = np.stack([np.full(r.shape, self.sensor_x), self.sensor_y + r * c], axis=-1)
+        second = r**2 + self.sigma_range**2
+        cov = np.zeros((r.size, 2, 2))
+        cov[:, 0, 0] = second * a
+        cov[:, 1, 1] = second * b - (r * c) ** 2
+        return pos, cov

@@ -97,7 +97,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         if kind == "bearing_range":
             return BearingRange(np.deg2rad(self.sigma_bearing_deg) * k, self.sigma_range * k)
         if kind == "range":
-            return RangeOnly(self.sigma_range * k)
+            return RangeOnly(self.sigma_range * k, half_fov=float(np.deg2rad(self.bearing_half_fov_deg)))
         raise ValueError(f"unknown sensor kind {kind!r}")
 
     def clutter(self, kind: str = "bearing_range") -> UniformClutter:
