@@ -32,7 +32,7 @@ from tracker.state import run  # noqa: E402
 def ms_per_frame(name: str, seeds: int, warmup: int, old: bool = False) -> tuple[np.ndarray, float]:
     """Wall-clock ms of each frame (the estimate's ``ms``) and the mean CPU ms per frame of
     this thread (``time.thread_time``, which a loaded machine inflates much less)."""
-    params = load_params("vo2017")
+    params = get_scenario("vo2017").adapt_params(load_params("vo2017"))  # with its birth regions
     cfg = TRACKER_PRESETS[name]
     tracker = make_tracker(name, params, msgspec.structs.replace(cfg, swap_moves=False, chains=1) if old else cfg)
     out, cpu, n = [], 0.0, 0

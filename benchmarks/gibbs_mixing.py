@@ -59,7 +59,7 @@ def toy_table(runs: int) -> None:
 
 
 def vo_table(seeds: int, settings: list[tuple[bool, int, int]]) -> None:
-    params = load_params("vo2017")
+    params = get_scenario("vo2017").adapt_params(load_params("vo2017"))  # with its birth regions
     frames = {s: simulate_all(get_scenario("vo2017"), params, s) for s in range(1, seeds + 1)}
     print(f"\nvo2017, DDP-EMM, seeds 1-{seeds}, {sum(map(len, frames.values()))} frames; rhat_max per frame")
     print("| swaps | chains x sweeps | R-hat median | p90 | p99 | frames > 1.1 | frames > 1.5 | swap accept | ms/frame median | p95 |")
