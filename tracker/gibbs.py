@@ -27,8 +27,15 @@ of new clusters opened by the other measurements.  For point objects a cluster h
 one measurement per frame (D1 has probability zero), which truncates the joint to a symmetric
 set; the conditionals above restricted to the allowed values are exactly its full conditionals.
 
+Single-site moves cannot exchange two measurements that compete for one cluster (the holder
+must first pass through clutter or a new cluster), so each sweep is followed by a
+Metropolis-Hastings exchange of the assignments of every pair of measurements whose gates
+share a cluster (:func:`_swap_pass`; it keeps every count of the urn, so the acceptance ratio
+is the ratio of the two measurements' own factors).  Several chains from different greedy
+starts give the split-chain R-hat of the marginals (:func:`split_rhat`).
+
 The sweeps run on a sparse (gated) candidate list per measurement, compiled with numba
-(``BNPTRACK_NO_JIT=1`` runs the same function interpreted), using uniforms pre-drawn from the
+(``BNPTRACK_NO_JIT=1`` runs the same functions interpreted), using uniforms pre-drawn from the
 caller's ``numpy.random.Generator`` so the result depends only on the generator's state.
 """
 
@@ -99,16 +106,18 @@ def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarr
     """Greedy start: measurements in order of their best score take their best free cluster
     when it beats both clutter and a new cluster (a cheap, valid state to start from).
 
-    ``reverse`` visits the measurements from the lowest best score up: where two measurements
-    compete for one cluster, the weaker one takes it, an over-dispersed second start for the
-    between-chain R-hat."""
+    ``reverse`` visits the measurements in the opposite order (lowest best score first, ties
+    reversed too): where two measurements compete for one cluster, the other one takes it, an
+    over-dispersed second start for the between-chain R-hat."""
     N, M = problem.log_first.shape
     if N == 0 or M == 0:
         return np.full(M, CLUTTER, dtype=np.int64)
     alt = np.maximum(problem.log_clutter,
                      math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
     best = problem.log_first.max(axis=0)
-    order = np.argsort(best if reverse else -best, kind="stable")
+    order = np.argsort(-best, kind="stable")
+    if reverse:
+        order = order[::-1].copy()
     return _greedy(np.ascontiguousarray(problem.log_first, dtype=float), alt, best, order, bool(problem.extended),
                    not reverse)
 
