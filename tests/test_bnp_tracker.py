@@ -259,6 +259,19 @@ def test_merge_duplicates_hand_values():
     assert merge_duplicates(c, 0.0) is c  # 0 disables merging
 
 
+def test_merge_keeps_the_oldest_label():
+    """A newborn duplicate (born at frame 15, existence 0.5) of a track born at frame 12
+    (existence 0.3) leads the merge, but the merged cluster keeps the older label: a duplicate
+    never renames a track (nor counts as a second birth of its object)."""
+    from dataclasses import replace
+
+    from tracker.bnp_tracker import merge_duplicates
+
+    base = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0]], [0.3, 0.5])
+    out = merge_duplicates(replace(base, labels=("12.3", "15.0")), 9.0)
+    assert out.labels == ("12.3",) and np.allclose(out.existence, [0.8])
+
+
 def test_merge_never_joins_two_objects_that_both_exist():
     """Existences 0.9 and 0.6 sum above 1: two objects side by side (crossing), never merged;
     beyond the distance gate nothing merges either."""
@@ -286,3 +299,43 @@ def test_step_reports_the_gibbs_convergence_diagnostic(vo_params, vo_frames):
     old = make_tracker("ddp", vo_params, msgspec.structs.replace(TRACKER_PRESETS["ddp"], swap_moves=False))
     stuck = np.array([e.diagnostics["rhat_max"] for _, e, _ in run(old, vo_frames[:60], 1)])
     assert np.mean(stuck > 1.5) > 0.1  # single-site chains from the two starts often never meet
+
+
+def test_births_survive_dense_clutter():
+    """150 clutter returns per scan, no birth regions: a measurement no cluster explains opens a
+    new one with probability p_birth ~ 2e-4, five times below the fixed 1e-3 cut that used to
+    decide births (``birth_min_prob``) and so disabled them.  The prune floor follows p_birth,
+    so the five objects present by scan 20 are all confirmed by scan 50 (measured: scans 8, 20,
+    24, 36 and 43, seed 1)."""
+    params = load_params("vo2017", ["clutter_rate=150"])
+    frames = simulate_all(get_scenario("vo2017"), params, 1)[:50]
+    tr = make_tracker("ddp", params, BnpConfig())
+    found: dict[str, int] = {}
+    p_birth = []
+    for f, e, _ in run(tr, frames, 1):
+        p_birth.append(e.diagnostics["p_birth"])
+        for tid, x in zip(f.truth.ids, f.truth.positions):
+            if tid not in found and e.tracks and np.min(np.linalg.norm(e.positions - x, axis=1)) < 100:
+                found[tid] = f.frame
+    assert max(p_birth[10:]) < 1e-3
+    assert set(found) == {"T1", "T2", "T3", "T4", "T5"}, found
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_lagged_birth_count_estimates_the_birth_rate(seed):
+    """alpha is the rate of new-object measurements per scan.  Counted on each frame's own
+    sample, a new object's first measurement is 'new' with probability ~ alpha / lambda_c,
+    so alpha collapses towards 0; counted with a lag (the clusters born 4 frames ago, by
+    their existence now) it follows the scene's birth rate.  Measured on random scenes 1 and
+    2 (0.30 and 0.20 births per scan): mean alpha over scans 30-100 0.40 and 0.23 with the lag,
+    0.066 and 0.062 without."""
+    sc = get_scenario("random", seed=seed)
+    params = sc.adapt_params(load_params("vo2017"))
+    frames = simulate_all(sc, params, 1)
+    rate = len(sc.ids) / sc.K
+    mean_alpha = {}
+    for lag in (4, 0):
+        tr = make_tracker("ddp", params, BnpConfig(birth_lag=lag))
+        mean_alpha[lag] = np.mean([e.diagnostics["alpha"] for _, e, _ in run(tr, frames, 1)][30:])
+    assert 0.5 * rate < mean_alpha[4] < 2.0 * rate, (rate, mean_alpha)
+    assert mean_alpha[0] < 0.4 * rate, (rate, mean_alpha)
