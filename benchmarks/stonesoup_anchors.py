@@ -11,7 +11,8 @@ bnptrack's parameter set:
 * **Sensor.**  ``CartesianToBearingRange`` at the origin, noise ``diag(sigma_b^2, sigma_r^2)``;
   measurements converted to Stone Soup's bearing convention
   (:func:`benchmarks.anchor_convert.to_stonesoup_bearing`).
-* **Filters.**  Unscented Kalman predictor/updater (Stone Soup defaults alpha=0.5, beta=2, kappa=0).
+* **Filters.**  Unscented Kalman predictor/updater with bnptrack's unscented transform
+  (alpha=1, beta=2, kappa=2; :data:`UKF_ALPHA`).
 
 :class:`PhdAnchor` is a GM-PHD (``PHDUpdater``, ``GaussianMixtureHypothesiser`` over a
 Mahalanobis-gated ``DistanceHypothesiser``, ``GaussianMixtureReducer``) with a
@@ -66,6 +67,11 @@ from tracker.types import Frame
 __all__ = ["JpdaAnchor", "PhdAnchor", "ProjectConstantTurn", "make_anchor"]
 
 EPOCH = datetime.datetime(2000, 1, 1)
+#: Unscented transform of bnptrack (``tracker/filtering.py``) and Vo's GLMB UKF demo.  Stone
+#: Soup's defaults (alpha 0.5, kappa 0) give a central weight of -3 for a 5-d state, and the
+#: resulting indefinite covariances crashed both anchors (scipy "not positive definite" in the
+#: PHD update; a NaN probability in JPDA's EHM) on the tuning seeds.
+UKF_ALPHA, UKF_BETA, UKF_KAPPA = 1.0, 2.0, 2.0
 
 
 class ProjectConstantTurn(ConstantTurn):
@@ -90,7 +96,9 @@ def _models(params: ModelParams):
     )
     R = np.diag([np.deg2rad(params.sigma_bearing_deg) ** 2, params.sigma_range**2])
     sensor = CartesianToBearingRange(ndim_state=5, mapping=(0, 2), noise_covar=R)
-    return transition, sensor, UnscentedKalmanPredictor(transition), UnscentedKalmanUpdater(sensor)
+    predictor = UnscentedKalmanPredictor(transition, alpha=UKF_ALPHA, beta=UKF_BETA, kappa=UKF_KAPPA)
+    updater = UnscentedKalmanUpdater(sensor, alpha=UKF_ALPHA, beta=UKF_BETA, kappa=UKF_KAPPA)
+    return transition, sensor, predictor, updater
 
 
 def _detections(frame: Frame, sensor, when: datetime.datetime) -> list[Detection]:

@@ -30,6 +30,7 @@ import importlib.util  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import warnings  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
@@ -83,22 +84,25 @@ def anchor_settings(overrides: tuple[str, ...]) -> tuple[PhdSettings, JpdaSettin
     return apply_overrides(PhdSettings(), phd), apply_overrides(JpdaSettings(), jpda)
 
 
-def _run_anchor(job: Job, params, frames) -> list[Scan]:
+def _run_anchor(job: Job, params, frames) -> tuple[list[Scan], int]:
+    """The anchor's scans and the number of warnings Stone Soup raised (UKF fallbacks)."""
     from benchmarks.stonesoup_anchors import make_anchor
 
     phd, jpda = anchor_settings(job.anchor_sets)
     anchor = make_anchor(job.tracker, params, phd, jpda)
     out = []
-    for f in frames:
-        t0 = time.process_time()
-        est = anchor.step(f)
-        ms = (time.process_time() - t0) * 1e3
-        pos = np.array([p for _, p in est], dtype=float).reshape(-1, 2)
-        out.append(Scan(tuple(lab for lab, _ in est), pos, ms))
-    return out
+    with warnings.catch_warnings(record=True) as caught:  # Stone Soup's UKF fallbacks, counted
+        warnings.simplefilter("always")
+        for f in frames:
+            t0 = time.process_time()
+            est = anchor.step(f)
+            ms = (time.process_time() - t0) * 1e3
+            pos = np.array([p for _, p in est], dtype=float).reshape(-1, 2)
+            out.append(Scan(tuple(lab for lab, _ in est), pos, ms))
+    return out, len(caught)
 
 
-def _run_bnp(job: Job, params, frames) -> list[Scan]:
+def _run_bnp(job: Job, params, frames) -> tuple[list[Scan], int]:
     config = apply_overrides(kind(job.tracker).presets[job.tracker], list(job.tracker_sets))
     tracker = build(job.tracker, params, config)
     state = tracker.initial_state()
@@ -109,7 +113,7 @@ def _run_bnp(job: Job, params, frames) -> list[Scan]:
         state, est = tracker.step(state, f, rng)
         ms = (time.process_time() - t0) * 1e3
         out.append(Scan(tuple(t.label for t in est.tracks), np.asarray(est.positions, float).reshape(-1, 2), ms))
-    return out
+    return out, 0
 
 
 def score(frames, scans: list[Scan], crossings=()) -> dict:
@@ -159,8 +163,9 @@ def run_job(job: Job) -> dict:
     sc = get_scenario(job.scenario, seed=job.seed, scene=scene)  # a generated family: this seed's scene
     params = sc.adapt_params(load_params(job.params, model))
     frames = simulate_all(sc, params, job.seed)
-    scans = (_run_anchor if job.tracker in ANCHORS else _run_bnp)(job, params, frames)
-    return dict(tracker=job.tracker, seed=job.seed, **score(frames, scans, sc.crossings))
+    scans, n_warn = (_run_anchor if job.tracker in ANCHORS else _run_bnp)(job, params, frames)
+    return dict(tracker=job.tracker, seed=job.seed, warnings=n_warn,
+                **score(frames, scans, sc.crossings))
 
 
 def summarise(results: list[dict], names: list[str]) -> dict[str, dict]:
@@ -174,7 +179,8 @@ def summarise(results: list[dict], names: list[str]) -> dict[str, dict]:
                          card_err=float(np.mean([r["card_err"] for r in rs])),
                          switches=float(np.mean([r["switches"] for r in rs])),
                          crossing=float(np.mean(cross)) if cross else None, crossing_pairs=len(cross),
-                         ms_mean=float(ms.mean()), ms_median=float(np.median(ms)), seeds=len(rs))
+                         ms_mean=float(ms.mean()), ms_median=float(np.median(ms)), seeds=len(rs),
+                         warnings=int(sum(r.get("warnings", 0) for r in rs)))
     anchors = [n for n in names if n in ANCHORS]
     best = min(anchors, key=lambda n: out[n]["ospa"]) if anchors else None
     for name in names:
