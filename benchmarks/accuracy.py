@@ -52,14 +52,22 @@ def label_switches(frames, estimates, gate: float = 100.0) -> int:
     return switches
 
 
-def one_run(job):
-    tracker_name, params_name, scenario, seed, overrides = job
+def setup(tracker_name: str, params_name: str, scenario: str, seed: int, overrides):
+    """The scene of ``seed`` (a generated family draws its own), the tracker and the frames.
+
+    ``overrides``: ``params.KEY=V`` go to the model parameters (after the scenario's
+    defaults), ``[tracker.]KEY=V`` to the tracker's preset."""
     p_over = [o.partition(".")[2] for o in overrides if o.startswith("params.")]
     t_over = [o.removeprefix("tracker.") for o in overrides if not o.startswith("params.")]
-    sc = get_scenario(scenario, seed=seed)  # a generated family (random): the scene of this seed
+    sc = get_scenario(scenario, seed=seed)
     params = apply_overrides(sc.adapt_params(load_params(params_name)), p_over)
     tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], t_over))
-    frames = simulate_all(sc, params, seed)
+    return sc, tracker, simulate_all(sc, params, seed)
+
+
+def one_run(job):
+    tracker_name, params_name, scenario, seed, overrides = job
+    sc, tracker, frames = setup(tracker_name, params_name, scenario, seed, overrides)
     rows, ests = [], []
     for f, e, _ in run(tracker, frames, seed):
         o = ospa(f.truth.positions, e.positions, c=100.0, p=1.0)

@@ -22,27 +22,13 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
+from accuracy import setup  # noqa: E402  (benchmarks/accuracy.py)
 from tracker.state import run  # noqa: E402
-
-
-def split(overrides: list[str]) -> tuple[list[str], list[str]]:
-    p_over = [o.partition(".")[2] for o in overrides if o.startswith("params.")]
-    t_over = [o.removeprefix("tracker.") for o in overrides if not o.startswith("params.")]
-    return p_over, t_over
 
 
 def one_run(job) -> dict:
     tracker_name, scenario, seed, overrides, gate = job
-    p_over, t_over = split(overrides)
-    sc = get_scenario(scenario, seed=seed)
-    params = apply_overrides(sc.adapt_params(load_params("vo2017")), p_over)
-    tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], t_over))
-    frames = simulate_all(sc, params, seed)
+    sc, tracker, frames = setup(tracker_name, "vo2017", scenario, seed, overrides)
     first: dict[str, int] = {}
     false_scans = missed_scans = 0
     p_birth, alpha = [], float("nan")
@@ -54,12 +40,13 @@ def one_run(job) -> dict:
                 first[tid] = f.frame
         false_scans += int(np.sum(D.min(axis=0) >= gate)) if len(T) else len(E)
         missed_scans += int(np.sum(D.min(axis=1) >= gate)) if len(E) else len(T)
-        p_birth.append(e.diagnostics.get("p_birth", np.nan))
+        if "p_birth" in e.diagnostics:  # BNP trackers only
+            p_birth.append(e.diagnostics["p_birth"])
         alpha = e.diagnostics.get("alpha", np.nan)
     births = dict(zip(sc.ids, sc.births.tolist()))
     deaths = dict(zip(sc.ids, sc.deaths.tolist()))
     delays = [first.get(t, deaths[t] + 1) - births[t] for t in sc.ids]
-    return dict(delays=delays, never=sum(t not in first for t in sc.ids), false=false_scans, missed=missed_scans, p_birth=float(np.nanmean(p_birth)), alpha=alpha)
+    return dict(delays=delays, never=sum(t not in first for t in sc.ids), false=false_scans, missed=missed_scans, p_birth=float(np.mean(p_birth)) if p_birth else float("nan"), alpha=alpha)
 
 
 def main() -> None:
