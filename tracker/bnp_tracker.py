@@ -527,10 +527,19 @@ def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
     """Per connected component with two or more clusters, the JPDA* assignment (updates
     ``choice``, aligned with the sorted ``clusters``)."""
     from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.5 s to import
+
+    if np.unique(choice).size == choice.size:
+        return  # no two clusters prefer one measurement: each keeps its own
+    M = int(mi.max()) + 1
+    if clusters.size * M <= 20_000:  # small: one assignment over every live cluster
+        pos = np.searchsorted(clusters, ti)
+        r_idx = np.unique(pos, return_inverse=True)[1]
+        cols, c_idx = np.unique(mi, return_inverse=True)
+        _solve_block(r_idx, c_idx, pos, mi, p, p_det[ti], choice, linear_sum_assignment)
+        return
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    M = int(mi.max()) + 1
     graph = coo_matrix((np.ones(ti.size), (ti, n + mi)), shape=(n + M, n + M))
     _, comp = connected_components(graph, directed=False)
     # a component whose clusters' most likely measurements are all different is solved by
@@ -550,19 +559,28 @@ def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
     row = _local_rank(cs * n + ts, starts, cs[starts] * n)  # 0.. within each component
     col = _local_rank(cs * M + ms, starts, cs[starts] * M)
     pos = np.searchsorted(clusters, ts)  # where each edge's cluster sits in ``clusters``
+    pd_edge = p_det[ts]
     for a, b in zip(starts.tolist(), np.r_[starts[1:], ts.size].tolist()):
-        r_idx, c_idx = row[a:b], col[a:b]
-        L, C = int(r_idx.max()) + 1, int(c_idx.max()) + 1
-        rows = np.zeros(L, dtype=np.int64)
-        rows[r_idx] = pos[a:b]
-        cols = np.zeros(C, dtype=np.int64)
-        cols[c_idx] = ms[a:b]
-        cost = np.full((L, C + L), _FORBIDDEN)
-        cost[r_idx, c_idx] = np.minimum(-np.log(ps[a:b]), _FORBIDDEN)
-        cost[np.arange(L), C + np.arange(L)] = -np.log(np.maximum(1.0 - p_det[clusters[rows]], 1e-300))
-        rr, cc = linear_sum_assignment(cost)
-        hit = cc < C  # missed: keeps its most likely measurement (already in choice)
-        choice[rows[rr[hit]]] = cols[cc[hit]]
+        _solve_block(row[a:b], col[a:b], pos[a:b], ms[a:b], ps[a:b], pd_edge[a:b], choice, linear_sum_assignment)
+
+
+def _solve_block(r_idx, c_idx, pos, meas, p, p_det, choice, lsa) -> None:
+    """One JPDA* assignment over a block of edges (local row/column indices ``r_idx``,
+    ``c_idx``; ``pos`` the edge's place in ``choice``, ``meas`` its measurement, ``p_det`` its
+    cluster's detection probability): "missed" is each cluster's private column."""
+    L, C = int(r_idx.max()) + 1, int(c_idx.max()) + 1
+    rows = np.zeros(L, dtype=np.int64)
+    rows[r_idx] = pos
+    cols = np.zeros(C, dtype=np.int64)
+    cols[c_idx] = meas
+    miss = np.zeros(L)
+    miss[r_idx] = -np.log(np.maximum(1.0 - p_det, 1e-300))
+    cost = np.full((L, C + L), _FORBIDDEN)
+    cost[r_idx, c_idx] = np.minimum(-np.log(p), _FORBIDDEN)
+    cost[np.arange(L), C + np.arange(L)] = miss
+    rr, cc = lsa(cost)
+    hit = cc < C  # missed: keeps its most likely measurement (already in choice)
+    choice[rows[rr[hit]]] = cols[cc[hit]]
 
 
 def _local_rank(key: np.ndarray, starts: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -639,6 +657,10 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`."""
     from scipy.spatial import cKDTree
 
+    n = len(c.labels)
+    if n <= 200:  # few clusters: every pair (cheaper than a tree)
+        lo, hi = np.triu_indices(n, k=1)
+        return lo.astype(np.int64), hi.astype(np.int64)
     pos = c.mean[:, [0, 2]]
     a, b, d = c.cov[:, 0, 0], c.cov[:, 2, 2], c.cov[:, 0, 2]
     lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + d * d)

@@ -495,6 +495,10 @@ def kalman_update(meas, innov: Innovation, m_pred: np.ndarray, z: np.ndarray
     return m_upd, innov.P_upd.copy()
 
 
+_DENSE_PAIRS = 20_000
+"""Below this many track x measurement pairs the gate is evaluated densely (same values)."""
+
+
 def _angle_dims(meas, d: int) -> np.ndarray:
     """Components that ``meas.residual`` wraps (a residual of 2 pi reads as 0 there)."""
     r = meas.residual(np.full((1, d), 2.0 * np.pi), np.zeros((1, d)))[0]
@@ -542,6 +546,10 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     same test as the dense matrix.  Cost ~ (N + M) log M + pairs in gates.
     """
     N, d = innov.z_pred.shape
+    if N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: the dense matrix is cheaper than a tree
+        dense = log_likelihood_matrix(meas, innov, Z, gate_prob)
+        mi, ti = np.nonzero(np.isfinite(dense.T))
+        return ti.astype(np.int64), mi.astype(np.int64), dense[ti, mi]
     g = gate_threshold(gate_prob, d)
     ti, mi = _gate_candidates(meas, innov, Z, g)
     if ti.size:
