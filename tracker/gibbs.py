@@ -410,7 +410,7 @@ def _group_pairs(meas_of, starts, sizes, M, n_keys):
     return out
 
 
-_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy)
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs)
 if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
     _greedy = _njit(cache=True, nogil=True)(_greedy)  # noqa: F811
     # the helpers are replaced by their compiled versions, which the compiled driver calls
@@ -427,7 +427,7 @@ else:  # pragma: no cover - numba missing or disabled: same code, interpreted
 def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
-    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy")
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs")
     return dict(zip(names, _KERNELS_PY))
 
 
