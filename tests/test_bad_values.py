@@ -71,8 +71,12 @@ def test_moment_match_skips_pairs_without_weight(vo_params):
     p_lm = np.array([[0.7, 0.0, 0.1], [0.0, 0.0, 0.6]])
     w_miss = np.array([0.05, 0.1])
     r = p_lm.sum(axis=1) + w_miss
-    mean, cov = _moment_match(meas, innov, pred, Z, w_miss, p_lm, r)
-    ref_mean, ref_cov = _moment_match(meas, innov, pred, Z[[0, 2]], w_miss, p_lm[:, [0, 2]], r)
+    def pairs(p):  # every (cluster, measurement) pair, zero weights included (the update skips them)
+        ti, mi = np.nonzero(np.ones_like(p))
+        return ti, mi, p[ti, mi]
+
+    mean, cov = _moment_match(meas, innov, pred, Z, w_miss, *pairs(p_lm), r)
+    ref_mean, ref_cov = _moment_match(meas, innov, pred, Z[[0, 2]], w_miss, *pairs(p_lm[:, [0, 2]]), r)
     assert np.isfinite(mean).all() and np.isfinite(cov).all()
     np.testing.assert_array_equal(mean, ref_mean)
     np.testing.assert_array_equal(cov, ref_cov)

@@ -116,7 +116,7 @@ def likelihood(c, dens, N):
 
 
 def exact(problem):
-    N, M = problem.log_first.shape
+    N, M = problem.shape
     cfg = list(itertools.product([CLUTTER, NEW, *range(N)], repeat=M))
     lj = np.array([log_joint(problem, np.array(c)) for c in cfg])
     return marginals(cfg, np.exp(lj - lj.max()), N, M)
@@ -126,7 +126,7 @@ def exact(problem):
 def test_tracker_weights_match_forward_simulation(d):
     state, pred, problem, dens = setup(d)
     assert np.allclose(pred.q, 1.0) and np.allclose(pred.p_detect, PD)  # the tested case: q = 1
-    N, M = problem.log_first.shape
+    N, M = problem.shape
     rng = np.random.default_rng(20261201)
     configs = forward_draws(rng, 4_000_000, PD, state.popularity, state.alpha, d, LAM_C, M)
     uniq, counts = np.unique(configs, axis=0, return_counts=True)
@@ -143,5 +143,7 @@ def test_tracker_weights_match_forward_simulation(d):
     assert np.all(np.abs(gibbs - sim) < tol + 0.01)
     # control: without the missed-detection normalisation (q P_D instead of q P_D / (1 - q P_D))
     miss = np.log(1.0 - pred.q * pred.p_detect)
-    bad = exact(replace(problem, log_first=problem.log_first + miss[:, None]))
+    # (the tracker builds the sparse form; the dense one is rebuilt here for the control)
+    bad = exact(replace(problem, log_first=problem.dense_first() + miss[:, None],
+                        log_lik=problem.pairs.dense(problem.pairs.log_lik)))
     assert np.max(np.abs(bad - sim) - 5 * se) > 0.02

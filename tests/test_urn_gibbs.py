@@ -141,7 +141,7 @@ def toy_problem(z, prior_first, mu, sigma, alpha, d, lam_c, extended=False, mass
 
 
 def enumerate_posterior(problem):
-    N, M = problem.log_first.shape
+    N, M = problem.shape
     configs, logp = [], []
     for c in itertools.product([CLUTTER, NEW, *range(N)], repeat=M):
         lj = log_joint(problem, np.array(c))
@@ -159,7 +159,7 @@ def test_gibbs_marginals_match_exact_enumeration(d, extended):
     prob = toy_problem(z, prior_first=[3.0, 0.8], mu=[0.31, 0.6], sigma=0.05, alpha=0.6, d=d, lam_c=2.0,
                        extended=extended, pop=[1.0, 2.0])
     configs, p = enumerate_posterior(prob)
-    N, M = prob.log_first.shape
+    N, M = prob.shape
     exact_cluster = np.zeros((N, M))
     exact_clutter = np.zeros(M)
     exact_new = np.zeros(M)

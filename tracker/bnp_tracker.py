@@ -27,7 +27,9 @@ where the paper is silent.
 
 from __future__ import annotations
 
+import logging
 import math
+from itertools import chain
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -38,13 +40,14 @@ import numpy as np
 
 from tracker import filtering as kf
 from tracker.base import BaseDistribution
-from tracker.gibbs import CLUTTER, NEW, GibbsProblem, run_gibbs
+from tracker.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows
 from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
 
 _EPS = 1e-12
 _FORBIDDEN = 1e6  # assignment cost of an impossible pair
+_log = logging.getLogger(__name__)
 
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
@@ -76,7 +79,11 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     birth_prune_fraction: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
     """A cluster is kept while its existence is at least this fraction of ``p_birth``: a
     newborn survives its birth frame, and is dropped after a missed first re-detection."""
-    max_clusters: Annotated[int, msgspec.Meta(ge=1)] = 200
+    max_clusters: Annotated[int, msgspec.Meta(ge=1)] = 100_000
+    """Memory guard, not a model setting: at most this many clusters are kept (highest
+    existence first).  Far above any scene's object count (clutter-born tentative clusters
+    included); when it bites, the step's diagnostics report ``clusters_capped`` (> 0) and one
+    warning is logged (once per process)."""
     popularity_decay: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
     (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
@@ -227,7 +234,7 @@ class BnpTracker:
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         floor = self._prune_floor(state.alpha, clutter)
         born = self._births(frame, meas, clutter, result, floor)
-        kept = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
+        kept, capped = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
         alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
                              kept.existence, kept.popularity, alpha, d, hyper)
@@ -239,6 +246,7 @@ class BnpTracker:
             "log_joint": result.log_joint if math.isfinite(result.log_joint) else 0.0,
             "rhat_max": result.rhat_max,
             "swap_accept": result.swaps_accepted / max(result.swaps_proposed, 1),
+            "clusters_capped": float(capped),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
@@ -263,17 +271,21 @@ class BnpTracker:
     def _problem(self, state, pred, innov, meas, clutter, Z) -> GibbsProblem:
         cfg = self.config
         M = Z.shape[0]
-        log_lik = kf.log_likelihood_matrix(meas, innov, Z, cfg.gate_prob) if len(pred.mean) else np.zeros((0, M))
+        if len(pred.mean):  # gated pairs only (KD-tree), never the (N, M) matrix
+            ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
+        else:
+            ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         pd = np.clip(pred.p_detect, 0.0, 1.0 - 1e-9)
         q = np.clip(pred.q, 0.0, 1.0)
         miss = np.maximum(q * (1.0 - pd) + 1.0 - q, _EPS)
         with np.errstate(divide="ignore"):
             log_det = np.log(q) + np.log(pd) - np.log(miss) + np.log(state.popularity - state.d)
-        log_first = log_det[:, None] + log_lik
+        pairs = SparsePairs.from_pairs(len(pred.mean), M, ti, mi, log_det[ti] + log_lik, log_lik)
         return GibbsProblem(
             mass=float(np.sum(q * state.popularity)),
-            log_first=log_first,
-            log_lik=log_lik,
+            log_first=None,
+            log_lik=None,
+            pairs=pairs,
             log_clutter=np.full(M, clutter.log_intensity),
             log_new=self.base.log_predictive(meas, clutter, Z),
             popularity=state.popularity,
@@ -287,8 +299,8 @@ class BnpTracker:
         N = state.n_clusters
         if N == 0:
             return _Clusters.empty()
-        p_lm = result.p_cluster  # (N, M)
-        p_det = np.clip(p_lm.sum(axis=1), 0.0, 1.0)
+        ti, mi, p = _pairs_by_cluster(result)
+        p_det = np.clip(np.bincount(ti, weights=p, minlength=N), 0.0, 1.0)
         pd = pred.p_detect
         q = pred.q
         miss_alive = q * (1.0 - pd)
@@ -296,9 +308,9 @@ class BnpTracker:
         w_miss = (1.0 - p_det) * eps_alive
         r = np.clip(p_det + w_miss, 0.0, 1.0)
         # moment-matched mixture (conditional on existence) of missed + each detection
-        if self.config.state_update == "best-permutation" and p_lm.size:
-            p_lm = best_permutation(p_lm)
-        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, p_lm, r)
+        if self.config.state_update == "best-permutation" and p.size:
+            ti, mi, p = best_permutation_pairs(N, ti, mi, p)
+        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r)
         n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
         rho = self.config.popularity_decay
         pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
@@ -321,12 +333,16 @@ class BnpTracker:
         labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
         return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
 
-    def _prune(self, c: "_Clusters", floor: float) -> "_Clusters":
+    def _prune(self, c: "_Clusters", floor: float) -> tuple["_Clusters", int]:
+        """Drop clusters below ``floor``; keep at most ``max_clusters`` (the memory guard).
+        Returns the kept clusters and how many the guard dropped (0 unless it bit)."""
         keep = np.flatnonzero(c.existence >= floor)
-        if keep.size > self.config.max_clusters:
+        capped = max(keep.size - self.config.max_clusters, 0)
+        if capped:
             order = np.argsort(-c.existence[keep], kind="stable")
             keep = np.sort(keep[order[: self.config.max_clusters]])
-        return c.take(keep)
+            _warn_capped(self.config.max_clusters, capped)
+        return c.take(keep), capped
 
     def _hyper(self, rng, state: BnpState, problem: GibbsProblem, result, kept: "_Clusters",
                frame: int) -> tuple[float, float, np.ndarray]:
@@ -369,20 +385,17 @@ class BnpTracker:
         )
         M = frame.n_measurements
         # options per measurement: reported transitioned clusters, and its own newborn if reported
-        ex_labels = np.array(existing.labels, dtype=object)
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
-        p_opts = result.p_cluster[ex_rep] if ex_rep.any() else np.zeros((0, M))
-        lab_opts = ex_labels[ex_rep]
+        p_ex, lab_ex, p_sum = _best_reported(result, ex_rep, existing.labels, M)
         born_p = np.zeros(M)
         born_lab = np.full(M, None, dtype=object)
         for lab in born.labels:
             if lab in reported:
                 m = int(lab.split(".")[1])
                 born_p[m], born_lab[m] = result.p_new[m], lab
-        p_all = np.vstack([p_opts, born_p[None]])  # (R+1, M)
-        best = np.argmax(p_all, axis=0)
-        p_best = p_all[best, np.arange(M)]
-        p_none = np.clip(1.0 - p_all.sum(axis=0), 0.0, 1.0)
+        use_born = born_p > p_ex  # on a tie the transitioned cluster wins
+        p_best = np.where(use_born, born_p, p_ex)
+        p_none = np.clip(1.0 - (p_sum + born_p), 0.0, 1.0)
         assignments: list[str | None] = []
         probs: list[float] = []
         for m in range(M):
@@ -390,22 +403,60 @@ class BnpTracker:
                 assignments.append(None)
                 probs.append(float(p_none[m]))
             else:
-                b = int(best[m])
-                assignments.append(lab_opts[b] if b < lab_opts.size else born_lab[m])
+                assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
                 probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
 
 
-def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, p_lm: np.ndarray,
-                  r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per measurement: the largest ``Pr(c_m = l)`` over reported clusters ``l`` (the lowest
+    index on a tie), that cluster's label (None if none) and the sum over reported clusters."""
+    pr = result.pairs
+    mt = pr.rows
+    sel = rep[pr.idx] if pr.idx.size else np.zeros(0, dtype=bool)
+    t, m, p = pr.idx[sel], mt[sel], result.p_pairs[sel]
+    p_sum = np.bincount(m, weights=p, minlength=M)
+    p_ex = np.zeros(M)
+    lab = np.full(M, None, dtype=object)
+    if t.size:
+        order = np.lexsort((t, -p, m))
+        first = order[np.r_[True, np.diff(m[order]) != 0]]
+        p_ex[m[first]] = p[first]
+        lab[m[first]] = [labels[i] for i in t[first].tolist()]
+    return p_ex, lab, p_sum
+
+
+def _pairs_by_cluster(result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sampler's gated pairs and ``Pr(c_m = l)``, sorted by cluster then measurement."""
+    pr = result.pairs
+    mt = pr.rows
+    order = np.lexsort((mt, pr.idx))
+    return pr.idx[order], mt[order], result.p_pairs[order]
+
+
+_capped_warned: list[bool] = []
+
+
+def _warn_capped(limit: int, dropped: int) -> None:
+    if not _capped_warned:
+        _capped_warned.append(True)
+        _log.warning("max_clusters (%d) reached: %d cluster(s) with the lowest existence dropped "
+                     "(reported once; see the step diagnostics' clusters_capped)", limit, dropped)
+
+
+def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, ti: np.ndarray,
+                  mi: np.ndarray, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each cluster's Gaussian moment-matched over "missed" (weight ``w_miss / r``) and
-    "updated with ``z_m``" (weight ``p_lm / r``), computed only for the pairs that carry
+    "updated with ``z_m``" (weight ``p / r`` for the pairs ``(ti, mi)``, sorted by cluster then
+    measurement), computed only for the pairs that carry
     weight: a pair the sampler never used (gated out, or a non-finite measurement) never
     enters the arithmetic, so no ``0 * NaN`` can reach a state."""
     inv_r = 1.0 / np.maximum(r, _EPS)
     w0 = w_miss * inv_r  # (N,)
-    ti, mi = np.nonzero(p_lm > 0.0)
-    wp = p_lm[ti, mi] * inv_r[ti]  # (L,)
+    carry = p > 0.0
+    ti, mi = ti[carry], mi[carry]
+    wp = p[carry] * inv_r[ti]  # (L,)
     mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
     mean = w0[:, None] * pred.mean
     np.add.at(mean, ti, wp[:, None] * mu)
@@ -436,32 +487,109 @@ class _Clusters:
 
 
 def best_permutation(p_lm: np.ndarray) -> np.ndarray:
+    r"""Dense form of :func:`best_permutation_pairs`: ``(N, M)`` marginals in, ``(N, M)`` out."""
+    N, M = p_lm.shape
+    ti, mi = np.nonzero(p_lm > 0.0)
+    t, m, p = best_permutation_pairs(N, ti, mi, p_lm[ti, mi])
+    out = np.zeros_like(p_lm)
+    out[t, m] = p
+    return out
+
+
+def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Move each cluster's detection probability onto one measurement: the one it takes in the
     most probable one-to-one assignment of the marginals (JPDA*, Blom & Bloem 2000).
 
-    ``p_lm[l, m] = Pr(c_m = l)``.  The assignment maximises
-    :math:`\sum_l \log p_{l, m(l)}` with "missed" (cost :math:`-\log(1 - \sum_m p_{lm})`) as
-    every cluster's private alternative; a cluster the assignment leaves missed keeps its mass on
-    its most likely measurement.  Row sums (detection probabilities) are unchanged.
+    ``p[j] = Pr(c_{mi_j} = ti_j)`` for the gated pairs (``n`` clusters).  The assignment
+    maximises :math:`\sum_l \log p_{l, m(l)}` with "missed" (cost
+    :math:`-\log(1 - \sum_m p_{lm})`) as every cluster's private alternative; a cluster the
+    assignment leaves missed keeps its mass on its most likely measurement.  Row sums
+    (detection probabilities) are unchanged.  The problem separates over the connected
+    components of the pairs graph: a component with one cluster needs no solver (either
+    way its mass goes to its most likely measurement), the others are solved one by one
+    (``linear_sum_assignment``), so the cost follows the size of the groups, not N x M.
+    Returns one pair per cluster that has any mass, sorted by cluster.
     """
+    p_det = np.bincount(ti, weights=p, minlength=n)
+    live = (p > 0.0) & (p_det[ti] > 1e-9)
+    ti, mi, p = ti[live], mi[live], p[live]
+    if ti.size == 0:
+        return ti, mi, p
+    order = np.lexsort((mi, -p, ti))  # per cluster: most likely measurement first (lowest m on ties)
+    first = order[np.r_[True, np.diff(ti[order]) != 0]]
+    clusters, choice = ti[first], mi[first].copy()
+    _solve_shared(n, ti, mi, p, p_det, clusters, choice)
+    return clusters, choice, p_det[clusters]
+
+
+def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
+    """Per connected component with two or more clusters, the JPDA* assignment (updates
+    ``choice``, aligned with the sorted ``clusters``)."""
     from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.5 s to import
 
-    N, M = p_lm.shape
-    p_det = p_lm.sum(axis=1)
-    live = np.flatnonzero(p_det > 1e-9)
-    out = np.zeros_like(p_lm)
-    if live.size == 0:
-        return out
-    L = live.size
-    cost = np.full((L, M + L), _FORBIDDEN)
-    with np.errstate(divide="ignore"):
-        cost[:, :M] = np.minimum(-np.log(p_lm[live]), _FORBIDDEN)
-        cost[np.arange(L), M + np.arange(L)] = -np.log(np.maximum(1.0 - p_det[live], 1e-300))
-    rows, cols = linear_sum_assignment(cost)
-    fallback = np.argmax(p_lm[live[rows]], axis=1)
-    chosen = np.where(cols < M, cols, fallback)
-    out[live[rows], chosen] = p_det[live[rows]]
-    return out
+    if np.unique(choice).size == choice.size:
+        return  # no two clusters prefer one measurement: each keeps its own
+    M = int(mi.max()) + 1
+    if clusters.size * M <= 20_000:  # small: one assignment over every live cluster
+        pos = np.searchsorted(clusters, ti)
+        r_idx = np.unique(pos, return_inverse=True)[1]
+        cols, c_idx = np.unique(mi, return_inverse=True)
+        _solve_block(r_idx, c_idx, pos, mi, p, p_det[ti], choice, linear_sum_assignment)
+        return
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(ti.size), (ti, n + mi)), shape=(n + M, n + M))
+    _, comp = connected_components(graph, directed=False)
+    # a component whose clusters' most likely measurements are all different is solved by
+    # them (a lower bound every cluster attains; a missed cluster keeps that measurement too)
+    key = comp[clusters] * M + choice
+    uniq, count = np.unique(key, return_counts=True)
+    conflict = np.zeros(comp.max() + 1, dtype=bool)
+    conflict[uniq[count > 1] // M] = True
+    shared = conflict[comp[ti]]
+    if not shared.any():
+        return
+    ts, ms, ps = ti[shared], mi[shared], p[shared]
+    cs = comp[ts]
+    order = np.lexsort((ts, cs))
+    ts, ms, ps, cs = ts[order], ms[order], ps[order], cs[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(cs)) + 1]
+    row = _local_rank(cs * n + ts, starts, cs[starts] * n)  # 0.. within each component
+    col = _local_rank(cs * M + ms, starts, cs[starts] * M)
+    pos = np.searchsorted(clusters, ts)  # where each edge's cluster sits in ``clusters``
+    pd_edge = p_det[ts]
+    for a, b in zip(starts.tolist(), np.r_[starts[1:], ts.size].tolist()):
+        _solve_block(row[a:b], col[a:b], pos[a:b], ms[a:b], ps[a:b], pd_edge[a:b], choice, linear_sum_assignment)
+
+
+def _solve_block(r_idx, c_idx, pos, meas, p, p_det, choice, lsa) -> None:
+    """One JPDA* assignment over a block of edges (local row/column indices ``r_idx``,
+    ``c_idx``; ``pos`` the edge's place in ``choice``, ``meas`` its measurement, ``p_det`` its
+    cluster's detection probability): "missed" is each cluster's private column."""
+    L, C = int(r_idx.max()) + 1, int(c_idx.max()) + 1
+    rows = np.zeros(L, dtype=np.int64)
+    rows[r_idx] = pos
+    cols = np.zeros(C, dtype=np.int64)
+    cols[c_idx] = meas
+    miss = np.zeros(L)
+    miss[r_idx] = -np.log(np.maximum(1.0 - p_det, 1e-300))
+    cost = np.full((L, C + L), _FORBIDDEN)
+    cost[r_idx, c_idx] = np.minimum(-np.log(p), _FORBIDDEN)
+    cost[np.arange(L), C + np.arange(L)] = miss
+    rr, cc = lsa(cost)
+    hit = cc < C  # missed: keeps its most likely measurement (already in choice)
+    choice[rows[rr[hit]]] = cols[cc[hit]]
+
+
+def _local_rank(key: np.ndarray, starts: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """Dense rank of ``key`` within each group (the groups are the runs beginning at
+    ``starts``; a group's keys all lie in ``[base, next group's base)``)."""
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.searchsorted(uniq, base)  # rank of each group's smallest key
+    grp = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, key.size]))
+    return inv - first[grp]
 
 
 _POS_VEL = np.array([0, 1, 2, 3])
@@ -484,7 +612,9 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     if max_d2 <= 0.0 or n < 2:
         return c
     r = c.existence
-    ii, jj = np.nonzero(np.triu(r[:, None] + r[None, :] <= 1.0, k=1))  # pairs that may both be one
+    ii, jj = _near_pairs(c, max_d2)
+    both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
+    ii, jj = ii[both], jj[both]
     if ii.size == 0:
         return c
     diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
@@ -501,39 +631,77 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
     free = np.ones(n, dtype=bool)
-    groups: list[list[int]] = []
-    for i in order.tolist():
+    groups: list[list[int]] = []  # groups of two or more; every other cluster stays as it is
+    for i in sorted(neighbours, key=rank.__getitem__):
         if not free[i]:
             continue
         group, total = [i], r[i]
-        for j in sorted(neighbours.get(i, ()), key=rank.__getitem__):  # decreasing existence
+        for j in sorted(neighbours[i], key=rank.__getitem__):  # decreasing existence
             if free[j] and total + r[j] <= 1.0:
                 group.append(j)
                 total += r[j]
         free[group] = False
-        groups.append(group)
-    return _merge_groups(c, groups)
+        if len(group) > 1:
+            groups.append(group)
+    return _merge_groups(c, groups) if groups else c
+
+
+def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a KD-tree on positions).
+
+    The position-velocity distance is at least the position-only one, which is at least
+    :math:`\lVert \Delta p \rVert^2 / (\lambda_i + \lambda_j)` with :math:`\lambda` the
+    largest eigenvalue of a cluster's position covariance; so pair ``(i, j)`` is a candidate
+    only if :math:`\lVert \Delta p\rVert^2 \le d^2_{max} (\lambda_i + \lambda_j) \le 2 d^2_{max}
+    \max(\lambda_i, \lambda_j)`: each cluster queries the ball of radius
+    :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`."""
+    from scipy.spatial import cKDTree
+
+    n = len(c.labels)
+    if n <= 200:  # few clusters: every pair (cheaper than a tree)
+        lo, hi = np.triu_indices(n, k=1)
+        return lo.astype(np.int64), hi.astype(np.int64)
+    pos = c.mean[:, [0, 2]]
+    a, b, d = c.cov[:, 0, 0], c.cov[:, 2, 2], c.cov[:, 0, 2]
+    lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + d * d)
+    ok = np.flatnonzero(np.isfinite(pos).all(axis=1) & np.isfinite(lam))
+    if ok.size < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
+    hits = cKDTree(pos[ok]).query_ball_point(pos[ok], radius, return_sorted=False)
+    lens = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
+    i = ok[np.repeat(np.arange(ok.size), lens)]
+    j = ok[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))]
+    lo, hi = np.minimum(i, j), np.maximum(i, j)
+    key = np.unique(lo[lo < hi] * len(c.labels) + hi[lo < hi])
+    lo, hi = key // len(c.labels), key % len(c.labels)
+    d2p = np.sum((pos[lo] - pos[hi]) ** 2, axis=1)
+    near = d2p <= max_d2 * (lam[lo] + lam[hi]) * (1.0 + 1e-9)
+    return lo[near], hi[near]
 
 
 def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
-    """One cluster per group (leader first): existences added, existence-weighted moment match."""
+    """Each group (leader first) becomes one cluster in its leader's place: existences added,
+    existence-weighted moment match, the oldest member's label; the other clusters are kept."""
+    n = len(c.labels)
+    mean, cov, r = c.mean.copy(), c.cov.copy(), c.existence.copy()
+    labels = list(c.labels)
     leaders = np.array([g[0] for g in groups])
-    mean = c.mean[leaders].copy()
-    cov = c.cov[leaders].copy()
-    r = c.existence[leaders].copy()
-    for k, g in enumerate(groups):
-        if len(g) == 1:
-            continue
-        w = c.existence[g]
-        r[k] = w.sum()
-        w = w / r[k]
-        mean[k] = w @ c.mean[g]
-        dev = c.mean[g] - mean[k]
-        cov[k] = np.einsum("g,gij->ij", w, c.cov[g]) + np.einsum("g,gi,gj->ij", w, dev, dev)
-    keep = np.argsort(leaders, kind="stable")  # keep the clusters' original order
-    labels = [min((c.labels[i] for i in g), key=_birth_frame) for g in groups]
-    return _Clusters(tuple(labels[k] for k in keep), mean[keep], cov[keep],
-                     np.minimum(r[keep], 1.0), c.popularity[leaders[keep]])
+    members = np.concatenate([np.asarray(g) for g in groups])
+    gk = np.repeat(leaders, [len(g) for g in groups])  # member -> its leader
+    w = c.existence[members]
+    r[leaders] = np.bincount(gk, weights=w, minlength=n)[leaders]
+    w = w / r[gk]
+    mean[leaders] = 0.0
+    np.add.at(mean, gk, w[:, None] * c.mean[members])
+    dev = c.mean[members] - mean[gk]
+    cov[leaders] = 0.0
+    np.add.at(cov, gk, w[:, None, None] * (c.cov[members] + dev[:, :, None] * dev[:, None, :]))
+    for g in groups:
+        labels[g[0]] = min((c.labels[i] for i in g), key=_birth_frame)
+    keep = np.setdiff1d(np.arange(n), np.concatenate([np.asarray(g[1:]) for g in groups]))
+    return _Clusters(tuple(labels[k] for k in keep.tolist()), mean[keep], cov[keep],
+                     np.minimum(r[keep], 1.0), c.popularity[keep])
 
 
 def _birth_frame(label: str) -> int:

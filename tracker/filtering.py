@@ -36,6 +36,7 @@ import math
 
 from dataclasses import dataclass
 from functools import lru_cache
+from itertools import chain
 from statistics import NormalDist
 from typing import Any
 
@@ -492,3 +493,71 @@ def kalman_update(meas, innov: Innovation, m_pred: np.ndarray, z: np.ndarray
     r = meas.residual(z, innov.z_pred)
     m_upd = m_pred + (innov.gain @ r[:, :, None])[:, :, 0]
     return m_upd, innov.P_upd.copy()
+
+
+_DENSE_PAIRS = 20_000
+"""Below this many track x measurement pairs the gate is evaluated densely (same values)."""
+
+
+def _angle_dims(meas, d: int) -> np.ndarray:
+    """Components that ``meas.residual`` wraps (a residual of 2 pi reads as 0 there)."""
+    r = meas.residual(np.full((1, d), 2.0 * np.pi), np.zeros((1, d)))[0]
+    return np.flatnonzero(np.abs(r) < 1e-9)
+
+
+def _gate_candidates(meas, innov: Innovation, Z: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate (track, measurement) pairs, a superset of the gate: a KD-tree over the
+    measurements scaled per component, queried with each track's ball
+    :math:`\\sqrt{g\\,\\lambda_{max}(D^{-1} S_n D^{-1})}` around :math:`\\hat z_n`; wrapped
+    components are queried at :math:`\\hat z_n \\pm 2\\pi` too when the ball crosses :math:`\\pm\\pi`."""
+    from scipy.spatial import cKDTree  # lazy: only the trackers' hot path needs it
+
+    N, d = innov.z_pred.shape
+    ok_z = np.flatnonzero(np.isfinite(Z).all(axis=1))
+    ok_t = np.flatnonzero(np.isfinite(innov.z_pred).all(axis=1) & np.isfinite(innov.S).all(axis=(1, 2)))
+    if ok_z.size == 0 or ok_t.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    scale = np.sqrt(np.maximum(np.median(np.diagonal(innov.S[ok_t], axis1=1, axis2=2), axis=0), 1e-300))
+    Sn = innov.S[ok_t] / (scale[:, None] * scale[None, :])
+    radius = np.sqrt(g * np.linalg.eigvalsh(Sn)[:, -1]) * (1.0 + 1e-9) + 1e-12
+    centres, owner, radii = [innov.z_pred[ok_t]], [ok_t], [radius]
+    for i in _angle_dims(meas, d):
+        for shift in (-2.0 * np.pi, 2.0 * np.pi):
+            c = innov.z_pred[ok_t].copy()
+            c[:, i] += shift
+            near = np.abs(c[:, i]) - radius * scale[i] <= np.pi
+            centres.append(c[near]), owner.append(ok_t[near]), radii.append(radius[near])
+    tree = cKDTree(Z[ok_z] / scale)
+    hits = tree.query_ball_point(np.concatenate(centres) / scale, np.concatenate(radii), return_sorted=False)
+    lens = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
+    ti = np.repeat(np.concatenate(owner), lens)
+    mi = ok_z[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))]
+    return ti, mi
+
+
+def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""The finite entries of :func:`log_likelihood_matrix` with a gate, found without
+    forming the ``(N, M)`` matrix: ``(track_idx, meas_idx, log_lik)`` sorted by measurement,
+    then track (the order of ``np.nonzero`` on the transposed matrix).
+
+    Candidates come from a KD-tree over the measurements (:func:`_gate_candidates`, a
+    superset of every gate); each is kept when :math:`D^2_{nm} \le \chi^2_d{}^{-1}(p_G)`, the
+    same test as the dense matrix.  Cost ~ (N + M) log M + pairs in gates.
+    """
+    N, d = innov.z_pred.shape
+    if N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: the dense matrix is cheaper than a tree
+        dense = log_likelihood_matrix(meas, innov, Z, gate_prob)
+        mi, ti = np.nonzero(np.isfinite(dense.T))
+        return ti.astype(np.int64), mi.astype(np.int64), dense[ti, mi]
+    g = gate_threshold(gate_prob, d)
+    ti, mi = _gate_candidates(meas, innov, Z, g)
+    if ti.size:
+        key = np.unique(mi * N + ti)  # sorted by measurement, then track; images deduplicated
+        mi, ti = key // N, key % N
+    r = meas.residual(Z[mi], innov.z_pred[ti])
+    D2 = np.sum((r[:, None, :] @ innov.S_inv[ti])[:, 0, :] * r, axis=-1)
+    keep = D2 <= g
+    ti, mi = ti[keep], mi[keep]
+    ll = -0.5 * (D2[keep] + (d * _LOG_2PI + innov.log_det_S[ti]))  # same rounding as the dense matrix
+    return ti.astype(np.int64), mi.astype(np.int64), ll

@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -57,16 +58,70 @@ NEW = -2
 
 
 @dataclass(frozen=True)
+class SparsePairs:
+    """The allowed (cluster, measurement) pairs of a frame, CSR by measurement: the clusters
+    of measurement ``m`` are ``idx[ptr[m]:ptr[m+1]]`` (ascending), with their ``log_first`` and
+    ``log_lik`` (see :class:`GibbsProblem`).  Memory and every sweep grow with the pairs in
+    gates, not with clusters x measurements."""
+
+    n_clusters: int
+    ptr: np.ndarray  # (M+1,) int64
+    idx: np.ndarray  # (nnz,) int64
+    log_first: np.ndarray  # (nnz,)
+    log_lik: np.ndarray  # (nnz,)
+
+    @property
+    def n_meas(self) -> int:
+        return self.ptr.size - 1
+
+    @cached_property
+    def rows(self) -> np.ndarray:
+        """Measurement index of each pair, ``(nnz,)``."""
+        return np.repeat(np.arange(self.n_meas, dtype=np.int64), np.diff(self.ptr))
+
+    @staticmethod
+    def from_pairs(n_clusters: int, n_meas: int, cl: np.ndarray, ms: np.ndarray, log_first: np.ndarray,
+                   log_lik: np.ndarray) -> "SparsePairs":
+        """From pairs sorted by measurement then cluster; pairs with a non-finite
+        ``log_first`` (gated out, dead cluster) are dropped."""
+        ok = np.isfinite(log_first)
+        cl, ms = cl[ok], ms[ok]
+        ptr = np.zeros(n_meas + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ms, minlength=n_meas), out=ptr[1:])
+        return SparsePairs(int(n_clusters), ptr, cl.astype(np.int64), log_first[ok], log_lik[ok])
+
+    @staticmethod
+    def from_dense(log_first: np.ndarray, log_lik: np.ndarray) -> "SparsePairs":
+        N, M = log_first.shape
+        mt, lt = np.nonzero(np.isfinite(log_first.T))  # sorted by measurement
+        return SparsePairs.from_pairs(N, M, lt, mt, log_first[lt, mt], log_lik[lt, mt])
+
+    def dense(self, values: np.ndarray, fill: float = -np.inf) -> np.ndarray:
+        """``(N, M)`` matrix holding ``values`` (one per pair) and ``fill`` elsewhere."""
+        out = np.full((self.n_clusters, self.n_meas), fill)
+        out[self.idx, self.rows] = values
+        return out
+
+    def lookup(self, m: int, l: int) -> int:
+        """Position of pair ``(l, m)`` or -1."""
+        lo, hi = int(self.ptr[m]), int(self.ptr[m + 1])
+        j = lo + int(np.searchsorted(self.idx[lo:hi], l))
+        return j if j < hi and self.idx[j] == l else -1
+
+
+@dataclass(frozen=True)
 class GibbsProblem:
     """Inputs of one frame's assignment sampler (log domain, no validation: internal).
 
     ``log_first[l, m]``: log weight of measurement ``m`` taking free cluster ``l``
     (D2/P2 row above, ``-inf`` when gated out or dead); ``log_lik[l, m]``: log predictive
     density (used by D1 in extended mode); ``log_clutter[m]``; ``log_new[m] = log u_H(z_m)``.
+    Give the dense ``(N, M)`` ``log_first``/``log_lik`` (then ``pairs`` is derived from them)
+    or ``pairs`` alone (the tracker's gated, sparse form; the dense matrices are then ``None``).
     """
 
-    log_first: np.ndarray
-    log_lik: np.ndarray
+    log_first: np.ndarray | None
+    log_lik: np.ndarray | None
     log_clutter: np.ndarray
     log_new: np.ndarray
     popularity: np.ndarray
@@ -76,6 +131,23 @@ class GibbsProblem:
     mass: float
     """Transitioned urn mass ``V``; ``alpha + V`` is the Poisson rate of object measurements."""
     extended: bool = False
+    pairs: SparsePairs | None = None
+
+    def __post_init__(self) -> None:
+        if self.log_first is None and self.pairs is None:
+            raise ValueError("GibbsProblem: give the dense log_first/log_lik or pairs")
+        if self.log_first is not None:  # the dense form wins (``dataclasses.replace`` of it stays right)
+            object.__setattr__(self, "pairs", SparsePairs.from_dense(np.asarray(self.log_first, dtype=float),
+                                                                     np.asarray(self.log_lik, dtype=float)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(N clusters, M measurements)``."""
+        return self.pairs.n_clusters, self.pairs.n_meas
+
+    def dense_first(self) -> np.ndarray:
+        """``log_first`` as an ``(N, M)`` matrix (small problems: tests, enumeration)."""
+        return self.log_first if self.log_first is not None else self.pairs.dense(self.pairs.log_first)
 
 
 @dataclass(frozen=True)
@@ -83,12 +155,14 @@ class GibbsResult:
     """Posterior summaries from the kept sweeps (Rao-Blackwellised: the average of each
     visit's full conditional, which resolves small probabilities that draw counts cannot).
 
-    ``p_cluster[l, m] = Pr(c_m = l)``, ``p_clutter[m]``, ``p_new[m]``; ``last`` is the final
+    ``p_pairs[j] = Pr(c_m = l)`` for pair ``j = (l, m)`` of ``pairs`` (``p_cluster`` is the
+    dense ``(N, M)`` view), ``p_clutter[m]``, ``p_new[m]``; ``last`` is the final
     assignment vector (cluster index, ``CLUTTER`` or ``NEW``); ``log_joint`` its unnormalised
     log posterior (up to a constant); ``n_kept`` the number of kept sweeps (all chains).
     """
 
-    p_cluster: np.ndarray
+    pairs: SparsePairs
+    p_pairs: np.ndarray
     p_clutter: np.ndarray
     p_new: np.ndarray
     last: np.ndarray
@@ -100,6 +174,10 @@ class GibbsResult:
     """Accepted pair exchanges, out of ``swaps_proposed`` (pairs x sweeps x chains)."""
     swaps_proposed: int = 0
 
+    @property
+    def p_cluster(self) -> np.ndarray:
+        """``(N, M)``: ``Pr(c_m = l)`` (0 outside the gates)."""
+        return self.pairs.dense(self.p_pairs, 0.0)
 
 
 def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarray:
@@ -109,24 +187,27 @@ def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarr
     ``reverse`` visits the measurements in the opposite order (lowest best score first, ties
     reversed too): where two measurements compete for one cluster, the other one takes it, an
     over-dispersed second start for the between-chain R-hat."""
-    N, M = problem.log_first.shape
+    N, M = problem.shape
     if N == 0 or M == 0:
         return np.full(M, CLUTTER, dtype=np.int64)
+    pr = problem.pairs
     alt = np.maximum(problem.log_clutter,
                      math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
-    best = problem.log_first.max(axis=0)
+    best = np.full(M, -np.inf)
+    has = np.flatnonzero(np.diff(pr.ptr) > 0)
+    if has.size:
+        best[has] = np.maximum.reduceat(pr.log_first, pr.ptr[has])
     order = np.argsort(-best, kind="stable")
     if reverse:
         order = order[::-1].copy()
-    return _greedy(np.ascontiguousarray(problem.log_first, dtype=float), alt, best, order, bool(problem.extended),
-                   not reverse)
+    return _greedy(pr.ptr, pr.idx, pr.log_first, N, alt, best, order, bool(problem.extended), not reverse)
 
 
-def _greedy(log_first, alt, best, order, extended, stop_early):
-    """The greedy pass of :func:`initial_assignment` on plain arrays (compiled with numba).
+def _greedy(ptr, idx, log_first, N, alt, best, order, extended, stop_early):
+    """The greedy pass of :func:`initial_assignment` on the sparse pairs (compiled with numba).
     ``stop_early``: in decreasing order, stop at the first measurement whose best score does
     not beat its alternatives (the session-3 start, kept draw for draw)."""
-    N, M = log_first.shape
+    M = ptr.shape[0] - 1
     c = np.full(M, CLUTTER, dtype=np.int64)
     taken = np.zeros(N, dtype=np.bool_)
     for m in order:
@@ -135,9 +216,10 @@ def _greedy(log_first, alt, best, order, extended, stop_early):
                 break
             continue
         top, l_top = -np.inf, -1
-        for l in range(N):
-            if not taken[l] and log_first[l, m] > top:
-                top, l_top = log_first[l, m], l
+        for j in range(ptr[m], ptr[m + 1]):
+            l = idx[j]
+            if not taken[l] and log_first[j] > top:
+                top, l_top = log_first[j], l
         if l_top >= 0 and top > alt[m]:
             c[m] = l_top
             taken[l_top] = not extended
@@ -157,31 +239,28 @@ class _Candidates:
 
 
 def _candidates(problem: GibbsProblem) -> _Candidates:
-    N, M = problem.log_first.shape
-    mt, lt = np.nonzero(np.isfinite(problem.log_first.T))  # sorted by measurement
-    lf = problem.log_first[lt, mt]
-    ll = problem.log_lik[lt, mt]
+    pr = problem.pairs
+    M = pr.n_meas
+    mt, lf, ll = pr.rows, pr.log_first, pr.log_lik
     shift = np.maximum(problem.log_clutter, problem.log_new)
     if mt.size:
         np.maximum.at(shift, mt, lf)
         if problem.extended:
             np.maximum.at(shift, mt, ll)
     shift = np.where(np.isfinite(shift), shift, 0.0)
-    ptr = np.zeros(M + 1, dtype=np.int64)
-    np.cumsum(np.bincount(mt, minlength=M), out=ptr[1:])
     with np.errstate(under="ignore"):
         return _Candidates(
-            ptr, lt.astype(np.int64), np.exp(lf - shift[mt]),
+            pr.ptr, pr.idx, np.exp(lf - shift[mt]),
             np.exp(ll - shift[mt]) if problem.extended else np.zeros(mt.size),
             np.exp(problem.log_clutter - shift), np.exp(problem.log_new - shift),
         )
 
 
 def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u_row,
-               keep, half, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+               keep, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
     """One systematic-scan sweep of single-site full-conditional draws (mutates ``c``, ``cnt``,
     ``st = [K_new, M_o]`` and, when ``keep``, the Rao-Blackwellised tallies: each visit adds
-    its full conditional to ``tally_cluster``/``tally_cn``, and to the split-half sums
+    its full conditional to ``tally_pair`` (by pair)/``tally_cn``, and to the split-half sums
     ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``)."""
     total_mass, alpha, d, d_bar = par[0], par[1], par[2], par[3]
     M = c.shape[0]
@@ -232,7 +311,7 @@ def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_firs
             tally_cn[0, m] += wc * inv
             tally_cn[1, m] += wn * inv
             for i in range(n_opt):
-                tally_cluster[opt_l[i], m] += opt_w[i] * inv
+                tally_pair[opt_j[i]] += opt_w[i] * inv
             if half >= 0:
                 _half_add(hs, hss, half, nnz + m, wc * inv)
                 _half_add(hs, hss, half, nnz + M + m, wn * inv)
@@ -297,7 +376,7 @@ def _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx,
 
 
 def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
-                  pair_a, pair_b, burn_in, h0, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
     """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
 
     Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
@@ -311,22 +390,36 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
         i = s - burn_in
         half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
         _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
-                   i >= 0, half, tally_cluster, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+                   i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
         if u_swap.shape[1] > 0:
             accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
                                    u_swap[s])
     return accepted
 
 
-_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy)
+def _group_pairs(meas_of, starts, sizes, M, n_keys):
+    """Keys ``a * M + b`` of every pair ``a < b`` within each group (compiled with numba)."""
+    out = np.empty(n_keys, dtype=np.int64)
+    k = 0
+    for g in range(starts.shape[0]):
+        s, n = starts[g], sizes[g]
+        for i in range(n):
+            for j in range(i + 1, n):
+                out[k] = meas_of[s + i] * M + meas_of[s + j]
+                k += 1
+    return out
+
+
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs)
 if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
-    _greedy = _njit(cache=True, nogil=True)(_greedy)
+    _greedy = _njit(cache=True, nogil=True)(_greedy)  # noqa: F811
     # the helpers are replaced by their compiled versions, which the compiled driver calls
     _half_add = _njit(cache=True, nogil=True, inline="always")(_half_add)
     _own_weight = _njit(cache=True, nogil=True)(_own_weight)
     _site_pass = _njit(cache=True, nogil=True)(_site_pass)
     _swap_pass = _njit(cache=True, nogil=True)(_swap_pass)
     _sweeps = _njit(cache=True, nogil=True)(_sweep_kernel)
+    _group_pairs = _njit(cache=True, nogil=True)(_group_pairs)  # noqa: F811
 else:  # pragma: no cover - numba missing or disabled: same code, interpreted
     _sweeps = _sweep_kernel
 
@@ -334,16 +427,24 @@ else:  # pragma: no cover - numba missing or disabled: same code, interpreted
 def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
-    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy")
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs")
     return dict(zip(names, _KERNELS_PY))
 
 
 def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs ``a < b`` of measurements whose gates share at least one cluster."""
-    B = np.isfinite(problem.log_first).astype(np.int64)  # (N, M)
-    share = np.triu(B.T @ B, k=1)
-    a, b = np.nonzero(share)
-    return a.astype(np.int64), b.astype(np.int64)
+    """Pairs ``a < b`` of measurements whose gates share at least one cluster, sorted by
+    ``(a, b)`` (built cluster by cluster from the sparse pairs)."""
+    pr = problem.pairs
+    M = pr.n_meas
+    by_cluster = np.argsort(pr.idx, kind="stable")  # measurements ascending within a cluster
+    meas_of = pr.rows[by_cluster]
+    starts = np.r_[0, np.flatnonzero(np.diff(pr.idx[by_cluster])) + 1] if by_cluster.size else np.zeros(0, np.int64)
+    sizes = np.diff(np.r_[starts, by_cluster.size]).astype(np.int64)
+    n_keys = int(np.sum(sizes * (sizes - 1) // 2))
+    if n_keys == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    key = np.unique(_group_pairs(meas_of, starts.astype(np.int64), sizes, M, n_keys))
+    return (key // M).astype(np.int64), (key % M).astype(np.int64)
 
 
 def run_gibbs(
@@ -361,11 +462,11 @@ def run_gibbs(
     Chain 0 starts from ``init`` (default: the greedy start), odd chains from the reversed
     greedy start.  ``last``/``log_joint`` are chain 0's final state.  ``swaps=False`` with one
     chain is the session-3 sampler draw for draw (it draws no extra uniforms)."""
-    N, M = problem.log_first.shape
+    N, M = problem.shape
     cand = _candidates(problem)
     pair_a, pair_b = swap_pairs(problem) if swaps and N else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     K = cand.idx.size + 2 * M
-    tally_cluster, tally_cn = np.zeros((N, M)), np.zeros((2, M))
+    tally_pair, tally_cn = np.zeros(cand.idx.size), np.zeros((2, M))
     hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
     par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar], dtype=float)
     pop = np.asarray(problem.popularity, dtype=float)
@@ -381,10 +482,10 @@ def run_gibbs(
         u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
         accepted += _sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
                             cand.idx, cand.w_first, cand.w_lik, pop, u, u_swap, pair_a, pair_b, int(burn_in),
-                            2 * k, tally_cluster, tally_cn, hs, hss, *scratch)
+                            2 * k, tally_pair, tally_cn, hs, hss, *scratch)
         first = c if first is None else first
     kept = max(sweeps - burn_in, 1) * chains
-    return GibbsResult(tally_cluster / kept, tally_cn[0] / kept, tally_cn[1] / kept, first,
+    return GibbsResult(problem.pairs, tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first,
                        log_joint(problem, first), kept, split_rhat(hs, hss, (sweeps - burn_in) // 2),
                        int(accepted), int(pair_a.size * sweeps * chains))
 
@@ -423,6 +524,8 @@ def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
     clutter terms, the urn normaliser :math:`\prod_{i<M_o} (\alpha+V)/(\alpha+V+i)`,
     first/subsequent members of transitioned clusters and the new-cluster weights.
     """
+    if not problem.extended:
+        return _log_joint_point(problem, np.asarray(c))
     out = 0.0
     k_new = 0
     m_obj = 0
@@ -439,11 +542,36 @@ def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
             k_new += 1
         else:
             n = counts.get(ch, 0)
+            j = problem.pairs.lookup(m, ch)
+            if j < 0:
+                return -math.inf  # gated out
             if n == 0:
-                out += problem.log_first[ch, m]
+                out += problem.pairs.log_first[j]
             elif problem.extended:
-                out += math.log(n + problem.popularity[ch] - problem.d) + problem.log_lik[ch, m]
+                out += math.log(n + problem.popularity[ch] - problem.d) + problem.pairs.log_lik[j]
             else:
                 return -math.inf
             counts[ch] = n + 1
     return out
+
+
+def _log_joint_point(problem: GibbsProblem, c: np.ndarray) -> float:
+    """:func:`log_joint` for point objects (each cluster at most once), vectorised."""
+    obj = c != CLUTTER
+    new = c == NEW
+    cl = np.flatnonzero(c >= 0)
+    if np.unique(c[cl]).size < cl.size:
+        return -math.inf
+    pr = problem.pairs
+    N = max(pr.n_clusters, 1)
+    key = pr.rows * N + pr.idx  # sorted: CSR by measurement, clusters ascending
+    want = cl * N + c[cl]
+    j = np.searchsorted(key, want)
+    if cl.size and (np.any(j >= key.size) or np.any(key[np.minimum(j, key.size - 1)] != want)):
+        return -math.inf  # gated out
+    total_mass = problem.alpha + problem.mass
+    n_obj, n_new = int(obj.sum()), int(new.sum())
+    urn = np.log(total_mass / (total_mass + np.arange(n_obj))).sum()
+    newk = np.log(problem.alpha + problem.d * (problem.d_bar + np.arange(n_new))).sum()
+    return float(problem.log_clutter[~obj].sum() + urn + newk + problem.log_new[new].sum()
+                 + pr.log_first[j].sum())

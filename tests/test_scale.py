@@ -1,0 +1,143 @@
+"""The sparse (gated) paths of DDP-EMM against their dense references, and the memory guard.
+
+Each sparse piece must give what the dense computation it replaced gives: the gated pairs and
+their log-likelihoods bit for bit, the per-component JPDA* assignment the global one, the
+KD-tree pre-filter of duplicate merging every pair within the merge distance, the vectorised
+log joint the sequential one.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import msgspec
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+import tracker.bnp_tracker as bt
+from tracker import filtering as kf
+from tracker.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
+from tracker.models.measurement import BearingRange, RangeOnly
+from tracker.models.params import load_params
+
+
+def _tracks(rng, n, bearing_centre=0.0):
+    rad = rng.uniform(100.0, 1900.0, n)
+    brg = bearing_centre + rng.uniform(-0.3, 0.3, n)
+    m = np.column_stack([rad * np.sin(brg), rng.normal(0, 10, n), rad * np.cos(brg), rng.normal(0, 10, n),
+                         np.zeros(n)])
+    P = np.tile(np.diag([400.0, 100.0, 400.0, 100.0, 1e-4]), (n, 1, 1)) * rng.uniform(0.2, 30.0, n)[:, None, None]
+    return m, P
+
+
+@pytest.mark.parametrize("meas, centre", [(BearingRange(), 0.0), (BearingRange(), np.pi), (RangeOnly(), 0.0)])
+def test_gated_pairs_equal_the_dense_gate_bit_for_bit(meas, centre):
+    """Tracks straddling the +-pi bearing cut (centre pi) are matched across it as well."""
+    rng = np.random.default_rng(3)
+    m, P = _tracks(rng, 60, centre)
+    innov = kf.ukf_innovation(meas, m, P)
+    Z = np.vstack([meas.sample(rng, m), meas.sample(rng, m[rng.permutation(60)[:30]])])
+    dense = kf.log_likelihood_matrix(meas, innov, Z, 0.9999)
+    mt, lt = np.nonzero(np.isfinite(dense.T))
+    ti, mi, ll = kf.gated_log_likelihood(meas, innov, Z, 0.9999)
+    assert mt.size > 60  # the gates hold many pairs (tracks and measurements overlap)
+    np.testing.assert_array_equal(mi, mt)
+    np.testing.assert_array_equal(ti, lt)
+    np.testing.assert_array_equal(ll, dense[lt, mt])
+    if centre == np.pi:  # some accepted pairs really are across the cut
+        assert np.any(np.abs(innov.z_pred[ti, 0] - Z[mi, 0]) > np.pi)
+
+
+def _dense_best_permutation(p_lm):
+    """The pre-sparse implementation: one LSA over all clusters x (measurements + missed)."""
+    N, M = p_lm.shape
+    p_det = p_lm.sum(axis=1)
+    live = np.flatnonzero(p_det > 1e-9)
+    out = np.zeros_like(p_lm)
+    L = live.size
+    cost = np.full((L, M + L), 1e6)
+    with np.errstate(divide="ignore"):
+        cost[:, :M] = np.minimum(-np.log(p_lm[live]), 1e6)
+        cost[np.arange(L), M + np.arange(L)] = -np.log(np.maximum(1.0 - p_det[live], 1e-300))
+    rows, cols = linear_sum_assignment(cost)
+    chosen = np.where(cols < M, cols, np.argmax(p_lm[live[rows]], axis=1))
+    out[live[rows], chosen] = p_det[live[rows]]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_best_permutation_per_component_equals_the_global_assignment(seed):
+    """Random block-sparse marginals (several components, some with conflicts): the same result."""
+    rng = np.random.default_rng(seed)
+    N, M = 40, 60
+    p = np.zeros((N, M))
+    for _ in range(8):  # blocks of 1-6 clusters sharing 1-5 measurements
+        rows = rng.choice(N, rng.integers(1, 7), replace=False)
+        cols = rng.choice(M, rng.integers(1, 6), replace=False)
+        block = rng.random((rows.size, cols.size)) * (rng.random((rows.size, cols.size)) < 0.7)
+        p[np.ix_(rows, cols)] = block
+    p /= np.maximum(p.sum(axis=1, keepdims=True), 1.0) * rng.uniform(1.0, 1.5, (N, 1))
+    got, want = bt.best_permutation(p), _dense_best_permutation(p)
+    assert ((want > 0).sum(axis=1) > 1).sum() == 0 and (want > 0).sum() > 10
+    np.testing.assert_array_equal(got > 0, want > 0)  # the same measurement for every cluster
+    np.testing.assert_allclose(got, want, rtol=1e-14, atol=0)  # row sums: summation order only
+
+
+def test_near_pairs_hold_every_pair_within_the_merge_distance():
+    rng = np.random.default_rng(5)
+    n = 300
+    mean = np.column_stack([rng.uniform(0, 3000, n), rng.normal(0, 5, n), rng.uniform(0, 3000, n),
+                            rng.normal(0, 5, n), np.zeros(n)])
+    scale = rng.choice([1.0, 30.0, 3000.0], n, p=[0.6, 0.37, 0.03])  # small, medium, a few huge
+    cov = np.tile(np.diag([100.0, 25.0, 100.0, 25.0, 1e-4]), (n, 1, 1)) * scale[:, None, None]
+    c = bt._Clusters(tuple(str(i) for i in range(n)), mean, cov, np.full(n, 0.3), np.ones(n))
+    ii, jj = np.triu_indices(n, k=1)
+    d = mean[ii][:, [0, 1, 2, 3]] - mean[jj][:, [0, 1, 2, 3]]
+    S = (cov[ii] + cov[jj])[:, [0, 1, 2, 3]][:, :, [0, 1, 2, 3]]
+    d2 = np.einsum("pk,pk->p", d, np.linalg.solve(S, d[..., None])[..., 0])
+    want = set(zip(ii[d2 <= 9.0].tolist(), jj[d2 <= 9.0].tolist()))
+    lo, hi = bt._near_pairs(c, 9.0)
+    got = set(zip(lo.tolist(), hi.tolist()))
+    assert len(want) > 20 and want <= got
+    assert len(got) < ii.size / 10  # and it is a pre-filter, not all pairs
+
+
+def test_vectorised_log_joint_equals_the_sequential_sum():
+    rng = np.random.default_rng(2)
+    N, M = 4, 6
+    ll = rng.normal(-5, 1, (N, M))
+    ll[rng.random((N, M)) < 0.3] = -np.inf
+    prob = GibbsProblem(ll + 0.3, ll, rng.normal(-7, 1, M), rng.normal(-6, 1, M), np.ones(N), 0.4, 0.1, 2.5, 3.0)
+    from dataclasses import replace
+
+    seq = replace(prob, extended=True)  # one measurement per cluster: the extended formula is the same joint
+    checked = 0
+    for _ in range(300):
+        c = rng.choice([CLUTTER, NEW, 0, 1, 2, 3], M)
+        if len(set(c[c >= 0].tolist())) < (c >= 0).sum():
+            assert log_joint(prob, c) == -np.inf
+            continue
+        a, b = log_joint(prob, c), log_joint(seq, c)
+        assert (a == b == -np.inf) or np.isclose(a, b, rtol=1e-12)
+        checked += np.isfinite(a)
+    assert checked > 20
+
+
+def test_max_clusters_guard_warns_once_and_reports(caplog):
+    """The cap is a memory guard (default 100000); when it bites, the step says so."""
+    assert bt.BnpConfig().max_clusters == 100_000
+    params = load_params("vo2017")
+    tr = bt.make_tracker("ddp", params, bt.BnpConfig(max_clusters=3))
+    from tracker.state import frame_rng
+    from tracker.types import Frame
+
+    z = np.column_stack([np.linspace(-1.0, 1.0, 8), np.linspace(300.0, 1800.0, 8)])
+    bt._capped_warned.clear()
+    st = tr.initial_state()
+    with caplog.at_level(logging.WARNING, logger="tracker.bnp_tracker"):
+        for k in range(3):
+            st, est = tr.step(st, Frame(k, k * 10**9, "s", "bearing_range", z), frame_rng(1, k))
+            assert st.n_clusters <= 3
+    assert est.diagnostics["clusters_capped"] > 0
+    assert sum("max_clusters (3) reached" in r.message for r in caplog.records) == 1
