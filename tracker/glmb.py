@@ -50,7 +50,7 @@ import numpy as np
 
 from tracker import filtering as kf
 from tracker.models.params import BirthComponent, ModelParams
-from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate
+from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, frame_dt
 
 try:  # the Gibbs sweeps also run interpreted (BNPTRACK_NO_JIT=1)
     from numba import njit as _njit
@@ -132,15 +132,17 @@ GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}
 class GlmbModel(Protocol):
     """What the GLMB needs from a model set (``ModelParams`` satisfies it; tests inject others).
 
-    ``motion()`` and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
+    ``motion(dt)`` (the transition over ``dt`` seconds, ``T`` by default) and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
     ``clutter(kind).log_intensity`` is :math:`\\log\\kappa(z)` (uniform clutter);
     ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
     Adaptive births also need ``measurement(kind).to_cartesian(Z) -> (pos (M, 2), cov (M, 2, 2))``.
     """
 
     birth: list[BirthComponent]
+    T: float
+    """The scan period: survival ``survival(x)`` is per ``T`` (over ``dt``: its power ``dt/T``)."""
 
-    def motion(self) -> Any: ...
+    def motion(self, dt: float | None = None) -> Any: ...
     def measurement(self, kind: str) -> Any: ...
     def clutter(self, kind: str) -> Any: ...
     def detection(self, kind: str) -> Any: ...
@@ -761,6 +763,10 @@ class GlmbTracker:
     def motion(self):
         return self.params.motion()
 
+    def _motion(self, dt: float):
+        """The motion model over ``dt`` (the cached one at ``dt == T``)."""
+        return self.motion if dt == self.params.T else self.params.motion(dt)
+
     @cached_property
     def birth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Birth components: ``r`` (B,), means (B, 5), covariances (B, 5, 5)."""
@@ -790,9 +796,9 @@ class GlmbTracker:
         t0 = time.perf_counter()
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
-        steps = 1 if state.frame < 0 else frame.frame - state.frame
+        dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
         meas = self.params.measurement(frame.kind)
-        cands = self._candidates(state, steps, frame)
+        cands = self._candidates(state, dt, frame)
         innov = self._innovation(meas, cands)
         E = self._eta(meas, innov, cands, frame)
         children = self._children(state, cands, E, rng)
@@ -822,16 +828,15 @@ class GlmbTracker:
     def _predict_fn(self):
         return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
 
-    def _candidates(self, state: GlmbState, steps: int, frame: Frame) -> _Candidates:
-        r"""Survivors: ``steps`` predictions, :math:`\bar P_S = \prod_s P_S(m_s)` with
-        :math:`m_s` the mean before step ``s`` (the survival of the gap); then births."""
+    def _candidates(self, state: GlmbState, dt: float, frame: Frame) -> _Candidates:
+        r"""Survivors: one prediction over ``dt`` seconds (the CT model built for ``dt``),
+        :math:`\bar P_S = P_S(m)^{\Delta t/T}` at the mean before the step; then births."""
         m, P = state.mean, state.cov
         log_ps = np.zeros(len(m))
-        predict = self._predict_fn()
-        for _ in range(steps if len(m) else 0):
-            log_ps = log_ps + _log(self.params.survival(m, frame.kind))
-            m, P = predict(self.motion, m, P)
-        b = self._births(state, frame)
+        if len(m):
+            log_ps = _log(self.params.survival(m, frame.kind)) * (dt / self.params.T)
+            m, P = self._predict_fn()(self._motion(dt), m, P)
+        b = self._births(state, frame, dt)
         labels = state.labels + b.labels
         mean = np.concatenate([m, b.mean])
         cov = np.concatenate([P, b.cov])
@@ -841,7 +846,7 @@ class GlmbTracker:
         return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
                            b.n_adaptive)
 
-    def _births(self, state: GlmbState, frame: Frame) -> _Births:
+    def _births(self, state: GlmbState, frame: Frame, dt: float) -> _Births:
         """This frame's birth Bernoullis: the static regions (labels ``"k.i"``, ``i`` the
         component) and/or the adaptive births (labels ``"k.zj"``, ``j`` the index of the
         measurement of the previous processed frame), per :attr:`birth_model`."""
@@ -849,19 +854,19 @@ class GlmbTracker:
         static = _Births(tuple(f"{frame.frame}.{i}" for i in range(r.size)), r, bm, bP)
         if self.birth_model == "static":
             return static
-        adaptive = self._adaptive_births(state, frame)
+        adaptive = self._adaptive_births(state, frame, dt)
         if self.birth_model == "adaptive":
             return adaptive
         return _Births(static.labels + adaptive.labels, np.concatenate([r, adaptive.r]),
                        np.concatenate([bm, adaptive.mean]), np.concatenate([bP, adaptive.cov]),
                        adaptive.n_adaptive)
 
-    def _adaptive_births(self, state: GlmbState, frame: Frame) -> _Births:
+    def _adaptive_births(self, state: GlmbState, frame: Frame, dt: float) -> _Births:
         r"""Reuter et al. (2014) adaptive birth: one Bernoulli per kept measurement ``z`` of
         the previous processed frame with :math:`r_B(z)` from
         :func:`adaptive_birth_existence` and the measurement-conditioned prior
         (:func:`measurement_state_prior` of the sensor's ``to_cartesian``) predicted to this
-        frame with the motion model."""
+        frame with the motion model over ``dt`` (that frame is the last processed one)."""
         cfg = self.config
         idx, r = adaptive_birth_existence(state.birth_r_u, cfg.birth_rate, cfg.birth_r_max,
                                           cfg.max_births, cfg.birth_min_share)
@@ -869,9 +874,7 @@ class GlmbTracker:
             return _Births((), np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM)))
         pos, pcov = self.params.measurement(state.birth_kind).to_cartesian(state.birth_z[idx])
         m, P = measurement_state_prior(pos, pcov, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
-        predict = self._predict_fn()
-        for _ in range(frame.frame - state.birth_frame):
-            m, P = predict(self.motion, m, P)
+        m, P = self._predict_fn()(self._motion(dt), m, P)
         labels = tuple(f"{frame.frame}.z{j}" for j in idx.tolist())
         return _Births(labels, r, m, P, idx.size)
 

@@ -7,6 +7,7 @@ dataclasses over plain numpy arrays; arrays are batch-first (``(M, d)``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Literal
@@ -154,9 +155,9 @@ class FrameBoundError(ValueError):
 class FrameBounds:
     """How far one frame may advance past the previous one.
 
-    A tracker predicts through every skipped frame (``steps = frame - previous frame``), so an
-    unbounded jump (a corrupt or forged frame number, e.g. 10^9) would cost work in proportion
-    to the jump.  Each frame must come after the previous one by at most ``max_frame_gap``
+    A tracker predicts once over the time since the previous frame (:func:`frame_dt`), but an
+    unbounded jump (a corrupt or forged frame number, e.g. 10^9) still means a corrupt frame
+    (a covariance grown by years of process noise).  Each frame must come after the previous one by at most ``max_frame_gap``
     frame numbers, and its time stamp may not go back nor advance by more than ``max_gap_s``
     seconds.  The first frame of a stream is not bounded.
     """
@@ -199,3 +200,34 @@ def bounded_frames(frames: Iterable[Frame], bounds: FrameBounds = FrameBounds())
             raise FrameBoundError(why)
         prev_frame, prev_stamp = f.frame, f.stamp_ns
         yield f
+
+
+# --------------------------------------------------------------------------- time between frames
+
+
+def frame_dt(prev_frame: int, prev_stamp_ns: int, frame: int, stamp_ns: int, T: float) -> float:
+    r"""Seconds to predict over from the last processed frame to this one.
+
+    * Time stamps are used when present: :math:`\Delta t = (\text{stamp} - \text{stamp}_{prev})
+      / 10^9`, so irregular intervals and dropped frames are handled.  A stamp difference
+      equal, to the nanosecond, to ``(frame - prev_frame) * T`` gives exactly
+      ``(frame - prev_frame) * T`` (the simulator's stamps are ``round(k T 10^9)``, so its
+      logs predict with the same floats as before stamps were used).
+    * Stamps are "absent" when both are 0 (logs that carry none): then
+      :math:`\Delta t = (\text{frame} - \text{frame}_{prev})\, T`.
+    * Before the first frame (``prev_frame < 0``) the interval is ``T`` (nothing to predict).
+
+    Raises :class:`FrameBoundError` when the stamp goes back in time (frames out of order).
+    Equal stamps (two sensors scanning at the same instant) give :math:`\Delta t = 0`.
+    """
+    steps = 1 if prev_frame < 0 else frame - prev_frame
+    if prev_frame < 0 or (prev_stamp_ns == 0 and stamp_ns == 0):
+        return steps * T
+    why = FrameBounds(max_frame_gap=max(steps, 1), max_gap_s=math.inf).violation(
+        prev_frame, prev_stamp_ns, frame, stamp_ns)
+    if why is not None:
+        raise FrameBoundError(why)
+    d_ns = int(stamp_ns) - int(prev_stamp_ns)
+    if d_ns == steps * int(round(T * 1e9)):
+        return steps * T
+    return d_ns / 1e9

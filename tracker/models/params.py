@@ -89,8 +89,16 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         """Variance multiplier from SNR: ``10**(-snr_db/10)`` (1 when no SNR is set)."""
         return 1.0 if self.snr_db is None else 10.0 ** (-self.snr_db / 10.0)
 
-    def motion(self) -> CoordinatedTurn:
-        return CoordinatedTurn(self.T, self.sigma_accel, np.deg2rad(self.sigma_turn_deg))
+    def motion(self, dt: float | None = None) -> CoordinatedTurn:
+        """The CT model over ``dt`` seconds (default ``T``); its ``Q(dt)`` scales with ``dt``."""
+        return CoordinatedTurn(self.T if dt is None else float(dt), self.sigma_accel,
+                               np.deg2rad(self.sigma_turn_deg))
+
+    def survival_over(self, x: np.ndarray, dt: float, kind: str = "bearing_range") -> np.ndarray:
+        r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
+        ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
+        ps = self.survival(x, kind)
+        return ps if dt == self.T else ps ** (dt / self.T)
 
     def measurement(self, kind: str = "bearing_range") -> BearingRange | RangeOnly:
         k = np.sqrt(self.noise_scale)
