@@ -111,16 +111,19 @@ class LinearParams:
     def motion(self, dt=None):
         return LinearMotion() if dt is None else LinearMotion(T=dt)
 
-    def measurement(self, kind):
+    def frame_sensor(self, frame):
+        return None
+
+    def measurement(self, kind, sensor=None):
         return PositionSensor(self.sigma)
 
-    def clutter(self, kind):
+    def clutter(self, kind, sensor=None):
         return Clutter(self.log_kappa)
 
-    def detection(self, kind):
+    def detection(self, kind, sensor=None):
         return ConstDetection(self.p_detect)
 
-    def survival(self, x, kind):
+    def survival(self, x, kind, sensor=None):
         return np.full(np.atleast_2d(x).shape[0], self.p_survival)
 
 

@@ -220,9 +220,10 @@ class BnpTracker:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
-        meas = self.params.measurement(frame.kind)
-        clutter = self.params.clutter(frame.kind)
-        pred = self._predict(state, dt, frame.kind)
+        sensor = self.params.frame_sensor(frame)
+        meas = self.params.measurement(frame.kind, sensor)
+        clutter = self.params.clutter(frame.kind, sensor)
+        pred = self._predict(state, dt, frame.kind, sensor)
         innov = self._innovation(meas, pred)
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
@@ -248,15 +249,15 @@ class BnpTracker:
                                    est.assignment_prob, diagnostics)
 
     # -- pieces ---------------------------------------------------------------------------
-    def _predict(self, state: BnpState, dt: float, kind: str) -> _Prediction:
+    def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
         """Transition (Algorithm 1, step 2) over ``dt`` seconds in one step: phi = the CT model
         built for ``dt`` (process noise ``Q(dt)``), q = r * P_S(x)^(dt/T) at the predicted mean."""
         m, P, q = state.mean, state.cov, state.existence
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
         if state.n_clusters:
             m, P = predict(self._motion(dt), m, P)
-            q = q * self.params.survival_over(m, dt, kind)
-        p_detect = self.params.detection(kind).prob(m) if len(m) else np.zeros(0)
+            q = q * self.params.survival_over(m, dt, kind, sensor)
+        p_detect = self.params.detection(kind, sensor).prob(m) if len(m) else np.zeros(0)
         return _Prediction(m, P, q, p_detect)
 
     def _innovation(self, meas, pred: _Prediction):

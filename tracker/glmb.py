@@ -134,7 +134,8 @@ class GlmbModel(Protocol):
 
     ``motion(dt)`` (the transition over ``dt`` seconds, ``T`` by default) and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
     ``clutter(kind).log_intensity`` is :math:`\\log\\kappa(z)` (uniform clutter);
-    ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
+    ``frame_sensor(frame)`` resolves the frame's sensor (pose, field of view, noise), which the
+    model factories take as ``sensor``; ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
     Adaptive births also need ``measurement(kind).to_cartesian(Z) -> (pos (M, 2), cov (M, 2, 2))``.
     """
 
@@ -143,10 +144,11 @@ class GlmbModel(Protocol):
     """The scan period: survival ``survival(x)`` is per ``T`` (over ``dt``: its power ``dt/T``)."""
 
     def motion(self, dt: float | None = None) -> Any: ...
-    def measurement(self, kind: str) -> Any: ...
-    def clutter(self, kind: str) -> Any: ...
-    def detection(self, kind: str) -> Any: ...
-    def survival(self, x: np.ndarray, kind: str) -> np.ndarray: ...
+    def frame_sensor(self, frame: Frame) -> Any: ...
+    def measurement(self, kind: str, sensor: Any = None) -> Any: ...
+    def clutter(self, kind: str, sensor: Any = None) -> Any: ...
+    def detection(self, kind: str, sensor: Any = None) -> Any: ...
+    def survival(self, x: np.ndarray, kind: str, sensor: Any = None) -> np.ndarray: ...
 
 
 def _empty_hyps() -> np.ndarray:
@@ -174,6 +176,10 @@ class GlmbState:
     birth_frame: int = -1
     """Frame of ``birth_z`` (the last processed frame; ``-1``: none)."""
     birth_kind: str = "bearing_range"
+    birth_sensor: str = ""
+    birth_pose: tuple[float, ...] = ()
+    """The last frame's sensor, pose (``()``: none) and ``R`` (``(0, 0)``: none)."""
+    birth_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     birth_z: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     """The last frame's measurements ``(M, d)``: the adaptive births of the next frame."""
     birth_r_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -797,8 +803,9 @@ class GlmbTracker:
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
-        meas = self.params.measurement(frame.kind)
-        cands = self._candidates(state, dt, frame)
+        sensor = self.params.frame_sensor(frame)
+        meas = self.params.measurement(frame.kind, sensor)
+        cands = self._candidates(state, dt, frame, sensor)
         innov = self._innovation(meas, cands)
         E = self._eta(meas, innov, cands, frame)
         children = self._children(state, cands, E, rng)
@@ -807,7 +814,8 @@ class GlmbTracker:
         rows = self._estimate_rows(upd, marg, state.est_rows)
         est = estimate_from_rows(upd.state, upd.row_meas, marg, frame, rows)
         new = dataclasses.replace(upd.state, birth_frame=frame.frame, birth_kind=frame.kind,
-                                  birth_z=frame.z.copy(), birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
+                                  birth_z=frame.z.copy(), birth_sensor=frame.sensor, birth_pose=frame.pose or (),
+                                  birth_R=np.zeros((0, 0)) if frame.R is None else frame.R, birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
                                   est_rows=rows)
         card = new.cardinality()
         diagnostics = {
@@ -828,13 +836,13 @@ class GlmbTracker:
     def _predict_fn(self):
         return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
 
-    def _candidates(self, state: GlmbState, dt: float, frame: Frame) -> _Candidates:
+    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None) -> _Candidates:
         r"""Survivors: one prediction over ``dt`` seconds (the CT model built for ``dt``),
         :math:`\bar P_S = P_S(m)^{\Delta t/T}` at the mean before the step; then births."""
         m, P = state.mean, state.cov
         log_ps = np.zeros(len(m))
         if len(m):
-            log_ps = _log(self.params.survival(m, frame.kind)) * (dt / self.params.T)
+            log_ps = _log(self.params.survival(m, frame.kind, sensor)) * (dt / self.params.T)
             m, P = self._predict_fn()(self._motion(dt), m, P)
         b = self._births(state, frame, dt)
         labels = state.labels + b.labels
@@ -842,7 +850,7 @@ class GlmbTracker:
         cov = np.concatenate([P, b.cov])
         log_e = np.concatenate([log_ps, _log(b.r)])
         log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - b.r)])
-        pd = self.params.detection(frame.kind).prob(mean) if len(mean) else np.zeros(0)
+        pd = self.params.detection(frame.kind, sensor).prob(mean) if len(mean) else np.zeros(0)
         return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
                            b.n_adaptive)
 
@@ -872,7 +880,10 @@ class GlmbTracker:
                                           cfg.max_births, cfg.birth_min_share)
         if state.birth_frame < 0 or idx.size == 0:
             return _Births((), np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM)))
-        pos, pcov = self.params.measurement(state.birth_kind).to_cartesian(state.birth_z[idx])
+        last = Frame(state.birth_frame, state.stamp_ns, state.birth_sensor, state.birth_kind, state.birth_z,
+                     pose=state.birth_pose or None, R=state.birth_R if state.birth_R.size else None)
+        sensor = self.params.frame_sensor(last)
+        pos, pcov = self.params.measurement(state.birth_kind, sensor).to_cartesian(state.birth_z[idx])
         m, P = measurement_state_prior(pos, pcov, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
         m, P = self._predict_fn()(self._motion(dt), m, P)
         labels = tuple(f"{frame.frame}.z{j}" for j in idx.tolist())
@@ -889,7 +900,7 @@ class GlmbTracker:
             log_lik = kf.log_likelihood_matrix(meas, innov, frame.z, self.config.gate_prob)
         else:
             log_lik = np.zeros((len(cands.mean), M))
-        log_kappa = float(self.params.clutter(frame.kind).log_intensity)
+        log_kappa = float(self.params.clutter(frame.kind, self.params.frame_sensor(frame)).log_intensity)
         if not math.isfinite(log_kappa):
             raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
         return eta_matrix(cands.log_e, cands.log_not_e, cands.p_detect, log_lik, log_kappa)

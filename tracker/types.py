@@ -14,10 +14,13 @@ from typing import Literal
 
 import numpy as np
 
-SensorKind = Literal["bearing_range", "range"]
+from tracker.models.measurement import KINDS
 
-#: Dimension of one measurement for each sensor kind.
-MEASUREMENT_DIM: dict[str, int] = {"bearing_range": 2, "range": 1}
+SensorKind = Literal["bearing_range", "range", "xy"]
+
+#: Dimension of one measurement for each sensor kind (from the registry
+#: :data:`tracker.models.measurement.KINDS`).
+MEASUREMENT_DIM: dict[str, int] = {name: k.dim for name, k in KINDS.items()}
 
 #: Object state layout used everywhere: ``[px, vx, py, vy, omega]``.
 STATE_DIM = 5
@@ -61,6 +64,16 @@ def check_finite_rows(frame: int, z: np.ndarray) -> None:
                          f" ({int(bad.sum())} such row(s))")
 
 
+def check_covariance(frame: int, R, d: int) -> np.ndarray:
+    """``R`` as a ``(d, d)`` symmetric positive-definite array, or ``ValueError`` naming the frame."""
+    R = np.asarray(R, dtype=float)
+    if R.shape != (d, d) or not np.isfinite(R).all():
+        raise ValueError(f"Frame {frame}: R must be a finite {d}x{d} matrix, got shape {R.shape}")
+    if not np.allclose(R, R.T, rtol=1e-9, atol=0.0) or np.any(np.linalg.eigvalsh(0.5 * (R + R.T)) <= 0):
+        raise ValueError(f"Frame {frame}: R must be symmetric positive definite")
+    return 0.5 * (R + R.T)
+
+
 @dataclass(frozen=True)
 class Frame:
     """One scan of measurements from one sensor.
@@ -74,13 +87,20 @@ class Frame:
     sensor:
         Sensor name (free text, e.g. ``"radar0"``).
     kind:
-        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from +y towards +x)
-        or ``"range"`` (``z = [range_m]``).
+        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from the sensor's
+        boresight towards +x), ``"range"`` (``z = [range_m]``) or ``"xy"``
+        (``z = [x_m, y_m]`` in the world frame); the registry
+        :data:`tracker.models.measurement.KINDS` lists them.
     z:
         ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.  Every entry must be
         finite: construction raises ``ValueError`` naming the frame and the row otherwise.
     truth:
         Ground truth at this frame when the source has it, else ``None``.
+    pose:
+        ``(x, y, heading)`` of the sensor for this scan (m, m, rad; heading from +y towards
+        +x), or ``None``: the parameter set's ``[sensors.NAME]`` table (or the default sensor).
+    R:
+        ``(d, d)`` measurement noise covariance of this scan's rows, or ``None``.
     """
 
     frame: int
@@ -89,13 +109,23 @@ class Frame:
     kind: SensorKind
     z: np.ndarray
     truth: Truth | None = None
+    pose: tuple[float, float, float] | None = None
+    R: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in MEASUREMENT_DIM:
-            raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r}")
-        z = np.asarray(self.z, dtype=float).reshape(-1, MEASUREMENT_DIM[self.kind])
+            raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r} (known: {', '.join(KINDS)})")
+        d = MEASUREMENT_DIM[self.kind]
+        z = np.asarray(self.z, dtype=float).reshape(-1, d)
         check_finite_rows(self.frame, z)
         object.__setattr__(self, "z", z)
+        if self.pose is not None:
+            pose = tuple(float(v) for v in self.pose)
+            if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+                raise ValueError(f"Frame {self.frame}: pose must be 3 finite numbers [x, y, heading], got {self.pose!r}")
+            object.__setattr__(self, "pose", pose)
+        if self.R is not None:
+            object.__setattr__(self, "R", check_covariance(self.frame, self.R, d))
 
     @property
     def n_measurements(self) -> int:

@@ -17,9 +17,10 @@ import msgspec
 import numpy as np
 
 from tracker.config import ConfigError, apply_overrides, load_toml
-from tracker.models.clutter import Detection, UniformClutter
-from tracker.models.measurement import BearingRange, RangeOnly
+from tracker.models.clutter import Detection, SectorClutter, UniformClutter
+from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind
 from tracker.models.motion import CoordinatedTurn
+from tracker.models.sensors import Sensor, SensorSpec
 
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
@@ -63,6 +64,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``snr`` scenario sets 2 (``docs/models.md``: range space is one-dimensional)."""
     sigma_bearing_deg: Positive = 2.0
     sigma_range: Positive = 10.0
+    sigma_xy: Positive = 10.0
+    """Position noise std (m) per axis of ``xy`` detections (``R = sigma_xy^2 I``)."""
     range_max: Positive = 2000.0
     bearing_half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 90.0
     snr_db: float | None = None
@@ -77,6 +80,10 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     its uniform part by ``rate / (rate + sum r)`` (1 without regions), and the GLMB's adaptive
     birth uses it as ``lambda_B``.  0 allows births only at the birth regions."""
     birth: list[BirthComponent] = msgspec.field(default_factory=list)
+    sensors: dict[str, SensorSpec] = msgspec.field(default_factory=dict)
+    """``[sensors.NAME]`` tables: pose, field of view and noise of the sensor whose frames
+    carry ``sensor = NAME`` (:mod:`tracker.models.sensors`).  A sensor without a table is
+    the default one: at the origin, boresight +y, the set's field of view and noise."""
 
     # --- model factories -------------------------------------------------------------
     @property
@@ -94,45 +101,90 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         return CoordinatedTurn(self.T if dt is None else float(dt), self.sigma_accel,
                                np.deg2rad(self.sigma_turn_deg))
 
-    def survival_over(self, x: np.ndarray, dt: float, kind: str = "bearing_range") -> np.ndarray:
-        r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
-        ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
-        ps = self.survival(x, kind)
-        return ps if dt == self.T else ps ** (dt / self.T)
-
-    def measurement(self, kind: str = "bearing_range") -> BearingRange | RangeOnly:
+    # --- sensors -----------------------------------------------------------------------
+    def sensor(self, name: str = "", kind: str = "bearing_range",
+               pose: tuple[float, float, float] | None = None, R: np.ndarray | None = None) -> Sensor:
+        """The resolved sensor ``name`` for frames of ``kind``: defaults, then its
+        ``[sensors.NAME]`` table, then the frame's ``pose`` / ``R`` (``tracker.models.sensors``)."""
+        measurement_kind(kind)
+        spec = self.sensors.get(name) or SensorSpec()
+        if spec.kind is not None and spec.kind != kind:
+            raise ValueError(f"sensor {name!r} is declared kind {spec.kind!r} but its frame has kind {kind!r}")
         k = np.sqrt(self.noise_scale)
-        if kind == "bearing_range":
-            return BearingRange(np.deg2rad(self.sigma_bearing_deg) * k, self.sigma_range * k)
-        if kind == "range":
-            return RangeOnly(self.sigma_range * k, half_fov=float(np.deg2rad(self.bearing_half_fov_deg)))
-        raise ValueError(f"unknown sensor kind {kind!r}")
-
-    def clutter(self, kind: str = "bearing_range") -> UniformClutter:
-        half = np.deg2rad(self.bearing_half_fov_deg)
-        if kind == "bearing_range":
-            return UniformClutter(self.clutter_rate, (-half, 0.0), (half, self.range_max))
-        if kind == "range":
-            rate = self.clutter_rate if self.range_clutter_rate is None else self.range_clutter_rate
-            return UniformClutter(rate, (0.0,), (self.range_max,))
-        raise ValueError(f"unknown sensor kind {kind!r}")
-
-    def detection(self, kind: str = "bearing_range") -> Detection:
-        half = np.deg2rad(self.bearing_half_fov_deg)
-        return Detection(
-            self.p_detect,
-            self.range_max,
-            -half,
-            half,
-            snr_db=self.snr_db,
-            snr_reference_db=self.snr_pd_reference_db,
-            range_only=(kind == "range"),
+        x, y, heading = spec.x, spec.y, float(np.deg2rad(spec.heading_deg))
+        if pose is not None:
+            x, y, heading = (float(v) for v in pose)
+        rate = self.clutter_rate
+        if kind == "range" and self.range_clutter_rate is not None:
+            rate = self.range_clutter_rate
+        noise = None if R is None else tuple(tuple(float(v) for v in row) for row in np.asarray(R, dtype=float))
+        return Sensor(
+            name, kind, float(x), float(y), heading, float(spec.range_min),
+            float(self.range_max if spec.range_max is None else spec.range_max),
+            float(np.deg2rad(self.bearing_half_fov_deg if spec.half_fov_deg is None else spec.half_fov_deg)),
+            float(np.deg2rad(self.sigma_bearing_deg if spec.sigma_bearing_deg is None else spec.sigma_bearing_deg) * k),
+            float((self.sigma_range if spec.sigma_range is None else spec.sigma_range) * k),
+            float((self.sigma_xy if spec.sigma_xy is None else spec.sigma_xy) * k),
+            float(self.p_detect if spec.p_detect is None else spec.p_detect),
+            float(rate if spec.clutter_rate is None else spec.clutter_rate),
+            noise,
         )
 
-    def survival(self, x: np.ndarray, kind: str = "bearing_range") -> np.ndarray:
-        """``(N,)`` P_S(x): ``p_survival`` inside the field of view, ``p_survival_outside`` beyond."""
-        inside = self.detection(kind).visible(x)
+    def frame_sensor(self, frame) -> Sensor:
+        """The resolved sensor of a :class:`~tracker.types.Frame` (its name, kind, pose, R)."""
+        return self.sensor(frame.sensor, frame.kind, frame.pose, frame.R)
+
+    def measurement(self, kind: str = "bearing_range", sensor: Sensor | None = None
+                    ) -> BearingRange | RangeOnly | Cartesian:
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        if kind == "bearing_range":
+            return BearingRange(s.sigma_bearing, s.sigma_range, s.x, s.y, s.heading, s.noise)
+        if kind == "range":
+            return RangeOnly(s.sigma_range, s.x, s.y, s.half_fov, s.heading, s.noise)
+        return Cartesian(s.sigma_xy, s.x, s.y, s.heading, s.noise)
+
+    def clutter(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> UniformClutter | SectorClutter:
+        """Clutter uniform over the sensor's field of view, in its measurement space."""
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        if kind == "bearing_range":
+            return UniformClutter(s.clutter_rate, (-s.half_fov, s.range_min), (s.half_fov, s.range_max))
+        if kind == "range":
+            return UniformClutter(s.clutter_rate, (s.range_min,), (s.range_max,))
+        return SectorClutter(s.clutter_rate, s.range_min, s.range_max, s.half_fov, s.x, s.y, s.heading)
+
+    def detection(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> Detection:
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        return Detection(
+            s.p_detect,
+            s.range_max,
+            -s.half_fov,
+            s.half_fov,
+            snr_db=self.snr_db,
+            snr_reference_db=self.snr_pd_reference_db,
+            sensor_x=s.x,
+            sensor_y=s.y,
+            range_only=(kind == "range"),
+            heading=s.heading,
+            range_min=s.range_min,
+        )
+
+    def survival(self, x: np.ndarray, kind: str = "bearing_range", sensor: Sensor | None = None) -> np.ndarray:
+        """``(N,)`` P_S(x): ``p_survival`` inside the surveillance region, ``p_survival_outside``
+        beyond.  The region is the field of view of the frame's sensor united with those of the
+        declared ``[sensors.*]`` (several sensors share one tracker state)."""
+        inside = self.detection(kind, sensor).visible(x)
+        for name, spec in self.sensors.items():
+            if sensor is None or name != sensor.name:
+                k = spec.kind or kind
+                inside = inside | self.detection(k, self.sensor(name, k)).visible(x)
         return np.where(inside, self.p_survival, self.p_survival_outside)
+
+    def survival_over(self, x: np.ndarray, dt: float, kind: str = "bearing_range",
+                      sensor: Sensor | None = None) -> np.ndarray:
+        r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
+        ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
+        ps = self.survival(x, kind, sensor)
+        return ps if dt == self.T else ps ** (dt / self.T)
 
 
 BUILTIN_PARAMS = ("vo2017", "paper")
