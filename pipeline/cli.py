@@ -206,6 +206,7 @@ def simulate(
       bnptrack simulate --scenario snr --snr -10 --seed 3
       bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
       bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
+      bnptrack simulate --params two_sensors.toml --seed 1   # one frame per [sensors.NAME] per scan
 
     The generated scenarios (random, random-cv) draw their scene from --seed too (the
     record then also holds scene_seed, the scene.* settings and the crossing pairs).

@@ -21,7 +21,7 @@ import numpy as np
 
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
 from sources.scenarios import get_scenario, is_generated
-from sources.synthetic import simulate
+from sources.synthetic import simulate, simulate_sensors
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
 from tracker.state import run
@@ -379,8 +379,11 @@ def simulate_to_log(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_frames = n_meas = n_targets = 0
+    # a parameter set that declares sensors ([sensors.NAME]) is simulated with all of them:
+    # one frame per sensor per scan, interleaved (sources.synthetic.simulate_sensors)
+    frames = simulate_sensors(sc, params, seed, list(params.sensors)) if params.sensors else simulate(sc, params, seed)
     with McapLogWriter(out, dict(metadata)) as writer:
-        for frame in simulate(sc, params, seed):
+        for frame in frames:
             writer.write_frame(frame)
             n_frames += 1
             n_meas += frame.n_measurements

@@ -210,3 +210,27 @@ def test_two_sensors_interleaved_share_one_state():
     # one shared state: the same labels are reported after frames of either sensor
     assert len(labels_by_sensor["radar"] & labels_by_sensor["cam"]) >= 3
     assert np.mean(d[20:]) < 40.0
+
+
+def test_cli_simulates_and_tracks_two_sensors(tmp_path):
+    """A parameter file with two [sensors.*] tables: `simulate` writes both sensors' frames
+    interleaved (poses in the frames), `track` reads them back with the shared state."""
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+    from sources.mcap_log import iter_frames
+
+    params = tmp_path / "two.toml"
+    params.write_text('name = "two"\n[sensors.radar]\nkind = "bearing_range"\n'
+                      '[sensors.cam]\nkind = "xy"\nx = -1000.0\ny = 2500.0\nheading_deg = 150.0\n'
+                      'range_max = 2500.0\nclutter_rate = 5.0\n')
+    log = tmp_path / "two.mcap"
+    res = CliRunner().invoke(main, ["simulate", "--params", str(params), "--seed", "1", "--out", str(log), "-q"])
+    assert res.exit_code == 0, res.output
+    frames = list(iter_frames(log))
+    assert len(frames) == 200 and [f.sensor for f in frames[:2]] == ["radar", "cam"]
+    assert frames[1].kind == "xy" and frames[1].pose == (-1000.0, 2500.0, pytest.approx(np.deg2rad(150.0)))
+    res = CliRunner().invoke(main, ["track", str(log), "--tracker", "ddp", "--out", str(tmp_path / "t.mcap")])
+    assert res.exit_code == 0, res.output
+    ospa_m = float(res.output.split("mean OSPA")[1].split()[0])
+    assert ospa_m < 20.0, res.output
