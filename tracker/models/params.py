@@ -8,6 +8,7 @@ See ``docs/models.md`` for the table of values and the choices made where the so
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.config import ConfigError, apply_overrides, load_toml
+from tracker.config import ConfigError, apply_overrides, convert, did_you_mean, load_toml
 from tracker.models.clutter import Detection, SectorClutter, UniformClutter
 from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind
 from tracker.models.motion import CoordinatedTurn
@@ -195,14 +196,78 @@ def builtin_params_path(name: str) -> Path:
 
 
 def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:
-    """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides."""
+    """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides.
+
+    A file names only what it changes: ``extends = "vo2017"`` (a built-in name or another
+    file, relative to this one) starts from that set, and without ``extends`` from the
+    defaults of :class:`ModelParams`; ``name`` defaults to the file's stem.  Top-level keys
+    replace the base's (``birth`` regions are inherited unless the file gives ``birth``), and
+    ``[sensors.NAME]`` tables are merged per sensor.  An unknown key fails with a
+    "did you mean".
+    """
     text = str(source)
     if text in BUILTIN_PARAMS:
         params = load_toml(builtin_params_path(text), ModelParams)
     elif text.endswith(".toml") or Path(text).exists():
-        params = load_toml(text, ModelParams)
+        params = convert(_file_data(Path(text), ()), ModelParams, text)
     else:
         raise ConfigError(
             f"--params {text!r}: not a built-in set ({', '.join(BUILTIN_PARAMS)}) nor a .toml file"
         )
     return apply_overrides(params, overrides)
+
+
+def _file_data(path: Path, seen: tuple[Path, ...]) -> dict:
+    """The plain data of a params file with its ``extends`` chain resolved (see :func:`load_params`)."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    check_keys(data, str(path))
+    base_name = data.pop("extends", None)
+    data.setdefault("name", path.stem)
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str):
+        raise ConfigError(f"{path}: extends must be a parameter set name or a .toml path")
+    if base_name in BUILTIN_PARAMS:
+        base = msgspec.to_builtins(load_toml(builtin_params_path(base_name), ModelParams))
+    else:
+        base_path = (path.parent / base_name).resolve()
+        if base_path in seen:
+            raise ConfigError(f"{path}: extends cycle through {base_path}")
+        if not base_path.exists():
+            raise ConfigError(f"{path}: extends {base_name!r}: not a built-in set "
+                              f"({', '.join(BUILTIN_PARAMS)}) nor an existing file")
+        base = _file_data(base_path, seen + (path.resolve(),))
+    sensors = {**base.get("sensors", {})}
+    for name, table in data.get("sensors", {}).items():
+        sensors[name] = {**sensors.get(name, {}), **table}
+    merged = {**base, **data}
+    if sensors:
+        merged["sensors"] = sensors
+    return merged
+
+
+_PARAM_KEYS = tuple(ModelParams.__struct_fields__) + ("extends",)
+_SENSOR_KEYS = tuple(SensorSpec.__struct_fields__)
+
+
+def check_keys(data: dict, origin: str) -> None:
+    """Reject unknown keys of a params file with the closest known one (difflib)."""
+    for key in data:
+        if key not in _PARAM_KEYS:
+            raise ConfigError(f"{origin}: unknown key '{key}'{did_you_mean(key, _PARAM_KEYS)} "
+                              f"(docs/models.md lists the keys)")
+    sensors = data.get("sensors", {})
+    if not isinstance(sensors, dict):
+        raise ConfigError(f"{origin}: sensors must be tables [sensors.NAME]")
+    for name, table in sensors.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{origin}: sensors.{name} must be a table [sensors.{name}]")
+        for key in table:
+            if key not in _SENSOR_KEYS:
+                raise ConfigError(f"{origin}: unknown key 'sensors.{name}.{key}'{did_you_mean(key, _SENSOR_KEYS)} "
+                                  f"(known: {', '.join(_SENSOR_KEYS)})")
