@@ -517,6 +517,42 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     return rows
 
 
+# --------------------------------------------------------------------------- export
+
+
+@main.command()
+@click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="RUN.mcap")
+@click.option("--csv", "csv_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as CSV (metrics beside it: OUT.metrics.csv).")
+@click.option("--parquet", "parquet_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as Parquet (metrics: OUT.metrics.parquet).")
+@_clean_errors
+def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
+    """Export a run's tracks (the output of `track`) as a table.
+
+    One row per track per frame: frame, stamp_ns, label, the state [px, vx, py, vy, omega],
+    its covariance diagonal (var_*) and the existence. When the run has truth, a second file
+    holds one row per frame: OSPA (c=100 m, p=1, position) and its parts, cardinality error.
+
+    \b
+    Example:
+      bnptrack export recordings/vo2017-s1-ddp.tracks.mcap --csv tracks.csv
+    """
+    from pipeline.export import export as do_export
+
+    if csv_out is None and parquet_out is None:
+        raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
+    try:
+        for fmt, out in (("csv", csv_out), ("parquet", parquet_out)):
+            if out is not None:
+                res = do_export(run, out, fmt)
+                _echo_rows([("wrote", f"{res.tracks_path} ({res.track_rows} track rows)")]
+                           + ([("wrote", f"{res.metrics_path} ({res.metric_rows} frame rows)")]
+                              if res.metrics_path else []))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+
+
 # --------------------------------------------------------------------------- view
 
 
