@@ -297,7 +297,7 @@ def simulate(
 @click.option(
     "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
     help="A frame more than N frame numbers after the previous one ends the run with an error "
-    "(the tracker predicts through every skipped frame).",
+    "(a corrupt frame number; the tracker predicts once over the time between stamps).",
 )
 @click.option(
     "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
