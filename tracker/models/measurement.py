@@ -199,8 +199,8 @@ class RangeOnly:
 
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
         zp = self.h(np.atleast_2d(x))
-        return zp + np.sqrt(self.R[0, 0]) * rng.standard_normal(zp.shape) if self.noise is not None \
-            else zp + self.sigma_range * rng.standard_normal(zp.shape)
+        sigma = self.sigma_range if self.noise is None else np.sqrt(self.R[0, 0])
+        return zp + sigma * rng.standard_normal(zp.shape)
 
     def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
