@@ -206,6 +206,7 @@ def simulate(
       bnptrack simulate --scenario snr --snr -10 --seed 3
       bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
       bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
+      bnptrack simulate --params two_sensors.toml --seed 1   # one frame per [sensors.NAME] per scan
 
     The generated scenarios (random, random-cv) draw their scene from --seed too (the
     record then also holds scene_seed, the scene.* settings and the crossing pairs).
@@ -296,13 +297,16 @@ def simulate(
 @click.option(
     "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
     help="A frame more than N frame numbers after the previous one ends the run with an error "
-    "(the tracker predicts through every skipped frame).",
+    "(a corrupt frame number; the tracker predicts once over the time between stamps).",
 )
 @click.option(
     "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
     "frame's (a time stamp that goes back is always an error).",
 )
+@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+              help="Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
+              "its payload must still follow the contract of docs/formats.md.")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -316,6 +320,7 @@ def track(
     rrd: Path | None,
     max_frame_gap: int,
     max_gap_s: float,
+    topics: tuple[str, ...],
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -339,6 +344,10 @@ def track(
     # --rrd: start the recording process before anything else, so that its imports (rerun)
     # run on the other core beside the tracker's (sinks.rerun_writer); the command's context
     # closes it at the end whatever happens (track_log_with_rrd closes it first, normally)
+    topic_map = _topic_map(topics)
+    if topic_map and rrd is not None:
+        raise CliError("--topic cannot be combined with --rrd yet: track first, then `bnptrack view` the output")
+    _require_measurements(log, topic_map)
     recorder = None
     if rrd is not None:
         recorder = click.get_current_context().with_resource(RecordingProcess())
@@ -379,7 +388,9 @@ def track(
         res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
                                  recorder=recorder, bounds=bounds)
     else:
-        res = track_log(log, out, tracker, seed, out_meta, bounds=bounds)
+        res = track_log(log, out, tracker, seed, out_meta, bounds=bounds, topic_map=topic_map)
+    for w in res.warnings:
+        click.echo(f"warning: {w}", err=True)
     if not quiet:
         rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
         if res.has_truth:
@@ -405,6 +416,141 @@ def track(
         raise CliError(
             f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}"
         )
+
+
+def _topic_map(items: tuple[str, ...]) -> dict[str, str]:
+    from pipeline.codec import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+
+    out = {}
+    for item in items:
+        src, sep, dst = item.partition("=")
+        if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
+            raise click.BadParameter(f"{item!r}: expected SRC={TOPIC_MEASUREMENTS} (or SRC={TOPIC_TRUTH})",
+                                     param_hint="--topic")
+        out[src] = dst
+    return out
+
+
+def _require_measurements(log: Path, topic_map: dict[str, str]) -> None:
+    """Exit 2 listing the log's channels when none is (or is mapped to) /measurements."""
+    from pipeline.codec import TOPIC_MEASUREMENTS
+    from sources.mcap_log import log_channels, missing_measurements_message
+
+    channels = log_channels(log)
+    if not any(topic_map.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
+        raise CliError(missing_measurements_message(log, channels))
+
+
+# --------------------------------------------------------------------------- info
+
+
+@main.command()
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+              help="Read channel SRC as /measurements (as `bnptrack track --topic`).")
+@_clean_errors
+def info(log: Path, topics: tuple[str, ...]) -> None:
+    """Describe an MCAP log: channels, frames, sensors, time, and its record.
+
+    Prints every channel (topic, schema and encodings, message count); for /measurements the
+    frames, sensors and kinds (with their poses when the frames carry them), the time span and
+    frame rate from the stamps; and the bnptrack.scenario record (scenario, params, seed).
+
+    \b
+    Example:
+      bnptrack info recordings/vo2017-s1.mcap
+    """
+    from sources.mcap_log import log_channels
+
+    channels = log_channels(log)
+    rows = [("log", f"{log} ({log.stat().st_size} bytes)")]
+    for c in channels:
+        rows.append(("channel", f"{c.topic}: schema {c.schema or '-'} ({c.schema_encoding or '-'}), "
+                                f"encoding {c.message_encoding}, {c.messages} messages"))
+    if not channels:
+        rows.append(("channel", "none"))
+    rows += _frame_rows(log, _topic_map(topics))
+    meta = read_metadata(log)
+    if meta:
+        rows += [(f"record.{k}", v) for k, v in meta.items()]
+    else:
+        rows.append(("record", "none (no bnptrack.scenario metadata: give --params to track)"))
+    _echo_rows(rows)
+
+
+def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
+    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements)."""
+    import numpy as np
+
+    from sources.mcap_log import iter_frames
+
+    sensors: dict[tuple[str, str], list] = {}
+    stamps, n_meas, truth, error = [], 0, 0, None
+    try:
+        for f in iter_frames(log, topic_map):
+            entry = sensors.setdefault((f.sensor, f.kind), [0, set()])
+            entry[0] += 1
+            if f.pose is not None:
+                entry[1].add(f.pose)
+            stamps.append(f.stamp_ns)
+            n_meas += f.n_measurements
+            truth += f.truth is not None
+    except McapLogError as exc:
+        error = exc
+    if not stamps:
+        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: see --topic)"))]
+    rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
+                       f"{truth} with truth)")]
+    for (name, kind), (n, poses) in sensors.items():
+        pose = ""
+        if poses:
+            p = sorted(poses)[0]
+            pose = f", pose ({p[0]:g}, {p[1]:g}, {np.rad2deg(p[2]):g} deg)" + (f" and {len(poses) - 1} more" if len(poses) > 1 else "")
+        rows.append(("sensor", f"{name}: kind {kind}, {n} frames{pose}"))
+    span = (stamps[-1] - stamps[0]) / 1e9
+    dt = np.diff(np.asarray(stamps, dtype=np.int64)) / 1e9
+    rate = f"{(len(stamps) - 1) / span:.3g} frames/s" if span > 0 else "n/a (all stamps equal)"
+    rows.append(("time", f"{stamps[0] / 1e9:.3f} - {stamps[-1] / 1e9:.3f} s (span {span:.3f} s), {rate}"
+                 + (f", dt median {np.median(dt):.3g} s, min {dt.min():.3g}, max {dt.max():.3g}" if dt.size else "")))
+    if error is not None:
+        rows.append(("error", str(error)))
+    return rows
+
+
+# --------------------------------------------------------------------------- export
+
+
+@main.command()
+@click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="RUN.mcap")
+@click.option("--csv", "csv_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as CSV (metrics beside it: OUT.metrics.csv).")
+@click.option("--parquet", "parquet_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as Parquet (metrics: OUT.metrics.parquet).")
+@_clean_errors
+def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
+    """Export a run's tracks (the output of `track`) as a table.
+
+    One row per track per frame: frame, stamp_ns, label, the state [px, vx, py, vy, omega],
+    its covariance diagonal (var_*) and the existence. When the run has truth, a second file
+    holds one row per frame: OSPA (c=100 m, p=1, position) and its parts, cardinality error.
+
+    \b
+    Example:
+      bnptrack export recordings/vo2017-s1-ddp.tracks.mcap --csv tracks.csv
+    """
+    from pipeline.export import export as do_export
+
+    if csv_out is None and parquet_out is None:
+        raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
+    try:
+        for fmt, out in (("csv", csv_out), ("parquet", parquet_out)):
+            if out is not None:
+                res = do_export(run, out, fmt)
+                _echo_rows([("wrote", f"{res.tracks_path} ({res.track_rows} track rows)")]
+                           + ([("wrote", f"{res.metrics_path} ({res.metric_rows} frame rows)")]
+                              if res.metrics_path else []))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- view
@@ -740,6 +886,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
 
     from pipeline.pipeline_config import load_pipeline
 
+    _require_measurements(log, {})  # (replay reads /measurements only; `track --topic` maps channels)
     cfg = load_pipeline(None)
     cfg = _ms.structs.replace(
         cfg,

@@ -48,6 +48,7 @@ from typing import Annotated, Any, Literal, Union
 import msgspec
 import numpy as np
 
+from tracker.models.measurement import KINDS
 from tracker.types import (
     MEASUREMENT_DIM,
     STATE_DIM,
@@ -59,6 +60,7 @@ from tracker.types import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "MEASUREMENTS_SCHEMA_VERSION",
     "TOPIC_MEASUREMENTS",
     "TOPIC_TRUTH",
     "TOPIC_TRACKS",
@@ -95,6 +97,14 @@ __all__ = [
 ]
 
 SCHEMA_VERSION = 1
+"""Schema version of ``/truth`` and ``/tracks`` (and of ``/measurements`` that use none of
+version 2's additions)."""
+MEASUREMENTS_SCHEMA_VERSION = 2
+"""``/measurements`` version 2 adds ``pose``, ``R`` and the kind ``xy``; readers accept 1 and 2,
+writers write 1 when a message uses none of them (so version-1 readers still read it)."""
+_READ_VERSIONS = {"/measurements": (1, 2)}
+#: The kinds of ``/measurements`` version 1.
+_V1_KINDS = ("bearing_range", "range")
 
 TOPIC_MEASUREMENTS = "/measurements"
 TOPIC_TRUTH = "/truth"
@@ -141,7 +151,9 @@ StampNs = Annotated[int, msgspec.Meta(ge=0, le=_MAX_STAMP)]
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 StateVec = Annotated[list[float], msgspec.Meta(min_length=STATE_DIM, max_length=STATE_DIM)]
 CovVec = Annotated[list[float], msgspec.Meta(min_length=_COV_DIM, max_length=_COV_DIM)]
-ZRow = Annotated[list[float], msgspec.Meta(min_length=1, max_length=2)]
+_MAX_DIM = max(k.dim for k in KINDS.values())
+ZRow = Annotated[list[float], msgspec.Meta(min_length=1, max_length=_MAX_DIM)]
+KindName = Literal[tuple(KINDS)]  # the registry's kinds (tracker.models.measurement.KINDS)
 
 
 class MeasurementsMsg(
@@ -154,8 +166,25 @@ class MeasurementsMsg(
     frame: NonNegInt
     stamp_ns: StampNs
     sensor: str
-    kind: Literal["bearing_range", "range"]
+    kind: KindName
     z: Annotated[list[ZRow], msgspec.Meta(max_length=MAX_MEASUREMENTS)]
+    pose: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
+    """``[x_m, y_m, heading_rad]`` of the sensor for this scan (v2)."""
+    R: Annotated[list[Annotated[list[float], msgspec.Meta(max_length=_MAX_DIM)]],
+                 msgspec.Meta(max_length=_MAX_DIM)] | None = None
+    """``d x d`` measurement noise covariance of this scan's rows (v2)."""
+
+
+class _MeasurementsMsgV1(msgspec.Struct, frozen=True, kw_only=True):
+    """The version-1 fields, to write messages that use no version-2 field."""
+
+    v: int
+    run: str
+    frame: int
+    stamp_ns: int
+    sensor: str
+    kind: str
+    z: list
 
 
 class TruthObject(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -244,15 +273,19 @@ def _is_int(x: Any) -> bool:
     return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
 
 
+def _versions_text(topic: str) -> str:
+    versions = _READ_VERSIONS.get(topic, (SCHEMA_VERSION,))
+    return f"version{'s' if len(versions) > 1 else ''} {' and '.join(map(str, versions))}"
+
+
 def _check_header(topic: str, msg: Any) -> int | None:
     """Check v / frame / stamp_ns; return the frame index."""
     frame = msg.frame if _is_int(msg.frame) else None
-    if not _is_int(msg.v) or msg.v != SCHEMA_VERSION:
+    if not _is_int(msg.v) or msg.v not in _READ_VERSIONS.get(topic, (SCHEMA_VERSION,)):
         raise CodecError(
             topic,
             frame,
-            f"unsupported schema version {msg.v!r} (this build reads version "
-            f"{SCHEMA_VERSION}) - at `$.v`",
+            f"unsupported schema version {msg.v!r} (this build reads {_versions_text(topic)}) - at `$.v`",
         )
     if frame is None or frame < 0:
         raise CodecError(topic, frame, f"frame must be an integer >= 0, got {msg.frame!r} - at `$.frame`")
@@ -325,13 +358,15 @@ def _validate_measurements(msg: MeasurementsMsg) -> np.ndarray:
     """Validate a measurements message; return ``z`` as an ``(M, d)`` float array."""
     topic = TOPIC_MEASUREMENTS
     frame = _check_header(topic, msg)
-    if msg.kind not in MEASUREMENT_DIM:
-        raise CodecError(topic, frame, f"unknown kind {msg.kind!r} - at `$.kind`")
+    if msg.kind not in KINDS:
+        raise CodecError(topic, frame, f"unknown kind {msg.kind!r} (known: {', '.join(KINDS)}) - at `$.kind`")
     if not isinstance(msg.sensor, str):
         raise CodecError(topic, frame, "sensor must be a string - at `$.sensor`")
     rows = msg.z
     _check_size(topic, frame, rows, MAX_MEASUREMENTS, "$.z")
-    d = MEASUREMENT_DIM[msg.kind]
+    kind = KINDS[msg.kind]
+    d = kind.dim
+    _validate_pose_r(topic, frame, msg, d)
     m = len(rows)
     if m == 0:
         return np.zeros((0, d))
@@ -347,35 +382,45 @@ def _validate_measurements(msg: MeasurementsMsg) -> np.ndarray:
         z = _rows_array(topic, frame, rows, d, "$.z[{i}]", f"z row (kind {msg.kind!r})")
     lo = _min_reduce(z, axis=0).tolist()
     hi = _max_reduce(z, axis=0).tolist()
-    if d == 2:
-        ok = -math.pi <= lo[0] and hi[0] <= math.pi and 0.0 <= lo[1] and hi[1] <= _FMAX
-    else:
-        ok = 0.0 <= lo[0] and hi[0] <= _FMAX
+    ok = all(a <= x and y <= b for a, b, x, y in zip(kind.low, kind.high, lo, hi))
     if not ok:
-        _measurement_error(topic, frame, z)
+        _measurement_error(topic, frame, z, msg.kind)
     return z
 
 
-def _measurement_error(topic: str, frame: int, z: np.ndarray) -> None:
-    """Slow path: raise a CodecError for the first invalid entry of ``z``."""
-    d = z.shape[1]
+def _validate_pose_r(topic: str, frame: int, msg: MeasurementsMsg, d: int) -> None:
+    """``pose``: 3 finite numbers; ``R``: a finite symmetric positive-definite ``d x d``."""
+    if msg.pose is not None and not all(math.isfinite(v) for v in msg.pose):
+        raise CodecError(topic, frame, f"pose must be 3 finite numbers [x, y, heading], got {msg.pose!r} - at `$.pose`")
+    if msg.R is None:
+        return
+    if len(msg.R) != d or any(len(row) != d for row in msg.R):
+        raise CodecError(topic, frame, f"R must be {d}x{d} for kind {msg.kind!r} - at `$.R`")
+    R = np.array(msg.R, dtype=float)
+    if not np.isfinite(R).all() or not np.allclose(R, R.T, rtol=1e-9, atol=0.0) \
+            or np.any(np.linalg.eigvalsh(0.5 * (R + R.T)) <= 0):
+        raise CodecError(topic, frame, "R must be finite, symmetric and positive definite - at `$.R`")
+
+
+_COLUMN_NAMES = {"bearing_range": ("bearing", "range"), "range": ("range",), "xy": ("x", "y")}
+
+
+def _measurement_error(topic: str, frame: int, z: np.ndarray, kind_name: str) -> None:
+    """Slow path: raise a CodecError for the first invalid entry of ``z`` (bounds of the
+    kind's registry entry)."""
+    kind = KINDS[kind_name]
     _check_finite(topic, frame, z, "$.z")
-    r = z[:, d - 1]
-    if (r < 0).any():
-        i = int(np.argmax(r < 0))
-        raise CodecError(
-            topic, frame, f"range must be >= 0, got {float(r[i])!r} - at `$.z[{i}][{d - 1}]`"
-        )
-    if d == 2:
-        b = z[:, 0]
-        bad = np.abs(b) > math.pi
+    names = _COLUMN_NAMES.get(kind_name, tuple(f"column {j}" for j in range(kind.dim)))
+    for j in reversed(range(kind.dim)):  # range before bearing (the historical order of checks)
+        col, lo, hi = z[:, j], kind.low[j], kind.high[j]
+        bad = (col < lo) | (col > hi)
         if bad.any():
             i = int(np.argmax(bad))
-            raise CodecError(
-                topic,
-                frame,
-                f"bearing must be within [-pi, pi], got {float(b[i])!r} - at `$.z[{i}][0]`",
-            )
+            if lo == 0.0 and hi >= _FMAX:
+                what = f"{names[j]} must be >= 0"
+            else:
+                what = f"{names[j]} must be within [{'-pi' if lo == -math.pi else f'{lo:g}'}, {'pi' if hi == math.pi else f'{hi:g}'}]"
+            raise CodecError(topic, frame, f"{what}, got {float(col[i])!r} - at `$.z[{i}][{j}]`")
     raise CodecError(topic, frame, "invalid measurement values - at `$.z`")  # unreachable
 
 
@@ -493,12 +538,11 @@ def _decode_error(topic: str, data: bytes, exc: Exception) -> CodecError:
         m = _FRAME_RE.search(bytes(data[:4096]))
         if m:
             frame = int(m.group(1))
-    if _is_int(version) and version != SCHEMA_VERSION:
+    if _is_int(version) and version not in _READ_VERSIONS.get(topic, (SCHEMA_VERSION,)):
         return CodecError(
             topic,
             frame,
-            f"unsupported schema version {version} (this build reads version "
-            f"{SCHEMA_VERSION}) - at `$.v`",
+            f"unsupported schema version {version} (this build reads {_versions_text(topic)}) - at `$.v`",
         )
     detail = str(exc)
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
@@ -567,6 +611,8 @@ def frame_from_msg(msg: MeasurementsMsg, truth: Truth | None = None) -> Frame:
         kind=msg.kind,
         z=z,
         truth=truth,
+        pose=None if msg.pose is None else tuple(msg.pose),
+        R=None if msg.R is None else np.array(msg.R, dtype=float),
     )
 
 
@@ -606,7 +652,9 @@ def decode_measurements(data: bytes) -> Frame:
     msg = _decode(TOPIC_MEASUREMENTS, data)
     z = _validate_measurements(msg)
     return Frame(
-        frame=msg.frame, stamp_ns=msg.stamp_ns, sensor=msg.sensor, kind=msg.kind, z=z
+        frame=msg.frame, stamp_ns=msg.stamp_ns, sensor=msg.sensor, kind=msg.kind, z=z,
+        pose=None if msg.pose is None else tuple(msg.pose),
+        R=None if msg.R is None else np.array(msg.R, dtype=float),
     )
 
 
@@ -635,14 +683,19 @@ def measurements_msg(frame: Frame, run: str = "") -> MeasurementsMsg:
     topic = TOPIC_MEASUREMENTS
     idx = _as_int(topic, frame.frame, frame.frame, "frame")
     z = np.asarray(frame.z, dtype=float)
+    pose = getattr(frame, "pose", None)
+    R = getattr(frame, "R", None)
+    v2 = pose is not None or R is not None or frame.kind not in _V1_KINDS
     return MeasurementsMsg(
-        v=SCHEMA_VERSION,
+        v=MEASUREMENTS_SCHEMA_VERSION if v2 else SCHEMA_VERSION,
         run=run,
         frame=idx,
         stamp_ns=_as_int(topic, idx, frame.stamp_ns, "stamp_ns"),
         sensor=str(frame.sensor),
         kind=frame.kind,
         z=z.tolist(),
+        pose=None if pose is None else [float(v) for v in pose],
+        R=None if R is None else np.asarray(R, dtype=float).tolist(),
     )
 
 
@@ -691,8 +744,12 @@ def tracks_msg(est: Estimate, run: str = "") -> TracksMsg:
 
 
 def encode_msg(msg: Msg) -> bytes:
-    """Validate and JSON-encode a message struct."""
+    """Validate and JSON-encode a message struct (a ``/measurements`` message without
+    ``pose`` and ``R`` is written without those fields)."""
     validate_msg(msg)
+    if isinstance(msg, MeasurementsMsg) and msg.pose is None and msg.R is None:
+        return _ENCODER.encode(_MeasurementsMsgV1(v=msg.v, run=msg.run, frame=msg.frame, stamp_ns=msg.stamp_ns,
+                                                  sensor=msg.sensor, kind=msg.kind, z=msg.z))
     return _ENCODER.encode(msg)
 
 

@@ -12,16 +12,16 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 import numpy as np
 
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
 from sources.scenarios import get_scenario, is_generated
-from sources.synthetic import simulate
+from sources.synthetic import simulate, simulate_sensors
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import ModelParams, load_params
 from tracker.state import run
@@ -379,8 +379,11 @@ def simulate_to_log(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_frames = n_meas = n_targets = 0
+    # a parameter set that declares sensors ([sensors.NAME]) is simulated with all of them:
+    # one frame per sensor per scan, interleaved (sources.synthetic.simulate_sensors)
+    frames = simulate_sensors(sc, params, seed, list(params.sensors)) if params.sensors else simulate(sc, params, seed)
     with McapLogWriter(out, dict(metadata)) as writer:
-        for frame in simulate(sc, params, seed):
+        for frame in frames:
             writer.write_frame(frame)
             n_frames += 1
             n_meas += frame.n_measurements
@@ -424,6 +427,8 @@ class TrackResult:
     error: McapLogError | FrameBoundError | None = None
     crossings: CrossingResult | None = None
     """Label keeping through the log's crossing pairs (``None``: no pairs or no truth)."""
+    warnings: tuple[str, ...] = ()
+    """Why the run probably cannot work (:class:`RunHealth`): printed by ``track``."""
 
     @property
     def n_frames(self) -> int:
@@ -504,8 +509,10 @@ def track_frames(
     final = 0
     error: McapLogError | FrameBoundError | None = None
     seen: list[tuple[Frame, Estimate]] = []
+    health = RunHealth(getattr(tracker, "params", None))
     try:
         for frame, est, _state in run(tracker, bounded_frames(frames, bounds or FrameBounds()), seed):
+            health.add(frame)
             row = frame_metrics(frame, est)
             if on_estimate is not None:
                 on_estimate(frame, est, row)
@@ -515,7 +522,59 @@ def track_frames(
                 seen.append((frame, est))
     except (McapLogError, FrameBoundError) as exc:
         error = exc
-    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings))
+    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings),
+                       health.warnings(final))
+
+
+#: A sensor's measurements are "mostly" outside its field of view above this fraction.
+OUTSIDE_FOV_WARN = 0.5
+
+
+@dataclass
+class RunHealth:
+    """Counts that tell a run that cannot work (issue 13, item 6): per sensor, the
+    measurements outside the sensor's field of view (where the model says only nothing can
+    be: the clutter density is 0 there), and the frames with measurements."""
+
+    params: Any
+    total: dict[str, int] = field(default_factory=dict)
+    outside: dict[str, int] = field(default_factory=dict)
+    sensors: dict[str, Any] = field(default_factory=dict)
+    nonempty: int = 0
+
+    def add(self, frame: Frame) -> None:
+        if frame.n_measurements == 0:
+            return
+        self.nonempty += 1
+        if not isinstance(self.params, ModelParams):
+            return
+        s = self.params.frame_sensor(frame)
+        out = int(np.sum(~np.isfinite(self.params.clutter(frame.kind, s).logpdf(frame.z))))
+        self.total[frame.sensor] = self.total.get(frame.sensor, 0) + frame.n_measurements
+        self.outside[frame.sensor] = self.outside.get(frame.sensor, 0) + out
+        self.sensors[frame.sensor] = s
+
+    def warnings(self, final_tracks: int) -> tuple[str, ...]:
+        out = []
+        for name, n in self.total.items():
+            frac = self.outside[name] / n
+            if n >= 10 and frac > OUTSIDE_FOV_WARN:
+                s = self.sensors[name]
+                out.append(
+                    f"{100 * frac:.0f}% of the {n} measurements of sensor {name!r} ({s.kind}) fall outside "
+                    f"its field of view (at ({s.x:g}, {s.y:g}) m, heading {np.rad2deg(s.heading):g} deg, "
+                    f"+-{np.rad2deg(s.half_fov):g} deg, range {s.range_min:g}-{s.range_max:g} m), so the "
+                    f"trackers treat them as impossible. Check the sensor pose (a [sensors.{name}] table "
+                    f"in --params FILE.toml, or per-frame 'pose'), its field of view (half_fov_deg, "
+                    f"range_max) and the kind (docs/models.md, 'Sensors').")
+        if final_tracks == 0 and self.nonempty >= 5:
+            out.append(
+                f"the run ended with 0 tracks from {self.nonempty} frames with measurements. Likely "
+                f"causes: the sensor pose or field of view (the default sensor sits at the origin "
+                f"facing +y; declare yours in a [sensors.NAME] table or send 'pose'), parameters "
+                f"that do not match the data (p_detect, clutter_rate, sigma_*: --params FILE.toml "
+                f"or --set KEY=VALUE), or no births (birth_rate = 0 without birth regions).")
+        return tuple(out)
 
 
 def score_crossings(
@@ -558,6 +617,7 @@ def track_log(
     metadata: Mapping[str, str] | None,
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
     bounds: FrameBounds | None = None,
+    topic_map: Mapping[str, str] | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
     ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
@@ -579,5 +639,5 @@ def track_log(
                 on_estimate(frame, est, metrics)
 
         crossings = parse_crossings((metadata or {}).get("crossings"))
-        return track_frames(tracker, iter_frames(log), seed, write, crossings, bounds)
+        return track_frames(tracker, iter_frames(log, dict(topic_map or {})), seed, write, crossings, bounds)
 

@@ -878,9 +878,9 @@ class RerunSink:
             if self._params is not None:
                 model = self._params.measurement(kind)
             else:
-                from tracker.models.measurement import BearingRange, RangeOnly
+                from tracker.models.measurement import measurement_kind
 
-                model = BearingRange() if kind == "bearing_range" else RangeOnly()
+                model = measurement_kind(kind).model()
             self._meas_models[kind] = model
         return model
 
@@ -905,7 +905,7 @@ class RerunSink:
             gidx = np.where(hit, idx + np.repeat(tr_off, counts), 0)
             model = self._measurement_model(kind)
             sx, sy = float(getattr(model, "sensor_x", 0.0)), float(getattr(model, "sensor_y", 0.0))
-            if kind == "bearing_range":
+            if kind != "range":  # bearing_range, xy: the measured position
                 xy = model.to_cartesian(Z)[0] if Z.shape[0] else _EMPTY2
             else:
                 # range-only: the point of the range ring nearest the assigned track, else on

@@ -64,6 +64,9 @@ __all__ = [
     "read_log",
     "read_metadata",
     "copy_input_channels",
+    "ChannelInfo",
+    "log_channels",
+    "missing_measurements_message",
 ]
 
 #: Name of the metadata record describing how a log was produced.
@@ -311,9 +314,12 @@ class _Scanner:
     stream breaks.  ``offset`` / ``n_messages`` describe the progress so far.
     """
 
-    def __init__(self, path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False):
+    def __init__(self, path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False,
+                 topic_map: dict[str, str] | None = None):
         self.path = os.fspath(path)
         self.topics = frozenset(topics)
+        self.topic_map = dict(topic_map or {})
+        """Channel topic -> the topic it is read as (``--topic /radar/detections=/measurements``)."""
         self.want_metadata = want_metadata
         self.offset = 0
         self.n_messages = 0
@@ -344,7 +350,7 @@ class _Scanner:
                         raise _StreamFailure(
                             "corrupt", f"message refers to unknown channel id {rec.channel_id}"
                         )
-                    topic = ch.topic
+                    topic = self.topic_map.get(ch.topic, ch.topic)
                     if topic not in topics:
                         continue
                     if ch.message_encoding != "json":
@@ -434,11 +440,12 @@ class _FramePairer:
 
 
 def _iter_log(
-    path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False
+    path: str | os.PathLike, topics: Iterable[str], want_metadata: bool = False,
+    topic_map: dict[str, str] | None = None,
 ) -> Iterator[tuple[str, Any]]:
     """Yield ``("frame", (meas, truth|None))``, ``("tracks", TracksMsg)`` and
     ``("metadata", dict)`` events in file order; raise McapLogError at the first problem."""
-    scanner = _Scanner(path, topics, want_metadata)
+    scanner = _Scanner(path, topics, want_metadata, topic_map)
     pairer = _FramePairer()
     want_frames = TOPIC_MEASUREMENTS in scanner.topics
     last_frame: int | None = None
@@ -481,13 +488,15 @@ def _pair_to_frame(pair: tuple[MeasurementsMsg, TruthMsg | None]) -> Frame:
     return frame_from_msg(meas, truth_from_msg(truth) if truth is not None else None)
 
 
-def iter_frames(path: str | os.PathLike) -> Iterator[Frame]:
+def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None) -> Iterator[Frame]:
     """Yield the frames of a log in order, with ``.truth`` from ``/truth`` when present.
 
-    Raises :class:`McapLogError` after the last readable frame if the file is truncated,
-    corrupt, holds an invalid message or a non-increasing frame index on ``/measurements``.
+    ``topic_map`` reads a channel as another topic (``{"/radar/detections": "/measurements"}``:
+    its payload must still follow the contract).  Raises :class:`McapLogError` after the last
+    readable frame if the file is truncated, corrupt, holds an invalid message or a
+    non-increasing frame index on ``/measurements``.
     """
-    for _, pair in _iter_log(path, _INPUT_TOPICS):
+    for _, pair in _iter_log(path, _INPUT_TOPICS, topic_map=topic_map):
         yield _pair_to_frame(pair)
 
 
@@ -604,3 +613,74 @@ def copy_input_channels(
         writer.write_frame(frame, run=meas.run if run is None else run)
         n += 1
     return n
+
+
+# --------------------------------------------------------------------------- channels
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One channel of a file: topic, schema name and encoding, message encoding, count and
+    the first / last ``log_time`` (ns; ``None`` without messages)."""
+
+    topic: str
+    schema: str
+    schema_encoding: str
+    message_encoding: str
+    messages: int
+    first_ns: int | None
+    last_ns: int | None
+
+
+def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
+    """Every channel of an MCAP file with its message count (streams the whole file; a
+    damaged tail ends the count).  Raises :class:`McapLogError` if the file cannot be opened
+    or is not MCAP."""
+    from mcap.records import Schema
+
+    spath = os.fspath(path)
+    try:
+        f = open(spath, "rb")
+    except OSError as exc:
+        raise McapLogError(spath, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
+    schemas: dict[int, Any] = {}
+    chans: dict[int, Channel] = {}
+    counts: dict[int, list] = {}
+    with f:
+        reader = StreamReader(f, validate_crcs=False, record_size_limit=_record_limit(os.fstat(f.fileno()).st_size))
+        try:
+            for rec in reader.records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    chans[rec.id] = rec
+                    counts.setdefault(rec.id, [0, None, None])
+                elif isinstance(rec, Message) and rec.channel_id in counts:
+                    c = counts[rec.channel_id]
+                    c[0] += 1
+                    c[1] = rec.log_time if c[1] is None else min(c[1], rec.log_time)
+                    c[2] = rec.log_time if c[2] is None else max(c[2], rec.log_time)
+                elif isinstance(rec, DataEnd):
+                    break
+        except InvalidMagic as exc:
+            raise McapLogError(spath, "corrupt", 0, 0, None, f"not an MCAP file: {exc}") from exc
+        except Exception:  # a damaged tail: report what was read
+            pass
+    out = []
+    for cid, ch in chans.items():
+        sc = schemas.get(ch.schema_id)
+        n, first, last = counts[cid]
+        out.append(ChannelInfo(ch.topic, sc.name if sc else "", sc.encoding if sc else "",
+                               ch.message_encoding, n, first, last))
+    return out
+
+
+def missing_measurements_message(path: str | os.PathLike, channels: list[ChannelInfo]) -> str:
+    """The error for a log without a ``/measurements`` channel: its channels and how to map one."""
+    listing = "; ".join(f"{c.topic} ({c.schema or 'no schema'}, {c.message_encoding}, {c.messages} messages)"
+                        for c in channels) or "none"
+    example = next((c.topic for c in channels if c.topic not in (TOPIC_TRUTH, TOPIC_TRACKS)), "/radar/detections")
+    return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel, so there is nothing to track. "
+            f"Its channels: {listing}. To read a channel as the measurements, map it: "
+            f"--topic {example}={TOPIC_MEASUREMENTS} (its payload must still follow the "
+            f"/measurements contract of docs/formats.md: JSON, frame, stamp_ns, sensor, kind, z)")

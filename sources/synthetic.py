@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from sources.scenarios import Scenario
-from tracker.models.clutter import Detection, UniformClutter
-from tracker.models.measurement import BearingRange, RangeOnly, wrap_angle
+from tracker.models.clutter import Detection, SectorClutter, UniformClutter
+from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind, wrap_angle
 from tracker.models.params import ModelParams
-from tracker.types import MEASUREMENT_DIM, Frame, Truth
+from tracker.types import Frame, Truth
 
-__all__ = ["frame_rng", "measure", "simulate", "simulate_all", "simulate_frame", "simulate_many"]
+__all__ = ["frame_rng", "measure", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame", "simulate_many"]
 
 
 def frame_rng(seed: int, k: int) -> np.random.Generator:
@@ -54,21 +54,37 @@ def measure(
     return _Models.build(params, kind).measure(rng, truth)
 
 
+def measure_with(rng: np.random.Generator, truth: Truth, params: ModelParams, kind: str, sensor: str
+                 ) -> tuple[np.ndarray, str, tuple[float, float, float] | None]:
+    """:func:`measure` by sensor ``sensor`` of ``params`` (its ``[sensors.NAME]`` table):
+    ``(z, kind, pose)``, ``pose`` ``None`` for an undeclared sensor."""
+    models = _Models.build(params, kind, sensor)
+    return models.measure(rng, truth), models.kind, models.pose
+
+
 @dataclass(frozen=True)
 class _Models:
     """The sensor models of one run, built once."""
 
     kind: str
     detection: Detection
-    measurement: BearingRange | RangeOnly
-    clutter: UniformClutter
+    measurement: BearingRange | RangeOnly | Cartesian
+    clutter: UniformClutter | SectorClutter
+    pose: tuple[float, float, float] | None = None
+    """Written into each frame when the sensor is declared (``[sensors.NAME]``)."""
 
     @classmethod
-    def build(cls, params: ModelParams, kind: str) -> _Models:
-        return cls(kind, params.detection(kind), params.measurement(kind), params.clutter(kind))
+    def build(cls, params: ModelParams, kind: str, sensor: str = "") -> _Models:
+        """The models of sensor ``sensor``: its ``[sensors.NAME]`` table (kind, pose, field of
+        view, noise) when the parameter set declares one, else the default sensor."""
+        spec = params.sensors.get(sensor)
+        kind = spec.kind if spec is not None and spec.kind is not None else kind
+        s = params.sensor(sensor, kind)
+        return cls(kind, params.detection(kind, s), params.measurement(kind, s), params.clutter(kind, s),
+                   s.pose if spec is not None else None)
 
     def measure(self, rng: np.random.Generator, truth: Truth) -> np.ndarray:
-        d = MEASUREMENT_DIM[self.kind]
+        d = measurement_kind(self.kind).dim
         parts = []
         if truth.states.shape[0]:
             detected = self.detection.sample(rng, truth.states)
@@ -77,8 +93,8 @@ class _Models:
         parts.append(np.asarray(self.clutter.sample(rng), dtype=float).reshape(-1, d))
         z = np.concatenate(parts, axis=0) if len(parts) > 1 else parts[0]
         z = z[rng.permutation(z.shape[0])]
-        if self.kind == "bearing_range":
-            z[:, 0] = wrap_angle(z[:, 0])
+        for col in measurement_kind(self.kind).wrapped:
+            z[:, col] = wrap_angle(z[:, col])
         return z
 
 
@@ -96,9 +112,10 @@ def _frame(
         frame=k,
         stamp_ns=int(round(k * T * 1e9)),
         sensor=sensor,
-        kind=scenario.kind,
+        kind=models.kind,
         z=z,
         truth=truth,
+        pose=models.pose,
     )
 
 
@@ -119,7 +136,7 @@ def simulate(
     if not 1 <= start_frame <= scenario.K + 1:
         raise ValueError(f"start_frame must be in 1..{scenario.K + 1}, got {start_frame}")
     params = scenario.adapt_params(params)
-    models = _Models.build(params, scenario.kind)
+    models = _Models.build(params, scenario.kind, sensor)
     truths = scenario.truth(params.T)
     for k in range(start_frame, scenario.K + 1):
         yield _frame(scenario, models, params.T, seed, k, truths[k - 1], sensor)
@@ -133,7 +150,7 @@ def simulate_frame(
         raise ValueError(f"frame must be in 1..{scenario.K}, got {k}")
     params = scenario.adapt_params(params)
     truth = scenario.truth(params.T)[k - 1]
-    models = _Models.build(params, scenario.kind)
+    models = _Models.build(params, scenario.kind, sensor)
     return _frame(scenario, models, params.T, seed, k, truth, sensor)
 
 
@@ -155,3 +172,68 @@ def simulate_many(
     """One full run per seed (Monte Carlo helper)."""
     for seed in seeds:
         yield simulate_all(scenario, params, seed, sensor=sensor)
+
+
+def move_truth(truth: Truth, pose: tuple[float, float, float]) -> Truth:
+    r"""``truth`` carried rigidly by ``pose = (x, y, heading)``: a scene laid out around a
+    sensor at the origin facing +y, moved so that it lies around a sensor at ``pose``.
+
+    Positions and velocities are rotated by the heading (clockwise from +y, so a direction
+    ``[sin b, cos b]`` becomes ``[sin(b + h), cos(b + h)]``) and positions translated; turn
+    rates are unchanged (a proper rotation keeps them).  The moved scene seen from ``pose``
+    gives the same bearing-range measurements as the original seen from the origin.
+    """
+    x, y, h = (float(v) for v in pose)
+    c, s = np.cos(h), np.sin(h)
+    st = truth.states.copy()
+    for i, j in ((0, 2), (1, 3)):  # positions, velocities
+        a, b = truth.states[:, i], truth.states[:, j]
+        st[:, i], st[:, j] = c * a + s * b, -s * a + c * b
+    st[:, 0] += x
+    st[:, 2] += y
+    return Truth(truth.ids, st)
+
+
+def truth_at_time(scenario: Scenario, t: float, T: float = 1.0) -> Truth:
+    """Ground truth at time ``t`` seconds (scan ``k`` is at ``k T``): the objects present at
+    scan ``floor(t / T)`` carried forward by the noiseless CT model over the remainder (the
+    scenarios' own motion), so frames can be simulated at irregular times."""
+    from tracker.models.motion import CoordinatedTurn
+
+    k = int(np.floor(t / T + 1e-12))
+    if not 1 <= k <= scenario.K:
+        raise ValueError(f"time {t} s is outside scans 1..{scenario.K}")
+    base = scenario.truth(T)[k - 1]
+    rest = t - k * T
+    if rest <= 0.0 or base.states.shape[0] == 0:
+        return base
+    return Truth(base.ids, CoordinatedTurn(T=rest).f(base.states))
+
+
+def sensor_rng(seed: int, k: int, i: int) -> np.random.Generator:
+    """The stream of sensor ``i``'s frame at scan ``k`` (sensor 0: :func:`frame_rng`)."""
+    if i == 0:
+        return frame_rng(seed, k)
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(k), int(i))))
+
+
+def simulate_sensors(scenario: Scenario, params: ModelParams, seed: int, sensors: Sequence[str]
+                     ) -> Iterator[Frame]:
+    """Frames of several sensors observing one scene, interleaved by time (issue 13, item 3).
+
+    Every scan ``k`` yields one frame per sensor, in the order of ``sensors``, all stamped
+    ``round(k T 10^9)`` (the sensors scan at the same instants) and numbered
+    ``(k - 1) n + i + 1`` (``n`` sensors, ``i`` the sensor's index).  Sensor ``NAME`` uses its
+    ``[sensors.NAME]`` table of ``params`` (kind, pose, field of view, noise; the pose is written
+    into each frame); sensor ``i``'s measurements use :func:`sensor_rng`, so sensor 0's frames
+    equal :func:`simulate`'s.
+    """
+    params = scenario.adapt_params(params)
+    models = [_Models.build(params, scenario.kind, name) for name in sensors]
+    truths = scenario.truth(params.T)
+    n = len(sensors)
+    for k in range(1, scenario.K + 1):
+        for i, (name, m) in enumerate(zip(sensors, models)):
+            z = m.measure(sensor_rng(seed, k, i), truths[k - 1])
+            yield Frame((k - 1) * n + i + 1, int(round(k * params.T * 1e9)), name, m.kind, z,
+                        truths[k - 1], pose=m.pose)

@@ -250,7 +250,7 @@ def test_json_schema():
         assert "v" not in defs["required"] and "run" not in defs["required"]
         assert defs["additionalProperties"] is False
     props = json_schema(MeasurementsMsg)["$defs"]["MeasurementsMsg"]["properties"]
-    assert props["kind"]["enum"] == ["bearing_range", "range"]
+    assert props["kind"]["enum"] == ["bearing_range", "range", "xy"]
     with pytest.raises(ValueError):
         json_schema("/nope")
 
@@ -328,10 +328,15 @@ def test_validate_rejects_nan_in_hand_built_struct():
         ({"kind": "range", "z": [[-0.5]]}, 7, ["range must be >= 0", "$.z[0][0]"]),
         ({"z": [[0.0, 1.0], [3.2, 1.0]]}, 7, ["bearing", "$.z[1][0]"]),
         ({"z": [[-3.15, 1.0]]}, 7, ["bearing", "$.z[0][0]"]),
-        ({"v": 2}, 7, ["unsupported schema version 2"]),
+        ({"v": 3}, 7, ["unsupported schema version 3", "reads versions 1 and 2"]),
         ({"v": 0}, 7, ["unsupported schema version 0"]),
-        ({"v": 2, "new_field": [1, 2]}, 7, ["unsupported schema version 2"]),
+        ({"v": 3, "new_field": [1, 2]}, 7, ["unsupported schema version 3"]),
         ({"extra": 1}, 7, ["unknown field", "extra"]),
+        ({"pose": [1.0, 2.0]}, 7, ["$.pose"]),
+        ({"pose": "abc"}, 7, ["$.pose"]),
+        ({"R": [[1.0, 0.0], [0.0]]}, 7, ["R must be 2x2", "$.R"]),
+        ({"R": [[1.0, 2.0], [2.0, 1.0]]}, 7, ["positive definite", "$.R"]),
+        ({"kind": "range", "z": [[1.0]], "R": [[1.0, 0.0], [0.0, 1.0]]}, 7, ["R must be 1x1"]),
         ({"frame": "7"}, None, ["$.frame"]),
         ({"frame": 7.5}, None, ["$.frame"]),
         ({"z": "abc"}, 7, ["$.z"]),

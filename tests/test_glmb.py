@@ -106,20 +106,24 @@ class LinearParams:
     p_survival: float = 1.0
     log_kappa: float = float(np.log(1e-9) - np.log(1e6))
     sigma: float = 5.0
+    T: float = 1.0
 
-    def motion(self):
-        return LinearMotion()
+    def motion(self, dt=None):
+        return LinearMotion() if dt is None else LinearMotion(T=dt)
 
-    def measurement(self, kind):
+    def frame_sensor(self, frame):
+        return None
+
+    def measurement(self, kind, sensor=None):
         return PositionSensor(self.sigma)
 
-    def clutter(self, kind):
+    def clutter(self, kind, sensor=None):
         return Clutter(self.log_kappa)
 
-    def detection(self, kind):
+    def detection(self, kind, sensor=None):
         return ConstDetection(self.p_detect)
 
-    def survival(self, x, kind):
+    def survival(self, x, kind, sensor=None):
         return np.full(np.atleast_2d(x).shape[0], self.p_survival)
 
 
@@ -149,13 +153,14 @@ def test_single_linear_object_equals_kalman_filter(filt, gap):
             x = motion.F @ x + rng.multivariate_normal(np.zeros(5), motion.Q)
         if k in frames_k:
             frames.append(_frame(k, sensor.H @ x + rng.normal(0.0, 5.0, 2)))
-    # hand-written Kalman filter
+    # hand-written Kalman filter: one prediction over the gap with F(dt), Q(dt) (dt from stamps)
     m = np.array(birth.mean)
     P = np.diag(np.square(birth.std))
     prev = None
     for f in frames:
-        for _ in range(0 if prev is None else f.frame - prev):
-            m, P = motion.F @ m, motion.F @ P @ motion.F.T + motion.Q
+        if prev is not None:
+            mo = LinearMotion(T=float(f.frame - prev))
+            m, P = mo.F @ m, mo.F @ P @ mo.F.T + mo.Q
         S = sensor.H @ P @ sensor.H.T + sensor.R
         K = P @ sensor.H.T @ np.linalg.inv(S)
         m = m + K @ (f.z[0] - sensor.H @ m)
@@ -492,7 +497,7 @@ def test_adaptive_birth_from_hypothesis_weights(vo_params):
     z = np.array([[0.3, 800.0], [-0.2, 1200.0]])
     st = GlmbState(birth_frame=4, birth_kind="bearing_range", birth_z=z, birth_r_u=mg.p_used)
     tr = make_glmb(vo_params, GlmbConfig(birth_model="adaptive", birth_rate=0.5, birth_r_max=0.9))
-    b = tr._births(st, _frame(5, np.zeros((0, 2))))
+    b = tr._births(st, _frame(5, np.zeros((0, 2))), 1.0)
     # unassigned (0.1, 0.7), sum 0.8: r_B = 0.5 * (0.125, 0.875) = (0.0625, 0.4375)
     np.testing.assert_allclose(b.r, [0.0625, 0.4375], rtol=1e-12)
     assert b.labels == ("5.z0", "5.z1")
@@ -506,10 +511,10 @@ def test_adaptive_birth_from_hypothesis_weights(vo_params):
     _, pcov = vo_params.measurement().to_cartesian(z)
     assert np.all(b.cov[:, 0, 0] > pcov[:, 0, 0] + 20.0**2)
     # the static model ignores them; "auto" is static with regions, adaptive without
-    assert make_glmb(vo_params)._births(st, _frame(5, np.zeros((0, 2)))).labels == tuple(f"5.{i}" for i in range(4))
+    assert make_glmb(vo_params)._births(st, _frame(5, np.zeros((0, 2))), 1.0).labels == tuple(f"5.{i}" for i in range(4))
     assert make_glmb(vo_params, GlmbConfig(birth=[])).birth_model == "adaptive"
     both = make_glmb(vo_params, GlmbConfig(birth_model="both", birth_rate=0.5))
-    assert both._births(st, _frame(5, np.zeros((0, 2)))).labels == tuple(f"5.{i}" for i in range(4)) + ("5.z0", "5.z1")
+    assert both._births(st, _frame(5, np.zeros((0, 2))), 1.0).labels == tuple(f"5.{i}" for i in range(4)) + ("5.z0", "5.z1")
 
 
 def test_range_only_prior_is_the_arc_moments():

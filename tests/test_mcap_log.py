@@ -452,10 +452,10 @@ def test_wrong_schema_on_known_topic(tmp_path):
 def test_unsupported_version_in_file(tmp_path):
     path = tmp_path / "v2.mcap"
     _write_raw_measurements(
-        path, [b'{"v": 2, "frame": 0, "stamp_ns": 0, "sensor": "s", "kind": "range", "z": [[1.0]], "new": 1}']
+        path, [b'{"v": 3, "frame": 0, "stamp_ns": 0, "sensor": "s", "kind": "range", "z": [[1.0]], "new": 1}']
     )
     got, err = read_prefix(path)
-    assert got == [] and "unsupported schema version 2" in str(err) and "/measurements frame 0" in str(err)
+    assert got == [] and "unsupported schema version 3" in str(err) and "/measurements frame 0" in str(err)
 
 
 def test_writer_rejects_invalid_frame_without_writing_half(tmp_path):

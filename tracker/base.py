@@ -11,8 +11,8 @@ We use a birth *intensity* that is a sum of independent sources, normalised into
     H = \frac{\lambda_U}{\lambda_U + \sum_j r_j}\, \mathcal U_{\text{FOV}}
         + \sum_i \frac{r_i}{\lambda_U + \sum_j r_j}\, \mathcal N(x; \mu_i, \Sigma_i)
 
-* :math:`\mathcal U_\text{FOV}`: positions uniform over the sensor's field of view *in
-  measurement coordinates* (so :math:`u(z) = 1/|V|`, the clutter density), velocity
+* :math:`\mathcal U_\text{FOV}`: positions uniform over the field of view of the frame's
+  sensor (its own pose and field of view) *in measurement coordinates* (so :math:`u(z) = 1/|V|`, the clutter density), velocity
   :math:`\mathcal N(0, \sigma_v^2 I)`, turn rate :math:`\mathcal N(0, \sigma_\omega^2)`: the
   paper's uninformative choice (its NIW has a near-zero mean and a vague scale).  Objects may
   appear anywhere (case D3/P3 with no prior knowledge of where).
@@ -106,15 +106,11 @@ class BaseDistribution:
         return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
     def _uniform_posterior(self, meas, Z: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
+        """The uniform part conditioned on each measurement: the measured position in the
+        world frame (``meas.birth_position``: the sensor's pose and field of view), velocity
+        and turn rate from the prior."""
         n = Z.shape[0]
-        if kind == "bearing_range":
-            pos, pcov = meas.to_cartesian(Z)
-        else:  # range only: bearing unobserved; centre on the boresight, spread over the arc
-            rng_m = Z[:, 0]
-            pos = np.stack([np.zeros(n), rng_m], axis=1)
-            pcov = np.zeros((n, 2, 2))
-            pcov[:, 0, 0] = (rng_m * 2 * self.half_fov) ** 2 / 12.0
-            pcov[:, 1, 1] = meas.R[0, 0]
+        pos, pcov = meas.birth_position(Z)
         mean = np.zeros((n, 5))
         mean[:, 0], mean[:, 2] = pos[:, 0], pos[:, 1]
         cov = np.zeros((n, 5, 5))

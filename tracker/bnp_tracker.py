@@ -42,7 +42,7 @@ from tracker import filtering as kf
 from tracker.base import BaseDistribution
 from tracker.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from tracker.models.params import ModelParams
-from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows
+from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
 from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
 
 _EPS = 1e-12
@@ -175,7 +175,7 @@ class BnpState:
 class _Prediction:
     mean: np.ndarray
     cov: np.ndarray
-    q: np.ndarray  # predicted existence P_S^steps * r
+    q: np.ndarray  # predicted existence P_S^(dt/T) * r
     p_detect: np.ndarray
 
 
@@ -191,6 +191,9 @@ class BnpTracker:
     def motion(self):
         return self.params.motion()
 
+    def _motion(self, dt: float):
+        """The motion model over ``dt`` (the cached one at ``dt == T``)."""
+        return self.motion if dt == self.params.T else self.params.motion(dt)
 
     @cached_property
     def base(self) -> BaseDistribution:
@@ -223,10 +226,11 @@ class BnpTracker:
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
-        steps = 1 if state.frame < 0 else frame.frame - state.frame
-        meas = self.params.measurement(frame.kind)
-        clutter = self.params.clutter(frame.kind)
-        pred = self._predict(state, steps, frame.kind)
+        dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
+        sensor = self.params.frame_sensor(frame)
+        meas = self.params.measurement(frame.kind, sensor)
+        clutter = self.params.clutter(frame.kind, sensor)
+        pred = self._predict(state, dt, frame.kind, sensor)
         innov = self._innovation(meas, pred)
         problem = self._problem(state, pred, innov, meas, clutter, frame.z)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
@@ -253,14 +257,15 @@ class BnpTracker:
                                    est.assignment_prob, diagnostics)
 
     # -- pieces ---------------------------------------------------------------------------
-    def _predict(self, state: BnpState, steps: int, kind: str) -> _Prediction:
-        """Transition (Algorithm 1, step 2): q = r * prod P_S(x) over the steps; phi = CT model."""
+    def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
+        """Transition (Algorithm 1, step 2) over ``dt`` seconds in one step: phi = the CT model
+        built for ``dt`` (process noise ``Q(dt)``), q = r * P_S(x)^(dt/T) at the predicted mean."""
         m, P, q = state.mean, state.cov, state.existence
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
-        for _ in range(steps if state.n_clusters else 0):
-            m, P = predict(self.motion, m, P)
-            q = q * self.params.survival(m, kind)
-        p_detect = self.params.detection(kind).prob(m) if len(m) else np.zeros(0)
+        if state.n_clusters:
+            m, P = predict(self._motion(dt), m, P)
+            q = q * self.params.survival_over(m, dt, kind, sensor)
+        p_detect = self.params.detection(kind, sensor).prob(m) if len(m) else np.zeros(0)
         return _Prediction(m, P, q, p_detect)
 
     def _innovation(self, meas, pred: _Prediction):

@@ -9,6 +9,7 @@ not a TOML literal is taken as a plain string).  Errors name the offending key a
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,18 +32,37 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def did_you_mean(key: str, known: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib), else ``""``."""
+    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
 def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str) -> None:
+    """Set ``data[a][b]...= value`` for ``key = "a.b..."``.  A missing table under an empty
+    table (a name-keyed table such as ``sensors``: ``--set sensors.radar0.x=5``) is created;
+    the struct validation that follows checks its keys."""
     parts = key.split(".")
-    node = data
+    node, created = data, False
     for i, part in enumerate(parts[:-1]):
         child = node.get(part)
+        named = i > 0 and (created or _named_tables(node))
+        if child is None and part not in node and named:
+            child = node[part] = {}
+        created = created or named
         if not isinstance(child, dict):
-            raise ConfigError(f"{origin}: '{'.'.join(parts[: i + 1])}' is not a table")
+            raise ConfigError(f"{origin}: '{'.'.join(parts[: i + 1])}' is not a table"
+                              + (did_you_mean(part, list(node)) if part not in node else ""))
         node = child
-    if parts[-1] not in node:
+    if parts[-1] not in node and not created:
         known = ", ".join(sorted(node)) or "(none)"
-        raise ConfigError(f"{origin}: unknown key '{key}' (known here: {known})")
+        raise ConfigError(f"{origin}: unknown key '{key}'{did_you_mean(parts[-1], list(node))} (known here: {known})")
     node[parts[-1]] = value
+
+
+def _named_tables(node: dict[str, Any]) -> bool:
+    """``node`` is a table of named tables (every value a table, or empty: e.g. ``sensors``)."""
+    return all(isinstance(v, dict) for v in node.values())
 
 
 def apply_overrides(obj: S, overrides: Sequence[str]) -> S:

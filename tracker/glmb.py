@@ -50,7 +50,7 @@ import numpy as np
 
 from tracker import filtering as kf
 from tracker.models.params import BirthComponent, ModelParams
-from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate
+from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, frame_dt
 
 try:  # the Gibbs sweeps also run interpreted (BNPTRACK_NO_JIT=1)
     from numba import njit as _njit
@@ -132,19 +132,23 @@ GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}
 class GlmbModel(Protocol):
     """What the GLMB needs from a model set (``ModelParams`` satisfies it; tests inject others).
 
-    ``motion()`` and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
+    ``motion(dt)`` (the transition over ``dt`` seconds, ``T`` by default) and ``measurement(kind)`` follow the protocol of :mod:`tracker.filtering`;
     ``clutter(kind).log_intensity`` is :math:`\\log\\kappa(z)` (uniform clutter);
-    ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
+    ``frame_sensor(frame)`` resolves the frame's sensor (pose, field of view, noise), which the
+    model factories take as ``sensor``; ``detection(kind).prob(x)`` and ``survival(x, kind)`` map ``(N, 5)`` states to ``(N,)``.
     Adaptive births also need ``measurement(kind).to_cartesian(Z) -> (pos (M, 2), cov (M, 2, 2))``.
     """
 
     birth: list[BirthComponent]
+    T: float
+    """The scan period: survival ``survival(x)`` is per ``T`` (over ``dt``: its power ``dt/T``)."""
 
-    def motion(self) -> Any: ...
-    def measurement(self, kind: str) -> Any: ...
-    def clutter(self, kind: str) -> Any: ...
-    def detection(self, kind: str) -> Any: ...
-    def survival(self, x: np.ndarray, kind: str) -> np.ndarray: ...
+    def motion(self, dt: float | None = None) -> Any: ...
+    def frame_sensor(self, frame: Frame) -> Any: ...
+    def measurement(self, kind: str, sensor: Any = None) -> Any: ...
+    def clutter(self, kind: str, sensor: Any = None) -> Any: ...
+    def detection(self, kind: str, sensor: Any = None) -> Any: ...
+    def survival(self, x: np.ndarray, kind: str, sensor: Any = None) -> np.ndarray: ...
 
 
 def _empty_hyps() -> np.ndarray:
@@ -172,6 +176,10 @@ class GlmbState:
     birth_frame: int = -1
     """Frame of ``birth_z`` (the last processed frame; ``-1``: none)."""
     birth_kind: str = "bearing_range"
+    birth_sensor: str = ""
+    birth_pose: tuple[float, ...] = ()
+    """The last frame's sensor, pose (``()``: none) and ``R`` (``(0, 0)``: none)."""
+    birth_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     birth_z: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     """The last frame's measurements ``(M, d)``: the adaptive births of the next frame."""
     birth_r_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -761,6 +769,10 @@ class GlmbTracker:
     def motion(self):
         return self.params.motion()
 
+    def _motion(self, dt: float):
+        """The motion model over ``dt`` (the cached one at ``dt == T``)."""
+        return self.motion if dt == self.params.T else self.params.motion(dt)
+
     @cached_property
     def birth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Birth components: ``r`` (B,), means (B, 5), covariances (B, 5, 5)."""
@@ -790,9 +802,10 @@ class GlmbTracker:
         t0 = time.perf_counter()
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
-        steps = 1 if state.frame < 0 else frame.frame - state.frame
-        meas = self.params.measurement(frame.kind)
-        cands = self._candidates(state, steps, frame)
+        dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
+        sensor = self.params.frame_sensor(frame)
+        meas = self.params.measurement(frame.kind, sensor)
+        cands = self._candidates(state, dt, frame, sensor)
         innov = self._innovation(meas, cands)
         E = self._eta(meas, innov, cands, frame)
         children = self._children(state, cands, E, rng)
@@ -801,7 +814,8 @@ class GlmbTracker:
         rows = self._estimate_rows(upd, marg, state.est_rows)
         est = estimate_from_rows(upd.state, upd.row_meas, marg, frame, rows)
         new = dataclasses.replace(upd.state, birth_frame=frame.frame, birth_kind=frame.kind,
-                                  birth_z=frame.z.copy(), birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
+                                  birth_z=frame.z.copy(), birth_sensor=frame.sensor, birth_pose=frame.pose or (),
+                                  birth_R=np.zeros((0, 0)) if frame.R is None else frame.R, birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
                                   est_rows=rows)
         card = new.cardinality()
         diagnostics = {
@@ -822,26 +836,25 @@ class GlmbTracker:
     def _predict_fn(self):
         return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
 
-    def _candidates(self, state: GlmbState, steps: int, frame: Frame) -> _Candidates:
-        r"""Survivors: ``steps`` predictions, :math:`\bar P_S = \prod_s P_S(m_s)` with
-        :math:`m_s` the mean before step ``s`` (the survival of the gap); then births."""
+    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None) -> _Candidates:
+        r"""Survivors: one prediction over ``dt`` seconds (the CT model built for ``dt``),
+        :math:`\bar P_S = P_S(m)^{\Delta t/T}` at the mean before the step; then births."""
         m, P = state.mean, state.cov
         log_ps = np.zeros(len(m))
-        predict = self._predict_fn()
-        for _ in range(steps if len(m) else 0):
-            log_ps = log_ps + _log(self.params.survival(m, frame.kind))
-            m, P = predict(self.motion, m, P)
-        b = self._births(state, frame)
+        if len(m):
+            log_ps = _log(self.params.survival(m, frame.kind, sensor)) * (dt / self.params.T)
+            m, P = self._predict_fn()(self._motion(dt), m, P)
+        b = self._births(state, frame, dt)
         labels = state.labels + b.labels
         mean = np.concatenate([m, b.mean])
         cov = np.concatenate([P, b.cov])
         log_e = np.concatenate([log_ps, _log(b.r)])
         log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - b.r)])
-        pd = self.params.detection(frame.kind).prob(mean) if len(mean) else np.zeros(0)
+        pd = self.params.detection(frame.kind, sensor).prob(mean) if len(mean) else np.zeros(0)
         return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
                            b.n_adaptive)
 
-    def _births(self, state: GlmbState, frame: Frame) -> _Births:
+    def _births(self, state: GlmbState, frame: Frame, dt: float) -> _Births:
         """This frame's birth Bernoullis: the static regions (labels ``"k.i"``, ``i`` the
         component) and/or the adaptive births (labels ``"k.zj"``, ``j`` the index of the
         measurement of the previous processed frame), per :attr:`birth_model`."""
@@ -849,29 +862,30 @@ class GlmbTracker:
         static = _Births(tuple(f"{frame.frame}.{i}" for i in range(r.size)), r, bm, bP)
         if self.birth_model == "static":
             return static
-        adaptive = self._adaptive_births(state, frame)
+        adaptive = self._adaptive_births(state, frame, dt)
         if self.birth_model == "adaptive":
             return adaptive
         return _Births(static.labels + adaptive.labels, np.concatenate([r, adaptive.r]),
                        np.concatenate([bm, adaptive.mean]), np.concatenate([bP, adaptive.cov]),
                        adaptive.n_adaptive)
 
-    def _adaptive_births(self, state: GlmbState, frame: Frame) -> _Births:
+    def _adaptive_births(self, state: GlmbState, frame: Frame, dt: float) -> _Births:
         r"""Reuter et al. (2014) adaptive birth: one Bernoulli per kept measurement ``z`` of
         the previous processed frame with :math:`r_B(z)` from
         :func:`adaptive_birth_existence` and the measurement-conditioned prior
         (:func:`measurement_state_prior` of the sensor's ``to_cartesian``) predicted to this
-        frame with the motion model."""
+        frame with the motion model over ``dt`` (that frame is the last processed one)."""
         cfg = self.config
         idx, r = adaptive_birth_existence(state.birth_r_u, cfg.birth_rate, cfg.birth_r_max,
                                           cfg.max_births, cfg.birth_min_share)
         if state.birth_frame < 0 or idx.size == 0:
             return _Births((), np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM)))
-        pos, pcov = self.params.measurement(state.birth_kind).to_cartesian(state.birth_z[idx])
+        last = Frame(state.birth_frame, state.stamp_ns, state.birth_sensor, state.birth_kind, state.birth_z,
+                     pose=state.birth_pose or None, R=state.birth_R if state.birth_R.size else None)
+        sensor = self.params.frame_sensor(last)
+        pos, pcov = self.params.measurement(state.birth_kind, sensor).to_cartesian(state.birth_z[idx])
         m, P = measurement_state_prior(pos, pcov, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
-        predict = self._predict_fn()
-        for _ in range(frame.frame - state.birth_frame):
-            m, P = predict(self.motion, m, P)
+        m, P = self._predict_fn()(self._motion(dt), m, P)
         labels = tuple(f"{frame.frame}.z{j}" for j in idx.tolist())
         return _Births(labels, r, m, P, idx.size)
 
@@ -886,7 +900,7 @@ class GlmbTracker:
             log_lik = kf.log_likelihood_matrix(meas, innov, frame.z, self.config.gate_prob)
         else:
             log_lik = np.zeros((len(cands.mean), M))
-        log_kappa = float(self.params.clutter(frame.kind).log_intensity)
+        log_kappa = float(self.params.clutter(frame.kind, self.params.frame_sensor(frame)).log_intensity)
         if not math.isfinite(log_kappa):
             raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
         return eta_matrix(cands.log_e, cands.log_not_e, cands.p_detect, log_lik, log_kappa)

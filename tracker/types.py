@@ -7,16 +7,20 @@ dataclasses over plain numpy arrays; arrays are batch-first (``(M, d)``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
-SensorKind = Literal["bearing_range", "range"]
+from tracker.models.measurement import KINDS
 
-#: Dimension of one measurement for each sensor kind.
-MEASUREMENT_DIM: dict[str, int] = {"bearing_range": 2, "range": 1}
+SensorKind = Literal["bearing_range", "range", "xy"]
+
+#: Dimension of one measurement for each sensor kind (from the registry
+#: :data:`tracker.models.measurement.KINDS`).
+MEASUREMENT_DIM: dict[str, int] = {name: k.dim for name, k in KINDS.items()}
 
 #: Object state layout used everywhere: ``[px, vx, py, vy, omega]``.
 STATE_DIM = 5
@@ -60,6 +64,16 @@ def check_finite_rows(frame: int, z: np.ndarray) -> None:
                          f" ({int(bad.sum())} such row(s))")
 
 
+def check_covariance(frame: int, R, d: int) -> np.ndarray:
+    """``R`` as a ``(d, d)`` symmetric positive-definite array, or ``ValueError`` naming the frame."""
+    R = np.asarray(R, dtype=float)
+    if R.shape != (d, d) or not np.isfinite(R).all():
+        raise ValueError(f"Frame {frame}: R must be a finite {d}x{d} matrix, got shape {R.shape}")
+    if not np.allclose(R, R.T, rtol=1e-9, atol=0.0) or np.any(np.linalg.eigvalsh(0.5 * (R + R.T)) <= 0):
+        raise ValueError(f"Frame {frame}: R must be symmetric positive definite")
+    return 0.5 * (R + R.T)
+
+
 @dataclass(frozen=True)
 class Frame:
     """One scan of measurements from one sensor.
@@ -73,13 +87,20 @@ class Frame:
     sensor:
         Sensor name (free text, e.g. ``"radar0"``).
     kind:
-        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from +y towards +x)
-        or ``"range"`` (``z = [range_m]``).
+        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from the sensor's
+        boresight towards +x), ``"range"`` (``z = [range_m]``) or ``"xy"``
+        (``z = [x_m, y_m]`` in the world frame); the registry
+        :data:`tracker.models.measurement.KINDS` lists them.
     z:
         ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.  Every entry must be
         finite: construction raises ``ValueError`` naming the frame and the row otherwise.
     truth:
         Ground truth at this frame when the source has it, else ``None``.
+    pose:
+        ``(x, y, heading)`` of the sensor for this scan (m, m, rad; heading from +y towards
+        +x), or ``None``: the parameter set's ``[sensors.NAME]`` table (or the default sensor).
+    R:
+        ``(d, d)`` measurement noise covariance of this scan's rows, or ``None``.
     """
 
     frame: int
@@ -88,13 +109,23 @@ class Frame:
     kind: SensorKind
     z: np.ndarray
     truth: Truth | None = None
+    pose: tuple[float, float, float] | None = None
+    R: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in MEASUREMENT_DIM:
-            raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r}")
-        z = np.asarray(self.z, dtype=float).reshape(-1, MEASUREMENT_DIM[self.kind])
+            raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r} (known: {', '.join(KINDS)})")
+        d = MEASUREMENT_DIM[self.kind]
+        z = np.asarray(self.z, dtype=float).reshape(-1, d)
         check_finite_rows(self.frame, z)
         object.__setattr__(self, "z", z)
+        if self.pose is not None:
+            pose = tuple(float(v) for v in self.pose)
+            if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+                raise ValueError(f"Frame {self.frame}: pose must be 3 finite numbers [x, y, heading], got {self.pose!r}")
+            object.__setattr__(self, "pose", pose)
+        if self.R is not None:
+            object.__setattr__(self, "R", check_covariance(self.frame, self.R, d))
 
     @property
     def n_measurements(self) -> int:
@@ -154,9 +185,9 @@ class FrameBoundError(ValueError):
 class FrameBounds:
     """How far one frame may advance past the previous one.
 
-    A tracker predicts through every skipped frame (``steps = frame - previous frame``), so an
-    unbounded jump (a corrupt or forged frame number, e.g. 10^9) would cost work in proportion
-    to the jump.  Each frame must come after the previous one by at most ``max_frame_gap``
+    A tracker predicts once over the time since the previous frame (:func:`frame_dt`), but an
+    unbounded jump (a corrupt or forged frame number, e.g. 10^9) still means a corrupt frame
+    (a covariance grown by years of process noise).  Each frame must come after the previous one by at most ``max_frame_gap``
     frame numbers, and its time stamp may not go back nor advance by more than ``max_gap_s``
     seconds.  The first frame of a stream is not bounded.
     """
@@ -199,3 +230,34 @@ def bounded_frames(frames: Iterable[Frame], bounds: FrameBounds = FrameBounds())
             raise FrameBoundError(why)
         prev_frame, prev_stamp = f.frame, f.stamp_ns
         yield f
+
+
+# --------------------------------------------------------------------------- time between frames
+
+
+def frame_dt(prev_frame: int, prev_stamp_ns: int, frame: int, stamp_ns: int, T: float) -> float:
+    r"""Seconds to predict over from the last processed frame to this one.
+
+    * Time stamps are used when present: :math:`\Delta t = (\text{stamp} - \text{stamp}_{prev})
+      / 10^9`, so irregular intervals and dropped frames are handled.  A stamp difference
+      equal, to the nanosecond, to ``(frame - prev_frame) * T`` gives exactly
+      ``(frame - prev_frame) * T`` (the simulator's stamps are ``round(k T 10^9)``, so its
+      logs predict with the same floats as before stamps were used).
+    * Stamps are "absent" when both are 0 (logs that carry none): then
+      :math:`\Delta t = (\text{frame} - \text{frame}_{prev})\, T`.
+    * Before the first frame (``prev_frame < 0``) the interval is ``T`` (nothing to predict).
+
+    Raises :class:`FrameBoundError` when the stamp goes back in time (frames out of order).
+    Equal stamps (two sensors scanning at the same instant) give :math:`\Delta t = 0`.
+    """
+    steps = 1 if prev_frame < 0 else frame - prev_frame
+    if prev_frame < 0 or (prev_stamp_ns == 0 and stamp_ns == 0):
+        return steps * T
+    why = FrameBounds(max_frame_gap=max(steps, 1), max_gap_s=math.inf).violation(
+        prev_frame, prev_stamp_ns, frame, stamp_ns)
+    if why is not None:
+        raise FrameBoundError(why)
+    d_ns = int(stamp_ns) - int(prev_stamp_ns)
+    if d_ns == steps * int(round(T * 1e9)):
+        return steps * T
+    return d_ns / 1e9

@@ -82,6 +82,9 @@ class Detection:
     sensor_y: float = 0.0
     range_only: bool = False
     """A range-only sensor has no bearing limits (only the range limit applies)."""
+    heading: float = 0.0
+    """Boresight direction (rad, from +y towards +x); bearings are relative to it."""
+    range_min: float = 0.0
 
     @cached_property
     def p_detect_effective(self) -> float:
@@ -98,10 +101,15 @@ class Detection:
         dx = x[:, 0] - self.sensor_x
         dy = x[:, 2] - self.sensor_y
         r = np.hypot(dx, dy)
+        in_range = r <= self.range_max
+        if self.range_min > 0.0:
+            in_range &= r >= self.range_min
         if self.range_only:
-            return r <= self.range_max
+            return in_range
         phi = np.arctan2(dx, dy)
-        return (r <= self.range_max) & (phi >= self.bearing_min) & (phi <= self.bearing_max)
+        if self.heading:
+            phi = (phi - self.heading + np.pi) % (2.0 * np.pi) - np.pi
+        return in_range & (phi >= self.bearing_min) & (phi <= self.bearing_max)
 
     def prob(self, x: np.ndarray) -> np.ndarray:
         """``(N,)`` detection probabilities of ``(N, >=3)`` states."""
@@ -111,3 +119,54 @@ class Detection:
         """``(N,)`` boolean detection indicators."""
         p = self.prob(x)
         return rng.random(p.shape) < p
+
+
+@dataclass(frozen=True)
+class SectorClutter:
+    r"""Poisson clutter uniform over a sensor's field of view in world coordinates (kind
+    ``"xy"``): the annular sector of ranges ``[range_min, range_max]`` and bearings
+    ``+-half_fov`` about the heading, seen from ``(sensor_x, sensor_y)``.
+
+    .. math::
+        u(z) = \frac{\mathbb 1[z \in V]}{|V|}, \qquad
+        |V| = h\,(r_{\max}^2 - r_{\min}^2)
+
+    (a sector of angle :math:`2h`).  Sampling: :math:`r = \sqrt{U(r_{\min}^2, r_{\max}^2)}`,
+    :math:`\phi \sim U(-h, h)`, which is uniform in area.
+    """
+
+    rate: float = 15.0
+    range_min: float = 0.0
+    range_max: float = 2000.0
+    half_fov: float = np.pi / 2
+    sensor_x: float = 0.0
+    sensor_y: float = 0.0
+    heading: float = 0.0
+
+    @cached_property
+    def volume(self) -> float:
+        return float(self.half_fov * (self.range_max**2 - self.range_min**2))
+
+    @cached_property
+    def log_density(self) -> float:
+        return -float(np.log(self.volume))
+
+    @cached_property
+    def log_intensity(self) -> float:
+        return float(np.log(self.rate)) + self.log_density if self.rate > 0 else -np.inf
+
+    def _region(self) -> Detection:
+        return Detection(1.0, self.range_max, -self.half_fov, self.half_fov, sensor_x=self.sensor_x,
+                         sensor_y=self.sensor_y, heading=self.heading, range_min=self.range_min)
+
+    def logpdf(self, z: np.ndarray) -> np.ndarray:
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        states = np.zeros((z.shape[0], 3))
+        states[:, 0], states[:, 2] = z[:, 0], z[:, 1]
+        return np.where(self._region().visible(states), self.log_density, -np.inf)
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        n = rng.poisson(self.rate)
+        r = np.sqrt(self.range_min**2 + rng.random(n) * (self.range_max**2 - self.range_min**2))
+        phi = self.heading + self.half_fov * (2.0 * rng.random(n) - 1.0)
+        return np.stack([self.sensor_x + r * np.sin(phi), self.sensor_y + r * np.cos(phi)], axis=-1)

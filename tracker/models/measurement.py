@@ -1,8 +1,14 @@
-r"""Sensor models at a fixed sensor position (the origin by default).
+r"""Sensor models at a sensor pose ``(sensor_x, sensor_y, heading)`` (the origin, boresight
+:math:`+y`, by default).
 
-Bearing is measured from the :math:`+y` axis, positive towards :math:`+x`
+Bearing is measured from the sensor's boresight, positive clockwise: the boresight's own
+direction (``heading``) is measured from :math:`+y` towards :math:`+x` like every bearing
 (Vo et al. 2017's convention; see ``docs/models.md`` for why we do not use the paper's
-:math:`\arctan(y/x)`).
+:math:`\arctan(y/x)`).  ``noise`` (a ``d x d`` covariance as nested tuples) replaces the
+diagonal noise of the sigmas when set (a frame's ``R``).
+
+:data:`KINDS` is the registry of measurement kinds: name -> model class, dimension, wrapped
+(angle) columns and value bounds; the codec, the simulator and ``Frame`` look kinds up there.
 """
 
 from __future__ import annotations
@@ -13,6 +19,21 @@ from functools import cached_property
 import numpy as np
 
 from tracker.models._gauss import gaussian_logpdf
+
+Noise = tuple[tuple[float, ...], ...] | None
+
+
+def _rotate(pos: np.ndarray, cov: np.ndarray | None, heading: float, x: float, y: float):
+    """Sensor-frame positions ``(M, 2)`` (and covariances) to the world frame: rotate by the
+    heading (clockwise from +y, so a sensor-frame ``[sin b, cos b]`` becomes
+    ``[sin(b + h), cos(b + h)]``) and translate by the sensor position."""
+    if heading:
+        c, s = np.cos(heading), np.sin(heading)
+        Rm = np.array([[c, s], [-s, c]])
+        pos = pos @ Rm.T
+        if cov is not None:
+            cov = Rm @ cov @ Rm.T
+    return pos + np.array([x, y]), cov
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
@@ -27,10 +48,11 @@ class BearingRange:
     .. math::
 
         z = h(x) + w, \qquad
-        h(x) = \begin{bmatrix} \operatorname{atan2}(p_x - s_x,\; p_y - s_y) \\
+        h(x) = \begin{bmatrix} \operatorname{wrap}(\operatorname{atan2}(p_x - s_x,\; p_y - s_y) - \psi) \\
                                \sqrt{(p_x - s_x)^2 + (p_y - s_y)^2} \end{bmatrix},
         \qquad w \sim \mathcal N\!\left(0, \operatorname{diag}(\sigma_\phi^2, \sigma_r^2)\right)
 
+    with :math:`\psi` the heading (``0``: the angle is not wrapped, as before poses existed).
     Bearing residuals are wrapped to :math:`[-\pi, \pi)`.
     """
 
@@ -38,6 +60,8 @@ class BearingRange:
     sigma_range: float = 10.0
     sensor_x: float = 0.0
     sensor_y: float = 0.0
+    heading: float = 0.0
+    noise: Noise = None
 
     dim: int = 2
     kind: str = "bearing_range"
@@ -45,6 +69,8 @@ class BearingRange:
     @cached_property
     def R(self) -> np.ndarray:
         """Measurement noise covariance ``(2, 2)``."""
+        if self.noise is not None:
+            return np.array(self.noise, dtype=float)
         return np.diag([self.sigma_bearing**2, self.sigma_range**2])
 
     def h(self, x: np.ndarray) -> np.ndarray:
@@ -52,10 +78,14 @@ class BearingRange:
         x = np.asarray(x, dtype=float)
         dx = x[..., 0] - self.sensor_x
         dy = x[..., 2] - self.sensor_y
-        return np.stack([np.arctan2(dx, dy), np.hypot(dx, dy)], axis=-1)
+        phi = np.arctan2(dx, dy)
+        if self.heading:
+            phi = wrap_angle(phi - self.heading)
+        return np.stack([phi, np.hypot(dx, dy)], axis=-1)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        r"""``(N, 2, n)`` Jacobian :math:`\partial h/\partial x` (zeros for velocity, turn rate).
+        r"""``(N, 2, n)`` Jacobian :math:`\partial h/\partial x` (zeros for velocity, turn rate;
+        the heading is a constant offset).
 
         .. math::
             \frac{\partial\phi}{\partial p_x} = \frac{\Delta y}{r^2},\;
@@ -84,7 +114,10 @@ class BearingRange:
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
         """Draw one noisy measurement per state row; bearing wrapped."""
         zp = self.h(np.atleast_2d(x))
-        z = zp + rng.standard_normal(zp.shape) * np.array([self.sigma_bearing, self.sigma_range])
+        if self.noise is None:
+            z = zp + rng.standard_normal(zp.shape) * np.array([self.sigma_bearing, self.sigma_range])
+        else:
+            z = zp + rng.standard_normal(zp.shape) @ np.linalg.cholesky(self.R).T
         z[:, 0] = wrap_angle(z[:, 0])
         return z
 
@@ -93,17 +126,20 @@ class BearingRange:
         return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
 
     def to_cartesian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r"""Convert ``(M, 2)`` bearing-range measurements to positions and covariances.
+        r"""Convert ``(M, 2)`` bearing-range measurements to world positions and covariances.
 
         .. math::
-            p = s + r\,[\sin\phi, \cos\phi]^T, \qquad
+            p = s + r\,[\sin(\phi + \psi), \cos(\phi + \psi)]^T, \qquad
             P = J R J^T, \quad
-            J = \begin{bmatrix} r\cos\phi & \sin\phi \\ -r\sin\phi & \cos\phi \end{bmatrix}
+            J = \begin{bmatrix} r\cos\phi' & \sin\phi' \\ -r\sin\phi' & \cos\phi' \end{bmatrix},
+            \ \phi' = \phi + \psi
 
         Returns ``(M, 2)`` positions ``[p_x, p_y]`` and ``(M, 2, 2)`` first-order covariances.
         """
         z = np.atleast_2d(np.asarray(z, dtype=float))
         phi, r = z[:, 0], z[:, 1]
+        if self.heading:
+            phi = phi + self.heading
         s, c = np.sin(phi), np.cos(phi)
         pos = np.stack([self.sensor_x + r * s, self.sensor_y + r * c], axis=-1)
         J = np.empty((z.shape[0], 2, 2))
@@ -113,6 +149,10 @@ class BearingRange:
         J[:, 1, 1] = c
         cov = J @ self.R @ np.swapaxes(J, 1, 2)
         return pos, cov
+
+    def birth_position(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position and covariance of a new object seen at ``z`` (:meth:`to_cartesian`)."""
+        return self.to_cartesian(z)
 
 
 @dataclass(frozen=True)
@@ -127,13 +167,17 @@ class RangeOnly:
     sensor_x: float = 0.0
     sensor_y: float = 0.0
     half_fov: float = np.pi / 2
-    """Half-width of the bearing field of view (rad); only :meth:`to_cartesian` uses it."""
+    """Half-width of the bearing field of view (rad); only the birth position uses it."""
+    heading: float = 0.0
+    noise: Noise = None
 
     dim: int = 1
     kind: str = "range"
 
     @cached_property
     def R(self) -> np.ndarray:
+        if self.noise is not None:
+            return np.array(self.noise, dtype=float)
         return np.array([[self.sigma_range**2]])
 
     def h(self, x: np.ndarray) -> np.ndarray:
@@ -155,7 +199,8 @@ class RangeOnly:
 
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
         zp = self.h(np.atleast_2d(x))
-        return zp + self.sigma_range * rng.standard_normal(zp.shape)
+        sigma = self.sigma_range if self.noise is None else np.sqrt(self.R[0, 0])
+        return zp + sigma * rng.standard_normal(zp.shape)
 
     def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
@@ -164,7 +209,8 @@ class RangeOnly:
         r"""Moment-matched position of ``(M, 1)`` range measurements: the bearing is not
         observed, so the object is anywhere on the arc of radius ``r`` inside the field of
         view.  With :math:`\phi \sim \mathcal U(-h, h)` (``h = half_fov``) and
-        :math:`\rho \sim \mathcal N(r, \sigma_r^2)`, :math:`p = s + \rho [\sin\phi, \cos\phi]^T`:
+        :math:`\rho \sim \mathcal N(r, \sigma_r^2)`, :math:`p = s + \rho [\sin\phi, \cos\phi]^T`
+        (sensor frame, then rotated by the heading):
 
         .. math::
             E[p] = s + r\,[0,\ \tfrac{\sin h}{h}]^T, \qquad
@@ -179,9 +225,115 @@ class RangeOnly:
         h = float(self.half_fov)
         c = np.sin(h) / h
         a, b = 0.5 - np.sin(2 * h) / (4 * h), 0.5 + np.sin(2 * h) / (4 * h)
-        pos = np.stack([np.full(r.shape, self.sensor_x), self.sensor_y + r * c], axis=-1)
-        second = r**2 + self.sigma_range**2
+        pos = np.stack([np.zeros(r.shape), r * c], axis=-1)
+        second = r**2 + self.R[0, 0]
         cov = np.zeros((r.size, 2, 2))
         cov[:, 0, 0] = second * a
         cov[:, 1, 1] = second * b - (r * c) ** 2
-        return pos, cov
+        return _rotate(pos, cov, self.heading, self.sensor_x, self.sensor_y)
+
+    def birth_position(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A new object's position from its range: on the boresight at range ``r``, spread
+        uniformly along the arc (variance ``(2 h r)^2 / 12`` across, ``sigma_r^2`` along)."""
+        rng_m = np.atleast_2d(np.asarray(z, dtype=float))[:, 0]
+        n = rng_m.size
+        pos = np.stack([np.zeros(n), rng_m], axis=1)
+        pcov = np.zeros((n, 2, 2))
+        pcov[:, 0, 0] = (rng_m * 2 * self.half_fov) ** 2 / 12.0
+        pcov[:, 1, 1] = self.R[0, 0]
+        return _rotate(pos, pcov, self.heading, self.sensor_x, self.sensor_y)
+
+
+@dataclass(frozen=True)
+class Cartesian:
+    r"""Cartesian position detections in the world frame (kind ``"xy"``): camera or lidar
+    detections projected to the ground, ADS-B and AIS positions.
+
+    .. math::
+        z = H x + w, \qquad H = \begin{bmatrix}1&0&0&0&0\\0&0&1&0&0\end{bmatrix}, \qquad
+        w \sim \mathcal N(0, R), \quad R = \sigma^2 I \text{ (or the frame's } R)
+
+    Linear, so the EKF and the UKF are both the Kalman filter.  The sensor pose does not enter
+    the measurement (it only bounds the field of view, :class:`~tracker.models.clutter.Detection`).
+    """
+
+    sigma: float = 10.0
+    sensor_x: float = 0.0
+    sensor_y: float = 0.0
+    heading: float = 0.0
+    noise: Noise = None
+
+    dim: int = 2
+    kind: str = "xy"
+
+    @cached_property
+    def R(self) -> np.ndarray:
+        if self.noise is not None:
+            return np.array(self.noise, dtype=float)
+        return self.sigma**2 * np.eye(2)
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        return np.stack([x[..., 0], x[..., 2]], axis=-1)
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        H = np.zeros((x.shape[0], 2, x.shape[1]))
+        H[:, 0, 0] = H[:, 1, 2] = 1.0
+        return H
+
+    def residual(self, z: np.ndarray, z_pred: np.ndarray) -> np.ndarray:
+        return np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
+
+    def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
+        zp = self.h(np.atleast_2d(x))
+        return zp + rng.standard_normal(zp.shape) @ np.linalg.cholesky(self.R).T
+
+    def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
+
+    def to_cartesian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(M, 2)`` positions (the measurements) and ``(M, 2, 2)`` covariances ``R``."""
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        return z.copy(), np.broadcast_to(self.R, (z.shape[0], 2, 2)).copy()
+
+    def birth_position(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A new object's position is measured; its velocity comes from the prior."""
+        return self.to_cartesian(z)
+
+
+# --------------------------------------------------------------------------- kinds registry
+
+
+@dataclass(frozen=True)
+class MeasurementKind:
+    """One measurement kind: its model class, row dimension, wrapped (angle) columns and
+    per-column value bounds (inclusive; what the codec accepts)."""
+
+    name: str
+    model: type
+    dim: int
+    wrapped: tuple[int, ...]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    columns: str
+
+
+_BIG = float(np.finfo(float).max)
+
+#: The registry: every place that needs to know a kind (Frame, codec, simulator, trackers,
+#: sinks) looks it up here.  Register a new kind by adding one entry (and its model).
+KINDS: dict[str, MeasurementKind] = {
+    "bearing_range": MeasurementKind("bearing_range", BearingRange, 2, (0,), (-np.pi, 0.0), (np.pi, _BIG),
+                                     "[bearing_rad, range_m]"),
+    "range": MeasurementKind("range", RangeOnly, 1, (), (0.0,), (_BIG,), "[range_m]"),
+    "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]"),
+}
+
+
+def measurement_kind(kind: str) -> MeasurementKind:
+    """The registry entry of ``kind`` (``ValueError`` listing the known kinds otherwise)."""
+    try:
+        return KINDS[kind]
+    except KeyError:
+        raise ValueError(f"unknown measurement kind {kind!r} (known: {', '.join(KINDS)})") from None

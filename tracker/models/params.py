@@ -8,6 +8,7 @@ See ``docs/models.md`` for the table of values and the choices made where the so
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -16,10 +17,11 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.config import ConfigError, apply_overrides, load_toml
-from tracker.models.clutter import Detection, UniformClutter
-from tracker.models.measurement import BearingRange, RangeOnly
+from tracker.config import ConfigError, apply_overrides, convert, did_you_mean, load_toml
+from tracker.models.clutter import Detection, SectorClutter, UniformClutter
+from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind
 from tracker.models.motion import CoordinatedTurn
+from tracker.models.sensors import Sensor, SensorSpec
 
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
@@ -63,6 +65,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``snr`` scenario sets 2 (``docs/models.md``: range space is one-dimensional)."""
     sigma_bearing_deg: Positive = 2.0
     sigma_range: Positive = 10.0
+    sigma_xy: Positive = 10.0
+    """Position noise std (m) per axis of ``xy`` detections (``R = sigma_xy^2 I``)."""
     range_max: Positive = 2000.0
     bearing_half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 90.0
     snr_db: float | None = None
@@ -77,6 +81,10 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     its uniform part by ``rate / (rate + sum r)`` (1 without regions), and the GLMB's adaptive
     birth uses it as ``lambda_B``.  0 allows births only at the birth regions."""
     birth: list[BirthComponent] = msgspec.field(default_factory=list)
+    sensors: dict[str, SensorSpec] = msgspec.field(default_factory=dict)
+    """``[sensors.NAME]`` tables: pose, field of view and noise of the sensor whose frames
+    carry ``sensor = NAME`` (:mod:`tracker.models.sensors`).  A sensor without a table is
+    the default one: at the origin, boresight +y, the set's field of view and noise."""
 
     # --- model factories -------------------------------------------------------------
     @property
@@ -89,42 +97,95 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         """Variance multiplier from SNR: ``10**(-snr_db/10)`` (1 when no SNR is set)."""
         return 1.0 if self.snr_db is None else 10.0 ** (-self.snr_db / 10.0)
 
-    def motion(self) -> CoordinatedTurn:
-        return CoordinatedTurn(self.T, self.sigma_accel, np.deg2rad(self.sigma_turn_deg))
+    def motion(self, dt: float | None = None) -> CoordinatedTurn:
+        """The CT model over ``dt`` seconds (default ``T``); its ``Q(dt)`` scales with ``dt``."""
+        return CoordinatedTurn(self.T if dt is None else float(dt), self.sigma_accel,
+                               np.deg2rad(self.sigma_turn_deg))
 
-    def measurement(self, kind: str = "bearing_range") -> BearingRange | RangeOnly:
+    # --- sensors -----------------------------------------------------------------------
+    def sensor(self, name: str = "", kind: str = "bearing_range",
+               pose: tuple[float, float, float] | None = None, R: np.ndarray | None = None) -> Sensor:
+        """The resolved sensor ``name`` for frames of ``kind``: defaults, then its
+        ``[sensors.NAME]`` table, then the frame's ``pose`` / ``R`` (``tracker.models.sensors``)."""
+        measurement_kind(kind)
+        spec = self.sensors.get(name) or SensorSpec()
+        if spec.kind is not None and spec.kind != kind:
+            raise ValueError(f"sensor {name!r} is declared kind {spec.kind!r} but its frame has kind {kind!r}")
         k = np.sqrt(self.noise_scale)
-        if kind == "bearing_range":
-            return BearingRange(np.deg2rad(self.sigma_bearing_deg) * k, self.sigma_range * k)
-        if kind == "range":
-            return RangeOnly(self.sigma_range * k, half_fov=float(np.deg2rad(self.bearing_half_fov_deg)))
-        raise ValueError(f"unknown sensor kind {kind!r}")
-
-    def clutter(self, kind: str = "bearing_range") -> UniformClutter:
-        half = np.deg2rad(self.bearing_half_fov_deg)
-        if kind == "bearing_range":
-            return UniformClutter(self.clutter_rate, (-half, 0.0), (half, self.range_max))
-        if kind == "range":
-            rate = self.clutter_rate if self.range_clutter_rate is None else self.range_clutter_rate
-            return UniformClutter(rate, (0.0,), (self.range_max,))
-        raise ValueError(f"unknown sensor kind {kind!r}")
-
-    def detection(self, kind: str = "bearing_range") -> Detection:
-        half = np.deg2rad(self.bearing_half_fov_deg)
-        return Detection(
-            self.p_detect,
-            self.range_max,
-            -half,
-            half,
-            snr_db=self.snr_db,
-            snr_reference_db=self.snr_pd_reference_db,
-            range_only=(kind == "range"),
+        x, y, heading = spec.x, spec.y, float(np.deg2rad(spec.heading_deg))
+        if pose is not None:
+            x, y, heading = (float(v) for v in pose)
+        rate = self.clutter_rate
+        if kind == "range" and self.range_clutter_rate is not None:
+            rate = self.range_clutter_rate
+        noise = None if R is None else tuple(tuple(float(v) for v in row) for row in np.asarray(R, dtype=float))
+        return Sensor(
+            name, kind, float(x), float(y), heading, float(spec.range_min),
+            float(self.range_max if spec.range_max is None else spec.range_max),
+            float(np.deg2rad(self.bearing_half_fov_deg if spec.half_fov_deg is None else spec.half_fov_deg)),
+            float(np.deg2rad(self.sigma_bearing_deg if spec.sigma_bearing_deg is None else spec.sigma_bearing_deg) * k),
+            float((self.sigma_range if spec.sigma_range is None else spec.sigma_range) * k),
+            float((self.sigma_xy if spec.sigma_xy is None else spec.sigma_xy) * k),
+            float(self.p_detect if spec.p_detect is None else spec.p_detect),
+            float(rate if spec.clutter_rate is None else spec.clutter_rate),
+            noise,
         )
 
-    def survival(self, x: np.ndarray, kind: str = "bearing_range") -> np.ndarray:
-        """``(N,)`` P_S(x): ``p_survival`` inside the field of view, ``p_survival_outside`` beyond."""
-        inside = self.detection(kind).visible(x)
+    def frame_sensor(self, frame) -> Sensor:
+        """The resolved sensor of a :class:`~tracker.types.Frame` (its name, kind, pose, R)."""
+        return self.sensor(frame.sensor, frame.kind, frame.pose, frame.R)
+
+    def measurement(self, kind: str = "bearing_range", sensor: Sensor | None = None
+                    ) -> BearingRange | RangeOnly | Cartesian:
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        if kind == "bearing_range":
+            return BearingRange(s.sigma_bearing, s.sigma_range, s.x, s.y, s.heading, s.noise)
+        if kind == "range":
+            return RangeOnly(s.sigma_range, s.x, s.y, s.half_fov, s.heading, s.noise)
+        return Cartesian(s.sigma_xy, s.x, s.y, s.heading, s.noise)
+
+    def clutter(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> UniformClutter | SectorClutter:
+        """Clutter uniform over the sensor's field of view, in its measurement space."""
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        if kind == "bearing_range":
+            return UniformClutter(s.clutter_rate, (-s.half_fov, s.range_min), (s.half_fov, s.range_max))
+        if kind == "range":
+            return UniformClutter(s.clutter_rate, (s.range_min,), (s.range_max,))
+        return SectorClutter(s.clutter_rate, s.range_min, s.range_max, s.half_fov, s.x, s.y, s.heading)
+
+    def detection(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> Detection:
+        s = self.sensor(kind=kind) if sensor is None else sensor
+        return Detection(
+            s.p_detect,
+            s.range_max,
+            -s.half_fov,
+            s.half_fov,
+            snr_db=self.snr_db,
+            snr_reference_db=self.snr_pd_reference_db,
+            sensor_x=s.x,
+            sensor_y=s.y,
+            range_only=(kind == "range"),
+            heading=s.heading,
+            range_min=s.range_min,
+        )
+
+    def survival(self, x: np.ndarray, kind: str = "bearing_range", sensor: Sensor | None = None) -> np.ndarray:
+        """``(N,)`` P_S(x): ``p_survival`` inside the surveillance region, ``p_survival_outside``
+        beyond.  The region is the field of view of the frame's sensor united with those of the
+        declared ``[sensors.*]`` (several sensors share one tracker state)."""
+        inside = self.detection(kind, sensor).visible(x)
+        for name, spec in self.sensors.items():
+            if sensor is None or name != sensor.name:
+                k = spec.kind or kind
+                inside = inside | self.detection(k, self.sensor(name, k)).visible(x)
         return np.where(inside, self.p_survival, self.p_survival_outside)
+
+    def survival_over(self, x: np.ndarray, dt: float, kind: str = "bearing_range",
+                      sensor: Sensor | None = None) -> np.ndarray:
+        r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
+        ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
+        ps = self.survival(x, kind, sensor)
+        return ps if dt == self.T else ps ** (dt / self.T)
 
 
 BUILTIN_PARAMS = ("vo2017", "paper")
@@ -135,14 +196,78 @@ def builtin_params_path(name: str) -> Path:
 
 
 def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:
-    """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides."""
+    """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides.
+
+    A file names only what it changes: ``extends = "vo2017"`` (a built-in name or another
+    file, relative to this one) starts from that set, and without ``extends`` from the
+    defaults of :class:`ModelParams`; ``name`` defaults to the file's stem.  Top-level keys
+    replace the base's (``birth`` regions are inherited unless the file gives ``birth``), and
+    ``[sensors.NAME]`` tables are merged per sensor.  An unknown key fails with a
+    "did you mean".
+    """
     text = str(source)
     if text in BUILTIN_PARAMS:
         params = load_toml(builtin_params_path(text), ModelParams)
     elif text.endswith(".toml") or Path(text).exists():
-        params = load_toml(text, ModelParams)
+        params = convert(_file_data(Path(text), ()), ModelParams, text)
     else:
         raise ConfigError(
             f"--params {text!r}: not a built-in set ({', '.join(BUILTIN_PARAMS)}) nor a .toml file"
         )
     return apply_overrides(params, overrides)
+
+
+def _file_data(path: Path, seen: tuple[Path, ...]) -> dict:
+    """The plain data of a params file with its ``extends`` chain resolved (see :func:`load_params`)."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    check_keys(data, str(path))
+    base_name = data.pop("extends", None)
+    data.setdefault("name", path.stem)
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str):
+        raise ConfigError(f"{path}: extends must be a parameter set name or a .toml path")
+    if base_name in BUILTIN_PARAMS:
+        base = msgspec.to_builtins(load_toml(builtin_params_path(base_name), ModelParams))
+    else:
+        base_path = (path.parent / base_name).resolve()
+        if base_path in seen:
+            raise ConfigError(f"{path}: extends cycle through {base_path}")
+        if not base_path.exists():
+            raise ConfigError(f"{path}: extends {base_name!r}: not a built-in set "
+                              f"({', '.join(BUILTIN_PARAMS)}) nor an existing file")
+        base = _file_data(base_path, seen + (path.resolve(),))
+    sensors = {**base.get("sensors", {})}
+    for name, table in data.get("sensors", {}).items():
+        sensors[name] = {**sensors.get(name, {}), **table}
+    merged = {**base, **data}
+    if sensors:
+        merged["sensors"] = sensors
+    return merged
+
+
+_PARAM_KEYS = tuple(ModelParams.__struct_fields__) + ("extends",)
+_SENSOR_KEYS = tuple(SensorSpec.__struct_fields__)
+
+
+def check_keys(data: dict, origin: str) -> None:
+    """Reject unknown keys of a params file with the closest known one (difflib)."""
+    for key in data:
+        if key not in _PARAM_KEYS:
+            raise ConfigError(f"{origin}: unknown key '{key}'{did_you_mean(key, _PARAM_KEYS)} "
+                              f"(docs/models.md lists the keys)")
+    sensors = data.get("sensors", {})
+    if not isinstance(sensors, dict):
+        raise ConfigError(f"{origin}: sensors must be tables [sensors.NAME]")
+    for name, table in sensors.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{origin}: sensors.{name} must be a table [sensors.{name}]")
+        for key in table:
+            if key not in _SENSOR_KEYS:
+                raise ConfigError(f"{origin}: unknown key 'sensors.{name}.{key}'{did_you_mean(key, _SENSOR_KEYS)} "
+                                  f"(known: {', '.join(_SENSOR_KEYS)})")

@@ -1,0 +1,63 @@
+"""Params files name only what they change (issue 13, item 5)."""
+
+from __future__ import annotations
+
+import pytest
+
+from tracker.config import ConfigError, apply_overrides
+from tracker.models.params import BirthComponent, load_params
+
+
+def _write(tmp_path, name, text):
+    f = tmp_path / name
+    f.write_text(text)
+    return str(f)
+
+
+def test_extends_builtin_names_only_the_change(tmp_path):
+    p = load_params(_write(tmp_path, "mine.toml", 'extends = "vo2017"\np_detect = 0.9\n'))
+    vo = load_params("vo2017")
+    assert p.name == "mine" and p.p_detect == 0.9
+    assert p.clutter_rate == vo.clutter_rate and p.sigma_range == vo.sigma_range
+    # paper differs from the struct defaults: extends picks up its values
+    q = load_params(_write(tmp_path, "q.toml", 'extends = "paper"\nclutter_rate = 3.0\n'))
+    assert q.sigma_accel == load_params("paper").sigma_accel == 15.0 and q.clutter_rate == 3.0
+    # no extends, no name: the struct defaults and the file's stem
+    assert load_params(_write(tmp_path, "bare.toml", "clutter_rate = 2.0\n")).name == "bare"
+
+
+def test_birth_regions_inherited_unless_replaced(tmp_path):
+    base = _write(tmp_path, "base.toml", 'name = "b"\n[[birth]]\nr = 0.1\nmean = [0.0, 0.0, 500.0, 0.0, 0.0]\n'
+                  'std = [50.0, 10.0, 50.0, 10.0, 0.1]\n[sensors.radar]\nx = 5.0\nheading_deg = 90.0\n')
+    child = load_params(_write(tmp_path, "child.toml", 'extends = "base.toml"\nclutter_rate = 4.0\n'
+                               '[sensors.radar]\ny = 7.0\n'))
+    assert child.birth == [BirthComponent(0.1, [0.0, 0.0, 500.0, 0.0, 0.0], [50.0, 10.0, 50.0, 10.0, 0.1])]
+    assert child.name == "child" and child.clutter_rate == 4.0
+    s = child.sensors["radar"]
+    assert (s.x, s.y, s.heading_deg) == (5.0, 7.0, 90.0)  # sensor tables merge per key
+    replaced = load_params(_write(tmp_path, "r.toml", 'extends = "base.toml"\nbirth = []\n'))
+    assert replaced.birth == []
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("p_detet = 0.9\n", "unknown key 'p_detet' (did you mean 'p_detect'?)"),
+    ("clutter_rat = 3.0\n", "did you mean 'clutter_rate'?"),
+    ('[sensors.radar]\nheadng_deg = 10.0\n', "unknown key 'sensors.radar.headng_deg' (did you mean 'heading_deg'?)"),
+    ('extends = "vo2018"\n', "extends 'vo2018': not a built-in set"),
+])
+def test_unknown_key_did_you_mean(tmp_path, text, fragment):
+    with pytest.raises(ConfigError) as ei:
+        load_params(_write(tmp_path, "bad.toml", text))
+    assert fragment in str(ei.value)
+
+
+def test_set_did_you_mean():
+    with pytest.raises(ConfigError, match="did you mean 'sigma_range'"):
+        apply_overrides(load_params("vo2017"), ["sigma_rang=3"])
+
+
+def test_extends_cycle(tmp_path):
+    _write(tmp_path, "a.toml", 'extends = "b.toml"\n')
+    _write(tmp_path, "b.toml", 'extends = "a.toml"\n')
+    with pytest.raises(ConfigError, match="extends cycle"):
+        load_params(str(tmp_path / "a.toml"))

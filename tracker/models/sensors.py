@@ -1,0 +1,72 @@
+r"""Sensor geometry as data: kind, pose, field of view and noise of each sensor.
+
+A sensor is declared in a parameter file as a ``[sensors.NAME]`` table (:class:`SensorSpec`),
+keyed by ``Frame.sensor``; a frame may also carry its own ``pose`` and ``R``.  Resolution
+(:meth:`tracker.models.params.ModelParams.sensor`), later wins:
+
+1. the parameter set's defaults: the origin, boresight :math:`+y`, ``range_max``,
+   ``bearing_half_fov_deg``, the sigmas, ``p_detect``, ``clutter_rate`` (today's sensor);
+2. the ``[sensors.NAME]`` table of the frame's sensor;
+3. the frame's ``pose = (x, y, heading)`` and ``R``.
+
+The result, :class:`Sensor`, is a small frozen (hashable) dataclass from which the parameter
+set builds the measurement, clutter and detection models.  The heading is measured like
+bearings, from :math:`+y` towards :math:`+x`, in radians here and in degrees in the TOML.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Annotated
+
+import msgspec
+
+Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+
+
+class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One ``[sensors.NAME]`` table of a parameter file (every field optional)."""
+
+    kind: str | None = None
+    """``bearing_range``, ``range`` or ``xy``: frames of this sensor must have this kind."""
+    x: float = 0.0
+    y: float = 0.0
+    heading_deg: float = 0.0
+    """Boresight direction, degrees from +y towards +x."""
+    range_min: NonNeg = 0.0
+    range_max: Positive | None = None
+    half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] | None = None
+    sigma_bearing_deg: Positive | None = None
+    sigma_range: Positive | None = None
+    sigma_xy: Positive | None = None
+    p_detect: Prob | None = None
+    clutter_rate: NonNeg | None = None
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A resolved sensor (SI units, radians; noise sigmas already SNR-scaled).
+
+    ``noise``: the frame's ``R`` as nested tuples (replaces the sigmas), or ``None``.
+    """
+
+    name: str
+    kind: str
+    x: float
+    y: float
+    heading: float
+    range_min: float
+    range_max: float
+    half_fov: float
+    sigma_bearing: float
+    sigma_range: float
+    sigma_xy: float
+    p_detect: float
+    clutter_rate: float
+    noise: tuple[tuple[float, ...], ...] | None = None
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        return (self.x, self.y, self.heading)
