@@ -241,7 +241,7 @@ def selftest() -> int:
     frames = _tiny_scene(params)
     phd = PhdSettings()
     for name in ANCHORS:
-        a = make_anchor(name, params, phd, JpdaSettings(min_points=3))
+        a = make_anchor(name, params, phd, JpdaSettings())
         outs = [a.step(f) for f in frames]
         last, truth = outs[-1], frames[-1].truth.positions[0]
         near = [lab for lab, p in last if np.linalg.norm(p - truth) < 25.0]
