@@ -59,7 +59,7 @@ class PhdSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Mahalanobis gate (not squared) in measurement space."""
     prune: Pos = 1e-4
     """Components below this weight are pruned."""
-    merge: Pos = 4.0
+    merge: Pos = 25.0
     """Squared Mahalanobis distance below which components merge."""
     max_components: Annotated[int, msgspec.Meta(ge=1)] = 100
     extract: Prob = 0.5
@@ -72,18 +72,18 @@ class JpdaSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ehm: bool = True
     """Use ``JPDAwithEHM`` (the same exact JPDA marginals by Efficient Hypothesis Management)
     instead of ``JPDA``, which enumerates every joint hypothesis over all tracks."""
-    prob_gate: Prob = 0.9999
+    prob_gate: Prob = 0.99
     """PDA gate probability (the gate is the matching chi-square quantile)."""
-    init_vel_std: Pos = 20.0
+    init_vel_std: Pos = 10.0
     """Velocity std (m/s) of a tentative track's prior (mean velocity 0)."""
     init_turn_std_deg: Pos = 2.0
     init_gate: Pos = 3.0
     """Mahalanobis gate (not squared) of the initiator's GNN association."""
-    min_points: Annotated[int, msgspec.Meta(ge=1)] = 4
+    min_points: Annotated[int, msgspec.Meta(ge=1)] = 3
     """Updates a tentative track needs before it is confirmed."""
     init_delete_steps: Annotated[int, msgspec.Meta(ge=1)] = 1
     """A tentative track without an update for this many scans is dropped."""
-    delete_steps: Annotated[int, msgspec.Meta(ge=1)] = 3
+    delete_steps: Annotated[int, msgspec.Meta(ge=1)] = 2
     """A confirmed track without an update for this many scans is deleted."""
     delete_covar_trace: Pos = 1e5
     """A confirmed track whose position covariance trace (m^2) exceeds this is deleted."""

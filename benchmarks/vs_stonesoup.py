@@ -241,7 +241,7 @@ def selftest() -> int:
     frames = _tiny_scene(params)
     phd = PhdSettings()
     for name in ANCHORS:
-        a = make_anchor(name, params, phd, JpdaSettings(min_points=3))
+        a = make_anchor(name, params, phd, JpdaSettings())
         outs = [a.step(f) for f in frames]
         last, truth = outs[-1], frames[-1].truth.positions[0]
         near = [lab for lab, p in last if np.linalg.norm(p - truth) < 25.0]
@@ -284,7 +284,11 @@ def main(argv=None) -> int:
     jobs = [Job(n, args.scenario, s, args.params, tuple(args.param_sets), tuple(args.tracker_set),
                 tuple(args.anchor_set)) for s in seeds for n in names]
     with ProcessPoolExecutor(args.workers) as pool:
-        results = list(pool.map(run_job, jobs))
+        results = []
+        for r in pool.map(run_job, jobs):
+            results.append(r)
+            print(f"{len(results)}/{len(jobs)} {r['tracker']} seed {r['seed']}: OSPA {r['ospa']:.2f}",
+                  file=sys.stderr, flush=True)
     summary = summarise(results, names)
     print_table(summary, f"scenario {args.scenario}, params {args.params}, seeds {seeds.start}..{seeds.stop - 1}, "
                          f"--set {args.param_sets or 'none'}, tracker overrides {args.tracker_set or 'none'}, "
