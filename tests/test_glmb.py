@@ -496,7 +496,7 @@ def test_adaptive_birth_from_hypothesis_weights(vo_params):
     np.testing.assert_allclose(mg.p_used, [0.9, 0.3], rtol=1e-12)
     z = np.array([[0.3, 800.0], [-0.2, 1200.0]])
     st = GlmbState(birth_frame=4, birth_kind="bearing_range", birth_z=z, birth_r_u=mg.p_used)
-    tr = make_glmb(vo_params, GlmbConfig(birth_model="adaptive", birth_rate=0.5, birth_r_max=0.9))
+    tr = make_glmb(vo_params, GlmbConfig(birth_model="adaptive", adaptive_birth_rate=0.5, birth_r_max=0.9))
     b = tr._births(st, _frame(5, np.zeros((0, 2))), 1.0)
     # unassigned (0.1, 0.7), sum 0.8: r_B = 0.5 * (0.125, 0.875) = (0.0625, 0.4375)
     np.testing.assert_allclose(b.r, [0.0625, 0.4375], rtol=1e-12)
@@ -513,7 +513,7 @@ def test_adaptive_birth_from_hypothesis_weights(vo_params):
     # the static model ignores them; "auto" is static with regions, adaptive without
     assert make_glmb(vo_params)._births(st, _frame(5, np.zeros((0, 2))), 1.0).labels == tuple(f"5.{i}" for i in range(4))
     assert make_glmb(vo_params, GlmbConfig(birth=[])).birth_model == "adaptive"
-    both = make_glmb(vo_params, GlmbConfig(birth_model="both", birth_rate=0.5))
+    both = make_glmb(vo_params, GlmbConfig(birth_model="both", adaptive_birth_rate=0.5))
     assert both._births(st, _frame(5, np.zeros((0, 2))), 1.0).labels == tuple(f"5.{i}" for i in range(4)) + ("5.z0", "5.z1")
 
 

@@ -99,7 +99,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``"static"``: the birth regions only; ``"adaptive"``: measurement-driven births only
     (Reuter et al. 2014); ``"both"``; ``"auto"``: ``"adaptive"`` when there are no birth
     regions, else ``"static"`` (``docs/glmb.md`` measures the choice)."""
-    birth_rate: PosFloat = 0.2
+    adaptive_birth_rate: PosFloat = 0.2
     r"""Adaptive birth: :math:`\lambda_B`, the expected number of new objects per scan, spread
     over the previous scan's measurements by how unlikely each was to be assigned."""
     birth_r_max: OpenProb = 0.5
@@ -876,7 +876,7 @@ class GlmbTracker:
         (:func:`measurement_state_prior` of the sensor's ``to_cartesian``) predicted to this
         frame with the motion model over ``dt`` (that frame is the last processed one)."""
         cfg = self.config
-        idx, r = adaptive_birth_existence(state.birth_r_u, cfg.birth_rate, cfg.birth_r_max,
+        idx, r = adaptive_birth_existence(state.birth_r_u, cfg.adaptive_birth_rate, cfg.birth_r_max,
                                           cfg.max_births, cfg.birth_min_share)
         if state.birth_frame < 0 or idx.size == 0:
             return _Births((), np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM)))

@@ -78,8 +78,9 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     addition to the birth regions of ``birth`` (whose ``r`` are their own expected births per
     scan); ``None``: :data:`DEFAULT_BIRTH_RATE`, or the scenario's (``anywhere_birth_rate``).
     The uninformative part of the birth model: the BNP trackers' base distribution H weighs
-    its uniform part by ``rate / (rate + sum r)`` (1 without regions), and the GLMB's adaptive
-    birth uses it as ``lambda_B``.  0 allows births only at the birth regions."""
+    its uniform part by ``rate / (rate + sum r)`` (1 without regions); the DP's alpha then
+    learns the actual rate.  (The GLMB's adaptive birth has its own ``lambda_B``,
+    ``GlmbConfig.adaptive_birth_rate``.)  0 allows births only at the birth regions."""
     birth: list[BirthComponent] = msgspec.field(default_factory=list)
     sensors: dict[str, SensorSpec] = msgspec.field(default_factory=dict)
     """``[sensors.NAME]`` tables: pose, field of view and noise of the sensor whose frames
