@@ -462,6 +462,15 @@ class Launcher:
                         result.error = (f"stage {sp.role}: configuration error: {sp.error_line()} "
                                         f"(log: {sp.log_path})")
                         return
+                    settled = self._needless_restart(sp, what)
+                    if settled == "done":
+                        sp.state = "done"
+                        continue
+                    if settled:
+                        sp.state = "failed"
+                        result.error = settled
+                        result.gave_up = sp.role
+                        return
                     if sp.restarts >= sup.max_restarts:
                         sp.state = "failed"
                         result.error = (f"stage {sp.role} crashed ({what}) and was restarted "
@@ -498,6 +507,27 @@ class Launcher:
                     result.error = data_error
                     return
 
+    def _needless_restart(self, sp: StageProcess, what: str) -> str:
+        """Whether a crashed stage must not be restarted: ``"done"`` when the run is complete
+        without it (it was killed after the sink had recorded everything), an error when its
+        output can no longer be completed (the sink, killed before it had recorded the run,
+        after every other stage had left: nothing would send it the history), ``""`` to
+        restart it."""
+        others = [o for o in self.stages if o is not sp]
+        sinks = [o for o in others if o.role == "sink"]
+        if sp.role != "sink":
+            if (sinks and all(o.state == "done" for o in sinks)) or (not sinks and all(o.state == "done" for o in others)):
+                self.echo(f"stage {sp.role} (pid {sp.pid}) was {what} after the run was recorded: done")
+                return "done"
+            return ""
+        if not all(o.state == "done" for o in others):
+            return ""  # a restarted sink records the run, or announces again that it has
+        if _recorded(self.out / SUMMARY_NAME, self.cfg.run):
+            self.echo(f"stage sink (pid {sp.pid}) was {what} after it had recorded the complete run: done")
+            return "done"
+        return (f"stage sink was {what} after every other stage had finished: nothing can resend "
+                f"it the run, so its output is incomplete (log: {sp.log_path})")
+
     def _stop_all(self) -> None:
         running = [sp for sp in self.stages if sp.alive()]
         if not running:
@@ -516,6 +546,21 @@ class Launcher:
             if sp.state == "running":
                 sp.state = "stopped"
         self._write_stages()
+
+
+def _recorded(summary_path: Path, run: str) -> bool:
+    """Whether ``sink.json`` says the sink recorded the whole run ``run`` (then finishes
+    renaming its outputs, should it have been killed in between)."""
+    from pipeline.stages import commit_parts
+
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(summary, dict) or summary.get("run") != run or not summary.get("complete"):
+        return False
+    commit_parts(summary.get("files") or [])
+    return True
 
 
 def _ranges(seqs: Sequence[int], limit: int = 8) -> str:

@@ -520,6 +520,7 @@ class Snapshot(msgspec.Struct, kw_only=True):
     time_ns: int = 0
     last_stamp_ns: int | None = None
     rejected: list[int] = []
+    eos: EndOfStream | None = None  # set once the tracker has finished the run
 
 
 def read_snapshot(path: str | os.PathLike) -> Snapshot:
@@ -532,6 +533,50 @@ def read_snapshot(path: str | os.PathLike) -> Snapshot:
     if snap.format != SNAPSHOT_FORMAT:
         raise ConfigError(f"{path}: snapshot format {snap.format} is not supported ({SNAPSHOT_FORMAT})")
     return snap
+
+
+def part_path(path: str | os.PathLike) -> Path:
+    """Where the sink writes the output ``path`` until the run ends: ``.<name>.part`` beside
+    it.  The final name appears only by :func:`commit_parts`, after ``sink.json``, so a
+    finished output is never reopened (truncated) by a restarted sink."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.part")
+
+
+def sync_parts(paths: Iterable[str | os.PathLike]) -> None:
+    """fsync the ``.part`` file of each output that has one."""
+    for p in paths:
+        try:
+            fd = os.open(part_path(p), os.O_RDONLY)
+        except FileNotFoundError:
+            continue
+        _fsync_and_close([fd])
+
+
+def commit_parts(paths: Iterable[str | os.PathLike]) -> None:
+    """Rename each output's ``.part`` file (closed, on disk) to its final name (atomic)."""
+    paths = list(paths)
+    done = False
+    for p in paths:
+        part = part_path(p)
+        if part.exists():
+            os.replace(part, p)
+            done = True
+    if done:
+        _fsync_dir(Path(next(iter(paths))).parent)
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        dfd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:
+        pass
+    finally:
+        os.close(dfd)
 
 
 # --------------------------------------------------------------------------- context
@@ -641,12 +686,28 @@ class _StageBase:
             self.health()
         return want <= set(self.eos_seen)
 
-    def linger_until_alone(self, timeout: float) -> None:
+    def serve_until_done_or_alone(self, stages: Iterable[str], at_least: float = 1.0) -> None:
+        """Like :meth:`wait_done`, but also return once no other stage of the run is alive
+        (after ``at_least`` seconds: a new session has not seen the others' tokens yet): a
+        stage restarted after the others left has nobody to wait for."""
+        want = set(stages)
+        t0 = time.monotonic()
+        while not self.ctx.stop.is_set() and not want <= set(self.eos_seen):
+            if time.monotonic() - t0 >= at_least and not (self.bus.alive() - {self.name}):
+                return
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self.on_control(ev)
+            self.health()
+
+    def linger_until_alone(self, timeout: float, at_least: float = 0.0) -> None:
         """Keep the session open until no other stage of the run is alive (so that our
-        last messages are delivered), at most ``timeout`` seconds."""
-        deadline = time.monotonic() + timeout
+        last messages are delivered), at most ``timeout`` seconds; ``at_least`` seconds in
+        any case (a session just opened has not seen the others' tokens yet)."""
+        t0 = time.monotonic()
+        deadline = t0 + timeout
         while time.monotonic() < deadline and not self.ctx.stop.is_set():
-            if not (self.bus.alive() - {self.name}):
+            if not (self.bus.alive() - {self.name}) and time.monotonic() - t0 >= at_least:
                 return
             ev = self.bus.recv(0.05)
             if ev is not None:
@@ -850,6 +911,7 @@ class TrackerStage(_StageBase):
         self.last_progress = time.monotonic()
         self.step_ms: deque = deque(maxlen=10_000)
         self.writer = BackgroundWriter()
+        self.finished_eos: EndOfStream | None = None
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -879,6 +941,7 @@ class TrackerStage(_StageBase):
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
+        self.finished_eos = snap.eos
         log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
                  snap.last_seq, snap.last_frame)
 
@@ -959,7 +1022,7 @@ class TrackerStage(_StageBase):
             last_stamp_ns=self.last_stamp_ns, rejected=list(self.rejected_seqs),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
-            time_ns=time.time_ns(),
+            time_ns=time.time_ns(), eos=self.finished_eos,
         )
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         fd = self.journal.dup_fd()
@@ -1017,6 +1080,8 @@ class TrackerStage(_StageBase):
         if history:
             log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(history))
         del history  # free the payloads (run() lasts as long as the run)
+        if self.finished_eos is not None:  # restarted after it had finished the run
+            return self._end_again()
         bus.subscribe(["measurements", "info/*", "eos/*"])
         bus.declare_alive()
         finished = False
@@ -1048,11 +1113,12 @@ class TrackerStage(_StageBase):
                             self._process(self.seq.flush_through(eos.last_seq))
                     if self.seq.complete_through(eos.last_seq):
                         finished = True
-                        self.snapshot(wait=True)
-                        self.publish_control("eos", EndOfStream(
+                        self.finished_eos = EndOfStream(
                             stage=self.name, run=self.run_id, last_seq=eos.last_seq,
                             frames=self.counters.processed, gaps=list(self.seq.gaps),
-                            rejected=list(self.rejected_seqs), error=eos.error))
+                            rejected=list(self.rejected_seqs), error=eos.error)
+                        self.snapshot(wait=True)
+                        self.publish_control("eos", self.finished_eos)
                         log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
                                  self.counters.processed, len(self.seq.gaps),
                                  ", ".join(self.tc.done_by) or "nobody")
@@ -1066,6 +1132,21 @@ class TrackerStage(_StageBase):
             finally:
                 self.journal.close()
                 self.health(force=True, extra=self._extra_health)
+
+
+    def _end_again(self) -> int:
+        """A tracker restarted after it finished: its journal is in the cache again; announce
+        the end of stream again and serve until the sink is done (or nobody is left)."""
+        log.info("%s: the snapshot records the finished run (last seq %d): announcing its end again",
+                 self.name, self.finished_eos.last_seq)
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare_alive()
+        self.publish_control("eos", self.finished_eos)
+        try:
+            self.serve_until_done_or_alone(self.tc.done_by)
+        finally:
+            self.journal.close()
+        return EXIT_OK
 
 
 def _far_reason(seq: Sequencer, s: int) -> str:
@@ -1163,7 +1244,7 @@ class SinkStage(_StageBase):
             from sources.mcap_log import McapLogWriter
 
             path = out / self.sc.mcap_name
-            self.writer = McapLogWriter(path, meta if meta is not None else {"run": self.run_id})
+            self.writer = McapLogWriter(part_path(path), meta if meta is not None else {"run": self.run_id})
             self.files.append(str(path))
         else:
             self.writer = _NullWriter()
@@ -1189,7 +1270,7 @@ class SinkStage(_StageBase):
         except Exception:  # the viewer falls back to its default field of view
             params = None
         try:
-            self.rrd = mod.RerunSink(path, recording_id=self.run_id, metadata=meta or {}, params=params,
+            self.rrd = mod.RerunSink(part_path(path), recording_id=self.run_id, metadata=meta or {}, params=params,
                                      handle_signals=False)
             self.scorer = mod.RunScorer()
             self.files.append(str(path))
@@ -1422,7 +1503,9 @@ class SinkStage(_StageBase):
         }
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         path = self.ctx.out / SUMMARY_NAME
+        sync_parts(self.files)  # the outputs are on disk before the summary says they are done
         write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
+        commit_parts(self.files)
         self.files.append(str(path))
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
@@ -1450,8 +1533,40 @@ class SinkStage(_StageBase):
             add(name, seqs, "for another frame than its /measurements (dropped)")
         return out
 
+    def finished_before(self) -> dict | None:
+        """The ``sink.json`` of this run when an earlier sink process recorded the whole run
+        (``complete``): a sink restarted after that (killed while it lingered) must not
+        reopen, i.e. truncate, the finished files.  Renames what that process left as
+        ``.part`` (killed between ``sink.json`` and the renames)."""
+        try:
+            summary = msgspec.json.decode((self.ctx.out / SUMMARY_NAME).read_bytes())
+        except (OSError, msgspec.DecodeError):
+            return None
+        if not isinstance(summary, dict) or summary.get("run") != self.run_id or not summary.get("complete"):
+            return None
+        commit_parts(summary.get("files") or [])
+        return summary
+
+    def _end_again(self, summary: dict) -> int:
+        """Announce the recorded end of stream again (for stages still waiting for it)."""
+        log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
+                 self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare([f"eos/{self.name}"])
+        self.bus.declare_alive()
+        gaps = sorted({int(g) for v in (summary.get("gaps") or {}).values() for g in v})
+        self.publish_control("eos", EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=int(summary.get("last_seq", -1)),
+            frames=int(summary.get("frames_written", 0)), gaps=gaps,
+            error=summary.get("source_error") or "", files=list(summary.get("files") or [])))
+        self.linger_until_alone(self.cfg.supervisor.linger_s, at_least=1.0)
+        return EXIT_OK
+
     def run(self) -> int:
         bus = self.bus
+        done = self.finished_before()
+        if done is not None:
+            return self._end_again(done)
         _warm_imports("sources.mcap_log", "pipeline.offline")
         if self.sc.rerun:
             _rerun_sink_module()
