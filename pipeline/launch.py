@@ -364,24 +364,35 @@ class Launcher:
         if z.embedded_router:
             from pipeline.transport import Router
 
-            if z.acl and not z.users_file:
-                # one random password per stage (and one for the launcher's monitor), given
-                # to each process in its environment only
-                import secrets
-
-                self.credentials = {name: secrets.token_urlsafe(18) for name in [*cfg.stages, "launcher"]}
-                users = self.out / "zenoh-users.txt"
-                fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-                with os.fdopen(fd, "w") as f:
-                    f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
-                z = msgspec.structs.replace(z, users_file=str(users))
-            self.router = Router(z)
+            generated = (z.acl or (z.auth and z.mode == "client")) and not z.users_file
+            if generated:
+                z = self._credentials(z)
+            try:
+                self.router = Router(z)
+            finally:
+                if generated:  # the router has read it; the stages get theirs by environment
+                    Path(z.users_file).unlink(missing_ok=True)
+                    z = msgspec.structs.replace(z, users_file="")
             connect = self.router.connect_endpoints
             z = msgspec.structs.replace(z, embedded_router=False, connect=connect)
         elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
         return msgspec.structs.replace(cfg, zenoh=z)
+
+    def _credentials(self, z: Any) -> Any:
+        """Per-run credentials: one random password per stage (and one for the launcher's
+        monitor), given to each process in its environment only, and the ACL that lets each
+        stage put only on its own keys.  The users file (mode 0600) lives only until the
+        router has read it."""
+        import secrets
+
+        self.credentials = {name: secrets.token_urlsafe(18) for name in [*self.cfg.stages, "launcher"]}
+        users = self.out / ".zenoh-users.txt"
+        fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
+        return msgspec.structs.replace(z, users_file=str(users), acl=True)
 
     def _open_monitor(self, cfg: PipelineConfig) -> None:
         from pipeline.transport import Bus

@@ -240,6 +240,51 @@ class Sequencer:
         return len(self.buf)
 
 
+class HoleWatch:
+    """Says when to fetch what a stream misses: its next expected seq has not moved for
+    ``after`` seconds while later frames wait in the buffer (the transport's history or
+    recovery did not bring it); then again every ``after`` seconds."""
+
+    def __init__(self, after: float) -> None:
+        self.after = after
+        self.next = -1
+        self.since = time.monotonic()
+
+    def due(self, seqr: Sequencer) -> bool:
+        now = time.monotonic()
+        if seqr.next != self.next:
+            self.next, self.since = seqr.next, now
+            return False
+        if seqr.pending and now - self.since >= self.after:
+            self.since = now
+            return True
+        return False
+
+
+def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Callable[[Any], None]) -> int:
+    """Fetch explicitly from the publisher's cache (:meth:`pipeline.transport.Bus.fetch`) the
+    frames of ``topic`` that ``seqr`` still misses up to ``upto``, and hand each to
+    ``on_event`` (validated like any sample).  Returns how many came back (0 without a
+    fetch-capable bus or when nothing is missing)."""
+    fetch = getattr(bus, "fetch", None)
+    if fetch is None or upto < seqr.next:
+        return 0
+    hi = next((s for s in range(upto, seqr.next - 1, -1) if s not in seqr.buf), None)
+    if hi is None:
+        return 0
+    events = fetch(topic, seqr.next, hi)
+    for ev in events:
+        on_event(ev)
+    if events:
+        log.info("%s: fetched %d %s sample(s) in %d-%d from the publisher's cache", bus.stage, len(events),
+                 topic, seqr.next, hi)
+    return len(events)
+
+
+#: Seconds a stream's next frame may be missing, with later ones waiting, before it is fetched.
+FETCH_AFTER_S = 1.0
+
+
 # --------------------------------------------------------------------------- counters
 
 
@@ -912,6 +957,7 @@ class TrackerStage(_StageBase):
         self.step_ms: deque = deque(maxlen=10_000)
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
+        self.holes = HoleWatch(FETCH_AFTER_S)
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -1102,12 +1148,15 @@ class TrackerStage(_StageBase):
                     else:
                         log.debug("%s: ignoring %s", self.name, ev.topic)
                 self.health(extra=self._extra_health)
+                if self.tracker is not None and self.holes.due(self.seq):
+                    fetch_holes(bus, "measurements", self.seq, max(self.seq.buf), self._on_data)
                 eos = self.eos_seen.get(src_name)
                 if eos is not None and self.tracker is not None and not finished:
                     if not self.seq.complete_through(eos.last_seq):
                         # grace counts from the later of the last progress and the end of stream
                         idle = time.monotonic() - max(self.last_progress, self.eos_time[src_name])
-                        if idle >= self.delivery.eos_grace_s and bus.backlog == 0:
+                        if idle >= self.delivery.eos_grace_s and bus.backlog == 0 and \
+                                not fetch_holes(bus, "measurements", self.seq, eos.last_seq, self._on_data):
                             log.warning("%s: end of stream: frames still missing after %.1f s without "
                                         "progress are gaps", self.name, idle)
                             self._process(self.seq.flush_through(eos.last_seq))
@@ -1195,6 +1244,7 @@ class SinkStage(_StageBase):
         if self.sc.tracks:
             self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
+        self.holes = {k: HoleWatch(FETCH_AFTER_S) for k in self.streams}
         self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
         self.next_write = 0
         self.writer = None
@@ -1452,7 +1502,7 @@ class SinkStage(_StageBase):
             if not seq.complete_through(end):
                 # grace counts from the later of the last progress and the end of stream
                 idle = now - max(self.progress[name], self.eos_time[upstream])
-                if idle >= grace and self.bus.backlog == 0:
+                if idle >= grace and self.bus.backlog == 0 and not self._fetch(name, end):
                     log.warning("%s: end of stream: %s still missing after %.1f s without progress "
                                 "are gaps", self.name, name, idle)
                     self._release(name, seq.flush_through(end))
@@ -1460,6 +1510,16 @@ class SinkStage(_StageBase):
                     done = False
         self._drain_ready()
         return done and self.next_write > last
+
+    def _fetch(self, stream: str, upto: int) -> int:
+        """Fetch what ``stream`` misses up to ``upto`` from its publisher's cache.  The truth
+        of a frame sent without truth is not in any cache: its /measurements says so."""
+        return fetch_holes(self.bus, stream, self.streams[stream], upto, self._on_data)
+
+    def _fetch_due(self) -> None:
+        for name, seq in self.streams.items():
+            if self.holes[name].due(seq):
+                self._fetch(name, max(seq.buf))
 
     def _finalize(self, complete: bool) -> None:
         if not complete:
@@ -1586,6 +1646,7 @@ class SinkStage(_StageBase):
                         if not self.on_control(ev):
                             self._on_data(ev)
                 self._drain_ready()
+                self._fetch_due()
                 self.health(extra=self._sink_health)
                 if self._check_end():
                     complete = True

@@ -124,6 +124,40 @@ def test_a_sink_killed_between_its_summary_and_the_renames_is_completed(tmp_path
     assert _digest(mcap) == digest
 
 
+def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guessed(tmp_path):
+    """Issue 17 item 3: frames 3-6 never arrive (neither live nor in the subscribers'
+    history), but their publishers still hold them: the tracker and the sink fetch them
+    explicitly, so there is no gap and the tracks equal the offline run of every frame."""
+    from pipeline.stages import source_frames
+    from tracker.state import run as run_offline
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+
+    cfg = _mem_cfg(tmp_path, frames=12)
+    net = MemoryNetwork()
+    net.fetchable = True
+
+    def tap(run, topic, payload, att):
+        if topic in ("measurements", "truth", "tracks") and att and json.loads(att)["seq"] in (3, 4, 5, 6):
+            return []
+        return [(payload, att)]
+
+    net.tap = tap
+    _memory_run(cfg, net)
+    s = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
+    meta, frames = source_frames(cfg)
+    choice = resolve_params(None, meta)
+    conf, _ = resolve_config("ddp", None)
+    params, conf = apply_split_overrides(choice.params, conf, cfg.tracker.overrides)
+    ests = [e for _, e, _ in run_offline(build_tracker("ddp", params, conf), list(frames), 0)]
+
+    def strip(e):
+        d = {k: v for k, v in e.diagnostics.items() if k != "ms"}
+        return (e.frame, e.labels, e.assignments, d, [(t.state.tolist(), t.existence) for t in e.tracks])
+
+    assert [strip(e) for e in read_log(Path(cfg.out) / "tracks.mcap").tracks] == [strip(e) for e in ests]
+
+
 # --------------------------------------------------------------------------- over Zenoh
 
 
@@ -197,3 +231,97 @@ def test_a_stage_killed_just_after_the_run_was_recorded_leaves_it_complete(tmp_p
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["complete"] and s["frames_written"] == 30 and not s["missing"]
     assert not list(out.glob(".*.part"))
+
+
+# --------------------------------------------------------------------------- closed by default
+
+
+def _forge(endpoint: str, run: str, user: str = "", password: str = "") -> str:
+    """What an outsider on this host achieves: open a client session to the run's router
+    (no credentials, or wrong ones) and put a forged end of stream and a forged frame 10**9.
+    Returns "refused" when the session cannot be opened, else "sent"."""
+    import zenoh
+
+    from pipeline.codec import encode_measurements
+    from tracker.types import Frame
+    import numpy as np
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if user:
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    try:
+        session = zenoh.open(conf)
+    except Exception:
+        return "refused"
+    with session:
+        eos = {"stage": "source", "run": run, "last_seq": 2, "frames": 3}
+        session.put(f"bnptrack/{run}/eos/source", json.dumps(eos).encode())
+        frame = Frame(10**9, 10**18, "x", "bearing_range", np.array([[0.1, 100.0]]))
+        for seq in (3, 4, 5, 10**6):
+            session.put(f"bnptrack/{run}/measurements", encode_measurements(frame, run),
+                        attachment=json.dumps({"seq": seq, "t": 1, "frame": 10**9}).encode())
+    return "sent"
+
+
+@pytest.mark.parametrize("who", ["anonymous", "wrong-password"])
+def test_a_default_launch_refuses_forged_samples_from_other_local_processes(tmp_path, who):
+    """Issue 17, failures 4-7 with the default launch: per-run credentials and the ACL keep
+    an outsider (no credentials, or a stage's name with a wrong password) out; the run ends
+    complete, equal to offline `track`, nothing rejected."""
+    out = tmp_path / "run"
+    run = f"closed-{who}"
+    p = _popen("launch", "--set", "source.frames=40", "--set", "source.rate=20", "--set", "sink.rerun=false",
+               "--set", "tracker.snapshot_every=5", "--run", run, "--out", str(out), "--timeout", "120")
+    try:
+        _wait_for("the tracker never snapshotted", (out / "tracker.snap").exists, p)
+        endpoint = json.loads((out / "pipeline.json").read_text())["zenoh"]["connect"][0]
+        assert endpoint.startswith("tcp/127.0.0.1:")
+        assert not list(out.glob("*users*"))  # the password file is gone once the router read it
+        user, pw = ("", "") if who == "anonymous" else ("source", "not-the-password")
+        assert _forge(endpoint, run, user, pw) == "refused"
+    finally:
+        code, text = _wait(p, 150)
+    assert code == 0, text
+    s = json.loads((out / SUMMARY_NAME).read_text())
+    assert s["complete"] and s["frames_written"] == 40 and s["counters"]["rejected"] == 0
+    assert _tracks(out / "tracks.mcap") == _offline_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
+
+
+def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_tokens(tmp_path):
+    """An authenticated user (the sink's credentials) may not put a forged eos/source or
+    /measurements, nor declare the tracker's ready token."""
+    import zenoh
+
+    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.transport import Bus, Router
+
+    users = tmp_path / "users.txt"
+    users.write_text("source:pw-s\nsink:pw-k\ntracker:pw-t\n")
+    with Router(ZenohConfig(users_file=str(users), acl=True)) as r:
+        def cfg(user, pw):
+            return ZenohConfig(embedded_router=False, connect=r.connect_endpoints, user=user, password=pw)
+
+        with Bus("acl", "tracker", cfg("tracker", "pw-t"), DeliveryConfig()) as tracker, \
+                Bus("acl", "sink", cfg("sink", "pw-k"), DeliveryConfig()) as sink, \
+                Bus("acl", "source", cfg("source", "pw-s"), DeliveryConfig()) as source:
+            tracker.subscribe(["measurements", "eos/*"])
+            # the sink forges: a token named like the tracker, an eos of the source, a frame
+            sink.session.liveliness().declare_token("bnptrack/acl/ready/tracker")
+            sink.session.put("bnptrack/acl/eos/source", b'{"stage":"source","run":"acl","last_seq":1}')
+            sink.session.put("bnptrack/acl/measurements", b"{}", attachment=b'{"seq":0}')
+            sink.declare_alive("ready")  # its own token is allowed
+            source.publish("eos/source", b'{"stage":"source","run":"acl","last_seq":7}')  # the real one
+            deadline = time.monotonic() + 20
+            got = []
+            while time.monotonic() < deadline and not any(e.topic == "eos/source" for e in got):
+                ev = tracker.recv(0.1)
+                if ev is not None:
+                    got.append(ev)
+            assert [json.loads(e.payload)["last_seq"] for e in got if e.topic == "eos/source"] == [7]
+            assert not [e for e in got if e.topic == "measurements"]
+            assert source.wait_alive(["sink"], 10, "ready") == set()
+            assert source.alive("ready") == {"sink"}  # the forged tracker token never appeared
