@@ -66,6 +66,8 @@ __all__ = [
     "EXIT_CONFIG",
     "EXIT_DATA",
     "EXIT_STOPPED",
+    "EXIT_IO",
+    "StageIOError",
     "GAP",
     "NO_TRUTH",
     "Sequencer",
@@ -94,6 +96,20 @@ EXIT_CRASH = 1
 EXIT_CONFIG = 2
 EXIT_DATA = 3
 EXIT_STOPPED = 130
+#: A file could not be written (disk full, I/O error): restarting would not help.
+EXIT_IO = 4
+
+
+class StageIOError(OSError):
+    """A stage could not write one of its files: the message names the stage and the file
+    (``stage sink: cannot write /x/tracks.mcap: [Errno 28] No space left on device``)."""
+
+    def __init__(self, stage: str, path: str | os.PathLike, exc: OSError) -> None:
+        super().__init__(exc.errno, f"stage {stage}: cannot write {path}: {exc}")
+        self.path = str(path)
+
+    def __str__(self) -> str:
+        return self.strerror
 
 SNAPSHOT_NAME = "tracker.snap"
 SUMMARY_NAME = "sink.json"
@@ -448,11 +464,15 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
     ``os.replace``, fsync of the directory."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # disk full, I/O error: leave no temporary file behind
+        tmp.unlink(missing_ok=True)
+        raise
     try:
         dfd = os.open(path.parent, os.O_RDONLY)
     except OSError:
@@ -1049,7 +1069,10 @@ class TrackerStage(_StageBase):
             # the state advances only once its output is out (a snapshot is always consistent)
             self.state, self.last_seq, self.last_frame = state, s, frame.frame
             self.last_stamp_ns = frame.stamp_ns
-            self.journal.append(s, payload, meta)
+            try:
+                self.journal.append(s, payload, meta)
+            except OSError as exc:
+                raise StageIOError(self.name, self.journal.path, exc) from None
             self.counters.processed += 1
             self.counters.published += 1
             self.since_snapshot += 1
@@ -1070,12 +1093,15 @@ class TrackerStage(_StageBase):
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=time.time_ns(), eos=self.finished_eos,
         )
-        self.ctx.out.mkdir(parents=True, exist_ok=True)
-        fd = self.journal.dup_fd()
-        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
-        self.since_snapshot = 0
-        if wait:
-            self.writer.flush()
+        try:
+            self.ctx.out.mkdir(parents=True, exist_ok=True)
+            fd = self.journal.dup_fd()
+            self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
+            self.since_snapshot = 0
+            if wait:
+                self.writer.flush()
+        except OSError as exc:
+            raise StageIOError(self.name, self.snap_path, exc) from None
 
     def _on_data(self, ev: Any) -> None:
         self.counters.received += 1
@@ -1329,6 +1355,12 @@ class SinkStage(_StageBase):
             self.rrd = None
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
+        try:
+            self._write_frame(s, meas, truth, tracks)
+        except OSError as exc:
+            raise StageIOError(self.name, self.ctx.out / self.sc.mcap_name, exc) from None
+
+    def _write_frame(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
         """Record frame ``s``: the payloads go into tracks.mcap as received (they were
         validated on receipt, and they are the codec's bytes: no decoding to numpy and
         re-encoding); the Rerun sink, when on, gets them decoded."""
@@ -1521,6 +1553,28 @@ class SinkStage(_StageBase):
             if self.holes[name].due(seq):
                 self._fetch(name, max(seq.buf))
 
+    def _finalize_or_abandon(self, complete: bool) -> None:
+        try:
+            self._finalize(complete)
+        except OSError as exc:
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sc.mcap_name, exc) from None
+
+    def _abandon(self) -> None:
+        """After a write error (disk full): close what is open, ignoring further errors, and
+        remove the unfinished ``.part`` files (no temporary file is left behind)."""
+        writer, self.writer = self.writer, None
+        for close in (getattr(writer, "close", None), self._close_rrd):
+            try:
+                if close is not None:
+                    close()
+            except Exception:  # the disk is full: nothing more can be written
+                pass
+        for f in self.files:
+            part_path(f).unlink(missing_ok=True)
+
     def _finalize(self, complete: bool) -> None:
         if not complete:
             # write what we have, in order: everything received so far, gaps for the holes
@@ -1635,6 +1689,7 @@ class SinkStage(_StageBase):
         bus.declare([f"eos/{self.name}"])
         bus.declare_alive()
         complete = False
+        failed = False
         try:
             while not self.ctx.stop.is_set():
                 ev = bus.recv(0.05)
@@ -1651,8 +1706,17 @@ class SinkStage(_StageBase):
                 if self._check_end():
                     complete = True
                     break
+        except OSError as exc:
+            if isinstance(exc, ConnectionError):  # the transport, not a file
+                raise
+            failed = True
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sc.mcap_name, exc) from None
         finally:
-            self._finalize(complete)
+            if not failed:
+                self._finalize_or_abandon(complete)
             self.health(force=True, extra=self._sink_health)
         if not complete:
             return EXIT_STOPPED

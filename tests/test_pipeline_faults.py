@@ -325,3 +325,43 @@ def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_t
             assert not [e for e in got if e.topic == "measurements"]
             assert source.wait_alive(["sink"], 10, "ready") == set()
             assert source.alive("ready") == {"sink"}  # the forged tracker token never appeared
+
+
+# --------------------------------------------------------------------------- resources
+
+
+def _limit_file_size() -> None:  # in the child, before exec: every file it writes <= 200 KB
+    import resource
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+    resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+
+
+def test_a_file_that_cannot_be_written_stops_the_run_with_one_line_naming_it(tmp_path):
+    """Issue 17 item 6 (disk full / I/O error, here EFBIG from RLIMIT_FSIZE): one line naming
+    the stage and the file, every stage process stopped, exit 2 within 10 s of the error, no
+    .part or temporary file left."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from faults import make_log
+
+    log = make_log(tmp_path / "vo300.mcap", 300)
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible",
+                          "--set", "sink.rerun=false", "--out", str(out), "--timeout", "120"],
+                         cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                         start_new_session=True, preexec_fn=_limit_file_size)
+    code, text = _wait(p, 150)
+    t_end = time.time()
+    assert code == 2, text
+    error = [line for line in text.splitlines() if line.startswith("Error: ")]
+    assert len(error) == 1, text
+    assert "stage " in error[0] and "cannot write " + str(out) in error[0] and "File too large" in error[0]
+    stages = json.loads((out / "stages.json").read_text())
+    for role, st in stages.items():
+        with pytest.raises(ProcessLookupError):
+            os.kill(st["pid"], 0)
+    failed = [r for r, st in stages.items() if st["returncode"] == 4]
+    assert failed, stages
+    # within 10 s of the failing stage's last log record, the launch was over
+    assert t_end - (out / "logs" / f"{failed[0]}.log").stat().st_mtime < 10
+    assert not [f.name for f in out.rglob("*") if f.name.endswith((".part", ".tmp"))]
