@@ -99,6 +99,16 @@ class MemoryBus:
         self.published.append((topic, payload, meta))
         self.net._publish(self.run, topic, payload, att)
 
+    def head(self, topic: str, timeout: float = 2.0) -> int | None:
+        """The newest seq published on ``topic`` (``None``: nothing, or not ``fetchable``)."""
+        if not self.net.fetchable:
+            return None
+        with self.net.lock:
+            pubs = [b for b in self.net.buses if b.run == self.run and not b.closed]
+        seqs = [m["seq"] for b in pubs for t, _p, m in list(b.published)
+                if t == topic and m is not None and isinstance(m.get("seq"), int)]
+        return max(seqs) if seqs else None
+
     def fetch(self, topic: str, lo: int, hi: int, timeout: float = 5.0) -> list[Event]:
         """What the live publishers of ``topic`` published with seq in ``[lo, hi]`` (empty
         unless the network is ``fetchable``)."""

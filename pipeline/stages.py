@@ -158,7 +158,8 @@ class Sequencer:
     only on the order of the pushes.
 
     ``catch_up`` (default: ``window``) is the window used until the stream has *caught up*,
-    i.e. until the buffer is empty for the first time: a consumer that starts late or
+    i.e. until the buffer is empty for the first time and everything up to the publisher's
+    announced live head (:meth:`hold_catch_up_through`) is released: a consumer that starts late or
     restarts receives the publishers' history (the frames from ``start`` on) and live frames
     at the same time, in no guaranteed order, and the live frames must not push the history
     out as gaps.  Consumers use the cache size: no history holds more.
@@ -182,6 +183,7 @@ class Sequencer:
         self.duplicates = 0
         self.late = 0
         self.max_seen = int(start) - 1
+        self.catch_up_through = -1
 
     @classmethod
     def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
@@ -212,8 +214,18 @@ class Sequencer:
             out += self._advance_to(seq - window + 1)
         self.buf[seq] = item
         out += self._release()
-        self.caught_up = self.caught_up or not self.buf
+        self.caught_up = self.caught_up or (not self.buf and self.next > self.catch_up_through)
         return "accepted", out
+
+    def hold_catch_up_through(self, head: int | None) -> None:
+        """The publisher's announced live head: the history a (re)joining consumer receives
+        ends there, so the catch-up window holds until everything up to ``head`` is released
+        (not merely until the buffer is empty once)."""
+        if head is None:
+            return
+        self.catch_up_through = max(self.catch_up_through, int(head))
+        if self.next <= self.catch_up_through:
+            self.caught_up = False
 
     def _advance_to(self, target: int) -> list[tuple[int, Any]]:
         out: list[tuple[int, Any]] = []
@@ -1155,6 +1167,9 @@ class TrackerStage(_StageBase):
         if self.finished_eos is not None:  # restarted after it had finished the run
             return self._end_again()
         bus.subscribe(["measurements", "info/*", "eos/*"])
+        head = getattr(bus, "head", None)
+        if head is not None:  # where the history ends: hold the catch-up window until there
+            self.seq.hold_catch_up_through(head("measurements"))
         bus.declare_alive()
         finished = False
         src_name = "source"
@@ -1686,6 +1701,10 @@ class SinkStage(_StageBase):
             _rerun_sink_module()
         topics = ["measurements", "truth"] + (["tracks"] if self.sc.tracks else [])
         bus.subscribe(topics + ["info/*", "eos/*"])
+        head = getattr(bus, "head", None)
+        if head is not None:  # where each stream's history ends
+            for name, seq in self.streams.items():
+                seq.hold_catch_up_through(head(name))
         bus.declare([f"eos/{self.name}"])
         bus.declare_alive()
         complete = False

@@ -466,12 +466,35 @@ class Bus:
             lo, hi = _FETCH_DEC.decode(query.payload.to_bytes() if query.payload is not None else b"")
             with self._ring_lock:
                 ring = self._ring.get(topic) or {}
+                if lo < 0:  # a head request: the newest seq published (-1: none yet)
+                    head = next(reversed(ring), -1) if ring else -1
+                    query.reply(f"{self.prefix}fetch/{topic}/head", b"", attachment=_META_ENC.encode({"head": head}))
+                    return
                 items = [(s, v) for s, v in ring.items() if lo <= s <= hi][:FETCH_MAX]
             for s, (payload, att) in items:
                 query.reply(f"{self.prefix}fetch/{topic}/{s}", payload, attachment=att,
                             congestion_control=zenoh.CongestionControl.BLOCK)
         except Exception as exc:  # a malformed query: no answer
             log.debug("%s: fetch on %s refused: %s", self.stage, topic, exc)
+
+    def head(self, topic: str, timeout: float = 2.0) -> int | None:
+        """The live head of ``topic``: the newest seq its publisher has published (its
+        announcement through the fetch queryable), ``None`` when no publisher answers.  A
+        consumer that (re)joins holds its catch-up window until it has passed the head, so
+        live frames never push the history out as gaps."""
+        heads = []
+        try:
+            for reply in self.session.get(f"{self.prefix}fetch/{topic}/**", payload=_META_ENC.encode([-1, -1]),
+                                          timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE,
+                                          target=zenoh.QueryTarget.ALL):
+                sample = reply.ok
+                if sample is not None and sample.attachment is not None:
+                    h = _META_DEC.decode(sample.attachment.to_bytes()).get("head")
+                    if isinstance(h, int) and not isinstance(h, bool):
+                        heads.append(h)
+        except Exception as exc:
+            log.warning("%s: asking the head of %s failed: %s", self.stage, topic, exc)
+        return max(heads) if heads else None
 
     def fetch(self, topic: str, lo: int, hi: int, timeout: float = 5.0) -> list[Event]:
         """Ask the publisher of ``topic`` for its cached samples with seq in ``[lo, hi]``

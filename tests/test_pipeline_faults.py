@@ -158,6 +158,35 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     assert [strip(e) for e in read_log(Path(cfg.out) / "tracks.mcap").tracks] == [strip(e) for e in ests]
 
 
+def test_sequencer_catch_up_holds_until_the_announced_live_head():
+    """Issue 17 failure 8: Sequencer(32, 0, catch_up=10000), push(0), push(5000) declared
+    4,968 gaps and push(1) was late, because catch-up ended when the buffer was empty once.
+    With the publisher's live head announced (5000), catch-up holds until seq 5000 is
+    released: nothing is declared missing and the history 1..4999 is accepted."""
+    from pipeline.stages import GAP, Sequencer
+
+    old = Sequencer(32, 0, "m", 10_000)
+    old.push(0, 0)
+    old.push(5000, 5000)
+    assert len(old.gaps) == 4968 and old.push(1, 1)[0] == "late"  # without a head: as before
+
+    q = Sequencer(32, 0, "m", 10_000)
+    q.hold_catch_up_through(5000)
+    assert q.push(0, 0) == ("accepted", [(0, 0)])
+    assert q.push(5000, 5000) == ("accepted", [])
+    assert q.gaps == [] and not q.caught_up
+    released = []
+    for s in range(1, 5000):
+        status, rel = q.push(s, s)
+        assert status == "accepted"
+        released += rel
+    assert [x for _, x in released] == list(range(1, 5001)) and GAP not in released
+    assert q.caught_up and q.window == 32
+    # once caught up, the normal window applies again
+    status, rel = q.push(5040, 5040)
+    assert status == "accepted" and len(q.gaps) == 5040 - 32 - 5000
+
+
 # --------------------------------------------------------------------------- over Zenoh
 
 
@@ -365,3 +394,61 @@ def test_a_file_that_cannot_be_written_stops_the_run_with_one_line_naming_it(tmp
     # within 10 s of the failing stage's last log record, the launch was over
     assert t_end - (out / "logs" / f"{failed[0]}.log").stat().st_mtime < 10
     assert not [f.name for f in out.rglob("*") if f.name.endswith((".part", ".tmp"))]
+
+
+# --------------------------------------------------------------------------- long runs
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory):
+    """2,000 frames (vo2017-s1 repeated, consecutive frame numbers, 1 s apart) and the
+    /tracks of offline `track` on them."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from faults import make_log
+
+    d = tmp_path_factory.mktemp("long")
+    log = make_log(d / "vo2000.mcap", 2000)
+    return log, _offline_tracks(log, d / "offline.mcap")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2])
+def test_long_run_tracker_then_sink_killed_at_seeded_points_equals_offline(tmp_path, long_log, seed):
+    """Issue 17 item 3: in a 2,000-frame replay at 50 frames/s (client mode, the default
+    launch), SIGKILL the tracker at a seeded frame, then the sink at a later one.  The
+    restarted stages get what they miss (history, explicit fetch): the output equals
+    offline `track`, no gap, exit 0."""
+    import random
+
+    log, expected = long_log
+    rng = random.Random(seed)
+    kill_tracker_at = rng.randrange(200, 900)
+    kill_sink_at = rng.randrange(kill_tracker_at + 200, 1700)
+    out = tmp_path / "run"
+    p = _popen("replay", str(log), "--rate", "50", "--set", "sink.rerun=false", "--set", "tracker.snapshot_every=10",
+               "--out", str(out), "--timeout", "300")
+
+    def progress() -> int:
+        try:
+            return read_snapshot(out / "tracker.snap").last_seq
+        except Exception:
+            return -1
+
+    def pid(role: str) -> int:
+        return json.loads((out / "stages.json").read_text())[role]["pid"]
+
+    try:
+        _wait_for("the tracker never reached its kill point", lambda: progress() >= kill_tracker_at, p, 200)
+        os.kill(pid("tracker"), signal.SIGKILL)
+        _wait_for("the restarted tracker never reached the sink's kill point",
+                  lambda: progress() >= kill_sink_at, p, 200)
+        assert not (out / SUMMARY_NAME).exists()
+        os.kill(pid("sink"), signal.SIGKILL)
+    finally:
+        code, text = _wait(p, 330)
+    assert code == 0, text
+    stages = json.loads((out / "stages.json").read_text())
+    assert stages["tracker"]["restarts"] == 1 and stages["sink"]["restarts"] == 1
+    s = json.loads((out / SUMMARY_NAME).read_text())
+    assert s["complete"] and s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
+    assert _tracks(out / "tracks.mcap") == expected
