@@ -949,7 +949,8 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file: its [zenoh] table (TLS, router_extra) is used.")
 @click.option("--listen", multiple=True, metavar="ENDPOINT",
-              help="Endpoint(s) to listen on. Default: tcp/0.0.0.0:7447.")
+              help="Endpoint(s) to listen on. Default: tcp/127.0.0.1:7447 (this host only; "
+                   "give e.g. tcp/0.0.0.0:7447 for other hosts, with TLS and --set zenoh.acl=true).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_PIPE)
 @_clean_errors
 def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple[str, ...]) -> None:
@@ -969,7 +970,7 @@ def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple
     stop = _threading.Event()
     for sig in (_signal.SIGINT, _signal.SIGTERM):
         _signal.signal(sig, lambda *_: stop.set())
-    with Router(cfg.zenoh, list(listen) or ["tcp/0.0.0.0:7447"]) as r:
+    with Router(cfg.zenoh, list(listen) or ["tcp/127.0.0.1:7447"]) as r:
         click.echo(f"router listening on {', '.join(r.endpoints)} (Ctrl-C to stop)", err=True)
         while not stop.wait(0.5):
             pass

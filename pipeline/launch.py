@@ -28,6 +28,7 @@ Health messages of every stage are appended to ``<out>/health.jsonl``.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -54,6 +55,7 @@ from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
     EXIT_DATA,
+    EXIT_IO,
     EXIT_OK,
     EXIT_STOPPED,
     JOURNAL_NAME,
@@ -61,6 +63,7 @@ from pipeline.stages import (
     STAGES,
     SUMMARY_NAME,
     StageContext,
+    StageIOError,
 )
 from tracker.config import ConfigError
 
@@ -69,6 +72,8 @@ __all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_l
 log = logging.getLogger("bnptrack.launch")
 
 _DATA_ERROR = "the source stopped on a data error (see its log)"
+#: errno values of a file that cannot be written (a stage exits EXIT_IO: no restart helps).
+_FILE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.EROFS})
 
 
 def configure_logging(stage: str, level: str = "INFO") -> None:
@@ -141,6 +146,17 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     except ConfigError as exc:
         log.error("%s: configuration error: %s", name, exc)
         return EXIT_CONFIG
+    except OSError as exc:
+        if isinstance(exc, ConnectionError) or exc.errno not in _FILE_ERRNOS:
+            raise
+        text = str(exc) if isinstance(exc, StageIOError) else \
+            f"stage {name}: cannot write {exc.filename or 'a file'}: {exc.strerror}"
+        log.error("%s: I/O error: %s", name, text)
+        try:  # the log may be on the full disk too: tell the launcher over the bus
+            bus.publish(f"health/{name}", json.dumps({"stage": name, "io_error": text}).encode())
+        except Exception:
+            pass
+        return EXIT_IO
     finally:
         bus.close()
         _log_cpu(name)
@@ -208,9 +224,10 @@ class StageProcess:
         for line in reversed(lines):
             if line.startswith("Error: "):
                 return line[len("Error: "):]
-            head, sep, msg = line.partition("configuration error: ")
-            if sep and " ERROR " in head:
-                return msg
+            for marker in ("configuration error: ", "I/O error: "):
+                head, sep, msg = line.partition(marker)
+                if sep and " ERROR " in head:
+                    return msg
         return " / ".join(lines[-3:])
 
     def tail(self, n: int = 12) -> str:
@@ -266,6 +283,8 @@ class Launcher:
         self.router = None
         self.monitor = None
         self.credentials: dict[str, str] = {}
+        self.stage_errors: dict[str, str] = {}  # a stage's I/O error line, from its health message
+        self._health_file = None
 
     # -- public ----------------------------------------------------------------------
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -315,8 +334,10 @@ class Launcher:
                       f"; logs in {self.out / 'logs'}")
             self._supervise(env, t0, result)
         finally:
-            self._stop_all()
-            self._close_network()
+            try:
+                self._stop_all()
+            finally:
+                self._close_network()
         result.elapsed_s = time.monotonic() - t0
         result.restarts = {s.role: s.restarts for s in self.stages}
         summary_path = self.out / SUMMARY_NAME
@@ -364,24 +385,35 @@ class Launcher:
         if z.embedded_router:
             from pipeline.transport import Router
 
-            if z.acl and not z.users_file:
-                # one random password per stage (and one for the launcher's monitor), given
-                # to each process in its environment only
-                import secrets
-
-                self.credentials = {name: secrets.token_urlsafe(18) for name in [*cfg.stages, "launcher"]}
-                users = self.out / "zenoh-users.txt"
-                fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-                with os.fdopen(fd, "w") as f:
-                    f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
-                z = msgspec.structs.replace(z, users_file=str(users))
-            self.router = Router(z)
+            generated = (z.acl or (z.auth and z.mode == "client")) and not z.users_file
+            if generated:
+                z = self._credentials(z)
+            try:
+                self.router = Router(z)
+            finally:
+                if generated:  # the router has read it; the stages get theirs by environment
+                    Path(z.users_file).unlink(missing_ok=True)
+                    z = msgspec.structs.replace(z, users_file="")
             connect = self.router.connect_endpoints
             z = msgspec.structs.replace(z, embedded_router=False, connect=connect)
         elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
         return msgspec.structs.replace(cfg, zenoh=z)
+
+    def _credentials(self, z: Any) -> Any:
+        """Per-run credentials: one random password per stage (and one for the launcher's
+        monitor), given to each process in its environment only, and the ACL that lets each
+        stage put only on its own keys.  The users file (mode 0600) lives only until the
+        router has read it."""
+        import secrets
+
+        self.credentials = {name: secrets.token_urlsafe(18) for name in [*self.cfg.stages, "launcher"]}
+        users = self.out / ".zenoh-users.txt"
+        fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
+        return msgspec.structs.replace(z, users_file=str(users), acl=True)
 
     def _open_monitor(self, cfg: PipelineConfig) -> None:
         from pipeline.transport import Bus
@@ -400,14 +432,36 @@ class Launcher:
     def _drain_monitor(self) -> None:
         if self.monitor is None:
             return
+        lines = []
         while (ev := self.monitor.recv(0)) is not None:
             rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
             try:
                 rec["msg"] = json.loads(ev.payload)
             except ValueError:
                 rec["raw"] = ev.payload[:200].decode("latin-1")
-            self._health_file.write(json.dumps(rec).encode() + b"\n")
-        self._health_file.flush()
+            msg = rec.get("msg")
+            if ev.topic.startswith("health/") and isinstance(msg, dict) and isinstance(msg.get("io_error"), str):
+                self.stage_errors[ev.topic.partition("/")[2]] = msg["io_error"]
+            lines.append(json.dumps(rec).encode() + b"\n")
+        if self._health_file is None:
+            return
+        try:
+            self._health_file.writelines(lines)
+            self._health_file.flush()
+        except OSError as exc:  # disk full: health records are not worth stopping the run for
+            log.error("launcher: cannot write %s: %s; no more health records", self.out / "health.jsonl", exc)
+            hf, self._health_file = self._health_file, None
+            try:
+                hf.close()
+            except OSError:
+                pass
+
+    def _await_error(self, role: str, timeout: float = 1.0) -> None:
+        """Drain the monitor until ``role``'s I/O error line has arrived, or ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while role not in self.stage_errors and time.monotonic() < deadline and self.monitor is not None:
+            self._drain_monitor()
+            time.sleep(0.02)
 
     def _close_network(self) -> None:
         try:
@@ -419,7 +473,10 @@ class Launcher:
             self.monitor = None
         hf = getattr(self, "_health_file", None)
         if hf is not None:
-            hf.close()
+            try:
+                hf.close()
+            except OSError:  # disk full: what could not be written is lost
+                pass
         if self.router is not None:
             self.router.close()
             self.router = None
@@ -430,8 +487,12 @@ class Launcher:
                         "returncode": s.returncode, "log": str(s.log_path), "history": s.history}
                for s in self.stages}
         tmp = self.out / ".stages.json.tmp"
-        tmp.write_text(json.dumps(doc, indent=1))
-        os.replace(tmp, self.out / "stages.json")
+        try:
+            tmp.write_text(json.dumps(doc, indent=1))
+            os.replace(tmp, self.out / "stages.json")
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
 
     def _supervise(self, env: dict[str, str], t0: float, result: LaunchResult) -> None:
         sup = self.cfg.supervisor
@@ -457,10 +518,25 @@ class Launcher:
                             data_error = _DATA_ERROR
                         continue
                     what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
+                    if rc == EXIT_IO:  # disk full / I/O error: a restart cannot help
+                        sp.state = "failed"
+                        self._await_error(sp.role)  # the stage's health message names the file
+                        result.error = (self.stage_errors.get(sp.role) or sp.error_line()
+                                        or f"stage {sp.role}: I/O error (log: {sp.log_path})")
+                        return
                     if rc == EXIT_CONFIG:
                         sp.state = "failed"
                         result.error = (f"stage {sp.role}: configuration error: {sp.error_line()} "
                                         f"(log: {sp.log_path})")
+                        return
+                    settled = self._needless_restart(sp, what)
+                    if settled == "done":
+                        sp.state = "done"
+                        continue
+                    if settled:
+                        sp.state = "failed"
+                        result.error = settled
+                        result.gave_up = sp.role
                         return
                     if sp.restarts >= sup.max_restarts:
                         sp.state = "failed"
@@ -478,7 +554,11 @@ class Launcher:
                     changed = True
                     self.echo(f"stage {sp.role} restarted (pid {sp.pid})")
             if changed:
-                self._write_stages()
+                try:
+                    self._write_stages()
+                except OSError as exc:
+                    result.error = f"launcher: cannot write {self.out / 'stages.json'}: {exc}"
+                    return
             if all(sp.state == "done" for sp in self.stages):
                 result.ok = not data_error
                 result.error = data_error
@@ -498,6 +578,27 @@ class Launcher:
                     result.error = data_error
                     return
 
+    def _needless_restart(self, sp: StageProcess, what: str) -> str:
+        """Whether a crashed stage must not be restarted: ``"done"`` when the run is complete
+        without it (it was killed after the sink had recorded everything), an error when its
+        output can no longer be completed (the sink, killed before it had recorded the run,
+        after every other stage had left: nothing would send it the history), ``""`` to
+        restart it."""
+        others = [o for o in self.stages if o is not sp]
+        sinks = [o for o in others if o.role == "sink"]
+        if sp.role != "sink":
+            if (sinks and all(o.state == "done" for o in sinks)) or (not sinks and all(o.state == "done" for o in others)):
+                self.echo(f"stage {sp.role} (pid {sp.pid}) was {what} after the run was recorded: done")
+                return "done"
+            return ""
+        if not all(o.state == "done" for o in others):
+            return ""  # a restarted sink records the run, or announces again that it has
+        if _recorded(self.out / SUMMARY_NAME, self.cfg.run):
+            self.echo(f"stage sink (pid {sp.pid}) was {what} after it had recorded the complete run: done")
+            return "done"
+        return (f"stage sink was {what} after every other stage had finished: nothing can resend "
+                f"it the run, so its output is incomplete (log: {sp.log_path})")
+
     def _stop_all(self) -> None:
         running = [sp for sp in self.stages if sp.alive()]
         if not running:
@@ -515,7 +616,25 @@ class Launcher:
             sp.returncode = sp.proc.returncode
             if sp.state == "running":
                 sp.state = "stopped"
-        self._write_stages()
+        try:
+            self._write_stages()
+        except OSError as exc:  # disk full: the stages are stopped all the same
+            log.error("launcher: cannot write %s: %s", self.out / "stages.json", exc)
+
+
+def _recorded(summary_path: Path, run: str) -> bool:
+    """Whether ``sink.json`` says the sink recorded the whole run ``run`` (then finishes
+    renaming its outputs, should it have been killed in between)."""
+    from pipeline.stages import commit_parts
+
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(summary, dict) or summary.get("run") != run or not summary.get("complete"):
+        return False
+    commit_parts(summary.get("files") or [])
+    return True
 
 
 def _ranges(seqs: Sequence[int], limit: int = 8) -> str:

@@ -41,6 +41,9 @@ class MemoryNetwork:
         self.alive: dict[tuple[str, str], set[str]] = {}
         #: ``tap(run, topic, payload, attachment) -> list of (payload, attachment)`` to deliver
         self.tap: Callable[[str, str, bytes, bytes | None], list[tuple[bytes, bytes | None]]] | None = None
+        #: whether :meth:`MemoryBus.fetch` answers (from the publishers' own record, before
+        #: ``tap``), like the Zenoh bus's explicit history
+        self.fetchable = False
 
     def bus(self, run: str, stage: str, queue_limit: int = 100_000) -> "MemoryBus":
         b = MemoryBus(self, run, stage, queue_limit)
@@ -95,6 +98,30 @@ class MemoryBus:
         att = None if meta is None else _ENC.encode(meta)
         self.published.append((topic, payload, meta))
         self.net._publish(self.run, topic, payload, att)
+
+    def head(self, topic: str, timeout: float = 2.0) -> int | None:
+        """The newest seq published on ``topic`` (``None``: nothing, or not ``fetchable``)."""
+        if not self.net.fetchable:
+            return None
+        with self.net.lock:
+            pubs = [b for b in self.net.buses if b.run == self.run and not b.closed]
+        seqs = [m["seq"] for b in pubs for t, _p, m in list(b.published)
+                if t == topic and m is not None and isinstance(m.get("seq"), int)]
+        return max(seqs) if seqs else None
+
+    def fetch(self, topic: str, lo: int, hi: int, timeout: float = 5.0) -> list[Event]:
+        """What the live publishers of ``topic`` published with seq in ``[lo, hi]`` (empty
+        unless the network is ``fetchable``)."""
+        if not self.net.fetchable:
+            return []
+        with self.net.lock:
+            pubs = [b for b in self.net.buses if b.run == self.run and not b.closed]
+        out = []
+        for b in pubs:
+            for t, payload, meta in list(b.published):
+                if t == topic and meta is not None and isinstance(meta.get("seq"), int) and lo <= meta["seq"] <= hi:
+                    out.append(Event(topic, bytes(payload), dict(meta), time.time_ns()))
+        return out
 
     def wants(self, topic: str) -> bool:
         return any(_match(p, topic) for p in self.patterns)

@@ -115,7 +115,10 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     gives the router the generated access-control list: the user named like a stage
     (``source``, ``tracker``, ``sink``) may put only on that stage's keys, any other user
     may not put at all (see docs/pipeline.md).  With ``acl`` and the embedded router, the
-    launcher generates one password per stage itself.
+    launcher generates one password per stage itself.  ``auth`` (the default) does that for
+    every launch with the embedded router in client mode: a run is closed to other local
+    processes unless ``auth = false`` (peer mode cannot be closed: its stages exchange data
+    past the router).
     """
 
     mode: Literal["client", "peer"] = "client"
@@ -130,6 +133,7 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     password: str = ""
     users_file: str = ""
     acl: bool = False
+    auth: bool = True
     extra: dict[str, str] = msgspec.field(default_factory=dict)
     router_extra: dict[str, str] = msgspec.field(default_factory=dict)
 

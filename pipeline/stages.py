@@ -66,6 +66,8 @@ __all__ = [
     "EXIT_CONFIG",
     "EXIT_DATA",
     "EXIT_STOPPED",
+    "EXIT_IO",
+    "StageIOError",
     "GAP",
     "NO_TRUTH",
     "Sequencer",
@@ -94,6 +96,20 @@ EXIT_CRASH = 1
 EXIT_CONFIG = 2
 EXIT_DATA = 3
 EXIT_STOPPED = 130
+#: A file could not be written (disk full, I/O error): restarting would not help.
+EXIT_IO = 4
+
+
+class StageIOError(OSError):
+    """A stage could not write one of its files: the message names the stage and the file
+    (``stage sink: cannot write /x/tracks.mcap: [Errno 28] No space left on device``)."""
+
+    def __init__(self, stage: str, path: str | os.PathLike, exc: OSError) -> None:
+        super().__init__(exc.errno, f"stage {stage}: cannot write {path}: {exc}")
+        self.path = str(path)
+
+    def __str__(self) -> str:
+        return self.strerror
 
 SNAPSHOT_NAME = "tracker.snap"
 SUMMARY_NAME = "sink.json"
@@ -142,7 +158,8 @@ class Sequencer:
     only on the order of the pushes.
 
     ``catch_up`` (default: ``window``) is the window used until the stream has *caught up*,
-    i.e. until the buffer is empty for the first time: a consumer that starts late or
+    i.e. until the buffer is empty for the first time and everything up to the publisher's
+    announced live head (:meth:`hold_catch_up_through`) is released: a consumer that starts late or
     restarts receives the publishers' history (the frames from ``start`` on) and live frames
     at the same time, in no guaranteed order, and the live frames must not push the history
     out as gaps.  Consumers use the cache size: no history holds more.
@@ -166,6 +183,7 @@ class Sequencer:
         self.duplicates = 0
         self.late = 0
         self.max_seen = int(start) - 1
+        self.catch_up_through = -1
 
     @classmethod
     def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
@@ -196,8 +214,18 @@ class Sequencer:
             out += self._advance_to(seq - window + 1)
         self.buf[seq] = item
         out += self._release()
-        self.caught_up = self.caught_up or not self.buf
+        self.caught_up = self.caught_up or (not self.buf and self.next > self.catch_up_through)
         return "accepted", out
+
+    def hold_catch_up_through(self, head: int | None) -> None:
+        """The publisher's announced live head: the history a (re)joining consumer receives
+        ends there, so the catch-up window holds until everything up to ``head`` is released
+        (not merely until the buffer is empty once)."""
+        if head is None:
+            return
+        self.catch_up_through = max(self.catch_up_through, int(head))
+        if self.next <= self.catch_up_through:
+            self.caught_up = False
 
     def _advance_to(self, target: int) -> list[tuple[int, Any]]:
         out: list[tuple[int, Any]] = []
@@ -238,6 +266,51 @@ class Sequencer:
     @property
     def pending(self) -> int:
         return len(self.buf)
+
+
+class HoleWatch:
+    """Says when to fetch what a stream misses: its next expected seq has not moved for
+    ``after`` seconds while later frames wait in the buffer (the transport's history or
+    recovery did not bring it); then again every ``after`` seconds."""
+
+    def __init__(self, after: float) -> None:
+        self.after = after
+        self.next = -1
+        self.since = time.monotonic()
+
+    def due(self, seqr: Sequencer) -> bool:
+        now = time.monotonic()
+        if seqr.next != self.next:
+            self.next, self.since = seqr.next, now
+            return False
+        if seqr.pending and now - self.since >= self.after:
+            self.since = now
+            return True
+        return False
+
+
+def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Callable[[Any], None]) -> int:
+    """Fetch explicitly from the publisher's cache (:meth:`pipeline.transport.Bus.fetch`) the
+    frames of ``topic`` that ``seqr`` still misses up to ``upto``, and hand each to
+    ``on_event`` (validated like any sample).  Returns how many came back (0 without a
+    fetch-capable bus or when nothing is missing)."""
+    fetch = getattr(bus, "fetch", None)
+    if fetch is None or upto < seqr.next:
+        return 0
+    hi = next((s for s in range(upto, seqr.next - 1, -1) if s not in seqr.buf), None)
+    if hi is None:
+        return 0
+    events = fetch(topic, seqr.next, hi)
+    for ev in events:
+        on_event(ev)
+    if events:
+        log.info("%s: fetched %d %s sample(s) in %d-%d from the publisher's cache", bus.stage, len(events),
+                 topic, seqr.next, hi)
+    return len(events)
+
+
+#: Seconds a stream's next frame may be missing, with later ones waiting, before it is fetched.
+FETCH_AFTER_S = 1.0
 
 
 # --------------------------------------------------------------------------- counters
@@ -403,11 +476,15 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
     ``os.replace``, fsync of the directory."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # disk full, I/O error: leave no temporary file behind
+        tmp.unlink(missing_ok=True)
+        raise
     try:
         dfd = os.open(path.parent, os.O_RDONLY)
     except OSError:
@@ -520,6 +597,7 @@ class Snapshot(msgspec.Struct, kw_only=True):
     time_ns: int = 0
     last_stamp_ns: int | None = None
     rejected: list[int] = []
+    eos: EndOfStream | None = None  # set once the tracker has finished the run
 
 
 def read_snapshot(path: str | os.PathLike) -> Snapshot:
@@ -532,6 +610,50 @@ def read_snapshot(path: str | os.PathLike) -> Snapshot:
     if snap.format != SNAPSHOT_FORMAT:
         raise ConfigError(f"{path}: snapshot format {snap.format} is not supported ({SNAPSHOT_FORMAT})")
     return snap
+
+
+def part_path(path: str | os.PathLike) -> Path:
+    """Where the sink writes the output ``path`` until the run ends: ``.<name>.part`` beside
+    it.  The final name appears only by :func:`commit_parts`, after ``sink.json``, so a
+    finished output is never reopened (truncated) by a restarted sink."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.part")
+
+
+def sync_parts(paths: Iterable[str | os.PathLike]) -> None:
+    """fsync the ``.part`` file of each output that has one."""
+    for p in paths:
+        try:
+            fd = os.open(part_path(p), os.O_RDONLY)
+        except FileNotFoundError:
+            continue
+        _fsync_and_close([fd])
+
+
+def commit_parts(paths: Iterable[str | os.PathLike]) -> None:
+    """Rename each output's ``.part`` file (closed, on disk) to its final name (atomic)."""
+    paths = list(paths)
+    done = False
+    for p in paths:
+        part = part_path(p)
+        if part.exists():
+            os.replace(part, p)
+            done = True
+    if done:
+        _fsync_dir(Path(next(iter(paths))).parent)
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        dfd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:
+        pass
+    finally:
+        os.close(dfd)
 
 
 # --------------------------------------------------------------------------- context
@@ -641,12 +763,28 @@ class _StageBase:
             self.health()
         return want <= set(self.eos_seen)
 
-    def linger_until_alone(self, timeout: float) -> None:
+    def serve_until_done_or_alone(self, stages: Iterable[str], at_least: float = 1.0) -> None:
+        """Like :meth:`wait_done`, but also return once no other stage of the run is alive
+        (after ``at_least`` seconds: a new session has not seen the others' tokens yet): a
+        stage restarted after the others left has nobody to wait for."""
+        want = set(stages)
+        t0 = time.monotonic()
+        while not self.ctx.stop.is_set() and not want <= set(self.eos_seen):
+            if time.monotonic() - t0 >= at_least and not (self.bus.alive() - {self.name}):
+                return
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self.on_control(ev)
+            self.health()
+
+    def linger_until_alone(self, timeout: float, at_least: float = 0.0) -> None:
         """Keep the session open until no other stage of the run is alive (so that our
-        last messages are delivered), at most ``timeout`` seconds."""
-        deadline = time.monotonic() + timeout
+        last messages are delivered), at most ``timeout`` seconds; ``at_least`` seconds in
+        any case (a session just opened has not seen the others' tokens yet)."""
+        t0 = time.monotonic()
+        deadline = t0 + timeout
         while time.monotonic() < deadline and not self.ctx.stop.is_set():
-            if not (self.bus.alive() - {self.name}):
+            if not (self.bus.alive() - {self.name}) and time.monotonic() - t0 >= at_least:
                 return
             ev = self.bus.recv(0.05)
             if ev is not None:
@@ -850,6 +988,8 @@ class TrackerStage(_StageBase):
         self.last_progress = time.monotonic()
         self.step_ms: deque = deque(maxlen=10_000)
         self.writer = BackgroundWriter()
+        self.finished_eos: EndOfStream | None = None
+        self.holes = HoleWatch(FETCH_AFTER_S)
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -879,6 +1019,7 @@ class TrackerStage(_StageBase):
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
+        self.finished_eos = snap.eos
         log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
                  snap.last_seq, snap.last_frame)
 
@@ -940,7 +1081,10 @@ class TrackerStage(_StageBase):
             # the state advances only once its output is out (a snapshot is always consistent)
             self.state, self.last_seq, self.last_frame = state, s, frame.frame
             self.last_stamp_ns = frame.stamp_ns
-            self.journal.append(s, payload, meta)
+            try:
+                self.journal.append(s, payload, meta)
+            except OSError as exc:
+                raise StageIOError(self.name, self.journal.path, exc) from None
             self.counters.processed += 1
             self.counters.published += 1
             self.since_snapshot += 1
@@ -959,14 +1103,17 @@ class TrackerStage(_StageBase):
             last_stamp_ns=self.last_stamp_ns, rejected=list(self.rejected_seqs),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
-            time_ns=time.time_ns(),
+            time_ns=time.time_ns(), eos=self.finished_eos,
         )
-        self.ctx.out.mkdir(parents=True, exist_ok=True)
-        fd = self.journal.dup_fd()
-        self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
-        self.since_snapshot = 0
-        if wait:
-            self.writer.flush()
+        try:
+            self.ctx.out.mkdir(parents=True, exist_ok=True)
+            fd = self.journal.dup_fd()
+            self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
+            self.since_snapshot = 0
+            if wait:
+                self.writer.flush()
+        except OSError as exc:
+            raise StageIOError(self.name, self.snap_path, exc) from None
 
     def _on_data(self, ev: Any) -> None:
         self.counters.received += 1
@@ -1017,7 +1164,12 @@ class TrackerStage(_StageBase):
         if history:
             log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(history))
         del history  # free the payloads (run() lasts as long as the run)
+        if self.finished_eos is not None:  # restarted after it had finished the run
+            return self._end_again()
         bus.subscribe(["measurements", "info/*", "eos/*"])
+        head = getattr(bus, "head", None)
+        if head is not None:  # where the history ends: hold the catch-up window until there
+            self.seq.hold_catch_up_through(head("measurements"))
         bus.declare_alive()
         finished = False
         src_name = "source"
@@ -1037,22 +1189,26 @@ class TrackerStage(_StageBase):
                     else:
                         log.debug("%s: ignoring %s", self.name, ev.topic)
                 self.health(extra=self._extra_health)
+                if self.tracker is not None and self.holes.due(self.seq):
+                    fetch_holes(bus, "measurements", self.seq, max(self.seq.buf), self._on_data)
                 eos = self.eos_seen.get(src_name)
                 if eos is not None and self.tracker is not None and not finished:
                     if not self.seq.complete_through(eos.last_seq):
                         # grace counts from the later of the last progress and the end of stream
                         idle = time.monotonic() - max(self.last_progress, self.eos_time[src_name])
-                        if idle >= self.delivery.eos_grace_s and bus.backlog == 0:
+                        if idle >= self.delivery.eos_grace_s and bus.backlog == 0 and \
+                                not fetch_holes(bus, "measurements", self.seq, eos.last_seq, self._on_data):
                             log.warning("%s: end of stream: frames still missing after %.1f s without "
                                         "progress are gaps", self.name, idle)
                             self._process(self.seq.flush_through(eos.last_seq))
                     if self.seq.complete_through(eos.last_seq):
                         finished = True
-                        self.snapshot(wait=True)
-                        self.publish_control("eos", EndOfStream(
+                        self.finished_eos = EndOfStream(
                             stage=self.name, run=self.run_id, last_seq=eos.last_seq,
                             frames=self.counters.processed, gaps=list(self.seq.gaps),
-                            rejected=list(self.rejected_seqs), error=eos.error))
+                            rejected=list(self.rejected_seqs), error=eos.error)
+                        self.snapshot(wait=True)
+                        self.publish_control("eos", self.finished_eos)
                         log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
                                  self.counters.processed, len(self.seq.gaps),
                                  ", ".join(self.tc.done_by) or "nobody")
@@ -1066,6 +1222,21 @@ class TrackerStage(_StageBase):
             finally:
                 self.journal.close()
                 self.health(force=True, extra=self._extra_health)
+
+
+    def _end_again(self) -> int:
+        """A tracker restarted after it finished: its journal is in the cache again; announce
+        the end of stream again and serve until the sink is done (or nobody is left)."""
+        log.info("%s: the snapshot records the finished run (last seq %d): announcing its end again",
+                 self.name, self.finished_eos.last_seq)
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare_alive()
+        self.publish_control("eos", self.finished_eos)
+        try:
+            self.serve_until_done_or_alone(self.tc.done_by)
+        finally:
+            self.journal.close()
+        return EXIT_OK
 
 
 def _far_reason(seq: Sequencer, s: int) -> str:
@@ -1114,6 +1285,7 @@ class SinkStage(_StageBase):
         if self.sc.tracks:
             self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
+        self.holes = {k: HoleWatch(FETCH_AFTER_S) for k in self.streams}
         self.progress: dict[str, float] = {k: time.monotonic() for k in self.streams}
         self.next_write = 0
         self.writer = None
@@ -1163,7 +1335,7 @@ class SinkStage(_StageBase):
             from sources.mcap_log import McapLogWriter
 
             path = out / self.sc.mcap_name
-            self.writer = McapLogWriter(path, meta if meta is not None else {"run": self.run_id})
+            self.writer = McapLogWriter(part_path(path), meta if meta is not None else {"run": self.run_id})
             self.files.append(str(path))
         else:
             self.writer = _NullWriter()
@@ -1189,7 +1361,7 @@ class SinkStage(_StageBase):
         except Exception:  # the viewer falls back to its default field of view
             params = None
         try:
-            self.rrd = mod.RerunSink(path, recording_id=self.run_id, metadata=meta or {}, params=params,
+            self.rrd = mod.RerunSink(part_path(path), recording_id=self.run_id, metadata=meta or {}, params=params,
                                      handle_signals=False)
             self.scorer = mod.RunScorer()
             self.files.append(str(path))
@@ -1198,6 +1370,12 @@ class SinkStage(_StageBase):
             self.rrd = None
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
+        try:
+            self._write_frame(s, meas, truth, tracks)
+        except OSError as exc:
+            raise StageIOError(self.name, self.ctx.out / self.sc.mcap_name, exc) from None
+
+    def _write_frame(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
         """Record frame ``s``: the payloads go into tracks.mcap as received (they were
         validated on receipt, and they are the codec's bytes: no decoding to numpy and
         re-encoding); the Rerun sink, when on, gets them decoded."""
@@ -1371,7 +1549,7 @@ class SinkStage(_StageBase):
             if not seq.complete_through(end):
                 # grace counts from the later of the last progress and the end of stream
                 idle = now - max(self.progress[name], self.eos_time[upstream])
-                if idle >= grace and self.bus.backlog == 0:
+                if idle >= grace and self.bus.backlog == 0 and not self._fetch(name, end):
                     log.warning("%s: end of stream: %s still missing after %.1f s without progress "
                                 "are gaps", self.name, name, idle)
                     self._release(name, seq.flush_through(end))
@@ -1379,6 +1557,38 @@ class SinkStage(_StageBase):
                     done = False
         self._drain_ready()
         return done and self.next_write > last
+
+    def _fetch(self, stream: str, upto: int) -> int:
+        """Fetch what ``stream`` misses up to ``upto`` from its publisher's cache.  The truth
+        of a frame sent without truth is not in any cache: its /measurements says so."""
+        return fetch_holes(self.bus, stream, self.streams[stream], upto, self._on_data)
+
+    def _fetch_due(self) -> None:
+        for name, seq in self.streams.items():
+            if self.holes[name].due(seq):
+                self._fetch(name, max(seq.buf))
+
+    def _finalize_or_abandon(self, complete: bool) -> None:
+        try:
+            self._finalize(complete)
+        except OSError as exc:
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sc.mcap_name, exc) from None
+
+    def _abandon(self) -> None:
+        """After a write error (disk full): close what is open, ignoring further errors, and
+        remove the unfinished ``.part`` files (no temporary file is left behind)."""
+        writer, self.writer = self.writer, None
+        for close in (getattr(writer, "close", None), self._close_rrd):
+            try:
+                if close is not None:
+                    close()
+            except Exception:  # the disk is full: nothing more can be written
+                pass
+        for f in self.files:
+            part_path(f).unlink(missing_ok=True)
 
     def _finalize(self, complete: bool) -> None:
         if not complete:
@@ -1422,7 +1632,9 @@ class SinkStage(_StageBase):
         }
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         path = self.ctx.out / SUMMARY_NAME
+        sync_parts(self.files)  # the outputs are on disk before the summary says they are done
         write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
+        commit_parts(self.files)
         self.files.append(str(path))
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
@@ -1450,16 +1662,53 @@ class SinkStage(_StageBase):
             add(name, seqs, "for another frame than its /measurements (dropped)")
         return out
 
+    def finished_before(self) -> dict | None:
+        """The ``sink.json`` of this run when an earlier sink process recorded the whole run
+        (``complete``): a sink restarted after that (killed while it lingered) must not
+        reopen, i.e. truncate, the finished files.  Renames what that process left as
+        ``.part`` (killed between ``sink.json`` and the renames)."""
+        try:
+            summary = msgspec.json.decode((self.ctx.out / SUMMARY_NAME).read_bytes())
+        except (OSError, msgspec.DecodeError):
+            return None
+        if not isinstance(summary, dict) or summary.get("run") != self.run_id or not summary.get("complete"):
+            return None
+        commit_parts(summary.get("files") or [])
+        return summary
+
+    def _end_again(self, summary: dict) -> int:
+        """Announce the recorded end of stream again (for stages still waiting for it)."""
+        log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
+                 self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare([f"eos/{self.name}"])
+        self.bus.declare_alive()
+        gaps = sorted({int(g) for v in (summary.get("gaps") or {}).values() for g in v})
+        self.publish_control("eos", EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=int(summary.get("last_seq", -1)),
+            frames=int(summary.get("frames_written", 0)), gaps=gaps,
+            error=summary.get("source_error") or "", files=list(summary.get("files") or [])))
+        self.linger_until_alone(self.cfg.supervisor.linger_s, at_least=1.0)
+        return EXIT_OK
+
     def run(self) -> int:
         bus = self.bus
+        done = self.finished_before()
+        if done is not None:
+            return self._end_again(done)
         _warm_imports("sources.mcap_log", "pipeline.offline")
         if self.sc.rerun:
             _rerun_sink_module()
         topics = ["measurements", "truth"] + (["tracks"] if self.sc.tracks else [])
         bus.subscribe(topics + ["info/*", "eos/*"])
+        head = getattr(bus, "head", None)
+        if head is not None:  # where each stream's history ends
+            for name, seq in self.streams.items():
+                seq.hold_catch_up_through(head(name))
         bus.declare([f"eos/{self.name}"])
         bus.declare_alive()
         complete = False
+        failed = False
         try:
             while not self.ctx.stop.is_set():
                 ev = bus.recv(0.05)
@@ -1471,12 +1720,22 @@ class SinkStage(_StageBase):
                         if not self.on_control(ev):
                             self._on_data(ev)
                 self._drain_ready()
+                self._fetch_due()
                 self.health(extra=self._sink_health)
                 if self._check_end():
                     complete = True
                     break
+        except OSError as exc:
+            if isinstance(exc, ConnectionError):  # the transport, not a file
+                raise
+            failed = True
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sc.mcap_name, exc) from None
         finally:
-            self._finalize(complete)
+            if not failed:
+                self._finalize_or_abandon(complete)
             self.health(force=True, extra=self._sink_health)
         if not complete:
             return EXIT_STOPPED

@@ -45,6 +45,7 @@ import re
 import socket
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -79,7 +80,11 @@ CONTROL_CACHE = 16
 #: Where a peer-mode stage listens unless ``zenoh.listen`` says otherwise (a free loopback port).
 PEER_LISTEN = ("tcp/127.0.0.1:0",)
 
+#: Most samples one fetch reply set carries (a consumer asks again for the rest).
+FETCH_MAX = 2000
+
 _META_ENC = msgspec.json.Encoder()
+_FETCH_DEC = msgspec.json.Decoder(tuple[int, int])
 _META_DEC = msgspec.json.Decoder(dict)
 
 
@@ -173,8 +178,9 @@ def session_config(
 
 #: Keys (relative to ``bnptrack/<run>/``) each stage may put on (and reply from its cache).
 STAGE_KEYS: dict[str, tuple[str, ...]] = {
-    "source": ("measurements", "truth", "info/source", "eos/source", "health/source", "deadletter"),
-    "tracker": ("tracks", "info/tracker", "eos/tracker", "health/tracker", "deadletter"),
+    "source": ("measurements", "truth", "info/source", "eos/source", "health/source", "deadletter",
+               "fetch/measurements", "fetch/truth"),
+    "tracker": ("tracks", "info/tracker", "eos/tracker", "health/tracker", "deadletter", "fetch/tracks"),
     "sink": ("info/sink", "eos/sink", "health/sink", "deadletter"),
 }
 
@@ -190,11 +196,27 @@ def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
     rules = [
         {
             "id": "infrastructure",
-            "messages": ["declare_subscriber", "declare_queryable", "query", "liveliness_token",
+            "messages": ["declare_subscriber", "declare_queryable", "query",
                          "liveliness_query", "declare_liveliness_subscriber"],
             "flows": ["ingress", "egress"],
             "permission": "allow",
             "key_exprs": ["**", "**/@adv/**"],
+        },
+        {
+            # the advanced publishers' and subscribers' own detection tokens; a stage's
+            # alive/ready tokens only by that stage (below)
+            "id": "adv-tokens",
+            "messages": ["liveliness_token"],
+            "flows": ["ingress", "egress"],
+            "permission": "allow",
+            "key_exprs": ["**/@adv/**"],
+        },
+        {
+            "id": "see-tokens",
+            "messages": ["liveliness_token"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": ["**"],
         },
         {
             "id": "deliver",
@@ -205,7 +227,8 @@ def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
         },
     ]
     subjects = [{"id": "anyone"}]
-    policies = [{"id": "everyone", "rules": ["infrastructure", "deliver"], "subjects": ["anyone"]}]
+    policies = [{"id": "everyone", "rules": ["infrastructure", "adv-tokens", "see-tokens", "deliver"],
+                 "subjects": ["anyone"]}]
     for stage, topics in stage_keys.items():
         keys = []
         for t in topics:
@@ -217,8 +240,16 @@ def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
             "permission": "allow",
             "key_exprs": keys,
         })
+        rules.append({
+            "id": f"tokens-{stage}",
+            "messages": ["liveliness_token"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": [f"{KEY_ROOT}/*/{kind}/{stage}" for kind in ("alive", "ready")],
+        })
         subjects.append({"id": f"user-{stage}", "usernames": [stage]})
-        policies.append({"id": f"own-keys-{stage}", "rules": [f"publish-{stage}"], "subjects": [f"user-{stage}"]})
+        policies.append({"id": f"own-keys-{stage}", "rules": [f"publish-{stage}", f"tokens-{stage}"],
+                         "subjects": [f"user-{stage}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -314,6 +345,12 @@ class Bus:
         self._alive_lock = threading.Lock()
         self._alive_changed = threading.Condition(self._alive_lock)
         self._closed = False
+        # what this stage published on each data topic, newest delivery.cache_frames, by
+        # seq: served to consumers that fetch what they miss (:meth:`fetch`)
+        self._ring: dict[str, OrderedDict[int, tuple[bytes, bytes]]] = {}
+        self._ring_lock = threading.Lock()
+        self._queryables: list[Any] = []
+        self.fetched = 0
         self.dropped = 0
         self.misses = 0
         self.received = 0
@@ -342,7 +379,8 @@ class Bus:
         if self._closed:
             return
         self._closed = True
-        for obj in [*self._tokens.values(), *self._liveliness_subs, *self._subs, *self._pubs.values()]:
+        for obj in [*self._tokens.values(), *self._liveliness_subs, *self._subs, *self._queryables,
+                    *self._pubs.values()]:
             if obj is None:
                 continue
             try:
@@ -376,6 +414,12 @@ class Bus:
                 ),
                 publisher_detection=True,
             )
+            if topic in DATA_TOPICS:
+                self._ring[topic] = OrderedDict()
+                self._queryables.append(self.session.declare_queryable(
+                    f"{self.prefix}fetch/{topic}/**",
+                    zenoh.handlers.Callback(lambda q, t=topic: self._on_fetch(t, q), indirect=True),
+                ))
         elif topic.startswith("health/"):
             pub = self.session.declare_publisher(
                 k,
@@ -402,8 +446,83 @@ class Bus:
         pub = self._publisher(topic)
         if meta is None:
             pub.put(payload)
-        else:
-            pub.put(payload, attachment=_META_ENC.encode(meta))
+            return
+        att = _META_ENC.encode(meta)
+        pub.put(payload, attachment=att)
+        ring = self._ring.get(topic)
+        seq = meta.get("seq")
+        if ring is not None and isinstance(seq, int):
+            with self._ring_lock:
+                ring[seq] = (payload, att)
+                ring.move_to_end(seq)
+                while len(ring) > self.delivery.cache_frames:
+                    ring.popitem(last=False)
+
+    # -- explicit history ------------------------------------------------------------------
+    def _on_fetch(self, topic: str, query: Any) -> None:
+        """Answer a :meth:`fetch`: one reply per cached sample whose seq is in the asked
+        ``[lo, hi]`` (at most ``FETCH_MAX``), key ``fetch/<topic>/<seq>``."""
+        try:
+            lo, hi = _FETCH_DEC.decode(query.payload.to_bytes() if query.payload is not None else b"")
+            with self._ring_lock:
+                ring = self._ring.get(topic) or {}
+                if lo < 0:  # a head request: the newest seq published (-1: none yet)
+                    head = next(reversed(ring), -1) if ring else -1
+                    query.reply(f"{self.prefix}fetch/{topic}/head", b"", attachment=_META_ENC.encode({"head": head}))
+                    return
+                items = [(s, v) for s, v in ring.items() if lo <= s <= hi][:FETCH_MAX]
+            for s, (payload, att) in items:
+                query.reply(f"{self.prefix}fetch/{topic}/{s}", payload, attachment=att,
+                            congestion_control=zenoh.CongestionControl.BLOCK)
+        except Exception as exc:  # a malformed query: no answer
+            log.debug("%s: fetch on %s refused: %s", self.stage, topic, exc)
+
+    def head(self, topic: str, timeout: float = 2.0) -> int | None:
+        """The live head of ``topic``: the newest seq its publisher has published (its
+        announcement through the fetch queryable), ``None`` when no publisher answers.  A
+        consumer that (re)joins holds its catch-up window until it has passed the head, so
+        live frames never push the history out as gaps."""
+        heads = []
+        try:
+            for reply in self.session.get(f"{self.prefix}fetch/{topic}/**", payload=_META_ENC.encode([-1, -1]),
+                                          timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE,
+                                          target=zenoh.QueryTarget.ALL):
+                sample = reply.ok
+                if sample is not None and sample.attachment is not None:
+                    h = _META_DEC.decode(sample.attachment.to_bytes()).get("head")
+                    if isinstance(h, int) and not isinstance(h, bool):
+                        heads.append(h)
+        except Exception as exc:
+            log.warning("%s: asking the head of %s failed: %s", self.stage, topic, exc)
+        return max(heads) if heads else None
+
+    def fetch(self, topic: str, lo: int, hi: int, timeout: float = 5.0) -> list[Event]:
+        """Ask the publisher of ``topic`` for its cached samples with seq in ``[lo, hi]``
+        (what the advanced subscriber's history did not bring); returns them as events (the
+        stage validates them like any sample).  Empty when nobody answers in ``timeout``."""
+        out: list[Event] = []
+        try:
+            replies = self.session.get(
+                f"{self.prefix}fetch/{topic}/**", payload=_META_ENC.encode([int(lo), int(hi)]),
+                timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE,
+                target=zenoh.QueryTarget.ALL,
+            )
+            for reply in replies:
+                sample = reply.ok
+                if sample is None:
+                    continue
+                meta, err = None, None
+                att = sample.attachment
+                if att is not None:
+                    try:
+                        meta = _META_DEC.decode(att.to_bytes())
+                    except Exception as exc:
+                        err = f"attachment is not a JSON object: {exc}"
+                out.append(Event(topic, sample.payload.to_bytes(), meta, time.time_ns(), err))
+        except Exception as exc:
+            log.warning("%s: fetching %s %d-%d failed: %s", self.stage, topic, lo, hi, exc)
+        self.fetched += len(out)
+        return out
 
     # -- subscribing ---------------------------------------------------------------------
     def subscribe(self, patterns: Iterable[str], advanced: bool = True) -> None:
