@@ -4,7 +4,7 @@ Three messages, each a JSON object, used both on the Zenoh bus and in MCAP logs:
 
 ``/measurements`` (:class:`MeasurementsMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
      "kind": "bearing_range", "z": [[bearing_rad, range_m], ...]}
 
   (``kind == "range"``: ``"z": [[range_m], ...]``).  ``v`` and ``run`` are optional on
@@ -12,12 +12,12 @@ Three messages, each a JSON object, used both on the Zenoh bus and in MCAP logs:
 
 ``/truth`` (:class:`TruthMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0,
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
      "objects": [{"id": "obj0", "state": [px, vx, py, vy, omega]}, ...]}
 
 ``/tracks`` (:class:`TracksMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0,
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
      "tracks": [{"label": "t1", "state": [5 floats], "covariance": [25 floats, row-major],
                  "existence": 0.97}, ...],
      "assignments": ["t1", null, ...],          # one per measurement, input order
@@ -30,7 +30,7 @@ and the JSON path): finite floats only, ``frame >= 0``, ``0 <= stamp_ns < 2**63`
 ``bearing`` in ``[-pi, pi]``, state length 5, covariance length 25, existence and
 probabilities in ``[0, 1]``, ``len(assignments) == len(assignment_prob)``, unique truth
 ids / track labels, size limits (:data:`MAX_MEASUREMENTS`, :data:`MAX_TRACKS`,
-:data:`MAX_OBJECTS`), and ``v == SCHEMA_VERSION`` (anything else: "unsupported schema
+:data:`MAX_OBJECTS`), and ``v`` in :data:`READABLE_VERSIONS` (anything else: "unsupported schema
 version").  Unknown fields are rejected: a change of fields is a new schema version.
 
 Encoding validates too (a NaN would otherwise be written as ``null`` by msgspec).
@@ -94,7 +94,10 @@ __all__ = [
     "json_schema",
 ]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions this build reads: 2 adds the optional ``cluster`` of a track (two-level trackers);
+#: a version-1 message is a version-2 message without it.
+READABLE_VERSIONS = (1, 2)
 
 TOPIC_MEASUREMENTS = "/measurements"
 TOPIC_TRUTH = "/truth"
@@ -175,13 +178,15 @@ class TruthMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     objects: Annotated[list[TruthObject], msgspec.Meta(max_length=MAX_OBJECTS)]
 
 
-class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """One labelled track: mean (5), row-major covariance (25), existence probability."""
+class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, omit_defaults=True):
+    """One labelled track: mean (5), row-major covariance (25), existence probability, and
+    (schema 2, two-level trackers only; omitted otherwise) the id of its motion cluster."""
 
     label: str
     state: StateVec
     covariance: CovVec
     existence: Prob
+    cluster: Union[Annotated[int, msgspec.Meta(ge=0)], None] = None
 
 
 class TracksMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -247,12 +252,12 @@ def _is_int(x: Any) -> bool:
 def _check_header(topic: str, msg: Any) -> int | None:
     """Check v / frame / stamp_ns; return the frame index."""
     frame = msg.frame if _is_int(msg.frame) else None
-    if not _is_int(msg.v) or msg.v != SCHEMA_VERSION:
+    if not _is_int(msg.v) or msg.v not in READABLE_VERSIONS:
         raise CodecError(
             topic,
             frame,
-            f"unsupported schema version {msg.v!r} (this build reads version "
-            f"{SCHEMA_VERSION}) - at `$.v`",
+            f"unsupported schema version {msg.v!r} (this build reads versions "
+            f"{', '.join(map(str, READABLE_VERSIONS))}) - at `$.v`",
         )
     if frame is None or frame < 0:
         raise CodecError(topic, frame, f"frame must be an integer >= 0, got {msg.frame!r} - at `$.frame`")
@@ -493,12 +498,12 @@ def _decode_error(topic: str, data: bytes, exc: Exception) -> CodecError:
         m = _FRAME_RE.search(bytes(data[:4096]))
         if m:
             frame = int(m.group(1))
-    if _is_int(version) and version != SCHEMA_VERSION:
+    if _is_int(version) and version not in READABLE_VERSIONS:
         return CodecError(
             topic,
             frame,
-            f"unsupported schema version {version} (this build reads version "
-            f"{SCHEMA_VERSION}) - at `$.v`",
+            f"unsupported schema version {version} (this build reads versions "
+            f"{', '.join(map(str, READABLE_VERSIONS))}) - at `$.v`",
         )
     detail = str(exc)
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
@@ -588,6 +593,7 @@ def estimate_from_msg(msg: TracksMsg) -> Estimate:
             state=np.array(t.state, dtype=float),
             covariance=np.array(t.covariance, dtype=float).reshape(STATE_DIM, STATE_DIM),
             existence=float(t.existence),
+            cluster=t.cluster,
         )
         for t in msg.tracks
     )
@@ -675,6 +681,7 @@ def tracks_msg(est: Estimate, run: str = "") -> TracksMsg:
             state=np.asarray(t.state, dtype=float).ravel().tolist(),
             covariance=np.asarray(t.covariance, dtype=float).ravel().tolist(),
             existence=float(t.existence),
+            cluster=None if t.cluster is None else int(t.cluster),
         )
         for t in est.tracks
     ]
@@ -754,8 +761,9 @@ def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
         run=run,
         frame=int(est.frame),
         stamp_ns=int(est.stamp_ns),
-        tracks=[TrackMsg(label=lab, state=st, covariance=cv, existence=ex)
-                for lab, st, cv, ex in zip(labels, states.tolist(), covs.tolist(), exist.tolist())],
+        tracks=[TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
+                         cluster=None if t.cluster is None else int(t.cluster))
+                for lab, st, cv, ex, t in zip(labels, states.tolist(), covs.tolist(), exist.tolist(), tracks)],
         assignments=[None if a is None else str(a) for a in est.assignments],
         assignment_prob=probs.tolist(),
         diagnostics=diag,

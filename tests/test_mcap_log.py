@@ -188,7 +188,7 @@ def test_readable_by_standard_mcap_reader(tmp_path):
             json.loads(schema.data)
             obj = json.loads(message.data)
             assert message.log_time == message.publish_time == obj["stamp_ns"]
-            assert obj["v"] == 1 and obj["run"] == "run-1"
+            assert obj["v"] == 2 and obj["run"] == "run-1"
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
         assert counts == {TOPIC_MEASUREMENTS: 20, TOPIC_TRUTH: 20, TOPIC_TRACKS: 20}
         metas = list(reader.iter_metadata())
@@ -452,10 +452,10 @@ def test_wrong_schema_on_known_topic(tmp_path):
 def test_unsupported_version_in_file(tmp_path):
     path = tmp_path / "v2.mcap"
     _write_raw_measurements(
-        path, [b'{"v": 2, "frame": 0, "stamp_ns": 0, "sensor": "s", "kind": "range", "z": [[1.0]], "new": 1}']
+        path, [b'{"v": 3, "frame": 0, "stamp_ns": 0, "sensor": "s", "kind": "range", "z": [[1.0]], "new": 1}']
     )
     got, err = read_prefix(path)
-    assert got == [] and "unsupported schema version 2" in str(err) and "/measurements frame 0" in str(err)
+    assert got == [] and "unsupported schema version 3" in str(err) and "/measurements frame 0" in str(err)
 
 
 def test_writer_rejects_invalid_frame_without_writing_half(tmp_path):

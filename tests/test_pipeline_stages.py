@@ -160,7 +160,7 @@ def test_intake_accepts_a_valid_sample():
          {"seq": 1}, "non-finite"),
         (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[1e999,1.0]]}',
          {"seq": 1}, ""),
-        (b'{"v":2,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[]}',
+        (b'{"v":3,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[]}',
          {"seq": 1}, "unsupported schema version"),
         (b'{"v":1,"run":"runA","frame":3,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[0.1]]}',
          {"seq": 1}, "$.z"),
