@@ -69,8 +69,11 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Measurement -> object level (the single-level DDP-EMM's settings)."""
     member_existence: Prob = 0.35
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 1.0
-    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta."""
+    within_std: Positive = 15.0
+    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
+    robustness setting more than the true spread (true convoys share velocity exactly): the
+    pseudo-measurement reuses information across frames, so it must not be tight (tuned on
+    ``groups`` seeds 101-106, docs/trackers.md "Two-level model")."""
     theta_std: Positive = 30.0
     """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -78,8 +81,8 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     centroid: bool = True
     """theta also holds the cluster's centroid (membership only; never shared): members'
     positions ~ N(centroid, within_pos_std^2 I), so far-apart objects do not group."""
-    within_pos_std: Positive = 200.0
-    """Spread (m) of members' positions about their cluster's centroid."""
+    within_pos_std: Positive = 40.0
+    """Spread (m) of members' positions about their cluster's centroid (tuned as ``within_std``)."""
     centroid_std: Positive = 2000.0
     """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
     centroid_drift_std: Positive = 10.0
