@@ -5,31 +5,33 @@ object level, unchanged: its clusters are objects, its customers measurements) a
 object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
 
 * **Clusters** are groups of objects that share motion.  A cluster's parameter
-  :math:`\theta_c = (v_x, v_y)` is the velocity its members share (eq. (state1)-(state2):
-  :math:`f(x_\ell \mid \theta^*)`, here :math:`v_\ell \sim \mathcal N(\theta_c, S_w)` with the
-  known within-group spread :math:`S_w` = ``within_std**2 I``).
-* **Base distribution** :math:`H_2 = \mathcal N(\mu_0, \sigma_0^2 I)` on :math:`\theta`: the
+  :math:`\theta_c` is the velocity :math:`(v_x, v_y)` its members share (eqs. (2), (4)
+  [state1, state2]: :math:`f(x_\ell \mid \theta^*)`, here :math:`v_\ell \sim \mathcal N(\theta_c, S_w)`
+  with the known within-group spread :math:`S_w` = ``within_std**2 I``) and, for membership
+  only, the group's centroid (members' positions :math:`\sim \mathcal N(c, \sigma_p^2 I)`,
+  ``within_pos_std``; never shared).
+* **Base distribution** :math:`H_2 = \mathcal N(0, \sigma_0^2 I)` on each part: the
   conjugate equivalent of the paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the
-  within-group covariance is known (fixed at :math:`S_w` instead of drawn from the
-  inverse-Wishart part); :math:`\kappa_0 = 0` (a flat prior on the mean) is approached by a
-  large :math:`\sigma_0` (``theta_std``, 30 m/s, the object level's birth velocity spread).
+  within-group covariance is known (fixed instead of drawn from the inverse-Wishart part);
+  :math:`\kappa_0 = 0` (a flat prior on the mean) is approached by a large :math:`\sigma_0`
+  (``theta_std`` 30 m/s, ``centroid_std`` 2 km).
 * **Transition** of a cluster (Algorithm 1, step 2): it transitions iff it had at least one
   member (:math:`v^*_c \ge 1`, :math:`\lambda_c = 1`), with cardinality :math:`v^*_c` = its
   number of objects at the previous frame; :math:`\theta` moves by the kernel
-  :math:`\varphi`: a Gaussian random walk with std ``theta_drift_std`` per scan.
-* **Object -> cluster assignment** (eqs. (case1)-(case3), Pitman-Yor: (eq1)-(eq3)): collapsed
-  Gibbs (eq. (Gibbs)) over the member objects' assignments given their velocity estimates
-  :math:`v_\ell \sim \mathcal N(\cdot, P_{v,\ell})`; weights: a cluster already chosen
-  :math:`\propto n_c + v^*_c - d`, a transitioned one not yet chosen :math:`\propto v^*_c - d`,
-  a new one :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive
-  :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`
-  (eq. (posttheta) with :math:`\theta` integrated out).
+  :math:`\varphi` (eq. (8) [HH]): the velocity random-walks (``theta_drift_std``), the
+  centroid moves with it (plus ``centroid_drift_std``).
+* **Object -> cluster assignment** (eqs. (1), (3), (5) [case1-case3]; Pitman-Yor (17)-(19)):
+  collapsed Gibbs (eqs. (13)-(14) [posttheta, Gibbs]) over the member objects' labels given
+  their estimates; weights: a cluster already chosen :math:`\propto n_c + v^*_c - d`, a
+  transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
+  :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
+  :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
 * :math:`(\alpha_2, d)` on a grid (:func:`tracker.urn.frame_loglik_grid`) with Gamma priors.
-* **Sharing** (the members inform each other's motion, eq. (state1): :math:`F_\theta`
-  depends on the cluster's :math:`\theta`): each member's velocity takes a Kalman
-  pseudo-measurement :math:`\hat\theta_c^{-\ell}` (the cluster's leave-one-out posterior mean,
-  prior :math:`H_2`) with covariance :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`, before the
-  next prediction.
+* **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
+  each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
+  :math:`\theta` (the other current members, prior :math:`H_2`) with covariance
+  :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`, moment-matched over the last sweep's full
+  conditional of its label (:func:`share_velocity`), before the next prediction.
 
 The state (:class:`GroupState`) is flat plain data (the inner tracker's fields plus the
 cluster level), so :mod:`tracker.state` snapshots it exactly.
@@ -167,14 +169,6 @@ def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray
     return cov @ eta, cov
 
 
-def log_normal2(x: np.ndarray, mu: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """``log N(x; mu, S)`` for 2-vectors, broadcast over leading axes."""
-    Si, det = inv2(S)
-    r = x - mu
-    q = np.einsum("...i,...ij,...j->...", r, Si, r)
-    return -0.5 * q - 0.5 * np.log(det) - np.log(2 * np.pi)
-
-
 def urn_log_weights(n: np.ndarray, v_star: np.ndarray, alpha: float, d: float) -> np.ndarray:
     r"""Log prior weights of one object's options: each table then a new one (eqs. (case1)-(case3),
     Pitman-Yor (eq1)-(eq3)).  Table :math:`c`: :math:`n_c + v^*_c - d` (D1/P1 if chosen this frame,
@@ -195,6 +189,10 @@ class Shares:
     w: np.ndarray  # (P,)
     mu: np.ndarray  # (P, 2)
     cov: np.ndarray  # (P, 2, 2)
+
+    @staticmethod
+    def empty() -> "Shares":
+        return Shares(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2)))
 
 
 @dataclass(frozen=True)
@@ -341,7 +339,8 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
     h_lam, _ = inv2(blocks[0].h_cov)
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, np.concatenate([v_star, np.zeros(L)]).astype(float), z,
+    seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
+    _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
     new = np.unique(z[z >= G])
     remap = np.arange(T)
@@ -350,14 +349,6 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     w = rec_p[ll, tt]
     w = w / np.bincount(ll, weights=w, minlength=L)[ll]
     return remap[z], Shares(ll.astype(np.int64), w, rec_mu[ll, tt], rec_cov[ll, tt])
-
-
-def _shares(rec) -> Shares:
-    if not rec:
-        return Shares(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2)))
-    obj = np.concatenate([np.full(r[1].size, r[0], dtype=np.int64) for r in rec])
-    return Shares(obj, np.concatenate([r[1] for r in rec]), np.concatenate([r[2] for r in rec]),
-                  np.concatenate([r[3] for r in rec]))
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -468,7 +459,7 @@ class GroupTracker:
         slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
         init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
         if init.size == 0:
-            return np.zeros(0, dtype=np.int64), _shares([])
+            return np.zeros(0, dtype=np.int64), Shares.empty()
         return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps)
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
@@ -500,8 +491,8 @@ class GroupTracker:
         G = state.group_ids.size
         counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
         n_new = int(np.unique(z[z >= G]).size)
-        frame_ll = frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :], mass=float(state.group_count.sum()),
-                                     d_bar=float(G), n_object=float(z.size), n_new=n_new,
+        frame_ll = frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
+                                     mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size), n_new=n_new,
                                      seated_popularity=state.group_count, seated_counts=counts)
         hyper = cfg.hyper_forgetting * state.hyper2_loglik + frame_ll
         log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
