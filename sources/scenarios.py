@@ -72,6 +72,10 @@ and ``scene`` settings):
 ``random-cv``
     Held-out family: 8-15 straight constant-velocity objects, 2-25 m/s, births in 3 bursts,
     no crossing pairs, no birth regions.
+``groups``, ``groups-pl``
+    Convoys/formations sharing velocity and turn rate (offsets within 40 m), born anywhere,
+    one pair of groups passing each other, plus independent objects; ``groups-pl`` draws
+    power-law group sizes.  True membership in :attr:`Scenario.groups`.
 
 The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
 from the parameter set); the scenario tables are defined for ``T = 1`` s.

@@ -33,6 +33,19 @@ side of the crossing) is redrawn.
     lifetimes 20-100, births in ``bursts = 3`` bursts: each object is born at a burst scan
     (uniform in ``1..K - life_min + 1``) plus 0-2 scans; no crossing pairs; no birth regions.
 
+``groups`` (the two-level model's scene, ``docs/trackers.md``)
+    3-6 free objects as in ``random`` (speeds 5-30 m/s, |turn| <= 2 deg/s, lifetimes 20-100,
+    no crossing pairs) plus ``n_groups`` (5) groups of ``group_size_min..group_size_max``
+    (2-5) objects (``group_sizes = [..]`` fixes them): one birth scan, lifetime, velocity and
+    turn rate per group, members at offsets uniform in a disc of radius ``group_spacing``
+    (40 m; the first at the centre), each truncated when it leaves the box (the group is
+    redrawn if a member keeps fewer than ``life_min`` scans).  ``passing_pairs`` (1) pairs of
+    groups have centres that meet at a scan in ``8..K-7``, headings 30-150 deg apart, 7-39
+    scans on each side.  The groups (2+ members) are recorded in :attr:`Scenario.groups`.
+``groups-pl``
+    As ``groups`` with 8 groups of sizes 1-10, ``Pr(s) ~ s^-group_size_power`` (1.5), and one
+    free object: power-law cluster sizes, for DPY-STP.
+
 Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
 are defined for ``T = 1`` s (the crossing distance holds for that period).
 """

@@ -69,9 +69,9 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     objects: BnpConfig = BnpConfig()
     """Measurement -> object level (the single-level DDP-EMM's settings)."""
-    member_existence: Prob = 0.35
+    member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 15.0
+    within_std: Positive = 25.0
     """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
     robustness setting more than the true spread (true convoys share velocity exactly): the
     pseudo-measurement reuses information across frames, so it must not be tight (tuned on
