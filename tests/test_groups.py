@@ -145,10 +145,13 @@ def test_sharing_reduces_velocity_error_on_a_clean_convoy():
     sc, params, frames = _convoy()
     params = apply_overrides(params, ["clutter_rate=2.0"])
     frames = simulate_all(sc, params, 101)
+    # the default S_w (25 m/s, robust to wrong groups) and a tight one (3 m/s, fits a clean convoy)
     cfg = build("ddp-groups", params).config
-    shared = _velocity_error(params, frames, cfg)
     alone = _velocity_error(params, frames, apply_overrides(cfg, ["sharing=false"]))
-    assert shared < 0.8 * alone, (shared, alone)
+    shared = _velocity_error(params, frames, cfg)
+    tight = _velocity_error(params, frames, apply_overrides(cfg, ["within_std=3.0"]))
+    print(f"velocity error: alone {alone:.2f}, shared {shared:.2f}, tight {tight:.2f} m/s")
+    assert tight < shared < 0.9 * alone, (tight, shared, alone)
 
 
 def test_tracks_carry_their_cluster_and_convoys_group():
@@ -157,12 +160,14 @@ def test_tracks_carry_their_cluster_and_convoys_group():
     tr = build("ddp-groups", params)
     est = [e for _, e, _ in run(tr, frames, seed=3)]
     last = est[-1]
-    assert last.tracks and all(t.cluster is not None for t in last.tracks)
+    member = tr.config.member_existence
+    assert last.tracks and all((t.cluster is not None) == (t.existence >= member) for t in last.tracks)
+    assert sum(t.cluster is not None for t in last.tracks) >= 6
     f = frames[-1]
     pairs = []
     for t in last.tracks:
         d = np.linalg.norm(f.truth.positions - t.position, axis=1)
-        if d.min() < 50.0:
+        if d.min() < 50.0 and t.cluster is not None:
             pairs.append((group_of.get(f.truth.ids[d.argmin()], -1), t.cluster))
     assert len(pairs) >= 6
     assert adjusted_rand_index([p[0] for p in pairs], [p[1] for p in pairs]) > 0.5
