@@ -470,18 +470,22 @@ class GroupTracker:
         return ids, state.next_group + n_new
 
     def _transition_out(self, blocks: list[Block], z, ids) -> tuple:
-        """Clusters with members (v* >= 1) and each block's theta posterior (prior H_2) for the next frame."""
-        used = np.unique(z)
-        count = np.array([np.sum(z == t) for t in used.tolist()], dtype=float)
+        """Clusters with members (v* >= 1) and each block's theta posterior (prior H_2, information
+        form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
+        used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
-        for b in blocks + ([] if len(blocks) > 1 else [None]):
-            mean, cov = np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))
-            for i, t in enumerate(used.tolist()):
-                if b is not None:
-                    mask = z == t
-                    mean[i], cov[i] = theta_posterior(b.h_mean, b.h_cov, b.v[mask], b.R[mask])
-            out.append((mean, cov))
-        return ids[used].astype(np.int64), count, out[0], out[1]
+        for b in blocks:
+            Ri, _ = inv2(b.R)
+            h_lam, _ = inv2(b.h_cov)
+            lam = np.broadcast_to(h_lam, (used.size, 2, 2)).copy()
+            eta = np.broadcast_to(h_lam @ b.h_mean, (used.size, 2)).copy()
+            np.add.at(lam, slot, Ri)
+            np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
+            cov, _ = inv2(lam)
+            out.append((np.einsum("gij,gj->gi", cov, eta), cov))
+        if len(out) == 1:
+            out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
+        return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
 
     def _hyper(self, state: GroupState, z: np.ndarray) -> tuple[float, float, np.ndarray]:
         """(alpha_2, d) on the grid given the frame's object partition (tracker.urn.frame_loglik_grid)."""
