@@ -4,7 +4,7 @@ Three messages, each a JSON object, used both on the Zenoh bus and in MCAP logs:
 
 ``/measurements`` (:class:`MeasurementsMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
      "kind": "bearing_range", "z": [[bearing_rad, range_m], ...]}
 
   (``kind == "range"``: ``"z": [[range_m], ...]``).  ``v`` and ``run`` are optional on
@@ -12,12 +12,12 @@ Three messages, each a JSON object, used both on the Zenoh bus and in MCAP logs:
 
 ``/truth`` (:class:`TruthMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0,
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
      "objects": [{"id": "obj0", "state": [px, vx, py, vy, omega]}, ...]}
 
 ``/tracks`` (:class:`TracksMsg`)::
 
-    {"v": 1, "run": "", "frame": 0, "stamp_ns": 0,
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
      "tracks": [{"label": "t1", "state": [5 floats], "covariance": [25 floats, row-major],
                  "existence": 0.97}, ...],
      "assignments": ["t1", null, ...],          # one per measurement, input order
@@ -30,7 +30,7 @@ and the JSON path): finite floats only, ``frame >= 0``, ``0 <= stamp_ns < 2**63`
 ``bearing`` in ``[-pi, pi]``, state length 5, covariance length 25, existence and
 probabilities in ``[0, 1]``, ``len(assignments) == len(assignment_prob)``, unique truth
 ids / track labels, size limits (:data:`MAX_MEASUREMENTS`, :data:`MAX_TRACKS`,
-:data:`MAX_OBJECTS`), and ``v == SCHEMA_VERSION`` (anything else: "unsupported schema
+:data:`MAX_OBJECTS`), and ``v`` in :data:`READABLE_VERSIONS` (anything else: "unsupported schema
 version").  Unknown fields are rejected: a change of fields is a new schema version.
 
 Encoding validates too (a NaN would otherwise be written as ``null`` by msgspec).
@@ -61,6 +61,7 @@ from tracker.types import (
 __all__ = [
     "SCHEMA_VERSION",
     "MEASUREMENTS_SCHEMA_VERSION",
+    "TRACKS_SCHEMA_VERSION",
     "TOPIC_MEASUREMENTS",
     "TOPIC_TRUTH",
     "TOPIC_TRACKS",
@@ -105,6 +106,12 @@ writers write 1 when a message uses none of them (so version-1 readers still rea
 _READ_VERSIONS = {"/measurements": (1, 2)}
 #: The kinds of ``/measurements`` version 1.
 _V1_KINDS = ("bearing_range", "range")
+TRACKS_SCHEMA_VERSION = 2
+"""``/tracks`` version 2 adds the optional ``cluster`` of a track (two-level trackers); writers
+write 1 when no track carries one."""
+_READ_VERSIONS["/tracks"] = (1, 2)
+#: Versions this build reads, over all topics.
+READABLE_VERSIONS = (1, 2)
 
 TOPIC_MEASUREMENTS = "/measurements"
 TOPIC_TRUTH = "/truth"
@@ -204,13 +211,15 @@ class TruthMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     objects: Annotated[list[TruthObject], msgspec.Meta(max_length=MAX_OBJECTS)]
 
 
-class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """One labelled track: mean (5), row-major covariance (25), existence probability."""
+class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, omit_defaults=True):
+    """One labelled track: mean (5), row-major covariance (25), existence probability, and
+    (schema 2, two-level trackers only; omitted otherwise) the id of its motion cluster."""
 
     label: str
     state: StateVec
     covariance: CovVec
     existence: Prob
+    cluster: Union[Annotated[int, msgspec.Meta(ge=0)], None] = None
 
 
 class TracksMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -634,6 +643,7 @@ def estimate_from_msg(msg: TracksMsg) -> Estimate:
             state=np.array(t.state, dtype=float),
             covariance=np.array(t.covariance, dtype=float).reshape(STATE_DIM, STATE_DIM),
             existence=float(t.existence),
+            cluster=t.cluster,
         )
         for t in msg.tracks
     )
@@ -728,11 +738,12 @@ def tracks_msg(est: Estimate, run: str = "") -> TracksMsg:
             state=np.asarray(t.state, dtype=float).ravel().tolist(),
             covariance=np.asarray(t.covariance, dtype=float).ravel().tolist(),
             existence=float(t.existence),
+            cluster=None if t.cluster is None else int(t.cluster),
         )
         for t in est.tracks
     ]
     return TracksMsg(
-        v=SCHEMA_VERSION,
+        v=TRACKS_SCHEMA_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION,
         run=run,
         frame=idx,
         stamp_ns=_as_int(topic, idx, est.stamp_ns, "stamp_ns"),
@@ -807,12 +818,13 @@ def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
     if states is None or covs is None or not _in_unit(exist):
         return None
     return TracksMsg(
-        v=SCHEMA_VERSION,
+        v=TRACKS_SCHEMA_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION,
         run=run,
         frame=int(est.frame),
         stamp_ns=int(est.stamp_ns),
-        tracks=[TrackMsg(label=lab, state=st, covariance=cv, existence=ex)
-                for lab, st, cv, ex in zip(labels, states.tolist(), covs.tolist(), exist.tolist())],
+        tracks=[TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
+                         cluster=None if t.cluster is None else int(t.cluster))
+                for lab, st, cv, ex, t in zip(labels, states.tolist(), covs.tolist(), exist.tolist(), tracks)],
         assignments=[None if a is None else str(a) for a in est.assignments],
         assignment_prob=probs.tolist(),
         diagnostics=diag,

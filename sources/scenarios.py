@@ -72,6 +72,10 @@ and ``scene`` settings):
 ``random-cv``
     Held-out family: 8-15 straight constant-velocity objects, 2-25 m/s, births in 3 bursts,
     no crossing pairs, no birth regions.
+``groups``, ``groups-pl``
+    Convoys/formations sharing velocity and turn rate (offsets within 40 m), born anywhere,
+    one pair of groups passing each other, plus independent objects; ``groups-pl`` draws
+    power-law group sizes.  True membership in :attr:`Scenario.groups`.
 
 The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
 from the parameter set); the scenario tables are defined for ``T = 1`` s.
@@ -156,6 +160,9 @@ class Scenario:
     crossings: tuple[tuple[str, str, int], ...] = ()
     """Crossing pairs ``(id_a, id_b, scan)``: the two targets are within 20 m at ``scan``
     (generated ``random`` family; see :func:`sinks.metrics.crossing_label_keeping`)."""
+    groups: tuple[tuple[str, ...], ...] = ()
+    """True motion groups (generated ``groups`` families): each tuple holds the ids of objects
+    that share velocity and turn rate; objects in no tuple move alone (singletons)."""
     seed: int | None = None
     """Scene seed of a generated family (``None`` for the fixed tables)."""
     scene: tuple[str, ...] = ()
@@ -172,6 +179,10 @@ class Scenario:
         object.__setattr__(self, "crossings", tuple(
             (str(a), str(b), int(k)) for a, b, k in self.crossings))
         object.__setattr__(self, "scene", tuple(self.scene))
+        object.__setattr__(self, "groups", tuple(tuple(str(i) for i in g) for g in self.groups))
+        for g in self.groups:
+            if not set(g) <= set(ids):
+                raise ValueError(f"Scenario {self.name}: group {g} names unknown targets")
         for a, b, _k in self.crossings:
             if a not in ids or b not in ids:
                 raise ValueError(f"Scenario {self.name}: crossing ({a}, {b}) names unknown targets")

@@ -33,6 +33,19 @@ side of the crossing) is redrawn.
     lifetimes 20-100, births in ``bursts = 3`` bursts: each object is born at a burst scan
     (uniform in ``1..K - life_min + 1``) plus 0-2 scans; no crossing pairs; no birth regions.
 
+``groups`` (the two-level model's scene, ``docs/trackers.md``)
+    3-6 free objects as in ``random`` (speeds 5-30 m/s, |turn| <= 2 deg/s, lifetimes 20-100,
+    no crossing pairs) plus ``n_groups`` (5) groups of ``group_size_min..group_size_max``
+    (2-5) objects (``group_sizes = [..]`` fixes them): one birth scan, lifetime, velocity and
+    turn rate per group, members at offsets uniform in a disc of radius ``group_spacing``
+    (40 m; the first at the centre), each truncated when it leaves the box (the group is
+    redrawn if a member keeps fewer than ``life_min`` scans).  ``passing_pairs`` (1) pairs of
+    groups have centres that meet at a scan in ``8..K-7``, headings 30-150 deg apart, 7-39
+    scans on each side.  The groups (2+ members) are recorded in :attr:`Scenario.groups`.
+``groups-pl``
+    As ``groups`` with 8 groups of sizes 1-10, ``Pr(s) ~ s^-group_size_power`` (1.5), and one
+    free object: power-law cluster sizes, for DPY-STP.
+
 Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
 are defined for ``T = 1`` s (the crossing distance holds for that period).
 """
@@ -90,6 +103,18 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     range_max: float = 1900.0
     bearing_max_deg: float = 85.0
     K: int = 100
+    n_groups: int = 0
+    """Motion groups (``groups`` families): 0 = none."""
+    group_sizes: tuple[int, ...] = ()
+    """Explicit group sizes (overrides ``n_groups`` and the size draw)."""
+    group_size_min: int = 2
+    group_size_max: int = 5
+    group_size_power: float = 0.0
+    """0: sizes uniform in min..max; > 0: Pr(size s) proportional to s^-power (power law)."""
+    group_spacing: float = 40.0
+    """Members sit at offsets uniform in a disc of this radius (m) about the group's centre."""
+    passing_pairs: int = 0
+    """Pairs of groups whose centres meet (heading 30-150 deg apart) at a random scan."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -108,10 +133,18 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
              "need 0 <= range_min < range_max <= 2000"),
             (0.0 < self.bearing_max_deg < 90.0, "bearing_max_deg must be in (0, 90)"),
         ]
+        checks += [
+            (self.n_groups >= 0 and all(g >= 1 for g in self.group_sizes), "group sizes must be >= 1"),
+            (1 <= self.group_size_min <= self.group_size_max, "need 1 <= group_size_min <= group_size_max"),
+            (self.group_size_power >= 0.0, "group_size_power must be >= 0"),
+            (0.0 <= self.group_spacing <= 200.0, "group_spacing must be in [0, 200] m"),
+            (0 <= 2 * self.passing_pairs <= max(self.n_groups, len(self.group_sizes)),
+             "2 * passing_pairs must not exceed the number of groups"),
+        ]
         for ok, msg in checks:
             if not ok:
                 raise ValueError(msg)
-        if 2 * self.crossing_pairs > (self.n_objects or self.n_min):
+        if 2 * self.crossing_pairs > (self.n_objects or self.n_min) and self.crossing_pairs:
             raise ValueError("2 * crossing_pairs must not exceed the number of objects")
 
 
@@ -122,6 +155,15 @@ FAMILIES: dict[str, SceneFamily] = {
         n_min=8, n_max=15, crossing_pairs=0, life_min=20, speed_min=2.0, speed_max=25.0,
         turn_max_deg=0.0, straight_fraction=1.0, bursts=3,
     ),
+    "groups": SceneFamily(
+        n_min=3, n_max=6, crossing_pairs=0, n_groups=5, passing_pairs=1, life_min=20, speed_min=5.0,
+        speed_max=30.0, turn_max_deg=2.0,
+    ),
+    "groups-pl": SceneFamily(
+        n_min=1, n_max=1, crossing_pairs=0, n_groups=8, passing_pairs=1, group_size_min=1,
+        group_size_max=10, group_size_power=1.5, life_min=20, speed_min=5.0, speed_max=30.0,
+        turn_max_deg=2.0,
+    ),
 }
 
 _DESCRIPTIONS = {
@@ -129,6 +171,10 @@ _DESCRIPTIONS = {
               "5-40 m/s, |turn| <= 3 deg/s, 3 crossing pairs (within 20 m); no birth regions",
     "random-cv": "Generated (held-out): 8-15 straight constant-velocity objects, 2-25 m/s, "
                  "births in 3 bursts; no birth regions",
+    "groups": "Generated: 5 convoys of 2-5 objects sharing velocity and turn rate (offsets within "
+              "40 m), born anywhere, one pair of groups passing each other, plus 3-6 independent objects",
+    "groups-pl": "Generated: 8 groups with power-law sizes (Pr(s) ~ s^-1.5, 1-10), one passing pair, "
+                 "plus 1 independent object",
 }
 
 
@@ -276,6 +322,81 @@ def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object,
     raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
 
 
+def _group_sizes(rng: np.random.Generator, fam: SceneFamily) -> list[int]:
+    if fam.group_sizes:
+        return list(fam.group_sizes)
+    sizes = np.arange(fam.group_size_min, fam.group_size_max + 1)
+    p = sizes.astype(float) ** -fam.group_size_power
+    return [int(x) for x in rng.choice(sizes, size=fam.n_groups, p=p / p.sum())]
+
+
+def _offsets(rng: np.random.Generator, size: int, radius: float) -> np.ndarray:
+    """``(size, 2)`` member offsets uniform in a disc (the first member at the centre)."""
+    r = radius * np.sqrt(rng.uniform(size=size))
+    phi = rng.uniform(-np.pi, np.pi, size=size)
+    out = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+    out[0] = 0.0
+    return out
+
+
+def _group(rng: np.random.Generator, fam: SceneFamily, size: int) -> list[_Object]:
+    """A formation born in the box: members share velocity and turn rate, offset positions."""
+    for _ in range(_MAX_TRIES):
+        b = _birth_scan(rng, fam, np.zeros(0, dtype=int))
+        life = int(rng.integers(fam.life_min, fam.life_max + 1))
+        d = min(b + life - 1, fam.K)
+        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
+        centre = _position(rng, fam)
+        objs = []
+        for off in _offsets(rng, size, fam.group_spacing):
+            x = _state(centre + off, vel)
+            kept = _inside_run(_propagate(x, d - b, 1.0), fam)
+            if kept < fam.life_min:
+                break
+            objs.append(_Object(x, b, b + kept - 1))
+        if len(objs) == size:
+            return objs
+    raise ConfigError("scene: could not place a group inside the field; relax the scene.* settings")
+
+
+def _passing_groups(rng: np.random.Generator, fam: SceneFamily, sizes: tuple[int, int]) -> list[list[_Object]]:
+    """Two formations whose centres meet at a random scan, headings 30-150 deg apart."""
+    m = CROSSING_MIN_SIDE
+    for _ in range(_MAX_TRIES):
+        c = int(rng.integers(m + 1, fam.K - m + 1))
+        p = _position(rng, fam)
+        h_a = rng.uniform(-np.pi, np.pi)
+        h_b = h_a + rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 150.0))
+        groups = []
+        for size, heading in zip(sizes, (h_a, h_b)):
+            vel = _velocity(rng, fam, heading)
+            before = int(rng.integers(m, 40))
+            after = int(rng.integers(m, 40))
+            objs = []
+            for off in _offsets(rng, size, fam.group_spacing):
+                x_c = _state(p + off, vel)
+                back, n_back = _crossing_side(x_c, min(before, c - 1), -1.0, fam)
+                _, n_fwd = _crossing_side(x_c, min(after, fam.K - c), 1.0, fam)
+                if n_back < m or n_fwd < m:
+                    break
+                objs.append(_Object(back[n_back], c - n_back, c + n_fwd))
+            if len(objs) < size:
+                break
+            groups.append(objs)
+        if len(groups) == 2:
+            return groups
+    raise ConfigError("scene: could not place passing groups inside the field; relax the scene.* settings")
+
+
+def _all_groups(rng: np.random.Generator, fam: SceneFamily) -> list[list[_Object]]:
+    sizes = _group_sizes(rng, fam)
+    out: list[list[_Object]] = []
+    for i in range(fam.passing_pairs):
+        out += _passing_groups(rng, fam, (sizes[2 * i], sizes[2 * i + 1]))
+    out += [_group(rng, fam, s) for s in sizes[2 * fam.passing_pairs:]]
+    return out
+
+
 def family_template(name: str):
     """A target-less :class:`Scenario` of family ``name``: what every scene of the family
     shares (sensor kind, ``K``, no birth regions), for :meth:`Scenario.adapt_params` without
@@ -301,6 +422,11 @@ def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
         pairs.append((len(objs), len(objs) + 1, c))
         objs += [a, b]
     objs += [_free_object(rng, fam, bursts) for _ in range(n - len(objs))]
+    member_of: list[list[int]] = []
+    for g in _all_groups(rng, fam) if fam.n_groups or fam.group_sizes else []:
+        member_of.append(list(range(len(objs), len(objs) + len(g))))
+        objs += g
+    n = len(objs)
     order = sorted(range(n), key=lambda j: (objs[j].birth, j))
     ident = {j: f"T{rank + 1}" for rank, j in enumerate(order)}
     inv = CoordinatedTurn(T=-1.0)
@@ -311,5 +437,5 @@ def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
     crossings = tuple((ident[a], ident[b], c) for a, b, c in pairs)
     return Scenario(
         name, _DESCRIPTIONS[name], K=fam.K, targets=targets, birth=(), crossings=crossings,
-        seed=int(seed), scene=tuple(overrides),
+        groups=tuple(tuple(ident[j] for j in g) for g in member_of if len(g) > 1), seed=int(seed), scene=tuple(overrides),
     )

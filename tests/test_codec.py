@@ -163,7 +163,7 @@ def test_measurements_json_field_names_and_run():
     f = make_frame(rng, k=3, m=2)
     obj = json.loads(encode_measurements(f, run="run-42"))
     assert set(obj) == {"v", "run", "frame", "stamp_ns", "sensor", "kind", "z"}
-    assert obj["v"] == SCHEMA_VERSION == 1
+    assert obj["v"] == SCHEMA_VERSION == 1  # version 2 only when a message uses its additions
     assert obj["run"] == "run-42"
     assert obj["frame"] == 3 and obj["kind"] == "bearing_range" and obj["sensor"] == "radar0"
     assert obj["z"] == f.z.tolist()
@@ -175,7 +175,7 @@ def test_measurements_five_fields_only_decode():
     assert f.frame == 7 and f.stamp_ns == 1000
     assert np.array_equal(f.z, [[0.1, 10.0], [-0.2, 20.0]])
     msg = decode_measurements_msg(raw(meas_obj()))
-    assert msg.v == 1 and msg.run == ""
+    assert msg.v == SCHEMA_VERSION and msg.run == ""
     g = decode_measurements(raw(meas_obj(kind="range", z=[[1.0], [2.5]])))
     assert g.z.shape == (2, 1)
 
@@ -419,7 +419,7 @@ def _track(**over):
         ({"assignment_prob": [0.5]}, ["len(assignments) = 2", "len(assignment_prob) = 1"]),
         ({"assignments": ["t1", 3]}, ["$.assignments[1]"]),
         ({"diagnostics": {"alpha": "x"}}, ["$.diagnostics"]),
-        ({"v": 2}, ["unsupported schema version 2"]),
+        ({"v": 3}, ["unsupported schema version 3"]),
         ({"tracks": [_track(label=f"t{i}") for i in range(MAX_TRACKS + 1)]}, ["$.tracks"]),
     ],
 )
@@ -503,3 +503,19 @@ def test_encode_tracks_fast_path_gives_the_checked_bytes():
         assert _checked_tracks_msg(bad, "r") is None
         with pytest.raises(CodecError):
             encode_tracks(bad, "r")
+
+
+def test_track_cluster_schema_2_and_version_1_logs_still_read():
+    # schema 2: a two-level tracker's track carries its motion cluster; None is omitted
+    t = TrackEstimate("t1", np.ones(5), np.eye(5), 0.9, cluster=4)
+    u = TrackEstimate("t2", np.ones(5), np.eye(5), 0.8)
+    data = encode_tracks(Estimate(3, 0, (t, u)))
+    obj = json.loads(data)
+    assert obj["v"] == 2 and obj["tracks"][0]["cluster"] == 4 and "cluster" not in obj["tracks"][1]
+    out = decode_tracks(data)
+    assert [x.cluster for x in out.tracks] == [4, None]
+    # a version-1 log (no cluster field) reads as before
+    old = decode_tracks(raw({**tracks_obj(), "v": 1}))
+    assert old.tracks[0].cluster is None and old.tracks[0].existence == 0.9
+    with pytest.raises(CodecError, match=r"\$\.tracks\[0\]\.cluster"):
+        decode_tracks(raw(tracks_obj(tracks=[_track(cluster=-1)])))

@@ -188,7 +188,7 @@ def test_readable_by_standard_mcap_reader(tmp_path):
             json.loads(schema.data)
             obj = json.loads(message.data)
             assert message.log_time == message.publish_time == obj["stamp_ns"]
-            assert obj["v"] == 1 and obj["run"] == "run-1"
+            assert obj["v"] == 1 and obj["run"] == "run-1"  # no version-2 field used
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
         assert counts == {TOPIC_MEASUREMENTS: 20, TOPIC_TRUTH: 20, TOPIC_TRACKS: 20}
         metas = list(reader.iter_metadata())

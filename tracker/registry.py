@@ -43,6 +43,21 @@ def _bnp(name: str, description: str) -> TrackerKind:
                        lambda params, config: make_tracker(name, params, config))
 
 
+def _bnp_alias(name: str, preset: str, description: str) -> TrackerKind:
+    """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations)."""
+    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpTracker
+
+    presets = {name: TRACKER_PRESETS[preset]}
+    return TrackerKind(name, description, BnpConfig, presets, lambda params, config: BnpTracker(params, config, name))
+
+
+def _groups(name: str, description: str) -> TrackerKind:
+    from tracker.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
+
+    return TrackerKind(name, description, GroupConfig, GROUP_PRESETS,
+                       lambda params, config: make_group_tracker(name, params, config))
+
+
 def _glmb() -> TrackerKind:
     from tracker.glmb import GLMB_PRESETS, GlmbConfig, make_glmb
 
@@ -54,6 +69,10 @@ _KINDS: dict[str, Callable[[], TrackerKind]] = {
     "ddp": lambda: _bnp("ddp", "DDP-EMM: dependent Dirichlet process tracker"),
     "dpyp": lambda: _bnp("dpyp", "DPY-STP: dependent Pitman-Yor process tracker"),
     "glmb": _glmb,
+    "ddp-mb": lambda: _bnp_alias("ddp-mb", "ddp", "DDP-EMM, single level (objects = clusters; same as ddp today)"),
+    "dpyp-mb": lambda: _bnp_alias("dpyp-mb", "dpyp", "DPY-STP, single level (objects = clusters; same as dpyp today)"),
+    "ddp-groups": lambda: _groups("ddp-groups", "Two-level DDP-EMM: measurements -> objects -> motion clusters"),
+    "dpyp-groups": lambda: _groups("dpyp-groups", "Two-level DPY-STP: Pitman-Yor discount on the object partition"),
 }
 
 #: Names of the trackers, in display order.

@@ -134,12 +134,14 @@ class Frame:
 
 @dataclass(frozen=True)
 class TrackEstimate:
-    """One labelled object estimate: label, mean ``(5,)``, covariance ``(5, 5)``, existence."""
+    """One labelled object estimate: label, mean ``(5,)``, covariance ``(5, 5)``, existence,
+    and (two-level trackers only) ``cluster``: the id of the object's motion cluster."""
 
     label: str
     state: np.ndarray
     covariance: np.ndarray
     existence: float
+    cluster: int | None = None
 
     @property
     def position(self) -> np.ndarray:

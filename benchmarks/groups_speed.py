@@ -1,0 +1,53 @@
+"""Time per frame of ``ddp-groups`` against ``ddp-mb``, interleaved frame by frame in one process.
+
+On a shared machine the load changes from second to second, so the two trackers are timed on
+the same frame one right after the other (alternating which goes first) and the ratio of the
+medians is reported.
+
+    python benchmarks/groups_speed.py --scenario groups --seeds 1 2 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from sources.scenarios import get_scenario, is_generated  # noqa: E402
+from sources.synthetic import simulate_all  # noqa: E402
+from tracker.models.params import load_params  # noqa: E402
+from tracker.registry import build  # noqa: E402
+from tracker.state import frame_rng  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", default="groups")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--trackers", nargs=2, default=["ddp-groups", "ddp-mb"])
+    args = ap.parse_args()
+    ms: dict[str, list[float]] = {t: [] for t in args.trackers}
+    for seed in args.seeds:
+        sc = get_scenario(args.scenario, seed=seed) if is_generated(args.scenario) else get_scenario(args.scenario)
+        params = sc.adapt_params(load_params("vo2017"))
+        trackers = {t: build(t, params) for t in args.trackers}
+        states = {t: tr.initial_state() for t, tr in trackers.items()}
+        for f in simulate_all(sc, params, seed):
+            order = args.trackers if f.frame % 2 else args.trackers[::-1]
+            for t in order:
+                t0 = time.perf_counter()
+                states[t], _ = trackers[t].step(states[t], f, frame_rng(seed, f.frame))
+                ms[t].append((time.perf_counter() - t0) * 1e3)
+    a, b = args.trackers
+    ma, mb = np.median(ms[a][5:]), np.median(ms[b][5:])  # the first frames include compilation
+    print(f"{args.scenario}, seeds {args.seeds}: {a} {ma:.2f} ms/frame, {b} {mb:.2f} ms/frame (median), "
+          f"ratio {ma / mb:.2f}; means {np.mean(ms[a][5:]):.2f} / {np.mean(ms[b][5:]):.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,527 @@
+r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp-groups``, ``dpyp-groups``).
+
+:class:`GroupTracker` wraps a :class:`tracker.bnp_tracker.BnpTracker` (the measurement ->
+object level, unchanged: its clusters are objects, its customers measurements) and adds the
+object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
+
+* **Clusters** are groups of objects that share motion.  A cluster's parameter
+  :math:`\theta_c` is the velocity :math:`(v_x, v_y)` its members share (eqs. (2), (4)
+  [state1, state2]: :math:`f(x_\ell \mid \theta^*)`, here :math:`v_\ell \sim \mathcal N(\theta_c, S_w)`
+  with the known within-group spread :math:`S_w` = ``within_std**2 I``) and, for membership
+  only, the group's centroid (members' positions :math:`\sim \mathcal N(c, \sigma_p^2 I)`,
+  ``within_pos_std``; never shared).
+* **Base distribution** :math:`H_2 = \mathcal N(0, \sigma_0^2 I)` on each part: the
+  conjugate equivalent of the paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the
+  within-group covariance is known (fixed instead of drawn from the inverse-Wishart part);
+  :math:`\kappa_0 = 0` (a flat prior on the mean) is approached by a large :math:`\sigma_0`
+  (``theta_std`` 30 m/s, ``centroid_std`` 2 km).
+* **Transition** of a cluster (Algorithm 1, step 2): it transitions iff it had at least one
+  member (:math:`v^*_c \ge 1`, :math:`\lambda_c = 1`), with cardinality :math:`v^*_c` = its
+  number of objects at the previous frame; :math:`\theta` moves by the kernel
+  :math:`\varphi` (eq. (8) [HH]): the velocity random-walks (``theta_drift_std``), the
+  centroid moves with it (plus ``centroid_drift_std``).
+* **Object -> cluster assignment** (eqs. (1), (3), (5) [case1-case3]; Pitman-Yor (17)-(19)):
+  collapsed Gibbs (eqs. (13)-(14) [posttheta, Gibbs]) over the member objects' labels given
+  their estimates; weights: a cluster already chosen :math:`\propto n_c + v^*_c - d`, a
+  transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
+  :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
+  :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
+* :math:`(\alpha_2, d)` on a grid (:func:`tracker.urn.frame_loglik_grid`) with Gamma priors.
+* **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
+  each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
+  :math:`\theta` (the other current members, prior :math:`H_2`) with covariance
+  :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`, moment-matched over the last sweep's full
+  conditional of its label (:func:`share_velocity`), before the next prediction.
+
+The state (:class:`GroupState`) is flat plain data (the inner tracker's fields plus the
+cluster level), so :mod:`tracker.state` snapshots it exactly.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field, fields
+from functools import cached_property
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpState, BnpTracker
+from tracker.models.params import ModelParams
+from tracker.types import Estimate, Frame, TrackEstimate
+from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
+
+try:  # numba compiles the partition sweeps (as tracker.gibbs does); plain Python otherwise
+    from numba import njit as _njit
+except ImportError:  # pragma: no cover
+    _njit = None
+
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+_VEL = np.array([1, 3])
+_POS = np.array([0, 2])
+
+
+class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Settings of the two-level tracker: the object level (``objects``) and the cluster level."""
+
+    objects: BnpConfig = BnpConfig()
+    """Measurement -> object level (the single-level DDP-EMM's settings)."""
+    member_existence: Prob = 0.8
+    """Objects with existence at least this take part in the object partition."""
+    within_std: Positive = 25.0
+    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
+    robustness setting more than the true spread (true convoys share velocity exactly): the
+    pseudo-measurement reuses information across frames, so it must not be tight (tuned on
+    ``groups`` seeds 101-106, docs/trackers.md "Two-level model")."""
+    theta_std: Positive = 30.0
+    """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
+    theta_drift_std: Positive = 2.0
+    """phi: a transitioned cluster's theta random-walks with this std (m/s) per scan."""
+    centroid: bool = True
+    """theta also holds the cluster's centroid (membership only; never shared): members'
+    positions ~ N(centroid, within_pos_std^2 I), so far-apart objects do not group."""
+    within_pos_std: Positive = 40.0
+    """Spread (m) of members' positions about their cluster's centroid (tuned as ``within_std``)."""
+    centroid_std: Positive = 2000.0
+    """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
+    centroid_drift_std: Positive = 10.0
+    """phi on the centroid: it moves with theta's velocity plus this random walk (m per scan)."""
+    sweeps: Annotated[int, msgspec.Meta(ge=1)] = 6
+    """Gibbs sweeps over the object assignments per frame (the last one is kept)."""
+    sharing: bool = True
+    """Members' velocities take their cluster's leave-one-out theta as a pseudo-measurement."""
+    alpha: Positive = 0.5
+    alpha_shape: Positive = 1.0
+    alpha_scale: Positive = 1.0
+    infer_alpha: bool = True
+    d: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    """Pitman-Yor discount of the object partition (0 = DDP)."""
+    d_shape: Positive = 1.0
+    d_scale: Positive = 0.1
+    infer_d: bool = False
+    hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
+
+
+GROUP_PRESETS: dict[str, GroupConfig] = {
+    "ddp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"]),
+    "dpyp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"], d=0.1, infer_d=True),
+}
+
+
+@dataclass(frozen=True)
+class GroupState:
+    """The inner :class:`BnpState`'s fields (one row per object) plus the cluster level.
+
+    ``cluster`` (N,) is each object's cluster id (-1: not in the partition); ``group_ids``
+    (G,), ``group_mean`` (G, 2), ``group_cov`` (G, 2, 2), ``group_count`` (G,) = v* hold the
+    clusters that transition to the next frame (posterior of theta given all members).
+    """
+
+    frame: int = -1
+    stamp_ns: int = 0
+    labels: tuple[str, ...] = ()
+    mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
+    existence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    popularity: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    alpha: float = 1.0
+    d: float = 0.0
+    hyper_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    cluster: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    group_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    group_mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    group_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    group_count: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    group_pos_mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    group_pos_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    alpha2: float = 0.5
+    d2: float = 0.0
+    hyper2_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    next_group: int = 0
+
+    def inner(self) -> BnpState:
+        names = [f.name for f in fields(BnpState)]
+        return BnpState(**{n: getattr(self, n) for n in names})
+
+
+# -- conjugate Gaussian algebra on 2-vectors (closed-form 2x2) --------------------------------
+def inv2(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse and determinant of ``(..., 2, 2)`` matrices."""
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    inv = np.empty_like(A)
+    inv[..., 0, 0], inv[..., 1, 1] = A[..., 1, 1], A[..., 0, 0]
+    inv[..., 0, 1], inv[..., 1, 0] = -A[..., 0, 1], -A[..., 1, 0]
+    return inv / det[..., None, None], det
+
+
+def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Posterior of :math:`\theta` given prior :math:`\mathcal N(m_0, C_0)` and members
+    :math:`v_j \sim \mathcal N(\theta, R_j)` (``v`` (n, 2), ``R`` (n, 2, 2)):
+    :math:`\Lambda = C_0^{-1} + \sum_j R_j^{-1}`, mean :math:`\Lambda^{-1}(C_0^{-1} m_0 + \sum_j R_j^{-1} v_j)`."""
+    C0i, _ = inv2(C0)
+    Ri, _ = inv2(R)
+    lam = C0i + Ri.sum(axis=0)
+    eta = C0i @ m0 + np.einsum("nij,nj->i", Ri, v)
+    cov, _ = inv2(lam)
+    return cov @ eta, cov
+
+
+def urn_log_weights(n: np.ndarray, v_star: np.ndarray, alpha: float, d: float) -> np.ndarray:
+    r"""Log prior weights of one object's options: each table then a new one (eqs. (case1)-(case3),
+    Pitman-Yor (eq1)-(eq3)).  Table :math:`c`: :math:`n_c + v^*_c - d` (D1/P1 if chosen this frame,
+    D2/P2 if only transitioned); new: :math:`\alpha + d K`, K = tables with :math:`n_c + v^*_c > 0`.
+    Tables with :math:`n_c + v^*_c = 0` get weight 0."""
+    occ = (n + v_star) > 0
+    w = np.where(occ, n + v_star - d, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.log(np.append(w, alpha + d * occ.sum()))
+
+
+@dataclass(frozen=True)
+class Shares:
+    """The last sweep's conditionals: object ``obj[p]`` joins an option with probability ``w[p]``,
+    whose theta, given the option's other members, is N(``mu[p]``, ``cov[p]``)."""
+
+    obj: np.ndarray  # (P,)
+    w: np.ndarray  # (P,)
+    mu: np.ndarray  # (P, 2)
+    cov: np.ndarray  # (P, 2, 2)
+
+    @staticmethod
+    def empty() -> "Shares":
+        return Shares(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2)))
+
+
+@dataclass(frozen=True)
+class Block:
+    """One independent 2-vector part of theta: members ``v`` (L, 2) ~ N(theta, ``R`` (L, 2, 2));
+    transitioned clusters' priors N(``prior_mean`` (G, 2), ``prior_cov`` (G, 2, 2)); H_2's part
+    N(``h_mean``, ``h_cov``)."""
+
+    v: np.ndarray
+    R: np.ndarray
+    prior_mean: np.ndarray
+    prior_cov: np.ndarray
+    h_mean: np.ndarray
+    h_cov: np.ndarray
+
+    def prior_information(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(T, 2, 2)``, ``(T, 2)``: information form of each table's prior (G transitioned, L new)."""
+        L, G = self.v.shape[0], self.prior_mean.shape[0]
+        h_lam, _ = inv2(self.h_cov)
+        p_lam, _ = inv2(self.prior_cov)
+        lam0 = np.concatenate([p_lam, np.broadcast_to(h_lam, (L, 2, 2))])
+        eta0 = np.concatenate([np.einsum("gij,gj->gi", p_lam, self.prior_mean).reshape(G, 2),
+                               np.broadcast_to(h_lam @ self.h_mean, (L, 2))])
+        return lam0, eta0
+
+
+def _inv_into(A, out) -> float:
+    """2x2 inverse of ``A`` into ``out``; returns det(A)."""
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    out[0, 0], out[1, 1] = A[1, 1] / det, A[0, 0] / det
+    out[0, 1], out[1, 0] = -A[0, 1] / det, -A[1, 0] / det
+    return det
+
+
+def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
+    n[t] += sign
+    for p in range(lam.shape[0]):
+        if n[t] == 0:  # exact reset: no round-off drift
+            lam[p, t] = lam0[p, t]
+            eta[p, t] = eta0[p, t]
+        else:
+            lam[p, t] += sign * Ri[p, l]
+            eta[p, t] += sign * Riv[p, l]
+
+
+def _option_logw(n, v_star, alpha, d, logw) -> None:
+    """Urn weights (:func:`urn_log_weights`) of every table; the first empty table stands for "new"."""
+    K = 0
+    for t in range(n.size):
+        K += 1 if n[t] + v_star[t] > 0 else 0
+    free = -1
+    for t in range(n.size):
+        load = n[t] + v_star[t]
+        if load > 0:
+            logw[t] = np.log(load - d)
+        elif free < 0:
+            free = t
+            logw[t] = np.log(alpha + d * K)
+        else:
+            logw[t] = -np.inf
+
+
+def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov) -> None:
+    """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available).
+
+    ``v`` (P, L, 2), ``R`` (P, L, 2, 2): the members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2):
+    the tables' priors; ``u`` (S, L) uniforms.  The last sweep's conditionals go to ``rec_p``
+    (L, T); part 0's theta given the table's *other current members* and H_2 (``h_lam``,
+    ``h_eta``: information form), not the transitioned prior, which carries object l's own past,
+    goes to ``rec_mu`` (L, T, 2), ``rec_cov`` (L, T, 2, 2).
+    """
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
+    n = np.zeros(T)
+    lam, eta = lam0.copy(), eta0.copy()
+    Ri = np.empty((P, L, 2, 2))
+    Riv = np.empty((P, L, 2))
+    for p in range(P):
+        for l in range(L):
+            _inv_into(R[p, l], Ri[p, l])
+            Riv[p, l] = Ri[p, l] @ v[p, l]
+    for l in range(L):
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+    logw = np.empty(T)
+    cov = np.empty((2, 2))
+    Si = np.empty((2, 2))
+    S = u.shape[0]
+    for s in range(S):
+        for l in range(L):
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
+            _option_logw(n, v_star, alpha, d, logw)
+            for t in range(T):
+                if logw[t] == -np.inf:
+                    continue
+                for p in range(P):
+                    _inv_into(lam[p, t], cov)
+                    mu = cov @ eta[p, t]
+                    det = _inv_into(cov + R[p, l], Si)
+                    r = v[p, l] - mu
+                    logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    if p == 0 and s == S - 1:
+                        _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
+                        rec_mu[l, t] = rec_cov[l, t] @ (eta[0, t] - eta0[0, t] + h_eta)
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
+            c = np.cumsum(w)
+            k = min(int(np.searchsorted(c, u[s, l], side="right")), T - 1)
+            while w[k] == 0.0:  # never land on an impossible table through round-off
+                k -= 1
+            z[l] = k
+            if s == S - 1:
+                rec_p[l] = w
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+
+
+if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
+    _inv_into = _njit(cache=True, nogil=True)(_inv_into)
+    _move = _njit(cache=True, nogil=True)(_move)
+    _option_logw = _njit(cache=True, nogil=True)(_option_logw)
+    _partition_kernel = _njit(cache=True, nogil=True)(_partition_kernel)
+
+
+def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
+                     init: np.ndarray, sweeps: int) -> tuple[np.ndarray, Shares]:
+    """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
+
+    theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
+    transitioned clusters have cardinality ``v_star`` (G,); ``init`` (L,): start table
+    (< G transitioned, -1 new).  Each object's conditional is the urn weight
+    (:func:`urn_log_weights`) times the conjugate predictive of each block.  Returns the last
+    sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
+    conditionals with the first block's leave-one-out theta given the other current members
+    (prior H_2; :class:`Shares`).
+    """
+    L, G = blocks[0].v.shape[0], v_star.size
+    T = G + L
+    info = [b.prior_information() for b in blocks]
+    lam0 = np.ascontiguousarray(np.stack([i[0] for i in info]))
+    eta0 = np.ascontiguousarray(np.stack([i[1] for i in info]))
+    v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
+    R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
+    z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
+    u = rng.random((sweeps, L))
+    rec_p = np.zeros((L, T))
+    rec_mu = np.zeros((L, T, 2))
+    rec_cov = np.zeros((L, T, 2, 2))
+    h_lam, _ = inv2(blocks[0].h_cov)
+    seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
+    _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
+                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
+    new = np.unique(z[z >= G])
+    remap = np.arange(T)
+    remap[new] = G + np.arange(new.size)
+    ll, tt = np.nonzero(rec_p > 1e-4)
+    w = rec_p[ll, tt]
+    w = w / np.bincount(ll, weights=w, minlength=L)[ll]
+    return remap[z], Shares(ll.astype(np.int64), w, rec_mu[ll, tt], rec_cov[ll, tt])
+
+
+def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each member's state given the others' assignments: a Kalman pseudo-measurement of its velocity
+    per option, moment-matched over the options.
+
+    Option :math:`o` of object :math:`\ell` (weight :math:`w_o`, the Gibbs conditional of eq.
+    (Gibbs)): the pseudo-measurement :math:`y = \hat\theta_o^{-\ell}` of :math:`H x = (v_x, v_y)`
+    with covariance :math:`S_w + \mathrm{Cov}(\theta_o^{-\ell})`.  Since the weight already
+    carries :math:`\mathcal N(\hat v_\ell; \hat\theta_o^{-\ell}, \mathrm{Cov}(\theta_o^{-\ell}) + P_{v,\ell} + S_w)`,
+    the mixture is the exact conditional :math:`p(x_\ell \mid \text{others})`.  A new
+    cluster's option (prior :math:`H_2`, vague) barely moves the state.  ``mean`` (L, 5), ``cov`` (L, 5, 5).
+    """
+    if shares.obj.size == 0:
+        return mean, cov
+    o = shares.obj
+    m, P = mean[o], cov[o]
+    PHt = P[:, :, _VEL]  # (P, 5, 2)
+    Si, _ = inv2(P[:, _VEL][:, :, _VEL] + S_w + shares.cov)
+    K = PHt @ Si
+    mu = m + np.einsum("pij,pj->pi", K, shares.mu - m[:, _VEL])
+    Pu = P - K @ np.swapaxes(PHt, 1, 2)
+    w = shares.w
+    new_mean = np.zeros_like(mean)
+    np.add.at(new_mean, o, w[:, None] * mu)
+    dev = mu - new_mean[o]
+    new_cov = np.zeros_like(cov)
+    np.add.at(new_cov, o, w[:, None, None] * (Pu + dev[:, :, None] * dev[:, None, :]))
+    return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
+
+
+@dataclass(frozen=True)
+class GroupTracker:
+    """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
+
+    params: ModelParams
+    config: GroupConfig = GroupConfig()
+    name: str = "ddp-groups"
+
+    @cached_property
+    def objects(self) -> BnpTracker:
+        return BnpTracker(self.params, self.config.objects, self.name)
+
+    @cached_property
+    def alpha_grid(self) -> np.ndarray:
+        return ALPHA_GRID if self.config.infer_alpha else np.array([self.config.alpha])
+
+    @cached_property
+    def d_grid(self) -> np.ndarray:
+        return D_GRID if self.config.infer_d else np.array([self.config.d])
+
+    @cached_property
+    def S_w(self) -> np.ndarray:
+        return self.config.within_std**2 * np.eye(2)
+
+    @cached_property
+    def h_cov(self) -> np.ndarray:
+        return self.config.theta_std**2 * np.eye(2)
+
+    def initial_state(self) -> GroupState:
+        inner = self.objects.initial_state()
+        grid = np.zeros((self.alpha_grid.size, self.d_grid.size))
+        return GroupState(**{f.name: getattr(inner, f.name) for f in fields(BnpState)},
+                          alpha2=self.config.alpha, d2=self.config.d, hyper2_loglik=grid)
+
+    def step(self, state: GroupState, frame: Frame, rng: np.random.Generator) -> tuple[GroupState, Estimate]:
+        """One frame: the object level's step, then the object partition, theta, (alpha_2, d), sharing."""
+        t0 = time.perf_counter()
+        steps = 1 if state.frame < 0 else frame.frame - state.frame
+        inner, est = self.objects.step(state.inner(), frame, rng)
+        members = np.flatnonzero(inner.existence >= self.config.member_existence)
+        prev = dict(zip(state.labels, state.cluster.tolist()))
+        init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
+        mean, cov = inner.mean.copy(), inner.cov.copy()
+        blocks = self._blocks(state, steps, mean[members], cov[members])
+        z, shares = self._partition(rng, state, blocks, init_ids)
+        if self.config.sharing and members.size:
+            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_w)
+        alpha2, d2, hyper2 = self._hyper(state, z)
+        ids, next_group = self._ids(state, z)
+        cluster = np.full(len(inner.labels), -1, dtype=np.int64)
+        cluster[members] = ids[z]
+        g_ids, g_count, (g_mean, g_cov), (p_mean, p_cov) = self._transition_out(blocks, z, ids)
+        new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
+                               inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
+                               g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group)
+        return new_state, self._estimate(new_state, est, t0)
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _blocks(self, state: GroupState, steps: int, mean: np.ndarray, cov: np.ndarray) -> list[Block]:
+        r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
+        random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
+        cfg = self.config
+        eye = np.eye(2)
+        dt = steps * self.params.T
+        vel = Block(mean[:, _VEL], cov[:, _VEL][:, :, _VEL] + self.S_w, state.group_mean,
+                    state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
+        if not cfg.centroid:
+            return [vel]
+        pos = Block(mean[:, _POS], cov[:, _POS][:, :, _POS] + cfg.within_pos_std**2 * eye,
+                    state.group_pos_mean + dt * state.group_mean,
+                    state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
+                    np.zeros(2), cfg.centroid_std**2 * eye)
+        return [vel, pos]
+
+    def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
+        """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
+        slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
+        init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
+        if init.size == 0:
+            return np.zeros(0, dtype=np.int64), Shares.empty()
+        return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps)
+
+    def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
+        """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
+        G = state.group_ids.size
+        n_new = int(z.max()) - G + 1 if z.size and z.max() >= G else 0
+        ids = np.concatenate([state.group_ids, state.next_group + np.arange(n_new)]).astype(np.int64)
+        return ids, state.next_group + n_new
+
+    def _transition_out(self, blocks: list[Block], z, ids) -> tuple:
+        """Clusters with members (v* >= 1) and each block's theta posterior (prior H_2, information
+        form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
+        used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
+        out = []
+        for b in blocks:
+            Ri, _ = inv2(b.R)
+            h_lam, _ = inv2(b.h_cov)
+            lam = np.broadcast_to(h_lam, (used.size, 2, 2)).copy()
+            eta = np.broadcast_to(h_lam @ b.h_mean, (used.size, 2)).copy()
+            np.add.at(lam, slot, Ri)
+            np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
+            cov, _ = inv2(lam)
+            out.append((np.einsum("gij,gj->gi", cov, eta), cov))
+        if len(out) == 1:
+            out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
+        return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
+
+    def _hyper(self, state: GroupState, z: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d) on the grid given the frame's object partition (tracker.urn.frame_loglik_grid)."""
+        cfg = self.config
+        if not cfg.infer_alpha and not cfg.infer_d:
+            return state.alpha2, state.d2, state.hyper2_loglik
+        G = state.group_ids.size
+        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
+        n_new = int(np.unique(z[z >= G]).size)
+        frame_ll = frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
+                                     mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size), n_new=n_new,
+                                     seated_popularity=state.group_count, seated_counts=counts)
+        hyper = cfg.hyper_forgetting * state.hyper2_loglik + frame_ll
+        log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
+                            + np.log(self.alpha_grid))[:, None]
+        if cfg.infer_d:
+            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+        alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
+
+    def _estimate(self, state: GroupState, est: Estimate, t0: float) -> Estimate:
+        row = {lab: i for i, lab in enumerate(state.labels)}
+        tracks = []
+        for t in est.tracks:
+            i = row[t.label]
+            c = int(state.cluster[i])
+            tracks.append(TrackEstimate(t.label, state.mean[i].copy(), state.cov[i].copy(), t.existence,
+                                        None if c < 0 else c))
+        diag = dict(est.diagnostics)
+        diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
+                    ms=(time.perf_counter() - t0) * 1e3)
+        return Estimate(est.frame, est.stamp_ns, tuple(tracks), est.assignments, est.assignment_prob, diag)
+
+
+def make_group_tracker(name: str, params: ModelParams, config: GroupConfig | None = None) -> GroupTracker:
+    """Build ``ddp-groups`` or ``dpyp-groups`` with its preset unless ``config`` is given."""
+    if name not in GROUP_PRESETS:
+        raise ValueError(f"unknown two-level tracker {name!r} (expected one of {', '.join(GROUP_PRESETS)})")
+    return GroupTracker(params, config if config is not None else GROUP_PRESETS[name], name)
