@@ -519,3 +519,18 @@ def test_track_cluster_schema_2_and_version_1_logs_still_read():
     assert old.tracks[0].cluster is None and old.tracks[0].existence == 0.9
     with pytest.raises(CodecError, match=r"\$\.tracks\[0\]\.cluster"):
         decode_tracks(raw(tracks_obj(tracks=[_track(cluster=-1)])))
+
+
+def test_tracks_version_is_2_only_with_a_cluster():
+    """/tracks is written as version 1 unless a track carries a motion cluster (version 2's only
+    addition), so version-1 readers keep reading single-level runs; both decode."""
+    from pipeline.codec import decode_tracks, encode_tracks
+
+    track = TrackEstimate("1.0", np.arange(5.0), np.eye(5), 0.9)
+    plain = Estimate(4, 4_000_000_000, (track,), (), ())
+    grouped = Estimate(4, 4_000_000_000, (TrackEstimate("1.0", np.arange(5.0), np.eye(5), 0.9, cluster=3),), (), ())
+    assert json.loads(encode_tracks(plain))["v"] == 1
+    obj = json.loads(encode_tracks(grouped))
+    assert obj["v"] == 2 and obj["tracks"][0]["cluster"] == 3
+    assert decode_tracks(encode_tracks(grouped)).tracks[0].cluster == 3
+    assert decode_tracks(encode_tracks(plain)).tracks[0].cluster is None
