@@ -619,12 +619,15 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
             if lat.get("p50") is not None:
                 note = "" if paced else " (frames published as fast as possible: includes queueing)"
                 rows.append(("latency", f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms{note}"))
+        rows += _score_rows(summary.get("scores"))
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:
             try:
                 rows.append(("wrote", f"{f} ({Path(f).stat().st_size} bytes)"))
             except OSError:
                 pass
+        if summary.get("view"):
+            rows.append(("open with", summary["view"]))
         _echo_rows(rows)
     if res.interrupted:
         click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
@@ -635,10 +638,37 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
 
 
+def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
+    """Summary rows of the sink's ``scores`` (``sink.json``): the means of OSPA, OSPA(2)
+    and the cardinality error over the frames with truth, and the tracks."""
+    if not scores:
+        return []
+    rows = []
+    if scores.get("ospa") is not None:
+        rows += [
+            ("mean OSPA", f"{scores['ospa']:.2f} m (c={scores.get('c', OSPA_C):g}, "
+                          f"p={scores.get('p', OSPA_P):g}, position; {scores['frames_scored']} frames)"),
+            ("mean OSPA(2)", f"{scores['ospa2']:.2f} m (window {scores.get('ospa2_window')} frames)"),
+            ("mean card. error", f"{scores['cardinality_error']:.2f}"),
+        ]
+    elif scores.get("frames"):
+        rows.append(("mean OSPA", "n/a (the frames carry no truth)"))
+    rows.append(("tracks", f"{scores.get('tracks', 0)} at the last frame "
+                           f"({scores.get('labels', 0)} labels in all)"))
+    return rows
+
+
 def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False) -> None:
     from pipeline.launch import launch as _launch
+    from pipeline.progress import Progress
 
-    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout, overwrite=overwrite)
+    progress = None if quiet else Progress(sys.stderr)
+    try:
+        res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
+                      overwrite=overwrite, progress=None if progress is None else progress.update)
+    finally:
+        if progress is not None:
+            progress.close()
     _report_launch(res, quiet, paced=cfg.source.rate > 0)
 
 

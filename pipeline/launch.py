@@ -49,6 +49,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
+from pipeline.progress import Status
 from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from pipeline.stages import (
     EXIT_CONFIG,
@@ -245,13 +246,17 @@ class LaunchResult:
 class Launcher:
     """Start and supervise the stages of ``cfg`` (see the module docstring).
 
-    ``echo`` receives one-line progress messages (the CLI prints them on stderr).
+    ``echo`` receives one-line messages (stages started, restarted; the CLI prints them on
+    stderr); ``progress`` is called with a :class:`pipeline.progress.Status` (the latest
+    health of the source and the sink) about every 50 ms while the stages run, from the
+    launch on (it prints at its own pace: :class:`pipeline.progress.Progress`).
     ``timeout`` (seconds) stops the pipeline with an error if it has not finished.
     """
 
     def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
                  timeout: float | None = None, python: str | None = None,
-                 log_level: str = "INFO", overwrite: bool = False) -> None:
+                 log_level: str = "INFO", overwrite: bool = False,
+                 progress: Callable[[Status], Any] | None = None) -> None:
         self.cfg = resolve_run(cfg)
         self.overwrite = overwrite
         check_run_id(self.cfg.run)
@@ -266,6 +271,8 @@ class Launcher:
         self.router = None
         self.monitor = None
         self.credentials: dict[str, str] = {}
+        self.progress = progress
+        self.latest_health: dict[str, dict] = {}  # role -> its latest health message
 
     # -- public ----------------------------------------------------------------------
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -404,6 +411,8 @@ class Launcher:
             rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
             try:
                 rec["msg"] = json.loads(ev.payload)
+                if ev.topic.startswith("health/") and isinstance(rec["msg"], dict):
+                    self.latest_health[str(rec["msg"].get("role", ""))] = rec["msg"]
             except ValueError:
                 rec["raw"] = ev.payload[:200].decode("latin-1")
             self._health_file.write(json.dumps(rec).encode() + b"\n")
@@ -442,6 +451,7 @@ class Launcher:
                 result.error = self._stop_reason
                 return
             self._drain_monitor()
+            self._report_progress(t0)
             if self.timeout is not None and time.monotonic() - t0 > self.timeout:
                 result.error = f"timed out after {self.timeout:g} s"
                 return
@@ -498,6 +508,13 @@ class Launcher:
                     result.error = data_error
                     return
 
+    def _report_progress(self, t0: float) -> None:
+        if self.progress is None:
+            return
+        h = self.latest_health
+        self.progress(Status(time.monotonic() - t0, source=h.get("source"), sink=h.get("sink"),
+                             stages={s.role: s.state for s in self.stages}))
+
     def _stop_all(self) -> None:
         running = [sp for sp in self.stages if sp.alive()]
         if not running:
@@ -550,10 +567,10 @@ def describe_missing(summary: dict | None) -> str:
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
            timeout: float | None = None, handle_signals: bool = True,
-           overwrite: bool = False) -> LaunchResult:
+           overwrite: bool = False, progress: Callable[[Status], Any] | None = None) -> LaunchResult:
     """Run a pipeline to its end (the CLI's ``launch`` and ``replay``).  An ``out`` that holds
     another run is refused unless ``overwrite``; one that holds a live run always."""
-    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite)
+    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite, progress=progress)
     old: dict[int, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         def on_signal(signum: int, _frame: Any) -> None:

@@ -1118,7 +1118,10 @@ class SinkStage(_StageBase):
         self.next_write = 0
         self.writer = None
         self.rrd = None
-        self.scorer = None
+        from sinks.scoring import RunScorer, ScoreTally
+
+        self.scorer = RunScorer()
+        self.tally = ScoreTally()
         self.frames_written = 0
         self.tracks_written = 0
         self.e2e_ms: list[float] = []
@@ -1191,7 +1194,6 @@ class SinkStage(_StageBase):
         try:
             self.rrd = mod.RerunSink(path, recording_id=self.run_id, metadata=meta or {}, params=params,
                                      handle_signals=False)
-            self.scorer = mod.RunScorer()
             self.files.append(str(path))
         except Exception as exc:  # the recording must not die for a viewer file
             log.error("%s: Rerun sink disabled: %s", self.name, exc)
@@ -1211,9 +1213,14 @@ class SinkStage(_StageBase):
             self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
             self.tracks_written += 1
             self._note_latency(s, tracks)
-        if self.rrd is not None and meas is not GAP and tracks is not None and tracks is not GAP:
+        if meas is not GAP and tracks is not None and tracks is not GAP:
+            # scored always (progress, sink.json); drawn when the Rerun sink is on
             frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
-            self._log_rrd(frame, estimate_from_msg(tracks.msg))
+            est = estimate_from_msg(tracks.msg)
+            scores = self.scorer.update(frame, est)
+            self.tally.add(frame, est, scores)
+            if self.rrd is not None:
+                self._log_rrd(frame, est, scores)
 
     def _note_latency(self, s: int, tracks: Accepted) -> None:
         """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
@@ -1232,15 +1239,20 @@ class SinkStage(_StageBase):
         if self.t_first_pub_ns is None:
             self.t_first_pub_ns = t_pub
 
-    def _log_rrd(self, frame: Frame, est: Any) -> None:
+    def _log_rrd(self, frame: Frame, est: Any, scores: dict[str, Any]) -> None:
         try:
-            self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
+            self.rrd.log(frame, est, **scores, health=self._health_scalars())
         except Exception as exc:
             log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
             self._close_rrd()
 
     def _sink_health(self) -> dict:
-        return {"frames_written": self.frames_written, "next_seq": self.next_write}
+        """The sink's part of its health message: what the launcher's progress line shows
+        (frames written, the newest frame seen, the last frame's latency, the scores)."""
+        seen = self.streams["measurements"].max_seen
+        return {"frames_written": self.frames_written, "next_seq": self.next_write,
+                "max_seq_seen": seen, "last_latency_ms": self.e2e_ms[-1] if self.e2e_ms else None,
+                "scores": self.tally.as_dict()}
 
     def _health_scalars(self) -> dict[str, float]:
         c = self.counters
@@ -1412,6 +1424,8 @@ class SinkStage(_StageBase):
             "dropped": int(getattr(self.bus, "dropped", 0)),
             "zenoh_misses": int(getattr(self.bus, "misses", 0)),
             "files": self.files,
+            "scores": self.tally.as_dict(),
+            "view": self._view_command(),
             "throughput_fps": fps,
             "t_first_pub_ns": self.t_first_pub_ns,
             "t_last_recv_ns": self.t_last_ns,
@@ -1427,6 +1441,11 @@ class SinkStage(_StageBase):
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
                  "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def _view_command(self) -> str:
+        """The command that opens the recording (``""``: no ``run.rrd`` was written)."""
+        rrd = self.ctx.out / self.sc.rrd_name
+        return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
 
     def _missing(self) -> list[dict[str, Any]]:
         """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the

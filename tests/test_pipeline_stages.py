@@ -329,6 +329,26 @@ def test_memory_pipeline_equals_offline(tmp_path):
     assert summary["complete"] and summary["frames_written"] == 12
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
     assert snap.last_seq == 11 and snap.run == "mem"
+    _assert_scores_equal_offline(summary["scores"], frames, ests)
+    assert summary["view"] == ""  # sink.rerun = false: no recording to open
+
+
+def _assert_scores_equal_offline(scores: dict, frames, ests) -> None:
+    """sink.json's scores are the means `bnptrack track` would give (OSPA, cardinality
+    error: pipeline.offline.frame_metrics; OSPA(2): sinks.metrics.ospa2_series)."""
+    from pipeline.offline import frame_metrics
+    from sinks.metrics import ospa2_series
+
+    fm = [frame_metrics(f, e) for f, e in zip(frames, ests)]
+    o2 = ospa2_series([dict(zip(e.labels, e.positions)) for e in ests],
+                      [dict(zip(f.truth.ids, f.truth.positions)) for f in frames], window=10)
+    assert scores["frames"] == scores["frames_scored"] == len(frames)
+    assert scores["ospa"] == pytest.approx(np.mean([m.ospa for m in fm]), rel=1e-12)
+    assert scores["last_ospa"] == pytest.approx(fm[-1].ospa, rel=1e-12)
+    assert scores["cardinality_error"] == pytest.approx(np.mean([m.cardinality_error for m in fm]))
+    assert scores["ospa2"] == pytest.approx(float(np.mean(o2)), rel=1e-9)
+    assert scores["tracks"] == len(ests[-1].tracks)
+    assert scores["labels"] == len({lab for e in ests for lab in e.labels})
 
 
 def test_memory_pipeline_survives_duplicates_reordering_and_garbage(tmp_path):

@@ -119,12 +119,48 @@ def router():
 # --------------------------------------------------------------------------- tests
 
 
+def _timed_lines(p: subprocess.Popen, timeout: float) -> tuple[int, list[tuple[float, str]], str]:
+    """Run ``p`` (stderr piped) to its end; (exit code, its stderr lines with the time each
+    arrived, seconds from now, and its stdout)."""
+    import threading
+
+    t0 = time.monotonic()
+    lines: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for raw in p.stderr:
+            lines.append((time.monotonic() - t0, raw.decode()))
+
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    try:
+        out = p.stdout.read()
+        p.wait(timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        pytest.fail(f"{p.args} did not finish in {timeout} s: {lines}")
+    th.join(10)
+    return p.returncode, lines, out.decode()
+
+
 def test_launch_default_end_to_end_equals_offline_track(tmp_path):
     out = tmp_path / "run"
-    code, text = _cli("launch", "--set", "source.frames=20", "--run", "e2e-1", "--out", str(out),
-                      "--timeout", "150", timeout=180)
+    p = _popen("launch", "--set", "source.frames=20", "--run", "e2e-1", "--out", str(out), "--timeout", "150")
+    code, lines, stdout = _timed_lines(p, 180)
+    text = stdout + "".join(line for _t, line in lines)
     assert code == 0, text
     assert "tracks.mcap" in text and str(out) in text
+    # progress: plain lines on a pipe, the first within 3 s of the command's start, then
+    # about one a second; the summary scores the run and ends with the command to view it
+    progress = [(t, line) for t, line in lines if line.startswith("[")]
+    assert "\r" not in text and progress, text
+    assert progress[0][0] < 3.0, progress[0]
+    assert any(" frames 20 (" in line and "tracks " in line and "OSPA " in line for _t, line in progress), text
+    summary_rows = stdout.splitlines()
+    assert summary_rows[-1] == f"open with         bnptrack view {out / 'run.rrd'}", stdout
+    s = _summary(out)
+    assert s["view"] == f"bnptrack view {out / 'run.rrd'}" and s["scores"]["frames_scored"] == 20
+    assert f"mean OSPA         {s['scores']['ospa']:.2f} m" in stdout
     log = read_log(out / "tracks.mcap")
     assert len(log.frames) == 20 and len(log.tracks) == 20
     assert log.metadata["scenario"] == "vo2017" and log.metadata["tracker"] == "ddp"
