@@ -37,6 +37,7 @@ from pipeline.offline import (
     split_overrides,
     track_log,
 )
+from pipeline.view import ViewerUnavailable
 from sinks.rerun_writer import RecordingError, RecordingProcess
 from sources.mcap_log import McapLogError, read_metadata
 from sources.scenarios import scenario_names
@@ -66,7 +67,7 @@ class IncompleteError(CliError):
     exit_code = EXIT_INCOMPLETE
 
 
-_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError)
+_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError, ViewerUnavailable)
 
 
 def _clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -108,6 +109,16 @@ def _echo_rows(rows: list[tuple[str, str]]) -> None:
 def _fmt(value: float | None, spec: str = ".2f") -> str:
     return "n/a" if value is None else format(value, spec)
 
+
+_VIEW_HELP = (
+    "Watch the run live: start a Rerun viewer and stream the recording to it while it is "
+    "written (the viewer stays open after the run; needs a display)."
+)
+_CONNECT_VIEW_HELP = (
+    "Stream the recording live to a Rerun viewer that is already running, e.g. on another host "
+    "(`rerun` there, then --connect rerun+http://HOST:9876/proxy; a port N means "
+    "rerun+http://127.0.0.1:N/proxy)."
+)
 
 _SET_HELP_SIM = (
     "Override one model parameter, KEY=VALUE (VALUE is a TOML literal), e.g. "
@@ -303,6 +314,9 @@ def simulate(
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
     "frame's (a time stamp that goes back is always an error).",
 )
+@click.option("--view", is_flag=True, help=_VIEW_HELP + " Writes --rrd (default: the --out "
+              "file with the suffix .rrd).")
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -316,6 +330,8 @@ def track(
     rrd: Path | None,
     max_frame_gap: int,
     max_gap_s: float,
+    view: bool,
+    view_connect: str | None,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -339,6 +355,9 @@ def track(
     # --rrd: start the recording process before anything else, so that its imports (rerun)
     # run on the other core beside the tracker's (sinks.rerun_writer); the command's context
     # closes it at the end whatever happens (track_log_with_rrd closes it first, normally)
+    live = _live_view(view, view_connect)
+    if live is not None and rrd is None:
+        rrd = (out or default_tracks_path(log, tracker_name)).with_suffix(".rrd")
     recorder = None
     if rrd is not None:
         recorder = click.get_current_context().with_resource(RecordingProcess())
@@ -376,8 +395,11 @@ def track(
     if rrd is not None:
         from pipeline.view import track_log_with_rrd
 
+        live_url = None
+        if live is not None:
+            live_url = _open_live(live)
         res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
-                                 recorder=recorder, bounds=bounds)
+                                 recorder=recorder, bounds=bounds, live=live_url)
     else:
         res = track_log(log, out, tracker, seed, out_meta, bounds=bounds)
     if not quiet:
@@ -405,6 +427,29 @@ def track(
         raise CliError(
             f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}"
         )
+
+
+def _live_view(view: bool, connect: str | None) -> str | None:
+    """``"spawn"`` (``--view``), a viewer URL (``--connect``; checked now: a viewer must be
+    listening there) or None."""
+    if view and connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if connect:
+        from pipeline.live import check_viewer
+
+        return check_viewer(connect)
+    return "spawn" if view else None
+
+
+def _open_live(live: str) -> str:
+    """The URL to stream to: ``live``, or that of a viewer started now (``"spawn"``)."""
+    if live != "spawn":
+        return live
+    from pipeline.live import spawn_viewer
+
+    viewer = spawn_viewer()
+    click.echo(f"viewer: {viewer.url} (pid {viewer.pid}; it stays open after the run)", err=True)
+    return viewer.url
 
 
 # --------------------------------------------------------------------------- view
@@ -658,14 +703,24 @@ def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
     return rows
 
 
-def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False) -> None:
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False,
+                  view: bool = False, view_connect: str | None = None) -> None:
+    import msgspec as _ms
+
     from pipeline.launch import launch as _launch
     from pipeline.progress import Progress
 
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view_connect:  # checked with the rest of the configuration (pipeline.preflight)
+        from pipeline.live import viewer_url
+
+        cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
     progress = None if quiet else Progress(sys.stderr)
     try:
         res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
-                      overwrite=overwrite, progress=None if progress is None else progress.update)
+                      overwrite=overwrite, progress=None if progress is None else progress.update,
+                      view=view)
     finally:
         if progress is not None:
             progress.close()
@@ -692,14 +747,17 @@ _TIMEOUT_OPT = click.option(
               help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
-@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT",
-              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one.")
+@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT|URL",
+              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one; "
+              "a Rerun URL (rerun+http://HOST:PORT/proxy) instead streams the recording live to "
+              "that running viewer.")
+@click.option("--view", is_flag=True, help=_VIEW_HELP)
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
-@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
 @_clean_errors
 def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, connect: tuple[str, ...], timeout: float | None, overwrite: bool,
+           out: Path | None, connect: tuple[str, ...], view: bool, timeout: float | None, overwrite: bool,
            quiet: bool) -> None:
     """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
 
@@ -725,10 +783,16 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    if connect:
+    from pipeline.live import is_viewer_url
+
+    viewers = [c for c in connect if is_viewer_url(c)]
+    routers = [c for c in connect if not is_viewer_url(c)]
+    if len(viewers) > 1:
+        raise click.UsageError("--connect: give at most one Rerun viewer URL")
+    if routers:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
-            cfg.zenoh, embedded_router=False, connect=list(connect)))
-    _run_pipeline(cfg, timeout, quiet, overwrite)
+            cfg.zenoh, embedded_router=False, connect=routers))
+    _run_pipeline(cfg, timeout, quiet, overwrite, view, viewers[0] if viewers else None)
 
 
 @main.command()
@@ -747,13 +811,16 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
+@click.option("--view", is_flag=True, help=_VIEW_HELP)
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
-@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
+           out: Path | None, view: bool, view_connect: str | None, timeout: float | None,
+           overwrite: bool, quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -784,7 +851,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    _run_pipeline(cfg, timeout, quiet, overwrite)
+    _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
 
 
 @main.command()

@@ -256,7 +256,7 @@ class Launcher:
     def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
                  timeout: float | None = None, python: str | None = None,
                  log_level: str = "INFO", overwrite: bool = False,
-                 progress: Callable[[Status], Any] | None = None) -> None:
+                 progress: Callable[[Status], Any] | None = None, view: bool = False) -> None:
         self.cfg = resolve_run(cfg)
         self.overwrite = overwrite
         check_run_id(self.cfg.run)
@@ -272,6 +272,8 @@ class Launcher:
         self.monitor = None
         self.credentials: dict[str, str] = {}
         self.progress = progress
+        self.view = view
+        self.viewer = None
         self.latest_health: dict[str, dict] = {}  # role -> its latest health message
 
     # -- public ----------------------------------------------------------------------
@@ -283,6 +285,8 @@ class Launcher:
         t0 = time.monotonic()
         cfg = self.cfg
         check_pipeline(cfg, self.overwrite)  # every error before anything starts or is written
+        if self.view:
+            cfg = self.cfg = self._spawn_viewer(cfg)
         self.out.mkdir(parents=True, exist_ok=True)
         lock = lock_out(self.out)  # held until this process exits: no second launch here
         try:
@@ -349,6 +353,17 @@ class Launcher:
             result.incomplete = describe_missing(result.summary)
             result.ok = not result.incomplete
         return result
+
+    def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
+        """``view``: start a Rerun viewer (left open after the run) and have the sink stream
+        ``run.rrd``'s rows to it (``sink.view_url``)."""
+        from pipeline.live import spawn_viewer
+
+        if not cfg.sink.rerun:
+            raise ConfigError("--view needs the Rerun sink (sink.rerun = true)")
+        self.viewer = spawn_viewer()
+        self.echo(f"viewer: {self.viewer.url} (pid {self.viewer.pid}; it stays open after the run)")
+        return msgspec.structs.replace(cfg, sink=msgspec.structs.replace(cfg.sink, view_url=self.viewer.url))
 
     def _remove_earlier_run(self) -> None:
         """Remove the files an earlier run left in ``out`` (only there with ``overwrite``:
@@ -567,10 +582,12 @@ def describe_missing(summary: dict | None) -> str:
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
            timeout: float | None = None, handle_signals: bool = True,
-           overwrite: bool = False, progress: Callable[[Status], Any] | None = None) -> LaunchResult:
+           overwrite: bool = False, progress: Callable[[Status], Any] | None = None,
+           view: bool = False) -> LaunchResult:
     """Run a pipeline to its end (the CLI's ``launch`` and ``replay``).  An ``out`` that holds
-    another run is refused unless ``overwrite``; one that holds a live run always."""
-    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite, progress=progress)
+    another run is refused unless ``overwrite``; one that holds a live run always.  ``view``:
+    start a Rerun viewer and stream the recording to it as well."""
+    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite, progress=progress, view=view)
     old: dict[int, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         def on_signal(signum: int, _frame: Any) -> None:

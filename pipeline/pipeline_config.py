@@ -198,13 +198,16 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
 class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The recorder: ``tracks.mcap`` (input channels + ``/tracks``) and, when the Rerun
     sink is installed and ``rerun`` is true, ``run.rrd``.  ``tracks = false`` records the
-    input channels only (no tracker needed)."""
+    input channels only (no tracker needed).  ``view_url``: a Rerun viewer's gRPC URL
+    (``rerun+http://HOST:PORT/proxy``) that ``run.rrd``'s rows are streamed to as well
+    (``launch --view`` / ``--connect URL``)."""
 
     mcap: bool = True
     rerun: bool = True
     tracks: bool = True
     mcap_name: str = "tracks.mcap"
     rrd_name: str = "run.rrd"
+    view_url: str = ""
 
 
 class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

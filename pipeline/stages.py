@@ -1193,7 +1193,7 @@ class SinkStage(_StageBase):
             params = None
         try:
             self.rrd = mod.RerunSink(path, recording_id=self.run_id, metadata=meta or {}, params=params,
-                                     handle_signals=False)
+                                     handle_signals=False, live=self.sc.view_url or None)
             self.files.append(str(path))
         except Exception as exc:  # the recording must not die for a viewer file
             log.error("%s: Rerun sink disabled: %s", self.name, exc)

@@ -278,8 +278,10 @@ def track_log_with_rrd(
     params: ModelParams | None = None,
     recorder: RecordingProcess | None = None,
     bounds: FrameBounds | None = None,
+    live: str | None = None,
 ) -> TrackResult:
-    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``.
+    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``
+    (and streams it to the viewer at the gRPC URL ``live``, when given: ``track --view``).
 
     Each frame is scored (:class:`sinks.rerun_sink.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
     over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
@@ -298,7 +300,8 @@ def track_log_with_rrd(
         check_output_path(log, rrd)
         if rrd.resolve() == out.resolve():
             raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
-        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params)
+        kw = {"live": live} if live else {}
+        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params, **kw)
         return track_log(log, out, tracker, seed, metadata,
                          on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result),
                          bounds=bounds)

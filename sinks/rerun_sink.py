@@ -43,6 +43,7 @@ Every subprocess started from this module (:func:`verify`, :func:`repair`) runs 
 from __future__ import annotations
 
 import importlib.util
+import logging
 import math
 import os
 import shutil
@@ -84,6 +85,8 @@ __all__ = [
     "OSPA_P",
     "OSPA2_WINDOW",
 ]
+
+_log = logging.getLogger("bnptrack.rerun")
 
 # --------------------------------------------------------------------------- entity paths
 WORLD = "world"
@@ -422,6 +425,11 @@ class RerunSink:
             sensor at the origin with a 2000 m / +-90 deg field.
         handle_signals: install SIGTERM/SIGINT handlers (main thread only) that finalise the
             file (footer written) before the signal's previous disposition runs.
+        live: a Rerun gRPC URL (``rerun+http://HOST:PORT/proxy``: a viewer, e.g. one started by
+            ``rerun`` or ``bnptrack launch --view``): the recording is streamed there too, as it
+            is written to ``path`` (the same rows: ``rr.set_sinks(GrpcSink, FileSink)``).  A
+            viewer that goes away does not stop the file: :meth:`close` logs the failed
+            flush and still finishes the file (Rerun gives up on the stream after about 5 s).
         flush_interval: ``log`` keeps each frame's data in memory; at most this many seconds
             apart (checked at each ``log``), the frames kept are sent to the file as columns,
             one Arrow chunk per entity.  ``0`` sends every frame at once.  A writer killed by
@@ -443,6 +451,7 @@ class RerunSink:
         params: ModelParams | None = None,
         handle_signals: bool = True,
         flush_interval: float = 1.0,
+        live: str | None = None,
     ) -> None:
         if trail < 1:
             raise ValueError(f"trail must be >= 1, got {trail}")
@@ -468,8 +477,13 @@ class RerunSink:
         self._circle = np.stack([np.cos(circle), np.sin(circle)], axis=-1)  # (K+1, 2)
         self._arc = np.linspace(-half, half, 49)
 
+        self.live = live or None
         self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
-        self._rec.save(self.path, default_blueprint=default_blueprint(scene_bounds=_fov_bounds(rng, half)))
+        blueprint = default_blueprint(scene_bounds=_fov_bounds(rng, half))
+        if self.live:
+            self._rec.set_sinks(rr.GrpcSink(self.live), rr.FileSink(self.path), default_blueprint=blueprint)
+        else:
+            self._rec.save(self.path, default_blueprint=blueprint)
         self._s = _Schema()
 
         # kept until the next flush
@@ -567,7 +581,12 @@ class RerunSink:
             if self._closed:
                 return
             self._send_kept()
-            self._rec.flush(timeout_sec=30.0 if wait else 0.0)
+            try:
+                self._rec.flush(timeout_sec=30.0 if wait else 0.0)
+            except RuntimeError as exc:  # a live viewer that went away must not stop the run
+                if not self.live:
+                    raise
+                _log.warning("live view %s: %s", self.live, exc)
             self._last_flush = time.monotonic()
 
     def close(self) -> None:
@@ -577,7 +596,12 @@ class RerunSink:
                 return
             try:
                 self._send_kept()
-                self._rec.flush(timeout_sec=30.0)
+                try:
+                    self._rec.flush(timeout_sec=30.0)
+                except RuntimeError as exc:  # the live viewer is gone; the file is not
+                    if not self.live:
+                        raise
+                    _log.warning("live view %s: %s (the file %s is complete)", self.live, exc, self.path)
             finally:
                 self._closed = True
                 self._rec.disconnect()

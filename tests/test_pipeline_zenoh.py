@@ -628,3 +628,24 @@ def test_peer_mode_refuses_tls_and_access_control():
     with pytest.raises(ConfigError, match="peer"):
         load_pipeline(None, ["zenoh.mode='peer'", "zenoh.acl=true"])
     assert ZenohConfig(acl=True).mode == "client"
+
+
+def test_launch_connect_streams_the_recording_live_with_the_same_rows(tmp_path):
+    """``launch --connect rerun+http://...``: the sink streams run.rrd's rows to a running
+    viewer (here its gRPC server alone, saving what it receives); a URL where no viewer
+    listens is a configuration error before anything starts."""
+    from test_live_view import Receiver, rows
+
+    recv = Receiver(tmp_path / "received.rrd")
+    try:
+        out = tmp_path / "run"
+        code, text = _cli("launch", "--set", "source.frames=12", "--out", str(out), "--connect", recv.url,
+                          "--timeout", "150", timeout=180)
+        assert code == 0, text
+    finally:
+        recv.stop()
+    assert rows(recv.path) == rows(out / "run.rrd")
+    t0 = time.monotonic()
+    code, text = _cli("launch", "--out", str(tmp_path / "none"), "--connect", "rerun+http://127.0.0.1:9/proxy")
+    assert code == 2 and text.startswith("Error: no Rerun viewer at rerun+http://127.0.0.1:9/proxy"), text
+    assert not (tmp_path / "none").exists() and time.monotonic() - t0 < 10
