@@ -179,6 +179,9 @@ def screenshot(
             k = tl.end if frame is None else int(frame)
             if not tl.start <= k <= tl.end:
                 raise ValueError(f"frame {k} is outside the recording ({timeline} {tl.start}..{tl.end})")
+            # no top bar in the picture: it carries the viewer's notices ("Software rasterizer",
+            # the notification bell), not the recording
+            _call(lambda: client.run_command("ui.toggle_top_panel"), proc, deadline, log)
             _call(lambda: client.set_time(timeline, sequence=k, play_state="paused"), proc, deadline, log)
             time.sleep(0.3)  # let the plots settle on the new cursor before painting
             view_id = None
