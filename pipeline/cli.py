@@ -811,6 +811,14 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
+@click.option("--start", "start", metavar="T|Nf", default=None,
+              help="Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame "
+              "number N (40f).")
+@click.option("--end", "end", metavar="T|Nf", default=None,
+              help="End at T seconds of log time after the first frame, or at frame N (both included).")
+@click.option("--loop", "loops", type=click.IntRange(min=0), default=None, metavar="N",
+              help="Replay N times (0: until Ctrl-C), each a fresh run (run id RUN-1, RUN-2, ...; "
+              "output directories OUT/RUN-i) with a fresh tracker.")
 @click.option("--view", is_flag=True, help=_VIEW_HELP)
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @_TIMEOUT_OPT
@@ -819,8 +827,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, view: bool, view_connect: str | None, timeout: float | None,
-           overwrite: bool, quiet: bool) -> None:
+           out: Path | None, start: str | None, end: str | None, loops: int | None, view: bool,
+           view_connect: str | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -832,15 +840,20 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     Examples:
       bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
       bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
+      bnptrack replay recordings/vo2017-s1.mcap --rate 5 --start 20s --end 40f --loop 0 --view
     """
     import msgspec as _ms
 
     from pipeline.pipeline_config import load_pipeline
 
     cfg = load_pipeline(None)
+    start_s, start_frame = _parse_offset(start, "--start")
+    end_s, end_frame = _parse_offset(end, "--end")
     cfg = _ms.structs.replace(
         cfg,
-        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate),
+        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
+                                   start_s=start_s, start_frame=start_frame, end_s=end_s,
+                                   end_frame=end_frame),
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
@@ -851,7 +864,57 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
+    if loops is None:
+        _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
+        return
+    _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect)
+
+
+def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
+    """``--start`` / ``--end``: ``12.5`` or ``12.5s`` -> (12.5 s, None); ``40f`` -> (None, 40)."""
+    if text is None:
+        return None, None
+    t = text.strip().lower()
+    try:
+        if t.endswith("f"):
+            n = int(t[:-1])
+            if n < 0:
+                raise ValueError
+            return None, n
+        v = float(t[:-1] if t.endswith("s") else t)
+        if not v >= 0 or v == float("inf"):
+            raise ValueError
+        return v, None
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
+                                 "number (40f), >= 0", param_hint=opt) from None
+
+
+def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overwrite: bool,
+                 view: bool, view_connect: str | None) -> None:
+    """``replay --loop N``: the same replay N times (0: until interrupted), each a fresh run:
+    run id ``RUN-i`` (RUN: --run, else generated once) and output ``OUT/RUN-i`` (OUT: --out,
+    else recordings/); the tracker starts afresh each time.  The first failure ends the loop."""
+    import itertools
+
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import make_run_id
+
+    base = cfg.run or make_run_id(cfg)
+    root = Path(cfg.out) if cfg.out else Path("recordings")
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view:  # one viewer for every run of the loop
+        view_connect = _open_live("spawn")
+    for i in itertools.count(1):
+        if loops and i > loops:
+            break
+        run = f"{base}-{i}"
+        if not quiet:
+            click.echo(f"loop {i}{f'/{loops}' if loops else ''}: run {run}", err=True)
+        one = _ms.structs.replace(cfg, run=run, out=str(root / run))
+        _run_pipeline(one, timeout, quiet, overwrite, False, view_connect)
 
 
 @main.command()

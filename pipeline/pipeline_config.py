@@ -153,7 +153,11 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``kind = "synthetic"`` simulates ``scenario`` with ``params`` (+ ``overrides``) and
     ``seed``, like ``bnptrack simulate`` (a generated scenario, ``random`` or ``random-cv``,
     draws its scene from ``seed`` and the ``scene.KEY=V`` items of ``overrides``);
-    ``kind = "mcap"`` replays the frames of ``log``.  ``frames`` > 0 stops after that many frames.  ``rate`` paces publication against the
+    ``kind = "mcap"`` replays the frames of ``log``.  ``frames`` > 0 stops after that many frames.
+    ``start_s`` / ``end_s`` keep the frames whose time stamp is that many seconds after the
+    first frame's or more / or less (log time, both ends included); ``start_frame`` /
+    ``end_frame`` keep the frame numbers in that range (``replay --start/--end``; seconds and
+    frames are not mixed at one end).  ``rate`` paces publication against the
     frames' time stamps (1 = real time, 10 = ten times faster); 0 = as fast as possible.
     ``wait_for`` lists the stages whose liveliness token the source waits for before the
     first frame (``ready_timeout_s`` bounds the wait; 0 = wait forever), ``done_by`` the
@@ -168,6 +172,10 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     seed: NonNegInt = 1
     log: str = ""
     frames: NonNegInt = 0
+    start_s: NonNeg | None = None
+    end_s: NonNeg | None = None
+    start_frame: NonNegInt | None = None
+    end_frame: NonNegInt | None = None
     rate: NonNeg = 0.0
     sensor: str = "sim0"
     wait_for: list[str] = msgspec.field(default_factory=lambda: ["tracker", "sink"])

@@ -56,7 +56,7 @@ from pipeline.codec import (
     truth_from_msg,
 )
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, TrackerStageConfig
+from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, SourceConfig, TrackerStageConfig
 from tracker.config import ConfigError
 from tracker.types import Frame, FrameBounds
 
@@ -686,9 +686,44 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
         except McapLogError as exc:  # not an MCAP file at all: nothing to replay
             raise ConfigError(f"source.log: {exc}") from None
         frames = iter_frames(sc.log)
+    frames = window_frames(frames, sc)
     if sc.frames:
         frames = islice(frames, sc.frames)
     return metadata, frames
+
+
+def check_window(sc: SourceConfig) -> None:
+    """Raise :class:`ConfigError` for a window (``start_*`` / ``end_*``) that mixes seconds and
+    frames at one end or ends before it starts."""
+    for end in ("start", "end"):
+        if getattr(sc, f"{end}_s") is not None and getattr(sc, f"{end}_frame") is not None:
+            raise ConfigError(f"source.{end}_s and source.{end}_frame: give the {end} in seconds or in "
+                              "frames, not both")
+    if sc.start_s is not None and sc.end_s is not None and sc.end_s < sc.start_s:
+        raise ConfigError(f"source.end_s = {sc.end_s:g} is before source.start_s = {sc.start_s:g}")
+    if sc.start_frame is not None and sc.end_frame is not None and sc.end_frame < sc.start_frame:
+        raise ConfigError(f"source.end_frame = {sc.end_frame} is before source.start_frame = {sc.start_frame}")
+
+
+def window_frames(frames: Iterator[Frame], sc: SourceConfig) -> Iterator[Frame]:
+    """The frames of ``frames`` inside the source's window (see :class:`SourceConfig`):
+    seconds count from the first frame's time stamp; the input is not read past the end."""
+    check_window(sc)
+    if sc.start_s is None and sc.end_s is None and sc.start_frame is None and sc.end_frame is None:
+        return frames
+    return _window(frames, sc)
+
+
+def _window(frames: Iterator[Frame], sc: SourceConfig) -> Iterator[Frame]:
+    stamp0 = None
+    for frame in frames:
+        if stamp0 is None:
+            stamp0 = frame.stamp_ns
+        t = (frame.stamp_ns - stamp0) / 1e9
+        if (sc.end_s is not None and t > sc.end_s) or (sc.end_frame is not None and frame.frame > sc.end_frame):
+            return
+        if (sc.start_s is None or t >= sc.start_s) and (sc.start_frame is None or frame.frame >= sc.start_frame):
+            yield frame
 
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:

@@ -649,3 +649,20 @@ def test_launch_connect_streams_the_recording_live_with_the_same_rows(tmp_path):
     code, text = _cli("launch", "--out", str(tmp_path / "none"), "--connect", "rerun+http://127.0.0.1:9/proxy")
     assert code == 2 and text.startswith("Error: no Rerun viewer at rerun+http://127.0.0.1:9/proxy"), text
     assert not (tmp_path / "none").exists() and time.monotonic() - t0 < 10
+
+
+def test_replay_loop_with_start_and_end(tmp_path):
+    """``replay --start 20s --end 29 --loop 2``: two fresh runs (RUN-1, RUN-2, each in its
+    own directory) of log time 20..29 s (vo2017-s1: frames 21..30), each with the tracks of
+    a fresh tracker; a malformed offset is a usage error (exit 2) before anything starts."""
+    out = tmp_path / "loop"
+    code, text = _cli("replay", str(VO2017), "--as-fast-as-possible", "--start", "20s", "--end", "29",
+                      "--loop", "2", "--run", "lp", "--out", str(out), *FAST, "--timeout", "150", timeout=400)
+    assert code == 0, text
+    assert sorted(p.name for p in out.iterdir()) == ["lp-1", "lp-2"]
+    for i in (1, 2):
+        log = read_log(out / f"lp-{i}" / "tracks.mcap")
+        assert [f.frame for f in log.frames] == list(range(21, 31)) and log.metadata["run"] == f"lp-{i}"
+    _assert_same_run(out / "lp-1" / "tracks.mcap", out / "lp-2" / "tracks.mcap", 10)
+    code, text = _cli("replay", str(VO2017), "--start", "ten", "--out", str(tmp_path / "none"))
+    assert code == 2 and "--start" in text and not (tmp_path / "none").exists()
