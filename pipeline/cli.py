@@ -819,6 +819,9 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--loop", "loops", type=click.IntRange(min=0), default=None, metavar="N",
               help="Replay N times (0: until Ctrl-C), each a fresh run (run id RUN-1, RUN-2, ...; "
               "output directories OUT/RUN-i) with a fresh tracker.")
+@click.option("--keep-prior", is_flag=True,
+              help="With --loop: each replay's tracker starts from the prior the previous replay "
+              "ended with (DDP-EMM / DPY-STP: alpha, d and their likelihood), with no track.")
 @click.option("--view", is_flag=True, help=_VIEW_HELP)
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @_TIMEOUT_OPT
@@ -827,8 +830,9 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, start: str | None, end: str | None, loops: int | None, view: bool,
-           view_connect: str | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
+           out: Path | None, start: str | None, end: str | None, loops: int | None, keep_prior: bool,
+           view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -865,9 +869,11 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
     if loops is None:
+        if keep_prior:
+            raise click.UsageError("--keep-prior needs --loop")
         _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
         return
-    _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect)
+    _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect, keep_prior)
 
 
 def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
@@ -891,10 +897,11 @@ def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]
 
 
 def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overwrite: bool,
-                 view: bool, view_connect: str | None) -> None:
+                 view: bool, view_connect: str | None, keep_prior: bool = False) -> None:
     """``replay --loop N``: the same replay N times (0: until interrupted), each a fresh run:
     run id ``RUN-i`` (RUN: --run, else generated once) and output ``OUT/RUN-i`` (OUT: --out,
-    else recordings/); the tracker starts afresh each time.  The first failure ends the loop."""
+    else recordings/); the tracker starts afresh each time, or with ``keep_prior`` from the
+    prior of the previous run's final snapshot.  The first failure ends the loop."""
     import itertools
 
     import msgspec as _ms
@@ -914,6 +921,9 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
         if not quiet:
             click.echo(f"loop {i}{f'/{loops}' if loops else ''}: run {run}", err=True)
         one = _ms.structs.replace(cfg, run=run, out=str(root / run))
+        if keep_prior and i > 1:
+            prev = root / f"{base}-{i - 1}" / "tracker.snap"
+            one = _ms.structs.replace(one, tracker=_ms.structs.replace(one.tracker, prior_from=str(prev)))
         _run_pipeline(one, timeout, quiet, overwrite, False, view_connect)
 
 

@@ -191,6 +191,10 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     ``overrides`` are ``bnptrack track --set`` items (``params.KEY=V``, ``tracker.KEY=V``).
     The state is snapshotted to ``<out>/tracker.snap`` every ``snapshot_every`` frames and at
     shutdown; a restarted stage resumes from it (``resume = false`` ignores it).
+    ``prior_from``: the ``tracker.snap`` of an earlier run of the same tracker; a stage that does
+    not resume starts from that run's prior (the BNP trackers' concentration ``alpha``,
+    discount ``d`` and their accumulated likelihood) with no track (``replay --loop
+    --keep-prior``).
     """
 
     tracker: str = "ddp"
@@ -200,6 +204,7 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     seed: NonNegInt = 0
     snapshot_every: PosInt = 50
     resume: bool = True
+    prior_from: str = ""
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
 
 

@@ -534,6 +534,27 @@ def read_snapshot(path: str | os.PathLike) -> Snapshot:
     return snap
 
 
+#: The fields of a tracker state that make its prior (kept by ``tracker.prior_from``): the
+#: BNP trackers' concentration, discount and their accumulated (alpha, d) log-likelihood.
+PRIOR_FIELDS = ("alpha", "d", "hyper_loglik")
+
+
+def keep_prior(initial: Any, snap: Snapshot, tracker: str) -> Any:
+    """``initial`` (a fresh state: no track) with the :data:`PRIOR_FIELDS` of the state in
+    ``snap`` (an earlier run of the same tracker); :class:`ConfigError` otherwise."""
+    import dataclasses
+
+    from tracker.state import restore
+
+    if snap.tracker != tracker:
+        raise ConfigError(f"tracker.prior_from: a snapshot of tracker {snap.tracker!r}, not {tracker!r}")
+    if not all(hasattr(initial, f) for f in PRIOR_FIELDS):
+        raise ConfigError(f"tracker.prior_from: the {tracker} tracker has no prior to keep "
+                          f"({', '.join(PRIOR_FIELDS)})")
+    old = restore(snap.state, type(initial))
+    return dataclasses.replace(initial, **{f: getattr(old, f) for f in PRIOR_FIELDS})
+
+
 # --------------------------------------------------------------------------- context
 
 
@@ -926,6 +947,9 @@ class TrackerStage(_StageBase):
         initial = self.tracker.initial_state()
         if self.restored is not None:
             self.state = restore(self.restored.state, type(initial))
+        elif tc.prior_from:
+            self.state = keep_prior(initial, read_snapshot(tc.prior_from), tc.tracker)
+            log.info("%s: starting from the prior of %s", self.name, tc.prior_from)
         else:
             self.state = initial
         _warm_up(self.tracker)

@@ -811,3 +811,41 @@ def test_memory_pipeline_replays_a_window_of_the_source(tmp_path):
     frames, ests = _offline(cfg)
     assert [f.frame for f in log.frames] == [f.frame for f in frames] == [4, 5, 6, 7, 8, 9]
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+
+
+def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_path):
+    """tracker.prior_from (replay --loop --keep-prior): the second run starts with no track
+    but with the first run's alpha, d and (alpha, d) likelihood; its tracks are those of the
+    offline tracker started from that state; without it, those of a fresh tracker."""
+    from pipeline.stages import PRIOR_FIELDS, keep_prior
+    from tracker.state import run
+
+    first = _mem_cfg(tmp_path / "a", frames=8)
+    assert _run_memory_pipeline(first, MemoryNetwork())["tracker"] == EXIT_OK
+    snap_path = Path(first.out) / "tracker.snap"
+    snap = read_snapshot(snap_path)
+    frames, _ = _offline(first)
+    second = msgspec.structs.replace(first, run="mem2", out=str(tmp_path / "b"),
+                                     tracker=msgspec.structs.replace(first.tracker, prior_from=str(snap_path)))
+    assert _run_memory_pipeline(second, MemoryNetwork())["tracker"] == EXIT_OK
+    got = read_log(Path(second.out) / "tracks.mcap").tracks
+
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.stages import source_frames
+
+    meta, _ = source_frames(first)
+    conf, _ = resolve_config("ddp", None)
+    params, conf = apply_split_overrides(resolve_params(None, meta).params, conf, first.tracker.overrides)
+    tracker = build_tracker("ddp", params, conf)
+    offline_first = list(run(tracker, frames, 0))
+    final = offline_first[-1][2]
+    start = keep_prior(tracker.initial_state(), snap, "ddp")
+    assert start.n_clusters == 0 and start.frame == -1
+    for f in PRIOR_FIELDS:
+        assert np.array_equal(getattr(start, f), getattr(final, f))  # the snapshot is the final state
+    want = [est for _, est, _ in run(tracker, frames, 0, state=start)]
+    assert [_strip(e) for e in got] == [_strip(e) for e in want]
+    fresh = [est for _, est, _ in offline_first]
+    assert [_strip(e) for e in got] != [_strip(e) for e in fresh]  # the prior changed the run
+    with pytest.raises(ConfigError, match="not 'dpyp'"):
+        keep_prior(tracker.initial_state(), snap, "dpyp")
