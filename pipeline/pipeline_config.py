@@ -213,7 +213,9 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sink is installed and ``rerun`` is true, ``run.rrd``.  ``tracks = false`` records the
     input channels only (no tracker needed).  ``view_url``: a Rerun viewer's gRPC URL
     (``rerun+http://HOST:PORT/proxy``) that ``run.rrd``'s rows are streamed to as well
-    (``launch --view`` / ``--connect URL``)."""
+    (``launch --view`` / ``--connect URL``).  ``score``: score the frames that carry truth (OSPA,
+    OSPA(2), cardinality error: the progress lines and ``sink.json`` ``scores``; about 0.5-1 ms
+    per frame of the sink's CPU, mostly OSPA(2)); the Rerun sink's plots need it too."""
 
     mcap: bool = True
     rerun: bool = True
@@ -221,6 +223,7 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mcap_name: str = "tracks.mcap"
     rrd_name: str = "run.rrd"
     view_url: str = ""
+    score: bool = True
 
 
 class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

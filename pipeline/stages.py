@@ -1276,7 +1276,7 @@ class SinkStage(_StageBase):
             # scored always (progress, sink.json); drawn when the Rerun sink is on
             frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
             est = estimate_from_msg(tracks.msg)
-            scores = self.scorer.update(frame, est)
+            scores = self.scorer.update(frame, est) if self.sc.score or self.rrd is not None else _NO_SCORES
             self.tally.add(frame, est, scores)
             if self.rrd is not None:
                 self._log_rrd(frame, est, scores)
@@ -1564,6 +1564,9 @@ class SinkStage(_StageBase):
             error=self.eos_seen["source"].error, files=self.files))
         self.linger_until_alone(self.cfg.supervisor.linger_s)
         return EXIT_OK
+
+
+_NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
 
 
 class _NullWriter:

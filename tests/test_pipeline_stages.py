@@ -804,13 +804,18 @@ def test_window_frames_in_seconds_of_log_time_and_in_frames():
 def test_memory_pipeline_replays_a_window_of_the_source(tmp_path):
     """start_frame / end_s select frames 4..9 of the simulation (vo2017: frame k at k s, log
     time k - 1): the recording holds those frames and the tracks `track` gives on them."""
-    cfg = _mem_cfg(tmp_path, frames=0, **{"source.start_frame": "4", "source.end_s": "8.0"})
+    cfg = _mem_cfg(tmp_path, frames=0, **{"source.start_frame": "4", "source.end_s": "8.0",
+                                          "sink.score": "false"})
     codes = _run_memory_pipeline(cfg, MemoryNetwork())
     assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
     log = read_log(Path(cfg.out) / "tracks.mcap")
     frames, ests = _offline(cfg)
     assert [f.frame for f in log.frames] == [f.frame for f in frames] == [4, 5, 6, 7, 8, 9]
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    # sink.score = false: frames and tracks counted, nothing scored
+    scores = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())["scores"]
+    assert scores["frames"] == 6 and scores["frames_scored"] == 0 and scores["ospa"] is None
+    assert scores["tracks"] == len(ests[-1].tracks)
 
 
 def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_path):
