@@ -1531,6 +1531,8 @@ class SinkStage(_StageBase):
     def run(self) -> int:
         bus = self.bus
         _warm_imports("sources.mcap_log", "pipeline.offline")
+        if self.sc.score or self.sc.rerun:  # the scorer's kernels import scipy on first use
+            _warm_imports("scipy.spatial.distance", "scipy.optimize")
         if self.sc.rerun:
             _rerun_sink_module()
         topics = ["measurements", "truth"] + (["tracks"] if self.sc.tracks else [])
