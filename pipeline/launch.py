@@ -284,6 +284,8 @@ class Launcher:
     def run(self) -> LaunchResult:
         t0 = time.monotonic()
         cfg = self.cfg
+        if self.progress is not None:  # a first line at once: the checks import the tracker
+            self.progress(Status(0.0, phase="checking"))
         check_pipeline(cfg, self.overwrite)  # every error before anything starts or is written
         if self.view:
             cfg = self.cfg = self._spawn_viewer(cfg)

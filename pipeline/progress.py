@@ -28,6 +28,7 @@ class Status:
 
     elapsed_s: float
     source: dict[str, Any] | None = None
+    phase: str = ""  # "checking": the configuration is being checked, nothing started yet
     sink: dict[str, Any] | None = None
     stages: dict[str, str] = field(default_factory=dict)
 
@@ -43,6 +44,8 @@ def progress_line(st: Status, fps: float | None) -> str:
     (frames published but not yet recorded, and the latency of the last recorded frame), the
     tracks of the last frame and, when the frames carry truth, the last and mean OSPA."""
     head = f"[{st.elapsed_s:6.1f} s]"
+    if st.phase == "checking":
+        return f"{head} checking the configuration (tracker, source, paths) before starting anything"
     sink = st.sink
     if sink is None:
         waiting = ", ".join(k for k, v in st.stages.items() if v == "running") or "the stages"

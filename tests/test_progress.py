@@ -33,6 +33,8 @@ def test_progress_line_reference_text():
 
 
 def test_progress_line_before_the_first_frame():
+    assert progress_line(Status(0.0, phase="checking"), None) == (
+        "[   0.0 s] checking the configuration (tracker, source, paths) before starting anything")
     st = Status(0.5, stages={"sink": "running", "tracker": "running", "source": "running"})
     assert progress_line(st, None) == "[   0.5 s] starting: waiting for sink, tracker, source (frames 0)"
     st = Status(3.0, sink=_sink(0, 1.0))
