@@ -498,7 +498,7 @@ def report(n: int, args, thr: dict, fps_track: float, paced: dict, floors: dict,
           "journal) {:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
               *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
     print("  transport floor, one hop p50 (p99): " + "; ".join(
-        f"{m} {f['p50']:.2f} ({f['p99']:.2f}) ms" for m, f in floors.items() if m != "socket")
+        f"{m} {f['p50']:.2f} ({f['p99']:.2f}) ms" for m, f in floors.items() if m in ("client", "peer"))
         + " (the pipeline makes two); the OS's own hop (socketpair): "
         f"{floors['socket']['p50']:.2f} ({floors['socket']['p99']:.2f}) ms")
     two = floors["two_hop"]
