@@ -327,6 +327,8 @@ class Launcher:
                       f"; zenoh {stage_cfg.zenoh.mode} mode, {', '.join(stage_cfg.zenoh.connect) or 'no router'}"
                       f"; logs in {self.out / 'logs'}")
             self._supervise(env, t0, result)
+            self._drain_monitor()  # the sink's last health message: the final progress line
+            self._report_progress(t0, phase="final")
         finally:
             self._stop_all()
             self._close_network()
@@ -525,12 +527,12 @@ class Launcher:
                     result.error = data_error
                     return
 
-    def _report_progress(self, t0: float) -> None:
+    def _report_progress(self, t0: float, phase: str = "") -> None:
         if self.progress is None:
             return
         h = self.latest_health
         self.progress(Status(time.monotonic() - t0, source=h.get("source"), sink=h.get("sink"),
-                             stages={s.role: s.state for s in self.stages}))
+                             stages={s.role: s.state for s in self.stages}, phase=phase))
 
     def _stop_all(self) -> None:
         running = [sp for sp in self.stages if sp.alive()]

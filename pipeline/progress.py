@@ -28,7 +28,8 @@ class Status:
 
     elapsed_s: float
     source: dict[str, Any] | None = None
-    phase: str = ""  # "checking": the configuration is being checked, nothing started yet
+    phase: str = ""  # "checking": the configuration is being checked, nothing started yet;
+    # "final": the stages have ended (the line is printed whenever the last one was)
     sink: dict[str, Any] | None = None
     stages: dict[str, str] = field(default_factory=dict)
 
@@ -85,6 +86,7 @@ class Progress:
         self._last_frames: tuple[int, int] | None = None  # (frames, sink health t_ns)
         self._fps: float | None = None
         self._open = False  # a line in place is on screen
+        self._transient = False  # ... and it is the "checking" line
 
     def _rate(self, sink: dict[str, Any] | None) -> float | None:
         """Frames per second between the last two sink health messages."""
@@ -99,7 +101,17 @@ class Progress:
         return self._fps
 
     def update(self, st: Status, force: bool = False) -> bool:
-        """Print a line if one is due (or ``force``); True if printed."""
+        """Print a line if one is due (or ``force``); True if printed.  The ``checking`` line
+        (before the configuration checks) is shown on a terminal only, and erased if nothing
+        follows it (a configuration error stays one line: ``Error: ...``)."""
+        if st.phase == "checking":
+            if self.tty:
+                self.stream.write("\r\x1b[2K" + progress_line(st, None))
+                self.stream.flush()
+                self._open = self._transient = True
+            return self.tty
+        self._transient = False
+        force = force or st.phase == "final"
         if not force and self._last_t is not None and st.elapsed_s - self._last_t < self.period:
             return False
         self._last_t = st.elapsed_s
@@ -119,8 +131,9 @@ class Progress:
         self.stream.flush()
 
     def close(self) -> None:
-        """End the line in place, if any (before the summary)."""
+        """End the line in place, if any (before the summary); erase it if it is the
+        ``checking`` line."""
         if self._open:
-            self.stream.write("\n")
+            self.stream.write("\r\x1b[2K" if self._transient else "\n")
             self.stream.flush()
-            self._open = False
+            self._open = self._transient = False

@@ -48,6 +48,7 @@ def test_progress_non_tty_plain_lines_once_a_second_with_rate():
     assert not pr.update(Status(0.9, source=_source(5), sink=_sink(5, 100.5)))  # not due yet
     assert pr.update(Status(1.2, source=_source(12), sink=_sink(10, 101.0)))  # 10 frames in 1 s
     assert pr.update(Status(2.3, source=_source(30), sink=_sink(30, 102.0)))  # 20 frames in 1 s
+    assert pr.update(Status(2.4, source=_source(30), sink=_sink(30, 102.0), phase="final"))  # always
     pr.echo("stage tracker restarted (pid 1)")
     pr.close()
     text = buf.getvalue()
@@ -55,7 +56,18 @@ def test_progress_non_tty_plain_lines_once_a_second_with_rate():
     lines = text.splitlines()
     assert lines[1].startswith("[   1.2 s] frames 10 (10.0/s), lag 2 frames")
     assert lines[2].startswith("[   2.3 s] frames 30 (20.0/s), lag 0 frames")
-    assert lines[3] == "stage tracker restarted (pid 1)" and len(lines) == 4
+    assert lines[3].startswith("[   2.4 s] frames 30 (20.0/s)")
+    assert lines[4] == "stage tracker restarted (pid 1)" and len(lines) == 5
+
+
+def test_progress_checking_line_on_a_terminal_only_and_erased_if_nothing_follows():
+    buf = io.StringIO()
+    assert not Progress(buf, tty=False).update(Status(0.0, phase="checking"))
+    assert buf.getvalue() == ""  # off a terminal: a configuration error stays one line
+    pr = Progress(buf, tty=True)
+    assert pr.update(Status(0.0, phase="checking"))
+    pr.close()  # e.g. a configuration error follows: the line is erased, not ended
+    assert buf.getvalue().endswith("before starting anything\r\x1b[2K") and "\n" not in buf.getvalue()
 
 
 def test_progress_tty_rewrites_one_line_and_ends_it():
