@@ -37,6 +37,7 @@ from pipeline.offline import (
     split_overrides,
     track_log,
 )
+from pipeline.view import ViewerUnavailable
 from sinks.rerun_writer import RecordingError, RecordingProcess
 from sources.mcap_log import McapLogError, read_metadata
 from sources.scenarios import scenario_names
@@ -66,7 +67,7 @@ class IncompleteError(CliError):
     exit_code = EXIT_INCOMPLETE
 
 
-_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError)
+_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError, ViewerUnavailable)
 
 
 def _clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -108,6 +109,16 @@ def _echo_rows(rows: list[tuple[str, str]]) -> None:
 def _fmt(value: float | None, spec: str = ".2f") -> str:
     return "n/a" if value is None else format(value, spec)
 
+
+_VIEW_HELP = (
+    "Watch the run live: start a Rerun viewer and stream the recording to it while it is "
+    "written (the viewer stays open after the run; needs a display)."
+)
+_CONNECT_VIEW_HELP = (
+    "Stream the recording live to a Rerun viewer that is already running, e.g. on another host "
+    "(`rerun` there, then --connect rerun+http://HOST:9876/proxy; a port N means "
+    "rerun+http://127.0.0.1:N/proxy)."
+)
 
 _SET_HELP_SIM = (
     "Override one model parameter, KEY=VALUE (VALUE is a TOML literal), e.g. "
@@ -307,6 +318,9 @@ def simulate(
 @click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
               help="Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
               "its payload must still follow the contract of docs/formats.md.")
+@click.option("--view", is_flag=True, help=_VIEW_HELP + " Writes --rrd (default: the --out "
+              "file with the suffix .rrd).")
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @_clean_errors
 def track(
@@ -321,6 +335,8 @@ def track(
     max_frame_gap: int,
     max_gap_s: float,
     topics: tuple[str, ...],
+    view: bool,
+    view_connect: str | None,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -348,6 +364,9 @@ def track(
     if topic_map and rrd is not None:
         raise CliError("--topic cannot be combined with --rrd yet: track first, then `bnptrack view` the output")
     _require_measurements(log, topic_map)
+    live = _live_view(view, view_connect)
+    if live is not None and rrd is None:
+        rrd = (out or default_tracks_path(log, tracker_name)).with_suffix(".rrd")
     recorder = None
     if rrd is not None:
         recorder = click.get_current_context().with_resource(RecordingProcess())
@@ -385,8 +404,11 @@ def track(
     if rrd is not None:
         from pipeline.view import track_log_with_rrd
 
+        live_url = None
+        if live is not None:
+            live_url = _open_live(live)
         res = track_log_with_rrd(log, out, rrd, tracker, seed, out_meta, params=params,
-                                 recorder=recorder, bounds=bounds)
+                                 recorder=recorder, bounds=bounds, live=live_url)
     else:
         res = track_log(log, out, tracker, seed, out_meta, bounds=bounds, topic_map=topic_map)
     for w in res.warnings:
@@ -551,6 +573,27 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
                               if res.metrics_path else []))
     except ValueError as exc:
         raise CliError(str(exc)) from None
+def _live_view(view: bool, connect: str | None) -> str | None:
+    """``"spawn"`` (``--view``), a viewer URL (``--connect``; checked now: a viewer must be
+    listening there) or None."""
+    if view and connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if connect:
+        from pipeline.live import check_viewer
+
+        return check_viewer(connect)
+    return "spawn" if view else None
+
+
+def _open_live(live: str) -> str:
+    """The URL to stream to: ``live``, or that of a viewer started now (``"spawn"``)."""
+    if live != "spawn":
+        return live
+    from pipeline.live import spawn_viewer
+
+    viewer = spawn_viewer()
+    click.echo(f"viewer: {viewer.url} (pid {viewer.pid}; it stays open after the run)", err=True)
+    return viewer.url
 
 
 # --------------------------------------------------------------------------- view
@@ -765,12 +808,15 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
             if lat.get("p50") is not None:
                 note = "" if paced else " (frames published as fast as possible: includes queueing)"
                 rows.append(("latency", f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms{note}"))
+        rows += _score_rows(summary.get("scores"))
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:
             try:
                 rows.append(("wrote", f"{f} ({Path(f).stat().st_size} bytes)"))
             except OSError:
                 pass
+        if summary.get("view"):
+            rows.append(("open with", summary["view"]))
         _echo_rows(rows)
     if res.interrupted:
         click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
@@ -781,10 +827,47 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
 
 
-def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False) -> None:
-    from pipeline.launch import launch as _launch
+def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
+    """Summary rows of the sink's ``scores`` (``sink.json``): the means of OSPA, OSPA(2)
+    and the cardinality error over the frames with truth, and the tracks."""
+    if not scores:
+        return []
+    rows = []
+    if scores.get("ospa") is not None:
+        rows += [
+            ("mean OSPA", f"{scores['ospa']:.2f} m (c={scores.get('c', OSPA_C):g}, "
+                          f"p={scores.get('p', OSPA_P):g}, position; {scores['frames_scored']} frames)"),
+            ("mean OSPA(2)", f"{scores['ospa2']:.2f} m (window {scores.get('ospa2_window')} frames)"),
+            ("mean card. error", f"{scores['cardinality_error']:.2f}"),
+        ]
+    elif scores.get("frames"):
+        rows.append(("mean OSPA", "n/a (the frames carry no truth)"))
+    rows.append(("tracks", f"{scores.get('tracks', 0)} at the last frame "
+                           f"({scores.get('labels', 0)} labels in all)"))
+    return rows
 
-    res = _launch(cfg, echo=None if quiet else _echo_err, timeout=timeout, overwrite=overwrite)
+
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False,
+                  view: bool = False, view_connect: str | None = None) -> None:
+    import msgspec as _ms
+
+    from pipeline.launch import launch as _launch
+    from pipeline.progress import Progress
+
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view_connect:  # checked with the rest of the configuration (pipeline.preflight)
+        from pipeline.live import viewer_url
+
+        cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
+    progress = None if quiet else Progress(sys.stderr)
+    try:
+        res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
+                      overwrite=overwrite, progress=None if progress is None else progress.update,
+                      view=view)
+    finally:
+        if progress is not None:
+            progress.close()
     _report_launch(res, quiet, paced=cfg.source.rate > 0)
 
 
@@ -808,14 +891,17 @@ _TIMEOUT_OPT = click.option(
               help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
-@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT",
-              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one.")
+@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT|URL",
+              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one; "
+              "a Rerun URL (rerun+http://HOST:PORT/proxy) instead streams the recording live to "
+              "that running viewer.")
+@click.option("--view", is_flag=True, help=_VIEW_HELP)
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
-@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
 @_clean_errors
 def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, connect: tuple[str, ...], timeout: float | None, overwrite: bool,
+           out: Path | None, connect: tuple[str, ...], view: bool, timeout: float | None, overwrite: bool,
            quiet: bool) -> None:
     """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
 
@@ -841,10 +927,16 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    if connect:
+    from pipeline.live import is_viewer_url
+
+    viewers = [c for c in connect if is_viewer_url(c)]
+    routers = [c for c in connect if not is_viewer_url(c)]
+    if len(viewers) > 1:
+        raise click.UsageError("--connect: give at most one Rerun viewer URL")
+    if routers:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
-            cfg.zenoh, embedded_router=False, connect=list(connect)))
-    _run_pipeline(cfg, timeout, quiet, overwrite)
+            cfg.zenoh, embedded_router=False, connect=routers))
+    _run_pipeline(cfg, timeout, quiet, overwrite, view, viewers[0] if viewers else None)
 
 
 @main.command()
@@ -863,13 +955,28 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
+@click.option("--start", "start", metavar="T|Nf", default=None,
+              help="Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame "
+              "number N (40f).")
+@click.option("--end", "end", metavar="T|Nf", default=None,
+              help="End at T seconds of log time after the first frame, or at frame N (both included).")
+@click.option("--loop", "loops", type=click.IntRange(min=0), default=None, metavar="N",
+              help="Replay N times (0: until Ctrl-C), each a fresh run (run id RUN-1, RUN-2, ...; "
+              "output directories OUT/RUN-i) with a fresh tracker.")
+@click.option("--keep-prior", is_flag=True,
+              help="With --loop: each replay's tracker starts from the prior the previous replay "
+              "ended with (DDP-EMM / DPY-STP: alpha, d and their likelihood), with no track.")
+@click.option("--view", is_flag=True, help=_VIEW_HELP)
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=_CONNECT_VIEW_HELP)
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
-@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
 @_clean_errors
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, timeout: float | None, overwrite: bool, quiet: bool) -> None:
+           out: Path | None, start: str | None, end: str | None, loops: int | None, keep_prior: bool,
+           view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -881,6 +988,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     Examples:
       bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
       bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
+      bnptrack replay recordings/vo2017-s1.mcap --rate 5 --start 20s --end 40f --loop 0 --view
     """
     import msgspec as _ms
 
@@ -888,9 +996,13 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
 
     _require_measurements(log, {})  # (replay reads /measurements only; `track --topic` maps channels)
     cfg = load_pipeline(None)
+    start_s, start_frame = _parse_offset(start, "--start")
+    end_s, end_frame = _parse_offset(end, "--end")
     cfg = _ms.structs.replace(
         cfg,
-        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate),
+        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
+                                   start_s=start_s, start_frame=start_frame, end_s=end_s,
+                                   end_frame=end_frame),
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
@@ -901,7 +1013,63 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    _run_pipeline(cfg, timeout, quiet, overwrite)
+    if loops is None:
+        if keep_prior:
+            raise click.UsageError("--keep-prior needs --loop")
+        _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
+        return
+    _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect, keep_prior)
+
+
+def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
+    """``--start`` / ``--end``: ``12.5`` or ``12.5s`` -> (12.5 s, None); ``40f`` -> (None, 40)."""
+    if text is None:
+        return None, None
+    t = text.strip().lower()
+    try:
+        if t.endswith("f"):
+            n = int(t[:-1])
+            if n < 0:
+                raise ValueError
+            return None, n
+        v = float(t[:-1] if t.endswith("s") else t)
+        if not v >= 0 or v == float("inf"):
+            raise ValueError
+        return v, None
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
+                                 "number (40f), >= 0", param_hint=opt) from None
+
+
+def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overwrite: bool,
+                 view: bool, view_connect: str | None, keep_prior: bool = False) -> None:
+    """``replay --loop N``: the same replay N times (0: until interrupted), each a fresh run:
+    run id ``RUN-i`` (RUN: --run, else generated once) and output ``OUT/RUN-i`` (OUT: --out,
+    else recordings/); the tracker starts afresh each time, or with ``keep_prior`` from the
+    prior of the previous run's final snapshot.  The first failure ends the loop."""
+    import itertools
+
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import make_run_id
+
+    base = cfg.run or make_run_id(cfg)
+    root = Path(cfg.out) if cfg.out else Path("recordings")
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view:  # one viewer for every run of the loop
+        view_connect = _open_live("spawn")
+    for i in itertools.count(1):
+        if loops and i > loops:
+            break
+        run = f"{base}-{i}"
+        if not quiet:
+            click.echo(f"loop {i}{f'/{loops}' if loops else ''}: run {run}", err=True)
+        one = _ms.structs.replace(cfg, run=run, out=str(root / run))
+        if keep_prior and i > 1:
+            prev = root / f"{base}-{i - 1}" / "tracker.snap"
+            one = _ms.structs.replace(one, tracker=_ms.structs.replace(one.tracker, prior_from=str(prev)))
+        _run_pipeline(one, timeout, quiet, overwrite, False, view_connect)
 
 
 @main.command()

@@ -50,6 +50,7 @@ from pipeline.pipeline_config import (
     dump_pipeline,
     resolve_run,
 )
+from pipeline.progress import Status
 from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from pipeline.stages import (
     EXIT_CONFIG,
@@ -262,13 +263,17 @@ class LaunchResult:
 class Launcher:
     """Start and supervise the stages of ``cfg`` (see the module docstring).
 
-    ``echo`` receives one-line progress messages (the CLI prints them on stderr).
+    ``echo`` receives one-line messages (stages started, restarted; the CLI prints them on
+    stderr); ``progress`` is called with a :class:`pipeline.progress.Status` (the latest
+    health of the source and the sink) about every 50 ms while the stages run, from the
+    launch on (it prints at its own pace: :class:`pipeline.progress.Progress`).
     ``timeout`` (seconds) stops the pipeline with an error if it has not finished.
     """
 
     def __init__(self, cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
                  timeout: float | None = None, python: str | None = None,
-                 log_level: str = "INFO", overwrite: bool = False) -> None:
+                 log_level: str = "INFO", overwrite: bool = False,
+                 progress: Callable[[Status], Any] | None = None, view: bool = False) -> None:
         self.cfg = resolve_run(cfg)
         self.overwrite = overwrite
         check_run_id(self.cfg.run)
@@ -285,6 +290,10 @@ class Launcher:
         self.credentials: dict[str, str] = {}
         self.stage_errors: dict[str, str] = {}  # a stage's I/O error line, from its health message
         self._health_file = None
+        self.progress = progress
+        self.view = view
+        self.viewer = None
+        self.latest_health: dict[str, dict] = {}  # role -> its latest health message
 
     # -- public ----------------------------------------------------------------------
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -294,7 +303,11 @@ class Launcher:
     def run(self) -> LaunchResult:
         t0 = time.monotonic()
         cfg = self.cfg
+        if self.progress is not None:  # a first line at once: the checks import the tracker
+            self.progress(Status(0.0, phase="checking"))
         check_pipeline(cfg, self.overwrite)  # every error before anything starts or is written
+        if self.view:
+            cfg = self.cfg = self._spawn_viewer(cfg)
         self.out.mkdir(parents=True, exist_ok=True)
         lock = lock_out(self.out)  # held until this process exits: no second launch here
         try:
@@ -333,6 +346,8 @@ class Launcher:
                       f"; zenoh {stage_cfg.zenoh.mode} mode, {', '.join(stage_cfg.zenoh.connect) or 'no router'}"
                       f"; logs in {self.out / 'logs'}")
             self._supervise(env, t0, result)
+            self._drain_monitor()  # the sink's last health message: the final progress line
+            self._report_progress(t0, phase="final")
         finally:
             try:
                 self._stop_all()
@@ -363,6 +378,17 @@ class Launcher:
             result.incomplete = describe_missing(result.summary)
             result.ok = not result.incomplete
         return result
+
+    def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
+        """``view``: start a Rerun viewer (left open after the run) and have the sink stream
+        ``run.rrd``'s rows to it (``sink.view_url``)."""
+        from pipeline.live import spawn_viewer
+
+        if not cfg.sink.rerun:
+            raise ConfigError("--view needs the Rerun sink (sink.rerun = true)")
+        self.viewer = spawn_viewer()
+        self.echo(f"viewer: {self.viewer.url} (pid {self.viewer.pid}; it stays open after the run)")
+        return msgspec.structs.replace(cfg, sink=msgspec.structs.replace(cfg.sink, view_url=self.viewer.url))
 
     def _remove_earlier_run(self) -> None:
         """Remove the files an earlier run left in ``out`` (only there with ``overwrite``:
@@ -437,6 +463,8 @@ class Launcher:
             rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
             try:
                 rec["msg"] = json.loads(ev.payload)
+                if ev.topic.startswith("health/") and isinstance(rec["msg"], dict):
+                    self.latest_health[str(rec["msg"].get("role", ""))] = rec["msg"]
             except ValueError:
                 rec["raw"] = ev.payload[:200].decode("latin-1")
             msg = rec.get("msg")
@@ -503,6 +531,7 @@ class Launcher:
                 result.error = self._stop_reason
                 return
             self._drain_monitor()
+            self._report_progress(t0)
             if self.timeout is not None and time.monotonic() - t0 > self.timeout:
                 result.error = f"timed out after {self.timeout:g} s"
                 return
@@ -598,6 +627,12 @@ class Launcher:
             return "done"
         return (f"stage sink was {what} after every other stage had finished: nothing can resend "
                 f"it the run, so its output is incomplete (log: {sp.log_path})")
+    def _report_progress(self, t0: float, phase: str = "") -> None:
+        if self.progress is None:
+            return
+        h = self.latest_health
+        self.progress(Status(time.monotonic() - t0, source=h.get("source"), sink=h.get("sink"),
+                             stages={s.role: s.state for s in self.stages}, phase=phase))
 
     def _stop_all(self) -> None:
         running = [sp for sp in self.stages if sp.alive()]
@@ -669,10 +704,12 @@ def describe_missing(summary: dict | None) -> str:
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,
            timeout: float | None = None, handle_signals: bool = True,
-           overwrite: bool = False) -> LaunchResult:
+           overwrite: bool = False, progress: Callable[[Status], Any] | None = None,
+           view: bool = False) -> LaunchResult:
     """Run a pipeline to its end (the CLI's ``launch`` and ``replay``).  An ``out`` that holds
-    another run is refused unless ``overwrite``; one that holds a live run always."""
-    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite)
+    another run is refused unless ``overwrite``; one that holds a live run always.  ``view``:
+    start a Rerun viewer and stream the recording to it as well."""
+    launcher = Launcher(cfg, echo=echo, timeout=timeout, overwrite=overwrite, progress=progress, view=view)
     old: dict[int, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         def on_signal(signum: int, _frame: Any) -> None:

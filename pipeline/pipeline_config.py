@@ -157,7 +157,11 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``kind = "synthetic"`` simulates ``scenario`` with ``params`` (+ ``overrides``) and
     ``seed``, like ``bnptrack simulate`` (a generated scenario, ``random`` or ``random-cv``,
     draws its scene from ``seed`` and the ``scene.KEY=V`` items of ``overrides``);
-    ``kind = "mcap"`` replays the frames of ``log``.  ``frames`` > 0 stops after that many frames.  ``rate`` paces publication against the
+    ``kind = "mcap"`` replays the frames of ``log``.  ``frames`` > 0 stops after that many frames.
+    ``start_s`` / ``end_s`` keep the frames whose time stamp is that many seconds after the
+    first frame's or more / or less (log time, both ends included); ``start_frame`` /
+    ``end_frame`` keep the frame numbers in that range (``replay --start/--end``; seconds and
+    frames are not mixed at one end).  ``rate`` paces publication against the
     frames' time stamps (1 = real time, 10 = ten times faster); 0 = as fast as possible.
     ``wait_for`` lists the stages whose liveliness token the source waits for before the
     first frame (``ready_timeout_s`` bounds the wait; 0 = wait forever), ``done_by`` the
@@ -172,6 +176,10 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     seed: NonNegInt = 1
     log: str = ""
     frames: NonNegInt = 0
+    start_s: NonNeg | None = None
+    end_s: NonNeg | None = None
+    start_frame: NonNegInt | None = None
+    end_frame: NonNegInt | None = None
     rate: NonNeg = 0.0
     sensor: str = "sim0"
     wait_for: list[str] = msgspec.field(default_factory=lambda: ["tracker", "sink"])
@@ -187,6 +195,10 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     ``overrides`` are ``bnptrack track --set`` items (``params.KEY=V``, ``tracker.KEY=V``).
     The state is snapshotted to ``<out>/tracker.snap`` every ``snapshot_every`` frames and at
     shutdown; a restarted stage resumes from it (``resume = false`` ignores it).
+    ``prior_from``: the ``tracker.snap`` of an earlier run of the same tracker; a stage that does
+    not resume starts from that run's prior (the BNP trackers' concentration ``alpha``,
+    discount ``d`` and their accumulated likelihood) with no track (``replay --loop
+    --keep-prior``).
     """
 
     tracker: str = "ddp"
@@ -196,19 +208,26 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     seed: NonNegInt = 0
     snapshot_every: PosInt = 50
     resume: bool = True
+    prior_from: str = ""
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
 
 
 class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The recorder: ``tracks.mcap`` (input channels + ``/tracks``) and, when the Rerun
     sink is installed and ``rerun`` is true, ``run.rrd``.  ``tracks = false`` records the
-    input channels only (no tracker needed)."""
+    input channels only (no tracker needed).  ``view_url``: a Rerun viewer's gRPC URL
+    (``rerun+http://HOST:PORT/proxy``) that ``run.rrd``'s rows are streamed to as well
+    (``launch --view`` / ``--connect URL``).  ``score``: score the frames that carry truth (OSPA,
+    OSPA(2), cardinality error: the progress lines and ``sink.json`` ``scores``; about 0.5-1 ms
+    per frame of the sink's CPU, mostly OSPA(2)); the Rerun sink's plots need it too."""
 
     mcap: bool = True
     rerun: bool = True
     tracks: bool = True
     mcap_name: str = "tracks.mcap"
     rrd_name: str = "run.rrd"
+    view_url: str = ""
+    score: bool = True
 
 
 class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -56,6 +56,12 @@ def _check_sink(cfg: PipelineConfig) -> None:
         name = getattr(cfg.sink, key)
         if not name or Path(name).name != name or name in (".", ".."):
             raise ConfigError(f"sink.{key}: {name!r} must be a file name (no directory part)")
+    if cfg.sink.view_url:
+        if not cfg.sink.rerun:
+            raise ConfigError("sink.view_url: the live view streams run.rrd's rows: it needs sink.rerun = true")
+        from pipeline.live import check_viewer
+
+        check_viewer(cfg.sink.view_url)
 
 
 def _check_zenoh(cfg: PipelineConfig) -> None:

@@ -56,7 +56,7 @@ from pipeline.codec import (
     truth_from_msg,
 )
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, TrackerStageConfig
+from pipeline.pipeline_config import DeliveryConfig, PipelineConfig, SourceConfig, TrackerStageConfig
 from tracker.config import ConfigError
 from tracker.types import Frame, FrameBounds
 
@@ -656,6 +656,27 @@ def _fsync_dir(path: Path) -> None:
         os.close(dfd)
 
 
+#: The fields of a tracker state that make its prior (kept by ``tracker.prior_from``): the
+#: BNP trackers' concentration, discount and their accumulated (alpha, d) log-likelihood.
+PRIOR_FIELDS = ("alpha", "d", "hyper_loglik")
+
+
+def keep_prior(initial: Any, snap: Snapshot, tracker: str) -> Any:
+    """``initial`` (a fresh state: no track) with the :data:`PRIOR_FIELDS` of the state in
+    ``snap`` (an earlier run of the same tracker); :class:`ConfigError` otherwise."""
+    import dataclasses
+
+    from tracker.state import restore
+
+    if snap.tracker != tracker:
+        raise ConfigError(f"tracker.prior_from: a snapshot of tracker {snap.tracker!r}, not {tracker!r}")
+    if not all(hasattr(initial, f) for f in PRIOR_FIELDS):
+        raise ConfigError(f"tracker.prior_from: the {tracker} tracker has no prior to keep "
+                          f"({', '.join(PRIOR_FIELDS)})")
+    old = restore(snap.state, type(initial))
+    return dataclasses.replace(initial, **{f: getattr(old, f) for f in PRIOR_FIELDS})
+
+
 # --------------------------------------------------------------------------- context
 
 
@@ -824,9 +845,44 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
         except McapLogError as exc:  # not an MCAP file at all: nothing to replay
             raise ConfigError(f"source.log: {exc}") from None
         frames = iter_frames(sc.log)
+    frames = window_frames(frames, sc)
     if sc.frames:
         frames = islice(frames, sc.frames)
     return metadata, frames
+
+
+def check_window(sc: SourceConfig) -> None:
+    """Raise :class:`ConfigError` for a window (``start_*`` / ``end_*``) that mixes seconds and
+    frames at one end or ends before it starts."""
+    for end in ("start", "end"):
+        if getattr(sc, f"{end}_s") is not None and getattr(sc, f"{end}_frame") is not None:
+            raise ConfigError(f"source.{end}_s and source.{end}_frame: give the {end} in seconds or in "
+                              "frames, not both")
+    if sc.start_s is not None and sc.end_s is not None and sc.end_s < sc.start_s:
+        raise ConfigError(f"source.end_s = {sc.end_s:g} is before source.start_s = {sc.start_s:g}")
+    if sc.start_frame is not None and sc.end_frame is not None and sc.end_frame < sc.start_frame:
+        raise ConfigError(f"source.end_frame = {sc.end_frame} is before source.start_frame = {sc.start_frame}")
+
+
+def window_frames(frames: Iterator[Frame], sc: SourceConfig) -> Iterator[Frame]:
+    """The frames of ``frames`` inside the source's window (see :class:`SourceConfig`):
+    seconds count from the first frame's time stamp; the input is not read past the end."""
+    check_window(sc)
+    if sc.start_s is None and sc.end_s is None and sc.start_frame is None and sc.end_frame is None:
+        return frames
+    return _window(frames, sc)
+
+
+def _window(frames: Iterator[Frame], sc: SourceConfig) -> Iterator[Frame]:
+    stamp0 = None
+    for frame in frames:
+        if stamp0 is None:
+            stamp0 = frame.stamp_ns
+        t = (frame.stamp_ns - stamp0) / 1e9
+        if (sc.end_s is not None and t > sc.end_s) or (sc.end_frame is not None and frame.frame > sc.end_frame):
+            return
+        if (sc.start_s is None or t >= sc.start_s) and (sc.start_frame is None or frame.frame >= sc.start_frame):
+            yield frame
 
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:
@@ -1032,6 +1088,9 @@ class TrackerStage(_StageBase):
         initial = self.tracker.initial_state()
         if self.restored is not None:
             self.state = restore(self.restored.state, type(initial))
+        elif tc.prior_from:
+            self.state = keep_prior(initial, read_snapshot(tc.prior_from), tc.tracker)
+            log.info("%s: starting from the prior of %s", self.name, tc.prior_from)
         else:
             self.state = initial
         _warm_up(self.tracker)
@@ -1290,7 +1349,10 @@ class SinkStage(_StageBase):
         self.next_write = 0
         self.writer = None
         self.rrd = None
-        self.scorer = None
+        from sinks.scoring import RunScorer, ScoreTally
+
+        self.scorer = RunScorer()
+        self.tally = ScoreTally()
         self.frames_written = 0
         self.tracks_written = 0
         self.e2e_ms: list[float] = []
@@ -1362,8 +1424,7 @@ class SinkStage(_StageBase):
             params = None
         try:
             self.rrd = mod.RerunSink(part_path(path), recording_id=self.run_id, metadata=meta or {}, params=params,
-                                     handle_signals=False)
-            self.scorer = mod.RunScorer()
+                                     handle_signals=False, live=self.sc.view_url or None)
             self.files.append(str(path))
         except Exception as exc:  # the recording must not die for a viewer file
             log.error("%s: Rerun sink disabled: %s", self.name, exc)
@@ -1389,9 +1450,14 @@ class SinkStage(_StageBase):
             self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
             self.tracks_written += 1
             self._note_latency(s, tracks)
-        if self.rrd is not None and meas is not GAP and tracks is not None and tracks is not GAP:
+        if meas is not GAP and tracks is not None and tracks is not GAP:
+            # scored always (progress, sink.json); drawn when the Rerun sink is on
             frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
-            self._log_rrd(frame, estimate_from_msg(tracks.msg))
+            est = estimate_from_msg(tracks.msg)
+            scores = self.scorer.update(frame, est) if self.sc.score or self.rrd is not None else _NO_SCORES
+            self.tally.add(frame, est, scores)
+            if self.rrd is not None:
+                self._log_rrd(frame, est, scores)
 
     def _note_latency(self, s: int, tracks: Accepted) -> None:
         """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
@@ -1410,15 +1476,20 @@ class SinkStage(_StageBase):
         if self.t_first_pub_ns is None:
             self.t_first_pub_ns = t_pub
 
-    def _log_rrd(self, frame: Frame, est: Any) -> None:
+    def _log_rrd(self, frame: Frame, est: Any, scores: dict[str, Any]) -> None:
         try:
-            self.rrd.log(frame, est, **self.scorer.update(frame, est), health=self._health_scalars())
+            self.rrd.log(frame, est, **scores, health=self._health_scalars())
         except Exception as exc:
             log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
             self._close_rrd()
 
     def _sink_health(self) -> dict:
-        return {"frames_written": self.frames_written, "next_seq": self.next_write}
+        """The sink's part of its health message: what the launcher's progress line shows
+        (frames written, the newest frame seen, the last frame's latency, the scores)."""
+        seen = self.streams["measurements"].max_seen
+        return {"frames_written": self.frames_written, "next_seq": self.next_write,
+                "max_seq_seen": seen, "last_latency_ms": self.e2e_ms[-1] if self.e2e_ms else None,
+                "scores": self.tally.as_dict()}
 
     def _health_scalars(self) -> dict[str, float]:
         c = self.counters
@@ -1622,6 +1693,8 @@ class SinkStage(_StageBase):
             "dropped": int(getattr(self.bus, "dropped", 0)),
             "zenoh_misses": int(getattr(self.bus, "misses", 0)),
             "files": self.files,
+            "scores": self.tally.as_dict(),
+            "view": self._view_command(),
             "throughput_fps": fps,
             "t_first_pub_ns": self.t_first_pub_ns,
             "t_last_recv_ns": self.t_last_ns,
@@ -1639,6 +1712,11 @@ class SinkStage(_StageBase):
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
                  "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def _view_command(self) -> str:
+        """The command that opens the recording (``""``: no ``run.rrd`` was written)."""
+        rrd = self.ctx.out / self.sc.rrd_name
+        return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
 
     def _missing(self) -> list[dict[str, Any]]:
         """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
@@ -1697,6 +1775,8 @@ class SinkStage(_StageBase):
         if done is not None:
             return self._end_again(done)
         _warm_imports("sources.mcap_log", "pipeline.offline")
+        if self.sc.score or self.sc.rerun:  # the scorer's kernels import scipy on first use
+            _warm_imports("scipy.spatial.distance", "scipy.optimize")
         if self.sc.rerun:
             _rerun_sink_module()
         topics = ["measurements", "truth"] + (["tracks"] if self.sc.tracks else [])
@@ -1745,6 +1825,9 @@ class SinkStage(_StageBase):
             error=self.eos_seen["source"].error, files=self.files))
         self.linger_until_alone(self.cfg.supervisor.linger_s)
         return EXIT_OK
+
+
+_NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
 
 
 class _NullWriter:

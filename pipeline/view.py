@@ -179,6 +179,9 @@ def screenshot(
             k = tl.end if frame is None else int(frame)
             if not tl.start <= k <= tl.end:
                 raise ValueError(f"frame {k} is outside the recording ({timeline} {tl.start}..{tl.end})")
+            # no top bar in the picture: it carries the viewer's notices ("Software rasterizer",
+            # the notification bell), not the recording
+            _call(lambda: client.run_command("ui.toggle_top_panel"), proc, deadline, log)
             _call(lambda: client.set_time(timeline, sequence=k, play_state="paused"), proc, deadline, log)
             time.sleep(0.3)  # let the plots settle on the new cursor before painting
             view_id = None
@@ -278,8 +281,10 @@ def track_log_with_rrd(
     params: ModelParams | None = None,
     recorder: RecordingProcess | None = None,
     bounds: FrameBounds | None = None,
+    live: str | None = None,
 ) -> TrackResult:
-    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``.
+    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``
+    (and streams it to the viewer at the gRPC URL ``live``, when given: ``track --view``).
 
     Each frame is scored (:class:`sinks.rerun_sink.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
     over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
@@ -298,7 +303,8 @@ def track_log_with_rrd(
         check_output_path(log, rrd)
         if rrd.resolve() == out.resolve():
             raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
-        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params)
+        kw = {"live": live} if live else {}
+        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params, **kw)
         return track_log(log, out, tracker, seed, metadata,
                          on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result),
                          bounds=bounds)

@@ -10,10 +10,14 @@ Entity tree (``world`` is drawn with +y up; positions in metres, sensor at the o
 
     world                      AnnotationContext (class 0 clutter, 1 unassigned, 2.. labels)
     world/sensor               sensor position and field of view (static)
+    world/grid                 metric grid (static); world/grid/axes x and y axes, world/grid/ticks
+                               tick labels in metres
+    world/legend/<what>        legend symbols with their meaning (static, top corners)
     world/measurements         Points2D, coloured by the label they were assigned to
     world/measurements/rings   range-only sensors: one arc per measurement
     world/assignments          LineStrips2D measurement -> assigned track estimate
-    world/tracks/<label>       Points2D (position, label text) + LineStrips2D (trail, 2-sigma
+    world/tracks/<label>       Points2D (position, short name T1, T2, ... in order of
+                               confirmation) + LineStrips2D (trail, 2-sigma
                                ellipse); cleared (rr.Clear) when the label ends
     world/truth                LineStrips2D grey crosses (when the source has truth)
     world/truth/trails         LineStrips2D thin grey trails of the true objects
@@ -43,6 +47,7 @@ Every subprocess started from this module (:func:`verify`, :func:`repair`) runs 
 from __future__ import annotations
 
 import importlib.util
+import logging
 import math
 import os
 import shutil
@@ -85,6 +90,8 @@ __all__ = [
     "OSPA2_WINDOW",
 ]
 
+_log = logging.getLogger("bnptrack.rerun")
+
 # --------------------------------------------------------------------------- entity paths
 WORLD = "world"
 SENSOR = "world/sensor"
@@ -101,6 +108,10 @@ DIAGNOSTICS = "diagnostics"
 HEALTH = "health"
 EVENTS = "events"
 METADATA = "metadata"
+GRID = "world/grid"
+GRID_TICKS = "world/grid/ticks"
+AXES = "world/grid/axes"
+LEGEND = "world/legend"
 
 #: Class ids of the annotation context on ``world`` (labels get ids from FIRST_LABEL_CLASS on).
 CLUTTER_CLASS = 0
@@ -155,13 +166,16 @@ _EMPTY_U32 = np.zeros(0, dtype=np.uint32)
 
 
 #: Distinct track colours (RGB, bright on the viewer's dark background): a label takes one at
-#: birth and keeps it until it ends.
+#: birth and keeps it until it ends.  None is near the colours of the sensor, the truth, clutter
+#: or unassigned measurements (RGB distance >= :data:`MIN_COLOR_DISTANCE`: no yellow, cream,
+#: pale pink or lavender track that could be read as the sensor or the truth).
 PALETTE: tuple[tuple[int, int, int], ...] = (
-    (230, 25, 75), (60, 180, 75), (255, 225, 25), (90, 130, 255), (245, 130, 49),
-    (170, 80, 230), (66, 212, 244), (240, 50, 230), (191, 239, 69), (250, 190, 212),
-    (70, 200, 180), (220, 190, 255), (210, 150, 80), (255, 250, 200), (255, 120, 120),
-    (170, 255, 195),
+    (230, 25, 75), (60, 180, 75), (90, 130, 255), (245, 130, 49), (170, 80, 230),
+    (66, 212, 244), (240, 50, 230), (70, 200, 180), (255, 120, 120), (120, 220, 60),
+    (0, 110, 255),
 )
+#: Smallest RGB distance between a track colour and the reserved colours (tests check it).
+MIN_COLOR_DISTANCE = 75.0
 
 
 def label_color(label: str, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int, int, int, int]:
@@ -347,10 +361,13 @@ def repair(path: str | os.PathLike, out: str | os.PathLike, *, timeout: float = 
 
 
 def default_blueprint(*, diagnostics: Iterable[str] = tuple(_DIAG_NAMES), health: bool = True,
-                      scene_bounds: tuple[float, float, float, float] | None = None) -> rrb.Blueprint:
+                      scene_bounds: tuple[float, float, float, float] | None = None,
+                      truth: bool = True) -> rrb.Blueprint:
     """The layout a recording opens with: the 2-D scene (3/5 of the width) and, beside it,
     cardinality, OSPA / OSPA(2) and a tab group (tracker diagnostics, pipeline health, events,
-    run metadata).  ``scene_bounds`` = ``(x_min, x_max, y_min, y_max)`` in metres.
+    run metadata).  ``scene_bounds`` = ``(x_min, x_max, y_min, y_max)`` in metres.  Without
+    ``truth`` (a log without ground truth) there is no OSPA panel (it would stay empty) and the
+    cardinality panel shows the number of tracks alone.
     """
     scene_kw: dict[str, Any] = {}
     if scene_bounds is not None:
@@ -369,19 +386,27 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(_DIAG_NAMES), health
         rrb.Horizontal(
             rrb.Spatial2DView(origin="/", contents=f"{WORLD}/**", name="scene (x east, y north, m)",
                               **scene_kw),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true"),
-                rrb.TimeSeriesView(origin="metrics", contents=[OSPA, OSPA2],
-                                   name="OSPA (c=100 m, p=1) and OSPA(2)"),
-                rrb.Tabs(*tabs, active_tab=0),
-                row_shares=[1.0, 1.0, 1.1],
-            ),
+            rrb.Vertical(*_metric_views(truth), rrb.Tabs(*tabs, active_tab=0),
+                         row_shares=[1.0, 1.0, 1.1] if truth else [1.0, 2.1]),
             column_shares=[3.0, 2.0],
         ),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline="frame"),
     )
+
+
+def _metric_views(truth: bool) -> list[Any]:
+    if not truth:
+        return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)")]
+    return [rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true"),
+            rrb.TimeSeriesView(origin="metrics", contents=[OSPA, OSPA2], name="OSPA (c=100 m, p=1) and OSPA(2)")]
+
+
+def _nice_step(span: float) -> float:
+    """The largest round grid step (1, 2 or 5 x 10^n metres) not above ``span``."""
+    base = 10.0 ** math.floor(math.log10(max(span, 1e-9)))
+    return max(m * base for m in (1.0, 2.0, 5.0) if m * base <= span * (1 + 1e-9))
 
 
 # --------------------------------------------------------------------------- the sink
@@ -422,6 +447,11 @@ class RerunSink:
             sensor at the origin with a 2000 m / +-90 deg field.
         handle_signals: install SIGTERM/SIGINT handlers (main thread only) that finalise the
             file (footer written) before the signal's previous disposition runs.
+        live: a Rerun gRPC URL (``rerun+http://HOST:PORT/proxy``: a viewer, e.g. one started by
+            ``rerun`` or ``bnptrack launch --view``): the recording is streamed there too, as it
+            is written to ``path`` (the same rows: ``rr.set_sinks(GrpcSink, FileSink)``).  A
+            viewer that goes away does not stop the file: :meth:`close` logs the failed
+            flush and still finishes the file (Rerun gives up on the stream after about 5 s).
         flush_interval: ``log`` keeps each frame's data in memory; at most this many seconds
             apart (checked at each ``log``), the frames kept are sent to the file as columns,
             one Arrow chunk per entity.  ``0`` sends every frame at once.  A writer killed by
@@ -443,6 +473,7 @@ class RerunSink:
         params: ModelParams | None = None,
         handle_signals: bool = True,
         flush_interval: float = 1.0,
+        live: str | None = None,
     ) -> None:
         if trail < 1:
             raise ValueError(f"trail must be >= 1, got {trail}")
@@ -468,8 +499,15 @@ class RerunSink:
         self._circle = np.stack([np.cos(circle), np.sin(circle)], axis=-1)  # (K+1, 2)
         self._arc = np.linspace(-half, half, 49)
 
+        self.live = live or None
         self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
-        self._rec.save(self.path, default_blueprint=default_blueprint(scene_bounds=_fov_bounds(rng, half)))
+        self._bounds = _fov_bounds(rng, half)
+        self._truth_layout = True  # the blueprint's; switched off at a first frame without truth
+        blueprint = default_blueprint(scene_bounds=self._bounds)
+        if self.live:
+            self._rec.set_sinks(rr.GrpcSink(self.live), rr.FileSink(self.path), default_blueprint=blueprint)
+        else:
+            self._rec.save(self.path, default_blueprint=blueprint)
         self._s = _Schema()
 
         # kept until the next flush
@@ -488,6 +526,7 @@ class RerunSink:
         self._truth_live: set[str] = set()
         self._meas_models: dict[str, Any] = {}
         self._context_logged = False
+        self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
 
         self._write_static(dict(metadata or {}))
         self._old_handlers: dict[int, Any] = {}
@@ -518,6 +557,10 @@ class RerunSink:
             if self._closed:
                 raise RuntimeError(f"RerunSink({self.path}) is closed")
             k, t = int(frame.frame), int(frame.stamp_ns)
+            if self._prev_frame is None and frame.truth is None and self._truth_layout:
+                self._truth_layout = False  # a log without truth: no (empty) OSPA panel
+                self._rec.send_blueprint(default_blueprint(scene_bounds=self._bounds, truth=False),
+                                         make_active=True, make_default=True)
             tracks = estimate.tracks
             labels = tuple(tr.label for tr in tracks)
             if set(labels) != self._live:
@@ -567,7 +610,12 @@ class RerunSink:
             if self._closed:
                 return
             self._send_kept()
-            self._rec.flush(timeout_sec=30.0 if wait else 0.0)
+            try:
+                self._rec.flush(timeout_sec=30.0 if wait else 0.0)
+            except RuntimeError as exc:  # a live viewer that went away must not stop the run
+                if not self.live:
+                    raise
+                _log.warning("live view %s: %s", self.live, exc)
             self._last_flush = time.monotonic()
 
     def close(self) -> None:
@@ -577,7 +625,12 @@ class RerunSink:
                 return
             try:
                 self._send_kept()
-                self._rec.flush(timeout_sec=30.0)
+                try:
+                    self._rec.flush(timeout_sec=30.0)
+                except RuntimeError as exc:  # the live viewer is gone; the file is not
+                    if not self.live:
+                        raise
+                    _log.warning("live view %s: %s (the file %s is complete)", self.live, exc, self.path)
             finally:
                 self._closed = True
                 self._rec.disconnect()
@@ -641,7 +694,10 @@ class RerunSink:
         rows = "\n".join(f"| {k} | {_md(v)} |" for k, v in meta.items())
         rec.log(METADATA, rr.TextDocument(
             "# bnptrack run\n\n| key | value |\n| --- | --- |\n" + rows + "\n\n"
-            "Scene: x east, y north (m), sensor at the origin. Tracks: dot + label, trail of the "
+            "Scene: x east, y north (m), sensor at the origin, grid lines every "
+            f"{_nice_step((self._bounds[1] - self._bounds[0]) / 8):g} m; the legend is in the top "
+            "corners. Tracks: dot + short name (T1, T2, ... in order of confirmation; hover a "
+            "track for its internal label, in its entity path), trail of the "
             f"last {self.trail} positions, {ELLIPSE_SIGMA:g}-sigma position ellipse. Measurements "
             "take the colour of the track they were assigned to; grey dots are clutter; thin lines "
             "join a measurement to its track. Grey crosses and thin trails: ground truth.",
@@ -654,6 +710,8 @@ class RerunSink:
         rec.log(SENSOR, rr.Points2D([[0.0, 0.0]], radii=-6.0, colors=[SENSOR_COLOR], labels=["sensor"]),
                 rr.LineStrips2D([fov], radii=-0.75, colors=[(110, 110, 110, 150)], draw_order=0.1),
                 static=True)
+        self._log_grid()
+        self._log_legend()
         # styles that do not change from frame to frame
         rec.log(MEASUREMENTS, rr.Points2D.from_fields(show_labels=False, draw_order=3.0), static=True)
         rec.log(ASSIGNMENTS, rr.LineStrips2D.from_fields(radii=[R_ASSIGN_LINE], show_labels=False,
@@ -668,6 +726,67 @@ class RerunSink:
         for key in _DIAG_NAMES:
             self._series_style(f"{DIAGNOSTICS}/{key}", [_DIAG_NAMES[key]], [(120, 190, 255)])
 
+    def _log_grid(self) -> None:
+        """Static metric grid (round steps, about 8 across the field of view), the x and y axes
+        through the sensor, and tick labels in metres along the bottom and left edges."""
+        x0, x1, y0, y1 = self._bounds
+        step = _nice_step((x1 - x0) / 8)
+        xs = np.arange(math.ceil(x0 / step), math.floor(x1 / step) + 1) * step
+        ys = np.arange(math.ceil(y0 / step), math.floor(y1 / step) + 1) * step
+        lines = [[[x, y0], [x, y1]] for x in xs] + [[[x0, y], [x1, y]] for y in ys]
+        rec = self._rec
+        rec.log(GRID, rr.LineStrips2D(lines, radii=-0.5, colors=[(70, 70, 70, 110)], draw_order=0.0),
+                static=True)
+        rec.log(AXES, rr.LineStrips2D([[[x0, 0.0], [x1, 0.0]], [[0.0, y0], [0.0, y1]]], radii=-0.8,
+                                      colors=[(135, 135, 135, 200)], show_labels=False, draw_order=0.05),
+                rr.Points2D([[x1 - 0.07 * (x1 - x0), y0 - 0.1 * (y1 - y0)], [0.0, y1 + 0.02 * (y1 - y0)]],
+                            radii=-1.0,
+                            colors=[(135, 135, 135, 255)], labels=["x east (m)", "y north (m)"],
+                            show_labels=True, draw_order=0.05), static=True)
+        inset = 0.025 * (x1 - x0)  # tick labels are centred on their point: keep them in view
+        ticks = [[x, y0] for x in xs] + [[x0 + inset, y] for y in ys if y > y0 + 0.5 * step]
+        labels = [f"{x:g}" for x in xs] + [f"{y:g}" for y in ys if y > y0 + 0.5 * step]
+        rec.log(GRID_TICKS, rr.Points2D(ticks, radii=-1.0, colors=[(135, 135, 135, 255)], labels=labels,
+                                        show_labels=True, draw_order=0.05), static=True)
+
+    def _log_legend(self) -> None:
+        """Static legend in the scene's top corners (empty: outside the field of view), one
+        entity per symbol: ``world/legend/<what>``, the symbol drawn as in the scene with its
+        meaning as label."""
+        x0, x1, y0, y1 = self._bounds
+        w, h = x1 - x0, y1 - y0
+        dy = 0.09 * h
+        left, right = x0 + 0.2 * w, x1 - 0.17 * w
+        top = y1 - 0.03 * h
+        track_rgb = PALETTE[2]
+        rec = self._rec
+
+        def at(col: float, row: int) -> np.ndarray:
+            return np.array([col, top - row * dy])
+
+        rec.log(f"{LEGEND}/measurement", rr.Points2D([at(left, 0)], radii=R_MEAS_ASSIGNED, colors=[WHITE_UNASSIGNED],
+                                                     labels=["measurement"], show_labels=True), static=True)
+        rec.log(f"{LEGEND}/clutter", rr.Points2D([at(left, 1)], radii=R_MEAS_CLUTTER, colors=[GREY_CLUTTER],
+                                                 labels=["clutter (no track)"], show_labels=True), static=True)
+        p, q = at(left, 2), at(left, 2) + (0.04 * w, 0.0)
+        rec.log(f"{LEGEND}/assigned", rr.Points2D([p], radii=R_MEAS_ASSIGNED, colors=[track_rgb],
+                                                  labels=["assigned measurement (track colour)"], show_labels=True),
+                rr.LineStrips2D([[p, q]], radii=R_ASSIGN_LINE, colors=[(*track_rgb, 150)]), static=True)
+        c, hx = at(right, 0), self._cross
+        rec.log(f"{LEGEND}/truth", rr.LineStrips2D(
+            [[c - (hx, hx), c + (hx, hx)], [c + (-hx, hx), c + (hx, -hx)]], radii=R_TRUTH_CROSS,
+            colors=[GREY_TRUTH], labels=["truth", ""], show_labels=True), static=True)
+        c = at(right, 1)
+        trail = c + np.stack([np.linspace(-0.06 * w, 0.0, 6), 0.01 * w * np.sin(np.linspace(0, 3, 6))], -1)
+        rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb], labels=["track T1 + trail"],
+                                               show_labels=True),
+                rr.LineStrips2D([trail], radii=R_TRAIL, colors=[track_rgb]), static=True)
+        c = at(right, 2)
+        ell = c + self._circle * (0.03 * w, 0.012 * h)
+        rec.log(f"{LEGEND}/ellipse", rr.LineStrips2D([ell], radii=R_ELLIPSE, colors=[(*track_rgb, 170)],
+                                                     labels=[f"{ELLIPSE_SIGMA:g}-sigma ellipse"], show_labels=True),
+                static=True)
+
     def _series_style(self, entity: str, names: list[str], colors: list[tuple[int, int, int]]) -> None:
         self._rec.log(entity, rr.SeriesLines(names=names, colors=colors, widths=[1.5] * len(names)),
                       static=True)
@@ -678,7 +797,7 @@ class RerunSink:
         (its name and colour), so hovering a measurement names the track it went to."""
         classes = [(CLUTTER_CLASS, "clutter", _pack(GREY_CLUTTER)),
                    (UNASSIGNED_CLASS, "measurement", _pack(WHITE_UNASSIGNED))]
-        classes += [(self._class[lab], lab, self._colors[lab])
+        classes += [(self._class[lab], f"{self._names[lab]} (label {lab})", self._colors[lab])
                     for lab in sorted(self._live, key=self._class.__getitem__)]
         rows = [{"class_id": i, "class_description": {
                     "info": {"id": i, "label": name, "color": color},
@@ -712,9 +831,12 @@ class RerunSink:
         self._at(k, t)
         for lab in ended:
             self._clears.append((self._track_path(lab), k, t))
-            self._event(f"track {lab} ended (last seen at frame {self._prev_frame})")
+            self._event(f"track {self._names[lab]} ended (label {lab}, last seen at frame {self._prev_frame})")
         taken = [_unpack(self._colors[o]) for o in labels if o in self._live]
         for lab in born:
+            name = self._names.get(lab)
+            if name is None:  # T1, T2, ... in order of confirmation; kept if the label comes back
+                name = self._names[lab] = f"T{len(self._names) + 1}"
             self._class[lab] = self._next_class
             self._next_class = (FIRST_LABEL_CLASS if self._next_class >= _MAX_CLASS
                                 else self._next_class + 1)
@@ -725,7 +847,7 @@ class RerunSink:
                 self._colors[lab] = packed
                 self._log_arrays(self._track_path(lab), {
                     "Points2D:colors": pa.array([packed], type=pa.uint32()),
-                    "Points2D:labels": pa.array([lab], type=pa.string()),
+                    "Points2D:labels": pa.array([name], type=pa.string()),
                     "Points2D:radii": pa.array([R_TRACK], type=pa.float32()),
                     "Points2D:show_labels": pa.array([True], type=pa.bool_()),
                     "Points2D:draw_order": pa.array([5.0], type=pa.float32()),
@@ -734,7 +856,7 @@ class RerunSink:
                     "LineStrips2D:show_labels": pa.array([False], type=pa.bool_()),
                     "LineStrips2D:draw_order": pa.array([4.0], type=pa.float32()),
                 }, static=True)
-            self._event(f"track {lab} born")
+            self._event(f"track {name} born (label {lab})")
         self._live = now
         if born:  # new classes: re-log the context, with the live labels only
             self._class = {lab: self._class[lab] for lab in labels}

@@ -16,7 +16,7 @@ import numpy as np
 from sinks.metrics import OspaResult, _cutoff_distances, _ospa_unchecked, _track_distances, _window_tracks, ospa
 from tracker.types import Estimate, Frame
 
-__all__ = ["RunScorer", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
+__all__ = ["RunScorer", "ScoreTally", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
 
 #: OSPA cut-off (m) and order of the paper's experiments: ``bnptrack track``, the experiments
 #: and the recordings all use these.
@@ -71,3 +71,52 @@ class RunScorer:
 
 
 _NO_POSITIONS = np.zeros((0, 2))
+
+
+class ScoreTally:
+    """Running means of a run's scores, for progress lines and summaries (the pipeline's
+    sink: ``sink.json`` ``scores``, its health messages, ``bnptrack launch``'s progress).
+
+    ``add(frame, estimate, scores)`` takes one frame and its :meth:`RunScorer.update`
+    result.  Means are over the frames with truth (as ``bnptrack track``'s mean OSPA and
+    mean cardinality error: :func:`sinks.metrics.cardinality_error` = ``|n_est - n_true|``);
+    ``tracks`` is the number of tracks of the last frame, ``labels`` the number of distinct
+    labels reported so far.
+    """
+
+    __slots__ = ("frames", "scored", "_ospa", "_ospa2", "_card", "tracks", "labels", "_seen", "last_ospa")
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.scored = 0
+        self._ospa = self._ospa2 = self._card = 0.0
+        self.tracks = 0
+        self.labels = 0
+        self._seen: set[str] = set()
+        self.last_ospa: float | None = None
+
+    def add(self, frame: Frame, estimate: Estimate, scores: dict[str, Any]) -> None:
+        self.frames += 1
+        labels = estimate.labels
+        self.tracks = len(labels)
+        self._seen.update(labels)
+        self.labels = len(self._seen)
+        o = scores.get("ospa")
+        if o is None or frame.truth is None:
+            return
+        self.scored += 1
+        self.last_ospa = float(o.total)
+        self._ospa += float(o.total)
+        self._ospa2 += float(scores.get("ospa2") or 0.0)
+        self._card += abs(len(labels) - len(frame.truth.ids))
+
+    def _mean(self, total: float) -> float | None:
+        return total / self.scored if self.scored else None
+
+    def as_dict(self) -> dict[str, Any]:
+        """``{"frames", "frames_scored", "ospa", "ospa2", "cardinality_error", "tracks",
+        "labels", "last_ospa"}`` (means; ``None`` without truth)."""
+        return {"frames": self.frames, "frames_scored": self.scored, "ospa": self._mean(self._ospa),
+                "ospa2": self._mean(self._ospa2), "cardinality_error": self._mean(self._card),
+                "tracks": self.tracks, "labels": self.labels, "last_ospa": self.last_ospa,
+                "c": OSPA_C, "p": OSPA_P, "ospa2_window": OSPA2_WINDOW}

@@ -329,6 +329,26 @@ def test_memory_pipeline_equals_offline(tmp_path):
     assert summary["complete"] and summary["frames_written"] == 12
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
     assert snap.last_seq == 11 and snap.run == "mem"
+    _assert_scores_equal_offline(summary["scores"], frames, ests)
+    assert summary["view"] == ""  # sink.rerun = false: no recording to open
+
+
+def _assert_scores_equal_offline(scores: dict, frames, ests) -> None:
+    """sink.json's scores are the means `bnptrack track` would give (OSPA, cardinality
+    error: pipeline.offline.frame_metrics; OSPA(2): sinks.metrics.ospa2_series)."""
+    from pipeline.offline import frame_metrics
+    from sinks.metrics import ospa2_series
+
+    fm = [frame_metrics(f, e) for f, e in zip(frames, ests)]
+    o2 = ospa2_series([dict(zip(e.labels, e.positions)) for e in ests],
+                      [dict(zip(f.truth.ids, f.truth.positions)) for f in frames], window=10)
+    assert scores["frames"] == scores["frames_scored"] == len(frames)
+    assert scores["ospa"] == pytest.approx(np.mean([m.ospa for m in fm]), rel=1e-12)
+    assert scores["last_ospa"] == pytest.approx(fm[-1].ospa, rel=1e-12)
+    assert scores["cardinality_error"] == pytest.approx(np.mean([m.cardinality_error for m in fm]))
+    assert scores["ospa2"] == pytest.approx(float(np.mean(o2)), rel=1e-9)
+    assert scores["tracks"] == len(ests[-1].tracks)
+    assert scores["labels"] == len({lab for e in ests for lab in e.labels})
 
 
 def test_memory_pipeline_survives_duplicates_reordering_and_garbage(tmp_path):
@@ -747,3 +767,90 @@ def test_memory_pipeline_with_a_generated_random_source(tmp_path):
     frames, ests = _offline(cfg)
     assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, frames, strict=True))
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+
+
+# --------------------------------------------------------------------------- replay window
+
+
+def _frames_at(stamps_s: list[float], first: int = 1) -> list[Frame]:
+    return [Frame(first + i, int(t * 1e9), "s", "bearing_range", np.zeros((0, 2))) for i, t in enumerate(stamps_s)]
+
+
+def test_window_frames_in_seconds_of_log_time_and_in_frames():
+    from pipeline.pipeline_config import SourceConfig
+    from pipeline.stages import window_frames
+
+    frames = _frames_at([5.0, 6.0, 7.5, 9.0, 10.0, 12.0])  # log time 0, 1, 2.5, 4, 5, 7 s
+
+    def keep(**kw):
+        return [f.frame for f in window_frames(iter(frames), SourceConfig(**kw))]
+
+    assert keep() == [1, 2, 3, 4, 5, 6]
+    assert keep(start_s=1.0, end_s=5.0) == [2, 3, 4, 5]  # both ends included
+    assert keep(start_s=2.6) == [4, 5, 6] and keep(end_s=0.0) == [1]
+    assert keep(start_frame=3, end_frame=4) == [3, 4]
+    assert keep(start_frame=2, end_s=2.5) == [2, 3]  # seconds at one end, frames at the other
+    # the input is not read past the end
+    it = iter(frames)
+    assert [f.frame for f in window_frames(it, SourceConfig(end_frame=2))] == [1, 2]
+    assert next(it).frame == 4  # frame 3 was read (to see that it is past the end), no more
+    for bad, msg in (({"start_s": 1.0, "start_frame": 2}, "in seconds or in frames, not both"),
+                     ({"start_s": 3.0, "end_s": 2.0}, "is before source.start_s"),
+                     ({"start_frame": 5, "end_frame": 4}, "is before source.start_frame")):
+        with pytest.raises(ConfigError, match=msg):
+            window_frames(iter(frames), SourceConfig(**bad))
+
+
+def test_memory_pipeline_replays_a_window_of_the_source(tmp_path):
+    """start_frame / end_s select frames 4..9 of the simulation (vo2017: frame k at k s, log
+    time k - 1): the recording holds those frames and the tracks `track` gives on them."""
+    cfg = _mem_cfg(tmp_path, frames=0, **{"source.start_frame": "4", "source.end_s": "8.0",
+                                          "sink.score": "false"})
+    codes = _run_memory_pipeline(cfg, MemoryNetwork())
+    assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    frames, ests = _offline(cfg)
+    assert [f.frame for f in log.frames] == [f.frame for f in frames] == [4, 5, 6, 7, 8, 9]
+    assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
+    # sink.score = false: frames and tracks counted, nothing scored
+    scores = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())["scores"]
+    assert scores["frames"] == 6 and scores["frames_scored"] == 0 and scores["ospa"] is None
+    assert scores["tracks"] == len(ests[-1].tracks)
+
+
+def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_path):
+    """tracker.prior_from (replay --loop --keep-prior): the second run starts with no track
+    but with the first run's alpha, d and (alpha, d) likelihood; its tracks are those of the
+    offline tracker started from that state; without it, those of a fresh tracker."""
+    from pipeline.stages import PRIOR_FIELDS, keep_prior
+    from tracker.state import run
+
+    first = _mem_cfg(tmp_path / "a", frames=8)
+    assert _run_memory_pipeline(first, MemoryNetwork())["tracker"] == EXIT_OK
+    snap_path = Path(first.out) / "tracker.snap"
+    snap = read_snapshot(snap_path)
+    frames, _ = _offline(first)
+    second = msgspec.structs.replace(first, run="mem2", out=str(tmp_path / "b"),
+                                     tracker=msgspec.structs.replace(first.tracker, prior_from=str(snap_path)))
+    assert _run_memory_pipeline(second, MemoryNetwork())["tracker"] == EXIT_OK
+    got = read_log(Path(second.out) / "tracks.mcap").tracks
+
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.stages import source_frames
+
+    meta, _ = source_frames(first)
+    conf, _ = resolve_config("ddp", None)
+    params, conf = apply_split_overrides(resolve_params(None, meta).params, conf, first.tracker.overrides)
+    tracker = build_tracker("ddp", params, conf)
+    offline_first = list(run(tracker, frames, 0))
+    final = offline_first[-1][2]
+    start = keep_prior(tracker.initial_state(), snap, "ddp")
+    assert start.n_clusters == 0 and start.frame == -1
+    for f in PRIOR_FIELDS:
+        assert np.array_equal(getattr(start, f), getattr(final, f))  # the snapshot is the final state
+    want = [est for _, est, _ in run(tracker, frames, 0, state=start)]
+    assert [_strip(e) for e in got] == [_strip(e) for e in want]
+    fresh = [est for _, est, _ in offline_first]
+    assert [_strip(e) for e in got] != [_strip(e) for e in fresh]  # the prior changed the run
+    with pytest.raises(ConfigError, match="not 'dpyp'"):
+        keep_prior(tracker.initial_state(), snap, "dpyp")

@@ -119,12 +119,49 @@ def router():
 # --------------------------------------------------------------------------- tests
 
 
+def _timed_lines(p: subprocess.Popen, timeout: float) -> tuple[int, list[tuple[float, str]], str]:
+    """Run ``p`` (stderr piped) to its end; (exit code, its stderr lines with the time each
+    arrived, seconds from now, and its stdout)."""
+    import threading
+
+    t0 = time.monotonic()
+    lines: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for raw in p.stderr:
+            lines.append((time.monotonic() - t0, raw.decode()))
+
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    try:
+        out = p.stdout.read()
+        p.wait(timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        pytest.fail(f"{p.args} did not finish in {timeout} s: {lines}")
+    th.join(10)
+    return p.returncode, lines, out.decode()
+
+
 def test_launch_default_end_to_end_equals_offline_track(tmp_path):
     out = tmp_path / "run"
-    code, text = _cli("launch", "--set", "source.frames=20", "--run", "e2e-1", "--out", str(out),
-                      "--timeout", "150", timeout=180)
+    p = _popen("launch", "--set", "source.frames=20", "--run", "e2e-1", "--out", str(out), "--timeout", "150")
+    code, lines, stdout = _timed_lines(p, 180)
+    text = stdout + "".join(line for _t, line in lines)
     assert code == 0, text
     assert "tracks.mcap" in text and str(out) in text
+    # progress: plain lines on a pipe, the first within 3 s of the command's start, then
+    # about one a second; the summary scores the run and ends with the command to view it
+    progress = [(t, line) for t, line in lines if line.startswith("[")]
+    assert "\r" not in text and progress, text
+    assert progress[0][0] < 3.0, progress[0]
+    # the last line (printed when the stages have ended) has the sink's final figures
+    assert " frames 20" in progress[-1][1] and "tracks " in progress[-1][1] and "OSPA " in progress[-1][1], text
+    summary_rows = stdout.splitlines()
+    assert summary_rows[-1] == f"open with         bnptrack view {out / 'run.rrd'}", stdout
+    s = _summary(out)
+    assert s["view"] == f"bnptrack view {out / 'run.rrd'}" and s["scores"]["frames_scored"] == 20
+    assert f"mean OSPA         {s['scores']['ospa']:.2f} m" in stdout
     log = read_log(out / "tracks.mcap")
     assert len(log.frames) == 20 and len(log.tracks) == 20
     assert log.metadata["scenario"] == "vo2017" and log.metadata["tracker"] == "ddp"
@@ -592,3 +629,42 @@ def test_peer_mode_refuses_tls_and_access_control():
     with pytest.raises(ConfigError, match="peer"):
         load_pipeline(None, ["zenoh.mode='peer'", "zenoh.acl=true"])
     assert ZenohConfig(acl=True).mode == "client"
+
+
+def test_launch_connect_streams_the_recording_live_with_the_same_rows(tmp_path):
+    """``launch --connect rerun+http://...``: the sink streams run.rrd's rows to a running
+    viewer (here its gRPC server alone, saving what it receives); a URL where no viewer
+    listens is a configuration error before anything starts."""
+    from test_live_view import Receiver, rows
+
+    recv = Receiver(tmp_path / "received.rrd")
+    try:
+        out = tmp_path / "run"
+        code, text = _cli("launch", "--set", "source.frames=12", "--out", str(out), "--connect", recv.url,
+                          "--timeout", "150", timeout=180)
+        assert code == 0, text
+        want = rows(out / "run.rrd")
+        assert recv.rows(want) == want
+    finally:
+        recv.stop()
+    t0 = time.monotonic()
+    code, text = _cli("launch", "--out", str(tmp_path / "none"), "--connect", "rerun+http://127.0.0.1:9/proxy")
+    assert code == 2 and text.startswith("Error: no Rerun viewer at rerun+http://127.0.0.1:9/proxy"), text
+    assert not (tmp_path / "none").exists() and time.monotonic() - t0 < 10
+
+
+def test_replay_loop_with_start_and_end(tmp_path):
+    """``replay --start 20s --end 29 --loop 2``: two fresh runs (RUN-1, RUN-2, each in its
+    own directory) of log time 20..29 s (vo2017-s1: frames 21..30), each with the tracks of
+    a fresh tracker; a malformed offset is a usage error (exit 2) before anything starts."""
+    out = tmp_path / "loop"
+    code, text = _cli("replay", str(VO2017), "--as-fast-as-possible", "--start", "20s", "--end", "29",
+                      "--loop", "2", "--run", "lp", "--out", str(out), *FAST, "--timeout", "150", timeout=400)
+    assert code == 0, text
+    assert sorted(p.name for p in out.iterdir()) == ["lp-1", "lp-2"]
+    for i in (1, 2):
+        log = read_log(out / f"lp-{i}" / "tracks.mcap")
+        assert [f.frame for f in log.frames] == list(range(21, 31)) and log.metadata["run"] == f"lp-{i}"
+    _assert_same_run(out / "lp-1" / "tracks.mcap", out / "lp-2" / "tracks.mcap", 10)
+    code, text = _cli("replay", str(VO2017), "--start", "ten", "--out", str(tmp_path / "none"))
+    assert code == 2 and "--start" in text and not (tmp_path / "none").exists()

@@ -187,8 +187,18 @@ def test_diagnostics_series(vo_run, contents):
         assert [rec[f.frame][0] for f in frames] == [float(e.diagnostics[key]) for e in estimates]
 
 
+def short_names(estimates) -> dict[str, str]:
+    """Label -> T1, T2, ... in order of first appearance (confirmation)."""
+    names: dict[str, str] = {}
+    for e in estimates:
+        for lab in e.labels:
+            names.setdefault(lab, f"T{len(names) + 1}")
+    return names
+
+
 def test_tracks_positions_trails_and_clears(vo_run, contents):
     _params, frames, estimates = vo_run
+    names = short_names(estimates)
     labels = {t.label for e in estimates for t in e.tracks}
     final = set(estimates[-1].labels)
     for lab in labels:
@@ -213,9 +223,10 @@ def test_tracks_positions_trails_and_clears(vo_run, contents):
         else:  # an ended track is cleared at the first frame without it
             last = max(alive)
             assert clears == {last + 1: [True]}
-        # static style: label text and a fixed colour
+        # static style: the short name as label text (the internal label is in the entity
+        # path, shown on hover) and a fixed colour
         static = [rb for rb in batches if "frame" not in rb.schema.names]
-        assert any(rb.column("Points2D:labels").to_pylist() == [[lab]] for rb in static
+        assert any(rb.column("Points2D:labels").to_pylist() == [[names[lab]]] for rb in static
                    if "Points2D:labels" in rb.schema.names)
 
 
@@ -227,6 +238,7 @@ def test_measurements_coloured_by_assignment(vo_run, contents):
     lines = by_frame(contents["/world/assignments"], "LineStrips2D:strips")
     model = params.measurement("bearing_range")
     contexts = by_frame(contents["/world"], "AnnotationContext:context")
+    short = short_names(estimates)
     n_assigned = 0
     for f, e in zip(frames, estimates):
         xy = model.to_cartesian(f.z)[0]
@@ -235,7 +247,7 @@ def test_measurements_coloured_by_assignment(vo_run, contents):
         ctx = contexts[max(k for k in contexts if k <= f.frame)]
         names = {c["class_id"]: c["class_description"]["info"]["label"] for c in ctx[0]}
         got = [names[c] for c in cls[f.frame]]
-        want = ["clutter" if a is None else a for a in e.assignments]
+        want = ["clutter" if a is None else f"{short[a]} (label {a})" for a in e.assignments]
         assert got == want
         hit = [a is not None for a in e.assignments]
         n_assigned += sum(hit)
@@ -258,9 +270,10 @@ def test_truth_drawn(vo_run, contents):
             np.testing.assert_allclose(trail[-1], p, atol=1e-2)
 
 
-def test_metadata_blueprint_and_events(recording, contents):
+def test_metadata_blueprint_and_events(vo_run, recording, contents):
     from rerun.chunk import RrdReader
 
+    _params, _frames, estimates = vo_run
     doc = contents["/metadata"][0].column("TextDocument:text").to_pylist()[0][0]
     for key, value in META.items():
         assert f"| {key} | {value} |" in doc
@@ -272,7 +285,66 @@ def test_metadata_blueprint_and_events(recording, contents):
     assert reader.blueprints(), "no default blueprint in the file"
     texts = [t for rb in contents["/events"] for row in rb.column("TextLog:text").to_pylist()
              for t in (row or [])]
-    assert any(t.endswith(" born") and t.startswith("track ") for t in texts)
+    first = next(lab for e in estimates for lab in e.labels)
+    assert f"track T1 born (label {first})" in texts
+
+
+def test_scene_grid_axes_and_legend(contents):
+    """A metric grid (500 m steps for the 2000 m field of view), the two axes through the
+    sensor with their names, tick labels in metres, and one legend entity per symbol."""
+    grid = contents["/world/grid"][0].column("LineStrips2D:strips").to_pylist()[0]
+    xs = sorted({seg[0][0] for seg in grid if seg[0][0] == seg[1][0]})
+    assert xs == [-2000.0, -1500.0, -1000.0, -500.0, 0.0, 500.0, 1000.0, 1500.0, 2000.0]
+    axes = contents["/world/grid/axes"][0]
+    assert axes.column("Points2D:labels").to_pylist() == [["x east (m)", "y north (m)"]]
+    ticks = contents["/world/grid/ticks"][0].column("Points2D:labels").to_pylist()[0]
+    assert ticks[:9] == ["-2000", "-1500", "-1000", "-500", "0", "500", "1000", "1500", "2000"]
+    legend = {p.rsplit("/", 1)[1] for p in contents if p.startswith("/world/legend/")}
+    assert legend == {"measurement", "clutter", "assigned", "truth", "track", "ellipse"}
+    clutter = contents["/world/legend/clutter"][0]
+    assert clutter.column("Points2D:labels").to_pylist() == [["clutter (no track)"]]
+
+
+def test_track_colours_differ_from_truth_sensor_and_measurement_colours():
+    from sinks.rerun_sink import GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, SENSOR_COLOR, WHITE_UNASSIGNED
+
+    reserved = np.array([c[:3] for c in (SENSOR_COLOR, GREY_TRUTH, GREY_CLUTTER, WHITE_UNASSIGNED)], float)
+    d = np.linalg.norm(np.array(PALETTE, float)[:, None] - reserved[None], axis=-1)
+    assert d.min() >= MIN_COLOR_DISTANCE == 75.0
+    assert len(set(PALETTE)) == len(PALETTE) >= 10
+
+
+def _blueprint_view_names(path: Path) -> list[set[str]]:
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    out = []
+    for bp in reader.blueprints():
+        names = set()
+        for ch in reader.stream(store=bp):
+            rb = ch.to_record_batch()
+            for col in rb.schema.names:
+                if col.endswith("display_name"):
+                    names.update(v[0] for v in rb.column(col).to_pylist() if v)
+        out.append(names)
+    return out
+
+
+def test_metric_panels_hidden_without_truth(vo_run, recording, tmp_path):
+    from dataclasses import replace
+
+    params, frames, estimates = vo_run
+    with_truth = _blueprint_view_names(recording)
+    assert len(with_truth) == 1 and "OSPA (c=100 m, p=1) and OSPA(2)" in with_truth[0]
+    path = tmp_path / "no-truth.rrd"
+    write_recording(path, [replace(f, truth=None) for f in frames], estimates, META, params=params)
+    layouts = _blueprint_view_names(path)
+    # the file's default, then the one sent at the first frame without truth (made active)
+    assert len(layouts) == 2
+    last = next(names for names in layouts if "tracks (the log has no truth: no OSPA)" in names)
+    assert not any("OSPA" in n for n in last - {"tracks (the log has no truth: no OSPA)"})
+    assert "scene (x east, y north, m)" in last
+    assert by_frame(read_rrd(path)["/metrics/ospa"], "Scalars:scalars") == {}  # its style only
 
 
 def test_scorer_matches_frame_metrics(vo_run):
