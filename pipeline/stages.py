@@ -1279,8 +1279,15 @@ class TrackerStage(_StageBase):
             try:
                 self.snapshot(wait=True)
             finally:
-                self.journal.close()
+                self._close_journal()
                 self.health(force=True, extra=self._extra_health)
+
+    def _close_journal(self) -> None:
+        """Close the journal; a failing final write names the journal (not an anonymous OSError)."""
+        try:
+            self.journal.close()
+        except OSError as exc:
+            raise StageIOError(self.name, self.journal.path, exc) from None
 
 
     def _end_again(self) -> int:
@@ -1294,7 +1301,7 @@ class TrackerStage(_StageBase):
         try:
             self.serve_until_done_or_alone(self.tc.done_by)
         finally:
-            self.journal.close()
+            self._close_journal()
         return EXIT_OK
 
 
