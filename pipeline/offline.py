@@ -22,7 +22,7 @@ import numpy as np
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
 from sources.scenarios import get_scenario, is_generated
 from sources.synthetic import simulate, simulate_sensors
-from tracker.config import ConfigError, apply_overrides, load_toml
+from tracker.config import ConfigError, apply_overrides, load_toml, split_item
 from tracker.models.params import ModelParams, load_params
 from tracker.state import run
 from tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
@@ -108,10 +108,7 @@ def split_overrides(
     to_params: list[str] = []
     to_tracker: list[str] = []
     for item in overrides:
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ConfigError(f"--set {item!r}: expected key=value")
+        key, value = split_item(item)
         head, dot, rest = key.partition(".")
         if dot and head == "params":
             to_params.append(f"{rest}={value}")

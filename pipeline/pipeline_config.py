@@ -27,7 +27,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from tracker.config import ConfigError, apply_overrides, convert, load_toml
+from tracker.config import ConfigError, apply_overrides, convert, load_toml, split_item
 
 __all__ = [
     "RUN_RE",
@@ -342,10 +342,7 @@ def split_pipeline_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...],
     to_pipe: list[str] = []
     to_model: list[str] = []
     for item in overrides:
-        key, sep, _value = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ConfigError(f"--set {item!r}: expected key=value")
+        key, _value = split_item(item)
         head, dot, rest = key.partition(".")
         if head == "tracker" and dot and rest.partition(".")[0] not in stage_keys:
             to_model.append(item.strip())

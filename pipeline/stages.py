@@ -485,16 +485,7 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
     except BaseException:  # disk full, I/O error: leave no temporary file behind
         tmp.unlink(missing_ok=True)
         raise
-    try:
-        dfd = os.open(path.parent, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dfd)
-    except OSError:
-        pass
-    finally:
-        os.close(dfd)
+    _fsync_dir(path.parent)
 
 
 def _fsync_and_close(fds: Iterable[int]) -> None:

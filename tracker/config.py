@@ -65,16 +65,23 @@ def _named_tables(node: dict[str, Any]) -> bool:
     return all(isinstance(v, dict) for v in node.values())
 
 
+def split_item(item: str) -> tuple[str, str]:
+    """``KEY=VALUE`` -> ``(KEY, VALUE)``, both stripped; :class:`ConfigError` names the item
+    when it has no ``=`` or no key (the one parser of every ``--set`` item)."""
+    key, sep, value = item.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"--set {item!r}: expected key=value")
+    return key.strip(), value.strip()
+
+
 def apply_overrides(obj: S, overrides: Sequence[str]) -> S:
     """Return a copy of ``obj`` with ``key=value`` overrides applied and re-validated."""
     if not overrides:
         return obj
     data = msgspec.to_builtins(obj)
     for item in overrides:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--set {item!r}: expected key=value")
-        _set_dotted(data, key.strip(), parse_value(text.strip()), f"--set {item!r}")
+        key, text = split_item(item)
+        _set_dotted(data, key, parse_value(text), f"--set {item!r}")
     return convert(data, type(obj), "--set overrides")
 
 
