@@ -93,13 +93,17 @@ def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:
         raise ConfigError(f"{origin}: {exc}") from None
 
 
-def load_toml(path: str | Path, cls: type[S]) -> S:
-    """Load and validate a TOML file into ``cls``."""
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The plain data of a TOML file; :class:`ConfigError` names a missing or malformed file."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
-    return convert(data, cls, str(path))
+
+
+def load_toml(path: str | Path, cls: type[S]) -> S:
+    """Load and validate a TOML file into ``cls``."""
+    return convert(read_toml(path), cls, str(path))

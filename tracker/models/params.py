@@ -8,7 +8,6 @@ See ``docs/models.md`` for the table of values and the choices made where the so
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -17,7 +16,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.config import ConfigError, apply_overrides, convert, did_you_mean, load_toml
+from tracker.config import ConfigError, apply_overrides, convert, did_you_mean, load_toml, read_toml
 from tracker.models.clutter import Detection, SectorClutter, UniformClutter
 from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind
 from tracker.models.motion import CoordinatedTurn
@@ -220,12 +219,7 @@ def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) ->
 
 def _file_data(path: Path, seen: tuple[Path, ...]) -> dict:
     """The plain data of a params file with its ``extends`` chain resolved (see :func:`load_params`)."""
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    data = read_toml(path)
     check_keys(data, str(path))
     base_name = data.pop("extends", None)
     data.setdefault("name", path.stem)
