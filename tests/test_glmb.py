@@ -16,9 +16,10 @@ from sinks.metrics import ospa
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.config import ConfigError, apply_overrides
-from tracker.glmb import (GLMB_PRESETS, GlmbConfig, GlmbState, _gibbs_kernel, _lsap_batch, _lsap_kernel,
-                          candidate_sets, gibbs_chains, gibbs_chains_numpy, make_glmb, split_chains,
-                          start_optimal)
+from tracker.glmb import (GLMB_PRESETS, GlmbConfig, GlmbState, candidate_sets, gibbs_chains, gibbs_chains_numpy,
+                          make_glmb, split_chains, start_optimal)
+from tracker.glmb.assignment import _lsap_batch, _lsap_kernel
+from tracker.glmb.gibbs import _gibbs_kernel
 from tracker.models.params import BirthComponent, load_params
 from tracker.state import restore, run, snapshot
 from tracker.types import Frame
@@ -264,7 +265,7 @@ def test_compiled_gibbs_equals_numpy_reference():
     """The numba sweeps reproduce the vectorised-numpy sampler draw for draw (same rng
     stream), with gated pairs, padding, blocked measurements and chains of unequal length;
     so does the kernel run interpreted."""
-    import tracker.glmb as glmb_mod
+    import tracker.glmb.gibbs as glmb_mod
     for seed in range(5):
         rng = np.random.default_rng(seed)
         n_rows, M = 9, 5
@@ -590,7 +591,7 @@ def _swap_update(w_keep: float):
     """Two objects, labels a and b, the same table every frame: rows 0, 1 = "a on object 1,
     b on object 2" (weight w_keep), rows 2, 3 = the swap (1 - w_keep); each row continues
     the same row of the previous frame."""
-    from tracker.glmb import _Update
+    from tracker.glmb.hypotheses import _Update
 
     obj = np.array([[0.0, 0, 0, 0, 0], [500.0, 0, 0, 0, 0]])
     mean = np.stack([obj[0], obj[1], obj[1], obj[0]])
@@ -648,7 +649,7 @@ def test_continuity_estimator_has_fewer_label_switches_on_vo2017(vo_params):
 def test_assignment_over_gated_candidates_equals_the_dense_one():
     """_assign drops the candidates without a gated measurement from the linear assignment
     (they cannot compete for one); the optimum equals the dense solution's."""
-    from tracker.glmb import _assign, _assign_dense
+    from tracker.glmb.assignment import _assign, _assign_dense
 
     rng = np.random.default_rng(4)
     for _ in range(30):

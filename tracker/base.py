@@ -31,15 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracker import filtering as kf
+from tracker._numerics import logsumexp
 from tracker.models.params import ModelParams
-
-
-def logsumexp(a: np.ndarray, axis: int = 0) -> np.ndarray:
-    """Plain-numpy log-sum-exp (scipy's has a large per-call overhead on small arrays)."""
-    top = np.max(a, axis=axis, keepdims=True)
-    top = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.squeeze(top, axis=axis) + np.log(np.sum(np.exp(a - top), axis=axis))
 
 
 @dataclass(frozen=True)

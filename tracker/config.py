@@ -13,11 +13,21 @@ import difflib
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 
 S = TypeVar("S", bound=msgspec.Struct)
+
+# --- constraint aliases: the validated scalar types of every config struct ----------------
+NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
+PosInt = Annotated[int, msgspec.Meta(ge=1)]
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+"""A probability, ``0 <= p <= 1``."""
+OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
+"""A probability strictly inside ``(0, 1)``."""
 
 
 class ConfigError(ValueError):

@@ -42,16 +42,12 @@ caller's ``numpy.random.Generator`` so the result depends only on the generator'
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-try:  # a prebuilt wheel; the kernel also runs interpreted (BNPTRACK_NO_JIT=1)
-    from numba import njit as _njit
-except ImportError:  # pragma: no cover
-    _njit = None
+from tracker._numerics import jit
 
 CLUTTER = -1
 NEW = -2
@@ -411,17 +407,14 @@ def _group_pairs(meas_of, starts, sizes, M, n_keys):
 
 
 _KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs)
-if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
-    _greedy = _njit(cache=True, nogil=True)(_greedy)  # noqa: F811
-    # the helpers are replaced by their compiled versions, which the compiled driver calls
-    _half_add = _njit(cache=True, nogil=True, inline="always")(_half_add)
-    _own_weight = _njit(cache=True, nogil=True)(_own_weight)
-    _site_pass = _njit(cache=True, nogil=True)(_site_pass)
-    _swap_pass = _njit(cache=True, nogil=True)(_swap_pass)
-    _sweeps = _njit(cache=True, nogil=True)(_sweep_kernel)
-    _group_pairs = _njit(cache=True, nogil=True)(_group_pairs)  # noqa: F811
-else:  # pragma: no cover - numba missing or disabled: same code, interpreted
-    _sweeps = _sweep_kernel
+# the helpers are replaced by their compiled versions, which the compiled driver calls
+_greedy = jit(_greedy)  # noqa: F811
+_half_add = jit(_half_add, inline=True)
+_own_weight = jit(_own_weight)
+_site_pass = jit(_site_pass)
+_swap_pass = jit(_swap_pass)
+_sweeps = jit(_sweep_kernel)
+_group_pairs = jit(_group_pairs)  # noqa: F811
 
 
 def interpreted_kernels() -> dict[str, object]:

@@ -39,7 +39,6 @@ cluster level), so :mod:`tracker.state` snapshots it exactly.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field, fields
 from functools import cached_property
@@ -48,15 +47,12 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
+from tracker._numerics import jit
 from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpState, BnpTracker
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
 from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 
-try:  # numba compiles the partition sweeps (as tracker.gibbs does); plain Python otherwise
-    from numba import njit as _njit
-except ImportError:  # pragma: no cover
-    _njit = None
 
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
@@ -307,11 +303,10 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
 
 
-if _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1":
-    _inv_into = _njit(cache=True, nogil=True)(_inv_into)
-    _move = _njit(cache=True, nogil=True)(_move)
-    _option_logw = _njit(cache=True, nogil=True)(_option_logw)
-    _partition_kernel = _njit(cache=True, nogil=True)(_partition_kernel)
+_inv_into = jit(_inv_into)
+_move = jit(_move)
+_option_logw = jit(_option_logw)
+_partition_kernel = jit(_partition_kernel)
 
 
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
