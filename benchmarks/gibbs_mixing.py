@@ -23,8 +23,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import TRACKER_PRESETS, make_tracker  # noqa: E402
-from tracker.gibbs import CLUTTER, NEW, GibbsProblem, log_joint, run_gibbs  # noqa: E402
+from tracker.bnp import TRACKER_PRESETS, make_tracker  # noqa: E402
+from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint, run_gibbs  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
 

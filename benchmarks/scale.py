@@ -98,7 +98,7 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
 
 def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float) -> dict:
     from sinks.metrics import ospa
-    from tracker.bnp_tracker import make_tracker
+    from tracker.bnp import make_tracker
     from tracker.state import frame_rng
 
     params, fr = simulate(n, frames, seed, clutter_ratio)

@@ -30,7 +30,7 @@ def dump(path: str) -> None:
 
     from sources.scenarios import get_scenario
     from sources.synthetic import simulate_all
-    from tracker.bnp_tracker import TRACKER_PRESETS, make_tracker
+    from tracker.bnp import TRACKER_PRESETS, make_tracker
     from tracker.models.params import load_params
     from tracker.state import run
 

@@ -10,7 +10,7 @@ from scipy.optimize import linear_sum_assignment
 from sinks.metrics import ospa
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
-from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpState, make_tracker
+from tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpState, make_tracker
 from tracker.config import ConfigError, apply_overrides, load_toml
 from tracker.models.params import load_params
 from tracker.state import restore, run, snapshot
@@ -202,7 +202,7 @@ def test_vo2017_accuracy(vo_params, seed):
 
 def test_best_permutation_hand_values():
     """Two clusters share two measurements: the joint optimum wins over each row's argmax."""
-    from tracker.bnp_tracker import best_permutation
+    from tracker.bnp.assignment import best_permutation
 
     p = np.array([[0.50, 0.45, 0.00],   # row argmax: m0
                   [0.60, 0.30, 0.00],   # row argmax: m0 as well
@@ -238,7 +238,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
 
 
 def _clusters(means, existences, std=10.0):
-    from tracker.bnp_tracker import _Clusters
+    from tracker.bnp.clusters import _Clusters
 
     means = np.asarray(means, dtype=float)
     n = len(means)
@@ -250,7 +250,7 @@ def test_merge_duplicates_hand_values():
     """Two clusters 10 m apart (d^2 = 10^2 / (2 * 10^2) = 0.5) with existences 0.3 and 0.5 are
     one object: existence 0.8, mean weighted 3:5, covariance with the spread term; the leader's
     (higher existence) label stays.  A third far away is untouched."""
-    from tracker.bnp_tracker import merge_duplicates
+    from tracker.bnp.clusters import merge_duplicates
 
     c = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0], [500, 0, 0, 0, 0]], [0.3, 0.5, 0.9])
     out = merge_duplicates(c, 9.0)
@@ -269,7 +269,7 @@ def test_merge_keeps_the_oldest_label():
     never renames a track (nor counts as a second birth of its object)."""
     from dataclasses import replace
 
-    from tracker.bnp_tracker import merge_duplicates
+    from tracker.bnp.clusters import merge_duplicates
 
     base = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0]], [0.3, 0.5])
     out = merge_duplicates(replace(base, labels=("12.3", "15.0")), 9.0)
@@ -279,7 +279,7 @@ def test_merge_keeps_the_oldest_label():
 def test_merge_never_joins_two_objects_that_both_exist():
     """Existences 0.9 and 0.6 sum above 1: two objects side by side (crossing), never merged;
     beyond the distance gate nothing merges either."""
-    from tracker.bnp_tracker import merge_duplicates
+    from tracker.bnp.clusters import merge_duplicates
 
     both = _clusters([[0, 0, 0, 0, 0], [5, 0, 0, 0, 0]], [0.9, 0.6])
     assert merge_duplicates(both, 9.0).labels == ("c0", "c1")

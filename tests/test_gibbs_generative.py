@@ -39,8 +39,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tracker.bnp_tracker import TRACKER_PRESETS, BnpState, make_tracker
-from tracker.gibbs import CLUTTER, NEW, log_joint, run_gibbs
+from tracker.bnp import TRACKER_PRESETS, BnpState, make_tracker
+from tracker.bnp.gibbs import CLUTTER, NEW, log_joint, run_gibbs
 from tracker.models.params import load_params
 
 PD, LAM_C, RANGE_MAX = 0.8, 1.5, 2000.0

@@ -8,9 +8,9 @@ import pytest
 from sinks.metrics import adjusted_rand_index
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
-from tracker.bnp_tracker import TRACKER_PRESETS, BnpTracker
+from tracker.bnp import TRACKER_PRESETS, BnpTracker
 from tracker.config import apply_overrides
-from tracker.groups import (
+from tracker.bnp.groups import (
     Block,
     GroupState,
     GroupTracker,
@@ -82,7 +82,7 @@ def test_gibbs_groups_by_velocity():
 def test_share_velocity_single_option_is_a_kalman_update():
     # state velocity N((4, 0), 4 I), no position-velocity correlation; option theta N((0, 0), I)
     # with S_w = I: pseudo-measurement covariance 2 I, gain 4 / 6 -> velocity (4/3, 0), var 4/3
-    from tracker.groups import Shares
+    from tracker.bnp.groups import Shares
 
     mean = np.array([[0.0, 4.0, 0.0, 0.0, 0.0]])
     cov = np.diag([1.0, 4.0, 1.0, 4.0, 0.01])[None]

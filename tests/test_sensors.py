@@ -11,8 +11,8 @@ from pipeline.codec import decode_measurements, encode_measurements
 from sinks.metrics import ospa
 from sources.scenarios import get_scenario
 from sources.synthetic import move_truth, simulate_all, simulate_sensors, truth_at_time
-from tracker.base import BaseDistribution
-from tracker.bnp_tracker import make_tracker
+from tracker.bnp.base_measure import BaseDistribution
+from tracker.bnp import make_tracker
 from tracker.config import apply_overrides
 from tracker.models.clutter import SectorClutter
 from tracker.models.measurement import KINDS, BearingRange, Cartesian, RangeOnly

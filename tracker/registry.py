@@ -37,7 +37,7 @@ class TrackerKind:
 
 
 def _bnp(name: str, description: str) -> TrackerKind:
-    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, make_tracker
+    from tracker.bnp import TRACKER_PRESETS, BnpConfig, make_tracker
 
     return TrackerKind(name, description, BnpConfig, TRACKER_PRESETS,
                        lambda params, config: make_tracker(name, params, config))
@@ -45,14 +45,14 @@ def _bnp(name: str, description: str) -> TrackerKind:
 
 def _bnp_alias(name: str, preset: str, description: str) -> TrackerKind:
     """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations)."""
-    from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpTracker
+    from tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
 
     presets = {name: TRACKER_PRESETS[preset]}
     return TrackerKind(name, description, BnpConfig, presets, lambda params, config: BnpTracker(params, config, name))
 
 
 def _groups(name: str, description: str) -> TrackerKind:
-    from tracker.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
+    from tracker.bnp.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
 
     return TrackerKind(name, description, GroupConfig, GROUP_PRESETS,
                        lambda params, config: make_group_tracker(name, params, config))

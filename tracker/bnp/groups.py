@@ -1,6 +1,6 @@
 r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp-groups``, ``dpyp-groups``).
 
-:class:`GroupTracker` wraps a :class:`tracker.bnp_tracker.BnpTracker` (the measurement ->
+:class:`GroupTracker` wraps a :class:`tracker.bnp.filter.BnpTracker` (the measurement ->
 object level, unchanged: its clusters are objects, its customers measurements) and adds the
 object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
 
@@ -26,7 +26,7 @@ object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-l
   transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
   :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
   :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
-* :math:`(\alpha_2, d)` on a grid (:func:`tracker.urn.frame_loglik_grid`) with Gamma priors.
+* :math:`(\alpha_2, d)` on a grid (:func:`tracker.bnp.urn.frame_loglik_grid`) with Gamma priors.
 * **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
   each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
   :math:`\theta` (the other current members, prior :math:`H_2`) with covariance
@@ -48,14 +48,14 @@ import msgspec
 import numpy as np
 
 from tracker._numerics import jit
-from tracker.bnp_tracker import TRACKER_PRESETS, BnpConfig, BnpState, BnpTracker
+from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from tracker.bnp.filter import BnpState, BnpTracker
+from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
+from tracker.config import PosInt, Positive, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
-from tracker.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 
 
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
-Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 _VEL = np.array([1, 3])
 _POS = np.array([0, 2])
 
@@ -85,7 +85,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
     centroid_drift_std: Positive = 10.0
     """phi on the centroid: it moves with theta's velocity plus this random walk (m per scan)."""
-    sweeps: Annotated[int, msgspec.Meta(ge=1)] = 6
+    sweeps: PosInt = 6
     """Gibbs sweeps over the object assignments per frame (the last one is kept)."""
     sharing: bool = True
     """Members' velocities take their cluster's leave-one-out theta as a pseudo-measurement."""
@@ -483,7 +483,7 @@ class GroupTracker:
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
 
     def _hyper(self, state: GroupState, z: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(alpha_2, d) on the grid given the frame's object partition (tracker.urn.frame_loglik_grid)."""
+        """(alpha_2, d) on the grid given the frame's object partition (tracker.bnp.urn.frame_loglik_grid)."""
         cfg = self.config
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik

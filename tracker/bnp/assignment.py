@@ -1,0 +1,115 @@
+r"""The JPDA* assignment (Blom & Bloem 2000): each cluster's detection probability moved onto
+the measurement it takes in the most probable one-to-one assignment, solved per connected
+component of the gated pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+
+_FORBIDDEN = 1e6  # assignment cost of an impossible pair
+
+
+def best_permutation(p_lm: np.ndarray) -> np.ndarray:
+    r"""Dense form of :func:`best_permutation_pairs`: ``(N, M)`` marginals in, ``(N, M)`` out."""
+    N, M = p_lm.shape
+    ti, mi = np.nonzero(p_lm > 0.0)
+    t, m, p = best_permutation_pairs(N, ti, mi, p_lm[ti, mi])
+    out = np.zeros_like(p_lm)
+    out[t, m] = p
+    return out
+
+
+def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""Move each cluster's detection probability onto one measurement: the one it takes in the
+    most probable one-to-one assignment of the marginals (JPDA*, Blom & Bloem 2000).
+
+    ``p[j] = Pr(c_{mi_j} = ti_j)`` for the gated pairs (``n`` clusters).  The assignment
+    maximises :math:`\sum_l \log p_{l, m(l)}` with "missed" (cost
+    :math:`-\log(1 - \sum_m p_{lm})`) as every cluster's private alternative; a cluster the
+    assignment leaves missed keeps its mass on its most likely measurement.  Row sums
+    (detection probabilities) are unchanged.  The problem separates over the connected
+    components of the pairs graph: a component with one cluster needs no solver (either
+    way its mass goes to its most likely measurement), the others are solved one by one
+    (``linear_sum_assignment``), so the cost follows the size of the groups, not N x M.
+    Returns one pair per cluster that has any mass, sorted by cluster.
+    """
+    p_det = np.bincount(ti, weights=p, minlength=n)
+    live = (p > 0.0) & (p_det[ti] > 1e-9)
+    ti, mi, p = ti[live], mi[live], p[live]
+    if ti.size == 0:
+        return ti, mi, p
+    order = np.lexsort((mi, -p, ti))  # per cluster: most likely measurement first (lowest m on ties)
+    first = order[np.r_[True, np.diff(ti[order]) != 0]]
+    clusters, choice = ti[first], mi[first].copy()
+    _solve_shared(n, ti, mi, p, p_det, clusters, choice)
+    return clusters, choice, p_det[clusters]
+
+
+def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
+    """Per connected component with two or more clusters, the JPDA* assignment (updates
+    ``choice``, aligned with the sorted ``clusters``)."""
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.5 s to import
+
+    if np.unique(choice).size == choice.size:
+        return  # no two clusters prefer one measurement: each keeps its own
+    M = int(mi.max()) + 1
+    if clusters.size * M <= 20_000:  # small: one assignment over every live cluster
+        pos = np.searchsorted(clusters, ti)
+        r_idx = np.unique(pos, return_inverse=True)[1]
+        cols, c_idx = np.unique(mi, return_inverse=True)
+        _solve_block(r_idx, c_idx, pos, mi, p, p_det[ti], choice, linear_sum_assignment)
+        return
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(ti.size), (ti, n + mi)), shape=(n + M, n + M))
+    _, comp = connected_components(graph, directed=False)
+    # a component whose clusters' most likely measurements are all different is solved by
+    # them (a lower bound every cluster attains; a missed cluster keeps that measurement too)
+    key = comp[clusters] * M + choice
+    uniq, count = np.unique(key, return_counts=True)
+    conflict = np.zeros(comp.max() + 1, dtype=bool)
+    conflict[uniq[count > 1] // M] = True
+    shared = conflict[comp[ti]]
+    if not shared.any():
+        return
+    ts, ms, ps = ti[shared], mi[shared], p[shared]
+    cs = comp[ts]
+    order = np.lexsort((ts, cs))
+    ts, ms, ps, cs = ts[order], ms[order], ps[order], cs[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(cs)) + 1]
+    row = _local_rank(cs * n + ts, starts, cs[starts] * n)  # 0.. within each component
+    col = _local_rank(cs * M + ms, starts, cs[starts] * M)
+    pos = np.searchsorted(clusters, ts)  # where each edge's cluster sits in ``clusters``
+    pd_edge = p_det[ts]
+    for a, b in zip(starts.tolist(), np.r_[starts[1:], ts.size].tolist()):
+        _solve_block(row[a:b], col[a:b], pos[a:b], ms[a:b], ps[a:b], pd_edge[a:b], choice, linear_sum_assignment)
+
+
+def _solve_block(r_idx, c_idx, pos, meas, p, p_det, choice, lsa) -> None:
+    """One JPDA* assignment over a block of edges (local row/column indices ``r_idx``,
+    ``c_idx``; ``pos`` the edge's place in ``choice``, ``meas`` its measurement, ``p_det`` its
+    cluster's detection probability): "missed" is each cluster's private column."""
+    L, C = int(r_idx.max()) + 1, int(c_idx.max()) + 1
+    rows = np.zeros(L, dtype=np.int64)
+    rows[r_idx] = pos
+    cols = np.zeros(C, dtype=np.int64)
+    cols[c_idx] = meas
+    miss = np.zeros(L)
+    miss[r_idx] = -np.log(np.maximum(1.0 - p_det, 1e-300))
+    cost = np.full((L, C + L), _FORBIDDEN)
+    cost[r_idx, c_idx] = np.minimum(-np.log(p), _FORBIDDEN)
+    cost[np.arange(L), C + np.arange(L)] = miss
+    rr, cc = lsa(cost)
+    hit = cc < C  # missed: keeps its most likely measurement (already in choice)
+    choice[rows[rr[hit]]] = cols[cc[hit]]
+
+
+def _local_rank(key: np.ndarray, starts: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """Dense rank of ``key`` within each group (the groups are the runs beginning at
+    ``starts``; a group's keys all lie in ``[base, next group's base)``)."""
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.searchsorted(uniq, base)  # rank of each group's smallest key
+    grp = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, key.size]))
+    return inv - first[grp]

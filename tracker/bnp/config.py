@@ -1,0 +1,100 @@
+"""Settings of the DDP-EMM / DPY-STP trackers (:class:`BnpConfig`) and their named presets."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import msgspec
+
+from tracker.config import NonNeg, NonNegInt, OpenProb, PosInt, Positive, Prob
+
+
+class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Settings of the DDP-EMM / DPY-STP trackers (model physics live in ``ModelParams``)."""
+
+    sweeps: PosInt = 30
+    """Gibbs sweeps per chain and frame (including burn-in)."""
+    burn_in: NonNegInt = 5
+    swap_moves: bool = True
+    """After each single-site sweep, propose exchanging the assignments of every pair of
+    measurements that share a gated cluster (Metropolis-Hastings, exact joint ratio)."""
+    chains: Annotated[int, msgspec.Meta(ge=1, le=8)] = 2
+    """Gibbs chains per frame, each of ``sweeps`` sweeps, from the greedy and the reversed
+    greedy start; their average gives the marginals, their spread the R-hat diagnostic."""
+    filter: Literal["ukf", "ekf"] = "ukf"
+    gate_prob: OpenProb = 0.9999
+    """Chi-square gate on the predictive density; pairs outside are impossible."""
+    existence_threshold: Prob = 0.35
+    """Clusters with existence above this are reported as tracks."""
+    prune_threshold: Prob = 1e-3
+    """Clusters whose existence is below ``min(prune_threshold, birth_prune_fraction * p_birth)``
+    are dropped; ``p_birth`` is the probability that a measurement far from every cluster
+    opens a new one (``BnpTracker.birth_probability``).  Tying the floor to ``p_birth`` means
+    no fixed threshold can stop births, however dense the clutter."""
+    birth_prune_fraction: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
+    """A cluster is kept while its existence is at least this fraction of ``p_birth``: a
+    newborn survives its birth frame, and is dropped after a missed first re-detection."""
+    max_clusters: PosInt = 100_000
+    """Memory guard, not a model setting: at most this many clusters are kept (highest
+    existence first).  Far above any scene's object count (clutter-born tentative clusters
+    included); when it bites, the step's diagnostics report ``clusters_capped`` (> 0) and one
+    warning is logged (once per process)."""
+    popularity_decay: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
+    (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
+    state_update: Literal["best-permutation", "mixture"] = "best-permutation"
+    """How a cluster's Gaussian takes its measurements: moment-matched over every measurement
+    it may have taken ("mixture", JPDA-like), or over "missed" and the one measurement it takes
+    in the most probable one-to-one assignment ("best-permutation", JPDA*), which keeps two
+    clusters that share a gate from coalescing."""
+    merge_distance: NonNeg = 9.0
+    """Clusters whose position-velocity states are within this squared Mahalanobis distance
+    (summed covariances) and whose existences sum to at most 1 are one object split over
+    exclusive hypotheses: they are merged (existences added).  0 disables merging."""
+    birth_velocity_std: Positive = 30.0
+    """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
+    birth_turn_std_deg: Positive = 3.0
+    """Base distribution H (uniform part): turn-rate std (deg/s) of a new cluster."""
+    alpha: Positive = 0.1
+    """Initial concentration alpha (kept fixed if ``infer_alpha`` is false)."""
+    alpha_shape: Positive = 1.0
+    alpha_scale: Positive = 0.1
+    """alpha ~ Gamma(shape, scale): the paper's Gamma(1, 0.1), 0.1 read as the scale."""
+    infer_alpha: bool = True
+    d: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    """Pitman-Yor discount (0 = DDP-EMM)."""
+    d_shape: Positive = 1.0
+    d_scale: Positive = 0.1
+    """d ~ Gamma(shape, scale) truncated to [0, 1)."""
+    infer_d: bool = False
+    hyper_estimate: Literal["mean", "sample"] = "mean"
+    """What the next frame's urn uses of the grid posterior of (alpha, d): its mean
+    (Rao-Blackwellised over the hyperparameter) or one draw (a plain Gibbs step)."""
+    hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
+    """Past frames' hyperparameter log-likelihood is multiplied by this each frame."""
+    birth_lag: Annotated[int, msgspec.Meta(ge=0, le=50)] = 4
+    """The hyperparameter likelihood counts the new clusters of frame ``k - birth_lag`` by their
+    existence at frame ``k`` (fixed-lag smoothing): at its birth frame a new object's
+    measurement is 'new' with probability ~ alpha / lambda_c, so counting that frame's sample
+    would drive alpha towards 0 (see docs/trackers.md).  0 counts the current sample."""
+    extended: bool = False
+    """Allow several measurements per object per frame (case D1/P1); off for point objects."""
+
+    def __post_init__(self) -> None:
+        if self.burn_in >= self.sweeps:
+            raise ValueError(f"burn_in ({self.burn_in}) must be smaller than sweeps ({self.sweeps})")
+
+
+TRACKER_PRESETS: dict[str, BnpConfig] = {
+    # Experiment 1 (DDP-EMM vs GLMB): alpha ~ Gamma(1, 0.1).
+    "ddp": BnpConfig(),
+    # Experiments 4-5 (DPY-STP): alpha and d ~ Gamma(1, 0.1), both inferred.
+    "dpyp": BnpConfig(d=0.1, infer_d=True),
+    # Experiment 2 (close proximity): alpha ~ Gamma(1, 0.3).
+    "ddp-proximity": BnpConfig(alpha_scale=0.3),
+    # Experiment 3 (varying SNR): alpha ~ Gamma(1, 0.2).  Range-only tracks cannot be localised
+    # (position is known up to a rotation about the sensor), so they keep losing their
+    # measurements to new clusters; counting the current sample's new clusters (birth_lag = 0)
+    # keeps alpha high enough to re-open them (docs/trackers.md, "Births").
+    "ddp-snr": BnpConfig(alpha_scale=0.2, birth_lag=0),
+}

@@ -1,0 +1,360 @@
+r"""The DDP-EMM / DPY-STP tracker: :class:`BnpTracker` and its pure ``step(state, frame, rng)``."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from tracker import filtering as kf
+from tracker.bnp.assignment import best_permutation_pairs
+from tracker.bnp.base_measure import BaseDistribution
+from tracker.bnp.clusters import _born_at, _Clusters, _concat, merge_duplicates
+from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
+from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
+from tracker.models.params import ModelParams
+from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
+
+_EPS = 1e-12
+_log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BnpState:
+    """Everything the next frame needs, as plain arrays (snapshot with :mod:`tracker.state`).
+
+    One row per cluster: ``labels`` (N,), ``mean`` (N, 5), ``cov`` (N, 5, 5),
+    ``existence`` (N,) = Pr(object exists), ``popularity`` (N,) = decayed customer count
+    :math:`v_l` (>= 1).  ``frame`` is the last frame processed (-1 before the first).
+    """
+
+    frame: int = -1
+    stamp_ns: int = 0
+    labels: tuple[str, ...] = ()
+    mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
+    existence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    popularity: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    alpha: float = 1.0
+    d: float = 0.0
+    hyper_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """Accumulated (forgetting-weighted) log-likelihood of (alpha, d) on the tracker's grid."""
+
+    @property
+    def n_clusters(self) -> int:
+        return len(self.labels)
+
+
+@dataclass(frozen=True)
+class _Prediction:
+    mean: np.ndarray
+    cov: np.ndarray
+    q: np.ndarray  # predicted existence P_S^(dt/T) * r
+    p_detect: np.ndarray
+
+
+@dataclass(frozen=True)
+class BnpTracker:
+    """DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
+
+    params: ModelParams
+    config: BnpConfig = BnpConfig()
+    name: str = "ddp"
+
+    @cached_property
+    def motion(self):
+        return self.params.motion()
+
+    def _motion(self, dt: float):
+        """The motion model over ``dt`` (the cached one at ``dt == T``)."""
+        return self.motion if dt == self.params.T else self.params.motion(dt)
+
+    @cached_property
+    def base(self) -> BaseDistribution:
+        cfg = self.config
+        return BaseDistribution.from_params(self.params, cfg.birth_velocity_std, np.deg2rad(cfg.birth_turn_std_deg))
+
+    def birth_probability(self, alpha: float, clutter) -> float:
+        r"""``p_birth``: probability that a measurement no cluster explains opens a new one,
+        :math:`\alpha w_0 u / (\lambda_c \kappa + \alpha w_0 u)` with the uniform part of
+        :math:`H` (:math:`u = \kappa`, both uniform over the field of view in measurement space)."""
+        new = alpha * self.base.uniform_weight
+        return float(new / (clutter.rate + new)) if new > 0 else 0.0
+
+    @cached_property
+    def alpha_grid(self) -> np.ndarray:
+        return ALPHA_GRID if self.config.infer_alpha else np.array([self.config.alpha])
+
+    @cached_property
+    def d_grid(self) -> np.ndarray:
+        return D_GRID if self.config.infer_d else np.array([self.config.d])
+
+    def initial_state(self) -> BnpState:
+        grid = np.zeros((self.alpha_grid.size, self.d_grid.size))
+        return BnpState(alpha=self.config.alpha, d=self.config.d, hyper_loglik=grid)
+
+    # -- the step -----------------------------------------------------------------------
+    def step(self, state: BnpState, frame: Frame, rng: np.random.Generator) -> tuple[BnpState, Estimate]:
+        """Process one frame; returns the new state and the frame's estimate."""
+        t0 = time.perf_counter()
+        if frame.frame <= state.frame:
+            raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
+        check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
+        dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
+        sensor = self.params.frame_sensor(frame)
+        meas = self.params.measurement(frame.kind, sensor)
+        clutter = self.params.clutter(frame.kind, sensor)
+        pred = self._predict(state, dt, frame.kind, sensor)
+        innov = self._innovation(meas, pred)
+        problem = self._problem(state, pred, innov, meas, clutter, frame.z)
+        result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
+                           chains=self.config.chains)
+        existing = self._update_existing(state, pred, innov, meas, frame.z, result)
+        floor = self._prune_floor(state.alpha, clutter)
+        born = self._births(frame, meas, clutter, result, floor)
+        kept, capped = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
+        alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame)
+        new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
+                             kept.existence, kept.popularity, alpha, d, hyper)
+        est = self._estimate(new_state, frame, existing, born, result, problem)
+        diagnostics = {
+            "alpha": alpha, "d": d, "n_clusters": float(new_state.n_clusters),
+            "p_birth": self.birth_probability(state.alpha, clutter),
+            "n_tracks": float(len(est.tracks)),
+            "log_joint": result.log_joint if math.isfinite(result.log_joint) else 0.0,
+            "rhat_max": result.rhat_max,
+            "swap_accept": result.swaps_accepted / max(result.swaps_proposed, 1),
+            "clusters_capped": float(capped),
+            "ms": (time.perf_counter() - t0) * 1e3,
+        }
+        return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
+                                   est.assignment_prob, diagnostics)
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
+        """Transition (Algorithm 1, step 2) over ``dt`` seconds in one step: phi = the CT model
+        built for ``dt`` (process noise ``Q(dt)``), q = r * P_S(x)^(dt/T) at the predicted mean."""
+        m, P, q = state.mean, state.cov, state.existence
+        predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
+        if state.n_clusters:
+            m, P = predict(self._motion(dt), m, P)
+            q = q * self.params.survival_over(m, dt, kind, sensor)
+        p_detect = self.params.detection(kind, sensor).prob(m) if len(m) else np.zeros(0)
+        return _Prediction(m, P, q, p_detect)
+
+    def _innovation(self, meas, pred: _Prediction):
+        if self.config.filter == "ukf":
+            return kf.ukf_innovation(meas, pred.mean, pred.cov)
+        return kf.ekf_innovation(meas, pred.mean, pred.cov)
+
+    def _problem(self, state, pred, innov, meas, clutter, Z) -> GibbsProblem:
+        cfg = self.config
+        M = Z.shape[0]
+        if len(pred.mean):  # gated pairs only (KD-tree), never the (N, M) matrix
+            ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
+        else:
+            ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        pd = np.clip(pred.p_detect, 0.0, 1.0 - 1e-9)
+        q = np.clip(pred.q, 0.0, 1.0)
+        miss = np.maximum(q * (1.0 - pd) + 1.0 - q, _EPS)
+        with np.errstate(divide="ignore"):
+            log_det = np.log(q) + np.log(pd) - np.log(miss) + np.log(state.popularity - state.d)
+        pairs = SparsePairs.from_pairs(len(pred.mean), M, ti, mi, log_det[ti] + log_lik, log_lik)
+        return GibbsProblem(
+            mass=float(np.sum(q * state.popularity)),
+            log_first=None,
+            log_lik=None,
+            pairs=pairs,
+            log_clutter=np.full(M, clutter.log_intensity),
+            log_new=self.base.log_predictive(meas, clutter, Z),
+            popularity=state.popularity,
+            alpha=state.alpha,
+            d=state.d,
+            d_bar=float(q.sum()),
+            extended=cfg.extended,
+        )
+
+    def _update_existing(self, state, pred, innov, meas, Z, result) -> "_Clusters":
+        N = state.n_clusters
+        if N == 0:
+            return _Clusters.empty()
+        ti, mi, p = _pairs_by_cluster(result)
+        p_det = np.clip(np.bincount(ti, weights=p, minlength=N), 0.0, 1.0)
+        pd = pred.p_detect
+        q = pred.q
+        miss_alive = q * (1.0 - pd)
+        eps_alive = miss_alive / np.maximum(miss_alive + 1.0 - q, _EPS)
+        w_miss = (1.0 - p_det) * eps_alive
+        r = np.clip(p_det + w_miss, 0.0, 1.0)
+        # moment-matched mixture (conditional on existence) of missed + each detection
+        if self.config.state_update == "best-permutation" and p.size:
+            ti, mi, p = best_permutation_pairs(N, ti, mi, p)
+        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r)
+        n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
+        rho = self.config.popularity_decay
+        pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
+        return _Clusters(state.labels, mean, cov, r, pop)
+
+    def _prune_floor(self, alpha: float, clutter) -> float:
+        """Existence below which a cluster is dropped (``BnpConfig.prune_threshold``)."""
+        cfg = self.config
+        p_birth = self.birth_probability(alpha, clutter)
+        return min(cfg.prune_threshold, cfg.birth_prune_fraction * p_birth) if p_birth > 0 else cfg.prune_threshold
+
+    def _births(self, frame: Frame, meas, clutter, result, floor: float) -> "_Clusters":
+        """New clusters (case D3/P3): every measurement whose Rao-Blackwellised probability of
+        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut)."""
+        p_new = result.p_new
+        idx = np.flatnonzero(p_new >= max(floor, 1e-300))
+        if idx.size == 0:
+            return _Clusters.empty()
+        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind)
+        labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
+        return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
+
+    def _prune(self, c: "_Clusters", floor: float) -> tuple["_Clusters", int]:
+        """Drop clusters below ``floor``; keep at most ``max_clusters`` (the memory guard).
+        Returns the kept clusters and how many the guard dropped (0 unless it bit)."""
+        keep = np.flatnonzero(c.existence >= floor)
+        capped = max(keep.size - self.config.max_clusters, 0)
+        if capped:
+            order = np.argsort(-c.existence[keep], kind="stable")
+            keep = np.sort(keep[order[: self.config.max_clusters]])
+            _warn_capped(self.config.max_clusters, capped)
+        return c.take(keep), capped
+
+    def _hyper(self, rng, state: BnpState, problem: GibbsProblem, result, kept: "_Clusters",
+               frame: int) -> tuple[float, float, np.ndarray]:
+        """Grid-Gibbs step for (alpha, d) given this frame's last Gibbs sample.
+
+        The log-likelihood of past frames is kept on the grid (with forgetting), so the
+        posterior accumulates over the stream; see :func:`tracker.bnp.urn.frame_loglik_grid`.
+        """
+        cfg = self.config
+        if not cfg.infer_alpha and not cfg.infer_d:
+            return state.alpha, state.d, state.hyper_loglik
+        last = result.last
+        counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
+        n_new_sample = int(np.sum(last == NEW))
+        n_new = n_new_sample if cfg.birth_lag == 0 else _born_at(kept, frame - cfg.birth_lag)
+        frame_ll = frame_loglik_grid(
+            self.alpha_grid[:, None], self.d_grid[None, :],
+            mass=problem.mass, d_bar=problem.d_bar,
+            n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
+            seated_popularity=state.popularity, seated_counts=counts,
+        )
+        hyper = cfg.hyper_forgetting * state.hyper_loglik + frame_ll
+        # log-spaced alpha grid: cell width is proportional to alpha (Jacobian term log alpha)
+        log_prior_a = log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+        log_post = hyper + log_prior_a[:, None]
+        if cfg.infer_d:
+            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+        if cfg.hyper_estimate == "sample":
+            i, j = sample_grid(rng, log_post)
+            return float(self.alpha_grid[i]), float(self.d_grid[j]), hyper
+        alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
+
+    def _estimate(self, state: BnpState, frame: Frame, existing, born, result, problem) -> Estimate:
+        thr = self.config.existence_threshold
+        reported = {lab for lab, r in zip(state.labels, state.existence) if r > thr}
+        tracks = tuple(
+            TrackEstimate(lab, state.mean[i].copy(), state.cov[i].copy(), float(state.existence[i]))
+            for i, lab in enumerate(state.labels) if lab in reported
+        )
+        M = frame.n_measurements
+        # options per measurement: reported transitioned clusters, and its own newborn if reported
+        ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
+        p_ex, lab_ex, p_sum = _best_reported(result, ex_rep, existing.labels, M)
+        born_p = np.zeros(M)
+        born_lab = np.full(M, None, dtype=object)
+        for lab in born.labels:
+            if lab in reported:
+                m = int(lab.split(".")[1])
+                born_p[m], born_lab[m] = result.p_new[m], lab
+        use_born = born_p > p_ex  # on a tie the transitioned cluster wins
+        p_best = np.where(use_born, born_p, p_ex)
+        p_none = np.clip(1.0 - (p_sum + born_p), 0.0, 1.0)
+        assignments: list[str | None] = []
+        probs: list[float] = []
+        for m in range(M):
+            if p_best[m] <= p_none[m]:
+                assignments.append(None)
+                probs.append(float(p_none[m]))
+            else:
+                assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
+                probs.append(float(p_best[m]))
+        return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per measurement: the largest ``Pr(c_m = l)`` over reported clusters ``l`` (the lowest
+    index on a tie), that cluster's label (None if none) and the sum over reported clusters."""
+    pr = result.pairs
+    mt = pr.rows
+    sel = rep[pr.idx] if pr.idx.size else np.zeros(0, dtype=bool)
+    t, m, p = pr.idx[sel], mt[sel], result.p_pairs[sel]
+    p_sum = np.bincount(m, weights=p, minlength=M)
+    p_ex = np.zeros(M)
+    lab = np.full(M, None, dtype=object)
+    if t.size:
+        order = np.lexsort((t, -p, m))
+        first = order[np.r_[True, np.diff(m[order]) != 0]]
+        p_ex[m[first]] = p[first]
+        lab[m[first]] = [labels[i] for i in t[first].tolist()]
+    return p_ex, lab, p_sum
+
+
+def _pairs_by_cluster(result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sampler's gated pairs and ``Pr(c_m = l)``, sorted by cluster then measurement."""
+    pr = result.pairs
+    mt = pr.rows
+    order = np.lexsort((mt, pr.idx))
+    return pr.idx[order], mt[order], result.p_pairs[order]
+
+
+_capped_warned: list[bool] = []
+
+
+def _warn_capped(limit: int, dropped: int) -> None:
+    if not _capped_warned:
+        _capped_warned.append(True)
+        _log.warning("max_clusters (%d) reached: %d cluster(s) with the lowest existence dropped "
+                     "(reported once; see the step diagnostics' clusters_capped)", limit, dropped)
+
+
+def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, ti: np.ndarray,
+                  mi: np.ndarray, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each cluster's Gaussian moment-matched over "missed" (weight ``w_miss / r``) and
+    "updated with ``z_m``" (weight ``p / r`` for the pairs ``(ti, mi)``, sorted by cluster then
+    measurement), computed only for the pairs that carry
+    weight: a pair the sampler never used (gated out, or a non-finite measurement) never
+    enters the arithmetic, so no ``0 * NaN`` can reach a state."""
+    inv_r = 1.0 / np.maximum(r, _EPS)
+    w0 = w_miss * inv_r  # (N,)
+    carry = p > 0.0
+    ti, mi = ti[carry], mi[carry]
+    wp = p[carry] * inv_r[ti]  # (L,)
+    mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
+    mean = w0[:, None] * pred.mean
+    np.add.at(mean, ti, wp[:, None] * mu)
+    dev0 = pred.mean - mean
+    dev = mu - mean[ti]
+    cov = w0[:, None, None] * (pred.cov + dev0[:, :, None] * dev0[:, None, :])
+    w_det = np.bincount(ti, weights=wp, minlength=len(r))
+    cov += w_det[:, None, None] * innov.P_upd
+    np.add.at(cov, ti, wp[:, None, None] * dev[:, :, None] * dev[:, None, :])
+    return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
+
+
+def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:
+    """Build ``ddp`` (DDP-EMM) or ``dpyp`` (DPY-STP) with its preset unless ``config`` is given."""
+    if name not in ("ddp", "dpyp"):
+        raise ValueError(f"unknown BNP tracker {name!r} (expected 'ddp' or 'dpyp')")
+    return BnpTracker(params, config if config is not None else TRACKER_PRESETS[name], name)

@@ -1,0 +1,570 @@
+r"""Collapsed Gibbs sampler over measurement-to-object assignments for one frame.
+
+The target is the frame-:math:`k` posterior of DDP-EMM / DPY-STP with point objects in clutter
+(``docs/trackers.md`` derives it).  Each measurement :math:`m` has an assignment
+:math:`c_m \in \{\text{clutter}, 1..N \text{ (transitioned clusters)}, \text{new}\}`; the
+survival indicators :math:`\lambda_l` of clusters without a measurement are summed out.  The
+full conditional of :math:`c_m` given all other assignments is
+
+.. math::
+
+    \Pr(c_m = \text{clutter}) &\propto \lambda_c\, \kappa(z_m) \\
+    \Pr(c_m = l) &\propto g_m\, \frac{q_l P_{D,l}}{q_l (1-P_{D,l}) + 1 - q_l}\,
+        (v_l - d)\, \ell_l(z_m)
+        \quad (\text{case D2/P2: } l \text{ not chosen by another measurement}) \\
+    \Pr(c_m = l) &\propto g_m\, (n_l^{-m} + v_l - d)\, \ell_l(z_m)
+        \quad (\text{case D1/P1, extended objects only}) \\
+    \Pr(c_m = \text{new}) &\propto g_m\, (\alpha + d\,(\bar D + K^{-m}_\text{new}))\, u_H(z_m)
+        \quad (\text{case D3/P3}) \\
+    g_m &= \frac{\alpha + V}{\alpha + V + M_o^{-m}}
+
+with :math:`q_l = P_S r_l` the predicted existence, :math:`v_l` the popularity,
+:math:`V = \sum_l q_l v_l` the expected transitioned mass, :math:`M_o^{-m}` the number of
+other measurements assigned to objects (the urn's normaliser :math:`g_k`, eq. (1)),
+:math:`\ell_l` the EKF/UKF predictive density, :math:`u_H` the base distribution's predictive
+density of a measurement, :math:`\bar D = \sum_l q_l` and :math:`K^{-m}_\text{new}` the number
+of new clusters opened by the other measurements.  For point objects a cluster holds at most
+one measurement per frame (D1 has probability zero), which truncates the joint to a symmetric
+set; the conditionals above restricted to the allowed values are exactly its full conditionals.
+
+Single-site moves cannot exchange two measurements that compete for one cluster (the holder
+must first pass through clutter or a new cluster), so each sweep is followed by a
+Metropolis-Hastings exchange of the assignments of every pair of measurements whose gates
+share a cluster (:func:`_swap_pass`; it keeps every count of the urn, so the acceptance ratio
+is the ratio of the two measurements' own factors).  Several chains from different greedy
+starts give the split-chain R-hat of the marginals (:func:`split_rhat`).
+
+The sweeps run on a sparse (gated) candidate list per measurement, compiled with numba
+(``BNPTRACK_NO_JIT=1`` runs the same functions interpreted), using uniforms pre-drawn from the
+caller's ``numpy.random.Generator`` so the result depends only on the generator's state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from tracker._numerics import jit
+
+CLUTTER = -1
+NEW = -2
+
+
+@dataclass(frozen=True)
+class SparsePairs:
+    """The allowed (cluster, measurement) pairs of a frame, CSR by measurement: the clusters
+    of measurement ``m`` are ``idx[ptr[m]:ptr[m+1]]`` (ascending), with their ``log_first`` and
+    ``log_lik`` (see :class:`GibbsProblem`).  Memory and every sweep grow with the pairs in
+    gates, not with clusters x measurements."""
+
+    n_clusters: int
+    ptr: np.ndarray  # (M+1,) int64
+    idx: np.ndarray  # (nnz,) int64
+    log_first: np.ndarray  # (nnz,)
+    log_lik: np.ndarray  # (nnz,)
+
+    @property
+    def n_meas(self) -> int:
+        return self.ptr.size - 1
+
+    @cached_property
+    def rows(self) -> np.ndarray:
+        """Measurement index of each pair, ``(nnz,)``."""
+        return np.repeat(np.arange(self.n_meas, dtype=np.int64), np.diff(self.ptr))
+
+    @staticmethod
+    def from_pairs(n_clusters: int, n_meas: int, cl: np.ndarray, ms: np.ndarray, log_first: np.ndarray,
+                   log_lik: np.ndarray) -> "SparsePairs":
+        """From pairs sorted by measurement then cluster; pairs with a non-finite
+        ``log_first`` (gated out, dead cluster) are dropped."""
+        ok = np.isfinite(log_first)
+        cl, ms = cl[ok], ms[ok]
+        ptr = np.zeros(n_meas + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ms, minlength=n_meas), out=ptr[1:])
+        return SparsePairs(int(n_clusters), ptr, cl.astype(np.int64), log_first[ok], log_lik[ok])
+
+    @staticmethod
+    def from_dense(log_first: np.ndarray, log_lik: np.ndarray) -> "SparsePairs":
+        N, M = log_first.shape
+        mt, lt = np.nonzero(np.isfinite(log_first.T))  # sorted by measurement
+        return SparsePairs.from_pairs(N, M, lt, mt, log_first[lt, mt], log_lik[lt, mt])
+
+    def dense(self, values: np.ndarray, fill: float = -np.inf) -> np.ndarray:
+        """``(N, M)`` matrix holding ``values`` (one per pair) and ``fill`` elsewhere."""
+        out = np.full((self.n_clusters, self.n_meas), fill)
+        out[self.idx, self.rows] = values
+        return out
+
+    def lookup(self, m: int, l: int) -> int:
+        """Position of pair ``(l, m)`` or -1."""
+        lo, hi = int(self.ptr[m]), int(self.ptr[m + 1])
+        j = lo + int(np.searchsorted(self.idx[lo:hi], l))
+        return j if j < hi and self.idx[j] == l else -1
+
+
+@dataclass(frozen=True)
+class GibbsProblem:
+    """Inputs of one frame's assignment sampler (log domain, no validation: internal).
+
+    ``log_first[l, m]``: log weight of measurement ``m`` taking free cluster ``l``
+    (D2/P2 row above, ``-inf`` when gated out or dead); ``log_lik[l, m]``: log predictive
+    density (used by D1 in extended mode); ``log_clutter[m]``; ``log_new[m] = log u_H(z_m)``.
+    Give the dense ``(N, M)`` ``log_first``/``log_lik`` (then ``pairs`` is derived from them)
+    or ``pairs`` alone (the tracker's gated, sparse form; the dense matrices are then ``None``).
+    """
+
+    log_first: np.ndarray | None
+    log_lik: np.ndarray | None
+    log_clutter: np.ndarray
+    log_new: np.ndarray
+    popularity: np.ndarray
+    alpha: float
+    d: float
+    d_bar: float
+    mass: float
+    """Transitioned urn mass ``V``; ``alpha + V`` is the Poisson rate of object measurements."""
+    extended: bool = False
+    pairs: SparsePairs | None = None
+
+    def __post_init__(self) -> None:
+        if self.log_first is None and self.pairs is None:
+            raise ValueError("GibbsProblem: give the dense log_first/log_lik or pairs")
+        if self.log_first is not None:  # the dense form wins (``dataclasses.replace`` of it stays right)
+            object.__setattr__(self, "pairs", SparsePairs.from_dense(np.asarray(self.log_first, dtype=float),
+                                                                     np.asarray(self.log_lik, dtype=float)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(N clusters, M measurements)``."""
+        return self.pairs.n_clusters, self.pairs.n_meas
+
+    def dense_first(self) -> np.ndarray:
+        """``log_first`` as an ``(N, M)`` matrix (small problems: tests, enumeration)."""
+        return self.log_first if self.log_first is not None else self.pairs.dense(self.pairs.log_first)
+
+
+@dataclass(frozen=True)
+class GibbsResult:
+    """Posterior summaries from the kept sweeps (Rao-Blackwellised: the average of each
+    visit's full conditional, which resolves small probabilities that draw counts cannot).
+
+    ``p_pairs[j] = Pr(c_m = l)`` for pair ``j = (l, m)`` of ``pairs`` (``p_cluster`` is the
+    dense ``(N, M)`` view), ``p_clutter[m]``, ``p_new[m]``; ``last`` is the final
+    assignment vector (cluster index, ``CLUTTER`` or ``NEW``); ``log_joint`` its unnormalised
+    log posterior (up to a constant); ``n_kept`` the number of kept sweeps (all chains).
+    """
+
+    pairs: SparsePairs
+    p_pairs: np.ndarray
+    p_clutter: np.ndarray
+    p_new: np.ndarray
+    last: np.ndarray
+    log_joint: float
+    n_kept: int
+    rhat_max: float = 1.0
+    """Largest split-chain R-hat of the assignment probabilities (:func:`split_rhat`)."""
+    swaps_accepted: int = 0
+    """Accepted pair exchanges, out of ``swaps_proposed`` (pairs x sweeps x chains)."""
+    swaps_proposed: int = 0
+
+    @property
+    def p_cluster(self) -> np.ndarray:
+        """``(N, M)``: ``Pr(c_m = l)`` (0 outside the gates)."""
+        return self.pairs.dense(self.p_pairs, 0.0)
+
+
+def initial_assignment(problem: GibbsProblem, reverse: bool = False) -> np.ndarray:
+    """Greedy start: measurements in order of their best score take their best free cluster
+    when it beats both clutter and a new cluster (a cheap, valid state to start from).
+
+    ``reverse`` visits the measurements in the opposite order (lowest best score first, ties
+    reversed too): where two measurements compete for one cluster, the other one takes it, an
+    over-dispersed second start for the between-chain R-hat."""
+    N, M = problem.shape
+    if N == 0 or M == 0:
+        return np.full(M, CLUTTER, dtype=np.int64)
+    pr = problem.pairs
+    alt = np.maximum(problem.log_clutter,
+                     math.log(problem.alpha + problem.d * problem.d_bar) + problem.log_new)
+    best = np.full(M, -np.inf)
+    has = np.flatnonzero(np.diff(pr.ptr) > 0)
+    if has.size:
+        best[has] = np.maximum.reduceat(pr.log_first, pr.ptr[has])
+    order = np.argsort(-best, kind="stable")
+    if reverse:
+        order = order[::-1].copy()
+    return _greedy(pr.ptr, pr.idx, pr.log_first, N, alt, best, order, bool(problem.extended), not reverse)
+
+
+def _greedy(ptr, idx, log_first, N, alt, best, order, extended, stop_early):
+    """The greedy pass of :func:`initial_assignment` on the sparse pairs (compiled with numba).
+    ``stop_early``: in decreasing order, stop at the first measurement whose best score does
+    not beat its alternatives (the session-3 start, kept draw for draw)."""
+    M = ptr.shape[0] - 1
+    c = np.full(M, CLUTTER, dtype=np.int64)
+    taken = np.zeros(N, dtype=np.bool_)
+    for m in order:
+        if best[m] <= alt[m]:
+            if stop_early:
+                break
+            continue
+        top, l_top = -np.inf, -1
+        for j in range(ptr[m], ptr[m + 1]):
+            l = idx[j]
+            if not taken[l] and log_first[j] > top:
+                top, l_top = log_first[j], l
+        if l_top >= 0 and top > alt[m]:
+            c[m] = l_top
+            taken[l_top] = not extended
+    return c
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    """Sparse (CSR by measurement) view of the allowed clusters, weights scaled per measurement."""
+
+    ptr: np.ndarray  # (M+1,) int64
+    idx: np.ndarray  # (nnz,) cluster indices
+    w_first: np.ndarray  # (nnz,) exp(log_first - shift)
+    w_lik: np.ndarray  # (nnz,) exp(log_lik - shift)  (extended mode)
+    w_clutter: np.ndarray  # (M,)
+    w_new: np.ndarray  # (M,) exp(log_new - shift), before the urn weight
+
+
+def _candidates(problem: GibbsProblem) -> _Candidates:
+    pr = problem.pairs
+    M = pr.n_meas
+    mt, lf, ll = pr.rows, pr.log_first, pr.log_lik
+    shift = np.maximum(problem.log_clutter, problem.log_new)
+    if mt.size:
+        np.maximum.at(shift, mt, lf)
+        if problem.extended:
+            np.maximum.at(shift, mt, ll)
+    shift = np.where(np.isfinite(shift), shift, 0.0)
+    with np.errstate(under="ignore"):
+        return _Candidates(
+            pr.ptr, pr.idx, np.exp(lf - shift[mt]),
+            np.exp(ll - shift[mt]) if problem.extended else np.zeros(mt.size),
+            np.exp(problem.log_clutter - shift), np.exp(problem.log_new - shift),
+        )
+
+
+def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u_row,
+               keep, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+    """One systematic-scan sweep of single-site full-conditional draws (mutates ``c``, ``cnt``,
+    ``st = [K_new, M_o]`` and, when ``keep``, the Rao-Blackwellised tallies: each visit adds
+    its full conditional to ``tally_pair`` (by pair)/``tally_cn``, and to the split-half sums
+    ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``)."""
+    total_mass, alpha, d, d_bar = par[0], par[1], par[2], par[3]
+    M = c.shape[0]
+    nnz = idx.shape[0]
+    for m in range(M):
+        cur = c[m]
+        if cur >= 0:
+            cnt[cur] -= 1
+        if cur != CLUTTER:
+            st[1] -= 1
+        if cur == NEW:
+            st[0] -= 1
+        g = total_mass / (total_mass + st[1])
+        wc = w_clutter[m]
+        wn = g * w_newbase[m] * (alpha + d * (d_bar + st[0]))
+        total = wc + wn
+        n_opt = 0
+        for j in range(ptr[m], ptr[m + 1]):
+            l = idx[j]
+            n = cnt[l]
+            if n == 0:
+                w = g * w_first[j]
+            elif extended:
+                w = g * w_lik[j] * (n + pop[l] - d)
+            else:
+                continue
+            if w > 0.0:
+                opt_l[n_opt] = l
+                opt_w[n_opt] = w
+                opt_j[n_opt] = j
+                n_opt += 1
+                total += w
+        x = u_row[m] * total
+        if x < wc:
+            choice = CLUTTER
+        elif x < wc + wn:
+            choice = NEW
+        else:
+            x -= wc + wn
+            choice = opt_l[n_opt - 1] if n_opt > 0 else NEW  # round-off guard
+            for i in range(n_opt):
+                if x < opt_w[i]:
+                    choice = opt_l[i]
+                    break
+                x -= opt_w[i]
+        if keep:
+            inv = 1.0 / total
+            tally_cn[0, m] += wc * inv
+            tally_cn[1, m] += wn * inv
+            for i in range(n_opt):
+                tally_pair[opt_j[i]] += opt_w[i] * inv
+            if half >= 0:
+                _half_add(hs, hss, half, nnz + m, wc * inv)
+                _half_add(hs, hss, half, nnz + M + m, wn * inv)
+                for i in range(n_opt):
+                    _half_add(hs, hss, half, opt_j[i], opt_w[i] * inv)
+        c[m] = choice
+        if choice >= 0:
+            cnt[choice] += 1
+        if choice != CLUTTER:
+            st[1] += 1
+        if choice == NEW:
+            st[0] += 1
+
+
+def _half_add(hs, hss, h, k, v):
+    hs[h, k] += v
+    hss[h, k] += v * v
+
+
+def _own_weight(m, ch, w_clutter, w_newbase, ptr, idx, w_first):
+    """Measurement ``m``'s own factor of the joint for value ``ch`` (scaled like the sweeps):
+    clutter ``lambda_c kappa``, new ``u_H`` (the urn factors of a swap cancel), or the D2/P2
+    weight of a cluster holding only ``m`` (0 when gated out)."""
+    if ch == CLUTTER:
+        return w_clutter[m]
+    if ch == NEW:
+        return w_newbase[m]
+    for j in range(ptr[m], ptr[m + 1]):
+        if idx[j] == ch:
+            return w_first[j]
+    return 0.0
+
+
+def _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row):
+    r"""Metropolis-Hastings exchange of two measurements' assignments, for every pair that
+    shares a candidate cluster (a fixed list; each exchange is its own inverse, so the
+    proposal is symmetric).  An exchange keeps every count (:math:`M_o`, :math:`K_\text{new}`,
+    cluster sizes), so the joint ratio is the product of the two measurements' own factors.
+    In extended mode clusters holding several measurements are left alone.  Returns the
+    number of accepted exchanges."""
+    accepted = 0
+    for p in range(pair_a.shape[0]):
+        a = pair_a[p]
+        b = pair_b[p]
+        ca = c[a]
+        cb = c[b]
+        if ca == cb:
+            continue
+        if extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1)):
+            continue
+        new = (_own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
+               * _own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first))
+        if new <= 0.0:
+            continue
+        old = (_own_weight(a, ca, w_clutter, w_newbase, ptr, idx, w_first)
+               * _own_weight(b, cb, w_clutter, w_newbase, ptr, idx, w_first))
+        if u_row[p] * old < new:
+            c[a] = cb
+            c[b] = ca
+            accepted += 1
+    return accepted
+
+
+def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
+                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+    """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
+
+    Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
+    split-chain halves ``h0`` and ``h0 + 1`` of the R-hat sums (the middle one is dropped when
+    ``n`` is odd)."""
+    sweeps = u.shape[0]
+    kept = sweeps - burn_in
+    half_len = kept // 2
+    accepted = 0
+    for s in range(sweeps):
+        i = s - burn_in
+        half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
+        _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
+                   i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+        if u_swap.shape[1] > 0:
+            accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
+                                   u_swap[s])
+    return accepted
+
+
+def _group_pairs(meas_of, starts, sizes, M, n_keys):
+    """Keys ``a * M + b`` of every pair ``a < b`` within each group (compiled with numba)."""
+    out = np.empty(n_keys, dtype=np.int64)
+    k = 0
+    for g in range(starts.shape[0]):
+        s, n = starts[g], sizes[g]
+        for i in range(n):
+            for j in range(i + 1, n):
+                out[k] = meas_of[s + i] * M + meas_of[s + j]
+                k += 1
+    return out
+
+
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs)
+# the helpers are replaced by their compiled versions, which the compiled driver calls
+_greedy = jit(_greedy)  # noqa: F811
+_half_add = jit(_half_add, inline=True)
+_own_weight = jit(_own_weight)
+_site_pass = jit(_site_pass)
+_swap_pass = jit(_swap_pass)
+_sweeps = jit(_sweep_kernel)
+_group_pairs = jit(_group_pairs)  # noqa: F811
+
+
+def interpreted_kernels() -> dict[str, object]:
+    """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
+    compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs")
+    return dict(zip(names, _KERNELS_PY))
+
+
+def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``a < b`` of measurements whose gates share at least one cluster, sorted by
+    ``(a, b)`` (built cluster by cluster from the sparse pairs)."""
+    pr = problem.pairs
+    M = pr.n_meas
+    by_cluster = np.argsort(pr.idx, kind="stable")  # measurements ascending within a cluster
+    meas_of = pr.rows[by_cluster]
+    starts = np.r_[0, np.flatnonzero(np.diff(pr.idx[by_cluster])) + 1] if by_cluster.size else np.zeros(0, np.int64)
+    sizes = np.diff(np.r_[starts, by_cluster.size]).astype(np.int64)
+    n_keys = int(np.sum(sizes * (sizes - 1) // 2))
+    if n_keys == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    key = np.unique(_group_pairs(meas_of, starts.astype(np.int64), sizes, M, n_keys))
+    return (key // M).astype(np.int64), (key % M).astype(np.int64)
+
+
+def run_gibbs(
+    problem: GibbsProblem,
+    rng: np.random.Generator,
+    sweeps: int,
+    burn_in: int,
+    init: np.ndarray | None = None,
+    swaps: bool = True,
+    chains: int = 1,
+) -> GibbsResult:
+    """Run ``chains`` chains of ``sweeps`` sweeps each (single-site pass, then the exchange
+    pass unless ``swaps`` is false); average the last ``sweeps - burn_in`` of every chain.
+
+    Chain 0 starts from ``init`` (default: the greedy start), odd chains from the reversed
+    greedy start.  ``last``/``log_joint`` are chain 0's final state.  ``swaps=False`` with one
+    chain is the session-3 sampler draw for draw (it draws no extra uniforms)."""
+    N, M = problem.shape
+    cand = _candidates(problem)
+    pair_a, pair_b = swap_pairs(problem) if swaps and N else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    K = cand.idx.size + 2 * M
+    tally_pair, tally_cn = np.zeros(cand.idx.size), np.zeros((2, M))
+    hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
+    par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar], dtype=float)
+    pop = np.asarray(problem.popularity, dtype=float)
+    opt = max(N, 1)
+    scratch = (np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64))
+    accepted, first = 0, None
+    for k in range(chains):
+        start = init if k == 0 and init is not None else initial_assignment(problem, reverse=k % 2 == 1)
+        c = np.asarray(start).astype(np.int64)
+        cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
+        st = np.array([np.sum(c == NEW), np.sum(c != CLUTTER)], dtype=np.int64)
+        u = rng.random((sweeps, M))
+        u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
+        accepted += _sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
+                            cand.idx, cand.w_first, cand.w_lik, pop, u, u_swap, pair_a, pair_b, int(burn_in),
+                            2 * k, tally_pair, tally_cn, hs, hss, *scratch)
+        first = c if first is None else first
+    kept = max(sweeps - burn_in, 1) * chains
+    return GibbsResult(problem.pairs, tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first,
+                       log_joint(problem, first), kept, split_rhat(hs, hss, (sweeps - burn_in) // 2),
+                       int(accepted), int(pair_a.size * sweeps * chains))
+
+
+def split_rhat(hs: np.ndarray, hss: np.ndarray, n: int) -> float:
+    r"""Largest split-chain :math:`\hat R` (Gelman et al., BDA3 eq. 11.4) over every
+    Rao-Blackwellised assignment probability, from the half-chains' sums ``hs`` and sums of
+    squares ``hss`` (``(2 * chains, K)``, ``n`` sweeps each).
+
+    :math:`W` is the mean within-half-chain variance, :math:`B/n` the variance of the
+    half-chain means, :math:`\hat R = \sqrt{((n-1)/n\, W + B/n) / W}`.  Quantities whose
+    pooled standard deviation is below 1e-3 count as converged (R-hat 1), e.g. a measurement
+    no other measurement competes with; a quantity constant within each half-chain but
+    different between them (a stuck chain) is capped at 1000.  With one chain a chain stuck
+    in one mode for all its sweeps looks converged; two chains from different starts (the
+    tracker's default) see it.  Fewer than 2 sweeps per half-chain: 1 (undefined)."""
+    if n < 2 or hs.shape[1] == 0:
+        return 1.0
+    mean = hs / n
+    var = np.maximum(hss - n * mean * mean, 0.0) / (n - 1)
+    W = var.mean(axis=0)
+    dev = mean - mean.mean(axis=0)
+    b_over_n = np.einsum("ck,ck->k", dev, dev) / (mean.shape[0] - 1)  # variance of the means
+    v_plus = (n - 1) / n * W + b_over_n
+    live = v_plus > 1e-6
+    if not live.any():
+        return 1.0
+    r = np.sqrt(v_plus[live] / np.maximum(W[live], 1e-12))
+    return float(min(r.max(), 1000.0))
+
+
+def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
+    r"""Unnormalised log posterior of an assignment vector (point or extended objects).
+
+    The product of the conditional weights in any order (the joint is exchangeable):
+    clutter terms, the urn normaliser :math:`\prod_{i<M_o} (\alpha+V)/(\alpha+V+i)`,
+    first/subsequent members of transitioned clusters and the new-cluster weights.
+    """
+    if not problem.extended:
+        return _log_joint_point(problem, np.asarray(c))
+    out = 0.0
+    k_new = 0
+    m_obj = 0
+    total_mass = problem.alpha + problem.mass
+    counts: dict[int, int] = {}
+    for m, ch in enumerate(np.asarray(c).tolist()):
+        if ch == CLUTTER:
+            out += problem.log_clutter[m]
+            continue
+        out += math.log(total_mass / (total_mass + m_obj))
+        m_obj += 1
+        if ch == NEW:
+            out += math.log(problem.alpha + problem.d * (problem.d_bar + k_new)) + problem.log_new[m]
+            k_new += 1
+        else:
+            n = counts.get(ch, 0)
+            j = problem.pairs.lookup(m, ch)
+            if j < 0:
+                return -math.inf  # gated out
+            if n == 0:
+                out += problem.pairs.log_first[j]
+            elif problem.extended:
+                out += math.log(n + problem.popularity[ch] - problem.d) + problem.pairs.log_lik[j]
+            else:
+                return -math.inf
+            counts[ch] = n + 1
+    return out
+
+
+def _log_joint_point(problem: GibbsProblem, c: np.ndarray) -> float:
+    """:func:`log_joint` for point objects (each cluster at most once), vectorised."""
+    obj = c != CLUTTER
+    new = c == NEW
+    cl = np.flatnonzero(c >= 0)
+    if np.unique(c[cl]).size < cl.size:
+        return -math.inf
+    pr = problem.pairs
+    N = max(pr.n_clusters, 1)
+    key = pr.rows * N + pr.idx  # sorted: CSR by measurement, clusters ascending
+    want = cl * N + c[cl]
+    j = np.searchsorted(key, want)
+    if cl.size and (np.any(j >= key.size) or np.any(key[np.minimum(j, key.size - 1)] != want)):
+        return -math.inf  # gated out
+    total_mass = problem.alpha + problem.mass
+    n_obj, n_new = int(obj.sum()), int(new.sum())
+    urn = np.log(total_mass / (total_mass + np.arange(n_obj))).sum()
+    newk = np.log(problem.alpha + problem.d * (problem.d_bar + np.arange(n_new))).sum()
+    return float(problem.log_clutter[~obj].sum() + urn + newk + problem.log_new[new].sum()
+                 + pr.log_first[j].sum())
