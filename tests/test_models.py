@@ -165,3 +165,68 @@ def test_params_builtin_values_and_overrides(tmp_path):
     good = tmp_path / "mine.toml"
     good.write_text('name = "mine"\nclutter_rate = 2.5\n')
     assert load_params(good).clutter_rate == 2.5
+
+
+def test_sensor_kind_literal_matches_the_registry():
+    """``tracker.types.SensorKind`` names exactly the kinds of the registry ``KINDS``."""
+    from typing import get_args
+
+    from tracker.models.measurement import KINDS
+    from tracker.types import SensorKind
+
+    assert set(get_args(SensorKind)) == set(KINDS)
+
+
+def test_registry_builds_each_kind_from_the_sensor():
+    """``ModelParams`` builds measurement, clutter and detection models through the registry:
+    hand-checked fields for each of the three kinds at a posed sensor."""
+    from tracker.models.clutter import SectorClutter
+    from tracker.models.measurement import Cartesian
+
+    p = load_params("vo2017", ["range_clutter_rate=2.0", "sigma_xy=7.0"])
+    s_br = p.sensor("r0", "bearing_range", (100.0, -50.0, 0.25))
+    assert p.measurement("bearing_range", s_br) == BearingRange(np.deg2rad(2.0), 10.0, 100.0, -50.0, 0.25)
+    c = p.clutter("bearing_range", s_br)
+    assert isinstance(c, UniformClutter) and c.rate == 15.0
+    assert c.low == (-np.pi / 2, 0.0) and c.high == (np.pi / 2, 2000.0)
+    assert not p.detection("bearing_range", s_br).range_only
+    s_r = p.sensor("r1", "range", (0.0, 0.0, 0.0))
+    assert p.measurement("range", s_r) == RangeOnly(10.0, 0.0, 0.0, np.pi / 2, 0.0)
+    c = p.clutter("range", s_r)
+    assert c.rate == 2.0 and c.low == (0.0,) and c.high == (2000.0,)  # range_clutter_rate applies
+    assert p.detection("range", s_r).range_only
+    s_xy = p.sensor("c0", "xy", (1.0, 2.0, 0.5))
+    assert p.measurement("xy", s_xy) == Cartesian(7.0, 1.0, 2.0, 0.5)
+    assert p.clutter("xy", s_xy) == SectorClutter(15.0, 0.0, 2000.0, np.pi / 2, 1.0, 2.0, 0.5)
+    with pytest.raises(ValueError, match="unknown measurement kind"):
+        p.measurement("sonar", s_xy)
+
+
+def test_a_new_kind_is_its_model_class_and_registry_entry(monkeypatch):
+    """Registering a kind (model class with ``from_sensor`` + a ``KINDS`` entry) is enough for
+    ``ModelParams`` to build its measurement, clutter and detection models."""
+    from dataclasses import dataclass
+
+    from tracker.models import measurement as mm
+
+    @dataclass(frozen=True)
+    class Bearing1D:
+        sigma: float
+        x: float
+        dim: int = 1
+        kind: str = "bearing"
+
+        @classmethod
+        def from_sensor(cls, s):
+            return cls(s.sigma_bearing, s.x)
+
+    entry = mm.MeasurementKind("bearing", Bearing1D, 1, (0,), (-np.pi,), (np.pi,), "[bearing_rad]",
+                               lambda s: UniformClutter(s.clutter_rate, (-s.half_fov,), (s.half_fov,)),
+                               clutter_rate_field="range_clutter_rate")
+    monkeypatch.setitem(mm.KINDS, "bearing", entry)
+    p = load_params("vo2017", ["range_clutter_rate=3.0"])
+    s = p.sensor("esm", "bearing", (5.0, 0.0, 0.0))
+    assert p.measurement("bearing", s) == Bearing1D(np.deg2rad(2.0), 5.0)
+    c = p.clutter("bearing", s)
+    assert c.rate == 3.0 and c.high == (np.pi / 2,)
+    assert not p.detection("bearing", s).range_only

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tracker.models.measurement import DEFAULT_KIND
 from tracker.types import STATE_DIM
 
 
@@ -33,7 +34,7 @@ class GlmbState:
     log_w: np.ndarray = field(default_factory=lambda: np.zeros(1))
     birth_frame: int = -1
     """Frame of ``birth_z`` (the last processed frame; ``-1``: none)."""
-    birth_kind: str = "bearing_range"
+    birth_kind: str = DEFAULT_KIND
     birth_sensor: str = ""
     birth_pose: tuple[float, ...] = ()
     """The last frame's sensor, pose (``()``: none) and ``R`` (``(0, 0)``: none)."""

@@ -4,8 +4,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
+
+
+class ClutterModel(Protocol):
+    """What a kind's clutter model offers: Poisson rate, log density and intensity inside its
+    region, the log density of measurements and one scan of samples."""
+
+    rate: float
+
+    @property
+    def log_density(self) -> float: ...
+    @property
+    def log_intensity(self) -> float: ...
+    def logpdf(self, z: np.ndarray) -> np.ndarray: ...
+    def sample(self, rng: np.random.Generator) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)

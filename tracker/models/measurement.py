@@ -8,17 +8,25 @@ direction (``heading``) is measured from :math:`+y` towards :math:`+x` like ever
 diagonal noise of the sigmas when set (a frame's ``R``).
 
 :data:`KINDS` is the registry of measurement kinds: name -> model class, dimension, wrapped
-(angle) columns and value bounds; the codec, the simulator and ``Frame`` look kinds up there.
+(angle) columns, value bounds, clutter model and detection region; the codec, the simulator,
+``Frame`` and the parameter set look kinds up there.  A new kind is its model class (with a
+``from_sensor`` classmethod) plus its entry in :data:`KINDS`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from tracker.models._gauss import gaussian_logpdf
+from tracker.models.clutter import ClutterModel, SectorClutter, UniformClutter
+
+if TYPE_CHECKING:
+    from tracker.models.sensors import Sensor
 
 Noise = tuple[tuple[float, ...], ...] | None
 
@@ -34,6 +42,25 @@ def _rotate(pos: np.ndarray, cov: np.ndarray | None, heading: float, x: float, y
         if cov is not None:
             cov = Rm @ cov @ Rm.T
     return pos + np.array([x, y]), cov
+
+
+class MeasurementModel(Protocol):
+    """What every measurement kind's model offers (:mod:`tracker.filtering` uses ``dim``,
+    ``R``, ``h``, ``jacobian``, ``residual``; births use ``to_cartesian`` and
+    ``birth_position``; the simulator ``sample``)."""
+
+    dim: int
+    kind: str
+
+    @property
+    def R(self) -> np.ndarray: ...
+    def h(self, x: np.ndarray) -> np.ndarray: ...
+    def jacobian(self, x: np.ndarray) -> np.ndarray: ...
+    def residual(self, z: np.ndarray, z_pred: np.ndarray) -> np.ndarray: ...
+    def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray: ...
+    def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray: ...
+    def to_cartesian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+    def birth_position(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
@@ -65,6 +92,11 @@ class BearingRange:
 
     dim: int = 2
     kind: str = "bearing_range"
+
+    @classmethod
+    def from_sensor(cls, s: Sensor) -> BearingRange:
+        """The model of the resolved sensor ``s`` (its pose, sigmas and ``R``)."""
+        return cls(s.sigma_bearing, s.sigma_range, s.x, s.y, s.heading, s.noise)
 
     @cached_property
     def R(self) -> np.ndarray:
@@ -174,6 +206,11 @@ class RangeOnly:
     dim: int = 1
     kind: str = "range"
 
+    @classmethod
+    def from_sensor(cls, s: Sensor) -> RangeOnly:
+        """The model of the resolved sensor ``s`` (its pose, field of view, sigma and ``R``)."""
+        return cls(s.sigma_range, s.x, s.y, s.half_fov, s.heading, s.noise)
+
     @cached_property
     def R(self) -> np.ndarray:
         if self.noise is not None:
@@ -266,6 +303,11 @@ class Cartesian:
     dim: int = 2
     kind: str = "xy"
 
+    @classmethod
+    def from_sensor(cls, s: Sensor) -> Cartesian:
+        """The model of the resolved sensor ``s`` (its pose, sigma and ``R``)."""
+        return cls(s.sigma_xy, s.x, s.y, s.heading, s.noise)
+
     @cached_property
     def R(self) -> np.ndarray:
         if self.noise is not None:
@@ -305,10 +347,29 @@ class Cartesian:
 # --------------------------------------------------------------------------- kinds registry
 
 
+def _bearing_range_clutter(s: Sensor) -> UniformClutter:
+    """Uniform over the field of view in (bearing, range) space."""
+    return UniformClutter(s.clutter_rate, (-s.half_fov, s.range_min), (s.half_fov, s.range_max))
+
+
+def _range_clutter(s: Sensor) -> UniformClutter:
+    """Uniform over the range interval."""
+    return UniformClutter(s.clutter_rate, (s.range_min,), (s.range_max,))
+
+
+def _sector_clutter(s: Sensor) -> SectorClutter:
+    """Uniform over the field of view's sector in world coordinates."""
+    return SectorClutter(s.clutter_rate, s.range_min, s.range_max, s.half_fov, s.x, s.y, s.heading)
+
+
 @dataclass(frozen=True)
 class MeasurementKind:
-    """One measurement kind: its model class, row dimension, wrapped (angle) columns and
-    per-column value bounds (inclusive; what the codec accepts)."""
+    """One measurement kind: its model class (built by ``model.from_sensor(sensor)``), row
+    dimension, wrapped (angle) columns, per-column value bounds (inclusive; what the codec
+    accepts), its clutter model of a sensor (uniform over the field of view in its
+    measurement space), whether its detection region ignores bearings (``range_only``) and
+    the :class:`~tracker.models.params.ModelParams` field, if any, that overrides
+    ``clutter_rate`` for it."""
 
     name: str
     model: type
@@ -317,6 +378,13 @@ class MeasurementKind:
     low: tuple[float, ...]
     high: tuple[float, ...]
     columns: str
+    clutter: Callable[[Any], ClutterModel]
+    range_only: bool = False
+    clutter_rate_field: str | None = None
+
+    def measurement(self, sensor: Sensor) -> MeasurementModel:
+        """The measurement model of ``sensor`` for this kind."""
+        return self.model.from_sensor(sensor)
 
 
 _BIG = float(np.finfo(float).max)
@@ -325,10 +393,14 @@ _BIG = float(np.finfo(float).max)
 #: sinks) looks it up here.  Register a new kind by adding one entry (and its model).
 KINDS: dict[str, MeasurementKind] = {
     "bearing_range": MeasurementKind("bearing_range", BearingRange, 2, (0,), (-np.pi, 0.0), (np.pi, _BIG),
-                                     "[bearing_rad, range_m]"),
-    "range": MeasurementKind("range", RangeOnly, 1, (), (0.0,), (_BIG,), "[range_m]"),
-    "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]"),
+                                     "[bearing_rad, range_m]", _bearing_range_clutter),
+    "range": MeasurementKind("range", RangeOnly, 1, (), (0.0,), (_BIG,), "[range_m]", _range_clutter,
+                             range_only=True, clutter_rate_field="range_clutter_rate"),
+    "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]", _sector_clutter),
 }
+
+#: The kind of a frame or sensor that does not say (the paper's bearing-range radar).
+DEFAULT_KIND = "bearing_range"
 
 
 def measurement_kind(kind: str) -> MeasurementKind:

@@ -16,15 +16,12 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.config import ConfigError, apply_overrides, convert, did_you_mean, load_toml, read_toml
-from tracker.models.clutter import Detection, SectorClutter, UniformClutter
-from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind
+from tracker.config import (ConfigError, NonNeg, Positive, Prob, apply_overrides, convert, did_you_mean, load_toml,
+                            read_toml)
+from tracker.models.clutter import ClutterModel, Detection
+from tracker.models.measurement import DEFAULT_KIND, MeasurementModel, measurement_kind
 from tracker.models.motion import CoordinatedTurn
 from tracker.models.sensors import Sensor, SensorSpec
-
-Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
-NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
 #: Expected new objects per scan appearing anywhere, when neither the parameter set nor the
@@ -103,11 +100,11 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                                np.deg2rad(self.sigma_turn_deg))
 
     # --- sensors -----------------------------------------------------------------------
-    def sensor(self, name: str = "", kind: str = "bearing_range",
+    def sensor(self, name: str = "", kind: str = DEFAULT_KIND,
                pose: tuple[float, float, float] | None = None, R: np.ndarray | None = None) -> Sensor:
         """The resolved sensor ``name`` for frames of ``kind``: defaults, then its
         ``[sensors.NAME]`` table, then the frame's ``pose`` / ``R`` (``tracker.models.sensors``)."""
-        measurement_kind(kind)
+        entry = measurement_kind(kind)
         spec = self.sensors.get(name) or SensorSpec()
         if spec.kind is not None and spec.kind != kind:
             raise ValueError(f"sensor {name!r} is declared kind {spec.kind!r} but its frame has kind {kind!r}")
@@ -116,8 +113,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         if pose is not None:
             x, y, heading = (float(v) for v in pose)
         rate = self.clutter_rate
-        if kind == "range" and self.range_clutter_rate is not None:
-            rate = self.range_clutter_rate
+        if entry.clutter_rate_field is not None and getattr(self, entry.clutter_rate_field) is not None:
+            rate = getattr(self, entry.clutter_rate_field)
         noise = None if R is None else tuple(tuple(float(v) for v in row) for row in np.asarray(R, dtype=float))
         return Sensor(
             name, kind, float(x), float(y), heading, float(spec.range_min),
@@ -135,25 +132,20 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         """The resolved sensor of a :class:`~tracker.types.Frame` (its name, kind, pose, R)."""
         return self.sensor(frame.sensor, frame.kind, frame.pose, frame.R)
 
-    def measurement(self, kind: str = "bearing_range", sensor: Sensor | None = None
-                    ) -> BearingRange | RangeOnly | Cartesian:
+    def measurement(self, kind: str = DEFAULT_KIND, sensor: Sensor | None = None
+                    ) -> MeasurementModel:
+        """The measurement model of ``kind`` for ``sensor`` (default: the default sensor),
+        built by the kind's model class (:data:`~tracker.models.measurement.KINDS`)."""
         s = self.sensor(kind=kind) if sensor is None else sensor
-        if kind == "bearing_range":
-            return BearingRange(s.sigma_bearing, s.sigma_range, s.x, s.y, s.heading, s.noise)
-        if kind == "range":
-            return RangeOnly(s.sigma_range, s.x, s.y, s.half_fov, s.heading, s.noise)
-        return Cartesian(s.sigma_xy, s.x, s.y, s.heading, s.noise)
+        return measurement_kind(kind).measurement(s)
 
-    def clutter(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> UniformClutter | SectorClutter:
-        """Clutter uniform over the sensor's field of view, in its measurement space."""
+    def clutter(self, kind: str = DEFAULT_KIND, sensor: Sensor | None = None) -> ClutterModel:
+        """Clutter uniform over the sensor's field of view, in its measurement space (the
+        kind's registry entry builds it)."""
         s = self.sensor(kind=kind) if sensor is None else sensor
-        if kind == "bearing_range":
-            return UniformClutter(s.clutter_rate, (-s.half_fov, s.range_min), (s.half_fov, s.range_max))
-        if kind == "range":
-            return UniformClutter(s.clutter_rate, (s.range_min,), (s.range_max,))
-        return SectorClutter(s.clutter_rate, s.range_min, s.range_max, s.half_fov, s.x, s.y, s.heading)
+        return measurement_kind(kind).clutter(s)
 
-    def detection(self, kind: str = "bearing_range", sensor: Sensor | None = None) -> Detection:
+    def detection(self, kind: str = DEFAULT_KIND, sensor: Sensor | None = None) -> Detection:
         s = self.sensor(kind=kind) if sensor is None else sensor
         return Detection(
             s.p_detect,
@@ -164,12 +156,12 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             snr_reference_db=self.snr_pd_reference_db,
             sensor_x=s.x,
             sensor_y=s.y,
-            range_only=(kind == "range"),
+            range_only=measurement_kind(kind).range_only,
             heading=s.heading,
             range_min=s.range_min,
         )
 
-    def survival(self, x: np.ndarray, kind: str = "bearing_range", sensor: Sensor | None = None) -> np.ndarray:
+    def survival(self, x: np.ndarray, kind: str = DEFAULT_KIND, sensor: Sensor | None = None) -> np.ndarray:
         """``(N,)`` P_S(x): ``p_survival`` inside the surveillance region, ``p_survival_outside``
         beyond.  The region is the field of view of the frame's sensor united with those of the
         declared ``[sensors.*]`` (several sensors share one tracker state)."""
@@ -180,7 +172,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                 inside = inside | self.detection(k, self.sensor(name, k)).visible(x)
         return np.where(inside, self.p_survival, self.p_survival_outside)
 
-    def survival_over(self, x: np.ndarray, dt: float, kind: str = "bearing_range",
+    def survival_over(self, x: np.ndarray, dt: float, kind: str = DEFAULT_KIND,
                       sensor: Sensor | None = None) -> np.ndarray:
         r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
         ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
