@@ -28,6 +28,10 @@ Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 """A probability, ``0 <= p <= 1``."""
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
 """A probability strictly inside ``(0, 1)``."""
+Fraction = Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)]
+"""A fraction in ``[0, 1)`` (a discount, a decay, a threshold below 1)."""
+HalfFovDeg = Annotated[float, msgspec.Meta(gt=0.0, le=180.0)]
+"""Half-width of a field of view in degrees, ``(0, 180]``."""
 
 
 class ConfigError(ValueError):

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from tracker.config import NonNeg, NonNegInt, OpenProb, PosInt, Positive, Prob
+from tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, Prob
 
 
 class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -31,7 +31,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     are dropped; ``p_birth`` is the probability that a measurement far from every cluster
     opens a new one (``BnpTracker.birth_probability``).  Tying the floor to ``p_birth`` means
     no fixed threshold can stop births, however dense the clutter."""
-    birth_prune_fraction: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
+    birth_prune_fraction: OpenProb = 0.1
     """A cluster is kept while its existence is at least this fraction of ``p_birth``: a
     newborn survives its birth frame, and is dropped after a missed first re-detection."""
     max_clusters: PosInt = 100_000
@@ -39,7 +39,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     existence first).  Far above any scene's object count (clutter-born tentative clusters
     included); when it bites, the step's diagnostics report ``clusters_capped`` (> 0) and one
     warning is logged (once per process)."""
-    popularity_decay: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    popularity_decay: Fraction = 0.0
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
     (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
     state_update: Literal["best-permutation", "mixture"] = "best-permutation"
@@ -61,7 +61,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     alpha_scale: Positive = 0.1
     """alpha ~ Gamma(shape, scale): the paper's Gamma(1, 0.1), 0.1 read as the scale."""
     infer_alpha: bool = True
-    d: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    d: Fraction = 0.0
     """Pitman-Yor discount (0 = DDP-EMM)."""
     d_shape: Positive = 1.0
     d_scale: Positive = 0.1

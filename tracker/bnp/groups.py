@@ -51,7 +51,7 @@ from tracker._numerics import jit
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from tracker.bnp.filter import BnpState, BnpTracker
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from tracker.config import PosInt, Positive, Prob
+from tracker.config import Fraction, PosInt, Positive, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
 
@@ -93,7 +93,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     alpha_shape: Positive = 1.0
     alpha_scale: Positive = 1.0
     infer_alpha: bool = True
-    d: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 0.0
+    d: Fraction = 0.0
     """Pitman-Yor discount of the object partition (0 = DDP)."""
     d_shape: Positive = 1.0
     d_scale: Positive = 0.1

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Literal, Protocol
 import msgspec
 import numpy as np
 
-from tracker.config import OpenProb, PosInt, Positive
+from tracker.config import Fraction, OpenProb, PosInt, Positive
 from tracker.models.params import BirthComponent
 from tracker.types import Frame
 
@@ -31,7 +31,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     parent ``h`` gets ``round(max_hypotheses * sqrt(w_h) / sum sqrt(w))`` and at least one."""
     max_hypotheses_after: PosInt = 500
     """Cap on the number of hypotheses kept after pruning (the demo's ``H_max``)."""
-    prune_threshold: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 1e-15
+    prune_threshold: Fraction = 1e-15
     """Hypotheses with normalised weight at or below this are dropped (``hyp_threshold``)."""
     chain_length: PosInt = 10
     """Maximum Gibbs sweeps per chain: a parent's request is split into parallel chains of at
@@ -54,7 +54,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     max_births: PosInt = 50
     """Adaptive birth: at most this many birth Bernoullis per scan (the measurements with the
     largest unassigned probability; a cap on the cost, never zero births)."""
-    birth_min_share: Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)] = 1e-3
+    birth_min_share: Fraction = 1e-3
     """Adaptive birth: a measurement whose birth existence is below this fraction of the
     largest one of its scan gets no Bernoulli (relative, so it cannot remove every birth)."""
     birth_velocity_std: Positive = 20.0

@@ -16,8 +16,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.config import (ConfigError, NonNeg, Positive, Prob, apply_overrides, convert, did_you_mean, load_toml,
-                            read_toml)
+from tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, apply_overrides, convert, did_you_mean,
+                            load_toml, read_toml)
 from tracker.models.clutter import ClutterModel, Detection
 from tracker.models.measurement import DEFAULT_KIND, MeasurementModel, measurement_kind
 from tracker.models.motion import CoordinatedTurn
@@ -64,7 +64,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sigma_xy: Positive = 10.0
     """Position noise std (m) per axis of ``xy`` detections (``R = sigma_xy^2 I``)."""
     range_max: Positive = 2000.0
-    bearing_half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 90.0
+    bearing_half_fov_deg: HalfFovDeg = 90.0
     snr_db: float | None = None
     """If set, measurement noise variance is scaled by ``10**(-snr_db/10)``."""
     snr_pd_reference_db: float | None = None

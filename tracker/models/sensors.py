@@ -17,13 +17,10 @@ bearings, from :math:`+y` towards :math:`+x`, in radians here and in degrees in 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
 
 import msgspec
 
-Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
-NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+from tracker.config import HalfFovDeg, NonNeg, Positive, Prob
 
 
 class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -37,7 +34,7 @@ class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Boresight direction, degrees from +y towards +x."""
     range_min: NonNeg = 0.0
     range_max: Positive | None = None
-    half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] | None = None
+    half_fov_deg: HalfFovDeg | None = None
     sigma_bearing_deg: Positive | None = None
     sigma_range: Positive | None = None
     sigma_xy: Positive | None = None
