@@ -168,7 +168,7 @@ def _child_share(args: argparse.Namespace, tmp: Path, params, kept: list) -> tup
     with the child's settings, over the frames and estimates ``kept``, in this process."""
     from sinks.rerun_sink import RerunSink
     from sinks.rerun_writer import CHILD_FLUSH_INTERVAL
-    from sinks.scoring import RunScorer
+    from sinks.metrics import RunScorer
 
     score, sink_log, sink_closes = [], [], []
     for r in range(args.repeats):

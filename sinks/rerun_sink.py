@@ -67,7 +67,7 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
-from sinks.scoring import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
+from sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
 from tracker.types import Estimate, Frame
 
 if TYPE_CHECKING:

@@ -1,7 +1,7 @@
 """A Rerun recording written by a child process, off the tracker's critical path.
 
 :class:`RecordingProcess` records a run like :func:`sinks.rerun_sink.write_recording` does
-(each frame scored by :class:`sinks.scoring.RunScorer`, then logged to a
+(each frame scored by :class:`sinks.metrics.RunScorer`, then logged to a
 :class:`sinks.rerun_sink.RerunSink`), but the sink runs in a child Python process.  The
 tracker's process scores the frame (about 0.3 ms: OSPA and OSPA(2); scipy is loaded there
 anyway), pickles ``(frame, estimate, scores)`` (about 0.1 ms) and writes the bytes to the
@@ -55,7 +55,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 
-from sinks.scoring import RunScorer
+from sinks.metrics import RunScorer
 
 if TYPE_CHECKING:
     from sinks.metrics import OspaResult
