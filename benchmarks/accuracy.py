@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from sinks.metrics import ospa, ospa2_series  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
-from sinks.metrics import crossing_label_keeping  # noqa: E402
+from sinks.crossings import crossing_label_keeping  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.registry import build, kind  # noqa: E402
 from tracker.config import apply_overrides  # noqa: E402

@@ -24,7 +24,8 @@ from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sinks.metrics import adjusted_rand_index, ospa, ospa2_series  # noqa: E402
+from sinks.metrics import ospa, ospa2_series  # noqa: E402
+from sinks.partitions import adjusted_rand_index  # noqa: E402
 from sources.scenarios import get_scenario, is_generated  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.config import apply_overrides  # noqa: E402

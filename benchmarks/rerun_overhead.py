@@ -9,7 +9,7 @@ Two parts:
    command) and CPU time (user + sys of the command and its children, from
    ``resource.getrusage(RUSAGE_CHILDREN)``).  Prints the medians, the ratio of the medians and
    the median of the per-pair ratios.  With ``--rrd`` the recording is written by a child process
-   (``sinks.rerun_writer``), so the wall clock shows what the user waits for and the CPU time
+   (``sinks.rerun_process``), so the wall clock shows what the user waits for and the CPU time
    what the recording costs in all.  Each round also runs the command without ``--rrd`` beside
    a process that only imports rerun (``import sinks.rerun_sink``), started with it: the
    machine's floor, the slowdown the recording's unavoidable import alone causes on the other
@@ -125,7 +125,7 @@ def _row(name: str, ms: np.ndarray) -> str:
 
 
 def frame_part(args: argparse.Namespace, tmp: Path) -> None:
-    from sinks.rerun_writer import RecordingProcess
+    from sinks.rerun_process import RecordingProcess
     from tracker.state import run
 
     tracker, params, frames = _setup(args)
@@ -167,8 +167,8 @@ def _child_share(args: argparse.Namespace, tmp: Path, params, kept: list) -> tup
     """Scoring (s per frame), and ``RerunSink.log`` (s per frame) and ``close`` (s per run)
     with the child's settings, over the frames and estimates ``kept``, in this process."""
     from sinks.rerun_sink import RerunSink
-    from sinks.rerun_writer import CHILD_FLUSH_INTERVAL
-    from sinks.scoring import RunScorer
+    from sinks.rerun_process import CHILD_FLUSH_INTERVAL
+    from sinks.metrics import RunScorer
 
     score, sink_log, sink_closes = [], [], []
     for r in range(args.repeats):

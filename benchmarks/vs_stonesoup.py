@@ -40,7 +40,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks.anchor_convert import JpdaSettings, PhdSettings  # noqa: E402
 from benchmarks.accuracy import label_switches  # noqa: E402
-from sinks.metrics import crossing_label_keeping, ospa, ospa2_series  # noqa: E402
+from sinks.crossings import crossing_label_keeping  # noqa: E402
+from sinks.metrics import ospa, ospa2_series  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.config import apply_overrides  # noqa: E402

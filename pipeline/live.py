@@ -109,7 +109,7 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
     seconds.  Its output goes to a log file in the temporary directory (named in errors).
     """
     from pipeline.view import ViewerUnavailable, _unavailable
-    from sinks.rerun_sink import RerunToolError, rerun_cli, rerun_env
+    from sinks.rerun_tools import RerunToolError, rerun_cli, rerun_env
 
     if headless is None:
         headless = os.environ.get(HEADLESS_ENV, "0") not in ("", "0")

@@ -1,7 +1,7 @@
 """Open a Rerun recording (``.rrd``) in the viewer, or render it to a PNG without a screen.
 
 Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
-(:func:`sinks.rerun_sink.rerun_cli`), so the viewer always matches the SDK that wrote the file.
+(:func:`sinks.rerun_tools.rerun_cli`), so the viewer always matches the SDK that wrote the file.
 
 * :func:`open_viewer` runs ``rerun FILE.rrd`` (a window; needs a display), or serves the web
   viewer on 127.0.0.1 with ``web=True``.
@@ -12,9 +12,9 @@ Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
   whole viewer through the viewer's control API (``rerun.experimental.ViewerClient``).  The
   viewer listens on a free port of 127.0.0.1 only and is stopped afterwards.
 * :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run
-  (``bnptrack track --rrd``), written by a child process (:mod:`sinks.rerun_writer`).
+  (``bnptrack track --rrd``), written by a child process (:mod:`sinks.rerun_process`).
 
-Subprocesses run with :func:`sinks.rerun_sink.rerun_env`: the CLI's analytics off (``CI`` set)
+Subprocesses run with :func:`sinks.rerun_tools.rerun_env`: the CLI's analytics off (``CI`` set)
 and its log quiet, except the interactive viewer of :func:`open_viewer`, which keeps the user's
 own ``rerun analytics`` choice.
 """
@@ -26,13 +26,13 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from pipeline.offline import TrackResult
-    from sinks.rerun_writer import RecordingProcess
+    from sinks.rerun_process import RecordingProcess
     from tracker.registry import Tracker
     from tracker.models.params import ModelParams
     from tracker.types import FrameBounds
@@ -66,7 +66,7 @@ def open_viewer(path: str | os.PathLike, *, web: bool = False,
     printed URL in a browser).  Raises :class:`ViewerUnavailable` when there is no
     display for the native viewer (Linux without ``DISPLAY`` / ``WAYLAND_DISPLAY``).
     """
-    from sinks.rerun_sink import rerun_cli, rerun_env
+    from sinks.rerun_tools import rerun_cli, rerun_env
 
     path = _check_rrd(path)
     cmd = [*rerun_cli(), str(path), "--bind", "127.0.0.1"]  # its server: this machine only
@@ -133,13 +133,33 @@ def screenshot(
     """
     import tempfile
 
-    from sinks.rerun_sink import RerunToolError, rerun_cli, rerun_env
-
     path = _check_rrd(path).resolve()
     out_png = Path(out_png)
     width, height = (int(v) for v in size)
     if width < 64 or height < 64:
         raise ValueError(f"size must be at least 64x64, got {width}x{height}")
+    client_cls = _viewer_client_class()
+    cli = _cli()
+    deadline = time.monotonic() + timeout
+    port = _free_port()
+    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp:
+        log = Path(tmp) / "viewer.log"
+        proc = _start_headless(cli, port, (width, height), log)
+        try:
+            client = _connect(client_cls, proc, port, deadline, log)
+            _call(lambda: client.open(str(path)), proc, deadline, log)
+            state = _wait_loaded(client, proc, deadline, log)
+            k = _pick_frame(state, path, timeline, frame)
+            png = _capture(client, proc, deadline, log, timeline, k, lambda: _view_id(state, view))
+            out_png.parent.mkdir(parents=True, exist_ok=True)
+            out_png.write_bytes(png)
+            return out_png
+        finally:
+            _stop(proc)
+
+
+def _viewer_client_class() -> Any:
+    """``rerun.experimental.ViewerClient`` (rerun-sdk 0.41), else :class:`ViewerUnavailable`."""
     try:
         from rerun.experimental import ViewerClient
     except ImportError as exc:  # pragma: no cover - other rerun-sdk versions
@@ -147,60 +167,76 @@ def screenshot(
             f"rerun.experimental.ViewerClient is not available in this rerun-sdk ({exc}); "
             "bnptrack needs rerun-sdk 0.41"
         ) from exc
+    return ViewerClient
+
+
+def _cli() -> list[str]:
+    """The ``rerun`` command (:func:`sinks.rerun_tools.rerun_cli`), else :class:`ViewerUnavailable`."""
+    from sinks.rerun_tools import RerunToolError, rerun_cli
+
     try:
-        cli = rerun_cli()
+        return rerun_cli()
     except RerunToolError as exc:
         raise ViewerUnavailable(str(exc)) from exc
 
-    deadline = time.monotonic() + timeout
-    port = _free_port()
+
+def _start_headless(cli: list[str], port: int, size: tuple[int, int], log: Path) -> subprocess.Popen:
+    """Start the headless viewer on 127.0.0.1:``port`` at ``size``, its output to ``log``."""
+    from sinks.rerun_tools import rerun_env
+
     env = rerun_env()
     env["RERUN_APP_ONLY"] = "true"
     cmd = [*cli, "--headless", "--bind", "127.0.0.1", "--port", str(port),
-           "--window-size", f"{width}x{height}", "--hide-welcome-screen",
+           "--window-size", f"{size[0]}x{size[1]}", "--hide-welcome-screen",
            "--memory-limit", "2GB", "--server-memory-limit", "512MiB"]
-    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp:
-        log = Path(tmp) / "viewer.log"
-        with open(log, "wb") as log_f:
-            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log_f,
-                                    stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        try:
-            client = _connect(ViewerClient, proc, port, deadline, log)
-            _call(lambda: client.open(str(path)), proc, deadline, log)
-            state = _wait_loaded(client, proc, deadline, log)
-            rec = next((r for r in state.recordings if r.store_id == state.active_recording),
-                       state.recordings[0] if state.recordings else None)
-            if rec is None:
-                raise ViewerUnavailable(f"the viewer opened no recording from {path}")
-            tl = next((t for t in rec.timelines if t.name == timeline), None)
-            if tl is None or tl.start is None or tl.end is None:
-                names = ", ".join(t.name for t in rec.timelines) or "none"
-                raise ValueError(f"{path} has no data on timeline {timeline!r} (timelines: {names})")
-            k = tl.end if frame is None else int(frame)
-            if not tl.start <= k <= tl.end:
-                raise ValueError(f"frame {k} is outside the recording ({timeline} {tl.start}..{tl.end})")
-            # no top bar in the picture: it carries the viewer's notices ("Software rasterizer",
-            # the notification bell), not the recording
-            _call(lambda: client.run_command("ui.toggle_top_panel"), proc, deadline, log)
-            _call(lambda: client.set_time(timeline, sequence=k, play_state="paused"), proc, deadline, log)
-            time.sleep(0.3)  # let the plots settle on the new cursor before painting
-            view_id = None
-            if view is not None:
-                match = [v for v in state.views if v.name.startswith(view)]
-                if not match:
-                    names = ", ".join(repr(v.name) for v in state.views)
-                    raise ValueError(f"no view named {view!r}... in the recording (views: {names})")
-                view_id = match[0].view_id
-            png = b""
-            for _ in range(2):  # the second paint has the layout of the first
-                png = _call(lambda: client.take_screenshot(view_id), proc, deadline, log)
-            if not png.startswith(b"\x89PNG"):
-                raise ViewerUnavailable("the viewer returned no PNG")
-            out_png.parent.mkdir(parents=True, exist_ok=True)
-            out_png.write_bytes(png)
-            return out_png
-        finally:
-            _stop(proc)
+    with open(log, "wb") as log_f:
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log_f,
+                                stderr=subprocess.STDOUT, env=env, start_new_session=True)
+
+
+def _pick_frame(state: Any, path: Path, timeline: str, frame: int | None) -> int:
+    """The time to show: ``frame`` (default: the last) on ``timeline`` of the active recording."""
+    rec = next((r for r in state.recordings if r.store_id == state.active_recording),
+               state.recordings[0] if state.recordings else None)
+    if rec is None:
+        raise ViewerUnavailable(f"the viewer opened no recording from {path}")
+    tl = next((t for t in rec.timelines if t.name == timeline), None)
+    if tl is None or tl.start is None or tl.end is None:
+        names = ", ".join(t.name for t in rec.timelines) or "none"
+        raise ValueError(f"{path} has no data on timeline {timeline!r} (timelines: {names})")
+    k = tl.end if frame is None else int(frame)
+    if not tl.start <= k <= tl.end:
+        raise ValueError(f"frame {k} is outside the recording ({timeline} {tl.start}..{tl.end})")
+    return k
+
+
+def _view_id(state: Any, view: str | None) -> Any:
+    """The id of the first view whose name starts with ``view`` (``None``: the whole window)."""
+    if view is None:
+        return None
+    match = [v for v in state.views if v.name.startswith(view)]
+    if not match:
+        names = ", ".join(repr(v.name) for v in state.views)
+        raise ValueError(f"no view named {view!r}... in the recording (views: {names})")
+    return match[0].view_id
+
+
+def _capture(client: Any, proc: subprocess.Popen, deadline: float, log: Path, timeline: str, k: int,
+             pick_view: Callable[[], Any]) -> bytes:
+    """The PNG of the view ``pick_view()`` gives (``None``: the whole window) with the time
+    cursor paused at ``k``, without the top bar."""
+    # no top bar in the picture: it carries the viewer's notices ("Software rasterizer",
+    # the notification bell), not the recording
+    _call(lambda: client.run_command("ui.toggle_top_panel"), proc, deadline, log)
+    _call(lambda: client.set_time(timeline, sequence=k, play_state="paused"), proc, deadline, log)
+    time.sleep(0.3)  # let the plots settle on the new cursor before painting
+    view_id = pick_view()
+    png = b""
+    for _ in range(2):  # the second paint has the layout of the first
+        png = _call(lambda: client.take_screenshot(view_id), proc, deadline, log)
+    if not png.startswith(b"\x89PNG"):
+        raise ViewerUnavailable("the viewer returned no PNG")
+    return png
 
 
 def _call(fn: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
@@ -286,17 +322,17 @@ def track_log_with_rrd(
     """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``
     (and streams it to the viewer at the gRPC URL ``live``, when given: ``track --view``).
 
-    Each frame is scored (:class:`sinks.rerun_sink.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
+    Each frame is scored (:class:`sinks.metrics.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
     over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
     with ``metadata`` (plus ``source_log``).  Both run in a child process
-    (:class:`sinks.rerun_writer.RecordingProcess`; pass ``recorder`` to have it started early,
+    (:class:`sinks.rerun_process.RecordingProcess`; pass ``recorder`` to have it started early,
     e.g. before building the tracker, so its imports overlap the tracker's), which logs one
     frame while the tracker computes the next.  Like ``track_log``, a damaged input is
     processed up to its readable end; both outputs then hold that prefix (the recording is
     finalised).  The recording is complete when this returns.
     """
     from pipeline.offline import check_output_path, track_log
-    from sinks.rerun_writer import RecordingProcess
+    from sinks.rerun_process import RecordingProcess
 
     log, out, rrd = Path(log), Path(out), Path(rrd)
     with recorder if recorder is not None else RecordingProcess() as rec:

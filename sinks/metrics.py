@@ -1,5 +1,9 @@
-r"""Multi-object tracking performance metrics: OSPA, OSPA(2), GOSPA, cardinality error and
-label keeping through crossings (:func:`crossing_label_keeping`).
+r"""Multi-object tracking performance metrics: OSPA, OSPA(2), GOSPA and cardinality error, and
+the running scores of a run as frames arrive (:class:`RunScorer`, :class:`ScoreTally`).  Label
+keeping through crossings is :mod:`sinks.crossings`, the adjusted Rand index
+:mod:`sinks.partitions`, the input checks :mod:`sinks.metric_checks`.  This module imports
+neither rerun nor scipy at import (scipy comes with the first score), so a process can score
+frames without paying for the recording's imports and vice versa.
 
 All functions take plain numpy arrays (or anything :func:`numpy.asarray` accepts) and return
 frozen dataclasses or floats. Inputs are validated once at the public functions; the private
@@ -29,29 +33,25 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Mapping, Sequence
+from collections import deque
+from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass
 from itertools import chain
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = [
-    "CrossingPairResult",
-    "CrossingResult",
-    "crossing_label_keeping",
-    "GospaResult",
-    "adjusted_rand_index",
-    "OspaResult",
-    "cardinality_error",
-    "gospa",
-    "ospa",
-    "ospa2",
-    "ospa2_series",
-    "track_distance",
-]
+from sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
+                                 check_positive, check_same_dim, check_tracks, optimal_assignment)
+from tracker.types import Estimate, Frame
 
-LabelledScan = Mapping[Hashable, ArrayLike]
+# TEMPORARY re-export (issue 12 wave 1): removed at merge
+from sinks.crossings import CrossingPairResult, CrossingResult, crossing_label_keeping  # noqa: E402,F401
+from sinks.partitions import adjusted_rand_index  # noqa: E402,F401
+
+__all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
+           "track_distance", "RunScorer", "ScoreTally", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
 
 
 # --------------------------------------------------------------------------- results
@@ -93,105 +93,6 @@ class GospaResult:
         return asdict(self)
 
 
-# --------------------------------------------------------------------------- validation
-
-
-def _check_positive(value: object, name: str) -> float:
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
-def _check_order(value: object, name: str) -> float:
-    v = _check_positive(value, name)
-    if v < 1.0:
-        raise ValueError(f"{name} must be >= 1 (the metric needs order >= 1), got {value!r}")
-    return v
-
-
-def _check_alpha(value: object) -> float:
-    v = _check_positive(value, "alpha")
-    if v > 2.0:
-        raise ValueError(f"alpha must be in (0, 2] (GOSPA is a metric only there), got {value!r}")
-    return v
-
-
-def _check_points(A: ArrayLike, name: str) -> np.ndarray:
-    """``(m, d)`` finite float array; ``[]`` becomes ``(0, 0)`` (empty, dimension unknown)."""
-    arr = np.asarray(A, dtype=float)
-    if arr.ndim == 1 and arr.size == 0:
-        arr = arr.reshape(0, 0)
-    if arr.ndim != 2:
-        raise ValueError(f"{name} must be an (m, d) point array, got shape {arr.shape}")
-    if arr.shape[0] > 0 and arr.shape[1] == 0:
-        raise ValueError(f"{name} has points with no coordinates (shape {arr.shape})")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or infinite values")
-    return arr
-
-
-def _check_same_dim(X: np.ndarray, Y: np.ndarray, nx: str, ny: str) -> None:
-    """Trailing dimensions must agree unless one side is an empty set given without one."""
-    if X.shape[-1] == 0 and X.shape[0] == 0 or Y.shape[-1] == 0 and Y.shape[0] == 0:
-        return
-    if X.shape[1:] != Y.shape[1:]:
-        raise ValueError(
-            f"{nx} and {ny} have mismatched dimensions: {X.shape[1:]} vs {Y.shape[1:]}"
-        )
-
-
-def _check_tracks(A: ArrayLike, name: str) -> np.ndarray:
-    """``(n, W, d)`` float array with whole-position NaNs only; never-existing tracks dropped."""
-    arr = np.asarray(A, dtype=float)
-    if arr.ndim == 1 and arr.size == 0:
-        arr = arr.reshape(0, 0, 0)
-    if arr.ndim != 3:
-        raise ValueError(f"{name} must be an (n_tracks, W, d) array, got shape {arr.shape}")
-    if arr.shape[0] > 0 and arr.shape[1] > 0 and arr.shape[2] == 0:
-        raise ValueError(f"{name} has positions with no coordinates (shape {arr.shape})")
-    if np.any(np.isinf(arr)):
-        raise ValueError(f"{name} contains infinite values")
-    nan = np.isnan(arr)
-    if np.any(nan.any(axis=-1) != nan.all(axis=-1)):
-        raise ValueError(f"{name} has partially-NaN positions (a position is all NaN or finite)")
-    exists = ~nan.all(axis=-1)  # (n, W); all False when d == 0
-    return arr[exists.any(axis=1)]
-
-
-def _check_labelled_run(run: Sequence[LabelledScan], name: str) -> tuple[list[dict], int | None]:
-    """Per-scan ``{label: (d,) position}`` dicts -> (list of dicts of arrays, d or None)."""
-    if isinstance(run, (str, bytes, Mapping)) or not isinstance(run, Sequence):
-        raise ValueError(
-            f"{name} must be a sequence (one entry per scan) of label -> position dicts"
-        )
-    out: list[dict] = []
-    dim: int | None = None
-    for k, scan in enumerate(run):
-        if not isinstance(scan, Mapping):
-            raise ValueError(f"{name}[{k}] must be a mapping label -> position, got {type(scan)}")
-        conv = {}
-        for label, pos in scan.items():
-            x = np.asarray(pos, dtype=float)
-            if x.ndim != 1 or x.size == 0:
-                raise ValueError(f"{name}[{k}][{label!r}] must be a (d,) position, got {x.shape}")
-            if not np.all(np.isfinite(x)):
-                raise ValueError(f"{name}[{k}][{label!r}] contains NaN or infinite values")
-            if dim is not None and x.size != dim:
-                raise ValueError(f"{name}[{k}][{label!r}] has dimension {x.size}, expected {dim}")
-            dim = x.size
-            conv[label] = x
-        out.append(conv)
-    return out, dim
-
-
-def _as_scans(run: list[dict], dim: int) -> list[tuple[tuple[Hashable, ...], np.ndarray]]:
-    """Checked ``{label: position}`` scans as (labels, ``(n, dim)`` positions)."""
-    return [(tuple(scan), np.array(list(scan.values()), dtype=float).reshape(len(scan), dim)) for scan in run]
-
 
 # --------------------------------------------------------------------------- hot path
 
@@ -204,21 +105,10 @@ def _cutoff_distances(X: np.ndarray, Y: np.ndarray, c: float) -> np.ndarray:
     """``(m, n)`` matrix of :math:`\\min(c, \\lVert x_i - y_j \\rVert)`."""
     if X.shape[0] == 0 or Y.shape[0] == 0:
         return np.empty((X.shape[0], Y.shape[0]))
-    from scipy.spatial.distance import cdist  # lazy, see _assign
+    from scipy.spatial.distance import cdist  # lazy, see optimal_assignment
 
     return np.minimum(cdist(X, Y), c)
 
-
-def _assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Optimal assignment (:func:`scipy.optimize.linear_sum_assignment`).
-
-    scipy is imported here, at the first score: importing ``scipy.optimize`` takes about 0.5 s,
-    which a process that only unpickles :class:`OspaResult` (the Rerun recording process, see
-    ``sinks.rerun_writer``) should not pay.
-    """
-    from scipy.optimize import linear_sum_assignment
-
-    return linear_sum_assignment(cost)
 
 
 def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
@@ -231,7 +121,7 @@ def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
     if m == 0:
         return OspaResult(c, 0.0, c)
     cost = D**p
-    rows, cols = _assign(cost)
+    rows, cols = optimal_assignment(cost)
     loc_term = math.fsum(cost[rows, cols]) / n  # correctly rounded, order-free
     card_term = c**p * (n - m) / n
     return OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
@@ -241,7 +131,7 @@ def _gospa_unchecked(D: np.ndarray, c: float, p: float, alpha: float) -> GospaRe
     """GOSPA from an ``(m, n)`` truth-by-estimate matrix of distances cut off at ``c``."""
     m, n = D.shape
     if m and n:
-        rows, cols = _assign(D**p)
+        rows, cols = optimal_assignment(D**p)
         d = D[rows, cols]
     else:
         d = np.empty(0)
@@ -279,7 +169,7 @@ def _track_distances(X: np.ndarray, Y: np.ndarray, c: float, q: float) -> np.nda
 def _window_tracks(run: Sequence[tuple[tuple[Hashable, ...], np.ndarray]], dim: int) -> np.ndarray:
     """``(n_labels, len(run), dim)`` NaN-padded array of the labels present in ``run``
     (first-seen order), each scan given as (labels, ``(n, dim)`` positions): one indexed write
-    per scan.  Shared by :func:`ospa2_series` and :class:`sinks.scoring.RunScorer`."""
+    per scan.  Shared by :func:`ospa2_series` and :class:`RunScorer`."""
     index = {label: i for i, label in enumerate(dict.fromkeys(chain.from_iterable(lab for lab, _ in run)))}
     arr = np.full((len(index), len(run), dim), np.nan)
     for t, (labels, pos) in enumerate(run):
@@ -317,9 +207,9 @@ def ospa(X: ArrayLike, Y: ArrayLike, c: float = 100.0, p: float = 1.0) -> OspaRe
         c: cut-off, > 0.
         p: order, >= 1.
     """
-    c, p = _check_positive(c, "c"), _check_order(p, "p")
-    X, Y = _check_points(X, "X"), _check_points(Y, "Y")
-    _check_same_dim(X, Y, "X", "Y")
+    c, p = check_positive(c, "c"), check_order(p, "p")
+    X, Y = check_points(X, "X"), check_points(Y, "Y")
+    check_same_dim(X, Y, "X", "Y")
     return _ospa_unchecked(_cutoff_distances(X, Y, c), c, p)
 
 
@@ -361,9 +251,9 @@ def gospa(
         p: order, >= 1.
         alpha: cardinality-mismatch weight in (0, 2]; 2 is the standard choice.
     """
-    c, p, alpha = _check_positive(c, "c"), _check_order(p, "p"), _check_alpha(alpha)
-    X, Y = _check_points(X, "X"), _check_points(Y, "Y")
-    _check_same_dim(X, Y, "X", "Y")
+    c, p, alpha = check_positive(c, "c"), check_order(p, "p"), check_alpha(alpha)
+    X, Y = check_points(X, "X"), check_points(Y, "Y")
+    check_same_dim(X, Y, "X", "Y")
     return _gospa_unchecked(_cutoff_distances(X, Y, c), c, p, alpha)
 
 
@@ -382,14 +272,14 @@ def track_distance(x: ArrayLike, y: ArrayLike, c: float = 100.0, q: float = 1.0)
     (the OSPA distance between the at-most-singleton sets :math:`\{x_t\}` and :math:`\{y_t\}`),
     and 0 when :math:`\mathcal T = \emptyset`. ``q = 1`` is the plain mean.
     """
-    c, q = _check_positive(c, "c"), _check_order(q, "q")
+    c, q = check_positive(c, "c"), check_order(q, "q")
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     for name, arr in (("x", x), ("y", y)):
         if arr.ndim != 2:
             raise ValueError(f"{name} must be a (W, d) array, got shape {arr.shape}")
     if x.shape != y.shape:
         raise ValueError(f"x and y have mismatched shapes: {x.shape} vs {y.shape}")
-    xs, ys = _check_tracks(x[None], "x"), _check_tracks(y[None], "y")
+    xs, ys = check_tracks(x[None], "x"), check_tracks(y[None], "y")
     if xs.shape[0] == 0 or ys.shape[0] == 0:  # a never-existing track
         return 0.0 if xs.shape[0] == ys.shape[0] else c
     return float(_track_distances(xs, ys, c, q)[0, 0])
@@ -418,9 +308,9 @@ def ospa2(
         p: outer (OSPA) order, >= 1.
         q: order of the time average in the base distance, >= 1 (1: plain mean).
     """
-    c, p, q = _check_positive(c, "c"), _check_order(p, "p"), _check_order(q, "q")
-    X, Y = _check_tracks(tracks_X, "tracks_X"), _check_tracks(tracks_Y, "tracks_Y")
-    _check_same_dim(X, Y, "tracks_X", "tracks_Y")
+    c, p, q = check_positive(c, "c"), check_order(p, "p"), check_order(q, "q")
+    X, Y = check_tracks(tracks_X, "tracks_X"), check_tracks(tracks_Y, "tracks_Y")
+    check_same_dim(X, Y, "tracks_X", "tracks_Y")
     return _ospa_unchecked(_track_distances(X, Y, c, q), c, p)
 
 
@@ -447,11 +337,11 @@ def ospa2_series(
     Returns:
         ``(K,)`` float array of OSPA(2) totals.
     """
-    c, p, q = _check_positive(c, "c"), _check_order(p, "p"), _check_order(q, "q")
+    c, p, q = check_positive(c, "c"), check_order(p, "p"), check_order(q, "q")
     if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
         raise ValueError(f"window must be an integer >= 1, got {window!r}")
-    est, d_est = _check_labelled_run(est_tracks, "est_tracks")
-    true, d_true = _check_labelled_run(true_tracks, "true_tracks")
+    est, d_est = check_labelled_run(est_tracks, "est_tracks")
+    true, d_true = check_labelled_run(true_tracks, "true_tracks")
     if len(est) != len(true):
         raise ValueError(
             f"est_tracks and true_tracks must have one entry per scan: {len(est)} vs {len(true)}"
@@ -464,7 +354,7 @@ def ospa2_series(
     out = np.zeros(len(est))
     if dim is None:
         return out
-    est_scans, true_scans = _as_scans(est, dim), _as_scans(true, dim)
+    est_scans, true_scans = as_scans(est, dim), as_scans(true, dim)
     for k in range(len(est)):
         start = max(0, k - int(window) + 1)
         X = _window_tracks(est_scans[start:k + 1], dim)
@@ -491,137 +381,107 @@ def cardinality_error(n_est: float, n_true: float) -> float:
     return abs(vals[0] - vals[1])
 
 
-# --------------------------------------------------------------------------- partitions
+# --------------------------------------------------------------------------- running scores
+
+#: OSPA cut-off (m) and order of the paper's experiments: ``bnptrack track``, the experiments
+#: and the recordings all use these.
+OSPA_C = 100.0
+OSPA_P = 1.0
+#: OSPA(2) sliding window in scans (and its inner order q = 1).
+OSPA2_WINDOW = 10
 
 
-def adjusted_rand_index(a: Sequence[Hashable], b: Sequence[Hashable]) -> float:
-    r"""Adjusted Rand index of two partitions of the same items (Hubert & Arabie 1985).
+class RunScorer:
+    """Per-frame OSPA and OSPA(2) of a run, computed as frames arrive.
 
-    ``a[i]``, ``b[i]``: the blocks of item ``i``.  With the contingency table :math:`n_{ij}`,
-    row sums :math:`a_i`, column sums :math:`b_j` and :math:`\binom{\cdot}{2}` pair counts,
+    ``update(frame, estimate)`` returns ``{"ospa": OspaResult | None, "ospa2": float | None}``
+    (``None`` for a frame without truth), ready to pass to :meth:`sinks.rerun_sink.RerunSink.log`.  OSPA is
+    :func:`ospa` of (truth positions, estimated positions), as
+    ``pipeline.offline.frame_metrics`` computes it; OSPA(2) at frame k is
+    :func:`ospa2` over the last ``window`` frames, the value
+    :func:`ospa2_series` gives at k for the whole run.
 
-    .. math::
-        \mathrm{ARI} = \frac{\sum_{ij} \binom{n_{ij}}{2} - E}{\tfrac12 (\sum_i \binom{a_i}{2}
-        + \sum_j \binom{b_j}{2}) - E}, \qquad
-        E = \sum_i \binom{a_i}{2} \sum_j \binom{b_j}{2} \Big/ \binom{n}{2} .
-
-    1 for identical partitions, about 0 for chance agreement.  When the denominator is 0 (fewer
-    than 2 items, or both partitions all singletons / both one block) the partitions are equal
-    and the index is 1.
-    """
-    if len(a) != len(b):
-        raise ValueError(f"the partitions cover {len(a)} and {len(b)} items")
-    _, ia = np.unique(np.asarray([str(x) for x in a], dtype=object), return_inverse=True)
-    _, ib = np.unique(np.asarray([str(x) for x in b], dtype=object), return_inverse=True)
-    n = len(a)
-    table = np.zeros((ia.max(initial=-1) + 1, ib.max(initial=-1) + 1))
-    np.add.at(table, (ia, ib), 1.0)
-
-    def pairs(x: np.ndarray) -> float:
-        return float(np.sum(x * (x - 1.0) / 2.0))
-
-    index, sa, sb = pairs(table), pairs(table.sum(axis=1)), pairs(table.sum(axis=0))
-    expected = sa * sb / (n * (n - 1) / 2.0) if n >= 2 else 0.0
-    top = 0.5 * (sa + sb)
-    if top == expected:
-        return 1.0
-    return float((index - expected) / (top - expected))
-
-
-# --------------------------------------------------------------------------- crossings
-
-
-@dataclass(frozen=True, slots=True)
-class CrossingPairResult:
-    """Label keeping of one crossing pair ``(id_a, id_b)`` crossing at ``scan``.
-
-    ``before``/``after`` are the scans checked; ``labels_before``/``labels_after`` the track
-    labels assigned to ``(id_a, id_b)`` there (``None``: unassigned).  ``kept`` when all four
-    exist and each object has the same label before and after.
+    It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame, so it keeps
+    each scan as (labels, ``(n, 2)`` positions) and goes straight to the metrics' kernels
+    (the OSPA(2) window is built by the same ``_window_tracks`` as ``ospa2_series``'s);
+    the public functions' checks run only for a scan with a non-finite position, where they
+    raise their error.
     """
 
-    id_a: Hashable
-    id_b: Hashable
-    scan: int
-    before: int
-    after: int
-    labels_before: tuple[Hashable | None, Hashable | None]
-    labels_after: tuple[Hashable | None, Hashable | None]
-    kept: bool
+    def __init__(self, c: float = OSPA_C, p: float = OSPA_P, window: int = OSPA2_WINDOW,
+                 q: float = 1.0) -> None:
+        self.c, self.p, self.q, self.window = float(c), float(p), float(q), int(window)
+        self._est: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
+        self._true: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
+
+    def update(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> dict[str, Any]:
+        """The frame's scores.  ``ospa_result``: its OSPA if the caller has it already (the same
+        value, e.g. ``pipeline.offline.FrameMetrics.ospa_result``: ``bnptrack track --rrd``
+        scores every frame for its summary anyway); otherwise computed here."""
+        est = estimate.positions
+        self._est.append((estimate.labels, est))
+        if frame.truth is None:
+            self._true.append(((), _NO_POSITIONS))
+            return {"ospa": None, "ospa2": None}
+        truth = frame.truth
+        true = truth.positions
+        self._true.append((tuple(truth.ids), true))
+        if not (np.isfinite(est).all() and np.isfinite(true).all()):
+            ospa(true, est, c=self.c, p=self.p)  # raises, naming the bad position
+        o = ospa_result if ospa_result is not None else _ospa_unchecked(
+            _cutoff_distances(true, est, self.c), self.c, self.p)
+        X, Y = _window_tracks(list(self._est), 2), _window_tracks(list(self._true), 2)
+        o2 = _ospa_unchecked(_track_distances(X, Y, self.c, self.q), self.c, self.p).total
+        return {"ospa": o, "ospa2": float(o2)}
 
 
-@dataclass(frozen=True, slots=True)
-class CrossingResult:
-    """Fraction of crossing pairs that kept both labels (``nan`` without pairs) and each pair."""
-
-    fraction_kept: float
-    pairs: tuple[CrossingPairResult, ...]
+_NO_POSITIONS = np.zeros((0, 2))
 
 
-def _assigned_labels(truth: dict, est: dict, gate: float) -> dict:
-    """Object id -> track label by optimal assignment of positions; pairs at distance
-    ``>= gate`` stay unassigned (as ``benchmarks/accuracy.py``'s label-switch count)."""
-    if not truth or not est:
-        return {}
-    ids, labels = list(truth), list(est)
-    X = np.array([truth[i] for i in ids], dtype=float)
-    Y = np.array([est[j] for j in labels], dtype=float)
-    D = np.linalg.norm(X[:, None, :] - Y[None, :, :], axis=2)
-    rows, cols = _assign(np.minimum(D, gate))
-    return {ids[r]: labels[c] for r, c in zip(rows, cols) if D[r, c] < gate}
+class ScoreTally:
+    """Running means of a run's scores, for progress lines and summaries (the pipeline's
+    sink: ``sink.json`` ``scores``, its health messages, ``bnptrack launch``'s progress).
 
-
-def _presence(true: list[dict], obj: Hashable, first_scan: int) -> tuple[int, int]:
-    scans = [first_scan + k for k, scan in enumerate(true) if obj in scan]
-    if not scans:
-        raise ValueError(f"crossing object {obj!r} is never present in the truth")
-    return scans[0], scans[-1]
-
-
-def crossing_label_keeping(
-    true_tracks: Sequence[LabelledScan],
-    est_tracks: Sequence[LabelledScan],
-    crossings: Sequence[tuple[Hashable, Hashable, int]],
-    *,
-    offset: int = 5,
-    gate: float = 100.0,
-    first_scan: int = 1,
-) -> CrossingResult:
-    r"""Do both objects of each crossing pair keep their track label through the crossing?
-
-    ``true_tracks[k]`` / ``est_tracks[k]`` are the ``{id: position}`` / ``{label: position}``
-    dicts of scan ``first_scan + k``; ``crossings`` holds ``(id_a, id_b, scan)``.  For a pair
-    crossing at scan :math:`c` the scans checked are :math:`c - \text{offset}` and
-    :math:`c + \text{offset}`, clipped to the scans where *both* objects are present.  At each,
-    all true objects are optimally assigned (Hungarian) to the estimated tracks with cost
-    :math:`\min(\lVert x - y \rVert, \text{gate})`, pairs at distance ``>= gate`` unassigned.
-    The pair **keeps labels** when both objects have a label at both scans and each object's
-    label after equals its label before (a swap or a lost object fails).
+    ``add(frame, estimate, scores)`` takes one frame and its :meth:`RunScorer.update`
+    result.  Means are over the frames with truth (as ``bnptrack track``'s mean OSPA and
+    mean cardinality error: :func:`cardinality_error` = ``|n_est - n_true|``);
+    ``tracks`` is the number of tracks of the last frame, ``labels`` the number of distinct
+    labels reported so far.
     """
-    true, dim_t = _check_labelled_run(true_tracks, "true_tracks")
-    est, dim_e = _check_labelled_run(est_tracks, "est_tracks")
-    if len(true) != len(est):
-        raise ValueError(f"true_tracks has {len(true)} scans, est_tracks {len(est)}")
-    if dim_t is not None and dim_e is not None and dim_t != dim_e:
-        raise ValueError(f"true_tracks and est_tracks have dimensions {dim_t} and {dim_e}")
-    gate = _check_positive(gate, "gate")
-    last_scan = first_scan + len(true) - 1
-    out = []
-    for id_a, id_b, scan in crossings:
-        scan = int(scan)
-        if not first_scan <= scan <= last_scan:
-            raise ValueError(f"crossing ({id_a!r}, {id_b!r}) at scan {scan} is outside "
-                             f"{first_scan}..{last_scan}")
-        (fa, la), (fb, lb) = (_presence(true, o, first_scan) for o in (id_a, id_b))
-        before = max(scan - int(offset), fa, fb)
-        after = min(scan + int(offset), la, lb)
-        got = []
-        for s in (before, after):
-            k = s - first_scan
-            lab = _assigned_labels(true[k], est[k], gate)
-            got.append((lab.get(id_a), lab.get(id_b)))
-        (a0, b0), (a1, b1) = got
-        kept = None not in (a0, b0, a1, b1) and a0 == a1 and b0 == b1
-        out.append(CrossingPairResult(id_a, id_b, scan, before, after, got[0], got[1], kept))
-    frac = float(np.mean([p.kept for p in out])) if out else float("nan")
-    return CrossingResult(frac, tuple(out))
+
+    __slots__ = ("frames", "scored", "_ospa", "_ospa2", "_card", "tracks", "labels", "_seen", "last_ospa")
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.scored = 0
+        self._ospa = self._ospa2 = self._card = 0.0
+        self.tracks = 0
+        self.labels = 0
+        self._seen: set[str] = set()
+        self.last_ospa: float | None = None
+
+    def add(self, frame: Frame, estimate: Estimate, scores: dict[str, Any]) -> None:
+        self.frames += 1
+        labels = estimate.labels
+        self.tracks = len(labels)
+        self._seen.update(labels)
+        self.labels = len(self._seen)
+        o = scores.get("ospa")
+        if o is None or frame.truth is None:
+            return
+        self.scored += 1
+        self.last_ospa = float(o.total)
+        self._ospa += float(o.total)
+        self._ospa2 += float(scores.get("ospa2") or 0.0)
+        self._card += abs(len(labels) - len(frame.truth.ids))
+
+    def _mean(self, total: float) -> float | None:
+        return total / self.scored if self.scored else None
+
+    def as_dict(self) -> dict[str, Any]:
+        """``{"frames", "frames_scored", "ospa", "ospa2", "cardinality_error", "tracks",
+        "labels", "last_ospa"}`` (means; ``None`` without truth)."""
+        return {"frames": self.frames, "frames_scored": self.scored, "ospa": self._mean(self._ospa),
+                "ospa2": self._mean(self._ospa2), "cardinality_error": self._mean(self._card),
+                "tracks": self.tracks, "labels": self.labels, "last_ospa": self.last_ospa,
+                "c": OSPA_C, "p": OSPA_P, "ospa2_window": OSPA2_WINDOW}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sinks.metrics import adjusted_rand_index
+from sinks.partitions import adjusted_rand_index
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.bnp import TRACKER_PRESETS, BnpTracker

@@ -23,7 +23,8 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 from pipeline.live import check_viewer, is_viewer_url, viewer_url  # noqa: E402
-from sinks.rerun_sink import rerun_cli, rerun_env, write_recording  # noqa: E402
+from sinks.rerun_sink import write_recording  # noqa: E402
+from sinks.rerun_tools import rerun_cli, rerun_env  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.bnp_tracker import make_tracker  # noqa: E402

@@ -539,7 +539,7 @@ def _crossing_run(labels_a, labels_b, *, K=21, lost_b_at=()):
 
 
 def test_crossing_label_keeping_kept_swapped_lost():
-    from sinks.metrics import crossing_label_keeping
+    from sinks.crossings import crossing_label_keeping
 
     K = 21
     true, est = _crossing_run(["t1"] * K, ["t2"] * K)
@@ -569,7 +569,7 @@ def test_crossing_label_keeping_kept_swapped_lost():
 
 
 def test_crossing_label_keeping_gate_clipping_and_fraction():
-    from sinks.metrics import crossing_label_keeping
+    from sinks.crossings import crossing_label_keeping
 
     K = 21
     true, est = _crossing_run(["t1"] * K, ["t2"] * K)

@@ -1,5 +1,5 @@
 """Progress lines of `bnptrack launch` / `replay` (pipeline.progress) and the running scores
-behind them (sinks.scoring.ScoreTally)."""
+behind them (sinks.metrics.ScoreTally)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.progress import Progress, Status, progress_line
 from sinks.metrics import OspaResult
-from sinks.scoring import ScoreTally
+from sinks.metrics import ScoreTally
 from tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 

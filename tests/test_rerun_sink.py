@@ -6,7 +6,7 @@ and checked with the ``rerun`` CLI that ships in the rerun-sdk wheel.
 Analytics: rerun 0.41 has no analytics environment variable of its own (``RERUN_ANALYTICS`` is
 not read); its CLI and viewer skip analytics when ``CI`` is set, to any value.  ``CI`` is set
 here, before rerun is imported, so that every ``rerun`` subprocess of these tests inherits it
-(the SDK itself sends nothing); ``sinks.rerun_sink.rerun_env`` sets it for bnptrack's own
+(the SDK itself sends nothing); ``sinks.rerun_tools.rerun_env`` sets it for bnptrack's own
 subprocesses as well.  CI runs with ``CI=true`` anyway.
 """
 
@@ -31,18 +31,11 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from pipeline.view import ViewerUnavailable, png_stats, screenshot, track_log_with_rrd  # noqa: E402
-from sinks.metrics import ospa, ospa2_series  # noqa: E402
-from sinks.rerun_sink import (  # noqa: E402
-    PALETTE,
-    RerunSink,
-    RunScorer,
-    label_color,
-    repair,
-    rerun_cli,
-    rerun_env,
-    write_recording,
-)
-from sinks.rerun_writer import RecordingError, RecordingProcess  # noqa: E402
+from sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
+from sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
+from sinks.rerun_style import PALETTE, label_color  # noqa: E402
+from sinks.rerun_tools import repair, rerun_cli, rerun_env  # noqa: E402
+from sinks.rerun_process import RecordingError, RecordingProcess  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.bnp_tracker import make_tracker  # noqa: E402
@@ -306,7 +299,7 @@ def test_scene_grid_axes_and_legend(contents):
 
 
 def test_track_colours_differ_from_truth_sensor_and_measurement_colours():
-    from sinks.rerun_sink import GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, SENSOR_COLOR, WHITE_UNASSIGNED
+    from sinks.rerun_style import GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, SENSOR_COLOR, WHITE_UNASSIGNED
 
     reserved = np.array([c[:3] for c in (SENSOR_COLOR, GREY_TRUTH, GREY_CLUTTER, WHITE_UNASSIGNED)], float)
     d = np.linalg.norm(np.array(PALETTE, float)[:, None] - reserved[None], axis=-1)
@@ -581,7 +574,7 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
 _TRACKER = r"""
 import json, pickle, sys
 sys.path.insert(0, sys.argv[3])
-from sinks.rerun_writer import RecordingProcess
+from sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
 start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6] == "wait"
 with RecordingProcess(start=start) as rec:

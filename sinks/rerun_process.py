@@ -1,0 +1,412 @@
+"""A Rerun recording written by a child process, off the tracker's critical path.
+
+:class:`RecordingProcess` records a run like :func:`sinks.rerun_sink.write_recording` does
+(each frame scored by :class:`sinks.metrics.RunScorer`, then logged to a
+:class:`sinks.rerun_sink.RerunSink`), but the sink runs in a child Python process.  The
+tracker's process scores the frame (about 0.3 ms: OSPA and OSPA(2); scipy is loaded there
+anyway), pickles ``(frame, estimate, scores)`` (about 0.1 ms) and writes the bytes to the
+child's stdin without ever blocking: the pipe is asked for 1 MiB (a whole 100-frame run) and
+what it cannot take at once waits in memory for the next frame.  This module does not import
+rerun, so creating a :class:`RecordingProcess` costs the tracker's process a ``fork`` (or
+``fork``/``exec``) and nothing more.  The child is a fork of the tracker's process when that is
+safe (no other Python thread, rerun not imported), so that it does not start a new interpreter
+and import numpy & co. again (0.2-0.4 s of CPU); else a new interpreter (``exec``).
+
+Why a process: for an offline ``bnptrack track --rrd`` run of 100 vo2017 frames, importing
+rerun (0.6-0.8 s of CPU), building the blueprint and the final flush and footer add up to about
+0.9 s next to a 2.5-3 s run; in one process all of it is on the critical path.  The child
+starts importing rerun at once, before the run is described to it, so a caller that creates the
+process first (``bnptrack track`` does, before it builds the tracker) has those imports run on
+the other core beside the tracker's own imports; afterwards the child logs frame ``k`` while
+the tracker computes frame ``k + 1``, flushing every :data:`CHILD_FLUSH_INTERVAL` seconds, so
+that little is left to send once the input ends.  The child's CPU time is not saved, only moved
+off the critical path: on a machine whose cores are busy it shows in the wall time again.
+
+Protocol: the child's stdin carries pickled objects one after another, ``("open", path,
+metadata, params, sink_kwargs)`` once, then ``("frame", frame, estimate, scores)`` per frame.
+End of input ends the run: the child closes the sink (footer written), writes :data:`_DONE` to
+its stdout (the file is complete: :meth:`RecordingProcess.close` returns without waiting for
+the process's own exit, which a thread then reaps) and leaves at once (``os._exit``: rerun's
+exit hook and the interpreter's teardown would take another 0.2-0.3 s).  End of input before ``open`` (an aborted
+run) exits without creating a file.
+
+Failures and signals: the child's stderr goes to a temporary file; when the child ends without
+:data:`_DONE`, :meth:`RecordingProcess.close` raises :class:`RecordingError` with the tail of
+that stderr.  The child runs in a session of its own, so a Ctrl-C at the terminal reaches the
+tracker's process only, whose ``close`` (or, if it dies, the end of the pipe) finalises the
+file with every frame written to the pipe so far; a SIGTERM sent to the child itself finalises
+it too (``RerunSink``'s handler).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pickle
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
+
+from sinks.metrics import RunScorer
+
+if TYPE_CHECKING:
+    from sinks.metrics import OspaResult
+    from tracker.models.params import ModelParams
+    from tracker.types import Estimate, Frame
+
+__all__ = ["RecordingProcess", "RecordingError", "CHILD_FLUSH_INTERVAL", "fork_allowed", "child_main",
+           "child_entry"]
+
+#: ``RerunSink.flush_interval`` of the child (s), unless ``open`` is given another.
+CHILD_FLUSH_INTERVAL = 0.25
+#: Root of the source tree that holds ``sinks`` (put first on the child's ``PYTHONPATH``, so the
+#: child runs this very code whatever the parent's ``sys.path`` tricks were).
+_SOURCE_ROOT = Path(__file__).resolve().parents[1]
+_CHILD_CODE = "from sinks.rerun_process import child_entry; child_entry()"
+_DONE = b"done\n"
+_REAPER = "rerun-recording-reaper"
+_PIPE_SIZE = 1 << 20
+_STDERR_TAIL = 4000
+
+
+class RecordingError(RuntimeError):
+    """The recording process failed; the message ends with the tail of its stderr."""
+
+
+def _child_env() -> dict[str, str]:
+    env = dict(os.environ)
+    paths = [str(_SOURCE_ROOT), *filter(None, env.get("PYTHONPATH", "").split(os.pathsep))]
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+    env.setdefault("CI", "1")  # the SDK sends nothing; no rerun CLI runs in the child either
+    return env
+
+
+def fork_allowed() -> bool:
+    """Whether this process may fork the child: POSIX, no other Python thread (but the
+    reapers of earlier children, which only wait in ``waitpid``), and rerun not imported (its
+    runtime threads would be missing in the fork)."""
+    here = threading.current_thread()
+    others = [t for t in threading.enumerate() if t is not here and t.name != _REAPER]
+    return (hasattr(os, "fork") and not others
+            and "rerun" not in sys.modules and "rerun_bindings" not in sys.modules)
+
+
+def _start_child(start: str, stderr: IO[bytes]) -> subprocess.Popen[bytes] | _ForkedChild:
+    if start not in ("auto", "fork", "exec"):
+        raise ValueError(f"start must be 'auto', 'fork' or 'exec', got {start!r}")
+    if start == "fork" and not fork_allowed():
+        raise RuntimeError("RecordingProcess(start='fork'): not while rerun is imported or "
+                           "other threads run here; use 'exec'")
+    if start != "exec" and fork_allowed():
+        return _ForkedChild(stderr.fileno())
+    return subprocess.Popen(
+        [sys.executable, "-c", _CHILD_CODE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        stderr=stderr, env=_child_env(), start_new_session=True,
+    )
+
+
+class _ForkedChild:
+    """The child as a fork of this process, with the part of ``subprocess.Popen``'s surface
+    that :class:`RecordingProcess` uses (``stdin``, ``stdout``, ``kill``, ``wait``,
+    ``returncode``)."""
+
+    def __init__(self, stderr_fd: int) -> None:
+        in_r, in_w = os.pipe()
+        out_r, out_w = os.pipe()
+        sys.stdout.flush()  # so that the fork inherits no buffered output to write again
+        sys.stderr.flush()
+        self.pid = os.fork()
+        if self.pid == 0:
+            _forked_main(in_r, out_w, stderr_fd)
+        os.close(in_r)
+        os.close(out_w)
+        self.stdin: IO[bytes] = os.fdopen(in_w, "wb", buffering=0)
+        self.stdout: IO[bytes] = os.fdopen(out_r, "rb", buffering=0)
+        self.returncode: int | None = None
+
+    def kill(self) -> None:
+        if self.returncode is None:
+            try:
+                os.kill(self.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.returncode is None:
+            pid, status = os.waitpid(self.pid, 0 if deadline is None else os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+            elif time.monotonic() > deadline:  # type: ignore[operator]
+                raise subprocess.TimeoutExpired("rerun_process child", timeout or 0.0)
+            else:
+                time.sleep(0.005)
+        return self.returncode
+
+
+class _Outbox:
+    """Writes bytes to a pipe without blocking: what the pipe cannot take now is kept and goes
+    with the next :meth:`send`, or at :meth:`finish`.  A closed reader (the child died) makes
+    it :attr:`broken`; everything is dropped from then on."""
+
+    def __init__(self, pipe: IO[bytes]) -> None:
+        self._pipe = pipe
+        self._fd = pipe.fileno()
+        self._pending = bytearray()
+        self.broken = False
+        os.set_blocking(self._fd, False)
+        try:  # Linux: room for a whole short run while the child still imports rerun
+            fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, _PIPE_SIZE)
+        except (AttributeError, OSError):  # no such call, or above /proc/sys/fs/pipe-max-size
+            pass
+
+    def send(self, data: bytes) -> None:
+        if not self.broken:
+            self._pending += data
+            self._write()
+
+    def finish(self, deadline: float) -> bool:
+        """Write what is left (waiting for the reader until ``deadline``, a ``time.monotonic``
+        value) and close the pipe; ``False`` if the deadline passed first."""
+        while self._pending and not self.broken:
+            if not select.select([], [self._fd], [], max(deadline - time.monotonic(), 0.0))[1]:
+                return False
+            self._write()
+        self.close()
+        return True
+
+    def close(self) -> None:
+        try:
+            self._pipe.close()
+        except OSError:
+            pass
+
+    def _write(self) -> None:
+        try:
+            while self._pending:
+                del self._pending[:os.write(self._fd, self._pending)]
+        except BlockingIOError:  # the pipe is full: the rest waits
+            pass
+        except BrokenPipeError:  # the child is gone: close() reports why
+            self.broken = True
+            self._pending.clear()
+
+
+class RecordingProcess:
+    """``RunScorer`` here, ``RerunSink`` in a child process fed through a pipe.
+
+    Create it as early as possible (the child imports rerun at once), then :meth:`open` the
+    recording, :meth:`log` each frame and :meth:`close`.  As a context manager, leaving the
+    block closes it, whether by an exception or not: the recording is finalised with the frames
+    logged so far, or, if it was never opened, the child is killed (nothing to write).
+
+    Args:
+        timeout: seconds :meth:`close` waits for the child to finish the file before killing it.
+        start: how the child starts.  ``"fork"``: a fork of this process, which skips a new
+            interpreter and the imports this process already has (numpy, the tracker's types,
+            ...: some 0.2-0.4 s of CPU); allowed only while this process has no other Python
+            thread and has not imported rerun (whose native threads a fork would not carry
+            over).  ``"exec"``: a new interpreter.  ``"auto"`` (default): fork when allowed,
+            else exec.
+    """
+
+    def __init__(self, *, timeout: float = 120.0,
+                 start: Literal["auto", "fork", "exec"] = "auto") -> None:
+        self.timeout = float(timeout)
+        self.path: Path | None = None
+        self._closed = False
+        self._stderr: IO[bytes] = tempfile.TemporaryFile()
+        self._proc = _start_child(start, self._stderr)
+        self._outbox = _Outbox(self._proc.stdin)
+        self._scorer = RunScorer()
+
+    # -- public ------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def open(self, path: str | os.PathLike, *, metadata: Mapping[str, str] | None = None,
+             params: ModelParams | None = None, **sink_kwargs: Any) -> None:
+        """Start the recording ``path`` (``sink_kwargs`` go to ``RerunSink``; ``flush_interval``
+        defaults to :data:`CHILD_FLUSH_INTERVAL`).
+
+        The parent directory is created and the file opened for writing here, so that an
+        unwritable path fails at once (``OSError``), not after the run.
+        """
+        if self.path is not None:
+            raise RuntimeError(f"RecordingProcess: already recording {self.path}")
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.open("ab").close()
+        self.path = path
+        sink_kwargs.setdefault("flush_interval", CHILD_FLUSH_INTERVAL)
+        self._put(("open", os.fspath(path), dict(metadata or {}), params, sink_kwargs))
+
+    def log(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> None:
+        """Score one frame and hand it, its estimate and the scores to the child (pickled now:
+        later changes to the objects do not reach the recording).  ``ospa_result``: the frame's OSPA
+        if the caller has computed it already (see :meth:`RunScorer.update`)."""
+        if self.path is None:
+            raise RuntimeError("RecordingProcess.log before open")
+        self._put(("frame", frame, estimate, self._scorer.update(frame, estimate, ospa_result)))
+
+    def close(self) -> None:
+        """End the input and wait until the child reports the file complete; raises
+        :class:`RecordingError` if it failed or took longer than ``timeout``.  Before
+        :meth:`open` this is :meth:`abort` (nothing to finalise).  Idempotent."""
+        if self._closed:
+            return
+        if self.path is None:
+            self.abort()
+            return
+        self._closed = True
+        deadline = time.monotonic() + self.timeout
+        if not (self._outbox.finish(deadline) and self._wait_done(deadline)):
+            self._proc.kill()
+            self._proc.wait()
+            self._proc.stdout.close()  # type: ignore[union-attr]
+            raise RecordingError(self._failure(f"did not finish within {self.timeout:g} s"))
+        self._proc.stdout.close()  # type: ignore[union-attr]
+        if self._proc.returncode is not None:  # ended without reporting the file complete
+            raise RecordingError(self._failure(f"exited with code {self._proc.returncode}"))
+        self._stderr.close()
+        # the file is complete; the child exits on its own within some 10-30 ms.  A
+        # (non-daemon) thread reaps it, so that this process's exit waits for it too
+        threading.Thread(target=self._proc.wait, name=_REAPER).start()
+
+    def abort(self) -> None:
+        """Kill the child at once (no recording is finalised; idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._proc.kill()
+        self._outbox.close()
+        self._proc.wait()
+        self._proc.stdout.close()  # type: ignore[union-attr]
+        self._stderr.close()
+
+    def __enter__(self) -> RecordingProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------
+    def _put(self, msg: tuple[Any, ...]) -> None:
+        if self._closed:
+            raise RuntimeError("RecordingProcess is closed")
+        self._outbox.send(pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _wait_done(self, deadline: float) -> bool:
+        """Read the child's stdout until :data:`_DONE` (the file is complete) or its end (the
+        child ended without it: ``returncode`` is then set).  ``False`` at the deadline."""
+        fd = self._proc.stdout.fileno()  # type: ignore[union-attr]
+        said = b""
+        while _DONE not in said:
+            if not select.select([fd], [], [], max(deadline - time.monotonic(), 0.0))[0]:
+                return False
+            chunk = os.read(fd, 256)
+            if not chunk:
+                try:
+                    self._proc.wait(timeout=max(deadline - time.monotonic(), 1.0))
+                except subprocess.TimeoutExpired:
+                    return False
+                return True
+            said += chunk
+        return True
+
+    def _failure(self, what: str) -> str:
+        self._stderr.seek(0)
+        tail = self._stderr.read().decode("utf-8", "replace")[-_STDERR_TAIL:].strip()
+        self._stderr.close()
+        target = f" writing {self.path}" if self.path is not None else ""
+        return f"the Rerun recording process{target} {what}" + (f": {tail}" if tail else "")
+
+
+# --------------------------------------------------------------------------- the child
+
+
+def _messages(stream: IO[bytes]) -> Iterator[tuple[Any, ...]]:
+    """The pickled messages of ``stream`` until its end.  A message cut short (the writer
+    died while sending it) ends the input like the end of the stream does."""
+    while True:
+        try:
+            yield pickle.load(stream)
+        except EOFError:
+            return
+        except pickle.UnpicklingError as exc:
+            print(f"rerun_process: input cut short ({exc}); finishing the recording", file=sys.stderr)
+            return
+
+
+def child_main(stream: IO[bytes]) -> bool:
+    """Import rerun, wait for ``open``, log every frame until the end of ``stream``, close the
+    sink.  Returns whether a recording was written (``False``: the input ended before ``open``)."""
+    from sinks.rerun_sink import RerunSink  # the slow import (rerun), before any message
+
+    messages = _messages(stream)
+    first = next(messages, None)
+    if first is None:
+        return False
+    kind, path, metadata, params, sink_kwargs = first
+    if kind != "open":
+        raise ValueError(f"rerun_process: expected 'open' first, got {kind!r}")
+    with RerunSink(path, metadata=metadata, params=params, **sink_kwargs) as sink:
+        for kind, frame, estimate, scores in messages:
+            if kind != "frame":
+                raise ValueError(f"rerun_process: unexpected message {kind!r}")
+            sink.log(frame, estimate, **scores)
+    return True
+
+
+def _serve(stream: IO[bytes], report_fd: int) -> None:
+    """:func:`child_main` on ``stream``, then :data:`_DONE` on ``report_fd`` if it wrote a
+    recording."""
+    if child_main(stream):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.write(report_fd, _DONE)
+
+
+def child_entry() -> None:
+    """The child started with ``exec``: :func:`_serve` on stdin, reporting on stdout, then an
+    immediate exit (no teardown).  Anything else printed goes to stderr, not to the report.
+    An exception ends the process the usual way (traceback on stderr, exit code 1)."""
+    report_fd = os.dup(1)
+    os.dup2(2, 1)
+    _serve(sys.stdin.buffer, report_fd)
+    os._exit(0)
+
+
+def _forked_main(in_fd: int, report_fd: int, stderr_fd: int) -> NoReturn:
+    """The child started with ``fork``: a session of its own, stdin from ``/dev/null``, stdout
+    and stderr to the stderr file, every other inherited descriptor closed (another pipe's
+    write end held here would keep that pipe's reader from ever seeing its end), then
+    :func:`_serve`.  It never returns
+    into the parent's code: exit code 0, or 1 after a traceback."""
+    code = 1
+    try:
+        os.setsid()
+        in_fd, report_fd = (fcntl.fcntl(fd, fcntl.F_DUPFD, 3) for fd in (in_fd, report_fd))
+        os.dup2(os.open(os.devnull, os.O_RDONLY), 0)
+        os.dup2(stderr_fd, 1)
+        os.dup2(stderr_fd, 2)
+        keep = sorted({0, 1, 2, in_fd, report_fd})
+        for lo, hi in zip(keep, [*keep[1:], os.sysconf("SC_OPEN_MAX")]):
+            os.closerange(lo + 1, hi)
+        _serve(os.fdopen(in_fd, "rb"), report_fd)
+        code = 0
+    except BaseException:  # noqa: BLE001 - reported, and never back into the parent's stack
+        traceback.print_exc()
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)

@@ -1,0 +1,138 @@
+"""What a Rerun recording of a run looks like: its entity paths, annotation classes, colours and
+sizes (:mod:`sinks.rerun_sink` writes them; the tests read them back).  Does not import rerun.
+
+Entity tree (``world`` is drawn with +y up; positions in metres, sensor at the origin)::
+
+    world                      AnnotationContext (class 0 clutter, 1 unassigned, 2.. labels)
+    world/sensor               sensor position and field of view (static)
+    world/grid                 metric grid (static); world/grid/axes x and y axes, world/grid/ticks
+                               tick labels in metres
+    world/legend/<what>        legend symbols with their meaning (static, top corners)
+    world/measurements         Points2D, coloured by the label they were assigned to
+    world/measurements/rings   range-only sensors: one arc per measurement
+    world/assignments          LineStrips2D measurement -> assigned track estimate
+    world/tracks/<label>       Points2D (position, short name T1, T2, ... in order of
+                               confirmation) + LineStrips2D (trail, 2-sigma
+                               ellipse); cleared (rr.Clear) when the label ends
+    world/truth                LineStrips2D grey crosses (when the source has truth)
+    world/truth/trails         LineStrips2D thin grey trails of the true objects
+    metrics/cardinality        Scalars [estimated, true]
+    metrics/ospa               Scalars [total, localisation, cardinality]
+    metrics/ospa2              Scalars [total]
+    diagnostics/<key>          Scalars, one per tracker diagnostic (alpha, d, n_clusters, ...)
+    health/<key>               Scalars, pipeline health counters when given
+    events                     TextLog: track and truth births and ends
+    metadata                   TextDocument: scenario, parameters, tracker, seed, versions
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterable, Sequence
+
+__all__ = ["label_color", "pack_rgba", "unpack_rgba", "PALETTE", "MIN_COLOR_DISTANCE", "SERIES", "DIAG_NAMES"]
+
+# --------------------------------------------------------------------------- entity paths
+
+WORLD = "world"
+SENSOR = "world/sensor"
+MEASUREMENTS = "world/measurements"
+RINGS = "world/measurements/rings"
+ASSIGNMENTS = "world/assignments"
+TRACKS = "world/tracks"
+TRUTH = "world/truth"
+TRUTH_TRAILS = "world/truth/trails"
+CARDINALITY = "metrics/cardinality"
+OSPA = "metrics/ospa"
+OSPA2 = "metrics/ospa2"
+DIAGNOSTICS = "diagnostics"
+HEALTH = "health"
+EVENTS = "events"
+METADATA = "metadata"
+GRID = "world/grid"
+GRID_TICKS = "world/grid/ticks"
+AXES = "world/grid/axes"
+LEGEND = "world/legend"
+
+#: Class ids of the annotation context on ``world`` (labels get ids from FIRST_LABEL_CLASS on).
+CLUTTER_CLASS = 0
+UNASSIGNED_CLASS = 1
+FIRST_LABEL_CLASS = 2
+MAX_CLASS = 65535  # class ids are uint16
+
+# Colours (RGBA) and sizes; negative radii are screen points (zoom independent).
+GREY_CLUTTER = (150, 150, 150, 255)
+WHITE_UNASSIGNED = (225, 225, 225, 255)
+GREY_TRUTH = (175, 175, 175, 255)
+GREY_TRUTH_TRAIL = (175, 175, 175, 110)
+SENSOR_COLOR = (240, 200, 80, 255)
+R_TRACK = -5.0
+R_TRAIL = -1.25
+R_ELLIPSE = -1.0
+R_MEAS_CLUTTER = -2.0
+R_MEAS_ASSIGNED = -3.0
+R_ASSIGN_LINE = -0.6
+R_TRUTH_CROSS = -1.0
+R_TRUTH_TRAIL = -0.6
+R_RING = -0.6
+ELLIPSE_SIGMA = 2.0
+ELLIPSE_POINTS = 36
+
+#: Series styles: entity -> (names, colours).
+SERIES: dict[str, tuple[list[str], list[tuple[int, int, int]]]] = {
+    CARDINALITY: (["estimated", "true"], [(80, 170, 255), (190, 190, 190)]),
+    OSPA: (["total", "localisation", "cardinality"], [(255, 120, 80), (120, 200, 120), (200, 140, 255)]),
+    OSPA2: (["OSPA(2)"], [(255, 200, 60)]),
+}
+DIAG_NAMES = {
+    "alpha": "alpha (concentration)",
+    "d": "d (discount)",
+    "n_clusters": "clusters",
+    "n_tracks": "reported tracks",
+    "log_joint": "Gibbs log joint",
+    "ms": "tracker ms / frame",
+}
+
+
+# --------------------------------------------------------------------------- colours
+
+
+#: Distinct track colours (RGB, bright on the viewer's dark background): a label takes one at
+#: birth and keeps it until it ends.  None is near the colours of the sensor, the truth, clutter
+#: or unassigned measurements (RGB distance >= :data:`MIN_COLOR_DISTANCE`: no yellow, cream,
+#: pale pink or lavender track that could be read as the sensor or the truth).
+PALETTE: tuple[tuple[int, int, int], ...] = (
+    (230, 25, 75), (60, 180, 75), (90, 130, 255), (245, 130, 49), (170, 80, 230),
+    (66, 212, 244), (240, 50, 230), (70, 200, 180), (255, 120, 120), (120, 220, 60),
+    (0, 110, 255),
+)
+#: Smallest RGB distance between a track colour and the reserved colours (tests check it).
+MIN_COLOR_DISTANCE = 75.0
+
+
+def label_color(label: str, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int, int, int, int]:
+    """Colour of a track label: the palette entry picked by the CRC32 of the label, or, when
+    that one is ``taken`` by a live label, the next free entry (the least used one if none is).
+
+    Without ``taken`` the result depends on the label alone, in every run and process (no
+    ``hash()`` salt); :class:`sinks.rerun_sink.RerunSink` passes the colours of the live labels at birth, so that
+    labels alive together differ, and keeps the colour for the label's whole life.
+    """
+    n = len(PALETTE)
+    start = zlib.crc32(label.encode("utf-8")) % n
+    used: dict[tuple[int, int, int], int] = {}
+    for rgba in taken:
+        key = tuple(rgba[:3])
+        used[key] = used.get(key, 0) + 1  # type: ignore[index]
+    best = min(range(n), key=lambda i: (used.get(PALETTE[(start + i) % n], 0), i))
+    return (*PALETTE[(start + best) % n], 255)
+
+
+def pack_rgba(rgba: Sequence[int]) -> int:
+    r, g, b, a = (list(rgba) + [255])[:4]
+    return (int(r) << 24) | (int(g) << 16) | (int(b) << 8) | int(a)
+
+
+def unpack_rgba(packed: int) -> tuple[int, int, int, int]:
+    return (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255, packed & 255
+
