@@ -44,7 +44,7 @@ from typing import Any
 
 import msgspec
 
-from pipeline.pipeline_config import (
+from pipeline.config import (
     PipelineConfig,
     check_run_id,
     dump_pipeline,

@@ -1,6 +1,6 @@
 """The one module of bnptrack that imports zenoh.
 
-It turns a :class:`~pipeline.pipeline_config.ZenohConfig` into Zenoh sessions and gives the
+It turns a :class:`~pipeline.config.ZenohConfig` into Zenoh sessions and gives the
 stages a small, zenoh-free interface, :class:`Bus` (the in-memory twin used by the tests is
 :class:`pipeline.membus.MemoryBus`):
 
@@ -53,8 +53,9 @@ import msgspec
 import zenoh
 import zenoh.ext as zext
 
-from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
-from pipeline.transport_types import Event, listening
+from pipeline.config import DeliveryConfig, ZenohConfig
+from pipeline.preflight import listening
+from pipeline.stages.delivery import Event
 
 __all__ = [
     "KEY_ROOT",

@@ -20,7 +20,7 @@ import msgspec
 import pytest
 
 from pipeline.membus import MemoryNetwork
-from pipeline.pipeline_config import PipelineConfig, resolve_run
+from pipeline.config import PipelineConfig, resolve_run
 from pipeline.stages import (
     EXIT_OK,
     STAGES,
@@ -325,7 +325,7 @@ def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_t
     /measurements, nor declare the tracker's ready token."""
     import zenoh
 
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     users = tmp_path / "users.txt"

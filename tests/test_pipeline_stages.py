@@ -15,7 +15,7 @@ import pytest
 
 from pipeline.codec import encode_measurements
 from pipeline.membus import MemoryNetwork
-from pipeline.pipeline_config import (
+from pipeline.config import (
     PipelineConfig,
     default_pipeline,
     load_pipeline,
@@ -33,7 +33,7 @@ from pipeline.stages import (
     read_snapshot,
     write_atomic,
 )
-from pipeline.transport_types import Event
+from pipeline.stages.delivery import Event
 from sources.mcap_log import read_log
 from tracker.config import ConfigError, apply_overrides
 from tracker.types import Frame
@@ -217,7 +217,7 @@ def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
 
 
 def test_tls_file_fields_are_the_file_fields_of_tls_config():
-    from pipeline.pipeline_config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
+    from pipeline.config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
 
     assert TLS_FILE_FIELDS == tuple(f for f in TlsConfig.__struct_fields__ if f not in ("mtls", "verify_name_on_connect"))
     tls = TlsConfig(root_ca_certificate="ca.pem", connect_private_key="k.pem")
@@ -777,7 +777,7 @@ def _frames_at(stamps_s: list[float], first: int = 1) -> list[Frame]:
 
 
 def test_window_frames_in_seconds_of_log_time_and_in_frames():
-    from pipeline.pipeline_config import SourceConfig
+    from pipeline.config import SourceConfig
     from pipeline.stages import window_frames
 
     frames = _frames_at([5.0, 6.0, 7.5, 9.0, 10.0, 12.0])  # log time 0, 1, 2.5, 4, 5, 7 s

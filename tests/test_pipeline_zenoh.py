@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+from pipeline.config import DeliveryConfig, ZenohConfig
 from sources.mcap_log import McapLogWriter, iter_frames, read_log, read_metadata
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -506,7 +506,7 @@ def test_stages_over_tls_with_access_control(tmp_path):
     generated ACL; source, tracker and sink as separate `bnptrack stage` processes with their
     own credentials.  A client without the CA, or with a wrong password, is refused; a stage
     cannot put on another stage's keys."""
-    from pipeline.pipeline_config import TlsConfig
+    from pipeline.config import TlsConfig
     from pipeline.transport import Bus, Router, TransportError
 
     certs = _make_certs(tmp_path)
@@ -578,7 +578,7 @@ def _roundtrip(zcfg: ZenohConfig, run: str) -> bytes | None:
 def test_mutual_tls_refuses_clients_without_a_certificate_of_the_ca(tmp_path):
     """Router with ``mtls = true``: a client needs a certificate signed by the CA.  Without
     one, or with one from another CA, ``zenoh.open`` fails; with one, data flows."""
-    from pipeline.pipeline_config import TlsConfig
+    from pipeline.config import TlsConfig
     from pipeline.transport import Bus, Router, TransportError
 
     c = _make_certs(tmp_path)
@@ -620,7 +620,7 @@ def test_peer_mode_links_stages_directly(router):
 
 
 def test_peer_mode_refuses_tls_and_access_control():
-    from pipeline.pipeline_config import TlsConfig, load_pipeline
+    from pipeline.config import TlsConfig, load_pipeline
     from tracker.config import ConfigError
 
     for bad in ({"acl": True}, {"users_file": "u.txt"}, {"tls": TlsConfig(root_ca_certificate="ca.pem")}):
