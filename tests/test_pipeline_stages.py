@@ -575,7 +575,7 @@ def test_pipeline_commands_have_help():
 
 
 def test_acl_config_gives_each_stage_only_its_keys():
-    from pipeline.transport import acl_config
+    from pipeline.acl import acl_config
 
     acl = acl_config()
     assert acl["enabled"] and acl["default_permission"] == "deny"
