@@ -72,7 +72,6 @@ __all__ = [
 
 log = logging.getLogger("bnptrack.transport")
 
-
 #: Topics published with a cache of ``delivery.cache_frames`` samples.
 DATA_TOPICS = frozenset({"measurements", "truth", "tracks"})
 #: Cache size of control topics (``info/<stage>``, ``eos/<stage>``).

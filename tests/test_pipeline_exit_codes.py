@@ -15,7 +15,8 @@ import msgspec
 import pytest
 
 from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
-from pipeline.launch import LaunchResult, Launcher, _ranges, describe_missing
+from pipeline.launch import Launcher, _ranges, describe_missing
+from pipeline.supervisor import LaunchResult
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME
 from sources.mcap_log import McapLogWriter

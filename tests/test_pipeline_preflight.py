@@ -180,7 +180,7 @@ def test_stage_and_launch_without_a_router_are_one_line_exit_2(tmp_path):
 
 
 def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
-    from pipeline.launch import StageProcess
+    from pipeline.supervisor import StageProcess
 
     log = tmp_path / "tracker.log"
     sp = StageProcess("tracker", [], log)
