@@ -52,15 +52,10 @@ def _run_stage(cfg: PipelineConfig, net: MemoryNetwork, role: str) -> int:
 
 
 def _memory_run(cfg: PipelineConfig, net: MemoryNetwork) -> None:
-    import threading
+    """The whole pipeline in threads on one manual clock (``test_pipeline_stages``)."""
+    from test_pipeline_stages import _run_memory_pipeline
 
-    codes = {}
-    threads = [threading.Thread(target=lambda r=r: codes.__setitem__(r, _run_stage(cfg, net, r)), daemon=True)
-               for r in ("sink", "tracker", "source")]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(120)
+    codes = _run_memory_pipeline(cfg, net)
     assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
 
 

@@ -57,7 +57,9 @@ from pipeline.stages.recovery import (
     Snapshot,
     commit_parts,
     keep_prior,
+    part_path,
     read_snapshot,
+    sync_parts,
     write_atomic,
 )
 from pipeline.stages.sink import SinkStage
@@ -69,7 +71,8 @@ __all__ = [
     "Clock", "SystemClock", "ManualClock", "StageContext", "StageBase",
     "Event", "GAP", "NO_TRUTH", "Sequencer", "HoleWatch", "Intake", "Accepted",
     "Counters", "StageInfo", "EndOfStream",
-    "BackgroundWriter", "Snapshot", "write_atomic", "read_snapshot", "commit_parts", "keep_prior", "PRIOR_FIELDS",
+    "BackgroundWriter", "Snapshot", "write_atomic", "read_snapshot", "commit_parts", "part_path", "sync_parts", "keep_prior",
+    "PRIOR_FIELDS",
     "SNAPSHOT_NAME", "JOURNAL_NAME", "SUMMARY_NAME",
     "SourceStage", "TrackerStage", "SinkStage", "STAGES", "source_frames", "window_frames", "build_stage_tracker",
 ]
