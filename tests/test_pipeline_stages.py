@@ -921,3 +921,20 @@ def test_source_paces_its_frames_on_the_injected_clock(tmp_path):
     assert clock.monotonic() == pytest.approx((stamps[-1] - stamps[0]) / 1e9 / 2.0, abs=1e-9)
     sent = [json.loads(a)["t"] for r, t, p, a in net.history if t == "measurements"]
     assert sent == [10**18 + round((s - stamps[0]) / 2.0) for s in stamps]
+
+
+def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
+    """The tracker stage warms up the tracker it runs (its registry entry), not a fixed one:
+    warming glmb does not import the BNP tracker, warming ddp does."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from pipeline.stages.tracker import warm_tracker_imports; "
+            "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp_tracker' in sys.modules), "
+            "int('tracker.glmb' in sys.modules))")
+    root = Path(__file__).resolve().parent.parent
+    seen = {name: subprocess.run([sys.executable, "-c", code, name], capture_output=True, text=True,
+                                 cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
+                                 check=True).stdout.split()
+            for name in ("glmb", "ddp")}
+    assert seen == {"glmb": ["0", "1"], "ddp": ["1", "0"]}
