@@ -68,7 +68,7 @@ from pipeline.offline import (  # noqa: E402
     resolve_simulation_params,
     track_log,
 )
-from pipeline.pipeline_config import load_pipeline  # noqa: E402
+from pipeline.config import load_pipeline  # noqa: E402
 from sources.mcap_log import McapLogWriter, iter_frames, read_metadata  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate  # noqa: E402
@@ -128,9 +128,9 @@ class Offline:
         journal, snapshots).  Frames per second and CPU ms per frame."""
         from pipeline.codec import encode_measurements
         from pipeline.membus import MemoryNetwork
-        from pipeline.pipeline_config import PipelineConfig, TrackerStageConfig, resolve_run
+        from pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
         from pipeline.stages import StageContext, StageInfo, TrackerStage
-        from pipeline.transport_types import Event
+        from pipeline.stages.delivery import Event
 
         cfg = resolve_run(PipelineConfig(run="inproc", out=str(out), tracker=TrackerStageConfig(
             tracker=self.tracker_name, seed=self.seed)))
@@ -247,7 +247,7 @@ def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
                       topic: str = "measurements") -> None:
     """(child process) receive ``n`` samples; print their latencies (since the first
     publication, ``meta["t"]``) as JSON, taken when the main thread gets them (as a stage does)."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus
 
     with Bus(run_id, "sub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
@@ -265,7 +265,7 @@ def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
 def transport_floor(mode: str, rate: float, n: int = 400) -> dict:
     """One Zenoh hop between two processes (client mode: through a router; peer mode: direct,
     found through the router), ~1 KB samples at ``rate`` per second."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
@@ -288,7 +288,7 @@ def _floor_relay(mode: str, endpoint: str) -> None:
     """(child process) the tracker's place with no tracker: republish every ``measurements``
     sample at once as a ``tracks`` sample of the pipeline's size, keeping its ``t``; serve
     until stdin closes (so that the last samples are delivered)."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus
 
     with Bus("floor2", "relay", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
@@ -309,7 +309,7 @@ def two_hop_floor(mode: str, rate: float, n: int = 400) -> dict:
     (republishes at once, ``_floor_relay``) -> subscriber process, at ``rate`` per second with
     the pipeline's payload sizes (/measurements in, /tracks out); through a router in this
     process (``client``) or peer to peer (``peer``)."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
@@ -370,7 +370,7 @@ def _traffic_publisher(endpoint_file: str, rate: float, seconds: float) -> None:
     """(child process) A router and, in the same process, a publisher putting one frame's
     samples (``TRAFFIC_SIZES``, on three topics) ``rate`` times per second for ``seconds``;
     writes the router's endpoint to ``endpoint_file`` first and waits for the subscriber."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
@@ -394,7 +394,7 @@ def _traffic_publisher(endpoint_file: str, rate: float, seconds: float) -> None:
 
 def _traffic_subscriber(endpoint: str) -> None:
     """(child process) Receive everything on the traffic run until stdin closes."""
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus
 
     with Bus("traffic", "sub", ZenohConfig(connect=[endpoint]), DeliveryConfig()) as bus:

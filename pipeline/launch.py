@@ -33,18 +33,16 @@ import json
 import logging
 import os
 import signal
-import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from pipeline.pipeline_config import (
+from pipeline.config import (
     PipelineConfig,
     check_run_id,
     dump_pipeline,
@@ -52,6 +50,15 @@ from pipeline.pipeline_config import (
 )
 from pipeline.progress import Status
 from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
+from pipeline.supervisor import (
+    HealthMonitor,
+    LaunchResult,
+    StageProcess,
+    open_embedded_router,
+    recorded_complete,
+    stop_stages,
+    write_stages,
+)
 from pipeline.stages import (
     EXIT_CONFIG,
     EXIT_CRASH,
@@ -68,7 +75,7 @@ from pipeline.stages import (
 )
 from tracker.config import ConfigError
 
-__all__ = ["Launcher", "LaunchResult", "run_stage", "StageProcess", "configure_logging", "describe_missing"]
+__all__ = ["Launcher", "launch", "run_stage", "stage_config", "configure_logging", "describe_missing"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -108,22 +115,9 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     # than the default 5 ms while the main thread computes
     sys.setswitchinterval(0.001)
     if threading.current_thread() is threading.main_thread():
-        def on_signal(signum: int, _frame: Any) -> None:
-            if stop.is_set():
-                os._exit(EXIT_STOPPED)
-            log.info("%s: %s: stopping (flushing files)", name, signal.Signals(signum).name)
-            stop.set()
-
-        signal.signal(signal.SIGINT, on_signal)
-        signal.signal(signal.SIGTERM, on_signal)
+        _stop_on_signals(name, stop)
     if parent_pid:
-        def watch() -> None:
-            while not stop.wait(0.5):
-                if os.getppid() != parent_pid:
-                    log.error("%s: the launcher (pid %d) is gone: stopping", name, parent_pid)
-                    stop.set()
-
-        threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+        _watch_parent(name, parent_pid, stop)
     try:
         bus = Bus(cfg.run, name, cfg.zenoh, cfg.delivery)
     except NoRouterError:
@@ -132,35 +126,68 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
         log.error("%s", exc)
         return EXIT_CRASH
     try:
-        stage = STAGES[role](StageContext(cfg, bus, stop, name))
-        prof_dir = os.environ.get("BNPTRACK_PROFILE")
-        if prof_dir:  # debugging aid: cProfile the stage into $BNPTRACK_PROFILE/<name>.prof
-            import cProfile
-
-            prof = cProfile.Profile(time.thread_time) if os.environ.get("BNPTRACK_PROFILE_CPU") else cProfile.Profile()
-            try:
-                return prof.runcall(stage.run)
-            finally:
-                Path(prof_dir).mkdir(parents=True, exist_ok=True)
-                prof.dump_stats(str(Path(prof_dir) / f"{name}.prof"))
-        return stage.run()
+        return _run_profiled(STAGES[role](StageContext(cfg, bus, stop, name)), name)
     except ConfigError as exc:
         log.error("%s: configuration error: %s", name, exc)
         return EXIT_CONFIG
     except OSError as exc:
         if isinstance(exc, ConnectionError) or exc.errno not in _FILE_ERRNOS:
             raise
-        text = str(exc) if isinstance(exc, StageIOError) else \
-            f"stage {name}: cannot write {exc.filename or 'a file'}: {exc.strerror}"
-        log.error("%s: I/O error: %s", name, text)
-        try:  # the log may be on the full disk too: tell the launcher over the bus
-            bus.publish(f"health/{name}", json.dumps({"stage": name, "io_error": text}).encode())
-        except Exception:
-            pass
-        return EXIT_IO
+        return _report_io_error(exc, name, bus)
     finally:
         bus.close()
         _log_cpu(name)
+
+
+def _stop_on_signals(name: str, stop: threading.Event) -> None:
+    """SIGINT / SIGTERM set ``stop`` (the stage flushes its files); a second one exits at once."""
+    def on_signal(signum: int, _frame: Any) -> None:
+        if stop.is_set():
+            os._exit(EXIT_STOPPED)
+        log.info("%s: %s: stopping (flushing files)", name, signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+
+def _watch_parent(name: str, parent_pid: int, stop: threading.Event) -> None:
+    """Set ``stop`` when the launcher (``parent_pid``) is gone."""
+    def watch() -> None:
+        while not stop.wait(0.5):
+            if os.getppid() != parent_pid:
+                log.error("%s: the launcher (pid %d) is gone: stopping", name, parent_pid)
+                stop.set()
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _run_profiled(stage: Any, name: str) -> int:
+    """``stage.run()``; with ``$BNPTRACK_PROFILE`` (a debugging aid) under cProfile, into
+    ``$BNPTRACK_PROFILE/<name>.prof``."""
+    prof_dir = os.environ.get("BNPTRACK_PROFILE")
+    if not prof_dir:
+        return stage.run()
+    import cProfile
+
+    prof = cProfile.Profile(time.thread_time) if os.environ.get("BNPTRACK_PROFILE_CPU") else cProfile.Profile()
+    try:
+        return prof.runcall(stage.run)
+    finally:
+        Path(prof_dir).mkdir(parents=True, exist_ok=True)
+        prof.dump_stats(str(Path(prof_dir) / f"{name}.prof"))
+
+
+def _report_io_error(exc: OSError, name: str, bus: Any) -> int:
+    """Log a file that could not be written, tell the launcher over the bus: EXIT_IO."""
+    text = str(exc) if isinstance(exc, StageIOError) else \
+        f"stage {name}: cannot write {exc.filename or 'a file'}: {exc.strerror}"
+    log.error("%s: I/O error: %s", name, text)
+    try:  # the log may be on the full disk too: tell the launcher over the bus
+        bus.publish(f"health/{name}", json.dumps({"stage": name, "io_error": text}).encode())
+    except Exception:
+        pass
+    return EXIT_IO
 
 
 def _log_cpu(name: str) -> None:
@@ -171,93 +198,6 @@ def _log_cpu(name: str) -> None:
 
 
 # --------------------------------------------------------------------------- supervisor
-
-
-@dataclass
-class StageProcess:
-    role: str
-    argv: list[str]
-    log_path: Path
-    proc: subprocess.Popen | None = None
-    restarts: int = 0
-    state: str = "pending"  # pending | running | done | failed | stopped
-    returncode: int | None = None
-    restart_at: float | None = None
-    history: list[dict] = field(default_factory=list)
-    env: dict[str, str] = field(default_factory=dict)
-
-    def start(self, env: dict[str, str]) -> None:
-        env = {**env, **self.env}
-        self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "ab") as logf:
-            logf.write(f"--- start #{self.restarts} {time.strftime('%H:%M:%S')}\n".encode())
-            logf.flush()
-            self.proc = subprocess.Popen(
-                self.argv, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
-                env=env, start_new_session=True,
-            )
-        self.state = "running"
-        self.restart_at = None
-        self.history.append({"pid": self.proc.pid, "start": time.time()})
-
-    @property
-    def pid(self) -> int | None:
-        return self.proc.pid if self.proc is not None else None
-
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
-    def signal(self, sig: int) -> None:
-        if self.alive():
-            try:
-                self.proc.send_signal(sig)
-            except ProcessLookupError:
-                pass
-
-    def error_line(self) -> str:
-        """The stage's configuration error, from its log: its ``Error: ...`` line (printed by
-        the ``stage`` command) or its ``configuration error: ...`` log record; else the last
-        lines of the log."""
-        try:
-            lines = self.log_path.read_text(errors="replace").splitlines()
-        except OSError:
-            return ""
-        for line in reversed(lines):
-            if line.startswith("Error: "):
-                return line[len("Error: "):]
-            for marker in ("configuration error: ", "I/O error: "):
-                head, sep, msg = line.partition(marker)
-                if sep and " ERROR " in head:
-                    return msg
-        return " / ".join(lines[-3:])
-
-    def tail(self, n: int = 12) -> str:
-        try:
-            lines = self.log_path.read_text(errors="replace").splitlines()
-        except OSError:
-            return ""
-        return "\n".join(lines[-n:])
-
-
-@dataclass
-class LaunchResult:
-    """The end of a launch.  ``ok``: every stage finished and the output is complete.
-    ``incomplete`` (exit code 3): what the output lacks, when the run ended but its output is
-    incomplete (gaps, rejected frames, a stage that gave up: ``gave_up`` names it);
-    ``error`` (exit code 2): why the run failed otherwise."""
-
-    run: str
-    out: Path
-    ok: bool
-    error: str = ""
-    interrupted: bool = False
-    incomplete: str = ""
-    gave_up: str = ""
-    files: list[str] = field(default_factory=list)
-    summary: dict | None = None
-    restarts: dict[str, int] = field(default_factory=dict)
-    elapsed_s: float = 0.0
-    endpoints: list[str] = field(default_factory=list)
 
 
 class Launcher:
@@ -286,14 +226,13 @@ class Launcher:
         self._stop = threading.Event()
         self._stop_reason = ""
         self.router = None
-        self.monitor = None
+        self.monitor = HealthMonitor(self.out)
         self.credentials: dict[str, str] = {}
-        self.stage_errors: dict[str, str] = {}  # a stage's I/O error line, from its health message
-        self._health_file = None
         self.progress = progress
         self.view = view
         self.viewer = None
-        self.latest_health: dict[str, dict] = {}  # role -> its latest health message
+        self._data_error = ""  # the source stopped on a data error
+        self._sink_done_at: float | None = None
 
     # -- public ----------------------------------------------------------------------
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -325,28 +264,14 @@ class Launcher:
             result.endpoints = list(stage_cfg.zenoh.connect)
             cfg_path = self.out / "pipeline.json"
             cfg_path.write_bytes(dump_pipeline(stage_cfg))
-            self._open_monitor(stage_cfg)
-            env = dict(os.environ)
-            env.setdefault("PYTHONUNBUFFERED", "1")
-            env.setdefault("RERUN_ANALYTICS", "0")
-            # children run this checkout even if the package is not installed
-            root = str(Path(__file__).resolve().parent.parent)
-            env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-            order = [r for r in ("sink", "tracker", "source") if r in cfg.stages]
-            for role in order:
-                argv = [self.python, "-m", "pipeline", "stage", role, "--pipeline", str(cfg_path),
-                        "--name", role, "--parent-pid", str(os.getpid()), "--log-level", self.log_level]
-                sp = StageProcess(role, argv, self.out / "logs" / f"{role}.log")
-                if role in self.credentials:
-                    sp.env = {"BNPTRACK_ZENOH_USER": role, "BNPTRACK_ZENOH_PASSWORD": self.credentials[role]}
-                self.stages.append(sp)
-                sp.start(env)
-            self._write_stages()
+            self.monitor.open(stage_cfg, self.credentials)
+            env = self._stage_env()
+            self._start_stages(cfg_path, env)
             self.echo(f"run {cfg.run}: started {', '.join(f'{s.role} (pid {s.pid})' for s in self.stages)}"
                       f"; zenoh {stage_cfg.zenoh.mode} mode, {', '.join(stage_cfg.zenoh.connect) or 'no router'}"
                       f"; logs in {self.out / 'logs'}")
             self._supervise(env, t0, result)
-            self._drain_monitor()  # the sink's last health message: the final progress line
+            self.monitor.drain()  # the sink's last health message: the final progress line
             self._report_progress(t0, phase="final")
         finally:
             try:
@@ -355,6 +280,34 @@ class Launcher:
                 self._close_network()
         result.elapsed_s = time.monotonic() - t0
         result.restarts = {s.role: s.restarts for s in self.stages}
+        self._conclude(result)
+        return result
+
+    def _stage_env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        env.setdefault("RERUN_ANALYTICS", "0")
+        # children run this checkout even if the package is not installed
+        root = str(Path(__file__).resolve().parent.parent)
+        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        return env
+
+    def _start_stages(self, cfg_path: Path, env: dict[str, str]) -> None:
+        """Start every stage (sink first) as ``python -m pipeline stage ROLE``."""
+        order = [r for r in ("sink", "tracker", "source") if r in self.cfg.stages]
+        for role in order:
+            argv = [self.python, "-m", "pipeline", "stage", role, "--pipeline", str(cfg_path),
+                    "--name", role, "--parent-pid", str(os.getpid()), "--log-level", self.log_level]
+            sp = StageProcess(role, argv, self.out / "logs" / f"{role}.log")
+            if role in self.credentials:
+                sp.env = {"BNPTRACK_ZENOH_USER": role, "BNPTRACK_ZENOH_PASSWORD": self.credentials[role]}
+            self.stages.append(sp)
+            sp.start(env)
+        self._write_stages()
+
+    def _conclude(self, result: LaunchResult) -> None:
+        """Complete ``result`` from the sink's ``sink.json``: files, a source's data error,
+        what the output lacks."""
         summary_path = self.out / SUMMARY_NAME
         if summary_path.exists():
             try:
@@ -377,7 +330,6 @@ class Launcher:
         elif result.ok:
             result.incomplete = describe_missing(result.summary)
             result.ok = not result.incomplete
-        return result
 
     def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
         """``view``: start a Rerun viewer (left open after the run) and have the sink stream
@@ -407,205 +359,122 @@ class Launcher:
 
     # -- network -----------------------------------------------------------------------
     def _network(self, cfg: PipelineConfig) -> PipelineConfig:
+        """The stages' pipeline: with ``zenoh.embedded_router``, the router this launcher
+        opens (with per-run credentials when the ACL or authentication asks for them)."""
         z = cfg.zenoh
         if z.embedded_router:
-            from pipeline.transport import Router
-
-            generated = (z.acl or (z.auth and z.mode == "client")) and not z.users_file
-            if generated:
-                z = self._credentials(z)
-            try:
-                self.router = Router(z)
-            finally:
-                if generated:  # the router has read it; the stages get theirs by environment
-                    Path(z.users_file).unlink(missing_ok=True)
-                    z = msgspec.structs.replace(z, users_file="")
-            connect = self.router.connect_endpoints
-            z = msgspec.structs.replace(z, embedded_router=False, connect=connect)
+            self.router, z, self.credentials = open_embedded_router(z, self.out, self.cfg.stages)
         elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
         return msgspec.structs.replace(cfg, zenoh=z)
 
-    def _credentials(self, z: Any) -> Any:
-        """Per-run credentials: one random password per stage (and one for the launcher's
-        monitor), given to each process in its environment only, and the ACL that lets each
-        stage put only on its own keys.  The users file (mode 0600) lives only until the
-        router has read it."""
-        import secrets
-
-        self.credentials = {name: secrets.token_urlsafe(18) for name in [*self.cfg.stages, "launcher"]}
-        users = self.out / ".zenoh-users.txt"
-        fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w") as f:
-            f.writelines(f"{u}:{pw}\n" for u, pw in self.credentials.items())
-        return msgspec.structs.replace(z, users_file=str(users), acl=True)
-
-    def _open_monitor(self, cfg: PipelineConfig) -> None:
-        from pipeline.transport import Bus
-
-        z = msgspec.structs.replace(cfg.zenoh, mode="client", listen=[])  # it only listens to health
-        if "launcher" in self.credentials:
-            z = msgspec.structs.replace(z, user="launcher", password=self.credentials["launcher"])
-        try:
-            self.monitor = Bus(cfg.run, "launcher", z, cfg.delivery)
-            self.monitor.subscribe(["health/*", "deadletter"], advanced=False)
-        except Exception as exc:  # monitoring is optional
-            log.warning("launcher: no health monitor: %s", exc)
-            self.monitor = None
-        self._health_file = open(self.out / "health.jsonl", "ab")
-
-    def _drain_monitor(self) -> None:
-        if self.monitor is None:
-            return
-        lines = []
-        while (ev := self.monitor.recv(0)) is not None:
-            rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
-            try:
-                rec["msg"] = json.loads(ev.payload)
-                if ev.topic.startswith("health/") and isinstance(rec["msg"], dict):
-                    self.latest_health[str(rec["msg"].get("role", ""))] = rec["msg"]
-            except ValueError:
-                rec["raw"] = ev.payload[:200].decode("latin-1")
-            msg = rec.get("msg")
-            if ev.topic.startswith("health/") and isinstance(msg, dict) and isinstance(msg.get("io_error"), str):
-                self.stage_errors[ev.topic.partition("/")[2]] = msg["io_error"]
-            lines.append(json.dumps(rec).encode() + b"\n")
-        if self._health_file is None:
-            return
-        try:
-            self._health_file.writelines(lines)
-            self._health_file.flush()
-        except OSError as exc:  # disk full: health records are not worth stopping the run for
-            log.error("launcher: cannot write %s: %s; no more health records", self.out / "health.jsonl", exc)
-            hf, self._health_file = self._health_file, None
-            try:
-                hf.close()
-            except OSError:
-                pass
-
-    def _await_error(self, role: str, timeout: float = 1.0) -> None:
-        """Drain the monitor until ``role``'s I/O error line has arrived, or ``timeout``."""
-        deadline = time.monotonic() + timeout
-        while role not in self.stage_errors and time.monotonic() < deadline and self.monitor is not None:
-            self._drain_monitor()
-            time.sleep(0.02)
-
     def _close_network(self) -> None:
-        try:
-            self._drain_monitor()
-        except Exception:
-            pass
-        if self.monitor is not None:
-            self.monitor.close()
-            self.monitor = None
-        hf = getattr(self, "_health_file", None)
-        if hf is not None:
-            try:
-                hf.close()
-            except OSError:  # disk full: what could not be written is lost
-                pass
+        self.monitor.close()
         if self.router is not None:
             self.router.close()
             self.router = None
 
     # -- supervision -------------------------------------------------------------------
     def _write_stages(self) -> None:
-        doc = {s.role: {"pid": s.pid, "state": s.state, "restarts": s.restarts,
-                        "returncode": s.returncode, "log": str(s.log_path), "history": s.history}
-               for s in self.stages}
-        tmp = self.out / ".stages.json.tmp"
-        try:
-            tmp.write_text(json.dumps(doc, indent=1))
-            os.replace(tmp, self.out / "stages.json")
-        except OSError:
-            tmp.unlink(missing_ok=True)
-            raise
+        write_stages(self.out, self.stages)
 
     def _supervise(self, env: dict[str, str], t0: float, result: LaunchResult) -> None:
-        sup = self.cfg.supervisor
-        data_error = ""
         while True:
             if self._stop.wait(0.05):
                 result.interrupted = self._stop_reason == "interrupted"
                 result.error = self._stop_reason
                 return
-            self._drain_monitor()
+            self.monitor.drain()
             self._report_progress(t0)
             if self.timeout is not None and time.monotonic() - t0 > self.timeout:
                 result.error = f"timed out after {self.timeout:g} s"
                 return
             changed = False
             for sp in self.stages:
-                if sp.state == "running" and not sp.alive():
-                    rc = sp.proc.returncode
-                    sp.returncode = rc
-                    changed = True
-                    if rc == EXIT_OK or (rc == EXIT_DATA and sp.role == "source"):
-                        sp.state = "done"
-                        if rc == EXIT_DATA:
-                            data_error = _DATA_ERROR
-                        continue
-                    what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
-                    if rc == EXIT_IO:  # disk full / I/O error: a restart cannot help
-                        sp.state = "failed"
-                        self._await_error(sp.role)  # the stage's health message names the file
-                        result.error = (self.stage_errors.get(sp.role) or sp.error_line()
-                                        or f"stage {sp.role}: I/O error (log: {sp.log_path})")
-                        return
-                    if rc == EXIT_CONFIG:
-                        sp.state = "failed"
-                        result.error = (f"stage {sp.role}: configuration error: {sp.error_line()} "
-                                        f"(log: {sp.log_path})")
-                        return
-                    settled = self._needless_restart(sp, what)
-                    if settled == "done":
-                        sp.state = "done"
-                        continue
-                    if settled:
-                        sp.state = "failed"
-                        result.error = settled
-                        result.gave_up = sp.role
-                        return
-                    if sp.restarts >= sup.max_restarts:
-                        sp.state = "failed"
-                        result.error = (f"stage {sp.role} crashed ({what}) and was restarted "
-                                        f"{sp.restarts} time(s) already; giving up (log: {sp.log_path})")
-                        result.gave_up = sp.role
-                        return
-                    sp.state = "restarting"
-                    sp.restart_at = time.monotonic() + sup.restart_backoff_s
-                    self.echo(f"stage {sp.role} (pid {sp.pid}) crashed ({what}); restarting "
-                              f"({sp.restarts + 1}/{sup.max_restarts})")
-                elif sp.state == "restarting" and time.monotonic() >= (sp.restart_at or 0):
-                    sp.restarts += 1
-                    sp.start(env)
-                    changed = True
-                    self.echo(f"stage {sp.role} restarted (pid {sp.pid})")
+                outcome = self._check_stage(sp, env, result)
+                if outcome == "stop":
+                    return
+                changed = changed or outcome == "changed"
             if changed:
                 try:
                     self._write_stages()
                 except OSError as exc:
                     result.error = f"launcher: cannot write {self.out / 'stages.json'}: {exc}"
                     return
-            if all(sp.state == "done" for sp in self.stages):
-                result.ok = not data_error
-                result.error = data_error
+            if self._finished(result):
                 return
+
+    def _check_stage(self, sp: StageProcess, env: dict[str, str], result: LaunchResult) -> str:
+        """Look after one stage: ``"changed"`` (it exited or was restarted), ``"stop"`` (the
+        run ends: ``result`` says why) or ``""``."""
+        if sp.state == "running" and not sp.alive():
+            sp.returncode = sp.proc.returncode
+            return self._on_exit(sp, result)
+        if sp.state == "restarting" and time.monotonic() >= (sp.restart_at or 0):
+            sp.restarts += 1
+            sp.start(env)
+            self.echo(f"stage {sp.role} restarted (pid {sp.pid})")
+            return "changed"
+        return ""
+
+    def _on_exit(self, sp: StageProcess, result: LaunchResult) -> str:
+        """A stage exited with ``sp.returncode``: done, failed (``"stop"``) or to restart."""
+        rc = sp.returncode
+        if rc == EXIT_OK or (rc == EXIT_DATA and sp.role == "source"):
+            sp.state = "done"
+            if rc == EXIT_DATA:
+                self._data_error = _DATA_ERROR
+            return "changed"
+        what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
+        if rc == EXIT_IO:  # disk full / I/O error: a restart cannot help
+            sp.state = "failed"
+            self.monitor.await_error(sp.role)  # the stage's health message names the file
+            result.error = (self.monitor.io_errors.get(sp.role) or sp.error_line()
+                            or f"stage {sp.role}: I/O error (log: {sp.log_path})")
+            return "stop"
+        if rc == EXIT_CONFIG:
+            sp.state = "failed"
+            result.error = f"stage {sp.role}: configuration error: {sp.error_line()} (log: {sp.log_path})"
+            return "stop"
+        settled = self._needless_restart(sp, what)
+        if settled == "done":
+            sp.state = "done"
+            return "changed"
+        sup = self.cfg.supervisor
+        if settled or sp.restarts >= sup.max_restarts:
+            sp.state = "failed"
+            result.error = settled or (f"stage {sp.role} crashed ({what}) and was restarted "
+                                       f"{sp.restarts} time(s) already; giving up (log: {sp.log_path})")
+            result.gave_up = sp.role
+            return "stop"
+        sp.state = "restarting"
+        sp.restart_at = time.monotonic() + sup.restart_backoff_s
+        self.echo(f"stage {sp.role} (pid {sp.pid}) crashed ({what}); restarting "
+                  f"({sp.restarts + 1}/{sup.max_restarts})")
+        return "changed"
+
+    def _finished(self, result: LaunchResult) -> bool:
+        """Every stage is done; or the sink is, and the others lingered ``linger_s`` (then
+        they are stopped)."""
+        if not all(sp.state == "done" for sp in self.stages):
             # a sink that finished while others linger: give them linger_s, then stop them
             sinks_done = all(sp.state == "done" for sp in self.stages if sp.role == "sink")
-            if sinks_done and any(sp.role == "sink" for sp in self.stages):
-                if not hasattr(self, "_sink_done_at"):
-                    self._sink_done_at = time.monotonic()
-                elif time.monotonic() - self._sink_done_at > sup.linger_s:
-                    self.echo("the sink has finished; stopping the remaining stages")
-                    self._stop_all()
-                    for sp in self.stages:
-                        if sp.state != "done":
-                            sp.state = "done"
-                    result.ok = not data_error
-                    result.error = data_error
-                    return
+            if not (sinks_done and any(sp.role == "sink" for sp in self.stages)):
+                return False
+            if self._sink_done_at is None:
+                self._sink_done_at = time.monotonic()
+                return False
+            if time.monotonic() - self._sink_done_at <= self.cfg.supervisor.linger_s:
+                return False
+            self.echo("the sink has finished; stopping the remaining stages")
+            self._stop_all()
+            for sp in self.stages:
+                if sp.state != "done":
+                    sp.state = "done"
+        result.ok = not self._data_error
+        result.error = self._data_error
+        return True
 
     def _needless_restart(self, sp: StageProcess, what: str) -> str:
         """Whether a crashed stage must not be restarted: ``"done"`` when the run is complete
@@ -622,54 +491,25 @@ class Launcher:
             return ""
         if not all(o.state == "done" for o in others):
             return ""  # a restarted sink records the run, or announces again that it has
-        if _recorded(self.out / SUMMARY_NAME, self.cfg.run):
+        if recorded_complete(self.out / SUMMARY_NAME, self.cfg.run):
             self.echo(f"stage sink (pid {sp.pid}) was {what} after it had recorded the complete run: done")
             return "done"
         return (f"stage sink was {what} after every other stage had finished: nothing can resend "
                 f"it the run, so its output is incomplete (log: {sp.log_path})")
+
     def _report_progress(self, t0: float, phase: str = "") -> None:
         if self.progress is None:
             return
-        h = self.latest_health
+        h = self.monitor.latest
         self.progress(Status(time.monotonic() - t0, source=h.get("source"), sink=h.get("sink"),
                              stages={s.role: s.state for s in self.stages}, phase=phase))
 
     def _stop_all(self) -> None:
-        running = [sp for sp in self.stages if sp.alive()]
-        if not running:
-            return
-        for sp in running:
-            sp.signal(signal.SIGTERM)
-        deadline = time.monotonic() + self.cfg.supervisor.stop_timeout_s
-        for sp in running:
+        if stop_stages(self.stages, self.cfg.supervisor.stop_timeout_s, self.echo):
             try:
-                sp.proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                self.echo(f"stage {sp.role} (pid {sp.pid}) did not stop in time: SIGKILL")
-                sp.signal(signal.SIGKILL)
-                sp.proc.wait(5)
-            sp.returncode = sp.proc.returncode
-            if sp.state == "running":
-                sp.state = "stopped"
-        try:
-            self._write_stages()
-        except OSError as exc:  # disk full: the stages are stopped all the same
-            log.error("launcher: cannot write %s: %s", self.out / "stages.json", exc)
-
-
-def _recorded(summary_path: Path, run: str) -> bool:
-    """Whether ``sink.json`` says the sink recorded the whole run ``run`` (then finishes
-    renaming its outputs, should it have been killed in between)."""
-    from pipeline.stages import commit_parts
-
-    try:
-        summary = json.loads(summary_path.read_text())
-    except (OSError, ValueError):
-        return False
-    if not isinstance(summary, dict) or summary.get("run") != run or not summary.get("complete"):
-        return False
-    commit_parts(summary.get("files") or [])
-    return True
+                self._write_stages()
+            except OSError as exc:  # disk full: the stages are stopped all the same
+                log.error("launcher: cannot write %s: %s", self.out / "stages.json", exc)
 
 
 def _ranges(seqs: Sequence[int], limit: int = 8) -> str:

@@ -18,7 +18,7 @@ from typing import Any
 
 import msgspec
 
-from pipeline.transport_types import Event
+from pipeline.stages.delivery import Event
 
 __all__ = ["MemoryNetwork", "MemoryBus"]
 

@@ -15,19 +15,21 @@ stage``, has no launcher in front of it).
 from __future__ import annotations
 
 import os
+import socket
+from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.pipeline_config import PipelineConfig
+from pipeline.config import PipelineConfig
 from tracker.config import ConfigError
 
-__all__ = ["check_pipeline"]
+__all__ = ["check_pipeline", "listening"]
 
 
 def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
     """Raise :class:`ConfigError` if any stage of ``cfg`` would refuse its configuration, or
     if ``out`` holds a live run, or another run and not ``overwrite``.
 
-    ``cfg`` must be resolved (:func:`pipeline.pipeline_config.resolve_run`): ``out`` set.
+    ``cfg`` must be resolved (:func:`pipeline.config.resolve_run`): ``out`` set.
     """
     _check_sink(cfg)
     _check_out(Path(cfg.out))
@@ -79,11 +81,28 @@ def _check_zenoh(cfg: PipelineConfig) -> None:
             raise ConfigError(f"{key}: {path}: no such file")
 
 
+def listening(endpoints: Sequence[str], timeout: float = 1.0) -> bool | None:
+    """Whether something accepts TCP connections at one of the ``tcp/`` or ``tls/``
+    ``endpoints`` (``HOST:PORT``); ``None`` when an endpoint of another protocol (or an
+    unparsable one) is listed, which is not probed."""
+    probed = False
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, colon, port = addr.split("#")[0].rpartition(":")
+        if proto not in ("tcp", "tls") or not colon or not port.isdigit():
+            return None
+        probed = True
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+            return True
+        except OSError:
+            continue
+    return False if probed else None
+
+
 def _check_routers(endpoints: list[str]) -> None:
     """Some router accepts connections at ``endpoints`` (``tcp/`` and ``tls/`` are probed);
     otherwise every stage would wait ``connect_timeout_s`` and fail."""
-    from pipeline.transport_types import listening
-
     if listening(endpoints) is False:
         raise ConfigError(f"no router at {', '.join(endpoints)}: start one with "
                           f"`bnptrack router --listen {endpoints[0]}`")

@@ -1,6 +1,6 @@
 """The one module of bnptrack that imports zenoh.
 
-It turns a :class:`~pipeline.pipeline_config.ZenohConfig` into Zenoh sessions and gives the
+It turns a :class:`~pipeline.config.ZenohConfig` into Zenoh sessions and gives the
 stages a small, zenoh-free interface, :class:`Bus` (the in-memory twin used by the tests is
 :class:`pipeline.membus.MemoryBus`):
 
@@ -53,8 +53,10 @@ import msgspec
 import zenoh
 import zenoh.ext as zext
 
-from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
-from pipeline.transport_types import Event, listening
+from pipeline.acl import KEY_ROOT, acl_config
+from pipeline.config import DeliveryConfig, ZenohConfig
+from pipeline.preflight import listening
+from pipeline.stages.delivery import Event
 
 __all__ = [
     "KEY_ROOT",
@@ -66,13 +68,10 @@ __all__ = [
     "free_port",
     "session_config",
     "TransportError",
-    "STAGE_KEYS",
-    "acl_config",
 ]
 
 log = logging.getLogger("bnptrack.transport")
 
-KEY_ROOT = "bnptrack"
 #: Topics published with a cache of ``delivery.cache_frames`` samples.
 DATA_TOPICS = frozenset({"measurements", "truth", "tracks"})
 #: Cache size of control topics (``info/<stage>``, ``eos/<stage>``).
@@ -174,84 +173,6 @@ def session_config(
         for path, value in zcfg.router_extra.items():
             ins(path, value)
     return conf
-
-
-#: Keys (relative to ``bnptrack/<run>/``) each stage may put on (and reply from its cache).
-STAGE_KEYS: dict[str, tuple[str, ...]] = {
-    "source": ("measurements", "truth", "info/source", "eos/source", "health/source", "deadletter",
-               "fetch/measurements", "fetch/truth"),
-    "tracker": ("tracks", "info/tracker", "eos/tracker", "health/tracker", "deadletter", "fetch/tracks"),
-    "sink": ("info/sink", "eos/sink", "health/sink", "deadletter"),
-}
-
-
-def acl_config(stage_keys: dict[str, tuple[str, ...]] | None = None) -> dict:
-    """Zenoh ``access_control`` for a pipeline router: default deny; every authenticated
-    session may subscribe, query, declare queryables and liveliness tokens, and receive
-    data; the user named like a stage may put (and reply to history queries) only on that
-    stage's keys in any run (``bnptrack/*/<topic>`` and the advanced publisher's
-    ``.../<topic>/@adv/**`` keys: ``**`` does not match a verbatim ``@`` chunk, so those are
-    listed explicitly)."""
-    stage_keys = STAGE_KEYS if stage_keys is None else stage_keys
-    rules = [
-        {
-            "id": "infrastructure",
-            "messages": ["declare_subscriber", "declare_queryable", "query",
-                         "liveliness_query", "declare_liveliness_subscriber"],
-            "flows": ["ingress", "egress"],
-            "permission": "allow",
-            "key_exprs": ["**", "**/@adv/**"],
-        },
-        {
-            # the advanced publishers' and subscribers' own detection tokens; a stage's
-            # alive/ready tokens only by that stage (below)
-            "id": "adv-tokens",
-            "messages": ["liveliness_token"],
-            "flows": ["ingress", "egress"],
-            "permission": "allow",
-            "key_exprs": ["**/@adv/**"],
-        },
-        {
-            "id": "see-tokens",
-            "messages": ["liveliness_token"],
-            "flows": ["egress"],
-            "permission": "allow",
-            "key_exprs": ["**"],
-        },
-        {
-            "id": "deliver",
-            "messages": ["put", "delete", "reply"],
-            "flows": ["egress"],
-            "permission": "allow",
-            "key_exprs": ["**", "**/@adv/**"],
-        },
-    ]
-    subjects = [{"id": "anyone"}]
-    policies = [{"id": "everyone", "rules": ["infrastructure", "adv-tokens", "see-tokens", "deliver"],
-                 "subjects": ["anyone"]}]
-    for stage, topics in stage_keys.items():
-        keys = []
-        for t in topics:
-            keys += [f"{KEY_ROOT}/*/{t}", f"{KEY_ROOT}/*/{t}/**", f"{KEY_ROOT}/*/{t}/@adv/**"]
-        rules.append({
-            "id": f"publish-{stage}",
-            "messages": ["put", "delete", "reply"],
-            "flows": ["ingress"],
-            "permission": "allow",
-            "key_exprs": keys,
-        })
-        rules.append({
-            "id": f"tokens-{stage}",
-            "messages": ["liveliness_token"],
-            "flows": ["ingress"],
-            "permission": "allow",
-            "key_exprs": [f"{KEY_ROOT}/*/{kind}/{stage}" for kind in ("alive", "ready")],
-        })
-        subjects.append({"id": f"user-{stage}", "usernames": [stage]})
-        policies.append({"id": f"own-keys-{stage}", "rules": [f"publish-{stage}", f"tokens-{stage}"],
-                         "subjects": [f"user-{stage}"]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
 
 
 #: Zenoh appends the Rust source location of an error (`` at /path/file.rs:123.``).

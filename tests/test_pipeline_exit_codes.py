@@ -15,7 +15,8 @@ import msgspec
 import pytest
 
 from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
-from pipeline.launch import LaunchResult, Launcher, _ranges, describe_missing
+from pipeline.launch import Launcher, _ranges, describe_missing
+from pipeline.supervisor import LaunchResult
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME
 from sources.mcap_log import McapLogWriter
@@ -101,7 +102,7 @@ def test_report_launch_exits_3_naming_what_is_missing(tmp_path, capsys):
 def test_a_stage_that_gives_up_makes_the_launch_incomplete(tmp_path):
     """Every stage 'crashes' at once (the stage command is /bin/false): after
     ``max_restarts`` restarts the launcher gives up, and the result is incomplete (exit 3)."""
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
 
     cfg = load_pipeline(None, ["supervisor.max_restarts=1", "supervisor.restart_backoff_s=0",
                                "supervisor.stop_timeout_s=5", f"out='{tmp_path / 'o'}'", "run='gu'"])

@@ -20,7 +20,7 @@ import msgspec
 import pytest
 
 from pipeline.membus import MemoryNetwork
-from pipeline.pipeline_config import PipelineConfig, resolve_run
+from pipeline.config import PipelineConfig, resolve_run
 from pipeline.stages import (
     EXIT_OK,
     STAGES,
@@ -52,15 +52,10 @@ def _run_stage(cfg: PipelineConfig, net: MemoryNetwork, role: str) -> int:
 
 
 def _memory_run(cfg: PipelineConfig, net: MemoryNetwork) -> None:
-    import threading
+    """The whole pipeline in threads on one manual clock (``test_pipeline_stages``)."""
+    from test_pipeline_stages import _run_memory_pipeline
 
-    codes = {}
-    threads = [threading.Thread(target=lambda r=r: codes.__setitem__(r, _run_stage(cfg, net, r)), daemon=True)
-               for r in ("sink", "tracker", "source")]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(120)
+    codes = _run_memory_pipeline(cfg, net)
     assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
 
 
@@ -325,7 +320,7 @@ def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_t
     /measurements, nor declare the tracker's ready token."""
     import zenoh
 
-    from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+    from pipeline.config import DeliveryConfig, ZenohConfig
     from pipeline.transport import Bus, Router
 
     users = tmp_path / "users.txt"

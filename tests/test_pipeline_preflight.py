@@ -82,7 +82,7 @@ def test_launch_out_that_is_a_file_is_refused(tmp_path):
 def test_check_pipeline_accepts_the_default_and_a_replay(vo_log, tmp_path):
     import msgspec
 
-    from pipeline.pipeline_config import default_pipeline, resolve_run
+    from pipeline.config import default_pipeline, resolve_run
     from pipeline.preflight import check_pipeline
 
     cfg = resolve_run(msgspec.structs.replace(default_pipeline(), out=str(tmp_path / "a" / "b")))
@@ -96,7 +96,7 @@ def test_check_pipeline_accepts_the_default_and_a_replay(vo_log, tmp_path):
 
 
 def test_set_keys_route_like_track_plus_the_pipeline_tables():
-    from pipeline.pipeline_config import load_pipeline, split_pipeline_overrides
+    from pipeline.config import load_pipeline, split_pipeline_overrides
 
     items = ["p_detect=0.9", "tracker.sweeps=5", "params.clutter_rate=3", "source.frames=2",
              "tracker.seed=3", "run=abc", "sink.rerun=false", "tracker.tracker=dpyp", "burn_in=1"]
@@ -180,7 +180,7 @@ def test_stage_and_launch_without_a_router_are_one_line_exit_2(tmp_path):
 
 
 def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
-    from pipeline.launch import StageProcess
+    from pipeline.supervisor import StageProcess
 
     log = tmp_path / "tracker.log"
     sp = StageProcess("tracker", [], log)
@@ -196,7 +196,7 @@ def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
 def test_listening_probes_tcp_and_tls_endpoints_only():
     import socket
 
-    from pipeline.transport_types import listening
+    from pipeline.preflight import listening
 
     with socket.socket() as srv:
         srv.bind(("127.0.0.1", 0))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import random
 import threading
+import time
 from pathlib import Path
 
 import msgspec
@@ -15,7 +16,7 @@ import pytest
 
 from pipeline.codec import encode_measurements
 from pipeline.membus import MemoryNetwork
-from pipeline.pipeline_config import (
+from pipeline.config import (
     PipelineConfig,
     default_pipeline,
     load_pipeline,
@@ -25,6 +26,7 @@ from pipeline.stages import (
     EXIT_OK,
     GAP,
     STAGES,
+    ManualClock,
     SUMMARY_NAME,
     Counters,
     Intake,
@@ -33,7 +35,7 @@ from pipeline.stages import (
     read_snapshot,
     write_atomic,
 )
-from pipeline.transport_types import Event
+from pipeline.stages.delivery import Event
 from sources.mcap_log import read_log
 from tracker.config import ConfigError, apply_overrides
 from tracker.types import Frame
@@ -217,7 +219,7 @@ def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
 
 
 def test_tls_file_fields_are_the_file_fields_of_tls_config():
-    from pipeline.pipeline_config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
+    from pipeline.config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
 
     assert TLS_FILE_FIELDS == tuple(f for f in TlsConfig.__struct_fields__ if f not in ("mtls", "verify_name_on_connect"))
     tls = TlsConfig(root_ca_certificate="ca.pem", connect_private_key="k.pem")
@@ -261,14 +263,17 @@ def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
 
 
 def _run_memory_pipeline(cfg: PipelineConfig, net: MemoryNetwork, roles=("sink", "tracker", "source"),
-                         timeout=120.0) -> dict[str, int]:
+                         timeout=120.0, clock: ManualClock | None = None) -> dict[str, int]:
+    """Run ``roles`` on ``net`` in threads, all on one :class:`ManualClock` (see
+    :func:`_drive_clock`): their grace periods do not depend on the machine's speed."""
     codes: dict[str, int] = {}
     errors: list[BaseException] = []
+    clock = clock or ManualClock()
 
     def go(role: str) -> None:
         bus = net.bus(cfg.run, role)
         try:
-            codes[role] = STAGES[role](StageContext(cfg, bus, name=role)).run()
+            codes[role] = STAGES[role](StageContext(cfg, bus, name=role, clock=clock)).run()
         except BaseException as exc:  # pragma: no cover - surfaced below
             errors.append(exc)
         finally:
@@ -277,11 +282,30 @@ def _run_memory_pipeline(cfg: PipelineConfig, net: MemoryNetwork, roles=("sink",
     threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in roles]
     for t in threads:
         t.start()
+    _drive_clock(net, cfg.run, clock, threads, timeout)
     for t in threads:
         t.join(timeout)
     assert not errors, errors
     assert not any(t.is_alive() for t in threads), "a stage did not finish"
     return codes
+
+
+def _source_ended(net: MemoryNetwork, run: str) -> bool:
+    with net.lock:
+        return any(r == run and t == "eos/source" for r, t, _, _ in net.history)
+
+
+def _drive_clock(net: MemoryNetwork, run: str, clock: ManualClock, threads: list[threading.Thread],
+                 timeout: float) -> None:
+    """The stages' time stands still until the source has published its end of stream;
+    from then on it moves one second per poll, so that end-of-stream grace periods and
+    lingering expire (a frame still missing then is a gap by the sequencer's rules, not
+    because the machine was slow: every stage checks its backlog first)."""
+    deadline = time.monotonic() + timeout
+    while any(t.is_alive() for t in threads) and time.monotonic() < deadline:
+        if _source_ended(net, run):
+            clock.advance(1.0)
+        threads[0].join(0.02)
 
 
 def _mem_cfg(tmp_path: Path, frames: int = 12, **extra: str) -> PipelineConfig:
@@ -575,7 +599,7 @@ def test_pipeline_commands_have_help():
 
 
 def test_acl_config_gives_each_stage_only_its_keys():
-    from pipeline.transport import acl_config
+    from pipeline.acl import acl_config
 
     acl = acl_config()
     assert acl["enabled"] and acl["default_permission"] == "deny"
@@ -777,7 +801,7 @@ def _frames_at(stamps_s: list[float], first: int = 1) -> list[Frame]:
 
 
 def test_window_frames_in_seconds_of_log_time_and_in_frames():
-    from pipeline.pipeline_config import SourceConfig
+    from pipeline.config import SourceConfig
     from pipeline.stages import window_frames
 
     frames = _frames_at([5.0, 6.0, 7.5, 9.0, 10.0, 12.0])  # log time 0, 1, 2.5, 4, 5, 7 s
@@ -854,3 +878,63 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     assert [_strip(e) for e in got] != [_strip(e) for e in fresh]  # the prior changed the run
     with pytest.raises(ConfigError, match="not 'dpyp'"):
         keep_prior(tracker.initial_state(), snap, "dpyp")
+
+
+# --------------------------------------------------------------------------- injectable clock
+
+
+def test_hole_watch_is_due_after_its_delay_on_the_injected_clock():
+    from pipeline.stages import HoleWatch
+
+    clock = ManualClock()
+    seqr = Sequencer(4)
+    seqr.push(1, "b")  # seq 0 missing, seq 1 waits in the buffer
+    watch = HoleWatch(1.0, clock.monotonic)
+    assert not watch.due(seqr)  # the first look starts the delay
+    clock.advance(0.5)
+    assert not watch.due(seqr)
+    clock.advance(0.5)
+    assert watch.due(seqr)
+    assert not watch.due(seqr)  # then again only after another delay
+    clock.advance(1.0)
+    assert watch.due(seqr)
+    seqr.push(0, "a")  # nothing missing any more
+    clock.advance(5.0)
+    assert not watch.due(seqr)
+
+
+def test_source_paces_its_frames_on_the_injected_clock(tmp_path):
+    """source.rate = 2: frame k is published (log time of k - log time of frame 0) / 2 after
+    the start, on the stage's clock: a manual clock ends exactly there, without waiting."""
+    from pipeline.stages import source_frames
+
+    cfg = _mem_cfg(tmp_path, frames=6, **{"source.rate": "2.0", "source.done_by": "[]", "source.wait_for": "[]"})
+    clock = ManualClock(start_ns=10**18)
+    net = MemoryNetwork()
+    bus = net.bus(cfg.run, "source")
+    try:
+        assert STAGES["source"](StageContext(cfg, bus, name="source", clock=clock)).run() == EXIT_OK
+    finally:
+        bus.close()
+    stamps = [f.stamp_ns for f in source_frames(cfg)[1]]
+    assert len(stamps) == 6
+    assert clock.monotonic() == pytest.approx((stamps[-1] - stamps[0]) / 1e9 / 2.0, abs=1e-9)
+    sent = [json.loads(a)["t"] for r, t, p, a in net.history if t == "measurements"]
+    assert sent == [10**18 + round((s - stamps[0]) / 2.0) for s in stamps]
+
+
+def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
+    """The tracker stage warms up the tracker it runs (its registry entry), not a fixed one:
+    warming glmb does not import the BNP tracker, warming ddp does."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from pipeline.stages.tracker import warm_tracker_imports; "
+            "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp_tracker' in sys.modules), "
+            "int('tracker.glmb' in sys.modules))")
+    root = Path(__file__).resolve().parent.parent
+    seen = {name: subprocess.run([sys.executable, "-c", code, name], capture_output=True, text=True,
+                                 cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
+                                 check=True).stdout.split()
+            for name in ("glmb", "ddp")}
+    assert seen == {"glmb": ["0", "1"], "ddp": ["1", "0"]}

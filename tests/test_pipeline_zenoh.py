@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.pipeline_config import DeliveryConfig, ZenohConfig
+from pipeline.config import DeliveryConfig, ZenohConfig
 from sources.mcap_log import McapLogWriter, iter_frames, read_log, read_metadata
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -182,16 +182,17 @@ def test_launch_default_end_to_end_equals_offline_track(tmp_path):
 
 
 def test_tracker_killed_and_restarted_resumes_with_identical_output(tmp_path):
+    from pipeline.stages import read_snapshot
+
     out = tmp_path / "kill"
     p = _popen("launch", "--set", "source.frames=60", "--set", "source.rate=25",
                "--set", "tracker.snapshot_every=5", *FAST, "--run", "kill-1", "--out", str(out),
                "--timeout", "150")
     try:
-        deadline = time.monotonic() + 90
-        while not (out / "tracker.snap").exists():  # the tracker has processed >= 5 frames
-            assert time.monotonic() < deadline and p.poll() is None, "the tracker never snapshotted"
-            time.sleep(0.05)
-        time.sleep(0.3)
+        snap = out / "tracker.snap"
+        _wait_for("the tracker never snapshotted", snap.exists, p)  # >= 5 frames processed
+        # a second snapshot: the tracker is well into the run (>= 10 frames) when it is killed
+        _wait_for("the tracker never snapshotted twice", lambda: read_snapshot(snap).last_seq >= 9, p)
         pid = json.loads((out / "stages.json").read_text())["tracker"]["pid"]
         os.kill(pid, signal.SIGKILL)
     finally:
@@ -338,6 +339,17 @@ def _wait_eos(bus, stage: str, timeout: float) -> dict:
     pytest.fail(f"no end of stream from {stage} within {timeout} s")
 
 
+def _wait_deadletters(bus, stage: str, n: int, timeout: float) -> None:
+    """Wait until ``bus`` (subscribed to ``deadletter``) has received ``n`` dead letters of ``stage``."""
+    deadline = time.monotonic() + timeout
+    seen = 0
+    while seen < n and time.monotonic() < deadline:
+        ev = bus.recv(0.2)
+        if ev is not None and ev.topic == "deadletter" and json.loads(ev.payload)["stage"] == stage:
+            seen += 1
+    assert seen >= n, f"{seen} dead letter(s) of {stage} within {timeout} s, not {n}"
+
+
 def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
     """Source and tracker run to the end before the sink exists; the sink then receives the
     cached history.  Malformed, NaN, wrong-run and unsequenced samples published on the
@@ -362,7 +374,8 @@ def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
         intruder.publish("tracks", b'{"v":1,"run":"late-1","frame":1,"stamp_ns":0,"tracks":[],'
                                    b'"assignments":[],"assignment_prob":[NaN]}', {"seq": 0})
         intruder.publish("truth", b'{"v":7,"run":"late-1","frame":1,"stamp_ns":0,"objects":[]}', {"seq": 0})
-        time.sleep(0.5)
+        # the tracker (still serving) has rejected the three bad /measurements: they are out
+        _wait_deadletters(watcher, "tracker", 3, 60)
         sink = _stage("sink", run, ep, out, *common)
         code, _ = _wait(sink, 120)
         for p in procs:
@@ -506,7 +519,7 @@ def test_stages_over_tls_with_access_control(tmp_path):
     generated ACL; source, tracker and sink as separate `bnptrack stage` processes with their
     own credentials.  A client without the CA, or with a wrong password, is refused; a stage
     cannot put on another stage's keys."""
-    from pipeline.pipeline_config import TlsConfig
+    from pipeline.config import TlsConfig
     from pipeline.transport import Bus, Router, TransportError
 
     certs = _make_certs(tmp_path)
@@ -578,7 +591,7 @@ def _roundtrip(zcfg: ZenohConfig, run: str) -> bytes | None:
 def test_mutual_tls_refuses_clients_without_a_certificate_of_the_ca(tmp_path):
     """Router with ``mtls = true``: a client needs a certificate signed by the CA.  Without
     one, or with one from another CA, ``zenoh.open`` fails; with one, data flows."""
-    from pipeline.pipeline_config import TlsConfig
+    from pipeline.config import TlsConfig
     from pipeline.transport import Bus, Router, TransportError
 
     c = _make_certs(tmp_path)
@@ -620,7 +633,7 @@ def test_peer_mode_links_stages_directly(router):
 
 
 def test_peer_mode_refuses_tls_and_access_control():
-    from pipeline.pipeline_config import TlsConfig, load_pipeline
+    from pipeline.config import TlsConfig, load_pipeline
     from tracker.config import ConfigError
 
     for bad in ({"acl": True}, {"users_file": "u.txt"}, {"tls": TlsConfig(root_ca_certificate="ca.pem")}):

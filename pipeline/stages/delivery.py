@@ -1,0 +1,332 @@
+"""Delivery: what a stage receives, checked and put in order.
+
+A bus (:class:`pipeline.transport.Bus`, :class:`pipeline.membus.MemoryBus`) hands a stage
+:class:`Event` samples; :class:`Intake` validates each one (size, attachment, codec, run id)
+into an :class:`Accepted` sample or rejects it with a dead letter; a :class:`Sequencer` per
+stream dedupes, reorders within a window and declares gaps; :class:`HoleWatch` and
+:func:`fetch_holes` fetch what a stream misses from its publisher's cache.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline.codec import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode_msg
+from pipeline.config import DeliveryConfig
+from pipeline.stages.health import _JSON, Counters
+
+__all__ = ["Event", "Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
+           "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY"]
+
+log = logging.getLogger("bnptrack.stage")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One received sample: ``topic`` relative to the run (e.g. ``"measurements"``,
+    ``"eos/source"``), payload bytes, decoded attachment (``None`` if absent or invalid, then
+    ``meta_error`` says why), receive time (``time.time_ns()``)."""
+
+    topic: str
+    payload: bytes
+    meta: dict | None
+    t_recv_ns: int
+    meta_error: str | None = None
+
+
+#: Topic (bus-relative) of each codec topic.
+BUS_TOPIC = {TOPIC_MEASUREMENTS: "measurements", TOPIC_TRUTH: "truth", TOPIC_TRACKS: "tracks"}
+CODEC_TOPIC = {v: k for k, v in BUS_TOPIC.items()}
+
+#: Largest sequence number accepted (JSON-safe integer).
+MAX_SEQ = 2**53
+#: Bytes of a rejected payload copied to the dead-letter topic.
+DEADLETTER_COPY = 64 * 1024
+
+
+class _Marker:
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __repr__(self) -> str:
+        return self.name
+
+
+#: A frame declared missing by a :class:`Sequencer`.
+GAP = _Marker("GAP")
+#: Placeholder in the sink's truth stream for a frame the source sent without truth.
+NO_TRUTH = _Marker("NO_TRUTH")
+
+
+class Sequencer:
+    """Dedupe, reorder within a window, declare gaps: in-order release of ``seq`` items.
+
+    ``push(seq, item)`` returns ``(status, released)`` where ``status`` is ``"accepted"``,
+    ``"duplicate"`` (already released or buffered), ``"late"`` (its gap was declared) or
+    ``"far"`` (``max_ahead`` or more past the next expected number: not accepted, nothing
+    declared; ``max_ahead`` is at least ``catch_up``, default unbounded) and ``released`` a
+    list of ``(seq, item)`` in sequence order, ``item`` being
+    :data:`GAP` for a missing frame.  The buffer never spans ``window`` or more sequence
+    numbers: a frame arriving ``window`` or more ahead of the next expected one releases
+    (or declares missing) everything at least ``window`` behind it.  The result depends
+    only on the order of the pushes.
+
+    ``catch_up`` (default: ``window``) is the window used until the stream has *caught up*,
+    i.e. until the buffer is empty for the first time and everything up to the publisher's
+    announced live head (:meth:`hold_catch_up_through`) is released: a consumer that starts late or
+    restarts receives the publishers' history (the frames from ``start`` on) and live frames
+    at the same time, in no guaranteed order, and the live frames must not push the history
+    out as gaps.  Consumers use the cache size: no history holds more.
+    """
+
+    def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None,
+                 max_ahead: int | None = None) -> None:
+        if window < 1 or (catch_up is not None and catch_up < window):
+            raise ValueError("window must be >= 1 and catch_up >= window")
+        self.window = int(window)
+        self.catch_up = int(catch_up) if catch_up is not None else self.window
+        self.max_ahead = max(int(max_ahead), self.catch_up) if max_ahead is not None else None
+        self.far = 0
+        self.caught_up = False
+        self.next = int(start)
+        self.name = name
+        self.buf: dict[int, Any] = {}
+        self.gaps: list[int] = []
+        self._gapset: set[int] = set()
+        self.accepted = 0
+        self.duplicates = 0
+        self.late = 0
+        self.max_seen = int(start) - 1
+        self.catch_up_through = -1
+
+    @classmethod
+    def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
+        """A consumer's sequencer with the pipeline's ``window``, ``catch_up`` and
+        ``max_seq_ahead``."""
+        return cls(delivery.window, start, name, delivery.catch_up, delivery.max_seq_ahead)
+
+    def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
+        seq = int(seq)
+        if self.max_ahead is not None and seq - self.next >= self.max_ahead:
+            # never declare (and allocate) max_ahead or more gaps at once for one sample
+            self.far += 1
+            return "far", []
+        if seq < self.next:
+            if seq in self._gapset:
+                self.late += 1
+                return "late", []
+            self.duplicates += 1
+            return "duplicate", []
+        if seq in self.buf:
+            self.duplicates += 1
+            return "duplicate", []
+        self.accepted += 1
+        self.max_seen = max(self.max_seen, seq)
+        out: list[tuple[int, Any]] = []
+        window = self.window if self.caught_up else self.catch_up
+        if seq >= self.next + window:
+            out += self._advance_to(seq - window + 1)
+        self.buf[seq] = item
+        out += self._release()
+        self.caught_up = self.caught_up or (not self.buf and self.next > self.catch_up_through)
+        return "accepted", out
+
+    def hold_catch_up_through(self, head: int | None) -> None:
+        """The publisher's announced live head: the history a (re)joining consumer receives
+        ends there, so the catch-up window holds until everything up to ``head`` is released
+        (not merely until the buffer is empty once)."""
+        if head is None:
+            return
+        self.catch_up_through = max(self.catch_up_through, int(head))
+        if self.next <= self.catch_up_through:
+            self.caught_up = False
+
+    def _advance_to(self, target: int) -> list[tuple[int, Any]]:
+        out: list[tuple[int, Any]] = []
+        while self.next < target:
+            s = self.next
+            if s in self.buf:
+                out.append((s, self.buf.pop(s)))
+            else:
+                self.gaps.append(s)
+                self._gapset.add(s)
+                out.append((s, GAP))
+            self.next += 1
+        return out
+
+    def _release(self) -> list[tuple[int, Any]]:
+        out: list[tuple[int, Any]] = []
+        while self.next in self.buf:
+            out.append((self.next, self.buf.pop(self.next)))
+            self.next += 1
+        return out
+
+    def restore_gaps(self, gaps: Iterable[int]) -> None:
+        """The gaps an earlier run of this consumer declared (from its snapshot): a frame
+        of them arriving now is *late*, as it would have been for that run."""
+        self.gaps = [int(g) for g in gaps]
+        self._gapset = set(self.gaps)
+
+    def far_reason(self, seq: int) -> str:
+        """Why ``push(seq, ...)`` answered ``"far"`` (for the rejection)."""
+        return (f"seq {seq} is {seq - self.next} past the next expected {self.next} (the limit is "
+                f"delivery.max_seq_ahead = {self.max_ahead})")
+
+    def mark_gaps(self, seqs: Iterable[int]) -> list[tuple[int, Any]]:
+        """Declare ``seqs`` missing now (e.g. the gaps an upstream stage reported)."""
+        for s in sorted(set(int(x) for x in seqs)):
+            if s >= self.next and s not in self.buf:
+                self.buf[s] = GAP
+                self.gaps.append(s)
+                self._gapset.add(s)
+        return self._release()
+
+    def flush_through(self, last: int) -> list[tuple[int, Any]]:
+        """Release everything up to ``last`` (inclusive), declaring what is missing."""
+        return self._advance_to(int(last) + 1) + self._release()
+
+    def complete_through(self, last: int) -> bool:
+        return self.next > last
+
+    @property
+    def pending(self) -> int:
+        return len(self.buf)
+
+
+class HoleWatch:
+    """Says when to fetch what a stream misses: its next expected seq has not moved for
+    ``after`` seconds while later frames wait in the buffer (the transport's history or
+    recovery did not bring it); then again every ``after`` seconds."""
+
+    def __init__(self, after: float, monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.after = after
+        self.next = -1
+        self._monotonic = monotonic
+        self.since = monotonic()
+
+    def due(self, seqr: Sequencer) -> bool:
+        now = self._monotonic()
+        if seqr.next != self.next:
+            self.next, self.since = seqr.next, now
+            return False
+        if seqr.pending and now - self.since >= self.after:
+            self.since = now
+            return True
+        return False
+
+
+def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Callable[[Any], None]) -> int:
+    """Fetch explicitly from the publisher's cache (:meth:`pipeline.transport.Bus.fetch`) the
+    frames of ``topic`` that ``seqr`` still misses up to ``upto``, and hand each to
+    ``on_event`` (validated like any sample).  Returns how many came back (0 without a
+    fetch-capable bus or when nothing is missing)."""
+    fetch = getattr(bus, "fetch", None)
+    if fetch is None or upto < seqr.next:
+        return 0
+    hi = next((s for s in range(upto, seqr.next - 1, -1) if s not in seqr.buf), None)
+    if hi is None:
+        return 0
+    events = fetch(topic, seqr.next, hi)
+    for ev in events:
+        on_event(ev)
+    if events:
+        log.info("%s: fetched %d %s sample(s) in %d-%d from the publisher's cache", bus.stage, len(events),
+                 topic, seqr.next, hi)
+    return len(events)
+
+
+#: Seconds a stream's next frame may be missing, with later ones waiting, before it is fetched.
+FETCH_AFTER_S = 1.0
+@dataclass(frozen=True)
+class Accepted:
+    """A validated data sample: sequence number, decoded message, attachment."""
+
+    seq: int
+    msg: Any
+    meta: dict
+    t_recv_ns: int
+    payload: bytes
+
+
+class Intake:
+    """Validate incoming data samples; reject with a log line, a counter and a dead letter.
+
+    ``check(event)`` returns :class:`Accepted` or ``None`` (rejected).  Checks, in order:
+    payload size (``max_payload_bytes``), attachment (a JSON object with an integer
+    ``seq`` in ``[0, 2**53)``), the codec (schema, version, finite values, sizes), the
+    message's ``run`` (must be this run).
+    """
+
+    def __init__(self, stage: str, run: str, bus: Any, counters: Counters, max_payload_bytes: int,
+                 time_ns: Callable[[], int] = time.time_ns) -> None:
+        self.stage = stage
+        self._time_ns = time_ns
+        self.run = run
+        self.bus = bus
+        self.counters = counters
+        self.max_payload = max_payload_bytes
+        self.rejected_by_topic: dict[str, int] = {}
+
+    def check(self, ev: Any) -> Accepted | None:
+        topic = ev.topic
+        codec_topic = CODEC_TOPIC.get(topic)
+        if codec_topic is None:
+            return self.reject(ev, None, f"unexpected topic {topic!r}")
+        if len(ev.payload) > self.max_payload:
+            return self.reject(
+                ev, None, f"payload of {len(ev.payload)} bytes exceeds the limit of {self.max_payload}"
+            )
+        meta = ev.meta
+        if meta is None:
+            return self.reject(ev, None, ev.meta_error or "missing attachment (sequence number)")
+        seq = meta.get("seq")
+        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq < MAX_SEQ:
+            return self.reject(ev, None, f"attachment seq must be an integer in [0, 2**53), got {seq!r}")
+        try:
+            msg = decode_msg(codec_topic, ev.payload)
+        except CodecError as exc:
+            return self.reject(ev, seq, str(exc))
+        if msg.run != self.run:
+            return self.reject(ev, seq, f"{codec_topic} frame {msg.frame}: run {msg.run!r} is not this run {self.run!r}")
+        frame = meta.get("frame")
+        if frame is not None and frame != msg.frame:
+            return self.reject(ev, seq, f"{codec_topic}: attachment frame {frame!r} != payload frame {msg.frame}")
+        return Accepted(seq, msg, meta, ev.t_recv_ns, ev.payload)
+
+    def reject(self, ev: Any, seq: int | None, reason: str) -> None:
+        """Reject the received sample ``ev`` (returns ``None``, for ``return self.reject(...)``)."""
+        return self.reject_sample(ev.topic, ev.payload, seq, reason)
+
+    def reject_sample(self, topic: str, payload: bytes, seq: int | None, reason: str) -> None:
+        """Reject a sample of ``topic`` (e.g. an accepted one that a later check refuses):
+        a log line, the counters, a copy on ``deadletter``."""
+        self.counters.rejected += 1
+        self.rejected_by_topic[topic] = self.rejected_by_topic.get(topic, 0) + 1
+        n = self.counters.rejected
+        if n <= 20 or n % 100 == 0:
+            log.warning("%s: rejected %s sample (seq %s, %d bytes): %s [rejected so far: %d]",
+                        self.stage, topic, seq, len(payload), reason, n)
+        letter = {
+            "stage": self.stage,
+            "run": self.run,
+            "topic": topic,
+            "seq": seq,
+            "reason": reason,
+            "size": len(payload),
+            "truncated": len(payload) > DEADLETTER_COPY,
+            "payload_b64": base64.b64encode(bytes(payload[:DEADLETTER_COPY])).decode(),
+            "t_ns": self._time_ns(),
+        }
+        try:
+            self.bus.publish("deadletter", _JSON.encode(letter))
+        except Exception as exc:  # the dead letter is best effort
+            log.error("%s: could not publish a dead letter: %s", self.stage, exc)
+        return None
+

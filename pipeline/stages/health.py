@@ -1,0 +1,79 @@
+"""Health and control: a stage's counters (``health/<stage>``) and the control messages
+``info/<stage>`` and ``eos/<stage>``."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+import numpy as np
+
+__all__ = ["Counters", "StageInfo", "EndOfStream"]
+
+@dataclass
+class Counters:
+    """Health counters of one stage (published on ``health/<stage>``)."""
+
+    received: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    duplicates: int = 0
+    late: int = 0
+    gaps: int = 0
+    published: int = 0
+    processed: int = 0
+    restarts_resumed: int = 0
+    latency_ms: deque = field(default_factory=lambda: deque(maxlen=10_000))
+
+    def latency(self) -> dict[str, float | int | None]:
+        if not self.latency_ms:
+            return {"n": 0, "p50": None, "p99": None}
+        a = np.fromiter(self.latency_ms, float)
+        return {"n": int(a.size), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if k != "latency_ms"}
+        d["latency_ms"] = self.latency()
+        return d
+
+
+class StageInfo(msgspec.Struct, kw_only=True):
+    """``info/<stage>``: what a stage produces (cached for late joiners)."""
+
+    stage: str
+    run: str
+    kind: str = ""
+    metadata: dict[str, str] | None = None
+    tracker: str = ""
+    seed: int = 0
+    pid: int = 0
+
+
+class EndOfStream(msgspec.Struct, kw_only=True):
+    """``eos/<stage>``: the stage produced (or, for a sink, recorded) everything it will.
+
+    ``last_seq`` is the last sequence number of the stream (-1: empty), ``gaps`` the
+    sequence numbers it declared missing, ``rejected`` those whose sample it received but
+    refused (the tracker: a frame beyond the frame bounds; no output for them), ``error`` why
+    the stream ended early (e.g. a truncated log), ``complete`` false when it was stopped
+    before its input ended.
+    """
+
+    stage: str
+    run: str
+    last_seq: int
+    frames: int = 0
+    gaps: list[int] = []
+    rejected: list[int] = []
+    error: str = ""
+    complete: bool = True
+    files: list[str] = []
+
+
+_INFO_DEC = msgspec.json.Decoder(StageInfo)
+_EOS_DEC = msgspec.json.Decoder(EndOfStream)
+#: Decoder of each control topic kind (``<kind>/<stage>``).
+_CONTROL_DEC = {"eos": _EOS_DEC, "info": _INFO_DEC}
+_JSON = msgspec.json.Encoder()

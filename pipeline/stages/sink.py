@@ -1,0 +1,554 @@
+"""The sink stage: record the run (``tracks.mcap``, ``run.rrd``, ``sink.json``) from the
+``measurements``, ``truth`` and ``tracks`` streams, frame by frame in sequence order."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from pipeline.codec import estimate_from_msg, frame_from_msg, truth_from_msg
+from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from pipeline.stages.health import _JSON, EndOfStream
+from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
+from tracker.types import Frame, FrameBounds
+
+__all__ = ["SinkStage"]
+
+log = logging.getLogger("bnptrack.stage")
+
+
+def _rerun_sink_module():
+    """``sinks.rerun_sink`` when it is installed (with rerun-sdk), else ``None``."""
+    try:
+        import sinks.rerun_sink as mod  # type: ignore[import-not-found]
+    except ImportError:
+        return None
+    return mod
+
+
+class SinkStage(StageBase):
+    """Record the run: ``<out>/tracks.mcap`` (``/measurements``, ``/truth``, ``/tracks`` per
+    frame, in order, like ``bnptrack track``), ``<out>/run.rrd`` when the Rerun sink is
+    available, and ``<out>/sink.json`` (counts, gaps, latency).  Duplicate frames (e.g.
+    ``/tracks`` re-published by a restarted tracker) are dropped."""
+
+    role = "sink"
+
+    def __init__(self, ctx: StageContext) -> None:
+        super().__init__(ctx)
+        self.sink_cfg = self.cfg.sink
+        d = self.delivery
+        self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes,
+                             time_ns=self.clock.time_ns)
+        self.streams: dict[str, Sequencer] = {
+            "measurements": Sequencer.for_delivery(d, 0, "measurements"),
+            "truth": Sequencer.for_delivery(d, 0, "truth"),
+        }
+        if self.sink_cfg.tracks:
+            self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
+        self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
+        self.holes = {k: HoleWatch(FETCH_AFTER_S, self.clock.monotonic) for k in self.streams}
+        self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
+        self.next_write = 0
+        self.writer = None
+        self.rrd = None
+        from sinks.scoring import RunScorer, ScoreTally
+
+        self.scorer = RunScorer()
+        self.tally = ScoreTally()
+        self.frames_written = 0
+        self.tracks_written = 0
+        self.e2e_ms: list[float] = []
+        self.tracker_ms: list[float] = []
+        self.hop_ms: list[tuple[float, float, float]] = []
+        self.seq_written: list[int] = []
+        self.files: list[str] = []
+        self.held: list[tuple[int, Any, Any, Any]] = []
+        self.bounds = FrameBounds(d.max_frame_gap, d.max_gap_s)
+        self.last_frame = -1
+        self.last_stamp_ns: int | None = None
+        self.rejected_seqs: list[int] = []
+        self.mismatched: dict[str, list[int]] = {}
+        self.upstream_marked: set[str] = set()  # streams given the gaps their upstream stage reported
+        self.t_first_ns: int | None = None
+        self.t_last_ns: int | None = None
+        self.t_first_pub_ns: int | None = None
+
+    # -- output ------------------------------------------------------------------------
+    def _metadata(self) -> tuple[bool, dict[str, str] | None]:
+        """(known, metadata): the tracker's output record (or the source's when there is
+        no tracker stream)."""
+        if self.sink_cfg.tracks:
+            info = self.infos.get("tracker")
+        else:
+            info = self.infos.get("source")
+        if info is None:
+            return False, None
+        meta = dict(info.metadata) if info.metadata is not None else None
+        if meta is not None:
+            meta.setdefault("run", self.run_id)
+        return True, meta
+
+    def _open(self, force: bool = False) -> bool:
+        if self.writer is not None:
+            return True
+        known, meta = self._metadata()
+        if not known and not force:
+            return False
+        out = self.ctx.out
+        out.mkdir(parents=True, exist_ok=True)
+        if self.sink_cfg.mcap:
+            from sources.mcap_log import McapLogWriter
+
+            path = out / self.sink_cfg.mcap_name
+            self.writer = McapLogWriter(part_path(path), meta if meta is not None else {"run": self.run_id})
+            self.files.append(str(path))
+        else:
+            self.writer = _NullWriter()
+        if self.sink_cfg.rerun:
+            self._open_rrd(out / self.sink_cfg.rrd_name, meta)
+        self.bus.declare_alive("ready")
+        return True
+
+    def _open_rrd(self, path: Path, meta: dict[str, str] | None) -> None:
+        """Open ``run.rrd`` with ``sinks.rerun_sink.RerunSink`` when that module is present
+        (the hook: nothing else in the pipeline depends on it)."""
+        mod = _rerun_sink_module()
+        if mod is None:
+            log.info("%s: sinks.rerun_sink is not available: no %s", self.name, path.name)
+            return
+        params = None
+        try:
+            from pipeline.offline import resolve_params
+            from tracker.models.params import load_params
+
+            name = (meta or {}).get("tracker_params")
+            params = load_params(name) if name else resolve_params(None, meta).params
+        except Exception:  # the viewer falls back to its default field of view
+            params = None
+        try:
+            self.rrd = mod.RerunSink(part_path(path), recording_id=self.run_id, metadata=meta or {}, params=params,
+                                     handle_signals=False, live=self.sink_cfg.view_url or None)
+            self.files.append(str(path))
+        except Exception as exc:  # the recording must not die for a viewer file
+            log.error("%s: Rerun sink disabled: %s", self.name, exc)
+            self.rrd = None
+
+    def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
+        try:
+            self._write_frame(s, meas, truth, tracks)
+        except OSError as exc:
+            raise StageIOError(self.name, self.ctx.out / self.sink_cfg.mcap_name, exc) from None
+
+    def _write_frame(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
+        """Record frame ``s``: the payloads go into tracks.mcap as received (they were
+        validated on receipt, and they are the codec's bytes: no decoding to numpy and
+        re-encoding); the Rerun sink, when on, gets them decoded."""
+        has_truth = truth is not GAP and truth is not NO_TRUTH
+        if meas is not GAP:
+            m = meas.msg
+            self.writer.write_encoded_frame(meas.payload, truth.payload if has_truth else None,
+                                            m.stamp_ns, m.frame)
+            self.frames_written += 1
+        if tracks is not None and tracks is not GAP:
+            self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
+            self.tracks_written += 1
+            self._note_latency(s, tracks)
+        if meas is not GAP and tracks is not None and tracks is not GAP:
+            # scored always (progress, sink.json); drawn when the Rerun sink is on
+            frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
+            est = estimate_from_msg(tracks.msg)
+            scores = self.scorer.update(frame, est) if self.sink_cfg.score or self.rrd is not None else _NO_SCORES
+            self.tally.add(frame, est, scores)
+            if self.rrd is not None:
+                self._log_rrd(frame, est, scores)
+
+    def _note_latency(self, s: int, tracks: Accepted) -> None:
+        """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
+        t_pub = tracks.meta.get("t")
+        self.t_last_ns = tracks.t_recv_ns
+        if not isinstance(t_pub, int) or t_pub <= 0:
+            return
+        e2e = (tracks.t_recv_ns - t_pub) / 1e6
+        self.e2e_ms.append(e2e)
+        self.counters.latency_ms.append(e2e)
+        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
+        self.seq_written.append(s)
+        t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
+        if isinstance(t_in, int) and isinstance(t_out, int):
+            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
+        if self.t_first_pub_ns is None:
+            self.t_first_pub_ns = t_pub
+
+    def _log_rrd(self, frame: Frame, est: Any, scores: dict[str, Any]) -> None:
+        try:
+            self.rrd.log(frame, est, **scores, health=self._health_scalars())
+        except Exception as exc:
+            log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
+            self._close_rrd()
+
+    def _sink_health(self) -> dict:
+        """The sink's part of its health message: what the launcher's progress line shows
+        (frames written, the newest frame seen, the last frame's latency, the scores)."""
+        seen = self.streams["measurements"].max_seen
+        return {"frames_written": self.frames_written, "next_seq": self.next_write,
+                "max_seq_seen": seen, "last_latency_ms": self.e2e_ms[-1] if self.e2e_ms else None,
+                "scores": self.tally.as_dict()}
+
+    def _health_scalars(self) -> dict[str, float]:
+        c = self.counters
+        out = {"received": c.received, "accepted": c.accepted, "rejected": c.rejected,
+               "duplicates": c.duplicates, "late": c.late, "gaps": c.gaps,
+               "dropped": float(self.bus.dropped)}
+        if self.e2e_ms:
+            out["latency_ms"] = self.e2e_ms[-1]
+        return {k: float(v) for k, v in out.items()}
+
+    def _close_rrd(self) -> None:
+        rrd, self.rrd = self.rrd, None
+        if rrd is not None:
+            try:
+                rrd.close()
+            except Exception as exc:
+                log.error("%s: closing the Rerun sink: %s", self.name, exc)
+
+    def _drain_ready(self) -> None:
+        """Write every frame for which each stream has released its item (or a gap)."""
+        if not self._open():
+            return
+        ready = self.ready
+        has_tracks = "tracks" in ready
+        while True:
+            s = self.next_write
+            if s not in ready["measurements"] or s not in ready["truth"]:
+                return
+            if has_tracks and s not in ready["tracks"]:
+                return
+            meas = ready["measurements"].pop(s)
+            truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas)
+            tracks = self._same_frame(s, "tracks", ready["tracks"].pop(s), meas) if has_tracks else None
+            if self._in_bounds(s, meas):
+                self._write(s, meas, truth, tracks)
+            self.next_write += 1
+
+    def _in_bounds(self, s: int, meas: Any) -> bool:
+        """Whether frame ``s`` may be recorded: its frame number and stamp advance within
+        the frame bounds (as the tracker checks them); otherwise none of its messages are
+        written, and it is rejected and counted."""
+        if meas is GAP:
+            return True
+        m = meas.msg
+        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
+        if why is not None:
+            self.intake.reject_sample("measurements", meas.payload, s, why)
+            self.rejected_seqs.append(s)
+            return False
+        self.last_frame, self.last_stamp_ns = m.frame, m.stamp_ns
+        return True
+
+    def _same_frame(self, s: int, stream: str, item: Any, meas: Any) -> Any:
+        """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if
+        either is missing; otherwise :data:`GAP` (dropped, logged, counted as rejected)."""
+        if item is GAP or item is NO_TRUTH or meas is GAP or item.msg.frame == meas.msg.frame:
+            return item
+        log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
+                  self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
+        self.counters.rejected += 1
+        self.mismatched.setdefault(stream, []).append(s)
+        return GAP
+
+    # -- intake ------------------------------------------------------------------------
+    def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:
+        r = self.ready[stream]
+        for s, item in released:
+            if item is GAP:
+                self.counters.gaps += 1
+                log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
+            r[s] = item
+
+    def _push(self, stream: str, seq: int, item: Any) -> None:
+        status, released = self.streams[stream].push(seq, item)
+        if status == "accepted":
+            if item is not NO_TRUTH:
+                self.counters.accepted += 1
+            self.progress[stream] = self.clock.monotonic()
+        elif status == "duplicate":
+            if item is not NO_TRUTH:
+                self.counters.duplicates += 1
+        elif status == "far":
+            if item is not NO_TRUTH:
+                self.intake.reject_sample(stream, item.payload, seq, self.streams[stream].far_reason(seq))
+        else:
+            self.counters.late += 1
+            log.warning("%s: %s seq %d arrived after its gap was declared: rejected", self.name, stream, seq)
+        self._release(stream, released)
+
+    def _on_data(self, ev: Any) -> None:
+        if ev.topic not in self.streams:
+            return
+        self.counters.received += 1
+        acc = self.intake.check(ev)
+        if acc is None:
+            return
+        if self.t_first_ns is None:
+            self.t_first_ns = acc.t_recv_ns
+        self._push(ev.topic, acc.seq, acc)
+        if ev.topic == "measurements" and acc.meta.get("truth") is False:
+            self._push("truth", acc.seq, NO_TRUTH)
+
+    # -- completion --------------------------------------------------------------------
+    def _check_end(self) -> bool:
+        """True when everything up to the end of stream is released and written."""
+        src = self.eos_seen.get("source")
+        if src is None:
+            return False
+        last = src.last_seq
+        now = self.clock.monotonic()
+        grace = self.delivery.eos_grace_s
+        done = True
+        for name, seq in self.streams.items():
+            upstream = "source"
+            if name == "tracks":
+                upstream = "tracker"
+                tr = self.eos_seen.get("tracker")
+                if tr is None:
+                    done = False
+                    continue
+                if (tr.gaps or tr.rejected) and name not in self.upstream_marked:
+                    self._release(name, seq.mark_gaps([*tr.gaps, *tr.rejected]))
+                    self.upstream_marked.add(name)
+                end = tr.last_seq
+            else:
+                end = last
+            if not seq.complete_through(end):
+                # grace counts from the later of the last progress and the end of stream
+                idle = now - max(self.progress[name], self.eos_time[upstream])
+                if idle >= grace and self.bus.backlog == 0 and not self._fetch(name, end):
+                    log.warning("%s: end of stream: %s still missing after %.1f s without progress "
+                                "are gaps", self.name, name, idle)
+                    self._release(name, seq.flush_through(end))
+                else:
+                    done = False
+        self._drain_ready()
+        return done and self.next_write > last
+
+    def _fetch(self, stream: str, upto: int) -> int:
+        """Fetch what ``stream`` misses up to ``upto`` from its publisher's cache.  The truth
+        of a frame sent without truth is not in any cache: its /measurements says so."""
+        return fetch_holes(self.bus, stream, self.streams[stream], upto, self._on_data)
+
+    def _fetch_due(self) -> None:
+        for name, seq in self.streams.items():
+            if self.holes[name].due(seq):
+                self._fetch(name, max(seq.buf))
+
+    def _finalize_or_abandon(self, complete: bool) -> None:
+        try:
+            self._finalize(complete)
+        except OSError as exc:
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sink_cfg.mcap_name, exc) from None
+
+    def _abandon(self) -> None:
+        """After a write error (disk full): close what is open, ignoring further errors, and
+        remove the unfinished ``.part`` files (no temporary file is left behind)."""
+        writer, self.writer = self.writer, None
+        for close in (getattr(writer, "close", None), self._close_rrd):
+            try:
+                if close is not None:
+                    close()
+            except Exception:  # the disk is full: nothing more can be written
+                pass
+        for f in self.files:
+            part_path(f).unlink(missing_ok=True)
+
+    def _finalize(self, complete: bool) -> None:
+        if not complete:
+            # write what we have, in order: everything received so far, gaps for the holes
+            self._open(force=True)
+            top = max([self.next_write - 1] + [s.max_seen for s in self.streams.values()])
+            for name, seq in self.streams.items():
+                self._release(name, seq.flush_through(top))
+            self._drain_ready()
+        if self.writer is not None:
+            self.writer.close()
+        self._close_rrd()
+        gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
+        missing = self._missing()
+        src = self.eos_seen.get("source")
+        fps = None
+        if self.t_first_pub_ns is not None and self.t_last_ns is not None and self.tracks_written > 1:
+            fps = self.tracks_written / max((self.t_last_ns - self.t_first_pub_ns) / 1e9, 1e-9)
+        summary = {
+            "run": self.run_id,
+            "complete": complete,
+            "frames_written": self.frames_written,
+            "tracks_written": self.tracks_written,
+            "last_seq": self.next_write - 1,
+            "gaps": gaps,
+            "output_complete": complete and not missing,
+            "missing": missing,
+            "source_error": src.error if src is not None else "",
+            "counters": self.counters.as_dict(),
+            "rejected_by_topic": self.intake.rejected_by_topic,
+            "dropped": int(self.bus.dropped),
+            "zenoh_misses": int(self.bus.misses),
+            "files": self.files,
+            "scores": self.tally.as_dict(),
+            "view": self._view_command(),
+            "throughput_fps": fps,
+            "t_first_pub_ns": self.t_first_pub_ns,
+            "t_last_recv_ns": self.t_last_ns,
+            "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
+                        "source_to_tracker_ms": [h[0] for h in self.hop_ms],
+                        "in_tracker_ms": [h[1] for h in self.hop_ms],
+                        "tracker_to_sink_ms": [h[2] for h in self.hop_ms]},
+        }
+        self.ctx.out.mkdir(parents=True, exist_ok=True)
+        path = self.ctx.out / SUMMARY_NAME
+        sync_parts(self.files)  # the outputs are on disk before the summary says they are done
+        write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
+        commit_parts(self.files)
+        self.files.append(str(path))
+        log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
+                 self.tracks_written,
+                 "" if not any(gaps.values()) else f", gaps {gaps}", ", ".join(self.files))
+
+    def _view_command(self) -> str:
+        """The command that opens the recording (``""``: no ``run.rrd`` was written)."""
+        rrd = self.ctx.out / self.sink_cfg.rrd_name
+        return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
+
+    def _missing(self) -> list[dict[str, Any]]:
+        """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
+        sequence numbers -- for ``sink.json``, the launcher's exit code 3 and its summary."""
+        out: list[dict[str, Any]] = []
+        tr = self.eos_seen.get("tracker")
+        by_tracker = set(tr.rejected) if tr is not None else set()
+
+        def add(topic: str, seqs: Iterable[int], why: str) -> None:
+            seqs = sorted(set(seqs))
+            if seqs:
+                out.append({"topic": f"/{topic}", "seqs": seqs, "why": why})
+
+        for name, seq in self.streams.items():
+            add(name, [g for g in seq.gaps if g not in by_tracker],
+                "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
+        add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
+        add("measurements", self.rejected_seqs,
+            "the sink rejected the frame (frame bounds; none of its messages were written)")
+        for name, seqs in self.mismatched.items():
+            add(name, seqs, "for another frame than its /measurements (dropped)")
+        return out
+
+    def finished_before(self) -> dict | None:
+        """The ``sink.json`` of this run when an earlier sink process recorded the whole run
+        (``complete``): a sink restarted after that (killed while it lingered) must not
+        reopen, i.e. truncate, the finished files.  Renames what that process left as
+        ``.part`` (killed between ``sink.json`` and the renames)."""
+        try:
+            summary = msgspec.json.decode((self.ctx.out / SUMMARY_NAME).read_bytes())
+        except (OSError, msgspec.DecodeError):
+            return None
+        if not isinstance(summary, dict) or summary.get("run") != self.run_id or not summary.get("complete"):
+            return None
+        commit_parts(summary.get("files") or [])
+        return summary
+
+    def _end_again(self, summary: dict) -> int:
+        """Announce the recorded end of stream again (for stages still waiting for it)."""
+        log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
+                 self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare([f"eos/{self.name}"])
+        self.bus.declare_alive()
+        gaps = sorted({int(g) for v in (summary.get("gaps") or {}).values() for g in v})
+        self.publish_control("eos", EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=int(summary.get("last_seq", -1)),
+            frames=int(summary.get("frames_written", 0)), gaps=gaps,
+            error=summary.get("source_error") or "", files=list(summary.get("files") or [])))
+        self.linger_until_alone(self.cfg.supervisor.linger_s, at_least=1.0)
+        return EXIT_OK
+
+    def run(self) -> int:
+        done = self.finished_before()
+        if done is not None:
+            return self._end_again(done)
+        self._warm_up()
+        topics = ["measurements", "truth"] + (["tracks"] if self.sink_cfg.tracks else [])
+        self.bus.subscribe(topics + ["info/*", "eos/*"])
+        for name, seq in self.streams.items():  # where each stream's history ends
+            seq.hold_catch_up_through(self.bus.head(name))
+        self.bus.declare([f"eos/{self.name}"])
+        self.bus.declare_alive()
+        if not self._record():
+            return EXIT_STOPPED
+        self.publish_control("eos", EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
+            gaps=sorted({g for v in self.streams.values() for g in v.gaps}),
+            error=self.eos_seen["source"].error, files=self.files))
+        self.linger_until_alone(self.cfg.supervisor.linger_s)
+        return EXIT_OK
+
+    def _warm_up(self) -> None:
+        warm_imports("sources.mcap_log", "pipeline.offline")
+        if self.sink_cfg.score or self.sink_cfg.rerun:  # the scorer's kernels import scipy on first use
+            warm_imports("scipy.spatial.distance", "scipy.optimize")
+        if self.sink_cfg.rerun:
+            _rerun_sink_module()
+
+    def _record(self) -> bool:
+        """Record until the run is complete (True) or the stage is stopped (False); the
+        outputs are finalized either way (or abandoned after a write error)."""
+        complete = False
+        failed = False
+        try:
+            complete = self._loop()
+        except OSError as exc:
+            if isinstance(exc, ConnectionError):  # the transport, not a file
+                raise
+            failed = True
+            self._abandon()
+            if isinstance(exc, StageIOError):
+                raise
+            raise StageIOError(self.name, exc.filename or self.ctx.out / self.sink_cfg.mcap_name, exc) from None
+        finally:
+            if not failed:
+                self._finalize_or_abandon(complete)
+            self.health(force=True, extra=self._sink_health)
+        return complete
+
+    def _loop(self) -> bool:
+        while not self.ctx.stop.is_set():
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self._on_event(ev)
+                # take what is already queued before looking at completion
+                while (ev := self.bus.recv(0)) is not None:
+                    self._on_event(ev)
+            self._drain_ready()
+            self._fetch_due()
+            self.health(extra=self._sink_health)
+            if self._check_end():
+                return True
+        return False
+
+    def _on_event(self, ev: Any) -> None:
+        if not self.on_control(ev):
+            self._on_data(ev)
+
+
+_NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
+
+
+class _NullWriter:
+    def write_encoded_frame(self, *a: Any, **k: Any) -> None: ...
+    def write_encoded_tracks(self, *a: Any, **k: Any) -> None: ...
+    def close(self) -> None: ...

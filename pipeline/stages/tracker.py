@@ -1,0 +1,381 @@
+"""The tracker stage: track the ``measurements`` stream in sequence order and publish
+``tracks``; snapshot the state (with its journal) and resume from it when restarted."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections import deque
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from pipeline.codec import encode_tracks, frame_from_msg
+from pipeline.config import TrackerStageConfig
+from pipeline.journal import JOURNAL_NAME, TracksJournal
+from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from pipeline.stages.health import EndOfStream, StageInfo
+from pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
+from tracker.config import ConfigError
+from tracker.types import Frame, FrameBounds
+
+__all__ = ["TrackerStage", "build_stage_tracker", "warm_up_tracker", "warm_tracker_imports"]
+
+log = logging.getLogger("bnptrack.stage")
+
+
+def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:
+    """The tracker stage's tracker, as ``bnptrack track`` builds it: model parameters from
+    ``tc.params`` or the source's metadata record, the settings preset or file, then the
+    ``--set`` items of ``tc.overrides``.  Returns ``(tracker, ParamsChoice, params)``;
+    raises :class:`ConfigError` (the launcher calls this before starting any process)."""
+    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+
+    choice = resolve_params(tc.params or None, metadata)
+    config, _desc = resolve_config(tc.tracker, tc.config or None)
+    params, config = apply_split_overrides(choice.params, config, tc.overrides)
+    return build_tracker(tc.tracker, params, config), choice, params
+
+
+def warm_tracker_imports(name: str) -> None:
+    """Import the modules of tracker ``name`` through the tracker registry (its entry
+    imports them), whatever tracker it is; an unknown name is left to the build to report."""
+    from tracker import registry
+
+    try:
+        registry.kind(name)
+    except ValueError:
+        pass
+
+
+def warm_up_tracker(tracker: Any) -> None:
+    """Run a few throw-away steps of the built ``tracker`` on dummy frames so that lazily
+    compiled kernels (numba) and caches are ready before the first real frame; the tracker is
+    a pure function of its inputs, so this changes no result (the real run starts from
+    ``initial_state()``)."""
+    import time
+
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0)
+    try:
+        for kind, base in (("bearing_range", np.array([[0.1, 500.0], [0.2, 800.0], [-0.3, 1200.0], [0.5, 300.0]])),
+                           ("range", np.array([[500.0], [800.0], [1200.0]]))):
+            state = tracker.initial_state()
+            for k in range(1, 4):
+                z = base + k * np.where(np.arange(base.shape[1]) == base.shape[1] - 1, 5.0, 0.001)
+                state, _ = tracker.step(state, Frame(k, k * 10**9, "warm-up", kind, z), rng)
+    except Exception as exc:  # a tracker without a range model, say: warm-up is optional
+        log.debug("tracker warm-up skipped: %s", exc)
+    log.debug("tracker warm-up took %.2f s", time.perf_counter() - t0)
+
+
+class TrackerStage(StageBase):
+    """Track the ``measurements`` stream in sequence order and publish ``tracks``.
+
+    Any tracker :func:`pipeline.offline.build_tracker` builds works (the state class comes
+    from ``tracker.initial_state()``).  Frame ``k`` uses the tracker's stream of frame ``k``
+    (``tracker.state.frame_rng(seed, k)``) exactly like ``bnptrack track``, so the output
+    depends only on the frames and their order.
+    """
+
+    role = "tracker"
+    #: The stage whose ``info`` and ``eos`` messages the tracker follows.
+    upstream = "source"
+
+    def __init__(self, ctx: StageContext) -> None:
+        super().__init__(ctx)
+        self.tc = self.cfg.tracker
+        self.snap_path = self.ctx.out / SNAPSHOT_NAME
+        self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes,
+                             time_ns=self.clock.time_ns)
+        self.seq = Sequencer.for_delivery(self.delivery, 0, "measurements")
+        self.tracker = None
+        self.state = None
+        self.last_seq = -1
+        self.last_frame = -1
+        self.last_stamp_ns: int | None = None
+        self.bounds = FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s)
+        self.rejected_seqs: list[int] = []
+        self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
+        self.pending: list[Accepted] = []
+        self.restored: Snapshot | None = None
+        self.since_snapshot = 0
+        self.last_progress = self.clock.monotonic()
+        self.step_ms: deque = deque(maxlen=10_000)
+        self.writer = BackgroundWriter()
+        self.finished_eos: EndOfStream | None = None
+        self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
+
+    # -- setup -------------------------------------------------------------------------
+    def _restore(self) -> list[tuple[int, bytes, dict]]:
+        """Resume from the snapshot when there is one (and ``resume``), and open the journal
+        cut back to it; returns its samples, which :meth:`run` publishes again."""
+        if not self.tc.resume:
+            self.journal.start()
+            return []
+        if self.snap_path.exists():
+            self._apply_snapshot(read_snapshot(self.snap_path))
+        return self.journal.resume(self.last_seq)
+
+    def _apply_snapshot(self, snap: Snapshot) -> None:
+        if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
+            raise ConfigError(
+                f"{self.snap_path}: snapshot of run {snap.run!r}, tracker {snap.tracker!r}, seed "
+                f"{snap.seed} does not match this stage (run {self.run_id!r}, tracker "
+                f"{self.tc.tracker!r}, seed {self.tc.seed}); delete it or set tracker.resume = false"
+            )
+        self.restored = snap
+        self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
+        self.last_stamp_ns = snap.last_stamp_ns
+        self.rejected_seqs = list(snap.rejected)
+        self.seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
+        self.seq.restore_gaps(snap.gaps)
+        self.counters.gaps = len(snap.gaps)
+        self.counters.processed = snap.counters.get("processed", 0)
+        self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
+        self.finished_eos = snap.eos
+        log.info("%s: resuming from %s (after seq %d, frame %d)", self.name, self.snap_path,
+                 snap.last_seq, snap.last_frame)
+
+    def _build(self, info: StageInfo) -> None:
+        from tracker.state import restore
+
+        tc = self.tc
+        self.tracker, choice, params = build_stage_tracker(tc, info.metadata)
+        initial = self.tracker.initial_state()
+        if self.restored is not None:
+            self.state = restore(self.restored.state, type(initial))
+        elif tc.prior_from:
+            self.state = keep_prior(initial, read_snapshot(tc.prior_from), tc.tracker)
+            log.info("%s: starting from the prior of %s", self.name, tc.prior_from)
+        else:
+            self.state = initial
+        warm_up_tracker(self.tracker)
+        self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=tc.tracker,
+                                               metadata=self._out_metadata(info, choice), tracker=tc.tracker,
+                                               seed=tc.seed, pid=os.getpid()))
+        log.info("%s: %s tracker, params %s, seed %d", self.name, tc.tracker,
+                 choice.describe(params), tc.seed)
+
+    def _out_metadata(self, info: StageInfo, choice: Any) -> dict[str, str]:
+        """The output's metadata record: the source's plus the tracker's settings."""
+        from pipeline.offline import format_overrides
+
+        tc = self.tc
+        out_meta = dict(info.metadata or {})
+        out_meta.update(
+            tracker=tc.tracker,
+            tracker_seed=str(tc.seed),
+            tracker_params=choice.source,
+            tracker_config=tc.config or tc.tracker,
+        )
+        if tc.overrides:
+            out_meta["tracker_overrides"] = format_overrides(tc.overrides)
+        out_meta["run"] = self.run_id
+        return out_meta
+
+    # -- per frame ---------------------------------------------------------------------
+    def _process(self, released: list[tuple[int, Any]]) -> None:
+        for s, item in released:
+            if item is GAP:
+                self.counters.gaps += 1
+                log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
+                self.last_seq = s
+                continue
+            frame = frame_from_msg(item.msg)
+            why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
+            if why is not None:  # before the tracker predicts through the jump
+                self.intake.reject_sample("measurements", item.payload, s, why)
+                self.rejected_seqs.append(s)
+                self.last_seq = s
+                continue
+            self._step(s, item, frame)
+
+    def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
+        """Track frame ``s``, publish its tracks, journal them, snapshot when due."""
+        from tracker.state import frame_rng as tracker_frame_rng  # the tracker's stream of a frame
+
+        t0 = self.clock.perf_counter()
+        state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))
+        self.step_ms.append((self.clock.perf_counter() - t0) * 1e3)
+        payload = encode_tracks(est, self.run_id)
+        # t: the source's publication time (end-to-end latency); t_in / t_out: when the
+        # tracker received the frame and published its tracks (latency breakdown)
+        meta = {"seq": s, "t": acc.meta.get("t", 0), "frame": frame.frame,
+                "t_in": acc.t_recv_ns, "t_out": self.clock.time_ns()}
+        self.bus.publish("tracks", payload, meta)
+        # the state advances only once its output is out (a snapshot is always consistent)
+        self.state, self.last_seq, self.last_frame = state, s, frame.frame
+        self.last_stamp_ns = frame.stamp_ns
+        try:
+            self.journal.append(s, payload, meta)
+        except OSError as exc:
+            raise StageIOError(self.name, self.journal.path, exc) from None
+        self.counters.processed += 1
+        self.counters.published += 1
+        self.since_snapshot += 1
+        if self.since_snapshot >= self.tc.snapshot_every:
+            self.snapshot()
+
+    def snapshot(self, wait: bool = False) -> None:
+        """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
+        if self.tracker is None or self.state is None:
+            return
+        from tracker.state import snapshot
+
+        snap = Snapshot(
+            run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
+            last_frame=self.last_frame, state=snapshot(self.state), gaps=list(self.seq.gaps),
+            last_stamp_ns=self.last_stamp_ns, rejected=list(self.rejected_seqs),
+            counters={"processed": self.counters.processed,
+                      "restarts_resumed": self.counters.restarts_resumed},
+            time_ns=self.clock.time_ns(), eos=self.finished_eos,
+        )
+        try:
+            self.ctx.out.mkdir(parents=True, exist_ok=True)
+            fd = self.journal.dup_fd()
+            self.writer.submit(self.snap_path, msgspec.msgpack.encode(snap), () if fd is None else (fd,))
+            self.since_snapshot = 0
+            if wait:
+                self.writer.flush()
+        except OSError as exc:
+            raise StageIOError(self.name, self.snap_path, exc) from None
+
+    def _on_data(self, ev: Any) -> None:
+        self.counters.received += 1
+        acc = self.intake.check(ev)
+        if acc is None:
+            return
+        t = acc.meta.get("t")
+        if isinstance(t, int):
+            self.counters.latency_ms.append((acc.t_recv_ns - t) / 1e6)
+        if self.tracker is None:
+            self.pending.append(acc)
+            return
+        self._push(acc)
+
+    def _push(self, acc: Accepted) -> None:
+        status, released = self.seq.push(acc.seq, acc)
+        if status == "accepted":
+            self.counters.accepted += 1
+            self.last_progress = self.clock.monotonic()
+        elif status == "duplicate":
+            self.counters.duplicates += 1
+        elif status == "far":
+            self.intake.reject_sample("measurements", acc.payload, acc.seq, self.seq.far_reason(acc.seq))
+        else:
+            self.counters.late += 1
+            log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
+        if released:
+            self._process(released)
+
+    def _extra_health(self) -> dict:
+        a = np.fromiter(self.step_ms, float) if self.step_ms else np.zeros(0)
+        return {
+            "last_seq": self.last_seq,
+            "last_frame": self.last_frame,
+            "step_ms_p50": float(np.median(a)) if a.size else None,
+            "pending": self.seq.pending,
+        }
+
+    # -- loop --------------------------------------------------------------------------
+    def run(self) -> int:
+        warm_imports("pipeline.offline", "tracker.state")
+        warm_tracker_imports(self.tc.tracker)
+        history = self._restore()
+        self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
+        for s, payload, meta in history:  # the run so far, into the new publisher's cache
+            self.bus.publish("tracks", payload, meta)
+        if history:
+            log.info("%s: published the %d /tracks sample(s) of the journal again", self.name, len(history))
+        del history  # free the payloads (run() lasts as long as the run)
+        if self.finished_eos is not None:  # restarted after it had finished the run
+            return self._end_again()
+        self.bus.subscribe(["measurements", "info/*", "eos/*"])
+        # where the history ends: hold the catch-up window until there
+        self.seq.hold_catch_up_through(self.bus.head("measurements"))
+        self.bus.declare_alive()
+        try:
+            return self._loop()
+        finally:
+            try:
+                self.snapshot(wait=True)
+            finally:
+                self._close_journal()
+                self.health(force=True, extra=self._extra_health)
+
+    def _loop(self) -> int:
+        """Track until the run is done (EXIT_OK) or the stage is stopped (EXIT_STOPPED)."""
+        finished = False
+        while not self.ctx.stop.is_set():
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self._on_event(ev)
+            self.health(extra=self._extra_health)
+            if self.tracker is not None and self.holes.due(self.seq):
+                fetch_holes(self.bus, "measurements", self.seq, max(self.seq.buf), self._on_data)
+            if not finished and self.tracker is not None and self.upstream in self.eos_seen:
+                finished = self._check_end(self.eos_seen[self.upstream])
+            if finished and set(self.tc.done_by) <= set(self.eos_seen):
+                return EXIT_OK
+        return EXIT_STOPPED
+
+    def _on_event(self, ev: Any) -> None:
+        if self.on_control(ev):
+            if self.tracker is None and self.upstream in self.infos:
+                self._build(self.infos[self.upstream])
+                self.bus.declare_alive("ready")
+                for acc in self.pending:
+                    self._push(acc)
+                self.pending.clear()
+        elif ev.topic == "measurements":
+            self._on_data(ev)
+        else:
+            log.debug("%s: ignoring %s", self.name, ev.topic)
+
+    def _check_end(self, eos: EndOfStream) -> bool:
+        """After the source's end of stream: declare what is still missing after the grace
+        period gaps; once everything is processed, snapshot and announce the end (True)."""
+        if not self.seq.complete_through(eos.last_seq):
+            # grace counts from the later of the last progress and the end of stream
+            idle = self.clock.monotonic() - max(self.last_progress, self.eos_time[self.upstream])
+            if idle >= self.delivery.eos_grace_s and self.bus.backlog == 0 and \
+                    not fetch_holes(self.bus, "measurements", self.seq, eos.last_seq, self._on_data):
+                log.warning("%s: end of stream: frames still missing after %.1f s without "
+                            "progress are gaps", self.name, idle)
+                self._process(self.seq.flush_through(eos.last_seq))
+        if not self.seq.complete_through(eos.last_seq):
+            return False
+        self.finished_eos = EndOfStream(
+            stage=self.name, run=self.run_id, last_seq=eos.last_seq,
+            frames=self.counters.processed, gaps=list(self.seq.gaps),
+            rejected=list(self.rejected_seqs), error=eos.error)
+        self.snapshot(wait=True)
+        self.publish_control("eos", self.finished_eos)
+        log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
+                 self.counters.processed, len(self.seq.gaps), ", ".join(self.tc.done_by) or "nobody")
+        self.health(force=True, extra=self._extra_health)
+        return True
+
+    def _close_journal(self) -> None:
+        """Close the journal; a failing final write names the journal (not an anonymous OSError)."""
+        try:
+            self.journal.close()
+        except OSError as exc:
+            raise StageIOError(self.name, self.journal.path, exc) from None
+
+    def _end_again(self) -> int:
+        """A tracker restarted after it finished: its journal is in the cache again; announce
+        the end of stream again and serve until the sink is done (or nobody is left)."""
+        log.info("%s: the snapshot records the finished run (last seq %d): announcing its end again",
+                 self.name, self.finished_eos.last_seq)
+        self.bus.subscribe(["eos/*"])
+        self.bus.declare_alive()
+        self.publish_control("eos", self.finished_eos)
+        try:
+            self.serve_until_done_or_alone(self.tc.done_by)
+        finally:
+            self._close_journal()
+        return EXIT_OK

@@ -1,0 +1,276 @@
+"""The launcher's side of the stage processes: a supervised process (:class:`StageProcess`),
+the end of a launch (:class:`LaunchResult`) and the health monitor (:class:`HealthMonitor`)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import secrets
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from pipeline.config import PipelineConfig, ZenohConfig
+
+__all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
+           "write_stages", "stop_stages"]
+
+log = logging.getLogger("bnptrack.launch")
+
+
+@dataclass
+class StageProcess:
+    role: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    state: str = "pending"  # pending | running | done | failed | stopped
+    returncode: int | None = None
+    restart_at: float | None = None
+    history: list[dict] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict)
+
+    def start(self, env: dict[str, str]) -> None:
+        env = {**env, **self.env}
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "ab") as logf:
+            logf.write(f"--- start #{self.restarts} {time.strftime('%H:%M:%S')}\n".encode())
+            logf.flush()
+            self.proc = subprocess.Popen(
+                self.argv, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
+                env=env, start_new_session=True,
+            )
+        self.state = "running"
+        self.restart_at = None
+        self.history.append({"pid": self.proc.pid, "start": time.time()})
+
+    @property
+    def pid(self) -> int | None:
+        return self.proc.pid if self.proc is not None else None
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def signal(self, sig: int) -> None:
+        if self.alive():
+            try:
+                self.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+
+    def error_line(self) -> str:
+        """The stage's configuration error, from its log: its ``Error: ...`` line (printed by
+        the ``stage`` command) or its ``configuration error: ...`` log record; else the last
+        lines of the log."""
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if line.startswith("Error: "):
+                return line[len("Error: "):]
+            for marker in ("configuration error: ", "I/O error: "):
+                head, sep, msg = line.partition(marker)
+                if sep and " ERROR " in head:
+                    return msg
+        return " / ".join(lines[-3:])
+
+    def tail(self, n: int = 12) -> str:
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n:])
+
+
+@dataclass
+class LaunchResult:
+    """The end of a launch.  ``ok``: every stage finished and the output is complete.
+    ``incomplete`` (exit code 3): what the output lacks, when the run ended but its output is
+    incomplete (gaps, rejected frames, a stage that gave up: ``gave_up`` names it);
+    ``error`` (exit code 2): why the run failed otherwise."""
+
+    run: str
+    out: Path
+    ok: bool
+    error: str = ""
+    interrupted: bool = False
+    incomplete: str = ""
+    gave_up: str = ""
+    files: list[str] = field(default_factory=list)
+    summary: dict | None = None
+    restarts: dict[str, int] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    endpoints: list[str] = field(default_factory=list)
+
+
+class HealthMonitor:
+    """The launcher's subscription to ``health/*`` and ``deadletter``: appends every message
+    to ``<out>/health.jsonl``, keeps each role's latest health message (:attr:`latest`, for
+    the progress line) and the I/O error line a stage reported (:attr:`io_errors`)."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.bus = None
+        self.file = None
+        self.latest: dict[str, dict] = {}  # role -> its latest health message
+        self.io_errors: dict[str, str] = {}  # stage -> its I/O error line, from its health message
+
+    def open(self, cfg: PipelineConfig, credentials: dict[str, str]) -> None:
+        from pipeline.transport import Bus
+
+        z = msgspec.structs.replace(cfg.zenoh, mode="client", listen=[])  # it only listens to health
+        if "launcher" in credentials:
+            z = msgspec.structs.replace(z, user="launcher", password=credentials["launcher"])
+        try:
+            self.bus = Bus(cfg.run, "launcher", z, cfg.delivery)
+            self.bus.subscribe(["health/*", "deadletter"], advanced=False)
+        except Exception as exc:  # monitoring is optional
+            log.warning("launcher: no health monitor: %s", exc)
+            self.bus = None
+        self.file = open(self.out / "health.jsonl", "ab")
+
+    def drain(self) -> None:
+        if self.bus is None:
+            return
+        lines = []
+        while (ev := self.bus.recv(0)) is not None:
+            lines.append(json.dumps(self._record(ev)).encode() + b"\n")
+        if self.file is None:
+            return
+        try:
+            self.file.writelines(lines)
+            self.file.flush()
+        except OSError as exc:  # disk full: health records are not worth stopping the run for
+            log.error("launcher: cannot write %s: %s; no more health records", self.out / "health.jsonl", exc)
+            hf, self.file = self.file, None
+            try:
+                hf.close()
+            except OSError:
+                pass
+
+    def _record(self, ev: Any) -> dict:
+        rec = {"topic": ev.topic, "t_ns": ev.t_recv_ns}
+        try:
+            rec["msg"] = json.loads(ev.payload)
+            if ev.topic.startswith("health/") and isinstance(rec["msg"], dict):
+                self.latest[str(rec["msg"].get("role", ""))] = rec["msg"]
+        except ValueError:
+            rec["raw"] = ev.payload[:200].decode("latin-1")
+        msg = rec.get("msg")
+        if ev.topic.startswith("health/") and isinstance(msg, dict) and isinstance(msg.get("io_error"), str):
+            self.io_errors[ev.topic.partition("/")[2]] = msg["io_error"]
+        return rec
+
+    def await_error(self, role: str, timeout: float = 1.0) -> None:
+        """Drain until ``role``'s I/O error line has arrived, or ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while role not in self.io_errors and time.monotonic() < deadline and self.bus is not None:
+            self.drain()
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        try:
+            self.drain()
+        except Exception:
+            pass
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        hf, self.file = self.file, None
+        if hf is not None:
+            try:
+                hf.close()
+            except OSError:  # disk full: what could not be written is lost
+                pass
+
+
+def recorded_complete(summary_path: Path, run: str) -> bool:
+    """Whether ``sink.json`` says the sink recorded the whole run ``run`` (then finishes
+    renaming its outputs, should it have been killed in between)."""
+    from pipeline.stages.recovery import commit_parts
+
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(summary, dict) or summary.get("run") != run or not summary.get("complete"):
+        return False
+    commit_parts(summary.get("files") or [])
+    return True
+
+
+def open_embedded_router(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[Any, ZenohConfig, dict[str, str]]:
+    """Open the launcher's router; returns it, the stages' Zenoh settings (connect to it)
+    and the per-run credentials (empty unless the ACL or authentication needs them)."""
+    from pipeline.transport import Router
+
+    credentials: dict[str, str] = {}
+    generated = (z.acl or (z.auth and z.mode == "client")) and not z.users_file
+    if generated:
+        credentials, z = _credentials(z, out, stages)
+    try:
+        router = Router(z)
+    finally:
+        if generated:  # the router has read it; the stages get theirs by environment
+            Path(z.users_file).unlink(missing_ok=True)
+            z = msgspec.structs.replace(z, users_file="")
+    z = msgspec.structs.replace(z, embedded_router=False, connect=router.connect_endpoints)
+    return router, z, credentials
+
+
+def _credentials(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[dict[str, str], ZenohConfig]:
+    """Per-run credentials: one random password per stage (and one for the launcher's
+    monitor), given to each process in its environment only, and the ACL that lets each
+    stage put only on its own keys.  The users file (mode 0600) lives only until the
+    router has read it."""
+    credentials = {name: secrets.token_urlsafe(18) for name in [*stages, "launcher"]}
+    users = out / ".zenoh-users.txt"
+    fd = os.open(users, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.writelines(f"{u}:{pw}\n" for u, pw in credentials.items())
+    return credentials, msgspec.structs.replace(z, users_file=str(users), acl=True)
+
+
+def write_stages(out: Path, stages: Sequence[StageProcess]) -> None:
+    """``<out>/stages.json``: pid, state, restarts, exit code and log of each stage (atomic)."""
+    doc = {s.role: {"pid": s.pid, "state": s.state, "restarts": s.restarts,
+                    "returncode": s.returncode, "log": str(s.log_path), "history": s.history}
+           for s in stages}
+    tmp = out / ".stages.json.tmp"
+    try:
+        tmp.write_text(json.dumps(doc, indent=1))
+        os.replace(tmp, out / "stages.json")
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def stop_stages(stages: Sequence[StageProcess], timeout: float, echo: Callable[[str], None]) -> bool:
+    """SIGTERM every running stage, SIGKILL those still running after ``timeout`` seconds;
+    False when none was running."""
+    running = [sp for sp in stages if sp.alive()]
+    if not running:
+        return False
+    for sp in running:
+        sp.signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout
+    for sp in running:
+        try:
+            sp.proc.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            echo(f"stage {sp.role} (pid {sp.pid}) did not stop in time: SIGKILL")
+            sp.signal(signal.SIGKILL)
+            sp.proc.wait(5)
+        sp.returncode = sp.proc.returncode
+        if sp.state == "running":
+            sp.state = "stopped"
+    return True
