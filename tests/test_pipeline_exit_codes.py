@@ -18,7 +18,7 @@ from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
 from pipeline.launch import LaunchResult, Launcher, _ranges, describe_missing
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME
-from sources.mcap_log import McapLogWriter
+from sinks.mcap_writer import McapLogWriter
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.models.params import load_params
