@@ -59,7 +59,8 @@ VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
 def make_log(path: Path, n: int) -> Path:
     """``n`` frames: the 100 frames of recordings/vo2017-s1.mcap repeated, frame numbers and
     stamps (1 s apart) made consecutive."""
-    from sources.mcap_log import McapLogWriter, iter_frames, read_metadata
+    from sinks.mcap_writer import McapLogWriter
+    from sources.mcap_log import iter_frames, read_metadata
     from tracker.types import Frame
 
     base = list(iter_frames(VO2017))
@@ -288,10 +289,10 @@ def family_malformed(work: Path, n: int, seed: int) -> list[dict]:
     if wait_until(lambda: snapshot_seq(out) >= 10, p, 150):
         cfg = json.loads((out / "pipeline.json").read_text())
         run, endpoint = cfg["run"], cfg["zenoh"]["connect"][0]
-        from pipeline.codec import encode_measurements
+        from tracker.messages import encode
         from sources.mcap_log import iter_frames
 
-        good = encode_measurements(next(iter(iter_frames(log))), run)
+        good = encode(next(iter(iter_frames(log))), run)
         conf = zenoh.Config()
         conf.insert_json5("mode", '"client"')
         conf.insert_json5("connect/endpoints", json.dumps([endpoint]))

@@ -69,7 +69,8 @@ from pipeline.offline import (  # noqa: E402
     track_log,
 )
 from pipeline.config import load_pipeline  # noqa: E402
-from sources.mcap_log import McapLogWriter, iter_frames, read_metadata  # noqa: E402
+from sinks.mcap_writer import McapLogWriter  # noqa: E402
+from sources.mcap_log import iter_frames, read_metadata  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate  # noqa: E402
 from tracker.state import run  # noqa: E402
@@ -126,7 +127,7 @@ class Offline:
         """The tracker stage's own code without transport: a ``TrackerStage`` on an in-memory
         bus fed the encoded frames in this process (decode, validation, step, encoding,
         journal, snapshots).  Frames per second and CPU ms per frame."""
-        from pipeline.codec import encode_measurements
+        from tracker.messages import encode
         from pipeline.membus import MemoryNetwork
         from pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
         from pipeline.stages import StageContext, StageInfo, TrackerStage
@@ -137,7 +138,7 @@ class Offline:
         stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("inproc", "tracker"), name="tracker"))
         stage._restore()
         stage._build(StageInfo(stage="source", run="inproc", metadata=self.meta))
-        events = [Event("measurements", encode_measurements(f, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0)
+        events = [Event("measurements", encode(f, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0)
                   for i, f in enumerate(self.frames)]
         t0, c0 = time.perf_counter(), time.process_time()
         for ev in events:

@@ -1,20 +1,16 @@
-"""MCAP measurement logs: write frames/truth/tracks, read them back robustly.
+"""MCAP measurement logs: read frames/truth/tracks back robustly.
 
-File layout written by :class:`McapLogWriter`:
-
-* one ``Metadata`` record named :data:`METADATA_NAME` (``"bnptrack.scenario"``) with string
-  keys, e.g. ``{"scenario": "vo2017", "params": "vo2017", "seed": "1"}``;
-* channels ``/measurements``, ``/truth``, ``/tracks`` (registered on first use), message
-  encoding ``json``, schema encoding ``jsonschema`` (the schemas of :mod:`pipeline.codec`);
-* ``log_time = publish_time = stamp_ns``, ``sequence = frame index``;
-* small zstd chunks (4 KiB) and a flush every few writes, so a crash loses little.
+The files are written by :class:`sinks.mcap_writer.McapLogWriter` (layout in its module and
+in docs/formats.md): one ``Metadata`` record named :data:`METADATA_NAME`
+(``"bnptrack.scenario"``), channels ``/measurements``, ``/truth``, ``/tracks`` with JSON
+messages of the contract :mod:`tracker.messages`.
 
 Reading streams the file record by record (``mcap.stream_reader.StreamReader``; no index or
 footer needed), so a truncated or corrupt file yields every readable frame and *then*
 raises :class:`McapLogError`, naming the file, the last good frame, the message count and
 the byte offset.  Invalid messages (bad schema, NaN, wrong field) and non-monotonic frame
 indices on ``/measurements`` raise :class:`McapLogError` too, wrapping the
-:class:`~pipeline.codec.CodecError` that names topic and frame.  Unknown topics are ignored;
+:class:`~tracker.messages.CodecError` that names topic and frame.  Unknown topics are ignored;
 files without the metadata record and without ``/truth`` read fine.  Reading stops at the
 ``DataEnd`` record, so a file whose summary section is damaged still reads completely.
 """
@@ -22,42 +18,33 @@ files without the metadata record and without ``/truth`` read fine.  Reading sto
 from __future__ import annotations
 
 import io
-import json
 import os
 import struct
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, Protocol
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.reader import SeekingReader
-from mcap.records import Channel, DataEnd, Message, Metadata
+from mcap.records import Channel, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
 
-from pipeline.codec import (
-    SCHEMA_VERSION,
+from tracker.messages import (
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
     TOPIC_TRUTH,
     CodecError,
     MeasurementsMsg,
     TruthMsg,
-    decode_msg,
-    encode_measurements,
-    encode_tracks,
-    encode_truth,
-    estimate_from_msg,
-    frame_from_msg,
-    json_schema,
-    truth_from_msg,
+    decode,
+    to_estimate,
+    to_frame,
+    to_truth,
 )
 from tracker.types import Estimate, Frame
 
 __all__ = [
     "METADATA_NAME",
-    "DEFAULT_CHUNK_SIZE",
     "McapLogError",
-    "McapLogWriter",
     "LogContents",
     "iter_frames",
     "iter_tracks",
@@ -71,16 +58,7 @@ __all__ = [
 
 #: Name of the metadata record describing how a log was produced.
 METADATA_NAME = "bnptrack.scenario"
-#: Chunk size used by :class:`McapLogWriter` (small, so a cut file loses little).
-DEFAULT_CHUNK_SIZE = 4 * 1024
-#: Writes (``write_frame``/``write_tracks`` calls) between explicit flushes.
-DEFAULT_FLUSH_EVERY = 5
 
-_SCHEMA_NAMES = {
-    TOPIC_MEASUREMENTS: "bnptrack.Measurements",
-    TOPIC_TRUTH: "bnptrack.Truth",
-    TOPIC_TRACKS: "bnptrack.Tracks",
-}
 _INPUT_TOPICS = frozenset({TOPIC_MEASUREMENTS, TOPIC_TRUTH})
 
 
@@ -149,150 +127,6 @@ class _StreamFailure(Exception):
         self.reason = reason
 
 
-# --------------------------------------------------------------------------- writer
-
-
-class McapLogWriter:
-    """Write frames, truth and tracks to an MCAP file (use as a context manager).
-
-    ``metadata`` (string keys and values; other values are converted with ``str``) is
-    written as the ``bnptrack.scenario`` record.  ``flush_every`` is the number of
-    ``write_frame``/``write_tracks`` calls between explicit flushes (each flush closes the
-    current chunk and flushes the OS file buffer; it does not fsync).
-    """
-
-    def __init__(
-        self,
-        path: str | os.PathLike,
-        metadata: dict[str, str] | None = None,
-        chunk_size: int = DEFAULT_CHUNK_SIZE,
-        *,
-        flush_every: int = DEFAULT_FLUSH_EVERY,
-        compression: str = "zstd",
-    ) -> None:
-        self.path = os.fspath(path)
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        if compression not in comp:
-            raise ValueError(f"compression must be one of {sorted(comp)}, got {compression!r}")
-        if flush_every < 1:
-            raise ValueError("flush_every must be >= 1")
-        self._file = open(self.path, "wb")
-        try:
-            self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp[compression])
-            self._writer.start(profile="", library=f"bnptrack (schema v{SCHEMA_VERSION})")
-            if metadata is not None:
-                self._writer.add_metadata(
-                    METADATA_NAME, {str(k): str(v) for k, v in metadata.items()}
-                )
-            self._file.flush()
-        except BaseException:
-            self._file.close()
-            raise
-        self._channels: dict[str, int] = {}
-        self._flush_every = flush_every
-        self._since_flush = 0
-        self._closed = False
-        self.n_frames = 0
-        self.n_tracks = 0
-
-    # -- context manager -------------------------------------------------------------
-    def __enter__(self) -> "McapLogWriter":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    # -- writing ---------------------------------------------------------------------
-    def _channel(self, topic: str) -> int:
-        ch = self._channels.get(topic)
-        if ch is None:
-            schema = json.dumps(json_schema(topic), separators=(",", ":")).encode()
-            sid = self._writer.register_schema(_SCHEMA_NAMES[topic], "jsonschema", schema)
-            ch = self._writer.register_channel(
-                topic, "json", sid, metadata={"schema_version": str(SCHEMA_VERSION)}
-            )
-            self._channels[topic] = ch
-        return ch
-
-    def _put(self, topic: str, data: bytes, stamp_ns: int, frame: int) -> None:
-        stamp = int(stamp_ns)
-        self._writer.add_message(
-            self._channel(topic),
-            log_time=stamp,
-            data=data,
-            publish_time=stamp,
-            sequence=int(frame) & 0xFFFFFFFF,
-        )
-
-    def _tick(self) -> None:
-        self._since_flush += 1
-        if self._since_flush >= self._flush_every:
-            self.flush()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise ValueError(f"{self.path}: writer is closed")
-
-    def write_frame(self, frame: Frame, run: str = "") -> None:
-        """Write ``/measurements`` (and ``/truth`` when ``frame.truth`` is not ``None``).
-
-        Both messages are encoded (and validated) before either is written.
-        """
-        self._check_open()
-        meas = encode_measurements(frame, run)
-        truth = (
-            encode_truth(frame.frame, frame.stamp_ns, frame.truth, run)
-            if frame.truth is not None
-            else None
-        )
-        self.write_encoded_frame(meas, truth, frame.stamp_ns, frame.frame)
-
-    def write_tracks(self, est: Estimate, run: str = "") -> None:
-        """Write one ``/tracks`` message."""
-        self._check_open()
-        self.write_encoded_tracks(encode_tracks(est, run), est.stamp_ns, est.frame)
-
-    def write_encoded_frame(
-        self, measurements: bytes, truth: bytes | None, stamp_ns: int, frame: int
-    ) -> None:
-        """Write a frame's ``/measurements`` (and ``/truth``) payloads as they are.
-
-        For payloads that were already validated by the codec (e.g. received and checked
-        by the pipeline's sink): the bytes go into the file without decoding or
-        re-encoding them.  Same records and flushing as :meth:`write_frame`.
-        """
-        self._check_open()
-        self._put(TOPIC_MEASUREMENTS, measurements, stamp_ns, frame)
-        if truth is not None:
-            self._put(TOPIC_TRUTH, truth, stamp_ns, frame)
-        self.n_frames += 1
-        self._tick()
-
-    def write_encoded_tracks(self, tracks: bytes, stamp_ns: int, frame: int) -> None:
-        """Write one already validated ``/tracks`` payload as it is (see
-        :meth:`write_encoded_frame`)."""
-        self._check_open()
-        self._put(TOPIC_TRACKS, tracks, stamp_ns, frame)
-        self.n_tracks += 1
-        self._tick()
-
-    def flush(self) -> None:
-        """Close the current chunk and flush it to the OS."""
-        self._check_open()
-        self._writer.flush()
-        self._since_flush = 0
-
-    def close(self) -> None:
-        """Write the summary and footer and close the file (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._file.close()
-
-
 # --------------------------------------------------------------------------- reading
 
 
@@ -359,7 +193,7 @@ class _Scanner:
                             None,
                             f"unsupported message encoding {ch.message_encoding!r} (expected 'json')",
                         )
-                    yield topic, decode_msg(topic, rec.data)
+                    yield topic, decode(topic, rec.data)
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
                 elif isinstance(rec, Metadata):
@@ -485,7 +319,7 @@ def _iter_log(
 
 def _pair_to_frame(pair: tuple[MeasurementsMsg, TruthMsg | None]) -> Frame:
     meas, truth = pair
-    return frame_from_msg(meas, truth_from_msg(truth) if truth is not None else None)
+    return to_frame(meas, to_truth(truth) if truth is not None else None)
 
 
 def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None) -> Iterator[Frame]:
@@ -503,7 +337,7 @@ def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None
 def iter_tracks(path: str | os.PathLike) -> Iterator[Estimate]:
     """Yield the ``/tracks`` estimates of a log in file order (errors as :func:`iter_frames`)."""
     for _, msg in _iter_log(path, {TOPIC_TRACKS}):
-        yield estimate_from_msg(msg)
+        yield to_estimate(msg)
 
 
 @dataclass
@@ -530,7 +364,7 @@ def read_log(path: str | os.PathLike, strict: bool = True) -> LogContents:
             if kind == "frame":
                 out.frames.append(_pair_to_frame(item))
             elif kind == "tracks":
-                out.tracks.append(estimate_from_msg(item))
+                out.tracks.append(to_estimate(item))
             elif out.metadata is None:
                 out.metadata = item
     except McapLogError as exc:
@@ -597,8 +431,14 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str] | None:
                 return None
 
 
+class FrameWriter(Protocol):
+    """What :func:`copy_input_channels` writes to (``sinks.mcap_writer.McapLogWriter``)."""
+
+    def write_frame(self, frame: Frame, run: str = "") -> None: ...
+
+
 def copy_input_channels(
-    src_path: str | os.PathLike, writer: McapLogWriter, run: str | None = None
+    src_path: str | os.PathLike, writer: FrameWriter, run: str | None = None
 ) -> int:
     """Copy the ``/measurements`` and ``/truth`` of ``src_path`` into ``writer``.
 
@@ -608,9 +448,8 @@ def copy_input_channels(
     copied: pass ``read_metadata(src_path)`` to the writer's constructor.
     """
     n = 0
-    for _, (meas, truth) in _iter_log(src_path, _INPUT_TOPICS):
-        frame = frame_from_msg(meas, truth_from_msg(truth) if truth is not None else None)
-        writer.write_frame(frame, run=meas.run if run is None else run)
+    for _, pair in _iter_log(src_path, _INPUT_TOPICS):
+        writer.write_frame(_pair_to_frame(pair), run=pair[0].run if run is None else run)
         n += 1
     return n
 
@@ -636,8 +475,6 @@ def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
     """Every channel of an MCAP file with its message count (streams the whole file; a
     damaged tail ends the count).  Raises :class:`McapLogError` if the file cannot be opened
     or is not MCAP."""
-    from mcap.records import Schema
-
     spath = os.fspath(path)
     try:
         f = open(spath, "rb")
@@ -684,3 +521,14 @@ def missing_measurements_message(path: str | os.PathLike, channels: list[Channel
             f"Its channels: {listing}. To read a channel as the measurements, map it: "
             f"--topic {example}={TOPIC_MEASUREMENTS} (its payload must still follow the "
             f"/measurements contract of docs/formats.md: JSON, frame, stamp_ns, sensor, kind, z)")
+
+
+# TEMPORARY re-export (issue 12 wave 1): removed at merge.  pipeline/offline.py and
+# pipeline/stages.py still import McapLogWriter from here; it lives in sinks.mcap_writer.  A lazy
+# module attribute (PEP 562), so that importing this module does not import sinks/.
+def __getattr__(name: str) -> Any:
+    if name == "McapLogWriter":
+        from sinks.mcap_writer import McapLogWriter
+
+        return McapLogWriter
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -26,16 +26,17 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from sources.scenarios import Scenario
 from tracker.models.clutter import Detection, SectorClutter, UniformClutter
-from tracker.models.measurement import BearingRange, Cartesian, RangeOnly, measurement_kind, wrap_angle
+from tracker.models.measurement import measurement_kind, wrap_angle
 from tracker.models.params import ModelParams
 from tracker.types import Frame, Truth
 
-__all__ = ["frame_rng", "measure", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame", "simulate_many"]
+__all__ = ["frame_rng", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame"]
 
 
 def frame_rng(seed: int, k: int) -> np.random.Generator:
@@ -43,23 +44,24 @@ def frame_rng(seed: int, k: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))
 
 
-def measure(
-    rng: np.random.Generator, truth: Truth, params: ModelParams, kind: str
-) -> np.ndarray:
-    """One scan of shuffled measurements ``(M, d)`` of ``truth`` plus clutter.
+def measure_with(rng: np.random.Generator, truth: Truth, params: ModelParams, kind: str, sensor: str
+                 ) -> tuple[np.ndarray, str, tuple[float, float, float] | None]:
+    """One scan of shuffled measurements ``(M, d)`` of ``truth`` plus clutter by sensor
+    ``sensor`` of ``params`` (its ``[sensors.NAME]`` table, else the default sensor of ``kind``):
+    ``(z, kind, pose)``, ``pose`` ``None`` for an undeclared sensor.
 
     ``params`` must already be adapted to the scenario.  Draw order: detection indicators,
     target noise, clutter, permutation.
     """
-    return _Models.build(params, kind).measure(rng, truth)
-
-
-def measure_with(rng: np.random.Generator, truth: Truth, params: ModelParams, kind: str, sensor: str
-                 ) -> tuple[np.ndarray, str, tuple[float, float, float] | None]:
-    """:func:`measure` by sensor ``sensor`` of ``params`` (its ``[sensors.NAME]`` table):
-    ``(z, kind, pose)``, ``pose`` ``None`` for an undeclared sensor."""
     models = _Models.build(params, kind, sensor)
     return models.measure(rng, truth), models.kind, models.pose
+
+
+class _Sampler(Protocol):
+    """A measurement model (the registry's ``measurement_kind(kind).model``) as the simulator
+    uses it."""
+
+    def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ class _Models:
 
     kind: str
     detection: Detection
-    measurement: BearingRange | RangeOnly | Cartesian
+    measurement: _Sampler
     clutter: UniformClutter | SectorClutter
     pose: tuple[float, float, float] | None = None
     """Written into each frame when the sensor is declared (``[sensors.NAME]``)."""
@@ -84,7 +86,8 @@ class _Models:
                    s.pose if spec is not None else None)
 
     def measure(self, rng: np.random.Generator, truth: Truth) -> np.ndarray:
-        d = measurement_kind(self.kind).dim
+        spec = measurement_kind(self.kind)  # the registry entry: dimension, wrapped columns
+        d = spec.dim
         parts = []
         if truth.states.shape[0]:
             detected = self.detection.sample(rng, truth.states)
@@ -93,7 +96,7 @@ class _Models:
         parts.append(np.asarray(self.clutter.sample(rng), dtype=float).reshape(-1, d))
         z = np.concatenate(parts, axis=0) if len(parts) > 1 else parts[0]
         z = z[rng.permutation(z.shape[0])]
-        for col in measurement_kind(self.kind).wrapped:
+        for col in spec.wrapped:
             z[:, col] = wrap_angle(z[:, col])
         return z
 
@@ -164,14 +167,6 @@ def simulate_all(
 ) -> list[Frame]:
     """All frames of :func:`simulate` as a list."""
     return list(simulate(scenario, params, seed, sensor=sensor, start_frame=start_frame))
-
-
-def simulate_many(
-    scenario: Scenario, params: ModelParams, seeds: Sequence[int], *, sensor: str = "sim0"
-) -> Iterator[list[Frame]]:
-    """One full run per seed (Monte Carlo helper)."""
-    for seed in seeds:
-        yield simulate_all(scenario, params, seed, sensor=sensor)
 
 
 def move_truth(truth: Truth, pose: tuple[float, float, float]) -> Truth:

@@ -237,7 +237,7 @@ def test_track_params_from_log_metadata(tmp_path):
 
 
 def test_track_log_without_metadata_uses_default(vo_log, tmp_path):
-    from sources.mcap_log import McapLogWriter
+    from sinks.mcap_writer import McapLogWriter
 
     bare = tmp_path / "bare.mcap"
     with McapLogWriter(bare) as w:  # no metadata record, no truth
@@ -347,7 +347,7 @@ def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
     bnptrack.scenario record, tracked with the defaults and no flags.  Measured: mean OSPA
     31.2 m, 986 reported track-scans for 1044 object-scans; before births anywhere (the default
     set carried Vo's four birth regions, H weighed the rest 0.1) 68.5 m with 4 final tracks."""
-    from sources.mcap_log import McapLogWriter
+    from sinks.mcap_writer import McapLogWriter
     from sources.synthetic import simulate_all
     from tracker.models.params import load_params
 

@@ -1,4 +1,4 @@
-"""Tests for the versioned JSON message schema (pipeline.codec)."""
+"""Tests for the versioned JSON message schema (tracker.messages)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import msgspec
 import numpy as np
 import pytest
 
-from pipeline import codec
-from pipeline.codec import (
+from tracker._message_checks import check_measurements, check_tracks
+from tracker.messages import (
     MAX_MEASUREMENTS,
     MAX_TRACKS,
     SCHEMA_VERSION,
@@ -22,15 +22,13 @@ from pipeline.codec import (
     MeasurementsMsg,
     TracksMsg,
     TruthMsg,
-    decode_measurements,
-    decode_measurements_msg,
-    decode_tracks,
-    decode_truth,
-    encode_measurements,
-    encode_tracks,
-    encode_truth,
+    decode,
+    encode,
+    from_truth,
     json_schema,
-    validate_msg,
+    to_estimate,
+    to_frame,
+    to_truth,
 )
 from tracker.types import Estimate, Frame, TrackEstimate, Truth
 
@@ -144,7 +142,7 @@ def truth_obj(**over):
 def test_measurements_round_trip(kind, m):
     rng = np.random.default_rng(1 + m)
     f = make_frame(rng, kind=kind, m=m)
-    g = decode_measurements(encode_measurements(f))
+    g = to_frame(decode(TOPIC_MEASUREMENTS, encode(f)))
     assert_frames_equal(f, g)
     assert g.truth is None
     assert g.z.dtype == np.float64
@@ -153,7 +151,7 @@ def test_measurements_round_trip(kind, m):
 def test_measurements_round_trip_edge_values():
     z = np.array([[np.pi, 0.0], [-np.pi, 1e-300], [-0.0, 1e300], [1 / 3, 5e-324]])
     f = Frame(0, 0, "s", "bearing_range", z)
-    g = decode_measurements(encode_measurements(f))
+    g = to_frame(decode(TOPIC_MEASUREMENTS, encode(f)))
     assert np.array_equal(g.z, z)
     assert math.copysign(1.0, g.z[2, 0]) == -1.0  # -0.0 survives
 
@@ -161,44 +159,45 @@ def test_measurements_round_trip_edge_values():
 def test_measurements_json_field_names_and_run():
     rng = np.random.default_rng(2)
     f = make_frame(rng, k=3, m=2)
-    obj = json.loads(encode_measurements(f, run="run-42"))
+    obj = json.loads(encode(f, run="run-42"))
     assert set(obj) == {"v", "run", "frame", "stamp_ns", "sensor", "kind", "z"}
     assert obj["v"] == SCHEMA_VERSION == 1  # version 2 only when a message uses its additions
     assert obj["run"] == "run-42"
     assert obj["frame"] == 3 and obj["kind"] == "bearing_range" and obj["sensor"] == "radar0"
     assert obj["z"] == f.z.tolist()
-    assert decode_measurements_msg(encode_measurements(f, run="run-42")).run == "run-42"
+    assert decode(TOPIC_MEASUREMENTS, encode(f, run="run-42")).run == "run-42"
 
 
 def test_measurements_five_fields_only_decode():
-    f = decode_measurements(raw(meas_obj()))
+    f = to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj())))
     assert f.frame == 7 and f.stamp_ns == 1000
     assert np.array_equal(f.z, [[0.1, 10.0], [-0.2, 20.0]])
-    msg = decode_measurements_msg(raw(meas_obj()))
+    msg = decode(TOPIC_MEASUREMENTS, raw(meas_obj()))
     assert msg.v == SCHEMA_VERSION and msg.run == ""
-    g = decode_measurements(raw(meas_obj(kind="range", z=[[1.0], [2.5]])))
+    g = to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(kind="range", z=[[1.0], [2.5]]))))
     assert g.z.shape == (2, 1)
 
 
 def test_integer_json_numbers_accepted_as_floats():
-    f = decode_measurements(raw(meas_obj(z=[[0, 10]])))
+    f = to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(z=[[0, 10]]))))
     assert f.z.dtype == np.float64 and np.array_equal(f.z, [[0.0, 10.0]])
 
 
 def test_numpy_scalars_encode():
     rng = np.random.default_rng(3)
     f = Frame(np.int64(4), np.int64(99), "s", "range", rng.uniform(0, 1, (3, 1)))
-    assert decode_measurements(encode_measurements(f)).frame == 4
+    assert to_frame(decode(TOPIC_MEASUREMENTS, encode(f))).frame == 4
 
 
 def test_truth_round_trip():
     rng = np.random.default_rng(4)
     t = make_truth(rng, 5)
-    data = encode_truth(11, 777, t, run="r")
+    data = encode(from_truth(11, 777, t, run="r"))
     obj = json.loads(data)
     assert set(obj) == {"v", "run", "frame", "stamp_ns", "objects"}
     assert set(obj["objects"][0]) == {"id", "state"}
-    k, stamp, u = decode_truth(data)
+    msg = decode(TOPIC_TRUTH, data)
+    k, stamp, u = msg.frame, msg.stamp_ns, to_truth(msg)
     assert (k, stamp) == (11, 777)
     assert u.ids == t.ids
     assert np.array_equal(u.states, t.states)
@@ -206,14 +205,14 @@ def test_truth_round_trip():
 
 def test_truth_empty_round_trip():
     t = Truth(ids=(), states=np.zeros((0, 5)))
-    k, stamp, u = decode_truth(encode_truth(0, 0, t))
+    u = to_truth(decode(TOPIC_TRUTH, encode(from_truth(0, 0, t))))
     assert u.ids == () and u.states.shape == (0, 5)
 
 
 def test_tracks_round_trip():
     rng = np.random.default_rng(5)
     est = make_estimate(rng)
-    data = encode_tracks(est, run="r1")
+    data = encode(est, run="r1")
     obj = json.loads(data)
     assert set(obj) == {
         "v", "run", "frame", "stamp_ns", "tracks", "assignments", "assignment_prob", "diagnostics",
@@ -223,17 +222,17 @@ def test_tracks_round_trip():
     # row-major covariance
     assert obj["tracks"][0]["covariance"][1] == est.tracks[0].covariance[0, 1]
     assert obj["tracks"][0]["covariance"][5] == est.tracks[0].covariance[1, 0]
-    assert_estimates_equal(est, decode_tracks(data))
+    assert_estimates_equal(est, to_estimate(decode(TOPIC_TRACKS, data)))
 
 
 def test_tracks_empty_and_default_diagnostics():
     est = Estimate(frame=0, stamp_ns=0, tracks=())
-    out = decode_tracks(encode_tracks(est))
+    out = to_estimate(decode(TOPIC_TRACKS, encode(est)))
     assert out.tracks == () and out.assignments == () and out.diagnostics == {}
     # diagnostics is optional on decode
     obj = tracks_obj()
     assert "diagnostics" not in obj
-    assert decode_tracks(raw(obj)).diagnostics == {}
+    assert to_estimate(decode(TOPIC_TRACKS, raw(obj))).diagnostics == {}
 
 
 def test_json_schema():
@@ -282,7 +281,7 @@ def test_encode_rejects_non_finite_measurement(bad):
     edited = Frame(7, 1, "s", "bearing_range", f.z.copy())
     edited.z[3, 1] = bad  # written in place after construction: the encoder still refuses it
     with pytest.raises(CodecError) as ei:
-        encode_measurements(edited)
+        encode(edited)
     check_err(ei, TOPIC_MEASUREMENTS, 7, "non-finite", "$.z[3][1]")
 
 
@@ -297,22 +296,22 @@ def test_encode_rejects_non_finite_measurement(bad):
 )
 def test_decode_rejects_non_finite(text, fragment):
     with pytest.raises(CodecError) as ei:
-        decode_measurements(text)
+        to_frame(decode(TOPIC_MEASUREMENTS, text))
     check_err(ei, TOPIC_MEASUREMENTS, 7, fragment)
 
 
 def test_validate_rejects_nan_in_hand_built_struct():
     msg = MeasurementsMsg(frame=2, stamp_ns=0, sensor="s", kind="bearing_range", z=[[0.0, 1.0], [0.1, math.nan]])
     with pytest.raises(CodecError) as ei:
-        validate_msg(msg)
+        check_measurements(msg)
     check_err(ei, TOPIC_MEASUREMENTS, 2, "non-finite", "$.z[1][1]")
     with pytest.raises(CodecError):
-        codec.encode_msg(msg)
+        encode(msg)
     tmsg = TracksMsg(
         frame=3, stamp_ns=0, tracks=[], assignments=[None], assignment_prob=[math.nan]
     )
     with pytest.raises(CodecError) as ei:
-        validate_msg(tmsg)
+        check_tracks(tmsg)
     check_err(ei, TOPIC_TRACKS, 3, "$.assignment_prob[0]")
 
 
@@ -348,7 +347,7 @@ def test_validate_rejects_nan_in_hand_built_struct():
 )
 def test_decode_measurements_rejects(over, frame, fragments):
     with pytest.raises(CodecError) as ei:
-        decode_measurements(raw(meas_obj(**over)))
+        to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(**over))))
     check_err(ei, TOPIC_MEASUREMENTS, frame, *fragments)
 
 
@@ -356,24 +355,24 @@ def test_decode_rejects_missing_field_and_garbage():
     obj = meas_obj()
     del obj["kind"]
     with pytest.raises(CodecError) as ei:
-        decode_measurements(raw(obj))
+        to_frame(decode(TOPIC_MEASUREMENTS, raw(obj)))
     check_err(ei, TOPIC_MEASUREMENTS, 7, "kind")
     with pytest.raises(CodecError) as ei:
-        decode_measurements(b"\x00\x01garbage")
+        to_frame(decode(TOPIC_MEASUREMENTS, b"\x00\x01garbage"))
     assert ei.value.frame is None and "/measurements" in str(ei.value)
     with pytest.raises(CodecError):
-        decode_measurements(b"[1, 2]")
+        to_frame(decode(TOPIC_MEASUREMENTS, b"[1, 2]"))
 
 
 def test_too_many_measurements():
     z = [[0.0, 1.0]] * (MAX_MEASUREMENTS + 1)
     with pytest.raises(CodecError) as ei:
-        decode_measurements(raw(meas_obj(z=z)))
+        to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(z=z))))
     check_err(ei, TOPIC_MEASUREMENTS, 7, "$.z")
     with pytest.raises(CodecError):
-        encode_measurements(Frame(7, 0, "s", "bearing_range", np.array(z)))
+        encode(Frame(7, 0, "s", "bearing_range", np.array(z)))
     # the limit itself is fine
-    assert decode_measurements(raw(meas_obj(z=z[:-1]))).n_measurements == MAX_MEASUREMENTS
+    assert to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(z=z[:-1])))).n_measurements == MAX_MEASUREMENTS
 
 
 @pytest.mark.parametrize(
@@ -389,7 +388,7 @@ def test_too_many_measurements():
 )
 def test_decode_truth_rejects(over, fragments):
     with pytest.raises(CodecError) as ei:
-        decode_truth(raw(truth_obj(**over)))
+        decode(TOPIC_TRUTH, raw(truth_obj(**over)))
     frame = over.get("frame", 7)
     check_err(ei, TOPIC_TRUTH, frame, *fragments)
 
@@ -397,7 +396,7 @@ def test_decode_truth_rejects(over, fragments):
 def test_encode_truth_rejects_nan():
     t = Truth(ids=("a", "b"), states=np.array([[0.0] * 5, [0.0, 1.0, np.nan, 0.0, 0.0]]))
     with pytest.raises(CodecError) as ei:
-        encode_truth(9, 0, t)
+        encode(from_truth(9, 0, t))
     check_err(ei, TOPIC_TRUTH, 9, "non-finite", "$.objects[1].state[2]")
 
 
@@ -425,7 +424,7 @@ def _track(**over):
 )
 def test_decode_tracks_rejects(over, fragments):
     with pytest.raises(CodecError) as ei:
-        decode_tracks(raw(tracks_obj(**over)))
+        to_estimate(decode(TOPIC_TRACKS, raw(tracks_obj(**over))))
     check_err(ei, TOPIC_TRACKS, 7, *fragments)
 
 
@@ -434,30 +433,30 @@ def test_encode_tracks_rejects_bad_estimates():
     est = make_estimate(rng, k=12)
     bad_diag = Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments, est.assignment_prob, {"loglik": -np.inf})
     with pytest.raises(CodecError) as ei:
-        encode_tracks(bad_diag)
+        encode(bad_diag)
     check_err(ei, TOPIC_TRACKS, 12, "non-finite", "$.diagnostics.loglik")
     t0 = est.tracks[0]
     cov = t0.covariance.copy()
     cov[2, 3] = np.nan
     bad_cov = Estimate(12, 0, (TrackEstimate("x", t0.state, cov, 0.5),))
     with pytest.raises(CodecError) as ei:
-        encode_tracks(bad_cov)
+        encode(bad_cov)
     check_err(ei, TOPIC_TRACKS, 12, "non-finite", "$.tracks[0].covariance[13]")
     mismatch = Estimate(12, 0, est.tracks, ("t0",), (0.5, 0.5))
     with pytest.raises(CodecError):
-        encode_tracks(mismatch)
+        encode(mismatch)
     short_state = Estimate(12, 0, (TrackEstimate("x", np.zeros(4), np.eye(5), 0.5),))
     with pytest.raises(CodecError) as ei:
-        encode_tracks(short_state)
+        encode(short_state)
     check_err(ei, TOPIC_TRACKS, 12, "$.tracks[0].state")
     neg = Estimate(-1, 0, ())
     with pytest.raises(CodecError):
-        encode_tracks(neg)
+        encode(neg)
 
 
 def test_codec_error_is_value_error_and_picklable():
     with pytest.raises(ValueError):
-        decode_measurements(raw(meas_obj(frame=-1)))
+        to_frame(decode(TOPIC_MEASUREMENTS, raw(meas_obj(frame=-1))))
     e = CodecError("/measurements", 4, "boom")
     e2 = pickle.loads(pickle.dumps(e))
     assert (e2.topic, e2.frame, e2.message, str(e2)) == ("/measurements", 4, "boom", str(e))
@@ -467,24 +466,24 @@ def test_codec_does_not_import_zenoh():
     import subprocess
     import sys
 
-    code = "import sys, pipeline.codec; assert 'zenoh' not in sys.modules, 'zenoh imported'"
+    code = "import sys, tracker.messages; assert 'zenoh' not in sys.modules, 'zenoh imported'"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
 
 
 def test_decode_msg_dispatch():
     rng = np.random.default_rng(9)
     f = make_frame(rng)
-    assert isinstance(codec.decode_msg(TOPIC_MEASUREMENTS, encode_measurements(f)), MeasurementsMsg)
+    assert isinstance(decode(TOPIC_MEASUREMENTS, encode(f)), MeasurementsMsg)
     with pytest.raises(ValueError):
-        codec.decode_msg("/other", b"{}")
-    assert isinstance(msgspec.json.decode(encode_measurements(f)), dict)
+        decode("/other", b"{}")
+    assert isinstance(msgspec.json.decode(encode(f)), dict)
 
 
 def test_encode_tracks_fast_path_gives_the_checked_bytes():
-    """encode_tracks checks the estimate on stacked arrays; its bytes are those of the
-    reference path (tracks_msg + validate_msg + encode), and whatever the fast check refuses
+    """encode(estimate) checks the estimate on stacked arrays; its bytes are those of the
+    reference path (from_estimate + validation + encode), and whatever the fast check refuses
     goes through the reference path, which raises the precise error (test above)."""
-    from pipeline.codec import _checked_tracks_msg, encode_msg, tracks_msg
+    from tracker.messages import _checked_tracks_msg, from_estimate
 
     rng = np.random.default_rng(11)
     cases = [make_estimate(rng, k=k) for k in range(20)]
@@ -494,7 +493,7 @@ def test_encode_tracks_fast_path_gives_the_checked_bytes():
                        diagnostics={"alpha": np.float32(1.5)})]
     for est in cases:
         assert _checked_tracks_msg(est, "r") is not None
-        assert encode_tracks(est, "r") == encode_msg(tracks_msg(est, "r"))
+        assert encode(est, "r") == encode(from_estimate(est, "r"))
     t0 = cases[3].tracks[0]
     for bad in (Estimate(1, 0, (t0, t0)),  # duplicate label
                 Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)),
@@ -502,35 +501,80 @@ def test_encode_tracks_fast_path_gives_the_checked_bytes():
                 Estimate(1, 2**63, ())):
         assert _checked_tracks_msg(bad, "r") is None
         with pytest.raises(CodecError):
-            encode_tracks(bad, "r")
+            encode(bad, "r")
 
 
 def test_track_cluster_schema_2_and_version_1_logs_still_read():
     # schema 2: a two-level tracker's track carries its motion cluster; None is omitted
     t = TrackEstimate("t1", np.ones(5), np.eye(5), 0.9, cluster=4)
     u = TrackEstimate("t2", np.ones(5), np.eye(5), 0.8)
-    data = encode_tracks(Estimate(3, 0, (t, u)))
+    data = encode(Estimate(3, 0, (t, u)))
     obj = json.loads(data)
     assert obj["v"] == 2 and obj["tracks"][0]["cluster"] == 4 and "cluster" not in obj["tracks"][1]
-    out = decode_tracks(data)
+    out = to_estimate(decode(TOPIC_TRACKS, data))
     assert [x.cluster for x in out.tracks] == [4, None]
     # a version-1 log (no cluster field) reads as before
-    old = decode_tracks(raw({**tracks_obj(), "v": 1}))
+    old = to_estimate(decode(TOPIC_TRACKS, raw({**tracks_obj(), "v": 1})))
     assert old.tracks[0].cluster is None and old.tracks[0].existence == 0.9
     with pytest.raises(CodecError, match=r"\$\.tracks\[0\]\.cluster"):
-        decode_tracks(raw(tracks_obj(tracks=[_track(cluster=-1)])))
+        to_estimate(decode(TOPIC_TRACKS, raw(tracks_obj(tracks=[_track(cluster=-1)]))))
 
 
 def test_tracks_version_is_2_only_with_a_cluster():
     """/tracks is written as version 1 unless a track carries a motion cluster (version 2's only
     addition), so version-1 readers keep reading single-level runs; both decode."""
-    from pipeline.codec import decode_tracks, encode_tracks
-
     track = TrackEstimate("1.0", np.arange(5.0), np.eye(5), 0.9)
     plain = Estimate(4, 4_000_000_000, (track,), (), ())
     grouped = Estimate(4, 4_000_000_000, (TrackEstimate("1.0", np.arange(5.0), np.eye(5), 0.9, cluster=3),), (), ())
-    assert json.loads(encode_tracks(plain))["v"] == 1
-    obj = json.loads(encode_tracks(grouped))
+    assert json.loads(encode(plain))["v"] == 1
+    obj = json.loads(encode(grouped))
     assert obj["v"] == 2 and obj["tracks"][0]["cluster"] == 3
-    assert decode_tracks(encode_tracks(grouped)).tracks[0].cluster == 3
-    assert decode_tracks(encode_tracks(plain)).tracks[0].cluster is None
+    assert to_estimate(decode(TOPIC_TRACKS, encode(grouped))).tracks[0].cluster == 3
+    assert to_estimate(decode(TOPIC_TRACKS, encode(plain))).tracks[0].cluster is None
+
+
+def test_messages_share_one_header_and_golden_bytes():
+    """The three messages derive from one Header (v, run, frame, stamp_ns first on the wire);
+    the bytes are those of the contract (docs/formats.md), written out by hand here."""
+    from tracker.messages import Header
+
+    for t in (MeasurementsMsg, TruthMsg, TracksMsg):
+        assert issubclass(t, Header)
+        assert [f.name for f in msgspec.structs.fields(t)][:4] == ["v", "run", "frame", "stamp_ns"]
+    f = Frame(3, 3_000_000_000, "sim0", "range", [[452.5], [0.25]])
+    assert encode(f, "r1") == (b'{"v":1,"run":"r1","frame":3,"stamp_ns":3000000000,"sensor":"sim0",'
+                               b'"kind":"range","z":[[452.5],[0.25]]}')
+    g = Frame(2, 10, "cam", "xy", [[-250.5, 1120.75]], pose=(-1000.0, 2500.0, 0.5), R=np.diag([4.0, 9.0]))
+    assert encode(g) == (b'{"v":2,"run":"","frame":2,"stamp_ns":10,"sensor":"cam","kind":"xy",'
+                         b'"z":[[-250.5,1120.75]],"pose":[-1000.0,2500.0,0.5],"R":[[4.0,0.0],[0.0,9.0]]}')
+    t = Truth(("T1",), np.array([[1.0, 2.0, 3.0, 4.0, 0.5]]))
+    assert encode(from_truth(1, 1000, t)) == (b'{"v":1,"run":"","frame":1,"stamp_ns":1000,'
+                                              b'"objects":[{"id":"T1","state":[1.0,2.0,3.0,4.0,0.5]}]}')
+    est = Estimate(12, 5, (TrackEstimate("1.4", np.arange(5.0), np.eye(5), 0.75, cluster=2),), ("1.4", None), (0.5, 1.0),
+                   {"alpha": 1.5})
+    cov = ",".join("1.0" if i % 6 == 0 else "0.0" for i in range(25)).encode()
+    assert encode(est, "x") == (b'{"v":2,"run":"x","frame":12,"stamp_ns":5,"tracks":[{"label":"1.4",'
+                                b'"state":[0.0,1.0,2.0,3.0,4.0],"covariance":[' + cov + b'],"existence":0.75,'
+                                b'"cluster":2}],"assignments":["1.4",null],"assignment_prob":[0.5,1.0],'
+                                b'"diagnostics":{"alpha":1.5}}')
+
+
+def test_encode_takes_the_run_from_a_message_and_refuses_other_objects():
+    msg = decode(TOPIC_MEASUREMENTS, raw(meas_obj(run="a")))
+    assert json.loads(encode(msg))["run"] == "a"
+    with pytest.raises(ValueError, match="carries its own run"):
+        encode(msg, "b")
+    with pytest.raises(TypeError, match="not a bnptrack message"):
+        encode({"frame": 1})
+
+
+def test_messages_module_is_pure():
+    """tracker.messages imports msgspec, numpy and tracker only: no mcap, zenoh, pipeline,
+    sources or sinks."""
+    import subprocess
+    import sys
+
+    code = ("import sys, tracker.messages; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('mcap', 'zenoh', 'pipeline', 'sources', 'sinks', 'rerun')); assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))

@@ -17,7 +17,8 @@ import pytest
 
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME, Sequencer
-from sources.mcap_log import McapLogWriter, iter_tracks, read_log, read_metadata
+from sinks.mcap_writer import McapLogWriter
+from sources.mcap_log import iter_tracks, read_log, read_metadata
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.models.params import load_params

@@ -8,7 +8,7 @@ from click.testing import CliRunner
 from mcap.writer import Writer
 
 from pipeline.cli import main
-from sources.mcap_log import McapLogWriter
+from sinks.mcap_writer import McapLogWriter
 from tracker.types import Frame
 
 HALF = np.deg2rad(45.0)
@@ -94,7 +94,7 @@ def test_log_without_measurements_exits_2_listing_channels(tmp_path, cmd):
 def test_topic_mapping_reads_a_renamed_channel(tmp_path):
     from mcap.writer import Writer as W
 
-    from pipeline.codec import encode_measurements
+    from tracker.messages import encode
 
     log = tmp_path / "renamed.mcap"
     with open(log, "wb") as f:
@@ -104,7 +104,7 @@ def test_topic_mapping_reads_a_renamed_channel(tmp_path):
         cid = w.register_channel("/radar/detections", "json", sid)
         for k in range(1, 4):
             fr = Frame(k, k * 10**9, "radar0", "bearing_range", [[0.1 + 0.001 * k, 800.0 + 5 * k]])
-            w.add_message(cid, log_time=k, publish_time=k, data=encode_measurements(fr))
+            w.add_message(cid, log_time=k, publish_time=k, data=encode(fr))
         w.finish()
     res = _track(log, "--topic", "/radar/detections=/measurements")
     assert res.exit_code == 0, res.output

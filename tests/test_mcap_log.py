@@ -1,4 +1,4 @@
-"""Tests for MCAP measurement logs (sources.mcap_log)."""
+"""Tests for MCAP measurement logs (sources.mcap_log, the reader; sinks.mcap_writer, the writer)."""
 
 from __future__ import annotations
 
@@ -11,25 +11,18 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from pipeline.codec import (
-    TOPIC_MEASUREMENTS,
-    TOPIC_TRACKS,
-    TOPIC_TRUTH,
-    CodecError,
-    encode_measurements,
-    encode_truth,
-)
+from sinks.mcap_writer import McapLogWriter
 from sources.mcap_log import (
     METADATA_NAME,
     LogContents,
     McapLogError,
-    McapLogWriter,
     copy_input_channels,
     iter_frames,
     iter_tracks,
     read_log,
     read_metadata,
 )
+from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, encode, from_truth
 from tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 META = {"scenario": "vo2017", "params": "vo2017", "seed": "1"}
@@ -206,8 +199,8 @@ def test_truth_pairing_before_and_after(tmp_path):
         ct = w.register_channel(TOPIC_TRUTH, "json", 1)
         cx = w.register_channel("/other", "cdr", 0)
         for f in frames:
-            m = encode_measurements(f)
-            t = encode_truth(f.frame, f.stamp_ns, f.truth)
+            m = encode(f)
+            t = encode(from_truth(f.frame, f.stamp_ns, f.truth))
             w.add_message(cx, f.stamp_ns, b"\x00\x01not json", f.stamp_ns)
             if f.frame == 3:  # no truth for frame 3
                 w.add_message(cm, f.stamp_ns, m, f.stamp_ns)
@@ -500,15 +493,28 @@ def test_copy_input_channels_then_tracks(tmp_path):
 def test_encoded_writes_equal_the_encoding_writes(tmp_path):
     """write_encoded_frame / write_encoded_tracks (the pipeline's sink: validated payloads
     as received) give the same messages, records and flushes as write_frame / write_tracks."""
-    from pipeline.codec import encode_measurements, encode_tracks, encode_truth
-
     frames = make_frames(n=12)
     rng = np.random.default_rng(1)
     estimates = [make_estimate(rng, f) for f in frames]
     a = write_log(tmp_path / "a.mcap", frames, estimates=estimates)
     with McapLogWriter(tmp_path / "b.mcap", META) as w:
         for f, e in zip(frames, estimates):
-            truth = None if f.truth is None else encode_truth(f.frame, f.stamp_ns, f.truth, "run-1")
-            w.write_encoded_frame(encode_measurements(f, "run-1"), truth, f.stamp_ns, f.frame)
-            w.write_encoded_tracks(encode_tracks(e, "run-1"), e.stamp_ns, e.frame)
+            truth = None if f.truth is None else encode(from_truth(f.frame, f.stamp_ns, f.truth, "run-1"))
+            w.write_encoded_frame(encode(f, "run-1"), truth, f.stamp_ns, f.frame)
+            w.write_encoded_tracks(encode(e, "run-1"), e.stamp_ns, e.frame)
     assert (tmp_path / "b.mcap").read_bytes() == a.read_bytes()
+
+
+def test_reader_imports_neither_pipeline_nor_sinks():
+    """sources.mcap_log is the reader only: importing it (and reading a log) pulls in nothing
+    from pipeline/ or sinks/ (the writer is sinks.mcap_writer)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("import sys; from sources.mcap_log import iter_frames; "
+            "n = sum(1 for _ in iter_frames('recordings/vo2017-s1.mcap')); assert n == 100, n; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pipeline', 'sinks', 'zenoh', 'rerun')); "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(root))

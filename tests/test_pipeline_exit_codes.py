@@ -19,7 +19,7 @@ from pipeline.launch import Launcher, _ranges, describe_missing
 from pipeline.supervisor import LaunchResult
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME
-from sources.mcap_log import McapLogWriter
+from sinks.mcap_writer import McapLogWriter
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.models.params import load_params

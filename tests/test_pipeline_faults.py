@@ -266,7 +266,7 @@ def _forge(endpoint: str, run: str, user: str = "", password: str = "") -> str:
     Returns "refused" when the session cannot be opened, else "sent"."""
     import zenoh
 
-    from pipeline.codec import encode_measurements
+    from tracker.messages import encode
     from tracker.types import Frame
     import numpy as np
 
@@ -286,7 +286,7 @@ def _forge(endpoint: str, run: str, user: str = "", password: str = "") -> str:
         session.put(f"bnptrack/{run}/eos/source", json.dumps(eos).encode())
         frame = Frame(10**9, 10**18, "x", "bearing_range", np.array([[0.1, 100.0]]))
         for seq in (3, 4, 5, 10**6):
-            session.put(f"bnptrack/{run}/measurements", encode_measurements(frame, run),
+            session.put(f"bnptrack/{run}/measurements", encode(frame, run),
                         attachment=json.dumps({"seq": seq, "t": 1, "frame": 10**9}).encode())
     return "sent"
 

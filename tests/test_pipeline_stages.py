@@ -14,7 +14,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from pipeline.codec import encode_measurements
+from tracker.messages import encode
 from pipeline.membus import MemoryNetwork
 from pipeline.config import (
     PipelineConfig,
@@ -149,7 +149,7 @@ def _intake():
 
 def test_intake_accepts_a_valid_sample():
     intake, bus, c = _intake()
-    acc = intake.check(_ev(encode_measurements(_frame(), "runA"), {"seq": 0, "frame": 3}))
+    acc = intake.check(_ev(encode(_frame(), "runA"), {"seq": 0, "frame": 3}))
     assert acc is not None and acc.seq == 0 and acc.msg.frame == 3
     assert c.rejected == 0 and bus.published == []
 
@@ -179,7 +179,7 @@ def test_intake_accepts_a_valid_sample():
 def test_intake_rejects_bad_samples_with_counter_and_deadletter(payload, meta, needle):
     intake, bus, c = _intake()
     if payload is None:
-        payload = encode_measurements(_frame(), "runB" if "runB" in needle else "runA")
+        payload = encode(_frame(), "runB" if "runB" in needle else "runA")
     assert intake.check(_ev(payload, meta)) is None
     assert c.rejected == 1 and intake.rejected_by_topic == {"measurements": 1}
     [(topic, letter, _)] = bus.published
@@ -191,7 +191,7 @@ def test_intake_rejects_bad_samples_with_counter_and_deadletter(payload, meta, n
 
 def test_intake_rejects_an_invalid_attachment():
     intake, bus, c = _intake()
-    assert intake.check(_ev(encode_measurements(_frame(), "runA"), None, err="attachment is not a JSON object")) is None
+    assert intake.check(_ev(encode(_frame(), "runA"), None, err="attachment is not a JSON object")) is None
     assert "attachment" in json.loads(bus.published[0][1])["reason"]
 
 
@@ -482,7 +482,7 @@ def test_sink_drops_a_truth_of_another_frame_like_mismatched_tracks(tmp_path):
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["complete"] and summary["frames_written"] == 8 and summary["tracks_written"] == 8
     assert summary["counters"]["rejected"] == 1 and summary["gaps"]["truth"] == []
-    from pipeline.codec import TOPIC_TRUTH
+    from tracker.messages import TOPIC_TRUTH
     from sources.mcap_log import _Scanner
 
     truth_frames = [m.frame for _, m in _Scanner(Path(cfg.out) / "tracks.mcap", {TOPIC_TRUTH})]
@@ -542,9 +542,9 @@ def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     for (r, t, p, a) in net.history:
         if t == "tracks":
             seq = json.loads(a)["seq"]
-            from pipeline.codec import decode_tracks
+            from tracker.messages import TOPIC_TRACKS, decode, to_estimate
 
-            est = decode_tracks(p)
+            est = to_estimate(decode(TOPIC_TRACKS, p))
             if seq in last:
                 assert _strip(last[seq]) == _strip(est)  # re-published frames are identical
             last[seq] = est

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import DeliveryConfig, ZenohConfig
-from sources.mcap_log import McapLogWriter, iter_frames, read_log, read_metadata
+from sinks.mcap_writer import McapLogWriter
+from sources.mcap_log import iter_frames, read_log, read_metadata
 
 ROOT = Path(__file__).resolve().parent.parent
 VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
@@ -354,7 +355,7 @@ def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
     """Source and tracker run to the end before the sink exists; the sink then receives the
     cached history.  Malformed, NaN, wrong-run and unsequenced samples published on the
     run's keys are rejected (counted, dead-lettered) and change nothing."""
-    from pipeline.codec import encode_measurements
+    from tracker.messages import encode
     from pipeline.transport import Bus
     from tracker.types import Frame
 
@@ -369,8 +370,8 @@ def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
         assert eos["last_seq"] == 11 and eos["gaps"] == []
         good = Frame(frame=3, stamp_ns=3, sensor="x", kind="bearing_range", z=np.array([[0.1, 10.0]]))
         intruder.publish("measurements", b"{definitely not json", {"seq": 2})
-        intruder.publish("measurements", encode_measurements(good, "other-run"), {"seq": 2, "frame": 3})
-        intruder.publish("measurements", encode_measurements(good, run))  # no sequence number
+        intruder.publish("measurements", encode(good, "other-run"), {"seq": 2, "frame": 3})
+        intruder.publish("measurements", encode(good, run))  # no sequence number
         intruder.publish("tracks", b'{"v":1,"run":"late-1","frame":1,"stamp_ns":0,"tracks":[],'
                                    b'"assignments":[],"assignment_prob":[NaN]}', {"seq": 0})
         intruder.publish("truth", b'{"v":7,"run":"late-1","frame":1,"stamp_ns":0,"objects":[]}', {"seq": 0})

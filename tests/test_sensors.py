@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.codec import decode_measurements, encode_measurements
+from tracker.messages import TOPIC_MEASUREMENTS, decode, encode, to_frame
 from sinks.metrics import ospa
 from sources.scenarios import get_scenario
 from sources.synthetic import move_truth, simulate_all, simulate_sensors, truth_at_time
@@ -127,12 +127,12 @@ def test_birth_from_posed_sensor():
 
 def test_codec_pose_r_xy_roundtrip():
     f = Frame(3, 3_000_000_000, "cam", "xy", [[10.0, -20.0], [1e3, 5.5]], pose=POSE, R=np.diag([4.0, 9.0]))
-    raw = encode_measurements(f)
+    raw = encode(f)
     obj = json.loads(raw)
     assert obj["v"] == 2 and obj["pose"] == list(POSE) and obj["R"] == [[4.0, 0.0], [0.0, 9.0]]
-    g = decode_measurements(raw)
+    g = to_frame(decode(TOPIC_MEASUREMENTS, raw))
     assert g.kind == "xy" and g.pose == POSE and np.array_equal(g.R, f.R) and np.array_equal(g.z, f.z)
-    plain = json.loads(encode_measurements(Frame(3, 0, "r", "bearing_range", [[0.1, 5.0]])))
+    plain = json.loads(encode(Frame(3, 0, "r", "bearing_range", [[0.1, 5.0]])))
     assert plain["v"] == 1 and "pose" not in plain and "R" not in plain
     with pytest.raises(ValueError, match="R must be a finite 2x2"):
         Frame(1, 0, "c", "xy", [[0.0, 0.0]], R=np.eye(3))

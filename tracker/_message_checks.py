@@ -1,0 +1,422 @@
+"""The rules of the message contract beyond JSON types (private to :mod:`tracker.messages`).
+
+Every function raises :class:`CodecError` naming topic, frame and JSON path.  The checks read
+messages by attribute (``msg.frame``, ``msg.z``, ...), so this module does not import the
+message structs: :mod:`tracker.messages` imports it.  The topic names, schema versions and
+size limits of the contract live here because both modules need them;
+:mod:`tracker.messages` re-exports the public ones.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from itertools import chain
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from tracker.models.measurement import KINDS, MeasurementKind, measurement_kind
+from tracker.types import STATE_DIM
+
+# --------------------------------------------------------------------------- contract constants
+
+TOPIC_MEASUREMENTS = "/measurements"
+TOPIC_TRUTH = "/truth"
+TOPIC_TRACKS = "/tracks"
+
+SCHEMA_VERSION = 1
+"""Schema version of ``/truth`` and ``/tracks`` (and of ``/measurements`` that use none of
+version 2's additions)."""
+MEASUREMENTS_SCHEMA_VERSION = 2
+"""``/measurements`` version 2 adds ``pose``, ``R`` and the kinds registered after version 1;
+readers accept 1 and 2, writers write 1 when a message uses none of them (so version-1 readers
+still read it)."""
+TRACKS_SCHEMA_VERSION = 2
+"""``/tracks`` version 2 adds the optional ``cluster`` of a track (two-level trackers); writers
+write 1 when no track carries one."""
+#: Versions read per topic (a topic not listed reads only :data:`SCHEMA_VERSION`).
+READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2)}
+#: The kinds of ``/measurements`` version 1 (a fact of the wire format's history: every kind
+#: registered since is written as version 2).
+V1_KINDS = frozenset({"bearing_range", "range"})
+
+MAX_MEASUREMENTS = 100_000
+MAX_TRACKS = 10_000
+MAX_OBJECTS = 10_000
+MAX_DIAGNOSTICS = 1_000
+MAX_STAMP = 2**63 - 1
+COV_DIM = STATE_DIM * STATE_DIM
+
+_FMAX = sys.float_info.max
+_chain = chain.from_iterable
+_min_reduce = np.minimum.reduce
+_max_reduce = np.maximum.reduce
+
+
+class CodecError(ValueError):
+    """A message that does not satisfy the schema.
+
+    Attributes: ``topic``, ``frame`` (``None`` when unknown), ``message`` (the detail,
+    usually ending with the JSON path, e.g. ``"... - at `$.z[3][1]`"``).
+    """
+
+    def __init__(self, topic: str, frame: int | None, message: str) -> None:
+        self.topic = topic
+        self.frame = frame
+        self.message = message
+        where = f"frame {frame}" if frame is not None else "frame ?"
+        super().__init__(f"{topic} {where}: {message}")
+
+    def __reduce__(self):  # keep picklable (multiprocessing) despite the custom __init__
+        return (type(self), (self.topic, self.frame, self.message))
+
+
+# --------------------------------------------------------------------------- shared checks
+
+
+def is_int(x: Any) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+
+
+def _versions(topic: str) -> tuple[int, ...]:
+    return READ_VERSIONS.get(topic, (SCHEMA_VERSION,))
+
+
+def _versions_text(topic: str) -> str:
+    versions = _versions(topic)
+    return f"version{'s' if len(versions) > 1 else ''} {' and '.join(map(str, versions))}"
+
+
+def _version_error(topic: str, frame: int | None, version: Any) -> CodecError:
+    return CodecError(
+        topic, frame, f"unsupported schema version {version!r} (this build reads {_versions_text(topic)}) - at `$.v`"
+    )
+
+
+def check_header(topic: str, msg: Any) -> int:
+    """Check v / frame / stamp_ns / run of the shared header; return the frame index."""
+    frame = msg.frame if is_int(msg.frame) else None
+    if not is_int(msg.v) or msg.v not in _versions(topic):
+        raise _version_error(topic, frame, msg.v)
+    if frame is None or frame < 0:
+        raise CodecError(topic, frame, f"frame must be an integer >= 0, got {msg.frame!r} - at `$.frame`")
+    if not is_int(msg.stamp_ns) or not 0 <= msg.stamp_ns <= MAX_STAMP:
+        raise CodecError(
+            topic, frame, f"stamp_ns must be an integer in [0, 2**63), got {msg.stamp_ns!r} - at `$.stamp_ns`"
+        )
+    if not isinstance(msg.run, str):
+        raise CodecError(topic, frame, "run must be a string - at `$.run`")
+    return int(frame)
+
+
+def _fmt_index(idx: tuple[int, ...]) -> str:
+    return "".join(f"[{int(i)}]" for i in idx)
+
+
+def _check_finite(topic: str, frame: int, arr: np.ndarray, path: str) -> None:
+    """Raise on the first non-finite entry of ``arr`` (path prefix e.g. ``$.z``)."""
+    if arr.size and not np.isfinite(arr).all():
+        idx = tuple(np.argwhere(~np.isfinite(arr))[0])
+        raise CodecError(
+            topic, frame, f"non-finite value {float(arr[idx])!r} - at `{path}{_fmt_index(idx)}`"
+        )
+
+
+def _rows_array(
+    topic: str, frame: int, rows: Any, width: int, row_path: str, what: str
+) -> np.ndarray:
+    """``rows`` (list of equal-length lists) -> ``(n, width)`` float array, or CodecError.
+
+    ``row_path`` is the JSON path of row ``i`` as a format string, e.g. ``"$.z[{i}]"``.
+    """
+    n = len(rows)
+    if n == 0:
+        return np.zeros((0, width))
+    try:
+        arr = np.array(rows, dtype=float)
+    except (ValueError, TypeError):
+        arr = None
+    if arr is None or arr.ndim != 2 or arr.shape[1] != width:
+        for i, row in enumerate(rows):
+            if not isinstance(row, (list, tuple, np.ndarray)) or len(row) != width:
+                got = len(row) if hasattr(row, "__len__") else type(row).__name__
+                raise CodecError(
+                    topic,
+                    frame,
+                    f"{what} of length {got}, expected {width} - at `{row_path.format(i=i)}`",
+                )
+        raise CodecError(topic, frame, f"{what} values are not numeric - at `{row_path.format(i=0)}`")
+    return arr
+
+
+def _check_size(topic: str, frame: int, seq: Any, limit: int, path: str) -> None:
+    if len(seq) > limit:
+        raise CodecError(
+            topic, frame, f"too many entries ({len(seq)} > {limit}) - at `{path}`"
+        )
+
+
+def _check_unique(topic: str, frame: int, names: list, path: str, what: str) -> None:
+    if len(set(names)) != len(names):
+        seen: set = set()
+        for i, name in enumerate(names):
+            if name in seen:
+                raise CodecError(topic, frame, f"duplicate {what} {name!r} - at `{path}[{i}]`")
+            seen.add(name)
+
+
+def _check_strings(topic: str, frame: int, items: list, attr: str, path: str, what: str) -> list[str]:
+    """``getattr(item, attr)`` of every item, which must be strings and unique."""
+    names = []
+    for i, item in enumerate(items):
+        name = getattr(item, attr)
+        if not isinstance(name, str):
+            raise CodecError(topic, frame, f"{attr} must be a string - at `{path}[{i}].{attr}`")
+        names.append(name)
+    _check_unique(topic, frame, names, path, what)
+    return names
+
+
+def _check_unit(topic: str, frame: int, values: Any, what: str, path: str) -> None:
+    """Every value in ``[0, 1]`` (NaN fails); ``path`` formats index ``i``."""
+    p = np.array(values, dtype=float)
+    bad = ~((p >= 0.0) & (p <= 1.0))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise CodecError(topic, frame, f"{what} must be in [0, 1], got {float(p[i])!r} - at `{path.format(i=i)}`")
+
+
+# --------------------------------------------------------------------------- /measurements
+
+
+def check_measurements(msg: Any) -> np.ndarray:
+    """Validate a measurements message; return ``z`` as an ``(M, d)`` float array."""
+    topic = TOPIC_MEASUREMENTS
+    frame = check_header(topic, msg)
+    try:
+        kind = measurement_kind(msg.kind)
+    except (ValueError, TypeError):
+        raise CodecError(topic, frame, f"unknown kind {msg.kind!r} (known: {', '.join(KINDS)}) - at `$.kind`") from None
+    if not isinstance(msg.sensor, str):
+        raise CodecError(topic, frame, "sensor must be a string - at `$.sensor`")
+    rows = msg.z
+    _check_size(topic, frame, rows, MAX_MEASUREMENTS, "$.z")
+    d = kind.dim
+    _check_pose_r(topic, frame, msg, d)
+    m = len(rows)
+    if m == 0:
+        return np.zeros((0, d))
+    # Fast path: one flat float array, one min and one max reduction.  NaN propagates
+    # through min/max and fails every comparison below; +-inf fails the bounds.
+    z = None
+    if set(map(len, rows)) == {d}:
+        try:
+            z = np.fromiter(_chain(rows), dtype=float, count=m * d).reshape(m, d)
+        except (TypeError, ValueError):
+            z = None
+    if z is None:
+        z = _rows_array(topic, frame, rows, d, "$.z[{i}]", f"z row (kind {msg.kind!r})")
+    lo = _min_reduce(z, axis=0).tolist()
+    hi = _max_reduce(z, axis=0).tolist()
+    if not all(a <= x and y <= b for a, b, x, y in zip(kind.low, kind.high, lo, hi)):
+        _measurement_error(topic, frame, z, kind)
+    return z
+
+
+def _check_pose_r(topic: str, frame: int, msg: Any, d: int) -> None:
+    """``pose``: 3 finite numbers; ``R``: a finite symmetric positive-definite ``d x d``."""
+    if msg.pose is not None and not all(math.isfinite(v) for v in msg.pose):
+        raise CodecError(topic, frame, f"pose must be 3 finite numbers [x, y, heading], got {msg.pose!r} - at `$.pose`")
+    if msg.R is None:
+        return
+    if len(msg.R) != d or any(len(row) != d for row in msg.R):
+        raise CodecError(topic, frame, f"R must be {d}x{d} for kind {msg.kind!r} - at `$.R`")
+    R = np.array(msg.R, dtype=float)
+    if not np.isfinite(R).all() or not np.allclose(R, R.T, rtol=1e-9, atol=0.0) \
+            or np.any(np.linalg.eigvalsh(0.5 * (R + R.T)) <= 0):
+        raise CodecError(topic, frame, "R must be finite, symmetric and positive definite - at `$.R`")
+
+
+def _column_names(kind: MeasurementKind) -> tuple[str, ...]:
+    """Column names of a kind from its registry entry's ``columns`` (``"[bearing_rad, range_m]"``
+    -> ``("bearing", "range")``: the unit suffix dropped), else ``column j``."""
+    names = tuple(c.strip().rsplit("_", 1)[0] for c in kind.columns.strip("[]").split(","))
+    if len(names) != kind.dim or not all(names):
+        return tuple(f"column {j}" for j in range(kind.dim))
+    return names
+
+
+def _bound_text(lo: float, hi: float) -> str:
+    if lo == 0.0 and hi >= _FMAX:
+        return "must be >= 0"
+    return f"must be within [{'-pi' if lo == -math.pi else f'{lo:g}'}, {'pi' if hi == math.pi else f'{hi:g}'}]"
+
+
+def _measurement_error(topic: str, frame: int, z: np.ndarray, kind: MeasurementKind) -> None:
+    """Slow path: raise a CodecError for the first invalid entry of ``z`` (bounds of the
+    kind's registry entry)."""
+    _check_finite(topic, frame, z, "$.z")
+    names = _column_names(kind)
+    for j in reversed(range(kind.dim)):  # range before bearing (the historical order of checks)
+        col, lo, hi = z[:, j], kind.low[j], kind.high[j]
+        bad = (col < lo) | (col > hi)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise CodecError(topic, frame, f"{names[j]} {_bound_text(lo, hi)}, got {float(col[i])!r} - at `$.z[{i}][{j}]`")
+    raise CodecError(topic, frame, "invalid measurement values - at `$.z`")  # unreachable
+
+
+# --------------------------------------------------------------------------- /truth, /tracks
+
+
+def check_truth(msg: Any) -> np.ndarray:
+    """Validate a truth message; return the ``(n, 5)`` states."""
+    topic = TOPIC_TRUTH
+    frame = check_header(topic, msg)
+    _check_size(topic, frame, msg.objects, MAX_OBJECTS, "$.objects")
+    _check_strings(topic, frame, msg.objects, "id", "$.objects", "object id")
+    states = _rows_array(
+        topic, frame, [o.state for o in msg.objects], STATE_DIM, "$.objects[{i}].state", "state"
+    )
+    if states.shape[0] and not np.isfinite(states).all():
+        i, j = np.argwhere(~np.isfinite(states))[0]
+        raise CodecError(
+            topic, frame, f"non-finite value {float(states[i, j])!r} - at `$.objects[{i}].state[{j}]`"
+        )
+    return states
+
+
+def check_tracks(msg: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a tracks message; return the ``(n, 5)`` states and ``(n, 25)`` covariances."""
+    topic = TOPIC_TRACKS
+    frame = check_header(topic, msg)
+    _check_size(topic, frame, msg.tracks, MAX_TRACKS, "$.tracks")
+    _check_size(topic, frame, msg.assignments, MAX_MEASUREMENTS, "$.assignments")
+    _check_size(topic, frame, msg.assignment_prob, MAX_MEASUREMENTS, "$.assignment_prob")
+    _check_size(topic, frame, msg.diagnostics, MAX_DIAGNOSTICS, "$.diagnostics")
+    states, covs = _check_track_rows(frame, msg.tracks)
+    _check_assignments(frame, msg)
+    if msg.diagnostics:
+        keys = list(msg.diagnostics)
+        vals = np.array([msg.diagnostics[k] for k in keys], dtype=float)
+        if not np.isfinite(vals).all():
+            i = int(np.argmax(~np.isfinite(vals)))
+            raise CodecError(
+                topic, frame, f"non-finite value {float(vals[i])!r} - at `$.diagnostics.{keys[i]}`"
+            )
+    return states, covs
+
+
+def _check_track_rows(frame: int, tracks: list) -> tuple[np.ndarray, np.ndarray]:
+    """Labels (strings, unique), states (5), covariances (25), all finite; existence in [0, 1]."""
+    topic = TOPIC_TRACKS
+    _check_strings(topic, frame, tracks, "label", "$.tracks", "track label")
+    states = _rows_array(topic, frame, [t.state for t in tracks], STATE_DIM, "$.tracks[{i}].state", "state")
+    covs = _rows_array(
+        topic, frame, [t.covariance for t in tracks], COV_DIM, "$.tracks[{i}].covariance", "covariance"
+    )
+    if tracks:
+        for arr, name in ((states, "state"), (covs, "covariance")):
+            if not np.isfinite(arr).all():
+                i, j = np.argwhere(~np.isfinite(arr))[0]
+                raise CodecError(
+                    topic, frame, f"non-finite value {float(arr[i, j])!r} - at `$.tracks[{i}].{name}[{j}]`"
+                )
+        _check_unit(topic, frame, [t.existence for t in tracks], "existence", "$.tracks[{i}].existence")
+    return states, covs
+
+
+def _check_assignments(frame: int, msg: Any) -> None:
+    """One probability in [0, 1] per assignment; every assignment a label or null."""
+    topic = TOPIC_TRACKS
+    if len(msg.assignments) != len(msg.assignment_prob):
+        raise CodecError(
+            topic,
+            frame,
+            f"len(assignments) = {len(msg.assignments)} != len(assignment_prob) = "
+            f"{len(msg.assignment_prob)} - at `$.assignment_prob`",
+        )
+    for i, a in enumerate(msg.assignments):
+        if a is not None and not isinstance(a, str):
+            raise CodecError(topic, frame, f"assignment must be a label or null - at `$.assignments[{i}]`")
+    if msg.assignment_prob:
+        _check_unit(topic, frame, msg.assignment_prob, "probability", "$.assignment_prob[{i}]")
+
+
+# --------------------------------------------------------------------------- fast path, decode errors
+
+
+def _in_unit(a: np.ndarray) -> bool:
+    return bool(((a >= 0.0) & (a <= 1.0)).all())  # NaN fails too
+
+
+def _stack(rows: list, n: int, width: int) -> np.ndarray | None:
+    if not n:
+        return np.zeros((0, width))
+    try:
+        a = np.array(rows, dtype=float).reshape(n, -1)
+    except (ValueError, TypeError):
+        return None
+    return a if a.shape[1] == width and np.isfinite(a).all() else None
+
+
+def estimate_arrays(est: Any, run: Any) -> tuple | None:
+    """Every check of the ``/tracks`` contract on an estimate's arrays (one vectorised pass
+    instead of :func:`check_tracks` on the message's lists): ``(labels, states, covs,
+    existence, probs, diagnostics)`` when all pass, else ``None`` (the caller then takes the
+    path that names the exact error)."""
+    tracks, n = est.tracks, len(est.tracks)
+    if not (is_int(est.frame) and est.frame >= 0 and is_int(est.stamp_ns) and 0 <= est.stamp_ns <= MAX_STAMP):
+        return None
+    if not isinstance(run, str) or n > MAX_TRACKS or len(est.diagnostics) > MAX_DIAGNOSTICS:
+        return None
+    labels = [str(t.label) for t in tracks]
+    probs = np.asarray(est.assignment_prob, dtype=float).ravel()
+    if len(set(labels)) != n or len(est.assignments) != probs.size or probs.size > MAX_MEASUREMENTS:
+        return None
+    diag = {str(k): float(v) for k, v in est.diagnostics.items()}
+    if not (_in_unit(probs) and all(map(math.isfinite, diag.values()))):
+        return None
+    states = _stack([t.state for t in tracks], n, STATE_DIM)
+    covs = _stack([t.covariance for t in tracks], n, COV_DIM)
+    exist = np.array([float(t.existence) for t in tracks], dtype=float)
+    if states is None or covs is None or not _in_unit(exist):
+        return None
+    return labels, states, covs, exist, probs, diag
+
+
+class _Peek(msgspec.Struct):
+    """Lenient view used only on the error path to name the frame and version."""
+
+    v: Any = None
+    frame: Any = None
+
+
+_PEEK_DECODER = msgspec.json.Decoder(_Peek)
+_FRAME_RE = re.compile(rb'"frame"\s*:\s*(-?\d+)')
+_NONFINITE_RE = re.compile(rb"\b(NaN|-?Infinity|-?inf|nan)\b")
+
+
+def decode_error(topic: str, data: bytes, exc: Exception) -> CodecError:
+    """Turn a msgspec error into a CodecError naming the frame (and the version if wrong)."""
+    frame: int | None = None
+    version: Any = None
+    try:
+        peek = _PEEK_DECODER.decode(data)
+        version = peek.v
+        if is_int(peek.frame):
+            frame = int(peek.frame)
+    except Exception:
+        m = _FRAME_RE.search(bytes(data[:4096]))
+        if m:
+            frame = int(m.group(1))
+    if is_int(version) and version not in _versions(topic):
+        return _version_error(topic, frame, version)
+    detail = str(exc)
+    if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
+        if _NONFINITE_RE.search(bytes(data)):
+            detail = f"non-finite number (NaN/Infinity) is not valid JSON here: {detail}"
+    return CodecError(topic, frame, detail)

@@ -1,0 +1,410 @@
+"""The message contract: versioned JSON messages of the bus and the MCAP logs (public).
+
+Three messages, each a JSON object that starts with the shared :class:`Header`
+(``v``, ``run``, ``frame``, ``stamp_ns``), used both on the Zenoh bus and in MCAP logs:
+
+``/measurements`` (:class:`MeasurementsMsg`)::
+
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
+     "kind": "bearing_range", "z": [[bearing_rad, range_m], ...]}
+
+  (``kind == "range"``: ``"z": [[range_m], ...]``; the kinds and their row layouts are the
+  registry ``tracker.models.measurement.KINDS``).  ``v`` and ``run`` are optional on decode
+  (default ``1`` and ``""``) so logs that carry only the five core fields decode.
+
+``/truth`` (:class:`TruthMsg`)::
+
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
+     "objects": [{"id": "obj0", "state": [px, vx, py, vy, omega]}, ...]}
+
+``/tracks`` (:class:`TracksMsg`)::
+
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
+     "tracks": [{"label": "t1", "state": [5 floats], "covariance": [25 floats, row-major],
+                 "existence": 0.97}, ...],
+     "assignments": ["t1", null, ...],          # one per measurement, input order
+     "assignment_prob": [0.93, 0.71, ...],      # one per measurement
+     "diagnostics": {"alpha": 1.2, ...}}        # optional, default {}
+
+The API: :func:`decode` (bytes -> validated message), :func:`encode` (message, ``Frame`` or
+``Estimate`` -> validated bytes), the conversions :func:`from_frame`, :func:`from_truth`,
+:func:`from_estimate` and :func:`to_frame`, :func:`to_truth`, :func:`to_estimate`,
+:func:`json_schema`, and :class:`CodecError`.
+
+Validation beyond the JSON types (all errors are :class:`CodecError`, naming topic, frame
+and the JSON path; the rules are in the private ``tracker._message_checks``): finite floats
+only, ``frame >= 0``, ``0 <= stamp_ns < 2**63``, ``z`` rows of the kind's dimension with values
+within the kind's registry bounds (``range >= 0``, ``bearing`` in ``[-pi, pi]``), state
+length 5, covariance length 25, existence and probabilities in ``[0, 1]``,
+``len(assignments) == len(assignment_prob)``, unique truth ids / track labels, size limits
+(``MAX_MEASUREMENTS``, ``MAX_TRACKS``, ``MAX_OBJECTS``, ``MAX_DIAGNOSTICS``), and ``v`` among
+the versions the topic reads (anything else: "unsupported schema version").  Unknown fields
+are rejected: a change of fields is a new schema version.
+
+Encoding validates too (a NaN would otherwise be written as ``null`` by msgspec).
+Pure: msgspec, numpy and ``tracker`` only (no mcap, no zenoh).
+"""
+
+from __future__ import annotations
+
+from itertools import chain
+from typing import Annotated, Any, Literal, Union
+
+import msgspec
+import numpy as np
+
+from tracker._message_checks import (
+    COV_DIM,
+    MAX_DIAGNOSTICS,
+    MAX_MEASUREMENTS,
+    MAX_OBJECTS,
+    MAX_STAMP,
+    MAX_TRACKS,
+    MEASUREMENTS_SCHEMA_VERSION,
+    SCHEMA_VERSION,
+    TOPIC_MEASUREMENTS,
+    TOPIC_TRACKS,
+    TOPIC_TRUTH,
+    TRACKS_SCHEMA_VERSION,
+    V1_KINDS,
+    CodecError,
+    check_measurements,
+    check_tracks,
+    check_truth,
+    decode_error,
+    estimate_arrays,
+    is_int,
+)
+from tracker.models.measurement import KINDS, measurement_kind
+from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, Truth
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "TOPIC_MEASUREMENTS",
+    "TOPIC_TRUTH",
+    "TOPIC_TRACKS",
+    "MSG_TYPES",
+    "CodecError",
+    "MeasurementsMsg",
+    "TruthMsg",
+    "TracksMsg",
+    "decode",
+    "encode",
+    "from_frame",
+    "from_truth",
+    "from_estimate",
+    "to_frame",
+    "to_truth",
+    "to_estimate",
+    "json_schema",
+]
+
+_chain = chain.from_iterable
+
+# --------------------------------------------------------------------------- schema
+
+# msgspec constraint aliases of the schema (tracker/config.py has no shared ones yet).
+NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
+StampNs = Annotated[int, msgspec.Meta(ge=0, le=MAX_STAMP)]
+Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+StateVec = Annotated[list[float], msgspec.Meta(min_length=STATE_DIM, max_length=STATE_DIM)]
+CovVec = Annotated[list[float], msgspec.Meta(min_length=COV_DIM, max_length=COV_DIM)]
+_MAX_DIM = max(k.dim for k in KINDS.values())
+ZRow = Annotated[list[float], msgspec.Meta(min_length=1, max_length=_MAX_DIM)]
+KindName = Literal[tuple(KINDS)]  # the registry's kinds (tracker.models.measurement.KINDS)
+
+
+class Header(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """The four fields every message starts with (in this order on the wire)."""
+
+    v: int = SCHEMA_VERSION
+    run: str = ""
+    frame: NonNegInt
+    stamp_ns: StampNs
+
+
+class MeasurementsMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """One scan of measurements from one sensor (topic ``/measurements``)."""
+
+    sensor: str
+    kind: KindName
+    z: Annotated[list[ZRow], msgspec.Meta(max_length=MAX_MEASUREMENTS)]
+    pose: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
+    """``[x_m, y_m, heading_rad]`` of the sensor for this scan (v2)."""
+    R: Annotated[list[Annotated[list[float], msgspec.Meta(max_length=_MAX_DIM)]],
+                 msgspec.Meta(max_length=_MAX_DIM)] | None = None
+    """``d x d`` measurement noise covariance of this scan's rows (v2)."""
+
+
+class _MeasurementsMsgV1(Header, frozen=True, kw_only=True):
+    """The version-1 fields, to write messages that use no version-2 field."""
+
+    sensor: str
+    kind: str
+    z: list
+
+
+class TruthObject(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """One ground-truth object: id and state ``[px, vx, py, vy, omega]``."""
+
+    id: str
+    state: StateVec
+
+
+class TruthMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Ground truth at one frame (topic ``/truth``)."""
+
+    objects: Annotated[list[TruthObject], msgspec.Meta(max_length=MAX_OBJECTS)]
+
+
+class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, omit_defaults=True):
+    """One labelled track: mean (5), row-major covariance (25), existence probability, and
+    (schema 2, two-level trackers only; omitted otherwise) the id of its motion cluster."""
+
+    label: str
+    state: StateVec
+    covariance: CovVec
+    existence: Prob
+    cluster: Union[Annotated[int, msgspec.Meta(ge=0)], None] = None
+
+
+class TracksMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """A tracker's output for one frame (topic ``/tracks``)."""
+
+    tracks: Annotated[list[TrackMsg], msgspec.Meta(max_length=MAX_TRACKS)]
+    assignments: Annotated[
+        list[Union[str, None]], msgspec.Meta(max_length=MAX_MEASUREMENTS)
+    ]
+    assignment_prob: Annotated[list[Prob], msgspec.Meta(max_length=MAX_MEASUREMENTS)]
+    diagnostics: Annotated[
+        dict[str, float], msgspec.Meta(max_length=MAX_DIAGNOSTICS)
+    ] = {}
+
+
+Msg = Union[MeasurementsMsg, TruthMsg, TracksMsg]
+
+#: Message type per topic.
+MSG_TYPES: dict[str, type] = {
+    TOPIC_MEASUREMENTS: MeasurementsMsg,
+    TOPIC_TRUTH: TruthMsg,
+    TOPIC_TRACKS: TracksMsg,
+}
+#: The validation of each message type.
+_CHECKS = {MeasurementsMsg: check_measurements, TruthMsg: check_truth, TracksMsg: check_tracks}
+
+_ENCODER = msgspec.json.Encoder()
+_DECODERS = {topic: msgspec.json.Decoder(t) for topic, t in MSG_TYPES.items()}
+
+
+def json_schema(msg_type: type | str) -> dict:
+    """JSON schema (draft 2020-12, via ``msgspec.json.schema``) of a message type or topic."""
+    if isinstance(msg_type, str):
+        try:
+            msg_type = MSG_TYPES[msg_type]
+        except KeyError:
+            raise ValueError(f"unknown topic {msg_type!r}") from None
+    return msgspec.json.schema(msg_type)
+
+
+# --------------------------------------------------------------------------- decode
+
+
+def decode(topic: str, data: bytes | bytearray | memoryview | str) -> Msg:
+    """Decode and validate the message of a known topic (``ValueError`` for another topic)."""
+    try:
+        decoder = _DECODERS[topic]
+    except KeyError:
+        raise ValueError(f"unknown topic {topic!r}") from None
+    try:
+        msg = decoder.decode(data)
+    except msgspec.DecodeError as exc:  # ValidationError is a subclass
+        raw = data.encode() if isinstance(data, str) else data
+        raise decode_error(topic, raw, exc) from None
+    _CHECKS[type(msg)](msg)
+    return msg
+
+
+def to_frame(msg: MeasurementsMsg, truth: Truth | None = None) -> Frame:
+    """A (validated) measurements message as a :class:`Frame`."""
+    d = measurement_kind(msg.kind).dim
+    z = (
+        np.fromiter(_chain(msg.z), dtype=float, count=len(msg.z) * d).reshape(-1, d)
+        if msg.z
+        else np.zeros((0, d))
+    )
+    return Frame(
+        frame=msg.frame,
+        stamp_ns=msg.stamp_ns,
+        sensor=msg.sensor,
+        kind=msg.kind,
+        z=z,
+        truth=truth,
+        pose=None if msg.pose is None else tuple(msg.pose),
+        R=None if msg.R is None else np.array(msg.R, dtype=float),
+    )
+
+
+def to_truth(msg: TruthMsg) -> Truth:
+    """A (validated) truth message as :class:`Truth` (its frame and stamp are ``msg.frame`` and
+    ``msg.stamp_ns``)."""
+    states = (
+        np.array([o.state for o in msg.objects], dtype=float)
+        if msg.objects
+        else np.zeros((0, STATE_DIM))
+    )
+    return Truth(ids=tuple(o.id for o in msg.objects), states=states)
+
+
+def to_estimate(msg: TracksMsg) -> Estimate:
+    """A (validated) tracks message as an :class:`Estimate`."""
+    tracks = tuple(
+        TrackEstimate(
+            label=t.label,
+            state=np.array(t.state, dtype=float),
+            covariance=np.array(t.covariance, dtype=float).reshape(STATE_DIM, STATE_DIM),
+            existence=float(t.existence),
+            cluster=t.cluster,
+        )
+        for t in msg.tracks
+    )
+    return Estimate(
+        frame=msg.frame,
+        stamp_ns=msg.stamp_ns,
+        tracks=tracks,
+        assignments=tuple(msg.assignments),
+        assignment_prob=tuple(float(p) for p in msg.assignment_prob),
+        diagnostics=dict(msg.diagnostics),
+    )
+
+
+# --------------------------------------------------------------------------- encode
+
+
+def _as_int(topic: str, frame: Any, value: Any, name: str) -> int:
+    if not is_int(value):
+        raise CodecError(topic, frame if is_int(frame) else None, f"{name} must be an integer, got {value!r} - at `$.{name}`")
+    return int(value)
+
+
+def from_frame(frame: Frame, run: str = "") -> MeasurementsMsg:
+    """The ``/measurements`` message of ``frame`` (built, not validated: :func:`encode` checks;
+    version 2 only when it uses a version-2 addition)."""
+    topic = TOPIC_MEASUREMENTS
+    idx = _as_int(topic, frame.frame, frame.frame, "frame")
+    z = np.asarray(frame.z, dtype=float)
+    pose = getattr(frame, "pose", None)
+    R = getattr(frame, "R", None)
+    v2 = pose is not None or R is not None or frame.kind not in V1_KINDS
+    return MeasurementsMsg(
+        v=MEASUREMENTS_SCHEMA_VERSION if v2 else SCHEMA_VERSION,
+        run=run,
+        frame=idx,
+        stamp_ns=_as_int(topic, idx, frame.stamp_ns, "stamp_ns"),
+        sensor=str(frame.sensor),
+        kind=frame.kind,
+        z=z.tolist(),
+        pose=None if pose is None else [float(v) for v in pose],
+        R=None if R is None else np.asarray(R, dtype=float).tolist(),
+    )
+
+
+def from_truth(frame_index: int, stamp_ns: int, truth: Truth, run: str = "") -> TruthMsg:
+    """The ``/truth`` message of ``truth`` at a frame (built, not validated)."""
+    topic = TOPIC_TRUTH
+    idx = _as_int(topic, frame_index, frame_index, "frame")
+    states = np.asarray(truth.states, dtype=float)
+    if len(truth.ids) != len(states):
+        raise CodecError(topic, idx, f"{len(truth.ids)} ids but {len(states)} states - at `$.objects`")
+    return TruthMsg(
+        v=SCHEMA_VERSION,
+        run=run,
+        frame=idx,
+        stamp_ns=_as_int(topic, idx, stamp_ns, "stamp_ns"),
+        objects=[
+            TruthObject(id=str(i), state=s)
+            for i, s in zip(truth.ids, states.tolist())
+        ],
+    )
+
+
+def _tracks_version(tracks: list[TrackMsg]) -> int:
+    return TRACKS_SCHEMA_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION
+
+
+def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
+    """The ``/tracks`` message of ``est`` (built, not validated)."""
+    topic = TOPIC_TRACKS
+    idx = _as_int(topic, est.frame, est.frame, "frame")
+    tracks = [
+        TrackMsg(
+            label=str(t.label),
+            state=np.asarray(t.state, dtype=float).ravel().tolist(),
+            covariance=np.asarray(t.covariance, dtype=float).ravel().tolist(),
+            existence=float(t.existence),
+            cluster=None if t.cluster is None else int(t.cluster),
+        )
+        for t in est.tracks
+    ]
+    return TracksMsg(
+        v=_tracks_version(tracks),
+        run=run,
+        frame=idx,
+        stamp_ns=_as_int(topic, idx, est.stamp_ns, "stamp_ns"),
+        tracks=tracks,
+        assignments=[None if a is None else str(a) for a in est.assignments],
+        assignment_prob=np.asarray(est.assignment_prob, dtype=float).ravel().tolist(),
+        diagnostics={str(k): float(v) for k, v in est.diagnostics.items()},
+    )
+
+
+def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
+    """The message :func:`from_estimate` builds, when every check of the contract passes on
+    the estimate's arrays (``tracker._message_checks.estimate_arrays``); ``None`` otherwise."""
+    arrays = estimate_arrays(est, run)
+    if arrays is None:
+        return None
+    labels, states, covs, exist, probs, diag = arrays
+    tracks = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
+                       cluster=None if t.cluster is None else int(t.cluster))
+              for lab, st, cv, ex, t in zip(labels, states.tolist(), covs.tolist(), exist.tolist(), est.tracks)]
+    return TracksMsg(
+        v=_tracks_version(tracks),
+        run=run,
+        frame=int(est.frame),
+        stamp_ns=int(est.stamp_ns),
+        tracks=tracks,
+        assignments=[None if a is None else str(a) for a in est.assignments],
+        assignment_prob=probs.tolist(),
+        diagnostics=diag,
+    )
+
+
+def _encode_msg(msg: Msg) -> bytes:
+    """Validate and JSON-encode a message struct (a ``/measurements`` message without
+    ``pose`` and ``R`` is written without those fields)."""
+    check = _CHECKS.get(type(msg))
+    if check is None:
+        raise TypeError(f"not a bnptrack message: {type(msg).__name__}")
+    check(msg)
+    if isinstance(msg, MeasurementsMsg) and msg.pose is None and msg.R is None:
+        return _ENCODER.encode(_MeasurementsMsgV1(v=msg.v, run=msg.run, frame=msg.frame, stamp_ns=msg.stamp_ns,
+                                                  sensor=msg.sensor, kind=msg.kind, z=msg.z))
+    return _ENCODER.encode(msg)
+
+
+def encode(item: Msg | Frame | Estimate, run: str = "") -> bytes:
+    """Validated JSON bytes of a message.
+
+    ``item`` is a message struct (it carries its own ``run``: pass none), a :class:`Frame`
+    (its ``/measurements`` message; the truth is not included: encode :func:`from_truth`) or an
+    :class:`Estimate` (its ``/tracks`` message, checked on the estimate's stacked arrays;
+    anything off takes the message path, which names the exact error).
+    """
+    if isinstance(item, Estimate):
+        msg = _checked_tracks_msg(item, run)
+        return _encode_msg(from_estimate(item, run)) if msg is None else _ENCODER.encode(msg)
+    if isinstance(item, Frame):
+        return _encode_msg(from_frame(item, run))
+    if run:
+        raise ValueError("encode: a message carries its own run; pass run only with a Frame or an Estimate")
+    return _encode_msg(item)
