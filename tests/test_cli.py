@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from mcap.reader import make_reader
 
 from pipeline.cli import main
-from pipeline.offline import resolve_params, split_overrides
+from pipeline.resolve import resolve_params, split_overrides
 from sources.mcap_log import iter_frames, iter_tracks, read_log, read_metadata
 from sources.scenarios import get_scenario, scenario_names
 from tracker.config import ConfigError

@@ -14,7 +14,8 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
+from pipeline.cli import EXIT_INCOMPLETE, IncompleteError
+from pipeline.cli.pipeline_commands import _report_launch
 from pipeline.launch import LaunchResult, Launcher, _ranges, describe_missing
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, SUMMARY_NAME
