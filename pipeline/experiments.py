@@ -125,49 +125,57 @@ def _run_setup(job: RunJob):
 
     A generated scenario (``random``) draws its scene from the run's seed (and the
     variant's ``scene.*`` overrides), so every run has its own scene."""
-    from pipeline.offline import resolve_scenario, split_scene_overrides
-    from tracker.config import apply_overrides
-    from tracker.models.params import load_params
+    from sources.scenarios import open_scenario
 
     exp = get_experiment(job.experiment)
     seed = run_seed(job.experiment, job.seed, job.run)
-    scenario = resolve_scenario(exp.scenario, seed, job.variant.overrides)
-    _, model_over = split_scene_overrides(job.variant.overrides)
-    params = scenario.adapt_params(apply_overrides(load_params(job.params), model_over))
-    return exp, scenario, params, seed
+    opened = open_scenario(exp.scenario, job.params, seed, job.variant.overrides)
+    return exp, opened.scenario, opened.params, seed
 
 
 def execute_run(job: RunJob) -> RunResult:
     """One Monte Carlo run: simulate the scenario, run every tracker, score every frame."""
-    from pipeline.offline import build_tracker, resolve_config
-    from sinks.metrics import crossing_label_keeping, gospa, ospa, ospa2_series
     from sources.synthetic import simulate_all
-    from tracker.state import run as run_tracker
 
     exp, scenario, params, seed = _run_setup(job)
     frames = simulate_all(scenario, params, seed)
     n_true = np.array([len(f.truth.ids) for f in frames])
     result = RunResult(job, n_true, frames=frames if job.keep_tracks else None)
-    true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
     for spec in exp.trackers:
-        config, _ = resolve_config(spec.name, spec.preset)
-        tracker = build_tracker(spec.name, params, config)
-        rows, est_tracks, kept = [], [], []
-        for f, e, _ in run_tracker(tracker, frames, seed):
-            o = ospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P)
-            g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
-            rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
-            est_tracks.append({t.label: t.position for t in e.tracks})
-            kept.append(e)
-        r = np.array(rows, dtype=float)
-        o2 = ospa2_series(est_tracks, true_tracks, window=OSPA2_WINDOW, c=OSPA_C, p=OSPA_P)
-        cross = None
-        if scenario.crossings:
-            res = crossing_label_keeping(true_tracks, est_tracks, scenario.crossings)
-            cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
-        result.trackers[spec.label] = TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3],
-                                                 r[:, 4], r[:, 5], kept if job.keep_tracks else None, cross)
+        result.trackers[spec.label] = _score_tracker(spec, params, frames, seed, scenario.crossings,
+                                                     job.keep_tracks)
     return result
+
+
+def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
+                   crossings: Sequence[tuple[str, str, int]], keep_tracks: bool) -> TrackerRun:
+    """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
+    :class:`sinks.scoring.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
+    (alpha 2) and the label keeping through ``crossings``."""
+    from pipeline.resolve import tracker_setup
+    from sinks.metrics import crossing_label_keeping, gospa
+    from sinks.scoring import RunScorer
+    from tracker.state import run as run_tracker
+
+    tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
+    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW)
+    rows, o2, est_tracks, kept = [], [], [], []
+    for f, e, _ in run_tracker(tracker, frames, seed):
+        scores = scorer.update(f, e)
+        o = scores["ospa"]
+        g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
+        rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
+        o2.append(scores["ospa2"])
+        est_tracks.append({t.label: t.position for t in e.tracks})
+        kept.append(e)
+    r = np.array(rows, dtype=float)
+    cross = None
+    if crossings:
+        true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
+        res = crossing_label_keeping(true_tracks, est_tracks, crossings)
+        cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
+    return TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3], r[:, 4], r[:, 5],
+                      kept if keep_tracks else None, cross)
 
 
 # --------------------------------------------------------------------------- executors

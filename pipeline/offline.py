@@ -1,10 +1,11 @@
-"""Offline building blocks shared by the ``bnptrack`` commands (simulate, track, and later
-replay / experiment): resolving model parameters, tracker settings and ``--set`` overrides,
-and the offline tracking loop with per-frame metrics.
+"""Offline runs of the ``bnptrack`` commands: simulate a scenario into a log
+(:func:`simulate_to_log`) and track a log with per-frame scores (:func:`track_log`).
 
-Everything here is a plain function over plain data; the click commands in
-:mod:`pipeline.cli` only parse options, call these and print.  The tracker and the metrics
-(which pull in scipy) are imported where they are used, so ``bnptrack --help`` stays quick.
+What a run uses (parameters, settings, the tracker) is resolved by :mod:`pipeline.resolve`,
+the scenario by :func:`sources.scenarios.open_scenario`; frames are scored by
+:class:`sinks.scoring.RunScorer`, as the pipeline's sink and the experiments score them.
+The tracker and the metrics (which pull in scipy) are imported where they are used, so
+``bnptrack --help`` stays quick.
 """
 
 from __future__ import annotations
@@ -16,14 +17,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import msgspec
 import numpy as np
 
+from sinks.metrics import CrossingResult, OspaResult
+from sinks.scoring import OSPA_C, OSPA_P, RunScorer
 from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
-from sources.scenarios import get_scenario, is_generated
+from sources.scenarios import OpenScenario, parse_crossings
 from sources.synthetic import simulate, simulate_sensors
-from tracker.config import ConfigError, apply_overrides, load_toml, split_item
-from tracker.models.params import ModelParams, load_params
+from tracker.config import ConfigError
+from tracker.models.params import ModelParams
 from tracker.state import run
 from tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
 
@@ -31,27 +33,12 @@ if TYPE_CHECKING:
     from tracker.registry import Tracker
 
 __all__ = [
-    "DEFAULT_PARAMS",
-    "TRACKERS",
     "OSPA_C",
     "OSPA_P",
-    "ParamsChoice",
     "SimulationResult",
     "FrameMetrics",
     "TrackResult",
-    "format_overrides",
-    "parse_overrides",
-    "resolve_simulation_params",
-    "resolve_scenario",
-    "split_scene_overrides",
-    "simulation_metadata",
-    "format_crossings",
-    "parse_crossings",
-    "resolve_params",
-    "resolve_config",
-    "split_overrides",
-    "apply_split_overrides",
-    "build_tracker",
+    "RunHealth",
     "simulate_to_log",
     "frame_metrics",
     "track_frames",
@@ -60,288 +47,6 @@ __all__ = [
     "default_tracks_path",
     "check_output_path",
 ]
-
-#: Parameter set used when neither ``--params`` nor the log says which one.
-DEFAULT_PARAMS = "vo2017"
-#: Trackers ``bnptrack track`` can run (see :mod:`tracker.registry`).
-from tracker.registry import TRACKERS  # noqa: E402
-#: OSPA settings of the paper's experiments (cut-off in metres, order): one definition, in
-#: :mod:`sinks.scoring`.
-from sinks.metrics import CrossingResult, OspaResult  # noqa: E402
-from sinks.scoring import OSPA_C, OSPA_P  # noqa: E402
-
-_OVERRIDE_SEP = ";"
-
-
-# --------------------------------------------------------------------------- overrides
-
-
-def format_overrides(overrides: Sequence[str]) -> str:
-    """Join ``key=value`` overrides for the metadata record (``;``-separated)."""
-    return _OVERRIDE_SEP.join(o.strip() for o in overrides)
-
-
-def parse_overrides(text: str | None) -> tuple[str, ...]:
-    """Inverse of :func:`format_overrides` (empty or missing text: no overrides)."""
-    if not text:
-        return ()
-    return tuple(item.strip() for item in text.split(_OVERRIDE_SEP) if item.strip())
-
-
-def _struct_fields(cls: type[msgspec.Struct]) -> tuple[str, ...]:
-    return tuple(cls.__struct_fields__)
-
-
-def split_overrides(
-    overrides: Sequence[str], config_cls: type[msgspec.Struct] | None = None
-) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Route ``--set`` items to (model parameters, tracker settings).
-
-    ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to the tracker's settings
-    (``config_cls``, default :class:`BnpConfig`); a bare ``KEY=V`` goes to whichever has the
-    field (``ModelParams`` first).  Raises :class:`ConfigError` naming the key when neither has it.
-    """
-    if config_cls is None:
-        from tracker.bnp_tracker import BnpConfig as config_cls
-
-    p_fields, t_fields = _struct_fields(ModelParams), _struct_fields(config_cls)
-    to_params: list[str] = []
-    to_tracker: list[str] = []
-    for item in overrides:
-        key, value = split_item(item)
-        head, dot, rest = key.partition(".")
-        if dot and head == "params":
-            to_params.append(f"{rest}={value}")
-        elif dot and head == "tracker":
-            to_tracker.append(f"{rest}={value}")
-        elif head in p_fields:
-            to_params.append(f"{key}={value}")
-        elif head in t_fields:
-            to_tracker.append(f"{key}={value}")
-        else:
-            raise ConfigError(
-                f"--set {item!r}: unknown key '{key}': not a model parameter "
-                f"({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
-                "use params.KEY or tracker.KEY to be explicit"
-            )
-    return tuple(to_params), tuple(to_tracker)
-
-
-def apply_split_overrides(
-    params: ModelParams, config: msgspec.Struct, overrides: Sequence[str]
-) -> tuple[ModelParams, msgspec.Struct]:
-    """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
-    p_over, t_over = split_overrides(overrides, type(config))
-    return apply_overrides(params, p_over), apply_overrides(config, t_over)
-
-
-# --------------------------------------------------------------------------- params
-
-
-@dataclass(frozen=True)
-class ParamsChoice:
-    """The model parameters a command uses, and where they came from.
-
-    ``source`` is the built-in name or file path; ``reason`` a short human explanation
-    (e.g. ``"from --params"``, ``"from the log's bnptrack.scenario record"``).
-    """
-
-    params: ModelParams
-    source: str
-    reason: str
-    overrides: tuple[str, ...] = ()
-
-    def describe(self, final: ModelParams | None = None, overrides: Sequence[str] = ()) -> str:
-        """One line: source, reason, the log's overrides, extra ``--set`` items and the SNR
-        of ``final`` (the parameters after those items; default: :attr:`params`)."""
-        final = self.params if final is None else final
-        extra = []
-        if self.overrides:
-            extra.append("log overrides " + " ".join(self.overrides))
-        if overrides:
-            extra.append("--set " + " ".join(overrides))
-        set_keys = {o.partition("=")[0].strip() for o in overrides}
-        if final.snr_db is not None and "snr_db" not in set_keys:
-            extra.append(f"snr_db {final.snr_db:g}")
-        tail = f"; {'; '.join(extra)}" if extra else ""
-        return f"{self.source} ({self.reason}{tail})"
-
-
-def _with_snr(params: ModelParams, snr_db: float | None) -> ModelParams:
-    if snr_db is None:
-        return params
-    return msgspec.structs.replace(params, snr_db=float(snr_db))
-
-
-_SCENE_PREFIX = "scene."
-
-
-def split_scene_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Split ``--set`` items into (``scene.KEY=V`` items without the prefix, the others)."""
-    scene, rest = [], []
-    for item in overrides:
-        item = item.strip()
-        if item.startswith(_SCENE_PREFIX):
-            scene.append(item[len(_SCENE_PREFIX):])
-        else:
-            rest.append(item)
-    return tuple(scene), tuple(rest)
-
-
-def resolve_scenario(scenario: str, seed: int, overrides: Sequence[str] = ()):
-    """The :class:`~sources.scenarios.Scenario` to simulate: a fixed table, or a generated
-    family's scene for the scene seed ``seed`` (the run's seed) and the ``scene.*`` items of
-    ``overrides`` (other items are ignored here)."""
-    scene, _ = split_scene_overrides(overrides)
-    return get_scenario(scenario, seed=seed, scene=scene)
-
-
-def _adapting_scenario(name: str):
-    """The scenario whose ``adapt_params`` applies: the fixed table, or a generated family's
-    template (the same for every scene of the family: no birth regions)."""
-    if is_generated(name):
-        from sources.scene_families import family_template
-
-        return family_template(name)
-    return get_scenario(name)
-
-
-def resolve_simulation_params(
-    scenario: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
-) -> ModelParams:
-    """Parameters for simulating ``scenario``: the set, ``--set`` overrides (``scene.*`` items
-    are left to :func:`resolve_scenario`), ``--snr``, then the scenario's defaults
-    (``Scenario.adapt_params``, e.g. -3 dB for ``snr``, no birth regions for ``random``)."""
-    _, model_over = split_scene_overrides(overrides)
-    sc = _adapting_scenario(scenario)
-    p = _with_snr(load_params(params, model_over), snr_db)
-    return sc.adapt_params(p)
-
-
-def simulation_metadata(
-    scenario, params_name: str, seed: int, params: ModelParams, overrides: Sequence[str] = ()
-) -> dict[str, str]:
-    """The ``bnptrack.scenario`` record of a simulated log: scenario, params, seed, plus
-    snr_db and the model ``overrides`` when used; for a generated scene also ``scene_seed``,
-    its ``scene`` overrides (``;``-separated, without ``scene.``) and its ``crossings``
-    (``id_a,id_b,scan`` items, ``;``-separated)."""
-    scene, model_over = split_scene_overrides(overrides)
-    meta = {"scenario": scenario.name, "params": params_name, "seed": str(seed)}
-    if params.snr_db is not None:
-        meta["snr_db"] = repr(float(params.snr_db))
-    if model_over:
-        meta["overrides"] = format_overrides(model_over)
-    if scenario.seed is not None:
-        meta["scene_seed"] = str(scenario.seed)
-        if scene:
-            meta["scene"] = format_overrides(scene)
-        meta["crossings"] = format_crossings(scenario.crossings)
-    return meta
-
-
-def format_crossings(crossings: Sequence[tuple[str, str, int]]) -> str:
-    """``(id_a, id_b, scan)`` triples as ``id_a,id_b,scan;...`` (metadata text)."""
-    return _OVERRIDE_SEP.join(f"{a},{b},{int(k)}" for a, b, k in crossings)
-
-
-def parse_crossings(text: str | None) -> tuple[tuple[str, str, int], ...]:
-    """Inverse of :func:`format_crossings` (empty or missing text: no pairs)."""
-    out = []
-    for item in parse_overrides(text):
-        a, b, k = (v.strip() for v in item.split(","))
-        out.append((a, b, int(k)))
-    return tuple(out)
-
-
-def resolve_params(
-    params_arg: str | None, metadata: Mapping[str, str] | None
-) -> ParamsChoice:
-    """Model parameters for tracking a log.
-
-    1. ``params_arg`` (``--params NAME|FILE.toml``) when given;
-    2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
-       (the ``--set`` items used when simulating) and its ``snr_db``;
-    3. else the :data:`DEFAULT_PARAMS` set.
-
-    When the record names a known scenario, its defaults are applied as ``simulate`` applied
-    them (:meth:`Scenario.adapt_params`: birth regions, none for the generated families, SNR,
-    range clutter), in every case.
-    """
-    meta = dict(metadata or {})
-    if params_arg:
-        choice = ParamsChoice(load_params(params_arg), params_arg, "from --params")
-    elif meta.get("params"):
-        choice = _params_from_record(meta)
-    else:
-        why = (
-            "default: the log has no bnptrack.scenario record"
-            if metadata is None
-            else "default: the log's bnptrack.scenario record names no params"
-        )
-        choice = ParamsChoice(load_params(DEFAULT_PARAMS), DEFAULT_PARAMS, why)
-    return _adapt_to_scenario(choice, meta.get("scenario"))
-
-
-def _params_from_record(meta: Mapping[str, str]) -> ParamsChoice:
-    name = meta["params"]
-    overrides = parse_overrides(meta.get("overrides"))
-    try:
-        p = load_params(name, overrides)
-        snr = meta.get("snr_db")
-        p = _with_snr(p, float(snr) if snr not in (None, "") else None)
-    except (ConfigError, ValueError) as exc:
-        raise ConfigError(
-            f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
-            "(pass --params NAME|FILE.toml)"
-        ) from None
-    return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
-
-
-def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoice:
-    """Apply the defaults of the scenario a log's record names (unknown names: unchanged)."""
-    if not scenario:
-        return choice
-    try:
-        sc = _adapting_scenario(scenario)
-    except ConfigError:
-        return choice
-    params = sc.adapt_params(choice.params)
-    regions = f"{len(params.birth)} birth regions" if params.birth else "no birth regions"
-    return ParamsChoice(params, choice.source, f"{choice.reason}; scenario {scenario}: {regions}",
-                        choice.overrides)
-
-
-# --------------------------------------------------------------------------- tracker config
-
-
-def resolve_config(tracker: str, config_arg: str | None) -> tuple[msgspec.Struct, str]:
-    """Tracker settings: a preset name or a TOML file of the tracker's settings fields;
-    default: the preset named like the tracker.  Returns ``(config, description)``."""
-    from tracker.registry import kind
-
-    try:
-        k = kind(tracker)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    if not config_arg:
-        return k.presets[tracker], f"preset {tracker} (default for --tracker {tracker})"
-    if config_arg in k.presets:
-        return k.presets[config_arg], f"preset {config_arg}"
-    if config_arg.endswith(".toml") or Path(config_arg).exists():
-        return load_toml(config_arg, k.config_cls), f"file {config_arg}"
-    raise ConfigError(
-        f"--config {config_arg!r}: not a preset of {tracker} ({', '.join(k.presets)}) nor a .toml file"
-    )
-
-
-def build_tracker(name: str, params: ModelParams, config: msgspec.Struct):
-    """The tracker ``name`` (see :mod:`tracker.registry`) with these parameters and settings."""
-    from tracker.registry import build
-
-    try:
-        return build(name, params, config)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- simulate
@@ -362,24 +67,17 @@ class SimulationResult:
         return self.measurements / self.frames if self.frames else 0.0
 
 
-def simulate_to_log(
-    scenario: str,
-    params: ModelParams,
-    seed: int,
-    out: str | os.PathLike,
-    metadata: Mapping[str, str],
-    overrides: Sequence[str] = (),
-) -> SimulationResult:
-    """Simulate ``scenario`` with ``params`` (already resolved) and write an MCAP log; a
-    generated scenario's scene is drawn from ``seed`` and the ``scene.*`` ``overrides``."""
-    sc = resolve_scenario(scenario, seed, overrides)
+def simulate_to_log(opened: OpenScenario, seed: int, out: str | os.PathLike) -> SimulationResult:
+    """Simulate an opened scenario (:func:`sources.scenarios.open_scenario`: its scene and
+    final parameters) with ``seed`` and write an MCAP log with its record."""
+    sc, params = opened.scenario, opened.params
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_frames = n_meas = n_targets = 0
     # a parameter set that declares sensors ([sensors.NAME]) is simulated with all of them:
     # one frame per sensor per scan, interleaved (sources.synthetic.simulate_sensors)
     frames = simulate_sensors(sc, params, seed, list(params.sensors)) if params.sensors else simulate(sc, params, seed)
-    with McapLogWriter(out, dict(metadata)) as writer:
+    with McapLogWriter(out, dict(opened.metadata)) as writer:
         for frame in frames:
             writer.write_frame(frame)
             n_frames += 1
@@ -404,6 +102,8 @@ class FrameMetrics:
     ospa_localisation: float | None = None
     ospa_cardinality: float | None = None
     cardinality_error: float | None = None
+    ospa2: float | None = None
+    """OSPA(2) over the window ending at this frame (:class:`sinks.scoring.RunScorer`)."""
 
     @property
     def ospa_result(self) -> OspaResult | None:
@@ -463,15 +163,21 @@ class TrackResult:
         return float(np.percentile(v, 95)) if v.size else None
 
 
-def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P) -> FrameMetrics:
-    """OSPA (on position) and cardinality error of one estimate against the frame's truth."""
-    from sinks.metrics import cardinality_error, ospa
+def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P,
+                  scorer: RunScorer | None = None) -> FrameMetrics:
+    """OSPA (on position) and cardinality error of one estimate against the frame's truth,
+    scored by ``scorer`` (a run's :class:`sinks.scoring.RunScorer`, which then also gives
+    the frame's OSPA(2); default: a scorer of this frame alone, cut-off ``c``, order ``p``)."""
+    from sinks.metrics import cardinality_error
 
+    if scorer is None:
+        scorer = RunScorer(c=c, p=p, window=1)
     ms = float(est.diagnostics.get("ms", float("nan")))
     base = dict(frame=frame.frame, n_measurements=frame.n_measurements, n_tracks=len(est.tracks), ms=ms)
+    scores = scorer.update(frame, est)
     if frame.truth is None:
         return FrameMetrics(**base)
-    o = ospa(frame.truth.positions, est.positions, c=c, p=p)
+    o = scores["ospa"]
     n_true = len(frame.truth.ids)
     return FrameMetrics(
         **base,
@@ -480,6 +186,7 @@ def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSP
         ospa_localisation=o.localisation,
         ospa_cardinality=o.cardinality,
         cardinality_error=cardinality_error(len(est.tracks), n_true),
+        ospa2=scores["ospa2"],
     )
 
 
@@ -507,10 +214,11 @@ def track_frames(
     error: McapLogError | FrameBoundError | None = None
     seen: list[tuple[Frame, Estimate]] = []
     health = RunHealth(getattr(tracker, "params", None))
+    scorer = RunScorer()
     try:
         for frame, est, _state in run(tracker, bounded_frames(frames, bounds or FrameBounds()), seed):
             health.add(frame)
-            row = frame_metrics(frame, est)
+            row = frame_metrics(frame, est, scorer=scorer)
             if on_estimate is not None:
                 on_estimate(frame, est, row)
             rows.append(row)
@@ -638,3 +346,20 @@ def track_log(
         crossings = parse_crossings((metadata or {}).get("crossings"))
         return track_frames(tracker, iter_frames(log, dict(topic_map or {})), seed, write, crossings, bounds)
 
+
+
+# TEMPORARY re-export (issue 12 wave 1): removed at merge
+from pipeline.resolve import (  # noqa: E402,F401
+    DEFAULT_PARAMS,
+    TRACKERS,
+    ParamsChoice,
+    apply_split_overrides,
+    build_tracker,
+    resolve_config,
+    resolve_params,
+    split_overrides,
+)
+from sources.scenarios import format_overrides  # noqa: E402,F401
+from sources.scenarios import scenario_metadata as simulation_metadata  # noqa: E402,F401
+from sources.scenarios import scenario_params as resolve_simulation_params  # noqa: E402,F401
+from sources.scenarios import scene_of as resolve_scenario  # noqa: E402,F401

@@ -105,6 +105,18 @@ __all__ = [
     "is_generated",
     "WTURN",
     "PROXIMITY_PATH_START",
+    "OpenScenario",
+    "open_scenario",
+    "scene_of",
+    "scenario_params",
+    "scenario_metadata",
+    "adapting_scenario",
+    "with_snr",
+    "split_scene_overrides",
+    "format_overrides",
+    "parse_overrides",
+    "format_crossings",
+    "parse_crossings",
 ]
 
 #: Turn-rate unit of Vo et al.'s scenario, rad/s.
@@ -414,3 +426,129 @@ def _generated(name: str, seed: int, scene: tuple[str, ...]) -> Scenario:
     from sources.scene_families import generate_scene
 
     return generate_scene(name, seed, scene)
+
+
+# --------------------------------------------------------------------------- opening a scenario
+# (the one place that applies ``--set`` overrides, ``--snr`` and the scenario's defaults, and
+# writes / reads the ``bnptrack.scenario`` record of a simulated log)
+
+OVERRIDE_SEP = ";"
+SCENE_PREFIX = "scene."
+
+
+def format_overrides(overrides: Sequence[str]) -> str:
+    """Join ``key=value`` overrides for the metadata record (``;``-separated)."""
+    return OVERRIDE_SEP.join(o.strip() for o in overrides)
+
+
+def parse_overrides(text: str | None) -> tuple[str, ...]:
+    """Inverse of :func:`format_overrides` (empty or missing text: no overrides)."""
+    if not text:
+        return ()
+    return tuple(item.strip() for item in text.split(OVERRIDE_SEP) if item.strip())
+
+
+def format_crossings(crossings: Sequence[tuple[str, str, int]]) -> str:
+    """``(id_a, id_b, scan)`` triples as ``id_a,id_b,scan;...`` (metadata text)."""
+    return OVERRIDE_SEP.join(f"{a},{b},{int(k)}" for a, b, k in crossings)
+
+
+def parse_crossings(text: str | None) -> tuple[tuple[str, str, int], ...]:
+    """Inverse of :func:`format_crossings` (empty or missing text: no pairs)."""
+    out = []
+    for item in parse_overrides(text):
+        a, b, k = (v.strip() for v in item.split(","))
+        out.append((a, b, int(k)))
+    return tuple(out)
+
+
+def split_scene_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Split ``--set`` items into (``scene.KEY=V`` items without the prefix, the others)."""
+    scene, rest = [], []
+    for item in overrides:
+        item = item.strip()
+        if item.startswith(SCENE_PREFIX):
+            scene.append(item[len(SCENE_PREFIX):])
+        else:
+            rest.append(item)
+    return tuple(scene), tuple(rest)
+
+
+def with_snr(params: ModelParams, snr_db: float | None) -> ModelParams:
+    """``params`` with ``snr_db`` set (``None``: unchanged)."""
+    if snr_db is None:
+        return params
+    return msgspec.structs.replace(params, snr_db=float(snr_db))
+
+
+def adapting_scenario(name: str) -> Scenario:
+    """The scenario whose ``adapt_params`` applies: the fixed table, or a generated family's
+    template (the same for every scene of the family: no birth regions)."""
+    if is_generated(name):
+        from sources.scene_families import family_template
+
+        return family_template(name)
+    return get_scenario(name)
+
+
+@dataclass(frozen=True)
+class OpenScenario:
+    """A scenario ready to simulate: the scene, the final model parameters and the
+    ``bnptrack.scenario`` record of its log."""
+
+    scenario: Scenario
+    params: ModelParams
+    metadata: dict[str, str]
+
+
+def open_scenario(
+    name: str, params: str, seed: int, overrides: Sequence[str] = (), snr_db: float | None = None
+) -> OpenScenario:
+    """Scenario ``name`` with model parameter set ``params`` (a built-in name or TOML file):
+    the scene (:func:`scene_of`), the parameters (:func:`scenario_params`) and the record
+    (:func:`scenario_metadata`).  Raises :class:`ConfigError` for an unknown name or key."""
+    p = scenario_params(name, params, overrides, snr_db)
+    scenario = scene_of(name, seed, overrides)
+    return OpenScenario(scenario, p, scenario_metadata(scenario, params, seed, p, overrides))
+
+
+def scene_of(name: str, seed: int, overrides: Sequence[str] = ()) -> Scenario:
+    """The scenario to simulate: a fixed table, or a generated family's scene for the scene
+    seed ``seed`` and the ``scene.*`` items of ``overrides`` (other items are ignored here)."""
+    scene, _ = split_scene_overrides(overrides)
+    return get_scenario(name, seed=seed, scene=scene)
+
+
+def scenario_params(
+    name: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
+) -> ModelParams:
+    """Parameters for simulating scenario ``name``: the set ``params``, the ``--set`` items of
+    ``overrides`` (``scene.*`` items are left to :func:`scene_of`), ``snr_db`` (``--snr``),
+    then the scenario's defaults (:meth:`Scenario.adapt_params`, e.g. -3 dB for ``snr``, no
+    birth regions for ``random``)."""
+    from tracker.models.params import load_params
+
+    _, model_over = split_scene_overrides(overrides)
+    adapting = adapting_scenario(name)
+    return adapting.adapt_params(with_snr(load_params(params, model_over), snr_db))
+
+
+def scenario_metadata(
+    scenario: Scenario, params_name: str, seed: int, params: ModelParams, overrides: Sequence[str] = ()
+) -> dict[str, str]:
+    """The ``bnptrack.scenario`` record of a simulated log: scenario, params, seed, plus
+    snr_db and the model ``overrides`` when used; for a generated scene also ``scene_seed``,
+    its ``scene`` overrides (``;``-separated, without ``scene.``) and its ``crossings``
+    (``id_a,id_b,scan`` items, ``;``-separated)."""
+    scene, model_over = split_scene_overrides(overrides)
+    meta = {"scenario": scenario.name, "params": params_name, "seed": str(seed)}
+    if params.snr_db is not None:
+        meta["snr_db"] = repr(float(params.snr_db))
+    if model_over:
+        meta["overrides"] = format_overrides(model_over)
+    if scenario.seed is not None:
+        meta["scene_seed"] = str(scenario.seed)
+        if scene:
+            meta["scene"] = format_overrides(scene)
+        meta["crossings"] = format_crossings(scenario.crossings)
+    return meta

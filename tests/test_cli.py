@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from mcap.reader import make_reader
 
 from pipeline.cli import main
-from pipeline.offline import resolve_params, split_overrides
+from pipeline.resolve import resolve_params, split_overrides
 from sources.mcap_log import iter_frames, iter_tracks, read_log, read_metadata
 from sources.scenarios import get_scenario, scenario_names
 from tracker.config import ConfigError
@@ -365,3 +365,65 @@ def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
     tracks = [len(t.tracks) for t in iter_tracks(tmp_path / "t.mcap")]
     truth = [len(f.truth.ids) for f in frames]
     assert abs(sum(tracks) - sum(truth)) < 0.15 * sum(truth)
+
+
+# --------------------------------------------------------------------------- resolver (issue 12)
+
+
+def test_tracker_setup_resolves_once_and_writes_the_output_record():
+    """params from the record (with the scenario's defaults), the preset, the --set items
+    (routed to params and settings), the tracker and the output record, in one call."""
+    from pipeline.resolve import tracker_setup
+    from tracker.bnp_tracker import TRACKER_PRESETS
+
+    meta = {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}
+    s = tracker_setup("ddp", config="ddp-snr", overrides=("p_detect=0.8", "sweeps=7"), metadata=meta, seed=3)
+    assert (s.params.p_detect, s.params.snr_db, s.params.range_clutter_rate) == (0.8, -5.0, 2.0)
+    assert s.config.sweeps == 7 and s.config.burn_in == TRACKER_PRESETS["ddp-snr"].burn_in
+    assert s.tracker.name == "ddp" and s.tracker.params == s.params
+    assert s.metadata == {**meta, "tracker": "ddp", "tracker_seed": "3", "tracker_params": "vo2017",
+                          "tracker_config": "ddp-snr", "tracker_overrides": "p_detect=0.8;sweeps=7"}
+    assert s.describe_config() == "preset ddp-snr; --set sweeps=7"
+    assert s.describe_params().startswith("vo2017 (from the log's bnptrack.scenario record; scenario snr")
+    assert meta == {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}  # not mutated
+
+
+def test_tracker_setup_takes_resolved_params_as_given():
+    """Experiments pass the simulation's parameters: used unchanged, no record needed."""
+    from pipeline.resolve import tracker_setup
+    from tracker.models.params import load_params
+
+    p = load_params("vo2017", ["clutter_rate=7"])
+    s = tracker_setup("glmb", params=p)
+    assert s.params is p and s.tracker.name == "glmb" and s.choice.source == "given"
+    assert s.metadata == {"tracker": "glmb", "tracker_seed": "0", "tracker_params": "given",
+                          "tracker_config": "glmb"}
+
+
+def test_split_overrides_without_a_settings_class_knows_every_registered_tracker():
+    """No tracker's settings class is the default: a field of the two-level trackers'
+    GroupConfig routes to the tracker settings, but not when the tracker is a BNP one."""
+    from tracker.bnp_tracker import BnpConfig
+
+    assert split_overrides(["within_std=3", "max_hypotheses=9"]) == ((), ("within_std=3", "max_hypotheses=9"))
+    with pytest.raises(ConfigError, match="within_std"):
+        split_overrides(["within_std=3"], BnpConfig)
+
+
+def test_choices_come_from_the_registries():
+    from pipeline.cli.offline_commands import track
+    from pipeline.cli.pipeline_commands import stage
+    from pipeline.cli.tools import experiment
+    from pipeline.experiments import EXPERIMENTS
+    from tracker.registry import TRACKERS
+
+    assert set(main.commands) == {"simulate", "track", "info", "export", "view", "experiment", "schema",
+                                  "launch", "replay", "stage", "router", "monitor"}
+    assert list(experiment.params[0].type.choices) == list(EXPERIMENTS)
+    assert list(stage.params[0].type.choices) == ["source", "tracker", "sink"]
+    assert list(next(p for p in track.params if p.name == "tracker_name").type.choices) == list(TRACKERS)
+    res = invoke("track", "--help")
+    assert res.exit_code == 0, res.output
+    flat = " ".join(res.output.split())
+    for name in ("ddp-groups", "ddp-snr", "ddp-proximity", "GroupConfig", "GlmbConfig"):
+        assert name in flat.replace("- ", "-"), name

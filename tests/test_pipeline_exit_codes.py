@@ -14,7 +14,8 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from pipeline.cli import EXIT_INCOMPLETE, IncompleteError, _report_launch
+from pipeline.cli import EXIT_INCOMPLETE, IncompleteError
+from pipeline.cli.pipeline_commands import _report_launch
 from pipeline.launch import Launcher, _ranges, describe_missing
 from pipeline.supervisor import LaunchResult
 from pipeline.membus import MemoryNetwork

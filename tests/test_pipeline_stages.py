@@ -319,16 +319,13 @@ def _mem_cfg(tmp_path: Path, frames: int = 12, **extra: str) -> PipelineConfig:
 
 def _offline(cfg: PipelineConfig, drop: frozenset[int] = frozenset()):
     """The offline result for the pipeline's synthetic frames (minus the dropped seqs)."""
-    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
     from pipeline.stages import source_frames
     from tracker.state import run
 
     meta, frames = source_frames(cfg)
     frames = [f for i, f in enumerate(frames) if i not in drop]
-    choice = resolve_params(None, meta)
-    conf, _ = resolve_config(cfg.tracker.tracker, None)
-    params, conf = apply_split_overrides(choice.params, conf, cfg.tracker.overrides)
-    tracker = build_tracker(cfg.tracker.tracker, params, conf)
+    tracker = tracker_setup(cfg.tracker.tracker, overrides=cfg.tracker.overrides, metadata=meta).tracker
     return frames, [est for _, est, _ in run(tracker, frames, cfg.tracker.seed)]
 
 

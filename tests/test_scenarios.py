@@ -425,3 +425,28 @@ def test_snr_scenario_range_clutter_default_and_override():
     mine = sc.adapt_params(msgspec.structs.replace(load_params("vo2017"), range_clutter_rate=7.0))
     assert mine.clutter("range").rate == 7.0
     assert get_scenario("vo2017").adapt_params(load_params("vo2017")).clutter("range").rate == 15.0
+
+
+# --------------------------------------------------------------------------- open_scenario
+
+
+def test_open_scenario_applies_overrides_snr_and_scenario_defaults_once():
+    """Issue 12 item 4: one function opens a scenario.  snr: the --set item, the scenario's
+    -3 dB, 2 range clutter per scan and its 11 entry points; the record holds them."""
+    from sources.scenarios import open_scenario
+
+    o = open_scenario("snr", "vo2017", 1, ("p_detect=0.9",))
+    assert o.scenario is get_scenario("snr")
+    assert (o.params.p_detect, o.params.snr_db, o.params.range_clutter_rate) == (0.9, -3.0, 2.0)
+    assert len(o.params.birth) == 11
+    assert o.metadata == {"scenario": "snr", "params": "vo2017", "seed": "1", "snr_db": "-3.0",
+                          "overrides": "p_detect=0.9"}
+    # --snr wins over the scenario's default; the generated family: scene.* items build the scene
+    o = open_scenario("random", "vo2017", 3, ("scene.n_objects=9", "clutter_rate=5"), snr_db=-2)
+    assert (o.params.snr_db, o.params.clutter_rate, o.params.birth) == (-2.0, 5.0, [])
+    assert len(o.scenario.targets) == 9 and o.scenario.seed == 3
+    assert o.metadata == {"scenario": "random", "params": "vo2017", "seed": "3", "snr_db": "-2.0",
+                          "overrides": "clutter_rate=5", "scene_seed": "3", "scene": "n_objects=9",
+                          "crossings": "T8,T5,75;T1,T3,37;T6,T2,55"}
+    with pytest.raises(ConfigError, match="scene"):
+        open_scenario("vo2017", "vo2017", 1, ("scene.n_objects=9",))

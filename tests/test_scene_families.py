@@ -7,7 +7,9 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import main
-from pipeline.offline import parse_crossings, resolve_params, resolve_simulation_params
+from pipeline.resolve import resolve_params
+from sources.scenarios import parse_crossings
+from sources.scenarios import scenario_params as resolve_simulation_params
 from sources.mcap_log import iter_frames, read_metadata
 from sources.scenarios import get_scenario, is_generated, scenario_names
 from sources.scene_families import FAMILIES, CROSSING_MIN_SIDE, in_field, scene_config, scene_rng

@@ -1,0 +1,225 @@
+"""What every ``bnptrack`` command shares: error handling (one line on stderr, exit code 2),
+summary rows, option help texts and option choices derived from the registries.
+
+Expected failures (bad configuration, missing or damaged files, invalid messages) become a
+one-line ``Error: ...`` on stderr and exit code 2; set ``BNPTRACK_DEBUG=1`` to get the
+traceback instead.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from pipeline.codec import CodecError
+from pipeline.view import ViewerUnavailable
+from sinks.rerun_writer import RecordingError
+from sources.mcap_log import McapLogError
+from tracker.config import ConfigError
+
+__all__ = [
+    "EXIT_ERROR",
+    "EXIT_INCOMPLETE",
+    "CliError",
+    "IncompleteError",
+    "clean_errors",
+    "echo_rows",
+    "fmt",
+    "LazyHelpOption",
+    "literal_choices",
+    "topic_map",
+    "require_measurements",
+    "live_view",
+    "open_live",
+]
+
+#: Exit code of every reported (non-crash) failure.
+EXIT_ERROR = 2
+#: Exit code of a pipeline run that ended with an incomplete output (gaps, rejected frames,
+#: a stage that gave up); see docs/pipeline.md.
+EXIT_INCOMPLETE = 3
+
+
+class CliError(click.ClickException):
+    """A failure reported as one line on stderr, exit code 2."""
+
+    exit_code = EXIT_ERROR
+
+    def __init__(self, message: str) -> None:
+        super().__init__(" ".join(str(message).split()))
+
+
+class IncompleteError(CliError):
+    """``launch`` / ``replay``: the run ended but its output is incomplete (exit code 3)."""
+
+    exit_code = EXIT_INCOMPLETE
+
+
+_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError, ViewerUnavailable)
+
+
+def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn the expected exceptions of a command into :class:`CliError`."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except click.ClickException:
+            raise
+        except BrokenPipeError:  # e.g. `bnptrack schema /tracks | head`: stop quietly
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            raise SystemExit(141) from None
+        except _EXPECTED as exc:
+            if os.environ.get("BNPTRACK_DEBUG"):
+                raise
+            raise CliError(_describe(exc)) from exc
+
+    return wrapper
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    return str(exc)
+
+
+_KEY_WIDTH = 16
+
+
+def echo_rows(rows: list[tuple[str, str]]) -> None:
+    """Print ``key  value`` summary rows, keys left-aligned."""
+    for key, value in rows:
+        width = max(_KEY_WIDTH, len(key))
+        click.echo(f"{key:<{width}}  {value}")
+
+
+def fmt(value: float | None, spec: str = ".2f") -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+# --------------------------------------------------------------------------- help texts
+
+VIEW_HELP = (
+    "Watch the run live: start a Rerun viewer and stream the recording to it while it is "
+    "written (the viewer stays open after the run; needs a display)."
+)
+CONNECT_VIEW_HELP = (
+    "Stream the recording live to a Rerun viewer that is already running, e.g. on another host "
+    "(`rerun` there, then --connect rerun+http://HOST:9876/proxy; a port N means "
+    "rerun+http://127.0.0.1:N/proxy)."
+)
+SET_HELP_TRACK = (
+    "Override a setting, KEY=VALUE (VALUE is a TOML literal). params.KEY goes to the model "
+    "parameters, tracker.KEY to the tracker settings; a bare KEY goes to whichever has it "
+    "(model parameters first). Repeatable."
+)
+SET_HELP_PIPE = (
+    "Override a setting, KEY=VALUE (VALUE is a TOML literal). source.KEY, sink.KEY, delivery.KEY, "
+    "zenoh.KEY and tracker.KEY of the tracker stage (tracker, config, params, seed, ...) are keys "
+    "of the pipeline file; params.KEY, tracker.KEY of the tracker's settings and a bare KEY mean "
+    "what they mean in `bnptrack track` (a bare KEY: model parameters first, then tracker "
+    "settings), e.g. --set source.frames=20 --set tracker.seed=3 --set tracker.sweeps=10 "
+    "--set p_detect=0.9. Repeatable."
+)
+
+
+# --------------------------------------------------------------------------- registry-derived
+
+
+class LazyHelpOption(click.Option):
+    """An option whose help text is computed when help is shown: texts drawn from the
+    tracker registry import every tracker (numba), which no command should pay for."""
+
+    def __init__(self, param_decls: list[str], *, help_text: Callable[[], str], **attrs: Any) -> None:
+        super().__init__(param_decls, **attrs)
+        self._help_text = help_text
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        self.help = self._help_text()
+        return super().get_help_record(ctx)
+
+
+def tracker_help() -> str:
+    """``--tracker``: every tracker of :mod:`tracker.registry` with its description."""
+    from tracker.registry import TRACKERS, kind
+
+    return "; ".join(f"{name} = {kind(name).description}" for name in TRACKERS) + "."
+
+
+def config_help() -> str:
+    """``--config``: the presets of every tracker of :mod:`tracker.registry`."""
+    from tracker.registry import TRACKERS, kind
+
+    kinds = [kind(name) for name in TRACKERS]
+    presets = ", ".join(dict.fromkeys(p for k in kinds for p in k.presets))
+    classes = ", ".join(dict.fromkeys(k.config_cls.__name__ for k in kinds))
+    return (f"Tracker settings: a preset name of the tracker ({presets}) or a TOML file of the "
+            f"tracker's settings fields ({classes}). Default: the preset named like --tracker.")
+
+
+def literal_choices(struct: type, field: str, element: bool = False) -> list[str]:
+    """The values of the ``Literal`` annotation of ``struct.field`` (``element``: of a list's
+    elements), e.g. the pipeline's stage roles from :class:`PipelineConfig`."""
+    hint = typing.get_type_hints(struct)[field]
+    if element:
+        hint = typing.get_args(hint)[0]
+    return [str(v) for v in typing.get_args(hint)]
+
+
+# --------------------------------------------------------------------------- shared option logic
+
+
+def topic_map(items: tuple[str, ...]) -> dict[str, str]:
+    """``--topic SRC=/measurements`` items as ``{SRC: /measurements}``."""
+    from pipeline.codec import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+
+    out = {}
+    for item in items:
+        src, sep, dst = item.partition("=")
+        if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
+            raise click.BadParameter(f"{item!r}: expected SRC={TOPIC_MEASUREMENTS} (or SRC={TOPIC_TRUTH})",
+                                     param_hint="--topic")
+        out[src] = dst
+    return out
+
+
+def require_measurements(log: Path, topics: dict[str, str]) -> None:
+    """Exit 2 listing the log's channels when none is (or is mapped to) /measurements."""
+    from pipeline.codec import TOPIC_MEASUREMENTS
+    from sources.mcap_log import log_channels, missing_measurements_message
+
+    channels = log_channels(log)
+    if not any(topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
+        raise CliError(missing_measurements_message(log, channels))
+
+
+def live_view(view: bool, connect: str | None) -> str | None:
+    """``"spawn"`` (``--view``), a viewer URL (``--connect``; checked now: a viewer must be
+    listening there) or None."""
+    if view and connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if connect:
+        from pipeline.live import check_viewer
+
+        return check_viewer(connect)
+    return "spawn" if view else None
+
+
+def open_live(live: str) -> str:
+    """The URL to stream to: ``live``, or that of a viewer started now (``"spawn"``)."""
+    if live != "spawn":
+        return live
+    from pipeline.live import spawn_viewer
+
+    viewer = spawn_viewer()
+    click.echo(f"viewer: {viewer.url} (pid {viewer.pid}; it stays open after the run)", err=True)
+    return viewer.url

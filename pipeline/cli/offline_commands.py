@@ -1,0 +1,334 @@
+"""``bnptrack simulate`` and ``bnptrack track``: a scenario into a log, a tracker over a log.
+
+The commands parse options, open the scenario (:func:`sources.scenarios.open_scenario`) or
+set the tracker up (:func:`pipeline.resolve.tracker_setup`), run :mod:`pipeline.offline`
+and print a summary.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from pipeline.cli.common import (
+    CONNECT_VIEW_HELP,
+    SET_HELP_TRACK,
+    VIEW_HELP,
+    CliError,
+    LazyHelpOption,
+    clean_errors,
+    config_help,
+    echo_rows,
+    fmt,
+    live_view,
+    open_live,
+    require_measurements,
+    topic_map,
+    tracker_help,
+)
+from pipeline.offline import OSPA_C, OSPA_P, TrackResult, check_output_path, default_tracks_path, track_log
+from pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
+from sinks.rerun_writer import RecordingProcess
+from sources.mcap_log import read_metadata
+from sources.scenarios import OpenScenario, open_scenario, scenario_names
+from tracker.models.params import BUILTIN_PARAMS
+
+__all__ = ["simulate", "track"]
+
+_BUILTIN = " or ".join(BUILTIN_PARAMS)
+
+_SET_HELP_SIM = (
+    "Override one model parameter, KEY=VALUE (VALUE is a TOML literal), e.g. "
+    "--set p_detect=0.9 --set clutter_rate=30; scene.KEY=VALUE sets a parameter of a "
+    "generated scenario (random, random-cv), e.g. --set scene.n_objects=25 "
+    "--set scene.crossing_pairs=3 (docs/models.md). Repeatable."
+)
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+@click.command()
+@click.option(
+    "--scenario",
+    type=click.Choice(scenario_names()),
+    default="vo2017",
+    show_default=True,
+    help="Ground-truth scenario (100 scans; see docs/models.md).",
+)
+@click.option(
+    "--params",
+    "params_arg",
+    metavar="NAME|FILE.toml",
+    default=DEFAULT_PARAMS,
+    show_default=True,
+    help=f"Model parameter set: built-in {_BUILTIN}, or a TOML file of ModelParams fields.",
+)
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=_SET_HELP_SIM)
+@click.option(
+    "--snr",
+    "snr_db",
+    type=float,
+    default=None,
+    metavar="DB",
+    help="Signal-to-noise ratio in dB (sets snr_db; measurement noise variance is scaled by "
+    "10^(-DB/10)). The snr scenario defaults to -3 dB.",
+)
+@click.option(
+    "--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Random seed (>= 0)."
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Output MCAP file. Default: recordings/<scenario>-s<seed>.mcap (directory created).",
+)
+@click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
+@clean_errors
+def simulate(
+    scenario: str,
+    params_arg: str,
+    overrides: tuple[str, ...],
+    snr_db: float | None,
+    seed: int,
+    out: Path | None,
+    quiet: bool,
+) -> None:
+    """Simulate a scenario and write its measurements and truth to an MCAP log.
+
+    Writes one frame per scan (100 scans) on /measurements and /truth, and a
+    bnptrack.scenario metadata record (scenario, params, seed, plus snr_db and overrides
+    when used) so that `bnptrack track` can pick the same model parameters. The same
+    seed gives the same messages on every machine.
+
+    \b
+    Examples:
+      bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap
+      bnptrack simulate --scenario snr --snr -10 --seed 3
+      bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
+      bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
+      bnptrack simulate --params two_sensors.toml --seed 1   # one frame per [sensors.NAME] per scan
+
+    The generated scenarios (random, random-cv) draw their scene from --seed too (the
+    record then also holds scene_seed, the scene.* settings and the crossing pairs).
+    """
+    from pipeline.offline import simulate_to_log
+
+    opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
+    if out is None:
+        out = Path("recordings") / f"{scenario}-s{seed}.mcap"
+    res = simulate_to_log(opened, seed, out)
+    if not quiet:
+        echo_rows(_simulate_rows(opened, params_arg, overrides, seed)
+                  + [("frames", str(res.frames)),
+                     ("measurements", f"{res.measurements} ({res.mean_measurements:.1f} per frame)"),
+                     ("target-scans", str(res.target_scans)),
+                     ("wrote", f"{res.path} ({res.size_bytes} bytes)")])
+
+
+def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, ...],
+                   seed: int) -> list[tuple[str, str]]:
+    """The scenario, scene, params and seed rows of ``simulate``'s summary."""
+    scene, params = opened.scenario, opened.params
+    extra = []
+    if overrides:
+        extra.append("overrides " + " ".join(overrides))
+    if params.snr_db is not None:
+        extra.append(f"snr_db {params.snr_db:g}")
+    rows = [("scenario", f"{scene.name} ({scene.kind} sensor)")]
+    if scene.seed is not None:
+        pairs = ", ".join(f"{a}/{b}@{k}" for a, b, k in scene.crossings) or "none"
+        rows.append(("scene", f"seed {scene.seed}: {len(scene.targets)} objects, "
+                              f"crossing pairs {pairs}; no birth regions"))
+    return rows + [("params", params_arg + (f" ({', '.join(extra)})" if extra else "")),
+                   ("seed", str(seed))]
+
+
+# --------------------------------------------------------------------------- track
+
+
+@click.command()
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option(
+    "--tracker",
+    "tracker_name",
+    type=click.Choice(TRACKERS),
+    default="ddp",
+    show_default=True,
+    cls=LazyHelpOption,
+    help_text=tracker_help,
+)
+@click.option(
+    "--config",
+    "config_arg",
+    metavar="NAME|FILE.toml",
+    default=None,
+    cls=LazyHelpOption,
+    help_text=config_help,
+)
+@click.option(
+    "--params",
+    "params_arg",
+    metavar="NAME|FILE.toml",
+    default=None,
+    help=f"Model parameters ({', '.join(BUILTIN_PARAMS)} or a TOML file). Default: the set named in the "
+    f"log's bnptrack.scenario record (with its snr_db and overrides), else {DEFAULT_PARAMS}.",
+)
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_TRACK)
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Tracker random seed (frame k uses its own stream derived from seed and k).",
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Output MCAP file (input frames + /tracks). Default: <LOG stem>-<tracker>.tracks.mcap "
+    "next to LOG.",
+)
+@click.option(
+    "--rrd",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="FILE.rrd",
+    help="Also record the run for the Rerun viewer (scene, assignments, tracks, truth, OSPA, "
+    "diagnostics); open it with `bnptrack view FILE.rrd`. See docs/rerun.md.",
+)
+@click.option(
+    "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
+    help="A frame more than N frame numbers after the previous one ends the run with an error "
+    "(a corrupt frame number; the tracker predicts once over the time between stamps).",
+)
+@click.option(
+    "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
+    metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
+    "frame's (a time stamp that goes back is always an error).",
+)
+@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+              help="Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
+              "its payload must still follow the contract of docs/formats.md.")
+@click.option("--view", is_flag=True, help=VIEW_HELP + " Writes --rrd (default: the --out "
+              "file with the suffix .rrd).")
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
+@clean_errors
+def track(
+    log: Path,
+    tracker_name: str,
+    config_arg: str | None,
+    params_arg: str | None,
+    overrides: tuple[str, ...],
+    seed: int,
+    out: Path | None,
+    rrd: Path | None,
+    max_frame_gap: int,
+    max_gap_s: float,
+    topics: tuple[str, ...],
+    view: bool,
+    view_connect: str | None,
+    quiet: bool,
+) -> None:
+    """Run a tracker over an MCAP log offline and write its tracks.
+
+    Reads the frames of LOG (/measurements with /truth when present), runs the tracker
+    frame by frame and writes --out with the input frames, one /tracks message per frame
+    and LOG's metadata record (plus tracker, tracker_seed, tracker_params,
+    tracker_config). Prints mean OSPA (c=100 m, p=1, on position) and mean cardinality
+    error when the log has truth, the final number of tracks and the time per frame.
+
+    A truncated or corrupt LOG is processed up to its last readable frame; that prefix is
+    written, then the error is reported and the exit code is 2. So is a frame that jumps
+    beyond --max-frame-gap / --max-gap-s, or that does not come after the previous one.
+
+    \b
+    Examples:
+      bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-s1-ddp.mcap
+      bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
+      bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
+    """
+    from tracker.types import FrameBounds
+
+    io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect)
+    setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
+                          metadata=read_metadata(log), seed=seed)
+    check_output_path(log, io.out)
+    if not quiet:
+        echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
+    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s))
+    for w in res.warnings:
+        click.echo(f"warning: {w}", err=True)
+    if not quiet:
+        echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
+    if res.error is not None:
+        raise CliError(
+            f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}"
+        )
+
+
+class _TrackIO:
+    """What ``track`` reads and writes: the log, its channel mapping, the output, and the
+    Rerun recording (``--rrd``; ``--view`` / ``--connect`` stream it live)."""
+
+    def __init__(self, log: Path, out: Path, rrd: Path | None, topics: dict[str, str],
+                 live: str | None, recorder: RecordingProcess | None) -> None:
+        self.log, self.out, self.rrd, self.topics = log, out, rrd, topics
+        self.live, self.recorder = live, recorder
+
+    @classmethod
+    def open(cls, log: Path, out: Path, rrd: Path | None, topics: tuple[str, ...], view: bool,
+             view_connect: str | None) -> _TrackIO:
+        """Check the options; with a recording, start its process first, so that its imports
+        (rerun) run on the other core beside the tracker's (:mod:`sinks.rerun_writer`); the
+        command's context closes it at the end whatever happens (``track_log_with_rrd``
+        closes it first, normally)."""
+        mapping = topic_map(topics)
+        if mapping and rrd is not None:
+            raise CliError("--topic cannot be combined with --rrd yet: track first, then `bnptrack view` the output")
+        require_measurements(log, mapping)
+        live = live_view(view, view_connect)
+        if live is not None and rrd is None:
+            rrd = out.with_suffix(".rrd")
+        recorder = None
+        if rrd is not None:
+            recorder = click.get_current_context().with_resource(RecordingProcess())
+        return cls(log, out, rrd, mapping, live, recorder)
+
+    def run(self, setup: TrackerSetup, seed: int, bounds) -> TrackResult:
+        """Track the log with ``setup``'s tracker and write the output (and the recording)."""
+        if self.rrd is None:
+            return track_log(self.log, self.out, setup.tracker, seed, setup.metadata, bounds=bounds,
+                             topic_map=self.topics)
+        from pipeline.view import track_log_with_rrd
+
+        live_url = open_live(self.live) if self.live is not None else None
+        return track_log_with_rrd(self.log, self.out, self.rrd, setup.tracker, seed, setup.metadata,
+                                  params=setup.params, recorder=self.recorder, bounds=bounds, live=live_url)
+
+
+def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
+                rrd: Path | None) -> list[tuple[str, str]]:
+    """The summary rows of ``track``: scores (with truth), tracks, time, files."""
+    rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
+    if res.has_truth:
+        rows.append(
+            ("mean OSPA", f"{fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
+        )
+        rows.append(("mean card. error", fmt(res.mean_cardinality_error)))
+        if res.crossings is not None:
+            kept = sum(p.kept for p in res.crossings.pairs)
+            rows.append(("crossings kept", f"{kept}/{len(res.crossings.pairs)} pairs keep both "
+                         "labels (scan c-5 vs c+5, gate 100 m)"))
+    else:
+        rows.append(("mean OSPA", "n/a (the log has no /truth)"))
+    rows += [
+        ("final tracks", str(res.final_tracks)),
+        ("ms per frame", f"median {fmt(res.ms_median)}, p95 {fmt(res.ms_p95)}"),
+        ("wrote", f"{out} ({out.stat().st_size} bytes)"),
+    ]
+    if rrd is not None:
+        rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; bnptrack view {rrd})"))
+    return rows

@@ -1,0 +1,387 @@
+"""The streaming pipeline's commands: ``launch`` (every stage in its own process),
+``replay`` (a log through the pipeline), ``stage`` (one stage, for several hosts) and
+``router`` (a Zenoh router).  See docs/pipeline.md; ``monitor`` is in
+:mod:`pipeline.cli.monitor`.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+from pipeline.cli.common import (
+    CONNECT_VIEW_HELP,
+    SET_HELP_PIPE,
+    VIEW_HELP,
+    CliError,
+    IncompleteError,
+    clean_errors,
+    echo_rows,
+    literal_choices,
+    open_live,
+    require_measurements,
+)
+from pipeline.offline import OSPA_C, OSPA_P
+from pipeline.pipeline_config import PipelineConfig, ZenohConfig
+from pipeline.resolve import TRACKERS
+
+__all__ = ["launch", "replay", "stage", "router"]
+
+
+def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
+    """Print a launch/replay result; raise CliError on failure."""
+    summary = res.summary or {}
+    if not quiet:
+        gaps = summary.get("gaps") or {}
+        gap_text = ", ".join(f"{k} {v}" for k, v in gaps.items() if v) or "none"
+        restarts = ", ".join(f"{k} {v}" for k, v in res.restarts.items() if v) or "none"
+        rows = [("run", res.run), ("out", f"{res.out}/")]
+        if summary:
+            rows.append(("frames", f"{summary.get('frames_written', 0)} "
+                                   f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
+            c = summary.get("counters") or {}
+            rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
+            from pipeline.launch import describe_missing
+
+            rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
+            lat = (c.get("latency_ms") or {})
+            if lat.get("p50") is not None:
+                note = "" if paced else " (frames published as fast as possible: includes queueing)"
+                rows.append(("latency", f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms{note}"))
+        rows += _score_rows(summary.get("scores"))
+        rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
+        for f in res.files:
+            try:
+                rows.append(("wrote", f"{f} ({Path(f).stat().st_size} bytes)"))
+            except OSError:
+                pass
+        if summary.get("view"):
+            rows.append(("open with", summary["view"]))
+        echo_rows(rows)
+    if res.interrupted:
+        click.echo(f"Interrupted: partial files are in {res.out}/", err=True)
+        raise SystemExit(130)
+    if res.incomplete:
+        raise IncompleteError(f"output incomplete: {res.incomplete} -- files are in {res.out}/")
+    if not res.ok:
+        raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
+
+
+def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
+    """Summary rows of the sink's ``scores`` (``sink.json``): the means of OSPA, OSPA(2)
+    and the cardinality error over the frames with truth, and the tracks."""
+    if not scores:
+        return []
+    rows = []
+    if scores.get("ospa") is not None:
+        rows += [
+            ("mean OSPA", f"{scores['ospa']:.2f} m (c={scores.get('c', OSPA_C):g}, "
+                          f"p={scores.get('p', OSPA_P):g}, position; {scores['frames_scored']} frames)"),
+            ("mean OSPA(2)", f"{scores['ospa2']:.2f} m (window {scores.get('ospa2_window')} frames)"),
+            ("mean card. error", f"{scores['cardinality_error']:.2f}"),
+        ]
+    elif scores.get("frames"):
+        rows.append(("mean OSPA", "n/a (the frames carry no truth)"))
+    rows.append(("tracks", f"{scores.get('tracks', 0)} at the last frame "
+                           f"({scores.get('labels', 0)} labels in all)"))
+    return rows
+
+
+def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False,
+                  view: bool = False, view_connect: str | None = None) -> None:
+    import msgspec as _ms
+
+    from pipeline.launch import launch as _launch
+    from pipeline.progress import Progress
+
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view_connect:  # checked with the rest of the configuration (pipeline.preflight)
+        from pipeline.live import viewer_url
+
+        cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
+    progress = None if quiet else Progress(sys.stderr)
+    try:
+        res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
+                      overwrite=overwrite, progress=None if progress is None else progress.update,
+                      view=view)
+    finally:
+        if progress is not None:
+            progress.close()
+    _report_launch(res, quiet, paced=cfg.source.rate > 0)
+
+
+_OVERWRITE_OPT = click.option(
+    "--overwrite", is_flag=True,
+    help="Replace the files of an earlier run in the output directory (without it, such a "
+    "directory is refused with exit code 2; a directory with a live run is always refused).",
+)
+
+_TIMEOUT_OPT = click.option(
+    "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+    help="Stop everything and fail if the pipeline has not finished after this long.",
+)
+
+
+@click.command()
+@click.argument("pipeline_file", metavar="[PIPELINE.toml]", required=False,
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
+@click.option("--run", "run_id", default=None, metavar="RUN",
+              help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/<run>/.")
+@click.option("--connect", "connect", multiple=True, metavar="ENDPOINT|URL",
+              help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one; "
+              "a Rerun URL (rerun+http://HOST:PORT/proxy) instead streams the recording live to "
+              "that running viewer.")
+@click.option("--view", is_flag=True, help=VIEW_HELP)
+@_TIMEOUT_OPT
+@_OVERWRITE_OPT
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
+@clean_errors
+def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
+           out: Path | None, connect: tuple[str, ...], view: bool, timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
+    """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
+
+    With no PIPELINE.toml: a synthetic vo2017 source (seed 1) -> the DDP-EMM tracker
+    (seed 0) -> the recorder, over a Zenoh router the launcher opens on a free loopback
+    port. The sink writes <out>/tracks.mcap (input channels + /tracks, as `bnptrack
+    track`), <out>/run.rrd when the Rerun sink is installed, and <out>/sink.json. A
+    crashed stage is restarted (the tracker resumes from its snapshot). Ctrl-C stops every
+    stage and flushes the files. See docs/pipeline.md.
+
+    \b
+    Examples:
+      bnptrack launch
+      bnptrack launch --set source.frames=20 --set tracker.tracker=dpyp --out /tmp/r1
+      bnptrack launch my_pipeline.toml --run test-1
+    """
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import load_pipeline
+
+    cfg = load_pipeline(pipeline_file, overrides)
+    if run_id:
+        cfg = _ms.structs.replace(cfg, run=run_id)
+    if out:
+        cfg = _ms.structs.replace(cfg, out=str(out))
+    from pipeline.live import is_viewer_url
+
+    viewers = [c for c in connect if is_viewer_url(c)]
+    routers = [c for c in connect if not is_viewer_url(c)]
+    if len(viewers) > 1:
+        raise click.UsageError("--connect: give at most one Rerun viewer URL")
+    if routers:
+        cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
+            cfg.zenoh, embedded_router=False, connect=routers))
+    _run_pipeline(cfg, timeout, quiet, overwrite, view, viewers[0] if viewers else None)
+
+
+@click.command()
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+              metavar="R", help="Replay speed against the log's time stamps (1 = real time).")
+@click.option("--as-fast-as-possible", "afap", is_flag=True, help="Publish frames without pacing.")
+@click.option("--tracker", "tracker_name", default="ddp", show_default=True,
+              help=f"Tracker: {', '.join(TRACKERS)} (as `bnptrack track --tracker`).")
+@click.option("--config", "config_arg", metavar="NAME|FILE.toml", default=None,
+              help="Tracker settings preset or TOML file (as `bnptrack track --config`).")
+@click.option("--params", "params_arg", metavar="NAME|FILE.toml", default=None,
+              help="Model parameters. Default: the log's bnptrack.scenario record (as `track`).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Tracker seed.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
+@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/<run>/.")
+@click.option("--start", "start", metavar="T|Nf", default=None,
+              help="Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame "
+              "number N (40f).")
+@click.option("--end", "end", metavar="T|Nf", default=None,
+              help="End at T seconds of log time after the first frame, or at frame N (both included).")
+@click.option("--loop", "loops", type=click.IntRange(min=0), default=None, metavar="N",
+              help="Replay N times (0: until Ctrl-C), each a fresh run (run id RUN-1, RUN-2, ...; "
+              "output directories OUT/RUN-i) with a fresh tracker.")
+@click.option("--keep-prior", is_flag=True,
+              help="With --loop: each replay's tracker starts from the prior the previous replay "
+              "ended with (DDP-EMM / DPY-STP: alpha, d and their likelihood), with no track.")
+@click.option("--view", is_flag=True, help=VIEW_HELP)
+@click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@_TIMEOUT_OPT
+@_OVERWRITE_OPT
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
+@clean_errors
+def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
+           params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
+           out: Path | None, start: str | None, end: str | None, loops: int | None, keep_prior: bool,
+           view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
+           quiet: bool) -> None:
+    """Replay an MCAP measurement log through the streaming pipeline.
+
+    Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
+    rate (only on the frames and their order) and equal `bnptrack track LOG --seed N` with
+    the same tracker. A truncated or corrupt LOG is replayed up to its last readable frame;
+    then the error says where it stopped and the exit code is 2.
+
+    \b
+    Examples:
+      bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
+      bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
+      bnptrack replay recordings/vo2017-s1.mcap --rate 5 --start 20s --end 40f --loop 0 --view
+    """
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import load_pipeline
+
+    require_measurements(log, {})  # (replay reads /measurements only; `track --topic` maps channels)
+    cfg = load_pipeline(None)
+    start_s, start_frame = _parse_offset(start, "--start")
+    end_s, end_frame = _parse_offset(end, "--end")
+    cfg = _ms.structs.replace(
+        cfg,
+        source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
+                                   start_s=start_s, start_frame=start_frame, end_s=end_s,
+                                   end_frame=end_frame),
+        tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
+                                    config=config_arg or "", params=params_arg or ""),
+    )
+    from pipeline.pipeline_config import apply_pipeline_overrides
+
+    cfg = apply_pipeline_overrides(cfg, overrides)
+    if run_id:
+        cfg = _ms.structs.replace(cfg, run=run_id)
+    if out:
+        cfg = _ms.structs.replace(cfg, out=str(out))
+    if loops is None:
+        if keep_prior:
+            raise click.UsageError("--keep-prior needs --loop")
+        _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
+        return
+    _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect, keep_prior)
+
+
+def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
+    """``--start`` / ``--end``: ``12.5`` or ``12.5s`` -> (12.5 s, None); ``40f`` -> (None, 40)."""
+    if text is None:
+        return None, None
+    t = text.strip().lower()
+    try:
+        if t.endswith("f"):
+            n = int(t[:-1])
+            if n < 0:
+                raise ValueError
+            return None, n
+        v = float(t[:-1] if t.endswith("s") else t)
+        if not v >= 0 or v == float("inf"):
+            raise ValueError
+        return v, None
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
+                                 "number (40f), >= 0", param_hint=opt) from None
+
+
+def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overwrite: bool,
+                 view: bool, view_connect: str | None, keep_prior: bool = False) -> None:
+    """``replay --loop N``: the same replay N times (0: until interrupted), each a fresh run:
+    run id ``RUN-i`` (RUN: --run, else generated once) and output ``OUT/RUN-i`` (OUT: --out,
+    else recordings/); the tracker starts afresh each time, or with ``keep_prior`` from the
+    prior of the previous run's final snapshot.  The first failure ends the loop."""
+    import itertools
+
+    import msgspec as _ms
+
+    from pipeline.pipeline_config import make_run_id
+
+    base = cfg.run or make_run_id(cfg)
+    root = Path(cfg.out) if cfg.out else Path("recordings")
+    if view and view_connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    if view:  # one viewer for every run of the loop
+        view_connect = open_live("spawn")
+    for i in itertools.count(1):
+        if loops and i > loops:
+            break
+        run = f"{base}-{i}"
+        if not quiet:
+            click.echo(f"loop {i}{f'/{loops}' if loops else ''}: run {run}", err=True)
+        one = _ms.structs.replace(cfg, run=run, out=str(root / run))
+        if keep_prior and i > 1:
+            prev = root / f"{base}-{i - 1}" / "tracker.snap"
+            one = _ms.structs.replace(one, tracker=_ms.structs.replace(one.tracker, prior_from=str(prev)))
+        _run_pipeline(one, timeout, quiet, overwrite, False, view_connect)
+
+
+@click.command()
+@click.argument("role", type=click.Choice(literal_choices(PipelineConfig, "stages", element=True)))
+@click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
+@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
+@click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.")
+@click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).")
+@click.option("--mode", type=click.Choice(literal_choices(ZenohConfig, "mode")), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
+@click.option("--name", default=None, help="Stage name (default: the role).")
+@click.option("--parent-pid", type=int, default=None, hidden=True)
+@click.option("--log-level", default="INFO", show_default=True, help="Logging level.")
+@clean_errors
+def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tuple[str, ...],
+          listen: tuple[str, ...], mode: str | None, out: Path | None, overrides: tuple[str, ...],
+          name: str | None, parent_pid: int | None, log_level: str) -> None:
+    """Run one pipeline stage in this process (to place stages on different hosts).
+
+    Every stage of a run uses the same --run and reaches the others through a Zenoh router
+    (`bnptrack router`, or a launcher's embedded one). Exit codes: 0 done, 2 configuration
+    error, 3 the source's input ended on an error, 130 stopped by a signal, 1 crash.
+
+    \b
+    Example (three hosts, router on 10.0.0.5):
+      bnptrack router --listen tcp/0.0.0.0:7447
+      bnptrack stage sink    --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
+      bnptrack stage tracker --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
+      bnptrack stage source  --run r1 --connect tcp/10.0.0.5:7447 --set source.frames=50
+    """
+    from pipeline.launch import configure_logging, run_stage, stage_config
+    from pipeline.pipeline_config import load_pipeline
+
+    configure_logging(name or role, log_level)
+    cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=str(out) if out else None,
+                       connect=connect, listen=listen, mode=mode)
+    code = run_stage(role, cfg, name=name, parent_pid=parent_pid)
+    raise SystemExit(code)
+
+
+@click.command()
+@click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None, help="Pipeline file: its [zenoh] table (TLS, router_extra) is used.")
+@click.option("--listen", multiple=True, metavar="ENDPOINT",
+              help="Endpoint(s) to listen on. Default: tcp/127.0.0.1:7447 (this host only; "
+                   "give e.g. tcp/0.0.0.0:7447 for other hosts, with TLS and --set zenoh.acl=true).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
+@clean_errors
+def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple[str, ...]) -> None:
+    """Run a Zenoh router for pipeline stages on several hosts (until Ctrl-C).
+
+    \b
+    Example:
+      bnptrack router --listen tcp/0.0.0.0:7447
+    """
+    import signal as _signal
+    import threading as _threading
+
+    from pipeline.pipeline_config import load_pipeline
+    from pipeline.transport import Router
+
+    cfg = load_pipeline(pipeline_file, overrides)
+    stop = _threading.Event()
+    for sig in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(sig, lambda *_: stop.set())
+    with Router(cfg.zenoh, list(listen) or ["tcp/127.0.0.1:7447"]) as r:
+        click.echo(f"router listening on {', '.join(r.endpoints)} (Ctrl-C to stop)", err=True)
+        while not stop.wait(0.5):
+            pass

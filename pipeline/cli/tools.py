@@ -1,0 +1,303 @@
+"""The offline tools of ``bnptrack``: ``info`` (describe a log), ``export`` (tracks as a
+table), ``view`` (open or render a recording), ``experiment`` (the paper's Monte Carlo
+studies) and ``schema`` (the JSON Schema of a channel).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
+from pipeline.codec import MSG_TYPES, json_schema
+from pipeline.experiments import EXPERIMENTS
+from sources.mcap_log import McapLogError, read_metadata
+from tracker.models.params import BUILTIN_PARAMS
+
+__all__ = ["info", "export", "view", "experiment", "schema"]
+
+
+# --------------------------------------------------------------------------- info
+
+
+@click.command()
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+              help="Read channel SRC as /measurements (as `bnptrack track --topic`).")
+@clean_errors
+def info(log: Path, topics: tuple[str, ...]) -> None:
+    """Describe an MCAP log: channels, frames, sensors, time, and its record.
+
+    Prints every channel (topic, schema and encodings, message count); for /measurements the
+    frames, sensors and kinds (with their poses when the frames carry them), the time span and
+    frame rate from the stamps; and the bnptrack.scenario record (scenario, params, seed).
+
+    \b
+    Example:
+      bnptrack info recordings/vo2017-s1.mcap
+    """
+    from sources.mcap_log import log_channels
+
+    channels = log_channels(log)
+    rows = [("log", f"{log} ({log.stat().st_size} bytes)")]
+    for c in channels:
+        rows.append(("channel", f"{c.topic}: schema {c.schema or '-'} ({c.schema_encoding or '-'}), "
+                                f"encoding {c.message_encoding}, {c.messages} messages"))
+    if not channels:
+        rows.append(("channel", "none"))
+    rows += _frame_rows(log, topic_map(topics))
+    meta = read_metadata(log)
+    if meta:
+        rows += [(f"record.{k}", v) for k, v in meta.items()]
+    else:
+        rows.append(("record", "none (no bnptrack.scenario metadata: give --params to track)"))
+    echo_rows(rows)
+
+
+def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
+    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements)."""
+    import numpy as np
+
+    from sources.mcap_log import iter_frames
+
+    sensors: dict[tuple[str, str], list] = {}
+    stamps, n_meas, truth, error = [], 0, 0, None
+    try:
+        for f in iter_frames(log, topic_map):
+            entry = sensors.setdefault((f.sensor, f.kind), [0, set()])
+            entry[0] += 1
+            if f.pose is not None:
+                entry[1].add(f.pose)
+            stamps.append(f.stamp_ns)
+            n_meas += f.n_measurements
+            truth += f.truth is not None
+    except McapLogError as exc:
+        error = exc
+    if not stamps:
+        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: see --topic)"))]
+    rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
+                       f"{truth} with truth)")]
+    for (name, kind), (n, poses) in sensors.items():
+        pose = ""
+        if poses:
+            p = sorted(poses)[0]
+            pose = f", pose ({p[0]:g}, {p[1]:g}, {np.rad2deg(p[2]):g} deg)" + (f" and {len(poses) - 1} more" if len(poses) > 1 else "")
+        rows.append(("sensor", f"{name}: kind {kind}, {n} frames{pose}"))
+    span = (stamps[-1] - stamps[0]) / 1e9
+    dt = np.diff(np.asarray(stamps, dtype=np.int64)) / 1e9
+    rate = f"{(len(stamps) - 1) / span:.3g} frames/s" if span > 0 else "n/a (all stamps equal)"
+    rows.append(("time", f"{stamps[0] / 1e9:.3f} - {stamps[-1] / 1e9:.3f} s (span {span:.3f} s), {rate}"
+                 + (f", dt median {np.median(dt):.3g} s, min {dt.min():.3g}, max {dt.max():.3g}" if dt.size else "")))
+    if error is not None:
+        rows.append(("error", str(error)))
+    return rows
+
+
+# --------------------------------------------------------------------------- export
+
+
+@click.command()
+@click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="RUN.mcap")
+@click.option("--csv", "csv_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as CSV (metrics beside it: OUT.metrics.csv).")
+@click.option("--parquet", "parquet_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the track table as Parquet (metrics: OUT.metrics.parquet).")
+@clean_errors
+def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
+    """Export a run's tracks (the output of `track`) as a table.
+
+    One row per track per frame: frame, stamp_ns, label, the state [px, vx, py, vy, omega],
+    its covariance diagonal (var_*) and the existence. When the run has truth, a second file
+    holds one row per frame: OSPA (c=100 m, p=1, position) and its parts, cardinality error.
+
+    \b
+    Example:
+      bnptrack export recordings/vo2017-s1-ddp.tracks.mcap --csv tracks.csv
+    """
+    from pipeline.export import export as do_export
+
+    if csv_out is None and parquet_out is None:
+        raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
+    try:
+        for fmt, out in (("csv", csv_out), ("parquet", parquet_out)):
+            if out is not None:
+                res = do_export(run, out, fmt)
+                echo_rows([("wrote", f"{res.tracks_path} ({res.track_rows} track rows)")]
+                           + ([("wrote", f"{res.metrics_path} ({res.metric_rows} frame rows)")]
+                              if res.metrics_path else []))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+# --------------------------------------------------------------------------- view
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 1600x900", param_hint="--size") from None
+    if w < 64 or h < 64:
+        raise click.BadParameter(f"{text!r}: at least 64x64", param_hint="--size")
+    return w, h
+
+
+@click.command()
+@click.argument("rrd", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="FILE.rrd")
+@click.option(
+    "--screenshot",
+    "screenshot_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="OUT.png",
+    help="Render the recording without a screen (headless viewer) to OUT.png instead of opening a window.",
+)
+@click.option(
+    "--frame",
+    type=int,
+    default=None,
+    metavar="K",
+    help="With --screenshot: the frame to show (time cursor on the frame timeline). Default: the last frame.",
+)
+@click.option("--size", default="1600x900", show_default=True, metavar="WxH", help="With --screenshot: picture size.")
+@click.option(
+    "--timeout", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
+    help="With --screenshot: give up after this many seconds."
+)
+@click.option("--web", is_flag=True, help="Serve the web viewer on 127.0.0.1 (open the printed URL) instead of a native window.")
+@click.option(
+    "--repair",
+    "repair_out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="OUT.rrd",
+    help="Rewrite a damaged recording (e.g. its writer was killed before the footer) into OUT.rrd, "
+    "keeping every readable chunk, and exit.",
+)
+@clean_errors
+def view(
+    rrd: Path,
+    screenshot_path: Path | None,
+    frame: int | None,
+    size: str,
+    timeout: float,
+    web: bool,
+    repair_out: Path | None,
+) -> None:
+    """Open a Rerun recording (.rrd) in the Rerun viewer, or render it to a PNG.
+
+    FILE.rrd comes from `bnptrack track LOG --rrd FILE.rrd`, `bnptrack launch`/`replay`
+    (run.rrd) or `bnptrack experiment`: the 2-D scene (measurements coloured by the track
+    they were assigned to, grey clutter, tracks with label, trail and 2-sigma ellipse, ground
+    truth as grey crosses) beside the time series (cardinality, OSPA, OSPA(2), tracker
+    diagnostics). See docs/rerun.md.
+
+    Without options this runs the viewer that ships with rerun-sdk (`rerun FILE.rrd`) and
+    needs a display. --screenshot renders headless instead; on a machine without a GPU that
+    needs Mesa's software renderer (Debian: apt-get install -y mesa-vulkan-drivers).
+
+    \b
+    Examples:
+      bnptrack view recordings/vo2017-s1-ddp.rrd
+      bnptrack view recordings/vo2017-s1-ddp.rrd --screenshot shot.png --frame 60
+      bnptrack view broken.rrd --repair fixed.rrd
+    """
+    from pipeline.view import ViewerUnavailable, open_viewer, screenshot
+    from sinks.rerun_sink import RerunToolError, repair
+
+    if screenshot_path is None and frame is not None:
+        raise click.UsageError("--frame needs --screenshot")
+    try:
+        if repair_out is not None:
+            out = repair(rrd, repair_out)
+            click.echo(f"wrote {out} ({out.stat().st_size} bytes)")
+            return
+        if screenshot_path is not None:
+            w, h = _parse_size(size)
+            out = screenshot(rrd, screenshot_path, frame=frame, size=(w, h), timeout=timeout)
+            click.echo(f"wrote {out} ({w}x{h}, frame {'last' if frame is None else frame})")
+            return
+        code = open_viewer(rrd, web=web)
+    except (ViewerUnavailable, RerunToolError, TimeoutError) as exc:
+        raise CliError(str(exc)) from exc
+    if code:
+        raise CliError(f"the Rerun viewer exited with code {code}")
+
+
+# --------------------------------------------------------------------------- experiment
+
+
+_EXPERIMENT_HELP = """Run one of the paper's simulation experiments as a Monte Carlo study.
+
+\b
+""" + "\n".join(f"{e.name:<13} {e.description}" for e in EXPERIMENTS.values()) + """
+
+Writes summary.md / summary.csv (mean and spread over runs of OSPA and its parts,
+OSPA(2), GOSPA, cardinality error, ms per frame; for random also the fraction of
+crossing pairs that keep both labels), PNG plots mirroring the paper's
+figures and one .rrd per tracker of run 0. Runs are seeded from (NAME, --seed, run
+index): a run redone alone, locally or on a Dask cluster, gives the same numbers.
+
+\b
+Examples:
+  bnptrack experiment ddp-vs-glmb --runs 100
+  bnptrack experiment snr --runs 20 --params paper --out out/snr
+  bnptrack experiment dpy-vs-ddp --runs 1000 --cluster tcp://scheduler:8786
+"""
+
+
+@click.command(help=_EXPERIMENT_HELP)
+@click.argument("name", type=click.Choice(list(EXPERIMENTS)))
+@click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
+@click.option("--params", "params_name", type=click.Choice(BUILTIN_PARAMS), default="vo2017",
+              show_default=True, help="Model parameter set.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory. Default: recordings/experiments/NAME-PARAMS-sSEED.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes (default: one per core).")
+@click.option("--cluster", metavar="ADDRESS", default=None,
+              help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes.")
+@click.option("--no-rrd", is_flag=True, help="Skip the .rrd recordings of the representative run.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no summary.")
+@clean_errors
+def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | None, workers: int | None,
+               cluster: str | None, no_rrd: bool, quiet: bool) -> None:
+    """Run one of the paper's simulation experiments (help: ``_EXPERIMENT_HELP``, drawn from
+    :data:`pipeline.experiments.EXPERIMENTS`)."""
+    from pipeline.experiments import run_experiment
+
+    res = run_experiment(name, runs=runs, seed=seed, params=params_name, out=out, workers=workers,
+                         cluster=cluster, quiet=quiet, rrd=not no_rrd)
+    if not quiet:
+        click.echo(res.summary_md.read_text())
+        rows = [("took", f"{res.seconds:.1f} s for {len(res.rows) and res.rows[0]['runs']} run(s) per condition"),
+                ("summary", f"{res.summary_md} , {res.summary_csv}")]
+        rows += [("plot", str(p)) for p in res.plots]
+        rows += [("recording", str(p)) for p in res.recordings]
+        echo_rows(rows)
+
+
+# --------------------------------------------------------------------------- schema
+
+
+@click.command()
+@click.argument("topic", metavar="TOPIC")
+@clean_errors
+def schema(topic: str) -> None:
+    """Print the JSON Schema of a channel's messages.
+
+    TOPIC is /measurements, /truth or /tracks. The same schema is stored in every MCAP log for its channel (schema encoding
+    jsonschema). The leading slash is optional.
+
+    \b
+    Example:
+      bnptrack schema /tracks > tracks.schema.json
+    """
+    name = topic if topic.startswith("/") else "/" + topic
+    if name not in MSG_TYPES:
+        raise click.UsageError(
+            f"unknown topic {topic!r}; valid topics: {', '.join(MSG_TYPES)}"
+        )
+    click.echo(json.dumps(json_schema(name), indent=2))

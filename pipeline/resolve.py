@@ -1,0 +1,284 @@
+"""Resolving what a tracking run uses: model parameters, tracker settings, ``--set`` overrides,
+the tracker itself and the output record (:func:`tracker_setup`).
+
+``bnptrack track``, the pipeline's tracker stage and the experiments all build their tracker
+through :func:`tracker_setup`, so the order "params -> settings -> overrides -> tracker ->
+metadata" is written once.  Scenarios (simulation) are opened by
+:func:`sources.scenarios.open_scenario`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
+from tracker.config import ConfigError, apply_overrides, load_toml, split_item
+from tracker.models.params import ModelParams, load_params
+from tracker.registry import TRACKERS
+
+__all__ = [
+    "DEFAULT_PARAMS",
+    "TRACKERS",
+    "ParamsChoice",
+    "TrackerSetup",
+    "tracker_setup",
+    "resolve_params",
+    "resolve_config",
+    "split_overrides",
+    "apply_split_overrides",
+    "build_tracker",
+    "tracker_settings_fields",
+]
+
+#: Parameter set used when neither ``--params`` nor the log says which one.
+DEFAULT_PARAMS = "vo2017"
+
+
+# --------------------------------------------------------------------------- overrides
+
+
+def tracker_settings_fields(config_cls: type[msgspec.Struct] | None = None) -> tuple[str, ...]:
+    """The settings fields of ``config_cls``; ``None``: of every tracker of the registry
+    (:mod:`tracker.registry`), in registry order without repeats."""
+    if config_cls is not None:
+        return tuple(config_cls.__struct_fields__)
+    from tracker.registry import kind
+
+    classes = dict.fromkeys(kind(name).config_cls for name in TRACKERS)
+    return tuple(dict.fromkeys(f for cls in classes for f in cls.__struct_fields__))
+
+
+def split_overrides(
+    overrides: Sequence[str], config_cls: type[msgspec.Struct] | None = None
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Route ``--set`` items to (model parameters, tracker settings).
+
+    ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to the tracker's settings
+    (``config_cls``; ``None``: a field of any registered tracker's settings); a bare ``KEY=V``
+    goes to whichever has the field (``ModelParams`` first).  Raises :class:`ConfigError`
+    naming the key when neither has it.
+    """
+    p_fields, t_fields = tuple(ModelParams.__struct_fields__), tracker_settings_fields(config_cls)
+    to_params: list[str] = []
+    to_tracker: list[str] = []
+    for item in overrides:
+        key, value = split_item(item)
+        head, dot, rest = key.partition(".")
+        if dot and head == "params":
+            to_params.append(f"{rest}={value}")
+        elif dot and head == "tracker":
+            to_tracker.append(f"{rest}={value}")
+        elif head in p_fields:
+            to_params.append(f"{key}={value}")
+        elif head in t_fields:
+            to_tracker.append(f"{key}={value}")
+        else:
+            raise ConfigError(
+                f"--set {item!r}: unknown key '{key}': not a model parameter "
+                f"({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
+                "use params.KEY or tracker.KEY to be explicit"
+            )
+    return tuple(to_params), tuple(to_tracker)
+
+
+def apply_split_overrides(
+    params: ModelParams, config: msgspec.Struct, overrides: Sequence[str]
+) -> tuple[ModelParams, msgspec.Struct]:
+    """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
+    p_over, t_over = split_overrides(overrides, type(config))
+    return apply_overrides(params, p_over), apply_overrides(config, t_over)
+
+
+# --------------------------------------------------------------------------- params
+
+
+@dataclass(frozen=True)
+class ParamsChoice:
+    """The model parameters a command uses, and where they came from.
+
+    ``source`` is the built-in name or file path; ``reason`` a short human explanation
+    (e.g. ``"from --params"``, ``"from the log's bnptrack.scenario record"``).
+    """
+
+    params: ModelParams
+    source: str
+    reason: str
+    overrides: tuple[str, ...] = ()
+
+    def describe(self, final: ModelParams | None = None, overrides: Sequence[str] = ()) -> str:
+        """One line: source, reason, the log's overrides, extra ``--set`` items and the SNR
+        of ``final`` (the parameters after those items; default: :attr:`params`)."""
+        final = self.params if final is None else final
+        extra = []
+        if self.overrides:
+            extra.append("log overrides " + " ".join(self.overrides))
+        if overrides:
+            extra.append("--set " + " ".join(overrides))
+        set_keys = {o.partition("=")[0].strip() for o in overrides}
+        if final.snr_db is not None and "snr_db" not in set_keys:
+            extra.append(f"snr_db {final.snr_db:g}")
+        tail = f"; {'; '.join(extra)}" if extra else ""
+        return f"{self.source} ({self.reason}{tail})"
+
+
+def resolve_params(
+    params_arg: str | None, metadata: Mapping[str, str] | None
+) -> ParamsChoice:
+    """Model parameters for tracking a log.
+
+    1. ``params_arg`` (``--params NAME|FILE.toml``) when given;
+    2. else the log's ``bnptrack.scenario`` record: its ``params`` value, its ``overrides``
+       (the ``--set`` items used when simulating) and its ``snr_db``;
+    3. else the :data:`DEFAULT_PARAMS` set.
+
+    When the record names a known scenario, its defaults are applied as ``simulate`` applied
+    them (:meth:`Scenario.adapt_params`: birth regions, none for the generated families, SNR,
+    range clutter), in every case.
+    """
+    meta = dict(metadata or {})
+    if params_arg:
+        choice = ParamsChoice(load_params(params_arg), params_arg, "from --params")
+    elif meta.get("params"):
+        choice = _params_from_record(meta)
+    else:
+        why = (
+            "default: the log has no bnptrack.scenario record"
+            if metadata is None
+            else "default: the log's bnptrack.scenario record names no params"
+        )
+        choice = ParamsChoice(load_params(DEFAULT_PARAMS), DEFAULT_PARAMS, why)
+    return _adapt_to_scenario(choice, meta.get("scenario"))
+
+
+def _params_from_record(meta: Mapping[str, str]) -> ParamsChoice:
+    name = meta["params"]
+    overrides = parse_overrides(meta.get("overrides"))
+    try:
+        p = load_params(name, overrides)
+        snr = meta.get("snr_db")
+        p = with_snr(p, float(snr) if snr not in (None, "") else None)
+    except (ConfigError, ValueError) as exc:
+        raise ConfigError(
+            f"params {name!r} named by the log's bnptrack.scenario record: {exc} "
+            "(pass --params NAME|FILE.toml)"
+        ) from None
+    return ParamsChoice(p, name, "from the log's bnptrack.scenario record", overrides)
+
+
+def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoice:
+    """Apply the defaults of the scenario a log's record names (unknown names: unchanged)."""
+    if not scenario:
+        return choice
+    try:
+        sc = adapting_scenario(scenario)
+    except ConfigError:
+        return choice
+    params = sc.adapt_params(choice.params)
+    regions = f"{len(params.birth)} birth regions" if params.birth else "no birth regions"
+    return ParamsChoice(params, choice.source, f"{choice.reason}; scenario {scenario}: {regions}",
+                        choice.overrides)
+
+
+# --------------------------------------------------------------------------- tracker config
+
+
+def resolve_config(tracker: str, config_arg: str | None) -> tuple[msgspec.Struct, str]:
+    """Tracker settings: a preset name or a TOML file of the tracker's settings fields;
+    default: the preset named like the tracker.  Returns ``(config, description)``."""
+    from tracker.registry import kind
+
+    try:
+        k = kind(tracker)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if not config_arg:
+        return k.presets[tracker], f"preset {tracker} (default for --tracker {tracker})"
+    if config_arg in k.presets:
+        return k.presets[config_arg], f"preset {config_arg}"
+    if config_arg.endswith(".toml") or Path(config_arg).exists():
+        return load_toml(config_arg, k.config_cls), f"file {config_arg}"
+    raise ConfigError(
+        f"--config {config_arg!r}: not a preset of {tracker} ({', '.join(k.presets)}) nor a .toml file"
+    )
+
+
+def build_tracker(name: str, params: ModelParams, config: msgspec.Struct):
+    """The tracker ``name`` (see :mod:`tracker.registry`) with these parameters and settings."""
+    from tracker.registry import build
+
+    try:
+        return build(name, params, config)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+# --------------------------------------------------------------------------- the one resolver
+
+
+@dataclass(frozen=True)
+class TrackerSetup:
+    """A tracker ready to run, and how it was chosen (:func:`tracker_setup`)."""
+
+    tracker: Any
+    """The built tracker (:class:`tracker.registry.Tracker`)."""
+    name: str
+    params: ModelParams
+    """The model parameters after the ``--set`` items."""
+    config: msgspec.Struct
+    """The tracker settings after the ``--set`` items."""
+    choice: ParamsChoice
+    config_desc: str
+    overrides: tuple[str, ...]
+    metadata: dict[str, str]
+    """The output's ``bnptrack.scenario`` record: the input's plus tracker, tracker_seed,
+    tracker_params, tracker_config and (with overrides) tracker_overrides."""
+
+    def describe_params(self) -> str:
+        """The params line of ``bnptrack track``'s header (with the ``--set`` items of the params)."""
+        p_over, _ = split_overrides(self.overrides, type(self.config))
+        return self.choice.describe(self.params, p_over)
+
+    def describe_config(self) -> str:
+        """The config line of ``bnptrack track``'s header (with the ``--set`` items of the settings)."""
+        _, t_over = split_overrides(self.overrides, type(self.config))
+        return self.config_desc + (f"; --set {' '.join(t_over)}" if t_over else "")
+
+
+def tracker_setup(
+    tracker: str,
+    *,
+    params: str | ModelParams | None = None,
+    config: str | None = None,
+    overrides: Sequence[str] = (),
+    metadata: Mapping[str, str] | None = None,
+    seed: int = 0,
+) -> TrackerSetup:
+    """Resolve and build tracker ``tracker`` (a :mod:`tracker.registry` name).
+
+    1. model parameters: ``params`` (a name or TOML file; a :class:`ModelParams` is used as
+       given), else the input's ``metadata`` record (:func:`resolve_params`);
+    2. settings: the preset or TOML file ``config``, default the preset named like the tracker;
+    3. the ``--set`` items ``overrides`` (:func:`split_overrides`);
+    4. the tracker (:func:`build_tracker`) and the output record (input ``metadata`` plus the
+       tracker's name, ``seed``, params source, config and overrides).
+
+    Raises :class:`ConfigError` for anything that does not resolve.
+    """
+    if isinstance(params, ModelParams):
+        choice = ParamsChoice(params, "given", "given by the caller")
+    else:
+        choice = resolve_params(params or None, metadata)
+    settings, config_desc = resolve_config(tracker, config or None)
+    final_params, settings = apply_split_overrides(choice.params, settings, overrides)
+    built = build_tracker(tracker, final_params, settings)
+    out_meta = dict(metadata or {})
+    out_meta.update(tracker=tracker, tracker_seed=str(seed), tracker_params=choice.source,
+                    tracker_config=config or tracker)
+    if overrides:
+        out_meta["tracker_overrides"] = format_overrides(overrides)
+    return TrackerSetup(built, tracker, final_params, settings, choice, config_desc, tuple(overrides), out_meta)
