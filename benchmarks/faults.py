@@ -83,7 +83,8 @@ def tracks_of(path: Path) -> list:
 
 
 def offline_tracks(log: Path, out: Path) -> list:
-    from pipeline.offline import build_tracker, resolve_config, resolve_params, track_log
+    from pipeline.offline import track_log
+    from pipeline.resolve import build_tracker, resolve_config, resolve_params
     from sources.mcap_log import read_metadata
 
     meta = read_metadata(log)

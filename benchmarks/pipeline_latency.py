@@ -61,13 +61,9 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from pipeline.launch import launch  # noqa: E402
-from pipeline.offline import (  # noqa: E402
-    build_tracker,
-    resolve_config,
-    resolve_params,
-    resolve_simulation_params,
-    track_log,
-)
+from pipeline.offline import track_log
+from pipeline.resolve import build_tracker, resolve_config, resolve_params
+from sources.scenarios import scenario_params
 from pipeline.config import load_pipeline  # noqa: E402
 from sinks.mcap_writer import McapLogWriter  # noqa: E402
 from sources.mcap_log import iter_frames, read_metadata  # noqa: E402
@@ -81,7 +77,7 @@ HOPS = ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms")
 
 def make_log(path: Path, runs: int) -> int:
     """``runs`` vo2017 runs back to back (seeds 1..runs), frames renumbered 1..100*runs."""
-    params = resolve_simulation_params("vo2017", "vo2017")
+    params = scenario_params("vo2017", "vo2017")
     sc = get_scenario("vo2017")
     meta = {"scenario": "vo2017", "params": "vo2017", "seed": "1..%d" % runs}
     n = 0

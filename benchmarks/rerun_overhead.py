@@ -110,7 +110,7 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
 
 
 def _setup(args: argparse.Namespace):
-    from pipeline.offline import build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import build_tracker, resolve_config, resolve_params
     from sources.mcap_log import iter_frames, read_metadata
 
     meta = read_metadata(args.log)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sinks.scoring import OSPA2_WINDOW, OSPA_C, OSPA_P
+from sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from tracker.config import ConfigError
 
 
@@ -150,11 +150,12 @@ def execute_run(job: RunJob) -> RunResult:
 def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
                    crossings: Sequence[tuple[str, str, int]], keep_tracks: bool) -> TrackerRun:
     """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
-    :class:`sinks.scoring.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
+    :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
     (alpha 2) and the label keeping through ``crossings``."""
     from pipeline.resolve import tracker_setup
-    from sinks.metrics import crossing_label_keeping, gospa
-    from sinks.scoring import RunScorer
+    from sinks.crossings import crossing_label_keeping
+    from sinks.metrics import gospa
+    from sinks.metrics import RunScorer
     from tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker

@@ -3,7 +3,7 @@
 
 What a run uses (parameters, settings, the tracker) is resolved by :mod:`pipeline.resolve`,
 the scenario by :func:`sources.scenarios.open_scenario`; frames are scored by
-:class:`sinks.scoring.RunScorer`, as the pipeline's sink and the experiments score them.
+:class:`sinks.metrics.RunScorer`, as the pipeline's sink and the experiments score them.
 The tracker and the metrics (which pull in scipy) are imported where they are used, so
 ``bnptrack --help`` stays quick.
 """
@@ -19,9 +19,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sinks.metrics import CrossingResult, OspaResult
-from sinks.scoring import OSPA_C, OSPA_P, RunScorer
-from sources.mcap_log import McapLogError, McapLogWriter, iter_frames
+from sinks.crossings import CrossingResult
+from sinks.metrics import OspaResult
+from sinks.metrics import OSPA_C, OSPA_P, RunScorer
+from sinks.mcap_writer import McapLogWriter
+from sources.mcap_log import McapLogError, iter_frames
 from sources.scenarios import OpenScenario, parse_crossings
 from sources.synthetic import simulate, simulate_sensors
 from tracker.config import ConfigError
@@ -103,7 +105,7 @@ class FrameMetrics:
     ospa_cardinality: float | None = None
     cardinality_error: float | None = None
     ospa2: float | None = None
-    """OSPA(2) over the window ending at this frame (:class:`sinks.scoring.RunScorer`)."""
+    """OSPA(2) over the window ending at this frame (:class:`sinks.metrics.RunScorer`)."""
 
     @property
     def ospa_result(self) -> OspaResult | None:
@@ -166,7 +168,7 @@ class TrackResult:
 def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P,
                   scorer: RunScorer | None = None) -> FrameMetrics:
     """OSPA (on position) and cardinality error of one estimate against the frame's truth,
-    scored by ``scorer`` (a run's :class:`sinks.scoring.RunScorer`, which then also gives
+    scored by ``scorer`` (a run's :class:`sinks.metrics.RunScorer`, which then also gives
     the frame's OSPA(2); default: a scorer of this frame alone, cut-off ``c``, order ``p``)."""
     from sinks.metrics import cardinality_error
 
@@ -287,7 +289,7 @@ def score_crossings(
 ) -> CrossingResult | None:
     """Label keeping through ``crossings`` over consecutive frames with truth; pairs whose
     crossing scan is not among the frames are left out (``None`` when none is left)."""
-    from sinks.metrics import crossing_label_keeping
+    from sinks.crossings import crossing_label_keeping
 
     if not seen or any(f.truth is None for f, _ in seen):
         return None
@@ -345,21 +347,3 @@ def track_log(
 
         crossings = parse_crossings((metadata or {}).get("crossings"))
         return track_frames(tracker, iter_frames(log, dict(topic_map or {})), seed, write, crossings, bounds)
-
-
-
-# TEMPORARY re-export (issue 12 wave 1): removed at merge
-from pipeline.resolve import (  # noqa: E402,F401
-    DEFAULT_PARAMS,
-    TRACKERS,
-    ParamsChoice,
-    apply_split_overrides,
-    build_tracker,
-    resolve_config,
-    resolve_params,
-    split_overrides,
-)
-from sources.scenarios import format_overrides  # noqa: E402,F401
-from sources.scenarios import scenario_metadata as simulation_metadata  # noqa: E402,F401
-from sources.scenarios import scenario_params as resolve_simulation_params  # noqa: E402,F401
-from sources.scenarios import scene_of as resolve_scenario  # noqa: E402,F401

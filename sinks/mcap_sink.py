@@ -23,7 +23,7 @@ class McapSink:
         self.writer: Any = None
 
     def open(self, metadata: Mapping[str, str] | None) -> None:
-        from sources.mcap_log import McapLogWriter  # the writer's home until it moves to sinks/
+        from sinks.mcap_writer import McapLogWriter
 
         self.options.path.parent.mkdir(parents=True, exist_ok=True)
         self.writer = McapLogWriter(self.options.path, dict(metadata) if metadata is not None else None)

@@ -46,10 +46,6 @@ from sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labe
                                  check_positive, check_same_dim, check_tracks, optimal_assignment)
 from tracker.types import Estimate, Frame
 
-# TEMPORARY re-export (issue 12 wave 1): removed at merge
-from sinks.crossings import CrossingPairResult, CrossingResult, crossing_label_keeping  # noqa: E402,F401
-from sinks.partitions import adjusted_rand_index  # noqa: E402,F401
-
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
            "track_distance", "RunScorer", "ScoreTally", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
 

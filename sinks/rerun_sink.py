@@ -55,9 +55,6 @@ from sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUTTER_CLASS, DIAG_NAM
                                label_color, pack_rgba, unpack_rgba)
 from tracker.types import Estimate, Frame
 
-# TEMPORARY re-export (issue 12 wave 1): removed at merge
-from sinks.rerun_tools import RerunToolError, repair  # noqa: E402,F401
-
 if TYPE_CHECKING:
     from sinks.metrics import OspaResult
     from tracker.models.params import ModelParams

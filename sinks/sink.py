@@ -29,7 +29,7 @@ __all__ = ["Sink", "SinkRecord", "Payloads", "SinkOptions", "SinkEntry", "SINKS"
 
 @dataclass(frozen=True, slots=True)
 class Payloads:
-    """A frame's messages as the codec's bytes (``tracker.messages`` / ``pipeline.codec``), as
+    """A frame's messages as the codec's bytes (``tracker.messages``), as
     received and validated: a sink that stores messages writes them as they are, without
     decoding to numpy and encoding again (the pipeline's sink stage).  ``truth`` / ``tracks``
     are ``None`` when the frame has none."""

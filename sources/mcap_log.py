@@ -521,14 +521,3 @@ def missing_measurements_message(path: str | os.PathLike, channels: list[Channel
             f"Its channels: {listing}. To read a channel as the measurements, map it: "
             f"--topic {example}={TOPIC_MEASUREMENTS} (its payload must still follow the "
             f"/measurements contract of docs/formats.md: JSON, frame, stamp_ns, sensor, kind, z)")
-
-
-# TEMPORARY re-export (issue 12 wave 1): removed at merge.  pipeline/offline.py and
-# pipeline/stages.py still import McapLogWriter from here; it lives in sinks.mcap_writer.  A lazy
-# module attribute (PEP 562), so that importing this module does not import sinks/.
-def __getattr__(name: str) -> Any:
-    if name == "McapLogWriter":
-        from sinks.mcap_writer import McapLogWriter
-
-        return McapLogWriter
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from tracker import filtering as kf
-from tracker.bnp_tracker import _moment_match, make_tracker
+from tracker.bnp import make_tracker
+from tracker.bnp.filter import _moment_match
 from tracker.state import frame_rng, run
 from tracker.types import Frame
 
@@ -63,7 +64,7 @@ def test_nan_distance_is_outside_the_gate(vo_params, gate):
 
 def test_moment_match_skips_pairs_without_weight(vo_params):
     """A NaN measurement no cluster takes leaves every state exactly as without it."""
-    from tracker.bnp_tracker import _Prediction
+    from tracker.bnp.filter import _Prediction
 
     meas, m, P, innov = _innovation(vo_params)
     pred = _Prediction(m, P, np.array([0.9, 0.8]), np.array([0.98, 0.98]))

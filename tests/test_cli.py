@@ -374,7 +374,7 @@ def test_tracker_setup_resolves_once_and_writes_the_output_record():
     """params from the record (with the scenario's defaults), the preset, the --set items
     (routed to params and settings), the tracker and the output record, in one call."""
     from pipeline.resolve import tracker_setup
-    from tracker.bnp_tracker import TRACKER_PRESETS
+    from tracker.bnp import TRACKER_PRESETS
 
     meta = {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}
     s = tracker_setup("ddp", config="ddp-snr", overrides=("p_detect=0.8", "sweeps=7"), metadata=meta, seed=3)
@@ -403,7 +403,7 @@ def test_tracker_setup_takes_resolved_params_as_given():
 def test_split_overrides_without_a_settings_class_knows_every_registered_tracker():
     """No tracker's settings class is the default: a field of the two-level trackers'
     GroupConfig routes to the tracker settings, but not when the tracker is a BNP one."""
-    from tracker.bnp_tracker import BnpConfig
+    from tracker.bnp import BnpConfig
 
     assert split_overrides(["within_std=3", "max_hypotheses=9"]) == ((), ("within_std=3", "max_hypotheses=9"))
     with pytest.raises(ConfigError, match="within_std"):

@@ -27,7 +27,7 @@ from sinks.rerun_sink import write_recording  # noqa: E402
 from sinks.rerun_tools import rerun_cli, rerun_env  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import make_tracker  # noqa: E402
+from tracker.bnp import make_tracker  # noqa: E402
 from tracker.config import ConfigError  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402

@@ -125,7 +125,7 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     explicitly, so there is no gap and the tracks equal the offline run of every frame."""
     from pipeline.stages import source_frames
     from tracker.state import run as run_offline
-    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
 
     cfg = _mem_cfg(tmp_path, frames=12)
     net = MemoryNetwork()
@@ -215,7 +215,8 @@ def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None
 
 
 def _offline_tracks(log: Path, out: Path) -> list:
-    from pipeline.offline import build_tracker, resolve_config, resolve_params, track_log
+    from pipeline.offline import track_log
+    from pipeline.resolve import build_tracker, resolve_config, resolve_params
     from sources.mcap_log import read_metadata
 
     meta = read_metadata(log)

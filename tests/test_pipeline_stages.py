@@ -613,7 +613,7 @@ def _registry_trackers():
     try:
         from tracker.registry import TRACKERS
     except ImportError:  # older layout
-        from pipeline.offline import TRACKERS
+        from pipeline.resolve import TRACKERS
     return list(TRACKERS)
 
 
@@ -632,7 +632,7 @@ def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
     log = read_log(Path(cfg.out) / "tracks.mcap")
     _, ests = _offline(cfg)
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
-    from pipeline.offline import build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import build_tracker, resolve_config, resolve_params
 
     tracker = build_tracker(name, resolve_params(None, log.metadata).params, resolve_config(name, None)[0])
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
@@ -772,7 +772,8 @@ def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
 def test_memory_pipeline_with_a_generated_random_source(tmp_path):
     """A synthetic source of the generated ``random`` scenario: the scene comes from
     source.seed and the scene.* items of source.overrides; the tracker gets no birth regions."""
-    from pipeline.offline import parse_crossings, resolve_params
+    from pipeline.offline import parse_crossings
+    from pipeline.resolve import resolve_params
     from sources.scenarios import get_scenario
 
     cfg = _mem_cfg(tmp_path, frames=8, **{"source.scenario": '"random"', "source.seed": "3",
@@ -856,7 +857,7 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     assert _run_memory_pipeline(second, MemoryNetwork())["tracker"] == EXIT_OK
     got = read_log(Path(second.out) / "tracks.mcap").tracks
 
-    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
     from pipeline.stages import source_frames
 
     meta, _ = source_frames(first)
@@ -927,7 +928,7 @@ def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
     import sys
 
     code = ("import sys; from pipeline.stages.tracker import warm_tracker_imports; "
-            "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp_tracker' in sys.modules), "
+            "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp' in sys.modules), "
             "int('tracker.glmb' in sys.modules))")
     root = Path(__file__).resolve().parent.parent
     seen = {name: subprocess.run([sys.executable, "-c", code, name], capture_output=True, text=True,

@@ -68,7 +68,8 @@ def _strip(est):
 
 def _offline(log: Path, out: Path, tracker: str = "ddp", seed: int = 0, overrides=()) -> Path:
     """What ``bnptrack track LOG --tracker T --seed S --out OUT`` writes (in-process)."""
-    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params, track_log
+    from pipeline.offline import track_log
+    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
 
     meta = read_metadata(log)
     choice = resolve_params(None, meta)
@@ -169,9 +170,9 @@ def test_launch_default_end_to_end_equals_offline_track(tmp_path):
     # the input is the simulator's frames 1..20 ...
     from sources.scenarios import get_scenario
     from sources.synthetic import simulate
-    from pipeline.offline import resolve_simulation_params
+    from sources.scenarios import scenario_params
 
-    sim = list(simulate(get_scenario("vo2017"), resolve_simulation_params("vo2017", "vo2017"), 1))[:20]
+    sim = list(simulate(get_scenario("vo2017"), scenario_params("vo2017", "vo2017"), 1))[:20]
     assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, sim))
     # ... and the tracks are those of `bnptrack track` on that input
     _assert_same_run(out / "tracks.mcap", _offline(out / "tracks.mcap", tmp_path / "offline.mcap"), 20)

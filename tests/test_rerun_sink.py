@@ -38,7 +38,7 @@ from sinks.rerun_tools import repair, rerun_cli, rerun_env  # noqa: E402
 from sinks.rerun_process import RecordingError, RecordingProcess  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import make_tracker  # noqa: E402
+from tracker.bnp import make_tracker  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
 
@@ -534,7 +534,7 @@ def test_repair_argument_errors(tmp_path):
 
 
 def test_track_log_with_rrd(tmp_path):
-    from pipeline.offline import build_tracker, resolve_config
+    from pipeline.resolve import build_tracker, resolve_config
 
     params = load_params("vo2017")
     config, _ = resolve_config("ddp", None)

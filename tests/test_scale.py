@@ -15,9 +15,12 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-import tracker.bnp_tracker as bt
+from tracker.bnp import BnpConfig, make_tracker
+from tracker.bnp import filter as bnp_filter
+from tracker.bnp.assignment import best_permutation
+from tracker.bnp.clusters import _Clusters, _near_pairs
 from tracker import filtering as kf
-from tracker.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
+from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
 from tracker.models.measurement import BearingRange, RangeOnly
 from tracker.models.params import load_params
 
@@ -78,7 +81,7 @@ def test_best_permutation_per_component_equals_the_global_assignment(seed):
         block = rng.random((rows.size, cols.size)) * (rng.random((rows.size, cols.size)) < 0.7)
         p[np.ix_(rows, cols)] = block
     p /= np.maximum(p.sum(axis=1, keepdims=True), 1.0) * rng.uniform(1.0, 1.5, (N, 1))
-    got, want = bt.best_permutation(p), _dense_best_permutation(p)
+    got, want = best_permutation(p), _dense_best_permutation(p)
     assert ((want > 0).sum(axis=1) > 1).sum() == 0 and (want > 0).sum() > 10
     np.testing.assert_array_equal(got > 0, want > 0)  # the same measurement for every cluster
     np.testing.assert_allclose(got, want, rtol=1e-14, atol=0)  # row sums: summation order only
@@ -91,13 +94,13 @@ def test_near_pairs_hold_every_pair_within_the_merge_distance():
                             rng.normal(0, 5, n), np.zeros(n)])
     scale = rng.choice([1.0, 30.0, 3000.0], n, p=[0.6, 0.37, 0.03])  # small, medium, a few huge
     cov = np.tile(np.diag([100.0, 25.0, 100.0, 25.0, 1e-4]), (n, 1, 1)) * scale[:, None, None]
-    c = bt._Clusters(tuple(str(i) for i in range(n)), mean, cov, np.full(n, 0.3), np.ones(n))
+    c = _Clusters(tuple(str(i) for i in range(n)), mean, cov, np.full(n, 0.3), np.ones(n))
     ii, jj = np.triu_indices(n, k=1)
     d = mean[ii][:, [0, 1, 2, 3]] - mean[jj][:, [0, 1, 2, 3]]
     S = (cov[ii] + cov[jj])[:, [0, 1, 2, 3]][:, :, [0, 1, 2, 3]]
     d2 = np.einsum("pk,pk->p", d, np.linalg.solve(S, d[..., None])[..., 0])
     want = set(zip(ii[d2 <= 9.0].tolist(), jj[d2 <= 9.0].tolist()))
-    lo, hi = bt._near_pairs(c, 9.0)
+    lo, hi = _near_pairs(c, 9.0)
     got = set(zip(lo.tolist(), hi.tolist()))
     assert len(want) > 20 and want <= got
     assert len(got) < ii.size / 10  # and it is a pre-filter, not all pairs
@@ -126,16 +129,16 @@ def test_vectorised_log_joint_equals_the_sequential_sum():
 
 def test_max_clusters_guard_warns_once_and_reports(caplog):
     """The cap is a memory guard (default 100000); when it bites, the step says so."""
-    assert bt.BnpConfig().max_clusters == 100_000
+    assert BnpConfig().max_clusters == 100_000
     params = load_params("vo2017")
-    tr = bt.make_tracker("ddp", params, bt.BnpConfig(max_clusters=3))
+    tr = make_tracker("ddp", params, BnpConfig(max_clusters=3))
     from tracker.state import frame_rng
     from tracker.types import Frame
 
     z = np.column_stack([np.linspace(-1.0, 1.0, 8), np.linspace(300.0, 1800.0, 8)])
-    bt._capped_warned.clear()
+    bnp_filter._capped_warned.clear()
     st = tr.initial_state()
-    with caplog.at_level(logging.WARNING, logger="tracker.bnp_tracker"):
+    with caplog.at_level(logging.WARNING, logger="tracker.bnp.filter"):
         for k in range(3):
             st, est = tr.step(st, Frame(k, k * 10**9, "s", "bearing_range", z), frame_rng(1, k))
             assert st.n_clusters <= 3

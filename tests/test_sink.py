@@ -12,7 +12,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from pipeline.codec import encode_measurements, encode_tracks, encode_truth  # noqa: E402
+from tracker.messages import encode, from_truth  # noqa: E402
 from sinks.metrics import ospa  # noqa: E402
 from sinks.sink import (  # noqa: E402
     SINKS,
@@ -28,7 +28,7 @@ from sinks.sink import (  # noqa: E402
 from sources.mcap_log import iter_frames, iter_tracks, read_metadata  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp_tracker import make_tracker  # noqa: E402
+from tracker.bnp import make_tracker  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
 
@@ -144,8 +144,8 @@ def vo_run():
 
 
 def _payloads(frame, est) -> Payloads:
-    truth = encode_truth(frame.frame, frame.stamp_ns, frame.truth) if frame.truth is not None else None
-    return Payloads(frame.stamp_ns, frame.frame, encode_measurements(frame), truth, encode_tracks(est))
+    truth = encode(from_truth(frame.frame, frame.stamp_ns, frame.truth)) if frame.truth is not None else None
+    return Payloads(frame.stamp_ns, frame.frame, encode(frame), truth, encode(est))
 
 
 def test_mcap_sink_payloads_and_decoded_records_write_the_same_file(vo_run, tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.bnp_tracker import BnpConfig, BnpState, make_tracker
+from tracker.bnp import BnpConfig, BnpState, make_tracker
 from tracker.glmb import GlmbConfig, GlmbState, make_glmb
 from tracker.models.params import load_params
 from tracker.types import Frame, FrameBoundError, frame_dt

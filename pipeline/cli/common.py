@@ -18,9 +18,9 @@ from typing import Any
 
 import click
 
-from pipeline.codec import CodecError
+from tracker.messages import CodecError
 from pipeline.view import ViewerUnavailable
-from sinks.rerun_writer import RecordingError
+from sinks.rerun_process import RecordingError
 from sources.mcap_log import McapLogError
 from tracker.config import ConfigError
 
@@ -180,7 +180,7 @@ def literal_choices(struct: type, field: str, element: bool = False) -> list[str
 
 def topic_map(items: tuple[str, ...]) -> dict[str, str]:
     """``--topic SRC=/measurements`` items as ``{SRC: /measurements}``."""
-    from pipeline.codec import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+    from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
 
     out = {}
     for item in items:
@@ -194,7 +194,7 @@ def topic_map(items: tuple[str, ...]) -> dict[str, str]:
 
 def require_measurements(log: Path, topics: dict[str, str]) -> None:
     """Exit 2 listing the log's channels when none is (or is mapped to) /measurements."""
-    from pipeline.codec import TOPIC_MEASUREMENTS
+    from tracker.messages import TOPIC_MEASUREMENTS
     from sources.mcap_log import log_channels, missing_measurements_message
 
     channels = log_channels(log)

@@ -41,7 +41,7 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
     import msgspec as _ms
 
     from pipeline.launch import stage_config
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
 
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
                        listen=(), mode=None)

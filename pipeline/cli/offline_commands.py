@@ -29,7 +29,7 @@ from pipeline.cli.common import (
 )
 from pipeline.offline import OSPA_C, OSPA_P, TrackResult, check_output_path, default_tracks_path, track_log
 from pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
-from sinks.rerun_writer import RecordingProcess
+from sinks.rerun_process import RecordingProcess
 from sources.mcap_log import read_metadata
 from sources.scenarios import OpenScenario, open_scenario, scenario_names
 from tracker.models.params import BUILTIN_PARAMS
@@ -282,7 +282,7 @@ class _TrackIO:
     def open(cls, log: Path, out: Path, rrd: Path | None, topics: tuple[str, ...], view: bool,
              view_connect: str | None) -> _TrackIO:
         """Check the options; with a recording, start its process first, so that its imports
-        (rerun) run on the other core beside the tracker's (:mod:`sinks.rerun_writer`); the
+        (rerun) run on the other core beside the tracker's (:mod:`sinks.rerun_process`); the
         command's context closes it at the end whatever happens (``track_log_with_rrd``
         closes it first, normally)."""
         mapping = topic_map(topics)

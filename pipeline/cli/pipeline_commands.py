@@ -25,7 +25,7 @@ from pipeline.cli.common import (
     require_measurements,
 )
 from pipeline.offline import OSPA_C, OSPA_P
-from pipeline.pipeline_config import PipelineConfig, ZenohConfig
+from pipeline.config import PipelineConfig, ZenohConfig
 from pipeline.resolve import TRACKERS
 
 __all__ = ["launch", "replay", "stage", "router"]
@@ -163,7 +163,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     """
     import msgspec as _ms
 
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
 
     cfg = load_pipeline(pipeline_file, overrides)
     if run_id:
@@ -235,7 +235,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     """
     import msgspec as _ms
 
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
 
     require_measurements(log, {})  # (replay reads /measurements only; `track --topic` maps channels)
     cfg = load_pipeline(None)
@@ -249,7 +249,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
-    from pipeline.pipeline_config import apply_pipeline_overrides
+    from pipeline.config import apply_pipeline_overrides
 
     cfg = apply_pipeline_overrides(cfg, overrides)
     if run_id:
@@ -294,7 +294,7 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 
     import msgspec as _ms
 
-    from pipeline.pipeline_config import make_run_id
+    from pipeline.config import make_run_id
 
     base = cfg.run or make_run_id(cfg)
     root = Path(cfg.out) if cfg.out else Path("recordings")
@@ -347,7 +347,7 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
       bnptrack stage source  --run r1 --connect tcp/10.0.0.5:7447 --set source.frames=50
     """
     from pipeline.launch import configure_logging, run_stage, stage_config
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
 
     configure_logging(name or role, log_level)
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=str(out) if out else None,
@@ -374,7 +374,7 @@ def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple
     import signal as _signal
     import threading as _threading
 
-    from pipeline.pipeline_config import load_pipeline
+    from pipeline.config import load_pipeline
     from pipeline.transport import Router
 
     cfg = load_pipeline(pipeline_file, overrides)

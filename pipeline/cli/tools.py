@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
-from pipeline.codec import MSG_TYPES, json_schema
+from tracker.messages import MSG_TYPES, json_schema
 from pipeline.experiments import EXPERIMENTS
 from sources.mcap_log import McapLogError, read_metadata
 from tracker.models.params import BUILTIN_PARAMS
@@ -203,7 +203,7 @@ def view(
       bnptrack view broken.rrd --repair fixed.rrd
     """
     from pipeline.view import ViewerUnavailable, open_viewer, screenshot
-    from sinks.rerun_sink import RerunToolError, repair
+    from sinks.rerun_tools import RerunToolError, repair
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")

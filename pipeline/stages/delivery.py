@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline.codec import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode_msg
+from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
 from pipeline.config import DeliveryConfig
 from pipeline.stages.health import _JSON, Counters
 
@@ -290,7 +290,7 @@ class Intake:
         if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq < MAX_SEQ:
             return self.reject(ev, None, f"attachment seq must be an integer in [0, 2**53), got {seq!r}")
         try:
-            msg = decode_msg(codec_topic, ev.payload)
+            msg = decode(codec_topic, ev.payload)
         except CodecError as exc:
             return self.reject(ev, seq, str(exc))
         if msg.run != self.run:

@@ -10,7 +10,7 @@ from typing import Any
 
 import msgspec
 
-from pipeline.codec import estimate_from_msg, frame_from_msg, truth_from_msg
+from tracker.messages import to_estimate, to_frame, to_truth
 from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream
@@ -57,7 +57,7 @@ class SinkStage(StageBase):
         self.next_write = 0
         self.writer = None
         self.rrd = None
-        from sinks.scoring import RunScorer, ScoreTally
+        from sinks.metrics import RunScorer, ScoreTally
 
         self.scorer = RunScorer()
         self.tally = ScoreTally()
@@ -103,7 +103,7 @@ class SinkStage(StageBase):
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
         if self.sink_cfg.mcap:
-            from sources.mcap_log import McapLogWriter
+            from sinks.mcap_writer import McapLogWriter
 
             path = out / self.sink_cfg.mcap_name
             self.writer = McapLogWriter(part_path(path), meta if meta is not None else {"run": self.run_id})
@@ -124,7 +124,7 @@ class SinkStage(StageBase):
             return
         params = None
         try:
-            from pipeline.offline import resolve_params
+            from pipeline.resolve import resolve_params
             from tracker.models.params import load_params
 
             name = (meta or {}).get("tracker_params")
@@ -161,8 +161,8 @@ class SinkStage(StageBase):
             self._note_latency(s, tracks)
         if meas is not GAP and tracks is not None and tracks is not GAP:
             # scored always (progress, sink.json); drawn when the Rerun sink is on
-            frame = frame_from_msg(meas.msg, truth_from_msg(truth.msg) if has_truth else None)
-            est = estimate_from_msg(tracks.msg)
+            frame = to_frame(meas.msg, to_truth(truth.msg) if has_truth else None)
+            est = to_estimate(tracks.msg)
             scores = self.scorer.update(frame, est) if self.sink_cfg.score or self.rrd is not None else _NO_SCORES
             self.tally.add(frame, est, scores)
             if self.rrd is not None:

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
 
-from pipeline.codec import encode_measurements, encode_truth
+from tracker.messages import encode, from_truth
 from pipeline.config import PipelineConfig, SourceConfig
 from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase
 from pipeline.stages.health import EndOfStream, StageInfo
@@ -26,20 +26,16 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
     """The source's metadata record and its frames (``source.frames`` limits them)."""
     src_cfg = cfg.source
     if src_cfg.kind == "synthetic":
-        from pipeline.offline import (
-            resolve_scenario,
-            resolve_simulation_params,
-            simulation_metadata,
-        )
+        from sources.scenarios import open_scenario, scene_of
         from sources.synthetic import simulate
 
-        try:
-            scenario = resolve_scenario(src_cfg.scenario, src_cfg.seed, src_cfg.overrides)
+        try:  # the scene first, so that a bad scenario is named as the source's setting
+            scene_of(src_cfg.scenario, src_cfg.seed, src_cfg.overrides)
         except (KeyError, ValueError) as exc:
             raise ConfigError(f"source.scenario: {exc}") from None
-        params = resolve_simulation_params(src_cfg.scenario, src_cfg.params, src_cfg.overrides, src_cfg.snr_db)
-        metadata = simulation_metadata(scenario, src_cfg.params, src_cfg.seed, params, src_cfg.overrides)
-        frames: Iterator[Frame] = simulate(scenario, params, src_cfg.seed, sensor=src_cfg.sensor)
+        opened = open_scenario(src_cfg.scenario, src_cfg.params, src_cfg.seed, src_cfg.overrides, src_cfg.snr_db)
+        metadata = opened.metadata
+        frames: Iterator[Frame] = simulate(opened.scenario, opened.params, src_cfg.seed, sensor=src_cfg.sensor)
     else:
         from sources.mcap_log import McapLogError, iter_frames, read_metadata
 
@@ -179,8 +175,8 @@ class SourceStage(StageBase):
         """Publish frame ``seq`` (its truth too, when it has one); keep up with control."""
         bus = self.bus
         has_truth = frame.truth is not None
-        meas = encode_measurements(frame, self.run_id)
-        truth = encode_truth(frame.frame, frame.stamp_ns, frame.truth, self.run_id) if has_truth else None
+        meas = encode(frame, self.run_id)
+        truth = encode(from_truth(frame.frame, frame.stamp_ns, frame.truth, self.run_id)) if has_truth else None
         t = self.clock.time_ns()
         bus.publish("measurements", meas, {"seq": seq, "t": t, "frame": frame.frame, "truth": has_truth})
         if truth is not None:

@@ -11,7 +11,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from pipeline.codec import encode_tracks, frame_from_msg
+from tracker.messages import encode, to_frame
 from pipeline.config import TrackerStageConfig
 from pipeline.journal import JOURNAL_NAME, TracksJournal
 from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
@@ -26,17 +26,15 @@ __all__ = ["TrackerStage", "build_stage_tracker", "warm_up_tracker", "warm_track
 log = logging.getLogger("bnptrack.stage")
 
 
-def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> tuple[Any, Any, Any]:
-    """The tracker stage's tracker, as ``bnptrack track`` builds it: model parameters from
-    ``tc.params`` or the source's metadata record, the settings preset or file, then the
-    ``--set`` items of ``tc.overrides``.  Returns ``(tracker, ParamsChoice, params)``;
-    raises :class:`ConfigError` (the launcher calls this before starting any process)."""
-    from pipeline.offline import apply_split_overrides, build_tracker, resolve_config, resolve_params
+def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:
+    """The tracker stage's :class:`~pipeline.resolve.TrackerSetup`, built by the one resolver
+    ``bnptrack track`` uses: model parameters from ``tc.params`` or the source's metadata
+    record, the settings preset or file, then the ``--set`` items of ``tc.overrides``.
+    Raises :class:`ConfigError` (the launcher calls this before starting any process)."""
+    from pipeline.resolve import tracker_setup
 
-    choice = resolve_params(tc.params or None, metadata)
-    config, _desc = resolve_config(tc.tracker, tc.config or None)
-    params, config = apply_split_overrides(choice.params, config, tc.overrides)
-    return build_tracker(tc.tracker, params, config), choice, params
+    return tracker_setup(tc.tracker, params=tc.params or None, config=tc.config or None,
+                         overrides=tc.overrides, metadata=metadata, seed=tc.seed)
 
 
 def warm_tracker_imports(name: str) -> None:
@@ -143,7 +141,8 @@ class TrackerStage(StageBase):
         from tracker.state import restore
 
         tc = self.tc
-        self.tracker, choice, params = build_stage_tracker(tc, info.metadata)
+        setup = build_stage_tracker(tc, info.metadata)
+        self.tracker = setup.tracker
         initial = self.tracker.initial_state()
         if self.restored is not None:
             self.state = restore(self.restored.state, type(initial))
@@ -154,27 +153,10 @@ class TrackerStage(StageBase):
             self.state = initial
         warm_up_tracker(self.tracker)
         self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=tc.tracker,
-                                               metadata=self._out_metadata(info, choice), tracker=tc.tracker,
+                                               metadata={**setup.metadata, "run": self.run_id}, tracker=tc.tracker,
                                                seed=tc.seed, pid=os.getpid()))
         log.info("%s: %s tracker, params %s, seed %d", self.name, tc.tracker,
-                 choice.describe(params), tc.seed)
-
-    def _out_metadata(self, info: StageInfo, choice: Any) -> dict[str, str]:
-        """The output's metadata record: the source's plus the tracker's settings."""
-        from pipeline.offline import format_overrides
-
-        tc = self.tc
-        out_meta = dict(info.metadata or {})
-        out_meta.update(
-            tracker=tc.tracker,
-            tracker_seed=str(tc.seed),
-            tracker_params=choice.source,
-            tracker_config=tc.config or tc.tracker,
-        )
-        if tc.overrides:
-            out_meta["tracker_overrides"] = format_overrides(tc.overrides)
-        out_meta["run"] = self.run_id
-        return out_meta
+                 setup.choice.describe(setup.params), tc.seed)
 
     # -- per frame ---------------------------------------------------------------------
     def _process(self, released: list[tuple[int, Any]]) -> None:
@@ -184,7 +166,7 @@ class TrackerStage(StageBase):
                 log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
                 self.last_seq = s
                 continue
-            frame = frame_from_msg(item.msg)
+            frame = to_frame(item.msg)
             why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
             if why is not None:  # before the tracker predicts through the jump
                 self.intake.reject_sample("measurements", item.payload, s, why)
@@ -200,7 +182,7 @@ class TrackerStage(StageBase):
         t0 = self.clock.perf_counter()
         state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))
         self.step_ms.append((self.clock.perf_counter() - t0) * 1e3)
-        payload = encode_tracks(est, self.run_id)
+        payload = encode(est, self.run_id)
         # t: the source's publication time (end-to-end latency); t_in / t_out: when the
         # tracker received the frame and published its tracks (latency breakdown)
         meta = {"seq": s, "t": acc.meta.get("t", 0), "frame": frame.frame,

@@ -1,0 +1,170 @@
+"""The layering and size rules of docs/architecture.md, checked on the source tree.
+
+Each rule reads the code with :mod:`ast` (nothing is imported), so a violation names the file
+and line that breaks it.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("tracker", "pipeline", "sources", "sinks")
+MAX_MODULE_LINES = 600  # pipeline/, sinks/, sources/
+MAX_FUNCTION_LINES = 60  # everywhere except numba kernels
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(path: Path) -> list[tuple[str, int]]:
+    """Every absolute module name imported anywhere in ``path`` (also inside functions)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against this module's package
+                base = mod.split(".")[: -node.level]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            found.append((name, node.lineno))
+            found += [(f"{name}.{a.name}", node.lineno) for a in node.names]
+    return found
+
+
+def _top(name: str) -> str:
+    return name.split(".")[0]
+
+
+def _violations(rule) -> list[str]:
+    bad = []
+    for mod, path in MODULES.items():
+        for name, line in _imports(path):
+            if rule(mod, name):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    return sorted(set(bad))
+
+
+def test_sources_and_sinks_do_not_import_the_pipeline():
+    assert _violations(lambda m, n: _top(m) in ("sources", "sinks") and _top(n) == "pipeline") == []
+
+
+def test_tracker_imports_nothing_above_it():
+    assert _violations(lambda m, n: _top(m) == "tracker" and _top(n) in ("pipeline", "sources", "sinks")) == []
+
+
+def test_only_the_transport_imports_zenoh():
+    assert _violations(lambda m, n: _top(n) == "zenoh" and m != "pipeline.transport") == []
+
+
+def _may_import_rerun(mod: str) -> bool:
+    return mod.startswith("sinks.rerun_") or mod == "pipeline.view"
+
+
+def test_only_rerun_modules_and_the_viewer_import_rerun():
+    assert _violations(lambda m, n: _top(n) == "rerun" and not _may_import_rerun(m)) == []
+
+
+def _graph() -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {m: set() for m in MODULES}
+    for mod, path in MODULES.items():
+        for name, _ in _imports(path):
+            # "from pkg import mod" names a module; "from mod import func" names its module
+            target = name if name in MODULES else name.rpartition(".")[0]
+            if target in MODULES and target != mod and not mod.startswith(target + "."):
+                graph[mod].add(target)
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_no_import_cycles():
+    assert _cycle(_graph()) is None
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+@pytest.mark.parametrize("pkg", ["pipeline", "sinks", "sources"])
+def test_modules_stay_small(pkg):
+    long = {str(p.relative_to(ROOT)): n for p in sorted((ROOT / pkg).rglob("*.py"))
+            if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert long == {}
+
+
+def _jitted_names(tree: ast.Module) -> set[str]:
+    """Functions compiled by numba: decorated with ``*jit``, or passed to a ``*jit(...)`` call."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and "jit" in ast.unparse(node.func).lower():
+            names |= {a.id for a in node.args if isinstance(a, ast.Name)}
+        if isinstance(node, ast.FunctionDef) and any("jit" in ast.unparse(d).lower() for d in node.decorator_list):
+            names.add(node.name)
+    return names
+
+
+def _rel(path: Path) -> str:
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else path.name
+
+
+def _long_functions(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    kernels = _jitted_names(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name not in kernels:
+            n = node.end_lineno - node.lineno + 1
+            if n > MAX_FUNCTION_LINES:
+                out.append(f"{_rel(path)}:{node.lineno} {node.name} ({n} lines)")
+    return out
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_functions_stay_short(pkg):
+    assert [f for p in sorted((ROOT / pkg).rglob("*.py")) for f in _long_functions(p)] == []
+
+
+def test_the_size_rules_see_a_long_function(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(61))
+    path = tmp_path / "probe.py"
+    path.write_text(f"def f():\n{body}\n\ndef k():\n{body}\n\nk2 = njit(k)\n")
+    assert _long_functions(path) == ["probe.py:1 f (62 lines)"]
