@@ -127,7 +127,7 @@ class Offline:
         from pipeline.membus import MemoryNetwork
         from pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
         from pipeline.stages import StageContext, StageInfo, TrackerStage
-        from pipeline.stages.delivery import Event
+        from pipeline.events import Event
 
         cfg = resolve_run(PipelineConfig(run="inproc", out=str(out), tracker=TrackerStageConfig(
             tracker=self.tracker_name, seed=self.seed)))

@@ -23,11 +23,11 @@ import secrets
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import msgspec
 
-from tracker.config import ConfigError, apply_overrides, convert, load_toml, split_item
+from tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
 
 __all__ = [
     "RUN_RE",
@@ -53,10 +53,6 @@ __all__ = [
 #: A run id is one key-expression chunk: no ``/``, ``*``, ``$``, ``?``, ``#``.
 RUN_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$")
 
-NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
-PosInt = Annotated[int, msgspec.Meta(ge=1)]
-NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 
 
 #: The fields of :class:`TlsConfig` that name PEM files (in Zenoh: ``transport/link/tls/<name>``).
@@ -218,8 +214,8 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     input channels only (no tracker needed).  ``view_url``: a Rerun viewer's gRPC URL
     (``rerun+http://HOST:PORT/proxy``) that ``run.rrd``'s rows are streamed to as well
     (``launch --view`` / ``--connect URL``).  ``score``: score the frames that carry truth (OSPA,
-    OSPA(2), cardinality error: the progress lines and ``sink.json`` ``scores``; about 0.5-1 ms
-    per frame of the sink's CPU, mostly OSPA(2)); the Rerun sink's plots need it too."""
+    OSPA(2), cardinality error: the progress lines and ``sink.json`` ``scores``; its cost per frame
+    is measured in docs/pipeline.md); the Rerun sink's plots need it too."""
 
     mcap: bool = True
     rerun: bool = True

@@ -56,7 +56,7 @@ import zenoh.ext as zext
 from pipeline.acl import KEY_ROOT, acl_config
 from pipeline.config import DeliveryConfig, ZenohConfig
 from pipeline.preflight import listening
-from pipeline.stages.delivery import Event
+from pipeline.events import Event
 
 __all__ = [
     "KEY_ROOT",

@@ -35,7 +35,7 @@ from pipeline.stages import (
     read_snapshot,
     write_atomic,
 )
-from pipeline.stages.delivery import Event
+from pipeline.events import Event
 from sources.mcap_log import read_log
 from tracker.config import ConfigError, apply_overrides
 from tracker.types import Frame

@@ -75,6 +75,7 @@ from tracker._message_checks import (
     estimate_arrays,
     is_int,
 )
+from tracker.config import NonNegInt, Prob
 from tracker.models.measurement import KINDS, measurement_kind
 from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, Truth
 
@@ -104,9 +105,7 @@ _chain = chain.from_iterable
 # --------------------------------------------------------------------------- schema
 
 # msgspec constraint aliases of the schema (tracker/config.py has no shared ones yet).
-NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
 StampNs = Annotated[int, msgspec.Meta(ge=0, le=MAX_STAMP)]
-Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 StateVec = Annotated[list[float], msgspec.Meta(min_length=STATE_DIM, max_length=STATE_DIM)]
 CovVec = Annotated[list[float], msgspec.Meta(min_length=COV_DIM, max_length=COV_DIM)]
 _MAX_DIM = max(k.dim for k in KINDS.values())

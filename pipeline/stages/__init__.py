@@ -46,7 +46,8 @@ from pipeline.stages.base import (
     StageIOError,
     SystemClock,
 )
-from pipeline.stages.delivery import GAP, NO_TRUTH, Accepted, Event, HoleWatch, Intake, Sequencer
+from pipeline.events import Event
+from pipeline.stages.delivery import GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer
 from pipeline.stages.health import Counters, EndOfStream, StageInfo
 from pipeline.stages.recovery import (
     JOURNAL_NAME,

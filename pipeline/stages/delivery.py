@@ -20,23 +20,10 @@ from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, Code
 from pipeline.config import DeliveryConfig
 from pipeline.stages.health import _JSON, Counters
 
-__all__ = ["Event", "Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
+__all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
            "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY"]
 
 log = logging.getLogger("bnptrack.stage")
-
-
-@dataclass(frozen=True)
-class Event:
-    """One received sample: ``topic`` relative to the run (e.g. ``"measurements"``,
-    ``"eos/source"``), payload bytes, decoded attachment (``None`` if absent or invalid, then
-    ``meta_error`` says why), receive time (``time.time_ns()``)."""
-
-    topic: str
-    payload: bytes
-    meta: dict | None
-    t_recv_ns: int
-    meta_error: str | None = None
 
 
 #: Topic (bus-relative) of each codec topic.
