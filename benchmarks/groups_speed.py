@@ -22,7 +22,7 @@ from sources.scenarios import get_scenario, is_generated  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.registry import build  # noqa: E402
-from tracker.state import frame_rng  # noqa: E402
+from tracker.state import tracker_frame_rng  # noqa: E402
 
 
 def main() -> None:
@@ -41,7 +41,7 @@ def main() -> None:
             order = args.trackers if f.frame % 2 else args.trackers[::-1]
             for t in order:
                 t0 = time.perf_counter()
-                states[t], _ = trackers[t].step(states[t], f, frame_rng(seed, f.frame))
+                states[t], _ = trackers[t].step(states[t], f, tracker_frame_rng(seed, f.frame))
                 ms[t].append((time.perf_counter() - t0) * 1e3)
     a, b = args.trackers
     ma, mb = np.median(ms[a][5:]), np.median(ms[b][5:])  # the first frames include compilation

@@ -99,7 +99,7 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
 def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float) -> dict:
     from sinks.metrics import ospa
     from tracker.bnp import make_tracker
-    from tracker.state import frame_rng
+    from tracker.state import tracker_frame_rng
 
     params, fr = simulate(n, frames, seed, clutter_ratio)
     tracker = make_tracker("ddp", params)
@@ -108,7 +108,7 @@ def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: floa
     n_meas = []
     for f in fr:
         t0, c0 = time.perf_counter(), time.thread_time()
-        state, est = tracker.step(state, f, frame_rng(seed, f.frame))
+        state, est = tracker.step(state, f, tracker_frame_rng(seed, f.frame))
         ms.append((time.perf_counter() - t0) * 1e3)
         cpu.append((time.thread_time() - c0) * 1e3)
         n_meas.append(f.n_measurements)

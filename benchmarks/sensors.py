@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from sinks.metrics import ospa  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import (  # noqa: E402
-    frame_rng, measure_with, move_truth, simulate_all, simulate_sensors, truth_at_time)
+    measurement_frame_rng, measure_with, move_truth, simulate_all, simulate_sensors, truth_at_time)
 from tracker.config import apply_overrides  # noqa: E402
 from tracker.models.params import BirthComponent, load_params  # noqa: E402
 from tracker.registry import build, kind  # noqa: E402
@@ -62,7 +62,7 @@ def _frames_posed(sc, params, seed, overrides, pose, sensor_kind):
     frames = []
     for k, tr in enumerate(sc.truth(1.0), start=1):
         moved = move_truth(tr, pose)
-        z, kd, ps = measure_with(frame_rng(seed, k), moved, p, "bearing_range", "s")
+        z, kd, ps = measure_with(measurement_frame_rng(seed, k), moved, p, "bearing_range", "s")
         frames.append(Frame(k, k * S, "s", kd, z, moved, pose=ps))
     return frames, p
 
@@ -73,7 +73,7 @@ def _frames_irregular(sc, params, seed):
     while t <= sc.K:
         j = len(frames) + 1
         tr = truth_at_time(sc, t)
-        z, kd, _ = measure_with(frame_rng(seed, j), tr, params, "bearing_range", "sim0")
+        z, kd, _ = measure_with(measurement_frame_rng(seed, j), tr, params, "bearing_range", "sim0")
         frames.append(Frame(j, int(round(t * S)), "sim0", kd, z, tr))
         t += rng.uniform(0.5, 1.5)
     return frames

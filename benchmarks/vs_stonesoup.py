@@ -47,7 +47,7 @@ from sources.synthetic import simulate_all  # noqa: E402
 from tracker.config import apply_overrides  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.registry import build, kind  # noqa: E402
-from tracker.state import frame_rng  # noqa: E402
+from tracker.state import tracker_frame_rng  # noqa: E402
 
 ANCHORS = ("ss-gmphd", "ss-jpda")
 MISSING = "Stone Soup is not installed: pip install -e '.[compare]' (or pip install 'stonesoup>=1.9')"
@@ -109,7 +109,7 @@ def _run_bnp(job: Job, params, frames) -> tuple[list[Scan], int]:
     state = tracker.initial_state()
     out = []
     for f in frames:
-        rng = frame_rng(job.seed, f.frame)
+        rng = tracker_frame_rng(job.seed, f.frame)
         t0 = time.process_time()
         state, est = tracker.step(state, f, rng)
         ms = (time.process_time() - t0) * 1e3

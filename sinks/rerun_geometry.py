@@ -15,7 +15,7 @@ import numpy as np
 
 from sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
-__all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses", "range_arcs",
+__all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses",
            "measurement_xy", "hits_per_row", "track_strips",
            "truth_trails", "EMPTY2", "EMPTY22", "EMPTY_U16", "EMPTY_U32"]
 
@@ -103,26 +103,17 @@ def truth_crosses(TP: np.ndarray, h: float) -> np.ndarray:
     return cross
 
 
-def range_arcs(r: np.ndarray, arc: np.ndarray, sx: float, sy: float) -> np.ndarray:
-    """``(M, len(arc), 2)``: the arc of radius ``r[i]`` around the sensor ``(sx, sy)`` over the
-    angles ``arc`` (from +y, clockwise)."""
-    return np.stack([sx + r[:, None] * np.sin(arc)[None], sy + r[:, None] * np.cos(arc)[None]], -1)
-
-
-def measurement_xy(kind: str, model: Any, Z: np.ndarray, tpos: np.ndarray, gidx: np.ndarray,
-                   hit: np.ndarray) -> np.ndarray:
-    """``(M, 2)`` points drawn for the measurements ``Z`` of ``kind``: the measured position
-    (bearing-range, xy); for range-only the point of the range ring nearest the assigned track
-    (``hit``: assigned, ``tpos[gidx]`` its track's position), else on the boresight (+y)."""
-    if kind != "range":
+def measurement_xy(model: Any, Z: np.ndarray, tpos: np.ndarray, gidx: np.ndarray, hit: np.ndarray) -> np.ndarray:
+    """``(M, 2)`` points drawn for the measurements ``Z`` of ``model``: the measured position
+    when a row fixes one (``model.fixes_position``), else the point of the row's locus (a
+    range ring, say) nearest the assigned track (``hit``: assigned, ``tpos[gidx]`` its
+    track's position), the model's default point for an unassigned row."""
+    if getattr(model, "fixes_position", True):
         return model.to_cartesian(Z)[0] if Z.shape[0] else EMPTY2
-    sx, sy = float(getattr(model, "sensor_x", 0.0)), float(getattr(model, "sensor_y", 0.0))
-    r_ = Z[:, 0]
-    ang = np.zeros(Z.shape[0])
+    toward = np.full((Z.shape[0], 2), np.nan)
     if hit.any():
-        tp = tpos[gidx[hit]]
-        ang[hit] = np.arctan2(tp[:, 0] - sx, tp[:, 1] - sy)
-    return np.stack([sx + r_ * np.sin(ang), sy + r_ * np.cos(ang)], axis=-1)
+        toward[hit] = tpos[gidx[hit]]
+    return model.locus_point(Z, toward)
 
 
 def hits_per_row(hit: np.ndarray, counts: np.ndarray) -> np.ndarray:

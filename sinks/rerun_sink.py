@@ -46,7 +46,7 @@ from sinks.rerun_blueprint import default_blueprint
 from sinks.rerun_columns import (Schema, annotation_context, entity_part, log_arrays, scalar_columns, send,
                                  track_style)
 from sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, hits_per_row, measurement_xy,
-                                  range_arcs, track_strips, truth_crosses, truth_trails)
+                                  track_strips, truth_crosses, truth_trails)
 from sinks.rerun_scene import write_static
 from sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
                                FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, MEASUREMENTS, OSPA,
@@ -483,8 +483,8 @@ class RerunSink:
         hit = idx >= 0
         gidx = np.where(hit, idx + np.repeat(tr_off, counts), 0)
         model = self._measurement_model(kind)
-        # range-only: the rings themselves go to world/measurements/rings
-        xy = measurement_xy(kind, model, Z, tpos, gidx, hit)
+        # rows that fix no position (range-only): their loci (rings) go to world/measurements/rings
+        xy = measurement_xy(model, Z, tpos, gidx, hit)
         cls = np.where(hit, tcls[gidx] if tcls.size else 0,
                        np.where(has, CLUTTER_CLASS, UNASSIGNED_CLASS)).astype(np.uint16)
         col = np.where(hit, tcol[gidx] if tcol.size else 0,
@@ -501,7 +501,7 @@ class RerunSink:
         lines[:, 0] = xy[hit]
         lines[:, 1] = tpos[gidx[hit]] if nh else lines[:, 1]
         self._send_lines(ks, ts, lines, hits_per_row(hit, counts), cls[hit], col[hit])
-        if kind == "range":
+        if not getattr(model, "fixes_position", True):
             self._send_rings(ks, ts, counts, Z, model, cls, col)
 
     def _send_lines(self, ks: np.ndarray, ts: np.ndarray, lines: np.ndarray, per_row: np.ndarray,
@@ -517,14 +517,14 @@ class RerunSink:
 
     def _send_rings(self, ks: np.ndarray, ts: np.ndarray, counts: np.ndarray, Z: np.ndarray, model: Any,
                     cls: np.ndarray, col: np.ndarray) -> None:
-        """Range-only measurements: one arc of the range ring per measurement."""
+        """Measurements that fix no position: one arc of each row's locus (the range ring of a
+        range-only row) over the scene's bearings."""
         if RINGS not in self._styled:
             self._rec.log(RINGS, rr.LineStrips2D.from_fields(
                 radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
             self._styled.add(RINGS)
         a = self._geo.arc
-        sx, sy = float(getattr(model, "sensor_x", 0.0)), float(getattr(model, "sensor_y", 0.0))
-        arcs = range_arcs(Z[:, 0], a, sx, sy)
+        arcs = model.locus(Z, a)
         self._send(RINGS, ks, ts, [
             ("LineStrips2D:strips", self._s.strip_array(arcs.reshape(-1, 2), np.full(Z.shape[0], a.size)),
              counts),

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Literal
 
 import msgspec
 import numpy as np
 
+from tracker.models.measurement import DEFAULT_KIND, KINDS
 from tracker.models.motion import CoordinatedTurn
 from tracker.models.params import BirthComponent, ModelParams
 from tracker.types import STATE_DIM, Truth
@@ -51,7 +51,8 @@ class Scenario:
     name: str
     description: str
     K: int = 100
-    kind: Literal["bearing_range", "range"] = "bearing_range"
+    kind: str = DEFAULT_KIND
+    """A measurement kind of the registry :data:`tracker.models.measurement.KINDS`."""
     targets: tuple[TargetSpec, ...] = ()
     default_snr_db: float | None = None
     default_range_clutter_rate: float | None = None
@@ -76,6 +77,8 @@ class Scenario:
     """The ``scene.*`` overrides a generated scene was built with (without ``scene.``)."""
 
     def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"Scenario {self.name}: unknown measurement kind {self.kind!r} (known: {', '.join(KINDS)})")
         object.__setattr__(self, "targets", tuple(self.targets))
         ids = [t.id for t in self.targets]
         if len(set(ids)) != len(ids):

@@ -4,7 +4,7 @@ A family is a pure function ``(family name, scene seed, family parameters) -> Sc
 (:func:`generate_scene`).  The parameters are a :class:`SceneFamily` (``--set scene.KEY=VALUE``
 on the command line, see :func:`scene_config`); the scene's random stream is
 :func:`scene_rng`, ``SeedSequence(seed, spawn_key=(0, crc32(name)))``, disjoint from the
-measurement streams of :func:`sources.synthetic.frame_rng` (``spawn_key=(k,)``), so one seed
+measurement streams of :func:`sources.synthetic.measurement_frame_rng` (``spawn_key=(k,)``), so one seed
 drives both the scene and its measurements without the two sharing draws.
 
 The field (decided here): the ``vo2017`` sensor (bearing-range at the origin, bearing in

@@ -36,11 +36,13 @@ from tracker.models.measurement import measurement_kind, wrap_angle
 from tracker.models.params import ModelParams
 from tracker.types import Frame, Truth
 
-__all__ = ["frame_rng", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame"]
+__all__ = ["measurement_frame_rng", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame"]
 
 
-def frame_rng(seed: int, k: int) -> np.random.Generator:
-    """The random stream of frame ``k`` for ``seed``."""
+def measurement_frame_rng(seed: int, k: int) -> np.random.Generator:
+    """The measurement stream of frame ``k`` for ``seed`` (spawn key ``(k,)``): detections,
+    noise and clutter; the tracker draws from another stream,
+    :func:`tracker.state.tracker_frame_rng`."""
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(k),)))
 
 
@@ -110,7 +112,7 @@ def _frame(
     truth: Truth,
     sensor: str,
 ) -> Frame:
-    z = models.measure(frame_rng(seed, k), truth)
+    z = models.measure(measurement_frame_rng(seed, k), truth)
     return Frame(
         frame=k,
         stamp_ns=int(round(k * T * 1e9)),
@@ -206,9 +208,9 @@ def truth_at_time(scenario: Scenario, t: float, T: float = 1.0) -> Truth:
 
 
 def sensor_rng(seed: int, k: int, i: int) -> np.random.Generator:
-    """The stream of sensor ``i``'s frame at scan ``k`` (sensor 0: :func:`frame_rng`)."""
+    """The stream of sensor ``i``'s frame at scan ``k`` (sensor 0: :func:`measurement_frame_rng`)."""
     if i == 0:
-        return frame_rng(seed, k)
+        return measurement_frame_rng(seed, k)
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(k), int(i))))
 
 

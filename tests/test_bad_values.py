@@ -13,7 +13,7 @@ import pytest
 from tracker import filtering as kf
 from tracker.bnp import make_tracker
 from tracker.bnp.filter import _moment_match
-from tracker.state import frame_rng, run
+from tracker.state import tracker_frame_rng, run
 from tracker.types import Frame
 
 
@@ -41,7 +41,7 @@ def test_step_rejects_a_frame_edited_in_place(vo_params, vo_frames):
     bad = Frame(f.frame, f.stamp_ns, f.sensor, f.kind, f.z.copy())
     bad.z[1, 0] = np.nan
     with pytest.raises(ValueError, match=rf"^Frame {f.frame}: measurement row 1 is not finite"):
-        tr.step(state, bad, frame_rng(1, f.frame))
+        tr.step(state, bad, tracker_frame_rng(1, f.frame))
 
 
 def _innovation(vo_params):

@@ -220,7 +220,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
     moment-matched mixture let one cluster coalesce onto the other's object and T4 was lost
     (400 m from any track); with the uniform part of H weighing 0.5, T4 is re-born near its
     measurements, and on seeds 1-30 neither update loses T3 or T4 (worst 55 m, measured)."""
-    from tracker.state import frame_rng
+    from tracker.state import tracker_frame_rng
 
     seed = 2
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)[:22]
@@ -229,7 +229,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
         tr = make_tracker("ddp", vo_params, BnpConfig(state_update=update))
         st = tr.initial_state()
         for f in frames:
-            st, _ = tr.step(st, f, frame_rng(seed, f.frame))
+            st, _ = tr.step(st, f, tracker_frame_rng(seed, f.frame))
         confirmed = st.mean[st.existence > 0.5][:, [0, 2]]
         truth = dict(zip(frames[-1].truth.ids, frames[-1].truth.positions))
         worst[update] = max(np.min(np.linalg.norm(confirmed - truth[t], axis=1)) for t in ("T3", "T4"))

@@ -132,7 +132,7 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
     assert BnpConfig().max_clusters == 100_000
     params = load_params("vo2017")
     tr = make_tracker("ddp", params, BnpConfig(max_clusters=3))
-    from tracker.state import frame_rng
+    from tracker.state import tracker_frame_rng
     from tracker.types import Frame
 
     z = np.column_stack([np.linspace(-1.0, 1.0, 8), np.linspace(300.0, 1800.0, 8)])
@@ -140,7 +140,7 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
     st = tr.initial_state()
     with caplog.at_level(logging.WARNING, logger="tracker.bnp.filter"):
         for k in range(3):
-            st, est = tr.step(st, Frame(k, k * 10**9, "s", "bearing_range", z), frame_rng(1, k))
+            st, est = tr.step(st, Frame(k, k * 10**9, "s", "bearing_range", z), tracker_frame_rng(1, k))
             assert st.n_clusters <= 3
     assert est.diagnostics["clusters_capped"] > 0
     assert sum("max_clusters (3) reached" in r.message for r in caplog.records) == 1

@@ -14,7 +14,7 @@ from sources.scenarios import (
     TargetSpec,
     get_scenario,
 )
-from sources.synthetic import frame_rng, simulate, simulate_all, simulate_frame
+from sources.synthetic import measurement_frame_rng, simulate, simulate_all, simulate_frame
 from tracker.config import ConfigError
 from tracker.models.measurement import wrap_angle
 from tracker.models.params import load_params
@@ -296,7 +296,7 @@ def test_determinism_pin():
     assert f.n_measurements == 12
     np.testing.assert_allclose(f.z[0], [-0.5320118006635921, 679.6565435190205], rtol=1e-12)
     # the stream itself
-    assert frame_rng(1, 1).integers(0, 2**31) == np.random.default_rng(
+    assert measurement_frame_rng(1, 1).integers(0, 2**31) == np.random.default_rng(
         np.random.SeedSequence(1, spawn_key=(1,))
     ).integers(0, 2**31)
 

@@ -13,7 +13,7 @@ from sources.scenarios import scenario_params as resolve_simulation_params
 from sources.mcap_log import iter_frames, read_metadata
 from sources.scenarios import get_scenario, is_generated, scenario_names
 from sources.scene_families import FAMILIES, CROSSING_MIN_SIDE, in_field, scene_config, scene_rng
-from sources.synthetic import frame_rng, simulate_all
+from sources.synthetic import measurement_frame_rng, simulate_all
 from tracker.config import ConfigError
 from tracker.models.params import load_params
 
@@ -50,7 +50,7 @@ def test_seed_pinned_determinism():
         t1.xstart, [-411.71433425410845, 4.545287767342241, 314.2305922551954,
                     8.298433864316898, -0.033164398057416535], rtol=1e-10)
     # the scene stream is not a frame stream
-    assert scene_rng("random", 3).integers(0, 2**31) != frame_rng(3, 0).integers(0, 2**31)
+    assert scene_rng("random", 3).integers(0, 2**31) != measurement_frame_rng(3, 0).integers(0, 2**31)
 
 
 @pytest.mark.parametrize("seed", SEEDS)

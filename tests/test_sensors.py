@@ -140,7 +140,7 @@ def test_codec_pose_r_xy_roundtrip():
 
 def _posed_frames(n_frames, kind, pose, sigma_xy=10.0):
     """vo2017 seed 1 measured by a sensor at ``pose`` with the truth moved along."""
-    from sources.synthetic import frame_rng, measure_with
+    from sources.synthetic import measurement_frame_rng, measure_with
 
     sc = get_scenario("vo2017")
     p = load_params("vo2017")
@@ -150,7 +150,7 @@ def _posed_frames(n_frames, kind, pose, sigma_xy=10.0):
     frames = []
     for k, tr in enumerate(sc.truth(1.0)[:n_frames], start=1):
         moved = move_truth(tr, pose)
-        z, kd, ps = measure_with(frame_rng(1, k), moved, pa, "bearing_range", "s")
+        z, kd, ps = measure_with(measurement_frame_rng(1, k), moved, pa, "bearing_range", "s")
         frames.append(Frame(k, k * 10**9, "s", kd, z, moved, pose=ps))
     return frames, pa
 

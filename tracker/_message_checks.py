@@ -39,8 +39,9 @@ TRACKS_SCHEMA_VERSION = 2
 write 1 when no track carries one."""
 #: Versions read per topic (a topic not listed reads only :data:`SCHEMA_VERSION`).
 READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2)}
-#: The kinds of ``/measurements`` version 1 (a fact of the wire format's history: every kind
-#: registered since is written as version 2).
+#: The kinds of ``/measurements`` version 1.  A fixed historical record, deliberately not
+#: derived from the registry: version-1 readers know exactly these two kinds, so a frame of
+#: any kind registered since (``xy``, or one added later) must be written as version 2.
 V1_KINDS = frozenset({"bearing_range", "range"})
 
 MAX_MEASUREMENTS = 100_000
@@ -48,6 +49,8 @@ MAX_TRACKS = 10_000
 MAX_OBJECTS = 10_000
 MAX_DIAGNOSTICS = 1_000
 MAX_STAMP = 2**63 - 1
+#: Columns a ``z`` row or ``R`` may have on decode (the kind's dimension is checked after).
+MAX_ROW_DIM = 64
 COV_DIM = STATE_DIM * STATE_DIM
 
 _FMAX = sys.float_info.max

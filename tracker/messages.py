@@ -8,8 +8,8 @@ Three messages, each a JSON object that starts with the shared :class:`Header`
     {"v": 2, "run": "", "frame": 0, "stamp_ns": 0, "sensor": "radar0",
      "kind": "bearing_range", "z": [[bearing_rad, range_m], ...]}
 
-  (``kind == "range"``: ``"z": [[range_m], ...]``; the kinds and their row layouts are the
-  registry ``tracker.models.measurement.KINDS``).  ``v`` and ``run`` are optional on decode
+  (the kinds and their row layouts are the registry ``tracker.models.measurement.KINDS``,
+  e.g. ``"range"``: ``"z": [[range_m], ...]``).  ``v`` and ``run`` are optional on decode
   (default ``1`` and ``""``) so logs that carry only the five core fields decode.
 
 ``/truth`` (:class:`TruthMsg`)::
@@ -48,7 +48,7 @@ Pure: msgspec, numpy and ``tracker`` only (no mcap, no zenoh).
 from __future__ import annotations
 
 from itertools import chain
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Union
 
 import msgspec
 import numpy as np
@@ -58,6 +58,7 @@ from tracker._message_checks import (
     MAX_DIAGNOSTICS,
     MAX_MEASUREMENTS,
     MAX_OBJECTS,
+    MAX_ROW_DIM,
     MAX_STAMP,
     MAX_TRACKS,
     MEASUREMENTS_SCHEMA_VERSION,
@@ -108,9 +109,11 @@ _chain = chain.from_iterable
 StampNs = Annotated[int, msgspec.Meta(ge=0, le=MAX_STAMP)]
 StateVec = Annotated[list[float], msgspec.Meta(min_length=STATE_DIM, max_length=STATE_DIM)]
 CovVec = Annotated[list[float], msgspec.Meta(min_length=COV_DIM, max_length=COV_DIM)]
-_MAX_DIM = max(k.dim for k in KINDS.values())
-ZRow = Annotated[list[float], msgspec.Meta(min_length=1, max_length=_MAX_DIM)]
-KindName = Literal[tuple(KINDS)]  # the registry's kinds (tracker.models.measurement.KINDS)
+# The decoder bounds a row (and R) by MAX_ROW_DIM columns; the kind's own dimension is checked
+# by tracker._message_checks against the registry, and json_schema states the registry's kinds
+# and largest dimension as the registry stands when it is called (a kind registered later is
+# read and written without editing this module).
+ZRow = Annotated[list[float], msgspec.Meta(min_length=1, max_length=MAX_ROW_DIM)]
 
 
 class Header(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -126,12 +129,13 @@ class MeasurementsMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=T
     """One scan of measurements from one sensor (topic ``/measurements``)."""
 
     sensor: str
-    kind: KindName
+    kind: str
+    """A kind of the registry ``tracker.models.measurement.KINDS`` (checked on decode)."""
     z: Annotated[list[ZRow], msgspec.Meta(max_length=MAX_MEASUREMENTS)]
     pose: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
     """``[x_m, y_m, heading_rad]`` of the sensor for this scan (v2)."""
-    R: Annotated[list[Annotated[list[float], msgspec.Meta(max_length=_MAX_DIM)]],
-                 msgspec.Meta(max_length=_MAX_DIM)] | None = None
+    R: Annotated[list[Annotated[list[float], msgspec.Meta(max_length=MAX_ROW_DIM)]],
+                 msgspec.Meta(max_length=MAX_ROW_DIM)] | None = None
     """``d x d`` measurement noise covariance of this scan's rows (v2)."""
 
 
@@ -202,7 +206,20 @@ def json_schema(msg_type: type | str) -> dict:
             msg_type = MSG_TYPES[msg_type]
         except KeyError:
             raise ValueError(f"unknown topic {msg_type!r}") from None
-    return msgspec.json.schema(msg_type)
+    schema = msgspec.json.schema(msg_type)
+    if msg_type is MeasurementsMsg:
+        _registry_bounds(schema["$defs"]["MeasurementsMsg"]["properties"])
+    return schema
+
+
+def _registry_bounds(props: dict) -> None:
+    """State the registry's kinds (an ``enum``) and largest row dimension (``maxItems`` of a
+    ``z`` row and of ``R``) in the ``/measurements`` schema's properties, in place."""
+    d = max(k.dim for k in KINDS.values())
+    props["kind"] = {"enum": list(KINDS)}
+    props["z"]["items"]["maxItems"] = d
+    r = props["R"]["anyOf"][0]
+    r["maxItems"] = r["items"]["maxItems"] = d
 
 
 # --------------------------------------------------------------------------- decode

@@ -95,3 +95,24 @@ def build(name: str, params: ModelParams, config: msgspec.Struct | None = None):
     if not isinstance(config, k.config_cls):
         raise ValueError(f"tracker {name!r} takes a {k.config_cls.__name__}, not a {type(config).__name__}")
     return k.factory(params, config)
+
+
+def warm_up(tracker: Any, frames: int = 3) -> None:
+    """Step ``tracker`` through ``frames`` throw-away frames of every measurement kind that
+    has example rows (:attr:`~tracker.models.measurement.MeasurementKind.examples`), each kind
+    from ``initial_state()``, so lazily compiled kernels and caches are ready.  Frame ``k``'s
+    rows are the examples drifted by ``k`` times 0.001 in each column but the last and 5 in
+    the last (e.g. 5 m of range).  Raises whatever a step raises (a tracker without the
+    kind's model, say)."""
+    from tracker.models.measurement import KINDS
+    from tracker.types import Frame
+
+    rng = np.random.default_rng(0)
+    for name, entry in KINDS.items():
+        if not entry.examples:
+            continue
+        base = np.array(entry.examples, dtype=float)
+        drift = np.where(np.arange(base.shape[1]) == base.shape[1] - 1, 5.0, 0.001)
+        state = tracker.initial_state()
+        for k in range(1, frames + 1):
+            state, _ = tracker.step(state, Frame(k, k * 10**9, "warm-up", name, base + k * drift), rng)

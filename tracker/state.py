@@ -25,8 +25,10 @@ TRACKER_STREAM = 0x7A
 SNAPSHOT_VERSION = 1
 
 
-def frame_rng(seed: int, frame: int) -> np.random.Generator:
-    """The tracker's generator for frame ``frame`` of a run seeded with ``seed``."""
+def tracker_frame_rng(seed: int, frame: int) -> np.random.Generator:
+    """The tracker's generator for frame ``frame`` of a run seeded with ``seed`` (spawn key
+    ``(TRACKER_STREAM, frame)``; the simulator's measurements use another stream,
+    ``sources.synthetic.measurement_frame_rng``)."""
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(TRACKER_STREAM, int(frame))))
 
 
@@ -71,5 +73,5 @@ def run(tracker, frames: Iterable[Frame], seed: int, state=None) -> Iterator[tup
     """Feed frames through ``tracker.step`` with the per-frame streams; yields (frame, estimate, state)."""
     state = tracker.initial_state() if state is None else state
     for frame in frames:
-        state, est = tracker.step(state, frame, frame_rng(seed, frame.frame))
+        state, est = tracker.step(state, frame, tracker_frame_rng(seed, frame.frame))
         yield frame, est, state

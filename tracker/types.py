@@ -16,11 +16,9 @@ import numpy as np
 
 from tracker.models.measurement import KINDS
 
-SensorKind = Literal["bearing_range", "range", "xy"]
-
-#: Dimension of one measurement for each sensor kind (from the registry
-#: :data:`tracker.models.measurement.KINDS`).
-MEASUREMENT_DIM: dict[str, int] = {name: k.dim for name, k in KINDS.items()}
+#: The registry's kinds (:data:`tracker.models.measurement.KINDS`) as a type, for readers;
+#: ``Frame`` checks a kind against the registry itself, so a kind registered later is valid.
+SensorKind = Literal[tuple(KINDS)]  # type: ignore[valid-type]
 
 #: Object state layout used everywhere: ``[px, vx, py, vy, omega]``.
 STATE_DIM = 5
@@ -87,10 +85,9 @@ class Frame:
     sensor:
         Sensor name (free text, e.g. ``"radar0"``).
     kind:
-        ``"bearing_range"`` (``z = [bearing_rad, range_m]``, bearing from the sensor's
-        boresight towards +x), ``"range"`` (``z = [range_m]``) or ``"xy"``
-        (``z = [x_m, y_m]`` in the world frame); the registry
-        :data:`tracker.models.measurement.KINDS` lists them.
+        A measurement kind of the registry :data:`tracker.models.measurement.KINDS`, which
+        gives its row layout (e.g. ``"bearing_range"``: ``z = [bearing_rad, range_m]``,
+        ``"range"``: ``z = [range_m]``, ``"xy"``: ``z = [x_m, y_m]`` in the world frame).
     z:
         ``(M, d)`` measurements in arrival order; ``d`` follows ``kind``.  Every entry must be
         finite: construction raises ``ValueError`` naming the frame and the row otherwise.
@@ -113,9 +110,10 @@ class Frame:
     R: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in MEASUREMENT_DIM:
+        entry = KINDS.get(self.kind) if isinstance(self.kind, str) else None
+        if entry is None:
             raise ValueError(f"Frame {self.frame}: unknown sensor kind {self.kind!r} (known: {', '.join(KINDS)})")
-        d = MEASUREMENT_DIM[self.kind]
+        d = entry.dim
         z = np.asarray(self.z, dtype=float).reshape(-1, d)
         check_finite_rows(self.frame, z)
         object.__setattr__(self, "z", z)

@@ -55,15 +55,11 @@ def warm_up_tracker(tracker: Any) -> None:
     ``initial_state()``)."""
     import time
 
+    from tracker.registry import warm_up
+
     t0 = time.perf_counter()
-    rng = np.random.default_rng(0)
     try:
-        for kind, base in (("bearing_range", np.array([[0.1, 500.0], [0.2, 800.0], [-0.3, 1200.0], [0.5, 300.0]])),
-                           ("range", np.array([[500.0], [800.0], [1200.0]]))):
-            state = tracker.initial_state()
-            for k in range(1, 4):
-                z = base + k * np.where(np.arange(base.shape[1]) == base.shape[1] - 1, 5.0, 0.001)
-                state, _ = tracker.step(state, Frame(k, k * 10**9, "warm-up", kind, z), rng)
+        warm_up(tracker)
     except Exception as exc:  # a tracker without a range model, say: warm-up is optional
         log.debug("tracker warm-up skipped: %s", exc)
     log.debug("tracker warm-up took %.2f s", time.perf_counter() - t0)
@@ -74,7 +70,7 @@ class TrackerStage(StageBase):
 
     Any tracker :func:`pipeline.offline.build_tracker` builds works (the state class comes
     from ``tracker.initial_state()``).  Frame ``k`` uses the tracker's stream of frame ``k``
-    (``tracker.state.frame_rng(seed, k)``) exactly like ``bnptrack track``, so the output
+    (``tracker.state.tracker_frame_rng(seed, k)``) exactly like ``bnptrack track``, so the output
     depends only on the frames and their order.
     """
 
@@ -177,7 +173,7 @@ class TrackerStage(StageBase):
 
     def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
         """Track frame ``s``, publish its tracks, journal them, snapshot when due."""
-        from tracker.state import frame_rng as tracker_frame_rng  # the tracker's stream of a frame
+        from tracker.state import tracker_frame_rng
 
         t0 = self.clock.perf_counter()
         state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))

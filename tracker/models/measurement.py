@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -51,6 +51,12 @@ class MeasurementModel(Protocol):
 
     dim: int
     kind: str
+    fixes_position: ClassVar[bool]
+    """Whether one row fixes a position (:meth:`to_cartesian` is the measured point); a kind
+    whose rows leave a direction free (range-only) also offers ``locus(z, bearings)`` (the
+    ``(M, A, 2)`` positions consistent with each row at the ``A`` world bearings) and
+    ``locus_point(z, toward)`` (the ``(M, 2)`` point of each row's locus nearest ``toward``;
+    NaN rows: a default point).  The Rerun sink draws measurements through these."""
 
     @property
     def R(self) -> np.ndarray: ...
@@ -92,6 +98,7 @@ class BearingRange:
 
     dim: int = 2
     kind: str = "bearing_range"
+    fixes_position: ClassVar[bool] = True
 
     @classmethod
     def from_sensor(cls, s: Sensor) -> BearingRange:
@@ -205,6 +212,8 @@ class RangeOnly:
 
     dim: int = 1
     kind: str = "range"
+    fixes_position: ClassVar[bool] = False
+    """A range leaves the bearing free: the positions of a row are a ring (:meth:`locus`)."""
 
     @classmethod
     def from_sensor(cls, s: Sensor) -> RangeOnly:
@@ -280,6 +289,25 @@ class RangeOnly:
         pcov[:, 1, 1] = self.R[0, 0]
         return _rotate(pos, pcov, self.heading, self.sensor_x, self.sensor_y)
 
+    def locus(self, z: np.ndarray, bearings: np.ndarray) -> np.ndarray:
+        """``(M, A, 2)``: the positions consistent with each range row, the ring of radius
+        ``r`` around the sensor, at the ``A`` world ``bearings`` (from +y, clockwise)."""
+        r = np.atleast_2d(np.asarray(z, dtype=float))[:, 0]
+        b = np.asarray(bearings, dtype=float)
+        return np.stack([self.sensor_x + r[:, None] * np.sin(b)[None],
+                         self.sensor_y + r[:, None] * np.cos(b)[None]], -1)
+
+    def locus_point(self, z: np.ndarray, toward: np.ndarray) -> np.ndarray:
+        """``(M, 2)``: the point of each row's ring nearest the position ``toward[i]``; a NaN
+        row of ``toward``: the ring's point straight up (+y) from the sensor."""
+        r = np.atleast_2d(np.asarray(z, dtype=float))[:, 0]
+        t = np.asarray(toward, dtype=float).reshape(-1, 2)
+        known = ~np.isnan(t).any(axis=1)
+        ang = np.zeros(r.shape[0])
+        if known.any():
+            ang[known] = np.arctan2(t[known, 0] - self.sensor_x, t[known, 1] - self.sensor_y)
+        return np.stack([self.sensor_x + r * np.sin(ang), self.sensor_y + r * np.cos(ang)], axis=-1)
+
 
 @dataclass(frozen=True)
 class Cartesian:
@@ -302,6 +330,7 @@ class Cartesian:
 
     dim: int = 2
     kind: str = "xy"
+    fixes_position: ClassVar[bool] = True
 
     @classmethod
     def from_sensor(cls, s: Sensor) -> Cartesian:
@@ -367,9 +396,9 @@ class MeasurementKind:
     """One measurement kind: its model class (built by ``model.from_sensor(sensor)``), row
     dimension, wrapped (angle) columns, per-column value bounds (inclusive; what the codec
     accepts), its clutter model of a sensor (uniform over the field of view in its
-    measurement space), whether its detection region ignores bearings (``range_only``) and
+    measurement space), whether its detection region ignores bearings (``range_only``),
     the :class:`~tracker.models.params.ModelParams` field, if any, that overrides
-    ``clutter_rate`` for it."""
+    ``clutter_rate`` for it, and example rows for the warm-up."""
 
     name: str
     model: type
@@ -381,6 +410,10 @@ class MeasurementKind:
     clutter: Callable[[Any], ClutterModel]
     range_only: bool = False
     clutter_rate_field: str | None = None
+    examples: tuple[tuple[float, ...], ...] = ()
+    """A few typical rows: the pipeline's warm-up (:func:`tracker.registry.warm_up`) steps a
+    tracker on frames of them so its kernels compile before the first real frame (none: the
+    kind is not warmed up)."""
 
     def measurement(self, sensor: Sensor) -> MeasurementModel:
         """The measurement model of ``sensor`` for this kind."""
@@ -393,9 +426,11 @@ _BIG = float(np.finfo(float).max)
 #: sinks) looks it up here.  Register a new kind by adding one entry (and its model).
 KINDS: dict[str, MeasurementKind] = {
     "bearing_range": MeasurementKind("bearing_range", BearingRange, 2, (0,), (-np.pi, 0.0), (np.pi, _BIG),
-                                     "[bearing_rad, range_m]", _bearing_range_clutter),
+                                     "[bearing_rad, range_m]", _bearing_range_clutter,
+                                     examples=((0.1, 500.0), (0.2, 800.0), (-0.3, 1200.0), (0.5, 300.0))),
     "range": MeasurementKind("range", RangeOnly, 1, (), (0.0,), (_BIG,), "[range_m]", _range_clutter,
-                             range_only=True, clutter_rate_field="range_clutter_rate"),
+                             range_only=True, clutter_rate_field="range_clutter_rate",
+                             examples=((500.0,), (800.0,), (1200.0,))),
     "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]", _sector_clutter),
 }
 

@@ -19,7 +19,7 @@ import numpy as np
 from tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
 from tracker.models.clutter import ClutterModel, Detection
-from tracker.models.measurement import DEFAULT_KIND, MeasurementModel, measurement_kind
+from tracker.models.measurement import DEFAULT_KIND, KINDS, MeasurementModel, measurement_kind
 from tracker.models.motion import CoordinatedTurn
 from tracker.models.sensors import Sensor, SensorSpec
 
@@ -82,6 +82,12 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``[sensors.NAME]`` tables: pose, field of view and noise of the sensor whose frames
     carry ``sensor = NAME`` (:mod:`tracker.models.sensors`).  A sensor without a table is
     the default one: at the origin, boresight +y, the set's field of view and noise."""
+
+    def __post_init__(self) -> None:
+        for name, spec in self.sensors.items():  # at load, not at the sensor's first frame
+            if spec.kind is not None and spec.kind not in KINDS:
+                raise ValueError(f"[sensors.{name}] kind = {spec.kind!r} is not a measurement kind "
+                                 f"(known: {', '.join(KINDS)})")
 
     # --- model factories -------------------------------------------------------------
     @property

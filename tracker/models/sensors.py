@@ -27,7 +27,9 @@ class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """One ``[sensors.NAME]`` table of a parameter file (every field optional)."""
 
     kind: str | None = None
-    """``bearing_range``, ``range`` or ``xy``: frames of this sensor must have this kind."""
+    """A kind of the registry (:data:`~tracker.models.measurement.KINDS`: ``bearing_range``,
+    ``range``, ``xy``, ...): frames of this sensor must have this kind.  Checked when the
+    parameter file loads (:class:`~tracker.models.params.ModelParams`)."""
     x: float = 0.0
     y: float = 0.0
     heading_deg: float = 0.0
