@@ -97,8 +97,9 @@ class SinkStage(StageBase):
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
         built: list[tuple[str, Sink]] = []
+        params = self._params(meta)
         for name, path in self.sink_cfg.paths(out).items():
-            sink = self._make_sink(name, path, meta)
+            sink = self._make_sink(name, path, params)
             if sink is not None:
                 built.append((str(path), sink))
         self.sinks = SinkSet([sink for _, sink in built])
@@ -109,11 +110,11 @@ class SinkStage(StageBase):
         self.bus.declare_alive("ready")
         return True
 
-    def _make_sink(self, name: str, path: Path, meta: dict[str, str] | None) -> Sink | None:
+    def _make_sink(self, name: str, path: Path, params: Any) -> Sink | None:
         """The sink ``name`` of :data:`sinks.sink.SINKS` writing ``path``'s ``.part`` file
         (``None``: an optional sink that cannot be built here, e.g. without rerun-sdk)."""
         entry = SINKS[name]
-        options = SinkOptions(part_path(path), params=self._params(meta), run_id=self.run_id,
+        options = SinkOptions(part_path(path), params=params, run_id=self.run_id,
                               live=self.sink_cfg.view_url or None)
         try:
             sink = make_sink(name, options)
