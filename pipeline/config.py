@@ -21,7 +21,7 @@ import os
 import re
 import secrets
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -37,6 +37,7 @@ __all__ = [
     "SourceConfig",
     "TrackerStageConfig",
     "SinkConfig",
+    "sink_outputs",
     "DeliveryConfig",
     "SupervisorConfig",
     "PipelineConfig",
@@ -215,7 +216,9 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (``rerun+http://HOST:PORT/proxy``) that ``run.rrd``'s rows are streamed to as well
     (``launch --view`` / ``--connect URL``).  ``score``: score the frames that carry truth (OSPA,
     OSPA(2), cardinality error: the progress lines and ``sink.json`` ``scores``; its cost per frame
-    is measured in docs/pipeline.md); the Rerun sink's plots need it too."""
+    is measured in docs/pipeline.md); the Rerun sink's plots need it too.
+    ``outputs``: more sinks of :data:`sinks.sink.SINKS` by name, each written to its entry's
+    ``filename`` in the output directory (:func:`sink_outputs` picks the sinks)."""
 
     mcap: bool = True
     rerun: bool = True
@@ -224,6 +227,39 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     rrd_name: str = "run.rrd"
     view_url: str = ""
     score: bool = True
+    outputs: list[str] = msgspec.field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        from sinks.sink import check_sink_names
+
+        check_sink_names(self.outputs, "sink.outputs")
+
+    def paths(self, out: Path) -> dict[str, Path]:
+        """The sinks this section records to in the output directory ``out``, with their files."""
+        from sinks.sink import SINKS
+
+        return sink_outputs(out / self.mcap_name if self.mcap else None,
+                            out / self.rrd_name if self.rerun else None,
+                            self.outputs, lambda name: out / SINKS[name].filename)
+
+
+def sink_outputs(mcap: Path | None, rerun: Path | None, extra: Sequence[str],
+                 place: Callable[[str], Path]) -> dict[str, Path]:
+    """The sinks a run records to (names of :data:`sinks.sink.SINKS`, in order) and their
+    files: the one place where the options choose them, for the pipeline's sink stage
+    (:meth:`SinkConfig.paths`) and ``bnptrack track``.  ``mcap`` (``sink.mcap`` /
+    ``--out``): the MCAP log; ``rerun`` (``sink.rerun`` / ``--rrd`` / ``--view`` /
+    ``--connect``): the Rerun recording; ``extra`` (``sink.outputs`` / ``--sink NAME``, names
+    checked at the edge by :func:`sinks.sink.check_sink_names`): more sinks, each written to
+    ``place(name)``."""
+    chosen: dict[str, Path] = {}
+    if mcap is not None:
+        chosen["mcap"] = Path(mcap)
+    if rerun is not None:
+        chosen["rerun"] = Path(rerun)
+    for name in extra:
+        chosen.setdefault(name, place(name))
+    return chosen
 
 
 class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
+from pipeline.ports import free_port
 from tracker.config import ConfigError
 
 __all__ = ["Viewer", "viewer_url", "is_viewer_url", "check_viewer", "spawn_viewer"]
@@ -86,12 +87,6 @@ def check_viewer(url: str, timeout: float = 2.0) -> str:
     return url
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _listening(port: int) -> bool:
     try:
         with socket.create_connection(("127.0.0.1", port), timeout=0.2):
@@ -108,7 +103,7 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
     ``DISPLAY`` / ``WAYLAND_DISPLAY``) or the viewer exits or does not listen in ``timeout``
     seconds.  Its output goes to a log file in the temporary directory (named in errors).
     """
-    from pipeline.view import ViewerUnavailable, _unavailable
+    from pipeline.view import ViewerUnavailable, viewer_failure
     from sinks.rerun_tools import RerunToolError, rerun_cli, rerun_env
 
     if headless is None:
@@ -124,7 +119,7 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
         cli = rerun_cli()
     except RerunToolError as exc:
         raise ViewerUnavailable(str(exc)) from exc
-    port = _free_port()
+    port = free_port()
     cmd = [*cli, "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
     if headless:
         cmd.append("--headless")
@@ -136,7 +131,7 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
     deadline = time.monotonic() + timeout
     while not _listening(port):
         if proc.poll() is not None:
-            raise _unavailable(log, f"the Rerun viewer exited at start (code {proc.returncode}; log {log})")
+            raise viewer_failure(log, f"the Rerun viewer exited at start (code {proc.returncode}; log {log})")
         if time.monotonic() > deadline:
             proc.terminate()
             raise ViewerUnavailable(f"the Rerun viewer did not listen on port {port} within {timeout:g} s "

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,6 +23,7 @@ from sinks.crossings import CrossingResult
 from sinks.metrics import OspaResult
 from sinks.metrics import OSPA_C, OSPA_P, RunScorer
 from sinks.mcap_writer import McapLogWriter
+from sinks.sink import Sink, SinkOptions, SinkRecord, SinkSet, make_sink
 from sources.mcap_log import McapLogError, iter_frames
 from sources.scenarios import OpenScenario, parse_crossings
 from sources.synthetic import simulate, simulate_sensors
@@ -46,6 +47,9 @@ __all__ = [
     "track_frames",
     "score_crossings",
     "track_log",
+    "track_to_sinks",
+    "open_sinks",
+    "check_outputs",
     "default_tracks_path",
     "check_output_path",
 ]
@@ -316,34 +320,70 @@ def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
         raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
 
 
+def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
+    """Refuse outputs (sink name -> file) that overwrite the input log or one another."""
+    seen: dict[Path, str] = {}
+    for name, path in outputs.items():
+        check_output_path(log, path)
+        other = seen.setdefault(Path(path).resolve(), name)
+        if other != name:
+            raise ValueError(f"{path}: the {name} output would overwrite the {other} output")
+
+
+def open_sinks(outputs: Mapping[str, Path], options: SinkOptions) -> SinkSet:
+    """The sinks of :data:`sinks.sink.SINKS` named by ``outputs`` (name -> file; see
+    :func:`pipeline.config.sink_outputs`), each built with ``options`` for its file (not
+    opened yet: a sink may start work at once, e.g. the Rerun sink's child process)."""
+    built: list[Sink] = []
+    try:
+        for name, path in outputs.items():
+            built.append(make_sink(name, replace(options, path=Path(path))))
+    except BaseException:
+        SinkSet(built).close()
+        raise
+    return SinkSet(built)
+
+
+def track_to_sinks(
+    log: str | os.PathLike,
+    sinks: SinkSet,
+    tracker: Tracker,
+    seed: int,
+    metadata: Mapping[str, str] | None,
+    bounds: FrameBounds | None = None,
+    topic_map: Mapping[str, str] | None = None,
+) -> TrackResult:
+    """Track the frames of an MCAP log and record each frame, its estimate and its scores
+    (:class:`sinks.metrics.RunScorer`, as :attr:`TrackResult.frames` holds them) to ``sinks``,
+    opened with ``metadata`` and closed here (the files are complete when this returns).
+    The record's ``crossings`` (a generated ``random`` scene) are scored
+    (:attr:`TrackResult.crossings`).
+
+    A damaged input is processed up to its readable end (a frame beyond ``bounds`` ends it
+    too); the outputs then hold that prefix and :attr:`TrackResult.error` holds the error.
+    """
+
+    def write(frame: Frame, est: Estimate, metrics: FrameMetrics) -> None:
+        sinks.write(SinkRecord(frame, est, {"ospa": metrics.ospa_result, "ospa2": metrics.ospa2}))
+
+    with sinks:
+        sinks.open(metadata)
+        crossings = parse_crossings((metadata or {}).get("crossings"))
+        return track_frames(tracker, iter_frames(Path(log), dict(topic_map or {})), seed, write, crossings, bounds)
+
+
 def track_log(
     log: str | os.PathLike,
     out: str | os.PathLike,
     tracker: Tracker,
     seed: int,
     metadata: Mapping[str, str] | None,
-    on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
     bounds: FrameBounds | None = None,
     topic_map: Mapping[str, str] | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log and write ``out``: the input frames (with truth) and
-    ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record.  ``on_estimate`` is
-    called after each frame is written (e.g. a Rerun sink).  The record's ``crossings``
-    (a generated ``random`` scene) are scored (:attr:`TrackResult.crossings`).
-
-    A damaged input is processed up to its readable end (a frame beyond ``bounds`` ends it
-    too); the output then holds that prefix and :attr:`TrackResult.error` holds the error.
-    """
-    log, out = Path(log), Path(out)
+    ``/tracks``, with ``metadata`` as its ``bnptrack.scenario`` record (the ``mcap`` sink of
+    :func:`track_to_sinks`)."""
     check_output_path(log, out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with McapLogWriter(out, dict(metadata) if metadata is not None else None) as writer:
-
-        def write(frame: Frame, est: Estimate, metrics: FrameMetrics) -> None:
-            writer.write_frame(frame)
-            writer.write_tracks(est)
-            if on_estimate is not None:
-                on_estimate(frame, est, metrics)
-
-        crossings = parse_crossings((metadata or {}).get("crossings"))
-        return track_frames(tracker, iter_frames(log, dict(topic_map or {})), seed, write, crossings, bounds)
+    return track_to_sinks(log, open_sinks({"mcap": Path(out)}, SinkOptions(Path(out))), tracker, seed,
+                          metadata, bounds, topic_map)

@@ -42,7 +42,6 @@ import logging
 import os
 import queue
 import re
-import socket
 import threading
 import time
 from collections import OrderedDict
@@ -55,6 +54,7 @@ import zenoh.ext as zext
 
 from pipeline.acl import KEY_ROOT, acl_config
 from pipeline.config import DeliveryConfig, ZenohConfig
+from pipeline.ports import free_port
 from pipeline.preflight import listening
 from pipeline.events import Event
 
@@ -65,7 +65,6 @@ __all__ = [
     "Bus",
     "Router",
     "key",
-    "free_port",
     "session_config",
     "TransportError",
 ]
@@ -99,13 +98,6 @@ class NoRouterError(TransportError):
 def key(run: str, topic: str) -> str:
     """``bnptrack/<run>/<topic>``."""
     return f"{KEY_ROOT}/{run}/{topic}"
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port that was free a moment ago on ``host``."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 def _resolve_port0(endpoints: Sequence[str]) -> list[str]:

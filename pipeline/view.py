@@ -11,8 +11,8 @@ Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
   frame (``--frame``, default: the last one), waits for the load to finish and saves a PNG of the
   whole viewer through the viewer's control API (``rerun.experimental.ViewerClient``).  The
   viewer listens on a free port of 127.0.0.1 only and is stopped afterwards.
-* :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run
-  (``bnptrack track --rrd``), written by a child process (:mod:`sinks.rerun_process`).
+* :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run,
+  written by a child process (:mod:`sinks.rerun_process`) behind the ``rerun`` sink.
 
 Subprocesses run with :func:`sinks.rerun_tools.rerun_env`: the CLI's analytics off (``CI`` set)
 and its log quiet, except the interactive viewer of :func:`open_viewer`, which keeps the user's
@@ -22,7 +22,6 @@ own ``rerun analytics`` choice.
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -30,14 +29,15 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from pipeline.ports import free_port
+
 if TYPE_CHECKING:
     from pipeline.offline import TrackResult
-    from sinks.rerun_process import RecordingProcess
     from tracker.registry import Tracker
     from tracker.models.params import ModelParams
     from tracker.types import FrameBounds
 
-__all__ = ["ViewerUnavailable", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
+__all__ = ["ViewerUnavailable", "viewer_failure", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
 
 #: What a machine without a usable renderer needs (Debian/Ubuntu).
 RENDERER_HINT = (
@@ -88,12 +88,6 @@ def open_viewer(path: str | os.PathLike, *, web: bool = False,
         raise ViewerUnavailable(f"cannot run `{cmd[0]}`: {exc}") from exc
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _tail(path: Path, n: int = 2000) -> str:
     try:
         return path.read_text(errors="replace")[-n:].strip()
@@ -101,7 +95,9 @@ def _tail(path: Path, n: int = 2000) -> str:
         return ""
 
 
-def _unavailable(log: Path, why: str) -> ViewerUnavailable:
+def viewer_failure(log: Path, why: str) -> ViewerUnavailable:
+    """The :class:`ViewerUnavailable` for a viewer that failed (``why``), with what its log
+    ``log`` says (the renderer hint when it is a missing renderer)."""
     out = _tail(log, 20000)
     lines = [ln.strip() for ln in out.splitlines()]
     key = [ln for ln in lines if ("panicked" in ln or "error" in ln.lower())
@@ -141,7 +137,7 @@ def screenshot(
     client_cls = _viewer_client_class()
     cli = _cli()
     deadline = time.monotonic() + timeout
-    port = _free_port()
+    port = free_port()
     with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp:
         log = Path(tmp) / "viewer.log"
         proc = _start_headless(cli, port, (width, height), log)
@@ -241,7 +237,7 @@ def _capture(client: Any, proc: subprocess.Popen, deadline: float, log: Path, ti
 
 def _call(fn: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
     if proc.poll() is not None:
-        raise _unavailable(log, f"the headless viewer exited (code {proc.returncode})")
+        raise viewer_failure(log, f"the headless viewer exited (code {proc.returncode})")
     if time.monotonic() > deadline:
         raise TimeoutError("the headless viewer did not answer in time")
     try:
@@ -251,7 +247,7 @@ def _call(fn: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
             proc.wait(timeout=3)
         except subprocess.TimeoutExpired:
             raise exc from None
-        raise _unavailable(log, f"the headless viewer exited (code {proc.returncode})") from exc
+        raise viewer_failure(log, f"the headless viewer exited (code {proc.returncode})") from exc
 
 
 def _connect(client_cls: Any, proc: subprocess.Popen, port: int, deadline: float, log: Path) -> Any:
@@ -259,7 +255,7 @@ def _connect(client_cls: Any, proc: subprocess.Popen, port: int, deadline: float
     last: Exception | None = None
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise _unavailable(log, f"the headless viewer exited at start (code {proc.returncode})")
+            raise viewer_failure(log, f"the headless viewer exited at start (code {proc.returncode})")
         try:
             client = client_cls(url)
             client.get_state()
@@ -315,32 +311,19 @@ def track_log_with_rrd(
     metadata: Mapping[str, str] | None,
     *,
     params: ModelParams | None = None,
-    recorder: RecordingProcess | None = None,
     bounds: FrameBounds | None = None,
     live: str | None = None,
 ) -> TrackResult:
     """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``
-    (and streams it to the viewer at the gRPC URL ``live``, when given: ``track --view``).
+    (and streams it to the viewer at the gRPC URL ``live``, when given): the ``mcap`` and
+    ``rerun`` sinks of :func:`pipeline.offline.track_to_sinks`, the recording written by a
+    child process (:class:`sinks.rerun_process.ProcessRecordSink`) with ``metadata`` plus
+    ``source_log``, each frame drawn with the scores of :attr:`TrackResult.frames`.  The
+    recording is complete when this returns."""
+    from pipeline.offline import check_outputs, open_sinks, track_to_sinks
+    from sinks.sink import SinkOptions
 
-    Each frame is scored (:class:`sinks.metrics.RunScorer`: OSPA c=100 m, p=1 and OSPA(2)
-    over 10 frames, when the log has truth) and logged to a :class:`sinks.rerun_sink.RerunSink`
-    with ``metadata`` (plus ``source_log``).  Both run in a child process
-    (:class:`sinks.rerun_process.RecordingProcess`; pass ``recorder`` to have it started early,
-    e.g. before building the tracker, so its imports overlap the tracker's), which logs one
-    frame while the tracker computes the next.  Like ``track_log``, a damaged input is
-    processed up to its readable end; both outputs then hold that prefix (the recording is
-    finalised).  The recording is complete when this returns.
-    """
-    from pipeline.offline import check_output_path, track_log
-    from sinks.rerun_process import RecordingProcess
-
-    log, out, rrd = Path(log), Path(out), Path(rrd)
-    with recorder if recorder is not None else RecordingProcess() as rec:
-        check_output_path(log, rrd)
-        if rrd.resolve() == out.resolve():
-            raise ValueError(f"--rrd {rrd}: the recording would overwrite the --out file")
-        kw = {"live": live} if live else {}
-        rec.open(rrd, metadata={**dict(metadata or {}), "source_log": str(log)}, params=params, **kw)
-        return track_log(log, out, tracker, seed, metadata,
-                         on_estimate=lambda f, e, m: rec.log(f, e, ospa_result=m.ospa_result),
-                         bounds=bounds)
+    outputs = {"mcap": Path(out), "rerun": Path(rrd)}
+    check_outputs(log, outputs)
+    options = SinkOptions(Path(out), params=params, live=live, process=True, source=str(log))
+    return track_to_sinks(log, open_sinks(outputs, options), tracker, seed, metadata, bounds)

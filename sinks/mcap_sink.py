@@ -37,7 +37,8 @@ class McapSink:
             if p.measurements is not None:
                 w.write_encoded_frame(p.measurements, p.truth, p.stamp_ns, p.frame)
             if p.tracks is not None:
-                w.write_encoded_tracks(p.tracks, p.stamp_ns, p.frame)
+                w.write_encoded_tracks(p.tracks, p.stamp_ns if p.tracks_stamp_ns is None else p.tracks_stamp_ns,
+                                       p.frame)
             return
         if record.frame is not None:
             w.write_frame(record.frame)

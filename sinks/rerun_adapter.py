@@ -1,16 +1,28 @@
 """The Rerun recording as a :class:`sinks.sink.Sink` (the ``rerun`` entry of
-:data:`sinks.sink.SINKS`): :class:`RerunRecordSink` opens a :class:`sinks.rerun_sink.RerunSink`
-and logs each record that has an estimate, scored by the caller or here."""
+:data:`sinks.sink.SINKS`): :func:`rerun_sink` gives a :class:`RerunRecordSink`, which opens a
+:class:`sinks.rerun_sink.RerunSink` in this process and logs each record that has an
+estimate, scored by the caller or here, or with ``SinkOptions.process`` a
+:class:`sinks.rerun_process.ProcessRecordSink` (the same recording written by a child
+process).  This module imports rerun only when a :class:`RerunRecordSink` opens."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from sinks.metrics import RunScorer
-from sinks.rerun_sink import RerunSink
-from sinks.sink import SinkOptions, SinkRecord
+from sinks.sink import Sink, SinkOptions, SinkRecord
 
-__all__ = ["RerunRecordSink"]
+__all__ = ["RerunRecordSink", "rerun_sink"]
+
+
+def rerun_sink(options: SinkOptions) -> Sink:
+    """The Rerun sink for ``options``: in a child process when ``options.process``."""
+    if options.process:
+        from sinks.rerun_process import ProcessRecordSink
+
+        return ProcessRecordSink(options)
+    return RerunRecordSink(options)
 
 
 class RerunRecordSink:
@@ -21,12 +33,17 @@ class RerunRecordSink:
 
     def __init__(self, options: SinkOptions) -> None:
         self.options = options
-        self.sink: RerunSink | None = None
+        self.sink: Any = None
         self._scorer = RunScorer()
 
     def open(self, metadata: Mapping[str, str] | None) -> None:
-        o = self.options
-        self.sink = RerunSink(o.path, recording_id=o.run_id, metadata=metadata or {}, params=o.params,
+        from sinks.rerun_sink import RerunSink  # imports rerun
+
+        o = self.options.now()
+        meta = dict(metadata or {})
+        if o.source is not None:
+            meta["source_log"] = o.source
+        self.sink = RerunSink(o.path, recording_id=o.run_id, metadata=meta, params=o.params,
                               handle_signals=o.handle_signals, live=o.live)
 
     def write(self, record: SinkRecord) -> None:

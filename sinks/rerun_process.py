@@ -56,13 +56,14 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 
 from sinks.metrics import RunScorer
+from sinks.sink import SinkOptions, SinkRecord
 
 if TYPE_CHECKING:
     from sinks.metrics import OspaResult
     from tracker.models.params import ModelParams
     from tracker.types import Estimate, Frame
 
-__all__ = ["RecordingProcess", "RecordingError", "CHILD_FLUSH_INTERVAL", "fork_allowed", "child_main",
+__all__ = ["RecordingProcess", "RecordingError", "ProcessRecordSink", "CHILD_FLUSH_INTERVAL", "fork_allowed", "child_main",
            "child_entry"]
 
 #: ``RerunSink.flush_interval`` of the child (s), unless ``open`` is given another.
@@ -250,13 +251,18 @@ class RecordingProcess:
         sink_kwargs.setdefault("flush_interval", CHILD_FLUSH_INTERVAL)
         self._put(("open", os.fspath(path), dict(metadata or {}), params, sink_kwargs))
 
-    def log(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> None:
+    def log(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None,
+            scores: Mapping[str, Any] | None = None) -> None:
         """Score one frame and hand it, its estimate and the scores to the child (pickled now:
         later changes to the objects do not reach the recording).  ``ospa_result``: the frame's OSPA
-        if the caller has computed it already (see :meth:`RunScorer.update`)."""
+        if the caller has computed it already (see :meth:`RunScorer.update`); ``scores``: the
+        frame's whole :meth:`RunScorer.update` result when the caller has scored the run (not
+        scored again here)."""
         if self.path is None:
             raise RuntimeError("RecordingProcess.log before open")
-        self._put(("frame", frame, estimate, self._scorer.update(frame, estimate, ospa_result)))
+        if scores is None:
+            scores = self._scorer.update(frame, estimate, ospa_result)
+        self._put(("frame", frame, estimate, {"ospa": scores.get("ospa"), "ospa2": scores.get("ospa2")}))
 
     def close(self) -> None:
         """End the input and wait until the child reports the file complete; raises
@@ -329,6 +335,33 @@ class RecordingProcess:
         self._stderr.close()
         target = f" writing {self.path}" if self.path is not None else ""
         return f"the Rerun recording process{target} {what}" + (f": {tail}" if tail else "")
+
+
+class ProcessRecordSink:
+    """The Rerun recording as a :class:`sinks.sink.Sink` written by a :class:`RecordingProcess`
+    (the ``rerun`` entry of :data:`sinks.sink.SINKS` with ``SinkOptions.process``: ``bnptrack
+    track --rrd``).  Building it starts the child, so that its imports overlap the caller's
+    (build it before the tracker).  Records without frame or estimate draw nothing; their
+    ``scores``, when given, are drawn as they are (else the frame is scored here)."""
+
+    def __init__(self, options: SinkOptions) -> None:
+        self.options = options
+        self.recorder = RecordingProcess()
+
+    def open(self, metadata: Mapping[str, str] | None) -> None:
+        o = self.options.now()
+        meta = dict(metadata or {})
+        if o.source is not None:
+            meta["source_log"] = o.source
+        kw = {"live": o.live} if o.live else {}
+        self.recorder.open(o.path, metadata=meta, params=o.params, **kw)
+
+    def write(self, record: SinkRecord) -> None:
+        if record.frame is not None and record.estimate is not None:
+            self.recorder.log(record.frame, record.estimate, scores=record.scores)
+
+    def close(self) -> None:
+        self.recorder.close()
 
 
 # --------------------------------------------------------------------------- the child

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from tracker.types import Estimate, Frame
 
 __all__ = ["Sink", "SinkRecord", "Payloads", "SinkOptions", "SinkEntry", "SINKS", "make_sink", "SinkSet",
-           "UnknownSink"]
+           "UnknownSink", "check_sink_names"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,13 +32,15 @@ class Payloads:
     """A frame's messages as the codec's bytes (``tracker.messages``), as
     received and validated: a sink that stores messages writes them as they are, without
     decoding to numpy and encoding again (the pipeline's sink stage).  ``truth`` / ``tracks``
-    are ``None`` when the frame has none."""
+    are ``None`` when the frame has none; ``tracks_stamp_ns``: the ``/tracks`` message's own
+    stamp when it is not ``stamp_ns``."""
 
     stamp_ns: int
     frame: int
     measurements: bytes | None
     truth: bytes | None = None
     tracks: bytes | None = None
+    tracks_stamp_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,27 +83,46 @@ class Sink(Protocol):
 class SinkOptions:
     """Where and how a sink writes: ``path`` (its file), ``params`` (the run's
     :class:`tracker.models.params.ModelParams`, for a sink that draws the sensor's field of
-    view), ``run_id`` (the recording id), ``live`` (a Rerun viewer URL to stream to as well),
-    ``handle_signals`` (finish the file at SIGTERM/SIGINT; main thread only)."""
+    view), ``run_id`` (the recording id), ``live`` (a Rerun viewer URL to stream to as well;
+    ``params`` and ``live`` may be callables that give them at ``open``: :meth:`now`),
+    ``handle_signals`` (finish the file at SIGTERM/SIGINT; main thread only), ``process``
+    (write in a child process, off the caller's critical path, when the sink can: the Rerun
+    sink, :mod:`sinks.rerun_process`; its construction then starts the child), ``source``
+    (the input log the run reads, for a sink that notes it: the Rerun recording's
+    ``source_log``)."""
 
     path: Path
     params: Any = None
     run_id: str | None = None
-    live: str | None = None
+    live: Any = None
     handle_signals: bool = False
+    process: bool = False
+    source: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))
+
+    def now(self) -> SinkOptions:
+        """These options with ``params`` and ``live`` called when they are callables (a caller
+        that builds its sinks before it knows them: a sink calls this in ``open``)."""
+        late = {k: v() for k in ("params", "live") if callable(v := getattr(self, k))}
+        return replace(self, **late) if late else self
 
 
 @dataclass(frozen=True)
 class SinkEntry:
     """A row of :data:`SINKS`: the factory (``"module:attribute"``, imported on use, or the
     callable itself) that takes :class:`SinkOptions` and returns a :class:`Sink`; what it
-    writes."""
+    writes; ``filename``: its file in a run's output directory (the pipeline's sink stage;
+    ``bnptrack track`` writes it next to ``--out`` with this suffix); ``required``: a failure
+    of the sink fails the run (else the pipeline's sink stage logs it and goes on without it)."""
 
     factory: str | Callable[[SinkOptions], Sink]
     writes: str = field(default="")
+    filename: str = "run.out"
+    required: bool = True
+    imports: tuple[str, ...] = ()
+    """Modules worth importing before a run starts (slow imports), when the sink is used."""
 
     def load(self) -> Callable[[SinkOptions], Sink]:
         if callable(self.factory):
@@ -119,9 +140,22 @@ class UnknownSink(KeyError):
 
 #: The sinks by name.
 SINKS: dict[str, SinkEntry] = {
-    "mcap": SinkEntry("sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)"),
-    "rerun": SinkEntry("sinks.rerun_adapter:RerunRecordSink", "a Rerun recording (run.rrd; needs rerun-sdk)"),
+    "mcap": SinkEntry("sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
+                      "tracks.mcap"),
+    "rerun": SinkEntry("sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
+                       "run.rrd", required=False, imports=("sinks.rerun_sink",)),
 }
+
+
+def check_sink_names(names: Sequence[str], key: str, table: Mapping[str, SinkEntry] | None = None) -> None:
+    """Raise :class:`ValueError` (one line naming ``key`` and the known sinks) unless every
+    name in ``names`` is in ``table`` (default :data:`SINKS`) once."""
+    table = SINKS if table is None else table
+    for name in names:
+        if name not in table:
+            raise ValueError(f"{key}: unknown sink {name!r} (known: {', '.join(sorted(table))})")
+    if len(set(names)) != len(names):
+        raise ValueError(f"{key}: {list(names)!r} names a sink twice")
 
 
 def make_sink(name: str, options: SinkOptions, table: Mapping[str, SinkEntry] | None = None) -> Sink:
@@ -139,14 +173,17 @@ class SinkSet:
     """Several sinks fed in order: ``open`` opens them in order (one that fails closes those
     already open, in reverse order, and the error propagates), ``write`` gives each record to
     each sink in order, ``close`` closes all of them in reverse order even when one fails (the
-    first error propagates after all were tried).  Use as a context manager."""
+    first error propagates after all were tried; a set never opened closes every sink).  Use
+    as a context manager."""
 
     def __init__(self, sinks: Sequence[Sink]) -> None:
         self.sinks = list(sinks)
         self._opened: list[Sink] = []
+        self._opening = False
         self._closed = False
 
     def open(self, metadata: Mapping[str, str] | None) -> None:
+        self._opening = True
         for sink in self.sinks:
             try:
                 sink.open(metadata)
@@ -164,7 +201,9 @@ class SinkSet:
             return
         self._closed = True
         first: BaseException | None = None
-        for sink in reversed(self._opened):
+        # a set never opened closes all its sinks (what they hold from their construction,
+        # e.g. a started child process, is released)
+        for sink in reversed(self._opened if self._opening else self.sinks):
             try:
                 sink.close()
             except BaseException as exc:  # close the others all the same

@@ -27,9 +27,11 @@ from pipeline.cli.common import (
     topic_map,
     tracker_help,
 )
-from pipeline.offline import OSPA_C, OSPA_P, TrackResult, check_output_path, default_tracks_path, track_log
+from pipeline.config import sink_outputs
+from pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
+                              open_sinks, track_to_sinks)
 from pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
-from sinks.rerun_process import RecordingProcess
+from sinks.sink import SINKS, SinkOptions, SinkSet, check_sink_names
 from sources.mcap_log import read_metadata
 from sources.scenarios import OpenScenario, open_scenario, scenario_names
 from tracker.models.params import BUILTIN_PARAMS
@@ -44,6 +46,14 @@ _SET_HELP_SIM = (
     "generated scenario (random, random-cv), e.g. --set scene.n_objects=25 "
     "--set scene.crossing_pairs=3 (docs/models.md). Repeatable."
 )
+
+
+def _check_sinks(ctx: click.Context, param: click.Parameter, names: tuple[str, ...]) -> tuple[str, ...]:
+    try:
+        check_sink_names(names, "--sink")
+    except ValueError as exc:
+        raise click.BadParameter(str(exc).removeprefix("--sink: ")) from None
+    return names
 
 
 # --------------------------------------------------------------------------- simulate
@@ -214,6 +224,10 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 @click.option("--view", is_flag=True, help=VIEW_HELP + " Writes --rrd (default: the --out "
               "file with the suffix .rrd).")
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@click.option("--sink", "sink_names", multiple=True, metavar="NAME", callback=_check_sinks,
+              help="Also record to the sink NAME of the table of sinks (sinks/sink.py), next to --out "
+              "with its file suffix; mcap (--out) and rerun (--rrd) are chosen by their own options. "
+              "Repeatable.")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @clean_errors
 def track(
@@ -230,6 +244,7 @@ def track(
     topics: tuple[str, ...],
     view: bool,
     view_connect: str | None,
+    sink_names: tuple[str, ...],
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -252,7 +267,9 @@ def track(
     """
     from tracker.types import FrameBounds
 
-    io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect)
+    io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
+                       sink_names)
+    io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
@@ -270,21 +287,28 @@ def track(
 
 
 class _TrackIO:
-    """What ``track`` reads and writes: the log, its channel mapping, the output, and the
-    Rerun recording (``--rrd``; ``--view`` / ``--connect`` stream it live)."""
+    """What ``track`` reads and writes: the log, its channel mapping, and the sinks the
+    options choose (:func:`pipeline.config.sink_outputs`: ``--out`` the MCAP log, ``--rrd``
+    the Rerun recording, ``--view`` / ``--connect`` streaming it live, ``--sink NAME`` more
+    entries of :data:`sinks.sink.SINKS` next to ``--out``)."""
 
-    def __init__(self, log: Path, out: Path, rrd: Path | None, topics: dict[str, str],
-                 live: str | None, recorder: RecordingProcess | None) -> None:
-        self.log, self.out, self.rrd, self.topics = log, out, rrd, topics
-        self.live, self.recorder = live, recorder
+    def __init__(self, log: Path, outputs: dict[str, Path], topics: dict[str, str], live: str | None) -> None:
+        self.log, self.outputs, self.topics, self.live = log, outputs, topics, live
+        self.params = None
+        self.sinks: SinkSet | None = None
+
+    @property
+    def out(self) -> Path:
+        return self.outputs["mcap"]
+
+    @property
+    def rrd(self) -> Path | None:
+        return self.outputs.get("rerun")
 
     @classmethod
     def open(cls, log: Path, out: Path, rrd: Path | None, topics: tuple[str, ...], view: bool,
-             view_connect: str | None) -> _TrackIO:
-        """Check the options; with a recording, start its process first, so that its imports
-        (rerun) run on the other core beside the tracker's (:mod:`sinks.rerun_process`); the
-        command's context closes it at the end whatever happens (``track_log_with_rrd``
-        closes it first, normally)."""
+             view_connect: str | None, extra: tuple[str, ...]) -> _TrackIO:
+        """Check the options and choose the sinks."""
         mapping = topic_map(topics)
         if mapping and rrd is not None:
             raise CliError("--topic cannot be combined with --rrd yet: track first, then `bnptrack view` the output")
@@ -292,21 +316,26 @@ class _TrackIO:
         live = live_view(view, view_connect)
         if live is not None and rrd is None:
             rrd = out.with_suffix(".rrd")
-        recorder = None
-        if rrd is not None:
-            recorder = click.get_current_context().with_resource(RecordingProcess())
-        return cls(log, out, rrd, mapping, live, recorder)
+        outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
+        return cls(log, outputs, mapping, live)
+
+    def build(self) -> None:
+        """Build the sinks now, before the tracker: a sink that starts work at once does it
+        beside the tracker's imports (the Rerun recording's child process imports rerun on the
+        other core, :mod:`sinks.rerun_process`).  The command's context closes them at the
+        end whatever happens (:meth:`run` closes them first, normally)."""
+        options = SinkOptions(self.out, params=lambda: self.params, live=self._live_url, process=True,
+                              source=str(self.log))
+        self.sinks = click.get_current_context().with_resource(open_sinks(self.outputs, options))
+
+    def _live_url(self) -> str | None:
+        return open_live(self.live) if self.live is not None else None
 
     def run(self, setup: TrackerSetup, seed: int, bounds) -> TrackResult:
-        """Track the log with ``setup``'s tracker and write the output (and the recording)."""
-        if self.rrd is None:
-            return track_log(self.log, self.out, setup.tracker, seed, setup.metadata, bounds=bounds,
-                             topic_map=self.topics)
-        from pipeline.view import track_log_with_rrd
-
-        live_url = open_live(self.live) if self.live is not None else None
-        return track_log_with_rrd(self.log, self.out, self.rrd, setup.tracker, seed, setup.metadata,
-                                  params=setup.params, recorder=self.recorder, bounds=bounds, live=live_url)
+        """Track the log with ``setup``'s tracker and record it to the sinks."""
+        check_outputs(self.log, self.outputs)
+        self.params = setup.params
+        return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics)
 
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,

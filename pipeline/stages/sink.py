@@ -15,27 +15,22 @@ from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext,
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from tracker.types import Frame, FrameBounds
+from sinks.sink import SINKS, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
+from tracker.types import FrameBounds
 
 __all__ = ["SinkStage"]
 
 log = logging.getLogger("bnptrack.stage")
 
 
-def _rerun_sink_module():
-    """``sinks.rerun_sink`` when it is installed (with rerun-sdk), else ``None``."""
-    try:
-        import sinks.rerun_sink as mod  # type: ignore[import-not-found]
-    except ImportError:
-        return None
-    return mod
-
-
 class SinkStage(StageBase):
-    """Record the run: ``<out>/tracks.mcap`` (``/measurements``, ``/truth``, ``/tracks`` per
-    frame, in order, like ``bnptrack track``), ``<out>/run.rrd`` when the Rerun sink is
-    available, and ``<out>/sink.json`` (counts, gaps, latency).  Duplicate frames (e.g.
-    ``/tracks`` re-published by a restarted tracker) are dropped."""
+    """Record the run: each frame, in order, to the sinks the ``[sink]`` section chooses
+    (:meth:`pipeline.config.SinkConfig.paths`: ``<out>/tracks.mcap`` with ``/measurements``,
+    ``/truth``, ``/tracks`` like ``bnptrack track``; ``<out>/run.rrd`` when the Rerun sink is
+    available; more entries of :data:`sinks.sink.SINKS` by ``sink.outputs``), written as
+    ``.part`` files until the end, and ``<out>/sink.json`` (counts, gaps, latency).  A sink
+    whose entry is not ``required`` (Rerun) is dropped, logged, when it fails.  Duplicate
+    frames (e.g. ``/tracks`` re-published by a restarted tracker) are dropped."""
 
     role = "sink"
 
@@ -55,8 +50,7 @@ class SinkStage(StageBase):
         self.holes = {k: HoleWatch(FETCH_AFTER_S, self.clock.monotonic) for k in self.streams}
         self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
         self.next_write = 0
-        self.writer = None
-        self.rrd = None
+        self.sinks: SinkSet | None = None
         from sinks.metrics import RunScorer, ScoreTally
 
         self.scorer = RunScorer()
@@ -95,49 +89,54 @@ class SinkStage(StageBase):
         return True, meta
 
     def _open(self, force: bool = False) -> bool:
-        if self.writer is not None:
+        if self.sinks is not None:
             return True
         known, meta = self._metadata()
         if not known and not force:
             return False
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
-        if self.sink_cfg.mcap:
-            from sinks.mcap_writer import McapLogWriter
-
-            path = out / self.sink_cfg.mcap_name
-            self.writer = McapLogWriter(part_path(path), meta if meta is not None else {"run": self.run_id})
-            self.files.append(str(path))
-        else:
-            self.writer = _NullWriter()
-        if self.sink_cfg.rerun:
-            self._open_rrd(out / self.sink_cfg.rrd_name, meta)
+        built: list[tuple[str, Sink]] = []
+        params = self._params(meta)
+        for name, path in self.sink_cfg.paths(out).items():
+            sink = self._make_sink(name, path, params)
+            if sink is not None:
+                built.append((str(path), sink))
+        self.sinks = SinkSet([sink for _, sink in built])
+        self.files += [f for f, _ in built]  # their .part files are removed if the run is abandoned
+        self.sinks.open(meta if meta is not None else {"run": self.run_id})
+        failed = {f for f, sink in built if getattr(sink, "failed", False)}
+        self.files = [f for f in self.files if f not in failed]
         self.bus.declare_alive("ready")
         return True
 
-    def _open_rrd(self, path: Path, meta: dict[str, str] | None) -> None:
-        """Open ``run.rrd`` with ``sinks.rerun_sink.RerunSink`` when that module is present
-        (the hook: nothing else in the pipeline depends on it)."""
-        mod = _rerun_sink_module()
-        if mod is None:
-            log.info("%s: sinks.rerun_sink is not available: no %s", self.name, path.name)
-            return
-        params = None
+    def _make_sink(self, name: str, path: Path, params: Any) -> Sink | None:
+        """The sink ``name`` of :data:`sinks.sink.SINKS` writing ``path``'s ``.part`` file
+        (``None``: an optional sink that cannot be built here, e.g. without rerun-sdk)."""
+        entry = SINKS[name]
+        options = SinkOptions(part_path(path), params=params, run_id=self.run_id,
+                              live=self.sink_cfg.view_url or None)
+        try:
+            sink = make_sink(name, options)
+        except Exception as exc:
+            if entry.required:
+                raise
+            log.info("%s: the %s sink is not available (%s): no %s", self.name, name, exc, path.name)
+            return None
+        return sink if entry.required else _Optional(sink, f"{self.name}: {name} sink ({path.name})")
+
+    @staticmethod
+    def _params(meta: dict[str, str] | None) -> Any:
+        """The run's model parameters (a sink draws the sensor's field of view with them;
+        ``None``: unknown, the default field of view)."""
         try:
             from pipeline.resolve import resolve_params
             from tracker.models.params import load_params
 
             name = (meta or {}).get("tracker_params")
-            params = load_params(name) if name else resolve_params(None, meta).params
-        except Exception:  # the viewer falls back to its default field of view
-            params = None
-        try:
-            self.rrd = mod.RerunSink(part_path(path), recording_id=self.run_id, metadata=meta or {}, params=params,
-                                     handle_signals=False, live=self.sink_cfg.view_url or None)
-            self.files.append(str(path))
-        except Exception as exc:  # the recording must not die for a viewer file
-            log.error("%s: Rerun sink disabled: %s", self.name, exc)
-            self.rrd = None
+            return load_params(name) if name else resolve_params(None, meta).params
+        except Exception:
+            return None
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
         try:
@@ -146,27 +145,38 @@ class SinkStage(StageBase):
             raise StageIOError(self.name, self.ctx.out / self.sink_cfg.mcap_name, exc) from None
 
     def _write_frame(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
-        """Record frame ``s``: the payloads go into tracks.mcap as received (they were
-        validated on receipt, and they are the codec's bytes: no decoding to numpy and
-        re-encoding); the Rerun sink, when on, gets them decoded."""
+        """Record frame ``s`` to every sink: the payloads as received (they were validated on
+        receipt, and they are the codec's bytes: the MCAP log stores them without decoding to
+        numpy and re-encoding), the frame and estimate decoded, the scores."""
         has_truth = truth is not GAP and truth is not NO_TRUTH
+        has_tracks = tracks is not None and tracks is not GAP
+        frame = est = scores = None
         if meas is not GAP:
-            m = meas.msg
-            self.writer.write_encoded_frame(meas.payload, truth.payload if has_truth else None,
-                                            m.stamp_ns, m.frame)
             self.frames_written += 1
-        if tracks is not None and tracks is not GAP:
-            self.writer.write_encoded_tracks(tracks.payload, tracks.msg.stamp_ns, tracks.msg.frame)
+            frame = to_frame(meas.msg, to_truth(truth.msg) if has_truth else None)
+        if has_tracks:
             self.tracks_written += 1
             self._note_latency(s, tracks)
-        if meas is not GAP and tracks is not None and tracks is not GAP:
-            # scored always (progress, sink.json); drawn when the Rerun sink is on
-            frame = to_frame(meas.msg, to_truth(truth.msg) if has_truth else None)
             est = to_estimate(tracks.msg)
-            scores = self.scorer.update(frame, est) if self.sink_cfg.score or self.rrd is not None else _NO_SCORES
+        if frame is not None and est is not None:
+            # scored always (progress, sink.json); drawn by the Rerun sink
+            scores = self.scorer.update(frame, est) if self.sink_cfg.score or self.sink_cfg.rerun else _NO_SCORES
             self.tally.add(frame, est, scores)
-            if self.rrd is not None:
-                self._log_rrd(frame, est, scores)
+        if frame is None and est is None:  # a gap in every stream: nothing to record
+            return
+        self.sinks.write(SinkRecord(frame, est, scores, self._health_scalars(),
+                                    self._payloads(meas, truth if has_truth else None, tracks if has_tracks else None)))
+
+    @staticmethod
+    def _payloads(meas: Any, truth: Any, tracks: Any) -> Payloads:
+        """The frame's messages as received (``meas`` may be :data:`GAP`, then the tracks
+        alone are recorded with their own stamp)."""
+        m = meas.msg if meas is not GAP else tracks.msg
+        t_stamp = tracks.msg.stamp_ns if tracks is not None else None
+        return Payloads(m.stamp_ns, m.frame, meas.payload if meas is not GAP else None,
+                        truth.payload if truth is not None else None,
+                        tracks.payload if tracks is not None else None,
+                        t_stamp if t_stamp != m.stamp_ns else None)
 
     def _note_latency(self, s: int, tracks: Accepted) -> None:
         """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
@@ -185,13 +195,6 @@ class SinkStage(StageBase):
         if self.t_first_pub_ns is None:
             self.t_first_pub_ns = t_pub
 
-    def _log_rrd(self, frame: Frame, est: Any, scores: dict[str, Any]) -> None:
-        try:
-            self.rrd.log(frame, est, **scores, health=self._health_scalars())
-        except Exception as exc:
-            log.error("%s: Rerun sink failed, disabling it: %s", self.name, exc)
-            self._close_rrd()
-
     def _sink_health(self) -> dict:
         """The sink's part of its health message: what the launcher's progress line shows
         (frames written, the newest frame seen, the last frame's latency, the scores)."""
@@ -208,14 +211,6 @@ class SinkStage(StageBase):
         if self.e2e_ms:
             out["latency_ms"] = self.e2e_ms[-1]
         return {k: float(v) for k, v in out.items()}
-
-    def _close_rrd(self) -> None:
-        rrd, self.rrd = self.rrd, None
-        if rrd is not None:
-            try:
-                rrd.close()
-            except Exception as exc:
-                log.error("%s: closing the Rerun sink: %s", self.name, exc)
 
     def _drain_ready(self) -> None:
         """Write every frame for which each stream has released its item (or a gap)."""
@@ -359,13 +354,12 @@ class SinkStage(StageBase):
     def _abandon(self) -> None:
         """After a write error (disk full): close what is open, ignoring further errors, and
         remove the unfinished ``.part`` files (no temporary file is left behind)."""
-        writer, self.writer = self.writer, None
-        for close in (getattr(writer, "close", None), self._close_rrd):
-            try:
-                if close is not None:
-                    close()
-            except Exception:  # the disk is full: nothing more can be written
-                pass
+        sinks = self.sinks
+        try:
+            if sinks is not None:
+                sinks.close()
+        except Exception:  # the disk is full: nothing more can be written
+            pass
         for f in self.files:
             part_path(f).unlink(missing_ok=True)
 
@@ -377,9 +371,8 @@ class SinkStage(StageBase):
             for name, seq in self.streams.items():
                 self._release(name, seq.flush_through(top))
             self._drain_ready()
-        if self.writer is not None:
-            self.writer.close()
-        self._close_rrd()
+        if self.sinks is not None:
+            self.sinks.close()
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
         missing = self._missing()
         src = self.eos_seen.get("source")
@@ -501,8 +494,12 @@ class SinkStage(StageBase):
         warm_imports("sources.mcap_log", "pipeline.offline")
         if self.sink_cfg.score or self.sink_cfg.rerun:  # the scorer's kernels import scipy on first use
             warm_imports("scipy.spatial.distance", "scipy.optimize")
-        if self.sink_cfg.rerun:
-            _rerun_sink_module()
+        for name in self.sink_cfg.paths(self.ctx.out):
+            for module in SINKS[name].imports:
+                try:
+                    warm_imports(module)
+                except ImportError:  # that sink is left out when it opens
+                    pass
 
     def _record(self) -> bool:
         """Record until the run is complete (True) or the stage is stopped (False); the
@@ -548,7 +545,35 @@ class SinkStage(StageBase):
 _NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
 
 
-class _NullWriter:
-    def write_encoded_frame(self, *a: Any, **k: Any) -> None: ...
-    def write_encoded_tracks(self, *a: Any, **k: Any) -> None: ...
-    def close(self) -> None: ...
+class _Optional:
+    """A sink whose failure must not end the recording (an entry that is not ``required``:
+    the Rerun recording): its first error is logged and the sink is dropped (``failed``)."""
+
+    def __init__(self, sink: Sink, what: str) -> None:
+        self.sink, self.what, self.failed = sink, what, False
+
+    def _guard(self, call: Any, *args: Any) -> None:
+        if self.failed:
+            return
+        try:
+            call(*args)
+        except Exception as exc:  # a viewer file must not end the recording
+            log.error("%s failed, disabling it: %s", self.what, exc)
+            self.failed = True
+            try:
+                self.sink.close()
+            except Exception:
+                pass
+
+    def open(self, metadata: Any) -> None:
+        self._guard(self.sink.open, metadata)
+
+    def write(self, record: SinkRecord) -> None:
+        self._guard(self.sink.write, record)
+
+    def close(self) -> None:
+        if not self.failed:
+            try:
+                self.sink.close()
+            except Exception as exc:
+                log.error("%s: closing it: %s", self.what, exc)
