@@ -13,7 +13,7 @@ from pathlib import Path
 import msgspec
 
 from pipeline.membus import MemoryNetwork
-from pipeline.config import PipelineConfig, resolve_run
+from pipeline.config import PipelineConfig
 from pipeline.stages import (
     EXIT_OK,
     STAGES,
@@ -24,17 +24,13 @@ from pipeline.stages import (
     read_snapshot,
 )
 from sources.mcap_log import read_log
-from tracker.config import apply_overrides
 
-from testkit import ListSink
+from testkit import ListSink, drop_seq, mem_cfg
 from testkit import run_memory_pipeline as _run_memory_pipeline
 
 
 def _mem_cfg(tmp_path: Path, frames: int = 8) -> PipelineConfig:
-    overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
-                 "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
-                 "supervisor.linger_s=0.5"]
-    return resolve_run(apply_overrides(PipelineConfig(run="mem", out=str(tmp_path / "out")), overrides))
+    return mem_cfg(tmp_path, frames)
 
 
 def _run_stage(cfg: PipelineConfig, net: MemoryNetwork, role: str) -> int:
@@ -122,13 +118,7 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     cfg = _mem_cfg(tmp_path, frames=12)
     net = MemoryNetwork()
     net.fetchable = True
-
-    def tap(run, topic, payload, att):
-        if topic in ("measurements", "truth", "tracks") and att and json.loads(att)["seq"] in (3, 4, 5, 6):
-            return []
-        return [(payload, att)]
-
-    net.tap = tap
+    net.tap = drop_seq([3, 4, 5, 6], topics=("measurements", "truth", "tracks"))
     _memory_run(cfg, net)
     s = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
