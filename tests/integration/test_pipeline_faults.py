@@ -73,7 +73,6 @@ def _tracks(path: Path) -> list:
     return [strip(e) for e in read_log(path).tracks]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("role", ["sink", "tracker"])
 def test_a_stage_killed_just_after_the_run_was_recorded_leaves_it_complete(tmp_path, role):
     """Issue 17, failure 1 and 11: SIGKILL of the sink (or the tracker) the moment sink.json

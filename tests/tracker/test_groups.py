@@ -63,7 +63,6 @@ def _flat_block(L: int, G: int) -> Block:
                  np.zeros(2), np.eye(2))
 
 
-@pytest.mark.slow
 def test_gibbs_conditional_is_the_urn_when_likelihoods_tie():
     # one object, two transitioned clusters with v* = 2 and 3, alpha = 0.5: (2, 3, 0.5) / 5.5
     _, shares = sample_partition(np.random.default_rng(0), [_flat_block(1, 2)], np.array([2.0, 3.0]), 0.5, 0.0,
