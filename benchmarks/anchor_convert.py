@@ -1,7 +1,7 @@
 """Pure helpers shared by the Stone Soup anchors of ``benchmarks/vs_stonesoup.py``.
 
 Nothing here imports Stone Soup, so the conventions can be tested without the ``compare``
-extra (``tests/test_vs_stonesoup.py``).
+extra (``tests/benchmarks/test_vs_stonesoup.py``).
 
 Conventions
 -----------

@@ -220,7 +220,7 @@ def family_stop(work: Path) -> list[dict]:
 
 
 def family_forged(work: Path) -> list[dict]:
-    sys.path.insert(0, str(ROOT / "tests"))
+    sys.path[:0] = [str(ROOT / "tests" / "integration"), str(ROOT / "tests")]  # the test and its testkit
     from test_pipeline_faults import _forge  # the attack the tests run
 
     log = make_log(work / "vo60.mcap", 60)

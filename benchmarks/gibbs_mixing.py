@@ -1,7 +1,7 @@
 """Mixing of the frame Gibbs sampler (issue 11 item 5), old (single-site only) against new
 (single-site + pair exchanges), in the same run:
 
-1. the toy of ``tests/test_urn_gibbs.py``: two measurements at 0.29 and 0.33 compete for one
+1. the toy of ``tests/tracker/test_urn_gibbs.py``: two measurements at 0.29 and 0.33 compete for one
    cluster at 0.31; run-to-run SD of Pr(c_0 = cluster) over ``--runs`` runs of 30 sweeps
    (burn-in 5), against the exact value by enumeration;
 2. vo2017 (DDP-EMM, seeds 1..``--seeds``): per-frame split-chain R-hat (``rhat_max``) and

@@ -1,6 +1,13 @@
-"""Shared fixtures: the vo2017 parameter set and one simulated vo2017 run (seed 1)."""
+"""Shared fixtures (the vo2017 parameter set, one simulated vo2017 run, exact Estimate
+equality) and the ``integration`` marker of tests/integration/.
+
+Shared helpers that are not fixtures (``wait_until``, the ``ListSource``/``ListSink`` stage
+fakes, the in-memory pipeline runner) are in tests/testkit.py; this conftest puts tests/ on
+``sys.path`` (pytest's default ``prepend`` import mode), so test files ``import testkit``."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +15,17 @@ import pytest
 from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.models.params import load_params
+
+
+INTEGRATION_DIR = Path(__file__).resolve().parent / "integration"
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every test under tests/integration/ is marked ``integration`` (real Zenoh sessions,
+    stage processes, a live viewer)."""
+    for item in items:
+        if INTEGRATION_DIR in Path(str(item.path)).resolve().parents:
+            item.add_marker(pytest.mark.integration)
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 r"""The tracker's Gibbs weights against a forward simulation of the stated generative model.
 
-``tests/test_urn_gibbs.py`` checks the sampler against ``log_joint`` (enumeration, Geweke), so
+``tests/tracker/test_urn_gibbs.py`` checks the sampler against ``log_joint`` (enumeration, Geweke), so
 it cannot see a wrong weight in ``BnpTracker._problem``, which turns a tracker state into the
 ``GibbsProblem``.  Here the reference is a simulator of ``docs/trackers.md`` "One frame",
 step 2, written from the model statement and sharing no code with ``tracker/bnp/gibbs.py``:

@@ -14,7 +14,9 @@ import pytest
 from pipeline.cli import main
 from click.testing import CliRunner
 
-ROOT = Path(__file__).resolve().parent.parent
+from testkit import REPO_ROOT
+
+ROOT = REPO_ROOT
 
 
 def bnptrack(*args, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -122,6 +124,7 @@ def test_unknown_bare_set_key_gives_tracks_error(vo_log, tmp_path):
     assert_refused(res, out, "unknown key 'source.foo'")
 
 
+@pytest.mark.integration  # a real replay: stage processes over Zenoh
 def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     """``replay LOG --set p_detect=0.9 --set sweeps=8 --set tracker.burn_in=2`` runs the tracker
     ``track LOG`` runs with the same ``--set`` items: the same /tracks (first 6 frames)."""

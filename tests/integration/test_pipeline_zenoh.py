@@ -22,7 +22,9 @@ from pipeline.config import DeliveryConfig, ZenohConfig
 from sinks.mcap_writer import McapLogWriter
 from sources.mcap_log import iter_frames, read_log, read_metadata
 
-ROOT = Path(__file__).resolve().parent.parent
+from testkit import REPO_ROOT, wait_until
+
+ROOT = REPO_ROOT
 VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
 
 FAST = ["--set", "sink.rerun=false"]
@@ -211,12 +213,10 @@ def test_tracker_killed_and_restarted_resumes_with_identical_output(tmp_path):
 
 
 def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline and p.poll() is None, what
-        time.sleep(0.05)
+    wait_until(cond, timeout, what, interval=0.05, abort=lambda: p.poll() is not None)
 
 
+@pytest.mark.slow
 def test_tracker_then_sink_killed_still_gives_identical_output(tmp_path):
     """Double crash: the tracker is killed (and restarted), later the sink too.  The restarted
     tracker published its journal again, so the restarted sink gets every frame's tracks
@@ -259,10 +259,7 @@ def test_sigint_stops_every_stage_and_flushes_files(tmp_path):
     p = _popen("launch", "--set", "source.rate=10", "--set", "tracker.snapshot_every=10", *FAST,
                "--run", "int-1", "--out", str(out), "--timeout", "150")
     try:
-        deadline = time.monotonic() + 90
-        while not (out / "tracker.snap").exists():  # >= 10 frames through the tracker
-            assert time.monotonic() < deadline and p.poll() is None
-            time.sleep(0.05)
+        _wait_for("a tracker snapshot (>= 10 frames through the tracker)", (out / "tracker.snap").exists, p)
         pids = {k: v["pid"] for k, v in json.loads((out / "stages.json").read_text()).items()}
         os.kill(p.pid, signal.SIGINT)
     finally:
@@ -628,9 +625,8 @@ def test_peer_mode_links_stages_directly(router):
     zcfg = ZenohConfig(mode="peer", connect=[router.endpoints[0]])
     assert _roundtrip(zcfg, "peer-1") == b"hello"
     with Bus("peer-2", "a", zcfg, DeliveryConfig()) as a, Bus("peer-2", "b", zcfg, DeliveryConfig()) as b:
-        deadline = time.monotonic() + 20
-        while min(a.links()["peers"], b.links()["peers"]) < 1 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: min(a.links()["peers"], b.links()["peers"]) >= 1, 20,
+                   "the two peers to link directly", interval=0.05)
         assert a.links() == {"routers": 1, "peers": 1} and b.links()["peers"] == 1
 
 

@@ -25,10 +25,12 @@ from sources.scenarios import get_scenario
 from sources.synthetic import simulate_all
 from tracker.models.params import load_params
 
-from test_frame_bounds import _forge_seq
-from test_pipeline_stages import _mem_cfg, _run_memory_pipeline
+from testkit import REPO_ROOT, drop_seq, wait_until
+from testkit import forge_seq as _forge_seq
+from testkit import mem_cfg as _mem_cfg
+from testkit import run_memory_pipeline as _run_memory_pipeline
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO_ROOT
 
 
 def _summary(cfg) -> dict:
@@ -56,13 +58,7 @@ def test_complete_memory_run_has_nothing_missing(tmp_path):
 def test_a_lost_frame_is_named_missing_in_every_stream(tmp_path):
     cfg = _mem_cfg(tmp_path, frames=10, **{"delivery.window": "3"})
     net = MemoryNetwork()
-
-    def tap(run, topic, payload, att):
-        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 5:
-            return []
-        return [(payload, att)]
-
-    net.tap = tap
+    net.tap = drop_seq([5])
     _run_memory_pipeline(cfg, net)
     s = _summary(cfg)
     assert s["complete"] is True and s["output_complete"] is False
@@ -114,6 +110,7 @@ def test_a_stage_that_gives_up_makes_the_launch_incomplete(tmp_path):
     assert res.incomplete.endswith("; the sink wrote no sink.json")
 
 
+@pytest.mark.integration  # a real replay: stage processes over Zenoh
 def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
     """A real launch (Zenoh): the tracker and the sink reject frames 10^9 + k after frame 10."""
     frames = simulate_all(get_scenario("vo2017"), load_params("vo2017"), 1)[:13]
@@ -139,9 +136,10 @@ def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
 # --------------------------------------------------------------------------- a taken --out
 
 
+@pytest.mark.integration  # real launches: stage processes over Zenoh
+@pytest.mark.slow
 def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
     import signal
-    import time
 
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = tmp_path / "r"
@@ -168,10 +166,9 @@ def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
                              "--overwrite", "-q", "--set", "source.frames=1000", "--set", "source.rate=2",
                              "--set", "sink.rerun=false"], env=env, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        while not (out / "stages.json").exists() or json.loads((out / "pipeline.json").read_text())["run"] != "live":
-            assert time.monotonic() < deadline and live.poll() is None
-            time.sleep(0.1)
+        wait_until(lambda: (out / "stages.json").exists()
+                   and json.loads((out / "pipeline.json").read_text())["run"] == "live",
+                   120, "the live launch to start its stages", abort=lambda: live.poll() is not None)
         res = launch("--overwrite", run="third")
         assert res.returncode == 2 and res.stderr.splitlines() == [
             f"Error: --out {out}: a run is live there (launcher pid {live.pid}); use another --out"]

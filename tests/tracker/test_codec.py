@@ -32,6 +32,8 @@ from tracker.messages import (
 )
 from tracker.types import Estimate, Frame, TrackEstimate, Truth
 
+from testkit import REPO_ROOT
+
 
 # --------------------------------------------------------------------------- helpers
 
@@ -467,7 +469,7 @@ def test_codec_does_not_import_zenoh():
     import sys
 
     code = "import sys, tracker.messages; assert 'zenoh' not in sys.modules, 'zenoh imported'"
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(REPO_ROOT))
 
 
 def test_decode_msg_dispatch():
@@ -577,4 +579,4 @@ def test_messages_module_is_pure():
     code = ("import sys, tracker.messages; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
             "('mcap', 'zenoh', 'pipeline', 'sources', 'sinks', 'rerun')); assert not bad, bad")
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(REPO_ROOT))

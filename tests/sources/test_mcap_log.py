@@ -25,6 +25,8 @@ from sources.mcap_log import (
 from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, encode, from_truth
 from tracker.types import Estimate, Frame, TrackEstimate, Truth
 
+from testkit import REPO_ROOT
+
 META = {"scenario": "vo2017", "params": "vo2017", "seed": "1"}
 
 
@@ -510,9 +512,8 @@ def test_reader_imports_neither_pipeline_nor_sinks():
     from pipeline/ or sinks/ (the writer is sinks.mcap_writer)."""
     import subprocess
     import sys
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO_ROOT
     code = ("import sys; from sources.mcap_log import iter_frames; "
             "n = sum(1 for _ in iter_frames('recordings/vo2017-s1.mcap')); assert n == 100, n; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pipeline', 'sinks', 'zenoh', 'rerun')); "

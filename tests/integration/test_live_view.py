@@ -32,7 +32,9 @@ from tracker.config import ConfigError  # noqa: E402
 from tracker.models.params import load_params  # noqa: E402
 from tracker.state import run  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+from testkit import REPO_ROOT, wait_until  # noqa: E402
+
+REPO = REPO_ROOT
 SHORT_LOG = REPO / "recordings" / "vo2017-s1.mcap"
 
 
@@ -75,26 +77,31 @@ class Receiver:
                                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL, start_new_session=True)
         deadline = time.monotonic() + 30
-        while True:
+
+        def up() -> bool:
             try:
                 check_viewer(self.url, timeout=0.2)
-                return
+                return True
             except ConfigError:
                 if time.monotonic() > deadline or self.proc.poll() is not None:
                     self.stop()
-                    raise
-                time.sleep(0.05)
+                    raise  # the viewer's own error, not a timeout of ours
+                return False
+
+        wait_until(up, 60, "the gRPC server to answer", interval=0.05)
 
     def rows(self, want: dict[str, list], timeout: float = 60.0) -> dict[str, list]:
         """The rows received so far, once they equal ``want`` or after ``timeout`` seconds
         (the server writes what it receives on its own schedule: it may lag behind the
         sender's flush on a busy machine)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            got = rows(self.path) if self.path.exists() else {}
-            if got == want or time.monotonic() > deadline:
-                return got
-            time.sleep(0.2)
+        def current() -> dict[str, list]:
+            return rows(self.path) if self.path.exists() else {}
+
+        try:
+            wait_until(lambda: current() == want, timeout, "the server to save the rows sent", interval=0.2)
+        except AssertionError:
+            pass  # the caller compares (and shows the difference)
+        return current()
 
     def stop(self) -> None:
         """Stop it (Ctrl-C: it finishes the file)."""
@@ -175,14 +182,12 @@ def test_track_view_spawns_a_viewer_that_receives_the_run(tmp_path):
     try:
         assert res.returncode == 0, res.stderr
         client = ViewerClient(url)
-        deadline = time.monotonic() + 60
-        while True:  # the viewer ingests the stream on its own schedule
+        def frame_timeline():  # the viewer ingests the stream on its own schedule
             state = client.get_state()
             tl = [t for r in state.recordings for t in r.timelines if t.name == "frame"]
-            if tl and tl[0].end == 100:
-                break
-            assert time.monotonic() < deadline, state
-            time.sleep(0.2)
+            return tl if tl and tl[0].end == 100 else None
+
+        tl = wait_until(frame_timeline, 60, "the viewer to hold frames up to 100", interval=0.2)
         assert tl[0].start == 1 and out.with_suffix(".rrd").stat().st_size > 0
     finally:
         os.kill(pid, signal.SIGTERM)

@@ -3,7 +3,7 @@ frame and the row; NaN distances are outside the gate; the moment-matched update
 the pairs that carry weight, so no 0 * NaN reaches a track state.
 
 The codec / MCAP / pipeline-stage path refuses NaN and inf earlier (as a rejected sample):
-tests/test_codec.py, tests/test_mcap_log.py and tests/test_pipeline_stages.py cover it."""
+tests/tracker/test_codec.py, tests/sources/test_mcap_log.py and tests/pipeline/test_pipeline_stages.py cover it."""
 
 from __future__ import annotations
 

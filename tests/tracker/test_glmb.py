@@ -24,6 +24,8 @@ from tracker.models.params import BirthComponent, load_params
 from tracker.state import restore, run, snapshot
 from tracker.types import Frame
 
+from testkit import REPO_ROOT
+
 
 # --------------------------------------------------------------------------------------
 # A linear Gaussian model set following the filtering protocol (injected into the GLMB)
@@ -632,10 +634,9 @@ def test_continuity_estimator_has_fewer_label_switches_on_vo2017(vo_params):
     of map-cardinality (measured 13 vs 29), same cardinality every frame (the estimate is
     always a MAP-cardinality hypothesis)."""
     import importlib.util
-    import pathlib
 
     spec = importlib.util.spec_from_file_location(
-        "accuracy", pathlib.Path(__file__).parents[1] / "benchmarks" / "accuracy.py")
+        "accuracy", REPO_ROOT / "benchmarks" / "accuracy.py")
     acc = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(acc)
     frames = simulate_all(get_scenario("vo2017"), vo_params, 2)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import random
 import threading
-import time
 from pathlib import Path
 
 import msgspec
@@ -39,6 +38,12 @@ from pipeline.events import Event
 from sources.mcap_log import read_log
 from tracker.config import ConfigError, apply_overrides
 from tracker.types import Frame
+
+from testkit import REPO_ROOT, ListSink, drop_seq, wait_until
+from testkit import mem_cfg as _mem_cfg
+from testkit import offline as _offline
+from testkit import run_memory_pipeline as _run_memory_pipeline
+from testkit import strip as _strip
 
 # --------------------------------------------------------------------------- Sequencer
 
@@ -125,14 +130,6 @@ def test_sequencer_is_deterministic_under_bounded_shuffles_and_duplicates():
 # --------------------------------------------------------------------------- intake
 
 
-class _Recorder:
-    def __init__(self):
-        self.published = []
-
-    def publish(self, topic, payload, meta=None):
-        self.published.append((topic, payload, meta))
-
-
 def _frame(k=3, z=((0.1, 100.0), (-0.2, 250.0))):
     return Frame(frame=k, stamp_ns=k * 10**9, sensor="s", kind="bearing_range", z=np.array(z))
 
@@ -142,7 +139,7 @@ def _ev(payload, meta=None, topic="measurements", err=None):
 
 
 def _intake():
-    bus = _Recorder()
+    bus = ListSink()
     c = Counters()
     return Intake("tracker", "runA", bus, c, max_payload_bytes=4096), bus, c
 
@@ -239,16 +236,12 @@ def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
     """A pending write error is raised by the next submit; the descriptors handed to that
     submit (the writer owns them) are closed all the same."""
     import os
-    import time
 
     from pipeline.stages import BackgroundWriter
 
     w = BackgroundWriter()
     w.submit(tmp_path / "missing-dir" / "x.snap", b"data")  # fails on the writer thread
-    deadline = time.monotonic() + 10
-    while w._error is None and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert w._error is not None
+    wait_until(lambda: w._error is not None, 10, "the writer thread's error")
     fd = os.open(tmp_path / "journal", os.O_WRONLY | os.O_CREAT)
     with pytest.raises(OSError):
         w.submit(tmp_path / "x.snap", b"data", (fd,))
@@ -260,79 +253,6 @@ def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
 
 
 # --------------------------------------------------------------------------- in-memory pipeline
-
-
-def _run_memory_pipeline(cfg: PipelineConfig, net: MemoryNetwork, roles=("sink", "tracker", "source"),
-                         timeout=120.0, clock: ManualClock | None = None) -> dict[str, int]:
-    """Run ``roles`` on ``net`` in threads, all on one :class:`ManualClock` (see
-    :func:`_drive_clock`): their grace periods do not depend on the machine's speed."""
-    codes: dict[str, int] = {}
-    errors: list[BaseException] = []
-    clock = clock or ManualClock()
-
-    def go(role: str) -> None:
-        bus = net.bus(cfg.run, role)
-        try:
-            codes[role] = STAGES[role](StageContext(cfg, bus, name=role, clock=clock)).run()
-        except BaseException as exc:  # pragma: no cover - surfaced below
-            errors.append(exc)
-        finally:
-            bus.close()
-
-    threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in roles]
-    for t in threads:
-        t.start()
-    _drive_clock(net, cfg.run, clock, threads, timeout)
-    for t in threads:
-        t.join(timeout)
-    assert not errors, errors
-    assert not any(t.is_alive() for t in threads), "a stage did not finish"
-    return codes
-
-
-def _source_ended(net: MemoryNetwork, run: str) -> bool:
-    with net.lock:
-        return any(r == run and t == "eos/source" for r, t, _, _ in net.history)
-
-
-def _drive_clock(net: MemoryNetwork, run: str, clock: ManualClock, threads: list[threading.Thread],
-                 timeout: float) -> None:
-    """The stages' time stands still until the source has published its end of stream;
-    from then on it moves one second per poll, so that end-of-stream grace periods and
-    lingering expire (a frame still missing then is a gap by the sequencer's rules, not
-    because the machine was slow: every stage checks its backlog first)."""
-    deadline = time.monotonic() + timeout
-    while any(t.is_alive() for t in threads) and time.monotonic() < deadline:
-        if _source_ended(net, run):
-            clock.advance(1.0)
-        threads[0].join(0.02)
-
-
-def _mem_cfg(tmp_path: Path, frames: int = 12, **extra: str) -> PipelineConfig:
-    overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
-                 "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
-                 "supervisor.linger_s=0.5"]
-    overrides += [f"{k}={v}" for k, v in extra.items()]
-    cfg = apply_overrides(PipelineConfig(run="mem", out=str(tmp_path / "out")), overrides)
-    return resolve_run(cfg)
-
-
-def _offline(cfg: PipelineConfig, drop: frozenset[int] = frozenset()):
-    """The offline result for the pipeline's synthetic frames (minus the dropped seqs)."""
-    from pipeline.resolve import tracker_setup
-    from pipeline.stages import source_frames
-    from tracker.state import run
-
-    meta, frames = source_frames(cfg)
-    frames = [f for i, f in enumerate(frames) if i not in drop]
-    tracker = tracker_setup(cfg.tracker.tracker, overrides=cfg.tracker.overrides, metadata=meta).tracker
-    return frames, [est for _, est, _ in run(tracker, frames, cfg.tracker.seed)]
-
-
-def _strip(est):
-    d = {k: v for k, v in est.diagnostics.items() if k != "ms"}
-    return (est.frame, est.labels, est.assignments, est.assignment_prob, d,
-            [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
 
 
 def test_memory_pipeline_equals_offline(tmp_path):
@@ -404,7 +324,7 @@ def test_memory_pipeline_survives_duplicates_reordering_and_garbage(tmp_path):
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["counters"]["rejected"] > 0 and summary["counters"]["duplicates"] > 0
     assert summary["gaps"] == {"measurements": [], "truth": [], "tracks": []}
-    letters = [json.loads(p) for (r, t, p, a) in net.history if t == "deadletter"]
+    letters = ListSink(net).docs("deadletter")
     assert letters and {d["stage"] for d in letters} <= {"tracker", "sink"}
 
 
@@ -413,13 +333,7 @@ def test_memory_pipeline_reports_a_lost_frame_as_gap_and_predicts_through(tmp_pa
     tracks equal an offline run without that frame (the tracker predicts through it)."""
     cfg = _mem_cfg(tmp_path, frames=14, **{"delivery.window": "3"})
     net = MemoryNetwork()
-
-    def tap(run, topic, payload, att):
-        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 5:
-            return []
-        return [(payload, att)]
-
-    net.tap = tap
+    net.tap = drop_seq([5])
     # the memory network keeps history for late subscribers; drop seq 5 there as well
     codes = _run_memory_pipeline(cfg, net)
     assert codes["sink"] == EXIT_OK
@@ -429,20 +343,14 @@ def test_memory_pipeline_reports_a_lost_frame_as_gap_and_predicts_through(tmp_pa
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["gaps"]["measurements"] == [5] and summary["gaps"]["tracks"] == [5]
-    eos = [msgspec.json.decode(p) for (r, t, p, a) in net.history if t == "eos/tracker"]
+    eos = ListSink(net).docs("eos/tracker", msgspec.json.decode)
     assert eos and eos[-1]["gaps"] == [5]
 
 
 def test_memory_pipeline_missing_tail_becomes_gap_at_end_of_stream(tmp_path):
     cfg = _mem_cfg(tmp_path, frames=8)
     net = MemoryNetwork()
-
-    def tap(run, topic, payload, att):
-        if topic in ("measurements", "truth") and att and json.loads(att)["seq"] == 7:
-            return []
-        return [(payload, att)]
-
-    net.tap = tap
+    net.tap = drop_seq([7])
     _run_memory_pipeline(cfg, net)
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["complete"] and summary["gaps"]["measurements"] == [7]
@@ -570,7 +478,7 @@ def test_docs_pipeline_file_example_is_the_default():
     import re
     import tomllib
 
-    text = (Path(__file__).resolve().parent.parent / "docs" / "pipeline.md").read_text()
+    text = (REPO_ROOT / "docs" / "pipeline.md").read_text()
     blocks = [b for b in re.findall(r"```toml\n(.*?)```", text, re.S) if "[supervisor]" in b]
     assert len(blocks) == 1
     cfg = msgspec.convert(tomllib.loads(blocks[0]), PipelineConfig)
@@ -917,7 +825,7 @@ def test_source_paces_its_frames_on_the_injected_clock(tmp_path):
     stamps = [f.stamp_ns for f in source_frames(cfg)[1]]
     assert len(stamps) == 6
     assert clock.monotonic() == pytest.approx((stamps[-1] - stamps[0]) / 1e9 / 2.0, abs=1e-9)
-    sent = [json.loads(a)["t"] for r, t, p, a in net.history if t == "measurements"]
+    sent = [json.loads(a)["t"] for _, a in ListSink(net).samples("measurements")]
     assert sent == [10**18 + round((s - stamps[0]) / 2.0) for s in stamps]
 
 
@@ -930,7 +838,7 @@ def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
     code = ("import sys; from pipeline.stages.tracker import warm_tracker_imports; "
             "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp' in sys.modules), "
             "int('tracker.glmb' in sys.modules))")
-    root = Path(__file__).resolve().parent.parent
+    root = REPO_ROOT
     seen = {name: subprocess.run([sys.executable, "-c", code, name], capture_output=True, text=True,
                                  cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
                                  check=True).stdout.split()

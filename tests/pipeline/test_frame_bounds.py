@@ -24,9 +24,14 @@ from sources.synthetic import simulate_all
 from tracker.models.params import load_params
 from tracker.types import FrameBoundError, FrameBounds, bounded_frames
 
-from test_pipeline_stages import _mem_cfg, _offline, _run_memory_pipeline, _strip
+from testkit import REPO_ROOT, ListSink
+from testkit import forge_seq as _forge_seq
+from testkit import mem_cfg as _mem_cfg
+from testkit import offline as _offline
+from testkit import run_memory_pipeline as _run_memory_pipeline
+from testkit import strip as _strip
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO_ROOT
 
 
 # --------------------------------------------------------------------------- FrameBounds
@@ -100,21 +105,6 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
 # --------------------------------------------------------------------------- pipeline
 
 
-def _forge_seq(seq: int, frame: int):
-    """A tap that rewrites the frame number of the measurements of ``seq``."""
-
-    def tap(run, topic, payload, att):
-        if topic == "measurements" and att and json.loads(att)["seq"] == seq:
-            doc = json.loads(payload)
-            doc["frame"] = frame
-            meta = json.loads(att)
-            meta["frame"] = frame
-            return [(json.dumps(doc).encode(), json.dumps(meta).encode())]
-        return [(payload, att)]
-
-    return tap
-
-
 def test_pipeline_tracker_and_sink_reject_a_frame_jump_and_do_not_hang(tmp_path):
     """/measurements of seq 5 forged to frame 10^9: the tracker rejects and counts it (no
     prediction through 10^9 frames), the sink records neither it nor tracks for it, and the
@@ -128,11 +118,11 @@ def test_pipeline_tracker_and_sink_reject_a_frame_jump_and_do_not_hang(tmp_path)
     log = read_log(Path(cfg.out) / "tracks.mcap")
     assert [f.frame for f in log.frames] == [f.frame for f in frames] == [1, 2, 3, 4, 5, 7, 8, 9, 10]
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
-    eos = [json.loads(p) for (r, t, p, a) in net.history if t == "eos/tracker"]
+    eos = ListSink(net).docs("eos/tracker")
     assert eos[-1]["rejected"] == [5] and eos[-1]["gaps"] == []
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["frames_written"] == 9 and summary["tracks_written"] == 9
-    letters = [json.loads(p) for (r, t, p, a) in net.history if t == "deadletter"]
+    letters = ListSink(net).docs("deadletter")
     why = "frame 1000000000 jumps 999999995 frames after frame 5 (more than max_frame_gap = 1000)"
     assert {(d["stage"], d["seq"], d["reason"]) for d in letters} >= {("tracker", 5, why), ("sink", 5, why)}
 
@@ -159,7 +149,7 @@ def test_pipeline_rejects_a_sequence_number_far_ahead(tmp_path):
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["gaps"] == {"measurements": [], "truth": [], "tracks": []}
     assert summary["counters"]["rejected"] == 2  # the sink's copies on /measurements and /truth
-    letters = [json.loads(p) for (r, t, p, a) in net.history if t == "deadletter"]
+    letters = ListSink(net).docs("deadletter")
     assert {(d["stage"], d["topic"], d["seq"]) for d in letters} == {
         ("tracker", "measurements", 200_003), ("sink", "measurements", 200_003), ("sink", "truth", 200_003)}
     assert all("past the next expected" in d["reason"] and "max_seq_ahead = 100000" in d["reason"]

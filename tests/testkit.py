@@ -1,0 +1,233 @@
+"""Shared test helpers (importable as ``testkit``: tests/ is on ``sys.path`` through its conftest).
+
+* :data:`REPO_ROOT` -- the repository root, for tests that run commands or read docs/recordings;
+* :func:`wait_until` -- wait on an observable condition (never a fixed sleep);
+* :class:`ListSource` / :class:`ListSink` -- stage-level fakes over :mod:`pipeline.membus`:
+  feed a list of samples to a stage, collect what a stage publishes;
+* the in-memory pipeline helpers of the stage tests (:func:`mem_cfg`,
+  :func:`run_memory_pipeline`, :func:`offline`, :func:`strip`, :func:`drop_seq`).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+#: the repository root (tests/ is one level below it)
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+# --------------------------------------------------------------------------- waiting
+
+
+def wait_until(predicate: Callable[[], T], timeout: float, what: str, *, interval: float = 0.02,
+               abort: Callable[[], bool] | None = None) -> T:
+    """Poll ``predicate`` until it returns a truthy value and return that value.
+
+    Fails (``AssertionError``) with ``what`` once ``timeout`` seconds have passed, or at once
+    when ``abort()`` is true (e.g. the process being waited on has exited).  ``interval`` is
+    the polling period, not a wait for anything."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if abort is not None and abort():
+            raise AssertionError(f"gave up waiting for {what}: the awaited party ended first")
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
+
+# --------------------------------------------------------------------------- stage fakes
+
+
+class ListSink:
+    """Collects what stages publish.
+
+    Two uses: as the bus of a component that only publishes (``publish(topic, payload,
+    meta)``, e.g. an :class:`pipeline.stages.Intake`), and as a reader of what went on the
+    wire of a :class:`pipeline.membus.MemoryNetwork` for one run (after any ``tap``)."""
+
+    def __init__(self, net: Any = None, run: str | None = None) -> None:
+        self.net = net
+        self.run = run
+        self.published: list[tuple[str, bytes, dict | None]] = []
+
+    def publish(self, topic: str, payload: bytes, meta: dict | None = None) -> None:
+        self.published.append((topic, payload, meta))
+
+    def samples(self, topic: str) -> list[tuple[bytes, bytes | None]]:
+        """(payload, attachment) of every sample on ``topic``, in publishing order."""
+        if self.net is None:
+            return [(p, None if m is None else json.dumps(m).encode()) for t, p, m in self.published if t == topic]
+        with self.net.lock:
+            return [(p, a) for r, t, p, a in self.net.history if t == topic and (self.run is None or r == self.run)]
+
+    def payloads(self, topic: str) -> list[bytes]:
+        return [p for p, _ in self.samples(topic)]
+
+    def docs(self, topic: str, decode: Callable[[bytes], Any] = json.loads) -> list[Any]:
+        """The decoded payloads on ``topic`` (JSON by default)."""
+        return [decode(p) for p in self.payloads(topic)]
+
+
+class ListSource:
+    """Feeds a fixed list of samples to the stages of one run over a MemoryNetwork, as the
+    stage ``name`` (by default the source): ``(topic, payload, meta)`` in order."""
+
+    def __init__(self, net: Any, run: str, samples: Iterable[tuple[str, bytes, dict | None]],
+                 name: str = "source") -> None:
+        self.net = net
+        self.run = run
+        self.samples = list(samples)
+        self.name = name
+
+    @classmethod
+    def of_frames(cls, net: Any, run: str, frames: Iterable[Any], metadata: dict[str, str] | None = None,
+                  t0_ns: int = 0) -> "ListSource":
+        """What the source stage publishes for ``frames``: ``info/source`` (with ``metadata``),
+        /measurements and /truth with the ``seq``/``t``/``frame`` attachment, ``eos/source``."""
+        import msgspec
+
+        from pipeline.stages.health import EndOfStream, StageInfo
+        from tracker.messages import encode, from_truth
+
+        enc = msgspec.json.encode
+        samples: list[tuple[str, bytes, dict | None]] = [
+            ("info/source", enc(StageInfo(stage="source", run=run, kind="list", metadata=metadata)), None)]
+        seq = -1
+        for seq, f in enumerate(frames):
+            has_truth = f.truth is not None
+            samples.append(("measurements", encode(f, run),
+                            {"seq": seq, "t": t0_ns + seq, "frame": f.frame, "truth": has_truth}))
+            if has_truth:
+                samples.append(("truth", encode(from_truth(f.frame, f.stamp_ns, f.truth, run)),
+                                {"seq": seq, "t": t0_ns + seq, "frame": f.frame}))
+        samples.append(("eos/source", enc(EndOfStream(stage="source", run=run, last_seq=seq, frames=seq + 1)),
+                        None))
+        return cls(net, run, samples)
+
+    def publish(self) -> None:
+        """Publish every sample on a bus of its own, then close it."""
+        bus = self.net.bus(self.run, self.name)
+        try:
+            for topic, payload, meta in self.samples:
+                bus.publish(topic, payload, meta)
+        finally:
+            bus.close()
+
+
+def drop_seq(seqs: Iterable[int], topics: Iterable[str] = ("measurements", "truth")):
+    """A MemoryNetwork tap that loses the samples of ``seqs`` on ``topics`` for good."""
+    lost, on = set(seqs), set(topics)
+
+    def tap(run, topic, payload, att):
+        if topic in on and att and json.loads(att)["seq"] in lost:
+            return []
+        return [(payload, att)]
+
+    return tap
+
+
+def forge_seq(seq: int, frame: int):
+    """A tap that rewrites the frame number of the measurements of ``seq``."""
+
+    def tap(run, topic, payload, att):
+        if topic == "measurements" and att and json.loads(att)["seq"] == seq:
+            doc = json.loads(payload)
+            doc["frame"] = frame
+            meta = json.loads(att)
+            meta["frame"] = frame
+            return [(json.dumps(doc).encode(), json.dumps(meta).encode())]
+        return [(payload, att)]
+
+    return tap
+
+
+# --------------------------------------------------------------------------- in-memory pipeline
+
+
+def mem_cfg(tmp_path: Path, frames: int = 12, **extra: str):
+    """A small pipeline (sweeps 8, burn-in 2, no Rerun) writing to ``tmp_path/out``."""
+    from pipeline.config import PipelineConfig, resolve_run
+    from tracker.config import apply_overrides
+
+    overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
+                 "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
+                 "supervisor.linger_s=0.5"]
+    overrides += [f"{k}={v}" for k, v in extra.items()]
+    cfg = apply_overrides(PipelineConfig(run="mem", out=str(tmp_path / "out")), overrides)
+    return resolve_run(cfg)
+
+
+def run_memory_pipeline(cfg, net, roles=("sink", "tracker", "source"), timeout=120.0,
+                        clock=None) -> dict[str, int]:
+    """Run ``roles`` on ``net`` in threads, all on one :class:`ManualClock` (see
+    :func:`_drive_clock`): their grace periods do not depend on the machine's speed."""
+    from pipeline.stages import STAGES, ManualClock, StageContext
+
+    codes: dict[str, int] = {}
+    errors: list[BaseException] = []
+    clock = clock or ManualClock()
+
+    def go(role: str) -> None:
+        bus = net.bus(cfg.run, role)
+        try:
+            codes[role] = STAGES[role](StageContext(cfg, bus, name=role, clock=clock)).run()
+        except BaseException as exc:  # pragma: no cover - surfaced below
+            errors.append(exc)
+        finally:
+            bus.close()
+
+    threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in roles]
+    for t in threads:
+        t.start()
+    _drive_clock(net, cfg.run, clock, threads, timeout)
+    for t in threads:
+        t.join(timeout)
+    assert not errors, errors
+    assert not any(t.is_alive() for t in threads), "a stage did not finish"
+    return codes
+
+
+def _source_ended(net, run: str) -> bool:
+    with net.lock:
+        return any(r == run and t == "eos/source" for r, t, _, _ in net.history)
+
+
+def _drive_clock(net, run: str, clock, threads: list[threading.Thread], timeout: float) -> None:
+    """The stages' time stands still until the source has published its end of stream;
+    from then on it moves one second per poll, so that end-of-stream grace periods and
+    lingering expire (a frame still missing then is a gap by the sequencer's rules, not
+    because the machine was slow: every stage checks its backlog first)."""
+    deadline = time.monotonic() + timeout
+    while any(t.is_alive() for t in threads) and time.monotonic() < deadline:
+        if _source_ended(net, run):
+            clock.advance(1.0)
+        threads[0].join(0.02)
+
+
+def offline(cfg, drop: frozenset[int] = frozenset()):
+    """The offline result for the pipeline's synthetic frames (minus the dropped seqs)."""
+    from pipeline.resolve import tracker_setup
+    from pipeline.stages import source_frames
+    from tracker.state import run
+
+    meta, frames = source_frames(cfg)
+    frames = [f for i, f in enumerate(frames) if i not in drop]
+    tracker = tracker_setup(cfg.tracker.tracker, overrides=cfg.tracker.overrides, metadata=meta).tracker
+    return frames, [est for _, est, _ in run(tracker, frames, cfg.tracker.seed)]
+
+
+def strip(est):
+    """An Estimate as comparable data, without the timing diagnostics."""
+    d = {k: v for k, v in est.diagnostics.items() if k != "ms"}
+    return (est.frame, est.labels, est.assignments, est.assignment_prob, d,
+            [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
