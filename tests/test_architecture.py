@@ -7,6 +7,7 @@ and line that breaks it.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -168,3 +169,23 @@ def test_the_size_rules_see_a_long_function(tmp_path):
     path = tmp_path / "probe.py"
     path.write_text(f"def f():\n{body}\n\ndef k():\n{body}\n\nk2 = njit(k)\n")
     assert _long_functions(path) == ["probe.py:1 f (62 lines)"]
+
+
+def _layout_row(folder: str) -> str:
+    readme = (ROOT / "README.md").read_text()
+    rows = [line for line in readme.splitlines() if line.startswith(f"| `{folder}/` |")]
+    assert len(rows) == 1, f"README's layout table needs one row for {folder}/"
+    return rows[0]
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_the_readme_layout_names_every_module(pkg):
+    """Every module and sub-package of ``pkg`` is named in its README layout row, and the row
+    names no module that does not exist (a file's name alone, e.g. ``config.py``, counts)."""
+    row = _layout_row(pkg)
+    named = set(re.findall(r"`([A-Za-z_][\w]*\.py|[A-Za-z_]\w*/)`", row.split("|")[2]))
+    base = ROOT / pkg
+    present = {p.name for p in base.rglob("*.py") if p.name != "__init__.py"}
+    present |= {p.name + "/" for p in base.rglob("*") if p.is_dir() and p.name != "__pycache__"}
+    assert present - named == set(), f"{pkg}/: not in README's layout row"
+    assert named - present == set(), f"{pkg}/: the README names what does not exist"
