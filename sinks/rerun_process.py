@@ -3,18 +3,17 @@
 :class:`RecordingProcess` records a run like :func:`sinks.rerun_sink.write_recording` does
 (each frame scored by :class:`sinks.metrics.RunScorer`, then logged to a
 :class:`sinks.rerun_sink.RerunSink`), but the sink runs in a child Python process.  The
-tracker's process scores the frame (about 0.3 ms: OSPA and OSPA(2); scipy is loaded there
-anyway), pickles ``(frame, estimate, scores)`` (about 0.1 ms) and writes the bytes to the
-child's stdin without ever blocking: the pipe is asked for 1 MiB (a whole 100-frame run) and
-what it cannot take at once waits in memory for the next frame.  This module does not import
-rerun, so creating a :class:`RecordingProcess` costs the tracker's process a ``fork`` (or
-``fork``/``exec``) and nothing more.  The child is a fork of the tracker's process when that is
-safe (no other Python thread, rerun not imported), so that it does not start a new interpreter
-and import numpy & co. again (0.2-0.4 s of CPU); else a new interpreter (``exec``).
+tracker's process scores the frame (OSPA and OSPA(2); scipy is loaded there anyway), pickles
+``(frame, estimate, scores)`` and writes the bytes to the child's stdin without ever blocking:
+the pipe is asked for 1 MiB (a whole 100-frame run) and what it cannot take at once waits in
+memory for the next frame.  This module does not import rerun, so creating a
+:class:`RecordingProcess` costs the tracker's process a ``fork`` (or ``fork``/``exec``) and
+nothing more.  The child is a fork of the tracker's process when that is safe (no other Python
+thread, rerun not imported), so that it does not start a new interpreter and import numpy & co.
+again; else a new interpreter (``exec``).
 
-Why a process: for an offline ``bnptrack track --rrd`` run of 100 vo2017 frames, importing
-rerun (0.6-0.8 s of CPU), building the blueprint and the final flush and footer add up to about
-0.9 s next to a 2.5-3 s run; in one process all of it is on the critical path.  The child
+Why a process: importing rerun, building the blueprint and the final flush and footer are all
+on the critical path in one process (the measured costs are in docs/rerun.md).  The child
 starts importing rerun at once, before the run is described to it, so a caller that creates the
 process first (``bnptrack track`` does, before it builds the tracker) has those imports run on
 the other core beside the tracker's own imports; afterwards the child logs frame ``k`` while
@@ -27,7 +26,7 @@ metadata, params, sink_kwargs)`` once, then ``("frame", frame, estimate, scores)
 End of input ends the run: the child closes the sink (footer written), writes :data:`_DONE` to
 its stdout (the file is complete: :meth:`RecordingProcess.close` returns without waiting for
 the process's own exit, which a thread then reaps) and leaves at once (``os._exit``: rerun's
-exit hook and the interpreter's teardown would take another 0.2-0.3 s).  End of input before ``open`` (an aborted
+exit hook and the interpreter's teardown would add to the wait).  End of input before ``open`` (an aborted
 run) exits without creating a file.
 
 Failures and signals: the child's stderr goes to a temporary file; when the child ends without
