@@ -116,8 +116,8 @@ def as_scans(run: list[dict], dim: int) -> list[tuple[tuple[Hashable, ...], np.n
 def optimal_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Optimal assignment (:func:`scipy.optimize.linear_sum_assignment`).
 
-    scipy is imported here, at the first score: importing ``scipy.optimize`` takes about 0.5 s,
-    which a process that only unpickles :class:`sinks.metrics.OspaResult` (the Rerun recording process, see
+    scipy is imported here, at the first score: importing ``scipy.optimize`` is slow
+    (docs/performance.md, measured), which a process that only unpickles :class:`sinks.metrics.OspaResult` (the Rerun recording process, see
     ``sinks.rerun_process``) should not pay.
     """
     from scipy.optimize import linear_sum_assignment

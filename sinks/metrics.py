@@ -392,8 +392,7 @@ class RunScorer:
 
     ``update(frame, estimate)`` returns ``{"ospa": OspaResult | None, "ospa2": float | None}``
     (``None`` for a frame without truth), ready to pass to :meth:`sinks.rerun_sink.RerunSink.log`.  OSPA is
-    :func:`ospa` of (truth positions, estimated positions), as
-    ``pipeline.offline.frame_metrics`` computes it; OSPA(2) at frame k is
+    :func:`ospa` of (truth positions, estimated positions); OSPA(2) at frame k is
     :func:`ospa2` over the last ``window`` frames, the value
     :func:`ospa2_series` gives at k for the whole run.
 
@@ -410,10 +409,9 @@ class RunScorer:
         self._est: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
         self._true: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
 
-    def update(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None) -> dict[str, Any]:
-        """The frame's scores.  ``ospa_result``: its OSPA if the caller has it already (the same
-        value, e.g. ``pipeline.offline.FrameMetrics.ospa_result``: ``bnptrack track --rrd``
-        scores every frame for its summary anyway); otherwise computed here."""
+    def update(self, frame: Frame, estimate: Estimate) -> dict[str, Any]:
+        """The frame's scores (``bnptrack track``, the sink stage and experiments all score
+        through this method)."""
         est = estimate.positions
         self._est.append((estimate.labels, est))
         if frame.truth is None:
@@ -424,8 +422,7 @@ class RunScorer:
         self._true.append((tuple(truth.ids), true))
         if not (np.isfinite(est).all() and np.isfinite(true).all()):
             ospa(true, est, c=self.c, p=self.p)  # raises, naming the bad position
-        o = ospa_result if ospa_result is not None else _ospa_unchecked(
-            _cutoff_distances(true, est, self.c), self.c, self.p)
+        o = _ospa_unchecked(_cutoff_distances(true, est, self.c), self.c, self.p)
         X, Y = _window_tracks(list(self._est), 2), _window_tracks(list(self._true), 2)
         o2 = _ospa_unchecked(_track_distances(X, Y, self.c, self.q), self.c, self.p).total
         return {"ospa": o, "ospa2": float(o2)}

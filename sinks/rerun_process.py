@@ -58,7 +58,6 @@ from sinks.metrics import RunScorer
 from sinks.sink import SinkOptions, SinkRecord
 
 if TYPE_CHECKING:
-    from sinks.metrics import OspaResult
     from tracker.models.params import ModelParams
     from tracker.types import Estimate, Frame
 
@@ -212,7 +211,7 @@ class RecordingProcess:
         timeout: seconds :meth:`close` waits for the child to finish the file before killing it.
         start: how the child starts.  ``"fork"``: a fork of this process, which skips a new
             interpreter and the imports this process already has (numpy, the tracker's types,
-            ...: some 0.2-0.4 s of CPU); allowed only while this process has no other Python
+            ...; docs/rerun.md has the measured cost); allowed only while this process has no other Python
             thread and has not imported rerun (whose native threads a fork would not carry
             over).  ``"exec"``: a new interpreter.  ``"auto"`` (default): fork when allowed,
             else exec.
@@ -250,17 +249,15 @@ class RecordingProcess:
         sink_kwargs.setdefault("flush_interval", CHILD_FLUSH_INTERVAL)
         self._put(("open", os.fspath(path), dict(metadata or {}), params, sink_kwargs))
 
-    def log(self, frame: Frame, estimate: Estimate, ospa_result: OspaResult | None = None,
-            scores: Mapping[str, Any] | None = None) -> None:
+    def log(self, frame: Frame, estimate: Estimate, scores: Mapping[str, Any] | None = None) -> None:
         """Score one frame and hand it, its estimate and the scores to the child (pickled now:
-        later changes to the objects do not reach the recording).  ``ospa_result``: the frame's OSPA
-        if the caller has computed it already (see :meth:`RunScorer.update`); ``scores``: the
+        later changes to the objects do not reach the recording).  ``scores``: the
         frame's whole :meth:`RunScorer.update` result when the caller has scored the run (not
         scored again here)."""
         if self.path is None:
             raise RuntimeError("RecordingProcess.log before open")
         if scores is None:
-            scores = self._scorer.update(frame, estimate, ospa_result)
+            scores = self._scorer.update(frame, estimate)
         self._put(("frame", frame, estimate, {"ospa": scores.get("ospa"), "ospa2": scores.get("ospa2")}))
 
     def close(self) -> None:
@@ -283,7 +280,7 @@ class RecordingProcess:
         if self._proc.returncode is not None:  # ended without reporting the file complete
             raise RecordingError(self._failure(f"exited with code {self._proc.returncode}"))
         self._stderr.close()
-        # the file is complete; the child exits on its own within some 10-30 ms.  A
+        # the file is complete; the child exits on its own shortly after.  A
         # (non-daemon) thread reaps it, so that this process's exit waits for it too
         threading.Thread(target=self._proc.wait, name=_REAPER).start()
 

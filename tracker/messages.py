@@ -105,7 +105,7 @@ _chain = chain.from_iterable
 
 # --------------------------------------------------------------------------- schema
 
-# msgspec constraint aliases of the schema (tracker/config.py has no shared ones yet).
+# The schema's own constraint aliases (the shared ones come from tracker.config).
 StampNs = Annotated[int, msgspec.Meta(ge=0, le=MAX_STAMP)]
 StateVec = Annotated[list[float], msgspec.Meta(min_length=STATE_DIM, max_length=STATE_DIM)]
 CovVec = Annotated[list[float], msgspec.Meta(min_length=COV_DIM, max_length=COV_DIM)]

@@ -1,6 +1,7 @@
 """The pipeline's stage loops: source, tracker and sink around the pure pieces.
 
-Modules: :mod:`~pipeline.stages.delivery` (Event, Intake, Sequencer, fetching holes),
+Modules: :mod:`~pipeline.stages.delivery` (Intake, Sequencer, fetching holes; the bus's
+:class:`~pipeline.events.Event` is in :mod:`pipeline.events`),
 :mod:`~pipeline.stages.health` (counters, control messages), :mod:`~pipeline.stages.recovery`
 (snapshot, journal glue, ``.part`` files, atomic writes), :mod:`~pipeline.stages.base` (exit
 codes, the injectable clock, StageContext, StageBase) and one module per stage

@@ -212,15 +212,14 @@ class HoleWatch:
 def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Callable[[Any], None]) -> int:
     """Fetch explicitly from the publisher's cache (:meth:`pipeline.transport.Bus.fetch`) the
     frames of ``topic`` that ``seqr`` still misses up to ``upto``, and hand each to
-    ``on_event`` (validated like any sample).  Returns how many came back (0 without a
-    fetch-capable bus or when nothing is missing)."""
-    fetch = getattr(bus, "fetch", None)
-    if fetch is None or upto < seqr.next:
+    ``on_event`` (validated like any sample).  Returns how many came back (0
+    when nothing is missing)."""
+    if upto < seqr.next:
         return 0
     hi = next((s for s in range(upto, seqr.next - 1, -1) if s not in seqr.buf), None)
     if hi is None:
         return 0
-    events = fetch(topic, seqr.next, hi)
+    events = bus.fetch(topic, seqr.next, hi)
     for ev in events:
         on_event(ev)
     if events:

@@ -49,6 +49,9 @@ class StageInfo(msgspec.Struct, kw_only=True):
     tracker: str = ""
     seed: int = 0
     pid: int = 0
+    params: dict | None = None
+    """The tracker's model parameters as resolved by :func:`pipeline.resolve.tracker_setup`
+    (``ModelParams`` as builtins), so that a sink draws with exactly what the tracker used."""
 
 
 class EndOfStream(msgspec.Struct, kw_only=True):

@@ -13,7 +13,7 @@ import msgspec
 from tracker.messages import to_estimate, to_frame, to_truth
 from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
-from pipeline.stages.health import _JSON, EndOfStream
+from pipeline.stages.health import _JSON, EndOfStream, StageInfo
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from sinks.sink import SINKS, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
 from tracker.types import FrameBounds
@@ -97,7 +97,7 @@ class SinkStage(StageBase):
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
         built: list[tuple[str, Sink]] = []
-        params = self._params(meta)
+        params = self._params(meta, self.infos.get("tracker"))
         for name, path in self.sink_cfg.paths(out).items():
             sink = self._make_sink(name, path, params)
             if sink is not None:
@@ -126,15 +126,19 @@ class SinkStage(StageBase):
         return sink if entry.required else _Optional(sink, f"{self.name}: {name} sink ({path.name})")
 
     @staticmethod
-    def _params(meta: dict[str, str] | None) -> Any:
-        """The run's model parameters (a sink draws the sensor's field of view with them;
-        ``None``: unknown, the default field of view)."""
+    def _params(meta: dict[str, str] | None, tracker_info: StageInfo | None) -> Any:
+        """The run's model parameters (a sink draws the sensor's field of view with them):
+        the ones the tracker resolved and announced in its ``info``; without a tracker, the
+        input record's, through the one resolver; ``None`` if neither resolves (the default
+        field of view)."""
         try:
-            from pipeline.resolve import resolve_params
-            from tracker.models.params import load_params
+            from tracker.models.params import ModelParams
 
-            name = (meta or {}).get("tracker_params")
-            return load_params(name) if name else resolve_params(None, meta).params
+            if tracker_info is not None and tracker_info.params is not None:
+                return msgspec.convert(tracker_info.params, ModelParams)
+            from pipeline.resolve import resolve_params
+
+            return resolve_params(None, meta).params
         except Exception:
             return None
 
@@ -491,7 +495,7 @@ class SinkStage(StageBase):
         return EXIT_OK
 
     def _warm_up(self) -> None:
-        warm_imports("sources.mcap_log", "pipeline.offline")
+        warm_imports("sources.mcap_log", "pipeline.resolve")
         if self.sink_cfg.score or self.sink_cfg.rerun:  # the scorer's kernels import scipy on first use
             warm_imports("scipy.spatial.distance", "scipy.optimize")
         for name in self.sink_cfg.paths(self.ctx.out):

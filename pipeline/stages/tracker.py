@@ -68,7 +68,7 @@ def warm_up_tracker(tracker: Any) -> None:
 class TrackerStage(StageBase):
     """Track the ``measurements`` stream in sequence order and publish ``tracks``.
 
-    Any tracker :func:`pipeline.offline.build_tracker` builds works (the state class comes
+    Any tracker :func:`pipeline.resolve.tracker_setup` builds works (the state class comes
     from ``tracker.initial_state()``).  Frame ``k`` uses the tracker's stream of frame ``k``
     (``tracker.state.tracker_frame_rng(seed, k)``) exactly like ``bnptrack track``, so the output
     depends only on the frames and their order.
@@ -150,6 +150,7 @@ class TrackerStage(StageBase):
         warm_up_tracker(self.tracker)
         self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=tc.tracker,
                                                metadata={**setup.metadata, "run": self.run_id}, tracker=tc.tracker,
+                                               params=msgspec.to_builtins(setup.params),
                                                seed=tc.seed, pid=os.getpid()))
         log.info("%s: %s tracker, params %s, seed %d", self.name, tc.tracker,
                  setup.choice.describe(setup.params), tc.seed)
@@ -260,7 +261,7 @@ class TrackerStage(StageBase):
 
     # -- loop --------------------------------------------------------------------------
     def run(self) -> int:
-        warm_imports("pipeline.offline", "tracker.state")
+        warm_imports("pipeline.resolve", "tracker.state")
         warm_tracker_imports(self.tc.tracker)
         history = self._restore()
         self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
