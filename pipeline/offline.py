@@ -23,7 +23,8 @@ from sinks.crossings import CrossingResult
 from sinks.metrics import OspaResult
 from sinks.metrics import OSPA_C, OSPA_P, RunScorer
 from sinks.mcap_writer import McapLogWriter
-from sinks.sink import Sink, SinkOptions, SinkRecord, SinkSet, make_sink
+from sinks.sink import SinkSet, make_sink
+from sinks.records import Sink, SinkOptions, SinkRecord
 from sources.mcap_log import McapLogError, iter_frames
 from sources.scenarios import OpenScenario, parse_crossings
 from sources.synthetic import simulate, simulate_sensors

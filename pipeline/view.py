@@ -321,7 +321,7 @@ def track_log_with_rrd(
     ``source_log``, each frame drawn with the scores of :attr:`TrackResult.frames`.  The
     recording is complete when this returns."""
     from pipeline.offline import check_outputs, open_sinks, track_to_sinks
-    from sinks.sink import SinkOptions
+    from sinks.records import SinkOptions
 
     outputs = {"mcap": Path(out), "rerun": Path(rrd)}
     check_outputs(log, outputs)

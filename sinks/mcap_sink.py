@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sinks.sink import SinkOptions, SinkRecord
+from sinks.records import SinkOptions, SinkRecord
 
 __all__ = ["McapSink"]
 

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sinks.metrics import RunScorer
-from sinks.sink import Sink, SinkOptions, SinkRecord
+from sinks.records import Sink, SinkOptions, SinkRecord
 
 __all__ = ["RerunRecordSink", "rerun_sink"]
 

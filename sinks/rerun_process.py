@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 
 from sinks.metrics import RunScorer
-from sinks.sink import SinkOptions, SinkRecord
+from sinks.records import SinkOptions, SinkRecord
 
 if TYPE_CHECKING:
     from tracker.models.params import ModelParams

@@ -1,13 +1,14 @@
 """The sink interface: what records a run (an MCAP log, a Rerun recording, ...).
 
-A sink is opened once with the run's metadata, gets one :class:`SinkRecord` per frame in
-frame order, and is closed once (:class:`Sink`).  :data:`SINKS` is the table of sinks by name;
+A sink is opened once with the run's metadata, gets one
+:class:`~sinks.records.SinkRecord` per frame in frame order, and is closed once
+(:class:`~sinks.records.Sink`, in :mod:`sinks.records`).  :data:`SINKS` is the table of sinks by name;
 :func:`make_sink` builds one from :class:`SinkOptions`, importing its module only then (the
 Rerun sink needs rerun-sdk, which takes a second to import and may be absent).
 :class:`SinkSet` feeds several sinks in order and closes all of them whatever happens.
 
 Adding a sink: one module with a class that has ``open``/``write``/``close`` and takes
-:class:`SinkOptions`, plus one entry in :data:`SINKS`.
+:class:`~sinks.records.SinkOptions`, plus one entry in :data:`SINKS`.
 
 This module imports neither rerun nor mcap.
 """
@@ -16,97 +17,11 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from dataclasses import dataclass, field
 
-if TYPE_CHECKING:
-    from tracker.types import Estimate, Frame
+from sinks.records import Sink, SinkOptions, SinkRecord
 
-__all__ = ["Sink", "SinkRecord", "Payloads", "SinkOptions", "SinkEntry", "SINKS", "make_sink", "SinkSet",
-           "UnknownSink", "check_sink_names"]
-
-
-@dataclass(frozen=True, slots=True)
-class Payloads:
-    """A frame's messages as the codec's bytes (``tracker.messages``), as
-    received and validated: a sink that stores messages writes them as they are, without
-    decoding to numpy and encoding again (the pipeline's sink stage).  ``truth`` / ``tracks``
-    are ``None`` when the frame has none; ``tracks_stamp_ns``: the ``/tracks`` message's own
-    stamp when it is not ``stamp_ns``."""
-
-    stamp_ns: int
-    frame: int
-    measurements: bytes | None
-    truth: bytes | None = None
-    tracks: bytes | None = None
-    tracks_stamp_ns: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class SinkRecord:
-    """One frame of a run, as every sink gets it.
-
-    ``frame``: the measurements (and truth) of the frame, ``None`` when they were lost
-    upstream (a gap in the pipeline: the tracks alone are recorded).  ``estimate``: the
-    tracker's output for the frame, ``None`` when there is none (a log without tracker).
-    ``scores``: the frame's :meth:`sinks.metrics.RunScorer.update` result when the caller has
-    scored it (``{"ospa": OspaResult | None, "ospa2": float | None}``); ``None``: a sink that
-    draws scores computes them.  ``health``: pipeline counters at this frame (time series of
-    the Rerun recording).  ``payloads``: the messages' bytes when the caller has them.
-    """
-
-    frame: Frame | None
-    estimate: Estimate | None = None
-    scores: Mapping[str, Any] | None = None
-    health: Mapping[str, float] | None = None
-    payloads: Payloads | None = None
-
-
-@runtime_checkable
-class Sink(Protocol):
-    """What records a run.
-
-    ``open(metadata)`` once before any record (the run's description: scenario, params,
-    tracker, seed, ...; ``None``: a run without one), ``write(record)`` once per frame in frame order, ``close()`` once at
-    the end (idempotent; the file is complete when it returns).
-    """
-
-    def open(self, metadata: Mapping[str, str] | None) -> None: ...
-
-    def write(self, record: SinkRecord) -> None: ...
-
-    def close(self) -> None: ...
-
-
-@dataclass(frozen=True)
-class SinkOptions:
-    """Where and how a sink writes: ``path`` (its file), ``params`` (the run's
-    :class:`tracker.models.params.ModelParams`, for a sink that draws the sensor's field of
-    view), ``run_id`` (the recording id), ``live`` (a Rerun viewer URL to stream to as well;
-    ``params`` and ``live`` may be callables that give them at ``open``: :meth:`now`),
-    ``handle_signals`` (finish the file at SIGTERM/SIGINT; main thread only), ``process``
-    (write in a child process, off the caller's critical path, when the sink can: the Rerun
-    sink, :mod:`sinks.rerun_process`; its construction then starts the child), ``source``
-    (the input log the run reads, for a sink that notes it: the Rerun recording's
-    ``source_log``)."""
-
-    path: Path
-    params: Any = None
-    run_id: str | None = None
-    live: Any = None
-    handle_signals: bool = False
-    process: bool = False
-    source: str | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "path", Path(self.path))
-
-    def now(self) -> SinkOptions:
-        """These options with ``params`` and ``live`` called when they are callables (a caller
-        that builds its sinks before it knows them: a sink calls this in ``open``)."""
-        late = {k: v() for k in ("params", "live") if callable(v := getattr(self, k))}
-        return replace(self, **late) if late else self
+__all__ = ["SinkEntry", "SINKS", "make_sink", "SinkSet", "UnknownSink", "check_sink_names"]
 
 
 @dataclass(frozen=True)

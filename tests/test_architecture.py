@@ -31,8 +31,24 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+_STRING_IMPORTERS = ("warm_imports", "import_module", "__import__")
+
+
+def _string_imports(node: ast.AST) -> list[str]:
+    """Modules named in strings: ``warm_imports("a.b")`` / ``importlib.import_module("a.b")``
+    arguments and ``"package.module:attribute"`` factory strings (e.g. the table of sinks)."""
+    if isinstance(node, ast.Call) and ast.unparse(node.func).split(".")[-1] in _STRING_IMPORTERS:
+        return [a.value for a in node.args if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        m = re.fullmatch(r"([a-z_][\w.]*):[A-Za-z_]\w*", node.value)
+        if m and m.group(1).split(".")[0] in PACKAGES:
+            return [m.group(1)]
+    return []
+
+
 def _imports(path: Path) -> list[tuple[str, int]]:
-    """Every absolute module name imported anywhere in ``path`` (also inside functions)."""
+    """Every absolute module name imported anywhere in ``path`` (also inside functions, and
+    named in strings that are imported later: see :func:`_string_imports`)."""
     tree = ast.parse(path.read_text(), filename=str(path))
     mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
     found = []
@@ -47,6 +63,7 @@ def _imports(path: Path) -> list[tuple[str, int]]:
                 name = node.module or ""
             found.append((name, node.lineno))
             found += [(f"{name}.{a.name}", node.lineno) for a in node.names]
+        found += [(name, getattr(node, "lineno", 0)) for name in _string_imports(node)]
     return found
 
 
@@ -69,6 +86,18 @@ def test_sources_and_sinks_do_not_import_the_pipeline():
 
 def test_tracker_imports_nothing_above_it():
     assert _violations(lambda m, n: _top(m) == "tracker" and _top(n) in ("pipeline", "sources", "sinks")) == []
+
+
+def test_the_tracker_floor_does_no_io():
+    """No transport, log format or viewer below the pipeline's and the sinks' adapters."""
+    io = ("zenoh", "mcap", "rerun")
+    assert _violations(lambda m, n: _top(m) == "tracker" and _top(n) in io) == []
+
+
+def test_string_imports_count_as_edges():
+    tree = ast.parse('SINKS = {"a": Entry("sinks.mcap_sink:McapSink")}\nwarm_imports("pipeline.resolve", "x")')
+    names = [n for node in ast.walk(tree) for n in _string_imports(node)]
+    assert sorted(names) == ["pipeline.resolve", "sinks.mcap_sink", "x"]
 
 
 def test_only_the_transport_imports_zenoh():
@@ -178,14 +207,39 @@ def _layout_row(folder: str) -> str:
     return rows[0]
 
 
+def _layout_paths(row: str) -> set[str]:
+    """The paths a layout row names: a backticked ``name.py`` or ``dir/``; names inside the
+    parentheses right after a ``dir/`` are in that folder (``bnp/ (filter.py, ...)``)."""
+    stack: list[str | None] = []
+    named, last_dir = set(), None
+    for tok in re.finditer(r"`([A-Za-z_][\w]*\.py|[A-Za-z_]\w*/)`|\(|\)", row.split("|")[2]):
+        text = tok.group(0)
+        if text == "(":
+            stack.append(last_dir)
+        elif text == ")":
+            stack.pop()
+        else:
+            path = next((d for d in reversed(stack) if d), "") + tok.group(1)
+            named.add(path)
+            last_dir = path if path.endswith("/") else None
+            continue
+        last_dir = None
+    return named
+
+
+def test_layout_paths_follow_the_parentheses():
+    row = "| `x/` | `a.py` (`b.py`), `d/` (`c.py`, `e/` (`f.py`)), `g.py` |"
+    assert _layout_paths(row) == {"a.py", "b.py", "d/", "d/c.py", "d/e/", "d/e/f.py", "g.py"}
+
+
 @pytest.mark.parametrize("pkg", PACKAGES)
 def test_the_readme_layout_names_every_module(pkg):
-    """Every module and sub-package of ``pkg`` is named in its README layout row, and the row
-    names no module that does not exist (a file's name alone, e.g. ``config.py``, counts)."""
-    row = _layout_row(pkg)
-    named = set(re.findall(r"`([A-Za-z_][\w]*\.py|[A-Za-z_]\w*/)`", row.split("|")[2]))
+    """Every module and sub-package of ``pkg`` is named, at its path, in its README layout row,
+    and the row names no path that does not exist."""
+    named = _layout_paths(_layout_row(pkg))
     base = ROOT / pkg
-    present = {p.name for p in base.rglob("*.py") if p.name != "__init__.py"}
-    present |= {p.name + "/" for p in base.rglob("*") if p.is_dir() and p.name != "__pycache__"}
-    assert present - named == set(), f"{pkg}/: not in README's layout row"
-    assert named - present == set(), f"{pkg}/: the README names what does not exist"
+    present = {str(p.relative_to(base)) for p in base.rglob("*.py") if p.name != "__init__.py"}
+    present |= {str(p.relative_to(base)) + "/" for p in base.rglob("*")
+                if p.is_dir() and p.name != "__pycache__"}
+    assert sorted(present - named) == [], f"{pkg}/: not in README's layout row"
+    assert sorted(named - present) == [], f"{pkg}/: the README names what does not exist"

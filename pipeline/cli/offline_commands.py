@@ -31,7 +31,8 @@ from pipeline.config import sink_outputs
 from pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, track_to_sinks)
 from pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
-from sinks.sink import SINKS, SinkOptions, SinkSet, check_sink_names
+from sinks.sink import SINKS, SinkSet, check_sink_names
+from sinks.records import SinkOptions
 from sources.mcap_log import read_metadata
 from sources.scenarios import OpenScenario, open_scenario, scenario_names
 from tracker.models.params import BUILTIN_PARAMS

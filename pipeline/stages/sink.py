@@ -15,7 +15,8 @@ from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext,
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream, StageInfo
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from sinks.sink import SINKS, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
+from sinks.sink import SINKS, SinkSet, make_sink
+from sinks.records import Payloads, Sink, SinkOptions, SinkRecord
 from tracker.types import FrameBounds
 
 __all__ = ["SinkStage"]

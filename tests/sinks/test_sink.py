@@ -14,17 +14,8 @@ import pytest  # noqa: E402
 
 from tracker.messages import encode, from_truth  # noqa: E402
 from sinks.metrics import ospa  # noqa: E402
-from sinks.sink import (  # noqa: E402
-    SINKS,
-    Payloads,
-    Sink,
-    SinkEntry,
-    SinkOptions,
-    SinkRecord,
-    SinkSet,
-    UnknownSink,
-    make_sink,
-)
+from sinks.sink import SINKS, SinkEntry, SinkSet, UnknownSink, make_sink  # noqa: E402
+from sinks.records import Payloads, Sink, SinkOptions, SinkRecord  # noqa: E402
 from sources.mcap_log import iter_frames, iter_tracks, read_metadata  # noqa: E402
 from sources.scenarios import get_scenario  # noqa: E402
 from sources.synthetic import simulate_all  # noqa: E402

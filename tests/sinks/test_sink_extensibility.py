@@ -19,7 +19,8 @@ from pipeline.cli import main
 from pipeline.config import PipelineConfig, apply_pipeline_overrides, resolve_run
 from pipeline.membus import MemoryNetwork
 from pipeline.stages import EXIT_OK, STAGES, SUMMARY_NAME, ManualClock, StageContext
-from sinks.sink import SINKS, SinkEntry, SinkOptions, SinkRecord
+from sinks.sink import SINKS, SinkEntry
+from sinks.records import SinkOptions, SinkRecord
 from sources.mcap_log import iter_frames, iter_tracks, read_metadata
 from tracker.config import ConfigError
 
