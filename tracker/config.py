@@ -30,6 +30,10 @@ OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]
 """A probability strictly inside ``(0, 1)``."""
 Fraction = Annotated[float, msgspec.Meta(ge=0.0, lt=1.0)]
 """A fraction in ``[0, 1)`` (a discount, a decay, a threshold below 1)."""
+PositiveProb = Annotated[float, msgspec.Meta(gt=0.0, le=1.0)]
+"""A positive probability or weight in ``(0, 1]`` (a forgetting factor, a ratio)."""
+StateList = Annotated[list[float], msgspec.Meta(min_length=5, max_length=5)]
+"""A 5-vector ``[x, vx, y, vy, omega]`` (or its standard deviations) as a list."""
 HalfFovDeg = Annotated[float, msgspec.Meta(gt=0.0, le=180.0)]
 """Half-width of a field of view in degrees, ``(0, 180]``."""
 

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, Prob
+from tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, PositiveProb, Prob
 
 
 class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -70,7 +70,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     hyper_estimate: Literal["mean", "sample"] = "mean"
     """What the next frame's urn uses of the grid posterior of (alpha, d): its mean
     (Rao-Blackwellised over the hyperparameter) or one draw (a plain Gibbs step)."""
-    hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
+    hyper_forgetting: PositiveProb = 0.98
     """Past frames' hyperparameter log-likelihood is multiplied by this each frame."""
     birth_lag: Annotated[int, msgspec.Meta(ge=0, le=50)] = 4
     """The hyperparameter likelihood counts the new clusters of frame ``k - birth_lag`` by their

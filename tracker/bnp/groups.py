@@ -42,7 +42,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, fields
 from functools import cached_property
-from typing import Annotated
 
 import msgspec
 import numpy as np
@@ -51,7 +50,7 @@ from tracker._numerics import jit
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from tracker.bnp.filter import BnpState, BnpTracker
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from tracker.config import Fraction, PosInt, Positive, Prob
+from tracker.config import Fraction, PosInt, Positive, PositiveProb, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
 
@@ -98,7 +97,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_shape: Positive = 1.0
     d_scale: Positive = 0.1
     infer_d: bool = False
-    hyper_forgetting: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.98
+    hyper_forgetting: PositiveProb = 0.98
 
 
 GROUP_PRESETS: dict[str, GroupConfig] = {

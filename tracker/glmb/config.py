@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import msgspec
 import numpy as np
 
-from tracker.config import Fraction, OpenProb, PosInt, Positive
+from tracker.config import Fraction, OpenProb, PosInt, Positive, PositiveProb
 from tracker.models.params import BirthComponent
 from tracker.types import Frame
 
@@ -68,7 +68,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (:func:`continuity_rows`); ``"marginal-labels"``: the MAP-cardinality number of labels
     with the largest marginal existence, each with its best association history
     (:func:`marginal_label_rows`)."""
-    continuity_ratio: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.5
+    continuity_ratio: PositiveProb = 0.5
     """``continuity`` / ``marginal-labels``: an estimate that continues the previous one is
     kept while its weight is at least this fraction of the best alternative's."""
 

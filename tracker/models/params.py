@@ -11,12 +11,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Annotated
 
 import msgspec
 import numpy as np
 
-from tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, apply_overrides, convert, did_you_mean,
+from tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
 from tracker.models.clutter import ClutterModel, Detection
 from tracker.models.measurement import DEFAULT_KIND, KINDS, MeasurementModel, measurement_kind
@@ -33,8 +32,8 @@ class BirthComponent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """One labeled-multi-Bernoulli birth component: existence ``r`` and a Gaussian."""
 
     r: Prob
-    mean: Annotated[list[float], msgspec.Meta(min_length=5, max_length=5)]
-    std: Annotated[list[float], msgspec.Meta(min_length=5, max_length=5)]
+    mean: StateList
+    std: StateList
 
 
 class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
