@@ -14,6 +14,7 @@ cluster).
 from __future__ import annotations
 
 import csv
+import importlib.util
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -360,10 +361,12 @@ def _save(fig, path: Path) -> Path:
 
 
 def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
-    """One ``.rrd`` per tracker of a run kept with ``keep_tracks`` (needs the Rerun sink)."""
-    try:
-        from sinks.rerun_sink import write_recording
-    except ImportError:
+    """One ``.rrd`` per tracker of a run kept with ``keep_tracks``, through the ``rerun`` entry
+    of the table of sinks (none without rerun-sdk)."""
+    from sinks.records import SinkOptions, SinkRecord
+    from sinks.sink import SinkSet, make_sink
+
+    if importlib.util.find_spec("rerun") is None:  # the sink needs rerun-sdk
         return []
     job = result.job
     exp, _, params, seed = _run_setup(job)
@@ -373,7 +376,13 @@ def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
         path = out / f"{spec.name}{tag}-run{job.run}.rrd"
         meta = {"experiment": job.experiment, "scenario": exp.scenario, "params": job.params,
                 "tracker": spec.name, "preset": spec.preset, "seed": str(seed), "variant": job.variant.label}
-        write_recording(path, result.frames, result.trackers[spec.label].estimates, meta, params=params)
+        sinks = SinkSet([make_sink("rerun", SinkOptions(path, params=params))])
+        sinks.open(meta)
+        try:
+            for frame, est in zip(result.frames, result.trackers[spec.label].estimates, strict=True):
+                sinks.write(SinkRecord(frame, est))
+        finally:
+            sinks.close()
         paths.append(path)
     return paths
 
