@@ -72,6 +72,7 @@ from pipeline.stages import (
     SUMMARY_NAME,
     StageContext,
     StageIOError,
+    UpstreamGone,
 )
 from tracker.config import ConfigError
 
@@ -129,6 +130,9 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
         return _run_profiled(STAGES[role](StageContext(cfg, bus, stop, name)), name)
     except ConfigError as exc:
         log.error("%s: configuration error: %s", name, exc)
+        return EXIT_CONFIG
+    except UpstreamGone as exc:  # restarted alone, with nothing to finalize: one line
+        log.error("%s", exc)
         return EXIT_CONFIG
     except OSError as exc:
         if isinstance(exc, ConnectionError) or exc.errno not in _FILE_ERRNOS:
@@ -421,9 +425,9 @@ class Launcher:
     def _on_exit(self, sp: StageProcess, result: LaunchResult) -> str:
         """A stage exited with ``sp.returncode``: done, failed (``"stop"``) or to restart."""
         rc = sp.returncode
-        if rc == EXIT_OK or (rc == EXIT_DATA and sp.role == "source"):
+        if rc in (EXIT_OK, EXIT_DATA):  # EXIT_DATA: finished, output incomplete (sink.json says what)
             sp.state = "done"
-            if rc == EXIT_DATA:
+            if rc == EXIT_DATA and sp.role == "source":
                 self._data_error = _DATA_ERROR
             return "changed"
         what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
@@ -537,8 +541,10 @@ def describe_missing(summary: dict | None) -> str:
     if not summary.get("complete", False):
         parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
     for m in summary.get("missing") or []:
-        seqs = m.get("seqs") or []
-        parts.append(f"{m.get('topic')} of {len(seqs)} frame(s), seq {_ranges(seqs)}: {m.get('why')}")
+        seqs = m.get("seqs") or []  # none, with from_seq: the rest of a run of unknown length
+        where = f"from seq {m['from_seq']} on" if not seqs and m.get("from_seq") is not None else \
+            f"of {len(seqs)} frame(s), seq {_ranges(seqs)}"
+        parts.append(f"{m.get('topic')} {where}: {m.get('why')}")
     return "; ".join(parts)
 
 

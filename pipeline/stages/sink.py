@@ -11,11 +11,12 @@ from typing import Any
 import msgspec
 
 from tracker.messages import to_estimate, to_frame, to_truth
-from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from sinks.sink import SINKS, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
+from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, missing_tail, salvage_part
+from sinks.sink import SINKS, OptionalSink, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
 from tracker.types import FrameBounds
 
 __all__ = ["SinkStage"]
@@ -72,6 +73,9 @@ class SinkStage(StageBase):
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
         self.t_first_pub_ns: int | None = None
+        self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
+        self.gone = ""  # why the sink stopped waiting (the upstream was gone)
+        self.recovered = 0  # frames recovered from the earlier process's .part file
 
     # -- output ------------------------------------------------------------------------
     def _metadata(self) -> tuple[bool, dict[str, str] | None]:
@@ -88,12 +92,13 @@ class SinkStage(StageBase):
             meta.setdefault("run", self.run_id)
         return True, meta
 
-    def _open(self, force: bool = False) -> bool:
+    def _open(self, force: bool = False, meta_if_unknown: dict[str, str] | None = None) -> bool:
         if self.sinks is not None:
             return True
         known, meta = self._metadata()
         if not known and not force:
             return False
+        meta = meta if known else meta_if_unknown
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
         built: list[tuple[str, Sink]] = []
@@ -123,7 +128,7 @@ class SinkStage(StageBase):
                 raise
             log.info("%s: the %s sink is not available (%s): no %s", self.name, name, exc, path.name)
             return None
-        return sink if entry.required else _Optional(sink, f"{self.name}: {name} sink ({path.name})")
+        return sink if entry.required else OptionalSink(sink, f"{self.name}: {name} sink ({path.name})")
 
     @staticmethod
     def _params(meta: dict[str, str] | None) -> Any:
@@ -388,6 +393,7 @@ class SinkStage(StageBase):
             "gaps": gaps,
             "output_complete": complete and not missing,
             "missing": missing,
+            "recovered_frames": self.recovered,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
             "rejected_by_topic": self.intake.rejected_by_topic,
@@ -439,7 +445,14 @@ class SinkStage(StageBase):
             "the sink rejected the frame (frame bounds; none of its messages were written)")
         for name, seqs in self.mismatched.items():
             add(name, seqs, "for another frame than its /measurements (dropped)")
-        return out
+        return out + self._missing_tail()
+
+    def _missing_tail(self) -> list[dict[str, Any]]:
+        if not self.gone:
+            return []
+        why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.last_frame}, from the "
+                           "killed sink's .part file)" if self.recovered else "")
+        return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
 
     def finished_before(self) -> dict | None:
         """The ``sink.json`` of this run when an earlier sink process recorded the whole run
@@ -481,7 +494,15 @@ class SinkStage(StageBase):
             seq.hold_catch_up_through(self.bus.head(name))
         self.bus.declare([f"eos/{self.name}"])
         self.bus.declare_alive()
-        if not self._record():
+        if self._restarted():
+            self.alone = UpstreamWatch(self.bus, ["source"] + (["tracker"] if self.sink_cfg.tracks else []),
+                                       topics, self.delivery.upstream_gone_s, self.clock.monotonic)
+        outcome = self._record()
+        if outcome == "alone":
+            log.error("%s: run %s: %s; wrote what it has: %s", self.name, self.run_id, self.gone,
+                      ", ".join(self.files))
+            return EXIT_DATA
+        if outcome == "stopped":
             return EXIT_STOPPED
         self.publish_control("eos", EndOfStream(
             stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
@@ -501,13 +522,25 @@ class SinkStage(StageBase):
                 except ImportError:  # that sink is left out when it opens
                     pass
 
-    def _record(self) -> bool:
-        """Record until the run is complete (True) or the stage is stopped (False); the
-        outputs are finalized either way (or abandoned after a write error)."""
-        complete = False
+    def _restarted(self) -> bool:
+        """Whether an earlier sink process of this run left its unfinished outputs here."""
+        return any(part_path(p).exists() for p in self.sink_cfg.paths(self.ctx.out).values())
+
+    def _record(self) -> str:
+        """Record until the run is complete (``"complete"``), the stage is stopped
+        (``"stopped"``) or, restarted, it finds the upstream gone (``"alone"``: it first
+        writes what it recovers from the earlier process's ``.part`` file when it received
+        nothing itself; nothing at all raises :class:`UpstreamGone`, and no file is touched).
+        The outputs are finalized (or abandoned after a write error)."""
+        outcome = "stopped"
         failed = False
         try:
-            complete = self._loop()
+            outcome = self._loop()
+            if outcome == "alone" and self.sinks is None:
+                self._salvage()
+        except UpstreamGone:
+            failed = True
+            raise
         except OSError as exc:
             if isinstance(exc, ConnectionError):  # the transport, not a file
                 raise
@@ -518,11 +551,28 @@ class SinkStage(StageBase):
             raise StageIOError(self.name, exc.filename or self.ctx.out / self.sink_cfg.mcap_name, exc) from None
         finally:
             if not failed:
-                self._finalize_or_abandon(complete)
+                self._finalize_or_abandon(outcome == "complete")
             self.health(force=True, extra=self._sink_health)
-        return complete
+        return outcome
 
-    def _loop(self) -> bool:
+    def _salvage(self) -> None:
+        """Write the frames the killed sink process had written to its ``.part`` file (read
+        before anything reopens it), as if received: every sink gets them again."""
+        found = salvage_part(part_path(self.ctx.out / self.sink_cfg.mcap_name), self.run_id)
+        if found is None or not found.frames:
+            raise UpstreamGone(f"stage {self.name}: run {self.run_id}: {self.gone}, and nothing to recover "
+                               f"(no readable frame in {part_path(self.ctx.out / self.sink_cfg.mcap_name)}): "
+                               "nothing written")
+        self._open(force=True, meta_if_unknown=found.metadata)
+        for s, f in enumerate(found.frames):
+            self._write(s, *f.items(s, self.sink_cfg.tracks))
+            self.last_frame, self.last_stamp_ns = f.frame, f.stamp_ns
+        self.recovered = self.next_write = len(found.frames)
+        self.streams = {k: Sequencer.for_delivery(self.delivery, self.next_write, k) for k in self.streams}
+        log.info("%s: recovered %d frame(s) (up to frame %d) from the killed sink's .part file", self.name,
+                 self.recovered, self.last_frame)
+
+    def _loop(self) -> str:
         while not self.ctx.stop.is_set():
             ev = self.bus.recv(0.05)
             if ev is not None:
@@ -534,8 +584,11 @@ class SinkStage(StageBase):
             self._fetch_due()
             self.health(extra=self._sink_health)
             if self._check_end():
-                return True
-        return False
+                return "complete"
+            if self.alone is not None and self.alone.gone():
+                self.gone = self.alone.reason()
+                return "alone"
+        return "stopped"
 
     def _on_event(self, ev: Any) -> None:
         if not self.on_control(ev):
@@ -543,37 +596,3 @@ class SinkStage(StageBase):
 
 
 _NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
-
-
-class _Optional:
-    """A sink whose failure must not end the recording (an entry that is not ``required``:
-    the Rerun recording): its first error is logged and the sink is dropped (``failed``)."""
-
-    def __init__(self, sink: Sink, what: str) -> None:
-        self.sink, self.what, self.failed = sink, what, False
-
-    def _guard(self, call: Any, *args: Any) -> None:
-        if self.failed:
-            return
-        try:
-            call(*args)
-        except Exception as exc:  # a viewer file must not end the recording
-            log.error("%s failed, disabling it: %s", self.what, exc)
-            self.failed = True
-            try:
-                self.sink.close()
-            except Exception:
-                pass
-
-    def open(self, metadata: Any) -> None:
-        self._guard(self.sink.open, metadata)
-
-    def write(self, record: SinkRecord) -> None:
-        self._guard(self.sink.write, record)
-
-    def close(self) -> None:
-        if not self.failed:
-            try:
-                self.sink.close()
-            except Exception as exc:
-                log.error("%s: closing it: %s", self.what, exc)
