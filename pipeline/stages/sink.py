@@ -15,7 +15,7 @@ from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, St
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, missing_tail, salvage_part
+from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
 from sinks.sink import SINKS, OptionalSink, Payloads, Sink, SinkOptions, SinkRecord, SinkSet, make_sink
 from tracker.types import FrameBounds
 
@@ -76,6 +76,7 @@ class SinkStage(StageBase):
         self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
         self.gone = ""  # why the sink stopped waiting (the upstream was gone)
         self.recovered = 0  # frames recovered from the earlier process's .part file
+        self.earlier: dict | None = None  # the sink.json an earlier process of this run wrote
 
     # -- output ------------------------------------------------------------------------
     def _metadata(self) -> tuple[bool, dict[str, str] | None]:
@@ -454,22 +455,9 @@ class SinkStage(StageBase):
                            "killed sink's .part file)" if self.recovered else "")
         return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
 
-    def finished_before(self) -> dict | None:
-        """The ``sink.json`` of this run when an earlier sink process recorded the whole run
-        (``complete``): a sink restarted after that (killed while it lingered) must not
-        reopen, i.e. truncate, the finished files.  Renames what that process left as
-        ``.part`` (killed between ``sink.json`` and the renames)."""
-        try:
-            summary = msgspec.json.decode((self.ctx.out / SUMMARY_NAME).read_bytes())
-        except (OSError, msgspec.DecodeError):
-            return None
-        if not isinstance(summary, dict) or summary.get("run") != self.run_id or not summary.get("complete"):
-            return None
-        commit_parts(summary.get("files") or [])
-        return summary
-
     def _end_again(self, summary: dict) -> int:
         """Announce the recorded end of stream again (for stages still waiting for it)."""
+        commit_parts(summary.get("files") or [])  # killed between sink.json and the renames
         log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
                  self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
         self.bus.subscribe(["eos/*"])
@@ -484,9 +472,11 @@ class SinkStage(StageBase):
         return EXIT_OK
 
     def run(self) -> int:
-        done = self.finished_before()
-        if done is not None:
-            return self._end_again(done)
+        # an earlier sink process of this run finished: a complete run is never reopened
+        # (truncated); an incomplete one is kept unless this sink records the run itself
+        self.earlier = earlier_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
+        if self.earlier is not None and self.earlier.get("complete"):
+            return self._end_again(self.earlier)
         self._warm_up()
         topics = ["measurements", "truth"] + (["tracks"] if self.sink_cfg.tracks else [])
         self.bus.subscribe(topics + ["info/*", "eos/*"])
@@ -498,11 +488,11 @@ class SinkStage(StageBase):
             self.alone = UpstreamWatch(self.bus, ["source"] + (["tracker"] if self.sink_cfg.tracks else []),
                                        topics, self.delivery.upstream_gone_s, self.clock.monotonic)
         outcome = self._record()
-        if outcome == "alone":
-            log.error("%s: run %s: %s; wrote what it has: %s", self.name, self.run_id, self.gone,
-                      ", ".join(self.files))
+        if self.gone:  # alone: finalized (or kept) what the run has
+            log.error("%s: run %s: %s; %s what it has in %s", self.name, self.run_id, self.gone,
+                      "kept" if outcome == "kept" else "wrote", self.ctx.out)
             return EXIT_DATA
-        if outcome == "stopped":
+        if outcome in ("stopped", "kept"):
             return EXIT_STOPPED
         self.publish_control("eos", EndOfStream(
             stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
@@ -523,21 +513,22 @@ class SinkStage(StageBase):
                     pass
 
     def _restarted(self) -> bool:
-        """Whether an earlier sink process of this run left its unfinished outputs here."""
-        return any(part_path(p).exists() for p in self.sink_cfg.paths(self.ctx.out).values())
+        """Whether an earlier sink process of this run left its outputs (finished or not) here."""
+        return self.earlier is not None or any(part_path(p).exists() for p in self.sink_cfg.paths(self.ctx.out).values())
 
     def _record(self) -> str:
         """Record until the run is complete (``"complete"``), the stage is stopped
-        (``"stopped"``) or, restarted, it finds the upstream gone (``"alone"``: it first
-        writes what it recovers from the earlier process's ``.part`` file when it received
-        nothing itself; nothing at all raises :class:`UpstreamGone`, and no file is touched).
-        The outputs are finalized (or abandoned after a write error)."""
+        (``"stopped"``) or, restarted, it finds the upstream gone (``"alone"``).  Having received
+        nothing itself, it keeps an earlier process's finished output (``"kept"``: nothing is
+        touched) or first writes what it recovers from that process's ``.part`` file; nothing
+        at all, alone, raises :class:`UpstreamGone` (no file touched).  The outputs are
+        finalized (or abandoned after a write error)."""
         outcome = "stopped"
         failed = False
         try:
             outcome = self._loop()
-            if outcome == "alone" and self.sinks is None:
-                self._salvage()
+            if outcome != "complete" and self.sinks is None:
+                outcome = self._recover(outcome)
         except UpstreamGone:
             failed = True
             raise
@@ -550,19 +541,27 @@ class SinkStage(StageBase):
                 raise
             raise StageIOError(self.name, exc.filename or self.ctx.out / self.sink_cfg.mcap_name, exc) from None
         finally:
-            if not failed:
+            if not failed and outcome != "kept":
                 self._finalize_or_abandon(outcome == "complete")
             self.health(force=True, extra=self._sink_health)
         return outcome
 
-    def _salvage(self) -> None:
-        """Write the frames the killed sink process had written to its ``.part`` file (read
-        before anything reopens it), as if received: every sink gets them again."""
+    def _recover(self, outcome: str) -> str:
+        """Keep an earlier finished output, or write the frames the killed sink process had
+        written to its ``.part`` file (read before anything reopens it), as if received:
+        every sink gets them again."""
+        if self.earlier is not None:
+            commit_parts(self.earlier.get("files") or [])  # killed between sink.json and the renames
+            log.info("%s: %s already records %d frame(s) of this run (output incomplete); keeping it",
+                     self.name, self.ctx.out / SUMMARY_NAME, self.earlier.get("frames_written", 0))
+            return "kept"
         found = salvage_part(part_path(self.ctx.out / self.sink_cfg.mcap_name), self.run_id)
-        if found is None or not found.frames:
+        if (found is None or not found.frames) and outcome == "alone":
             raise UpstreamGone(f"stage {self.name}: run {self.run_id}: {self.gone}, and nothing to recover "
                                f"(no readable frame in {part_path(self.ctx.out / self.sink_cfg.mcap_name)}): "
                                "nothing written")
+        if found is None or not found.frames:
+            return outcome
         self._open(force=True, meta_if_unknown=found.metadata)
         for s, f in enumerate(found.frames):
             self._write(s, *f.items(s, self.sink_cfg.tracks))
@@ -571,6 +570,7 @@ class SinkStage(StageBase):
         self.streams = {k: Sequencer.for_delivery(self.delivery, self.next_write, k) for k in self.streams}
         log.info("%s: recovered %d frame(s) (up to frame %d) from the killed sink's .part file", self.name,
                  self.recovered, self.last_frame)
+        return outcome
 
     def _loop(self) -> str:
         while not self.ctx.stop.is_set():

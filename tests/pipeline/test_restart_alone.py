@@ -146,6 +146,32 @@ def test_a_sink_restarted_alone_finalizes_the_killed_sinks_frames_and_exits_3(tm
                            "upstream gone before the end of stream")
 
 
+def test_a_sink_started_again_after_an_incomplete_finalized_run_never_truncates_it(tmp_path, finished):
+    """The output a restarted sink finalized (7 recovered frames, output incomplete) is
+    finished: a sink started again with nobody there, or stopped before it received
+    anything, keeps it byte for byte (exit 3 alone, 130 stopped) instead of replacing it
+    with an empty recording."""
+    out = _killed_sink_dir(tmp_path, finished, 7)
+    cfg = _cfg_for(finished, out)
+    result, clock, t = _run_alone(cfg, "sink")
+    _drive(clock, t)
+    assert result["code"] == EXIT_DATA
+    files = [out / "tracks.mcap", out / SUMMARY_NAME]
+    before = [_digest(p) for p in files]
+    result, clock, t = _run_alone(cfg, "sink")
+    _drive(clock, t)
+    assert result["code"] == EXIT_DATA and result["t"] >= GONE_S
+    assert [_digest(p) for p in files] == before
+    net = MemoryNetwork()
+    net.bus(cfg.run, "source").declare_alive()  # someone there: it waits, then is stopped
+    result, clock, t = _run_alone(cfg, "sink", net)
+    _drive(clock, t, until=3 * GONE_S)
+    result["ctx"].stop.set()
+    _drive(clock, t)
+    assert result["code"] == EXIT_STOPPED and [_digest(p) for p in files] == before
+    assert not list(out.glob(".*.part"))
+
+
 def test_a_sink_restarted_alone_with_nothing_to_recover_exits_2_and_touches_nothing(tmp_path, finished):
     """The killed sink had written no frame yet (header only): one line naming the run and
     the missing upstream, exit 2 (from `bnptrack stage`), and the .part is left as it was."""
