@@ -101,3 +101,40 @@ def test_a_sink_started_by_hand_after_the_others_left_finalizes_the_killed_sinks
     assert {m["topic"] for m in s["missing"]} == {"/measurements", "/truth", "/tracks"}
     assert all(m["from_seq"] == k and m["why"].startswith("upstream gone before the end of stream")
                for m in s["missing"])
+
+
+def test_a_launch_restarts_a_sink_killed_after_the_others_left_and_it_finalizes_their_frames(tmp_path):
+    """The launcher's side: source and tracker leave without waiting for the sink
+    (``done_by = []``); the sink, paused meanwhile, is SIGKILLed once both are done.  The
+    launcher restarts it (its .part holds frames), the restarted sink finalizes them alone
+    (exit 3), and the launch exits 3 naming the missing rest, no .part left behind."""
+    sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
+    from faults import make_log
+
+    log = make_log(tmp_path / "vo100.mcap", 100)
+    out = tmp_path / "run"
+    p = _popen("replay", str(log), "--rate", "25", "--set", "sink.rerun=false", "--set", "tracker.snapshot_every=10",
+               "--set", "source.done_by=[]", "--set", "tracker.done_by=[]", "--out", str(out), "--timeout", "120")
+
+    def stages() -> dict:
+        try:
+            return json.loads((out / "stages.json").read_text())
+        except (OSError, ValueError):
+            return {}
+
+    try:
+        wait_until(lambda: _snapshot_seq(out) >= 20, 90, "the tracker to pass seq 20", abort=lambda: p.poll() is not None)
+        sink = stages()["sink"]["pid"]
+        os.kill(sink, signal.SIGSTOP)
+        wait_until(lambda: stages().get("source", {}).get("state") == "done" == stages().get("tracker", {}).get("state"),
+                   90, "the source and the tracker to finish", abort=lambda: p.poll() is not None)
+        os.kill(sink, signal.SIGKILL)
+    finally:
+        code, text = _finish(p, 150)
+    assert code == 3, text
+    assert "upstream gone before the end of stream" in text and "giving up" not in text
+    assert stages()["sink"]["restarts"] == 1 and stages()["sink"]["returncode"] == 3
+    s = json.loads((out / SUMMARY_NAME).read_text())
+    assert s["recovered_frames"] >= 1 and s["frames_written"] == s["recovered_frames"] and not s["output_complete"]
+    assert len(read_log(out / "tracks.mcap").tracks) == s["recovered_frames"]
+    assert not list(out.glob(".*.part"))
