@@ -27,10 +27,18 @@ Families (``--only`` picks some):
   within 10 s after the disk fills, one line naming the file and the stage, no ``.part`` or
   temporary files left;
 * ``taken``: a launch on an ``--out`` that holds another run: refused (exit 2), the other
-  run's files unchanged.
+  run's files unchanged;
+* ``restart-alone``: a stage started by hand (``bnptrack stage``, on a router of its own) after
+  the others have left: ``--points`` runs (100 frames at 25 frames/s, ``max_restarts = 0``)
+  whose sink is SIGKILLed at a seeded frame, then a sink started by hand must end within 90 s
+  with exit 3, the killed sink's frames intact (equal to offline ``track``) and sink.json
+  naming the missing rest (exit 2 and nothing touched when the killed sink had written no
+  frame); plus the tracker of such a run started by hand (exit 3, snapshot and journal
+  unchanged) and a sink started by hand after a complete run (exit 0, files unchanged).
 
     nice -n 5 python benchmarks/faults.py                 # every family, 10 points each
     python benchmarks/faults.py --only kill --points 3 --json out.json
+    nice -n 5 python benchmarks/faults.py --only restart-alone --points 10
 """
 
 from __future__ import annotations
@@ -418,7 +426,119 @@ def family_taken(work: Path) -> list[dict]:
     return [case]
 
 
-FAMILIES = ("kill", "stop", "forged", "malformed", "mcap", "full", "taken")
+def _digests(out: Path, names: list[str]) -> dict[str, str]:
+    return {n: hashlib.sha256((out / n).read_bytes()).hexdigest() for n in names if (out / n).exists()}
+
+
+def _by_hand(role: str, out: Path, timeout: float = 90) -> tuple[int | None, str, float]:
+    """``bnptrack stage ROLE`` on a router of its own, nobody else there: exit code (None:
+    it did not end within ``timeout``), output, seconds."""
+    from pipeline.config import ZenohConfig
+    from pipeline.transport import Router
+
+    run = json.loads((out / "pipeline.json").read_text())["run"]
+    t0 = time.monotonic()
+    with Router(ZenohConfig()) as router:
+        p = subprocess.Popen([sys.executable, "-m", "pipeline", "stage", role, "--run", run, "--connect",
+                              router.endpoints[0], "--out", str(out), "--set", "sink.rerun=false"],
+                             cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             start_new_session=True)
+        code, text = finish(p, timeout)
+    return code, text, time.monotonic() - t0
+
+
+def _sink_killed(log: Path, out: Path, at: int) -> tuple[int | None, bool]:
+    """A replay whose sink is SIGKILLed once the tracker passed seq ``at`` (no restart: the
+    launcher gives up and stops the others); its exit code and whether the kill happened."""
+    p = replay(log, out, 25, 150, "--set", "supervisor.max_restarts=0")
+    killed = False
+    if wait_until(lambda: snapshot_seq(out) >= at, p, 150) and (pid := stage_pid(out, "sink")):
+        try:
+            os.kill(pid, signal.SIGKILL)
+            killed = True
+        except ProcessLookupError:
+            pass
+    code, _ = finish(p, 180)
+    return code, killed
+
+
+def _judge_alone_sink(out: Path, code: int | None, written: list, expected: list, before: dict) -> tuple[bool, str]:
+    """A hand-started sink after its predecessor was killed: exit 3 with the killed sink's
+    frames intact (= offline) and the rest named missing; or exit 2, nothing touched, when
+    the predecessor had written no frame."""
+    from pipeline.stages import salvage_part
+
+    if code is None:
+        return False, "hang"
+    if not written:
+        return code == 2 and _digests(out, list(before)) == before, f"exit {code} with nothing to recover"
+    if code != 3:
+        return False, f"exit {code}"
+    s = json.loads((out / "sink.json").read_text())
+    run = s["run"]
+    same = [f.payloads for f in salvage_part(out / "tracks.mcap", run).frames] == [f.payloads for f in written]
+    offline_prefix = tracks_of(out / "tracks.mcap") == expected[: len(written)]
+    named = bool(s["missing"]) and all(m["why"].startswith("upstream gone") for m in s["missing"])
+    ok = same and offline_prefix and named and not s["output_complete"] and not (out / ".tracks.mcap.part").exists()
+    return ok, f"exit 3, {len(written)} frame(s) kept" + ("" if ok else f" (same {same}, offline {offline_prefix}, named {named})")
+
+
+def _alone_sink_case(work: Path, i: int, log: Path, expected: list, at: int) -> dict:
+    from pipeline.stages import salvage_part
+
+    out = work / f"alone{i}"
+    launch_code, killed = _sink_killed(log, out, at)
+    run = json.loads((out / "pipeline.json").read_text())["run"]
+    if launch_code == 0:  # the run was recorded before the kill landed: the complete case
+        return _alone_after_complete(out, f"kill at {at} landed after the run")
+    found = salvage_part(out / ".tracks.mcap.part", run)
+    written = found.frames if found is not None else []
+    before = _digests(out, [".tracks.mcap.part", "sink.json", "tracks.mcap"])
+    code, text, secs = _by_hand("sink", out)
+    ok, why = _judge_alone_sink(out, code, written, expected, before)
+    return {"family": "restart-alone", "role": "sink", "at": at, "killed": killed, "launch_exit": launch_code,
+            "frames_before": len(written), "exit": code, "seconds": round(secs, 1), "ok": ok, "why": why}
+
+
+def _alone_after_complete(out: Path, what: str) -> dict:
+    names = ["tracks.mcap", "sink.json"]
+    before = _digests(out, names)
+    code, _, secs = _by_hand("sink", out)
+    ok = code == 0 and _digests(out, names) == before
+    return {"family": "restart-alone", "role": "sink", "at": "complete", "exit": code, "seconds": round(secs, 1),
+            "ok": ok, "why": f"{what}: exit {code}, files {'unchanged' if ok else 'CHANGED'}"}
+
+
+def _alone_tracker(out: Path) -> dict:
+    names = ["tracker.snap", "tracker.journal"]
+    before = _digests(out, names)
+    code, _, secs = _by_hand("tracker", out)
+    ok = code == 3 and _digests(out, names) == before
+    return {"family": "restart-alone", "role": "tracker", "at": "after the sink's kill", "exit": code,
+            "seconds": round(secs, 1), "ok": ok, "why": f"exit {code}, snapshot and journal "
+                                                         f"{'unchanged' if _digests(out, names) == before else 'CHANGED'}"}
+
+
+def family_restart_alone(work: Path, points: int, seed: int) -> list[dict]:
+    rng = random.Random(seed)
+    log = make_log(work / "vo100a.mcap", 100)
+    expected = offline_tracks(log, work / "off100a.mcap")
+    cases = []
+    for i in range(points):
+        cases.append(_alone_sink_case(work, i, log, expected, rng.randrange(5, 95)))
+        print(json.dumps(cases[-1]), flush=True)
+    out = work / "alone-t"
+    _sink_killed(log, out, 50)
+    cases.append(_alone_tracker(out))
+    print(json.dumps(cases[-1]), flush=True)
+    done = work / "alone-done"
+    finish(replay(log, done, None, 150), 180)
+    cases.append(_alone_after_complete(done, "a complete run"))
+    print(json.dumps(cases[-1]), flush=True)
+    return cases
+
+
+FAMILIES = ("kill", "stop", "forged", "malformed", "mcap", "full", "taken", "restart-alone")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -448,10 +568,13 @@ def main(argv: list[str] | None = None) -> int:
                 cases += family_full(work)
             elif fam == "taken":
                 cases += family_taken(work)
+            elif fam == "restart-alone":
+                cases += family_restart_alone(work, args.points, args.seed)
     print("\nfamily      tried  nothing lost")
     table = {}
     for c in cases:
-        key = c["family"] + (f"/{c['role']}/{c['run']}" if c["family"] == "kill" else "")
+        key = c["family"] + (f"/{c['role']}/{c['run']}" if c["family"] == "kill" else
+                             f"/{c['role']}" if c["family"] == "restart-alone" else "")
         t = table.setdefault(key, [0, 0])
         if c["ok"] is None:
             continue

@@ -278,6 +278,11 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``max_frame_gap`` frame numbers, or ``max_gap_s`` seconds of time stamp, after the previous
     processed frame (or not after it) is rejected and counted by the tracker and the sink
     (:class:`tracker.types.FrameBounds`; ``bnptrack track --max-frame-gap / --max-gap-s``).
+
+    ``upstream_gone_s``: a *restarted* sink or tracker (one that finds its earlier process's
+    ``.part`` files or snapshot) that sees no live upstream stage for that many seconds, and no
+    publisher's cache that answers, stops waiting: it finalizes what it has and exits 3, or
+    exits 2 when it has nothing (docs/pipeline.md, "Restart at any moment").
     """
 
     window: PosInt = 32
@@ -290,6 +295,7 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     max_seq_ahead: PosInt = 100_000
     max_frame_gap: PosInt = 1000
     max_gap_s: Positive = 3600.0
+    upstream_gone_s: Positive = 5.0
 
     @property
     def catch_up(self) -> int:

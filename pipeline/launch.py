@@ -16,8 +16,8 @@ and the entry point of one stage process (``bnptrack stage``).
    stage as ``python -m pipeline stage ROLE --pipeline <out>/pipeline.json`` in its own
    session (so a terminal's Ctrl-C reaches the launcher only), logging to
    ``<out>/logs/<stage>.log``; ``<out>/stages.json`` lists their pids and restarts;
-4. supervises: a stage that exits 0 is done (a source that exits 3 is done with a data
-   error), a stage that crashes (any other code, or a signal) is restarted up to
+4. supervises: a stage that exits 0 or 3 is done (3: its output is incomplete; from the
+   source: a data error), a stage that crashes (any other code, or a signal) is restarted up to
    ``supervisor.max_restarts`` times; a configuration error (2) stops the pipeline;
 5. ends when every stage has exited (the source and the tracker leave once the sink has
    recorded the end of stream); SIGINT / SIGTERM (or ``timeout``) stop every stage with
@@ -56,22 +56,19 @@ from pipeline.supervisor import (
     StageProcess,
     open_embedded_router,
     recorded_complete,
+    sink_left_output,
     stop_stages,
     write_stages,
 )
 from pipeline.stages import (
-    EXIT_CONFIG,
-    EXIT_CRASH,
-    EXIT_DATA,
-    EXIT_IO,
-    EXIT_OK,
-    EXIT_STOPPED,
+    EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK, EXIT_STOPPED,
     JOURNAL_NAME,
     SNAPSHOT_NAME,
     STAGES,
     SUMMARY_NAME,
     StageContext,
     StageIOError,
+    UpstreamGone,
 )
 from tracker.config import ConfigError
 
@@ -129,6 +126,9 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
         return _run_profiled(STAGES[role](StageContext(cfg, bus, stop, name)), name)
     except ConfigError as exc:
         log.error("%s: configuration error: %s", name, exc)
+        return EXIT_CONFIG
+    except UpstreamGone as exc:  # restarted alone, with nothing to finalize: one line
+        log.error("%s", exc)
         return EXIT_CONFIG
     except OSError as exc:
         if isinstance(exc, ConnectionError) or exc.errno not in _FILE_ERRNOS:
@@ -421,9 +421,9 @@ class Launcher:
     def _on_exit(self, sp: StageProcess, result: LaunchResult) -> str:
         """A stage exited with ``sp.returncode``: done, failed (``"stop"``) or to restart."""
         rc = sp.returncode
-        if rc == EXIT_OK or (rc == EXIT_DATA and sp.role == "source"):
+        if rc in (EXIT_OK, EXIT_DATA):  # EXIT_DATA: finished, output incomplete (sink.json says what)
             sp.state = "done"
-            if rc == EXIT_DATA:
+            if rc == EXIT_DATA and sp.role == "source":
                 self._data_error = _DATA_ERROR
             return "changed"
         what = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit code {rc}"
@@ -480,8 +480,8 @@ class Launcher:
         """Whether a crashed stage must not be restarted: ``"done"`` when the run is complete
         without it (it was killed after the sink had recorded everything), an error when its
         output can no longer be completed (the sink, killed before it had recorded the run,
-        after every other stage had left: nothing would send it the history), ``""`` to
-        restart it."""
+        after every other stage had left, with no output to finalize), ``""`` to restart it
+        (alone, it finalizes what its predecessor wrote: :func:`sink_left_output`)."""
         others = [o for o in self.stages if o is not sp]
         sinks = [o for o in others if o.role == "sink"]
         if sp.role != "sink":
@@ -494,8 +494,9 @@ class Launcher:
         if recorded_complete(self.out / SUMMARY_NAME, self.cfg.run):
             self.echo(f"stage sink (pid {sp.pid}) was {what} after it had recorded the complete run: done")
             return "done"
-        return (f"stage sink was {what} after every other stage had finished: nothing can resend "
-                f"it the run, so its output is incomplete (log: {sp.log_path})")
+        return "" if sink_left_output(self.cfg, self.out) else (
+            f"stage sink was {what} after every other stage had finished: nothing can resend "
+            f"it the run, so its output is incomplete (log: {sp.log_path})")
 
     def _report_progress(self, t0: float, phase: str = "") -> None:
         if self.progress is None:
@@ -537,8 +538,10 @@ def describe_missing(summary: dict | None) -> str:
     if not summary.get("complete", False):
         parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
     for m in summary.get("missing") or []:
-        seqs = m.get("seqs") or []
-        parts.append(f"{m.get('topic')} of {len(seqs)} frame(s), seq {_ranges(seqs)}: {m.get('why')}")
+        seqs = m.get("seqs") or []  # none, with from_seq: the rest of a run of unknown length
+        where = f"from seq {m['from_seq']} on" if not seqs and m.get("from_seq") is not None else \
+            f"of {len(seqs)} frame(s), seq {_ranges(seqs)}"
+        parts.append(f"{m.get('topic')} {where}: {m.get('why')}")
     return "; ".join(parts)
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "TRACKERS",
     "ParamsChoice",
     "TrackerSetup",
+    "run_params",
     "tracker_setup",
     "resolve_params",
     "resolve_config",
@@ -282,3 +283,16 @@ def tracker_setup(
     if overrides:
         out_meta["tracker_overrides"] = format_overrides(overrides)
     return TrackerSetup(built, tracker, final_params, settings, choice, config_desc, tuple(overrides), out_meta)
+
+
+def run_params(record: Mapping[str, str] | None, announced: Mapping[str, Any] | None) -> ModelParams | None:
+    """The model parameters a run's tracker used, for a consumer of its output (the sink
+    stage draws the sensor's field of view with them): ``announced``, the tracker's
+    :func:`tracker_setup` result as builtins (its ``info``), else the input ``record``
+    resolved as :func:`resolve_params` does; ``None`` if neither resolves."""
+    try:
+        if announced is not None:
+            return msgspec.convert(announced, ModelParams)
+        return resolve_params(None, record).params
+    except (ConfigError, ValueError, msgspec.ValidationError):
+        return None

@@ -20,7 +20,7 @@ import msgspec
 from pipeline.config import PipelineConfig, ZenohConfig
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
-           "write_stages", "stop_stages"]
+           "sink_left_output", "write_stages", "stop_stages"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -206,6 +206,19 @@ def recorded_complete(summary_path: Path, run: str) -> bool:
         return False
     commit_parts(summary.get("files") or [])
     return True
+
+
+def sink_left_output(cfg: PipelineConfig, out: Path) -> bool:
+    """Whether a sink process of run ``cfg.run`` left an output in ``out`` that a sink
+    restarted with nobody else there finalizes (exit 3): a ``sink.json`` of this run, or a
+    ``.tracks.mcap.part`` with a readable frame (:func:`pipeline.stages.salvage_part`)."""
+    from pipeline.stages.recovery import part_path
+    from pipeline.stages.salvage import earlier_summary, salvage_part
+
+    if earlier_summary(out / "sink.json", cfg.run) is not None:
+        return True
+    found = salvage_part(part_path(out / cfg.sink.mcap_name), cfg.run) if cfg.sink.mcap else None
+    return found is not None and bool(found.frames)
 
 
 def open_embedded_router(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[Any, ZenohConfig, dict[str, str]]:

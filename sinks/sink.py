@@ -16,12 +16,16 @@ This module imports neither rerun nor mcap.
 from __future__ import annotations
 
 import importlib
+import logging
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 from dataclasses import dataclass, field
 
 from sinks.records import Sink, SinkOptions, SinkRecord
 
-__all__ = ["SinkEntry", "SINKS", "make_sink", "SinkSet", "UnknownSink", "check_sink_names"]
+__all__ = ["SinkEntry", "SINKS", "make_sink", "SinkSet", "OptionalSink", "UnknownSink", "check_sink_names"]
+
+log = logging.getLogger("bnptrack.sink")
 
 
 @dataclass(frozen=True)
@@ -131,3 +135,38 @@ class SinkSet:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class OptionalSink:
+    """A sink whose failure must not end the recording (an entry of :data:`SINKS` that is not
+    ``required``: the Rerun recording): its first error is logged (``what`` names it) and the
+    sink is dropped (``failed``)."""
+
+    def __init__(self, sink: Sink, what: str) -> None:
+        self.sink, self.what, self.failed = sink, what, False
+
+    def _guard(self, call: Any, *args: Any) -> None:
+        if self.failed:
+            return
+        try:
+            call(*args)
+        except Exception as exc:  # a viewer file must not end the recording
+            log.error("%s failed, disabling it: %s", self.what, exc)
+            self.failed = True
+            try:
+                self.sink.close()
+            except Exception:
+                pass
+
+    def open(self, metadata: Any) -> None:
+        self._guard(self.sink.open, metadata)
+
+    def write(self, record: SinkRecord) -> None:
+        self._guard(self.sink.write, record)
+
+    def close(self) -> None:
+        if not self.failed:
+            try:
+                self.sink.close()
+            except Exception as exc:
+                log.error("%s: closing it: %s", self.what, exc)

@@ -337,7 +337,9 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
 
     Every stage of a run uses the same --run and reaches the others through a Zenoh router
     (`bnptrack router`, or a launcher's embedded one). Exit codes: 0 done, 2 configuration
-    error, 3 the source's input ended on an error, 130 stopped by a signal, 1 crash.
+    error (or restarted alone with nothing to finalize), 3 finished with the output incomplete
+    (the source's input ended on an error; a restarted stage whose upstream had left),
+    130 stopped by a signal, 1 crash.
 
     \b
     Example (three hosts, router on 10.0.0.5):

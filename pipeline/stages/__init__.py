@@ -3,7 +3,8 @@
 Modules: :mod:`~pipeline.stages.delivery` (Intake, Sequencer, fetching holes; the bus's
 :class:`~pipeline.events.Event` is in :mod:`pipeline.events`),
 :mod:`~pipeline.stages.health` (counters, control messages), :mod:`~pipeline.stages.recovery`
-(snapshot, journal glue, ``.part`` files, atomic writes), :mod:`~pipeline.stages.base` (exit
+(snapshot, journal glue, ``.part`` files, atomic writes), :mod:`~pipeline.stages.salvage` (a
+restarted stage whose upstream is gone), :mod:`~pipeline.stages.base` (exit
 codes, the injectable clock, StageContext, StageBase) and one module per stage
 (:mod:`~pipeline.stages.source`, :mod:`~pipeline.stages.tracker`, :mod:`~pipeline.stages.sink`).
 
@@ -64,6 +65,7 @@ from pipeline.stages.recovery import (
     sync_parts,
     write_atomic,
 )
+from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, salvage_part
 from pipeline.stages.sink import SinkStage
 from pipeline.stages.source import SourceStage, source_frames, window_frames
 from pipeline.stages.tracker import TrackerStage, build_stage_tracker
@@ -74,7 +76,7 @@ __all__ = [
     "Event", "GAP", "NO_TRUTH", "Sequencer", "HoleWatch", "Intake", "Accepted",
     "Counters", "StageInfo", "EndOfStream",
     "BackgroundWriter", "Snapshot", "write_atomic", "read_snapshot", "commit_parts", "part_path", "sync_parts", "keep_prior",
-    "PRIOR_FIELDS",
+    "PRIOR_FIELDS", "UpstreamGone", "UpstreamWatch", "salvage_part",
     "SNAPSHOT_NAME", "JOURNAL_NAME", "SUMMARY_NAME",
     "SourceStage", "TrackerStage", "SinkStage", "STAGES", "source_frames", "window_frames", "build_stage_tracker",
 ]

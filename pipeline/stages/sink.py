@@ -11,12 +11,13 @@ from typing import Any
 import msgspec
 
 from tracker.messages import to_estimate, to_frame, to_truth
-from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import _JSON, EndOfStream, StageInfo
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from sinks.sink import SINKS, SinkSet, make_sink
+from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
 from sinks.records import Payloads, Sink, SinkOptions, SinkRecord
+from sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
 from tracker.types import FrameBounds
 
 __all__ = ["SinkStage"]
@@ -73,6 +74,10 @@ class SinkStage(StageBase):
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
         self.t_first_pub_ns: int | None = None
+        self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
+        self.gone = ""  # why the sink stopped waiting (the upstream was gone)
+        self.recovered = 0  # frames recovered from the earlier process's .part file
+        self.earlier: dict | None = None  # the sink.json an earlier process of this run wrote
 
     # -- output ------------------------------------------------------------------------
     def _metadata(self) -> tuple[bool, dict[str, str] | None]:
@@ -89,12 +94,13 @@ class SinkStage(StageBase):
             meta.setdefault("run", self.run_id)
         return True, meta
 
-    def _open(self, force: bool = False) -> bool:
+    def _open(self, force: bool = False, meta_if_unknown: dict[str, str] | None = None) -> bool:
         if self.sinks is not None:
             return True
         known, meta = self._metadata()
         if not known and not force:
             return False
+        meta = meta if known else meta_if_unknown
         out = self.ctx.out
         out.mkdir(parents=True, exist_ok=True)
         built: list[tuple[str, Sink]] = []
@@ -124,24 +130,15 @@ class SinkStage(StageBase):
                 raise
             log.info("%s: the %s sink is not available (%s): no %s", self.name, name, exc, path.name)
             return None
-        return sink if entry.required else _Optional(sink, f"{self.name}: {name} sink ({path.name})")
+        return sink if entry.required else OptionalSink(sink, f"{self.name}: {name} sink ({path.name})")
 
     @staticmethod
     def _params(meta: dict[str, str] | None, tracker_info: StageInfo | None) -> Any:
-        """The run's model parameters (a sink draws the sensor's field of view with them):
-        the ones the tracker resolved and announced in its ``info``; without a tracker, the
-        input record's, through the one resolver; ``None`` if neither resolves (the default
-        field of view)."""
-        try:
-            from tracker.models.params import ModelParams
+        """The run's model parameters, for a sink that draws the sensor's field of view:
+        :func:`pipeline.resolve.run_params` of the tracker's announced ones."""
+        from pipeline.resolve import run_params
 
-            if tracker_info is not None and tracker_info.params is not None:
-                return msgspec.convert(tracker_info.params, ModelParams)
-            from pipeline.resolve import resolve_params
-
-            return resolve_params(None, meta).params
-        except Exception:
-            return None
+        return run_params(meta, tracker_info.params if tracker_info is not None else None)
 
     def _write(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
         try:
@@ -393,6 +390,7 @@ class SinkStage(StageBase):
             "gaps": gaps,
             "output_complete": complete and not missing,
             "missing": missing,
+            "recovered_frames": self.recovered,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
             "rejected_by_topic": self.intake.rejected_by_topic,
@@ -444,24 +442,18 @@ class SinkStage(StageBase):
             "the sink rejected the frame (frame bounds; none of its messages were written)")
         for name, seqs in self.mismatched.items():
             add(name, seqs, "for another frame than its /measurements (dropped)")
-        return out
+        return out + self._missing_tail()
 
-    def finished_before(self) -> dict | None:
-        """The ``sink.json`` of this run when an earlier sink process recorded the whole run
-        (``complete``): a sink restarted after that (killed while it lingered) must not
-        reopen, i.e. truncate, the finished files.  Renames what that process left as
-        ``.part`` (killed between ``sink.json`` and the renames)."""
-        try:
-            summary = msgspec.json.decode((self.ctx.out / SUMMARY_NAME).read_bytes())
-        except (OSError, msgspec.DecodeError):
-            return None
-        if not isinstance(summary, dict) or summary.get("run") != self.run_id or not summary.get("complete"):
-            return None
-        commit_parts(summary.get("files") or [])
-        return summary
+    def _missing_tail(self) -> list[dict[str, Any]]:
+        if not self.gone:
+            return []
+        why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.last_frame}, from the "
+                           "killed sink's .part file)" if self.recovered else "")
+        return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
 
     def _end_again(self, summary: dict) -> int:
         """Announce the recorded end of stream again (for stages still waiting for it)."""
+        commit_parts(summary.get("files") or [])  # killed between sink.json and the renames
         log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
                  self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
         self.bus.subscribe(["eos/*"])
@@ -476,9 +468,11 @@ class SinkStage(StageBase):
         return EXIT_OK
 
     def run(self) -> int:
-        done = self.finished_before()
-        if done is not None:
-            return self._end_again(done)
+        # an earlier sink process of this run finished: a complete run is never reopened
+        # (truncated); an incomplete one is kept unless this sink records the run itself
+        self.earlier = earlier_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
+        if self.earlier is not None and self.earlier.get("complete"):
+            return self._end_again(self.earlier)
         self._warm_up()
         topics = ["measurements", "truth"] + (["tracks"] if self.sink_cfg.tracks else [])
         self.bus.subscribe(topics + ["info/*", "eos/*"])
@@ -486,7 +480,15 @@ class SinkStage(StageBase):
             seq.hold_catch_up_through(self.bus.head(name))
         self.bus.declare([f"eos/{self.name}"])
         self.bus.declare_alive()
-        if not self._record():
+        if self._restarted():
+            self.alone = UpstreamWatch(self.bus, ["source"] + (["tracker"] if self.sink_cfg.tracks else []),
+                                       topics, self.delivery.upstream_gone_s, self.clock.monotonic)
+        outcome = self._record()
+        if self.gone:  # alone: finalized (or kept) what the run has
+            log.error("%s: run %s: %s; %s what it has in %s", self.name, self.run_id, self.gone,
+                      "kept" if outcome == "kept" else "wrote", self.ctx.out)
+            return EXIT_DATA
+        if outcome in ("stopped", "kept"):
             return EXIT_STOPPED
         self.publish_control("eos", EndOfStream(
             stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
@@ -506,13 +508,26 @@ class SinkStage(StageBase):
                 except ImportError:  # that sink is left out when it opens
                     pass
 
-    def _record(self) -> bool:
-        """Record until the run is complete (True) or the stage is stopped (False); the
-        outputs are finalized either way (or abandoned after a write error)."""
-        complete = False
+    def _restarted(self) -> bool:
+        """Whether an earlier sink process of this run left its outputs (finished or not) here."""
+        return self.earlier is not None or any(part_path(p).exists() for p in self.sink_cfg.paths(self.ctx.out).values())
+
+    def _record(self) -> str:
+        """Record until the run is complete (``"complete"``), the stage is stopped
+        (``"stopped"``) or, restarted, it finds the upstream gone (``"alone"``).  Having received
+        nothing itself, it keeps an earlier process's finished output (``"kept"``: nothing is
+        touched) or first writes what it recovers from that process's ``.part`` file; nothing
+        at all, alone, raises :class:`UpstreamGone` (no file touched).  The outputs are
+        finalized (or abandoned after a write error)."""
+        outcome = "stopped"
         failed = False
         try:
-            complete = self._loop()
+            outcome = self._loop()
+            if outcome != "complete" and self.sinks is None:
+                outcome = self._recover(outcome)
+        except UpstreamGone:
+            failed = True
+            raise
         except OSError as exc:
             if isinstance(exc, ConnectionError):  # the transport, not a file
                 raise
@@ -522,12 +537,38 @@ class SinkStage(StageBase):
                 raise
             raise StageIOError(self.name, exc.filename or self.ctx.out / self.sink_cfg.mcap_name, exc) from None
         finally:
-            if not failed:
-                self._finalize_or_abandon(complete)
+            if not failed and outcome != "kept":
+                self._finalize_or_abandon(outcome == "complete")
             self.health(force=True, extra=self._sink_health)
-        return complete
+        return outcome
 
-    def _loop(self) -> bool:
+    def _recover(self, outcome: str) -> str:
+        """Keep an earlier finished output, or write the frames the killed sink process had
+        written to its ``.part`` file (read before anything reopens it), as if received:
+        every sink gets them again."""
+        if self.earlier is not None:
+            commit_parts(self.earlier.get("files") or [])  # killed between sink.json and the renames
+            log.info("%s: %s already records %d frame(s) of this run (output incomplete); keeping it",
+                     self.name, self.ctx.out / SUMMARY_NAME, self.earlier.get("frames_written", 0))
+            return "kept"
+        found = salvage_part(part_path(self.ctx.out / self.sink_cfg.mcap_name), self.run_id)
+        if (found is None or not found.frames) and outcome == "alone":
+            raise UpstreamGone(f"stage {self.name}: run {self.run_id}: {self.gone}, and nothing to recover "
+                               f"(no readable frame in {part_path(self.ctx.out / self.sink_cfg.mcap_name)}): "
+                               "nothing written")
+        if found is None or not found.frames:
+            return outcome
+        self._open(force=True, meta_if_unknown=found.metadata)
+        for s, f in enumerate(found.frames):
+            self._write(s, *f.items(s, self.sink_cfg.tracks))
+            self.last_frame, self.last_stamp_ns = f.frame, f.stamp_ns
+        self.recovered = self.next_write = len(found.frames)
+        self.streams = {k: Sequencer.for_delivery(self.delivery, self.next_write, k) for k in self.streams}
+        log.info("%s: recovered %d frame(s) (up to frame %d) from the killed sink's .part file", self.name,
+                 self.recovered, self.last_frame)
+        return outcome
+
+    def _loop(self) -> str:
         while not self.ctx.stop.is_set():
             ev = self.bus.recv(0.05)
             if ev is not None:
@@ -539,8 +580,11 @@ class SinkStage(StageBase):
             self._fetch_due()
             self.health(extra=self._sink_health)
             if self._check_end():
-                return True
-        return False
+                return "complete"
+            if self.alone is not None and self.alone.gone():
+                self.gone = self.alone.reason()
+                return "alone"
+        return "stopped"
 
     def _on_event(self, ev: Any) -> None:
         if not self.on_control(ev):
@@ -548,37 +592,3 @@ class SinkStage(StageBase):
 
 
 _NO_SCORES: dict[str, Any] = {"ospa": None, "ospa2": None}
-
-
-class _Optional:
-    """A sink whose failure must not end the recording (an entry that is not ``required``:
-    the Rerun recording): its first error is logged and the sink is dropped (``failed``)."""
-
-    def __init__(self, sink: Sink, what: str) -> None:
-        self.sink, self.what, self.failed = sink, what, False
-
-    def _guard(self, call: Any, *args: Any) -> None:
-        if self.failed:
-            return
-        try:
-            call(*args)
-        except Exception as exc:  # a viewer file must not end the recording
-            log.error("%s failed, disabling it: %s", self.what, exc)
-            self.failed = True
-            try:
-                self.sink.close()
-            except Exception:
-                pass
-
-    def open(self, metadata: Any) -> None:
-        self._guard(self.sink.open, metadata)
-
-    def write(self, record: SinkRecord) -> None:
-        self._guard(self.sink.write, record)
-
-    def close(self) -> None:
-        if not self.failed:
-            try:
-                self.sink.close()
-            except Exception as exc:
-                log.error("%s: closing it: %s", self.what, exc)

@@ -14,10 +14,11 @@ import numpy as np
 from tracker.messages import encode, to_frame
 from pipeline.config import TrackerStageConfig
 from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import EndOfStream, StageInfo
 from pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
+from pipeline.stages.salvage import UpstreamWatch
 from tracker.config import ConfigError
 from tracker.types import Frame, FrameBounds
 
@@ -101,6 +102,7 @@ class TrackerStage(StageBase):
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
+        self.alone: UpstreamWatch | None = None  # set when resumed: the rule for an upstream gone
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -276,6 +278,9 @@ class TrackerStage(StageBase):
         # where the history ends: hold the catch-up window until there
         self.seq.hold_catch_up_through(self.bus.head("measurements"))
         self.bus.declare_alive()
+        if self.restored is not None:
+            self.alone = UpstreamWatch(self.bus, [self.upstream], ["measurements"],
+                                       self.delivery.upstream_gone_s, self.clock.monotonic)
         try:
             return self._loop()
         finally:
@@ -299,7 +304,18 @@ class TrackerStage(StageBase):
                 finished = self._check_end(self.eos_seen[self.upstream])
             if finished and set(self.tc.done_by) <= set(self.eos_seen):
                 return EXIT_OK
+            if not finished and self.alone is not None and self.alone.gone():
+                return self._gone()
         return EXIT_STOPPED
+
+    def _gone(self) -> int:
+        """Resumed, with the source gone and no cache holding its frames: keep what is done
+        (the snapshot and the journal), announce no end of stream (the run did not end
+        here) and exit EXIT_DATA (finished, output incomplete)."""
+        log.error("%s: run %s: %s; processed up to seq %d (frame %d): %s and %s keep it", self.name,
+                  self.run_id, self.alone.reason(), self.last_seq, self.last_frame, self.snap_path,
+                  self.journal.path)
+        return EXIT_DATA
 
     def _on_event(self, ev: Any) -> None:
         if self.on_control(ev):
