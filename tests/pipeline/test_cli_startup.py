@@ -52,12 +52,12 @@ def test_help_imports_no_heavy_module():
 
 
 def test_track_help_loads_only_the_offline_commands():
-    """``track --help`` loads the offline commands only: no Zenoh, no Rerun SDK, and not the
-    other command modules (experiments, the pipeline launcher).  (It does import the trackers,
-    and with them numba: its help lists their settings classes.)"""
+    """``track --help`` loads the offline commands only: no Zenoh, no Rerun SDK, no numba or
+    scipy (its help lists the trackers' settings classes, so it imports the trackers, whose
+    kernels import numba at their first call), and not the other command modules."""
     code, modules, out = imported_by("track", "--help")
     assert code == 0 and "Usage: bnptrack track" in out
-    assert sorted(top_level(modules) & {"zenoh", "rerun", "dask", "matplotlib", "pyarrow"}) == []
+    assert sorted(top_level(modules) & {"zenoh", "rerun", "numba", "scipy", "dask", "matplotlib", "pyarrow"}) == []
     assert "pipeline.cli.offline_commands" in modules
     assert sorted(modules & {"pipeline.cli.tools", "pipeline.cli.pipeline_commands", "pipeline.cli.monitor",
                              "pipeline.experiments", "pipeline.launch", "pipeline.transport"}) == []
@@ -99,3 +99,27 @@ def test_cli_error_names_resolve_lazily():
 
     assert (EXIT_ERROR, EXIT_INCOMPLETE) == (2, 3)
     assert CliError is common.CliError and IncompleteError is common.IncompleteError
+
+
+_KERNEL_PROBE = """
+import sys
+import numpy as np
+import tracker.bnp.gibbs as g
+from tracker._numerics import JIT
+before = "numba" in sys.modules
+keys = g._group_pairs(np.array([4, 7, 9], dtype=np.int64), np.array([0], dtype=np.int64),
+                      np.array([3], dtype=np.int64), 10, 3)
+print(JIT, before, "numba" in sys.modules, type(g._sweeps).__module__.split(".")[0], keys.tolist())
+"""
+
+
+def test_kernels_import_numba_at_their_first_call():
+    """Importing a tracker's kernels does not import numba; the first call does, and then the
+    module's kernel names are numba dispatchers (the compiled driver calls compiled helpers).
+    Pairs within one group of measurements 4, 7, 9 (M = 10): keys 4*10+7, 4*10+9, 7*10+9."""
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    env.pop("BNPTRACK_NO_JIT", None)
+    out = subprocess.run([sys.executable, "-c", _KERNEL_PROBE], cwd=REPO_ROOT, env=env, capture_output=True,
+                         text=True, timeout=300, check=True).stdout.split(maxsplit=4)
+    assert out[:4] == ["True", "False", "True", "numba"]
+    assert out[4].strip() == "[47, 49, 79]"
