@@ -12,12 +12,14 @@ change of machine load hits every command alike):
 * ``python3 -m pipeline launch --out TMP/run --overwrite -q`` (the default: 100 frames);
 
 and prints the median, min and max wall time of each over ``--rounds`` rounds with the load
-average.  With ``--numba`` it also times ``track`` with an empty numba cache directory
+average.  ``--root DIR`` times the checkout in ``DIR`` instead of this one (e.g. a
+``git worktree`` of an older commit, to compare in alternating runs).  With ``--numba`` it also times ``track`` with an empty numba cache directory
 (``NUMBA_CACHE_DIR``: every kernel compiles) against the same directory filled (every kernel
 loads from the cache).  The children get ``PYTHONPATH`` = this checkout.
 
     nice -n 5 python3 benchmarks/startup.py --rounds 5 --numba
     nice -n 5 python3 benchmarks/startup.py --rounds 5 --no-launch --json out.json
+    nice -n 5 python3 benchmarks/startup.py --rounds 3 --root /tmp/startup_base   # an older checkout
 """
 
 from __future__ import annotations
@@ -32,8 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-LOG = ROOT / "recordings" / "vo2017-s1.mcap"
+ROOT = Path(__file__).resolve().parents[1]  # --root replaces it
 
 
 def _env(extra: dict[str, str] | None = None) -> dict[str, str]:
@@ -56,11 +57,12 @@ def wall(argv: list[str], env: dict[str, str] | None = None) -> float:
 def commands(tmp: Path, launch: bool) -> dict[str, list[str]]:
     """The timed command lines, by name (baselines first)."""
     py = sys.executable
+    log = ROOT / "recordings" / "vo2017-s1.mcap"
     cmds = {
         "python3 -c pass": [py, "-c", "pass"],
         "python3 -c 'import numpy'": [py, "-c", "import numpy"],
         "bnptrack --help": [py, "-m", "pipeline", "--help"],
-        "bnptrack track vo2017-s1.mcap": [py, "-m", "pipeline", "track", str(LOG), "--out",
+        "bnptrack track vo2017-s1.mcap": [py, "-m", "pipeline", "track", str(log), "--out",
                                           str(tmp / "track.mcap")],
     }
     if launch:
@@ -73,7 +75,7 @@ def numba_cache(tmp: Path, rounds: int) -> dict[str, list[float]]:
     """``track`` with an empty numba cache (compile) and with the same cache filled (load)."""
     out: dict[str, list[float]] = {"track, numba compiles (empty cache)": [],
                                    "track, numba loads (filled cache)": []}
-    argv = [sys.executable, "-m", "pipeline", "track", str(LOG), "--out", str(tmp / "nb.mcap")]
+    argv = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(tmp / "nb.mcap")]
     for i in range(rounds):
         cache = tmp / f"numba-{i}"
         cache.mkdir()
@@ -97,7 +99,11 @@ def main() -> None:
     ap.add_argument("--no-launch", dest="launch", action="store_false", help="Skip `bnptrack launch`.")
     ap.add_argument("--numba", action="store_true", help="Also time numba compile vs cache load.")
     ap.add_argument("--json", type=Path, default=None, help="Also write the rows to this file.")
+    ap.add_argument("--root", type=Path, default=None, help="Time the checkout in this directory.")
     args = ap.parse_args()
+    if args.root is not None:
+        global ROOT
+        ROOT = args.root.resolve()
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="bnp-startup-") as d:
         tmp = Path(d)
@@ -112,7 +118,7 @@ def main() -> None:
     load1 = os.getloadavg()
     rows = summarise(times)
     print(f"load average before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, "
-          f"after {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} cores; {args.rounds} rounds")
+          f"after {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} cores; {args.rounds} rounds; {ROOT}")
     print(f"{'command':40s} {'median s':>9s} {'min s':>7s} {'max s':>7s}")
     for r in rows:
         print(f"{r['command']:40s} {r['median_s']:9.3f} {r['min_s']:7.3f} {r['max_s']:7.3f}")

@@ -80,6 +80,20 @@ def jit(fn: F, inline: bool = False) -> F:
     return kernel  # type: ignore[return-value]
 
 
+def _preload_kernel(x: float) -> float:
+    return x + 1.0
+
+
+_preload_kernel = jit(_preload_kernel)
+
+
+def preload() -> None:
+    """Import numba and set its compiler up now, by calling one small cached kernel: what the
+    first call of any kernel pays (0.3-1 s) besides loading that kernel.  The tracker stage
+    runs it in a thread while it waits for the source; a no-op without :data:`JIT`."""
+    _preload_kernel(1.0)
+
+
 def logsumexp(a: np.ndarray, axis: int | None = None):
     """:math:`\\log \\sum \\exp(a)` over ``axis`` (an array), or over every entry when
     ``axis`` is ``None`` (a float).  Plain numpy: scipy's has a large per-call overhead on

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from collections import deque
 from typing import Any
 
@@ -18,6 +19,7 @@ from pipeline.stages.base import EXIT_OK, EXIT_STOPPED, StageBase, StageContext,
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import EndOfStream, StageInfo
 from pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
+from tracker._numerics import preload
 from tracker.config import ConfigError
 from tracker.types import Frame, FrameBounds
 
@@ -262,6 +264,8 @@ class TrackerStage(StageBase):
     def run(self) -> int:
         warm_imports("pipeline.offline", "tracker.state")
         warm_tracker_imports(self.tc.tracker)
+        # numba's import and set-up (the first kernel call's cost) overlap the wait for the source
+        threading.Thread(target=preload, name="numba-preload", daemon=True).start()
         history = self._restore()
         self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
         for s, payload, meta in history:  # the run so far, into the new publisher's cache
