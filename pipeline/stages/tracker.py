@@ -103,6 +103,8 @@ class TrackerStage(StageBase):
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
+        #: numba's import and set-up, started by run() while the stage waits for the source
+        self.preloading: threading.Thread | None = None
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -139,6 +141,8 @@ class TrackerStage(StageBase):
         from tracker.state import restore
 
         tc = self.tc
+        if self.preloading is not None:  # no import of the build races the preload's
+            self.preloading.join()
         setup = build_stage_tracker(tc, info.metadata)
         self.tracker = setup.tracker
         initial = self.tracker.initial_state()
@@ -265,7 +269,8 @@ class TrackerStage(StageBase):
         warm_imports("pipeline.offline", "tracker.state")
         warm_tracker_imports(self.tc.tracker)
         # numba's import and set-up (the first kernel call's cost) overlap the wait for the source
-        threading.Thread(target=preload, name="numba-preload", daemon=True).start()
+        self.preloading = threading.Thread(target=preload, name="numba-preload", daemon=True)
+        self.preloading.start()
         history = self._restore()
         self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
         for s, payload, meta in history:  # the run so far, into the new publisher's cache
