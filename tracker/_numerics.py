@@ -2,7 +2,9 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
 
 * :func:`jit` compiles a kernel with numba (``cache=True, nogil=True``) unless numba is
   missing or ``BNPTRACK_NO_JIT=1``: then the same Python function runs interpreted.
-  :data:`JIT` says which.
+  :data:`JIT` says which.  numba itself (0.4 s to import, more on a busy machine) is imported
+  at the first call of a kernel, not when a tracker module is imported: a command that only
+  builds or describes a tracker (``bnptrack launch``'s checks, ``track --help``) never pays it.
 * :func:`logsumexp` is :math:`\log \sum_i e^{a_i}` computed as
   :math:`t + \log \sum_i e^{a_i - t}`, :math:`t = \max_i a_i` (an all ``-inf`` input gives
   ``-inf``).
@@ -10,32 +12,86 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
+import threading
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
-
-try:  # a prebuilt wheel; the kernels also run interpreted (BNPTRACK_NO_JIT=1)
-    from numba import njit as _njit
-except ImportError:  # pragma: no cover
-    _njit = None
 
 F = TypeVar("F", bound=Callable)
 
 #: The kernels are compiled (numba present and ``BNPTRACK_NO_JIT`` is not ``1``).
-JIT: bool = _njit is not None and os.environ.get("BNPTRACK_NO_JIT") != "1"
+JIT: bool = importlib.util.find_spec("numba") is not None and os.environ.get("BNPTRACK_NO_JIT") != "1"
+
+_lock = threading.Lock()
+_pending: list[_LazyKernel] = []
+_namespaces: dict[int, dict[str, Any]] = {}  # the modules that define kernels
+
+
+class _LazyKernel:
+    """A kernel compiled with numba on first use.  The first call of any kernel imports numba
+    and decorates every kernel defined so far (``njit`` compiles nothing until a call, and then
+    loads from the cache); each name of a kernel module that held a lazy kernel is rebound to
+    its numba dispatcher, so a compiled kernel that calls another one finds a dispatcher, as if
+    they had been decorated at import."""
+
+    def __init__(self, fn: Callable, inline: bool) -> None:
+        self.py_func, self.inline, self.dispatcher = fn, inline, None
+        self.__wrapped__, self.__name__, self.__qualname__, self.__doc__ = fn, fn.__name__, fn.__qualname__, fn.__doc__
+
+    def __call__(self, *args: Any) -> Any:
+        dispatcher = self.dispatcher
+        if dispatcher is None:
+            dispatcher = _compile_pending(self)
+        return dispatcher(*args)
+
+
+def _compile_pending(kernel: _LazyKernel) -> Any:
+    """Decorate every pending kernel with numba and rebind the module names that held them."""
+    from numba import njit
+
+    with _lock:
+        for k in _pending:
+            if k.dispatcher is None:
+                opts = {"inline": "always"} if k.inline else {}
+                k.dispatcher = njit(cache=True, nogil=True, **opts)(k.py_func)
+            _namespaces[id(k.py_func.__globals__)] = k.py_func.__globals__
+        _pending.clear()
+        for namespace in _namespaces.values():
+            for name, value in list(namespace.items()):
+                if isinstance(value, _LazyKernel) and value.dispatcher is not None:
+                    namespace[name] = value.dispatcher
+        assert kernel.dispatcher is not None
+        return kernel.dispatcher
 
 
 def jit(fn: F, inline: bool = False) -> F:
     """``fn`` compiled with numba (``cache=True, nogil=True``; ``inline="always"`` when
-    ``inline``) if :data:`JIT`, else ``fn`` itself (the same code, interpreted)."""
+    ``inline``) if :data:`JIT`, else ``fn`` itself (the same code, interpreted).  numba is
+    imported at the first call of any kernel (:class:`_LazyKernel`)."""
     if not JIT:
         return fn
-    if inline:
-        return _njit(cache=True, nogil=True, inline="always")(fn)
-    return _njit(cache=True, nogil=True)(fn)
+    kernel = _LazyKernel(fn, inline)
+    with _lock:
+        _pending.append(kernel)
+    return kernel  # type: ignore[return-value]
+
+
+def _preload_kernel(x: float) -> float:
+    return x + 1.0
+
+
+_preload_kernel = jit(_preload_kernel)
+
+
+def preload() -> None:
+    """Import numba and set its compiler up now, by calling one small cached kernel: what the
+    first call of any kernel pays (0.3-1 s) besides loading that kernel.  The tracker stage
+    runs it in a thread while it waits for the source; a no-op without :data:`JIT`."""
+    _preload_kernel(1.0)
 
 
 def logsumexp(a: np.ndarray, axis: int | None = None):

@@ -13,18 +13,86 @@ Subcommands are thin: they parse options, call the library and print a summary.
 
 from __future__ import annotations
 
-import click
+import importlib
+from collections.abc import Iterator, MutableMapping
+from gettext import gettext as _
+from typing import Any
 
-from pipeline.cli.common import EXIT_ERROR, EXIT_INCOMPLETE, CliError, IncompleteError
-from pipeline.cli.monitor import monitor
-from pipeline.cli.offline_commands import simulate, track
-from pipeline.cli.pipeline_commands import launch, replay, router, stage
-from pipeline.cli.tools import experiment, export, info, schema, view
+import click
 
 __all__ = ["main", "CliError", "IncompleteError", "EXIT_ERROR", "EXIT_INCOMPLETE"]
 
+#: Each command: the module that defines it and the first paragraph of its help (what
+#: ``bnptrack --help`` lists; ``tests/pipeline/test_cli_startup.py`` checks it against the
+#: command's docstring).  A command's module is imported only when the command is looked up,
+#: so ``bnptrack --help`` imports no tracker, numpy or codec, and ``bnptrack track`` only the
+#: offline commands (docs/performance.md, start-up).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("pipeline.cli.offline_commands",
+                 "Simulate a scenario and write its measurements and truth to an MCAP log."),
+    "track": ("pipeline.cli.offline_commands", "Run a tracker over an MCAP log offline and write its tracks."),
+    "info": ("pipeline.cli.tools", "Describe an MCAP log: channels, frames, sensors, time, and its record."),
+    "export": ("pipeline.cli.tools", "Export a run's tracks (the output of `track`) as a table."),
+    "view": ("pipeline.cli.tools", "Open a Rerun recording (.rrd) in the Rerun viewer, or render it to a PNG."),
+    "experiment": ("pipeline.cli.tools", "Run one of the paper's simulation experiments as a Monte Carlo study."),
+    "schema": ("pipeline.cli.tools", "Print the JSON Schema of a channel's messages."),
+    "launch": ("pipeline.cli.pipeline_commands",
+               "Run the streaming pipeline: every stage in its own process, linked by Zenoh."),
+    "replay": ("pipeline.cli.pipeline_commands", "Replay an MCAP measurement log through the streaming pipeline."),
+    "stage": ("pipeline.cli.pipeline_commands",
+              "Run one pipeline stage in this process (to place stages on different hosts)."),
+    "router": ("pipeline.cli.pipeline_commands",
+               "Run a Zenoh router for pipeline stages on several hosts (until Ctrl-C)."),
+    "monitor": ("pipeline.cli.monitor",
+                "Watch a run's stages: liveliness, health counters, dead letters, end of stream."),
+}
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+
+class _LazyCommands(MutableMapping):
+    """``main.commands``: every name of :data:`COMMANDS`; a command's module is imported on
+    first access (``main.commands["track"]``); ``add_command`` adds eager ones."""
+
+    def __init__(self) -> None:
+        self._loaded: dict[str, click.Command] = {}
+
+    def __getitem__(self, name: str) -> click.Command:
+        if name not in self._loaded:
+            if name not in COMMANDS:
+                raise KeyError(name)
+            self._loaded[name] = getattr(importlib.import_module(COMMANDS[name][0]), name)
+        return self._loaded[name]
+
+    def __setitem__(self, name: str, cmd: click.Command) -> None:
+        self._loaded[name] = cmd
+
+    def __delitem__(self, name: str) -> None:
+        raise TypeError("bnptrack's commands cannot be removed")
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(dict.fromkeys([*COMMANDS, *self._loaded]))
+
+    def __len__(self) -> int:
+        return len(set(COMMANDS) | set(self._loaded))
+
+
+class _LazyGroup(click.Group):
+    """A group whose listing (``bnptrack --help``) uses :data:`COMMANDS`' help paragraphs, so
+    that it imports no command module; every other use loads the command itself."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        names = self.list_commands(ctx)
+        limit = formatter.width - 6 - max(len(n) for n in names)
+        rows = []
+        for name in names:
+            loaded = self.commands._loaded.get(name)
+            cmd = loaded if loaded is not None else click.Command(name, help=COMMANDS[name][1])
+            if not cmd.hidden:
+                rows.append((name, cmd.get_short_help_str(limit)))
+        with formatter.section(_("Commands")):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="bnptrack", prog_name="bnptrack")
 def main() -> None:
     """bnptrack: streaming multi-object tracking with Bayesian nonparametric priors.
@@ -43,9 +111,17 @@ def main() -> None:
     """
 
 
-for _command in (simulate, track, info, export, view, experiment, schema, launch, replay, stage, router,
-                 monitor):
-    main.add_command(_command)
+main.commands = _LazyCommands()
+
+
+def __getattr__(name: str) -> Any:
+    """``CliError``, ``IncompleteError``, ``EXIT_ERROR``, ``EXIT_INCOMPLETE`` from
+    :mod:`pipeline.cli.common`, imported on first use (it imports the codec and numpy)."""
+    if name in ("CliError", "IncompleteError", "EXIT_ERROR", "EXIT_INCOMPLETE"):
+        from pipeline.cli import common
+
+        return getattr(common, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 if __name__ == "__main__":  # pragma: no cover

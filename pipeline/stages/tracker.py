@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from collections import deque
 from typing import Any
 
@@ -19,6 +20,7 @@ from pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, In
 from pipeline.stages.health import EndOfStream, StageInfo
 from pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
 from pipeline.stages.salvage import UpstreamWatch
+from tracker._numerics import preload
 from tracker.config import ConfigError
 from tracker.types import Frame, FrameBounds
 
@@ -103,6 +105,8 @@ class TrackerStage(StageBase):
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
         self.alone: UpstreamWatch | None = None  # set when resumed: the rule for an upstream gone
+        #: numba's import and set-up, started by run() while the stage waits for the source
+        self.preloading: threading.Thread | None = None
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -139,6 +143,8 @@ class TrackerStage(StageBase):
         from tracker.state import restore
 
         tc = self.tc
+        if self.preloading is not None:  # no import of the build races the preload's
+            self.preloading.join()
         setup = build_stage_tracker(tc, info.metadata)
         self.tracker = setup.tracker
         initial = self.tracker.initial_state()
@@ -265,6 +271,9 @@ class TrackerStage(StageBase):
     def run(self) -> int:
         warm_imports("pipeline.resolve", "tracker.state")
         warm_tracker_imports(self.tc.tracker)
+        # numba's import and set-up (the first kernel call's cost) overlap the wait for the source
+        self.preloading = threading.Thread(target=preload, name="numba-preload", daemon=True)
+        self.preloading.start()
         history = self._restore()
         self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
         for s, payload, meta in history:  # the run so far, into the new publisher's cache

@@ -49,10 +49,10 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
 def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
     """Per connected component with two or more clusters, the JPDA* assignment (updates
     ``choice``, aligned with the sorted ``clusters``)."""
-    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize is slow to import (docs/performance.md, measured)
-
     if np.unique(choice).size == choice.size:
         return  # no two clusters prefer one measurement: each keeps its own
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize is slow to import (docs/performance.md, measured)
+
     M = int(mi.max()) + 1
     if clusters.size * M <= 20_000:  # small: one assignment over every live cluster
         pos = np.searchsorted(clusters, ti)

@@ -89,12 +89,12 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     only if :math:`\lVert \Delta p\rVert^2 \le d^2_{max} (\lambda_i + \lambda_j) \le 2 d^2_{max}
     \max(\lambda_i, \lambda_j)`: each cluster queries the ball of radius
     :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`."""
-    from scipy.spatial import cKDTree
-
     n = len(c.labels)
     if n <= 200:  # few clusters: every pair (cheaper than a tree)
         lo, hi = np.triu_indices(n, k=1)
         return lo.astype(np.int64), hi.astype(np.int64)
+    from scipy.spatial import cKDTree  # lazy: few clusters need no tree, and scipy.spatial is slow to import
+
     pos = c.mean[:, [0, 2]]
     a, b, d = c.cov[:, 0, 0], c.cov[:, 2, 2], c.cov[:, 0, 2]
     lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + d * d)

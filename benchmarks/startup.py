@@ -1,0 +1,147 @@
+"""Start-up time of the ``bnptrack`` commands, beside interpreter baselines from the same run.
+
+Issue 15's start-up targets: ``bnptrack --help`` <= 0.3 s, ``bnptrack track
+recordings/vo2017-s1.mcap`` <= 1.0 s on a warm machine (second run) and ``bnptrack launch``
+(100 frames, the default pipeline) <= 3 s.  Each round runs, one after the other (so that a
+change of machine load hits every command alike):
+
+* ``python3 -c pass`` and ``python3 -c "import numpy"``: the floor any command stands on;
+* ``python3 -m pipeline --help``;
+* ``python3 -m pipeline track recordings/vo2017-s1.mcap --out TMP/x.mcap`` (one untimed run
+  first, so that the numba cache and the file cache are warm);
+* ``python3 -m pipeline launch --out TMP/run --overwrite -q`` (the default: 100 frames);
+
+and prints the median, min and max wall time of each over ``--rounds`` rounds, and the median
+CPU time (user + system of the process and those it waited for, e.g. a launch's stages), with
+the load average.  ``--root DIR`` times the checkout in ``DIR`` instead of this one (e.g. a
+``git worktree`` of an older commit, to compare in alternating runs).  With ``--numba`` it also times ``track`` with an empty numba cache directory
+(``NUMBA_CACHE_DIR``: every kernel compiles) against the same directory filled (every kernel
+loads from the cache).  The children get ``PYTHONPATH`` = this checkout.
+
+    nice -n 5 python3 benchmarks/startup.py --rounds 5 --numba
+    nice -n 5 python3 benchmarks/startup.py --rounds 5 --no-launch --json out.json
+    nice -n 5 python3 benchmarks/startup.py --rounds 3 --root /tmp/startup_base   # an older checkout
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]  # --root replaces it
+#: CPU seconds (user + system) of each timed command line, run by run.
+CPU: dict[str, list[float]] = {}
+
+
+def _env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env.update(extra or {})
+    return env
+
+
+def wall(argv: list[str], env: dict[str, str] | None = None) -> float:
+    """Wall time (s) of one child process run to completion; raises if it fails.  Its CPU
+    time (user + system, with the processes it waited for: a launch's stages) goes to
+    :data:`CPU` under the same command line."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, cwd=ROOT, env=env or _env(), stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True)
+    elapsed = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)} exited {proc.returncode}: {proc.stderr[-2000:]}")
+    CPU.setdefault(" ".join(argv), []).append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
+    return elapsed
+
+
+def commands(tmp: Path, launch: bool) -> dict[str, list[str]]:
+    """The timed command lines, by name (baselines first)."""
+    py = sys.executable
+    log = ROOT / "recordings" / "vo2017-s1.mcap"
+    cmds = {
+        "python3 -c pass": [py, "-c", "pass"],
+        "python3 -c 'import numpy'": [py, "-c", "import numpy"],
+        "bnptrack --help": [py, "-m", "pipeline", "--help"],
+        "bnptrack track vo2017-s1.mcap": [py, "-m", "pipeline", "track", str(log), "--out",
+                                          str(tmp / "track.mcap")],
+    }
+    if launch:
+        cmds["bnptrack launch (100 frames)"] = [py, "-m", "pipeline", "launch", "--out", str(tmp / "run"),
+                                                "--overwrite", "-q"]
+    return cmds
+
+
+def numba_cache(tmp: Path, rounds: int) -> dict[str, list[float]]:
+    """``track`` with an empty numba cache (compile) and with the same cache filled (load)."""
+    out: dict[str, list[float]] = {"track, numba compiles (empty cache)": [],
+                                   "track, numba loads (filled cache)": []}
+    log = ROOT / "recordings" / "vo2017-s1.mcap"
+    argv = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(tmp / "nb.mcap")]
+    for i in range(rounds):
+        cache = tmp / f"numba-{i}"
+        cache.mkdir()
+        env = _env({"NUMBA_CACHE_DIR": str(cache)})
+        out["track, numba compiles (empty cache)"].append(wall(argv, env))
+        out["track, numba loads (filled cache)"].append(wall(argv, env))
+    return out
+
+
+def summarise(times: dict[str, list[float]], cpu: dict[str, list[float]]) -> list[dict[str, float | str]]:
+    """Per command: median, min and max wall time, and median CPU time (``cpu[name]``)."""
+    rows = []
+    for name, ts in times.items():
+        rows.append({"command": name, "median_s": statistics.median(ts), "min_s": min(ts), "max_s": max(ts),
+                     "cpu_median_s": statistics.median(cpu[name]), "runs": len(ts)})
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--no-launch", dest="launch", action="store_false", help="Skip `bnptrack launch`.")
+    ap.add_argument("--numba", action="store_true", help="Also time numba compile vs cache load.")
+    ap.add_argument("--json", type=Path, default=None, help="Also write the rows to this file.")
+    ap.add_argument("--root", type=Path, default=None, help="Time the checkout in this directory.")
+    args = ap.parse_args()
+    if args.root is not None:
+        global ROOT
+        ROOT = args.root.resolve()
+    load0 = os.getloadavg()
+    with tempfile.TemporaryDirectory(prefix="bnp-startup-") as d:
+        tmp = Path(d)
+        cmds = commands(tmp, args.launch)
+        wall(cmds["bnptrack track vo2017-s1.mcap"])  # warm-up: numba cache, page cache
+        times: dict[str, list[float]] = {name: [] for name in cmds}
+        for _ in range(args.rounds):
+            for name, argv in cmds.items():
+                times[name].append(wall(argv))
+        cpu_by_name = {name: CPU[" ".join(argv)][-args.rounds:] for name, argv in cmds.items()}
+        if args.numba:
+            CPU.clear()
+            times.update(numba_cache(tmp, max(1, args.rounds // 2)))
+            runs = list(CPU.values())[0]  # compile, load, compile, load, ...
+            cpu_by_name["track, numba compiles (empty cache)"] = runs[0::2]
+            cpu_by_name["track, numba loads (filled cache)"] = runs[1::2]
+    load1 = os.getloadavg()
+    rows = summarise(times, cpu_by_name)
+    print(f"load average before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, "
+          f"after {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} cores; {args.rounds} rounds; {ROOT}")
+    print(f"{'command':40s} {'median s':>9s} {'min s':>7s} {'max s':>7s} {'CPU s':>7s}")
+    for r in rows:
+        print(f"{r['command']:40s} {r['median_s']:9.3f} {r['min_s']:7.3f} {r['max_s']:7.3f} {r['cpu_median_s']:7.3f}")
+    if args.json:
+        args.json.write_text(json.dumps({"load": [load0, load1], "rows": rows}, indent=1))
+    print(json.dumps({"results": rows}))
+
+
+if __name__ == "__main__":
+    main()
