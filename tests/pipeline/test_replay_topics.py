@@ -117,3 +117,35 @@ def test_memory_pipeline_with_source_topics_equals_track_topic(foreign_log, tmp_
     assert len(got.tracks) == 12 and [strip(e) for e in got.tracks] == [strip(e) for e in want.tracks]
     scores = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())["scores"]
     assert scores["frames_scored"] == 12  # the mapped /gt arrived as the frames' truth
+
+
+# --------------------------------------------------------------------------- what the sink decodes
+
+
+def test_sink_decodes_frames_only_for_a_consumer(tmp_path, monkeypatch):
+    """With ``sink.score = false`` and only the MCAP sink (it writes the payloads as received),
+    the sink stage converts no frame to numpy and scores nothing; its outputs (tracks.mcap,
+    sink.json's scores and counters) equal those of a run that decodes every frame."""
+    import dataclasses
+
+    import pipeline.stages.sink as sink_stage
+    from sinks.sink import SINKS
+
+    calls = []
+    real = sink_stage.to_frame
+    monkeypatch.setattr(sink_stage, "to_frame", lambda *a: calls.append(1) or real(*a))
+    runs = {}
+    for decoded in (False, True):
+        monkeypatch.setitem(SINKS, "mcap", dataclasses.replace(SINKS["mcap"], decoded=decoded))
+        cfg = mem_cfg(tmp_path / str(decoded), frames=10, **{"sink.score": "false"})
+        assert run_memory_pipeline(cfg, MemoryNetwork())["sink"] == EXIT_OK
+        runs[decoded] = (read_log(Path(cfg.out) / "tracks.mcap"),
+                         json.loads((Path(cfg.out) / SUMMARY_NAME).read_text()))
+        assert len(calls) == (10 if decoded else 0)
+    (log_a, sum_a), (log_b, sum_b) = runs[False], runs[True]
+    assert [f.frame for f in log_a.frames] == [f.frame for f in log_b.frames] == list(range(1, 11))
+    assert all(a.z.tolist() == b.z.tolist() and a.truth.ids == b.truth.ids for a, b in zip(log_a.frames, log_b.frames))
+    assert [strip(e) for e in log_a.tracks] == [strip(e) for e in log_b.tracks]
+    assert sum_a["scores"] == sum_b["scores"] and sum_a["scores"]["frames"] == 10
+    assert sum_a["scores"]["tracks"] == len(log_a.tracks[-1].tracks) and sum_a["scores"]["labels"] >= 1
+    assert (sum_a["frames_written"], sum_a["tracks_written"]) == (sum_b["frames_written"], sum_b["tracks_written"]) == (10, 10)
