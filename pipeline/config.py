@@ -35,6 +35,8 @@ __all__ = [
     "TlsConfig",
     "ZenohConfig",
     "SourceConfig",
+    "parse_topic_item",
+    "check_topic_map",
     "TrackerStageConfig",
     "SinkConfig",
     "sink_outputs",
@@ -148,6 +150,28 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             )
 
 
+def parse_topic_item(item: str) -> tuple[str, str]:
+    """A channel mapping item ``SRC=/measurements`` (or ``SRC=/truth``) as ``(SRC, DST)``;
+    :class:`ValueError` names the item otherwise (``--topic`` of ``track`` / ``replay`` and
+    ``source.topics``)."""
+    from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+
+    src, sep, dst = item.partition("=")
+    if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
+        raise ValueError(f"{item!r}: expected SRC={TOPIC_MEASUREMENTS} (or SRC={TOPIC_TRUTH})")
+    return src, dst
+
+
+def check_topic_map(topics: dict[str, str], key: str) -> None:
+    """Raise :class:`ValueError` (one line naming ``key``) unless every entry of ``topics``
+    is a valid ``SRC=/measurements`` / ``SRC=/truth`` mapping (:func:`parse_topic_item`)."""
+    for src, dst in topics.items():
+        try:
+            parse_topic_item(f"{src}={dst}")
+        except ValueError as exc:
+            raise ValueError(f"{key}: {exc}") from None
+
+
 class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The measurement source.
 
@@ -163,6 +187,9 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``wait_for`` lists the stages whose liveliness token the source waits for before the
     first frame (``ready_timeout_s`` bounds the wait; 0 = wait forever), ``done_by`` the
     stages whose end of stream it waits for before closing (it serves its cache until then).
+    ``topics`` (``kind = "mcap"``): channels of ``log`` read as another topic, ``{SRC =
+    "/measurements"}`` or ``{SRC = "/truth"}``, as ``bnptrack track --topic SRC=/measurements``
+    (``replay --topic``; the payload must still follow the contract of docs/formats.md).
     """
 
     kind: Literal["synthetic", "mcap"] = "synthetic"
@@ -182,6 +209,12 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     wait_for: list[str] = msgspec.field(default_factory=lambda: ["tracker", "sink"])
     ready_timeout_s: NonNeg = 60.0
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
+    topics: dict[str, str] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_topic_map(self.topics, "source.topics")
+        if self.topics and self.kind != "mcap":
+            raise ValueError("source.topics: maps the channels of an MCAP log: it needs source.kind = 'mcap'")
 
 
 class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -454,11 +454,8 @@ class ScoreTally:
         self.last_ospa: float | None = None
 
     def add(self, frame: Frame, estimate: Estimate, scores: dict[str, Any]) -> None:
-        self.frames += 1
         labels = estimate.labels
-        self.tracks = len(labels)
-        self._seen.update(labels)
-        self.labels = len(self._seen)
+        self.count(labels)
         o = scores.get("ospa")
         if o is None or frame.truth is None:
             return
@@ -467,6 +464,14 @@ class ScoreTally:
         self._ospa += float(o.total)
         self._ospa2 += float(scores.get("ospa2") or 0.0)
         self._card += abs(len(labels) - len(frame.truth.ids))
+
+    def count(self, labels: Sequence[str]) -> None:
+        """A frame with tracks labelled ``labels``, not scored (what :meth:`add` does for a
+        frame whose scores are ``None``)."""
+        self.frames += 1
+        self.tracks = len(labels)
+        self._seen.update(labels)
+        self.labels = len(self._seen)
 
     def _mean(self, total: float) -> float | None:
         return total / self.scored if self.scored else None

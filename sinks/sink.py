@@ -42,6 +42,10 @@ class SinkEntry:
     required: bool = True
     imports: tuple[str, ...] = ()
     """Modules worth importing before a run starts (slow imports), when the sink is used."""
+    decoded: bool = True
+    """The sink reads a record's decoded ``frame``, ``estimate``, ``scores`` and ``health``;
+    ``False``: it writes the record's ``payloads`` alone when the record carries them (the
+    MCAP log), so a caller that has the payloads need not decode the frame for it."""
 
     def load(self) -> Callable[[SinkOptions], Sink]:
         if callable(self.factory):
@@ -60,7 +64,7 @@ class UnknownSink(KeyError):
 #: The sinks by name.
 SINKS: dict[str, SinkEntry] = {
     "mcap": SinkEntry("sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
-                      "tracks.mcap"),
+                      "tracks.mcap", decoded=False),
     "rerun": SinkEntry("sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
                        "run.rrd", required=False, imports=("sinks.rerun_sink",)),
 }

@@ -231,3 +231,37 @@ def strip(est):
     d = {k: v for k, v in est.diagnostics.items() if k != "ms"}
     return (est.frame, est.labels, est.assignments, est.assignment_prob, d,
             [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
+
+
+# --------------------------------------------------------------------------- logs
+
+
+def rename_channels(src: Path, dst: Path, renames: dict[str, str], n: int | None = None) -> Path:
+    """Copy the MCAP log ``src`` to ``dst`` with its channels renamed (``{"/measurements":
+    "/radar/detections"}``): the same records (schemas, metadata, messages, the first ``n``
+    ``/measurements`` frames and what comes with them), as a foreign sensor's log that
+    ``--topic /radar/detections=/measurements`` maps back."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as fin, open(dst, "wb") as fout:
+        reader, w = make_reader(fin), Writer(fout)
+        w.start()
+        for rec in reader.iter_metadata():
+            w.add_metadata(rec.name, dict(rec.metadata))
+        ids: dict[int, int] = {}
+        schemas: dict[int, int] = {}
+        seen = 0
+        for schema, ch, msg in reader.iter_messages(log_time_order=False):
+            if ch.topic == "/measurements":
+                seen += 1
+                if n is not None and seen > n:
+                    break
+            if ch.id not in ids:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+                ids[ch.id] = w.register_channel(renames.get(ch.topic, ch.topic), ch.message_encoding,
+                                                schemas.get(schema.id, 0) if schema is not None else 0)
+            w.add_message(ids[ch.id], log_time=msg.log_time, publish_time=msg.publish_time, data=msg.data)
+        w.finish()
+    return dst

@@ -34,6 +34,7 @@ __all__ = [
     "fmt",
     "LazyHelpOption",
     "literal_choices",
+    "TOPIC_HELP",
     "topic_map",
     "require_measurements",
     "live_view",
@@ -117,6 +118,10 @@ CONNECT_VIEW_HELP = (
     "(`rerun` there, then --connect rerun+http://HOST:9876/proxy; a port N means "
     "rerun+http://127.0.0.1:N/proxy)."
 )
+TOPIC_HELP = (
+    "Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
+    "its payload must still follow the contract of docs/formats.md. Repeatable."
+)
 SET_HELP_TRACK = (
     "Override a setting, KEY=VALUE (VALUE is a TOML literal). params.KEY goes to the model "
     "parameters, tracker.KEY to the tracker settings; a bare KEY goes to whichever has it "
@@ -179,15 +184,16 @@ def literal_choices(struct: type, field: str, element: bool = False) -> list[str
 
 
 def topic_map(items: tuple[str, ...]) -> dict[str, str]:
-    """``--topic SRC=/measurements`` items as ``{SRC: /measurements}``."""
-    from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+    """``--topic SRC=/measurements`` items as ``{SRC: /measurements}`` (the pipeline's
+    ``source.topics``; :func:`pipeline.config.parse_topic_item` checks each)."""
+    from pipeline.config import parse_topic_item
 
     out = {}
     for item in items:
-        src, sep, dst = item.partition("=")
-        if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
-            raise click.BadParameter(f"{item!r}: expected SRC={TOPIC_MEASUREMENTS} (or SRC={TOPIC_TRUTH})",
-                                     param_hint="--topic")
+        try:
+            src, dst = parse_topic_item(item)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--topic") from None
         out[src] = dst
     return out
 

@@ -24,6 +24,7 @@ from pipeline.cli.common import (
     live_view,
     open_live,
     require_measurements,
+    TOPIC_HELP,
     topic_map,
     tracker_help,
 )
@@ -220,8 +221,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     "frame's (a time stamp that goes back is always an error).",
 )
 @click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
-              help="Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
-              "its payload must still follow the contract of docs/formats.md.")
+              help=TOPIC_HELP)
 @click.option("--view", is_flag=True, help=VIEW_HELP + " Writes --rrd (default: the --out "
               "file with the suffix .rrd).")
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
@@ -311,8 +311,6 @@ class _TrackIO:
              view_connect: str | None, extra: tuple[str, ...]) -> _TrackIO:
         """Check the options and choose the sinks."""
         mapping = topic_map(topics)
-        if mapping and rrd is not None:
-            raise CliError("--topic cannot be combined with --rrd yet: track first, then `bnptrack view` the output")
         require_measurements(log, mapping)
         live = live_view(view, view_connect)
         if live is not None and rrd is None:

@@ -15,6 +15,7 @@ import click
 from pipeline.cli.common import (
     CONNECT_VIEW_HELP,
     SET_HELP_PIPE,
+    TOPIC_HELP,
     VIEW_HELP,
     CliError,
     IncompleteError,
@@ -23,6 +24,7 @@ from pipeline.cli.common import (
     literal_choices,
     open_live,
     require_measurements,
+    topic_map,
 )
 from pipeline.offline import OSPA_C, OSPA_P
 from pipeline.config import PipelineConfig, ZenohConfig
@@ -209,6 +211,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--keep-prior", is_flag=True,
               help="With --loop: each replay's tracker starts from the prior the previous replay "
               "ended with (DDP-EMM / DPY-STP: alpha, d and their likelihood), with no track.")
+@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+              help=TOPIC_HELP + " (source.topics of the pipeline file)")
 @click.option("--view", is_flag=True, help=VIEW_HELP)
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
 @_TIMEOUT_OPT
@@ -218,7 +222,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
            out: Path | None, start: str | None, end: str | None, loops: int | None, keep_prior: bool,
-           view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
+           topics: tuple[str, ...], view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
            quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
@@ -232,12 +236,14 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
       bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
       bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
       bnptrack replay recordings/vo2017-s1.mcap --rate 5 --start 20s --end 40f --loop 0 --view
+      bnptrack replay ros.mcap --topic /radar/detections=/measurements
     """
     import msgspec as _ms
 
     from pipeline.config import load_pipeline
 
-    require_measurements(log, {})  # (replay reads /measurements only; `track --topic` maps channels)
+    mapping = topic_map(topics)
+    require_measurements(log, mapping)  # at once, as `track` (the source checks it again)
     cfg = load_pipeline(None)
     start_s, start_frame = _parse_offset(start, "--start")
     end_s, end_frame = _parse_offset(end, "--end")
@@ -245,7 +251,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         cfg,
         source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
                                    start_s=start_s, start_frame=start_frame, end_s=end_s,
-                                   end_frame=end_frame),
+                                   end_frame=end_frame, topics=mapping),
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )

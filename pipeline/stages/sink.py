@@ -56,6 +56,9 @@ class SinkStage(StageBase):
         from sinks.metrics import RunScorer, ScoreTally
 
         self.scorer = RunScorer()
+        #: decode each frame (numpy arrays, scores, health counters) only for a consumer: the
+        #: scores (``sink.score``) or a sink that reads decoded records (``SinkEntry.decoded``)
+        self.decode = self.sink_cfg.score or any(SINKS[n].decoded for n in self.sink_cfg.paths(self.ctx.out))
         self.tally = ScoreTally()
         self.frames_written = 0
         self.tracks_written = 0
@@ -149,25 +152,31 @@ class SinkStage(StageBase):
     def _write_frame(self, s: int, meas: Any, truth: Any, tracks: Any) -> None:
         """Record frame ``s`` to every sink: the payloads as received (they were validated on
         receipt, and they are the codec's bytes: the MCAP log stores them without decoding to
-        numpy and re-encoding), the frame and estimate decoded, the scores."""
-        has_truth = truth is not GAP and truth is not NO_TRUTH
-        has_tracks = tracks is not None and tracks is not GAP
-        frame = est = scores = None
+        numpy and re-encoding), and, when a consumer wants them (:attr:`decode`), the frame
+        and estimate decoded, the scores and the health counters."""
+        truth = truth if truth is not GAP and truth is not NO_TRUTH else None
+        tracks = tracks if tracks is not GAP else None
         if meas is not GAP:
             self.frames_written += 1
-            frame = to_frame(meas.msg, to_truth(truth.msg) if has_truth else None)
-        if has_tracks:
+        if tracks is not None:
             self.tracks_written += 1
             self._note_latency(s, tracks)
-            est = to_estimate(tracks.msg)
+        if meas is GAP and tracks is None:  # a gap in every stream: nothing to record
+            return
+        payloads = self._payloads(meas, truth, tracks)
+        if not self.decode:  # the payloads are all the sinks read; the tally counts the tracks
+            if meas is not GAP and tracks is not None:
+                self.tally.count([t.label for t in tracks.msg.tracks])
+            self.sinks.write(SinkRecord(None, payloads=payloads))
+            return
+        frame = to_frame(meas.msg, to_truth(truth.msg) if truth is not None else None) if meas is not GAP else None
+        est = to_estimate(tracks.msg) if tracks is not None else None
+        scores = None
         if frame is not None and est is not None:
             # scored always (progress, sink.json); drawn by the Rerun sink
             scores = self.scorer.update(frame, est) if self.sink_cfg.score or self.sink_cfg.rerun else _NO_SCORES
             self.tally.add(frame, est, scores)
-        if frame is None and est is None:  # a gap in every stream: nothing to record
-            return
-        self.sinks.write(SinkRecord(frame, est, scores, self._health_scalars(),
-                                    self._payloads(meas, truth if has_truth else None, tracks if has_tracks else None)))
+        self.sinks.write(SinkRecord(frame, est, scores, self._health_scalars(), payloads))
 
     @staticmethod
     def _payloads(meas: Any, truth: Any, tracks: Any) -> Payloads:

@@ -17,7 +17,7 @@ from pipeline.stages.health import EndOfStream, StageInfo
 from tracker.config import ConfigError
 from tracker.types import Frame
 
-__all__ = ["SourceStage", "source_frames", "check_window", "window_frames"]
+__all__ = ["SourceStage", "source_frames", "check_channels", "check_window", "window_frames"]
 
 log = logging.getLogger("bnptrack.stage")
 
@@ -45,13 +45,27 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
             raise ConfigError(f"source.log: {src_cfg.log}: no such file")
         try:
             metadata = read_metadata(src_cfg.log)
+            check_channels(src_cfg)
         except McapLogError as exc:  # not an MCAP file at all: nothing to replay
             raise ConfigError(f"source.log: {exc}") from None
-        frames = iter_frames(src_cfg.log)
+        frames = iter_frames(src_cfg.log, dict(src_cfg.topics))
     frames = window_frames(frames, src_cfg)
     if src_cfg.frames:
         frames = islice(frames, src_cfg.frames)
     return metadata, frames
+
+
+def check_channels(src_cfg: SourceConfig) -> None:
+    """Raise :class:`ConfigError` when no channel of ``source.log`` is (or is mapped by
+    ``source.topics`` to) ``/measurements``: the error of ``bnptrack track`` (the log's
+    channels and how to map one), plus the pipeline file's key."""
+    from sources.mcap_log import log_channels, missing_measurements_message
+    from tracker.messages import TOPIC_MEASUREMENTS
+
+    channels = log_channels(src_cfg.log)
+    if not any(src_cfg.topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
+        raise ConfigError(f"{missing_measurements_message(src_cfg.log, channels)}; in a pipeline file: "
+                          f"source.topics = {{\"SRC\" = \"{TOPIC_MEASUREMENTS}\"}}")
 
 
 def check_window(src_cfg: SourceConfig) -> None:

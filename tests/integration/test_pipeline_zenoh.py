@@ -299,6 +299,25 @@ def test_replay_is_rate_invariant_and_equals_track(tmp_path):
     assert read_log(a / "tracks.mcap").metadata["tracker_seed"] == "2"
 
 
+def test_replay_topic_of_a_foreign_log_equals_track_topic(tmp_path):
+    """A log whose measurements are on /radar/detections (truth on /gt): ``replay --topic``
+    over Zenoh records the frames and /tracks of ``track --topic`` on it."""
+    from testkit import rename_channels
+
+    log = rename_channels(VO2017, tmp_path / "radar.mcap", {"/measurements": "/radar/detections", "/truth": "/gt"},
+                          n=20)
+    topics = ["--topic", "/radar/detections=/measurements", "--topic", "/gt=/truth"]
+    out, off = tmp_path / "r", tmp_path / "track.mcap"
+    code, text = _cli("replay", str(log), *topics, "--as-fast-as-possible", "--seed", "2", *FAST,
+                      "--out", str(out), "--timeout", "150", timeout=180)
+    assert code == 0, text
+    code, text = _cli("track", str(log), *topics, "--seed", "2", "--out", str(off), "-q")
+    assert code == 0, text
+    _assert_same_run(out / "tracks.mcap", off, 20)
+    assert read_log(out / "tracks.mcap").frames[-1].truth is not None
+    assert _summary(out)["scores"]["frames_scored"] == 20
+
+
 def test_two_runs_on_one_router_do_not_see_each_other(tmp_path, router):
     ep = router.endpoints[0]
     outs = [tmp_path / "one", tmp_path / "two"]

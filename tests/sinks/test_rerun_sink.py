@@ -553,6 +553,33 @@ def test_track_log_with_rrd(tmp_path):
         track_log_with_rrd(log, out, out, tracker, 0, None)
 
 
+def test_track_topic_with_rrd_records_what_the_plain_log_records(tmp_path):
+    """``track --topic SRC=/measurements --rrd``: the Rerun sink draws the frames the mapped
+    channels were read into, so the recording of a log with renamed channels holds the rows
+    of the plain log's recording (but the source log's name and the step's wall time)."""
+    from click.testing import CliRunner
+
+    from pipeline.cli import main
+    from testkit import rename_channels
+
+    vo = REPO / "recordings" / "vo2017-s1.mcap"
+    plain = rename_channels(vo, tmp_path / "plain.mcap", {}, n=12)
+    foreign = rename_channels(vo, tmp_path / "radar.mcap", {"/measurements": "/radar/detections",
+                                                              "/truth": "/gt"}, n=12)
+    rows = []
+    for log, topics in ((plain, []), (foreign, ["--topic", "/radar/detections=/measurements",
+                                                "--topic", "/gt=/truth"])):
+        rrd = tmp_path / f"{log.stem}.rrd"
+        res = CliRunner().invoke(main, ["track", str(log), *topics, "--set", "sweeps=8", "--out",
+                                        str(tmp_path / f"{log.stem}.tracks.mcap"), "--rrd", str(rrd)])
+        assert res.exit_code == 0, res.output
+        assert "mean OSPA         n/a" not in res.output  # the mapped /gt is the truth
+        rows.append({k: [r.replace(str(log), "LOG") for r in v] for k, v in content_rows(rrd).items()
+                     if k[0] != "/diagnostics/ms"})  # (the wall time of each step)
+    assert len(rows[0]) > 100 and rows[0] == rows[1]
+    assert len(by_frame(read_rrd(tmp_path / "radar.rrd")["/metrics/ospa"], "Scalars:scalars")) == 12
+
+
 # --------------------------------------------------------------------------- recording process
 
 
