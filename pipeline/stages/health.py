@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,3 +81,28 @@ _EOS_DEC = msgspec.json.Decoder(EndOfStream)
 #: Decoder of each control topic kind (``<kind>/<stage>``).
 _CONTROL_DEC = {"eos": _EOS_DEC, "info": _INFO_DEC}
 _JSON = msgspec.json.Encoder()
+
+
+def missing_entries(gaps: Mapping[str, Iterable[int]], tracker_rejected: Iterable[int],
+                    sink_rejected: Iterable[int], mismatched: Mapping[str, Iterable[int]]) -> list[dict[str, Any]]:
+    """What a sink's ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
+    sequence numbers -- for ``sink.json``, the launcher's exit code 3 and its summary.
+    ``gaps``: each stream's gaps; ``tracker_rejected``: frames the tracker rejected (their
+    ``/tracks`` gap is that, not a loss); ``sink_rejected``: frames the sink rejected;
+    ``mismatched``: per stream, messages dropped for naming another frame."""
+    out: list[dict[str, Any]] = []
+    by_tracker = set(tracker_rejected)
+
+    def add(topic: str, seqs: Iterable[int], why: str) -> None:
+        seqs = sorted(set(seqs))
+        if seqs:
+            out.append({"topic": f"/{topic}", "seqs": seqs, "why": why})
+
+    for name, stream_gaps in gaps.items():
+        add(name, [g for g in stream_gaps if g not in by_tracker],
+            "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
+    add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
+    add("measurements", sink_rejected, "the sink rejected the frame (frame bounds; none of its messages were written)")
+    for name, seqs in mismatched.items():
+        add(name, seqs, "for another frame than its /measurements (dropped)")
+    return out

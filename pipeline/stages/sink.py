@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +12,7 @@ import msgspec
 from tracker.messages import to_estimate, to_frame, to_truth
 from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
 from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
-from pipeline.stages.health import _JSON, EndOfStream, StageInfo
+from pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
 from sinks.records import Payloads, Sink, SinkOptions, SinkRecord
@@ -432,26 +431,11 @@ class SinkStage(StageBase):
         return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
 
     def _missing(self) -> list[dict[str, Any]]:
-        """What ``tracks.mcap`` lacks, and why: one entry per (topic, reason) with the
-        sequence numbers -- for ``sink.json``, the launcher's exit code 3 and its summary."""
-        out: list[dict[str, Any]] = []
+        """What ``tracks.mcap`` lacks, and why (:func:`~pipeline.stages.health.missing_entries`)."""
         tr = self.eos_seen.get("tracker")
-        by_tracker = set(tr.rejected) if tr is not None else set()
-
-        def add(topic: str, seqs: Iterable[int], why: str) -> None:
-            seqs = sorted(set(seqs))
-            if seqs:
-                out.append({"topic": f"/{topic}", "seqs": seqs, "why": why})
-
-        for name, seq in self.streams.items():
-            add(name, [g for g in seq.gaps if g not in by_tracker],
-                "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
-        add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
-        add("measurements", self.rejected_seqs,
-            "the sink rejected the frame (frame bounds; none of its messages were written)")
-        for name, seqs in self.mismatched.items():
-            add(name, seqs, "for another frame than its /measurements (dropped)")
-        return out + self._missing_tail()
+        gaps = {name: seq.gaps for name, seq in self.streams.items()}
+        return missing_entries(gaps, tr.rejected if tr is not None else (), self.rejected_seqs,
+                               self.mismatched) + self._missing_tail()
 
     def _missing_tail(self) -> list[dict[str, Any]]:
         if not self.gone:
