@@ -92,12 +92,11 @@ def tracks_of(path: Path) -> list:
 
 def offline_tracks(log: Path, out: Path) -> list:
     from pipeline.offline import track_log
-    from pipeline.resolve import build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
     from sources.mcap_log import read_metadata
 
     meta = read_metadata(log)
-    config, _ = resolve_config("ddp", None)
-    track_log(log, out, build_tracker("ddp", resolve_params(None, meta).params, config), 0, meta)
+    track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
     return tracks_of(out)
 
 

@@ -62,7 +62,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from pipeline.launch import launch  # noqa: E402
 from pipeline.offline import track_log
-from pipeline.resolve import build_tracker, resolve_config, resolve_params
+from pipeline.resolve import tracker_setup
 from sources.scenarios import scenario_params
 from pipeline.config import load_pipeline  # noqa: E402
 from sinks.mcap_writer import McapLogWriter  # noqa: E402
@@ -106,8 +106,7 @@ class Offline:
     def __init__(self, log: Path, tracker_name: str, seed: int) -> None:
         self.log, self.seed, self.tracker_name = log, seed, tracker_name
         self.meta = read_metadata(log)
-        config, _ = resolve_config(tracker_name, None)
-        self.tracker = build_tracker(tracker_name, resolve_params(None, self.meta).params, config)
+        self.tracker = tracker_setup(tracker_name, metadata=self.meta).tracker
         self.frames = list(iter_frames(log))
         for _ in run(self.tracker, self.frames[:20], seed):  # warm up (numba JIT), as the stage does
             pass

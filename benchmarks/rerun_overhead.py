@@ -110,13 +110,12 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
 
 
 def _setup(args: argparse.Namespace):
-    from pipeline.resolve import build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
     from sources.mcap_log import iter_frames, read_metadata
 
     meta = read_metadata(args.log)
-    params = resolve_params(None, meta).params
-    config, _ = resolve_config(args.tracker, None)
-    return build_tracker(args.tracker, params, config), params, list(iter_frames(args.log))
+    setup = tracker_setup(args.tracker, metadata=meta)
+    return setup.tracker, setup.params, list(iter_frames(args.log))
 
 
 def _row(name: str, ms: np.ndarray) -> str:

@@ -23,7 +23,7 @@ import msgspec  # noqa: E402
 from pipeline.config import load_pipeline, resolve_run  # noqa: E402
 from pipeline.events import Event  # noqa: E402
 from pipeline.membus import MemoryNetwork  # noqa: E402
-from pipeline.resolve import build_tracker, resolve_config  # noqa: E402
+from pipeline.resolve import tracker_setup  # noqa: E402
 from pipeline.stages import SinkStage, StageContext, StageInfo  # noqa: E402
 from sources.scenarios import get_scenario, scenario_params  # noqa: E402
 from sources.synthetic import simulate  # noqa: E402
@@ -37,8 +37,7 @@ def events(runs: int) -> tuple[int, list[Event]]:
     params = scenario_params("vo2017", "vo2017")
     frames = [replace(f, frame=n, stamp_ns=n * 10**9) for n, f in enumerate(
         (f for r in range(runs) for f in simulate(get_scenario("vo2017"), params, r + 1)), start=1)]
-    config, _ = resolve_config("ddp", None)
-    ests = [e for _, e, _ in run(build_tracker("ddp", params, config), frames, 0)]
+    ests = [e for _, e, _ in run(tracker_setup("ddp", params=params).tracker, frames, 0)]
     out = []
     for i, (f, e) in enumerate(zip(frames, ests)):
         meta = {"seq": i, "t": 1, "frame": f.frame}

@@ -11,8 +11,6 @@ Both use the ``rerun`` binary that ships inside the installed rerun-sdk wheel
   frame (``--frame``, default: the last one), waits for the load to finish and saves a PNG of the
   whole viewer through the viewer's control API (``rerun.experimental.ViewerClient``).  The
   viewer listens on a free port of 127.0.0.1 only and is stopped afterwards.
-* :func:`track_log_with_rrd` is ``pipeline.offline.track_log`` plus a Rerun recording of the run,
-  written by a child process (:mod:`sinks.rerun_process`) behind the ``rerun`` sink.
 
 Subprocesses run with :func:`sinks.rerun_tools.rerun_env`: the CLI's analytics off (``CI`` set)
 and its log quiet, except the interactive viewer of :func:`open_viewer`, which keeps the user's
@@ -25,19 +23,14 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pipeline.ports import free_port
 
-if TYPE_CHECKING:
-    from pipeline.offline import TrackResult
-    from tracker.registry import Tracker
-    from tracker.models.params import ModelParams
-    from tracker.types import FrameBounds
 
-__all__ = ["ViewerUnavailable", "viewer_failure", "open_viewer", "screenshot", "png_stats", "track_log_with_rrd"]
+__all__ = ["ViewerUnavailable", "viewer_failure", "open_viewer", "screenshot"]
 
 #: What a machine without a usable renderer needs (Debian/Ubuntu).
 RENDERER_HINT = (
@@ -285,45 +278,3 @@ def _stop(proc: subprocess.Popen) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(timeout=10)
-
-
-def png_stats(png: str | os.PathLike | bytes) -> dict[str, float]:
-    """Width, height, luminance variance and number of distinct luminance values of a PNG
-    (Pillow, a dependency of rerun-sdk): enough to tell a rendered screenshot from a blank one."""
-    import io
-
-    import numpy as np
-    from PIL import Image
-
-    src = io.BytesIO(png) if isinstance(png, bytes) else Path(png)
-    with Image.open(src) as img:
-        lum = np.asarray(img.convert("L"), dtype=np.float64)
-    return {"width": float(lum.shape[1]), "height": float(lum.shape[0]),
-            "variance": float(lum.var()), "distinct": float(np.unique(lum).size)}
-
-
-def track_log_with_rrd(
-    log: str | os.PathLike,
-    out: str | os.PathLike,
-    rrd: str | os.PathLike,
-    tracker: Tracker,
-    seed: int,
-    metadata: Mapping[str, str] | None,
-    *,
-    params: ModelParams | None = None,
-    bounds: FrameBounds | None = None,
-    live: str | None = None,
-) -> TrackResult:
-    """:func:`pipeline.offline.track_log` that also records the run to the Rerun file ``rrd``
-    (and streams it to the viewer at the gRPC URL ``live``, when given): the ``mcap`` and
-    ``rerun`` sinks of :func:`pipeline.offline.track_to_sinks`, the recording written by a
-    child process (:class:`sinks.rerun_process.ProcessRecordSink`) with ``metadata`` plus
-    ``source_log``, each frame drawn with the scores of :attr:`TrackResult.frames`.  The
-    recording is complete when this returns."""
-    from pipeline.offline import check_outputs, open_sinks, track_to_sinks
-    from sinks.records import SinkOptions
-
-    outputs = {"mcap": Path(out), "rerun": Path(rrd)}
-    check_outputs(log, outputs)
-    options = SinkOptions(Path(out), params=params, live=live, process=True, source=str(log))
-    return track_to_sinks(log, open_sinks(outputs, options), tracker, seed, metadata, bounds)

@@ -21,7 +21,7 @@ import io
 import os
 import struct
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Iterator, Protocol
+from typing import Any, Iterable, Iterator
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.reader import SeekingReader
@@ -50,7 +50,6 @@ __all__ = [
     "iter_tracks",
     "read_log",
     "read_metadata",
-    "copy_input_channels",
     "ChannelInfo",
     "log_channels",
     "missing_measurements_message",
@@ -429,29 +428,6 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str] | None:
                 return dict(rec.metadata)
             if isinstance(rec, DataEnd):
                 return None
-
-
-class FrameWriter(Protocol):
-    """What :func:`copy_input_channels` writes to (``sinks.mcap_writer.McapLogWriter``)."""
-
-    def write_frame(self, frame: Frame, run: str = "") -> None: ...
-
-
-def copy_input_channels(
-    src_path: str | os.PathLike, writer: FrameWriter, run: str | None = None
-) -> int:
-    """Copy the ``/measurements`` and ``/truth`` of ``src_path`` into ``writer``.
-
-    Messages are decoded, validated and re-encoded (each keeps its own ``run`` unless ``run``
-    is given).  Returns the number of frames copied.  If the source is damaged, the readable
-    prefix has been copied when :class:`McapLogError` propagates.  The metadata record is not
-    copied: pass ``read_metadata(src_path)`` to the writer's constructor.
-    """
-    n = 0
-    for _, pair in _iter_log(src_path, _INPUT_TOPICS):
-        writer.write_frame(_pair_to_frame(pair), run=pair[0].run if run is None else run)
-        n += 1
-    return n
 
 
 # --------------------------------------------------------------------------- channels

@@ -265,3 +265,18 @@ def rename_channels(src: Path, dst: Path, renames: dict[str, str], n: int | None
             w.add_message(ids[ch.id], log_time=msg.log_time, publish_time=msg.publish_time, data=msg.data)
         w.finish()
     return dst
+
+
+def png_stats(png: "str | Path | bytes") -> dict[str, float]:
+    """Width, height, luminance variance and number of distinct luminance values of a PNG
+    (Pillow, a dependency of rerun-sdk): enough to tell a rendered screenshot from a blank one."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    src = io.BytesIO(png) if isinstance(png, bytes) else Path(png)
+    with Image.open(src) as img:
+        lum = np.asarray(img.convert("L"), dtype=np.float64)
+    return {"width": float(lum.shape[1]), "height": float(lum.shape[0]),
+            "variance": float(lum.var()), "distinct": float(np.unique(lum).size)}

@@ -71,13 +71,10 @@ def _strip(est):
 def _offline(log: Path, out: Path, tracker: str = "ddp", seed: int = 0, overrides=()) -> Path:
     """What ``bnptrack track LOG --tracker T --seed S --out OUT`` writes (in-process)."""
     from pipeline.offline import track_log
-    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
 
     meta = read_metadata(log)
-    choice = resolve_params(None, meta)
-    config, _ = resolve_config(tracker, None)
-    params, config = apply_split_overrides(choice.params, config, overrides)
-    track_log(log, out, build_tracker(tracker, params, config), seed, meta)
+    track_log(log, out, tracker_setup(tracker, overrides=overrides, metadata=meta).tracker, seed, meta)
     return out
 
 

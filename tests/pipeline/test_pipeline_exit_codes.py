@@ -11,7 +11,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import msgspec
 import pytest
 
 from pipeline.cli import EXIT_INCOMPLETE, IncompleteError

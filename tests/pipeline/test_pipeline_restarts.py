@@ -113,7 +113,7 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     explicitly, so there is no gap and the tracks equal the offline run of every frame."""
     from pipeline.stages import source_frames
     from tracker.state import run as run_offline
-    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
 
     cfg = _mem_cfg(tmp_path, frames=12)
     net = MemoryNetwork()
@@ -123,10 +123,8 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     s = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
     meta, frames = source_frames(cfg)
-    choice = resolve_params(None, meta)
-    conf, _ = resolve_config("ddp", None)
-    params, conf = apply_split_overrides(choice.params, conf, cfg.tracker.overrides)
-    ests = [e for _, e, _ in run_offline(build_tracker("ddp", params, conf), list(frames), 0)]
+    tracker = tracker_setup("ddp", overrides=cfg.tracker.overrides, metadata=meta).tracker
+    ests = [e for _, e, _ in run_offline(tracker, list(frames), 0)]
 
     def strip(e):
         d = {k: v for k, v in e.diagnostics.items() if k != "ms"}

@@ -527,7 +527,7 @@ def _registry_trackers():
 
 @pytest.mark.parametrize("name", _registry_trackers())
 def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
-    """The tracker stage takes whatever pipeline.offline.build_tracker builds (with its
+    """The tracker stage takes whatever pipeline.resolve.tracker_setup builds (with its
     snapshot/restore), so a tracker added to the registry works in the pipeline unchanged."""
     from tracker.state import restore
 
@@ -540,9 +540,9 @@ def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
     log = read_log(Path(cfg.out) / "tracks.mcap")
     _, ests = _offline(cfg)
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
-    from pipeline.resolve import build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
 
-    tracker = build_tracker(name, resolve_params(None, log.metadata).params, resolve_config(name, None)[0])
+    tracker = tracker_setup(name, metadata=log.metadata).tracker
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
     state = restore(snap.state, type(tracker.initial_state()))
     assert snap.last_seq == 7 and snap.tracker == name and state is not None
@@ -765,13 +765,11 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     assert _run_memory_pipeline(second, MemoryNetwork())["tracker"] == EXIT_OK
     got = read_log(Path(second.out) / "tracks.mcap").tracks
 
-    from pipeline.resolve import apply_split_overrides, build_tracker, resolve_config, resolve_params
+    from pipeline.resolve import tracker_setup
     from pipeline.stages import source_frames
 
     meta, _ = source_frames(first)
-    conf, _ = resolve_config("ddp", None)
-    params, conf = apply_split_overrides(resolve_params(None, meta).params, conf, first.tracker.overrides)
-    tracker = build_tracker("ddp", params, conf)
+    tracker = tracker_setup("ddp", overrides=first.tracker.overrides, metadata=meta).tracker
     offline_first = list(run(tracker, frames, 0))
     final = offline_first[-1][2]
     start = keep_prior(tracker.initial_state(), snap, "ddp")

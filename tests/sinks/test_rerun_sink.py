@@ -30,7 +30,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from pipeline.view import ViewerUnavailable, png_stats, screenshot, track_log_with_rrd  # noqa: E402
+from pipeline.view import ViewerUnavailable, screenshot  # noqa: E402
+from testkit import png_stats  # noqa: E402
 from sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
 from sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
 from sinks.rerun_style import PALETTE, label_color  # noqa: E402
@@ -533,12 +534,23 @@ def test_repair_argument_errors(tmp_path):
 # --------------------------------------------------------------------------- track --rrd
 
 
+def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
+    """What ``bnptrack track LOG --out OUT --rrd RRD`` does in-process: the ``mcap`` and
+    ``rerun`` sinks of the table, the recording written by a child process."""
+    from pipeline.offline import check_outputs, open_sinks, track_to_sinks
+    from sinks.records import SinkOptions
+
+    outputs = {"mcap": Path(out), "rerun": Path(rrd)}
+    check_outputs(log, outputs)
+    options = SinkOptions(Path(out), params=params, process=True, source=str(log))
+    return track_to_sinks(log, open_sinks(outputs, options), tracker, seed, metadata)
+
+
 def test_track_log_with_rrd(tmp_path):
-    from pipeline.resolve import build_tracker, resolve_config
+    from pipeline.resolve import tracker_setup
 
     params = load_params("vo2017")
-    config, _ = resolve_config("ddp", None)
-    tracker = build_tracker("ddp", params, config)
+    tracker = tracker_setup("ddp", params=params).tracker
     log = REPO / "recordings" / "vo2017-s1.mcap"
     out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"
     res = track_log_with_rrd(log, out, rrd, tracker, 0, {"scenario": "vo2017", "seed": "1"},

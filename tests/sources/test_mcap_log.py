@@ -16,7 +16,6 @@ from sources.mcap_log import (
     METADATA_NAME,
     LogContents,
     McapLogError,
-    copy_input_channels,
     iter_frames,
     iter_tracks,
     read_log,
@@ -469,27 +468,6 @@ def test_writer_rejects_invalid_frame_without_writing_half(tmp_path):
 
 
 # --------------------------------------------------------------------------- copy
-
-
-def test_copy_input_channels_then_tracks(tmp_path):
-    frames = make_frames(15, n=12)
-    src = write_log(tmp_path / "src.mcap", frames)
-    rng = np.random.default_rng(16)
-    dst = tmp_path / "dst.mcap"
-    with McapLogWriter(dst, read_metadata(src)) as w:
-        n = copy_input_channels(src, w)
-        for f in frames:
-            w.write_tracks(make_estimate(rng, f), run="track-run")
-    assert n == 12
-    got = list(iter_frames(dst))
-    for a, b in zip(frames, got):
-        assert_frame_equal(a, b)
-    assert len(got) == 12
-    assert [e.frame for e in iter_tracks(dst)] == list(range(12))
-    assert read_metadata(dst) == META
-    with open(dst, "rb") as fh:
-        runs = {json.loads(m.data)["run"] for _, c, m in make_reader(fh).iter_messages() if c.topic != TOPIC_TRACKS}
-    assert runs == {"run-1"}  # run ids of the input are kept
 
 
 def test_encoded_writes_equal_the_encoding_writes(tmp_path):

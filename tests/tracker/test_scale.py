@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 
-import msgspec
 import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
