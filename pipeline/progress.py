@@ -95,7 +95,8 @@ class Progress:
         now = (int(sink.get("frames_written", 0)), int(sink["t_ns"]))
         prev = self._last_frames
         if prev is not None and now[1] > prev[1]:
-            self._fps = (now[0] - prev[0]) / ((now[1] - prev[1]) / 1e9)
+            # a restarted sink counts its frames again from 0: no rate until it has two points
+            self._fps = (now[0] - prev[0]) / ((now[1] - prev[1]) / 1e9) if now[0] >= prev[0] else None
         if prev is None or now[1] > prev[1]:
             self._last_frames = now
         return self._fps

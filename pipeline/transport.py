@@ -86,6 +86,19 @@ _FETCH_DEC = msgspec.json.Decoder(tuple[int, int])
 _META_DEC = msgspec.json.Decoder(dict)
 
 
+def _event(topic: str, sample: Any) -> Event:
+    """The :class:`Event` of a received sample (live or fetched from a cache): payload bytes,
+    the attachment decoded as a JSON object (``meta_error`` says why it is not one)."""
+    meta, err = None, None
+    att = sample.attachment
+    if att is not None:
+        try:
+            meta = _META_DEC.decode(att.to_bytes())
+        except Exception as exc:
+            err = f"attachment is not a JSON object: {exc}"
+    return Event(topic, sample.payload.to_bytes(), meta, time.time_ns(), err)
+
+
 class TransportError(ConnectionError):
     """A Zenoh session could not be opened or configured (an ``OSError``: the CLI reports
     it on one line with exit code 2)."""
@@ -424,14 +437,7 @@ class Bus:
                 sample = reply.ok
                 if sample is None:
                     continue
-                meta, err = None, None
-                att = sample.attachment
-                if att is not None:
-                    try:
-                        meta = _META_DEC.decode(att.to_bytes())
-                    except Exception as exc:
-                        err = f"attachment is not a JSON object: {exc}"
-                out.append(Event(topic, sample.payload.to_bytes(), meta, time.time_ns(), err))
+                out.append(_event(topic, sample))
         except Exception as exc:
             log.warning("%s: fetching %s %d-%d failed: %s", self.stage, topic, lo, hi, exc)
         self.fetched += len(out)
@@ -483,15 +489,7 @@ class Bus:
                 return
             k = str(sample.key_expr)
             topic = k[len(self.prefix):] if k.startswith(self.prefix) else k
-            meta = None
-            err = None
-            att = sample.attachment
-            if att is not None:
-                try:
-                    meta = _META_DEC.decode(att.to_bytes())
-                except Exception as exc:
-                    err = f"attachment is not a JSON object: {exc}"
-            self._inbox.put(Event(topic, sample.payload.to_bytes(), meta, time.time_ns(), err))
+            self._inbox.put(_event(topic, sample))
         except Exception:  # never let an exception escape into Zenoh's thread
             log.exception("%s: failed to queue a sample", self.stage)
 

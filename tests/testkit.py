@@ -280,3 +280,45 @@ def png_stats(png: "str | Path | bytes") -> dict[str, float]:
         lum = np.asarray(img.convert("L"), dtype=np.float64)
     return {"width": float(lum.shape[1]), "height": float(lum.shape[0]),
             "variance": float(lum.var()), "distinct": float(np.unique(lum).size)}
+
+
+def bnptrack_env(extra: "dict[str, str] | None" = None) -> dict[str, str]:
+    """The environment of a ``python -m pipeline`` subprocess: this checkout first on
+    ``PYTHONPATH``, Rerun's analytics off, plus ``extra``."""
+    import os
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO_ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["RERUN_ANALYTICS"] = "0"
+    return {**env, **(extra or {})}
+
+
+def popen_bnptrack(*args: str, log: "Path | None" = None, env: "dict[str, str] | None" = None):
+    """Start ``bnptrack ARGS`` (``python -m pipeline``) in its own process group; output to
+    ``log`` (appended, stderr merged) or to two pipes (stdout, stderr: progress lines go to
+    stderr) that :func:`finish` reads."""
+    import subprocess
+    import sys
+
+    out = open(log, "ab") if log is not None else subprocess.PIPE
+    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=REPO_ROOT, env=bnptrack_env(env),
+                            stdout=out, stderr=subprocess.STDOUT if log is not None else subprocess.PIPE,
+                            start_new_session=True)
+
+
+def finish(p, timeout: float) -> tuple[int, str]:
+    """Wait for ``p`` (:func:`popen_bnptrack`); its exit code and output.  Past ``timeout``
+    its process group is killed and the test fails with the output so far."""
+    import os
+    import signal
+    import subprocess
+
+    import pytest
+
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        out, err = p.communicate(timeout=10)
+        pytest.fail(f"{p.args} did not finish in {timeout} s:\n{(out or b'').decode()}\n{(err or b'').decode()}")
+    return p.returncode, (out or b"").decode() + (err or b"").decode()

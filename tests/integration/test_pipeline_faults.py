@@ -20,7 +20,7 @@ import pytest
 from pipeline.stages import SUMMARY_NAME, read_snapshot
 from sources.mcap_log import read_log
 
-from testkit import REPO_ROOT, wait_until
+from testkit import REPO_ROOT, bnptrack_env, finish, popen_bnptrack, wait_until
 
 ROOT = REPO_ROOT
 
@@ -28,26 +28,7 @@ ROOT = REPO_ROOT
 # --------------------------------------------------------------------------- over Zenoh
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env["RERUN_ANALYTICS"] = "0"
-    return env
-
-
-def _popen(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=ROOT, env=_env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def _wait(p: subprocess.Popen, timeout: float) -> tuple[int, str]:
-    try:
-        out, _ = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        out, _ = p.communicate(timeout=10)
-        pytest.fail(f"{p.args} did not finish in {timeout} s:\n{out.decode()}")
-    return p.returncode, out.decode()
+_env, _popen, _wait = bnptrack_env, popen_bnptrack, finish
 
 
 def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None:

@@ -11,7 +11,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from pipeline.config import DeliveryConfig, ZenohConfig
 from sinks.mcap_writer import McapLogWriter
 from sources.mcap_log import iter_frames, read_log, read_metadata
 
-from testkit import REPO_ROOT, wait_until
+from testkit import REPO_ROOT, bnptrack_env, finish, popen_bnptrack, wait_until
 
 ROOT = REPO_ROOT
 VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
@@ -33,29 +32,7 @@ FAST = ["--set", "sink.rerun=false"]
 # --------------------------------------------------------------------------- helpers
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env["RERUN_ANALYTICS"] = "0"
-    return env
-
-
-def _popen(*args: str, log: Path | None = None, env: dict[str, str] | None = None) -> subprocess.Popen:
-    out = open(log, "ab") if log is not None else subprocess.PIPE
-    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=ROOT, env={**_env(), **(env or {})},
-                            stdout=out, stderr=subprocess.STDOUT if log is not None else subprocess.PIPE,
-                            start_new_session=True)
-
-
-def _wait(p: subprocess.Popen, timeout: float) -> tuple[int, str]:
-    try:
-        out, err = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        out, err = p.communicate(timeout=10)
-        pytest.fail(f"process {p.args} did not finish in {timeout} s:\n{(out or b'').decode()}\n{(err or b'').decode()}")
-    text = (out or b"").decode() + (err or b"").decode()
-    return p.returncode, text
+_env, _popen, _wait = bnptrack_env, popen_bnptrack, finish
 
 
 def _cli(*args: str, timeout: float = 120) -> tuple[int, str]:

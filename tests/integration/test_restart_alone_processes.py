@@ -8,39 +8,22 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from pipeline.config import ZenohConfig
 from pipeline.stages import SUMMARY_NAME, part_path, read_snapshot, salvage_part
 from sources.mcap_log import read_log
 
-from testkit import REPO_ROOT, wait_until
+from testkit import REPO_ROOT, finish, popen_bnptrack, wait_until
 
 #: seconds within which the hand-started sink must end: start-up, delivery.upstream_gone_s
 #: (5 s) and the cache queries, on a busy 2-core machine
 BOUND_S = 60.0
 
 
-def _popen(*args: str) -> subprocess.Popen:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO_ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env["RERUN_ANALYTICS"] = "0"
-    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=REPO_ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def _finish(p: subprocess.Popen, timeout: float) -> tuple[int, str]:
-    try:
-        out, _ = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        out, _ = p.communicate(timeout=10)
-        pytest.fail(f"{p.args} did not end within {timeout} s:\n{out.decode()}")
-    return p.returncode, out.decode()
+_popen, _finish = popen_bnptrack, finish
 
 
 def _snapshot_seq(out: Path) -> int:

@@ -106,3 +106,13 @@ def test_score_tally_means_by_hand():
     assert d["cardinality_error"] == pytest.approx((1 + 1) / 2)  # |1-2|, |3-2|
     assert d["tracks"] == 1 and d["labels"] == 3 and d["last_ospa"] == 20.0
     assert ScoreTally().as_dict()["ospa"] is None
+
+
+def test_a_restarted_sink_gives_no_negative_rate():
+    """A sink restarted mid-run counts ``frames_written`` from 0 again: the line shows no rate
+    until two of its health messages are in (it once printed ``(-535.8/s)``)."""
+    pr = Progress(io.StringIO(), tty=False)
+    assert pr._rate({"frames_written": 1500, "t_ns": 1_000_000_000}) is None
+    assert pr._rate({"frames_written": 1550, "t_ns": 2_000_000_000}) == 50.0
+    assert pr._rate({"frames_written": 0, "t_ns": 3_000_000_000}) is None
+    assert pr._rate({"frames_written": 40, "t_ns": 4_000_000_000}) == 40.0
