@@ -29,16 +29,27 @@ def test_frame_dt_rules():
         frame_dt(2, 5 * S, 3, 4 * S, 1.0)
 
 
-def _ct_by_hand(x, dt, sa, st):
-    """The CT transition over dt written out (Vo 2017, IV.B) and its Q(dt)."""
+def _ct_by_hand(x, dt, sa, st, mode="composed", T0=1.0):
+    """The CT transition over dt written out (Vo 2017, IV.B) and its Q(dt): ``dwna`` the
+    paper's formula at dt; ``composed`` (docs/models.md, "Time between frames") per axis
+    q [[c, dt^2/2], [dt^2/2, dt]], q = sa^2 T0, c = dt^3/4 (dt <= T0) or dt^3/3 - T0^2 dt/12,
+    turn-rate variance st^2 T0 dt."""
     px, vx, py, vy, w = x
     s, c = np.sin(w * dt), np.cos(w * dt)
     f = np.array([px + s / w * vx - (1 - c) / w * vy, c * vx - s * vy,
                   (1 - c) / w * vx + py + s / w * vy, s * vx + c * vy, w])
-    G = np.zeros((5, 3))
-    G[0:2, 0] = G[2:4, 1] = sa * np.array([dt**2 / 2, dt])
-    G[4, 2] = dt * st
-    return f, G @ G.T
+    if mode == "dwna":
+        G = np.zeros((5, 3))
+        G[0:2, 0] = G[2:4, 1] = sa * np.array([dt**2 / 2, dt])
+        G[4, 2] = dt * st
+        return f, G @ G.T
+    q = sa**2 * T0
+    cpp = dt**3 / 4 if dt <= T0 else dt**3 / 3 - T0**2 * dt / 12
+    Q = np.zeros((5, 5))
+    for i in (0, 2):
+        Q[i, i], Q[i, i + 1], Q[i + 1, i], Q[i + 1, i + 1] = q * cpp, q * dt**2 / 2, q * dt**2 / 2, q * dt
+    Q[4, 4] = st**2 * T0 * dt
+    return f, Q
 
 
 def _ct_jacobian_numeric(x, dt, sa, st, eps=1e-6):
@@ -50,16 +61,17 @@ def _ct_jacobian_numeric(x, dt, sa, st, eps=1e-6):
     return J
 
 
-@pytest.mark.parametrize("stamp_s, frame_no", [(5.0 + 0.63, 6), (7.0, 7)])  # irregular dt; dropped frame
-def test_bnp_predicts_once_over_dt(stamp_s, frame_no):
-    p = load_params("vo2017")
+@pytest.mark.parametrize("mode", ["composed", "dwna"])
+@pytest.mark.parametrize("stamp_s, frame_no", [(5.0 + 0.63, 6), (7.0, 7), (7.5, 7)])  # irregular; dropped
+def test_bnp_predicts_once_over_dt(stamp_s, frame_no, mode):
+    p = load_params("vo2017", [f"process_noise_dt='{mode}'"])
     tr = make_tracker("ddp", p, BnpConfig(filter="ekf"))
     x = np.array([100.0, 8.0, 900.0, -5.0, np.deg2rad(3.0)])
     P = np.diag([50.0, 4.0, 60.0, 3.0, 1e-4])
     st = BnpState(5, 5 * S, ("1.0",), x[None], P[None], np.array([0.9]), np.ones(1))
     dt = stamp_s - 5.0
     pred = tr._predict(st, frame_dt(st.frame, st.stamp_ns, frame_no, round(stamp_s * S), p.T), "bearing_range")
-    f, Q = _ct_by_hand(x, dt, p.sigma_accel, np.deg2rad(p.sigma_turn_deg))
+    f, Q = _ct_by_hand(x, dt, p.sigma_accel, np.deg2rad(p.sigma_turn_deg), mode)
     J = _ct_jacobian_numeric(x, dt, p.sigma_accel, np.deg2rad(p.sigma_turn_deg))
     np.testing.assert_allclose(pred.mean[0], f, rtol=1e-9)
     np.testing.assert_allclose(pred.cov[0], J @ P @ J.T + Q, rtol=1e-6, atol=1e-6)

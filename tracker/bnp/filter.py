@@ -13,7 +13,7 @@ import numpy as np
 from tracker import filtering as kf
 from tracker.bnp.assignment import best_permutation_pairs
 from tracker.bnp.base_measure import BaseDistribution
-from tracker.bnp.clusters import _born_at, _Clusters, _concat, merge_duplicates
+from tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
@@ -118,7 +118,7 @@ class BnpTracker:
         floor = self._prune_floor(state.alpha, clutter)
         born = self._births(frame, meas, clutter, result, floor)
         kept, capped = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
-        alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame)
+        alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame, dt)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
                              kept.existence, kept.popularity, alpha, d, hyper)
         est = self._estimate(new_state, frame, existing, born, result, problem)
@@ -229,7 +229,7 @@ class BnpTracker:
         return c.take(keep), capped
 
     def _hyper(self, rng, state: BnpState, problem: GibbsProblem, result, kept: "_Clusters",
-               frame: int) -> tuple[float, float, np.ndarray]:
+               frame: int, dt: float) -> tuple[float, float, np.ndarray]:
         """Grid-Gibbs step for (alpha, d) given this frame's last Gibbs sample.
 
         The log-likelihood of past frames is kept on the grid (with forgetting), so the
@@ -241,14 +241,14 @@ class BnpTracker:
         last = result.last
         counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
         n_new_sample = int(np.sum(last == NEW))
-        n_new = n_new_sample if cfg.birth_lag == 0 else _born_at(kept, frame - cfg.birth_lag)
+        n_new = n_new_sample if cfg.birth_lag == 0 else _born_between(kept, state.frame - cfg.birth_lag, frame - cfg.birth_lag)
         frame_ll = frame_loglik_grid(
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
             n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
             seated_popularity=state.popularity, seated_counts=counts,
         )
-        hyper = cfg.hyper_forgetting * state.hyper_loglik + frame_ll
+        hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
         # log-spaced alpha grid: cell width is proportional to alpha (Jacobian term log alpha)
         log_prior_a = log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
         log_post = hyper + log_prior_a[:, None]
@@ -290,6 +290,12 @@ class BnpTracker:
                 assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
                 probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _born_between(c, lo: int, hi: int) -> float:
+    """Expected objects born at frames ``lo < f <= hi`` (labels ``"<f>.<m>"``): with ``lo`` the
+    lag before the previous processed frame, each frame is counted once however frames skip."""
+    return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lo < int(lab.split(".")[0]) <= hi))
 
 
 def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int

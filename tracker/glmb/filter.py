@@ -131,6 +131,8 @@ class GlmbTracker:
         component) and/or the adaptive births (labels ``"k.zj"``, ``j`` the index of the
         measurement of the previous processed frame), per :attr:`birth_model`."""
         r, bm, bP = self.birth
+        if dt != self.params.T and state.birth_sensor == frame.sensor:  # r per scan T: over dt, 1-(1-r)^(dt/T)
+            r = -np.expm1(np.log1p(-np.minimum(r, 1.0 - 1e-12)) * (dt / self.params.T))
         static = _Births(tuple(f"{frame.frame}.{i}" for i in range(r.size)), r, bm, bP)
         if self.birth_model == "static":
             return static

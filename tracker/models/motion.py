@@ -16,6 +16,38 @@ from tracker.models._gauss import gaussian_logpdf
 _OMEGA_EPS = 1e-10
 
 
+def process_noise_block(dt: float, sigma_accel: float, period: float) -> np.ndarray:
+    r"""Per-axis position/velocity block of :math:`Q(\Delta t)` (``(2, 2)``), with
+    :math:`q = \sigma_a^2 T_0` (``period`` :math:`= T_0`):
+
+    .. math::
+
+        Q_{pv}(\Delta t) = q \begin{bmatrix} c(\Delta t) & \Delta t^2/2 \\
+            \Delta t^2/2 & \Delta t \end{bmatrix}, \qquad
+        c(\Delta t) = \begin{cases} \Delta t^3/4 & \Delta t \le T_0 \\
+            \Delta t^3/3 - T_0^2 \Delta t / 12 & \Delta t \ge T_0 \end{cases}
+
+    At :math:`\Delta t = T_0` both give the paper's :math:`\sigma_a^2 [[T_0^4/4, T_0^3/2],
+    [T_0^3/2, T_0^2]]`.  For :math:`\Delta t = n T_0` the second is the sum
+    :math:`\sum_{i<n} F^i Q(T_0) F^{iT}` (``n`` paper steps; :math:`\sum (i + 1/2)^2 =
+    n^3/3 - n/12`), and for :math:`\Delta t_1, \Delta t_2 \ge T_0` it composes exactly:
+    :math:`F(\Delta t_2) Q(\Delta t_1) F(\Delta t_2)^T + Q(\Delta t_2) = Q(\Delta t_1 +
+    \Delta t_2)` (constant-velocity :math:`F`).  Below :math:`T_0` the second is indefinite,
+    so the paper's rank-one form is kept with the acceleration variance scaled by
+    :math:`T_0/\Delta t` (velocity variance still :math:`q \Delta t`)."""
+    dt, q = abs(float(dt)), sigma_accel**2 * period
+    c = dt**3 / 4 if dt <= period else dt**3 / 3 - period**2 * dt / 12
+    return q * np.array([[c, dt**2 / 2], [dt**2 / 2, dt]])
+
+
+def _chol2(B: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of a PSD ``(2, 2)`` block (the Schur complement clipped at 0, so a
+    block that is singular up to rounding factors too)."""
+    a = np.sqrt(B[0, 0])
+    b = B[1, 0] / a
+    return np.array([[a, 0.0], [b, np.sqrt(max(B[1, 1] - b * b, 0.0))]])
+
+
 @dataclass(frozen=True)
 class CoordinatedTurn:
     r"""Coordinated-turn model with unknown turn rate (paper, Sec. 6; Vo et al. 2017, IV.B).
@@ -42,21 +74,47 @@ class CoordinatedTurn:
     :math:`Q_u` at :math:`T = 1` (the matrix :math:`D` and :math:`Q_u` of the paper's
     simulation section).  For :math:`|\omega| < 10^{-10}` the straight-line limit
     (:math:`\sin\omega T/\omega \to T`, :math:`(1-\cos\omega T)/\omega \to 0`) is used.
+
+    **Other intervals.**  ``period`` is the scan period :math:`T_0` at which ``sigma_accel`` and
+    ``sigma_turn`` are stated (``None``: ``T`` itself, the paper's model above).  Predicting
+    over :math:`\Delta t = T \ne T_0` uses :math:`Q(\Delta t)` of :func:`process_noise_block`
+    (docs/models.md, "Time between frames"): it equals the paper's :math:`Q` at
+    :math:`\Delta t = T_0`, the :math:`n`-fold composition of the paper's step at
+    :math:`\Delta t = n T_0` (a dropped frame is predicted as if the sensor had scanned and seen
+    nothing), composes exactly for :math:`\Delta t \ge T_0`, and its velocity, cross and
+    turn-rate blocks grow linearly in :math:`\Delta t` (Wiener velocity of intensity
+    :math:`q = \sigma_a^2 T_0`, turn rate of intensity :math:`\sigma_\omega^2 T_0`).
     """
 
     T: float = 1.0
     sigma_accel: float = 5.0
     sigma_turn: float = np.pi / 180.0
+    period: float | None = None
+    """Scan period :math:`T_0` the noise is stated for (``None``: ``T``)."""
 
     ndim: int = 5
 
     @cached_property
     def G(self) -> np.ndarray:
+        r"""Noise gain with :math:`Q = G G^T`: ``(5, 3)`` (rank 3) for :math:`|\Delta t| \le T_0`,
+        ``(5, 5)`` (the blocks' Cholesky factors) beyond."""
         T, s = self.T, self.sigma_accel
-        g = np.zeros((5, 3))
-        g[0:2, 0] = s * np.array([T**2 / 2, T])
-        g[2:4, 1] = s * np.array([T**2 / 2, T])
-        g[4, 2] = T * self.sigma_turn
+        T0 = T if self.period is None else float(self.period)
+        if T == T0:  # the paper's G, bit for bit
+            g = np.zeros((5, 3))
+            g[0:2, 0] = s * np.array([T**2 / 2, T])
+            g[2:4, 1] = s * np.array([T**2 / 2, T])
+            g[4, 2] = T * self.sigma_turn
+            return g
+        L = _chol2(process_noise_block(T, s, T0)) if abs(T) > T0 else None
+        g = np.zeros((5, 3 if L is None else 5))
+        if L is None:  # the paper's shape, acceleration variance scaled by T0/|dt|
+            col = s * np.sqrt(T0 / abs(T)) * np.array([T**2 / 2, T]) if T != 0 else np.zeros(2)
+            g[0:2, 0], g[2:4, 1] = col, col
+            g[4, 2] = self.sigma_turn * np.sqrt(T0 * abs(T))
+        else:
+            g[0:2, 0:2], g[2:4, 2:4] = L, L
+            g[4, 4] = self.sigma_turn * np.sqrt(T0 * abs(T))
         return g
 
     @cached_property
@@ -120,7 +178,7 @@ class CoordinatedTurn:
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
         """Draw :math:`x_k \\sim F(x_{k-1}) + G u` for each row of ``x``."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
-        u = rng.standard_normal((x.shape[0], 3))
+        u = rng.standard_normal((x.shape[0], self.G.shape[1]))
         return self.f(x) + u @ self.G.T
 
     def logpdf(self, x_next: np.ndarray, x: np.ndarray) -> np.ndarray:

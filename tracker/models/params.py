@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
+from typing import Literal
 
 import msgspec
 import numpy as np
@@ -48,6 +49,11 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Process noise std of acceleration, m/s^2 (``s`` of the CT model)."""
     sigma_turn_deg: NonNeg = 1.0
     """Process noise std of the turn rate, deg/s."""
+    process_noise_dt: Literal["composed", "dwna"] = "composed"
+    """Process noise over an interval ``dt != T`` (dropped frames, irregular stamps; identical at
+    ``dt == T``): ``composed`` the per-scan noise accumulated over ``dt``
+    (:func:`~tracker.models.motion.process_noise_block`), ``dwna`` the per-scan formula with
+    ``T`` replaced by ``dt`` (the ablation; it over-states the noise of a gap)."""
     p_survival: Prob = 0.99
     p_survival_outside: Prob = 0.7
     """Survival probability per scan of an object predicted outside the field of view
@@ -100,9 +106,12 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         return 1.0 if self.snr_db is None else 10.0 ** (-self.snr_db / 10.0)
 
     def motion(self, dt: float | None = None) -> CoordinatedTurn:
-        """The CT model over ``dt`` seconds (default ``T``); its ``Q(dt)`` scales with ``dt``."""
+        """The CT model over ``dt`` seconds (default ``T``): process noise ``Q(dt)`` of
+        :func:`~tracker.models.motion.process_noise_block` (stated per scan period ``T``), or
+        with ``process_noise_dt = "dwna"`` the paper's formula evaluated at ``dt``."""
+        period = self.T if self.process_noise_dt == "composed" else None
         return CoordinatedTurn(self.T if dt is None else float(dt), self.sigma_accel,
-                               np.deg2rad(self.sigma_turn_deg))
+                               np.deg2rad(self.sigma_turn_deg), period)
 
     # --- sensors -----------------------------------------------------------------------
     def sensor(self, name: str = "", kind: str = DEFAULT_KIND,
