@@ -1,7 +1,8 @@
 """Bring your own sensor: one scene measured several ways (issue 13 targets).
 
-The vo2017 scene (seeds 1..N; its birth regions) tracked by DDP-EMM (or ``--tracker``), mean
-OSPA (c = 100 m, p = 1) over the evaluated frames:
+The vo2017 scene (seeds 1..N; its birth regions) tracked by DDP-EMM (or ``--tracker``; another
+scene with ``--scenario``, a generated family drawing one scene per seed), mean OSPA
+(c = 100 m, p = 1) over the evaluated frames:
 
 * ``plain``      bearing-range from the origin facing +y, dt = 1 s (the reference);
 * ``posed``      bearing-range from a sensor at pose (1500, -700, 40 deg), the world truth (and
@@ -12,6 +13,10 @@ OSPA (c = 100 m, p = 1) over the evaluated frames:
                  (same truth, same measurement and tracker draws, same frame numbers), and both
                  are scored on the kept frames only (``vs plain`` of this row compares it with
                  ``plain`` on those frames; ``plain@kept`` shows that reference);
+* ``blanked``    (diagnostic, ``--variants``) dropped's information processed one scan at a time:
+                 each dropped frame replaced by an empty scan of a blind sensor (P_D = 0, no
+                 clutter), scored on the kept frames.  The dt model is consistent when
+                 ``dropped`` matches it: what is left of dropped's loss is the information lost;
 * ``camera``     xy detections from a second sensor at (1000, 2200) facing 200 deg (range 3000 m);
 * ``two``        ``plain`` radar + ``camera`` interleaved in one stream (evaluated after both
                  frames of each scan): should beat either alone.
@@ -34,7 +39,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from sinks.metrics import ospa  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
+from sources.scenarios import get_scenario, is_generated  # noqa: E402
 from sources.synthetic import (  # noqa: E402
     measurement_frame_rng, measure_with, move_truth, simulate_all, simulate_sensors, truth_at_time)
 from tracker.config import apply_overrides  # noqa: E402
@@ -47,6 +52,7 @@ POSE = (1500.0, -700.0, float(np.deg2rad(40.0)))
 CAMERA = ["sensors.cam.kind='xy'", "sensors.cam.x=1000.0", "sensors.cam.y=2200.0",
           "sensors.cam.heading_deg=200.0", "sensors.cam.range_max=3000.0"]
 VARIANTS = ("plain", "posed", "xy", "irregular", "dropped", "camera", "two")
+BLIND = ["sensors.blind.kind='bearing_range'", "sensors.blind.p_detect=0.0", "sensors.blind.clutter_rate=1e-9"]
 S = 10**9
 
 
@@ -86,10 +92,14 @@ def _frames_irregular(sc, params, seed):
 def _setup(variant, sc, base, seed):
     """``(params, frames, evaluate(frame) -> bool)`` of one variant."""
     every = lambda f: True  # noqa: E731
-    if variant in ("plain", "dropped"):
+    if variant in ("plain", "dropped", "blanked"):
         frames = simulate_all(sc, base, seed)
         if variant == "dropped":
             frames = [f for f in frames if f.frame % 3]
+        if variant == "blanked":  # the same information as dropped, one scan at a time
+            blank = lambda f: Frame(f.frame, f.stamp_ns, "blind", f.kind, np.zeros((0, 2)), f.truth)  # noqa: E731
+            return (apply_overrides(base, BLIND), [f if f.frame % 3 else blank(f) for f in frames],
+                    lambda f: f.sensor != "blind")
         return base, frames, every
     if variant == "posed":
         p = apply_overrides(base, [])
@@ -110,8 +120,8 @@ def _setup(variant, sc, base, seed):
 
 def one_run(job) -> tuple[str, int, dict[int, float]]:
     """OSPA of every evaluated frame, by frame number."""
-    variant, seed, tracker_name, overrides = job
-    sc = get_scenario("vo2017")
+    variant, seed, tracker_name, overrides, scenario = job
+    sc = get_scenario(scenario, seed if is_generated(scenario) else None)  # a generated scene per seed
     base = sc.adapt_params(load_params("vo2017", overrides))
     params, frames, evaluate = _setup(variant, sc, base, seed)
     tracker = build(tracker_name, params, kind(tracker_name).presets[tracker_name])
@@ -163,21 +173,22 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="parameter override for every variant (e.g. process_noise_dt=dwna)")
     ap.add_argument("--tracker", default="ddp")
+    ap.add_argument("--scenario", default="vo2017", help="vo2017, or a generated family (random-cv: scene seed = seed)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--variants", default=",".join(VARIANTS))
     args = ap.parse_args()
     variants = args.variants.split(",")
     seeds = _seeds(args.seeds)
-    jobs = [(v, s, args.tracker, args.overrides) for v in variants for s in seeds]
+    jobs = [(v, s, args.tracker, args.overrides, args.scenario) for v in variants for s in seeds]
     with ProcessPoolExecutor(args.workers) as ex:
         res = list(ex.map(one_run, jobs))
     table = _table(res, variants, seeds)
-    print(f"vo2017, {args.tracker}, seeds {seeds[0]}-{seeds[-1]}, set {args.overrides or '-'}: "
+    print(f"{args.scenario}, {args.tracker}, seeds {seeds[0]}-{seeds[-1]}, set {args.overrides or '-'}: "
           "mean OSPA (m, c=100, p=1)")
     print(f"{'variant':<10} {'mean':>7} {'sd':>6} {'vs plain':>9}  per seed")
     for v in table:
         o = table[v]
-        ref = table.get("plain@kept" if v == "dropped" else "plain")
+        ref = table.get("plain@kept" if v in ("dropped", "blanked") else "plain")
         rel = f"{100 * (o.mean() / ref.mean() - 1):+8.1f}%" if ref is not None else ""
         print(f"{v:<10} {o.mean():7.2f} {o.std(ddof=1) if o.size > 1 else 0:6.2f} {rel:>9}  "
               + " ".join(f"{x:.1f}" for x in o))

@@ -127,3 +127,32 @@ def test_born_between_counts_each_frame_once_across_skipped_numbers():
     assert sum(counted) == pytest.approx(0.5 + 0.25 + 0.125 + 1.0 + 0.75 + 0.9)
     assert counted[processed.index(7)] == pytest.approx(0.375)  # window (1, 3]: frame 2
     assert counted[processed.index(5)] == pytest.approx(0.5)  # window (0, 1]: frame 1
+
+
+@pytest.mark.parametrize("filt", ["ekf", "ukf"])
+@pytest.mark.parametrize("turn_deg, tol", [(0.0, 0.02), (3.0, 0.03)])
+def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
+    """Dropped frame = a scan that saw nothing: predicting 2 s at once gives the mean, covariance
+    and existence of two 1 s predictions.  Covariance entries agree within ``tol`` of
+    sqrt(P_ii P_jj): what is left is the turn (the first scan's noise rotated by omega T into the
+    other axis, and the turn noise carried into position), which the paper's omega-free G leaves
+    out of Q."""
+    from tracker.bnp import BnpConfig, BnpState, make_tracker
+
+    p = load_params("vo2017")
+    tr = make_tracker("ddp", p, BnpConfig(filter=filt))
+    x = np.array([100.0, 8.0, 900.0, -5.0, np.deg2rad(turn_deg)])
+    P = np.diag([50.0, 4.0, 60.0, 3.0, 1e-4])
+    st = BnpState(5, 5_000_000_000, ("1.0",), x[None], P[None], np.array([0.9]), np.ones(1))
+    once = tr._predict(st, 2.0, "bearing_range")
+    half = tr._predict(st, 1.0, "bearing_range")
+    twice = tr._predict(BnpState(6, 6_000_000_000, ("1.0",), half.mean, half.cov, half.q, np.ones(1)), 1.0,
+                        "bearing_range")
+    sd = np.sqrt(np.diag(once.cov[0]))
+    assert np.all(np.abs(once.mean[0] - twice.mean[0]) <= 1e-3 * sd)  # the UKF's mean is a sigma-point mean
+    scale = np.sqrt(np.outer(np.diag(once.cov[0]), np.diag(once.cov[0])))
+    assert np.all(np.abs(once.cov[0] - twice.cov[0]) <= tol * scale)
+    assert once.q[0] == pytest.approx(twice.q[0], rel=1e-12)
+    # the old rule (the paper's formula at dt) adds twice the velocity variance of two scans
+    old = make_tracker("ddp", load_params("vo2017", ["process_noise_dt='dwna'"]), BnpConfig(filter=filt))
+    assert old._predict(st, 2.0, "bearing_range").cov[0, 1, 1] > twice.cov[0, 1, 1] + 40.0
