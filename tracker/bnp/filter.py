@@ -241,7 +241,8 @@ class BnpTracker:
         last = result.last
         counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
         n_new_sample = int(np.sum(last == NEW))
-        n_new = n_new_sample if cfg.birth_lag == 0 else _born_between(kept, state.frame - cfg.birth_lag, frame - cfg.birth_lag)
+        lag = cfg.birth_lag  # frames (prev - lag, k - lag]: each counted once however numbers skip
+        n_new = n_new_sample if lag == 0 else _born_between(kept, state.frame - lag, frame - lag)
         frame_ll = frame_loglik_grid(
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
