@@ -156,3 +156,21 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
     # the old rule (the paper's formula at dt) adds twice the velocity variance of two scans
     old = make_tracker("ddp", load_params("vo2017", ["process_noise_dt='dwna'"]), BnpConfig(filter=filt))
     assert old._predict(st, 2.0, "bearing_range").cov[0, 1, 1] > twice.cov[0, 1, 1] + 40.0
+
+
+def test_bnp_hyperparameter_forgetting_is_per_scan_period():
+    """The grid log-likelihood of past frames decays by hyper_forgetting^(dt/T): from a state
+    without clusters (nothing else depends on dt) frames 1 s and 2 s later differ only there."""
+    from tracker.bnp import BnpState, make_tracker
+
+    tr = make_tracker("ddp", load_params("vo2017"))
+    grid = tr.initial_state().hyper_loglik
+    h0 = -np.arange(grid.size, dtype=float).reshape(grid.shape) / 7.0
+    st = BnpState(4, 4_000_000_000, alpha=0.1, hyper_loglik=h0)
+    z = np.array([[0.1, 800.0], [-0.4, 1200.0]])
+    out = {}
+    for dt_s in (1, 2):
+        frame = Frame(6, (4 + dt_s) * 1_000_000_000, "s", "bearing_range", z)
+        out[dt_s] = tr.step(st, frame, np.random.default_rng(3))[0].hyper_loglik
+    f = tr.config.hyper_forgetting
+    np.testing.assert_allclose(out[2] - out[1], (f**2 - f) * h0, rtol=1e-10, atol=1e-12)
