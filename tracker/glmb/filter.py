@@ -17,10 +17,10 @@ from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_s
 from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.gibbs import (allocate_samples, gibbs_chains, sample_chains, split_chains, start_missed,
-                                start_optimal)
-from tracker.glmb.hypotheses import (_DET, _Candidates, _Children, _Update, _log, assignment_log_eta,
-                                     candidate_sets, eta_matrix, merge_children, prune_and_cap, unique_rows)
+from tracker.glmb.children import distinct_children, starts
+from tracker.glmb.gibbs import allocate_samples, gibbs_chains, split_chains, start_missed
+from tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
+                                     prune_and_cap)
 from tracker.glmb.state import GlmbState
 from tracker.models.params import ModelParams
 from tracker.types import STATE_DIM, Estimate, Frame, frame_dt
@@ -181,19 +181,19 @@ class GlmbTracker:
                   rng: np.random.Generator) -> _Children:
         """Gibbs-sampled distinct children of every parent, duplicates merged."""
         cfg = self.config
-        cand = candidate_sets(state.hyp_tracks, cands.n_survivors, len(cands.labels) - cands.n_survivors)
-        start, ok = (start_optimal if cfg.start == "optimal" else start_missed)(E, cand)
+        n_births = len(cands.labels) - cands.n_survivors
+        if cfg.start == "optimal":
+            cand, start, ok = starts(E, state.hyp_tracks, cands.n_survivors, n_births)
+        else:
+            cand = candidate_sets(state.hyp_tracks, cands.n_survivors, n_births)
+            start, ok = start_missed(E, cand)
         parents = np.flatnonzero(ok)
         if parents.size == 0:
             raise RuntimeError("GLMB: no parent hypothesis has a feasible assignment")
         cand, start, log_w = cand[parents], start[parents], state.log_w[parents]
         chain_parent, length = split_chains(allocate_samples(log_w, cfg.max_hypotheses), cfg.chain_length)
         samples = gibbs_chains(rng, E, cand[chain_parent], start[chain_parent], length)
-        owner = chain_parent[sample_chains(length)]
-        uniq, _ = unique_rows(np.column_stack([owner, samples]))
-        p_idx, gamma = uniq[:, 0], uniq[:, 1:]
-        log_w = log_w[p_idx] + assignment_log_eta(E, cand[p_idx], gamma)
-        return merge_children(cand[p_idx], gamma, log_w, E.shape[1] - _DET)
+        return distinct_children(E, samples, chain_parent, length, cand, log_w)
 
     def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
         """Table rows of this frame's estimate, by ``config.estimator``."""

@@ -1,0 +1,335 @@
+r"""The GLMB's children of all parents in two compiled passes (issue 15).
+
+:meth:`GlmbTracker._children <tracker.glmb.filter.GlmbTracker._children>` used to chain about
+sixty numpy calls per frame (candidate sets, the greedy start and its clash test, the dense
+assignment cost tensor of the hard parents, two lexicographic ``unique_rows``, the pair keys
+and a grouped log-sum-exp).  Here the same arithmetic runs in two numba kernels over plain
+arrays, one parent (or one sample) at a time, with the same results bit for bit:
+
+* :func:`starts` -- :func:`~tracker.glmb.hypotheses.candidate_sets` and
+  :func:`~tracker.glmb.gibbs.start_optimal` (greedy best options; where two candidates want
+  the same measurement, the shortest augmenting path assignment of
+  :mod:`tracker.glmb.assignment` on that parent's gated candidates only -- its own connected
+  part of the association problem -- instead of a padded batch);
+* :func:`distinct_children` -- the distinct ``(parent, assignment)`` samples, their weight
+  :math:`w_h \prod_i \eta_i(\gamma_i)`, their sorted pair keys and the merge of identical
+  key sets (:func:`~tracker.glmb.hypotheses.merge_children`).
+
+Sums are taken in numpy's order (:func:`_np_sum`: numpy's pairwise summation), so the weights
+equal the numpy reference's to the last bit (test: ``tests/tracker/test_glmb_children.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker._numerics import jit
+from tracker.glmb.assignment import _lsap_batch
+from tracker.glmb.hypotheses import _DET, _DIE, _MISS, _Children
+
+
+def _np_sum(a: np.ndarray, n: int) -> float:  # pragma: no cover - compiled
+    """``np.sum(a[:n])`` in numpy's order: a plain loop below 8 terms, eight interleaved
+    partial sums up to 128 terms, halves (at a multiple of 8) above (numpy's
+    ``pairwise_sum``)."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n <= 128:
+        r = np.empty(8)
+        for j in range(8):
+            r[j] = a[j]
+        i = 8
+        while i < n - (n % 8):
+            for j in range(8):
+                r[j] += a[i + j]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res += a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _np_sum(a, n2) + _np_sum(a[n2:], n - n2)
+
+
+_np_sum = jit(_np_sum)
+
+
+def _start_one(E: np.ndarray, c: np.ndarray, n: int, out: np.ndarray) -> bool:  # pragma: no cover
+    """:func:`~tracker.glmb.gibbs.start_optimal` of one parent with candidates ``c[:n]``:
+    writes its options to ``out[:n]``, returns feasibility."""
+    K = E.shape[1]
+    M = K - _DET
+    clash = False
+    ok = True
+    used = np.zeros(K, dtype=np.bool_)
+    for i in range(n):
+        r = c[i]
+        b = 0
+        for j in range(1, K):
+            if E[r, j] > E[r, b]:
+                b = j
+        out[i] = b
+        if not np.isfinite(E[r, b]):
+            ok = False
+        if b >= _DET:
+            if used[b]:
+                clash = True
+            used[b] = True
+    if ok and not clash:
+        return True
+    # _assign: best of dies/missed; the gated candidates compete by linear assignment
+    ok = True
+    gated = np.empty(n, dtype=np.int64)
+    n_gated = 0
+    for i in range(n):
+        r = c[i]
+        nd = _MISS if E[r, _MISS] >= E[r, _DIE] else _DIE
+        out[i] = nd
+        g = False
+        for j in range(_DET, K):
+            if np.isfinite(E[r, j]):
+                g = True
+                break
+        if g:
+            gated[n_gated] = i
+            n_gated += 1
+        elif not np.isfinite(E[r, nd]):
+            ok = False
+    if n_gated == 0:
+        return ok
+    cost = np.full((1, n_gated, M + n_gated), np.inf)
+    for a in range(n_gated):
+        r = c[gated[a]]
+        for j in range(M):
+            cost[0, a, j] = -E[r, _DET + j]
+        cost[0, a, M + a] = -E[r, out[gated[a]]]
+    col = np.full((1, n_gated), M, dtype=np.int64)
+    solved = np.zeros(1, dtype=np.bool_)
+    _lsap_batch(cost, col, solved)
+    if not solved[0]:
+        return False
+    for a in range(n_gated):
+        if not np.isfinite(cost[0, a, col[0, a]]):
+            ok = False
+        if col[0, a] < M:
+            out[gated[a]] = _DET + col[0, a]
+    return ok
+
+
+_start_one = jit(_start_one)
+
+
+def _starts_kernel(E: np.ndarray, hyp: np.ndarray, n_surv: int, n_births: int, cand: np.ndarray,
+                   start: np.ndarray, ok: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Candidate sets (survivors of each parent, then every birth; -1 padded) and optimal
+    starts of all parents."""
+    H, w = hyp.shape
+    for h in range(H):
+        n = 0
+        for i in range(w):
+            if hyp[h, i] >= 0:
+                cand[h, n] = hyp[h, i]
+                n += 1
+        for b in range(n_births):
+            cand[h, n] = n_surv + b
+            n += 1
+        for i in range(n, cand.shape[1]):
+            cand[h, i] = -1
+            start[h, i] = -1
+        ok[h] = _start_one(E, cand[h], n, start[h])
+
+
+_starts_kernel = jit(_starts_kernel)
+
+
+def starts(E: np.ndarray, hyp_tracks: np.ndarray, n_survivors: int, n_births: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(cand, start, ok)``: :func:`~tracker.glmb.hypotheses.candidate_sets` and
+    :func:`~tracker.glmb.gibbs.start_optimal` of every parent, compiled."""
+    H, w = hyp_tracks.shape
+    cand = np.empty((H, w + n_births), dtype=np.int64)
+    start = np.empty((H, w + n_births), dtype=np.int64)
+    ok = np.empty(H, dtype=np.bool_)
+    _starts_kernel(np.ascontiguousarray(E, dtype=np.float64), np.ascontiguousarray(hyp_tracks, dtype=np.int64),
+                   n_survivors, n_births, cand, start, ok)
+    return cand, start, ok
+
+
+def _row_less(A: np.ndarray, a: int, b: int) -> bool:  # pragma: no cover - compiled
+    """Row ``a`` of ``A`` before row ``b`` in lexicographic order."""
+    for k in range(A.shape[1]):
+        if A[a, k] != A[b, k]:
+            return A[a, k] < A[b, k]
+    return False
+
+
+_row_less = jit(_row_less, inline=True)
+
+
+def _sort_rows(A: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Stable lexicographic order of the rows of ``A`` (bottom-up merge sort; as
+    ``np.lexsort(A.T[::-1])``)."""
+    n = A.shape[0]
+    idx = np.arange(n)
+    tmp = np.empty(n, dtype=np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(lo + width, n)
+            hi = min(lo + 2 * width, n)
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if _row_less(A, idx[j], idx[i]):
+                    tmp[k] = idx[j]
+                    j += 1
+                else:
+                    tmp[k] = idx[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                tmp[k] = idx[i]
+                i += 1
+                k += 1
+            while j < hi:
+                tmp[k] = idx[j]
+                j += 1
+                k += 1
+        idx, tmp = tmp, idx
+        width *= 2
+    return idx
+
+
+_sort_rows = jit(_sort_rows)
+
+
+def _distinct_rows(A: np.ndarray, order: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """For rows in sorted ``order``: 1 where a row differs from the one before (``unique_rows``'
+    ``new`` mask), as int64."""
+    n = order.size
+    new = np.zeros(n, dtype=np.int64)
+    for t in range(n):
+        if t == 0:
+            new[t] = 1
+            continue
+        for k in range(A.shape[1]):
+            if A[order[t], k] != A[order[t - 1], k]:
+                new[t] = 1
+                break
+    return new
+
+
+_distinct_rows = jit(_distinct_rows)
+
+
+def _sample_rows(samples: np.ndarray, chain_parent: np.ndarray, length: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """``[owner | assignment]`` of every Gibbs output row (all starts, then the active prefix
+    after each sweep; :func:`~tracker.glmb.gibbs.sample_chains`)."""
+    S, width = samples.shape
+    A = np.empty((S, width + 1), dtype=np.int64)
+    row = 0
+    C = chain_parent.size
+    s = 0
+    while row < S:
+        k = C if row < C else 0
+        if row >= C:
+            for c in range(C):
+                if length[c] > s:
+                    k += 1
+            s += 1
+        for c in range(k):
+            A[row, 0] = chain_parent[c]
+            for i in range(width):
+                A[row, 1 + i] = samples[row, i]
+            row += 1
+    return A
+
+
+_sample_rows = jit(_sample_rows)
+
+
+def _weigh_kernel(E: np.ndarray, A: np.ndarray, order: np.ndarray, new: np.ndarray, cand: np.ndarray,
+                  log_w: np.ndarray, n_meas: int):  # pragma: no cover - compiled
+    """The distinct ``(parent, assignment)`` rows (``A`` sorted by ``order``, first of each run
+    of equal rows): their log weight :math:`\\log w_h + \\sum_i \\log\\eta_i(\\gamma_i)` (numpy's
+    summation order) and the sorted pair keys of their existing labels (-1 padded, only the
+    rows of finite weight).  Returns ``(keys, finite log weights, number of distinct rows)``."""
+    width = cand.shape[1]
+    n_u = 0
+    for t in range(order.size):
+        n_u += new[t]
+    lw = np.empty(n_u)
+    keys = np.full((n_u, width), -1, dtype=np.int64)
+    terms = np.zeros(width)
+    n_f = 0
+    kw = 0
+    for t in range(order.size):
+        if new[t] == 0:
+            continue
+        a = order[t]
+        p = A[a, 0]
+        for i in range(width):
+            r = cand[p, i]
+            terms[i] = E[r, A[a, 1 + i]] if r >= 0 else 0.0
+        v = log_w[p] + _np_sum(terms, width)
+        if not np.isfinite(v):
+            continue
+        lw[n_f] = v
+        n = 0
+        for i in range(width):
+            r = cand[p, i]
+            g = A[a, 1 + i]
+            if r >= 0 and g >= _MISS:
+                keys[n_f, n] = r * (n_meas + 1) + (g - 1)
+                n += 1
+        keys[n_f, :n] = np.sort(keys[n_f, :n])
+        kw = max(kw, n)
+        n_f += 1
+    return keys[:n_f, :kw].copy(), lw[:n_f].copy(), n_u
+
+
+_weigh_kernel = jit(_weigh_kernel)
+
+
+def _group_kernel(keys: np.ndarray, order: np.ndarray, new: np.ndarray):  # pragma: no cover - compiled
+    """Distinct key rows (lexicographic) and the group of every input row (``unique_rows``)."""
+    n = order.size
+    inv = np.empty(n, dtype=np.int64)
+    g = -1
+    for t in range(n):
+        g += new[t]
+        inv[order[t]] = g
+    uniq = np.empty((g + 1, keys.shape[1]), dtype=np.int64)
+    for t in range(n):
+        if new[t]:
+            uniq[inv[order[t]]] = keys[order[t]]
+    return uniq, inv
+
+
+_group_kernel = jit(_group_kernel)
+
+
+def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarray, length: np.ndarray,
+                      cand: np.ndarray, log_w: np.ndarray) -> _Children:
+    """The children of :meth:`GlmbTracker._children`: distinct ``(parent, assignment)``
+    samples weighted by :math:`w_h \\prod_i \\eta_i(\\gamma_i)`, zero weights dropped,
+    identical pair-key sets merged (weights summed).  Same output as ``unique_rows`` +
+    ``assignment_log_eta`` + :func:`~tracker.glmb.hypotheses.merge_children`."""
+    from tracker.glmb.hypotheses import group_logsumexp
+
+    n_meas = E.shape[1] - _DET
+    if samples.shape[0] == 0:
+        return _Children(np.zeros((0, 0), dtype=np.int64), np.zeros(0), 0)
+    A = _sample_rows(samples, chain_parent, length)
+    order = _sort_rows(A)
+    keys, lw, n_u = _weigh_kernel(E, A, order, _distinct_rows(A, order), cand, log_w, n_meas)
+    if keys.shape[1] == 0:
+        uniq, inv = keys[:1], np.zeros(keys.shape[0], dtype=np.int64)
+    else:
+        k_order = _sort_rows(keys)
+        uniq, inv = _group_kernel(keys, k_order, _distinct_rows(keys, k_order))
+    return _Children(uniq, group_logsumexp(lw, inv, uniq.shape[0]), n_u)
