@@ -207,6 +207,35 @@ def _sort_rows(A: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 _sort_rows = jit(_sort_rows)
 
 
+def _sort_rows_bucketed(A: np.ndarray, n_first: int) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`_sort_rows` for rows whose first entry is in ``0..n_first-1`` and mostly
+    distinct (the parent of a sample): a counting sort on it, then an insertion sort of each
+    bucket (a parent's few samples)."""
+    n = A.shape[0]
+    start = np.zeros(n_first + 1, dtype=np.int64)
+    for a in range(n):
+        start[A[a, 0] + 1] += 1
+    for p in range(n_first):
+        start[p + 1] += start[p]
+    fill = start[:-1].copy()
+    idx = np.empty(n, dtype=np.int64)
+    for a in range(n):
+        idx[fill[A[a, 0]]] = a
+        fill[A[a, 0]] += 1
+    for p in range(n_first):
+        for x in range(start[p] + 1, start[p + 1]):
+            cur = idx[x]
+            y = x - 1
+            while y >= start[p] and _row_less(A, cur, idx[y]):
+                idx[y + 1] = idx[y]
+                y -= 1
+            idx[y + 1] = cur
+    return idx
+
+
+_sort_rows_bucketed = jit(_sort_rows_bucketed)
+
+
 def _distinct_rows(A: np.ndarray, order: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """For rows in sorted ``order``: 1 where a row differs from the one before (``unique_rows``'
     ``new`` mask), as int64."""
@@ -286,7 +315,13 @@ def _weigh_kernel(E: np.ndarray, A: np.ndarray, order: np.ndarray, new: np.ndarr
             if r >= 0 and g >= _MISS:
                 keys[n_f, n] = r * (n_meas + 1) + (g - 1)
                 n += 1
-        keys[n_f, :n] = np.sort(keys[n_f, :n])
+        for x in range(1, n):  # insertion sort of the few keys
+            key = keys[n_f, x]
+            y = x - 1
+            while y >= 0 and keys[n_f, y] > key:
+                keys[n_f, y + 1] = keys[n_f, y]
+                y -= 1
+            keys[n_f, y + 1] = key
         kw = max(kw, n)
         n_f += 1
     return keys[:n_f, :kw].copy(), lw[:n_f].copy(), n_u
@@ -325,7 +360,7 @@ def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarr
     if samples.shape[0] == 0:
         return _Children(np.zeros((0, 0), dtype=np.int64), np.zeros(0), 0)
     A = _sample_rows(samples, chain_parent, length)
-    order = _sort_rows(A)
+    order = _sort_rows_bucketed(A, cand.shape[0])
     keys, lw, n_u = _weigh_kernel(E, A, order, _distinct_rows(A, order), cand, log_w, n_meas)
     if keys.shape[1] == 0:
         uniq, inv = keys[:1], np.zeros(keys.shape[0], dtype=np.int64)

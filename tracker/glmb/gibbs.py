@@ -69,7 +69,21 @@ def _gibbs_kernel(P: np.ndarray, cand: np.ndarray, start: np.ndarray, length: np
     when ``u`` rounds up to the total), exactly as :func:`_draw`.
     """
     C, width = cand.shape
-    K = P.shape[1]
+    N, K = P.shape
+    # the positive entries of each row of P (the options a draw can take), columns increasing
+    ptr = np.zeros(N + 1, dtype=np.int64)
+    for r in range(N):
+        ptr[r + 1] = ptr[r]
+        for j in range(K):
+            if P[r, j] > 0:
+                ptr[r + 1] += 1
+    cols = np.empty(ptr[N], dtype=np.int64)
+    for r in range(N):
+        t = ptr[r]
+        for j in range(K):
+            if P[r, j] > 0:
+                cols[t] = j
+                t += 1
     gamma = start.copy()
     taken = np.zeros((C, K), dtype=np.bool_)
     for c in range(C):
@@ -77,7 +91,6 @@ def _gibbs_kernel(P: np.ndarray, cand: np.ndarray, start: np.ndarray, length: np
             if gamma[c, i] >= 2:
                 taken[c, gamma[c, i]] = True
             out[c, i] = gamma[c, i]
-    cdf = np.empty(K)
     row = C
     pos = 0
     n_sweeps = 0
@@ -95,21 +108,28 @@ def _gibbs_kernel(P: np.ndarray, cand: np.ndarray, start: np.ndarray, length: np
                 if r < 0:
                     continue
                 taken[c, gamma[c, i]] = False
-                acc = 0.0
-                for j in range(K):
-                    acc += P[r, j] * (0.0 if taken[c, j] else 1.0)
-                    cdf[j] = acc
-                x = u[pos] * cdf[K - 1]
+                # the cdf over the unblocked positive entries: adding the zero entries, as
+                # the dense cdf does, changes no partial sum
+                total = 0.0
+                for t in range(ptr[r], ptr[r + 1]):
+                    if not taken[c, cols[t]]:
+                        total += P[r, cols[t]]
+                x = u[pos] * total
                 pos += 1
-                new = 0
-                for j in range(K):
-                    if cdf[j] <= x:
-                        new += 1
-                if new >= K:  # u rounded up to the total: take the last positive entry
-                    for j in range(K - 1, -1, -1):
-                        if P[r, j] * (0.0 if taken[c, j] else 1.0) > 0:
-                            new = j
-                            break
+                new = -1
+                acc = 0.0
+                last = -1
+                for t in range(ptr[r], ptr[r + 1]):
+                    j = cols[t]
+                    if taken[c, j]:
+                        continue
+                    last = j
+                    acc += P[r, j]
+                    if acc > x:  # the first entry whose cdf exceeds x: count(cdf <= x)
+                        new = j
+                        break
+                if new < 0:  # u rounded up to the total: take the last positive entry
+                    new = last
                 if new >= 2:
                     taken[c, new] = True
                 gamma[c, i] = new
