@@ -59,65 +59,159 @@ def _np_sum(a: np.ndarray, n: int) -> float:  # pragma: no cover - compiled
 _np_sum = jit(_np_sum)
 
 
-def _start_one(E: np.ndarray, c: np.ndarray, n: int, out: np.ndarray) -> bool:  # pragma: no cover
-    """:func:`~tracker.glmb.gibbs.start_optimal` of one parent with candidates ``c[:n]``:
-    writes its options to ``out[:n]``, returns feasibility."""
-    K = E.shape[1]
-    M = K - _DET
-    clash = False
-    ok = True
-    used = np.zeros(K, dtype=np.bool_)
-    for i in range(n):
-        r = c[i]
+def _row_options(E: np.ndarray):  # pragma: no cover - compiled
+    """Per candidate row: its best option (``np.argmax``), its best of dies/missed (missed on
+    a tie, as the assignment's dummy column) and its gated measurements (CSR ``ptr``,
+    ``cols``, increasing)."""
+    N, K = E.shape
+    best = np.empty(N, dtype=np.int64)
+    nd = np.empty(N, dtype=np.int64)
+    ptr = np.zeros(N + 1, dtype=np.int64)
+    for r in range(N):
         b = 0
         for j in range(1, K):
             if E[r, j] > E[r, b]:
                 b = j
-        out[i] = b
-        if not np.isfinite(E[r, b]):
-            ok = False
-        if b >= _DET:
-            if used[b]:
-                clash = True
-            used[b] = True
-    if ok and not clash:
-        return True
-    # _assign: best of dies/missed; the gated candidates compete by linear assignment
-    ok = True
-    gated = np.empty(n, dtype=np.int64)
-    n_gated = 0
-    for i in range(n):
-        r = c[i]
-        nd = _MISS if E[r, _MISS] >= E[r, _DIE] else _DIE
-        out[i] = nd
-        g = False
+        best[r] = b
+        nd[r] = _MISS if E[r, _MISS] >= E[r, _DIE] else _DIE
+        ptr[r + 1] = ptr[r]
         for j in range(_DET, K):
             if np.isfinite(E[r, j]):
-                g = True
-                break
-        if g:
-            gated[n_gated] = i
-            n_gated += 1
-        elif not np.isfinite(E[r, nd]):
-            ok = False
-    if n_gated == 0:
-        return ok
-    cost = np.full((1, n_gated, M + n_gated), np.inf)
-    for a in range(n_gated):
-        r = c[gated[a]]
-        for j in range(M):
-            cost[0, a, j] = -E[r, _DET + j]
-        cost[0, a, M + a] = -E[r, out[gated[a]]]
-    col = np.full((1, n_gated), M, dtype=np.int64)
+                ptr[r + 1] += 1
+    cols = np.empty(ptr[N], dtype=np.int64)
+    for r in range(N):
+        t = ptr[r]
+        for j in range(_DET, K):
+            if np.isfinite(E[r, j]):
+                cols[t] = j - _DET
+                t += 1
+    return best, nd, ptr, cols
+
+
+_row_options = jit(_row_options)
+
+
+def _find(uf: np.ndarray, i: int) -> int:  # pragma: no cover - compiled
+    while uf[i] != i:
+        uf[i] = uf[uf[i]]
+        i = uf[i]
+    return i
+
+
+_find = jit(_find, inline=True)
+
+
+def _solve_group(E: np.ndarray, c: np.ndarray, members: np.ndarray, nm: int, best: np.ndarray, nd: np.ndarray,
+                 ptr: np.ndarray, cols: np.ndarray, mark: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover
+    """Options of one connected group of gated candidates ``members[:nm]`` (candidates linked
+    by shared gated measurements): their best options if no two share a measurement, else the
+    shortest augmenting path assignment (:func:`~tracker.glmb.assignment._lsap_kernel`) on the
+    group's measurements plus one "not detected" column per member.  Returns feasibility."""
+    clash = False
+    for a in range(nm):
+        b = best[c[members[a]]]
+        out[members[a]] = b if b >= _DET else nd[c[members[a]]]
+        if b >= _DET:
+            if mark[b - _DET] == 1:
+                clash = True
+            mark[b - _DET] = 1
+    for a in range(nm):
+        b = best[c[members[a]]]
+        if b >= _DET:
+            mark[b - _DET] = 0
+    if not clash:
+        return True
+    n_col = 0
+    for a in range(nm):  # the group's measurements, increasing
+        r = c[members[a]]
+        for t in range(ptr[r], ptr[r + 1]):
+            if mark[cols[t]] == 0:
+                mark[cols[t]] = 1
+                n_col += 1
+    meas = np.empty(n_col, dtype=np.int64)
+    q = 0
+    for m in range(mark.size):
+        if mark[m] == 1:
+            meas[q] = m
+            q += 1
+            mark[m] = 0
+    cost = np.full((1, nm, n_col + nm), np.inf)
+    for a in range(nm):
+        r = c[members[a]]
+        for q in range(n_col):
+            cost[0, a, q] = -E[r, _DET + meas[q]]
+        cost[0, a, n_col + a] = -E[r, nd[r]]
+    col = np.full((1, nm), n_col, dtype=np.int64)
     solved = np.zeros(1, dtype=np.bool_)
     _lsap_batch(cost, col, solved)
     if not solved[0]:
         return False
-    for a in range(n_gated):
+    ok = True
+    for a in range(nm):
         if not np.isfinite(cost[0, a, col[0, a]]):
             ok = False
-        if col[0, a] < M:
-            out[gated[a]] = _DET + col[0, a]
+        out[members[a]] = _DET + meas[col[0, a]] if col[0, a] < n_col else nd[c[members[a]]]
+    return ok
+
+
+_solve_group = jit(_solve_group)
+
+
+def _start_one(E: np.ndarray, c: np.ndarray, n: int, out: np.ndarray, best: np.ndarray, nd: np.ndarray,
+               ptr: np.ndarray, cols: np.ndarray, owner: np.ndarray, mark: np.ndarray) -> bool:  # pragma: no cover
+    """:func:`~tracker.glmb.gibbs.start_optimal` of one parent with candidates ``c[:n]``:
+    writes its options to ``out[:n]``, returns feasibility.  Where two best options clash,
+    the association problem is split into the connected groups of the gating graph
+    (candidates linked by a shared gated measurement; union-find) and only the groups with a
+    clash are solved by linear assignment (:func:`_solve_group`): the groups are independent,
+    so the optimum is the union of the groups' optima.  ``owner`` (M,) all -1 and ``mark``
+    (M,) all 0: work space, left as found."""
+    clash = False
+    ok = True
+    for i in range(n):
+        b = best[c[i]]
+        out[i] = b
+        if not np.isfinite(E[c[i], b]):
+            ok = False
+        if b >= _DET:
+            if mark[b - _DET] == 1:
+                clash = True
+            mark[b - _DET] = 1
+    for i in range(n):
+        if out[i] >= _DET:
+            mark[out[i] - _DET] = 0
+    if ok and not clash:
+        return True
+    ok = True
+    uf = np.arange(n)
+    for i in range(n):
+        r = c[i]
+        out[i] = nd[r]
+        if ptr[r] == ptr[r + 1]:
+            if not np.isfinite(E[r, nd[r]]):
+                ok = False
+            continue
+        for t in range(ptr[r], ptr[r + 1]):
+            m = cols[t]
+            if owner[m] < 0:
+                owner[m] = i
+            else:
+                uf[_find(uf, i)] = _find(uf, owner[m])
+    for i in range(n):
+        r = c[i]
+        for t in range(ptr[r], ptr[r + 1]):
+            owner[cols[t]] = -1
+    members = np.empty(n, dtype=np.int64)
+    for root in range(n):
+        if ptr[c[root]] == ptr[c[root] + 1] or _find(uf, root) != root:
+            continue
+        nm = 0
+        for i in range(n):
+            if ptr[c[i]] < ptr[c[i] + 1] and _find(uf, i) == root:
+                members[nm] = i
+                nm += 1
+        if not _solve_group(E, c, members, nm, best, nd, ptr, cols, mark, out):
+            ok = False
     return ok
 
 
@@ -129,6 +223,10 @@ def _starts_kernel(E: np.ndarray, hyp: np.ndarray, n_surv: int, n_births: int, c
     """Candidate sets (survivors of each parent, then every birth; -1 padded) and optimal
     starts of all parents."""
     H, w = hyp.shape
+    best, nd, ptr, cols = _row_options(E)
+    M = E.shape[1] - _DET
+    owner = np.full(M, -1, dtype=np.int64)
+    mark = np.zeros(M, dtype=np.int64)
     for h in range(H):
         n = 0
         for i in range(w):
@@ -141,7 +239,7 @@ def _starts_kernel(E: np.ndarray, hyp: np.ndarray, n_surv: int, n_births: int, c
         for i in range(n, cand.shape[1]):
             cand[h, i] = -1
             start[h, i] = -1
-        ok[h] = _start_one(E, cand[h], n, start[h])
+        ok[h] = _start_one(E, cand[h], n, start[h], best, nd, ptr, cols, owner, mark)
 
 
 _starts_kernel = jit(_starts_kernel)
