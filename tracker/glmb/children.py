@@ -466,3 +466,41 @@ def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarr
         k_order = _sort_rows(keys)
         uniq, inv = _group_kernel(keys, k_order, _distinct_rows(keys, k_order))
     return _Children(uniq, group_logsumexp(lw, inv, uniq.shape[0]), n_u)
+
+
+def _pair_table_kernel(keys: np.ndarray, n_pairs: int):  # pragma: no cover - compiled
+    """Distinct pair keys (increasing) and the hypotheses as indices into them."""
+    index = np.full(n_pairs, -1, dtype=np.int64)
+    width = 0
+    for h in range(keys.shape[0]):
+        n = 0
+        for i in range(keys.shape[1]):
+            if keys[h, i] >= 0:
+                index[keys[h, i]] = 0
+                n += 1
+        width = max(width, n)
+    n_used = 0
+    for k in range(n_pairs):
+        if index[k] == 0:
+            index[k] = n_used
+            n_used += 1
+    used = np.empty(n_used, dtype=np.int64)
+    for k in range(n_pairs):
+        if index[k] >= 0:
+            used[index[k]] = k
+    hyp = np.full((keys.shape[0], width), -1, dtype=np.int64)
+    for h in range(keys.shape[0]):
+        for i in range(width):
+            if keys[h, i] >= 0:
+                hyp[h, i] = index[keys[h, i]]
+    return used, hyp
+
+
+_pair_table_kernel = jit(_pair_table_kernel)
+
+
+def pair_table(keys: np.ndarray, n_pairs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The kept children's distinct pair keys ``used`` (increasing: the new track table) and
+    their hypotheses as rows of it (``np.searchsorted(used, keys)``, -1 padded, trailing
+    all-padding columns dropped); keys are ``< n_pairs``."""
+    return _pair_table_kernel(np.ascontiguousarray(keys, dtype=np.int64), n_pairs)

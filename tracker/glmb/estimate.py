@@ -32,8 +32,11 @@ def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
     w = np.exp(st.log_w)
     hyp = st.hyp_tracks
     if st.n_tracks:
-        uniq, label_id = np.unique(np.array(st.labels, dtype=object), return_inverse=True)
-        n_labels = uniq.size
+        # np.unique(labels, return_inverse=True) on the strings, without an object array
+        uniq = sorted(set(st.labels))
+        rank = {label: i for i, label in enumerate(uniq)}
+        label_id = np.fromiter((rank[label] for label in st.labels), dtype=np.int64, count=len(st.labels))
+        n_labels = len(uniq)
     else:
         n_labels, label_id = 0, np.zeros(0, dtype=np.int64)
     label_id = np.asarray(label_id, dtype=np.int64).reshape(-1)
@@ -118,10 +121,10 @@ def estimate_from_rows(st: GlmbState, row_meas: np.ndarray, mg: _Marginals, fram
     )
     M = frame.n_measurements
     assignments: list[str | None] = [None] * M
-    probs = [float(np.clip(1.0 - mg.p_used[m], 0.0, 1.0)) for m in range(M)]
+    probs = np.clip(1.0 - mg.p_used[:M], 0.0, 1.0).tolist()
     for r in rows.tolist():
         m = int(row_meas[r])
         if m >= 0:
             assignments[m] = st.labels[r]
-            probs[m] = float(np.clip(mg.pair_p[mg.label_id[r] * M + m], 0.0, 1.0))
+            probs[m] = min(1.0, max(0.0, float(mg.pair_p[mg.label_id[r] * M + m])))
     return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))

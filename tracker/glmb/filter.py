@@ -17,7 +17,7 @@ from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_s
 from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.children import distinct_children, starts
+from tracker.glmb.children import distinct_children, pair_table, starts
 from tracker.glmb.gibbs import allocate_samples, gibbs_chains, split_chains, start_missed
 from tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
                                      prune_and_cap)
@@ -197,7 +197,11 @@ class GlmbTracker:
 
     def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
         """Table rows of this frame's estimate, by ``config.estimator``."""
-        continues = np.isin(upd.parent_row, prev_rows)
+        # np.isin(parent_row, prev_rows) by a lookup (parent -1: a birth, the last, False entry)
+        size = max(int(prev_rows.max(initial=-1)), int(upd.parent_row.max(initial=-1))) + 2
+        seen = np.zeros(size, dtype=bool)
+        seen[prev_rows] = True
+        continues = seen[upd.parent_row]
         if self.config.estimator == "continuity":
             return continuity_rows(upd.state, marg, continues, self.config.continuity_ratio)
         if self.config.estimator == "marginal-labels":
@@ -212,19 +216,15 @@ class GlmbTracker:
         keys = children.keys[keep]
         log_w = children.log_w[keep]
         log_w = log_w - logsumexp(log_w)
-        used = np.unique(keys[keys >= 0])
         M = frame.n_measurements
+        used, hyp = pair_table(keys, len(cands.labels) * (M + 1))
         row, j = used // (M + 1), used % (M + 1)
-        mean = cands.mean[row].copy()
-        cov = cands.cov[row].copy()
+        mean = cands.mean[row]
+        cov = cands.cov[row]
         det = j > 0
         if np.any(det):
             mean[det] = kf.update_pairs(meas, innov, cands.mean, frame.z, row[det], j[det] - 1)
             cov[det] = innov.P_upd[row[det]]
-        # strip trailing all-padding columns; map keys to new rows (sorted keys -> sorted rows)
-        width = int(np.sum(keys >= 0, axis=1).max(initial=0))
-        keys = keys[:, :width]
-        hyp = np.where(keys >= 0, np.searchsorted(used, keys), -1).astype(np.int64)
         labels = tuple(cands.labels[i] for i in row.tolist())
         new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
                         np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)
