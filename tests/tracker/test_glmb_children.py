@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tracker.glmb import candidate_sets, gibbs_chains, split_chains, start_optimal
-from tracker.glmb.children import _np_sum, _sort_rows, distinct_children, starts
-from tracker.glmb.gibbs import sample_chains
+from tracker.glmb.children import _np_sum, _sort_rows, children, distinct_children, starts
+from tracker.glmb.gibbs import allocate_samples, sample_chains
 from tracker.glmb.hypotheses import _DET, assignment_log_eta, merge_children, unique_rows
 
 
@@ -63,6 +63,18 @@ def test_starts_and_children_equal_the_numpy_reference(seed):
     np.testing.assert_array_equal(got.keys, ref.keys)
     assert got.log_w.tobytes() == ref.log_w.tobytes()
     assert got.n_samples == ref.n_samples
+    # the whole pipeline (allocation, chains, uniforms from the rng, sweeps, children)
+    log_w_all = np.full(ok.size, -np.inf)
+    log_w_all[parents] = log_w
+    chain_parent, length = split_chains(allocate_samples(log_w, 40), 3)
+    r1, r2 = np.random.default_rng(seed + 50), np.random.default_rng(seed + 50)
+    samples = gibbs_chains(r1, E, cand[parents][chain_parent], start[parents][chain_parent], length)
+    ref = _reference_children(E, cand[parents], start[parents], log_w, chain_parent, length, samples)
+    got = children(r2, E, cand, start, ok, log_w_all, 40, 3)
+    np.testing.assert_array_equal(got.keys, ref.keys)
+    assert got.log_w.tobytes() == ref.log_w.tobytes()
+    assert got.n_samples == ref.n_samples
+    assert r1.random() == r2.random()  # the same number of uniforms drawn
 
 
 def test_starts_are_the_brute_force_optimum_with_independent_groups():

@@ -25,6 +25,7 @@ import numpy as np
 
 from tracker._numerics import jit
 from tracker.glmb.assignment import _lsap_batch
+from tracker.glmb.gibbs import _gibbs_sweeps
 from tracker.glmb.hypotheses import _DET, _DIE, _MISS, _Children
 
 
@@ -380,11 +381,12 @@ _sample_rows = jit(_sample_rows)
 
 
 def _weigh_kernel(E: np.ndarray, A: np.ndarray, order: np.ndarray, new: np.ndarray, cand: np.ndarray,
-                  log_w: np.ndarray, n_meas: int):  # pragma: no cover - compiled
+                  cand_rows: np.ndarray, log_w: np.ndarray, n_meas: int):  # pragma: no cover - compiled
     """The distinct ``(parent, assignment)`` rows (``A`` sorted by ``order``, first of each run
     of equal rows): their log weight :math:`\\log w_h + \\sum_i \\log\\eta_i(\\gamma_i)` (numpy's
     summation order) and the sorted pair keys of their existing labels (-1 padded, only the
-    rows of finite weight).  Returns ``(keys, finite log weights, number of distinct rows)``."""
+    rows of finite weight); parent ``p`` has the candidates ``cand[cand_rows[p]]``.  Returns
+    ``(keys, finite log weights, number of distinct rows)``."""
     width = cand.shape[1]
     n_u = 0
     for t in range(order.size):
@@ -399,8 +401,9 @@ def _weigh_kernel(E: np.ndarray, A: np.ndarray, order: np.ndarray, new: np.ndarr
             continue
         a = order[t]
         p = A[a, 0]
+        cp = cand_rows[p]
         for i in range(width):
-            r = cand[p, i]
+            r = cand[cp, i]
             terms[i] = E[r, A[a, 1 + i]] if r >= 0 else 0.0
         v = log_w[p] + _np_sum(terms, width)
         if not np.isfinite(v):
@@ -408,7 +411,7 @@ def _weigh_kernel(E: np.ndarray, A: np.ndarray, order: np.ndarray, new: np.ndarr
         lw[n_f] = v
         n = 0
         for i in range(width):
-            r = cand[p, i]
+            r = cand[cp, i]
             g = A[a, 1 + i]
             if r >= 0 and g >= _MISS:
                 keys[n_f, n] = r * (n_meas + 1) + (g - 1)
@@ -446,20 +449,113 @@ def _group_kernel(keys: np.ndarray, order: np.ndarray, new: np.ndarray):  # prag
 _group_kernel = jit(_group_kernel)
 
 
-def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarray, length: np.ndarray,
-                      cand: np.ndarray, log_w: np.ndarray) -> _Children:
-    """The children of :meth:`GlmbTracker._children`: distinct ``(parent, assignment)``
-    samples weighted by :math:`w_h \\prod_i \\eta_i(\\gamma_i)`, zero weights dropped,
-    identical pair-key sets merged (weights summed).  Same output as ``unique_rows`` +
-    ``assignment_log_eta`` + :func:`~tracker.glmb.hypotheses.merge_children`."""
+def _split_kernel(n_req: np.ndarray, chain_length: int, cand: np.ndarray, parents: np.ndarray):  # pragma: no cover
+    """:func:`~tracker.glmb.gibbs.split_chains` (same chains, same order: a stable sort by
+    non-increasing length) and the number of uniforms the sweeps will draw."""
+    n_chains = np.empty(n_req.size, dtype=np.int64)
+    for p in range(n_req.size):
+        n_chains[p] = max(1, -(-(n_req[p] - 1) // chain_length))
+    total = 0
+    for p in range(n_req.size):
+        total += n_chains[p]
+    parent = np.empty(total, dtype=np.int64)
+    length = np.empty(total, dtype=np.int64)
+    k = 0
+    max_len = 0
+    for p in range(n_req.size):
+        sweeps = n_req[p] - 1
+        for q in range(n_chains[p]):
+            parent[k] = p
+            length[k] = sweeps // n_chains[p] + (1 if q < sweeps % n_chains[p] else 0)
+            max_len = max(max_len, length[k])
+            k += 1
+    chain_parent = np.empty(total, dtype=np.int64)
+    chain_len = np.empty(total, dtype=np.int64)
+    k = 0
+    n_draws = 0
+    for ln in range(max_len, -1, -1):
+        for c in range(total):
+            if length[c] == ln:
+                chain_parent[k] = parent[c]
+                chain_len[k] = ln
+                k += 1
+                n_valid = 0
+                for i in range(cand.shape[1]):
+                    if cand[parents[parent[c]], i] >= 0:
+                        n_valid += 1
+                n_draws += ln * n_valid
+    return chain_parent, chain_len, n_draws
+
+
+_split_kernel = jit(_split_kernel)
+
+
+def _children_kernel(E: np.ndarray, P: np.ndarray, cand: np.ndarray, start: np.ndarray, parents: np.ndarray,
+                     chain_parent: np.ndarray, length: np.ndarray, u: np.ndarray, log_w: np.ndarray):  # pragma: no cover
+    """The Gibbs sweeps of every chain (:func:`~tracker.glmb.gibbs._gibbs_kernel`), then the
+    distinct ``(parent, assignment)`` samples, their weights and pair keys, and the groups of
+    identical key sets (see :func:`children`)."""
+    C = length.size
+    S = C
+    for c in range(C):
+        S += length[c]
+    samples = np.empty((S, cand.shape[1]), dtype=np.int64)
+    chain_rows = np.empty(C, dtype=np.int64)
+    for c in range(C):
+        chain_rows[c] = parents[chain_parent[c]]
+    _gibbs_sweeps(P, cand, start, length, u, samples, chain_rows)
+    A = _sample_rows(samples, chain_parent, length)
+    order = _sort_rows_bucketed(A, parents.size)
+    keys, lw, n_u = _weigh_kernel(E, A, order, _distinct_rows(A, order), cand, parents, log_w, E.shape[1] - _DET)
+    if keys.shape[1] == 0:
+        return keys[: min(1, keys.shape[0])].copy(), np.zeros(keys.shape[0], dtype=np.int64), lw, n_u
+    k_order = _sort_rows(keys)
+    uniq, inv = _group_kernel(keys, k_order, _distinct_rows(keys, k_order))
+    return uniq, inv, lw, n_u
+
+
+_children_kernel = jit(_children_kernel)
+
+
+def children(rng: np.random.Generator, E: np.ndarray, cand: np.ndarray, start: np.ndarray, ok: np.ndarray,
+             log_w: np.ndarray, max_hypotheses: int, chain_length: int) -> _Children:
+    """The distinct children of every feasible parent (``ok``) of :meth:`GlmbTracker._children`:
+    :func:`~tracker.glmb.gibbs.allocate_samples` (numpy: its rounding), the chains of
+    :func:`~tracker.glmb.gibbs.split_chains`, the sweeps of
+    :func:`~tracker.glmb.gibbs.gibbs_chains` on uniforms drawn from ``rng`` in the same order,
+    the distinct samples weighted by :math:`w_h \\prod_i \\eta_i(\\gamma_i)`, zero weights
+    dropped, identical pair-key sets merged (weights summed; numpy's ``exp``/``log``).  Same
+    output as ``unique_rows`` + ``assignment_log_eta`` +
+    :func:`~tracker.glmb.hypotheses.merge_children` on those samples."""
+    from tracker.glmb.gibbs import allocate_samples
     from tracker.glmb.hypotheses import group_logsumexp
 
-    n_meas = E.shape[1] - _DET
+    parents = np.flatnonzero(ok)
+    if parents.size == 0:
+        raise RuntimeError("GLMB: no parent hypothesis has a feasible assignment")
+    log_w = log_w[parents]
+    chain_parent, length, n_draws = _split_kernel(allocate_samples(log_w, max_hypotheses), chain_length,
+                                                  cand, parents)
+    P = np.exp(E - np.max(E, axis=1, keepdims=True)) if E.size else np.ones_like(E)
+    u = rng.random(n_draws)
+    uniq, inv, lw, n_u = _children_kernel(E, P, np.ascontiguousarray(cand, dtype=np.int64),
+                                          np.ascontiguousarray(start, dtype=np.int64), parents, chain_parent, length, u, log_w)
+    return _Children(uniq, group_logsumexp(lw, inv, uniq.shape[0]), n_u)
+
+
+def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarray, length: np.ndarray,
+                      cand: np.ndarray, log_w: np.ndarray) -> _Children:
+    """The children of given Gibbs samples (``samples``, ``chain_parent``, ``length`` as
+    :func:`~tracker.glmb.gibbs.gibbs_chains` and :func:`~tracker.glmb.gibbs.split_chains`
+    give them; ``cand`` and ``log_w`` of the parents): the second half of :func:`children`."""
+    from tracker.glmb.hypotheses import group_logsumexp
+
     if samples.shape[0] == 0:
         return _Children(np.zeros((0, 0), dtype=np.int64), np.zeros(0), 0)
     A = _sample_rows(samples, chain_parent, length)
     order = _sort_rows_bucketed(A, cand.shape[0])
-    keys, lw, n_u = _weigh_kernel(E, A, order, _distinct_rows(A, order), cand, log_w, n_meas)
+    keys, lw, n_u = _weigh_kernel(E, A, order, _distinct_rows(A, order), cand, np.arange(cand.shape[0]),
+                                  log_w, E.shape[1] - _DET)
     if keys.shape[1] == 0:
         uniq, inv = keys[:1], np.zeros(keys.shape[0], dtype=np.int64)
     else:

@@ -17,8 +17,8 @@ from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_s
 from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.children import distinct_children, pair_table, starts
-from tracker.glmb.gibbs import allocate_samples, gibbs_chains, split_chains, start_missed
+from tracker.glmb.children import children, pair_table, starts
+from tracker.glmb.gibbs import start_missed
 from tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
                                      prune_and_cap)
 from tracker.glmb.state import GlmbState
@@ -187,13 +187,7 @@ class GlmbTracker:
         else:
             cand = candidate_sets(state.hyp_tracks, cands.n_survivors, n_births)
             start, ok = start_missed(E, cand)
-        parents = np.flatnonzero(ok)
-        if parents.size == 0:
-            raise RuntimeError("GLMB: no parent hypothesis has a feasible assignment")
-        cand, start, log_w = cand[parents], start[parents], state.log_w[parents]
-        chain_parent, length = split_chains(allocate_samples(log_w, cfg.max_hypotheses), cfg.chain_length)
-        samples = gibbs_chains(rng, E, cand[chain_parent], start[chain_parent], length)
-        return distinct_children(E, samples, chain_parent, length, cand, log_w)
+        return children(rng, E, cand, start, ok, state.log_w, cfg.max_hypotheses, cfg.chain_length)
 
     def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
         """Table rows of this frame's estimate, by ``config.estimator``."""
