@@ -6,7 +6,8 @@ tracks them once untimed (numba's cache, file cache), then times ``--repeats`` p
 ``time.thread_time`` (CPU time of the tracking thread; on a shared machine wall time also
 counts the time others hold the core) and keeps the fastest.  It prints each run's CPU ms per
 frame, the per-round ratio base / this tree and a fingerprint of every frame's hypotheses
-(table rows, log weights) and estimate (labels, means): equal fingerprints mean the two trees
+(table rows, log weights) and estimate (labels, means, existences, assignment
+probabilities): equal fingerprints mean the two trees
 computed the same posterior bit for bit.
 
     python3 benchmarks/glmb_ab.py --base /tmp/glmbspeed-base --rounds 3
@@ -48,8 +49,9 @@ def measure(seeds: int, repeats: int, birth_regions: bool) -> dict:
                 state, est = tracker.step(state, fr, rng)
                 if record:
                     digest.update(state.hyp_tracks.tobytes() + state.log_w.tobytes())
+                    digest.update(np.array(est.assignment_prob, dtype=float).tobytes())
                     for t in est.tracks:
-                        digest.update(t.label.encode() + t.state.tobytes())
+                        digest.update(t.label.encode() + t.state.tobytes() + np.float64(t.existence).tobytes())
         return time.thread_time() - t0
 
     one_pass(True)
