@@ -75,11 +75,10 @@ class GlmbTracker:
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
-        sensor = self.params.frame_sensor(frame)
-        meas = self.params.measurement(frame.kind, sensor)
-        cands = self._candidates(state, dt, frame, sensor)
+        sensor, meas, detection, log_kappa = self._sensor_models(frame)
+        cands = self._candidates(state, dt, frame, sensor, detection)
         innov = self._innovation(meas, cands)
-        E = self._eta(meas, innov, cands, frame)
+        E = self._eta(meas, innov, cands, frame, log_kappa)
         children = self._children(state, cands, E, rng)
         upd = self._update(frame, meas, innov, cands, children)
         marg = marginals(upd.state, upd.row_meas, frame.n_measurements)
@@ -108,7 +107,29 @@ class GlmbTracker:
     def _predict_fn(self):
         return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
 
-    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None) -> _Candidates:
+    @cached_property
+    def _model_cache(self) -> dict[Any, tuple]:
+        return {}
+
+    def _sensor_models(self, frame: Frame) -> tuple[Any, Any, Any, float]:
+        """The frame's sensor, measurement model, detection model and :math:`\\log\\kappa`,
+        built once per distinct sensor set-up (name, kind, pose, R) and reused while frames
+        keep it (only the last set-up is kept: a moving sensor gets new ones every frame)."""
+        key = (frame.sensor, frame.kind, frame.pose, None if frame.R is None else np.asarray(frame.R).tobytes())
+        hit = self._model_cache.get(key)
+        if hit is None:
+            sensor = self.params.frame_sensor(frame)
+            log_kappa = float(self.params.clutter(frame.kind, sensor).log_intensity)
+            if not math.isfinite(log_kappa):
+                raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
+            hit = (sensor, self.params.measurement(frame.kind, sensor), self.params.detection(frame.kind, sensor),
+                   log_kappa)
+            self._model_cache.clear()
+            self._model_cache[key] = hit
+        return hit
+
+    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None,
+                    detection: Any = None) -> _Candidates:
         r"""Survivors: one prediction over ``dt`` seconds (the CT model built for ``dt``),
         :math:`\bar P_S = P_S(m)^{\Delta t/T}` at the mean before the step; then births."""
         m, P = state.mean, state.cov
@@ -122,7 +143,9 @@ class GlmbTracker:
         cov = np.concatenate([P, b.cov])
         log_e = np.concatenate([log_ps, _log(b.r)])
         log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - b.r)])
-        pd = self.params.detection(frame.kind, sensor).prob(mean) if len(mean) else np.zeros(0)
+        if detection is None:
+            detection = self.params.detection(frame.kind, sensor)
+        pd = detection.prob(mean) if len(mean) else np.zeros(0)
         return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
                            b.n_adaptive)
 
@@ -166,15 +189,12 @@ class GlmbTracker:
             return kf.ukf_innovation(meas, cands.mean, cands.cov)
         return kf.ekf_innovation(meas, cands.mean, cands.cov)
 
-    def _eta(self, meas, innov: kf.Innovation, cands: _Candidates, frame: Frame) -> np.ndarray:
+    def _eta(self, meas, innov: kf.Innovation, cands: _Candidates, frame: Frame, log_kappa: float) -> np.ndarray:
         M = frame.n_measurements
         if M and len(cands.mean):
             log_lik = kf.log_likelihood_matrix(meas, innov, frame.z, self.config.gate_prob)
         else:
             log_lik = np.zeros((len(cands.mean), M))
-        log_kappa = float(self.params.clutter(frame.kind, self.params.frame_sensor(frame)).log_intensity)
-        if not math.isfinite(log_kappa):
-            raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
         return eta_matrix(cands.log_e, cands.log_not_e, cands.p_detect, log_lik, log_kappa)
 
     def _children(self, state: GlmbState, cands: _Candidates, E: np.ndarray,
