@@ -27,17 +27,19 @@ import time
 HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 
 
-def measure(seeds: int, repeats: int, birth_regions: bool) -> dict:
+def measure(seeds: int, repeats: int, birth_regions: bool, overrides: list[str]) -> dict:
     """CPU ms per frame (fastest of ``repeats`` passes over the seeds) and the fingerprint."""
     import numpy as np
 
     from sources.scenarios import get_scenario
     from sources.synthetic import simulate_all
+    from tracker.config import apply_overrides
     from tracker.glmb import GlmbConfig, make_glmb
     from tracker.models.params import load_params
 
     params = get_scenario("vo2017").adapt_params(load_params("vo2017"))
-    tracker = make_glmb(params, None if birth_regions else GlmbConfig(birth=[]))
+    config = apply_overrides(GlmbConfig() if birth_regions else GlmbConfig(birth=[]), overrides)
+    tracker = make_glmb(params, config)
     runs = [simulate_all(get_scenario("vo2017"), params, s) for s in range(1, seeds + 1)]
     digest = hashlib.sha256()
 
@@ -59,9 +61,9 @@ def measure(seeds: int, repeats: int, birth_regions: bool) -> dict:
     return {"ms": 1e3 * best / sum(len(f) for f in runs), "fingerprint": digest.hexdigest()[:16]}
 
 
-def run_tree(root: str, args: argparse.Namespace) -> dict:
+def run_tree(root: str, args: argparse.Namespace, overrides: list[str]) -> dict:
     cmd = ["taskset", "-c", str(args.cpu), "nice", "-n", "5", sys.executable, os.path.abspath(__file__), "--measure",
-           "--seeds", str(args.seeds), "--repeats", str(args.repeats)] + ([] if args.birth_regions else ["--no-regions"])
+           "--seeds", str(args.seeds), "--repeats", str(args.repeats)] + ([] if args.birth_regions else ["--no-regions"]) + [f"--set={o}" for o in overrides]
     out = subprocess.run(cmd, cwd=root, env={**os.environ, "PYTHONPATH": root}, check=True,
                          capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -76,17 +78,19 @@ def main() -> None:
     ap.add_argument("--cpu", type=int, default=1)
     ap.add_argument("--no-regions", dest="birth_regions", action="store_false",
                     help="without vo2017's birth regions (adaptive births)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    help="GLMB setting KEY=V for this tree's runs only (the base runs its defaults)")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.measure:
         sys.path.insert(0, os.getcwd())
-        print(json.dumps(measure(args.seeds, args.repeats, args.birth_regions)))
+        print(json.dumps(measure(args.seeds, args.repeats, args.birth_regions, args.overrides)))
         return
     ratios, mins = [], {"base": [], "new": []}
     print("| round | base CPU ms/frame | this tree CPU ms/frame | ratio | fingerprints |\n|---|---|---|---|---|")
     for r in range(1, args.rounds + 1):
-        base = run_tree(os.path.abspath(args.base), args)
-        new = run_tree(HERE, args)
+        base = run_tree(os.path.abspath(args.base), args, [])
+        new = run_tree(HERE, args, args.overrides)
         ratios.append(base["ms"] / new["ms"])
         mins["base"].append(base["ms"])
         mins["new"].append(new["ms"])
