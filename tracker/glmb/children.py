@@ -103,7 +103,7 @@ def _find(uf: np.ndarray, i: int) -> int:  # pragma: no cover - compiled
     return i
 
 
-_find = jit(_find, inline=True)
+_find = jit(_find)
 
 
 def _solve_group(E: np.ndarray, c: np.ndarray, members: np.ndarray, nm: int, best: np.ndarray, nd: np.ndarray,
@@ -271,7 +271,7 @@ def _row_less(A: np.ndarray, a: int, b: int) -> bool:  # pragma: no cover - comp
     return False
 
 
-_row_less = jit(_row_less, inline=True)
+_row_less = jit(_row_less)
 
 
 def _sort_rows(A: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
