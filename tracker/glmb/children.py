@@ -1,22 +1,30 @@
-r"""The GLMB's children of all parents in two compiled passes (issue 15).
+r"""The GLMB's hypothesis arithmetic of a frame in compiled passes (issue 15).
 
 :meth:`GlmbTracker._children <tracker.glmb.filter.GlmbTracker._children>` used to chain about
 sixty numpy calls per frame (candidate sets, the greedy start and its clash test, the dense
-assignment cost tensor of the hard parents, two lexicographic ``unique_rows``, the pair keys
-and a grouped log-sum-exp).  Here the same arithmetic runs in two numba kernels over plain
-arrays, one parent (or one sample) at a time, with the same results bit for bit:
+assignment cost tensor of the hard parents, chain split, per-chain copies, two lexicographic
+``unique_rows``, the pair keys and a grouped log-sum-exp).  Here the same arithmetic runs in
+numba kernels over plain arrays, one parent (or one sample) at a time, with the same results
+bit for bit:
 
 * :func:`starts` -- :func:`~tracker.glmb.hypotheses.candidate_sets` and
-  :func:`~tracker.glmb.gibbs.start_optimal` (greedy best options; where two candidates want
-  the same measurement, the shortest augmenting path assignment of
-  :mod:`tracker.glmb.assignment` on that parent's gated candidates only -- its own connected
-  part of the association problem -- instead of a padded batch);
-* :func:`distinct_children` -- the distinct ``(parent, assignment)`` samples, their weight
-  :math:`w_h \prod_i \eta_i(\gamma_i)`, their sorted pair keys and the merge of identical
-  key sets (:func:`~tracker.glmb.hypotheses.merge_children`).
+  :func:`~tracker.glmb.gibbs.start_optimal`: each row's best option once per frame; a parent
+  whose best options clash is split into the connected groups of its gating graph (candidates
+  linked by a shared gated measurement) and only the clashing groups are solved by the
+  shortest augmenting path assignment of :mod:`tracker.glmb.assignment`, each on its own
+  small matrix;
+* :func:`children` -- the chains of :func:`~tracker.glmb.gibbs.split_chains`, the sweeps of
+  :func:`~tracker.glmb.gibbs.gibbs_chains` on the same uniforms, then the distinct
+  ``(parent, assignment)`` samples, their weight :math:`w_h \prod_i \eta_i(\gamma_i)`, their
+  sorted pair keys and the merge of identical key sets
+  (:func:`~tracker.glmb.hypotheses.merge_children`); :func:`distinct_children` is its second
+  half on given samples;
+* :func:`pair_table` -- the new track table's pair keys and the hypotheses as its rows.
 
-Sums are taken in numpy's order (:func:`_np_sum`: numpy's pairwise summation), so the weights
-equal the numpy reference's to the last bit (test: ``tests/tracker/test_glmb_children.py``).
+Sums are taken in numpy's order (:func:`_np_sum`: numpy's pairwise summation; group sums in
+``np.bincount``'s order) and ``exp``/``log`` stay in numpy (numba's differ in the last bit),
+so the weights equal the numpy reference's to the last bit (test:
+``tests/tracker/test_glmb_children.py``).
 """
 
 from __future__ import annotations
