@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker._numerics import jit
 from tracker.glmb.state import GlmbState
 from tracker.types import Estimate, Frame, TrackEstimate
 
@@ -25,6 +26,40 @@ class _Marginals:
     pair_p: np.ndarray  # (L * M,) weight of the hypotheses assigning z_m to label l
 
 
+def _marginal_sums_kernel(hyp: np.ndarray, w: np.ndarray, label_id: np.ndarray, row_meas: np.ndarray,
+                          n_labels: int, n_meas: int):  # pragma: no cover - compiled
+    """The (hypothesis, slot) entries in row-major order and the weight sums of
+    :func:`marginals`, each added in that order (as ``np.bincount`` adds)."""
+    n = 0
+    for h in range(hyp.shape[0]):
+        for i in range(hyp.shape[1]):
+            if hyp[h, i] >= 0:
+                n += 1
+    h_idx = np.empty(n, dtype=np.int64)
+    rows = np.empty(n, dtype=np.int64)
+    existence = np.zeros(n_labels)
+    p_used = np.zeros(n_meas)
+    pair_p = np.zeros(n_labels * n_meas)
+    k = 0
+    for h in range(hyp.shape[0]):
+        for i in range(hyp.shape[1]):
+            r = hyp[h, i]
+            if r < 0:
+                continue
+            h_idx[k] = h
+            rows[k] = r
+            k += 1
+            existence[label_id[r]] += w[h]
+            m = row_meas[r]
+            if m >= 0:
+                p_used[m] += w[h]
+                pair_p[label_id[r] * n_meas + m] += w[h]
+    return h_idx, rows, existence, p_used, pair_p
+
+
+_marginal_sums = jit(_marginal_sums_kernel)
+
+
 def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
     r"""Label existences :math:`r(\ell) = \sum_{I \ni \ell} w(I)`, measurement use
     :math:`r_U(z) = \sum_{h \text{ uses } z} w_h` and label-measurement pair weights of an
@@ -32,20 +67,16 @@ def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
     w = np.exp(st.log_w)
     hyp = st.hyp_tracks
     if st.n_tracks:
-        uniq, label_id = np.unique(np.array(st.labels, dtype=object), return_inverse=True)
-        n_labels = uniq.size
+        # np.unique(labels, return_inverse=True) on the strings, without an object array
+        uniq = sorted(set(st.labels))
+        rank = {label: i for i, label in enumerate(uniq)}
+        label_id = np.fromiter((rank[label] for label in st.labels), dtype=np.int64, count=len(st.labels))
+        n_labels = len(uniq)
     else:
         n_labels, label_id = 0, np.zeros(0, dtype=np.int64)
-    label_id = np.asarray(label_id, dtype=np.int64).reshape(-1)
-    h_idx, slot = np.nonzero(hyp >= 0)
-    rows = hyp[h_idx, slot]
-    lab_of = label_id[rows]
-    existence = np.bincount(lab_of, weights=w[h_idx], minlength=n_labels)
-    meas_of = row_meas[rows]
-    det = meas_of >= 0
-    p_used = np.bincount(meas_of[det], weights=w[h_idx[det]], minlength=n_meas)
-    pair_p = np.bincount(lab_of[det] * n_meas + meas_of[det], weights=w[h_idx[det]],
-                         minlength=n_labels * n_meas) if n_meas else np.zeros(0)
+    h_idx, rows, existence, p_used, pair_p = _marginal_sums(
+        np.ascontiguousarray(st.hyp_tracks, dtype=np.int64), w, label_id, np.ascontiguousarray(row_meas, dtype=np.int64),
+        n_labels, n_meas)
     return _Marginals(w, h_idx, rows, label_id, n_labels, existence, p_used, pair_p)
 
 
@@ -118,10 +149,10 @@ def estimate_from_rows(st: GlmbState, row_meas: np.ndarray, mg: _Marginals, fram
     )
     M = frame.n_measurements
     assignments: list[str | None] = [None] * M
-    probs = [float(np.clip(1.0 - mg.p_used[m], 0.0, 1.0)) for m in range(M)]
+    probs = np.clip(1.0 - mg.p_used[:M], 0.0, 1.0).tolist()
     for r in rows.tolist():
         m = int(row_meas[r])
         if m >= 0:
             assignments[m] = st.labels[r]
-            probs[m] = float(np.clip(mg.pair_p[mg.label_id[r] * M + m], 0.0, 1.0))
+            probs[m] = min(1.0, max(0.0, float(mg.pair_p[mg.label_id[r] * M + m])))
     return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))

@@ -17,10 +17,10 @@ from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_s
 from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.gibbs import (allocate_samples, gibbs_chains, sample_chains, split_chains, start_missed,
-                                start_optimal)
-from tracker.glmb.hypotheses import (_DET, _Candidates, _Children, _Update, _log, assignment_log_eta,
-                                     candidate_sets, eta_matrix, merge_children, prune_and_cap, unique_rows)
+from tracker.glmb.children import children, pair_table, starts
+from tracker.glmb.gibbs import start_missed
+from tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
+                                     prune_and_cap)
 from tracker.glmb.state import GlmbState
 from tracker.models.params import ModelParams
 from tracker.types import STATE_DIM, Estimate, Frame, frame_dt
@@ -75,11 +75,10 @@ class GlmbTracker:
         if frame.frame <= state.frame:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
-        sensor = self.params.frame_sensor(frame)
-        meas = self.params.measurement(frame.kind, sensor)
-        cands = self._candidates(state, dt, frame, sensor)
+        sensor, meas, detection, log_kappa = self._sensor_models(frame)
+        cands = self._candidates(state, dt, frame, sensor, detection)
         innov = self._innovation(meas, cands)
-        E = self._eta(meas, innov, cands, frame)
+        E = self._eta(meas, innov, cands, frame, log_kappa)
         children = self._children(state, cands, E, rng)
         upd = self._update(frame, meas, innov, cands, children)
         marg = marginals(upd.state, upd.row_meas, frame.n_measurements)
@@ -108,7 +107,29 @@ class GlmbTracker:
     def _predict_fn(self):
         return kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
 
-    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None) -> _Candidates:
+    @cached_property
+    def _model_cache(self) -> dict[Any, tuple]:
+        return {}
+
+    def _sensor_models(self, frame: Frame) -> tuple[Any, Any, Any, float]:
+        """The frame's sensor, measurement model, detection model and :math:`\\log\\kappa`,
+        built once per distinct sensor set-up (name, kind, pose, R) and reused while frames
+        keep it (only the last set-up is kept: a moving sensor gets new ones every frame)."""
+        key = (frame.sensor, frame.kind, frame.pose, None if frame.R is None else np.asarray(frame.R).tobytes())
+        hit = self._model_cache.get(key)
+        if hit is None:
+            sensor = self.params.frame_sensor(frame)
+            log_kappa = float(self.params.clutter(frame.kind, sensor).log_intensity)
+            if not math.isfinite(log_kappa):
+                raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
+            hit = (sensor, self.params.measurement(frame.kind, sensor), self.params.detection(frame.kind, sensor),
+                   log_kappa)
+            self._model_cache.clear()
+            self._model_cache[key] = hit
+        return hit
+
+    def _candidates(self, state: GlmbState, dt: float, frame: Frame, sensor: Any = None,
+                    detection: Any = None) -> _Candidates:
         r"""Survivors: one prediction over ``dt`` seconds (the CT model built for ``dt``),
         :math:`\bar P_S = P_S(m)^{\Delta t/T}` at the mean before the step; then births."""
         m, P = state.mean, state.cov
@@ -122,7 +143,9 @@ class GlmbTracker:
         cov = np.concatenate([P, b.cov])
         log_e = np.concatenate([log_ps, _log(b.r)])
         log_not_e = np.concatenate([_log(-np.expm1(log_ps)), _log(1.0 - b.r)])
-        pd = self.params.detection(frame.kind, sensor).prob(mean) if len(mean) else np.zeros(0)
+        if detection is None:
+            detection = self.params.detection(frame.kind, sensor)
+        pd = detection.prob(mean) if len(mean) else np.zeros(0)
         return _Candidates(labels, mean, cov, log_e, log_not_e, np.clip(pd, 0.0, 1.0), len(m),
                            b.n_adaptive)
 
@@ -168,38 +191,33 @@ class GlmbTracker:
             return kf.ukf_innovation(meas, cands.mean, cands.cov)
         return kf.ekf_innovation(meas, cands.mean, cands.cov)
 
-    def _eta(self, meas, innov: kf.Innovation, cands: _Candidates, frame: Frame) -> np.ndarray:
+    def _eta(self, meas, innov: kf.Innovation, cands: _Candidates, frame: Frame, log_kappa: float) -> np.ndarray:
         M = frame.n_measurements
         if M and len(cands.mean):
             log_lik = kf.log_likelihood_matrix(meas, innov, frame.z, self.config.gate_prob)
         else:
             log_lik = np.zeros((len(cands.mean), M))
-        log_kappa = float(self.params.clutter(frame.kind, self.params.frame_sensor(frame)).log_intensity)
-        if not math.isfinite(log_kappa):
-            raise ValueError("the GLMB needs a positive, finite clutter intensity (clutter_rate > 0)")
         return eta_matrix(cands.log_e, cands.log_not_e, cands.p_detect, log_lik, log_kappa)
 
     def _children(self, state: GlmbState, cands: _Candidates, E: np.ndarray,
                   rng: np.random.Generator) -> _Children:
         """Gibbs-sampled distinct children of every parent, duplicates merged."""
         cfg = self.config
-        cand = candidate_sets(state.hyp_tracks, cands.n_survivors, len(cands.labels) - cands.n_survivors)
-        start, ok = (start_optimal if cfg.start == "optimal" else start_missed)(E, cand)
-        parents = np.flatnonzero(ok)
-        if parents.size == 0:
-            raise RuntimeError("GLMB: no parent hypothesis has a feasible assignment")
-        cand, start, log_w = cand[parents], start[parents], state.log_w[parents]
-        chain_parent, length = split_chains(allocate_samples(log_w, cfg.max_hypotheses), cfg.chain_length)
-        samples = gibbs_chains(rng, E, cand[chain_parent], start[chain_parent], length)
-        owner = chain_parent[sample_chains(length)]
-        uniq, _ = unique_rows(np.column_stack([owner, samples]))
-        p_idx, gamma = uniq[:, 0], uniq[:, 1:]
-        log_w = log_w[p_idx] + assignment_log_eta(E, cand[p_idx], gamma)
-        return merge_children(cand[p_idx], gamma, log_w, E.shape[1] - _DET)
+        n_births = len(cands.labels) - cands.n_survivors
+        if cfg.start == "optimal":
+            cand, start, ok = starts(E, state.hyp_tracks, cands.n_survivors, n_births)
+        else:
+            cand = candidate_sets(state.hyp_tracks, cands.n_survivors, n_births)
+            start, ok = start_missed(E, cand)
+        return children(rng, E, cand, start, ok, state.log_w, cfg.max_hypotheses, cfg.chain_length)
 
     def _estimate_rows(self, upd: _Update, marg: _Marginals, prev_rows: np.ndarray) -> np.ndarray:
         """Table rows of this frame's estimate, by ``config.estimator``."""
-        continues = np.isin(upd.parent_row, prev_rows)
+        # np.isin(parent_row, prev_rows) by a lookup (parent -1: a birth, the last, False entry)
+        size = max(int(prev_rows.max(initial=-1)), int(upd.parent_row.max(initial=-1))) + 2
+        seen = np.zeros(size, dtype=bool)
+        seen[prev_rows] = True
+        continues = seen[upd.parent_row]
         if self.config.estimator == "continuity":
             return continuity_rows(upd.state, marg, continues, self.config.continuity_ratio)
         if self.config.estimator == "marginal-labels":
@@ -214,19 +232,15 @@ class GlmbTracker:
         keys = children.keys[keep]
         log_w = children.log_w[keep]
         log_w = log_w - logsumexp(log_w)
-        used = np.unique(keys[keys >= 0])
         M = frame.n_measurements
+        used, hyp = pair_table(keys, len(cands.labels) * (M + 1))
         row, j = used // (M + 1), used % (M + 1)
-        mean = cands.mean[row].copy()
-        cov = cands.cov[row].copy()
+        mean = cands.mean[row]
+        cov = cands.cov[row]
         det = j > 0
         if np.any(det):
             mean[det] = kf.update_pairs(meas, innov, cands.mean, frame.z, row[det], j[det] - 1)
             cov[det] = innov.P_upd[row[det]]
-        # strip trailing all-padding columns; map keys to new rows (sorted keys -> sorted rows)
-        width = int(np.sum(keys >= 0, axis=1).max(initial=0))
-        keys = keys[:, :width]
-        hyp = np.where(keys >= 0, np.searchsorted(used, keys), -1).astype(np.int64)
         labels = tuple(cands.labels[i] for i in row.tolist())
         new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
                         np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)

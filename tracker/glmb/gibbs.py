@@ -60,24 +60,44 @@ def _draw(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
 
 
 def _gibbs_kernel(P: np.ndarray, cand: np.ndarray, start: np.ndarray, length: np.ndarray,
-                  u: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+                  u: np.ndarray, out: np.ndarray, chain_rows: np.ndarray) -> None:  # pragma: no cover - compiled
     """Lockstep sweeps of :func:`gibbs_chains` on plain arrays (compiled with numba).
 
     ``u`` holds the uniforms in the order the vectorised sweep consumed them (sweep, slot,
     chain); ``out`` receives all starts, then the active prefix after each sweep.  Each draw
     is ``count(cdf <= u * cdf[-1])`` over the unblocked row of ``P`` (the last positive entry
-    when ``u`` rounds up to the total), exactly as :func:`_draw`.
+    when ``u`` rounds up to the total), exactly as :func:`_draw`, computed over the positive
+    entries of the row only (gated measurements, dies, missed: a few of the ``M + 2``; adding
+    the zero entries, as the dense cdf does, changes no partial sum).  Chain ``c`` uses the
+    candidates and start of row ``chain_rows[c]`` of ``cand`` and ``start``.
     """
-    C, width = cand.shape
-    K = P.shape[1]
-    gamma = start.copy()
+    C = length.size
+    width = cand.shape[1]
+    N, K = P.shape
+    # the positive entries of each row of P (the options a draw can take), columns increasing
+    ptr = np.zeros(N + 1, dtype=np.int64)
+    for r in range(N):
+        ptr[r + 1] = ptr[r]
+        for j in range(K):
+            if P[r, j] > 0:
+                ptr[r + 1] += 1
+    cols = np.empty(ptr[N], dtype=np.int64)
+    for r in range(N):
+        t = ptr[r]
+        for j in range(K):
+            if P[r, j] > 0:
+                cols[t] = j
+                t += 1
+    gamma = np.empty((C, width), dtype=np.int64)
+    for c in range(C):
+        for i in range(width):
+            gamma[c, i] = start[chain_rows[c], i]
     taken = np.zeros((C, K), dtype=np.bool_)
     for c in range(C):
         for i in range(width):
             if gamma[c, i] >= 2:
                 taken[c, gamma[c, i]] = True
             out[c, i] = gamma[c, i]
-    cdf = np.empty(K)
     row = C
     pos = 0
     n_sweeps = 0
@@ -91,25 +111,32 @@ def _gibbs_kernel(P: np.ndarray, cand: np.ndarray, start: np.ndarray, length: np
                 k += 1
         for i in range(width):
             for c in range(k):
-                r = cand[c, i]
+                r = cand[chain_rows[c], i]
                 if r < 0:
                     continue
                 taken[c, gamma[c, i]] = False
-                acc = 0.0
-                for j in range(K):
-                    acc += P[r, j] * (0.0 if taken[c, j] else 1.0)
-                    cdf[j] = acc
-                x = u[pos] * cdf[K - 1]
+                # the cdf over the unblocked positive entries: adding the zero entries, as
+                # the dense cdf does, changes no partial sum
+                total = 0.0
+                for t in range(ptr[r], ptr[r + 1]):
+                    if not taken[c, cols[t]]:
+                        total += P[r, cols[t]]
+                x = u[pos] * total
                 pos += 1
-                new = 0
-                for j in range(K):
-                    if cdf[j] <= x:
-                        new += 1
-                if new >= K:  # u rounded up to the total: take the last positive entry
-                    for j in range(K - 1, -1, -1):
-                        if P[r, j] * (0.0 if taken[c, j] else 1.0) > 0:
-                            new = j
-                            break
+                new = -1
+                acc = 0.0
+                last = -1
+                for t in range(ptr[r], ptr[r + 1]):
+                    j = cols[t]
+                    if taken[c, j]:
+                        continue
+                    last = j
+                    acc += P[r, j]
+                    if acc > x:  # the first entry whose cdf exceeds x: count(cdf <= x)
+                        new = j
+                        break
+                if new < 0:  # u rounded up to the total: take the last positive entry
+                    new = last
                 if new >= 2:
                     taken[c, new] = True
                 gamma[c, i] = new
@@ -147,7 +174,7 @@ def gibbs_chains(rng: np.random.Generator, E: np.ndarray, cand: np.ndarray,
     u = rng.random(n_draws)
     out = np.empty((C + int(length.sum()), width), dtype=np.int64)
     _gibbs_sweeps(np.ascontiguousarray(P, dtype=np.float64), np.ascontiguousarray(cand, dtype=np.int64),
-                  np.ascontiguousarray(start, dtype=np.int64), length, u, out)
+                  np.ascontiguousarray(start, dtype=np.int64), length, u, out, np.arange(C))
     return out
 
 

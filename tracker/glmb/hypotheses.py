@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._numerics import logsumexp
+from tracker._numerics import jit, logsumexp
 from tracker.glmb.state import GlmbState
 
 
@@ -58,10 +58,22 @@ def _log(x: np.ndarray) -> np.ndarray:
         return np.log(x)
 
 
+def _group_max_kernel(values: np.ndarray, groups: np.ndarray, top: np.ndarray) -> None:  # pragma: no cover
+    """``np.maximum.at(top, groups, values)`` for values without NaN (compiled: ``ufunc.at``
+    costs about a microsecond per call and more per element)."""
+    for i in range(values.size):
+        if values[i] > top[groups[i]]:
+            top[groups[i]] = values[i]
+
+
+_group_max = jit(_group_max_kernel)
+
+
 def group_logsumexp(values: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
-    """``out[g] = log sum_{i: groups[i] = g} exp(values[i])`` (vectorised)."""
+    """``out[g] = log sum_{i: groups[i] = g} exp(values[i])`` (vectorised; ``values`` without
+    NaN)."""
     top = np.full(n_groups, -np.inf)
-    np.maximum.at(top, groups, values)
+    _group_max(np.ascontiguousarray(values, dtype=np.float64), np.ascontiguousarray(groups, dtype=np.int64), top)
     safe = np.where(np.isfinite(top), top, 0.0)
     sums = np.bincount(groups, weights=np.exp(values - safe[groups]), minlength=n_groups)
     return safe + _log(sums)
