@@ -77,6 +77,10 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     existence at frame ``k`` (fixed-lag smoothing): at its birth frame a new object's
     measurement is 'new' with probability ~ alpha / lambda_c, so counting that frame's sample
     would drive alpha towards 0 (see docs/trackers.md).  0 counts the current sample."""
+    urn_normaliser: bool = True
+    """Weight every object assignment by the urn normaliser ``g_m = (alpha+V)/(alpha+V+M_o)``
+    of the paper's eq. (1).  False: ``g_m = 1``, the point-object model (docs/trackers.md,
+    "Births anywhere")."""
     extended: bool = False
     """Allow several measurements per object per frame (case D1/P1); off for point objects."""
 
