@@ -51,8 +51,12 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Clusters whose position-velocity states are within this squared Mahalanobis distance
     (summed covariances) and whose existences sum to at most 1 are one object split over
     exclusive hypotheses: they are merged (existences added).  0 disables merging."""
-    birth_velocity_std: Positive = 30.0
-    """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
+    birth_velocity_std: Positive = 20.0
+    """Base distribution H (uniform part): velocity std (m/s) per axis of a new cluster.  20
+    (was 30 before session 6): chosen on ``random`` and ``vo2017`` seeds 101-120, near the
+    per-axis RMS speed of objects moving at 5-40 m/s in any direction (17 m/s); a narrower
+    prior predicts a newborn's second detection more sharply (docs/trackers.md, "Births
+    anywhere")."""
     birth_turn_std_deg: Positive = 3.0
     """Base distribution H (uniform part): turn-rate std (deg/s) of a new cluster."""
     alpha: Positive = 0.1
