@@ -7,8 +7,16 @@ the gate from every object) and missed-object scans.  Also the mean of the frame
 ``p_birth`` (probability that a measurement no cluster explains opens a new one) and the
 final ``alpha``.  What sets the delay is in docs/trackers.md ("Births anywhere").
 
+``--decompose`` prints instead where each frame's OSPA (c = ``--gate``, p = 1) comes from,
+averaged over frames and seeds (the parts add up to the mean OSPA): ``loc`` the distances of
+the optimally assigned pairs nearer than c; ``far`` assigned pairs at c or more; the
+cardinality part ``c |n - m| / max(n, m)`` split over the excess objects or tracks:
+``missed new`` (objects at most 3 scans old, the youngest first), ``missed old`` (older),
+``false dead`` (tracks whose last assigned object has died), ``false other``.
+
     python benchmarks/births.py --scenario random --seeds 20
     python benchmarks/births.py --scenario vo2017 --seeds 20 --set params.birth=[]
+    python benchmarks/births.py --scenario random --first-seed 101 --seeds 20 --decompose
 """
 
 from __future__ import annotations
@@ -22,8 +30,52 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from accuracy import setup  # noqa: E402  (benchmarks/accuracy.py)
+from benchmarks.accuracy import setup  # noqa: E402
+from scipy.optimize import linear_sum_assignment  # noqa: E402
 from tracker.state import run  # noqa: E402
+
+PARTS = ("loc", "far", "missed new", "missed old", "false dead", "false other")
+YOUNG = 3  # scans: an object at most this old counts as "new"
+
+
+def ospa_parts(frame, est, births: dict, owner: dict, c: float) -> dict:
+    """One frame's OSPA (p = 1) split into :data:`PARTS` (they sum to the frame's OSPA).
+    ``owner`` (track label -> the object it was last assigned to) is updated in place."""
+    T, E = frame.truth.positions, est.positions
+    n, m = len(T), len(E)
+    out = dict.fromkeys(PARTS, 0.0)
+    if max(n, m) == 0:
+        return out
+    w = 1.0 / max(n, m)
+    labels = [t.label for t in est.tracks]
+    D = np.linalg.norm(T[:, None] - E[None], axis=2) if n and m else np.zeros((n, m))
+    rows, cols = linear_sum_assignment(np.minimum(D, c)) if n and m else ((), ())
+    near = [(i, j) for i, j in zip(rows, cols) if D[i, j] < c]
+    out["loc"] = w * sum(D[i, j] for i, j in near)
+    out["far"] = w * c * (len(rows) - len(near))
+    age = {i: frame.frame - births[frame.truth.ids[i]] for i in range(n)}
+    if n > m:  # the excess objects: the youngest unassigned ones
+        for i in sorted(set(range(n)) - set(rows), key=age.__getitem__):
+            out["missed new" if age[i] <= YOUNG else "missed old"] += w * c
+    alive = set(frame.truth.ids)
+    for j in sorted(set(range(m)) - set(cols)):  # the excess tracks
+        dead = labels[j] in owner and owner[labels[j]] not in alive
+        out["false dead" if dead else "false other"] += w * c
+    owner.update({labels[j]: frame.truth.ids[i] for i, j in near})
+    return out
+
+
+def decompose_run(job) -> dict:
+    """Mean per-frame OSPA parts of one seed (:func:`ospa_parts`)."""
+    tracker_name, scenario, seed, overrides, gate = job
+    sc, tracker, frames = setup(tracker_name, "vo2017", scenario, seed, overrides)
+    births = dict(zip(sc.ids, sc.births.tolist()))
+    owner: dict = {}
+    total = dict.fromkeys(PARTS, 0.0)
+    for f, e, _ in run(tracker, frames, seed):
+        for k, v in ospa_parts(f, e, births, owner, gate).items():
+            total[k] += v
+    return {k: v / len(frames) for k, v in total.items()}
 
 
 def one_run(job) -> dict:
@@ -59,9 +111,12 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="params.KEY=V (model parameters) or [tracker.]KEY=V (tracker settings)")
+    ap.add_argument("--decompose", action="store_true", help="print the OSPA decomposition instead")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")
+    if args.decompose:
+        return print_decomposition(args, seeds)
     print("| tracker | objects | delay mean | median | p90 | never confirmed | false-track scans/run | "
           "missed-object scans/run | mean p_birth | final alpha |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -74,6 +129,17 @@ def main() -> None:
             print(f"| {tr} | {lives} | {d.mean():.2f} | {np.median(d):.0f} | {np.percentile(d, 90):.0f} | {never} | "
                   f"{np.mean([r['false'] for r in res]):.1f} | {np.mean([r['missed'] for r in res]):.1f} | "
                   f"{np.mean([r['p_birth'] for r in res]):.4f} | {np.mean([r['alpha'] for r in res]):.3f} |", flush=True)
+
+
+def print_decomposition(args, seeds) -> None:
+    print("| tracker | OSPA | " + " | ".join(PARTS) + " |")
+    print("|---|---|" + "---|" * len(PARTS))
+    with ProcessPoolExecutor(args.workers) as pool:
+        for tr in args.trackers:
+            res = list(pool.map(decompose_run, [(tr, args.scenario, s, args.overrides, args.gate) for s in seeds]))
+            mean = {k: float(np.mean([r[k] for r in res])) for k in PARTS}
+            print(f"| {tr} | {sum(mean.values()):.2f} | " + " | ".join(f"{mean[k]:.2f}" for k in PARTS) + " |",
+                  flush=True)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,14 @@ Stone Soup is the optional ``compare`` extra: ``pip install -e '.[compare]'``.
 
     nice -n 5 python benchmarks/vs_stonesoup.py --scenario vo2017 --set 'birth=[]' --seeds 20
     python benchmarks/vs_stonesoup.py --selftest
+    nice -n 5 python benchmarks/vs_stonesoup.py --scenario random --anchor-cache ~/.cache/bnptrack/anchors
+
+``--anchor-cache DIR`` keeps each anchor run's per-scan output (labels, positions, CPU ms) in
+``DIR``, keyed by a hash of the anchor, its settings, the frames it was given (their
+measurements and stamps), its code (``stonesoup_anchors.py``, ``anchor_convert.py``) and Stone
+Soup's version; a later run with the same key reuses it and re-scores it (the anchors are
+deterministic).  The table then marks those anchors ``(cached)``: their ms come from the run
+that filled the cache, so their time ratio is not from one sitting.
 
 Anchor settings (``--anchor-set phd.birth_rate=0.2 --anchor-set jpda.min_points=4``) default
 to the values tuned on seeds 101-110 (docs/vs_stonesoup.md).
@@ -26,6 +34,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
 import importlib.util  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -33,7 +42,9 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
 
+import msgspec  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
@@ -64,6 +75,8 @@ class Job:
     param_sets: tuple[str, ...]
     tracker_sets: tuple[str, ...]
     anchor_sets: tuple[str, ...]
+    anchor_cache: str = ""
+    """Directory of cached anchor runs ("" = no cache; :func:`anchor_cache_key`)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +114,39 @@ def _run_anchor(job: Job, params, frames) -> tuple[list[Scan], int]:
             pos = np.array([p for _, p in est], dtype=float).reshape(-1, 2)
             out.append(Scan(tuple(lab for lab, _ in est), pos, ms))
     return out, len(caught)
+
+
+def anchor_cache_key(job: Job, params, frames, version: str) -> str:
+    """Hash of what an anchor's output depends on: its name and settings, the model parameters,
+    every frame's stamp and measurements, the anchor code and Stone Soup's ``version``."""
+    h = hashlib.sha256()
+    h.update(repr((job.tracker, job.anchor_sets, version)).encode())
+    h.update(msgspec.json.encode(params))
+    for f in frames:
+        h.update(np.int64(f.stamp_ns).tobytes())
+        h.update(np.ascontiguousarray(f.z, dtype=np.float64).tobytes())
+    for name in ("stonesoup_anchors.py", "anchor_convert.py"):
+        h.update(Path(__file__).with_name(name).read_bytes())
+    return h.hexdigest()[:24]
+
+
+def _cached_anchor(job: Job, params, frames) -> tuple[list[Scan], int, bool]:
+    """:func:`_run_anchor` through the cache directory ``job.anchor_cache``; also returns
+    whether the scans came from the cache."""
+    from importlib.metadata import version
+
+    path = Path(job.anchor_cache).expanduser() / f"{job.tracker}-{anchor_cache_key(job, params, frames, version('stonesoup'))}.json"
+    if path.exists():
+        d = json.loads(path.read_text())
+        scans = [Scan(tuple(s["labels"]), np.asarray(s["positions"], float).reshape(-1, 2), s["ms"]) for s in d["scans"]]
+        return scans, d["warnings"], True
+    scans, n_warn = _run_anchor(job, params, frames)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rows = [dict(labels=list(s.labels), positions=s.positions.tolist(), ms=s.ms) for s in scans]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(dict(warnings=n_warn, scans=rows)))
+    tmp.replace(path)
+    return scans, n_warn, False
 
 
 def _run_bnp(job: Job, params, frames) -> tuple[list[Scan], int]:
@@ -164,8 +210,12 @@ def run_job(job: Job) -> dict:
     sc = get_scenario(job.scenario, seed=job.seed, scene=scene)  # a generated family: this seed's scene
     params = sc.adapt_params(load_params(job.params, model))
     frames = simulate_all(sc, params, job.seed)
-    scans, n_warn = (_run_anchor if job.tracker in ANCHORS else _run_bnp)(job, params, frames)
-    return dict(tracker=job.tracker, seed=job.seed, warnings=n_warn,
+    cached = False
+    if job.tracker in ANCHORS and job.anchor_cache:
+        scans, n_warn, cached = _cached_anchor(job, params, frames)
+    else:
+        scans, n_warn = (_run_anchor if job.tracker in ANCHORS else _run_bnp)(job, params, frames)
+    return dict(tracker=job.tracker, seed=job.seed, warnings=n_warn, cached=cached,
                 **score(frames, scans, sc.crossings))
 
 
@@ -181,7 +231,8 @@ def summarise(results: list[dict], names: list[str]) -> dict[str, dict]:
                          switches=float(np.mean([r["switches"] for r in rs])),
                          crossing=float(np.mean(cross)) if cross else None, crossing_pairs=len(cross),
                          ms_mean=float(ms.mean()), ms_median=float(np.median(ms)), seeds=len(rs),
-                         warnings=int(sum(r.get("warnings", 0) for r in rs)))
+                         warnings=int(sum(r.get("warnings", 0) for r in rs)),
+                         cached=int(sum(bool(r.get("cached")) for r in rs)))
     anchors = [n for n in names if n in ANCHORS]
     best = min(anchors, key=lambda n: out[n]["ospa"]) if anchors else None
     for name in names:
@@ -199,7 +250,8 @@ def print_table(summary: dict[str, dict], header: str) -> None:
     for name, s in summary.items():
         cross = "n/a" if s["crossing"] is None else f"{s['crossing']:.2f} ({round(s['crossing'] * s['crossing_pairs'])}/{s['crossing_pairs']})"
         ratio = "n/a" if s["time_vs_best_anchor"] is None else f"{s['time_vs_best_anchor']:.3f}"
-        print(f"| {name} | {s['ospa']:.2f} | {s['ospa2']:.2f} | {s['card_err']:.3f} | {s['switches']:.2f} | {cross} "
+        label = f"{name} (cached)" if s.get("cached") else name
+        print(f"| {label} | {s['ospa']:.2f} | {s['ospa2']:.2f} | {s['card_err']:.3f} | {s['switches']:.2f} | {cross} "
               f"| {s['ms_mean']:.2f} | {s['ms_median']:.2f} | {ratio} |", flush=True)
 
 
@@ -266,6 +318,7 @@ def _args(argv=None) -> argparse.Namespace:
                          "scene.KEY=VALUE sets a generated scenario's family parameter")
     ap.add_argument("--tracker-set", action="append", default=[], help="bnptrack tracker config override")
     ap.add_argument("--anchor-set", action="append", default=[], help="anchor setting, e.g. phd.gate=5")
+    ap.add_argument("--anchor-cache", default="", help="directory of cached anchor runs (reused when the key matches)")
     ap.add_argument("--workers", type=int, default=1, help="process pool size (default 1)")
     ap.add_argument("--json", action="store_true", help="also print one JSON line with the summary")
     ap.add_argument("--selftest", action="store_true", help="run the anchors on a tiny scene and check them")
@@ -283,7 +336,7 @@ def main(argv=None) -> int:
     names = list(args.trackers) + list(args.anchors)
     seeds = range(args.seed_start, args.seed_start + args.seeds)
     jobs = [Job(n, args.scenario, s, args.params, tuple(args.param_sets), tuple(args.tracker_set),
-                tuple(args.anchor_set)) for s in seeds for n in names]
+                tuple(args.anchor_set), args.anchor_cache) for s in seeds for n in names]
     with ProcessPoolExecutor(args.workers) as pool:
         results = []
         for r in pool.map(run_job, jobs):

@@ -51,8 +51,12 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Clusters whose position-velocity states are within this squared Mahalanobis distance
     (summed covariances) and whose existences sum to at most 1 are one object split over
     exclusive hypotheses: they are merged (existences added).  0 disables merging."""
-    birth_velocity_std: Positive = 30.0
-    """Base distribution H (uniform part): velocity std (m/s) of a new cluster."""
+    birth_velocity_std: Positive = 20.0
+    """Base distribution H (uniform part): velocity std (m/s) per axis of a new cluster.  20
+    (was 30 before session 6): chosen on ``random`` and ``vo2017`` seeds 101-120, near the
+    per-axis RMS speed of objects moving at 5-40 m/s in any direction (17 m/s); a narrower
+    prior predicts a newborn's second detection more sharply (docs/trackers.md, "Births
+    anywhere")."""
     birth_turn_std_deg: Positive = 3.0
     """Base distribution H (uniform part): turn-rate std (deg/s) of a new cluster."""
     alpha: Positive = 0.1
@@ -77,6 +81,10 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     existence at frame ``k`` (fixed-lag smoothing): at its birth frame a new object's
     measurement is 'new' with probability ~ alpha / lambda_c, so counting that frame's sample
     would drive alpha towards 0 (see docs/trackers.md).  0 counts the current sample."""
+    urn_normaliser: bool = True
+    """Weight every object assignment by the urn normaliser ``g_m = (alpha+V)/(alpha+V+M_o)``
+    of the paper's eq. (1).  False: ``g_m = 1``, the point-object model (docs/trackers.md,
+    "Births anywhere")."""
     extended: bool = False
     """Allow several measurements per object per frame (case D1/P1); off for point objects."""
 

@@ -177,6 +177,7 @@ class BnpTracker:
             d=state.d,
             d_bar=float(q.sum()),
             extended=cfg.extended,
+            urn_normaliser=cfg.urn_normaliser,
         )
 
     def _update_existing(self, state, pred, innov, meas, Z, result) -> "_Clusters":

@@ -128,6 +128,10 @@ class GibbsProblem:
     """Transitioned urn mass ``V``; ``alpha + V`` is the Poisson rate of object measurements."""
     extended: bool = False
     pairs: SparsePairs | None = None
+    urn_normaliser: bool = True
+    """Multiply every object weight by the urn normaliser :math:`g_m` (the paper's eq. (1)).
+    ``False``: :math:`g_m = 1`, the point-object Poisson-birth / Bernoulli-object model (see
+    :class:`tracker.bnp.config.BnpConfig.urn_normaliser`)."""
 
     def __post_init__(self) -> None:
         if self.log_first is None and self.pairs is None:
@@ -258,7 +262,7 @@ def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_firs
     ``st = [K_new, M_o]`` and, when ``keep``, the Rao-Blackwellised tallies: each visit adds
     its full conditional to ``tally_pair`` (by pair)/``tally_cn``, and to the split-half sums
     ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``)."""
-    total_mass, alpha, d, d_bar = par[0], par[1], par[2], par[3]
+    total_mass, alpha, d, d_bar, use_g = par[0], par[1], par[2], par[3], par[4] > 0.0
     M = c.shape[0]
     nnz = idx.shape[0]
     for m in range(M):
@@ -269,7 +273,7 @@ def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_firs
             st[1] -= 1
         if cur == NEW:
             st[0] -= 1
-        g = total_mass / (total_mass + st[1])
+        g = total_mass / (total_mass + st[1]) if use_g else 1.0
         wc = w_clutter[m]
         wn = g * w_newbase[m] * (alpha + d * (d_bar + st[0]))
         total = wc + wn
@@ -461,7 +465,8 @@ def run_gibbs(
     K = cand.idx.size + 2 * M
     tally_pair, tally_cn = np.zeros(cand.idx.size), np.zeros((2, M))
     hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
-    par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar], dtype=float)
+    par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar,
+                    1.0 if problem.urn_normaliser else 0.0], dtype=float)
     pop = np.asarray(problem.popularity, dtype=float)
     opt = max(N, 1)
     scratch = (np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64))
@@ -528,7 +533,8 @@ def log_joint(problem: GibbsProblem, c: np.ndarray) -> float:
         if ch == CLUTTER:
             out += problem.log_clutter[m]
             continue
-        out += math.log(total_mass / (total_mass + m_obj))
+        if problem.urn_normaliser:
+            out += math.log(total_mass / (total_mass + m_obj))
         m_obj += 1
         if ch == NEW:
             out += math.log(problem.alpha + problem.d * (problem.d_bar + k_new)) + problem.log_new[m]
@@ -564,7 +570,7 @@ def _log_joint_point(problem: GibbsProblem, c: np.ndarray) -> float:
         return -math.inf  # gated out
     total_mass = problem.alpha + problem.mass
     n_obj, n_new = int(obj.sum()), int(new.sum())
-    urn = np.log(total_mass / (total_mass + np.arange(n_obj))).sum()
+    urn = np.log(total_mass / (total_mass + np.arange(n_obj))).sum() if problem.urn_normaliser else 0.0
     newk = np.log(problem.alpha + problem.d * (problem.d_bar + np.arange(n_new))).sum()
     return float(problem.log_clutter[~obj].sum() + urn + newk + problem.log_new[new].sum()
                  + pr.log_first[j].sum())
