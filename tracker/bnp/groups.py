@@ -40,15 +40,18 @@ cluster level), so :mod:`tracker.state` snapshots it exactly.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
+from typing import Literal
 
 import msgspec
 import numpy as np
 
 from tracker._numerics import jit
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from tracker.bnp.clusters import _Clusters
 from tracker.bnp.filter import BnpState, BnpTracker
+from tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from tracker.config import Fraction, PosInt, Positive, PositiveProb, Prob
 from tracker.models.params import ModelParams
@@ -64,6 +67,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     objects: BnpConfig = BnpConfig()
     """Measurement -> object level (the single-level DDP-EMM's settings)."""
+    merge: Literal["exclusive", "objects"] = "exclusive"
+    """How duplicate objects merge (distance ``objects.merge_distance``): "exclusive" never merges
+    two objects that explain different measurements of one scan (:mod:`tracker.bnp.group_merge`;
+    members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
     within_std: Positive = 25.0
@@ -384,7 +391,10 @@ class GroupTracker:
 
     @cached_property
     def objects(self) -> BnpTracker:
-        return BnpTracker(self.params, self.config.objects, self.name)
+        """The object level; with ``merge == "exclusive"`` its own merge is off (done in :meth:`_merge`)."""
+        cfg = self.config
+        objects = msgspec.structs.replace(cfg.objects, merge_distance=0.0) if cfg.merge == "exclusive" else cfg.objects
+        return BnpTracker(self.params, objects, self.name)
 
     @cached_property
     def alpha_grid(self) -> np.ndarray:
@@ -413,6 +423,8 @@ class GroupTracker:
         t0 = time.perf_counter()
         steps = 1 if state.frame < 0 else frame.frame - state.frame
         inner, est = self.objects.step(state.inner(), frame, rng)
+        if self.config.merge == "exclusive":
+            inner, est = self._merge(inner, est)
         members = np.flatnonzero(inner.existence >= self.config.member_existence)
         prev = dict(zip(state.labels, state.cluster.tolist()))
         init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
@@ -432,6 +444,24 @@ class GroupTracker:
         return new_state, self._estimate(new_state, est, t0)
 
     # -- pieces ---------------------------------------------------------------------------
+    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate]:
+        """The object level's duplicates merged without merging objects of one scan
+        (:func:`tracker.bnp.group_merge.merge_exclusive`); the estimate's tracks re-read at the
+        object level's threshold and its assignments renamed to the merged labels."""
+        obj = self.config.objects
+        c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
+        merged, renamed = merge_exclusive(c, obj.merge_distance,
+                                          taken_measurements(est.assignments, est.assignment_prob, 0.5))
+        if not renamed:
+            return inner, est
+        inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
+                        existence=merged.existence, popularity=merged.popularity)
+        tracks = tuple(TrackEstimate(lab, inner.mean[i].copy(), inner.cov[i].copy(), float(inner.existence[i]))
+                       for i, lab in enumerate(inner.labels) if inner.existence[i] > obj.existence_threshold)
+        assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
+        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
+        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag)
+
     def _blocks(self, state: GroupState, steps: int, mean: np.ndarray, cov: np.ndarray) -> list[Block]:
         r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
         random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
