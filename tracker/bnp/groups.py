@@ -51,6 +51,7 @@ from tracker._numerics import jit
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from tracker.bnp.clusters import _Clusters
 from tracker.bnp.filter import BnpState, BnpTracker
+from tracker.bnp.group_hyper import arrivals_loglik_grid
 from tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from tracker.config import Fraction, PosInt, Positive, PositiveProb, Prob
@@ -105,6 +106,9 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_scale: Positive = 0.1
     infer_d: bool = False
     hyper_forgetting: PositiveProb = 0.98
+    hyper_likelihood: Literal["arrivals", "reseat"] = "arrivals"
+    """What (alpha_2, d) are inferred from: each object's seat once, when it enters the partition
+    (the Pitman-Yor EPPF, :mod:`tracker.bnp.group_hyper`), or every frame's re-seating ("reseat")."""
 
 
 GROUP_PRESETS: dict[str, GroupConfig] = {
@@ -433,7 +437,7 @@ class GroupTracker:
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
             mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_w)
-        alpha2, d2, hyper2 = self._hyper(state, z)
+        alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0)
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
@@ -511,17 +515,17 @@ class GroupTracker:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
 
-    def _hyper(self, state: GroupState, z: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(alpha_2, d) on the grid given the frame's object partition (tracker.bnp.urn.frame_loglik_grid)."""
+    def _hyper(self, state: GroupState, z: np.ndarray, arrived: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d) on the grid given the frame's object partition: the arrivals' Pitman-Yor
+        predictive (:func:`tracker.bnp.group_hyper.arrivals_loglik_grid`) or the re-seating
+        (:func:`tracker.bnp.urn.frame_loglik_grid`); ``arrived``: members new to the partition."""
         cfg = self.config
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik
-        G = state.group_ids.size
-        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
-        n_new = int(np.unique(z[z >= G]).size)
-        frame_ll = frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
-                                     mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size), n_new=n_new,
-                                     seated_popularity=state.group_count, seated_counts=counts)
+        if cfg.hyper_likelihood == "arrivals":
+            frame_ll = arrivals_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
+        else:
+            frame_ll = self._reseat_loglik(state, z)
         hyper = cfg.hyper_forgetting * state.hyper2_loglik + frame_ll
         log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
                             + np.log(self.alpha_grid))[:, None]
@@ -529,6 +533,15 @@ class GroupTracker:
             log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
         return alpha, d, hyper
+
+    def _reseat_loglik(self, state: GroupState, z: np.ndarray) -> np.ndarray:
+        """Every member's seat of this frame counted (objects as customers, clusters as tables)."""
+        G = state.group_ids.size
+        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
+        n_new = int(np.unique(z[z >= G]).size)
+        return frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
+                                 mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size),
+                                 n_new=n_new, seated_popularity=state.group_count, seated_counts=counts)
 
     def _estimate(self, state: GroupState, est: Estimate, t0: float) -> Estimate:
         row = {lab: i for i, lab in enumerate(state.labels)}
