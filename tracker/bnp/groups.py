@@ -54,7 +54,7 @@ from tracker.bnp.filter import BnpState, BnpTracker
 from tracker.bnp.group_hyper import arrivals_loglik_grid
 from tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from tracker.config import Fraction, PosInt, Positive, PositiveProb, Prob
+from tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
 
@@ -74,11 +74,20 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 25.0
+    within_std: Positive = 10.0
     """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
     robustness setting more than the true spread (true convoys share velocity exactly): the
     pseudo-measurement reuses information across frames, so it must not be tight (tuned on
-    ``groups`` seeds 101-106, docs/trackers.md "Two-level model")."""
+    ``groups`` and ``vo2017`` seeds 101-120, docs/trackers.md "Two-level model")."""
+    share_inflation_std: NonNeg = 0.0
+    """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
+    Cov(theta^-l); the inflation stands for the information the members already share (each
+    member's estimate holds last frame's share of the others), which the Gaussian update would
+    otherwise count again."""
+    share_prior: Literal["flat", "H2"] = "flat"
+    """Prior of the leave-one-out theta a member shares: "flat" (the NIW's kappa_0 = 0: only the
+    other members inform it; a member alone shares nothing) or H_2 (a singleton's velocity is
+    pulled towards H_2's mean 0 every frame: H_2 counted once per frame)."""
     theta_std: Positive = 30.0
     """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -319,8 +328,13 @@ _option_logw = jit(_option_logw)
 _partition_kernel = jit(_partition_kernel)
 
 
+#: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
+#: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
+_FLAT_INFORMATION = 1e-10
+
+
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
-                     init: np.ndarray, sweeps: int) -> tuple[np.ndarray, Shares]:
+                     init: np.ndarray, sweeps: int, flat_share: bool = False) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -329,7 +343,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     (:func:`urn_log_weights`) times the conjugate predictive of each block.  Returns the last
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
-    (prior H_2; :class:`Shares`).
+    (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
@@ -343,7 +357,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_p = np.zeros((L, T))
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
-    h_lam, _ = inv2(blocks[0].h_cov)
+    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2(blocks[0].h_cov)[0]
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
@@ -413,6 +427,11 @@ class GroupTracker:
         return self.config.within_std**2 * np.eye(2)
 
     @cached_property
+    def S_share(self) -> np.ndarray:
+        """The sharing pseudo-measurement's part of its covariance (``S_w`` plus the inflation)."""
+        return self.S_w + self.config.share_inflation_std**2 * np.eye(2)
+
+    @cached_property
     def h_cov(self) -> np.ndarray:
         return self.config.theta_std**2 * np.eye(2)
 
@@ -436,7 +455,7 @@ class GroupTracker:
         blocks = self._blocks(state, steps, mean[members], cov[members])
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_w)
+            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
         alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0)
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
@@ -488,7 +507,8 @@ class GroupTracker:
         init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
         if init.size == 0:
             return np.zeros(0, dtype=np.int64), Shares.empty()
-        return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps)
+        return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps,
+                                flat_share=self.config.share_prior == "flat")
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
         """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
