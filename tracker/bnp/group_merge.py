@@ -15,7 +15,7 @@ pairs kept apart:
 
 * two clusters born in the same scan (labels ``"<frame>.<m>"``) from different measurements;
 * two clusters that this scan took different measurements (the estimate's MAP assignment with
-  probability at least ``min_prob``).
+  probability at least ``min_prob``, or the measurement a cluster born this scan was born from).
 
 Every other pair merges as before (squared Mahalanobis distance at most ``max_d2`` on position
 and velocity, summed covariances; existences summing to at most 1).
@@ -34,9 +34,16 @@ def birth_frame(label: str) -> int:
     return int(head) if head.lstrip("-").isdigit() else 0
 
 
-def taken_measurements(assignments, probs, min_prob: float) -> dict[str, int]:
-    """Label -> the measurement it took this scan (MAP assignment with probability >= ``min_prob``)."""
-    return {lab: m for m, (lab, p) in enumerate(zip(assignments, probs)) if lab is not None and p >= min_prob}
+def taken_measurements(assignments, probs, min_prob: float, labels: tuple[str, ...] = (), frame: int | None = None
+                       ) -> dict[str, int]:
+    """Label -> the measurement it took this scan: the MAP assignment with probability >=
+    ``min_prob``, and for each of ``labels`` born at ``frame`` (``"<frame>.<m>"``) its measurement ``m``."""
+    taken = {lab: m for m, (lab, p) in enumerate(zip(assignments, probs)) if lab is not None and p >= min_prob}
+    prefix = f"{frame}."
+    for lab in labels:
+        if frame is not None and lab.startswith(prefix):
+            taken.setdefault(lab, int(lab[len(prefix):]))
+    return taken
 
 
 def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: np.ndarray) -> np.ndarray:

@@ -88,6 +88,9 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Prior of the leave-one-out theta a member shares: "flat" (the NIW's kappa_0 = 0: only the
     other members inform it; a member alone shares nothing) or H_2 (a singleton's velocity is
     pulled towards H_2's mean 0 every frame: H_2 counted once per frame)."""
+    turn_within_std_deg: NonNeg = 0.5
+    """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
+    (:func:`share_turn`), 0 does not."""
     theta_std: Positive = 30.0
     """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -399,6 +402,34 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
 
 
+def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
+               within_var: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each member's turn rate takes its cluster's leave-one-out turn rate as a pseudo-measurement.
+
+    The members of a cluster share one turn rate (``groups`` scene; part of theta in eq. (2)
+    [state1]); given the sample ``z``, member :math:`\ell`'s pseudo-measurement of :math:`x_4` is the
+    information-weighted mean of the *other* members' turn rates ``omega`` (variances ``var``,
+    flat prior), variance :math:`1/\sum_{j \ne \ell} \mathrm{var}_j^{-1}` + ``within_var``.
+    A member alone takes none.  ``mean`` (L, 5), ``cov`` (L, 5, 5)."""
+    if z.size < 2:
+        return mean, cov
+    info = 1.0 / var
+    tot_i = np.bincount(z, weights=info)[z] - info
+    tot_m = np.bincount(z, weights=info * omega)[z] - info * omega
+    has = tot_i > 0
+    if not has.any():
+        return mean, cov
+    mean, cov = mean.copy(), cov.copy()
+    y = tot_m[has] / tot_i[has]
+    r = 1.0 / tot_i[has] + within_var
+    P = cov[has]
+    K = P[:, :, 4] / (P[:, 4, 4] + r)[:, None]  # (n, 5)
+    mean[has] = mean[has] + K * (y - mean[has, 4])[:, None]
+    Pu = P - K[:, :, None] * P[:, 4, None, :]
+    cov[has] = 0.5 * (Pu + np.swapaxes(Pu, 1, 2))
+    return mean, cov
+
+
 @dataclass(frozen=True)
 class GroupTracker:
     """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
@@ -456,6 +487,10 @@ class GroupTracker:
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
             mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
+        if self.config.turn_within_std_deg > 0 and members.size:
+            mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
+                                                     inner.cov[members, 4, 4], z,
+                                                     np.deg2rad(self.config.turn_within_std_deg) ** 2)
         alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0)
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
@@ -474,7 +509,7 @@ class GroupTracker:
         obj = self.config.objects
         c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
         merged, renamed = merge_exclusive(c, obj.merge_distance,
-                                          taken_measurements(est.assignments, est.assignment_prob, 0.5))
+                                          taken_measurements(est.assignments, est.assignment_prob, 0.5, inner.labels, inner.frame))
         if not renamed:
             return inner, est
         inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
