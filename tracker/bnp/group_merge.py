@@ -68,7 +68,8 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tupl
     diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
     S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
     d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    keep = (d2 <= max_d2) & ~_distinct(c.labels, taken, ii, jj)
+    ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
+    keep = ~_distinct(c.labels, taken, ii, jj)  # a Python loop: only over the close pairs
     return ii[keep], jj[keep]
 
 
