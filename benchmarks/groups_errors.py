@@ -5,7 +5,8 @@ Each scan, true objects are matched to tracks within 100 m by optimal assignment
 than 5 scans since the object's first scan; a label switch: the track matched to a true object
 changes between two scans in which it is matched; a false-track scan: a track matched to no
 object ("near": within 100 m of one).  Keys: miss_grp_young, miss_grp_old, miss_free_*, false,
-false_near, false_far, switch_grp, switch_free, meanloc_* (m), ospa2x100 (OSPA(2) x 100).
+false_near, false_far, switch_grp, switch_free, meanloc_* (m), ospa2x100 (OSPA(2) x 100);
+two-level trackers: members (tracks with a cluster), in_groups (of those, in a cluster of 2+).
 
     python benchmarks/groups_errors.py ddp-mb 101 10 groups merge_distance=0
 """
@@ -62,6 +63,9 @@ def one(job) -> Counter:
             c[f"switch_{g}"] += int(i in last and last[i] != lab)
             last[i] = lab
             c[f"locerr_{g}"] += D[r, matched[r]]
+        sizes = Counter(t.cluster for t in e.tracks if t.cluster is not None)
+        c["members"] += sum(sizes.values())
+        c["in_groups"] += sum(n for n in sizes.values() if n > 1)
         for j in set(range(len(E))) - set(matched.values()):
             c["false"] += 1
             c["false_near" if len(D) and D[:, j].min() < 100.0 else "false_far"] += 1
