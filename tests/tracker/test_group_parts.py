@@ -9,7 +9,7 @@ import pytest
 from tracker.bnp.clusters import _Clusters, merge_duplicates
 from tracker.bnp.group_hyper import arrivals_loglik_grid
 from tracker.bnp.group_merge import merge_exclusive, taken_measurements
-from tracker.bnp.groups import share_turn
+from tracker.bnp.groups import Block, sample_partition, share_turn, share_velocity
 
 
 def _clusters(labels, existence, dx=5.0) -> _Clusters:
@@ -71,3 +71,18 @@ def test_share_turn_hand_computed():
     np.testing.assert_allclose(P[:, 4, 4], [5e-5, 5e-5, 1e-4])
     np.testing.assert_array_equal(m[:, :4], 0.0)
     np.testing.assert_array_equal(P[:, :4, :4], cov[:, :4, :4])
+
+
+@pytest.mark.parametrize("flat, want_vx", [(True, 20.0), (False, 20.0 - 20.0 * 64.0 / (64.0 + 100.0 + 900.0))])
+def test_a_member_alone_shares_nothing_under_the_flat_prior(flat, want_vx):
+    # one object, velocity (20, 0), P_v = 64 I, S_w = 100 I, H_2 = N(0, 900 I): its only option is a
+    # new cluster.  Flat prior (kappa_0 = 0): no other member, no pseudo-measurement.  H_2 prior: the
+    # pseudo-measurement y = 0 with covariance 900 + 100 pulls vx by the gain 64 / (64 + 100 + 900).
+    b = Block(np.array([[20.0, 0.0]]), (64.0 + 100.0) * np.eye(2)[None], np.zeros((0, 2)), np.zeros((0, 2, 2)),
+              np.zeros(2), 900.0 * np.eye(2))
+    _, shares = sample_partition(np.random.default_rng(0), [b], np.zeros(0), 1.0, 0.0, np.array([-1]), 1,
+                                 flat_share=flat)
+    mean = np.array([[0.0, 20.0, 0.0, 0.0, 0.0]])
+    cov = np.diag([100.0, 64.0, 100.0, 64.0, 1e-4])[None]
+    m, _ = share_velocity(mean, cov, shares, 100.0 * np.eye(2))
+    np.testing.assert_allclose(m[0, 1], want_vx, atol=1e-6)
