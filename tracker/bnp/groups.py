@@ -1,8 +1,9 @@
 r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp-groups``, ``dpyp-groups``).
 
 :class:`GroupTracker` wraps a :class:`tracker.bnp.filter.BnpTracker` (the measurement ->
-object level, unchanged: its clusters are objects, its customers measurements) and adds the
-object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
+object level: its clusters are objects, its customers measurements; its merge of duplicates is
+replaced by one that never merges two objects of one scan, :mod:`tracker.bnp.group_merge`) and
+adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
 
 * **Clusters** are groups of objects that share motion.  A cluster's parameter
   :math:`\theta_c` is the velocity :math:`(v_x, v_y)` its members share (eqs. (2), (4)
@@ -26,12 +27,14 @@ object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-l
   transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
   :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
   :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
-* :math:`(\alpha_2, d)` on a grid (:func:`tracker.bnp.urn.frame_loglik_grid`) with Gamma priors.
+* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: each object's Pitman-Yor seat
+  once, when it enters the partition (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
 * **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
   each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
-  :math:`\theta` (the other current members, prior :math:`H_2`) with covariance
-  :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`, moment-matched over the last sweep's full
-  conditional of its label (:func:`share_velocity`), before the next prediction.
+  :math:`\theta` (the other current members, flat prior: the NIW's :math:`\kappa_0 = 0`; a
+  member alone shares nothing) with covariance :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`,
+  moment-matched over the last sweep's full conditional of its label (:func:`share_velocity`);
+  its turn rate takes the other members' (:func:`share_turn`); both before the next prediction.
 
 The state (:class:`GroupState`) is flat plain data (the inner tracker's fields plus the
 cluster level), so :mod:`tracker.state` snapshots it exactly.
