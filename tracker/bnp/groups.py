@@ -1,8 +1,9 @@
 r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp-groups``, ``dpyp-groups``).
 
 :class:`GroupTracker` wraps a :class:`tracker.bnp.filter.BnpTracker` (the measurement ->
-object level, unchanged: its clusters are objects, its customers measurements) and adds the
-object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
+object level: its clusters are objects, its customers measurements; its merge of duplicates is
+replaced by one that never merges two objects of one scan, :mod:`tracker.bnp.group_merge`) and
+adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-level model"):
 
 * **Clusters** are groups of objects that share motion.  A cluster's parameter
   :math:`\theta_c` is the velocity :math:`(v_x, v_y)` its members share (eqs. (2), (4)
@@ -26,12 +27,14 @@ object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md``, "Two-l
   transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
   :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
   :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
-* :math:`(\alpha_2, d)` on a grid (:func:`tracker.bnp.urn.frame_loglik_grid`) with Gamma priors.
+* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: each object's Pitman-Yor seat
+  once, when it enters the partition (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
 * **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
   each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
-  :math:`\theta` (the other current members, prior :math:`H_2`) with covariance
-  :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`, moment-matched over the last sweep's full
-  conditional of its label (:func:`share_velocity`), before the next prediction.
+  :math:`\theta` (the other current members, flat prior: the NIW's :math:`\kappa_0 = 0`; a
+  member alone shares nothing) with covariance :math:`S_w + \mathrm{Cov}(\theta_c^{-\ell})`,
+  moment-matched over the last sweep's full conditional of its label (:func:`share_velocity`);
+  its turn rate takes the other members' (:func:`share_turn`); both before the next prediction.
 
 The state (:class:`GroupState`) is flat plain data (the inner tracker's fields plus the
 cluster level), so :mod:`tracker.state` snapshots it exactly.
@@ -40,17 +43,21 @@ cluster level), so :mod:`tracker.state` snapshots it exactly.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
+from typing import Literal
 
 import msgspec
 import numpy as np
 
 from tracker._numerics import jit
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from tracker.bnp.clusters import _Clusters
 from tracker.bnp.filter import BnpState, BnpTracker
+from tracker.bnp.group_hyper import arrivals_loglik_grid
+from tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from tracker.config import Fraction, PosInt, Positive, PositiveProb, Prob
+from tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
 
@@ -64,13 +71,29 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     objects: BnpConfig = BnpConfig()
     """Measurement -> object level (the single-level DDP-EMM's settings)."""
+    merge: Literal["exclusive", "objects"] = "exclusive"
+    """How duplicate objects merge (distance ``objects.merge_distance``): "exclusive" never merges
+    two objects that explain different measurements of one scan (:mod:`tracker.bnp.group_merge`;
+    members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 25.0
+    within_std: Positive = 10.0
     """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
     robustness setting more than the true spread (true convoys share velocity exactly): the
     pseudo-measurement reuses information across frames, so it must not be tight (tuned on
-    ``groups`` seeds 101-106, docs/trackers.md "Two-level model")."""
+    ``groups`` and ``vo2017`` seeds 101-120, docs/trackers.md "Two-level model")."""
+    share_inflation_std: NonNeg = 0.0
+    """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
+    Cov(theta^-l); the inflation stands for the information the members already share (each
+    member's estimate holds last frame's share of the others), which the Gaussian update would
+    otherwise count again."""
+    share_prior: Literal["flat", "H2"] = "flat"
+    """Prior of the leave-one-out theta a member shares: "flat" (the NIW's kappa_0 = 0: only the
+    other members inform it; a member alone shares nothing) or H_2 (a singleton's velocity is
+    pulled towards H_2's mean 0 every frame: H_2 counted once per frame)."""
+    turn_within_std_deg: NonNeg = 0.5
+    """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
+    (:func:`share_turn`), 0 does not."""
     theta_std: Positive = 30.0
     """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -98,6 +121,9 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_scale: Positive = 0.1
     infer_d: bool = False
     hyper_forgetting: PositiveProb = 0.98
+    hyper_likelihood: Literal["arrivals", "reseat"] = "arrivals"
+    """What (alpha_2, d) are inferred from: each object's seat once, when it enters the partition
+    (the Pitman-Yor EPPF, :mod:`tracker.bnp.group_hyper`), or every frame's re-seating ("reseat")."""
 
 
 GROUP_PRESETS: dict[str, GroupConfig] = {
@@ -308,8 +334,13 @@ _option_logw = jit(_option_logw)
 _partition_kernel = jit(_partition_kernel)
 
 
+#: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
+#: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
+_FLAT_INFORMATION = 1e-10
+
+
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
-                     init: np.ndarray, sweeps: int) -> tuple[np.ndarray, Shares]:
+                     init: np.ndarray, sweeps: int, flat_share: bool = False) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -318,7 +349,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     (:func:`urn_log_weights`) times the conjugate predictive of each block.  Returns the last
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
-    (prior H_2; :class:`Shares`).
+    (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
@@ -332,7 +363,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_p = np.zeros((L, T))
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
-    h_lam, _ = inv2(blocks[0].h_cov)
+    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2(blocks[0].h_cov)[0]
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
@@ -374,6 +405,34 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
 
 
+def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
+               within_var: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each member's turn rate takes its cluster's leave-one-out turn rate as a pseudo-measurement.
+
+    The members of a cluster share one turn rate (``groups`` scene; part of theta in eq. (2)
+    [state1]); given the sample ``z``, member :math:`\ell`'s pseudo-measurement of :math:`x_4` is the
+    information-weighted mean of the *other* members' turn rates ``omega`` (variances ``var``,
+    flat prior), variance :math:`1/\sum_{j \ne \ell} \mathrm{var}_j^{-1}` + ``within_var``.
+    A member alone takes none.  ``mean`` (L, 5), ``cov`` (L, 5, 5)."""
+    if z.size < 2:
+        return mean, cov
+    info = 1.0 / var
+    tot_i = np.bincount(z, weights=info)[z] - info
+    tot_m = np.bincount(z, weights=info * omega)[z] - info * omega
+    has = tot_i > 0
+    if not has.any():
+        return mean, cov
+    mean, cov = mean.copy(), cov.copy()
+    y = tot_m[has] / tot_i[has]
+    r = 1.0 / tot_i[has] + within_var
+    P = cov[has]
+    K = P[:, :, 4] / (P[:, 4, 4] + r)[:, None]  # (n, 5)
+    mean[has] = mean[has] + K * (y - mean[has, 4])[:, None]
+    Pu = P - K[:, :, None] * P[:, 4, None, :]
+    cov[has] = 0.5 * (Pu + np.swapaxes(Pu, 1, 2))
+    return mean, cov
+
+
 @dataclass(frozen=True)
 class GroupTracker:
     """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
@@ -384,7 +443,10 @@ class GroupTracker:
 
     @cached_property
     def objects(self) -> BnpTracker:
-        return BnpTracker(self.params, self.config.objects, self.name)
+        """The object level; with ``merge == "exclusive"`` its own merge is off (done in :meth:`_merge`)."""
+        cfg = self.config
+        objects = msgspec.structs.replace(cfg.objects, merge_distance=0.0) if cfg.merge == "exclusive" else cfg.objects
+        return BnpTracker(self.params, objects, self.name)
 
     @cached_property
     def alpha_grid(self) -> np.ndarray:
@@ -397,6 +459,11 @@ class GroupTracker:
     @cached_property
     def S_w(self) -> np.ndarray:
         return self.config.within_std**2 * np.eye(2)
+
+    @cached_property
+    def S_share(self) -> np.ndarray:
+        """The sharing pseudo-measurement's part of its covariance (``S_w`` plus the inflation)."""
+        return self.S_w + self.config.share_inflation_std**2 * np.eye(2)
 
     @cached_property
     def h_cov(self) -> np.ndarray:
@@ -413,6 +480,8 @@ class GroupTracker:
         t0 = time.perf_counter()
         steps = 1 if state.frame < 0 else frame.frame - state.frame
         inner, est = self.objects.step(state.inner(), frame, rng)
+        if self.config.merge == "exclusive":
+            inner, est = self._merge(inner, est)
         members = np.flatnonzero(inner.existence >= self.config.member_existence)
         prev = dict(zip(state.labels, state.cluster.tolist()))
         init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
@@ -420,8 +489,12 @@ class GroupTracker:
         blocks = self._blocks(state, steps, mean[members], cov[members])
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_w)
-        alpha2, d2, hyper2 = self._hyper(state, z)
+            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
+        if self.config.turn_within_std_deg > 0 and members.size:
+            mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
+                                                     inner.cov[members, 4, 4], z,
+                                                     np.deg2rad(self.config.turn_within_std_deg) ** 2)
+        alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0)
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
@@ -432,6 +505,24 @@ class GroupTracker:
         return new_state, self._estimate(new_state, est, t0)
 
     # -- pieces ---------------------------------------------------------------------------
+    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate]:
+        """The object level's duplicates merged without merging objects of one scan
+        (:func:`tracker.bnp.group_merge.merge_exclusive`); the estimate's tracks re-read at the
+        object level's threshold and its assignments renamed to the merged labels."""
+        obj = self.config.objects
+        c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
+        merged, renamed = merge_exclusive(c, obj.merge_distance,
+                                          taken_measurements(est.assignments, est.assignment_prob, 0.5, inner.labels, inner.frame))
+        if not renamed:
+            return inner, est
+        inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
+                        existence=merged.existence, popularity=merged.popularity)
+        tracks = tuple(TrackEstimate(lab, inner.mean[i].copy(), inner.cov[i].copy(), float(inner.existence[i]))
+                       for i, lab in enumerate(inner.labels) if inner.existence[i] > obj.existence_threshold)
+        assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
+        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
+        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag)
+
     def _blocks(self, state: GroupState, steps: int, mean: np.ndarray, cov: np.ndarray) -> list[Block]:
         r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
         random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
@@ -454,7 +545,8 @@ class GroupTracker:
         init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
         if init.size == 0:
             return np.zeros(0, dtype=np.int64), Shares.empty()
-        return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps)
+        return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps,
+                                flat_share=self.config.share_prior == "flat")
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
         """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
@@ -481,17 +573,17 @@ class GroupTracker:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
 
-    def _hyper(self, state: GroupState, z: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(alpha_2, d) on the grid given the frame's object partition (tracker.bnp.urn.frame_loglik_grid)."""
+    def _hyper(self, state: GroupState, z: np.ndarray, arrived: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d) on the grid given the frame's object partition: the arrivals' Pitman-Yor
+        predictive (:func:`tracker.bnp.group_hyper.arrivals_loglik_grid`) or the re-seating
+        (:func:`tracker.bnp.urn.frame_loglik_grid`); ``arrived``: members new to the partition."""
         cfg = self.config
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik
-        G = state.group_ids.size
-        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
-        n_new = int(np.unique(z[z >= G]).size)
-        frame_ll = frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
-                                     mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size), n_new=n_new,
-                                     seated_popularity=state.group_count, seated_counts=counts)
+        if cfg.hyper_likelihood == "arrivals":
+            frame_ll = arrivals_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
+        else:
+            frame_ll = self._reseat_loglik(state, z)
         hyper = cfg.hyper_forgetting * state.hyper2_loglik + frame_ll
         log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
                             + np.log(self.alpha_grid))[:, None]
@@ -499,6 +591,15 @@ class GroupTracker:
             log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
         return alpha, d, hyper
+
+    def _reseat_loglik(self, state: GroupState, z: np.ndarray) -> np.ndarray:
+        """Every member's seat of this frame counted (objects as customers, clusters as tables)."""
+        G = state.group_ids.size
+        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
+        n_new = int(np.unique(z[z >= G]).size)
+        return frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
+                                 mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size),
+                                 n_new=n_new, seated_popularity=state.group_count, seated_counts=counts)
 
     def _estimate(self, state: GroupState, est: Estimate, t0: float) -> Estimate:
         row = {lab: i for i, lab in enumerate(state.labels)}

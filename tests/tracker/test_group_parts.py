@@ -1,0 +1,88 @@
+"""Parts of the two-level tracker added in issue 14's second session: the exclusive merge, the
+arrivals' Pitman-Yor likelihood of (alpha_2, d) and the shared turn rate (hand-computed values)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker.bnp.clusters import _Clusters, merge_duplicates
+from tracker.bnp.group_hyper import arrivals_loglik_grid
+from tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from tracker.bnp.groups import Block, sample_partition, share_turn, share_velocity
+
+
+def _clusters(labels, existence, dx=5.0) -> _Clusters:
+    n = len(labels)
+    mean = np.zeros((n, 5))
+    mean[:, 0] = dx * np.arange(n)  # 5 m apart, covariance 100 I: well within merge distance 9
+    return _Clusters(tuple(labels), mean, np.stack([100.0 * np.eye(5)] * n), np.array(existence), np.ones(n))
+
+
+def test_two_newborns_of_one_scan_are_never_merged():
+    c = _clusters(["5.0", "5.1"], [0.4, 0.3])
+    assert len(merge_duplicates(c, 9.0).labels) == 1  # the object level folds them into one
+    merged, renamed = merge_exclusive(c, 9.0, {})
+    assert merged.labels == ("5.0", "5.1") and renamed == {}
+
+
+def test_a_newborn_merges_into_an_older_cluster_unless_they_took_different_measurements():
+    c = _clusters(["3.2", "5.0", "5.1"], [0.5, 0.4, 0.3])
+    merged, renamed = merge_exclusive(c, 9.0, {})
+    # leader 3.2 (0.5) absorbs 5.0 (0.4; sum 0.9); 5.1 would exceed 1 and stays
+    assert merged.labels == ("3.2", "5.1") and renamed == {"5.0": "3.2"}
+    np.testing.assert_allclose(merged.existence, [0.9, 0.3])
+    np.testing.assert_allclose(merged.mean[0, 0], (0.5 * 0.0 + 0.4 * 5.0) / 0.9)
+    # scan 5: 5.0 and 5.1 were born from measurements 0 and 1; 3.2 took measurement 2
+    taken = taken_measurements([None, None, "3.2"], [0.8, 0.7, 0.9], 0.5, c.labels, 5)
+    assert taken == {"3.2": 2, "5.0": 0, "5.1": 1}
+    merged, renamed = merge_exclusive(c, 9.0, taken)  # three measurements, three objects
+    assert merged.labels == ("3.2", "5.0", "5.1") and renamed == {}
+    assert taken_measurements([None, None, "3.2"], [0.8, 0.7, 0.4], 0.5) == {}  # below min_prob
+
+
+@pytest.mark.parametrize("alpha, d", [(0.7, 0.3), (2.0, 0.0), (0.1, 0.9)])
+def test_arrivals_likelihood_is_the_pitman_yor_eppf(alpha, d):
+    # five objects arrive: tables sizes 2 and 3; EPPF = (a + d) / ((a+1)(a+2)(a+3)(a+4)) (1-d) (1-d)(2-d)
+    z = np.array([0, 0, 1, 1, 1])
+    got = arrivals_loglik_grid(np.array([alpha]), np.array([d]), z, np.ones(5, dtype=bool))
+    eppf = (alpha + d) / ((alpha + 1) * (alpha + 2) * (alpha + 3) * (alpha + 4)) * (1 - d) * (1 - d) * (2 - d)
+    np.testing.assert_allclose(got, [np.log(eppf)])
+
+
+def test_arrivals_are_seated_after_the_members_already_there():
+    # object 0 already at table 0; 1 joins it: (1 - d) / (a + 1); 2 opens a table: (a + d K) / (a + 2), K = 1
+    a, d = np.array([[0.5], [3.0]]), np.array([[0.0, 0.4]])
+    got = arrivals_loglik_grid(a, d, np.array([0, 0, 7]), np.array([False, True, True]))
+    want = np.log((1 - d) / (a + 1)) + np.log((a + d) / (a + 2))
+    np.testing.assert_allclose(got, want)
+    # nobody new: no information about (alpha, d)
+    np.testing.assert_array_equal(arrivals_loglik_grid(a, d, np.array([0, 0, 1]), np.zeros(3, dtype=bool)), 0.0)
+
+
+def test_share_turn_hand_computed():
+    # members 0 and 1 in one cluster (turn 0.01 and 0.03 rad/s, variance 1e-4 each), 2 alone:
+    # 0 takes y = 0.03 with r = 1e-4 (+ within 0): gain 1/2 -> 0.02, variance 5e-5; 1 likewise; 2 unchanged
+    mean = np.zeros((3, 5))
+    mean[:, 4] = [0.01, 0.03, 0.05]
+    cov = np.stack([np.diag([1.0, 1.0, 1.0, 1.0, 1e-4])] * 3)
+    m, P = share_turn(mean, cov, mean[:, 4], cov[:, 4, 4], np.array([0, 0, 1]), 0.0)
+    np.testing.assert_allclose(m[:, 4], [0.02, 0.02, 0.05])
+    np.testing.assert_allclose(P[:, 4, 4], [5e-5, 5e-5, 1e-4])
+    np.testing.assert_array_equal(m[:, :4], 0.0)
+    np.testing.assert_array_equal(P[:, :4, :4], cov[:, :4, :4])
+
+
+@pytest.mark.parametrize("flat, want_vx", [(True, 20.0), (False, 20.0 - 20.0 * 64.0 / (64.0 + 100.0 + 900.0))])
+def test_a_member_alone_shares_nothing_under_the_flat_prior(flat, want_vx):
+    # one object, velocity (20, 0), P_v = 64 I, S_w = 100 I, H_2 = N(0, 900 I): its only option is a
+    # new cluster.  Flat prior (kappa_0 = 0): no other member, no pseudo-measurement.  H_2 prior: the
+    # pseudo-measurement y = 0 with covariance 900 + 100 pulls vx by the gain 64 / (64 + 100 + 900).
+    b = Block(np.array([[20.0, 0.0]]), (64.0 + 100.0) * np.eye(2)[None], np.zeros((0, 2)), np.zeros((0, 2, 2)),
+              np.zeros(2), 900.0 * np.eye(2))
+    _, shares = sample_partition(np.random.default_rng(0), [b], np.zeros(0), 1.0, 0.0, np.array([-1]), 1,
+                                 flat_share=flat)
+    mean = np.array([[0.0, 20.0, 0.0, 0.0, 0.0]])
+    cov = np.diag([100.0, 64.0, 100.0, 64.0, 1e-4])[None]
+    m, _ = share_velocity(mean, cov, shares, 100.0 * np.eye(2))
+    np.testing.assert_allclose(m[0, 1], want_vx, atol=1e-6)
