@@ -7,7 +7,8 @@ from typing import Any
 
 import rerun.blueprint as rrb
 
-from sinks.rerun_style import CARDINALITY, DIAG_NAMES, DIAGNOSTICS, EVENTS, HEALTH, METADATA, OSPA, OSPA2, WORLD
+from sinks.rerun_style import (CARDINALITY, DIAG_NAMES, DIAGNOSTICS, EVENTS, HEALTH, METADATA, OSPA, OSPA2, STRUCTURE,
+                               WORLD)
 
 __all__ = ["default_blueprint"]
 
@@ -16,7 +17,8 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(DIAG_NAMES), health:
                       scene_bounds: tuple[float, float, float, float] | None = None,
                       truth: bool = True) -> rrb.Blueprint:
     """The layout a recording opens with: the 2-D scene (3/5 of the width) and, beside it,
-    cardinality, OSPA / OSPA(2) and a tab group (tracker diagnostics, pipeline health, events,
+    cardinality, the structure (clusters and the posterior cardinality's mean and MAP), OSPA /
+    OSPA(2) and a tab group (tracker diagnostics, pipeline health, events,
     run metadata).  ``scene_bounds`` = ``(x_min, x_max, y_min, y_max)`` in metres.  Without
     ``truth`` (a log without ground truth) there is no OSPA panel (it would stay empty) and the
     cardinality panel shows the number of tracks alone.
@@ -39,7 +41,7 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(DIAG_NAMES), health:
             rrb.Spatial2DView(origin="/", contents=f"{WORLD}/**", name="scene (x east, y north, m)",
                               **scene_kw),
             rrb.Vertical(*_metric_views(truth), rrb.Tabs(*tabs, active_tab=0),
-                         row_shares=[1.0, 1.0, 1.1] if truth else [1.0, 2.1]),
+                         row_shares=[1.0, 1.0, 1.0, 1.1] if truth else [1.0, 1.0, 2.1]),
             column_shares=[3.0, 2.0],
         ),
         rrb.BlueprintPanel(state="collapsed"),
@@ -49,7 +51,8 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(DIAG_NAMES), health:
 
 
 def _metric_views(truth: bool) -> list[Any]:
+    structure = rrb.TimeSeriesView(origin=STRUCTURE, name="clusters; posterior cardinality mean and MAP")
     if not truth:
-        return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)")]
-    return [rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true"),
+        return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)"), structure]
+    return [rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true"), structure,
             rrb.TimeSeriesView(origin="metrics", contents=[OSPA, OSPA2], name="OSPA (c=100 m, p=1) and OSPA(2)")]

@@ -10,10 +10,10 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from sinks.rerun_style import R_ELLIPSE, R_TRACK, R_TRAIL
+from sinks.rerun_style import R_CLUSTER_CENTRE, R_CLUSTER_LINK, R_ELLIPSE, R_TRACK, R_TRAIL
 
-__all__ = ["Batch", "Schema", "send", "log_arrays", "entity_part", "track_style", "annotation_context",
-           "scalar_columns"]
+__all__ = ["Batch", "Schema", "send", "log_arrays", "entity_part", "track_style", "track_colours", "cluster_style",
+           "annotation_context", "scalar_columns"]
 
 
 class Batch:
@@ -114,19 +114,41 @@ def entity_part(part: str) -> str:
     return rr.escape_entity_path_part(part)
 
 
-def track_style(packed: int, name: str) -> dict[str, pa.Array]:
-    """The static style of a track's entity: its colour (``packed`` RGBA; the ellipse a little
-    transparent), short name, sizes and draw order."""
+def track_style(name: str) -> dict[str, pa.Array]:
+    """The static style of a track's entity: short name, sizes and draw order.  Its colours are
+    temporal (:func:`track_colours`): a track of a two-level tracker takes its cluster's colour,
+    which changes with the cluster (a static colour would shadow them)."""
     return {
-        "Points2D:colors": pa.array([packed], type=pa.uint32()),
         "Points2D:labels": pa.array([name], type=pa.string()),
         "Points2D:radii": pa.array([R_TRACK], type=pa.float32()),
         "Points2D:show_labels": pa.array([True], type=pa.bool_()),
         "Points2D:draw_order": pa.array([5.0], type=pa.float32()),
-        "LineStrips2D:colors": pa.array([packed, (packed & 0xFFFFFF00) | 170], type=pa.uint32()),
         "LineStrips2D:radii": pa.array([R_TRAIL, R_ELLIPSE], type=pa.float32()),
         "LineStrips2D:show_labels": pa.array([False], type=pa.bool_()),
         "LineStrips2D:draw_order": pa.array([4.0], type=pa.float32()),
+    }
+
+
+def track_colours(packed: np.ndarray) -> list[tuple[str, pa.Array, np.ndarray]]:
+    """The colour columns of a track's rows (``packed`` (W,) RGBA, one per frame): the point's
+    and the trail's, and the ellipse's a little transparent."""
+    packed = np.asarray(packed, dtype=np.uint32)
+    strips = np.stack([packed, (packed & np.uint32(0xFFFFFF00)) | np.uint32(170)], axis=1).reshape(-1)
+    W = packed.size
+    return [("Points2D:colors", pa.array(packed, type=pa.uint32()), np.ones(W, dtype=np.int64)),
+            ("LineStrips2D:colors", pa.array(strips, type=pa.uint32()), np.full(W, 2))]
+
+
+def cluster_style() -> dict[str, pa.Array]:
+    """The static style of ``world/clusters``: centroid size and labels shown, thin links, drawn
+    under the tracks."""
+    return {
+        "Points2D:radii": pa.array([R_CLUSTER_CENTRE], type=pa.float32()),
+        "Points2D:show_labels": pa.array([True], type=pa.bool_()),
+        "Points2D:draw_order": pa.array([3.0], type=pa.float32()),
+        "LineStrips2D:radii": pa.array([R_CLUSTER_LINK], type=pa.float32()),
+        "LineStrips2D:show_labels": pa.array([False], type=pa.bool_()),
+        "LineStrips2D:draw_order": pa.array([3.0], type=pa.float32()),
     }
 
 

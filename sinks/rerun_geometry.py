@@ -16,7 +16,7 @@ import numpy as np
 from sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
 __all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses",
-           "measurement_xy", "hits_per_row", "track_strips",
+           "measurement_xy", "hits_per_row", "assignment_index", "track_strips",
            "truth_trails", "EMPTY2", "EMPTY22", "EMPTY_U16", "EMPTY_U32"]
 
 EMPTY2 = np.zeros((0, 2))
@@ -190,3 +190,14 @@ def truth_trails(rows: Sequence[tuple[Sequence[str], np.ndarray]], history: Mapp
     live = set(rows[-1][0])
     kept = {tid: f[max(f.shape[0] - keep, 0):] for tid, f in full.items() if tid in live and keep} if keep else {}
     return pts, lengths, kept
+
+
+def assignment_index(M: int, assigned: Any, labels: tuple[str, ...]) -> np.ndarray | None:
+    """``(M,)`` index into ``labels`` of the track each measurement was assigned to (-1:
+    clutter), or ``None`` when the estimate has no assignments for the ``M`` measurements."""
+    if not (len(assigned) == M and M):
+        return None
+    if not labels:
+        return np.full(M, -1, dtype=np.int64)
+    index = {lab: i for i, lab in enumerate(labels)}
+    return np.fromiter((-1 if a is None else index.get(a, -1) for a in assigned), dtype=np.int64, count=M)

@@ -20,6 +20,7 @@ against the tracker's own; see docs/rerun.md.
 
 The parts: :mod:`sinks.rerun_style` (entity paths, colours, sizes), :mod:`sinks.rerun_geometry`
 (ellipses, trails, crosses, rings: numpy), :mod:`sinks.rerun_columns` (ready Arrow columns),
+:mod:`sinks.rerun_clusters` (colours by motion cluster, cluster links, the structure series),
 :mod:`sinks.rerun_scene` (static content), :mod:`sinks.rerun_blueprint` (the layout),
 :mod:`sinks.rerun_tools` (the ``rerun`` CLI: verify, repair; analytics off) and
 :mod:`sinks.rerun_process` (the recording in a child process).
@@ -43,12 +44,13 @@ import rerun as rr
 from sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
 from sinks.close_on_signal import CloseOnSignal
 from sinks.rerun_blueprint import default_blueprint
-from sinks.rerun_columns import (Schema, annotation_context, entity_part, log_arrays, scalar_columns, send,
-                                 track_style)
-from sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, hits_per_row, measurement_xy,
-                                  track_strips, truth_crosses, truth_trails)
+from sinks.rerun_clusters import ClusterColours, cluster_columns, structure_rows, track_clusters
+from sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
+                                 send, track_colours, track_style)
+from sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
+                                  measurement_xy, track_strips, truth_crosses, truth_trails)
 from sinks.rerun_scene import write_static
-from sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
+from sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
                                FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, MEASUREMENTS, OSPA,
                                OSPA2, R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_RING, RINGS,
                                SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
@@ -73,7 +75,8 @@ class _Rec(NamedTuple):
     pos: np.ndarray  # (n, 2) track positions
     cov: np.ndarray  # (n, 2, 2) position covariances
     tcls: np.ndarray  # (n,) class ids of the tracks
-    tcol: np.ndarray  # (n,) packed colours of the tracks
+    tcol: np.ndarray  # (n,) packed colours of the tracks (their cluster's, else their label's)
+    ccl: np.ndarray  # (n,) motion cluster of the tracks (-1: none)
     kind: str
     z: np.ndarray  # (M, d) measurements
     idx: np.ndarray | None  # (M,) index of the assigned track, -1 clutter; None: no assignments
@@ -182,6 +185,7 @@ class RerunSink:
         self._meas_models: dict[str, Any] = {}
         self._context_logged = False
         self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
+        self._cc = ClusterColours()
 
     # -- public ------------------------------------------------------------------------
     @property
@@ -218,8 +222,8 @@ class RerunSink:
             elif not self._context_logged:  # the context is temporal (static would shadow it)
                 self._at(k, t)
                 self._log_context()
-            pos, cov, tcls, tcol = self._track_arrays(tracks, labels)
-            idx = _assignment_index(frame.n_measurements, estimate.assignments, labels)
+            pos, cov, tcls, tcol, ccl = self._track_arrays(tracks, labels)
+            idx = assignment_index(frame.n_measurements, estimate.assignments, labels)
             truth = frame.truth
             if truth is not None:
                 if set(truth.ids) != self._truth_live:
@@ -227,7 +231,7 @@ class RerunSink:
                 tids, tpos = truth.ids, truth.positions
             else:
                 tids = tpos = None
-            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, frame.kind, frame.z, idx,
+            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, frame.kind, frame.z, idx,
                                      tids, tpos))
             self._log_scalars(k, t, frame, estimate, ospa, ospa2, health)
             self._prev_frame = k
@@ -235,17 +239,18 @@ class RerunSink:
                 self.flush(wait=False)
 
     def _track_arrays(self, tracks: Any, labels: tuple[str, ...]) -> tuple[np.ndarray, ...]:
-        """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids and packed colours
-        of the frame's tracks."""
+        """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids, packed colours
+        (:mod:`sinks.rerun_clusters`) and motion clusters of the frame's tracks."""
         if not labels:
-            return EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32
+            return EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, track_clusters(())
         states = np.stack([tr.state for tr in tracks])
         pos = states[:, 0:3:2]
         cov = np.stack([tr.covariance for tr in tracks])[:, 0:3:2, 0:3:2]
         cls_of, col_of = self._class, self._colors
         tcls = np.array([cls_of[lab] for lab in labels], dtype=np.uint16)
-        tcol = np.array([col_of[lab] for lab in labels], dtype=np.uint32)
-        return pos, cov, tcls, tcol
+        ccl = track_clusters(tracks)
+        tcol = self._cc.frame_colours(ccl, np.array([col_of[lab] for lab in labels], dtype=np.uint32))
+        return pos, cov, tcls, tcol, ccl
 
     def flush(self, *, wait: bool = False) -> None:
         """Send the kept frames to the file now (``wait``: until they are written)."""
@@ -349,7 +354,7 @@ class RerunSink:
             packed = pack_rgba(rgba)
             if self._colors.get(lab) != packed:  # static style: fixed for the label's life
                 self._colors[lab] = packed
-                self._log_arrays(self._track_path(lab), track_style(packed, name), static=True)
+                self._log_arrays(self._track_path(lab), track_style(name), static=True)
             self._event(f"track {name} born (label {lab})")
         self._live = now
         if born:  # new classes: re-log the context, with the live labels only
@@ -379,6 +384,8 @@ class RerunSink:
                 (k, t, [float(ospa.total), float(ospa.localisation), float(ospa.cardinality)]))
         if ospa2 is not None:
             keep.setdefault(OSPA2, []).append((k, t, [float(ospa2)]))
+        for entity, values in structure_rows(estimate, self._frames[-1].ccl, self._cc.seen):
+            keep.setdefault(entity, []).append((k, t, values))
         paths = self._paths
         for key, value in estimate.diagnostics.items():
             entity = paths.get(("diag", key))
@@ -409,6 +416,7 @@ class RerunSink:
             self._send_tracks(frames, clears)
             self._send_measurements(frames)
             self._send_truth(frames)
+            self._send_clusters(frames)
         for entity, rows in scalars.items():
             self._send(entity, *scalar_columns(rows))
         for path, k, t in clears:
@@ -418,21 +426,22 @@ class RerunSink:
     def _send_tracks(self, frames: list[_Rec], clears: list[tuple[str, int, int]]) -> None:
         s = self._s
         # group the kept frames by label, in order
-        per: dict[str, tuple[list[int], list[int], list[np.ndarray], list[np.ndarray]]] = {}
+        per: dict[str, tuple[list[Any], ...]] = {}
         for r in frames:
             for i, lab in enumerate(r.labels):
                 g = per.get(lab)
                 if g is None:
-                    g = per[lab] = ([], [], [], [])
+                    g = per[lab] = ([], [], [], [], [])
                 g[0].append(r.k)
                 g[1].append(r.t)
                 g[2].append(r.pos[i])
                 g[3].append(r.cov[i])
+                g[4].append(r.tcol[i])
         # a label that ended (Clear) and came back starts a new trail after the clear
         cleared: dict[str, list[int]] = {}
         for path, k, _t in clears:
             cleared.setdefault(path, []).append(k)
-        for lab, (ks, ts, ps, cs) in per.items():
+        for lab, (ks, ts, ps, cs, cols) in per.items():
             path = self._track_path(lab)
             P = np.array(ps)
             kk = np.asarray(ks, dtype=np.int64)
@@ -443,9 +452,21 @@ class RerunSink:
             self._send(path, kk, np.asarray(ts), [
                 ("Points2D:positions", s.positions(P), np.ones(W, dtype=np.int64)),
                 ("LineStrips2D:strips", s.strip_array(pts, lengths), np.full(W, 2)),
+                *track_colours(np.array(cols, dtype=np.uint32)),
             ])
         for lab in [lab for lab in self._history if lab not in self._live]:
             del self._history[lab]
+
+    def _send_clusters(self, frames: list[_Rec]) -> None:
+        """``world/clusters`` of the kept frames, once a frame has had a motion cluster."""
+        if not self._cc.seen:
+            return
+        if CLUSTERS not in self._styled:
+            self._log_arrays(CLUSTERS, cluster_style(), static=True)
+            self._styled.add(CLUSTERS)
+        ks, ts = np.array([(r.k, r.t) for r in frames], dtype=np.int64).T
+        for comps in cluster_columns(self._s, frames):
+            self._send(CLUSTERS, ks, ts, comps)
 
     def _measurement_model(self, kind: str) -> Any:
         model = self._meas_models.get(kind)
@@ -554,17 +575,6 @@ class RerunSink:
         pts, lengths, self._truth_history = truth_trails(
             [(r.truth_ids, r.truth_pos) for r in rows], self._truth_history, self.trail)
         self._send(TRUTH_TRAILS, ks, ts, [("LineStrips2D:strips", s.strip_array(pts, lengths), counts)])
-
-def _assignment_index(M: int, assigned: Any, labels: tuple[str, ...]) -> np.ndarray | None:
-    """``(M,)`` index into ``labels`` of the track each measurement was assigned to (-1:
-    clutter), or ``None`` when the estimate has no assignments for the ``M`` measurements."""
-    if not (len(assigned) == M and M):
-        return None
-    if not labels:
-        return np.full(M, -1, dtype=np.int64)
-    index = {lab: i for i, lab in enumerate(labels)}
-    return np.fromiter((-1 if a is None else index.get(a, -1) for a in assigned), dtype=np.int64, count=M)
-
 
 def write_recording(
     path: str | os.PathLike,

@@ -13,12 +13,18 @@ Entity tree (``world`` is drawn with +y up; positions in metres, sensor at the o
     world/assignments          LineStrips2D measurement -> assigned track estimate
     world/tracks/<label>       Points2D (position, short name T1, T2, ... in order of
                                confirmation) + LineStrips2D (trail, 2-sigma
-                               ellipse); cleared (rr.Clear) when the label ends
+                               ellipse); cleared (rr.Clear) when the label ends.  Colour per
+                               frame: the track's motion cluster's when it has one, else its label's
+    world/clusters             motion clusters with two or more reported members: Points2D at the
+                               members' centroid ("C<id> (n)") + LineStrips2D centroid -> member
     world/truth                LineStrips2D grey crosses (when the source has truth)
     world/truth/trails         LineStrips2D thin grey trails of the true objects
     metrics/cardinality        Scalars [estimated, true]
     metrics/ospa               Scalars [total, localisation, cardinality]
     metrics/ospa2              Scalars [total]
+    metrics/structure/clusters     Scalars [distinct clusters of the reported tracks] (from the
+                                   first frame with a cluster on)
+    metrics/structure/cardinality  Scalars [mean, MAP] of the frame's cardinality_pmf
     diagnostics/<key>          Scalars, one per tracker diagnostic (alpha, d, n_clusters, ...)
     health/<key>               Scalars, pipeline health counters when given
     events                     TextLog: track and truth births and ends
@@ -30,7 +36,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterable, Sequence
 
-__all__ = ["label_color", "pack_rgba", "unpack_rgba", "PALETTE", "MIN_COLOR_DISTANCE", "SERIES", "DIAG_NAMES"]
+__all__ = ["label_color", "cluster_color", "pack_rgba", "unpack_rgba", "PALETTE", "MIN_COLOR_DISTANCE", "SERIES", "DIAG_NAMES"]
 
 # --------------------------------------------------------------------------- entity paths
 
@@ -45,6 +51,10 @@ TRUTH_TRAILS = "world/truth/trails"
 CARDINALITY = "metrics/cardinality"
 OSPA = "metrics/ospa"
 OSPA2 = "metrics/ospa2"
+STRUCTURE = "metrics/structure"
+CLUSTER_COUNT = "metrics/structure/clusters"
+CARD_POSTERIOR = "metrics/structure/cardinality"
+CLUSTERS = "world/clusters"
 DIAGNOSTICS = "diagnostics"
 HEALTH = "health"
 EVENTS = "events"
@@ -75,6 +85,8 @@ R_ASSIGN_LINE = -0.6
 R_TRUTH_CROSS = -1.0
 R_TRUTH_TRAIL = -0.6
 R_RING = -0.6
+R_CLUSTER_CENTRE = -2.5
+R_CLUSTER_LINK = -0.9
 ELLIPSE_SIGMA = 2.0
 ELLIPSE_POINTS = 36
 
@@ -83,6 +95,8 @@ SERIES: dict[str, tuple[list[str], list[tuple[int, int, int]]]] = {
     CARDINALITY: (["estimated", "true"], [(80, 170, 255), (190, 190, 190)]),
     OSPA: (["total", "localisation", "cardinality"], [(255, 120, 80), (120, 200, 120), (200, 140, 255)]),
     OSPA2: (["OSPA(2)"], [(255, 200, 60)]),
+    CLUSTER_COUNT: (["clusters"], [(240, 50, 230)]),
+    CARD_POSTERIOR: (["posterior mean", "posterior MAP"], [(80, 170, 255), (66, 212, 244)]),
 }
 DIAG_NAMES = {
     "alpha": "alpha (concentration)",
@@ -126,6 +140,12 @@ def label_color(label: str, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int,
         used[key] = used.get(key, 0) + 1  # type: ignore[index]
     best = min(range(n), key=lambda i: (used.get(PALETTE[(start + i) % n], 0), i))
     return (*PALETTE[(start + best) % n], 255)
+
+
+def cluster_color(cluster: int, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int, int, int, int]:
+    """Colour of motion cluster ``cluster``: a :data:`PALETTE` entry (never a reserved colour),
+    picked as :func:`label_color` picks a label's, avoiding the ``taken`` colours."""
+    return label_color(f"cluster {int(cluster)}", taken)
 
 
 def pack_rgba(rgba: Sequence[int]) -> int:

@@ -34,11 +34,19 @@ MEASUREMENTS_SCHEMA_VERSION = 2
 """``/measurements`` version 2 adds ``pose``, ``R`` and the kinds registered after version 1;
 readers accept 1 and 2, writers write 1 when a message uses none of them (so version-1 readers
 still read it)."""
-TRACKS_SCHEMA_VERSION = 2
-"""``/tracks`` version 2 adds the optional ``cluster`` of a track (two-level trackers); writers
-write 1 when no track carries one."""
+TRACKS_SCHEMA_VERSION = 3
+"""``/tracks`` version 2 adds the optional ``cluster`` of a track (two-level trackers); version 3
+the optional ``cardinality_pmf`` of a frame.  Writers write the lowest version that has the
+fields a message uses: 3 with a ``cardinality_pmf``, else 2 when a track carries a ``cluster``,
+else 1."""
+#: ``/tracks`` version that added ``cluster`` (a message with a cluster and no pmf is written so).
+TRACKS_CLUSTER_VERSION = 2
 #: Versions read per topic (a topic not listed reads only :data:`SCHEMA_VERSION`).
-READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2)}
+READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2, 3)}
+#: ``sum(cardinality_pmf)`` must be within this of 1 (the writer's tail cut is 1e-9).
+PMF_SUM_TOL = 1e-6
+#: Entries a ``cardinality_pmf`` may have (``n = 0 .. 100 000``).
+MAX_PMF = 100_001
 #: The kinds of ``/measurements`` version 1.  A fixed historical record, deliberately not
 #: derived from the registry: version-1 readers know exactly these two kinds, so a frame of
 #: any kind registered since (``xy``, or one added later) must be written as version 2.
@@ -302,6 +310,7 @@ def check_tracks(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     _check_size(topic, frame, msg.diagnostics, MAX_DIAGNOSTICS, "$.diagnostics")
     states, covs = _check_track_rows(frame, msg.tracks)
     _check_assignments(frame, msg)
+    _check_pmf(frame, msg)
     if msg.diagnostics:
         keys = list(msg.diagnostics)
         vals = np.array([msg.diagnostics[k] for k in keys], dtype=float)
@@ -349,6 +358,32 @@ def _check_assignments(frame: int, msg: Any) -> None:
         _check_unit(topic, frame, msg.assignment_prob, "probability", "$.assignment_prob[{i}]")
 
 
+def pmf_ok(p: np.ndarray) -> bool:
+    """A cardinality pmf: at least one entry, all finite and >= 0, summing to 1 within
+    :data:`PMF_SUM_TOL`, at most :data:`MAX_PMF` entries."""
+    return bool(0 < p.size <= MAX_PMF and np.isfinite(p).all() and (p >= 0.0).all()
+                and abs(float(p.sum()) - 1.0) <= PMF_SUM_TOL)
+
+
+def _check_pmf(frame: int, msg: Any) -> None:
+    """``cardinality_pmf`` (version 3; absent is fine): see :func:`pmf_ok`; one line naming the
+    field on failure."""
+    pmf = getattr(msg, "cardinality_pmf", msgspec.UNSET)
+    if pmf is msgspec.UNSET or pmf is None:
+        return
+    topic = TOPIC_TRACKS
+    if msg.v < 3:
+        raise CodecError(topic, frame, f"cardinality_pmf needs schema version 3, the message says {msg.v} - at `$.cardinality_pmf`")
+    p = np.array(pmf, dtype=float)
+    if not pmf_ok(p):
+        why = (f"{p.size} entries (1 to {MAX_PMF} allowed)" if not 0 < p.size <= MAX_PMF
+               else "a non-finite entry" if not np.isfinite(p).all()
+               else f"a negative entry {float(p.min())!r}" if (p < 0).any()
+               else f"a sum of {float(p.sum())!r}")
+        raise CodecError(topic, frame, f"cardinality_pmf must be finite, >= 0 and sum to 1 (within {PMF_SUM_TOL:g}):"
+                                       f" it has {why} - at `$.cardinality_pmf`")
+
+
 # --------------------------------------------------------------------------- fast path, decode errors
 
 
@@ -369,8 +404,8 @@ def _stack(rows: list, n: int, width: int) -> np.ndarray | None:
 def estimate_arrays(est: Any, run: Any) -> tuple | None:
     """Every check of the ``/tracks`` contract on an estimate's arrays (one vectorised pass
     instead of :func:`check_tracks` on the message's lists): ``(labels, states, covs,
-    existence, probs, diagnostics)`` when all pass, else ``None`` (the caller then takes the
-    path that names the exact error)."""
+    existence, probs, diagnostics, cardinality_pmf or None)`` when all pass, else ``None``
+    (the caller then takes the path that names the exact error)."""
     tracks, n = est.tracks, len(est.tracks)
     if not (is_int(est.frame) and est.frame >= 0 and is_int(est.stamp_ns) and 0 <= est.stamp_ns <= MAX_STAMP):
         return None
@@ -388,7 +423,12 @@ def estimate_arrays(est: Any, run: Any) -> tuple | None:
     exist = np.array([float(t.existence) for t in tracks], dtype=float)
     if states is None or covs is None or not _in_unit(exist):
         return None
-    return labels, states, covs, exist, probs, diag
+    pmf = getattr(est, "cardinality_pmf", None)
+    if pmf is not None:
+        pmf = np.asarray(pmf, dtype=float).ravel()
+        if not pmf_ok(pmf):
+            return None
+    return labels, states, covs, exist, probs, diag, pmf
 
 
 class _Peek(msgspec.Struct):

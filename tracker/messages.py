@@ -24,7 +24,8 @@ Three messages, each a JSON object that starts with the shared :class:`Header`
                  "existence": 0.97}, ...],
      "assignments": ["t1", null, ...],          # one per measurement, input order
      "assignment_prob": [0.93, 0.71, ...],      # one per measurement
-     "diagnostics": {"alpha": 1.2, ...}}        # optional, default {}
+     "diagnostics": {"alpha": 1.2, ...},        # optional, default {}
+     "cardinality_pmf": [0.01, 0.2, ...]}       # optional (v3): p(n), n = 0 .. N_max
 
 The API: :func:`decode` (bytes -> validated message), :func:`encode` (message, ``Frame`` or
 ``Estimate`` -> validated bytes), the conversions :func:`from_frame`, :func:`from_truth`,
@@ -36,7 +37,8 @@ and the JSON path; the rules are in the private ``tracker._message_checks``): fi
 only, ``frame >= 0``, ``0 <= stamp_ns < 2**63``, ``z`` rows of the kind's dimension with values
 within the kind's registry bounds (``range >= 0``, ``bearing`` in ``[-pi, pi]``), state
 length 5, covariance length 25, existence and probabilities in ``[0, 1]``,
-``len(assignments) == len(assignment_prob)``, unique truth ids / track labels, size limits
+``len(assignments) == len(assignment_prob)``, ``cardinality_pmf`` finite, non-negative and
+summing to 1 within 1e-6 (and only in version 3), unique truth ids / track labels, size limits
 (``MAX_MEASUREMENTS``, ``MAX_TRACKS``, ``MAX_OBJECTS``, ``MAX_DIAGNOSTICS``), and ``v`` among
 the versions the topic reads (anything else: "unsupported schema version").  Unknown fields
 are rejected: a change of fields is a new schema version.
@@ -66,8 +68,10 @@ from tracker._message_checks import (
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
     TOPIC_TRUTH,
+    TRACKS_CLUSTER_VERSION,
     TRACKS_SCHEMA_VERSION,
     V1_KINDS,
+    MAX_PMF,
     CodecError,
     check_measurements,
     check_tracks,
@@ -182,6 +186,9 @@ class TracksMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=True):
     diagnostics: Annotated[
         dict[str, float], msgspec.Meta(max_length=MAX_DIAGNOSTICS)
     ] = {}
+    cardinality_pmf: Union[Annotated[list[float], msgspec.Meta(max_length=MAX_PMF)], msgspec.UnsetType] = msgspec.UNSET
+    """(version 3; not written when unset) the posterior cardinality distribution ``p(n)``,
+    ``n = 0 .. N_max`` (:mod:`tracker.cardinality`)."""
 
 
 Msg = Union[MeasurementsMsg, TruthMsg, TracksMsg]
@@ -290,6 +297,7 @@ def to_estimate(msg: TracksMsg) -> Estimate:
         assignments=tuple(msg.assignments),
         assignment_prob=tuple(float(p) for p in msg.assignment_prob),
         diagnostics=dict(msg.diagnostics),
+        cardinality_pmf=None if msg.cardinality_pmf is msgspec.UNSET else np.array(msg.cardinality_pmf, dtype=float),
     )
 
 
@@ -343,8 +351,16 @@ def from_truth(frame_index: int, stamp_ns: int, truth: Truth, run: str = "") -> 
     )
 
 
-def _tracks_version(tracks: list[TrackMsg]) -> int:
-    return TRACKS_SCHEMA_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION
+def _tracks_version(tracks: list[TrackMsg], pmf: Any) -> int:
+    """The lowest ``/tracks`` version with the fields used (3: a pmf; 2: a cluster; else 1)."""
+    if pmf is not msgspec.UNSET:
+        return TRACKS_SCHEMA_VERSION
+    return TRACKS_CLUSTER_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION
+
+
+def _pmf_field(pmf: Any) -> Any:
+    """The wire value of an estimate's ``cardinality_pmf`` (``UNSET``: not written)."""
+    return msgspec.UNSET if pmf is None else np.asarray(pmf, dtype=float).ravel().tolist()
 
 
 def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
@@ -361,8 +377,9 @@ def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
         )
         for t in est.tracks
     ]
+    pmf = _pmf_field(getattr(est, "cardinality_pmf", None))
     return TracksMsg(
-        v=_tracks_version(tracks),
+        v=_tracks_version(tracks, pmf),
         run=run,
         frame=idx,
         stamp_ns=_as_int(topic, idx, est.stamp_ns, "stamp_ns"),
@@ -370,6 +387,7 @@ def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
         assignments=[None if a is None else str(a) for a in est.assignments],
         assignment_prob=np.asarray(est.assignment_prob, dtype=float).ravel().tolist(),
         diagnostics={str(k): float(v) for k, v in est.diagnostics.items()},
+        cardinality_pmf=pmf,
     )
 
 
@@ -379,12 +397,13 @@ def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
     arrays = estimate_arrays(est, run)
     if arrays is None:
         return None
-    labels, states, covs, exist, probs, diag = arrays
+    labels, states, covs, exist, probs, diag, pmf_arr = arrays
+    pmf = _pmf_field(pmf_arr)
     tracks = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
                        cluster=None if t.cluster is None else int(t.cluster))
               for lab, st, cv, ex, t in zip(labels, states.tolist(), covs.tolist(), exist.tolist(), est.tracks)]
     return TracksMsg(
-        v=_tracks_version(tracks),
+        v=_tracks_version(tracks, pmf),
         run=run,
         frame=int(est.frame),
         stamp_ns=int(est.stamp_ns),
@@ -392,6 +411,7 @@ def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
         assignments=[None if a is None else str(a) for a in est.assignments],
         assignment_prob=probs.tolist(),
         diagnostics=diag,
+        cardinality_pmf=pmf,
     )
 
 

@@ -152,7 +152,9 @@ class Estimate:
 
     ``assignments[m]`` is the label measurement ``m`` was assigned to (``None`` for clutter)
     and ``assignment_prob[m]`` its posterior probability; ``diagnostics`` holds scalar
-    tracker diagnostics (alpha, d, number of clusters, log-likelihood, ms per frame).
+    tracker diagnostics (alpha, d, number of clusters, log-likelihood, ms per frame);
+    ``cardinality_pmf`` the posterior cardinality distribution ``p(n)``, ``n = 0 .. N_max``
+    (``(N_max + 1,)``, tail below 1e-9 dropped: :mod:`tracker.cardinality`), or ``None``.
     """
 
     frame: int
@@ -161,6 +163,7 @@ class Estimate:
     assignments: tuple[str | None, ...] = ()
     assignment_prob: tuple[float, ...] = ()
     diagnostics: dict[str, float] = field(default_factory=dict)
+    cardinality_pmf: np.ndarray | None = None
 
     @property
     def positions(self) -> np.ndarray:

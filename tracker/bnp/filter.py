@@ -17,6 +17,7 @@ from tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
+from tracker.cardinality import existence_cardinality
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
 
@@ -133,7 +134,7 @@ class BnpTracker:
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                                   est.assignment_prob, diagnostics)
+                                   est.assignment_prob, diagnostics, existence_cardinality(new_state.existence))
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:

@@ -57,6 +57,7 @@ from tracker.bnp.filter import BnpState, BnpTracker
 from tracker.bnp.group_hyper import arrivals_loglik_grid
 from tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
+from tracker.cardinality import existence_cardinality
 from tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from tracker.models.params import ModelParams
 from tracker.types import Estimate, Frame, TrackEstimate
@@ -612,7 +613,8 @@ class GroupTracker:
         diag = dict(est.diagnostics)
         diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
                     ms=(time.perf_counter() - t0) * 1e3)
-        return Estimate(est.frame, est.stamp_ns, tuple(tracks), est.assignments, est.assignment_prob, diag)
+        return Estimate(est.frame, est.stamp_ns, tuple(tracks), est.assignments, est.assignment_prob, diag,
+                        existence_cardinality(state.existence))
 
 
 def make_group_tracker(name: str, params: ModelParams, config: GroupConfig | None = None) -> GroupTracker:

@@ -13,6 +13,7 @@ import numpy as np
 
 from tracker import filtering as kf
 from tracker._numerics import logsumexp
+from tracker.cardinality import truncate_tail
 from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_state_prior
 from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
@@ -101,7 +102,7 @@ class GlmbTracker:
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                             est.assignment_prob, diagnostics)
+                             est.assignment_prob, diagnostics, truncate_tail(card))
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict_fn(self):
