@@ -185,6 +185,8 @@ def truth_trails(rows: Sequence[tuple[Sequence[str], np.ndarray]], history: Mapp
             seen[tid] = e
             st.append(base[tid] + max(e - trail, 0))
             en.append(base[tid] + e)
+    if not blocks:  # frames with truth but no object (a scene that starts empty)
+        return EMPTY2, np.zeros(0, dtype=np.int64), {}
     pts, lengths = gather(np.concatenate(blocks), np.array(st, dtype=np.int64), np.array(en, dtype=np.int64))
     keep = trail - 1
     live = set(rows[-1][0])

@@ -33,6 +33,7 @@ Entity tree (``world`` is drawn with +y up; positions in metres, sensor at the o
 
 from __future__ import annotations
 
+import math
 import zlib
 from collections.abc import Iterable, Sequence
 
@@ -96,7 +97,7 @@ SERIES: dict[str, tuple[list[str], list[tuple[int, int, int]]]] = {
     OSPA: (["total", "localisation", "cardinality"], [(255, 120, 80), (120, 200, 120), (200, 140, 255)]),
     OSPA2: (["OSPA(2)"], [(255, 200, 60)]),
     CLUSTER_COUNT: (["clusters"], [(240, 50, 230)]),
-    CARD_POSTERIOR: (["posterior mean", "posterior MAP"], [(80, 170, 255), (66, 212, 244)]),
+    CARD_POSTERIOR: (["posterior mean", "posterior MAP"], [(80, 170, 255), (120, 220, 60)]),
 }
 DIAG_NAMES = {
     "alpha": "alpha (concentration)",
@@ -143,9 +144,18 @@ def label_color(label: str, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int,
 
 
 def cluster_color(cluster: int, taken: Iterable[tuple[int, ...]] = ()) -> tuple[int, int, int, int]:
-    """Colour of motion cluster ``cluster``: a :data:`PALETTE` entry (never a reserved colour),
-    picked as :func:`label_color` picks a label's, avoiding the ``taken`` colours."""
-    return label_color(f"cluster {int(cluster)}", taken)
+    """Colour of motion cluster ``cluster``: the :data:`PALETTE` entry (never a reserved colour)
+    farthest in RGB from the nearest of the ``taken`` colours, so that clusters alive together
+    contrast (two greens side by side read as one group); ties go to the palette order
+    starting at ``cluster mod len(PALETTE)`` (without ``taken``: that entry)."""
+    n = len(PALETTE)
+    order = [PALETTE[(int(cluster) + i) % n] for i in range(n)]
+    used = [tuple(c[:3]) for c in taken]
+
+    def spread(i: int) -> tuple[float, int]:
+        return min((math.dist(order[i], u) for u in used), default=math.inf), -i
+
+    return (*order[max(range(n), key=spread)], 255)
 
 
 def pack_rgba(rgba: Sequence[int]) -> int:

@@ -140,3 +140,22 @@ def test_a_single_level_recording_has_label_colours_and_no_clusters(tmp_path):
     for lab in {t.label for e in estimates for t in e.tracks}:
         mine = {c for (k, lb), c in colour.items() if lb == lab}
         assert len(mine) == 1 and unpack_rgba(mine.pop())[:3] in PALETTE  # one colour for the label's life
+
+
+def test_a_scene_that_starts_without_objects_records(groups_run, tmp_path):
+    """Frames with truth but no true object (a groups scene before its first birth), sent on
+    their own (flush_interval=0): no truth trail, no error (it raised in np.concatenate)."""
+    from dataclasses import replace
+
+    from sinks.rerun_geometry import truth_trails
+    from tracker.types import Truth
+
+    pts, lengths, kept = truth_trails([((), np.zeros((0, 2)))], {}, 20)
+    assert pts.shape == (0, 2) and lengths.size == 0 and kept == {}
+    frames, estimates, _path, _contents = groups_run
+    empty = Truth((), np.zeros((0, 5)))
+    frames = [replace(f, truth=empty) for f in frames[:3]] + list(frames[3:6])
+    path = tmp_path / "empty-start.rrd"
+    write_recording(path, frames, estimates[:6], META, flush_interval=0.0)
+    trails = by_frame(read_rrd(path)["/world/truth/trails"], "LineStrips2D:strips")
+    assert [len(trails.get(f.frame, [])) for f in frames] == [0, 0, 0] + [len(f.truth.ids) for f in frames[3:]]
