@@ -80,14 +80,14 @@ def test_glmb_cardinality_sums_hypothesis_weights_on_a_hand_built_state():
 
 # -- every tracker fills it -------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def vo_frames():
+def vo_first12():
     params = load_params("vo2017")
     return params, simulate_all(get_scenario("vo2017"), params, 1)[:12]
 
 
 @pytest.mark.parametrize("name", ["ddp", "dpyp", "glmb"])
-def test_every_tracker_reports_its_posterior_cardinality(vo_frames, name):
-    params, frames = vo_frames
+def test_every_tracker_reports_its_posterior_cardinality(vo_first12, name):
+    params, frames = vo_first12
     tracker = build(name, params)
     for _f, est, state in run(tracker, frames, 0):
         p = est.cardinality_pmf
