@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from accuracy import setup  # noqa: E402  (benchmarks/accuracy.py)
-from tracker.state import run  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 
 def one_run(job) -> dict:

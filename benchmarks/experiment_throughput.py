@@ -15,7 +15,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from pipeline.experiments import RunJob, get_experiment, run_jobs  # noqa: E402
+from bnptrack.pipeline.experiments import RunJob, get_experiment, run_jobs  # noqa: E402
 
 
 def main() -> None:

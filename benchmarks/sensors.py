@@ -29,15 +29,15 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sinks.metrics import ospa  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import (  # noqa: E402
+from bnptrack.sinks.metrics import ospa  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import (  # noqa: E402
     measurement_frame_rng, measure_with, move_truth, simulate_all, simulate_sensors, truth_at_time)
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import BirthComponent, load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
-from tracker.state import run  # noqa: E402
-from tracker.types import Frame, Truth  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import BirthComponent, load_params  # noqa: E402
+from bnptrack.tracker.registry import build, kind  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
+from bnptrack.tracker.types import Frame, Truth  # noqa: E402
 
 POSE = (1500.0, -700.0, float(np.deg2rad(40.0)))
 CAMERA = ["sensors.cam.kind='xy'", "sensors.cam.x=1000.0", "sensors.cam.y=2200.0",

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker.glmb.state import GlmbState
-from tracker.types import Estimate, Frame, TrackEstimate
+from bnptrack.tracker.glmb.state import GlmbState
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
 
 
 @dataclass(frozen=True)
