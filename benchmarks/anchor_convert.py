@@ -25,8 +25,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from tracker.models.measurement import wrap_angle
-from tracker.models.params import ModelParams
+from bnptrack.tracker.models.measurement import wrap_angle
+from bnptrack.tracker.models.params import ModelParams
 
 __all__ = [
     "JpdaSettings",

@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks.accuracy import setup  # noqa: E402
 from scipy.optimize import linear_sum_assignment  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 PARTS = ("loc", "far", "missed new", "missed old", "false dead", "false other")
 YOUNG = 3  # scans: an object at most this old counts as "new"

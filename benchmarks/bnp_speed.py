@@ -21,12 +21,12 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-import tracker.bnp.gibbs as gibbs  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp import TRACKER_PRESETS, make_tracker  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.state import run  # noqa: E402
+import bnptrack.tracker.bnp.gibbs as gibbs  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.bnp import TRACKER_PRESETS, make_tracker  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 
 def ms_per_frame(name: str, seeds: int, warmup: int, old: bool = False) -> tuple[np.ndarray, float]:

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from pipeline.experiments import RunJob, get_experiment, run_jobs  # noqa: E402
+from bnptrack.pipeline.experiments import RunJob, get_experiment, run_jobs  # noqa: E402
 
 _SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
 
@@ -68,7 +68,7 @@ def run_dask(jobs, n_workers: int) -> tuple[float, float, list]:
 
 def _warm() -> None:
     """Import and load the trackers' compiled kernels in a worker (outside the timing)."""
-    from pipeline.experiments import execute_run
+    from bnptrack.pipeline.experiments import execute_run
 
     exp = get_experiment("ddp-vs-glmb")
     execute_run(RunJob("ddp-vs-glmb", 999, 0, "vo2017", exp.variants[0]))

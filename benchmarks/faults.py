@@ -67,9 +67,9 @@ VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
 def make_log(path: Path, n: int) -> Path:
     """``n`` frames: the 100 frames of recordings/vo2017-s1.mcap repeated, frame numbers and
     stamps (1 s apart) made consecutive."""
-    from sinks.mcap_writer import McapLogWriter
-    from sources.mcap_log import iter_frames, read_metadata
-    from tracker.types import Frame
+    from bnptrack.sinks.mcap_writer import McapLogWriter
+    from bnptrack.sources.mcap_log import iter_frames, read_metadata
+    from bnptrack.tracker.types import Frame
 
     base = list(iter_frames(VO2017))
     dt = base[1].stamp_ns - base[0].stamp_ns
@@ -81,7 +81,7 @@ def make_log(path: Path, n: int) -> Path:
 
 
 def tracks_of(path: Path) -> list:
-    from sources.mcap_log import read_log
+    from bnptrack.sources.mcap_log import read_log
 
     def strip(e):
         d = {k: v for k, v in e.diagnostics.items() if k != "ms"}
@@ -91,9 +91,9 @@ def tracks_of(path: Path) -> list:
 
 
 def offline_tracks(log: Path, out: Path) -> list:
-    from pipeline.offline import track_log
-    from pipeline.resolve import tracker_setup
-    from sources.mcap_log import read_metadata
+    from bnptrack.pipeline.offline import track_log
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.sources.mcap_log import read_metadata
 
     meta = read_metadata(log)
     track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
@@ -111,7 +111,7 @@ def replay(log: Path, out: Path, rate: float | None, timeout: float, *extra: str
     """``bnptrack replay LOG`` at ``rate`` (``None``: as fast as possible) into ``out``."""
     pace = ["--rate", str(rate)] if rate else ["--as-fast-as-possible"]
     return subprocess.Popen(
-        [sys.executable, "-m", "pipeline", "replay", str(log), *pace, "--set", "sink.rerun=false",
+        [sys.executable, "-m", "bnptrack", "replay", str(log), *pace, "--set", "sink.rerun=false",
          "--set", "tracker.snapshot_every=10", *extra, "--out", str(out), "--overwrite", "--timeout", str(timeout)],
         cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
 
@@ -128,7 +128,7 @@ def finish(p: subprocess.Popen, timeout: float) -> tuple[int | None, str]:
 
 
 def snapshot_seq(out: Path) -> int:
-    from pipeline.stages import read_snapshot
+    from bnptrack.pipeline.stages import read_snapshot
 
     try:
         return read_snapshot(out / "tracker.snap").last_seq
@@ -297,8 +297,8 @@ def family_malformed(work: Path, n: int, seed: int) -> list[dict]:
     if wait_until(lambda: snapshot_seq(out) >= 10, p, 150):
         cfg = json.loads((out / "pipeline.json").read_text())
         run, endpoint = cfg["run"], cfg["zenoh"]["connect"][0]
-        from tracker.messages import encode
-        from sources.mcap_log import iter_frames
+        from bnptrack.tracker.messages import encode
+        from bnptrack.sources.mcap_log import iter_frames
 
         good = encode(next(iter(iter_frames(log))), run)
         conf = zenoh.Config()
@@ -335,7 +335,7 @@ def family_malformed(work: Path, n: int, seed: int) -> list[dict]:
 
 
 def family_mcap(work: Path, seed: int) -> list[dict]:
-    from sources.mcap_log import McapLogError, iter_frames
+    from bnptrack.sources.mcap_log import McapLogError, iter_frames
 
     import numpy as np
 
@@ -386,7 +386,7 @@ def family_full(work: Path) -> list[dict]:
         out = mnt / "run"
         t0 = time.monotonic()
         p = subprocess.Popen(
-            [sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible", "--set",
+            [sys.executable, "-m", "bnptrack", "replay", str(log), "--as-fast-as-possible", "--set",
              "sink.rerun=false", "--out", str(out), "--timeout", "120"],
             cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
         code, text = finish(p, 150)
@@ -409,7 +409,7 @@ def family_taken(work: Path) -> list[dict]:
     p = replay(log, out, None, 120)
     code1, _ = finish(p, 150)
     before = {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in out.iterdir() if f.is_file()}
-    p2 = subprocess.Popen([sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible",
+    p2 = subprocess.Popen([sys.executable, "-m", "bnptrack", "replay", str(log), "--as-fast-as-possible",
                            "--out", str(out), "--timeout", "60"], cwd=ROOT, env=_env(),
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     code2, text = finish(p2, 90)
@@ -432,13 +432,13 @@ def _digests(out: Path, names: list[str]) -> dict[str, str]:
 def _by_hand(role: str, out: Path, timeout: float = 90) -> tuple[int | None, str, float]:
     """``bnptrack stage ROLE`` on a router of its own, nobody else there: exit code (None:
     it did not end within ``timeout``), output, seconds."""
-    from pipeline.config import ZenohConfig
-    from pipeline.transport import Router
+    from bnptrack.pipeline.config import ZenohConfig
+    from bnptrack.pipeline.transport import Router
 
     run = json.loads((out / "pipeline.json").read_text())["run"]
     t0 = time.monotonic()
     with Router(ZenohConfig()) as router:
-        p = subprocess.Popen([sys.executable, "-m", "pipeline", "stage", role, "--run", run, "--connect",
+        p = subprocess.Popen([sys.executable, "-m", "bnptrack", "stage", role, "--run", run, "--connect",
                               router.endpoints[0], "--out", str(out), "--set", "sink.rerun=false"],
                              cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              start_new_session=True)
@@ -465,7 +465,7 @@ def _judge_alone_sink(out: Path, code: int | None, written: list, expected: list
     """A hand-started sink after its predecessor was killed: exit 3 with the killed sink's
     frames intact (= offline) and the rest named missing; or exit 2, nothing touched, when
     the predecessor had written no frame."""
-    from pipeline.stages import salvage_part
+    from bnptrack.pipeline.stages import salvage_part
 
     if code is None:
         return False, "hang"
@@ -483,7 +483,7 @@ def _judge_alone_sink(out: Path, code: int | None, written: list, expected: list
 
 
 def _alone_sink_case(work: Path, i: int, log: Path, expected: list, at: int) -> dict:
-    from pipeline.stages import salvage_part
+    from bnptrack.pipeline.stages import salvage_part
 
     out = work / f"alone{i}"
     launch_code, killed = _sink_killed(log, out, at)

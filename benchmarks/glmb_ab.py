@@ -31,11 +31,11 @@ def measure(seeds: int, repeats: int, birth_regions: bool, overrides: list[str])
     """CPU ms per frame (fastest of ``repeats`` passes over the seeds) and the fingerprint."""
     import numpy as np
 
-    from sources.scenarios import get_scenario
-    from sources.synthetic import simulate_all
-    from tracker.config import apply_overrides
-    from tracker.glmb import GlmbConfig, make_glmb
-    from tracker.models.params import load_params
+    from bnptrack.sources.scenarios import get_scenario
+    from bnptrack.sources.synthetic import simulate_all
+    from bnptrack.tracker.config import apply_overrides
+    from bnptrack.tracker.glmb import GlmbConfig, make_glmb
+    from bnptrack.tracker.models.params import load_params
 
     params = get_scenario("vo2017").adapt_params(load_params("vo2017"))
     config = apply_overrides(GlmbConfig() if birth_regions else GlmbConfig(birth=[]), overrides)

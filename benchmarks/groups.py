@@ -24,14 +24,14 @@ from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sinks.metrics import ospa, ospa2_series  # noqa: E402
-from sinks.partitions import adjusted_rand_index  # noqa: E402
-from sources.scenarios import get_scenario, is_generated  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.sinks.metrics import ospa, ospa2_series  # noqa: E402
+from bnptrack.sinks.partitions import adjusted_rand_index  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario, is_generated  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.registry import build, kind  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 
 def frame_ari(truth, est, group_of: dict[str, str], gate: float = 100.0) -> float | None:

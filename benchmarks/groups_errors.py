@@ -23,13 +23,13 @@ from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sinks.metrics import ospa2_series  # noqa: E402
-from sources.scenarios import get_scenario, is_generated  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.sinks.metrics import ospa2_series  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario, is_generated  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.registry import build, kind  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 
 def _match(P: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:

@@ -18,11 +18,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sources.scenarios import get_scenario, is_generated  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build  # noqa: E402
-from tracker.state import tracker_frame_rng  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario, is_generated  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.registry import build  # noqa: E402
+from bnptrack.tracker.state import tracker_frame_rng  # noqa: E402
 
 
 def main() -> None:

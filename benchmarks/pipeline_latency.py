@@ -60,16 +60,16 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from pipeline.launch import launch  # noqa: E402
-from pipeline.offline import track_log
-from pipeline.resolve import tracker_setup
-from sources.scenarios import scenario_params
-from pipeline.config import load_pipeline  # noqa: E402
-from sinks.mcap_writer import McapLogWriter  # noqa: E402
-from sources.mcap_log import iter_frames, read_metadata  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.pipeline.launch import launch  # noqa: E402
+from bnptrack.pipeline.offline import track_log
+from bnptrack.pipeline.resolve import tracker_setup
+from bnptrack.sources.scenarios import scenario_params
+from bnptrack.pipeline.config import load_pipeline  # noqa: E402
+from bnptrack.sinks.mcap_writer import McapLogWriter  # noqa: E402
+from bnptrack.sources.mcap_log import iter_frames, read_metadata  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 STAGES = ("source", "tracker", "sink")
 HOPS = ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms")
@@ -122,11 +122,11 @@ class Offline:
         """The tracker stage's own code without transport: a ``TrackerStage`` on an in-memory
         bus fed the encoded frames in this process (decode, validation, step, encoding,
         journal, snapshots).  Frames per second and CPU ms per frame."""
-        from tracker.messages import encode
-        from pipeline.membus import MemoryNetwork
-        from pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
-        from pipeline.stages import StageContext, StageInfo, TrackerStage
-        from pipeline.events import Event
+        from bnptrack.tracker.messages import encode
+        from bnptrack.pipeline.membus import MemoryNetwork
+        from bnptrack.pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
+        from bnptrack.pipeline.stages import StageContext, StageInfo, TrackerStage
+        from bnptrack.pipeline.events import Event
 
         cfg = resolve_run(PipelineConfig(run="inproc", out=str(out), tracker=TrackerStageConfig(
             tracker=self.tracker_name, seed=self.seed)))
@@ -243,8 +243,8 @@ def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
                       topic: str = "measurements") -> None:
     """(child process) receive ``n`` samples; print their latencies (since the first
     publication, ``meta["t"]``) as JSON, taken when the main thread gets them (as a stage does)."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus
 
     with Bus(run_id, "sub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.subscribe([topic])
@@ -261,8 +261,8 @@ def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
 def transport_floor(mode: str, rate: float, n: int = 400) -> dict:
     """One Zenoh hop between two processes (client mode: through a router; peer mode: direct,
     found through the router), ~1 KB samples at ``rate`` per second."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus, Router
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
         ep = router.endpoints[0]
@@ -284,8 +284,8 @@ def _floor_relay(mode: str, endpoint: str) -> None:
     """(child process) the tracker's place with no tracker: republish every ``measurements``
     sample at once as a ``tracks`` sample of the pipeline's size, keeping its ``t``; serve
     until stdin closes (so that the last samples are delivered)."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus
 
     with Bus("floor2", "relay", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.declare(["tracks"])
@@ -305,8 +305,8 @@ def two_hop_floor(mode: str, rate: float, n: int = 400) -> dict:
     (republishes at once, ``_floor_relay``) -> subscriber process, at ``rate`` per second with
     the pipeline's payload sizes (/measurements in, /tracks out); through a router in this
     process (``client``) or peer to peer (``peer``)."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus, Router
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
         ep = router.endpoints[0]
@@ -366,8 +366,8 @@ def _traffic_publisher(endpoint_file: str, rate: float, seconds: float) -> None:
     """(child process) A router and, in the same process, a publisher putting one frame's
     samples (``TRAFFIC_SIZES``, on three topics) ``rate`` times per second for ``seconds``;
     writes the router's endpoint to ``endpoint_file`` first and waits for the subscriber."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus, Router
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
 
     with Router(ZenohConfig()) as router:
         Path(endpoint_file).write_text(router.endpoints[0])
@@ -390,8 +390,8 @@ def _traffic_publisher(endpoint_file: str, rate: float, seconds: float) -> None:
 
 def _traffic_subscriber(endpoint: str) -> None:
     """(child process) Receive everything on the traffic run until stdin closes."""
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus
 
     with Bus("traffic", "sub", ZenohConfig(connect=[endpoint]), DeliveryConfig()) as bus:
         bus.subscribe(["measurements", "truth", "tracks"])

@@ -3,7 +3,7 @@
 Two parts:
 
 1. The whole command, the figure the target of issue 6 names ("the sink adds under 10% to an
-   offline `bnptrack track --rrd` run"): ``python -m pipeline track LOG -q`` and the same with
+   offline `bnptrack track --rrd` run"): ``python -m bnptrack track LOG -q`` and the same with
    ``--rrd FILE``, run alternately (A B A B ...) ``--repeats`` times each, so that the load of
    other processes hits both alike.  For each: wall clock (``time.perf_counter`` around the
    command) and CPU time (user + sys of the command and its children, from
@@ -76,7 +76,7 @@ def _ratios(name: str, base: np.ndarray, other: np.ndarray) -> str:
 def command_part(args: argparse.Namespace, tmp: Path) -> None:
     paths = [str(ROOT), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}  # this tree's code
-    base = [sys.executable, "-m", "pipeline", "track", str(args.log), "--tracker", args.tracker, "-q"]
+    base = [sys.executable, "-m", "bnptrack", "track", str(args.log), "--tracker", args.tracker, "-q"]
     plain = [*base, "--out", str(tmp / "plain.tracks.mcap")]
     rrd = [*base, "--out", str(tmp / "rrd.tracks.mcap"), "--rrd", str(tmp / "run.rrd")]
     # the machine's floor: the plain command beside a process that only imports rerun (what the
@@ -110,8 +110,8 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
 
 
 def _setup(args: argparse.Namespace):
-    from pipeline.resolve import tracker_setup
-    from sources.mcap_log import iter_frames, read_metadata
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.sources.mcap_log import iter_frames, read_metadata
 
     meta = read_metadata(args.log)
     setup = tracker_setup(args.tracker, metadata=meta)
@@ -124,8 +124,8 @@ def _row(name: str, ms: np.ndarray) -> str:
 
 
 def frame_part(args: argparse.Namespace, tmp: Path) -> None:
-    from sinks.rerun_process import RecordingProcess
-    from tracker.state import run
+    from bnptrack.sinks.rerun_process import RecordingProcess
+    from bnptrack.tracker.state import run
 
     tracker, params, frames = _setup(args)
     step, hand, closes = [], [], []
@@ -165,9 +165,9 @@ def frame_part(args: argparse.Namespace, tmp: Path) -> None:
 def _child_share(args: argparse.Namespace, tmp: Path, params, kept: list) -> tuple[list, list, list]:
     """Scoring (s per frame), and ``RerunSink.log`` (s per frame) and ``close`` (s per run)
     with the child's settings, over the frames and estimates ``kept``, in this process."""
-    from sinks.rerun_sink import RerunSink
-    from sinks.rerun_process import CHILD_FLUSH_INTERVAL
-    from sinks.metrics import RunScorer
+    from bnptrack.sinks.rerun_sink import RerunSink
+    from bnptrack.sinks.rerun_process import CHILD_FLUSH_INTERVAL
+    from bnptrack.sinks.metrics import RunScorer
 
     score, sink_log, sink_closes = [], [], []
     for r in range(args.repeats):

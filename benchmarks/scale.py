@@ -47,7 +47,7 @@ LAST = 20  # frames averaged for OSPA and tracked_fraction
 
 
 def scene_params(n: int, clutter_ratio: float):
-    from tracker.models.params import load_params
+    from bnptrack.tracker.models.params import load_params
 
     R = 2000.0 * np.sqrt(n / 10.0)
     return msgspec.structs.replace(load_params("vo2017"), range_max=float(R), clutter_rate=float(clutter_ratio * n),
@@ -56,7 +56,7 @@ def scene_params(n: int, clutter_ratio: float):
 
 def simulate(n: int, frames: int, seed: int, clutter_ratio: float):
     """Frames of the ``scale-N`` scene (module docstring)."""
-    from tracker.types import Frame, Truth
+    from bnptrack.tracker.types import Frame, Truth
 
     params = scene_params(n, clutter_ratio)
     meas = params.measurement("bearing_range")
@@ -97,9 +97,9 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
 
 
 def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float) -> dict:
-    from sinks.metrics import ospa
-    from tracker.bnp import make_tracker
-    from tracker.state import tracker_frame_rng
+    from bnptrack.sinks.metrics import ospa
+    from bnptrack.tracker.bnp import make_tracker
+    from bnptrack.tracker.state import tracker_frame_rng
 
     params, fr = simulate(n, frames, seed, clutter_ratio)
     tracker = make_tracker("ddp", params)

@@ -38,15 +38,15 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from sinks.metrics import ospa  # noqa: E402
-from sources.scenarios import get_scenario, is_generated  # noqa: E402
-from sources.synthetic import (  # noqa: E402
+from bnptrack.sinks.metrics import ospa  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario, is_generated  # noqa: E402
+from bnptrack.sources.synthetic import (  # noqa: E402
     measurement_frame_rng, measure_with, move_truth, simulate_all, simulate_sensors, truth_at_time)
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import BirthComponent, load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
-from tracker.state import run  # noqa: E402
-from tracker.types import Frame, Truth  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import BirthComponent, load_params  # noqa: E402
+from bnptrack.tracker.registry import build, kind  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
+from bnptrack.tracker.types import Frame, Truth  # noqa: E402
 
 POSE = (1500.0, -700.0, float(np.deg2rad(40.0)))
 CAMERA = ["sensors.cam.kind='xy'", "sensors.cam.x=1000.0", "sensors.cam.y=2200.0",
@@ -150,7 +150,7 @@ def kalman_floor(sigma_m: float = 35.0, sigma_a: float = 5.0, steps: int = 400) 
     error of a one-axis constant-velocity Kalman filter (noise ``sigma_m``, about 2 deg at 1 km;
     the model's ``Q(dt)``; noiseless truth as in the scenes) on frames kept, dropped over plain.
     No tracker can do better than this ratio on the localisation part of OSPA."""
-    from tracker.models.motion import process_noise_block
+    from bnptrack.tracker.models.motion import process_noise_block
 
     def rms(dts):
         P, Pa, H, out = np.eye(2) * 1e6, np.eye(2) * 1e6, np.array([[1.0, 0.0]]), []

@@ -20,15 +20,15 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import msgspec  # noqa: E402
 
-from pipeline.config import load_pipeline, resolve_run  # noqa: E402
-from pipeline.events import Event  # noqa: E402
-from pipeline.membus import MemoryNetwork  # noqa: E402
-from pipeline.resolve import tracker_setup  # noqa: E402
-from pipeline.stages import SinkStage, StageContext, StageInfo  # noqa: E402
-from sources.scenarios import get_scenario, scenario_params  # noqa: E402
-from sources.synthetic import simulate  # noqa: E402
-from tracker.messages import encode, from_estimate, from_truth  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.pipeline.config import load_pipeline, resolve_run  # noqa: E402
+from bnptrack.pipeline.events import Event  # noqa: E402
+from bnptrack.pipeline.membus import MemoryNetwork  # noqa: E402
+from bnptrack.pipeline.resolve import tracker_setup  # noqa: E402
+from bnptrack.pipeline.stages import SinkStage, StageContext, StageInfo  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario, scenario_params  # noqa: E402
+from bnptrack.sources.synthetic import simulate  # noqa: E402
+from bnptrack.tracker.messages import encode, from_estimate, from_truth  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 META = {"scenario": "vo2017", "params": "vo2017", "seed": "1"}
 

@@ -6,10 +6,10 @@ recordings/vo2017-s1.mcap`` <= 1.0 s on a warm machine (second run) and ``bnptra
 change of machine load hits every command alike):
 
 * ``python3 -c pass`` and ``python3 -c "import numpy"``: the floor any command stands on;
-* ``python3 -m pipeline --help``;
-* ``python3 -m pipeline track recordings/vo2017-s1.mcap --out TMP/x.mcap`` (one untimed run
+* ``python3 -m bnptrack --help``;
+* ``python3 -m bnptrack track recordings/vo2017-s1.mcap --out TMP/x.mcap`` (one untimed run
   first, so that the numba cache and the file cache are warm);
-* ``python3 -m pipeline launch --out TMP/run --overwrite -q`` (the default: 100 frames);
+* ``python3 -m bnptrack launch --out TMP/run --overwrite -q`` (the default: 100 frames);
 
 and prints the median, min and max wall time of each over ``--rounds`` rounds, and the median
 CPU time (user + system of the process and those it waited for, e.g. a launch's stages), with
@@ -70,12 +70,12 @@ def commands(tmp: Path, launch: bool) -> dict[str, list[str]]:
     cmds = {
         "python3 -c pass": [py, "-c", "pass"],
         "python3 -c 'import numpy'": [py, "-c", "import numpy"],
-        "bnptrack --help": [py, "-m", "pipeline", "--help"],
-        "bnptrack track vo2017-s1.mcap": [py, "-m", "pipeline", "track", str(log), "--out",
+        "bnptrack --help": [py, "-m", "bnptrack", "--help"],
+        "bnptrack track vo2017-s1.mcap": [py, "-m", "bnptrack", "track", str(log), "--out",
                                           str(tmp / "track.mcap")],
     }
     if launch:
-        cmds["bnptrack launch (100 frames)"] = [py, "-m", "pipeline", "launch", "--out", str(tmp / "run"),
+        cmds["bnptrack launch (100 frames)"] = [py, "-m", "bnptrack", "launch", "--out", str(tmp / "run"),
                                                 "--overwrite", "-q"]
     return cmds
 
@@ -85,7 +85,7 @@ def numba_cache(tmp: Path, rounds: int) -> dict[str, list[float]]:
     out: dict[str, list[float]] = {"track, numba compiles (empty cache)": [],
                                    "track, numba loads (filled cache)": []}
     log = ROOT / "recordings" / "vo2017-s1.mcap"
-    argv = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(tmp / "nb.mcap")]
+    argv = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(tmp / "nb.mcap")]
     for i in range(rounds):
         cache = tmp / f"numba-{i}"
         cache.mkdir()

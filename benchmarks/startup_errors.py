@@ -23,7 +23,7 @@ LOG = str(ROOT / "recordings" / "vo2017-s1.mcap")
 def first_progress(out: str) -> tuple[float | None, str, int, float]:
     """(seconds to the first progress line, that line, exit code, total seconds) of a 20-frame launch."""
     t0 = time.perf_counter()
-    p = subprocess.Popen([sys.executable, "-m", "pipeline", "launch", "--set", "source.frames=20",
+    p = subprocess.Popen([sys.executable, "-m", "bnptrack", "launch", "--set", "source.frames=20",
                           "--set", "sink.rerun=false", "--out", out], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, env=ENV, text=True, cwd=ROOT)
     first, first_line = None, ""
@@ -37,7 +37,7 @@ def first_progress(out: str) -> tuple[float | None, str, int, float]:
 def config_error(args: list[str]) -> tuple[float, int, str]:
     """(seconds, exit code, last stderr line) of a command that must fail at once."""
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "pipeline", *args], capture_output=True, text=True, env=ENV, cwd=ROOT)
+    r = subprocess.run([sys.executable, "-m", "bnptrack", *args], capture_output=True, text=True, env=ENV, cwd=ROOT)
     return time.perf_counter() - t0, r.returncode, (r.stderr.strip().splitlines() or [""])[-1][:100]
 
 

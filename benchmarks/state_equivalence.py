@@ -28,11 +28,11 @@ SETTINGS = [("vo2017", "ddp", "ddp", {}), ("dpy5", "dpyp", "dpyp", {}),
 def dump(path: str) -> None:
     import msgspec
 
-    from sources.scenarios import get_scenario
-    from sources.synthetic import simulate_all
-    from tracker.bnp import TRACKER_PRESETS, make_tracker
-    from tracker.models.params import load_params
-    from tracker.state import run
+    from bnptrack.sources.scenarios import get_scenario
+    from bnptrack.sources.synthetic import simulate_all
+    from bnptrack.tracker.bnp import TRACKER_PRESETS, make_tracker
+    from bnptrack.tracker.models.params import load_params
+    from bnptrack.tracker.state import run
 
     out = {}
     for scen, name, preset, extra in SETTINGS:

@@ -61,8 +61,8 @@ from benchmarks.anchor_convert import (
     position,
     to_stonesoup_measurements,
 )
-from tracker.models.params import ModelParams
-from tracker.types import Frame
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.types import Frame
 
 __all__ = ["JpdaAnchor", "PhdAnchor", "ProjectConstantTurn", "make_anchor"]
 

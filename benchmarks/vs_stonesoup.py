@@ -51,14 +51,14 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from benchmarks.anchor_convert import JpdaSettings, PhdSettings  # noqa: E402
 from benchmarks.accuracy import label_switches  # noqa: E402
-from sinks.crossings import crossing_label_keeping  # noqa: E402
-from sinks.metrics import ospa, ospa2_series  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.config import apply_overrides  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build, kind  # noqa: E402
-from tracker.state import tracker_frame_rng  # noqa: E402
+from bnptrack.sinks.crossings import crossing_label_keeping  # noqa: E402
+from bnptrack.sinks.metrics import ospa, ospa2_series  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.registry import build, kind  # noqa: E402
+from bnptrack.tracker.state import tracker_frame_rng  # noqa: E402
 
 ANCHORS = ("ss-gmphd", "ss-jpda")
 MISSING = "Stone Soup is not installed: pip install -e '.[compare]' (or pip install 'stonesoup>=1.9')"
@@ -258,7 +258,7 @@ def print_table(summary: dict[str, dict], header: str) -> None:
 def _tiny_scene(params, n: int = 5) -> list:
     """One object at (200, 1000) m moving (10, -5) m/s, turning 1 deg/s; noiseless measurements
     in bnptrack's convention, no clutter; ``n`` frames."""
-    from tracker.types import Frame, Truth
+    from bnptrack.tracker.types import Frame, Truth
 
     motion, sensor = params.motion(), params.measurement("bearing_range")
     x = np.array([[200.0, 10.0, 1000.0, -5.0, np.deg2rad(1.0)]])

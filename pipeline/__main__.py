@@ -1,6 +1,6 @@
-"""``python -m pipeline``: the ``bnptrack`` command line."""
+"""``python -m bnptrack``: the ``bnptrack`` command line."""
 
-from pipeline.cli import main
+from bnptrack.pipeline.cli import main
 
 if __name__ == "__main__":
     main(prog_name="bnptrack")

@@ -27,7 +27,7 @@ from typing import Literal
 
 import msgspec
 
-from tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
+from bnptrack.tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
 
 __all__ = [
     "RUN_RE",
@@ -154,7 +154,7 @@ def parse_topic_item(item: str) -> tuple[str, str]:
     """A channel mapping item ``SRC=/measurements`` (or ``SRC=/truth``) as ``(SRC, DST)``;
     :class:`ValueError` names the item otherwise (``--topic`` of ``track`` / ``replay`` and
     ``source.topics``)."""
-    from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
 
     src, sep, dst = item.partition("=")
     if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
@@ -263,13 +263,13 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     outputs: list[str] = msgspec.field(default_factory=list)
 
     def __post_init__(self) -> None:
-        from sinks.sink import check_sink_names
+        from bnptrack.sinks.sink import check_sink_names
 
         check_sink_names(self.outputs, "sink.outputs")
 
     def paths(self, out: Path) -> dict[str, Path]:
         """The sinks this section records to in the output directory ``out``, with their files."""
-        from sinks.sink import SINKS
+        from bnptrack.sinks.sink import SINKS
 
         return sink_outputs(out / self.mcap_name if self.mcap else None,
                             out / self.rrd_name if self.rerun else None,

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
-from tracker.config import ConfigError
+from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
+from bnptrack.tracker.config import ConfigError
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ def _run_setup(job: RunJob):
 
     A generated scenario (``random``) draws its scene from the run's seed (and the
     variant's ``scene.*`` overrides), so every run has its own scene."""
-    from sources.scenarios import open_scenario
+    from bnptrack.sources.scenarios import open_scenario
 
     exp = get_experiment(job.experiment)
     seed = run_seed(job.experiment, job.seed, job.run)
@@ -136,7 +136,7 @@ def _run_setup(job: RunJob):
 
 def execute_run(job: RunJob) -> RunResult:
     """One Monte Carlo run: simulate the scenario, run every tracker, score every frame."""
-    from sources.synthetic import simulate_all
+    from bnptrack.sources.synthetic import simulate_all
 
     exp, scenario, params, seed = _run_setup(job)
     frames = simulate_all(scenario, params, seed)
@@ -153,11 +153,11 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
     """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
     :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
     (alpha 2) and the label keeping through ``crossings``."""
-    from pipeline.resolve import tracker_setup
-    from sinks.crossings import crossing_label_keeping
-    from sinks.metrics import gospa
-    from sinks.metrics import RunScorer
-    from tracker.state import run as run_tracker
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.sinks.crossings import crossing_label_keeping
+    from bnptrack.sinks.metrics import gospa
+    from bnptrack.sinks.metrics import RunScorer
+    from bnptrack.tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
     scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW)
@@ -363,8 +363,8 @@ def _save(fig, path: Path) -> Path:
 def write_representative_rrd(result: RunResult, out: Path) -> list[Path]:
     """One ``.rrd`` per tracker of a run kept with ``keep_tracks``, through the ``rerun`` entry
     of the table of sinks (none without rerun-sdk)."""
-    from sinks.records import SinkOptions, SinkRecord
-    from sinks.sink import SinkSet, make_sink
+    from bnptrack.sinks.records import SinkOptions, SinkRecord
+    from bnptrack.sinks.sink import SinkSet, make_sink
 
     if importlib.util.find_spec("rerun") is None:  # the sink needs rerun-sdk
         return []

@@ -14,7 +14,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from sources.mcap_log import read_log
+from bnptrack.sources.mcap_log import read_log
 
 STATE_NAMES = ("px", "vx", "py", "vy", "omega")
 TRACK_COLUMNS = ("frame", "stamp_ns", "label", *STATE_NAMES, *(f"var_{n}" for n in STATE_NAMES), "existence")
@@ -32,7 +32,7 @@ class ExportResult:
 
 def run_tables(run: str | os.PathLike) -> tuple[list[tuple], list[tuple]]:
     """``(track rows, metric rows)`` of a run file (``/tracks``; metrics need ``/truth``)."""
-    from pipeline.offline import frame_metrics
+    from bnptrack.pipeline.offline import frame_metrics
 
     log = read_log(run)
     if not log.tracks:

@@ -13,7 +13,7 @@ and the entry point of one stage process (``bnptrack stage``).
 2. opens the embedded Zenoh router (``zenoh.embedded_router``, a free loopback port by
    default) unless the pipeline names routers to ``connect`` to;
 3. writes ``<out>/pipeline.json`` (the resolved pipeline the stages read) and starts every
-   stage as ``python -m pipeline stage ROLE --pipeline <out>/pipeline.json`` in its own
+   stage as ``python -m bnptrack stage ROLE --pipeline <out>/pipeline.json`` in its own
    session (so a terminal's Ctrl-C reaches the launcher only), logging to
    ``<out>/logs/<stage>.log``; ``<out>/stages.json`` lists their pids and restarts;
 4. supervises: a stage that exits 0 or 3 is done (3: its output is incomplete; from the
@@ -42,15 +42,15 @@ from typing import Any
 
 import msgspec
 
-from pipeline.config import (
+from bnptrack.pipeline.config import (
     PipelineConfig,
     check_run_id,
     dump_pipeline,
     resolve_run,
 )
-from pipeline.progress import Status
-from pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
-from pipeline.supervisor import (
+from bnptrack.pipeline.progress import Status
+from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
+from bnptrack.pipeline.supervisor import (
     HealthMonitor,
     LaunchResult,
     StageProcess,
@@ -60,7 +60,7 @@ from pipeline.supervisor import (
     stop_stages,
     write_stages,
 )
-from pipeline.stages import (
+from bnptrack.pipeline.stages import (
     EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK, EXIT_STOPPED,
     JOURNAL_NAME,
     SNAPSHOT_NAME,
@@ -70,7 +70,7 @@ from pipeline.stages import (
     StageIOError,
     UpstreamGone,
 )
-from tracker.config import ConfigError
+from bnptrack.tracker.config import ConfigError
 
 __all__ = ["Launcher", "launch", "run_stage", "stage_config", "configure_logging", "describe_missing"]
 
@@ -102,7 +102,7 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
     and always closes it.
     """
-    from pipeline.transport import Bus, NoRouterError, TransportError
+    from bnptrack.pipeline.transport import Bus, NoRouterError, TransportError
 
     if role not in STAGES:
         raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
@@ -293,10 +293,10 @@ class Launcher:
         return env
 
     def _start_stages(self, cfg_path: Path, env: dict[str, str]) -> None:
-        """Start every stage (sink first) as ``python -m pipeline stage ROLE``."""
+        """Start every stage (sink first) as ``python -m bnptrack stage ROLE``."""
         order = [r for r in ("sink", "tracker", "source") if r in self.cfg.stages]
         for role in order:
-            argv = [self.python, "-m", "pipeline", "stage", role, "--pipeline", str(cfg_path),
+            argv = [self.python, "-m", "bnptrack", "stage", role, "--pipeline", str(cfg_path),
                     "--name", role, "--parent-pid", str(os.getpid()), "--log-level", self.log_level]
             sp = StageProcess(role, argv, self.out / "logs" / f"{role}.log")
             if role in self.credentials:
@@ -334,7 +334,7 @@ class Launcher:
     def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
         """``view``: start a Rerun viewer (left open after the run) and have the sink stream
         ``run.rrd``'s rows to it (``sink.view_url``)."""
-        from pipeline.live import spawn_viewer
+        from bnptrack.pipeline.live import spawn_viewer
 
         if not cfg.sink.rerun:
             raise ConfigError("--view needs the Rerun sink (sink.rerun = true)")

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from pipeline.ports import free_port
-from tracker.config import ConfigError
+from bnptrack.pipeline.ports import free_port
+from bnptrack.tracker.config import ConfigError
 
 __all__ = ["Viewer", "viewer_url", "is_viewer_url", "check_viewer", "spawn_viewer"]
 
@@ -103,8 +103,8 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
     ``DISPLAY`` / ``WAYLAND_DISPLAY``) or the viewer exits or does not listen in ``timeout``
     seconds.  Its output goes to a log file in the temporary directory (named in errors).
     """
-    from pipeline.view import ViewerUnavailable, viewer_failure
-    from sinks.rerun_tools import RerunToolError, rerun_cli, rerun_env
+    from bnptrack.pipeline.view import ViewerUnavailable, viewer_failure
+    from bnptrack.sinks.rerun_tools import RerunToolError, rerun_cli, rerun_env
 
     if headless is None:
         headless = os.environ.get(HEADLESS_ENV, "0") not in ("", "0")

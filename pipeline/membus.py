@@ -18,7 +18,7 @@ from typing import Any
 
 import msgspec
 
-from pipeline.events import Event
+from bnptrack.pipeline.events import Event
 
 __all__ = ["MemoryNetwork", "MemoryBus"]
 

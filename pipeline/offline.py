@@ -19,22 +19,22 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sinks.crossings import CrossingResult
-from sinks.metrics import OspaResult
-from sinks.metrics import OSPA_C, OSPA_P, RunScorer
-from sinks.mcap_writer import McapLogWriter
-from sinks.sink import SinkSet, make_sink
-from sinks.records import Sink, SinkOptions, SinkRecord
-from sources.mcap_log import McapLogError, iter_frames
-from sources.scenarios import OpenScenario, parse_crossings
-from sources.synthetic import simulate, simulate_sensors
-from tracker.config import ConfigError
-from tracker.models.params import ModelParams
-from tracker.state import run
-from tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
+from bnptrack.sinks.crossings import CrossingResult
+from bnptrack.sinks.metrics import OspaResult
+from bnptrack.sinks.metrics import OSPA_C, OSPA_P, RunScorer
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sinks.sink import SinkSet, make_sink
+from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.sources.mcap_log import McapLogError, iter_frames
+from bnptrack.sources.scenarios import OpenScenario, parse_crossings
+from bnptrack.sources.synthetic import simulate, simulate_sensors
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.state import run
+from bnptrack.tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
 
 if TYPE_CHECKING:
-    from tracker.registry import Tracker
+    from bnptrack.tracker.registry import Tracker
 
 __all__ = [
     "OSPA_C",
@@ -175,7 +175,7 @@ def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSP
     """OSPA (on position) and cardinality error of one estimate against the frame's truth,
     scored by ``scorer`` (a run's :class:`sinks.metrics.RunScorer`, which then also gives
     the frame's OSPA(2); default: a scorer of this frame alone, cut-off ``c``, order ``p``)."""
-    from sinks.metrics import cardinality_error
+    from bnptrack.sinks.metrics import cardinality_error
 
     if scorer is None:
         scorer = RunScorer(c=c, p=p, window=1)
@@ -294,7 +294,7 @@ def score_crossings(
 ) -> CrossingResult | None:
     """Label keeping through ``crossings`` over consecutive frames with truth; pairs whose
     crossing scan is not among the frames are left out (``None`` when none is left)."""
-    from sinks.crossings import crossing_label_keeping
+    from bnptrack.sinks.crossings import crossing_label_keeping
 
     if not seen or any(f.truth is None for f, _ in seen):
         return None

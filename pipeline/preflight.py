@@ -19,8 +19,8 @@ import socket
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.config import PipelineConfig
-from tracker.config import ConfigError
+from bnptrack.pipeline.config import PipelineConfig
+from bnptrack.tracker.config import ConfigError
 
 __all__ = ["check_pipeline", "listening"]
 
@@ -37,14 +37,14 @@ def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
     _check_zenoh(cfg)
     metadata = _check_source(cfg) if "source" in cfg.stages else None
     if "tracker" in cfg.stages:  # last: it imports the tracker (about a second)
-        from pipeline.stages import build_stage_tracker
+        from bnptrack.pipeline.stages import build_stage_tracker
 
         build_stage_tracker(cfg.tracker, metadata)
 
 
 def _check_source(cfg: PipelineConfig) -> dict[str, str] | None:
     """The source's metadata record (what the tracker stage will receive), or an error."""
-    from pipeline.stages import source_frames
+    from bnptrack.pipeline.stages import source_frames
 
     metadata, frames = source_frames(cfg)
     close = getattr(frames, "close", None)
@@ -61,7 +61,7 @@ def _check_sink(cfg: PipelineConfig) -> None:
     if cfg.sink.view_url:
         if not cfg.sink.rerun:
             raise ConfigError("sink.view_url: the live view streams run.rrd's rows: it needs sink.rerun = true")
-        from pipeline.live import check_viewer
+        from bnptrack.pipeline.live import check_viewer
 
         check_viewer(cfg.sink.view_url)
 
@@ -114,7 +114,7 @@ LOCK_NAME = ".bnptrack.lock"
 
 def run_files(cfg: PipelineConfig) -> list[str]:
     """The files of a run in ``cfg.out`` (any of them means the directory holds a run)."""
-    from pipeline.stages import JOURNAL_NAME, SNAPSHOT_NAME, SUMMARY_NAME
+    from bnptrack.pipeline.stages import JOURNAL_NAME, SNAPSHOT_NAME, SUMMARY_NAME
 
     names = ["pipeline.json", "stages.json", SUMMARY_NAME, SNAPSHOT_NAME, JOURNAL_NAME,
              cfg.sink.mcap_name, cfg.sink.rrd_name, "health.jsonl", "logs"]

@@ -16,10 +16,10 @@ from typing import Any
 
 import msgspec
 
-from sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
-from tracker.config import ConfigError, apply_overrides, load_toml, split_item
-from tracker.models.params import ModelParams, load_params
-from tracker.registry import TRACKERS
+from bnptrack.sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
+from bnptrack.tracker.config import ConfigError, apply_overrides, load_toml, split_item
+from bnptrack.tracker.models.params import ModelParams, load_params
+from bnptrack.tracker.registry import TRACKERS
 
 __all__ = [
     "DEFAULT_PARAMS",
@@ -48,7 +48,7 @@ def tracker_settings_fields(config_cls: type[msgspec.Struct] | None = None) -> t
     (:mod:`tracker.registry`), in registry order without repeats."""
     if config_cls is not None:
         return tuple(config_cls.__struct_fields__)
-    from tracker.registry import kind
+    from bnptrack.tracker.registry import kind
 
     classes = dict.fromkeys(kind(name).config_cls for name in TRACKERS)
     return tuple(dict.fromkeys(f for cls in classes for f in cls.__struct_fields__))
@@ -191,7 +191,7 @@ def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoi
 def resolve_config(tracker: str, config_arg: str | None) -> tuple[msgspec.Struct, str]:
     """Tracker settings: a preset name or a TOML file of the tracker's settings fields;
     default: the preset named like the tracker.  Returns ``(config, description)``."""
-    from tracker.registry import kind
+    from bnptrack.tracker.registry import kind
 
     try:
         k = kind(tracker)
@@ -210,7 +210,7 @@ def resolve_config(tracker: str, config_arg: str | None) -> tuple[msgspec.Struct
 
 def build_tracker(name: str, params: ModelParams, config: msgspec.Struct):
     """The tracker ``name`` (see :mod:`tracker.registry`) with these parameters and settings."""
-    from tracker.registry import build
+    from bnptrack.tracker.registry import build
 
     try:
         return build(name, params, config)

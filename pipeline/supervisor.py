@@ -17,7 +17,7 @@ from typing import Any
 
 import msgspec
 
-from pipeline.config import PipelineConfig, ZenohConfig
+from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
            "sink_left_output", "write_stages", "stop_stages"]
@@ -125,7 +125,7 @@ class HealthMonitor:
         self.io_errors: dict[str, str] = {}  # stage -> its I/O error line, from its health message
 
     def open(self, cfg: PipelineConfig, credentials: dict[str, str]) -> None:
-        from pipeline.transport import Bus
+        from bnptrack.pipeline.transport import Bus
 
         z = msgspec.structs.replace(cfg.zenoh, mode="client", listen=[])  # it only listens to health
         if "launcher" in credentials:
@@ -196,7 +196,7 @@ class HealthMonitor:
 def recorded_complete(summary_path: Path, run: str) -> bool:
     """Whether ``sink.json`` says the sink recorded the whole run ``run`` (then finishes
     renaming its outputs, should it have been killed in between)."""
-    from pipeline.stages.recovery import commit_parts
+    from bnptrack.pipeline.stages.recovery import commit_parts
 
     try:
         summary = json.loads(summary_path.read_text())
@@ -212,8 +212,8 @@ def sink_left_output(cfg: PipelineConfig, out: Path) -> bool:
     """Whether a sink process of run ``cfg.run`` left an output in ``out`` that a sink
     restarted with nobody else there finalizes (exit 3): a ``sink.json`` of this run, or a
     ``.tracks.mcap.part`` with a readable frame (:func:`pipeline.stages.salvage_part`)."""
-    from pipeline.stages.recovery import part_path
-    from pipeline.stages.salvage import earlier_summary, salvage_part
+    from bnptrack.pipeline.stages.recovery import part_path
+    from bnptrack.pipeline.stages.salvage import earlier_summary, salvage_part
 
     if earlier_summary(out / "sink.json", cfg.run) is not None:
         return True
@@ -224,7 +224,7 @@ def sink_left_output(cfg: PipelineConfig, out: Path) -> bool:
 def open_embedded_router(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[Any, ZenohConfig, dict[str, str]]:
     """Open the launcher's router; returns it, the stages' Zenoh settings (connect to it)
     and the per-run credentials (empty unless the ACL or authentication needs them)."""
-    from pipeline.transport import Router
+    from bnptrack.pipeline.transport import Router
 
     credentials: dict[str, str] = {}
     generated = (z.acl or (z.auth and z.mode == "client")) and not z.users_file

@@ -52,11 +52,11 @@ import msgspec
 import zenoh
 import zenoh.ext as zext
 
-from pipeline.acl import KEY_ROOT, acl_config
-from pipeline.config import DeliveryConfig, ZenohConfig
-from pipeline.ports import free_port
-from pipeline.preflight import listening
-from pipeline.events import Event
+from bnptrack.pipeline.acl import KEY_ROOT, acl_config
+from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+from bnptrack.pipeline.ports import free_port
+from bnptrack.pipeline.preflight import listening
+from bnptrack.pipeline.events import Event
 
 __all__ = [
     "KEY_ROOT",

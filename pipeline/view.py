@@ -27,7 +27,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.ports import free_port
+from bnptrack.pipeline.ports import free_port
 
 
 __all__ = ["ViewerUnavailable", "viewer_failure", "open_viewer", "screenshot"]
@@ -59,7 +59,7 @@ def open_viewer(path: str | os.PathLike, *, web: bool = False,
     printed URL in a browser).  Raises :class:`ViewerUnavailable` when there is no
     display for the native viewer (Linux without ``DISPLAY`` / ``WAYLAND_DISPLAY``).
     """
-    from sinks.rerun_tools import rerun_cli, rerun_env
+    from bnptrack.sinks.rerun_tools import rerun_cli, rerun_env
 
     path = _check_rrd(path)
     cmd = [*rerun_cli(), str(path), "--bind", "127.0.0.1"]  # its server: this machine only
@@ -161,7 +161,7 @@ def _viewer_client_class() -> Any:
 
 def _cli() -> list[str]:
     """The ``rerun`` command (:func:`sinks.rerun_tools.rerun_cli`), else :class:`ViewerUnavailable`."""
-    from sinks.rerun_tools import RerunToolError, rerun_cli
+    from bnptrack.sinks.rerun_tools import RerunToolError, rerun_cli
 
     try:
         return rerun_cli()
@@ -171,7 +171,7 @@ def _cli() -> list[str]:
 
 def _start_headless(cli: list[str], port: int, size: tuple[int, int], log: Path) -> subprocess.Popen:
     """Start the headless viewer on 127.0.0.1:``port`` at ``size``, its output to ``log``."""
-    from sinks.rerun_tools import rerun_env
+    from bnptrack.sinks.rerun_tools import rerun_env
 
     env = rerun_env()
     env["RERUN_APP_ONLY"] = "true"

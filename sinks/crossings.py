@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sinks.metric_checks import LabelledScan, check_labelled_run, check_positive, optimal_assignment
+from bnptrack.sinks.metric_checks import LabelledScan, check_labelled_run, check_positive, optimal_assignment
 
 __all__ = ["CrossingPairResult", "CrossingResult", "crossing_label_keeping"]
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sinks.records import SinkOptions, SinkRecord
+from bnptrack.sinks.records import SinkOptions, SinkRecord
 
 __all__ = ["McapSink"]
 
@@ -23,7 +23,7 @@ class McapSink:
         self.writer: Any = None
 
     def open(self, metadata: Mapping[str, str] | None) -> None:
-        from sinks.mcap_writer import McapLogWriter
+        from bnptrack.sinks.mcap_writer import McapLogWriter
 
         self.options.path.parent.mkdir(parents=True, exist_ok=True)
         self.writer = McapLogWriter(self.options.path, dict(metadata) if metadata is not None else None)

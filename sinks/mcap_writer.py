@@ -19,8 +19,8 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from sources.mcap_log import METADATA_NAME
-from tracker.messages import (
+from bnptrack.sources.mcap_log import METADATA_NAME
+from bnptrack.tracker.messages import (
     SCHEMA_VERSION,
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
@@ -29,7 +29,7 @@ from tracker.messages import (
     from_truth,
     json_schema,
 )
-from tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["DEFAULT_CHUNK_SIZE", "DEFAULT_FLUSH_EVERY", "McapLogWriter"]
 

@@ -42,9 +42,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
+from bnptrack.sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
                                  check_positive, check_same_dim, check_tracks, optimal_assignment)
-from tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
            "track_distance", "RunScorer", "ScoreTally", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
-    from tracker.types import Estimate, Frame
+    from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["Sink", "SinkRecord", "Payloads", "SinkOptions"]
 

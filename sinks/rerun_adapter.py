@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sinks.metrics import RunScorer
-from sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.sinks.metrics import RunScorer
+from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
 
 __all__ = ["RerunRecordSink", "rerun_sink"]
 
@@ -19,7 +19,7 @@ __all__ = ["RerunRecordSink", "rerun_sink"]
 def rerun_sink(options: SinkOptions) -> Sink:
     """The Rerun sink for ``options``: in a child process when ``options.process``."""
     if options.process:
-        from sinks.rerun_process import ProcessRecordSink
+        from bnptrack.sinks.rerun_process import ProcessRecordSink
 
         return ProcessRecordSink(options)
     return RerunRecordSink(options)
@@ -37,7 +37,7 @@ class RerunRecordSink:
         self._scorer = RunScorer()
 
     def open(self, metadata: Mapping[str, str] | None) -> None:
-        from sinks.rerun_sink import RerunSink  # imports rerun
+        from bnptrack.sinks.rerun_sink import RerunSink  # imports rerun
 
         o = self.options.now()
         meta = dict(metadata or {})

@@ -7,7 +7,7 @@ from typing import Any
 
 import rerun.blueprint as rrb
 
-from sinks.rerun_style import (CARDINALITY, DIAG_NAMES, DIAGNOSTICS, EVENTS, HEALTH, METADATA, OSPA, OSPA2, STRUCTURE,
+from bnptrack.sinks.rerun_style import (CARDINALITY, DIAG_NAMES, DIAGNOSTICS, EVENTS, HEALTH, METADATA, OSPA, OSPA2, STRUCTURE,
                                WORLD)
 
 __all__ = ["default_blueprint"]

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from sinks.rerun_style import CARD_POSTERIOR, CLUSTER_COUNT, cluster_color, pack_rgba, unpack_rgba
-from tracker.cardinality import pmf_map, pmf_mean
+from bnptrack.sinks.rerun_style import CARD_POSTERIOR, CLUSTER_COUNT, cluster_color, pack_rgba, unpack_rgba
+from bnptrack.tracker.cardinality import pmf_map, pmf_mean
 
 __all__ = ["ClusterColours", "track_clusters", "cluster_columns", "structure_rows"]
 

@@ -10,7 +10,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from sinks.rerun_style import R_CLUSTER_CENTRE, R_CLUSTER_LINK, R_ELLIPSE, R_TRACK, R_TRAIL
+from bnptrack.sinks.rerun_style import R_CLUSTER_CENTRE, R_CLUSTER_LINK, R_ELLIPSE, R_TRACK, R_TRAIL
 
 __all__ = ["Batch", "Schema", "send", "log_arrays", "entity_part", "track_style", "track_colours", "cluster_style",
            "annotation_context", "scalar_columns"]

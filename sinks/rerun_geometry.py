@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
+from bnptrack.sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
 __all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses",
            "measurement_xy", "hits_per_row", "assignment_index", "track_strips",

@@ -54,12 +54,12 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 
-from sinks.metrics import RunScorer
-from sinks.records import SinkOptions, SinkRecord
+from bnptrack.sinks.metrics import RunScorer
+from bnptrack.sinks.records import SinkOptions, SinkRecord
 
 if TYPE_CHECKING:
-    from tracker.models.params import ModelParams
-    from tracker.types import Estimate, Frame
+    from bnptrack.tracker.models.params import ModelParams
+    from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["RecordingProcess", "RecordingError", "ProcessRecordSink", "CHILD_FLUSH_INTERVAL", "fork_allowed", "child_main",
            "child_entry"]
@@ -69,7 +69,7 @@ CHILD_FLUSH_INTERVAL = 0.25
 #: Root of the source tree that holds ``sinks`` (put first on the child's ``PYTHONPATH``, so the
 #: child runs this very code whatever the parent's ``sys.path`` tricks were).
 _SOURCE_ROOT = Path(__file__).resolve().parents[1]
-_CHILD_CODE = "from sinks.rerun_process import child_entry; child_entry()"
+_CHILD_CODE = "from bnptrack.sinks.rerun_process import child_entry; child_entry()"
 _DONE = b"done\n"
 _REAPER = "rerun-recording-reaper"
 _PIPE_SIZE = 1 << 20
@@ -379,7 +379,7 @@ def _messages(stream: IO[bytes]) -> Iterator[tuple[Any, ...]]:
 def child_main(stream: IO[bytes]) -> bool:
     """Import rerun, wait for ``open``, log every frame until the end of ``stream``, close the
     sink.  Returns whether a recording was written (``False``: the input ended before ``open``)."""
-    from sinks.rerun_sink import RerunSink  # the slow import (rerun), before any message
+    from bnptrack.sinks.rerun_sink import RerunSink  # the slow import (rerun), before any message
 
     messages = _messages(stream)
     first = next(messages, None)

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import rerun as rr
 
-from sinks.rerun_geometry import SceneGeometry, nice_step
-from sinks.rerun_style import (ASSIGNMENTS, AXES, ELLIPSE_SIGMA, GREY_CLUTTER, GREY_TRUTH, GREY_TRUTH_TRAIL, GRID,
+from bnptrack.sinks.rerun_geometry import SceneGeometry, nice_step
+from bnptrack.sinks.rerun_style import (ASSIGNMENTS, AXES, ELLIPSE_SIGMA, GREY_CLUTTER, GREY_TRUTH, GREY_TRUTH_TRAIL, GRID,
                                GRID_TICKS, LEGEND, MEASUREMENTS, METADATA, PALETTE, R_ASSIGN_LINE, R_ELLIPSE,
                                R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_TRACK, R_TRAIL, R_TRUTH_CROSS, R_TRUTH_TRAIL,
                                SENSOR, SENSOR_COLOR, TRUTH, TRUTH_TRAILS, WHITE_UNASSIGNED, WORLD)

@@ -41,25 +41,25 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
-from sinks.close_on_signal import CloseOnSignal
-from sinks.rerun_blueprint import default_blueprint
-from sinks.rerun_clusters import ClusterColours, cluster_columns, structure_rows, track_clusters
-from sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
+from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
+from bnptrack.sinks.close_on_signal import CloseOnSignal
+from bnptrack.sinks.rerun_blueprint import default_blueprint
+from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, structure_rows, track_clusters
+from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
                                  send, track_colours, track_style)
-from sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
+from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
                                   measurement_xy, track_strips, truth_crosses, truth_trails)
-from sinks.rerun_scene import write_static
-from sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
+from bnptrack.sinks.rerun_scene import write_static
+from bnptrack.sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
                                FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, MEASUREMENTS, OSPA,
                                OSPA2, R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_RING, RINGS,
                                SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
                                label_color, pack_rgba, unpack_rgba)
-from tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame
 
 if TYPE_CHECKING:
-    from sinks.metrics import OspaResult
-    from tracker.models.params import ModelParams
+    from bnptrack.sinks.metrics import OspaResult
+    from bnptrack.tracker.models.params import ModelParams
 
 __all__ = ["RerunSink", "write_recording"]
 
@@ -474,7 +474,7 @@ class RerunSink:
             if self._params is not None:
                 model = self._params.measurement(kind)
             else:
-                from tracker.models.measurement import measurement_kind
+                from bnptrack.tracker.models.measurement import measurement_kind
 
                 model = measurement_kind(kind).model()
             self._meas_models[kind] = model

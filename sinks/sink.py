@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from dataclasses import dataclass, field
 
-from sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
 
 __all__ = ["SinkEntry", "SINKS", "make_sink", "SinkSet", "OptionalSink", "UnknownSink", "check_sink_names"]
 
@@ -63,10 +63,10 @@ class UnknownSink(KeyError):
 
 #: The sinks by name.
 SINKS: dict[str, SinkEntry] = {
-    "mcap": SinkEntry("sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
+    "mcap": SinkEntry("bnptrack.sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
                       "tracks.mcap", decoded=False),
-    "rerun": SinkEntry("sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
-                       "run.rrd", required=False, imports=("sinks.rerun_sink",)),
+    "rerun": SinkEntry("bnptrack.sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
+                       "run.rrd", required=False, imports=("bnptrack.sinks.rerun_sink",)),
 }
 
 

@@ -28,7 +28,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from tracker.messages import (
+from bnptrack.tracker.messages import (
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
     TOPIC_TRUTH,
@@ -40,7 +40,7 @@ from tracker.messages import (
     to_frame,
     to_truth,
 )
-from tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = [
     "METADATA_NAME",

@@ -90,10 +90,10 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
-from sources.scene import Scenario, TargetSpec
-from tracker.config import ConfigError
-from tracker.models.motion import CoordinatedTurn
-from tracker.models.params import ModelParams
+from bnptrack.sources.scene import Scenario, TargetSpec
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.motion import CoordinatedTurn
+from bnptrack.tracker.models.params import ModelParams
 
 __all__ = [
     "TargetSpec",
@@ -233,14 +233,14 @@ SCENARIOS: dict[str, Scenario] = {
 
 def scenario_names() -> tuple[str, ...]:
     """The fixed scenarios, then the generated families."""
-    from sources.scene_families import family_names
+    from bnptrack.sources.scene_families import family_names
 
     return tuple(SCENARIOS) + family_names()
 
 
 def is_generated(name: str) -> bool:
     """Whether ``name`` is a generated family (its scene depends on a seed)."""
-    from sources.scene_families import FAMILIES
+    from bnptrack.sources.scene_families import FAMILIES
 
     return name in FAMILIES
 
@@ -269,7 +269,7 @@ def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = ()) 
 
 @functools.lru_cache(maxsize=32)
 def _generated(name: str, seed: int, scene: tuple[str, ...]) -> Scenario:
-    from sources.scene_families import generate_scene
+    from bnptrack.sources.scene_families import generate_scene
 
     return generate_scene(name, seed, scene)
 
@@ -331,7 +331,7 @@ def adapting_scenario(name: str) -> Scenario:
     """The scenario whose ``adapt_params`` applies: the fixed table, or a generated family's
     template (the same for every scene of the family: no birth regions)."""
     if is_generated(name):
-        from sources.scene_families import family_template
+        from bnptrack.sources.scene_families import family_template
 
         return family_template(name)
     return get_scenario(name)
@@ -372,7 +372,7 @@ def scenario_params(
     ``overrides`` (``scene.*`` items are left to :func:`scene_of`), ``snr_db`` (``--snr``),
     then the scenario's defaults (:meth:`Scenario.adapt_params`, e.g. -3 dB for ``snr``, no
     birth regions for ``random``)."""
-    from tracker.models.params import load_params
+    from bnptrack.tracker.models.params import load_params
 
     _, model_over = split_scene_overrides(overrides)
     adapting = adapting_scenario(name)

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
-from tracker.models.measurement import DEFAULT_KIND, KINDS
-from tracker.models.motion import CoordinatedTurn
-from tracker.models.params import BirthComponent, ModelParams
-from tracker.types import STATE_DIM, Truth
+from bnptrack.tracker.models.measurement import DEFAULT_KIND, KINDS
+from bnptrack.tracker.models.motion import CoordinatedTurn
+from bnptrack.tracker.models.params import BirthComponent, ModelParams
+from bnptrack.tracker.types import STATE_DIM, Truth
 
 __all__ = ["TargetSpec", "Scenario"]
 

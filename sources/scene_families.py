@@ -59,8 +59,8 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
-from tracker.config import ConfigError, apply_overrides
-from tracker.models.motion import CoordinatedTurn
+from bnptrack.tracker.config import ConfigError, apply_overrides
+from bnptrack.tracker.models.motion import CoordinatedTurn
 
 __all__ = [
     "SceneFamily",
@@ -401,7 +401,7 @@ def family_template(name: str):
     """A target-less :class:`Scenario` of family ``name``: what every scene of the family
     shares (sensor kind, ``K``, no birth regions), for :meth:`Scenario.adapt_params` without
     drawing a scene."""
-    from sources.scene import Scenario
+    from bnptrack.sources.scene import Scenario
 
     scene_config(name)  # validates the name
     return Scenario(name, _DESCRIPTIONS[name], K=FAMILIES[name].K, birth=())
@@ -409,7 +409,7 @@ def family_template(name: str):
 
 def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
     """The scene of family ``name`` for ``seed`` and ``scene.*`` ``overrides`` (a :class:`Scenario`)."""
-    from sources.scene import Scenario, TargetSpec
+    from bnptrack.sources.scene import Scenario, TargetSpec
 
     fam = scene_config(name, overrides)
     rng = scene_rng(name, seed)

@@ -30,11 +30,11 @@ from typing import Protocol
 
 import numpy as np
 
-from sources.scenarios import Scenario
-from tracker.models.clutter import Detection, SectorClutter, UniformClutter
-from tracker.models.measurement import measurement_kind, wrap_angle
-from tracker.models.params import ModelParams
-from tracker.types import Frame, Truth
+from bnptrack.sources.scenarios import Scenario
+from bnptrack.tracker.models.clutter import Detection, SectorClutter, UniformClutter
+from bnptrack.tracker.models.measurement import measurement_kind, wrap_angle
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.types import Frame, Truth
 
 __all__ = ["measurement_frame_rng", "measure_with", "move_truth", "sensor_rng", "simulate", "simulate_sensors", "truth_at_time", "simulate_all", "simulate_frame"]
 
@@ -195,7 +195,7 @@ def truth_at_time(scenario: Scenario, t: float, T: float = 1.0) -> Truth:
     """Ground truth at time ``t`` seconds (scan ``k`` is at ``k T``): the objects present at
     scan ``floor(t / T)`` carried forward by the noiseless CT model over the remainder (the
     scenarios' own motion), so frames can be simulated at irregular times."""
-    from tracker.models.motion import CoordinatedTurn
+    from bnptrack.tracker.models.motion import CoordinatedTurn
 
     k = int(np.floor(t / T + 1e-12))
     if not 1 <= k <= scenario.K:

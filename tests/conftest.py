@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.models.params import load_params
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.models.params import load_params
 
 
 INTEGRATION_DIR = Path(__file__).resolve().parent / "integration"

@@ -14,6 +14,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("tracker", "pipeline", "sources", "sinks")
+NAMESPACE = "bnptrack."  # the installed name of each package: bnptrack.tracker, ... (pyproject.toml)
 MAX_MODULE_LINES = 600  # pipeline/, sinks/, sources/
 MAX_FUNCTION_LINES = 60  # everywhere except numba kernels
 
@@ -41,9 +42,14 @@ def _string_imports(node: ast.AST) -> list[str]:
         return [a.value for a in node.args if isinstance(a, ast.Constant) and isinstance(a.value, str)]
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         m = re.fullmatch(r"([a-z_][\w.]*):[A-Za-z_]\w*", node.value)
-        if m and m.group(1).split(".")[0] in PACKAGES:
+        if m and _local(m.group(1)).split(".")[0] in PACKAGES:
             return [m.group(1)]
     return []
+
+
+def _local(name: str) -> str:
+    """``bnptrack.tracker.x`` -> ``tracker.x``: the rules speak of the repository's folders."""
+    return name[len(NAMESPACE):] if name.startswith(NAMESPACE) else name
 
 
 def _imports(path: Path) -> list[tuple[str, int]]:
@@ -64,7 +70,7 @@ def _imports(path: Path) -> list[tuple[str, int]]:
             found.append((name, node.lineno))
             found += [(f"{name}.{a.name}", node.lineno) for a in node.names]
         found += [(name, getattr(node, "lineno", 0)) for name in _string_imports(node)]
-    return found
+    return [(_local(name), line) for name, line in found]
 
 
 def _top(name: str) -> str:
@@ -243,3 +249,37 @@ def test_the_readme_layout_names_every_module(pkg):
                 if p.is_dir() and p.name != "__pycache__"}
     assert sorted(present - named) == [], f"{pkg}/: not in README's layout row"
     assert sorted(named - present) == [], f"{pkg}/: the README names what does not exist"
+
+
+def _bare_imports(path: Path) -> list[str]:
+    """Imports of a project package by its bare folder name (``from tracker.x import y``)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    names = [(a.name, n.lineno) for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    names += [(n.module or "", n.lineno) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level]
+    return [f"{_rel(path)}:{line} {name}" for name, line in names if name.split(".")[0] in PACKAGES]
+
+
+def test_every_import_goes_through_the_bnptrack_namespace():
+    """The installed distribution claims one top-level name, ``bnptrack`` (issue 13): a user's own
+    ``tracker.py`` beside a notebook must not shadow the project's tracker package."""
+    files = [p for d in (*PACKAGES, "bnptrack", "tests", "benchmarks") for p in sorted((ROOT / d).rglob("*.py"))]
+    assert [b for p in files for b in _bare_imports(p)] == []
+
+
+def test_the_bare_import_check_sees_one(tmp_path):
+    path = tmp_path / "probe.py"
+    path.write_text("import os\nfrom tracker.bnp import filter\nfrom bnptrack.sinks import sink\n")
+    assert _bare_imports(path) == ["probe.py:2 tracker.bnp"]
+
+
+def test_pyproject_installs_every_package_under_bnptrack():
+    """pyproject.toml maps each folder to ``bnptrack.<folder>`` and lists every sub-package."""
+    import tomllib
+
+    setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    dirs = {"bnptrack": "bnptrack", **{f"bnptrack.{p}": p for p in PACKAGES}}
+    assert setup["package-dir"] == dirs
+    present = {"bnptrack"} | {
+        "bnptrack." + ".".join(init.parent.relative_to(ROOT).parts)
+        for pkg in PACKAGES for init in (ROOT / pkg).rglob("__init__.py")}
+    assert sorted(setup["packages"]) == sorted(present)

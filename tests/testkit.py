@@ -96,8 +96,8 @@ class ListSource:
         /measurements and /truth with the ``seq``/``t``/``frame`` attachment, ``eos/source``."""
         import msgspec
 
-        from pipeline.stages.health import EndOfStream, StageInfo
-        from tracker.messages import encode, from_truth
+        from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
+        from bnptrack.tracker.messages import encode, from_truth
 
         enc = msgspec.json.encode
         samples: list[tuple[str, bytes, dict | None]] = [
@@ -156,8 +156,8 @@ def forge_seq(seq: int, frame: int):
 
 def mem_cfg(tmp_path: Path, frames: int = 12, **extra: str):
     """A small pipeline (sweeps 8, burn-in 2, no Rerun) writing to ``tmp_path/out``."""
-    from pipeline.config import PipelineConfig, resolve_run
-    from tracker.config import apply_overrides
+    from bnptrack.pipeline.config import PipelineConfig, resolve_run
+    from bnptrack.tracker.config import apply_overrides
 
     overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
                  "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
@@ -171,7 +171,7 @@ def run_memory_pipeline(cfg, net, roles=("sink", "tracker", "source"), timeout=1
                         clock=None) -> dict[str, int]:
     """Run ``roles`` on ``net`` in threads, all on one :class:`ManualClock` (see
     :func:`_drive_clock`): their grace periods do not depend on the machine's speed."""
-    from pipeline.stages import STAGES, ManualClock, StageContext
+    from bnptrack.pipeline.stages import STAGES, ManualClock, StageContext
 
     codes: dict[str, int] = {}
     errors: list[BaseException] = []
@@ -216,9 +216,9 @@ def _drive_clock(net, run: str, clock, threads: list[threading.Thread], timeout:
 
 def offline(cfg, drop: frozenset[int] = frozenset()):
     """The offline result for the pipeline's synthetic frames (minus the dropped seqs)."""
-    from pipeline.resolve import tracker_setup
-    from pipeline.stages import source_frames
-    from tracker.state import run
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.stages import source_frames
+    from bnptrack.tracker.state import run
 
     meta, frames = source_frames(cfg)
     frames = [f for i, f in enumerate(frames) if i not in drop]
@@ -283,7 +283,7 @@ def png_stats(png: "str | Path | bytes") -> dict[str, float]:
 
 
 def bnptrack_env(extra: "dict[str, str] | None" = None) -> dict[str, str]:
-    """The environment of a ``python -m pipeline`` subprocess: this checkout first on
+    """The environment of a ``python -m bnptrack`` subprocess: this checkout first on
     ``PYTHONPATH``, Rerun's analytics off, plus ``extra``."""
     import os
 
@@ -294,14 +294,14 @@ def bnptrack_env(extra: "dict[str, str] | None" = None) -> dict[str, str]:
 
 
 def popen_bnptrack(*args: str, log: "Path | None" = None, env: "dict[str, str] | None" = None):
-    """Start ``bnptrack ARGS`` (``python -m pipeline``) in its own process group; output to
+    """Start ``bnptrack ARGS`` (``python -m bnptrack``) in its own process group; output to
     ``log`` (appended, stderr merged) or to two pipes (stdout, stderr: progress lines go to
     stderr) that :func:`finish` reads."""
     import subprocess
     import sys
 
     out = open(log, "ab") if log is not None else subprocess.PIPE
-    return subprocess.Popen([sys.executable, "-m", "pipeline", *args], cwd=REPO_ROOT, env=bnptrack_env(env),
+    return subprocess.Popen([sys.executable, "-m", "bnptrack", *args], cwd=REPO_ROOT, env=bnptrack_env(env),
                             stdout=out, stderr=subprocess.STDOUT if log is not None else subprocess.PIPE,
                             start_new_session=True)
 

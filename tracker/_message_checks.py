@@ -18,8 +18,8 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from tracker.models.measurement import KINDS, MeasurementKind, measurement_kind
-from tracker.types import STATE_DIM
+from bnptrack.tracker.models.measurement import KINDS, MeasurementKind, measurement_kind
+from bnptrack.tracker.types import STATE_DIM
 
 # --------------------------------------------------------------------------- contract constants
 

@@ -55,7 +55,7 @@ from typing import Annotated, Any, Union
 import msgspec
 import numpy as np
 
-from tracker._message_checks import (
+from bnptrack.tracker._message_checks import (
     COV_DIM,
     MAX_DIAGNOSTICS,
     MAX_MEASUREMENTS,
@@ -80,9 +80,9 @@ from tracker._message_checks import (
     estimate_arrays,
     is_int,
 )
-from tracker.config import NonNegInt, Prob
-from tracker.models.measurement import KINDS, measurement_kind
-from tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, Truth
+from bnptrack.tracker.config import NonNegInt, Prob
+from bnptrack.tracker.models.measurement import KINDS, measurement_kind
+from bnptrack.tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, Truth
 
 __all__ = [
     "SCHEMA_VERSION",

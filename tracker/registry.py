@@ -14,7 +14,7 @@ import numpy as np
 
 import msgspec
 
-from tracker.models.params import ModelParams
+from bnptrack.tracker.models.params import ModelParams
 
 
 class Tracker(Protocol):
@@ -37,7 +37,7 @@ class TrackerKind:
 
 
 def _bnp(name: str, description: str) -> TrackerKind:
-    from tracker.bnp import TRACKER_PRESETS, BnpConfig, make_tracker
+    from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, make_tracker
 
     return TrackerKind(name, description, BnpConfig, TRACKER_PRESETS,
                        lambda params, config: make_tracker(name, params, config))
@@ -45,21 +45,21 @@ def _bnp(name: str, description: str) -> TrackerKind:
 
 def _bnp_alias(name: str, preset: str, description: str) -> TrackerKind:
     """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations)."""
-    from tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
+    from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
 
     presets = {name: TRACKER_PRESETS[preset]}
     return TrackerKind(name, description, BnpConfig, presets, lambda params, config: BnpTracker(params, config, name))
 
 
 def _groups(name: str, description: str) -> TrackerKind:
-    from tracker.bnp.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
+    from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
 
     return TrackerKind(name, description, GroupConfig, GROUP_PRESETS,
                        lambda params, config: make_group_tracker(name, params, config))
 
 
 def _glmb() -> TrackerKind:
-    from tracker.glmb import GLMB_PRESETS, GlmbConfig, make_glmb
+    from bnptrack.tracker.glmb import GLMB_PRESETS, GlmbConfig, make_glmb
 
     return TrackerKind("glmb", "GLMB filter, joint prediction-update with Gibbs truncation (Vo et al. 2017)",
                        GlmbConfig, GLMB_PRESETS, make_glmb)
@@ -104,8 +104,8 @@ def warm_up(tracker: Any, frames: int = 3) -> None:
     rows are the examples drifted by ``k`` times 0.001 in each column but the last and 5 in
     the last (e.g. 5 m of range).  Raises whatever a step raises (a tracker without the
     kind's model, say)."""
-    from tracker.models.measurement import KINDS
-    from tracker.types import Frame
+    from bnptrack.tracker.models.measurement import KINDS
+    from bnptrack.tracker.types import Frame
 
     rng = np.random.default_rng(0)
     for name, entry in KINDS.items():

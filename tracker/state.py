@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 import msgspec
 import numpy as np
 
-from tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame
 
 S = TypeVar("S")
 

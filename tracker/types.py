@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from tracker.models.measurement import KINDS
+from bnptrack.tracker.models.measurement import KINDS
 
 #: The registry's kinds (:data:`tracker.models.measurement.KINDS`) as a type, for readers;
 #: ``Frame`` checks a kind against the registry itself, so a kind registered later is valid.

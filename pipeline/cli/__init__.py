@@ -1,4 +1,4 @@
-"""The ``bnptrack`` command line (``bnptrack = "pipeline.cli:main"``; also ``python -m pipeline``).
+"""The ``bnptrack`` command line (``bnptrack = "bnptrack.pipeline.cli:main"``; also ``python -m bnptrack``).
 
 Subcommands are thin: they parse options, call the library and print a summary.
 
@@ -28,22 +28,22 @@ __all__ = ["main", "CliError", "IncompleteError", "EXIT_ERROR", "EXIT_INCOMPLETE
 #: so ``bnptrack --help`` imports no tracker, numpy or codec, and ``bnptrack track`` only the
 #: offline commands (docs/performance.md, start-up).
 COMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("pipeline.cli.offline_commands",
+    "simulate": ("bnptrack.pipeline.cli.offline_commands",
                  "Simulate a scenario and write its measurements and truth to an MCAP log."),
-    "track": ("pipeline.cli.offline_commands", "Run a tracker over an MCAP log offline and write its tracks."),
-    "info": ("pipeline.cli.tools", "Describe an MCAP log: channels, frames, sensors, time, and its record."),
-    "export": ("pipeline.cli.tools", "Export a run's tracks (the output of `track`) as a table."),
-    "view": ("pipeline.cli.tools", "Open a Rerun recording (.rrd) in the Rerun viewer, or render it to a PNG."),
-    "experiment": ("pipeline.cli.tools", "Run one of the paper's simulation experiments as a Monte Carlo study."),
-    "schema": ("pipeline.cli.tools", "Print the JSON Schema of a channel's messages."),
-    "launch": ("pipeline.cli.pipeline_commands",
+    "track": ("bnptrack.pipeline.cli.offline_commands", "Run a tracker over an MCAP log offline and write its tracks."),
+    "info": ("bnptrack.pipeline.cli.tools", "Describe an MCAP log: channels, frames, sensors, time, and its record."),
+    "export": ("bnptrack.pipeline.cli.tools", "Export a run's tracks (the output of `track`) as a table."),
+    "view": ("bnptrack.pipeline.cli.tools", "Open a Rerun recording (.rrd) in the Rerun viewer, or render it to a PNG."),
+    "experiment": ("bnptrack.pipeline.cli.tools", "Run one of the paper's simulation experiments as a Monte Carlo study."),
+    "schema": ("bnptrack.pipeline.cli.tools", "Print the JSON Schema of a channel's messages."),
+    "launch": ("bnptrack.pipeline.cli.pipeline_commands",
                "Run the streaming pipeline: every stage in its own process, linked by Zenoh."),
-    "replay": ("pipeline.cli.pipeline_commands", "Replay an MCAP measurement log through the streaming pipeline."),
-    "stage": ("pipeline.cli.pipeline_commands",
+    "replay": ("bnptrack.pipeline.cli.pipeline_commands", "Replay an MCAP measurement log through the streaming pipeline."),
+    "stage": ("bnptrack.pipeline.cli.pipeline_commands",
               "Run one pipeline stage in this process (to place stages on different hosts)."),
-    "router": ("pipeline.cli.pipeline_commands",
+    "router": ("bnptrack.pipeline.cli.pipeline_commands",
                "Run a Zenoh router for pipeline stages on several hosts (until Ctrl-C)."),
-    "monitor": ("pipeline.cli.monitor",
+    "monitor": ("bnptrack.pipeline.cli.monitor",
                 "Watch a run's stages: liveliness, health counters, dead letters, end of stream."),
 }
 
@@ -118,7 +118,7 @@ def __getattr__(name: str) -> Any:
     """``CliError``, ``IncompleteError``, ``EXIT_ERROR``, ``EXIT_INCOMPLETE`` from
     :mod:`pipeline.cli.common`, imported on first use (it imports the codec and numpy)."""
     if name in ("CliError", "IncompleteError", "EXIT_ERROR", "EXIT_INCOMPLETE"):
-        from pipeline.cli import common
+        from bnptrack.pipeline.cli import common
 
         return getattr(common, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -18,11 +18,11 @@ from typing import Any
 
 import click
 
-from tracker.messages import CodecError
-from pipeline.view import ViewerUnavailable
-from sinks.rerun_process import RecordingError
-from sources.mcap_log import McapLogError
-from tracker.config import ConfigError
+from bnptrack.tracker.messages import CodecError
+from bnptrack.pipeline.view import ViewerUnavailable
+from bnptrack.sinks.rerun_process import RecordingError
+from bnptrack.sources.mcap_log import McapLogError
+from bnptrack.tracker.config import ConfigError
 
 __all__ = [
     "EXIT_ERROR",
@@ -155,14 +155,14 @@ class LazyHelpOption(click.Option):
 
 def tracker_help() -> str:
     """``--tracker``: every tracker of :mod:`tracker.registry` with its description."""
-    from tracker.registry import TRACKERS, kind
+    from bnptrack.tracker.registry import TRACKERS, kind
 
     return "; ".join(f"{name} = {kind(name).description}" for name in TRACKERS) + "."
 
 
 def config_help() -> str:
     """``--config``: the presets of every tracker of :mod:`tracker.registry`."""
-    from tracker.registry import TRACKERS, kind
+    from bnptrack.tracker.registry import TRACKERS, kind
 
     kinds = [kind(name) for name in TRACKERS]
     presets = ", ".join(dict.fromkeys(p for k in kinds for p in k.presets))
@@ -186,7 +186,7 @@ def literal_choices(struct: type, field: str, element: bool = False) -> list[str
 def topic_map(items: tuple[str, ...]) -> dict[str, str]:
     """``--topic SRC=/measurements`` items as ``{SRC: /measurements}`` (the pipeline's
     ``source.topics``; :func:`pipeline.config.parse_topic_item` checks each)."""
-    from pipeline.config import parse_topic_item
+    from bnptrack.pipeline.config import parse_topic_item
 
     out = {}
     for item in items:
@@ -200,8 +200,8 @@ def topic_map(items: tuple[str, ...]) -> dict[str, str]:
 
 def require_measurements(log: Path, topics: dict[str, str]) -> None:
     """Exit 2 listing the log's channels when none is (or is mapped to) /measurements."""
-    from tracker.messages import TOPIC_MEASUREMENTS
-    from sources.mcap_log import log_channels, missing_measurements_message
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
+    from bnptrack.sources.mcap_log import log_channels, missing_measurements_message
 
     channels = log_channels(log)
     if not any(topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
@@ -214,7 +214,7 @@ def live_view(view: bool, connect: str | None) -> str | None:
     if view and connect:
         raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
     if connect:
-        from pipeline.live import check_viewer
+        from bnptrack.pipeline.live import check_viewer
 
         return check_viewer(connect)
     return "spawn" if view else None
@@ -224,7 +224,7 @@ def open_live(live: str) -> str:
     """The URL to stream to: ``live``, or that of a viewer started now (``"spawn"``)."""
     if live != "spawn":
         return live
-    from pipeline.live import spawn_viewer
+    from bnptrack.pipeline.live import spawn_viewer
 
     viewer = spawn_viewer()
     click.echo(f"viewer: {viewer.url} (pid {viewer.pid}; it stays open after the run)", err=True)

@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from pipeline.cli.common import SET_HELP_PIPE, clean_errors
+from bnptrack.pipeline.cli.common import SET_HELP_PIPE, clean_errors
 
 __all__ = ["monitor", "event_line"]
 
@@ -40,8 +40,8 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
 
     import msgspec as _ms
 
-    from pipeline.launch import stage_config
-    from pipeline.config import load_pipeline
+    from bnptrack.pipeline.launch import stage_config
+    from bnptrack.pipeline.config import load_pipeline
 
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
                        listen=(), mode=None)
@@ -58,7 +58,7 @@ def watch(cfg: Any, stop: Any, duration: float | None) -> None:
     seconds have passed."""
     import time as _time
 
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.transport import Bus
 
     end = _time.monotonic() + duration if duration else None
     with Bus(cfg.run, "monitor", cfg.zenoh, cfg.delivery) as bus:

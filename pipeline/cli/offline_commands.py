@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from pipeline.cli.common import (
+from bnptrack.pipeline.cli.common import (
     CONNECT_VIEW_HELP,
     SET_HELP_TRACK,
     VIEW_HELP,
@@ -28,15 +28,15 @@ from pipeline.cli.common import (
     topic_map,
     tracker_help,
 )
-from pipeline.config import sink_outputs
-from pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
+from bnptrack.pipeline.config import sink_outputs
+from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, track_to_sinks)
-from pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
-from sinks.sink import SINKS, SinkSet, check_sink_names
-from sinks.records import SinkOptions
-from sources.mcap_log import read_metadata
-from sources.scenarios import OpenScenario, open_scenario, scenario_names
-from tracker.models.params import BUILTIN_PARAMS
+from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
+from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
+from bnptrack.sinks.records import SinkOptions
+from bnptrack.sources.mcap_log import read_metadata
+from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
+from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
 __all__ = ["simulate", "track"]
 
@@ -125,7 +125,7 @@ def simulate(
     The generated scenarios (random, random-cv) draw their scene from --seed too (the
     record then also holds scene_seed, the scene.* settings and the crossing pairs).
     """
-    from pipeline.offline import simulate_to_log
+    from bnptrack.pipeline.offline import simulate_to_log
 
     opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
     if out is None:
@@ -266,7 +266,7 @@ def track(
       bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
       bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
     """
-    from tracker.types import FrameBounds
+    from bnptrack.tracker.types import FrameBounds
 
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names)

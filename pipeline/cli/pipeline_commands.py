@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from pipeline.cli.common import (
+from bnptrack.pipeline.cli.common import (
     CONNECT_VIEW_HELP,
     SET_HELP_PIPE,
     TOPIC_HELP,
@@ -26,9 +26,9 @@ from pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
-from pipeline.offline import OSPA_C, OSPA_P
-from pipeline.config import PipelineConfig, ZenohConfig
-from pipeline.resolve import TRACKERS
+from bnptrack.pipeline.offline import OSPA_C, OSPA_P
+from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
+from bnptrack.pipeline.resolve import TRACKERS
 
 __all__ = ["launch", "replay", "stage", "router"]
 
@@ -46,7 +46,7 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
             c = summary.get("counters") or {}
             rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
-            from pipeline.launch import describe_missing
+            from bnptrack.pipeline.launch import describe_missing
 
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             lat = (c.get("latency_ms") or {})
@@ -96,13 +96,13 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
                   view: bool = False, view_connect: str | None = None) -> None:
     import msgspec as _ms
 
-    from pipeline.launch import launch as _launch
-    from pipeline.progress import Progress
+    from bnptrack.pipeline.launch import launch as _launch
+    from bnptrack.pipeline.progress import Progress
 
     if view and view_connect:
         raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
     if view_connect:  # checked with the rest of the configuration (pipeline.preflight)
-        from pipeline.live import viewer_url
+        from bnptrack.pipeline.live import viewer_url
 
         cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
     progress = None if quiet else Progress(sys.stderr)
@@ -165,14 +165,14 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     """
     import msgspec as _ms
 
-    from pipeline.config import load_pipeline
+    from bnptrack.pipeline.config import load_pipeline
 
     cfg = load_pipeline(pipeline_file, overrides)
     if run_id:
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
         cfg = _ms.structs.replace(cfg, out=str(out))
-    from pipeline.live import is_viewer_url
+    from bnptrack.pipeline.live import is_viewer_url
 
     viewers = [c for c in connect if is_viewer_url(c)]
     routers = [c for c in connect if not is_viewer_url(c)]
@@ -240,7 +240,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     """
     import msgspec as _ms
 
-    from pipeline.config import load_pipeline
+    from bnptrack.pipeline.config import load_pipeline
 
     mapping = topic_map(topics)
     require_measurements(log, mapping)  # at once, as `track` (the source checks it again)
@@ -255,7 +255,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
                                     config=config_arg or "", params=params_arg or ""),
     )
-    from pipeline.config import apply_pipeline_overrides
+    from bnptrack.pipeline.config import apply_pipeline_overrides
 
     cfg = apply_pipeline_overrides(cfg, overrides)
     if run_id:
@@ -300,7 +300,7 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 
     import msgspec as _ms
 
-    from pipeline.config import make_run_id
+    from bnptrack.pipeline.config import make_run_id
 
     base = cfg.run or make_run_id(cfg)
     root = Path(cfg.out) if cfg.out else Path("recordings")
@@ -354,8 +354,8 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
       bnptrack stage tracker --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
       bnptrack stage source  --run r1 --connect tcp/10.0.0.5:7447 --set source.frames=50
     """
-    from pipeline.launch import configure_logging, run_stage, stage_config
-    from pipeline.config import load_pipeline
+    from bnptrack.pipeline.launch import configure_logging, run_stage, stage_config
+    from bnptrack.pipeline.config import load_pipeline
 
     configure_logging(name or role, log_level)
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=str(out) if out else None,
@@ -382,8 +382,8 @@ def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple
     import signal as _signal
     import threading as _threading
 
-    from pipeline.config import load_pipeline
-    from pipeline.transport import Router
+    from bnptrack.pipeline.config import load_pipeline
+    from bnptrack.pipeline.transport import Router
 
     cfg = load_pipeline(pipeline_file, overrides)
     stop = _threading.Event()

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import click
 
-from pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
-from tracker.messages import MSG_TYPES, json_schema
-from pipeline.experiments import EXPERIMENTS
-from sources.mcap_log import McapLogError, read_metadata
-from tracker.models.params import BUILTIN_PARAMS
+from bnptrack.pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
+from bnptrack.tracker.messages import MSG_TYPES, json_schema
+from bnptrack.pipeline.experiments import EXPERIMENTS
+from bnptrack.sources.mcap_log import McapLogError, read_metadata
+from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
 __all__ = ["info", "export", "view", "experiment", "schema"]
 
@@ -38,7 +38,7 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
     Example:
       bnptrack info recordings/vo2017-s1.mcap
     """
-    from sources.mcap_log import log_channels
+    from bnptrack.sources.mcap_log import log_channels
 
     channels = log_channels(log)
     rows = [("log", f"{log} ({log.stat().st_size} bytes)")]
@@ -60,7 +60,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements)."""
     import numpy as np
 
-    from sources.mcap_log import iter_frames
+    from bnptrack.sources.mcap_log import iter_frames
 
     sensors: dict[tuple[str, str], list] = {}
     stamps, n_meas, truth, error = [], 0, 0, None
@@ -116,7 +116,7 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
     Example:
       bnptrack export recordings/vo2017-s1-ddp.tracks.mcap --csv tracks.csv
     """
-    from pipeline.export import export as do_export
+    from bnptrack.pipeline.export import export as do_export
 
     if csv_out is None and parquet_out is None:
         raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
@@ -202,8 +202,8 @@ def view(
       bnptrack view recordings/vo2017-s1-ddp.rrd --screenshot shot.png --frame 60
       bnptrack view broken.rrd --repair fixed.rrd
     """
-    from pipeline.view import ViewerUnavailable, open_viewer, screenshot
-    from sinks.rerun_tools import RerunToolError, repair
+    from bnptrack.pipeline.view import ViewerUnavailable, open_viewer, screenshot
+    from bnptrack.sinks.rerun_tools import RerunToolError, repair
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
@@ -266,7 +266,7 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
                cluster: str | None, no_rrd: bool, quiet: bool) -> None:
     """Run one of the paper's simulation experiments (help: ``_EXPERIMENT_HELP``, drawn from
     :data:`pipeline.experiments.EXPERIMENTS`)."""
-    from pipeline.experiments import run_experiment
+    from bnptrack.pipeline.experiments import run_experiment
 
     res = run_experiment(name, runs=runs, seed=seed, params=params_name, out=out, workers=workers,
                          cluster=cluster, quiet=quiet, rrd=not no_rrd)

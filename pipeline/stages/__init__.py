@@ -34,7 +34,7 @@ Delivery contract (see docs/pipeline.md):
 
 from __future__ import annotations
 
-from pipeline.stages.base import (
+from bnptrack.pipeline.stages.base import (
     EXIT_CONFIG,
     EXIT_CRASH,
     EXIT_DATA,
@@ -48,10 +48,10 @@ from pipeline.stages.base import (
     StageIOError,
     SystemClock,
 )
-from pipeline.events import Event
-from pipeline.stages.delivery import GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer
-from pipeline.stages.health import Counters, EndOfStream, StageInfo
-from pipeline.stages.recovery import (
+from bnptrack.pipeline.events import Event
+from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer
+from bnptrack.pipeline.stages.health import Counters, EndOfStream, StageInfo
+from bnptrack.pipeline.stages.recovery import (
     JOURNAL_NAME,
     PRIOR_FIELDS,
     SNAPSHOT_NAME,
@@ -65,10 +65,10 @@ from pipeline.stages.recovery import (
     sync_parts,
     write_atomic,
 )
-from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, salvage_part
-from pipeline.stages.sink import SinkStage
-from pipeline.stages.source import SourceStage, source_frames, window_frames
-from pipeline.stages.tracker import TrackerStage, build_stage_tracker
+from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, salvage_part
+from bnptrack.pipeline.stages.sink import SinkStage
+from bnptrack.pipeline.stages.source import SourceStage, source_frames, window_frames
+from bnptrack.pipeline.stages.tracker import TrackerStage, build_stage_tracker
 
 __all__ = [
     "EXIT_OK", "EXIT_CRASH", "EXIT_CONFIG", "EXIT_DATA", "EXIT_STOPPED", "EXIT_IO", "StageIOError",

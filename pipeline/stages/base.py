@@ -15,8 +15,8 @@ from typing import Any, Protocol
 
 import msgspec
 
-from pipeline.config import PipelineConfig
-from pipeline.stages.health import _CONTROL_DEC, _JSON, Counters, EndOfStream, StageInfo
+from bnptrack.pipeline.config import PipelineConfig
+from bnptrack.pipeline.stages.health import _CONTROL_DEC, _JSON, Counters, EndOfStream, StageInfo
 
 __all__ = ["EXIT_OK", "EXIT_CRASH", "EXIT_CONFIG", "EXIT_DATA", "EXIT_STOPPED", "EXIT_IO", "StageIOError",
            "Clock", "SystemClock", "ManualClock", "StageContext", "StageBase", "warm_imports"]

@@ -16,9 +16,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
-from pipeline.config import DeliveryConfig
-from pipeline.stages.health import _JSON, Counters
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
+from bnptrack.pipeline.config import DeliveryConfig
+from bnptrack.pipeline.stages.health import _JSON, Counters
 
 __all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
            "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY"]

@@ -13,9 +13,9 @@ from typing import Any
 
 import msgspec
 
-from pipeline.journal import JOURNAL_NAME
-from pipeline.stages.health import EndOfStream
-from tracker.config import ConfigError
+from bnptrack.pipeline.journal import JOURNAL_NAME
+from bnptrack.pipeline.stages.health import EndOfStream
+from bnptrack.tracker.config import ConfigError
 
 __all__ = ["SNAPSHOT_NAME", "SUMMARY_NAME", "JOURNAL_NAME", "Snapshot", "read_snapshot", "write_atomic",
            "BackgroundWriter", "part_path", "sync_parts", "commit_parts", "PRIOR_FIELDS", "keep_prior"]
@@ -213,7 +213,7 @@ def keep_prior(initial: Any, snap: Snapshot, tracker: str) -> Any:
     ``snap`` (an earlier run of the same tracker); :class:`ConfigError` otherwise."""
     import dataclasses
 
-    from tracker.state import restore
+    from bnptrack.tracker.state import restore
 
     if snap.tracker != tracker:
         raise ConfigError(f"tracker.prior_from: a snapshot of tracker {snap.tracker!r}, not {tracker!r}")

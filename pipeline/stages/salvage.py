@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.stages.delivery import GAP, NO_TRUTH, Accepted
-from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
+from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH, Accepted
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
 
 __all__ = ["UpstreamGone", "UpstreamWatch", "SalvagedFrame", "Salvage", "salvage_part", "missing_tail",
            "earlier_summary"]
@@ -138,7 +138,7 @@ def salvage_part(path: str | Path, run: str) -> Salvage | None:
     between its messages.  Payloads that do not decode end the salvage."""
     from mcap.records import Channel, DataEnd, Message, Metadata
 
-    from sources.mcap_log import METADATA_NAME
+    from bnptrack.sources.mcap_log import METADATA_NAME
 
     path = Path(path)
     if not path.is_file():

@@ -9,15 +9,15 @@ from typing import Any
 
 import msgspec
 
-from tracker.messages import to_estimate, to_frame, to_truth
-from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
-from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
-from pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
-from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
-from sinks.records import Payloads, Sink, SinkOptions, SinkRecord
-from sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
-from tracker.types import FrameBounds
+from bnptrack.tracker.messages import to_estimate, to_frame, to_truth
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
+from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
+from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
+from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord
+from bnptrack.sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
+from bnptrack.tracker.types import FrameBounds
 
 __all__ = ["SinkStage"]
 
@@ -52,7 +52,7 @@ class SinkStage(StageBase):
         self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
         self.next_write = 0
         self.sinks: SinkSet | None = None
-        from sinks.metrics import RunScorer, ScoreTally
+        from bnptrack.sinks.metrics import RunScorer, ScoreTally
 
         self.scorer = RunScorer()
         #: decode each frame (numpy arrays, scores, health counters) only for a consumer: the
@@ -138,7 +138,7 @@ class SinkStage(StageBase):
     def _params(meta: dict[str, str] | None, tracker_info: StageInfo | None) -> Any:
         """The run's model parameters, for a sink that draws the sensor's field of view:
         :func:`pipeline.resolve.run_params` of the tracker's announced ones."""
-        from pipeline.resolve import run_params
+        from bnptrack.pipeline.resolve import run_params
 
         return run_params(meta, tracker_info.params if tracker_info is not None else None)
 
@@ -491,7 +491,7 @@ class SinkStage(StageBase):
         return EXIT_OK
 
     def _warm_up(self) -> None:
-        warm_imports("sources.mcap_log", "pipeline.resolve")
+        warm_imports("bnptrack.sources.mcap_log", "bnptrack.pipeline.resolve")
         if self.sink_cfg.score or self.sink_cfg.rerun:  # the scorer's kernels import scipy on first use
             warm_imports("scipy.spatial.distance", "scipy.optimize")
         for name in self.sink_cfg.paths(self.ctx.out):

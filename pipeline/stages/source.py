@@ -10,12 +10,12 @@ from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
 
-from tracker.messages import encode, from_truth
-from pipeline.config import PipelineConfig, SourceConfig
-from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase
-from pipeline.stages.health import EndOfStream, StageInfo
-from tracker.config import ConfigError
-from tracker.types import Frame
+from bnptrack.tracker.messages import encode, from_truth
+from bnptrack.pipeline.config import PipelineConfig, SourceConfig
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase
+from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.types import Frame
 
 __all__ = ["SourceStage", "source_frames", "check_channels", "check_window", "window_frames"]
 
@@ -26,8 +26,8 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
     """The source's metadata record and its frames (``source.frames`` limits them)."""
     src_cfg = cfg.source
     if src_cfg.kind == "synthetic":
-        from sources.scenarios import open_scenario, scene_of
-        from sources.synthetic import simulate
+        from bnptrack.sources.scenarios import open_scenario, scene_of
+        from bnptrack.sources.synthetic import simulate
 
         try:  # the scene first, so that a bad scenario is named as the source's setting
             scene_of(src_cfg.scenario, src_cfg.seed, src_cfg.overrides)
@@ -37,7 +37,7 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
         metadata = opened.metadata
         frames: Iterator[Frame] = simulate(opened.scenario, opened.params, src_cfg.seed, sensor=src_cfg.sensor)
     else:
-        from sources.mcap_log import McapLogError, iter_frames, read_metadata
+        from bnptrack.sources.mcap_log import McapLogError, iter_frames, read_metadata
 
         if not src_cfg.log:
             raise ConfigError("source.log: an MCAP log is required when source.kind = 'mcap'")
@@ -59,8 +59,8 @@ def check_channels(src_cfg: SourceConfig) -> None:
     """Raise :class:`ConfigError` when no channel of ``source.log`` is (or is mapped by
     ``source.topics`` to) ``/measurements``: the error of ``bnptrack track`` (the log's
     channels and how to map one), plus the pipeline file's key."""
-    from sources.mcap_log import log_channels, missing_measurements_message
-    from tracker.messages import TOPIC_MEASUREMENTS
+    from bnptrack.sources.mcap_log import log_channels, missing_measurements_message
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
     channels = log_channels(src_cfg.log)
     if not any(src_cfg.topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
@@ -177,7 +177,7 @@ class SourceStage(StageBase):
                 seq += 1
                 self._publish(seq, frame)
         except Exception as exc:
-            from sources.mcap_log import McapLogError
+            from bnptrack.sources.mcap_log import McapLogError
 
             if not isinstance(exc, McapLogError):
                 raise

@@ -12,17 +12,17 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from tracker.messages import encode, to_frame
-from pipeline.config import TrackerStageConfig
-from pipeline.journal import JOURNAL_NAME, TracksJournal
-from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
-from pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
-from pipeline.stages.health import EndOfStream, StageInfo
-from pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
-from pipeline.stages.salvage import UpstreamWatch
-from tracker._numerics import preload
-from tracker.config import ConfigError
-from tracker.types import Frame, FrameBounds
+from bnptrack.tracker.messages import encode, to_frame
+from bnptrack.pipeline.config import TrackerStageConfig
+from bnptrack.pipeline.journal import JOURNAL_NAME, TracksJournal
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
+from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
+from bnptrack.pipeline.stages.salvage import UpstreamWatch
+from bnptrack.tracker._numerics import preload
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.types import Frame, FrameBounds
 
 __all__ = ["TrackerStage", "build_stage_tracker", "warm_up_tracker", "warm_tracker_imports"]
 
@@ -34,7 +34,7 @@ def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None)
     ``bnptrack track`` uses: model parameters from ``tc.params`` or the source's metadata
     record, the settings preset or file, then the ``--set`` items of ``tc.overrides``.
     Raises :class:`ConfigError` (the launcher calls this before starting any process)."""
-    from pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.resolve import tracker_setup
 
     return tracker_setup(tc.tracker, params=tc.params or None, config=tc.config or None,
                          overrides=tc.overrides, metadata=metadata, seed=tc.seed)
@@ -43,7 +43,7 @@ def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None)
 def warm_tracker_imports(name: str) -> None:
     """Import the modules of tracker ``name`` through the tracker registry (its entry
     imports them), whatever tracker it is; an unknown name is left to the build to report."""
-    from tracker import registry
+    from bnptrack.tracker import registry
 
     try:
         registry.kind(name)
@@ -58,7 +58,7 @@ def warm_up_tracker(tracker: Any) -> None:
     ``initial_state()``)."""
     import time
 
-    from tracker.registry import warm_up
+    from bnptrack.tracker.registry import warm_up
 
     t0 = time.perf_counter()
     try:
@@ -140,7 +140,7 @@ class TrackerStage(StageBase):
                  snap.last_seq, snap.last_frame)
 
     def _build(self, info: StageInfo) -> None:
-        from tracker.state import restore
+        from bnptrack.tracker.state import restore
 
         tc = self.tc
         if self.preloading is not None:  # no import of the build races the preload's
@@ -182,7 +182,7 @@ class TrackerStage(StageBase):
 
     def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
         """Track frame ``s``, publish its tracks, journal them, snapshot when due."""
-        from tracker.state import tracker_frame_rng
+        from bnptrack.tracker.state import tracker_frame_rng
 
         t0 = self.clock.perf_counter()
         state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))
@@ -210,7 +210,7 @@ class TrackerStage(StageBase):
         """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
         if self.tracker is None or self.state is None:
             return
-        from tracker.state import snapshot
+        from bnptrack.tracker.state import snapshot
 
         snap = Snapshot(
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
@@ -269,7 +269,7 @@ class TrackerStage(StageBase):
 
     # -- loop --------------------------------------------------------------------------
     def run(self) -> int:
-        warm_imports("pipeline.resolve", "tracker.state")
+        warm_imports("bnptrack.pipeline.resolve", "bnptrack.tracker.state")
         warm_tracker_imports(self.tc.tracker)
         # numba's import and set-up (the first kernel call's cost) overlap the wait for the source
         self.preloading = threading.Thread(target=preload, name="numba-preload", daemon=True)

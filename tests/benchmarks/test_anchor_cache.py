@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 import benchmarks.vs_stonesoup as vs
-from tracker.models.params import load_params
-from tracker.types import Frame, Truth
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.types import Frame, Truth
 
 
 def _frames(shift: float = 0.0) -> list[Frame]:

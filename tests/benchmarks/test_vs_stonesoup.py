@@ -22,9 +22,9 @@ from benchmarks.anchor_convert import (
     to_stonesoup_measurements,
 )
 from benchmarks.vs_stonesoup import Scan, anchor_settings, score, split_sets, summarise
-from tracker.config import ConfigError
-from tracker.models.params import load_params
-from tracker.types import Frame, Truth
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.types import Frame, Truth
 
 
 def test_bearing_conversion_hand_values():

@@ -22,15 +22,15 @@ from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
-from pipeline.live import check_viewer, is_viewer_url, viewer_url  # noqa: E402
-from sinks.rerun_sink import write_recording  # noqa: E402
-from sinks.rerun_tools import rerun_cli, rerun_env  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp import make_tracker  # noqa: E402
-from tracker.config import ConfigError  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.pipeline.live import check_viewer, is_viewer_url, viewer_url  # noqa: E402
+from bnptrack.sinks.rerun_sink import write_recording  # noqa: E402
+from bnptrack.sinks.rerun_tools import rerun_cli, rerun_env  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.bnp import make_tracker  # noqa: E402
+from bnptrack.tracker.config import ConfigError  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 from testkit import REPO_ROOT, wait_until  # noqa: E402
 
@@ -150,7 +150,7 @@ def test_live_stream_carries_the_same_rows_as_the_file(tmp_path, receiver):
 def test_track_connect_streams_and_fails_fast_without_a_viewer(tmp_path, receiver):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     out = tmp_path / "t.mcap"
-    cmd = [sys.executable, "-m", "pipeline", "track", str(SHORT_LOG), "--out", str(out), "-q",
+    cmd = [sys.executable, "-m", "bnptrack", "track", str(SHORT_LOG), "--out", str(out), "-q",
            "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"]
     res = subprocess.run([*cmd, "--connect", receiver.url], env=env, capture_output=True, text=True,
                          timeout=300)
@@ -172,7 +172,7 @@ def test_track_view_spawns_a_viewer_that_receives_the_run(tmp_path):
 
     env = {**os.environ, "PYTHONPATH": str(REPO), "BNPTRACK_VIEWER_HEADLESS": "1"}
     out = tmp_path / "t.mcap"
-    res = subprocess.run([sys.executable, "-m", "pipeline", "track", str(SHORT_LOG), "--out", str(out),
+    res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(SHORT_LOG), "--out", str(out),
                           "--view", "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"],
                          env=env, capture_output=True, text=True, timeout=300)
     line = next((ln for ln in res.stderr.splitlines() if ln.startswith("viewer: ")), "")

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.stages import SUMMARY_NAME, read_snapshot
-from sources.mcap_log import read_log
+from bnptrack.pipeline.stages import SUMMARY_NAME, read_snapshot
+from bnptrack.sources.mcap_log import read_log
 
 from testkit import REPO_ROOT, bnptrack_env, finish, popen_bnptrack, wait_until
 
@@ -36,9 +36,9 @@ def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None
 
 
 def _offline_tracks(log: Path, out: Path) -> list:
-    from pipeline.offline import track_log
-    from pipeline.resolve import tracker_setup
-    from sources.mcap_log import read_metadata
+    from bnptrack.pipeline.offline import track_log
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.sources.mcap_log import read_metadata
 
     meta = read_metadata(log)
     track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
@@ -87,8 +87,8 @@ def _forge(endpoint: str, run: str, user: str = "", password: str = "") -> str:
     Returns "refused" when the session cannot be opened, else "sent"."""
     import zenoh
 
-    from tracker.messages import encode
-    from tracker.types import Frame
+    from bnptrack.tracker.messages import encode
+    from bnptrack.tracker.types import Frame
     import numpy as np
 
     conf = zenoh.Config()
@@ -141,8 +141,8 @@ def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_t
     /measurements, nor declare the tracker's ready token."""
     import zenoh
 
-    from pipeline.config import DeliveryConfig, ZenohConfig
-    from pipeline.transport import Bus, Router
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
 
     users = tmp_path / "users.txt"
     users.write_text("source:pw-s\nsink:pw-k\ntracker:pw-t\n")
@@ -191,7 +191,7 @@ def test_a_file_that_cannot_be_written_stops_the_run_with_one_line_naming_it(tmp
 
     log = make_log(tmp_path / "vo300.mcap", 300)
     out = tmp_path / "run"
-    p = subprocess.Popen([sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible",
+    p = subprocess.Popen([sys.executable, "-m", "bnptrack", "replay", str(log), "--as-fast-as-possible",
                           "--set", "sink.rerun=false", "--out", str(out), "--timeout", "120"],
                          cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                          start_new_session=True, preexec_fn=_limit_file_size)

@@ -1,7 +1,7 @@
 """The streaming pipeline over real Zenoh sessions (loopback only, explicit
 tcp/127.0.0.1:PORT endpoints, multicast scouting off, every wait bounded).
 
-Each test runs stage processes (``python -m pipeline ...``); the whole file takes about a
+Each test runs stage processes (``python -m bnptrack ...``); the whole file takes about a
 minute on two cores.
 """
 
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import DeliveryConfig, ZenohConfig
-from sinks.mcap_writer import McapLogWriter
-from sources.mcap_log import iter_frames, read_log, read_metadata
+from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sources.mcap_log import iter_frames, read_log, read_metadata
 
 from testkit import REPO_ROOT, bnptrack_env, finish, popen_bnptrack, wait_until
 
@@ -47,8 +47,8 @@ def _strip(est):
 
 def _offline(log: Path, out: Path, tracker: str = "ddp", seed: int = 0, overrides=()) -> Path:
     """What ``bnptrack track LOG --tracker T --seed S --out OUT`` writes (in-process)."""
-    from pipeline.offline import track_log
-    from pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.offline import track_log
+    from bnptrack.pipeline.resolve import tracker_setup
 
     meta = read_metadata(log)
     track_log(log, out, tracker_setup(tracker, overrides=overrides, metadata=meta).tracker, seed, meta)
@@ -85,7 +85,7 @@ def _short_log(path: Path, n: int) -> Path:
 
 @pytest.fixture
 def router():
-    from pipeline.transport import Router
+    from bnptrack.pipeline.transport import Router
 
     r = Router(ZenohConfig())
     try:
@@ -144,9 +144,9 @@ def test_launch_default_end_to_end_equals_offline_track(tmp_path):
     assert len(log.frames) == 20 and len(log.tracks) == 20
     assert log.metadata["scenario"] == "vo2017" and log.metadata["tracker"] == "ddp"
     # the input is the simulator's frames 1..20 ...
-    from sources.scenarios import get_scenario
-    from sources.synthetic import simulate
-    from sources.scenarios import scenario_params
+    from bnptrack.sources.scenarios import get_scenario
+    from bnptrack.sources.synthetic import simulate
+    from bnptrack.sources.scenarios import scenario_params
 
     sim = list(simulate(get_scenario("vo2017"), scenario_params("vo2017", "vo2017"), 1))[:20]
     assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, sim))
@@ -160,7 +160,7 @@ def test_launch_default_end_to_end_equals_offline_track(tmp_path):
 
 
 def test_tracker_killed_and_restarted_resumes_with_identical_output(tmp_path):
-    from pipeline.stages import read_snapshot
+    from bnptrack.pipeline.stages import read_snapshot
 
     out = tmp_path / "kill"
     p = _popen("launch", "--set", "source.frames=60", "--set", "source.rate=25",
@@ -195,7 +195,7 @@ def test_tracker_then_sink_killed_still_gives_identical_output(tmp_path):
     """Double crash: the tracker is killed (and restarted), later the sink too.  The restarted
     tracker published its journal again, so the restarted sink gets every frame's tracks
     from the new tracker's cache: tracks.mcap equals an uninterrupted run."""
-    from pipeline.stages import read_snapshot
+    from bnptrack.pipeline.stages import read_snapshot
 
     out = tmp_path / "double"
     # 100 frames at 10 per second: the source is still publishing when the restarted tracker
@@ -252,7 +252,7 @@ def test_sigint_stops_every_stage_and_flushes_files(tmp_path):
     with open(out / "tracks.mcap", "rb") as f:  # closed properly: summary and footer written
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count == 2 * s["frames_written"] + s["tracks_written"]
-    from pipeline.stages import read_snapshot
+    from bnptrack.pipeline.stages import read_snapshot
 
     assert read_snapshot(out / "tracker.snap").last_seq >= 9
     for role in ("source", "tracker", "sink"):
@@ -346,9 +346,9 @@ def test_late_sink_gets_history_and_rejects_bad_input(tmp_path, router):
     """Source and tracker run to the end before the sink exists; the sink then receives the
     cached history.  Malformed, NaN, wrong-run and unsequenced samples published on the
     run's keys are rejected (counted, dead-lettered) and change nothing."""
-    from tracker.messages import encode
-    from pipeline.transport import Bus
-    from tracker.types import Frame
+    from bnptrack.tracker.messages import encode
+    from bnptrack.pipeline.transport import Bus
+    from bnptrack.tracker.types import Frame
 
     ep, run, out = router.endpoints[0], "late-1", tmp_path / "late"
     common = ["source.frames=12", "source.wait_for=['tracker']", "sink.rerun=false"]
@@ -395,7 +395,7 @@ def test_late_sink_beyond_the_cache_records_explicit_gaps(tmp_path, router):
     common = ["source.frames=10", "source.wait_for=['tracker']", "sink.rerun=false",
               "delivery.cache_frames=4", "delivery.eos_grace_s=1.5"]
     procs = [_stage("tracker", run, ep, out, *common), _stage("source", run, ep, out, *common)]
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.transport import Bus
 
     watcher = Bus(run, "watcher", ZenohConfig(connect=[ep]), DeliveryConfig())
     try:
@@ -429,7 +429,7 @@ def test_truncated_replay_replays_the_prefix_then_fails(tmp_path):
     n = len(read_log(out / "tracks.mcap").tracks)
     assert n > 10
     offline = tmp_path / "off.mcap"
-    from sources.mcap_log import McapLogError
+    from bnptrack.sources.mcap_log import McapLogError
 
     with pytest.raises(McapLogError):
         list(iter_frames(cut))
@@ -511,8 +511,8 @@ def test_stages_over_tls_with_access_control(tmp_path):
     generated ACL; source, tracker and sink as separate `bnptrack stage` processes with their
     own credentials.  A client without the CA, or with a wrong password, is refused; a stage
     cannot put on another stage's keys."""
-    from pipeline.config import TlsConfig
-    from pipeline.transport import Bus, Router, TransportError
+    from bnptrack.pipeline.config import TlsConfig
+    from bnptrack.pipeline.transport import Bus, Router, TransportError
 
     certs = _make_certs(tmp_path)
     users = tmp_path / "users.txt"
@@ -565,7 +565,7 @@ def msgspec_replace(obj, **kw):
 
 def _roundtrip(zcfg: ZenohConfig, run: str) -> bytes | None:
     """Open two stage sessions with ``zcfg``; what one receives of the other's put."""
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.transport import Bus
 
     with Bus(run, "a", zcfg, DeliveryConfig()) as a, Bus(run, "b", zcfg, DeliveryConfig()) as b:
         b.subscribe(["deadletter"], advanced=False)
@@ -583,8 +583,8 @@ def _roundtrip(zcfg: ZenohConfig, run: str) -> bytes | None:
 def test_mutual_tls_refuses_clients_without_a_certificate_of_the_ca(tmp_path):
     """Router with ``mtls = true``: a client needs a certificate signed by the CA.  Without
     one, or with one from another CA, ``zenoh.open`` fails; with one, data flows."""
-    from pipeline.config import TlsConfig
-    from pipeline.transport import Bus, Router, TransportError
+    from bnptrack.pipeline.config import TlsConfig
+    from bnptrack.pipeline.transport import Bus, Router, TransportError
 
     c = _make_certs(tmp_path)
     zr = ZenohConfig(tls=TlsConfig(root_ca_certificate=c["ca"], listen_certificate=c["cert"],
@@ -613,7 +613,7 @@ def test_mutual_tls_refuses_clients_without_a_certificate_of_the_ca(tmp_path):
 def test_peer_mode_links_stages_directly(router):
     """``zenoh.mode = "peer"``: stages that only know the router learn each other's loopback
     endpoints by gossip and connect directly."""
-    from pipeline.transport import Bus
+    from bnptrack.pipeline.transport import Bus
 
     zcfg = ZenohConfig(mode="peer", connect=[router.endpoints[0]])
     assert _roundtrip(zcfg, "peer-1") == b"hello"
@@ -624,8 +624,8 @@ def test_peer_mode_links_stages_directly(router):
 
 
 def test_peer_mode_refuses_tls_and_access_control():
-    from pipeline.config import TlsConfig, load_pipeline
-    from tracker.config import ConfigError
+    from bnptrack.pipeline.config import TlsConfig, load_pipeline
+    from bnptrack.tracker.config import ConfigError
 
     for bad in ({"acl": True}, {"users_file": "u.txt"}, {"tls": TlsConfig(root_ca_certificate="ca.pem")}):
         with pytest.raises(ValueError, match="peer"):

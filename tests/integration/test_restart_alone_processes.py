@@ -12,9 +12,9 @@ import sys
 from pathlib import Path
 
 
-from pipeline.config import ZenohConfig
-from pipeline.stages import SUMMARY_NAME, part_path, read_snapshot, salvage_part
-from sources.mcap_log import read_log
+from bnptrack.pipeline.config import ZenohConfig
+from bnptrack.pipeline.stages import SUMMARY_NAME, part_path, read_snapshot, salvage_part
+from bnptrack.sources.mcap_log import read_log
 
 from testkit import REPO_ROOT, finish, popen_bnptrack, wait_until
 
@@ -56,7 +56,7 @@ def _kill_sink_mid_run(tmp_path: Path) -> Path:
 
 
 def test_a_sink_started_by_hand_after_the_others_left_finalizes_the_killed_sinks_frames(tmp_path):
-    from pipeline.transport import Router
+    from bnptrack.pipeline.transport import Router
 
     out = _kill_sink_mid_run(tmp_path)
     run = json.loads((out / "pipeline.json").read_text())["run"]

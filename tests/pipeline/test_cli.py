@@ -11,11 +11,11 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
-from pipeline.cli import main
-from pipeline.resolve import resolve_params, split_overrides
-from sources.mcap_log import iter_frames, iter_tracks, read_log, read_metadata
-from sources.scenarios import get_scenario, scenario_names
-from tracker.config import ConfigError
+from bnptrack.pipeline.cli import main
+from bnptrack.pipeline.resolve import resolve_params, split_overrides
+from bnptrack.sources.mcap_log import iter_frames, iter_tracks, read_log, read_metadata
+from bnptrack.sources.scenarios import get_scenario, scenario_names
+from bnptrack.tracker.config import ConfigError
 
 # a fast tracker for tests: few Gibbs sweeps
 FAST = ["--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2"]
@@ -69,7 +69,7 @@ def test_help_mentions_options(args, expected):
 
 def test_python_dash_m_pipeline():
     res = subprocess.run(
-        [sys.executable, "-m", "pipeline", "--help"], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "bnptrack", "--help"], capture_output=True, text=True, timeout=60
     )
     assert res.returncode == 0, res.stderr
     assert "simulate" in res.stdout and "track" in res.stdout
@@ -77,7 +77,7 @@ def test_python_dash_m_pipeline():
 
 def test_error_is_one_line_on_stderr(tmp_path):
     res = subprocess.run(
-        [sys.executable, "-m", "pipeline", "simulate", "--set", "p_detect=2", "--out", str(tmp_path / "x.mcap")],
+        [sys.executable, "-m", "bnptrack", "simulate", "--set", "p_detect=2", "--out", str(tmp_path / "x.mcap")],
         capture_output=True, text=True, timeout=60,
     )
     assert res.returncode == 2
@@ -237,7 +237,7 @@ def test_track_params_from_log_metadata(tmp_path):
 
 
 def test_track_log_without_metadata_uses_default(vo_log, tmp_path):
-    from sinks.mcap_writer import McapLogWriter
+    from bnptrack.sinks.mcap_writer import McapLogWriter
 
     bare = tmp_path / "bare.mcap"
     with McapLogWriter(bare) as w:  # no metadata record, no truth
@@ -347,9 +347,9 @@ def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
     bnptrack.scenario record, tracked with the defaults and no flags.  Measured: mean OSPA
     31.2 m, 986 reported track-scans for 1044 object-scans; before births anywhere (the default
     set carried Vo's four birth regions, H weighed the rest 0.1) 68.5 m with 4 final tracks."""
-    from sinks.mcap_writer import McapLogWriter
-    from sources.synthetic import simulate_all
-    from tracker.models.params import load_params
+    from bnptrack.sinks.mcap_writer import McapLogWriter
+    from bnptrack.sources.synthetic import simulate_all
+    from bnptrack.tracker.models.params import load_params
 
     sc = get_scenario("random", seed=7)
     frames = simulate_all(sc, sc.adapt_params(load_params("vo2017")), 7)
@@ -373,8 +373,8 @@ def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
 def test_tracker_setup_resolves_once_and_writes_the_output_record():
     """params from the record (with the scenario's defaults), the preset, the --set items
     (routed to params and settings), the tracker and the output record, in one call."""
-    from pipeline.resolve import tracker_setup
-    from tracker.bnp import TRACKER_PRESETS
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.tracker.bnp import TRACKER_PRESETS
 
     meta = {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}
     s = tracker_setup("ddp", config="ddp-snr", overrides=("p_detect=0.8", "sweeps=7"), metadata=meta, seed=3)
@@ -390,8 +390,8 @@ def test_tracker_setup_resolves_once_and_writes_the_output_record():
 
 def test_tracker_setup_takes_resolved_params_as_given():
     """Experiments pass the simulation's parameters: used unchanged, no record needed."""
-    from pipeline.resolve import tracker_setup
-    from tracker.models.params import load_params
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.tracker.models.params import load_params
 
     p = load_params("vo2017", ["clutter_rate=7"])
     s = tracker_setup("glmb", params=p)
@@ -403,7 +403,7 @@ def test_tracker_setup_takes_resolved_params_as_given():
 def test_split_overrides_without_a_settings_class_knows_every_registered_tracker():
     """No tracker's settings class is the default: a field of the two-level trackers'
     GroupConfig routes to the tracker settings, but not when the tracker is a BNP one."""
-    from tracker.bnp import BnpConfig
+    from bnptrack.tracker.bnp import BnpConfig
 
     assert split_overrides(["within_std=3", "max_hypotheses=9"]) == ((), ("within_std=3", "max_hypotheses=9"))
     with pytest.raises(ConfigError, match="within_std"):
@@ -411,11 +411,11 @@ def test_split_overrides_without_a_settings_class_knows_every_registered_tracker
 
 
 def test_choices_come_from_the_registries():
-    from pipeline.cli.offline_commands import track
-    from pipeline.cli.pipeline_commands import stage
-    from pipeline.cli.tools import experiment
-    from pipeline.experiments import EXPERIMENTS
-    from tracker.registry import TRACKERS
+    from bnptrack.pipeline.cli.offline_commands import track
+    from bnptrack.pipeline.cli.pipeline_commands import stage
+    from bnptrack.pipeline.cli.tools import experiment
+    from bnptrack.pipeline.experiments import EXPERIMENTS
+    from bnptrack.tracker.registry import TRACKERS
 
     assert set(main.commands) == {"simulate", "track", "info", "export", "view", "experiment", "schema",
                                   "launch", "replay", "stage", "router", "monitor"}

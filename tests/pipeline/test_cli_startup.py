@@ -22,7 +22,7 @@ HEAVY = ("numpy", "scipy", "numba", "rerun", "zenoh", "pyarrow", "msgspec", "mca
 
 _PROBE = """
 import json, sys
-from pipeline.cli import main
+from bnptrack.pipeline.cli import main
 try:
     main({argv!r}, prog_name="bnptrack")
 except SystemExit as e:
@@ -58,15 +58,15 @@ def test_track_help_loads_only_the_offline_commands():
     code, modules, out = imported_by("track", "--help")
     assert code == 0 and "Usage: bnptrack track" in out
     assert sorted(top_level(modules) & {"zenoh", "rerun", "numba", "scipy", "dask", "matplotlib", "pyarrow"}) == []
-    assert "pipeline.cli.offline_commands" in modules
-    assert sorted(modules & {"pipeline.cli.tools", "pipeline.cli.pipeline_commands", "pipeline.cli.monitor",
-                             "pipeline.experiments", "pipeline.launch", "pipeline.transport"}) == []
+    assert "bnptrack.pipeline.cli.offline_commands" in modules
+    assert sorted(modules & {"bnptrack.pipeline.cli.tools", "bnptrack.pipeline.cli.pipeline_commands", "bnptrack.pipeline.cli.monitor",
+                             "bnptrack.pipeline.experiments", "bnptrack.pipeline.launch", "bnptrack.pipeline.transport"}) == []
 
 
 def test_command_table_matches_each_commands_help():
     """The listing of ``bnptrack --help`` comes from :data:`pipeline.cli.COMMANDS`: each entry
     names the module that defines the command and the first paragraph of its help."""
-    from pipeline.cli import COMMANDS, main
+    from bnptrack.pipeline.cli import COMMANDS, main
 
     assert set(main.commands) == set(COMMANDS)
     for name, (module, summary) in COMMANDS.items():
@@ -80,7 +80,7 @@ def test_command_table_matches_each_commands_help():
 def test_help_listing_is_the_eager_groups_listing():
     """``bnptrack --help`` prints what a group holding the loaded commands prints (same
     options, same width), at the default width and a narrow one."""
-    from pipeline.cli import main
+    from bnptrack.pipeline.cli import main
 
     eager = click.Group(name=main.name, help=main.help, params=main.params,
                         context_settings=main.context_settings,
@@ -94,8 +94,8 @@ def test_help_listing_is_the_eager_groups_listing():
 
 
 def test_cli_error_names_resolve_lazily():
-    from pipeline.cli import EXIT_ERROR, EXIT_INCOMPLETE, CliError, IncompleteError
-    from pipeline.cli import common
+    from bnptrack.pipeline.cli import EXIT_ERROR, EXIT_INCOMPLETE, CliError, IncompleteError
+    from bnptrack.pipeline.cli import common
 
     assert (EXIT_ERROR, EXIT_INCOMPLETE) == (2, 3)
     assert CliError is common.CliError and IncompleteError is common.IncompleteError
@@ -104,8 +104,8 @@ def test_cli_error_names_resolve_lazily():
 _KERNEL_PROBE = """
 import sys
 import numpy as np
-import tracker.bnp.gibbs as g
-from tracker._numerics import JIT
+import bnptrack.tracker.bnp.gibbs as g
+from bnptrack.tracker._numerics import JIT
 before = "numba" in sys.modules
 keys = g._group_pairs(np.array([4, 7, 9], dtype=np.int64), np.array([0], dtype=np.int64),
                       np.array([3], dtype=np.int64), 10, 3)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.experiments import (
+from bnptrack.pipeline.experiments import (
     EXPERIMENTS,
     RunJob,
     Variant,
@@ -17,7 +17,7 @@ from pipeline.experiments import (
     write_plots,
     write_summary,
 )
-from tracker.config import ConfigError
+from bnptrack.tracker.config import ConfigError
 
 JOBS = [RunJob("dpy-vs-ddp", 7, i, "vo2017", Variant("default"), keep_tracks=(i == 0)) for i in range(2)]
 
@@ -76,7 +76,7 @@ def test_summary_and_plots(local_results, tmp_path):
 def test_experiment_command_writes_outputs(tmp_path):
     from click.testing import CliRunner
 
-    from pipeline.cli import main
+    from bnptrack.pipeline.cli import main
 
     out = tmp_path / "exp"
     res = CliRunner().invoke(main, ["experiment", "dpy-vs-ddp", "--runs", "1", "--workers", "1",
@@ -90,7 +90,7 @@ def test_experiment_command_writes_outputs(tmp_path):
 
 
 def test_random_experiment_draws_a_scene_per_run_and_scores_crossings():
-    from pipeline.experiments import _run_setup
+    from bnptrack.pipeline.experiments import _run_setup
 
     jobs = [RunJob("random", 5, i, "vo2017", Variant("default")) for i in range(2)]
     (exp, sc0, p0, s0), (_, sc1, _, s1) = (_run_setup(j) for j in jobs)

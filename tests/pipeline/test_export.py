@@ -8,8 +8,8 @@ import numpy as np
 import pyarrow.parquet as pq
 from click.testing import CliRunner
 
-from pipeline.cli import main
-from sources.mcap_log import iter_tracks
+from bnptrack.pipeline.cli import main
+from bnptrack.sources.mcap_log import iter_tracks
 
 
 def test_export_rows_match_the_run(tmp_path):

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import EXIT_OK, SUMMARY_NAME, Sequencer
-from sinks.mcap_writer import McapLogWriter
-from sources.mcap_log import iter_tracks, read_log, read_metadata
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.models.params import load_params
-from tracker.types import FrameBoundError, FrameBounds, bounded_frames
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, Sequencer
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sources.mcap_log import iter_tracks, read_log, read_metadata
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.types import FrameBoundError, FrameBounds, bounded_frames
 
 from testkit import REPO_ROOT, ListSink
 from testkit import forge_seq as _forge_seq
@@ -80,7 +80,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
             w.write_frame(dataclasses.replace(f, frame=10**9 + f.frame))
     out = tmp_path / "out.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    res = subprocess.run([sys.executable, "-m", "pipeline", "track", str(log), "--out", str(out), "-q",
+    res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
                           "--set", "sweeps=8", "--set", "burn_in=2"],
                          capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 2
@@ -93,7 +93,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
     with McapLogWriter(log, {"scenario": "vo2017", "params": "vo2017", "seed": "1"}) as w:
         for f in frames[:12]:
             w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=f.frame + 1490))
-    args = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(out), "-q",
+    args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
             "--set", "sweeps=8", "--set", "burn_in=2"]
     res = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 2 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr

@@ -7,9 +7,9 @@ import pytest
 from click.testing import CliRunner
 from mcap.writer import Writer
 
-from pipeline.cli import main
-from sinks.mcap_writer import McapLogWriter
-from tracker.types import Frame
+from bnptrack.pipeline.cli import main
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.tracker.types import Frame
 
 HALF = np.deg2rad(45.0)
 
@@ -94,7 +94,7 @@ def test_log_without_measurements_exits_2_listing_channels(tmp_path, cmd):
 def test_topic_mapping_reads_a_renamed_channel(tmp_path):
     from mcap.writer import Writer as W
 
-    from tracker.messages import encode
+    from bnptrack.tracker.messages import encode
 
     log = tmp_path / "renamed.mcap"
     with open(log, "wb") as f:

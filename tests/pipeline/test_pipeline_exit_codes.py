@@ -13,16 +13,16 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import EXIT_INCOMPLETE, IncompleteError
-from pipeline.cli.pipeline_commands import _report_launch
-from pipeline.launch import Launcher, _ranges, describe_missing
-from pipeline.supervisor import LaunchResult
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import EXIT_OK, SUMMARY_NAME
-from sinks.mcap_writer import McapLogWriter
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.models.params import load_params
+from bnptrack.pipeline.cli import EXIT_INCOMPLETE, IncompleteError
+from bnptrack.pipeline.cli.pipeline_commands import _report_launch
+from bnptrack.pipeline.launch import Launcher, _ranges, describe_missing
+from bnptrack.pipeline.supervisor import LaunchResult
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.models.params import load_params
 
 from testkit import REPO_ROOT, drop_seq, wait_until
 from testkit import forge_seq as _forge_seq
@@ -98,7 +98,7 @@ def test_report_launch_exits_3_naming_what_is_missing(tmp_path, capsys):
 def test_a_stage_that_gives_up_makes_the_launch_incomplete(tmp_path):
     """Every stage 'crashes' at once (the stage command is /bin/false): after
     ``max_restarts`` restarts the launcher gives up, and the result is incomplete (exit 3)."""
-    from pipeline.config import load_pipeline
+    from bnptrack.pipeline.config import load_pipeline
 
     cfg = load_pipeline(None, ["supervisor.max_restarts=1", "supervisor.restart_backoff_s=0",
                                "supervisor.stop_timeout_s=5", f"out='{tmp_path / 'o'}'", "run='gu'"])
@@ -119,7 +119,7 @@ def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
             w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=10**9 + f.frame))
     out = tmp_path / "r"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    res = subprocess.run([sys.executable, "-m", "pipeline", "replay", str(log), "--as-fast-as-possible",
+    res = subprocess.run([sys.executable, "-m", "bnptrack", "replay", str(log), "--as-fast-as-possible",
                           "--set", "sweeps=8", "--set", "burn_in=2", "--set", "sink.rerun=false",
                           "--out", str(out), "--timeout", "150", "-q"],
                          capture_output=True, text=True, timeout=200, env=env)
@@ -144,7 +144,7 @@ def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
     out = tmp_path / "r"
 
     def launch(*extra, run="first"):
-        return subprocess.run([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", run,
+        return subprocess.run([sys.executable, "-m", "bnptrack", "launch", "--out", str(out), "--run", run,
                                "-q", "--set", "source.frames=3", "--set", "sink.rerun=false",
                                "--set", "tracker.overrides=['sweeps=8', 'burn_in=2']", "--timeout", "150",
                                *extra], capture_output=True, text=True, timeout=200, env=env)
@@ -161,7 +161,7 @@ def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
     assert json.loads((out / "pipeline.json").read_text())["run"] == "second"
     assert json.loads((out / "sink.json").read_text())["run"] == "second"
     # a live run: refused even with --overwrite, and its files are left alone
-    live = subprocess.Popen([sys.executable, "-m", "pipeline", "launch", "--out", str(out), "--run", "live",
+    live = subprocess.Popen([sys.executable, "-m", "bnptrack", "launch", "--out", str(out), "--run", "live",
                              "--overwrite", "-q", "--set", "source.frames=1000", "--set", "source.rate=2",
                              "--set", "sink.rerun=false"], env=env, stderr=subprocess.PIPE, text=True)
     try:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
+from bnptrack.pipeline.cli import main
 from click.testing import CliRunner
 
 from testkit import REPO_ROOT
@@ -21,7 +21,7 @@ ROOT = REPO_ROOT
 
 def bnptrack(*args, timeout: float = 120) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "pipeline", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "bnptrack", *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, env=env, cwd=ROOT)
 
 
@@ -84,8 +84,8 @@ def test_launch_out_that_is_a_file_is_refused(tmp_path):
 def test_check_pipeline_accepts_the_default_and_a_replay(vo_log, tmp_path):
     import msgspec
 
-    from pipeline.config import default_pipeline, resolve_run
-    from pipeline.preflight import check_pipeline
+    from bnptrack.pipeline.config import default_pipeline, resolve_run
+    from bnptrack.pipeline.preflight import check_pipeline
 
     cfg = resolve_run(msgspec.structs.replace(default_pipeline(), out=str(tmp_path / "a" / "b")))
     check_pipeline(cfg)  # nothing raised, nothing created
@@ -98,7 +98,7 @@ def test_check_pipeline_accepts_the_default_and_a_replay(vo_log, tmp_path):
 
 
 def test_set_keys_route_like_track_plus_the_pipeline_tables():
-    from pipeline.config import load_pipeline, split_pipeline_overrides
+    from bnptrack.pipeline.config import load_pipeline, split_pipeline_overrides
 
     items = ["p_detect=0.9", "tracker.sweeps=5", "params.clutter_rate=3", "source.frames=2",
              "tracker.seed=3", "run=abc", "sink.rerun=false", "tracker.tracker=dpyp", "burn_in=1"]
@@ -128,7 +128,7 @@ def test_unknown_bare_set_key_gives_tracks_error(vo_log, tmp_path):
 def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     """``replay LOG --set p_detect=0.9 --set sweeps=8 --set tracker.burn_in=2`` runs the tracker
     ``track LOG`` runs with the same ``--set`` items: the same /tracks (first 6 frames)."""
-    from sources.mcap_log import iter_tracks
+    from bnptrack.sources.mcap_log import iter_tracks
 
     sets = ["--set", "p_detect=0.9", "--set", "sweeps=8", "--set", "tracker.burn_in=2"]
     off = tmp_path / "off.mcap"
@@ -142,7 +142,7 @@ def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     got = [strip(e) for e in iter_tracks(out / "tracks.mcap")]
     want = [strip(e) for e in iter_tracks(off)][:6]
     assert len(got) == 6 and got == want
-    meta = __import__("sources.mcap_log", fromlist=["read_metadata"]).read_metadata(out / "tracks.mcap")
+    meta = __import__("bnptrack.sources.mcap_log", fromlist=["read_metadata"]).read_metadata(out / "tracks.mcap")
     assert meta["tracker_overrides"] == "p_detect=0.9;sweeps=8;tracker.burn_in=2"
 
 
@@ -183,7 +183,7 @@ def test_stage_and_launch_without_a_router_are_one_line_exit_2(tmp_path):
 
 
 def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
-    from pipeline.supervisor import StageProcess
+    from bnptrack.pipeline.supervisor import StageProcess
 
     log = tmp_path / "tracker.log"
     sp = StageProcess("tracker", [], log)
@@ -199,7 +199,7 @@ def test_launcher_reports_a_stage_configuration_error_on_one_line(tmp_path):
 def test_listening_probes_tcp_and_tls_endpoints_only():
     import socket
 
-    from pipeline.preflight import listening
+    from bnptrack.pipeline.preflight import listening
 
     with socket.socket() as srv:
         srv.bind(("127.0.0.1", 0))

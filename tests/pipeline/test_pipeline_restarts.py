@@ -12,9 +12,9 @@ from pathlib import Path
 
 import msgspec
 
-from pipeline.membus import MemoryNetwork
-from pipeline.config import PipelineConfig
-from pipeline.stages import (
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.config import PipelineConfig
+from bnptrack.pipeline.stages import (
     EXIT_OK,
     STAGES,
     SUMMARY_NAME,
@@ -23,7 +23,7 @@ from pipeline.stages import (
     part_path,
     read_snapshot,
 )
-from sources.mcap_log import read_log
+from bnptrack.sources.mcap_log import read_log
 
 from testkit import ListSink, drop_seq, mem_cfg
 from testkit import run_memory_pipeline as _run_memory_pipeline
@@ -111,9 +111,9 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     """Issue 17 item 3: frames 3-6 never arrive (neither live nor in the subscribers'
     history), but their publishers still hold them: the tracker and the sink fetch them
     explicitly, so there is no gap and the tracks equal the offline run of every frame."""
-    from pipeline.stages import source_frames
-    from tracker.state import run as run_offline
-    from pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.stages import source_frames
+    from bnptrack.tracker.state import run as run_offline
+    from bnptrack.pipeline.resolve import tracker_setup
 
     cfg = _mem_cfg(tmp_path, frames=12)
     net = MemoryNetwork()
@@ -138,7 +138,7 @@ def test_sequencer_catch_up_holds_until_the_announced_live_head():
     4,968 gaps and push(1) was late, because catch-up ended when the buffer was empty once.
     With the publisher's live head announced (5000), catch-up holds until seq 5000 is
     released: nothing is declared missing and the history 1..4999 is accepted."""
-    from pipeline.stages import GAP, Sequencer
+    from bnptrack.pipeline.stages import GAP, Sequencer
 
     old = Sequencer(32, 0, "m", 10_000)
     old.push(0, 0)

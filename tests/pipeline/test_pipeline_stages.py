@@ -13,15 +13,15 @@ import msgspec
 import numpy as np
 import pytest
 
-from tracker.messages import encode
-from pipeline.membus import MemoryNetwork
-from pipeline.config import (
+from bnptrack.tracker.messages import encode
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.config import (
     PipelineConfig,
     default_pipeline,
     load_pipeline,
     resolve_run,
 )
-from pipeline.stages import (
+from bnptrack.pipeline.stages import (
     EXIT_OK,
     GAP,
     STAGES,
@@ -34,10 +34,10 @@ from pipeline.stages import (
     read_snapshot,
     write_atomic,
 )
-from pipeline.events import Event
-from sources.mcap_log import read_log
-from tracker.config import ConfigError, apply_overrides
-from tracker.types import Frame
+from bnptrack.pipeline.events import Event
+from bnptrack.sources.mcap_log import read_log
+from bnptrack.tracker.config import ConfigError, apply_overrides
+from bnptrack.tracker.types import Frame
 
 from testkit import REPO_ROOT, ListSink, drop_seq, wait_until
 from testkit import mem_cfg as _mem_cfg
@@ -216,7 +216,7 @@ def test_pipeline_config_defaults_overrides_and_errors(tmp_path):
 
 
 def test_tls_file_fields_are_the_file_fields_of_tls_config():
-    from pipeline.config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
+    from bnptrack.pipeline.config import TLS_FILE_FIELDS, TlsConfig, ZenohConfig
 
     assert TLS_FILE_FIELDS == tuple(f for f in TlsConfig.__struct_fields__ if f not in ("mtls", "verify_name_on_connect"))
     tls = TlsConfig(root_ca_certificate="ca.pem", connect_private_key="k.pem")
@@ -237,7 +237,7 @@ def test_background_writer_closes_sync_first_when_submit_raises(tmp_path):
     submit (the writer owns them) are closed all the same."""
     import os
 
-    from pipeline.stages import BackgroundWriter
+    from bnptrack.pipeline.stages import BackgroundWriter
 
     w = BackgroundWriter()
     w.submit(tmp_path / "missing-dir" / "x.snap", b"data")  # fails on the writer thread
@@ -277,8 +277,8 @@ def test_memory_pipeline_equals_offline(tmp_path):
 def _assert_scores_equal_offline(scores: dict, frames, ests) -> None:
     """sink.json's scores are the means `bnptrack track` would give (OSPA, cardinality
     error: pipeline.offline.frame_metrics; OSPA(2): sinks.metrics.ospa2_series)."""
-    from pipeline.offline import frame_metrics
-    from sinks.metrics import ospa2_series
+    from bnptrack.pipeline.offline import frame_metrics
+    from bnptrack.sinks.metrics import ospa2_series
 
     fm = [frame_metrics(f, e) for f, e in zip(frames, ests)]
     o2 = ospa2_series([dict(zip(e.labels, e.positions)) for e in ests],
@@ -387,8 +387,8 @@ def test_sink_drops_a_truth_of_another_frame_like_mismatched_tracks(tmp_path):
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["complete"] and summary["frames_written"] == 8 and summary["tracks_written"] == 8
     assert summary["counters"]["rejected"] == 1 and summary["gaps"]["truth"] == []
-    from tracker.messages import TOPIC_TRUTH
-    from sources.mcap_log import _Scanner
+    from bnptrack.tracker.messages import TOPIC_TRUTH
+    from bnptrack.sources.mcap_log import _Scanner
 
     truth_frames = [m.frame for _, m in _Scanner(Path(cfg.out) / "tracks.mcap", {TOPIC_TRUTH})]
     assert truth_frames == [f.frame for i, f in enumerate(frames) if i != 4]  # no stray truth of frame 3
@@ -447,7 +447,7 @@ def test_tracker_resumes_from_snapshot_without_loss_or_duplicate(tmp_path):
     for (r, t, p, a) in net.history:
         if t == "tracks":
             seq = json.loads(a)["seq"]
-            from tracker.messages import TOPIC_TRACKS, decode, to_estimate
+            from bnptrack.tracker.messages import TOPIC_TRACKS, decode, to_estimate
 
             est = to_estimate(decode(TOPIC_TRACKS, p))
             if seq in last:
@@ -461,7 +461,7 @@ def test_tracker_refuses_a_snapshot_of_another_run(tmp_path):
     cfg = _mem_cfg(tmp_path, frames=4)
     out = Path(cfg.out)
     out.mkdir(parents=True)
-    from pipeline.stages import Snapshot
+    from bnptrack.pipeline.stages import Snapshot
 
     write_atomic(out / "tracker.snap", msgspec.msgpack.encode(
         Snapshot(run="other", tracker="ddp", seed=0, last_seq=1, last_frame=2, state=b"")))
@@ -488,7 +488,7 @@ def test_docs_pipeline_file_example_is_the_default():
 def test_pipeline_commands_have_help():
     from click.testing import CliRunner
 
-    from pipeline.cli import main
+    from bnptrack.pipeline.cli import main
 
     for cmd, words in [
         ("launch", ["PIPELINE.toml", "--set", "--out", "--run", "--connect", "--timeout", "Example"]),
@@ -504,7 +504,7 @@ def test_pipeline_commands_have_help():
 
 
 def test_acl_config_gives_each_stage_only_its_keys():
-    from pipeline.acl import acl_config
+    from bnptrack.pipeline.acl import acl_config
 
     acl = acl_config()
     assert acl["enabled"] and acl["default_permission"] == "deny"
@@ -519,9 +519,9 @@ def test_acl_config_gives_each_stage_only_its_keys():
 
 def _registry_trackers():
     try:
-        from tracker.registry import TRACKERS
+        from bnptrack.tracker.registry import TRACKERS
     except ImportError:  # older layout
-        from pipeline.resolve import TRACKERS
+        from bnptrack.pipeline.resolve import TRACKERS
     return list(TRACKERS)
 
 
@@ -529,7 +529,7 @@ def _registry_trackers():
 def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
     """The tracker stage takes whatever pipeline.resolve.tracker_setup builds (with its
     snapshot/restore), so a tracker added to the registry works in the pipeline unchanged."""
-    from tracker.state import restore
+    from bnptrack.tracker.state import restore
 
     cfg = resolve_run(apply_overrides(
         PipelineConfig(run="reg", out=str(tmp_path / "out")),
@@ -540,7 +540,7 @@ def test_every_registered_tracker_runs_in_the_pipeline(tmp_path, name):
     log = read_log(Path(cfg.out) / "tracks.mcap")
     _, ests = _offline(cfg)
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
-    from pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.resolve import tracker_setup
 
     tracker = tracker_setup(name, metadata=log.metadata).tracker
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
@@ -556,7 +556,7 @@ def _journal_records(n: int, start: int = 0) -> list[tuple[int, bytes, dict]]:
 
 
 def _write_journal(path: Path, n: int) -> None:
-    from pipeline.journal import TracksJournal
+    from bnptrack.pipeline.journal import TracksJournal
 
     j = TracksJournal(path, keep=100)
     j.start()
@@ -566,7 +566,7 @@ def _write_journal(path: Path, n: int) -> None:
 
 
 def test_journal_round_trip_and_resume_cuts_back_to_the_snapshot(tmp_path):
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     _write_journal(path, 10)
@@ -581,7 +581,7 @@ def test_journal_round_trip_and_resume_cuts_back_to_the_snapshot(tmp_path):
 
 
 def test_journal_reads_the_prefix_of_a_torn_or_damaged_file(tmp_path):
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     _write_journal(path, 6)
@@ -598,7 +598,7 @@ def test_journal_reads_the_prefix_of_a_torn_or_damaged_file(tmp_path):
 
 
 def test_journal_keeps_the_newest_records_when_it_grows(tmp_path):
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     j = TracksJournal(path, keep=4)
@@ -614,7 +614,7 @@ def test_journal_keeps_the_newest_records_when_it_grows(tmp_path):
 def test_journal_compacts_right_after_a_resume(tmp_path):
     """The journal keeps each record's end offset itself (no tell() per record): after a
     resume that cut the file back, compaction must still cut exactly at record boundaries."""
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     _write_journal(path, 6)
@@ -630,7 +630,7 @@ def test_journal_resume_returns_at_most_keep_records_the_newest(tmp_path):
     """The file may hold up to 2 x keep records, but no publisher cache holds more than
     ``keep``: resume returns (for publishing again) only the newest ``keep`` of the records
     the snapshot covers; the file itself is cut only after the snapshot."""
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     _write_journal(path, 9)
@@ -643,7 +643,7 @@ def test_journal_resume_returns_at_most_keep_records_the_newest(tmp_path):
 
 
 def test_journal_append_when_not_open_raises_and_keeps_the_file(tmp_path):
-    from pipeline.journal import TracksJournal, read_journal
+    from bnptrack.pipeline.journal import TracksJournal, read_journal
 
     path = tmp_path / "tracker.journal"
     _write_journal(path, 3)
@@ -680,9 +680,9 @@ def test_sequencer_catching_up_keeps_history_that_arrives_after_live_frames():
 def test_memory_pipeline_with_a_generated_random_source(tmp_path):
     """A synthetic source of the generated ``random`` scenario: the scene comes from
     source.seed and the scene.* items of source.overrides; the tracker gets no birth regions."""
-    from pipeline.offline import parse_crossings
-    from pipeline.resolve import resolve_params
-    from sources.scenarios import get_scenario
+    from bnptrack.pipeline.offline import parse_crossings
+    from bnptrack.pipeline.resolve import resolve_params
+    from bnptrack.sources.scenarios import get_scenario
 
     cfg = _mem_cfg(tmp_path, frames=8, **{"source.scenario": '"random"', "source.seed": "3",
                                           "source.overrides": "['scene.n_objects=22']"})
@@ -707,8 +707,8 @@ def _frames_at(stamps_s: list[float], first: int = 1) -> list[Frame]:
 
 
 def test_window_frames_in_seconds_of_log_time_and_in_frames():
-    from pipeline.config import SourceConfig
-    from pipeline.stages import window_frames
+    from bnptrack.pipeline.config import SourceConfig
+    from bnptrack.pipeline.stages import window_frames
 
     frames = _frames_at([5.0, 6.0, 7.5, 9.0, 10.0, 12.0])  # log time 0, 1, 2.5, 4, 5, 7 s
 
@@ -752,8 +752,8 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     """tracker.prior_from (replay --loop --keep-prior): the second run starts with no track
     but with the first run's alpha, d and (alpha, d) likelihood; its tracks are those of the
     offline tracker started from that state; without it, those of a fresh tracker."""
-    from pipeline.stages import PRIOR_FIELDS, keep_prior
-    from tracker.state import run
+    from bnptrack.pipeline.stages import PRIOR_FIELDS, keep_prior
+    from bnptrack.tracker.state import run
 
     first = _mem_cfg(tmp_path / "a", frames=8)
     assert _run_memory_pipeline(first, MemoryNetwork())["tracker"] == EXIT_OK
@@ -765,8 +765,8 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     assert _run_memory_pipeline(second, MemoryNetwork())["tracker"] == EXIT_OK
     got = read_log(Path(second.out) / "tracks.mcap").tracks
 
-    from pipeline.resolve import tracker_setup
-    from pipeline.stages import source_frames
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.stages import source_frames
 
     meta, _ = source_frames(first)
     tracker = tracker_setup("ddp", overrides=first.tracker.overrides, metadata=meta).tracker
@@ -788,7 +788,7 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
 
 
 def test_hole_watch_is_due_after_its_delay_on_the_injected_clock():
-    from pipeline.stages import HoleWatch
+    from bnptrack.pipeline.stages import HoleWatch
 
     clock = ManualClock()
     seqr = Sequencer(4)
@@ -810,7 +810,7 @@ def test_hole_watch_is_due_after_its_delay_on_the_injected_clock():
 def test_source_paces_its_frames_on_the_injected_clock(tmp_path):
     """source.rate = 2: frame k is published (log time of k - log time of frame 0) / 2 after
     the start, on the stage's clock: a manual clock ends exactly there, without waiting."""
-    from pipeline.stages import source_frames
+    from bnptrack.pipeline.stages import source_frames
 
     cfg = _mem_cfg(tmp_path, frames=6, **{"source.rate": "2.0", "source.done_by": "[]", "source.wait_for": "[]"})
     clock = ManualClock(start_ns=10**18)
@@ -833,9 +833,9 @@ def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
     import subprocess
     import sys
 
-    code = ("import sys; from pipeline.stages.tracker import warm_tracker_imports; "
-            "warm_tracker_imports(sys.argv[1]); print(int('tracker.bnp' in sys.modules), "
-            "int('tracker.glmb' in sys.modules))")
+    code = ("import sys; from bnptrack.pipeline.stages.tracker import warm_tracker_imports; "
+            "warm_tracker_imports(sys.argv[1]); print(int('bnptrack.tracker.bnp' in sys.modules), "
+            "int('bnptrack.tracker.glmb' in sys.modules))")
     root = REPO_ROOT
     seen = {name: subprocess.run([sys.executable, "-c", code, name], capture_output=True, text=True,
                                  cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},

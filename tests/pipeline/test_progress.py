@@ -8,10 +8,10 @@ import io
 import numpy as np
 import pytest
 
-from pipeline.progress import Progress, Status, progress_line
-from sinks.metrics import OspaResult
-from sinks.metrics import ScoreTally
-from tracker.types import Estimate, Frame, TrackEstimate, Truth
+from bnptrack.pipeline.progress import Progress, Status, progress_line
+from bnptrack.sinks.metrics import OspaResult
+from bnptrack.sinks.metrics import ScoreTally
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 
 def _sink(frames: int, t_s: float, *, ospa=None, last=None, tracks=3, latency=2.5) -> dict:

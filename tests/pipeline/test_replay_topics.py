@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
-from pipeline.config import SourceConfig, load_pipeline, parse_topic_item
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import EXIT_OK, SUMMARY_NAME, source_frames
-from sources.mcap_log import iter_frames, read_log
-from tracker.config import ConfigError
+from bnptrack.pipeline.cli import main
+from bnptrack.pipeline.config import SourceConfig, load_pipeline, parse_topic_item
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, source_frames
+from bnptrack.sources.mcap_log import iter_frames, read_log
+from bnptrack.tracker.config import ConfigError
 
 from testkit import REPO_ROOT, mem_cfg, rename_channels, run_memory_pipeline, strip
 
@@ -128,8 +128,8 @@ def test_sink_decodes_frames_only_for_a_consumer(tmp_path, monkeypatch):
     sink.json's scores and counters) equal those of a run that decodes every frame."""
     import dataclasses
 
-    import pipeline.stages.sink as sink_stage
-    from sinks.sink import SINKS
+    import bnptrack.pipeline.stages.sink as sink_stage
+    from bnptrack.sinks.sink import SINKS
 
     calls = []
     real = sink_stage.to_frame

@@ -12,9 +12,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from pipeline.launch import describe_missing
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import (
+from bnptrack.pipeline.launch import describe_missing
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import (
     EXIT_DATA,
     EXIT_OK,
     EXIT_STOPPED,
@@ -29,8 +29,8 @@ from pipeline.stages import (
     read_snapshot,
     salvage_part,
 )
-from sinks.mcap_writer import McapLogWriter
-from sources.mcap_log import read_log, read_metadata
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sources.mcap_log import read_log, read_metadata
 
 from testkit import mem_cfg, run_memory_pipeline, wait_until
 

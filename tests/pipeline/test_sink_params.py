@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import msgspec
 
-from pipeline.membus import MemoryNetwork
-from pipeline.resolve import resolve_params, tracker_setup
-from pipeline.stages import SinkStage, StageInfo
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.resolve import resolve_params, tracker_setup
+from bnptrack.pipeline.stages import SinkStage, StageInfo
 from testkit import ListSink, mem_cfg, run_memory_pipeline
-from tracker.models.params import ModelParams
+from bnptrack.tracker.models.params import ModelParams
 
 RECORD = {"scenario": "vo2017", "params": "vo2017", "overrides": "range_max=3000", "seed": "1"}
 

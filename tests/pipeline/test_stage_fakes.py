@@ -14,9 +14,9 @@ import msgspec
 import numpy as np
 import pytest
 
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import EXIT_OK, SUMMARY_NAME, source_frames
-from sources.mcap_log import read_log
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, source_frames
+from bnptrack.sources.mcap_log import read_log
 
 from testkit import ListSink, ListSource, mem_cfg, offline, run_memory_pipeline, strip, wait_until
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sinks.metrics import (
+from bnptrack.sinks.metrics import (
     GospaResult,
     OspaResult,
     cardinality_error,
@@ -539,7 +539,7 @@ def _crossing_run(labels_a, labels_b, *, K=21, lost_b_at=()):
 
 
 def test_crossing_label_keeping_kept_swapped_lost():
-    from sinks.crossings import crossing_label_keeping
+    from bnptrack.sinks.crossings import crossing_label_keeping
 
     K = 21
     true, est = _crossing_run(["t1"] * K, ["t2"] * K)
@@ -569,7 +569,7 @@ def test_crossing_label_keeping_kept_swapped_lost():
 
 
 def test_crossing_label_keeping_gate_clipping_and_fraction():
-    from sinks.crossings import crossing_label_keeping
+    from bnptrack.sinks.crossings import crossing_label_keeping
 
     K = 21
     true, est = _crossing_run(["t1"] * K, ["t2"] * K)

@@ -12,17 +12,17 @@ os.environ.setdefault("RUST_LOG", "error")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from sinks.rerun_clusters import ClusterColours  # noqa: E402
-from sinks.rerun_sink import write_recording  # noqa: E402
-from sinks.rerun_style import (GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, PALETTE, SENSOR_COLOR,  # noqa: E402
+from bnptrack.sinks.rerun_clusters import ClusterColours  # noqa: E402
+from bnptrack.sinks.rerun_sink import write_recording  # noqa: E402
+from bnptrack.sinks.rerun_style import (GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, PALETTE, SENSOR_COLOR,  # noqa: E402
                                WHITE_UNASSIGNED, cluster_color, pack_rgba, unpack_rgba)
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
 from test_rerun_sink import _blueprint_view_names, by_frame, read_rrd, rrd_verify  # noqa: E402
-from tracker.cardinality import pmf_map, pmf_mean  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.registry import build  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.tracker.cardinality import pmf_map, pmf_mean  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.registry import build  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 N = 40
 SCENE = ("n_objects=1", "group_sizes=[3,3]", "passing_pairs=0", f"K={N}", f"life_min={N}")
@@ -147,8 +147,8 @@ def test_a_scene_that_starts_without_objects_records(groups_run, tmp_path):
     their own (flush_interval=0): no truth trail, no error (it raised in np.concatenate)."""
     from dataclasses import replace
 
-    from sinks.rerun_geometry import truth_trails
-    from tracker.types import Truth
+    from bnptrack.sinks.rerun_geometry import truth_trails
+    from bnptrack.tracker.types import Truth
 
     pts, lengths, kept = truth_trails([((), np.zeros((0, 2)))], {}, 20)
     assert pts.shape == (0, 2) and lengths.size == 0 and kept == {}

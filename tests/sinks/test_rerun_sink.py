@@ -30,18 +30,18 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from pipeline.view import ViewerUnavailable, screenshot  # noqa: E402
+from bnptrack.pipeline.view import ViewerUnavailable, screenshot  # noqa: E402
 from testkit import png_stats  # noqa: E402
-from sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
-from sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
-from sinks.rerun_style import PALETTE, label_color  # noqa: E402
-from sinks.rerun_tools import repair, rerun_cli, rerun_env  # noqa: E402
-from sinks.rerun_process import RecordingError, RecordingProcess  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp import make_tracker  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
+from bnptrack.sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
+from bnptrack.sinks.rerun_style import PALETTE, label_color  # noqa: E402
+from bnptrack.sinks.rerun_tools import repair, rerun_cli, rerun_env  # noqa: E402
+from bnptrack.sinks.rerun_process import RecordingError, RecordingProcess  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.bnp import make_tracker  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 from testkit import REPO_ROOT, wait_until  # noqa: E402
 
@@ -302,7 +302,7 @@ def test_scene_grid_axes_and_legend(contents):
 
 
 def test_track_colours_differ_from_truth_sensor_and_measurement_colours():
-    from sinks.rerun_style import GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, SENSOR_COLOR, WHITE_UNASSIGNED
+    from bnptrack.sinks.rerun_style import GREY_CLUTTER, GREY_TRUTH, MIN_COLOR_DISTANCE, SENSOR_COLOR, WHITE_UNASSIGNED
 
     reserved = np.array([c[:3] for c in (SENSOR_COLOR, GREY_TRUTH, GREY_CLUTTER, WHITE_UNASSIGNED)], float)
     d = np.linalg.norm(np.array(PALETTE, float)[:, None] - reserved[None], axis=-1)
@@ -344,7 +344,7 @@ def test_metric_panels_hidden_without_truth(vo_run, recording, tmp_path):
 
 
 def test_scorer_matches_frame_metrics(vo_run):
-    from pipeline.offline import frame_metrics
+    from bnptrack.pipeline.offline import frame_metrics
 
     _params, frames, estimates = vo_run
     scorer = RunScorer()
@@ -443,7 +443,7 @@ def test_label_colours():
 _WRITER = r"""
 import os, pickle, sys, time
 sys.path.insert(0, sys.argv[3])
-from sinks.rerun_sink import RerunSink
+from bnptrack.sinks.rerun_sink import RerunSink
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
 sink = RerunSink(sys.argv[1], params=params, metadata={"scenario": "vo2017"})
 for f, e in zip(frames, estimates):
@@ -537,8 +537,8 @@ def test_repair_argument_errors(tmp_path):
 def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
     """What ``bnptrack track LOG --out OUT --rrd RRD`` does in-process: the ``mcap`` and
     ``rerun`` sinks of the table, the recording written by a child process."""
-    from pipeline.offline import check_outputs, open_sinks, track_to_sinks
-    from sinks.records import SinkOptions
+    from bnptrack.pipeline.offline import check_outputs, open_sinks, track_to_sinks
+    from bnptrack.sinks.records import SinkOptions
 
     outputs = {"mcap": Path(out), "rerun": Path(rrd)}
     check_outputs(log, outputs)
@@ -547,7 +547,7 @@ def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
 
 
 def test_track_log_with_rrd(tmp_path):
-    from pipeline.resolve import tracker_setup
+    from bnptrack.pipeline.resolve import tracker_setup
 
     params = load_params("vo2017")
     tracker = tracker_setup("ddp", params=params).tracker
@@ -571,7 +571,7 @@ def test_track_topic_with_rrd_records_what_the_plain_log_records(tmp_path):
     of the plain log's recording (but the source log's name and the step's wall time)."""
     from click.testing import CliRunner
 
-    from pipeline.cli import main
+    from bnptrack.pipeline.cli import main
     from testkit import rename_channels
 
     vo = REPO / "recordings" / "vo2017-s1.mcap"
@@ -613,7 +613,7 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
 _TRACKER = r"""
 import json, pickle, sys
 sys.path.insert(0, sys.argv[3])
-from sinks.rerun_process import RecordingProcess
+from bnptrack.sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
 start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6] == "wait"
 with RecordingProcess(start=start) as rec:
@@ -716,7 +716,7 @@ def test_cli_track_rrd_end_to_end(tmp_path):
     log = REPO / "recordings" / "vo2017-s1.mcap"
     out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"
     env = {**rerun_env(), "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "pipeline", "track", str(log), "--out", str(out), "-q"]
+    cmd = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q"]
     res = subprocess.run([*cmd, "--rrd", str(rrd)], capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr
     assert rrd_verify(rrd).returncode == 0
@@ -747,7 +747,7 @@ def test_headless_screenshot_is_not_blank(recording, tmp_path):
 
 
 def test_open_viewer_without_display_says_what_to_do(recording, monkeypatch):
-    from pipeline.view import open_viewer
+    from bnptrack.pipeline.view import open_viewer
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)

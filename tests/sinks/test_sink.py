@@ -12,16 +12,16 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from tracker.messages import encode, from_truth  # noqa: E402
-from sinks.metrics import ospa  # noqa: E402
-from sinks.sink import SINKS, SinkEntry, SinkSet, UnknownSink, make_sink  # noqa: E402
-from sinks.records import Payloads, Sink, SinkOptions, SinkRecord  # noqa: E402
-from sources.mcap_log import iter_frames, iter_tracks, read_metadata  # noqa: E402
-from sources.scenarios import get_scenario  # noqa: E402
-from sources.synthetic import simulate_all  # noqa: E402
-from tracker.bnp import make_tracker  # noqa: E402
-from tracker.models.params import load_params  # noqa: E402
-from tracker.state import run  # noqa: E402
+from bnptrack.tracker.messages import encode, from_truth  # noqa: E402
+from bnptrack.sinks.metrics import ospa  # noqa: E402
+from bnptrack.sinks.sink import SINKS, SinkEntry, SinkSet, UnknownSink, make_sink  # noqa: E402
+from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord  # noqa: E402
+from bnptrack.sources.mcap_log import iter_frames, iter_tracks, read_metadata  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.bnp import make_tracker  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
 
 N_FRAMES = 12
 META = {"scenario": "vo2017", "tracker": "ddp", "seed": "1"}

@@ -15,14 +15,14 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
-from pipeline.config import PipelineConfig, apply_pipeline_overrides, resolve_run
-from pipeline.membus import MemoryNetwork
-from pipeline.stages import EXIT_OK, STAGES, SUMMARY_NAME, ManualClock, StageContext
-from sinks.sink import SINKS, SinkEntry
-from sinks.records import SinkOptions, SinkRecord
-from sources.mcap_log import iter_frames, iter_tracks, read_metadata
-from tracker.config import ConfigError
+from bnptrack.pipeline.cli import main
+from bnptrack.pipeline.config import PipelineConfig, apply_pipeline_overrides, resolve_run
+from bnptrack.pipeline.membus import MemoryNetwork
+from bnptrack.pipeline.stages import EXIT_OK, STAGES, SUMMARY_NAME, ManualClock, StageContext
+from bnptrack.sinks.sink import SINKS, SinkEntry
+from bnptrack.sinks.records import SinkOptions, SinkRecord
+from bnptrack.sources.mcap_log import iter_frames, iter_tracks, read_metadata
+from bnptrack.tracker.config import ConfigError
 
 HEADER = ["frame", "n_measurements", "label", "x", "y", "scored"]
 

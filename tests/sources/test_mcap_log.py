@@ -11,8 +11,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from sinks.mcap_writer import McapLogWriter
-from sources.mcap_log import (
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.sources.mcap_log import (
     METADATA_NAME,
     LogContents,
     McapLogError,
@@ -21,8 +21,8 @@ from sources.mcap_log import (
     read_log,
     read_metadata,
 )
-from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, encode, from_truth
-from tracker.types import Estimate, Frame, TrackEstimate, Truth
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, encode, from_truth
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 from testkit import REPO_ROOT
 
@@ -492,7 +492,7 @@ def test_reader_imports_neither_pipeline_nor_sinks():
     import sys
 
     root = REPO_ROOT
-    code = ("import sys; from sources.mcap_log import iter_frames; "
+    code = ("import sys; from bnptrack.sources.mcap_log import iter_frames; "
             "n = sum(1 for _ in iter_frames('recordings/vo2017-s1.mcap')); assert n == 100, n; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pipeline', 'sinks', 'zenoh', 'rerun')); "
             "assert not bad, bad")

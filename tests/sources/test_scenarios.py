@@ -7,18 +7,18 @@ import pytest
 from scipy import stats
 from scipy.optimize import linear_sum_assignment
 
-from sources.scenarios import (
+from bnptrack.sources.scenarios import (
     PROXIMITY_PATH_START,
     SCENARIOS,
     Scenario,
     TargetSpec,
     get_scenario,
 )
-from sources.synthetic import measurement_frame_rng, simulate, simulate_all, simulate_frame
-from tracker.config import ConfigError
-from tracker.models.measurement import wrap_angle
-from tracker.models.params import load_params
-from tracker.types import Frame, Truth
+from bnptrack.sources.synthetic import measurement_frame_rng, simulate, simulate_all, simulate_frame
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.measurement import wrap_angle
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.types import Frame, Truth
 
 VO = get_scenario("vo2017")
 CLEAN = ["clutter_rate=0", "range_clutter_rate=0", "p_detect=1"]
@@ -416,7 +416,7 @@ def test_snr_scenario_range_clutter_default_and_override():
     bearing-range clutter is untouched."""
     import msgspec
 
-    from tracker.models.params import load_params
+    from bnptrack.tracker.models.params import load_params
 
     sc = get_scenario("snr")
     p = sc.adapt_params(load_params("vo2017"))
@@ -433,7 +433,7 @@ def test_snr_scenario_range_clutter_default_and_override():
 def test_open_scenario_applies_overrides_snr_and_scenario_defaults_once():
     """Issue 12 item 4: one function opens a scenario.  snr: the --set item, the scenario's
     -3 dB, 2 range clutter per scan and its 11 entry points; the record holds them."""
-    from sources.scenarios import open_scenario
+    from bnptrack.sources.scenarios import open_scenario
 
     o = open_scenario("snr", "vo2017", 1, ("p_detect=0.9",))
     assert o.scenario is get_scenario("snr")

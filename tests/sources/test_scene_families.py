@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
-from pipeline.resolve import resolve_params
-from sources.scenarios import parse_crossings
-from sources.scenarios import scenario_params as resolve_simulation_params
-from sources.mcap_log import iter_frames, read_metadata
-from sources.scenarios import get_scenario, is_generated, scenario_names
-from sources.scene_families import FAMILIES, CROSSING_MIN_SIDE, in_field, scene_config, scene_rng
-from sources.synthetic import measurement_frame_rng, simulate_all
-from tracker.config import ConfigError
-from tracker.models.params import load_params
+from bnptrack.pipeline.cli import main
+from bnptrack.pipeline.resolve import resolve_params
+from bnptrack.sources.scenarios import parse_crossings
+from bnptrack.sources.scenarios import scenario_params as resolve_simulation_params
+from bnptrack.sources.mcap_log import iter_frames, read_metadata
+from bnptrack.sources.scenarios import get_scenario, is_generated, scenario_names
+from bnptrack.sources.scene_families import FAMILIES, CROSSING_MIN_SIDE, in_field, scene_config, scene_rng
+from bnptrack.sources.synthetic import measurement_frame_rng, simulate_all
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.params import load_params
 
 SEEDS = range(12)
 
@@ -36,7 +36,7 @@ def test_registry():
 def test_seed_pinned_determinism():
     a, b = get_scenario("random", 3), get_scenario("random", seed=3, scene=())
     assert a is b  # cached, and a pure function of (name, seed, scene)
-    from sources.scene_families import generate_scene
+    from bnptrack.sources.scene_families import generate_scene
 
     c = generate_scene("random", 3)
     assert c == a
@@ -165,7 +165,7 @@ def test_cli_simulate_random_and_track(tmp_path):
 
 
 def test_family_template_and_explicit_params():
-    from sources.scene_families import family_template
+    from bnptrack.sources.scene_families import family_template
 
     t = family_template("random")
     assert t.targets == () and t.birth == () and t.K == 100 and t.kind == "bearing_range"

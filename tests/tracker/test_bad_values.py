@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker import filtering as kf
-from tracker.bnp import make_tracker
-from tracker.bnp.filter import _moment_match
-from tracker.state import tracker_frame_rng, run
-from tracker.types import Frame
+from bnptrack.tracker import filtering as kf
+from bnptrack.tracker.bnp import make_tracker
+from bnptrack.tracker.bnp.filter import _moment_match
+from bnptrack.tracker.state import tracker_frame_rng, run
+from bnptrack.tracker.types import Frame
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
@@ -64,7 +64,7 @@ def test_nan_distance_is_outside_the_gate(vo_params, gate):
 
 def test_moment_match_skips_pairs_without_weight(vo_params):
     """A NaN measurement no cluster takes leaves every state exactly as without it."""
-    from tracker.bnp.filter import _Prediction
+    from bnptrack.tracker.bnp.filter import _Prediction
 
     meas, m, P, innov = _innovation(vo_params)
     pred = _Prediction(m, P, np.array([0.9, 0.8]), np.array([0.98, 0.98]))

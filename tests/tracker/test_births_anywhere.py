@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from benchmarks.births import PARTS, ospa_parts
-from sinks.metrics import ospa
+from bnptrack.sinks.metrics import ospa
 from tests.tracker.test_urn_gibbs import enumerate_posterior, toy_problem
-from tracker.bnp.gibbs import CLUTTER, NEW, log_joint, run_gibbs
-from tracker.types import Estimate, Frame, TrackEstimate, Truth
+from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, log_joint, run_gibbs
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 
 def _toy(urn: bool):

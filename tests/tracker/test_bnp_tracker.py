@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from sinks.metrics import ospa
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpState, make_tracker
-from tracker.config import ConfigError, apply_overrides, load_toml
-from tracker.models.params import load_params
-from tracker.state import restore, run, snapshot
-from tracker.types import Frame, Truth
+from bnptrack.sinks.metrics import ospa
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpState, make_tracker
+from bnptrack.tracker.config import ConfigError, apply_overrides, load_toml
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.state import restore, run, snapshot
+from bnptrack.tracker.types import Frame, Truth
 
 
 
@@ -202,7 +202,7 @@ def test_vo2017_accuracy(vo_params, seed):
 
 def test_best_permutation_hand_values():
     """Two clusters share two measurements: the joint optimum wins over each row's argmax."""
-    from tracker.bnp.assignment import best_permutation
+    from bnptrack.tracker.bnp.assignment import best_permutation
 
     p = np.array([[0.50, 0.45, 0.00],   # row argmax: m0
                   [0.60, 0.30, 0.00],   # row argmax: m0 as well
@@ -220,7 +220,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
     moment-matched mixture let one cluster coalesce onto the other's object and T4 was lost
     (400 m from any track); with the uniform part of H weighing 0.5, T4 is re-born near its
     measurements, and on seeds 1-30 neither update loses T3 or T4 (worst 55 m, measured)."""
-    from tracker.state import tracker_frame_rng
+    from bnptrack.tracker.state import tracker_frame_rng
 
     seed = 2
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)[:22]
@@ -238,7 +238,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
 
 
 def _clusters(means, existences, std=10.0):
-    from tracker.bnp.clusters import _Clusters
+    from bnptrack.tracker.bnp.clusters import _Clusters
 
     means = np.asarray(means, dtype=float)
     n = len(means)
@@ -250,7 +250,7 @@ def test_merge_duplicates_hand_values():
     """Two clusters 10 m apart (d^2 = 10^2 / (2 * 10^2) = 0.5) with existences 0.3 and 0.5 are
     one object: existence 0.8, mean weighted 3:5, covariance with the spread term; the leader's
     (higher existence) label stays.  A third far away is untouched."""
-    from tracker.bnp.clusters import merge_duplicates
+    from bnptrack.tracker.bnp.clusters import merge_duplicates
 
     c = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0], [500, 0, 0, 0, 0]], [0.3, 0.5, 0.9])
     out = merge_duplicates(c, 9.0)
@@ -269,7 +269,7 @@ def test_merge_keeps_the_oldest_label():
     never renames a track (nor counts as a second birth of its object)."""
     from dataclasses import replace
 
-    from tracker.bnp.clusters import merge_duplicates
+    from bnptrack.tracker.bnp.clusters import merge_duplicates
 
     base = _clusters([[0, 0, 0, 0, 0], [10, 0, 0, 0, 0]], [0.3, 0.5])
     out = merge_duplicates(replace(base, labels=("12.3", "15.0")), 9.0)
@@ -279,7 +279,7 @@ def test_merge_keeps_the_oldest_label():
 def test_merge_never_joins_two_objects_that_both_exist():
     """Existences 0.9 and 0.6 sum above 1: two objects side by side (crossing), never merged;
     beyond the distance gate nothing merges either."""
-    from tracker.bnp.clusters import merge_duplicates
+    from bnptrack.tracker.bnp.clusters import merge_duplicates
 
     both = _clusters([[0, 0, 0, 0, 0], [5, 0, 0, 0, 0]], [0.9, 0.6])
     assert merge_duplicates(both, 9.0).labels == ("c0", "c1")

@@ -9,15 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.cardinality import TAIL, existence_cardinality, pmf_map, pmf_mean, poisson_binomial, truncate_tail
-from tracker.glmb import GlmbState
-from tracker.messages import TOPIC_TRACKS, CodecError, decode, encode, from_estimate, to_estimate
-from tracker.models.params import load_params
-from tracker.registry import build
-from tracker.state import run
-from tracker.types import Estimate, TrackEstimate
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.cardinality import TAIL, existence_cardinality, pmf_map, pmf_mean, poisson_binomial, truncate_tail
+from bnptrack.tracker.glmb import GlmbState
+from bnptrack.tracker.messages import TOPIC_TRACKS, CodecError, decode, encode, from_estimate, to_estimate
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.registry import build
+from bnptrack.tracker.state import run
+from bnptrack.tracker.types import Estimate, TrackEstimate
 
 
 # -- Poisson-binomial, hand-computed ---------------------------------------------------------
@@ -131,7 +131,7 @@ def test_codec_round_trip_writes_version_3_only_with_a_pmf():
     back = to_estimate(decode(TOPIC_TRACKS, data))
     np.testing.assert_array_equal(back.cardinality_pmf, [0.04, 0.41, 0.46, 0.09])
     assert encode(back) == data  # and the message path writes the same bytes
-    from tracker.messages import _encode_msg
+    from bnptrack.tracker.messages import _encode_msg
 
     assert _encode_msg(from_estimate(back)) == data
     # without a pmf: no field, and the version of the fields used (1, or 2 with a cluster)

@@ -10,8 +10,8 @@ import msgspec
 import numpy as np
 import pytest
 
-from tracker._message_checks import check_measurements, check_tracks
-from tracker.messages import (
+from bnptrack.tracker._message_checks import check_measurements, check_tracks
+from bnptrack.tracker.messages import (
     MAX_MEASUREMENTS,
     MAX_TRACKS,
     SCHEMA_VERSION,
@@ -30,7 +30,7 @@ from tracker.messages import (
     to_frame,
     to_truth,
 )
-from tracker.types import Estimate, Frame, TrackEstimate, Truth
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 from testkit import REPO_ROOT
 
@@ -485,7 +485,7 @@ def test_encode_tracks_fast_path_gives_the_checked_bytes():
     """encode(estimate) checks the estimate on stacked arrays; its bytes are those of the
     reference path (from_estimate + validation + encode), and whatever the fast check refuses
     goes through the reference path, which raises the precise error (test above)."""
-    from tracker.messages import _checked_tracks_msg, from_estimate
+    from bnptrack.tracker.messages import _checked_tracks_msg, from_estimate
 
     rng = np.random.default_rng(11)
     cases = [make_estimate(rng, k=k) for k in range(20)]
@@ -538,7 +538,7 @@ def test_tracks_version_is_2_only_with_a_cluster():
 def test_messages_share_one_header_and_golden_bytes():
     """The three messages derive from one Header (v, run, frame, stamp_ns first on the wire);
     the bytes are those of the contract (docs/formats.md), written out by hand here."""
-    from tracker.messages import Header
+    from bnptrack.tracker.messages import Header
 
     for t in (MeasurementsMsg, TruthMsg, TracksMsg):
         assert issubclass(t, Header)

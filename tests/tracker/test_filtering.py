@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2, multivariate_normal
 
-from tracker.filtering import (
+from bnptrack.tracker.filtering import (
     Innovation,
     UnscentedParams,
     as_gaussian_batch,
@@ -25,8 +25,8 @@ from tracker.filtering import (
     update_means,
     update_pairs,
 )
-from tracker.models.measurement import BearingRange, RangeOnly, wrap_angle
-from tracker.models.motion import ConstantVelocity, CoordinatedTurn
+from bnptrack.tracker.models.measurement import BearingRange, RangeOnly, wrap_angle
+from bnptrack.tracker.models.motion import ConstantVelocity, CoordinatedTurn
 
 
 # ---------------------------------------------------------------------------------------

@@ -39,9 +39,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tracker.bnp import TRACKER_PRESETS, BnpState, make_tracker
-from tracker.bnp.gibbs import CLUTTER, NEW, log_joint, run_gibbs
-from tracker.models.params import load_params
+from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpState, make_tracker
+from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, log_joint, run_gibbs
+from bnptrack.tracker.models.params import load_params
 
 PD, LAM_C, RANGE_MAX = 0.8, 1.5, 2000.0
 

@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from sinks.metrics import ospa
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.config import ConfigError, apply_overrides
-from tracker.glmb import (GLMB_PRESETS, GlmbConfig, GlmbState, candidate_sets, gibbs_chains, gibbs_chains_numpy,
+from bnptrack.sinks.metrics import ospa
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.config import ConfigError, apply_overrides
+from bnptrack.tracker.glmb import (GLMB_PRESETS, GlmbConfig, GlmbState, candidate_sets, gibbs_chains, gibbs_chains_numpy,
                           make_glmb, split_chains, start_optimal)
-from tracker.glmb.assignment import _lsap_batch, _lsap_kernel
-from tracker.glmb.gibbs import _gibbs_kernel
-from tracker.models.params import BirthComponent, load_params
-from tracker.state import restore, run, snapshot
-from tracker.types import Frame
+from bnptrack.tracker.glmb.assignment import _lsap_batch, _lsap_kernel
+from bnptrack.tracker.glmb.gibbs import _gibbs_kernel
+from bnptrack.tracker.models.params import BirthComponent, load_params
+from bnptrack.tracker.state import restore, run, snapshot
+from bnptrack.tracker.types import Frame
 
 from testkit import REPO_ROOT
 
@@ -267,7 +267,7 @@ def test_compiled_gibbs_equals_numpy_reference():
     """The numba sweeps reproduce the vectorised-numpy sampler draw for draw (same rng
     stream), with gated pairs, padding, blocked measurements and chains of unequal length;
     so does the kernel run interpreted."""
-    import tracker.glmb.gibbs as glmb_mod
+    import bnptrack.tracker.glmb.gibbs as glmb_mod
     for seed in range(5):
         rng = np.random.default_rng(seed)
         n_rows, M = 9, 5
@@ -468,7 +468,7 @@ def test_config_is_strict_and_overridable(vo_params):
 
 def test_adaptive_birth_existence_hand_computed():
     """r_B(z) = min(r_max, lambda_B (1 - r_U(z)) / sum_z' (1 - r_U(z'))) on two measurements."""
-    from tracker.glmb import adaptive_birth_existence
+    from bnptrack.tracker.glmb import adaptive_birth_existence
 
     # r_U = (0.8, 0.2): unassigned (0.2, 0.8), sum 1.0 -> r_B = 0.5 * (0.2, 0.8) = (0.1, 0.4)
     idx, r = adaptive_birth_existence(np.array([0.8, 0.2]), 0.5, 0.9, 50, 1e-3)
@@ -490,7 +490,7 @@ def test_adaptive_birth_existence_hand_computed():
 def test_adaptive_birth_from_hypothesis_weights(vo_params):
     """r_U(z) is the weight of the hypotheses using z; the next frame's birth Bernoullis get
     r_B from it and the measurement-conditioned, predicted prior (labels "k.zj")."""
-    from tracker.glmb import marginals
+    from bnptrack.tracker.glmb import marginals
 
     # rows: 0 = label a updated by z_0, 1 = label b updated by z_1
     st = GlmbState(4, 0, ("4.0", "4.1"), np.zeros((2, 5)), np.stack([np.eye(5)] * 2),
@@ -522,7 +522,7 @@ def test_adaptive_birth_from_hypothesis_weights(vo_params):
 
 def test_range_only_prior_is_the_arc_moments():
     """RangeOnly.to_cartesian: the first two moments of a uniform bearing on the arc (Monte Carlo)."""
-    from tracker.models.measurement import RangeOnly
+    from bnptrack.tracker.models.measurement import RangeOnly
 
     sensor = RangeOnly(10.0, half_fov=np.deg2rad(60.0))
     pos, cov = sensor.to_cartesian(np.array([[1000.0]]))
@@ -593,7 +593,7 @@ def _swap_update(w_keep: float):
     """Two objects, labels a and b, the same table every frame: rows 0, 1 = "a on object 1,
     b on object 2" (weight w_keep), rows 2, 3 = the swap (1 - w_keep); each row continues
     the same row of the previous frame."""
-    from tracker.glmb.hypotheses import _Update
+    from bnptrack.tracker.glmb.hypotheses import _Update
 
     obj = np.array([[0.0, 0, 0, 0, 0], [500.0, 0, 0, 0, 0]])
     mean = np.stack([obj[0], obj[1], obj[1], obj[0]])
@@ -606,7 +606,7 @@ def test_continuity_estimator_keeps_labels_when_the_map_hypothesis_flips(vo_para
     """The MAP hypothesis alternates between the labelling and its swap (weights 0.55 / 0.45
     and back): map-cardinality's labels jump between the objects every frame, continuity's
     stay; a swap that is more than 1 / continuity_ratio times as likely is followed."""
-    from tracker.glmb import marginals
+    from bnptrack.tracker.glmb import marginals
 
     def labels_on_object_1(estimator, weights):
         tr = make_glmb(vo_params, GlmbConfig(estimator=estimator))
@@ -650,7 +650,7 @@ def test_continuity_estimator_has_fewer_label_switches_on_vo2017(vo_params):
 def test_assignment_over_gated_candidates_equals_the_dense_one():
     """_assign drops the candidates without a gated measurement from the linear assignment
     (they cannot compete for one); the optimum equals the dense solution's."""
-    from tracker.glmb.assignment import _assign, _assign_dense
+    from bnptrack.tracker.glmb.assignment import _assign, _assign_dense
 
     rng = np.random.default_rng(4)
     for _ in range(30):
@@ -675,7 +675,7 @@ def test_cli_track_glmb_on_a_log_without_birth_regions(tmp_path):
     (none configured) nothing is tracked (OSPA at the cut-off)."""
     from click.testing import CliRunner
 
-    from pipeline.cli import main
+    from bnptrack.pipeline.cli import main
 
     log = tmp_path / "random-s3.mcap"
     res = CliRunner().invoke(main, ["simulate", "--scenario", "random", "--seed", "3", "--out", str(log), "-q"])

@@ -9,10 +9,10 @@ import itertools
 import numpy as np
 import pytest
 
-from tracker.glmb import candidate_sets, gibbs_chains, split_chains, start_optimal
-from tracker.glmb.children import _np_sum, _sort_rows, children, distinct_children, starts
-from tracker.glmb.gibbs import allocate_samples, sample_chains
-from tracker.glmb.hypotheses import _DET, assignment_log_eta, merge_children, unique_rows
+from bnptrack.tracker.glmb import candidate_sets, gibbs_chains, split_chains, start_optimal
+from bnptrack.tracker.glmb.children import _np_sum, _sort_rows, children, distinct_children, starts
+from bnptrack.tracker.glmb.gibbs import allocate_samples, sample_chains
+from bnptrack.tracker.glmb.hypotheses import _DET, assignment_log_eta, merge_children, unique_rows
 
 
 def _problem(rng: np.random.Generator, n_rows: int, M: int, p_gate: float, H: int, width: int):

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.bnp.clusters import _Clusters, merge_duplicates
-from tracker.bnp.group_hyper import arrivals_loglik_grid
-from tracker.bnp.group_merge import merge_exclusive, taken_measurements
-from tracker.bnp.groups import Block, sample_partition, share_turn, share_velocity
+from bnptrack.tracker.bnp.clusters import _Clusters, merge_duplicates
+from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid
+from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from bnptrack.tracker.bnp.groups import Block, sample_partition, share_turn, share_velocity
 
 
 def _clusters(labels, existence, dx=5.0) -> _Clusters:

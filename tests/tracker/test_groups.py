@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sinks.partitions import adjusted_rand_index
-from sources.scenarios import get_scenario
-from sources.synthetic import simulate_all
-from tracker.bnp import TRACKER_PRESETS, BnpTracker
-from tracker.config import apply_overrides
-from tracker.bnp.groups import (
+from bnptrack.sinks.partitions import adjusted_rand_index
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpTracker
+from bnptrack.tracker.config import apply_overrides
+from bnptrack.tracker.bnp.groups import (
     Block,
     GroupState,
     GroupTracker,
@@ -19,9 +19,9 @@ from tracker.bnp.groups import (
     theta_posterior,
     urn_log_weights,
 )
-from tracker.models.params import load_params
-from tracker.registry import build
-from tracker.state import restore, run, snapshot
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.registry import build
+from bnptrack.tracker.state import restore, run, snapshot
 
 CONVOY = ("n_objects=1", "group_sizes=[4,4]", "passing_pairs=0", "K=60")
 
@@ -82,7 +82,7 @@ def test_gibbs_groups_by_velocity():
 def test_share_velocity_single_option_is_a_kalman_update():
     # state velocity N((4, 0), 4 I), no position-velocity correlation; option theta N((0, 0), I)
     # with S_w = I: pseudo-measurement covariance 2 I, gain 4 / 6 -> velocity (4/3, 0), var 4/3
-    from tracker.bnp.groups import Shares
+    from bnptrack.tracker.bnp.groups import Shares
 
     mean = np.array([[0.0, 4.0, 0.0, 0.0, 0.0]])
     cov = np.diag([1.0, 4.0, 1.0, 4.0, 0.01])[None]

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tracker.config import ConfigError
-from tracker.models.clutter import Detection, UniformClutter
-from tracker.models.measurement import BearingRange, RangeOnly, wrap_angle
-from tracker.models.motion import ConstantVelocity, CoordinatedTurn
-from tracker.models.params import load_params
+from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.models.clutter import Detection, UniformClutter
+from bnptrack.tracker.models.measurement import BearingRange, RangeOnly, wrap_angle
+from bnptrack.tracker.models.motion import ConstantVelocity, CoordinatedTurn
+from bnptrack.tracker.models.params import load_params
 
 
 def test_ct_transition_hand_computed_quarter_turn():
@@ -171,8 +171,8 @@ def test_sensor_kind_literal_matches_the_registry():
     """``tracker.types.SensorKind`` names exactly the kinds of the registry ``KINDS``."""
     from typing import get_args
 
-    from tracker.models.measurement import KINDS
-    from tracker.types import SensorKind
+    from bnptrack.tracker.models.measurement import KINDS
+    from bnptrack.tracker.types import SensorKind
 
     assert set(get_args(SensorKind)) == set(KINDS)
 
@@ -180,8 +180,8 @@ def test_sensor_kind_literal_matches_the_registry():
 def test_registry_builds_each_kind_from_the_sensor():
     """``ModelParams`` builds measurement, clutter and detection models through the registry:
     hand-checked fields for each of the three kinds at a posed sensor."""
-    from tracker.models.clutter import SectorClutter
-    from tracker.models.measurement import Cartesian
+    from bnptrack.tracker.models.clutter import SectorClutter
+    from bnptrack.tracker.models.measurement import Cartesian
 
     p = load_params("vo2017", ["range_clutter_rate=2.0", "sigma_xy=7.0"])
     s_br = p.sensor("r0", "bearing_range", (100.0, -50.0, 0.25))
@@ -207,7 +207,7 @@ def test_a_new_kind_is_its_model_class_and_registry_entry(monkeypatch):
     ``ModelParams`` to build its measurement, clutter and detection models."""
     from dataclasses import dataclass
 
-    from tracker.models import measurement as mm
+    from bnptrack.tracker.models import measurement as mm
 
     @dataclass(frozen=True)
     class Bearing1D:

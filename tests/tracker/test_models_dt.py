@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.bnp.clusters import _Clusters
-from tracker.bnp.filter import _born_between
-from tracker.glmb import GlmbConfig, GlmbState, make_glmb
-from tracker.models.motion import CoordinatedTurn, process_noise_block
-from tracker.models.params import BirthComponent, load_params
-from tracker.types import Frame
+from bnptrack.tracker.bnp.clusters import _Clusters
+from bnptrack.tracker.bnp.filter import _born_between
+from bnptrack.tracker.glmb import GlmbConfig, GlmbState, make_glmb
+from bnptrack.tracker.models.motion import CoordinatedTurn, process_noise_block
+from bnptrack.tracker.models.params import BirthComponent, load_params
+from bnptrack.tracker.types import Frame
 
 SA, ST = 5.0, np.deg2rad(1.0)
 
@@ -137,7 +137,7 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
     sqrt(P_ii P_jj): what is left is the turn (the first scan's noise rotated by omega T into the
     other axis, and the turn noise carried into position), which the paper's omega-free G leaves
     out of Q."""
-    from tracker.bnp import BnpConfig, BnpState, make_tracker
+    from bnptrack.tracker.bnp import BnpConfig, BnpState, make_tracker
 
     p = load_params("vo2017")
     tr = make_tracker("ddp", p, BnpConfig(filter=filt))
@@ -161,7 +161,7 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
 def test_bnp_hyperparameter_forgetting_is_per_scan_period():
     """The grid log-likelihood of past frames decays by hyper_forgetting^(dt/T): from a state
     without clusters (nothing else depends on dt) frames 1 s and 2 s later differ only there."""
-    from tracker.bnp import BnpState, make_tracker
+    from bnptrack.tracker.bnp import BnpState, make_tracker
 
     tr = make_tracker("ddp", load_params("vo2017"))
     grid = tr.initial_state().hyper_loglik

@@ -18,9 +18,9 @@ from typing import ClassVar  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from tracker.models import measurement as mm  # noqa: E402
-from tracker.models._gauss import gaussian_logpdf  # noqa: E402
-from tracker.models.clutter import UniformClutter  # noqa: E402
+from bnptrack.tracker.models import measurement as mm  # noqa: E402
+from bnptrack.tracker.models._gauss import gaussian_logpdf  # noqa: E402
+from bnptrack.tracker.models.clutter import UniformClutter  # noqa: E402
 
 KIND = "range_bearing_deg"
 DEG = 180.0 / np.pi
@@ -105,9 +105,9 @@ def new_kind(monkeypatch):
 
 @pytest.fixture
 def frames(new_kind):
-    from sources.scenarios import get_scenario
-    from sources.synthetic import simulate_all
-    from tracker.models.params import load_params
+    from bnptrack.sources.scenarios import get_scenario
+    from bnptrack.sources.synthetic import simulate_all
+    from bnptrack.tracker.models.params import load_params
 
     scenario = dataclasses.replace(get_scenario("vo2017"), kind=KIND)
     params = scenario.adapt_params(load_params("vo2017"))
@@ -137,7 +137,7 @@ def test_messages_round_trip_the_new_kind(frames):
     same rows; rows outside the entry's bounds are refused naming the column."""
     import json
 
-    from tracker.messages import TOPIC_MEASUREMENTS, CodecError, decode, encode, json_schema, to_frame
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, CodecError, decode, encode, json_schema, to_frame
 
     _params, fs = frames
     f = fs[4]
@@ -157,8 +157,8 @@ def test_messages_round_trip_the_new_kind(frames):
 def test_trackers_track_the_new_kind(frames, name):
     """ddp and glmb find vo2017's first objects from frames of the new kind: by frame 12 each
     estimates at least one track within 60 m of a true object."""
-    from tracker.registry import build
-    from tracker.state import run
+    from bnptrack.tracker.registry import build
+    from bnptrack.tracker.state import run
 
     params, fs = frames
     out = list(run(build(name, params), fs, 0))
@@ -172,8 +172,8 @@ def test_trackers_track_the_new_kind(frames, name):
 
 def test_warm_up_steps_the_new_kind(new_kind):
     """The registry's warm-up steps a tracker on the entry's example rows (after the built-in kinds')."""
-    from tracker.models.params import load_params
-    from tracker.registry import build, warm_up
+    from bnptrack.tracker.models.params import load_params
+    from bnptrack.tracker.registry import build, warm_up
 
     seen = []
 
@@ -199,9 +199,9 @@ def test_rerun_sink_draws_the_new_kind(frames, tmp_path):
     rows fix a position)."""
     from rerun.chunk import RrdReader
 
-    from sinks.rerun_sink import write_recording
-    from tracker.registry import build
-    from tracker.state import run
+    from bnptrack.sinks.rerun_sink import write_recording
+    from bnptrack.tracker.registry import build
+    from bnptrack.tracker.state import run
 
     params, fs = frames
     fs = fs[:5]
@@ -229,8 +229,8 @@ def test_rerun_sink_draws_the_new_kind(frames, tmp_path):
 def test_params_file_sensor_kind_is_checked_at_load(tmp_path, new_kind):
     """An unknown ``[sensors.NAME] kind`` fails when the file loads, naming file, sensor, key and
     the known kinds (the registered new kind among them); a registered one loads."""
-    from tracker.config import ConfigError
-    from tracker.models.params import load_params
+    from bnptrack.tracker.config import ConfigError
+    from bnptrack.tracker.models.params import load_params
 
     bad = tmp_path / "esm.toml"
     bad.write_text('extends = "vo2017"\n[sensors.esm]\nkind = "sonar"\n')

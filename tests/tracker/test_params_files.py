@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tracker.config import ConfigError, apply_overrides
-from tracker.models.params import BirthComponent, load_params
+from bnptrack.tracker.config import ConfigError, apply_overrides
+from bnptrack.tracker.models.params import BirthComponent, load_params
 
 
 def _write(tmp_path, name, text):

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from tracker.bnp import BnpConfig, make_tracker
-from tracker.bnp import filter as bnp_filter
-from tracker.bnp.assignment import best_permutation
-from tracker.bnp.clusters import _Clusters, _near_pairs
-from tracker import filtering as kf
-from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
-from tracker.models.measurement import BearingRange, RangeOnly
-from tracker.models.params import load_params
+from bnptrack.tracker.bnp import BnpConfig, make_tracker
+from bnptrack.tracker.bnp import filter as bnp_filter
+from bnptrack.tracker.bnp.assignment import best_permutation
+from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs
+from bnptrack.tracker import filtering as kf
+from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
+from bnptrack.tracker.models.measurement import BearingRange, RangeOnly
+from bnptrack.tracker.models.params import load_params
 
 
 def _tracks(rng, n, bearing_centre=0.0):
@@ -131,13 +131,13 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
     assert BnpConfig().max_clusters == 100_000
     params = load_params("vo2017")
     tr = make_tracker("ddp", params, BnpConfig(max_clusters=3))
-    from tracker.state import tracker_frame_rng
-    from tracker.types import Frame
+    from bnptrack.tracker.state import tracker_frame_rng
+    from bnptrack.tracker.types import Frame
 
     z = np.column_stack([np.linspace(-1.0, 1.0, 8), np.linspace(300.0, 1800.0, 8)])
     bnp_filter._capped_warned.clear()
     st = tr.initial_state()
-    with caplog.at_level(logging.WARNING, logger="tracker.bnp.filter"):
+    with caplog.at_level(logging.WARNING, logger="bnptrack.tracker.bnp.filter"):
         for k in range(3):
             st, est = tr.step(st, Frame(k, k * 10**9, "s", "bearing_range", z), tracker_frame_rng(1, k))
             assert st.n_clusters <= 3

@@ -7,18 +7,18 @@ import json
 import numpy as np
 import pytest
 
-from tracker.messages import TOPIC_MEASUREMENTS, decode, encode, to_frame
-from sinks.metrics import ospa
-from sources.scenarios import get_scenario
-from sources.synthetic import move_truth, simulate_all, simulate_sensors, truth_at_time
-from tracker.bnp.base_measure import BaseDistribution
-from tracker.bnp import make_tracker
-from tracker.config import apply_overrides
-from tracker.models.clutter import SectorClutter
-from tracker.models.measurement import KINDS, BearingRange, Cartesian, RangeOnly
-from tracker.models.params import load_params
-from tracker.state import run
-from tracker.types import Frame, Truth
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, decode, encode, to_frame
+from bnptrack.sinks.metrics import ospa
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import move_truth, simulate_all, simulate_sensors, truth_at_time
+from bnptrack.tracker.bnp.base_measure import BaseDistribution
+from bnptrack.tracker.bnp import make_tracker
+from bnptrack.tracker.config import apply_overrides
+from bnptrack.tracker.models.clutter import SectorClutter
+from bnptrack.tracker.models.measurement import KINDS, BearingRange, Cartesian, RangeOnly
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.state import run
+from bnptrack.tracker.types import Frame, Truth
 
 POSE = (1500.0, -700.0, float(np.deg2rad(40.0)))
 
@@ -140,7 +140,7 @@ def test_codec_pose_r_xy_roundtrip():
 
 def _posed_frames(n_frames, kind, pose, sigma_xy=10.0):
     """vo2017 seed 1 measured by a sensor at ``pose`` with the truth moved along."""
-    from sources.synthetic import measurement_frame_rng, measure_with
+    from bnptrack.sources.synthetic import measurement_frame_rng, measure_with
 
     sc = get_scenario("vo2017")
     p = load_params("vo2017")
@@ -182,7 +182,7 @@ def test_truth_at_time_and_move_truth():
     a, b = sc.truth(1.0)[9], truth_at_time(sc, 10.0)
     np.testing.assert_array_equal(a.states, b.states)
     half = truth_at_time(sc, 10.5)
-    from tracker.models.motion import CoordinatedTurn
+    from bnptrack.tracker.models.motion import CoordinatedTurn
     np.testing.assert_allclose(half.states, CoordinatedTurn(T=0.5).f(a.states), rtol=1e-12)
     t = Truth(("a",), np.array([[0.0, 0.0, 100.0, 10.0, 0.01]]))
     m = move_truth(t, POSE)
@@ -217,8 +217,8 @@ def test_cli_simulates_and_tracks_two_sensors(tmp_path):
     interleaved (poses in the frames), `track` reads them back with the shared state."""
     from click.testing import CliRunner
 
-    from pipeline.cli import main
-    from sources.mcap_log import iter_frames
+    from bnptrack.pipeline.cli import main
+    from bnptrack.sources.mcap_log import iter_frames
 
     params = tmp_path / "two.toml"
     params.write_text('name = "two"\n[sensors.radar]\nkind = "bearing_range"\n'

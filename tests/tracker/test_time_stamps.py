@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.bnp import BnpConfig, BnpState, make_tracker
-from tracker.glmb import GlmbConfig, GlmbState, make_glmb
-from tracker.models.params import load_params
-from tracker.types import Frame, FrameBoundError, frame_dt
+from bnptrack.tracker.bnp import BnpConfig, BnpState, make_tracker
+from bnptrack.tracker.glmb import GlmbConfig, GlmbState, make_glmb
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.types import Frame, FrameBoundError, frame_dt
 
 S = 1_000_000_000
 

@@ -10,8 +10,8 @@ import pytest
 from scipy import stats
 from scipy.special import gammaln
 
-from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint, run_gibbs
-from tracker.bnp.urn import (
+from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint, run_gibbs
+from bnptrack.tracker.bnp.urn import (
     frame_loglik_grid,
     gibbs_partition_sweep,
     log_eppf,
@@ -226,7 +226,7 @@ def test_gibbs_is_deterministic_given_generator():
 
 def test_compiled_kernel_equals_interpreted(monkeypatch):
     """The numba-compiled sweeps and the same function run by the interpreter agree exactly."""
-    import tracker.bnp.gibbs as g
+    import bnptrack.tracker.bnp.gibbs as g
 
     prob = toy_problem([0.3, 0.5, 0.61, 0.33, 0.95], [1.0, 2.0], [0.3, 0.6], 0.05, 0.5, 0.25, 2.0,
                        extended=True, pop=[1.0, 3.0])
@@ -242,7 +242,7 @@ def test_compiled_kernel_equals_interpreted(monkeypatch):
 
 def test_grid_mean_hand_values():
     """Posterior means of (alpha, d) on a 2 x 2 grid with weights 1, 1, 2, 4 (hand-computed)."""
-    from tracker.bnp.urn import grid_mean
+    from bnptrack.tracker.bnp.urn import grid_mean
 
     log_post = np.log(np.array([[1.0, 1.0], [2.0, 4.0]])) + 7.0  # an offset must not matter
     a, d = grid_mean(log_post, np.array([0.1, 1.0]), np.array([0.0, 0.5]))
@@ -260,7 +260,7 @@ def contested_toy():
 
 def test_split_rhat_matches_bda3_formula():
     """split_rhat from sums and sums of squares equals BDA3 eq. 11.4 on the raw half-chains."""
-    from tracker.bnp.gibbs import split_rhat
+    from bnptrack.tracker.bnp.gibbs import split_rhat
 
     rng = np.random.default_rng(8)
     n = 7
@@ -291,7 +291,7 @@ def test_two_chains_expose_a_stuck_sampler():
     """Single-site moves from the two greedy starts mostly never meet on the contested toy
     (benchmarks/gibbs_mixing.py: R-hat > 1.1 in 76.5 % of 200 runs); with exchanges the chains
     mix (0 %)."""
-    from tracker.bnp.gibbs import initial_assignment
+    from bnptrack.tracker.bnp.gibbs import initial_assignment
 
     prob = contested_toy()
     # the reversed greedy start gives the contested cluster to the other measurement

@@ -32,7 +32,7 @@ tracker and its step), :mod:`~tracker.bnp.gibbs` (the collapsed Gibbs sampler),
 solver) and :mod:`~tracker.bnp.groups` (the two-level trackers).
 """
 
-from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from tracker.bnp.filter import BnpState, BnpTracker, make_tracker
+from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, make_tracker
 
 __all__ = ["BnpConfig", "BnpState", "BnpTracker", "TRACKER_PRESETS", "make_tracker"]

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker import filtering as kf
-from tracker._numerics import logsumexp
-from tracker.models.params import ModelParams
+from bnptrack.tracker import filtering as kf
+from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.models.params import ModelParams
 
 
 @dataclass(frozen=True)

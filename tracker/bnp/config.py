@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, PositiveProb, Prob
+from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, PositiveProb, Prob
 
 
 class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

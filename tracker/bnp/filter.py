@@ -10,16 +10,16 @@ from functools import cached_property
 
 import numpy as np
 
-from tracker import filtering as kf
-from tracker.bnp.assignment import best_permutation_pairs
-from tracker.bnp.base_measure import BaseDistribution
-from tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
-from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
-from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
-from tracker.cardinality import existence_cardinality
-from tracker.models.params import ModelParams
-from tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
+from bnptrack.tracker import filtering as kf
+from bnptrack.tracker.bnp.assignment import best_permutation_pairs
+from bnptrack.tracker.bnp.base_measure import BaseDistribution
+from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
+from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
+from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
+from bnptrack.tracker.cardinality import existence_cardinality
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
 
 _EPS = 1e-12
 _log = logging.getLogger(__name__)

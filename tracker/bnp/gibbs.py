@@ -47,7 +47,7 @@ from functools import cached_property
 
 import numpy as np
 
-from tracker._numerics import jit
+from bnptrack.tracker._numerics import jit
 
 CLUTTER = -1
 NEW = -2

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups, _near_pairs
+from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups, _near_pairs
 
 
 def birth_frame(label: str) -> int:

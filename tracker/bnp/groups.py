@@ -50,17 +50,17 @@ from typing import Literal
 import msgspec
 import numpy as np
 
-from tracker._numerics import jit
-from tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from tracker.bnp.clusters import _Clusters
-from tracker.bnp.filter import BnpState, BnpTracker
-from tracker.bnp.group_hyper import arrivals_loglik_grid
-from tracker.bnp.group_merge import merge_exclusive, taken_measurements
-from tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from tracker.cardinality import existence_cardinality
-from tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
-from tracker.models.params import ModelParams
-from tracker.types import Estimate, Frame, TrackEstimate
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from bnptrack.tracker.bnp.clusters import _Clusters
+from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
+from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid
+from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
+from bnptrack.tracker.cardinality import existence_cardinality
+from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
 
 
 _VEL = np.array([1, 3])

@@ -41,15 +41,15 @@ linear assignment solver), :mod:`~tracker.glmb.births`, :mod:`~tracker.glmb.esti
 (marginals, estimators) and :mod:`~tracker.glmb.filter` (the tracker and its step).
 """
 
-from tracker.glmb.births import adaptive_birth_existence, measurement_state_prior
-from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
-from tracker.glmb.estimate import (continuity_rows, estimate_from_rows, map_cardinality_rows,
+from bnptrack.tracker.glmb.births import adaptive_birth_existence, measurement_state_prior
+from bnptrack.tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
+from bnptrack.tracker.glmb.estimate import (continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.filter import GlmbTracker, make_glmb
-from tracker.glmb.gibbs import (allocate_samples, gibbs_chains, gibbs_chains_numpy, split_chains, start_missed,
+from bnptrack.tracker.glmb.filter import GlmbTracker, make_glmb
+from bnptrack.tracker.glmb.gibbs import (allocate_samples, gibbs_chains, gibbs_chains_numpy, split_chains, start_missed,
                                 start_optimal)
-from tracker.glmb.hypotheses import candidate_sets, eta_matrix
-from tracker.glmb.state import GlmbState
+from bnptrack.tracker.glmb.hypotheses import candidate_sets, eta_matrix
+from bnptrack.tracker.glmb.state import GlmbState
 
 __all__ = ["GlmbConfig", "GlmbState", "GlmbTracker", "GLMB_PRESETS", "make_glmb", "GlmbModel",
            "adaptive_birth_existence", "measurement_state_prior", "marginals",

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker._numerics import jit
-from tracker.glmb.hypotheses import _DET, _DIE, _MISS
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS
 
 
 def _assign(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker.types import STATE_DIM
+from bnptrack.tracker.types import STATE_DIM
 
 
 @dataclass(frozen=True)

@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker._numerics import jit
-from tracker.glmb.assignment import _lsap_batch
-from tracker.glmb.gibbs import _gibbs_sweeps
-from tracker.glmb.hypotheses import _DET, _DIE, _MISS, _Children
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.glmb.assignment import _lsap_batch
+from bnptrack.tracker.glmb.gibbs import _gibbs_sweeps
+from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS, _Children
 
 
 def _np_sum(a: np.ndarray, n: int) -> float:  # pragma: no cover - compiled
@@ -539,8 +539,8 @@ def children(rng: np.random.Generator, E: np.ndarray, cand: np.ndarray, start: n
     dropped, identical pair-key sets merged (weights summed; numpy's ``exp``/``log``).  Same
     output as ``unique_rows`` + ``assignment_log_eta`` +
     :func:`~tracker.glmb.hypotheses.merge_children` on those samples."""
-    from tracker.glmb.gibbs import allocate_samples
-    from tracker.glmb.hypotheses import group_logsumexp
+    from bnptrack.tracker.glmb.gibbs import allocate_samples
+    from bnptrack.tracker.glmb.hypotheses import group_logsumexp
 
     parents = np.flatnonzero(ok)
     if parents.size == 0:
@@ -560,7 +560,7 @@ def distinct_children(E: np.ndarray, samples: np.ndarray, chain_parent: np.ndarr
     """The children of given Gibbs samples (``samples``, ``chain_parent``, ``length`` as
     :func:`~tracker.glmb.gibbs.gibbs_chains` and :func:`~tracker.glmb.gibbs.split_chains`
     give them; ``cand`` and ``log_w`` of the parents): the second half of :func:`children`."""
-    from tracker.glmb.hypotheses import group_logsumexp
+    from bnptrack.tracker.glmb.hypotheses import group_logsumexp
 
     if samples.shape[0] == 0:
         return _Children(np.zeros((0, 0), dtype=np.int64), np.zeros(0), 0)

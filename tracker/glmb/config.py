@@ -7,9 +7,9 @@ from typing import Any, Literal, Protocol
 import msgspec
 import numpy as np
 
-from tracker.config import Fraction, OpenProb, PosInt, Positive, PositiveProb
-from tracker.models.params import BirthComponent
-from tracker.types import Frame
+from bnptrack.tracker.config import Fraction, OpenProb, PosInt, Positive, PositiveProb
+from bnptrack.tracker.models.params import BirthComponent
+from bnptrack.tracker.types import Frame
 
 
 BirthModel = Literal["auto", "static", "adaptive", "both"]

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._numerics import jit
-from tracker.glmb.state import GlmbState
-from tracker.types import Estimate, Frame, TrackEstimate
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.glmb.state import GlmbState
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
 
 
 @dataclass(frozen=True)

@@ -11,20 +11,20 @@ from typing import Any
 
 import numpy as np
 
-from tracker import filtering as kf
-from tracker._numerics import logsumexp
-from tracker.cardinality import truncate_tail
-from tracker.glmb.births import _Births, adaptive_birth_existence, measurement_state_prior
-from tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
-from tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
+from bnptrack.tracker import filtering as kf
+from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.cardinality import truncate_tail
+from bnptrack.tracker.glmb.births import _Births, adaptive_birth_existence, measurement_state_prior
+from bnptrack.tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
+from bnptrack.tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from tracker.glmb.children import children, pair_table, starts
-from tracker.glmb.gibbs import start_missed
-from tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
+from bnptrack.tracker.glmb.children import children, pair_table, starts
+from bnptrack.tracker.glmb.gibbs import start_missed
+from bnptrack.tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
                                      prune_and_cap)
-from tracker.glmb.state import GlmbState
-from tracker.models.params import ModelParams
-from tracker.types import STATE_DIM, Estimate, Frame, frame_dt
+from bnptrack.tracker.glmb.state import GlmbState
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.types import STATE_DIM, Estimate, Frame, frame_dt
 
 
 @dataclass(frozen=True)

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker._numerics import jit
-from tracker.glmb.assignment import _assign
-from tracker.glmb.hypotheses import _DET, _DIE, _MISS
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.glmb.assignment import _assign
+from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS
 
 
 def allocate_samples(log_w: np.ndarray, total: int) -> np.ndarray:

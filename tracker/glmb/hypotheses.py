@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._numerics import jit, logsumexp
-from tracker.glmb.state import GlmbState
+from bnptrack.tracker._numerics import jit, logsumexp
+from bnptrack.tracker.glmb.state import GlmbState
 
 
 

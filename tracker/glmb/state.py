@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.models.measurement import DEFAULT_KIND
-from tracker.types import STATE_DIM
+from bnptrack.tracker.models.measurement import DEFAULT_KIND
+from bnptrack.tracker.types import STATE_DIM
 
 
 def _empty_hyps() -> np.ndarray:

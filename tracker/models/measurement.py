@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
-from tracker.models._gauss import gaussian_logpdf
-from tracker.models.clutter import ClutterModel, SectorClutter, UniformClutter
+from bnptrack.tracker.models._gauss import gaussian_logpdf
+from bnptrack.tracker.models.clutter import ClutterModel, SectorClutter, UniformClutter
 
 if TYPE_CHECKING:
-    from tracker.models.sensors import Sensor
+    from bnptrack.tracker.models.sensors import Sensor
 
 Noise = tuple[tuple[float, ...], ...] | None
 

@@ -11,7 +11,7 @@ from functools import cached_property
 
 import numpy as np
 
-from tracker.models._gauss import gaussian_logpdf
+from bnptrack.tracker.models._gauss import gaussian_logpdf
 
 _OMEGA_EPS = 1e-10
 

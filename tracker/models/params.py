@@ -16,12 +16,12 @@ from typing import Literal
 import msgspec
 import numpy as np
 
-from tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
+from bnptrack.tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
-from tracker.models.clutter import ClutterModel, Detection
-from tracker.models.measurement import DEFAULT_KIND, KINDS, MeasurementModel, measurement_kind
-from tracker.models.motion import CoordinatedTurn
-from tracker.models.sensors import Sensor, SensorSpec
+from bnptrack.tracker.models.clutter import ClutterModel, Detection
+from bnptrack.tracker.models.measurement import DEFAULT_KIND, KINDS, MeasurementModel, measurement_kind
+from bnptrack.tracker.models.motion import CoordinatedTurn
+from bnptrack.tracker.models.sensors import Sensor, SensorSpec
 
 
 #: Expected new objects per scan appearing anywhere, when neither the parameter set nor the
@@ -198,7 +198,7 @@ BUILTIN_PARAMS = ("vo2017", "paper")
 
 
 def builtin_params_path(name: str) -> Path:
-    return Path(str(resources.files("tracker") / "params" / f"{name}.toml"))
+    return Path(str(resources.files("bnptrack.tracker") / "params" / f"{name}.toml"))
 
 
 def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import msgspec
 
-from tracker.config import HalfFovDeg, NonNeg, Positive, Prob
+from bnptrack.tracker.config import HalfFovDeg, NonNeg, Positive, Prob
 
 
 class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
