@@ -358,7 +358,7 @@ def family_mcap(work: Path, seed: int) -> list[dict]:
         try:
             for f in iter_frames(path):
                 got.append(f)
-        except McapLogError as exc:
+        except McapLogError:
             err = "McapLogError"
         except Exception as exc:  # anything else is a failure of the reader
             err = f"{type(exc).__name__}: {exc}"

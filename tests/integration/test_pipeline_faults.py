@@ -139,7 +139,6 @@ def test_a_default_launch_refuses_forged_samples_from_other_local_processes(tmp_
 def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_tokens(tmp_path):
     """An authenticated user (the sink's credentials) may not put a forged eos/source or
     /measurements, nor declare the tracker's ready token."""
-    import zenoh
 
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus, Router

@@ -18,7 +18,7 @@ import pytest
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, Sequencer
 from bnptrack.sinks.mcap_writer import McapLogWriter
-from bnptrack.sources.mcap_log import iter_tracks, read_log, read_metadata
+from bnptrack.sources.mcap_log import iter_tracks, read_log
 from bnptrack.sources.scenarios import get_scenario
 from bnptrack.sources.synthetic import simulate_all
 from bnptrack.tracker.models.params import load_params

@@ -27,7 +27,7 @@ def test_extends_builtin_names_only_the_change(tmp_path):
 
 
 def test_birth_regions_inherited_unless_replaced(tmp_path):
-    base = _write(tmp_path, "base.toml", 'name = "b"\n[[birth]]\nr = 0.1\nmean = [0.0, 0.0, 500.0, 0.0, 0.0]\n'
+    _write(tmp_path, "base.toml", 'name = "b"\n[[birth]]\nr = 0.1\nmean = [0.0, 0.0, 500.0, 0.0, 0.0]\n'
                   'std = [50.0, 10.0, 50.0, 10.0, 0.1]\n[sensors.radar]\nx = 5.0\nheading_deg = 90.0\n')
     child = load_params(_write(tmp_path, "child.toml", 'extends = "base.toml"\nclutter_rate = 4.0\n'
                                '[sensors.radar]\ny = 7.0\n'))

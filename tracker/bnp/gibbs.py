@@ -240,7 +240,6 @@ class _Candidates:
 
 def _candidates(problem: GibbsProblem) -> _Candidates:
     pr = problem.pairs
-    M = pr.n_meas
     mt, lf, ll = pr.rows, pr.log_first, pr.log_lik
     shift = np.maximum(problem.log_clutter, problem.log_new)
     if mt.size:

@@ -65,7 +65,6 @@ def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
     :math:`r_U(z) = \sum_{h \text{ uses } z} w_h` and label-measurement pair weights of an
     updated GLMB (``row_meas``: the measurement of each table row this frame, or -1)."""
     w = np.exp(st.log_w)
-    hyp = st.hyp_tracks
     if st.n_tracks:
         # np.unique(labels, return_inverse=True) on the strings, without an object array
         uniq = sorted(set(st.labels))
