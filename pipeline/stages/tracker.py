@@ -117,6 +117,8 @@ class TrackerStage(StageBase):
         self.since_snapshot = 0
         self.last_progress = self.clock.monotonic()
         self.step_ms: deque = deque(maxlen=10_000)
+        #: (frame, its unused generator): the stream of the frame expected next, built ahead
+        self.next_rng: tuple[int, Any] | None = None
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
@@ -200,8 +202,9 @@ class TrackerStage(StageBase):
         """Track frame ``s``, publish its tracks, journal them, snapshot when due."""
         from tracker.state import tracker_frame_rng
 
+        rng = self._frame_rng(frame.frame)
         t0 = self.clock.perf_counter()
-        state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))
+        state, est = self.tracker.step(self.state, frame, rng)
         self.step_ms.append((self.clock.perf_counter() - t0) * 1e3)
         payload = encode(est, self.run_id)
         # t: the source's publication time (end-to-end latency); t_in / t_out: when the
@@ -221,6 +224,19 @@ class TrackerStage(StageBase):
         self.since_snapshot += 1
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
+        # the next frame's stream, built now (after this frame's tracks are out), not on the
+        # next frame's way in: 0.05-0.15 ms less between its receipt and its tracks
+        self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
+
+    def _frame_rng(self, k: int) -> Any:
+        """The tracker's stream of frame ``k`` (:func:`tracker.state.tracker_frame_rng`): the
+        one built ahead after the previous frame when ``k`` follows it, else built now."""
+        from tracker.state import tracker_frame_rng
+
+        ahead, self.next_rng = self.next_rng, None
+        if ahead is not None and ahead[0] == k:
+            return ahead[1]
+        return tracker_frame_rng(self.tc.seed, k)
 
     def snapshot(self, wait: bool = False) -> None:
         """Snapshot the state (written in the background; ``wait``: until it is on disk)."""

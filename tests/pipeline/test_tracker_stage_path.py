@@ -46,3 +46,32 @@ def test_after_the_stage_preload_the_first_frames_import_nothing():
     assert "scipy.optimize" in _imported_by_steps(preload=False)
     # ... with it, nothing
     assert _imported_by_steps(preload=True) == []
+
+
+def test_the_stream_built_ahead_is_the_frames_own_and_is_used_once(tmp_path):
+    """The tracker stage builds frame k+1's generator after frame k's tracks are out; frame k+1
+    gets exactly ``tracker_frame_rng(seed, k + 1)``, and any other frame (a jump) a fresh one."""
+    import numpy as np
+
+    from pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
+    from pipeline.membus import MemoryNetwork
+    from pipeline.stages import StageContext, TrackerStage
+    from tracker.state import tracker_frame_rng
+
+    cfg = resolve_run(PipelineConfig(run="r", out=str(tmp_path), tracker=TrackerStageConfig(seed=7)))
+    stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("r", "tracker"), name="tracker"))
+
+    def draws(rng):
+        return rng.random(4).tolist()
+
+    want = {k: draws(tracker_frame_rng(7, k)) for k in (5, 6, 9)}
+    stage.next_rng = (5, tracker_frame_rng(7, 5))
+    ahead = stage.next_rng[1]
+    got5 = stage._frame_rng(5)
+    assert got5 is ahead and draws(got5) == want[5]
+    assert stage.next_rng is None  # used once
+    stage.next_rng = (6, tracker_frame_rng(7, 6))
+    got9 = stage._frame_rng(9)  # a jump: the stream built ahead is not used
+    assert draws(got9) == want[9] and stage.next_rng is None
+    assert draws(stage._frame_rng(6)) == want[6]
+    assert not np.allclose(want[5], want[6])
