@@ -33,8 +33,7 @@ log = logging.getLogger("bnptrack.stage")
 #: two clusters that prefer one measurement, ``scipy.spatial`` for many clusters, ...: see
 #: the lazy imports of tracker/bnp/assignment.py, clusters.py, urn.py, tracker/filtering.py).
 #: The stage imports them before it declares itself ready: a first import in the frame loop
-#: (0.2-0.7 s for ``scipy.optimize``) stalls that frame, queues the frames behind it and was
-#: the whole of the paced run's added-latency p99 and 10-25 % of a 500-frame replay's time.
+#: stalls that frame and queues the frames behind it (docs/pipeline.md, Performance).
 LAZY_IMPORTS = ("scipy.optimize", "scipy.sparse.csgraph", "scipy.spatial", "scipy.special")
 
 
@@ -225,7 +224,7 @@ class TrackerStage(StageBase):
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
         # the next frame's stream, built now (after this frame's tracks are out), not on the
-        # next frame's way in: 0.05-0.15 ms less between its receipt and its tracks
+        # next frame's way in, between its receipt and its tracks
         self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
 
     def _frame_rng(self, k: int) -> Any:
