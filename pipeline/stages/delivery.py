@@ -20,7 +20,7 @@ from tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, Code
 from pipeline.config import DeliveryConfig
 from pipeline.stages.health import _JSON, Counters
 
-__all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "Deferral", "fetch_holes", "GAP", "NO_TRUTH", "DEFER_S",
+__all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
            "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY"]
 
 log = logging.getLogger("bnptrack.stage")
@@ -226,38 +226,6 @@ def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Call
         log.info("%s: fetched %d %s sample(s) in %d-%d from the publisher's cache", bus.stage, len(events),
                  topic, seqr.next, hi)
     return len(events)
-
-
-#: Seconds without a new sample after which a consumer handles what it deferred (:class:`Deferral`).
-DEFER_S = 0.002
-
-
-class Deferral:
-    """Samples a consumer handles a little later, in their order of arrival: the sink defers
-    a frame's measurements and truth until its tracks arrive (or :data:`DEFER_S` without a
-    sample, or ``limit`` deferred), so that decoding them does not compete for the cores with
-    the tracker, which receives the same measurements at the same moment.  Whatever is not
-    deferred first flushes what is (the order of arrival is kept)."""
-
-    def __init__(self, limit: int = 64) -> None:
-        self.limit = limit
-        self.held: list[Any] = []
-
-    def __bool__(self) -> bool:
-        return bool(self.held)
-
-    def take(self, ev: Any, defer: bool, handle: Callable[[Any], None]) -> None:
-        """Defer ``ev`` (``defer`` and room left), or flush and ``handle`` it."""
-        if defer and len(self.held) < self.limit:
-            self.held.append(ev)
-            return
-        self.flush(handle)
-        handle(ev)
-
-    def flush(self, handle: Callable[[Any], None]) -> None:
-        held, self.held = self.held, []
-        for ev in held:
-            handle(ev)
 
 
 #: Seconds a stream's next frame may be missing, with later ones waiting, before it is fetched.

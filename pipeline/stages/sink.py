@@ -11,8 +11,7 @@ import msgspec
 
 from tracker.messages import to_estimate, to_frame, to_truth
 from pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
-from pipeline.stages.delivery import (DEFER_S, FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, Deferral, HoleWatch, Intake,
-                                      Sequencer, fetch_holes)
+from pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
@@ -74,7 +73,6 @@ class SinkStage(StageBase):
         self.rejected_seqs: list[int] = []
         self.mismatched: dict[str, list[int]] = {}
         self.upstream_marked: set[str] = set()  # streams given the gaps their upstream stage reported
-        self.deferral = Deferral()
         self.t_first_ns: int | None = None
         self.t_last_ns: int | None = None
         self.t_first_pub_ns: int | None = None
@@ -565,30 +563,21 @@ class SinkStage(StageBase):
 
     def _loop(self) -> str:
         while not self.ctx.stop.is_set():
-            ev = self.bus.recv(DEFER_S if self.deferral else 0.05)
-            if ev is None:
-                self.deferral.flush(self._on_event)
-            else:
-                self._take(ev)
+            ev = self.bus.recv(0.05)
+            if ev is not None:
+                self._on_event(ev)
                 # take what is already queued before looking at completion
                 while (ev := self.bus.recv(0)) is not None:
-                    self._take(ev)
+                    self._on_event(ev)
             self._drain_ready()
             self._fetch_due()
             self.health(extra=self._sink_health)
-            if self._check_end():  # (nothing is deferred: the end of stream flushed it)
+            if self._check_end():
                 return "complete"
             if self.alone is not None and self.alone.gone():
                 self.gone = self.alone.reason()
                 return "alone"
-        self.deferral.flush(self._on_event)  # counted, like everything received
         return "stopped"
-
-    def _take(self, ev: Any) -> None:
-        """Handle ``ev``; while the run streams tracks, a frame's measurements and truth wait
-        for them (:class:`~pipeline.stages.delivery.Deferral`)."""
-        defer = ev.topic in ("measurements", "truth") and "tracks" in self.streams and "source" not in self.eos_seen
-        self.deferral.take(ev, defer, self._on_event)
 
     def _on_event(self, ev: Any) -> None:
         if not self.on_control(ev):

@@ -75,23 +75,3 @@ def test_the_stream_built_ahead_is_the_frames_own_and_is_used_once(tmp_path):
     assert draws(got9) == want[9] and stage.next_rng is None
     assert draws(stage._frame_rng(6)) == want[6]
     assert not np.allclose(want[5], want[6])
-
-
-def test_deferral_keeps_the_order_of_arrival_and_its_limit():
-    """The sink's deferral: deferred samples are handled before the next one that is not
-    deferred, in their order of arrival; at the limit a sample is no longer deferred."""
-    from pipeline.stages.delivery import Deferral
-
-    seen: list[str] = []
-    d = Deferral(limit=2)
-    d.take("m0", True, seen.append)
-    d.take("t0", True, seen.append)
-    assert seen == [] and d
-    d.take("m1", True, seen.append)  # the limit: flush, then handle it
-    assert seen == ["m0", "t0", "m1"] and not d
-    d.take("m2", True, seen.append)
-    d.take("tracks2", False, seen.append)
-    assert seen == ["m0", "t0", "m1", "m2", "tracks2"]
-    d.take("m3", True, seen.append)
-    d.flush(seen.append)
-    assert seen[-1] == "m3" and not d
