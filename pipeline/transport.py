@@ -467,13 +467,18 @@ class Bus:
                 self._subs.append(sub)
                 self._subs.append(sub.sample_miss_listener(self._on_miss))
             else:
-                self._subs.append(self.session.declare_subscriber(k, self._handler()))
+                self._subs.append(self.session.declare_subscriber(k, self._handler(indirect=True)))
 
-    def _handler(self) -> Any:
-        """The subscription callback, run on Zenoh's network thread itself (``indirect=False``)
-        instead of a Python thread per subscription: one thread hand-off less per sample.
-        :meth:`_on_sample` only appends to a queue, so it holds that thread for microseconds."""
-        return zenoh.handlers.Callback(self._on_sample, indirect=False)
+    def _handler(self, indirect: bool = False) -> Any:
+        """The subscription callback.  Data and control (``indirect=False``): run on Zenoh's
+        network thread itself instead of a Python thread per subscription, one thread
+        hand-off less per sample; :meth:`_on_sample` only appends to a queue.  Plain
+        subscriptions (``indirect=True``: the launcher's ``health/*`` and ``deadletter``) run
+        it on a Python thread of their own: the launcher's process also holds the embedded
+        router, whose forwarding shares Zenoh's network threads with these callbacks, and a
+        callback there first waits for the GIL (up to the 5 ms switch interval, more when the
+        holder is descheduled) while the launcher's own Python code runs."""
+        return zenoh.handlers.Callback(self._on_sample, indirect=indirect)
 
     def _on_sample(self, sample: Any) -> None:
         # Runs on a Zenoh thread: never block it.

@@ -24,9 +24,17 @@ from bnptrack.tracker._numerics import preload
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.types import Frame, FrameBounds
 
-__all__ = ["TrackerStage", "build_stage_tracker", "warm_up_tracker", "warm_tracker_imports"]
+__all__ = ["LAZY_IMPORTS", "TrackerStage", "build_stage_tracker", "preload_tracker", "warm_up_tracker",
+           "warm_tracker_imports"]
 
 log = logging.getLogger("bnptrack.stage")
+
+#: Modules the trackers import on first need, inside a step (``scipy.optimize`` on the first
+#: two clusters that prefer one measurement, ``scipy.spatial`` for many clusters, ...: see
+#: the lazy imports of tracker/bnp/assignment.py, clusters.py, urn.py, tracker/filtering.py).
+#: The stage imports them before it declares itself ready: a first import in the frame loop
+#: stalls that frame and queues the frames behind it (docs/pipeline.md, Performance).
+LAZY_IMPORTS = ("scipy.optimize", "scipy.sparse.csgraph", "scipy.spatial", "scipy.special")
 
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:
@@ -49,6 +57,13 @@ def warm_tracker_imports(name: str) -> None:
         registry.kind(name)
     except ValueError:
         pass
+
+
+def preload_tracker() -> None:
+    """numba's import and set-up (:func:`tracker._numerics.preload`), then the trackers' lazy
+    imports (:data:`LAZY_IMPORTS`): what the first frames would otherwise pay in the loop."""
+    preload()
+    warm_imports(*LAZY_IMPORTS)
 
 
 def warm_up_tracker(tracker: Any) -> None:
@@ -101,6 +116,8 @@ class TrackerStage(StageBase):
         self.since_snapshot = 0
         self.last_progress = self.clock.monotonic()
         self.step_ms: deque = deque(maxlen=10_000)
+        #: (frame, its unused generator): the stream of the frame expected next, built ahead
+        self.next_rng: tuple[int, Any] | None = None
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
@@ -184,8 +201,9 @@ class TrackerStage(StageBase):
         """Track frame ``s``, publish its tracks, journal them, snapshot when due."""
         from bnptrack.tracker.state import tracker_frame_rng
 
+        rng = self._frame_rng(frame.frame)
         t0 = self.clock.perf_counter()
-        state, est = self.tracker.step(self.state, frame, tracker_frame_rng(self.tc.seed, frame.frame))
+        state, est = self.tracker.step(self.state, frame, rng)
         self.step_ms.append((self.clock.perf_counter() - t0) * 1e3)
         payload = encode(est, self.run_id)
         # t: the source's publication time (end-to-end latency); t_in / t_out: when the
@@ -205,6 +223,19 @@ class TrackerStage(StageBase):
         self.since_snapshot += 1
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
+        # the next frame's stream, built now (after this frame's tracks are out), not on the
+        # next frame's way in, between its receipt and its tracks
+        self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
+
+    def _frame_rng(self, k: int) -> Any:
+        """The tracker's stream of frame ``k`` (:func:`tracker.state.tracker_frame_rng`): the
+        one built ahead after the previous frame when ``k`` follows it, else built now."""
+        from bnptrack.tracker.state import tracker_frame_rng
+
+        ahead, self.next_rng = self.next_rng, None
+        if ahead is not None and ahead[0] == k:
+            return ahead[1]
+        return tracker_frame_rng(self.tc.seed, k)
 
     def snapshot(self, wait: bool = False) -> None:
         """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
@@ -271,8 +302,9 @@ class TrackerStage(StageBase):
     def run(self) -> int:
         warm_imports("bnptrack.pipeline.resolve", "bnptrack.tracker.state")
         warm_tracker_imports(self.tc.tracker)
-        # numba's import and set-up (the first kernel call's cost) overlap the wait for the source
-        self.preloading = threading.Thread(target=preload, name="numba-preload", daemon=True)
+        # numba's import and set-up (the first kernel call's cost) and the trackers' lazy
+        # imports overlap the wait for the source
+        self.preloading = threading.Thread(target=preload_tracker, name="numba-preload", daemon=True)
         self.preloading.start()
         history = self._restore()
         self.bus.declare(["tracks", f"info/{self.name}", f"eos/{self.name}"])
