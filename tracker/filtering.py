@@ -408,14 +408,18 @@ def ukf_innovation(meas, m_pred: np.ndarray, P_pred: np.ndarray,
     (:func:`_ukf_innovation_numpy`).
     """
     kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
-    if kind is not None and len(m_pred):
-        Wm, Wc, c = unscented_weights(params, m_pred.shape[-1])
-        R = _c(meas.R)
-        *arrays, ok = _kernels.ukf_innovation_kernel(
-            _c(m_pred), _c(P_pred), Wm, Wc,
-            math.sqrt(c), kind, R.shape[0], float(meas.sensor_x), float(meas.sensor_y), float(meas.heading), R)
+    if kind is not None and len(m_pred) and m_pred.shape[-1] == 5:
+        Wm, Wc, c = unscented_weights(params, 5)
+        R = meas.R
+        if R.shape[0] == 1:  # the kernel's padding component (see its docstring)
+            R = np.array([[R[0, 0], 0.0], [0.0, 1.0]])
+        z, S, S_inv, log_det, K, P_upd, C, ok = _kernels.ukf_innovation_kernel(
+            _c(m_pred), _c(P_pred), Wm, Wc, math.sqrt(c), kind, float(meas.sensor_x), float(meas.sensor_y),
+            float(meas.heading), _c(R))
+        if ok and meas.R.shape[0] == 1:
+            z, S, S_inv, K, C = (np.ascontiguousarray(a[..., :1]) for a in (z, S[:, :1], S_inv[:, :1], K, C))
         if ok:
-            return Innovation(*arrays)
+            return Innovation(z, S, S_inv, log_det, K, P_upd, C)
     return _ukf_innovation_numpy(meas, m_pred, P_pred, params)
 
 
@@ -531,6 +535,11 @@ def update_pairs(meas, innov: Innovation, m_pred: np.ndarray, Z: np.ndarray,
     ``track_idx``, ``meas_idx``: integer arrays of length ``L``.  Covariances are
     ``innov.P_upd[track_idx]``.
     """
+    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    if kind is not None and m_pred.shape[0] and Z.shape[0]:
+        return _kernels.update_pairs_kernel(_c(m_pred), innov.gain, innov.z_pred, _c(Z),
+                                            np.asarray(track_idx, np.int64), np.asarray(meas_idx, np.int64),
+                                            kind == _kernels.KIND_BEARING_RANGE)
     r = meas.residual(Z[meas_idx], innov.z_pred[track_idx])
     return m_pred[track_idx] + (innov.gain[track_idx] @ r[:, :, None])[:, :, 0]
 
