@@ -42,6 +42,11 @@ from typing import Any
 
 import numpy as np
 
+from bnptrack.tracker import _numerics
+from bnptrack.tracker.models import _kernels
+from bnptrack.tracker.models.measurement import BearingRange, Cartesian, RangeOnly
+from bnptrack.tracker.models.motion import CoordinatedTurn
+
 __all__ = [
     "UnscentedParams",
     "Innovation",
@@ -61,6 +66,15 @@ __all__ = [
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """``a`` as a writable C-contiguous float array (a copy only when it is not one): the
+    compiled kernels then see one array type (numba compiles one version per layout and per
+    read-only flag)."""
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
 
 
 def _T(A: np.ndarray) -> np.ndarray:
@@ -249,8 +263,22 @@ def ukf_predict(motion, m: np.ndarray, P: np.ndarray,
         P' = \sum_k W^{(c)}_k (\mathcal Y_k - m')(\mathcal Y_k - m')^T + Q
 
     Exact (up to rounding) for linear :math:`f`.  Non-positive-definite ``P`` is tolerated
-    (eigen-factor with clipped eigenvalues).
+    (eigen-factor with clipped eigenvalues).  The coordinated-turn model runs in a compiled
+    kernel (:func:`tracker.models._kernels.ct_ukf_predict`, same values to rounding); other
+    models, and covariances that are not positive definite, in numpy (:func:`_ukf_predict_numpy`).
     """
+    if _numerics.JIT and type(motion) is CoordinatedTurn and m.shape[-1] == 5 and len(m):
+        Wm, Wc, c = unscented_weights(params, 5)
+        m_pred, P_pred, ok = _kernels.ct_ukf_predict(_c(m), _c(P), float(motion.T),
+                                                     Wm, Wc, math.sqrt(c), motion.Q)
+        if ok:
+            return m_pred, P_pred
+    return _ukf_predict_numpy(motion, m, P, params)
+
+
+def _ukf_predict_numpy(motion, m: np.ndarray, P: np.ndarray,
+                       params: UnscentedParams = UnscentedParams()) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy reference of :func:`ukf_predict` (any motion model)."""
     Wm, Wc, _ = unscented_weights(params, m.shape[-1])
     Y = _apply_rows(motion.f, sigma_points(m, P, params))
     m_pred = np.einsum("k,nki->ni", Wm, Y)
@@ -374,8 +402,35 @@ def ukf_innovation(meas, m_pred: np.ndarray, P_pred: np.ndarray,
         K = C S^{-1}, \quad P^+ = P - K S K^T
 
     where :math:`r(z, z') =` ``meas.residual(z, z')`` and the final wrap is
-    ``meas.residual(., 0)``.  ``P^+`` is symmetrised.
+    ``meas.residual(., 0)``.  ``P^+`` is symmetrised.  The bearing-range, range and xy models
+    run in a compiled kernel (:func:`tracker.models._kernels.ukf_innovation_kernel`, same values
+    to rounding); other models, and covariances that are not positive definite, in numpy
+    (:func:`_ukf_innovation_numpy`).
     """
+    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    if kind is not None and len(m_pred) and m_pred.shape[-1] == 5:
+        Wm, Wc, c = unscented_weights(params, 5)
+        R = meas.R
+        if R.shape[0] == 1:  # the kernel's padding component (see its docstring)
+            R = np.array([[R[0, 0], 0.0], [0.0, 1.0]])
+        z, S, S_inv, log_det, K, P_upd, C, ok = _kernels.ukf_innovation_kernel(
+            _c(m_pred), _c(P_pred), Wm, Wc, math.sqrt(c), kind, float(meas.sensor_x), float(meas.sensor_y),
+            float(meas.heading), _c(R))
+        if ok and meas.R.shape[0] == 1:
+            z, S, S_inv, K, C = (np.ascontiguousarray(a[..., :1]) for a in (z, S[:, :1], S_inv[:, :1], K, C))
+        if ok:
+            return Innovation(z, S, S_inv, log_det, K, P_upd, C)
+    return _ukf_innovation_numpy(meas, m_pred, P_pred, params)
+
+
+#: Measurement model classes with a compiled innovation (code of :mod:`tracker.models._kernels`).
+_KERNEL_KINDS: dict[type, int] = {BearingRange: _kernels.KIND_BEARING_RANGE, RangeOnly: _kernels.KIND_RANGE,
+                                  Cartesian: _kernels.KIND_XY}
+
+
+def _ukf_innovation_numpy(meas, m_pred: np.ndarray, P_pred: np.ndarray,
+                          params: UnscentedParams = UnscentedParams()) -> Innovation:
+    """The numpy reference of :func:`ukf_innovation` (any measurement model)."""
     Wm, Wc, _ = unscented_weights(params, m_pred.shape[-1])
     X = sigma_points(m_pred, P_pred, params)
     Zs = _apply_rows(meas.h, X)
@@ -446,8 +501,13 @@ def log_likelihood_matrix(meas, innov: Innovation, Z: np.ndarray,
     ``-inf``; a NaN distance (non-finite measurement or prediction) is ``-inf`` with or without a
     gate.  (No gate-probability renormalisation is applied; that is the caller's model.)
     """
-    D2 = mahalanobis_matrix(meas, innov, Z)
     d = innov.z_pred.shape[-1]
+    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    if kind is not None and len(innov) and Z.shape[0]:  # compiled: the same arithmetic, value by value
+        g = math.inf if gate_prob is None else gate_threshold(gate_prob, d)
+        return _kernels.loglik_dense(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
+                                     kind == _kernels.KIND_BEARING_RANGE, g, _LOG_2PI)
+    D2 = mahalanobis_matrix(meas, innov, Z)
     out = -0.5 * (D2 + (d * _LOG_2PI + innov.log_det_S)[:, None])
     if gate_prob is not None:
         out[~(D2 <= gate_threshold(gate_prob, d))] = -np.inf  # a NaN distance is outside the gate
@@ -475,6 +535,11 @@ def update_pairs(meas, innov: Innovation, m_pred: np.ndarray, Z: np.ndarray,
     ``track_idx``, ``meas_idx``: integer arrays of length ``L``.  Covariances are
     ``innov.P_upd[track_idx]``.
     """
+    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    if kind is not None and m_pred.shape[0] and Z.shape[0]:
+        return _kernels.update_pairs_kernel(_c(m_pred), innov.gain, innov.z_pred, _c(Z),
+                                            np.asarray(track_idx, np.int64), np.asarray(meas_idx, np.int64),
+                                            kind == _kernels.KIND_BEARING_RANGE)
     r = meas.residual(Z[meas_idx], innov.z_pred[track_idx])
     return m_pred[track_idx] + (innov.gain[track_idx] @ r[:, :, None])[:, :, 0]
 
@@ -546,6 +611,10 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     same test as the dense matrix.  Cost ~ (N + M) log M + pairs in gates.
     """
     N, d = innov.z_pred.shape
+    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    if kind is not None and N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: every pair, compiled
+        return _kernels.loglik_gated(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
+                                     kind == _kernels.KIND_BEARING_RANGE, gate_threshold(gate_prob, d), _LOG_2PI)
     if N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: the dense matrix is cheaper than a tree
         dense = log_likelihood_matrix(meas, innov, Z, gate_prob)
         mi, ti = np.nonzero(np.isfinite(dense.T))
