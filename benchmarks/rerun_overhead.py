@@ -11,7 +11,7 @@ Two parts:
    the median of the per-pair ratios.  With ``--rrd`` the recording is written by a child process
    (``sinks.rerun_process``), so the wall clock shows what the user waits for and the CPU time
    what the recording costs in all.  Each round also runs the command without ``--rrd`` beside
-   a process that only imports rerun (``import sinks.rerun_sink``), started with it: the
+   a process that only imports rerun (``import bnptrack.sinks.rerun_sink``), started with it: the
    machine's floor, the slowdown the recording's unavoidable import alone causes on the other
    core (``--no-floor`` skips it).
 2. Per frame, in this process: the tracker's step, the hand-off on the tracker's thread
@@ -81,7 +81,7 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
     rrd = [*base, "--out", str(tmp / "rrd.tracks.mcap"), "--rrd", str(tmp / "run.rrd")]
     # the machine's floor: the plain command beside a process that only imports rerun (what the
     # recording process must do on the other core, without recording anything)
-    import_only = [sys.executable, "-c", "import numpy; import sinks.rerun_sink"]
+    import_only = [sys.executable, "-c", "import numpy; import bnptrack.sinks.rerun_sink"]
     _timed(plain, env)  # warm the page cache and numba's on-disk cache
     _timed(rrd, env)
     a, b, f = [], [], []
@@ -100,7 +100,7 @@ def command_part(args: argparse.Namespace, tmp: Path) -> None:
           f"--tracker {args.tracker} -q` (median {np.median(wa):.3f} s wall) and:")
     print(_ratios("with --rrd", wa, wb))
     if f:
-        print(_ratios("without --rrd, beside `import sinks.rerun_sink`", wa, np.array(f).T[0]))
+        print(_ratios("without --rrd, beside `import bnptrack.sinks.rerun_sink`", wa, np.array(f).T[0]))
     print(f"  CPU    median {np.median(ca):6.3f} s / {np.median(cb):6.3f} s   ratio of medians "
           f"{np.median(cb) / np.median(ca):.3f}   (user + sys, the recording process included)")
     print(f"  recording {(tmp / 'run.rrd').stat().st_size / 1024:.0f} KiB")

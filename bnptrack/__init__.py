@@ -18,9 +18,19 @@ first use, so the command line (which starts here) pays for nothing it does not 
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 from typing import Any
 
-__all__ = ["simulate", "track", "make_tracker", "load_params", "read_log", "write_log", "TrackRun"]
+# A source checkout (this folder beside pyproject.toml and the four package folders): the
+# sub-packages are that checkout's folders, whichever copy is installed.  pyproject.toml's
+# package-dir mapping gives the same layout to an installed wheel and to the editable install;
+# this line makes a second work tree on PYTHONPATH (a baseline for an A/B benchmark, a clone
+# under test) import its own code instead of the installed one's.
+_CHECKOUT = Path(__file__).resolve().parent.parent
+if (_CHECKOUT / "pyproject.toml").is_file() and (_CHECKOUT / "tracker" / "__init__.py").is_file():
+    __path__.append(str(_CHECKOUT))  # noqa: F821  (the package's own __path__)
+
+__all__ = ["simulate", "track", "make_tracker", "load_params", "read_log", "write_log", "TrackRun", "LogContents"]
 
 
 def __getattr__(name: str) -> Any:

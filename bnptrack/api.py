@@ -21,6 +21,7 @@ from bnptrack.sources.mcap_log import LogContents, iter_frames, read_log, read_m
 from bnptrack.sources.scenarios import open_scenario
 from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
+from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import Tracker
 from bnptrack.tracker.types import Estimate, Frame
@@ -39,6 +40,8 @@ def simulate(
     ``params`` is a built-in parameter set or a TOML file; ``overrides`` are ``--set`` items
     (``"p_detect=0.9"``, ``"scene.n_objects=12"``).  With ``out``, the frames are also written
     to that MCAP log with its scenario record, ready for ``bnptrack track`` or ``replay``.
+    Frames do not carry their parameter set: pass the same ``params`` (and ``scenario``) to
+    :func:`track`, or track the log written with ``out``, whose record names them.
     """
     opened = open_scenario(scenario, params, seed, tuple(overrides))
     sc, p = opened.scenario, opened.params
@@ -107,6 +110,9 @@ def track(
     ``scenario`` (for frames; a log's record names its own) adds that scenario's birth regions.
     """
     is_log = isinstance(frames, (str, os.PathLike))
+    if is_log and scenario:
+        raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
+                          "scenario; scenario= is for a list of frames")
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
     if params is None and not is_log:
         params = "vo2017"

@@ -283,3 +283,45 @@ def test_pyproject_installs_every_package_under_bnptrack():
         "bnptrack." + ".".join(init.parent.relative_to(ROOT).parts)
         for pkg in PACKAGES for init in (ROOT / pkg).rglob("__init__.py")}
     assert sorted(setup["packages"]) == sorted(present)
+
+
+_BARE_TEXT = re.compile(r"(?<![\w.])(?:from (?:tracker|pipeline|sources|sinks)(?:\.\w+)* import|import (?:tracker|pipeline|sources|sinks)\b)"
+                        r"|-m (?:tracker|pipeline|sources|sinks)\b")
+
+
+def _bare_in_text(path: Path) -> list[str]:
+    """Bare imports written in text: Python code in strings (``python -c`` programs, subprocess
+    argv) and in the documentation's code, e.g. ``from pipeline.view import screenshot``."""
+    return [f"{_rel(path)}:{i} {m.group(0)}" for i, line in enumerate(path.read_text().splitlines(), 1)
+            for m in _BARE_TEXT.finditer(line)]
+
+
+def test_no_bare_import_hides_in_strings_or_docs():
+    files = [p for d in (*PACKAGES, "bnptrack", "tests", "benchmarks") for p in sorted((ROOT / d).rglob("*.py"))
+             if p.name != "test_architecture.py"]
+    files += [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    assert [b for p in files for b in _bare_in_text(p)] == []
+
+
+def test_the_text_check_sees_a_bare_import(tmp_path):
+    path = tmp_path / "probe.md"
+    path.write_text("x\n`from pipeline.view import screenshot`\npython3 -m pipeline track\nfrom bnptrack.tracker import y\n")
+    assert _bare_in_text(path) == ["probe.md:2 from pipeline.view import", "probe.md:3 -m pipeline"]
+
+
+def test_a_checkout_on_the_path_imports_its_own_folders(tmp_path):
+    """``bnptrack/__init__.py`` of a source checkout puts that checkout's folders under
+    ``bnptrack.``, so a second work tree on PYTHONPATH (an A/B baseline) runs its own code,
+    not the installed copy's."""
+    import shutil
+    import subprocess
+    import sys
+
+    shutil.copytree(ROOT / "bnptrack", tmp_path / "bnptrack")
+    (tmp_path / "pyproject.toml").write_text("")
+    (tmp_path / "tracker").mkdir()
+    (tmp_path / "tracker" / "__init__.py").write_text("WHERE = 'the other checkout'\n")
+    code = "import bnptrack.tracker as t; print(t.WHERE)"
+    out = subprocess.run([sys.executable, "-c", code], cwd="/", capture_output=True, text=True, timeout=60,
+                         env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"})
+    assert out.stdout.strip() == "the other checkout", out.stderr

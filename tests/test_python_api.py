@@ -29,8 +29,12 @@ def test_the_worked_example_in_docs_runs(tmp_path, capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("100 bearing_range")
     assert re.fullmatch(r"mean OSPA \d+\.\d\d m, final tracks \d+", out[1])
-    assert out[3] == "vo2017 100"
-    assert out[4] == "20.0 0.98"
+    ospa = [float(re.search(r"(\d+\.\d\d) m", line).group(1)) for line in out[1:4]]
+    assert 15 < ospa[0] < 40 and ospa[0] != ospa[1] and ospa[0] != ospa[2]  # three different runs
+    assert ospa[1] > ospa[0]  # vo2017's births are in its regions: knowing them helps
+    assert re.fullmatch(r"\['[^']+'(, '[^']+')*\]", out[4])  # the GLMB's labels after 10 frames
+    assert out[5] == "vo2017 100"
+    assert out[6] == "20.0 0.98"
 
 
 def test_track_gives_what_the_cli_gives(tmp_path):
@@ -54,6 +58,8 @@ def test_mistakes_raise_one_line_config_errors():
         bnptrack.make_tracker("ddpp")
     with pytest.raises(ValueError, match="p_detec"):
         bnptrack.load_params("vo2017", ["p_detec=0.9"])
+    with pytest.raises(ValueError, match="scenario= is for a list of frames"):
+        bnptrack.track("some.mcap", scenario="vo2017")
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         bnptrack.nope  # noqa: B018
 

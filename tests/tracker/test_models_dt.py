@@ -174,3 +174,12 @@ def test_bnp_hyperparameter_forgetting_is_per_scan_period():
         out[dt_s] = tr.step(st, frame, np.random.default_rng(3))[0].hyper_loglik
     f = tr.config.hyper_forgetting
     np.testing.assert_allclose(out[2] - out[1], (f**2 - f) * h0, rtol=1e-10, atol=1e-12)
+
+
+def test_process_noise_backwards_in_time_is_an_error():
+    """Prediction noise is defined forward in time only; ``f`` alone still runs backwards (the
+    scenarios back-propagate a path's start with ``T = -1``)."""
+    back = CoordinatedTurn(T=-1.0)
+    assert back.f(np.array([[0.0, 1.0, 0.0, 2.0, 0.0]]))[0, 0] == -1.0
+    with pytest.raises(ValueError, match="T must be >= 0"):
+        back.Q

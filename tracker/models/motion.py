@@ -81,8 +81,8 @@ class CoordinatedTurn:
     (docs/models.md, "Time between frames"): it equals the paper's :math:`Q` at
     :math:`\Delta t = T_0`, the :math:`n`-fold composition of the paper's step at
     :math:`\Delta t = n T_0` (a dropped frame is predicted as if the sensor had scanned and seen
-    nothing), composes exactly for :math:`\Delta t \ge T_0`, and its velocity, cross and
-    turn-rate blocks grow linearly in :math:`\Delta t` (Wiener velocity of intensity
+    nothing), composes exactly for :math:`\Delta t \ge T_0`; below :math:`T_0` its velocity and
+    turn-rate entries grow linearly in :math:`\Delta t` and its cross entry quadratically (Wiener velocity of intensity
     :math:`q = \sigma_a^2 T_0`, turn rate of intensity :math:`\sigma_\omega^2 T_0`).
     """
 
@@ -96,9 +96,13 @@ class CoordinatedTurn:
 
     @cached_property
     def G(self) -> np.ndarray:
-        r"""Noise gain with :math:`Q = G G^T`: ``(5, 3)`` (rank 3) for :math:`|\Delta t| \le T_0`,
-        ``(5, 5)`` (the blocks' Cholesky factors) beyond."""
+        r"""Noise gain with :math:`Q = G G^T`: ``(5, 3)`` (rank 3) for :math:`\Delta t \le T_0`,
+        ``(5, 5)`` (the blocks' Cholesky factors) beyond.  Noise is defined forward in time
+        only: a negative ``T`` (the scenarios' noise-free back-propagation of a path with
+        :meth:`f`) has no ``G``."""
         T, s = self.T, self.sigma_accel
+        if not T >= 0:  # also NaN
+            raise ValueError(f"CoordinatedTurn: process noise over T = {T!r}: T must be >= 0")
         T0 = T if self.period is None else float(self.period)
         if T == T0:  # the paper's G, bit for bit
             g = np.zeros((5, 3))
