@@ -112,11 +112,22 @@ def test_not_positive_definite_falls_back_to_the_reference(monkeypatch):
 
 
 def test_other_models_use_the_numpy_path(monkeypatch):
+    """A model without a kernel (constant velocity) never reaches the CT kernel: it runs the
+    numpy reference, with the same values as with the JIT switched off."""
     m = np.array([[10.0, 1.0, 20.0, -1.0]])
     P = np.eye(4)[None] * 4.0
     (m1, P1), (m0, P0) = _both(monkeypatch, kf.ukf_predict, ConstantVelocity(), m, P)
     np.testing.assert_array_equal(m1, m0)
     np.testing.assert_array_equal(P1, P0)
+
+    def no_kernel(*args):
+        raise AssertionError("the CT kernel was called for a constant-velocity model")
+
+    monkeypatch.setattr(kf._kernels, "ct_ukf_predict", no_kernel)
+    m2, P2 = kf.ukf_predict(ConstantVelocity(), m, P)
+    np.testing.assert_array_equal(m2, m0)
+    with pytest.raises(AssertionError, match="CT kernel was called"):
+        kf.ukf_predict(CoordinatedTurn(), np.array([[10.0, 1.0, 20.0, -1.0, 0.0]]), np.eye(5)[None] * 4.0)
 
 
 def test_hand_computed_straight_line_prediction():
