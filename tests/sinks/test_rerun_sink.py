@@ -611,7 +611,8 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
 
 
 _TRACKER = r"""
-import json, pickle, sys
+import json, pickle, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # a foreground job: see start_tracker
 sys.path.insert(0, sys.argv[3])
 from sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
@@ -631,14 +632,24 @@ _CHILD_KIND = {"fork": "_ForkedChild", "exec": "Popen"}
 def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tuple[subprocess.Popen, Path]:
     """A tracker-like process that records ``n`` frames of ``vo_run`` through a
     ``RecordingProcess(start=start)`` (rerun is not imported there, so ``fork`` is allowed),
-    then waits for a signal (``wait``) or closes the recording and exits."""
+    then waits for a signal (``wait``) or closes the recording and exits.
+
+    It is always started with SIGINT ignored, as this test process has it when it runs as a
+    background job of a non-interactive shell (``pytest ... &`` in a script: the shell ignores
+    SIGINT and SIGQUIT for it, and every child inherits that, Python keeping an ignored SIGINT
+    ignored).  The script puts Python's ``KeyboardInterrupt`` handler back, as for a foreground
+    job at a terminal; without that, a SIGINT would not end it (the test would wait 60 s)."""
     params, frames, estimates = vo_run
     data = tmp_path / "run.pkl"
     data.write_bytes(pickle.dumps((frames, estimates, params)))
     path = tmp_path / f"{start}.rrd"
     args = [str(path), str(data), str(REPO), start, str(n), "wait" if wait else "exit", json.dumps(META)]
-    proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    old_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the child (see above)
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    finally:
+        signal.signal(signal.SIGINT, old_sigint)
     assert proc.stdout.readline().strip() == _CHILD_KIND[start]
     assert proc.stdout.readline().strip() == "sent"
     return proc, path
