@@ -723,6 +723,41 @@ def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_pat
     assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
 
 
+_CTRL_C_AT_FORK = r"""
+import os, pickle, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
+sys.path.insert(0, sys.argv[3])
+from sinks.rerun_process import RecordingProcess
+frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
+fork = os.fork
+def fork_then_ctrl_c():  # the child gets a Ctrl-C (sent to the group) before it leaves the group
+    pid = fork()
+    if pid == 0:
+        os.kill(os.getpid(), signal.SIGINT)
+    return pid
+os.fork = fork_then_ctrl_c
+with RecordingProcess(start="fork") as rec:
+    rec.open(sys.argv[1], params=params)
+    for f, e in zip(frames[:3], estimates[:3]):
+        rec.log(f, e)
+"""
+
+
+def test_ctrl_c_before_the_forked_child_leaves_the_group_is_not_its_own(vo_run, tmp_path):
+    """A SIGINT that reaches the forked child while it is still in the tracker's process group
+    (between the fork and its ``setsid``) is dropped: the child records as if it had come a
+    moment later.  Deterministic: the child signals itself right after the fork."""
+    params, frames, estimates = vo_run
+    data = tmp_path / "run.pkl"
+    data.write_bytes(pickle.dumps((frames, estimates, params)))
+    path = tmp_path / "fork.rrd"
+    res = subprocess.run([sys.executable, "-c", _CTRL_C_AT_FORK, str(path), str(data), str(REPO)],
+                         capture_output=True, text=True, env=rerun_env(), timeout=120, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert rrd_verify(path).returncode == 0
+    assert sorted(frames_in(path)) == [f.frame for f in frames[:3]]
+
+
 def test_cli_track_rrd_end_to_end(tmp_path):
     log = REPO / "recordings" / "vo2017-s1.mcap"
     out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"
