@@ -34,7 +34,11 @@ Failures and signals: the child's stderr goes to a temporary file; when the chil
 that stderr.  The child runs in a session of its own, so a Ctrl-C at the terminal reaches the
 tracker's process only, whose ``close`` (or, if it dies, the end of the pipe) finalises the
 file with every frame written to the pipe so far; a SIGTERM sent to the child itself finalises
-it too (``RerunSink``'s handler).
+it too (``RerunSink``'s handler).  A forked child is in the tracker's process group from the
+fork until its ``setsid``: SIGINT and SIGQUIT are blocked across the fork, and the child drops
+any that came in that window (the tracker's process gets them once the fork returns).  A process
+started with SIGINT ignored (a background job of a non-interactive shell, ``nohup``) keeps it
+ignored, as Python does: a Ctrl-C does not stop such a run.
 """
 
 from __future__ import annotations
@@ -74,6 +78,8 @@ _DONE = b"done\n"
 _REAPER = "rerun-recording-reaper"
 _PIPE_SIZE = 1 << 20
 _STDERR_TAIL = 4000
+#: What a Ctrl-C (or Ctrl-\) at the terminal sends to the foreground process group.
+_GROUP_SIGNALS = frozenset({signal.SIGINT, signal.SIGQUIT})
 
 
 class RecordingError(RuntimeError):
@@ -122,9 +128,15 @@ class _ForkedChild:
         out_r, out_w = os.pipe()
         sys.stdout.flush()  # so that the fork inherits no buffered output to write again
         sys.stderr.flush()
-        self.pid = os.fork()
-        if self.pid == 0:
-            _forked_main(in_r, out_w, stderr_fd)
+        # a Ctrl-C between the fork and the child's setsid would reach the child too: blocked
+        # across the fork; the child drops it (_leave_group), this process gets it after
+        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _GROUP_SIGNALS)
+        try:
+            self.pid = os.fork()
+            if self.pid == 0:
+                _forked_main(in_r, out_w, stderr_fd, old_mask)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
         os.close(in_r)
         os.close(out_w)
         self.stdin: IO[bytes] = os.fdopen(in_w, "wb", buffering=0)
@@ -415,15 +427,28 @@ def child_entry() -> None:
     os._exit(0)
 
 
-def _forked_main(in_fd: int, report_fd: int, stderr_fd: int) -> NoReturn:
-    """The child started with ``fork``: a session of its own, stdin from ``/dev/null``, stdout
+def _leave_group(mask: set[signal.Signals]) -> None:
+    """A session of its own, then drop the terminal's signals sent to the parent's group while
+    this process was still in it (blocked since before the fork; setting a pending signal to
+    ``SIG_IGN`` discards it), put their handlers back and restore the signal mask ``mask``."""
+    os.setsid()
+    for sig in _GROUP_SIGNALS:
+        old = signal.signal(sig, signal.SIG_IGN)
+        if old is not None:  # None: not a handler set from Python (stays ignored here)
+            signal.signal(sig, old)
+    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
+def _forked_main(in_fd: int, report_fd: int, stderr_fd: int, mask: set[signal.Signals]) -> NoReturn:
+    """The child started with ``fork``: a session of its own (:func:`_leave_group`; ``mask``
+    is the signal mask of the parent before the fork), stdin from ``/dev/null``, stdout
     and stderr to the stderr file, every other inherited descriptor closed (another pipe's
     write end held here would keep that pipe's reader from ever seeing its end), then
     :func:`_serve`.  It never returns
     into the parent's code: exit code 0, or 1 after a traceback."""
     code = 1
     try:
-        os.setsid()
+        _leave_group(mask)
         in_fd, report_fd = (fcntl.fcntl(fd, fcntl.F_DUPFD, 3) for fd in (in_fd, report_fd))
         os.dup2(os.open(os.devnull, os.O_RDONLY), 0)
         os.dup2(stderr_fd, 1)

@@ -611,7 +611,8 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
 
 
 _TRACKER = r"""
-import json, pickle, sys
+import json, pickle, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # a foreground job: see start_tracker
 sys.path.insert(0, sys.argv[3])
 from bnptrack.sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
@@ -631,14 +632,24 @@ _CHILD_KIND = {"fork": "_ForkedChild", "exec": "Popen"}
 def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tuple[subprocess.Popen, Path]:
     """A tracker-like process that records ``n`` frames of ``vo_run`` through a
     ``RecordingProcess(start=start)`` (rerun is not imported there, so ``fork`` is allowed),
-    then waits for a signal (``wait``) or closes the recording and exits."""
+    then waits for a signal (``wait``) or closes the recording and exits.
+
+    It is always started with SIGINT ignored, as this test process has it when it runs as a
+    background job of a non-interactive shell (``pytest ... &`` in a script: the shell ignores
+    SIGINT and SIGQUIT for it, and every child inherits that, Python keeping an ignored SIGINT
+    ignored).  The script puts Python's ``KeyboardInterrupt`` handler back, as for a foreground
+    job at a terminal; without that, a SIGINT would not end it (the test would wait 60 s)."""
     params, frames, estimates = vo_run
     data = tmp_path / "run.pkl"
     data.write_bytes(pickle.dumps((frames, estimates, params)))
     path = tmp_path / f"{start}.rrd"
     args = [str(path), str(data), str(REPO), start, str(n), "wait" if wait else "exit", json.dumps(META)]
-    proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    old_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the child (see above)
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True, env=rerun_env(), start_new_session=True)
+    finally:
+        signal.signal(signal.SIGINT, old_sigint)
     assert proc.stdout.readline().strip() == _CHILD_KIND[start]
     assert proc.stdout.readline().strip() == "sent"
     return proc, path
@@ -710,6 +721,41 @@ def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_pat
     wait_until(lambda: path.stat().st_size and rrd_verify(path).returncode == 0, 90,
                "the recording to be finalised", interval=0.5)
     assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
+
+
+_CTRL_C_AT_FORK = r"""
+import os, pickle, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
+sys.path.insert(0, sys.argv[3])
+from sinks.rerun_process import RecordingProcess
+frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
+fork = os.fork
+def fork_then_ctrl_c():  # the child gets a Ctrl-C (sent to the group) before it leaves the group
+    pid = fork()
+    if pid == 0:
+        os.kill(os.getpid(), signal.SIGINT)
+    return pid
+os.fork = fork_then_ctrl_c
+with RecordingProcess(start="fork") as rec:
+    rec.open(sys.argv[1], params=params)
+    for f, e in zip(frames[:3], estimates[:3]):
+        rec.log(f, e)
+"""
+
+
+def test_ctrl_c_before_the_forked_child_leaves_the_group_is_not_its_own(vo_run, tmp_path):
+    """A SIGINT that reaches the forked child while it is still in the tracker's process group
+    (between the fork and its ``setsid``) is dropped: the child records as if it had come a
+    moment later.  Deterministic: the child signals itself right after the fork."""
+    params, frames, estimates = vo_run
+    data = tmp_path / "run.pkl"
+    data.write_bytes(pickle.dumps((frames, estimates, params)))
+    path = tmp_path / "fork.rrd"
+    res = subprocess.run([sys.executable, "-c", _CTRL_C_AT_FORK, str(path), str(data), str(REPO)],
+                         capture_output=True, text=True, env=rerun_env(), timeout=120, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert rrd_verify(path).returncode == 0
+    assert sorted(frames_in(path)) == [f.frame for f in frames[:3]]
 
 
 def test_cli_track_rrd_end_to_end(tmp_path):
