@@ -727,7 +727,7 @@ _CTRL_C_AT_FORK = r"""
 import os, pickle, signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.path.insert(0, sys.argv[3])
-from sinks.rerun_process import RecordingProcess
+from bnptrack.sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
 fork = os.fork
 def fork_then_ctrl_c():  # the child gets a Ctrl-C (sent to the group) before it leaves the group
