@@ -60,7 +60,7 @@ from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid
 from bnptrack.tracker.cardinality import existence_cardinality
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
-from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
 
 
 _VEL = np.array([1, 3])
@@ -479,7 +479,9 @@ class GroupTracker:
     def step(self, state: GroupState, frame: Frame, rng: np.random.Generator) -> tuple[GroupState, Estimate]:
         """One frame: the object level's step, then the object partition, theta, (alpha_2, d), sharing."""
         t0 = time.perf_counter()
-        steps = 1 if state.frame < 0 else frame.frame - state.frame
+        # scan periods since the last frame, from the stamps as the object level predicts
+        # (tracker.types.frame_dt): frame numbers x T for regular frames, bit for bit
+        steps = self.periods_since(state, frame)
         inner, est = self.objects.step(state.inner(), frame, rng)
         if self.config.merge == "exclusive":
             inner, est = self._merge(inner, est)
@@ -524,7 +526,14 @@ class GroupTracker:
         diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
         return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag)
 
-    def _blocks(self, state: GroupState, steps: int, mean: np.ndarray, cov: np.ndarray) -> list[Block]:
+    def periods_since(self, state: GroupState, frame: Frame) -> float:
+        r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
+        T = self.params.T
+        n = 1 if state.frame < 0 else frame.frame - state.frame
+        dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, T)
+        return n if dt == n * T else dt / T
+
+    def _blocks(self, state: GroupState, steps: float, mean: np.ndarray, cov: np.ndarray) -> list[Block]:
         r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
         random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
         cfg = self.config
