@@ -524,7 +524,8 @@ class GroupTracker:
                        for i, lab in enumerate(inner.labels) if inner.existence[i] > obj.existence_threshold)
         assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
         diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
-        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag)
+        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag,
+                               existence_cardinality(inner.existence))
 
     def periods_since(self, state: GroupState, frame: Frame) -> float:
         r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
@@ -622,8 +623,10 @@ class GroupTracker:
         diag = dict(est.diagnostics)
         diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
                     ms=(time.perf_counter() - t0) * 1e3)
+        # the object level's distribution (recomputed by _merge when it merged): the group level
+        # moves states, not existences
         return Estimate(est.frame, est.stamp_ns, tuple(tracks), est.assignments, est.assignment_prob, diag,
-                        existence_cardinality(state.existence))
+                        est.cardinality_pmf)
 
 
 def make_group_tracker(name: str, params: ModelParams, config: GroupConfig | None = None) -> GroupTracker:

@@ -256,21 +256,24 @@ def _moments(Zs, X, z_pred, m, Wc, wrap0, R, dZ, dX, S, C, K, n, d) -> None:
 _moments = jit(_moments, inline=True)
 
 
+def _matmul_nd(A: np.ndarray, B: np.ndarray, out: np.ndarray, n: int, d: int) -> None:
+    """``out[:n, :d] = A[:n, :d] @ B[:d, :d]`` (summed in ``k`` order)."""
+    for a in range(n):
+        for b in range(d):
+            acc = 0.0
+            for k in range(d):
+                acc += A[a, k] * B[k, b]
+            out[a, b] = acc
+
+
+_matmul_nd = jit(_matmul_nd, inline=True)
+
+
 def _gain_update(P: np.ndarray, S: np.ndarray, S_inv: np.ndarray, C: np.ndarray, K: np.ndarray,
                  KS: np.ndarray, P_upd: np.ndarray, n: int, d: int) -> None:
     r""":math:`K = C S^{-1}` and :math:`P^+ = \operatorname{sym}(P - (K S) K^T)`."""
-    for a in range(n):
-        for b in range(d):
-            acc = 0.0
-            for k in range(d):
-                acc += C[a, k] * S_inv[k, b]
-            K[a, b] = acc
-    for a in range(n):
-        for b in range(d):
-            acc = 0.0
-            for k in range(d):
-                acc += K[a, k] * S[k, b]
-            KS[a, b] = acc
+    _matmul_nd(C, S_inv, K, n, d)
+    _matmul_nd(K, S, KS, n, d)
     for a in range(n):
         for b in range(a, n):
             kab, kba = 0.0, 0.0
