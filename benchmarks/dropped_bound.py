@@ -77,6 +77,9 @@ class OracleTracker:
     velocity_std: float = TRACKER_PRESETS["ddp"].birth_velocity_std
     turn_std_deg: float = TRACKER_PRESETS["ddp"].birth_turn_std_deg
     filter: str = "ukf"
+    confirm: int = 1
+    """Report an object from its ``confirm``-th detection on (1: from the first; 2: the one
+    look of confirmation a tracker in clutter needs at least)."""
 
     @cached_property
     def base(self) -> BaseDistribution:
@@ -87,6 +90,7 @@ class OracleTracker:
         """Per frame: the reported ids (alive and detected at least once) and their ``(n, 5)``
         filtered states."""
         tracks: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        looks: dict[str, int] = {}
         prev_frame, prev_stamp, out = -1, 0, []
         for frame, dets in zip(frames, detections):
             dt = frame_dt(prev_frame, prev_stamp, frame.frame, frame.stamp_ns, self.params.T)
@@ -97,12 +101,13 @@ class OracleTracker:
             meas = self.params.measurement(frame.kind, sensor)
             clutter = self.params.clutter(frame.kind, sensor)
             for i, z in dets.items():
+                looks[i] = looks.get(i, 0) + 1
                 if i in tracks:
                     tracks[i] = self._update(meas, tracks[i], z)
                 else:  # first detection: H conditioned on it, as a BNP birth
                     m, P = self.base.posterior(meas, clutter, z[None], frame.kind)
                     tracks[i] = (m[0], P[0])
-            ids = tuple(i for i in frame.truth.ids if i in tracks)
+            ids = tuple(i for i in frame.truth.ids if i in tracks and looks[i] >= self.confirm)
             out.append((ids, np.array([tracks[i][0] for i in ids]).reshape(-1, 5)))
         return out
 
@@ -130,11 +135,11 @@ def frame_scores(frame: Frame, ids: tuple[str, ...], states: np.ndarray) -> tupl
 
 def one_run(job) -> tuple[int, dict[str, dict[int, tuple[float, float]]]]:
     """Both variants of one seed: ``{variant: {frame: (ospa, card-free)}}``."""
-    seed, scenario, overrides, filt = job
+    seed, scenario, overrides, filt, confirm = job
     sc = get_scenario(scenario, seed if is_generated(scenario) else None)
     params = sc.adapt_params(load_params("vo2017", overrides))
     frames = simulate_all(sc, params, seed)
-    oracle = OracleTracker(params, filter=filt)
+    oracle = OracleTracker(params, filter=filt, confirm=confirm)
     out = {}
     for variant in ("plain", "dropped"):
         fr = frames if variant == "plain" else [f for f in frames if f.frame % 3]
@@ -163,11 +168,12 @@ def main() -> None:
     ap.add_argument("--scenario", default="vo2017")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--filter", default="ukf", choices=("ukf", "ekf"))
+    ap.add_argument("--confirm", type=int, default=1, help="report objects from their N-th detection")
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args()
     lo, _, hi = args.seeds.partition("-")
     seeds = list(range(1, int(lo) + 1)) if not hi else list(range(int(lo), int(hi) + 1))
-    jobs = [(s, args.scenario, args.overrides, args.filter) for s in seeds]
+    jobs = [(s, args.scenario, args.overrides, args.filter, args.confirm) for s in seeds]
     if args.workers > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(args.workers) as ex:
@@ -175,7 +181,7 @@ def main() -> None:
     else:
         res = [one_run(j) for j in jobs]
     t = summarise(res)
-    print(f"oracle ({args.filter}), {args.scenario}, seeds {seeds[0]}-{seeds[-1]}, set {args.overrides or '-'}: "
+    print(f"oracle ({args.filter}, confirm {args.confirm}), {args.scenario}, seeds {seeds[0]}-{seeds[-1]}, set {args.overrides or '-'}: "
           f"mean OSPA (m, c={C:g}, p={P_ORDER:g})")
     print(f"{'row':<22} {'mean':>7} {'sd':>6} {'vs plain@kept':>14}")
     for k, v in t.items():

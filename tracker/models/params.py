@@ -8,6 +8,7 @@ See ``docs/models.md`` for the table of values and the choices made where the so
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -54,6 +55,12 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ``dt == T``): ``composed`` the per-scan noise accumulated over ``dt``
     (:func:`~tracker.models.motion.process_noise_block`), ``dwna`` the per-scan formula with
     ``T`` replaced by ``dt`` (the ablation; it over-states the noise of a gap)."""
+    survival_dt: Literal["path", "end"] = "path"
+    """Survival over an interval ``dt > T`` (a gap): ``path`` the per-scan ``P_S`` at each of the
+    ``ceil(dt/T)`` scan instants of the gap, along the noise-free path back from the predicted
+    mean (an object that leaves the field of view in the middle of a gap is "outside" only for
+    the scans after it left); ``end`` ``P_S`` at the predicted mean for the whole gap (the
+    ablation).  Identical at ``dt <= T``."""
     p_survival: Prob = 0.99
     p_survival_outside: Prob = 0.7
     """Survival probability per scan of an object predicted outside the field of view
@@ -188,11 +195,38 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def survival_over(self, x: np.ndarray, dt: float, kind: str = DEFAULT_KIND,
                       sensor: Sensor | None = None) -> np.ndarray:
-        r"""``(N,)`` survival over ``dt`` seconds: :math:`P_S(x)^{\Delta t / T}` (one scan's
-        ``P_S`` per ``T``; exactly :meth:`survival` at ``dt == T``)."""
-        ps = self.survival(x, kind, sensor)
-        return ps if dt == self.T else ps ** (dt / self.T)
+        r"""``(N,)`` survival over the ``dt`` seconds that end at the states ``x`` (predicted means).
 
+        One scan's ``P_S`` per ``T``: exactly :meth:`survival` at ``dt == T`` and
+        :math:`P_S(x)^{\Delta t / T}` for ``dt < T``.  Over a gap ``dt > T`` (``survival_dt =
+        "path"``) the gap is cut into :math:`n = \lceil \Delta t / T \rceil` equal parts of
+        :math:`h = \Delta t / n` and
+
+        .. math:: \bar P_S = \prod_{i=0}^{n-1} P_S(x_i)^{h/T}, \qquad x_i = F_{-i h}(x)
+
+        (:math:`F_{-ih}` the noise-free CT flow back by :math:`ih`, the exact inverse): at
+        ``dt = n T`` the product of the ``n`` per-scan survivals at the scan instants, as if
+        the sensor had scanned and seen nothing (docs/models.md); at most
+        ``_MAX_SURVIVAL_STEPS`` parts (a longer gap's parts span several scans).  ``"end"``:
+        :math:`P_S(x)^{\Delta t / T}`."""
+        ps = self.survival(x, kind, sensor)
+        if dt == self.T:
+            return ps
+        n = min(math.ceil(dt / self.T - 1e-9), _MAX_SURVIVAL_STEPS)
+        if self.survival_dt == "end" or n <= 1 or not len(ps):
+            return ps ** (dt / self.T)
+        h = dt / n
+        back = self.motion(-h)
+        with np.errstate(divide="ignore"):  # P_S = 0 is allowed
+            log_ps, xi = np.log(ps), np.asarray(x, dtype=float)
+            for _ in range(n - 1):
+                xi = back.f(xi)
+                log_ps = log_ps + np.log(self.survival(xi, kind, sensor))
+        return np.exp(log_ps * (h / self.T))
+
+
+_MAX_SURVIVAL_STEPS = 50
+"""Parts of a gap :meth:`ModelParams.survival_over` evaluates at most (a bound on its cost)."""
 
 BUILTIN_PARAMS = ("vo2017", "paper")
 
