@@ -149,6 +149,39 @@ def one_run(job) -> tuple[int, dict[str, dict[int, tuple[float, float]]]]:
     return seed, out
 
 
+def reported_by_look(job) -> dict[str, np.ndarray]:
+    """How many looks a real tracker needs to report a newborn: per variant, ``(L, 2)`` counts
+    over the object-frames of the kept frames, by the object's number of detections so far
+    (1..L, the last bin L and more): ``[frames, frames it is reported]``.  Reported: matched to
+    a track within c by the optimal assignment (as OSPA pairs them)."""
+    from scipy.optimize import linear_sum_assignment
+
+    from bnptrack.tracker.registry import build, kind
+    from bnptrack.tracker.state import run
+    seed, scenario, overrides, tracker_name, L = job
+    sc = get_scenario(scenario, seed if is_generated(scenario) else None)
+    params = sc.adapt_params(load_params("vo2017", overrides))
+    frames, out = simulate_all(sc, params, seed), {}
+    for variant in ("plain", "dropped"):
+        fr = frames if variant == "plain" else [f for f in frames if f.frame % 3]
+        tracker = build(tracker_name, params, kind(tracker_name).presets[tracker_name])
+        looks, counts = {}, np.zeros((L, 2), dtype=np.int64)
+        for f, e, _ in run(tracker, fr, seed):
+            for i in labelled_detections(params, f, seed):
+                looks[i] = looks.get(i, 0) + 1
+            X, Y = f.truth.positions, e.positions
+            hit = np.zeros(len(X), dtype=bool)
+            if len(X) and len(Y):
+                D = np.linalg.norm(X[:, None] - Y[None], axis=2)
+                r, c = linear_sum_assignment(D)
+                hit[r[D[r, c] < C]] = True
+            for j, i in enumerate(f.truth.ids):
+                if looks.get(i, 0) and f.frame % 3:
+                    counts[min(looks[i], L) - 1] += (1, int(hit[j]))
+        out[variant] = counts
+    return out
+
+
 def summarise(res) -> dict[str, np.ndarray]:
     """Per seed means on the kept frames: ``plain@kept`` and ``dropped``, both scores, plus
     ``plain`` on all frames."""
@@ -169,10 +202,14 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--filter", default="ukf", choices=("ukf", "ekf"))
     ap.add_argument("--confirm", type=int, default=1, help="report objects from their N-th detection")
+    ap.add_argument("--tracker-looks", metavar="TRACKER", default=None,
+                    help="instead: the fraction of a real tracker's newborns reported, by look")
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args()
     lo, _, hi = args.seeds.partition("-")
     seeds = list(range(1, int(lo) + 1)) if not hi else list(range(int(lo), int(hi) + 1))
+    if args.tracker_looks:
+        return _print_looks(args, seeds)
     jobs = [(s, args.scenario, args.overrides, args.filter, args.confirm) for s in seeds]
     if args.workers > 1:
         from concurrent.futures import ProcessPoolExecutor
@@ -188,6 +225,19 @@ def main() -> None:
         ref = t["plain@kept card-free"] if k.endswith("card-free") else t["plain@kept"]
         rel = f"{100 * (v.mean() / ref.mean() - 1):+.1f}% ({v.mean() - ref.mean():+.2f} m)" if k.startswith("dropped") else ""
         print(f"{k:<22} {v.mean():7.2f} {v.std(ddof=1) if v.size > 1 else 0:6.2f} {rel:>14}")
+
+
+def _print_looks(args, seeds) -> None:
+    from concurrent.futures import ProcessPoolExecutor
+    L = 6
+    jobs = [(s, args.scenario, args.overrides, args.tracker_looks, L) for s in seeds]
+    with ProcessPoolExecutor(max(args.workers, 1)) as ex:
+        res = list(ex.map(reported_by_look, jobs))
+    print(f"{args.tracker_looks}, {args.scenario}, seeds {seeds[0]}-{seeds[-1]}: objects reported, by "
+          f"number of detections so far (kept frames; last column {L} and more)")
+    for v in ("plain", "dropped"):
+        c = sum(r[v] for r in res)
+        print(f"{v:<8} " + " ".join(f"{n + 1}: {100 * h / max(t, 1):5.1f}% of {t:<5d}" for n, (t, h) in enumerate(c)))
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ scene with ``--scenario``, a generated family drawing one scene per seed), mean 
 * ``dropped``    every third frame dropped (frames 3, 6, ...): the kept frames are ``plain``'s own
                  (same truth, same measurement and tracker draws, same frame numbers), and both
                  are scored on the kept frames only (``vs plain`` of this row compares it with
-                 ``plain`` on those frames; ``plain@kept`` shows that reference);
+                 ``plain`` on those frames; ``plain@kept`` shows that reference;
+                 ``benchmarks/dropped_bound.py`` measures what an oracle tracker loses there);
 * ``blanked``    (diagnostic, ``--variants``) dropped's information processed one scan at a time:
                  each dropped frame replaced by an empty scan of a blind sensor (P_D = 0, no
                  clutter), scored on the kept frames.  The dt model is consistent when
@@ -22,6 +23,7 @@ scene with ``--scenario``, a generated family drawing one scene per seed), mean 
                  frames of each scan): should beat either alone.
 
 Targets: posed, xy, irregular, dropped within 10 % of plain; two below plain and camera.
+Each table ends with the OSPA's localisation and cardinality parts (their sum is the total).
 
     nice -n 5 python benchmarks/sensors.py --seeds 1-20 --workers 2
     nice -n 5 python benchmarks/sensors.py --seeds 1-20 --set process_noise_dt=dwna   # ablation
