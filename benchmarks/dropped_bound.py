@@ -17,11 +17,15 @@ Two scores per frame:
 * ``card-free``: the localisation part only, OSPA between the estimates and the truth of the
   objects the oracle reports (same cardinality by construction).
 
-No tracker that uses these models can do better on average than this oracle's ratio
-dropped / plain@kept on its localisation part; the full ratio adds the births seen late.
+The oracle's ratio dropped / plain@kept is what the information removed costs a tracker with
+these models that makes no association, birth or death error; ``--confirm N`` (report an object
+from its ``N``-th detection) adds the looks a tracker in clutter needs to confirm a birth, and
+``--tracker-looks ddp`` measures how many looks a real tracker takes (docs/models.md, "Dropped
+frames: the oracle bound").
 
     nice -n 10 python benchmarks/dropped_bound.py --seeds 1-20
-    nice -n 10 python benchmarks/dropped_bound.py --seeds 1-20 --scenario random-cv
+    nice -n 10 python benchmarks/dropped_bound.py --seeds 1-20 --scenario random-cv --confirm 4
+    nice -n 10 python benchmarks/dropped_bound.py --seeds 1-20 --tracker-looks ddp --workers 2
 """
 
 from __future__ import annotations
