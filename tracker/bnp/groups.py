@@ -126,7 +126,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     uniform on [0, 0.95]."""
     hyper_forgetting: PositiveProb = 0.98
     """Per-frame forgetting of the "arrivals" and "reseat" likelihoods ("history" has none)."""
-    hyper_likelihood: Literal["history", "arrivals", "reseat"] = "arrivals"
+    hyper_likelihood: Literal["history", "arrivals", "reseat"] = "history"
     """What (alpha_2, d) are inferred from: "history", the Pitman-Yor EPPF of the partition of
     every object that ever entered it, each counted once in its latest cluster (dead clusters
     kept); "arrivals", each object's seat once, when it enters the partition, given the members
@@ -137,6 +137,9 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 GROUP_PRESETS: dict[str, GroupConfig] = {
     "ddp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"]),
     "dpyp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"], d=0.1, infer_d=True),
+    # the experiments' object levels (pipeline/experiments.py): experiment 2's and 3's presets
+    "ddp-groups-proximity": GroupConfig(objects=TRACKER_PRESETS["ddp-proximity"]),
+    "ddp-groups-snr": GroupConfig(objects=TRACKER_PRESETS["ddp-snr"]),
 }
 
 
