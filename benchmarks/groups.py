@@ -58,7 +58,7 @@ def one_run(job):
     tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], t_over))
     frames = simulate_all(sc, params, seed)
     group_of = {i: f"g{k}" for k, g in enumerate(sc.groups) for i in g}
-    rows, ests, aris, d2 = [], [], [], []
+    rows, ests, aris, d2, d2_all = [], [], [], [], []
     for f, e, _ in run(tracker, frames, seed):
         o = ospa(f.truth.positions, e.positions, c=100.0, p=1.0)
         rows.append((o.total, abs(len(e.tracks) - len(f.truth.ids)), e.diagnostics["ms"]))
@@ -68,13 +68,14 @@ def one_run(job):
             aris.append(a)
         if f.frame >= 20 and "d2" in e.diagnostics:
             d2.append(e.diagnostics["d2"])
+        d2_all.append(e.diagnostics.get("d2", float("nan")))
     true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
     est_tracks = [{t.label: t.position for t in e.tracks} for e in ests]
     o2 = ospa2_series(est_tracks, true_tracks, window=10, c=100.0, p=1.0)
     r = np.array(rows)
     return dict(ospa=r[:, 0].mean(), ospa2=float(np.mean(o2)), card_err=r[:, 1].mean(),
                 ari=float(np.mean(aris)) if aris else float("nan"),
-                d2=float(np.mean(d2)) if d2 else float("nan"), ms=r[:, 2])
+                d2=float(np.mean(d2)) if d2 else float("nan"), ms=r[:, 2], d2_series=np.array(d2_all))
 
 
 def main() -> None:
@@ -88,6 +89,8 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="params.KEY=V or [tracker.]KEY=V (applied to every tracker)")
     ap.add_argument("--scene", action="append", default=[], help="scene KEY=V (generated scenarios)")
+    ap.add_argument("--trajectory", action="store_true",
+                    help="also print d2 (mean over seeds, with the 10/90 % quantiles) every 10th frame")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, params {args.params}, seeds {seeds.start}..{seeds.stop - 1}, "
@@ -103,6 +106,17 @@ def main() -> None:
             ms = np.concatenate([r["ms"] for r in res])
             print(f"| {tr} | {m['ospa']:.2f} | {m['ospa2']:.2f} | {m['card_err']:.3f} | {m['ari']:.3f} | "
                   f"{m['d2']:.3f} | {np.median(ms):.2f} |", flush=True)
+            if args.trajectory:
+                print_trajectory(tr, [r["d2_series"] for r in res])
+
+
+def print_trajectory(tracker: str, series: list[np.ndarray]) -> None:
+    """d2 at frames 1, 10, 20, ...: mean over seeds and the 10 % / 90 % quantiles."""
+    n = min(s.size for s in series)
+    S = np.stack([s[:n] for s in series])
+    cells = [f"{k + 1}: {np.mean(S[:, k]):.3f} [{np.quantile(S[:, k], 0.1):.2f}, {np.quantile(S[:, k], 0.9):.2f}]"
+             for k in [0, *range(9, n, 10)]]
+    print(f"  d2 trajectory ({tracker}): " + "; ".join(cells), flush=True)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,11 @@ than 5 scans since the object's first scan; a label switch: the track matched to
 changes between two scans in which it is matched; a false-track scan: a track matched to no
 object ("near": within 100 m of one).  Keys: miss_grp_young, miss_grp_old, miss_free_*, false,
 false_near, false_far, switch_grp, switch_free, meanloc_* (m), ospa2x100 (OSPA(2) x 100);
-two-level trackers: members (tracks with a cluster), in_groups (of those, in a cluster of 2+).
+two-level trackers: members (tracks with a cluster), in_groups (of those, in a cluster of 2+);
+pairs of matched objects per scan (docs/trackers.md, "Power-law group sizes"): pair_TP (one
+true group, one cluster), pair_FN_split (one true group, two clusters), pair_FN_nocl (one true
+group, a member without a cluster), pair_FP_groups (two true groups in one cluster),
+pair_FP_single (a true singleton in someone's cluster).
 
     python benchmarks/groups_errors.py ddp-mb 101 10 groups merge_distance=0
 """
@@ -40,6 +44,22 @@ def _match(P: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
     return D, {int(r): int(c) for r, c in zip(rows, cols) if D[r, c] < 100.0}
 
 
+def pair_counts(truth_groups: list[str], clusters: list, c: Counter) -> None:
+    """Count the pairs of matched objects by true group (``g*``: a group; else a singleton) and cluster."""
+    for a in range(len(clusters)):
+        for b in range(a + 1, len(clusters)):
+            same_t = truth_groups[a] == truth_groups[b]
+            same_c = clusters[a] is not None and clusters[a] == clusters[b]
+            if same_t:
+                key = "TP" if same_c else ("FN_nocl" if None in (clusters[a], clusters[b]) else "FN_split")
+            elif same_c:
+                single = not (truth_groups[a].startswith("g") and truth_groups[b].startswith("g"))
+                key = "FP_single" if single else "FP_groups"
+            else:
+                continue
+            c[f"pair_{key}"] += 1
+
+
 def one(job) -> Counter:
     tr, seed, over, scen = job
     sc = get_scenario(scen, seed=seed) if is_generated(scen) else get_scenario(scen)
@@ -47,6 +67,7 @@ def one(job) -> Counter:
     tracker = build(tr, params, apply_overrides(kind(tr).presets[tr], over))
     frames = simulate_all(sc, params, seed)
     grouped = {i for g in sc.groups for i in g}
+    group_of = {i: f"g{k}" for k, g in enumerate(sc.groups) for i in g}
     first, last, c, ests = {}, {}, Counter(), []
     for f, e, _ in run(tracker, frames, seed):
         ests.append(e)
@@ -63,6 +84,9 @@ def one(job) -> Counter:
             c[f"switch_{g}"] += int(i in last and last[i] != lab)
             last[i] = lab
             c[f"locerr_{g}"] += D[r, matched[r]]
+        rows = sorted(matched)
+        pair_counts([group_of.get(f.truth.ids[r], f.truth.ids[r]) for r in rows],
+                    [e.tracks[matched[r]].cluster for r in rows], c)
         sizes = Counter(t.cluster for t in e.tracks if t.cluster is not None)
         c["members"] += sum(sizes.values())
         c["in_groups"] += sum(n for n in sizes.values() if n > 1)

@@ -1,6 +1,6 @@
 """The paper's simulation study as Monte Carlo experiments: one command per experiment.
 
-``bnptrack experiment NAME --runs N --seed S --params vo2017|paper --out DIR`` runs every
+``bnptrack experiment NAME --runs N --seed S --params paper|vo2017 --out DIR`` runs every
 tracker of the experiment on ``N`` simulated realisations and writes a summary table
 (markdown + CSV), plots mirroring the paper's figures and, when the Rerun sink is installed,
 a ``.rrd`` of one representative run per tracker.
@@ -28,7 +28,8 @@ from bnptrack.tracker.config import ConfigError
 
 @dataclass(frozen=True)
 class TrackerSpec:
-    """One tracker of an experiment: its name (``ddp``/``dpyp``/``glmb``), preset, display label."""
+    """One tracker of an experiment: its registry name (``ddp-groups``, ``ddp-mb``, ``glmb``, ...),
+    preset, display label."""
 
     name: str
     preset: str
@@ -44,29 +45,64 @@ class Variant:
 
 
 @dataclass(frozen=True)
+class FrameMetric:
+    """An extra score of an experiment: ``fn(true positions, estimated positions) -> (num, den)``
+    per frame; a run's value is ``sum(num) / sum(den)`` (e.g. :mod:`sinks.range_scores`)."""
+
+    key: str
+    label: str
+    fn: Callable[[np.ndarray, np.ndarray], tuple[float, float]]
+
+
+@dataclass(frozen=True)
 class Experiment:
     name: str
     description: str
     scenario: str
     trackers: tuple[TrackerSpec, ...]
     variants: tuple[Variant, ...] = (Variant("default"),)
+    metrics: tuple[FrameMetric, ...] = ()
+
+
+#: The parameter set ``bnptrack experiment`` uses by default: the paper's (sigma 15 m/s^2,
+#: P_S 0.95, 1 deg / 5 m; tracker/params/paper.toml).
+DEFAULT_EXPERIMENT_PARAMS = "paper"
+
+#: The paper's SNR in experiments 1, 2, 4 and 5 ("the signal-to-noise ratio (SNR) is -3 dB").
+PAPER_SNR = (Variant("-3 dB", ("snr_db=-3",)),)
+
+
+def _pair(name: str, preset: str, label: str) -> tuple[TrackerSpec, TrackerSpec]:
+    """The two-level tracker (``NAME-groups``, label ``LABEL``) and its single-level ablation
+    (``NAME-mb``, label ``LABEL (mb)``) with the object level's preset ``preset``."""
+    two = f"{name}-groups" if preset == name else f"{name}-groups{preset[len(name):]}"
+    return (TrackerSpec(f"{name}-groups", two, label), TrackerSpec(f"{name}-mb", preset, f"{label} (mb)"))
+
+
+_GLMB = TrackerSpec("glmb", "glmb", "GLMB")
+
+
+def _range_metrics() -> tuple[FrameMetric, ...]:
+    from bnptrack.sinks.range_scores import range_ospa, within_gate
+
+    return (FrameMetric("within100", "within 100 m", within_gate), FrameMetric("range_ospa", "range OSPA", range_ospa))
 
 
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e
     for e in (
-        Experiment("ddp-vs-glmb", "DDP-EMM vs GLMB, 10 targets (paper experiment 1)", "vo2017",
-                   (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB"))),
-        Experiment("proximity", "Close proximity: 5 targets on one path (experiment 2)", "proximity",
-                   (TrackerSpec("ddp", "ddp-proximity", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB"))),
+        Experiment("ddp-vs-glmb", "DDP-EMM vs GLMB, 10 targets, SNR -3 dB (paper experiment 1)", "vo2017",
+                   (*_pair("ddp", "ddp", "DDP-EMM"), _GLMB), PAPER_SNR),
+        Experiment("proximity", "Close proximity: 5 targets on one path, SNR -3 dB (experiment 2)", "proximity",
+                   (*_pair("ddp", "ddp-proximity", "DDP-EMM"), _GLMB), PAPER_SNR),
         Experiment("snr", "Varying SNR, range-only, 11 targets (experiment 3)", "snr",
-                   (TrackerSpec("ddp", "ddp-snr", "DDP-EMM"), TrackerSpec("glmb", "glmb", "GLMB")),
+                   (*_pair("ddp", "ddp-snr", "DDP-EMM"), _GLMB),
                    (Variant("-3 dB", ("snr_db=-3",)), Variant("-5 dB", ("snr_db=-5",)),
-                    Variant("-10 dB", ("snr_db=-10",)))),
-        Experiment("dpy-vs-glmb", "DPY-STP vs GLMB, at most 5 targets (experiment 4)", "dpy5",
-                   (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("glmb", "glmb", "GLMB"))),
-        Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets (experiment 5)", "vo2017",
-                   (TrackerSpec("dpyp", "dpyp", "DPY-STP"), TrackerSpec("ddp", "ddp", "DDP-EMM"))),
+                    Variant("-10 dB", ("snr_db=-10",))), _range_metrics()),
+        Experiment("dpy-vs-glmb", "DPY-STP vs GLMB, at most 5 targets, SNR -3 dB (experiment 4)", "dpy5",
+                   (*_pair("dpyp", "dpyp", "DPY-STP"), _GLMB), PAPER_SNR),
+        Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets, SNR -3 dB (experiment 5)", "vo2017",
+                   (*_pair("dpyp", "dpyp", "DPY-STP"), *_pair("ddp", "ddp", "DDP-EMM")), PAPER_SNR),
         Experiment("random", "Objects born anywhere: 20-30 objects, 3 crossing pairs, no birth "
                    "regions (generated random family; each run draws its own scene)", "random",
                    (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("dpyp", "dpyp", "DPY-STP"),
@@ -111,6 +147,7 @@ class TrackerRun:
     ms: np.ndarray
     estimates: list | None = None  # per frame Estimate, representative runs only (keep_tracks)
     crossings_kept: np.ndarray | None = None  # (pairs,) bool: pair kept both labels (random)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)  # Experiment.metrics: (K, 2) num, den
 
 
 @dataclass
@@ -144,12 +181,13 @@ def execute_run(job: RunJob) -> RunResult:
     result = RunResult(job, n_true, frames=frames if job.keep_tracks else None)
     for spec in exp.trackers:
         result.trackers[spec.label] = _score_tracker(spec, params, frames, seed, scenario.crossings,
-                                                     job.keep_tracks)
+                                                     job.keep_tracks, exp.metrics)
     return result
 
 
 def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
-                   crossings: Sequence[tuple[str, str, int]], keep_tracks: bool) -> TrackerRun:
+                   crossings: Sequence[tuple[str, str, int]], keep_tracks: bool,
+                   metrics: Sequence[FrameMetric] = ()) -> TrackerRun:
     """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
     :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
     (alpha 2) and the label keeping through ``crossings``."""
@@ -161,7 +199,7 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
     scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW)
-    rows, o2, est_tracks, kept = [], [], [], []
+    rows, o2, est_tracks, kept, extra = [], [], [], [], []
     for f, e, _ in run_tracker(tracker, frames, seed):
         scores = scorer.update(f, e)
         o = scores["ospa"]
@@ -170,14 +208,16 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
         o2.append(scores["ospa2"])
         est_tracks.append({t.label: t.position for t in e.tracks})
         kept.append(e)
+        extra.append([m.fn(f.truth.positions, e.positions) for m in metrics])
     r = np.array(rows, dtype=float)
     cross = None
     if crossings:
         true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
         res = crossing_label_keeping(true_tracks, est_tracks, crossings)
         cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
+    ex = np.asarray(extra, dtype=float).reshape(len(extra), len(metrics), 2)
     return TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3], r[:, 4], r[:, 5],
-                      kept if keep_tracks else None, cross)
+                      kept if keep_tracks else None, cross, {m.key: ex[:, i] for i, m in enumerate(metrics)})
 
 
 # --------------------------------------------------------------------------- executors
@@ -253,6 +293,7 @@ def summary_rows(results: Sequence[RunResult]) -> list[dict]:
                 row[k] = float(a.mean())
                 row[k + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
             row.update(_crossing_summary([r.trackers[t].crossings_kept for r in runs]))
+            row.update(_extra_summary([r.trackers[t].extra for r in runs]))
             rows.append(row)
     return rows
 
@@ -271,6 +312,21 @@ def _crossing_summary(per_run: Sequence[np.ndarray | None]) -> dict:
             "crossing_pairs": int(allk.size)}
 
 
+def _extra_summary(per_run: Sequence[dict[str, np.ndarray]]) -> dict:
+    """Each :class:`FrameMetric`'s per-run ``sum(num) / sum(den)``: mean and std over runs."""
+    out = {}
+    for key in per_run[0] if per_run else ():
+        a = np.array([x[key][:, 0].sum() / max(x[key][:, 1].sum(), 1e-12) for x in per_run])
+        out[key] = float(a.mean())
+        out[key + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
+    return out
+
+
+def _extra_columns(rows: list[dict]) -> list[tuple[str, str]]:
+    labels = {m.key: m.label for e in EXPERIMENTS.values() for m in e.metrics}
+    return [(k, labels[k]) for k in labels if k in rows[0]]
+
+
 def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
     md, csv_path = out / "summary.md", out / "summary.csv"
     with csv_path.open("w", newline="") as fh:
@@ -278,11 +334,15 @@ def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
         w.writeheader()
         w.writerows(rows)
     metrics = list(METRICS) + ([("crossings_kept", "crossings kept")] if "crossings_kept" in rows[0] else [])
+    metrics += _extra_columns(rows)
     lines = [f"# {title}", "", "Mean over runs (± std of the per-run means). OSPA/OSPA(2)/GOSPA: c = 100 m, "
              "p = 1, on position; OSPA(2) window 10 scans; ms/frame: per-run median."
              + (" Crossings kept: fraction of all crossing pairs whose two objects keep their track "
                 "label from scan c-5 to c+5 (Hungarian, gate 100 m; ± std of the per-run fractions)."
-                if len(metrics) > len(METRICS) else ""), "",
+                if "crossings_kept" in rows[0] else "")
+             + (" Within 100 m: fraction of object-frames with an estimate within 100 m (one-to-one); range "
+                "OSPA: 1-D OSPA on range from the sensor (c = 100 m, p = 1), what a range-only sensor "
+                "observes (sinks/range_scores.py)." if "within100" in rows[0] else ""), "",
              "| variant | tracker | runs | " + " | ".join(h for _, h in metrics) + " |",
              "|---|---|---|" + "---|" * len(metrics)]
     for r in rows:
@@ -398,7 +458,7 @@ class ExperimentOutput:
     seconds: float
 
 
-def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = "vo2017",
+def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = DEFAULT_EXPERIMENT_PARAMS,
                    out: Path | None = None, workers: int | None = None, cluster: str | None = None,
                    quiet: bool = False, rrd: bool = True) -> ExperimentOutput:
     """Run experiment ``name`` end to end and write its outputs into ``out``."""

@@ -74,8 +74,9 @@ and ``scene`` settings):
     no crossing pairs, no birth regions.
 ``groups``, ``groups-pl``
     Convoys/formations sharing velocity and turn rate (offsets within 40 m), born anywhere,
-    one pair of groups passing each other, plus independent objects; ``groups-pl`` draws
-    power-law group sizes.  True membership in :attr:`Scenario.groups`.
+    one pair of groups passing each other, plus independent objects; ``groups-pl``'s groups
+    are a Pitman-Yor partition (d 0.6) of 24 objects: power-law sizes, many singletons.  True
+    membership in :attr:`Scenario.groups`.
 
 The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
 from the parameter set); the scenario tables are defined for ``T = 1`` s.

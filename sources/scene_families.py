@@ -43,8 +43,14 @@ side of the crossing) is redrawn.
     groups have centres that meet at a scan in ``8..K-7``, headings 30-150 deg apart, 7-39
     scans on each side.  The groups (2+ members) are recorded in :attr:`Scenario.groups`.
 ``groups-pl``
-    As ``groups`` with 8 groups of sizes 1-10, ``Pr(s) ~ s^-group_size_power`` (1.5), and one
-    free object: power-law cluster sizes, for DPY-STP.
+    As ``groups`` but the partition of the group objects is a **Pitman-Yor partition**
+    (``group_partition = "pitman-yor"``): ``py_objects`` (24) objects seated by the
+    Pitman-Yor Chinese restaurant with discount ``py_discount`` (0.6) and concentration
+    ``py_alpha`` (1), redrawn until no group exceeds ``group_size_max`` (10): many singletons
+    (about 9 of about 13 groups) and a few big groups, the power-law sizes DPY-STP models
+    (``Pr(s) ~ s^-(1+d)``); plus one free object.  ``group_partition = "sizes"`` is the first
+    version (8 groups with i.i.d. sizes ``Pr(s) ~ s^-group_size_power`` on 1-10, not a PY
+    partition: its EPPF barely tells ``d`` from 0, ``docs/trackers.md``).
 
 Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
 are defined for ``T = 1`` s (the crossing distance holds for that period).
@@ -115,6 +121,13 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Members sit at offsets uniform in a disc of this radius (m) about the group's centre."""
     passing_pairs: int = 0
     """Pairs of groups whose centres meet (heading 30-150 deg apart) at a random scan."""
+    group_partition: str = "sizes"
+    """"sizes": ``n_groups`` sizes drawn as above; "pitman-yor": the group sizes are a
+    Pitman-Yor partition of ``py_objects`` objects (``py_alpha``, ``py_discount``), sizes <=
+    ``group_size_max`` (redrawn), singletons included (size-1 groups)."""
+    py_objects: int = 24
+    py_alpha: float = 1.0
+    py_discount: float = 0.6
 
     def __post_init__(self) -> None:
         checks = [
@@ -138,8 +151,13 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             (1 <= self.group_size_min <= self.group_size_max, "need 1 <= group_size_min <= group_size_max"),
             (self.group_size_power >= 0.0, "group_size_power must be >= 0"),
             (0.0 <= self.group_spacing <= 200.0, "group_spacing must be in [0, 200] m"),
-            (0 <= 2 * self.passing_pairs <= max(self.n_groups, len(self.group_sizes)),
+            (self.group_partition == "pitman-yor"
+             or 0 <= 2 * self.passing_pairs <= max(self.n_groups, len(self.group_sizes)),
              "2 * passing_pairs must not exceed the number of groups"),
+            (self.group_partition in ("sizes", "pitman-yor"), 'group_partition must be "sizes" or "pitman-yor"'),
+            (self.py_objects >= 2 * self.passing_pairs and 0.0 <= self.py_discount < 1.0
+             and self.py_alpha > -self.py_discount, "need py_objects >= 2 passing_pairs, 0 <= py_discount < 1, "
+             "py_alpha > -py_discount"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -162,7 +180,7 @@ FAMILIES: dict[str, SceneFamily] = {
     "groups-pl": SceneFamily(
         n_min=1, n_max=1, crossing_pairs=0, n_groups=8, passing_pairs=1, group_size_min=1,
         group_size_max=10, group_size_power=1.5, life_min=20, speed_min=5.0, speed_max=30.0,
-        turn_max_deg=2.0,
+        turn_max_deg=2.0, group_partition="pitman-yor",
     ),
 }
 
@@ -173,7 +191,8 @@ _DESCRIPTIONS = {
                  "births in 3 bursts; no birth regions",
     "groups": "Generated: 5 convoys of 2-5 objects sharing velocity and turn rate (offsets within "
               "40 m), born anywhere, one pair of groups passing each other, plus 3-6 independent objects",
-    "groups-pl": "Generated: 8 groups with power-law sizes (Pr(s) ~ s^-1.5, 1-10), one passing pair, "
+    "groups-pl": "Generated: groups that are a Pitman-Yor partition (d 0.6, alpha 1) of 24 objects, sizes <= 10 "
+                 "(many singletons, a few big groups), one passing pair, "
                  "plus 1 independent object",
 }
 
@@ -322,7 +341,27 @@ def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object,
     raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
 
 
+def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -> list[int]:
+    """Table sizes, in order of opening, of ``n`` customers seated by the Pitman-Yor Chinese
+    restaurant: table ``j`` with weight ``n_j - d``, a new one with ``alpha + d K``."""
+    sizes: list[int] = []
+    for _ in range(n):
+        w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
+        j = int(rng.choice(w.size, p=w / w.sum()))
+        if j == len(sizes):
+            sizes.append(1)
+        else:
+            sizes[j] += 1
+    return sizes
+
+
 def _group_sizes(rng: np.random.Generator, fam: SceneFamily) -> list[int]:
+    if fam.group_partition == "pitman-yor" and not fam.group_sizes:
+        for _ in range(_MAX_TRIES):
+            sizes = pitman_yor_sizes(rng, fam.py_objects, fam.py_alpha, fam.py_discount)
+            if max(sizes) <= fam.group_size_max and len(sizes) >= 2 * fam.passing_pairs:
+                return sizes
+        raise ConfigError("scene: no Pitman-Yor partition within group_size_max; relax the scene.* settings")
     if fam.group_sizes:
         return list(fam.group_sizes)
     sizes = np.arange(fam.group_size_min, fam.group_size_max + 1)

@@ -44,10 +44,11 @@ def _bnp(name: str, description: str) -> TrackerKind:
 
 
 def _bnp_alias(name: str, preset: str, description: str) -> TrackerKind:
-    """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations)."""
+    """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations),
+    with every single-level preset (``ddp-mb`` with ``ddp-proximity``, ...)."""
     from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
 
-    presets = {name: TRACKER_PRESETS[preset]}
+    presets = {**TRACKER_PRESETS, name: TRACKER_PRESETS[preset]}
     return TrackerKind(name, description, BnpConfig, presets, lambda params, config: BnpTracker(params, config, name))
 
 

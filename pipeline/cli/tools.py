@@ -12,7 +12,7 @@ import click
 
 from bnptrack.pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
 from bnptrack.tracker.messages import MSG_TYPES, json_schema
-from bnptrack.pipeline.experiments import EXPERIMENTS
+from bnptrack.pipeline.experiments import DEFAULT_EXPERIMENT_PARAMS, EXPERIMENTS
 from bnptrack.sources.mcap_log import McapLogError, read_metadata
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
@@ -241,7 +241,7 @@ index): a run redone alone, locally or on a Dask cluster, gives the same numbers
 \b
 Examples:
   bnptrack experiment ddp-vs-glmb --runs 100
-  bnptrack experiment snr --runs 20 --params paper --out out/snr
+  bnptrack experiment snr --runs 20 --params vo2017 --out out/snr
   bnptrack experiment dpy-vs-ddp --runs 1000 --cluster tcp://scheduler:8786
 """
 
@@ -251,7 +251,7 @@ Examples:
 @click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
               help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
-@click.option("--params", "params_name", type=click.Choice(BUILTIN_PARAMS), default="vo2017",
+@click.option("--params", "params_name", type=click.Choice(BUILTIN_PARAMS), default=DEFAULT_EXPERIMENT_PARAMS,
               show_default=True, help="Model parameter set.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/experiments/NAME-PARAMS-sSEED.")

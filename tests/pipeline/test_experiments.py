@@ -61,12 +61,12 @@ def test_dask_cluster_gives_identical_results(local_results):
 
 def test_summary_and_plots(local_results, tmp_path):
     rows = summary_rows(local_results)
-    assert [r["tracker"] for r in rows] == ["DPY-STP", "DDP-EMM"]
+    assert [r["tracker"] for r in rows] == ["DPY-STP", "DPY-STP (mb)", "DDP-EMM", "DDP-EMM (mb)"]
     for r in rows:
         assert r["runs"] == 2 and 0 < r["ospa"] < 100 and r["ospa_loc"] + r["ospa_card"] == pytest.approx(r["ospa"])
     md, csv_path = write_summary(rows, tmp_path, "dpy-vs-ddp")
     text = md.read_text()
-    assert "DPY-STP" in text and text.count("\n|") == 4
+    assert "DPY-STP" in text and text.count("\n|") == 6
     assert csv_path.read_text().splitlines()[0].startswith("variant,tracker,runs,ospa")
     paths = write_plots(local_results, tmp_path, "dpy-vs-ddp")
     assert {p.name for p in paths} == {"cardinality.png", "ospa.png", "xy.png"}
@@ -82,9 +82,9 @@ def test_experiment_command_writes_outputs(tmp_path):
     res = CliRunner().invoke(main, ["experiment", "dpy-vs-ddp", "--runs", "1", "--workers", "1",
                                     "--out", str(out)])
     assert res.exit_code == 0, res.output
-    assert "| default | DPY-STP | 1 |" in res.output
+    assert "| -3 dB | DPY-STP | 1 |" in res.output and "params paper" in res.output
     assert {p.name for p in out.iterdir()} >= {"summary.md", "summary.csv", "cardinality.png", "ospa.png",
-                                               "xy.png", "dpyp-run0.rrd", "ddp-run0.rrd"}
+                                               "xy.png", "dpyp-groups-run0.rrd", "ddp-mb-run0.rrd"}
     bad = CliRunner().invoke(main, ["experiment", "nope"])
     assert bad.exit_code == 2 and "nope" in bad.output
 

@@ -54,7 +54,7 @@ from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
-from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid
+from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.cardinality import existence_cardinality
@@ -121,15 +121,25 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_shape: Positive = 1.0
     d_scale: Positive = 0.1
     infer_d: bool = False
+    d_prior: Literal["gamma", "uniform"] = "gamma"
+    """Prior of d: Gamma(d_shape, d_scale) (the project's reading of the paper's Gamma(1, 0.1)) or
+    uniform on [0, 0.95]."""
     hyper_forgetting: PositiveProb = 0.98
-    hyper_likelihood: Literal["arrivals", "reseat"] = "arrivals"
-    """What (alpha_2, d) are inferred from: each object's seat once, when it enters the partition
-    (the Pitman-Yor EPPF, :mod:`tracker.bnp.group_hyper`), or every frame's re-seating ("reseat")."""
+    """Per-frame forgetting of the "arrivals" and "reseat" likelihoods ("history" has none)."""
+    hyper_likelihood: Literal["history", "arrivals", "reseat"] = "history"
+    """What (alpha_2, d) are inferred from: "history", the Pitman-Yor EPPF of the partition of
+    every object that ever entered it, each counted once in its latest cluster (dead clusters
+    kept); "arrivals", each object's seat once, when it enters the partition, given the members
+    present then (forgetting ``hyper_forgetting``); "reseat", every frame's re-seating
+    (:mod:`tracker.bnp.group_hyper`)."""
 
 
 GROUP_PRESETS: dict[str, GroupConfig] = {
     "ddp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"]),
     "dpyp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"], d=0.1, infer_d=True),
+    # the experiments' object levels (pipeline/experiments.py): experiment 2's and 3's presets
+    "ddp-groups-proximity": GroupConfig(objects=TRACKER_PRESETS["ddp-proximity"]),
+    "ddp-groups-snr": GroupConfig(objects=TRACKER_PRESETS["ddp-snr"]),
 }
 
 
@@ -163,6 +173,16 @@ class GroupState:
     d2: float = 0.0
     hyper2_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     next_group: int = 0
+    counted: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(N,) the cluster id in which each object is counted in the partition's history (-1: never)."""
+    hist_total: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(G,) objects ever counted in each of ``group_ids`` (the live clusters)."""
+    dead_k: int = 0
+    """Clusters of the history that have died (no longer transition)."""
+    dead_n: int = 0
+    """Objects counted in them."""
+    dead_factor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(D,) their sum_j log (1-d)^(n_j - 1) (rising factorial) on the tracker's d grid."""
 
     def inner(self) -> BnpState:
         names = [f.name for f in fields(BnpState)]
@@ -497,14 +517,15 @@ class GroupTracker:
             mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
                                                      inner.cov[members, 4, 4], z,
                                                      np.deg2rad(self.config.turn_within_std_deg) ** 2)
-        alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0)
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
         g_ids, g_count, (g_mean, g_cov), (p_mean, p_cov) = self._transition_out(blocks, z, ids)
+        hist = self._history(state, inner.labels, members, ids[z], g_ids)
+        alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0, hist)
         new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
                                inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
-                               g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group)
+                               g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist)
         return new_state, self._estimate(new_state, est, t0)
 
     # -- pieces ---------------------------------------------------------------------------
@@ -584,21 +605,49 @@ class GroupTracker:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
 
-    def _hyper(self, state: GroupState, z: np.ndarray, arrived: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(alpha_2, d) on the grid given the frame's object partition: the arrivals' Pitman-Yor
-        predictive (:func:`tracker.bnp.group_hyper.arrivals_loglik_grid`) or the re-seating
+    def _history(self, state: GroupState, labels: tuple[str, ...], members: np.ndarray, member_ids: np.ndarray,
+                 g_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+        """The partition of every object ever in it (:func:`tracker.bnp.group_hyper.update_history`):
+        the members' counts moved to their clusters; clusters that no longer transition folded into
+        the dead clusters' sufficient statistics.  Returns the state's history fields."""
+        prev = dict(zip(state.labels, state.counted.tolist()))
+        counted = np.array([prev.get(lab, -1) for lab in labels], dtype=np.int64)
+        totals = dict(zip(state.group_ids.tolist(), state.hist_total.tolist()))
+        counted = update_history(counted, members, member_ids, totals)
+        live = set(g_ids.tolist())
+        dead = np.array([t for c, t in totals.items() if c not in live and t > 0], dtype=np.int64)
+        factor = state.dead_factor if state.dead_factor.size else np.zeros(self.d_grid.size)
+        if dead.size:
+            factor = factor + size_factor(self.d_grid, dead)
+        hist_total = np.array([totals[g] for g in g_ids.tolist()], dtype=np.int64)
+        return counted, hist_total, state.dead_k + dead.size, state.dead_n + int(dead.sum()), factor
+
+    def _history_loglik(self, hist: tuple) -> np.ndarray:
+        """The Pitman-Yor EPPF (:func:`tracker.bnp.group_hyper.eppf_grid`) of the history on the grid."""
+        _, total, dead_k, dead_n, dead_factor = hist
+        factor = dead_factor + size_factor(self.d_grid, total)
+        return eppf_grid(self.alpha_grid[:, None], self.d_grid[None, :], int(total.size + dead_k),
+                         int(total.sum() + dead_n), factor)
+
+    def _hyper(self, state: GroupState, z: np.ndarray, arrived: np.ndarray, hist: tuple
+               ) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d) on the grid given the object partition: the EPPF of its whole history
+        (:meth:`_history_loglik`), the arrivals' Pitman-Yor predictive
+        (:func:`tracker.bnp.group_hyper.arrivals_loglik_grid`) or the re-seating
         (:func:`tracker.bnp.urn.frame_loglik_grid`); ``arrived``: members new to the partition."""
         cfg = self.config
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik
-        if cfg.hyper_likelihood == "arrivals":
-            frame_ll = arrivals_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
+        if cfg.hyper_likelihood == "history":
+            hyper = self._history_loglik(hist)
+        elif cfg.hyper_likelihood == "arrivals":
+            hyper = cfg.hyper_forgetting * state.hyper2_loglik + arrivals_loglik_grid(
+                self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
         else:
-            frame_ll = self._reseat_loglik(state, z)
-        hyper = cfg.hyper_forgetting * state.hyper2_loglik + frame_ll
+            hyper = cfg.hyper_forgetting * state.hyper2_loglik + self._reseat_loglik(state, z)
         log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
                             + np.log(self.alpha_grid))[:, None]
-        if cfg.infer_d:
+        if cfg.infer_d and cfg.d_prior == "gamma":
             log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
         return alpha, d, hyper
