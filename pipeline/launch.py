@@ -57,11 +57,12 @@ from bnptrack.pipeline.supervisor import (
     open_embedded_router,
     recorded_complete,
     sink_left_output,
+    stop_on_signals,
     stop_stages,
     write_stages,
 )
 from bnptrack.pipeline.stages import (
-    EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK, EXIT_STOPPED,
+    EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK,
     JOURNAL_NAME,
     SNAPSHOT_NAME,
     STAGES,
@@ -109,7 +110,7 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     # Zenoh's threads run our (short) sample callbacks under the GIL: let them in sooner
     # than the default 5 ms while the main thread computes
     sys.setswitchinterval(0.001)
-    signals = _stop_on_signals(name, stop) if threading.current_thread() is threading.main_thread() else None
+    signals = stop_on_signals(name, stop) if threading.current_thread() is threading.main_thread() else None
     try:
         return _run_with_bus(role, cfg, name, parent_pid, stop)
     finally:
@@ -146,61 +147,6 @@ def _run_with_bus(role: str, cfg: PipelineConfig, name: str, parent_pid: int | N
     finally:
         bus.close()
         _log_cpu(name)
-
-
-#: The signals that stop a stage.
-_STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
-
-
-class _StopSignals:
-    """SIGINT / SIGTERM set ``stop`` (the stage flushes its files); a second one exits at once
-    (``os._exit``, exit code 130).
-
-    The signals are blocked in the main thread (and so in every thread it starts afterwards,
-    Zenoh's among them) and taken by a thread of their own with ``sigtimedwait``: a signal
-    must never interrupt the main thread while it waits in the bus's receive.  CPython 3.11's
-    ``queue.SimpleQueue.get(timeout=...)`` (``pipeline.transport.Bus.recv``) can go on waiting
-    forever once a signal handler has run during its wait: only the next message wakes it, and
-    after a SIGTERM the other stages are stopping too, so the stage never flushed its files and
-    was killed after ``supervisor.stop_timeout_s`` (the sink's ``sink.json`` then missing:
-    tests/pipeline/test_stage_signals.py reproduces the hang and checks the cure).  The Python
-    handlers stay installed for the threads started before (numpy's BLAS threads), to which the
-    kernel may still deliver a signal; they do the same.  :meth:`restore` puts the earlier mask
-    back."""
-
-    def __init__(self, name: str, stop: threading.Event) -> None:
-        self.name, self.stop = name, stop
-        self.done = threading.Event()
-        for sig in _STOP_SIGNALS:
-            signal.signal(sig, self.on_signal)
-        self.old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-        self.thread = threading.Thread(target=self._take, name="stop-signals", daemon=True)
-        self.thread.start()  # it inherits the blocked mask, as sigtimedwait requires
-
-    def on_signal(self, signum: int, _frame: Any = None) -> None:
-        if self.stop.is_set():
-            os._exit(EXIT_STOPPED)
-        log.info("%s: %s: stopping (flushing files)", self.name, signal.Signals(signum).name)
-        self.stop.set()
-
-    def _take(self) -> None:
-        # the timeout only bounds how long this thread outlives restore(); a signal is taken at once
-        while not self.done.is_set():
-            info = signal.sigtimedwait(_STOP_SIGNALS, 0.5)
-            if info is not None:
-                self.on_signal(info.si_signo)
-
-    def restore(self) -> None:
-        """Unblock the signals in the main thread again (the handlers stay: a signal after the
-        stage has returned still exits at once).  The thread ends within its 0.5 s timeout;
-        until then a signal may reach either, which do the same."""
-        self.done.set()
-        signal.pthread_sigmask(signal.SIG_SETMASK, self.old_mask)
-
-
-def _stop_on_signals(name: str, stop: threading.Event) -> _StopSignals:
-    """SIGINT / SIGTERM set ``stop``; a second one exits at once (:class:`_StopSignals`)."""
-    return _StopSignals(name, stop)
 
 
 def _watch_parent(name: str, parent_pid: int, stop: threading.Event) -> None:

@@ -1,4 +1,4 @@
-"""How a stage process takes SIGINT / SIGTERM (``pipeline.launch._StopSignals``).
+"""How a stage process takes SIGINT / SIGTERM (``pipeline.supervisor.StopSignals``).
 
 The cause of a flaky ``test_sigint_stops_every_stage_and_flushes_files``: CPython 3.11's
 ``queue.SimpleQueue.get(timeout=...)`` (the bus's receive) can go on waiting forever once a
@@ -29,7 +29,7 @@ from testkit import REPO_ROOT, bnptrack_env
 #: (``<thread>``: where the stop handler ran), and exits 0.
 _LOOP = """
 import os, queue, signal, sys, threading
-from bnptrack.pipeline import launch
+from bnptrack.pipeline import launch, supervisor
 stop = threading.Event()
 where = []
 {setup}
@@ -47,7 +47,7 @@ print("stopped", where[0] if where else "?", flush=True)
 #: The stage's handling (the cure).
 _CURED = """
 launch.configure_logging("t")
-signals = launch._stop_on_signals("t", stop)
+signals = supervisor.stop_on_signals("t", stop)
 on_signal = signals.on_signal
 def recording(signum, frame=None):
     where.append(threading.current_thread().name)
@@ -117,9 +117,9 @@ def test_a_second_signal_exits_at_once_with_130():
 def test_restore_unblocks_the_signals_in_the_main_thread():
     code = textwrap.dedent("""
         import signal, threading
-        from bnptrack.pipeline import launch
+        from bnptrack.pipeline import launch, supervisor
         before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
-        s = launch._stop_on_signals("t", threading.Event())
+        s = supervisor.stop_on_signals("t", threading.Event())
         during = signal.pthread_sigmask(signal.SIG_BLOCK, [])
         s.restore()
         after = signal.pthread_sigmask(signal.SIG_BLOCK, [])
@@ -175,8 +175,8 @@ def test_the_stop_signals_thread_keeps_the_same_storm_from_hanging_the_loop():
                 q.put(None)
         threading.Thread(target=storm).start()
     """)
-    setup = _CURED + "\nsignal.signal(signal.SIGUSR1, lambda s, f: None)\nsignal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1})\n" \
-        + "threading.Thread(target=lambda: [signal.sigwait({signal.SIGUSR1}) for _ in iter(int, 1)], daemon=True).start()\n"
+    setup = "signal.signal(signal.SIGUSR1, lambda s, f: None)\nsignal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1})\n" \
+        + _CURED + "threading.Thread(target=lambda: [signal.sigwait({signal.SIGUSR1}) for _ in iter(int, 1)], daemon=True).start()\n"
     code = textwrap.dedent(_LOOP).replace("{setup}", textwrap.dedent(setup)).replace("{after}", "ended.set()")
     code = code.replace("q = queue.SimpleQueue()\n", "q = queue.SimpleQueue()\n" + storm)
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=bnptrack_env({"OPENBLAS_NUM_THREADS": "1"}),
