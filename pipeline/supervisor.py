@@ -315,8 +315,7 @@ class StopSignals:
     def __init__(self, name: str, stop: threading.Event) -> None:
         self.name, self.stop = name, stop
         self.done = threading.Event()
-        for sig in _STOP_SIGNALS:
-            signal.signal(sig, self.on_signal)
+        self.old_handlers = {sig: signal.signal(sig, self.on_signal) for sig in _STOP_SIGNALS}
         self.old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         self.thread = threading.Thread(target=self._take, name="stop-signals", daemon=True)
         self.thread.start()  # it inherits the blocked mask, as sigtimedwait requires
@@ -336,12 +335,15 @@ class StopSignals:
             if info is not None and info.si_signo in _STOP_SIGNALS:
                 self.on_signal(info.si_signo)
 
-    def restore(self) -> None:
-        """Unblock the signals in the main thread again (the handlers stay: a signal after the
-        stage has returned still exits at once).  The thread ends within its 0.5 s timeout;
-        until then a signal may reach either, which do the same."""
+    def restore(self, handlers: bool = False) -> None:
+        """Unblock the signals in the main thread again; with ``handlers`` put the earlier
+        handlers back too (else they stay: a signal after a stage has returned still exits at
+        once).  The thread ends within its 0.5 s timeout; until then it may still take one."""
         self.done.set()
         signal.pthread_sigmask(signal.SIG_SETMASK, self.old_mask)
+        if handlers:
+            for sig, old in self.old_handlers.items():
+                signal.signal(sig, old)
 
 
 def stop_on_signals(name: str, stop: threading.Event) -> StopSignals:

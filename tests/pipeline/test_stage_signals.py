@@ -114,7 +114,7 @@ def test_a_second_signal_exits_at_once_with_130():
     assert p.returncode == 130, out  # os._exit(EXIT_STOPPED)
 
 
-def test_restore_unblocks_the_signals_in_the_main_thread():
+def test_restore_unblocks_the_signals_and_puts_handlers_back_when_asked():
     code = textwrap.dedent("""
         import signal, threading
         from bnptrack.pipeline import launch, supervisor
@@ -124,11 +124,15 @@ def test_restore_unblocks_the_signals_in_the_main_thread():
         s.restore()
         after = signal.pthread_sigmask(signal.SIG_BLOCK, [])
         stops = {signal.SIGINT, signal.SIGTERM}
-        print(bool(before & stops), during >= stops, after == before)
+        kept = signal.getsignal(signal.SIGTERM) == s.on_signal  # a stage keeps its handlers
+        m = supervisor.stop_on_signals("monitor", threading.Event())
+        m.restore(handlers=True)  # the monitor command puts the earlier ones back
+        back = signal.getsignal(signal.SIGTERM) == s.on_signal and signal.getsignal(signal.SIGINT) == s.on_signal
+        print(bool(before & stops), during >= stops, after == before, kept, back)
     """)
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=bnptrack_env(), capture_output=True,
                          text=True, timeout=60)
-    assert out.stdout.split() == ["False", "True", "True"], out.stderr
+    assert out.stdout.split() == ["False", "True", "True", "True", "True"], out.stderr
 
 
 def test_signals_handled_in_the_waiting_main_thread_hang_simplequeue_get():
