@@ -13,7 +13,11 @@ change of machine load hits every command alike):
 
 and prints the median, min and max wall time of each over ``--rounds`` rounds, and the median
 CPU time (user + system of the process and those it waited for, e.g. a launch's stages), with
-the load average.  ``--root DIR`` times the checkout in ``DIR`` instead of this one (e.g. a
+the load average.  ``--pyc`` first byte-compiles the checkout (``compileall``, what ``pip
+install`` does for an installed package): where ``PYTHONDONTWRITEBYTECODE=1`` is set (this
+machine's sessions set it), Python never writes the ``.pyc`` files of a source checkout, so
+without ``--pyc`` every process compiles the project's ~70 modules from source on every run
+(about 0.2 s of CPU per process, measured); the line above the table says which was timed.  ``--root DIR`` times the checkout in ``DIR`` instead of this one (e.g. a
 ``git worktree`` of an older commit, to compare in alternating runs).  With ``--numba`` it also times ``track`` with an empty numba cache directory
 (``NUMBA_CACHE_DIR``: every kernel compiles) against the same directory filled (every kernel
 loads from the cache).  The children get ``PYTHONPATH`` = this checkout.
@@ -21,6 +25,7 @@ loads from the cache).  The children get ``PYTHONPATH`` = this checkout.
     nice -n 5 python3 benchmarks/startup.py --rounds 5 --numba
     nice -n 5 python3 benchmarks/startup.py --rounds 5 --no-launch --json out.json
     nice -n 5 python3 benchmarks/startup.py --rounds 3 --root /tmp/startup_base   # an older checkout
+    nice -n 5 python3 benchmarks/startup.py --rounds 3 --pyc                       # .pyc files warm
 """
 
 from __future__ import annotations
@@ -61,6 +66,12 @@ def wall(argv: list[str], env: dict[str, str] | None = None) -> float:
         raise RuntimeError(f"{' '.join(argv)} exited {proc.returncode}: {proc.stderr[-2000:]}")
     CPU.setdefault(" ".join(argv), []).append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
     return elapsed
+
+
+def byte_compile() -> None:
+    """Write the ``.pyc`` files of the checkout's packages (``python -m compileall``)."""
+    dirs = [str(ROOT / d) for d in ("bnptrack", "tracker", "sources", "sinks", "pipeline")]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *dirs], check=True, stdout=subprocess.DEVNULL)
 
 
 def commands(tmp: Path, launch: bool) -> dict[str, list[str]]:
@@ -111,10 +122,13 @@ def main() -> None:
     ap.add_argument("--numba", action="store_true", help="Also time numba compile vs cache load.")
     ap.add_argument("--json", type=Path, default=None, help="Also write the rows to this file.")
     ap.add_argument("--root", type=Path, default=None, help="Time the checkout in this directory.")
+    ap.add_argument("--pyc", action="store_true", help="Byte-compile the checkout first (compileall).")
     args = ap.parse_args()
     if args.root is not None:
         global ROOT
         ROOT = args.root.resolve()
+    if args.pyc:
+        byte_compile()
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="bnp-startup-") as d:
         tmp = Path(d)
@@ -135,6 +149,8 @@ def main() -> None:
     rows = summarise(times, cpu_by_name)
     print(f"load average before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, "
           f"after {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} cores; {args.rounds} rounds; {ROOT}")
+    print(f"PYTHONDONTWRITEBYTECODE={os.environ.get('PYTHONDONTWRITEBYTECODE', '')!r}; "
+          f"{'checkout byte-compiled first (--pyc)' if args.pyc else 'no byte-compilation'}")
     print(f"{'command':40s} {'median s':>9s} {'min s':>7s} {'max s':>7s} {'CPU s':>7s}")
     for r in rows:
         print(f"{r['command']:40s} {r['median_s']:9.3f} {r['min_s']:7.3f} {r['max_s']:7.3f} {r['cpu_median_s']:7.3f}")

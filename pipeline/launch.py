@@ -57,11 +57,12 @@ from bnptrack.pipeline.supervisor import (
     open_embedded_router,
     recorded_complete,
     sink_left_output,
+    stop_on_signals,
     stop_stages,
     write_stages,
 )
 from bnptrack.pipeline.stages import (
-    EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK, EXIT_STOPPED,
+    EXIT_CONFIG, EXIT_CRASH, EXIT_DATA, EXIT_IO, EXIT_OK,
     JOURNAL_NAME,
     SNAPSHOT_NAME,
     STAGES,
@@ -102,8 +103,6 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
     and always closes it.
     """
-    from bnptrack.pipeline.transport import Bus, NoRouterError, TransportError
-
     if role not in STAGES:
         raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
     name = name or role
@@ -111,8 +110,19 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     # Zenoh's threads run our (short) sample callbacks under the GIL: let them in sooner
     # than the default 5 ms while the main thread computes
     sys.setswitchinterval(0.001)
-    if threading.current_thread() is threading.main_thread():
-        _stop_on_signals(name, stop)
+    signals = stop_on_signals(name, stop) if threading.current_thread() is threading.main_thread() else None
+    try:
+        return _run_with_bus(role, cfg, name, parent_pid, stop)
+    finally:
+        if signals is not None:
+            signals.restore()
+
+
+def _run_with_bus(role: str, cfg: PipelineConfig, name: str, parent_pid: int | None,
+                  stop: threading.Event) -> int:
+    """:func:`run_stage` once the signals are taken care of: open the bus, run the stage."""
+    from bnptrack.pipeline.transport import Bus, NoRouterError, TransportError
+
     if parent_pid:
         _watch_parent(name, parent_pid, stop)
     try:
@@ -137,18 +147,6 @@ def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pi
     finally:
         bus.close()
         _log_cpu(name)
-
-
-def _stop_on_signals(name: str, stop: threading.Event) -> None:
-    """SIGINT / SIGTERM set ``stop`` (the stage flushes its files); a second one exits at once."""
-    def on_signal(signum: int, _frame: Any) -> None:
-        if stop.is_set():
-            os._exit(EXIT_STOPPED)
-        log.info("%s: %s: stopping (flushing files)", name, signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
 
 
 def _watch_parent(name: str, parent_pid: int, stop: threading.Event) -> None:

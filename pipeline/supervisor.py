@@ -1,5 +1,6 @@
 """The launcher's side of the stage processes: a supervised process (:class:`StageProcess`),
-the end of a launch (:class:`LaunchResult`) and the health monitor (:class:`HealthMonitor`)."""
+the end of a launch (:class:`LaunchResult`) and the health monitor (:class:`HealthMonitor`);
+and the stage's side of the launcher's SIGTERM (:func:`stop_on_signals`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import os
 import secrets
 import signal
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -18,9 +20,10 @@ from typing import Any
 import msgspec
 
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
+from bnptrack.pipeline.stages import EXIT_STOPPED
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
-           "sink_left_output", "write_stages", "stop_stages"]
+           "sink_left_output", "write_stages", "stop_stages", "StopSignals", "stop_on_signals"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -287,3 +290,62 @@ def stop_stages(stages: Sequence[StageProcess], timeout: float, echo: Callable[[
         if sp.state == "running":
             sp.state = "stopped"
     return True
+
+
+#: The signals that stop a stage.
+_STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
+
+
+class StopSignals:
+    """SIGINT / SIGTERM set ``stop`` (the stage flushes its files); a second one exits at once
+    (``os._exit``, exit code 130).
+
+    The signals are blocked in the main thread (and so in every thread it starts afterwards,
+    Zenoh's among them) and taken by a thread of their own with ``sigtimedwait``: a signal
+    must never interrupt the main thread while it waits in the bus's receive.  CPython 3.11's
+    ``queue.SimpleQueue.get(timeout=...)`` (``pipeline.transport.Bus.recv``) can go on waiting
+    forever once a signal handler has run during its wait: only the next message wakes it, and
+    after a SIGTERM the other stages are stopping too, so the stage never flushed its files and
+    was killed after ``supervisor.stop_timeout_s`` (the sink's ``sink.json`` then missing:
+    tests/pipeline/test_stage_signals.py reproduces the hang and checks the cure).  The Python
+    handlers stay installed for the threads started before (numpy's BLAS threads), to which the
+    kernel may still deliver a signal; they do the same.  :meth:`restore` puts the earlier mask
+    back."""
+
+    def __init__(self, name: str, stop: threading.Event) -> None:
+        self.name, self.stop = name, stop
+        self.done = threading.Event()
+        self.old_handlers = {sig: signal.signal(sig, self.on_signal) for sig in _STOP_SIGNALS}
+        self.old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        self.thread = threading.Thread(target=self._take, name="stop-signals", daemon=True)
+        self.thread.start()  # it inherits the blocked mask, as sigtimedwait requires
+
+    def on_signal(self, signum: int, _frame: Any = None) -> None:
+        if self.stop.is_set():
+            os._exit(EXIT_STOPPED)
+        log.info("%s: %s: stopping (flushing files)", self.name, signal.Signals(signum).name)
+        self.stop.set()
+
+    def _take(self) -> None:
+        # the timeout only bounds how long this thread outlives restore(); a signal is taken at once
+        while not self.done.is_set():
+            info = signal.sigtimedwait(_STOP_SIGNALS, 0.5)
+            # CPython 3.11 returns an unset siginfo (not None) when a signal of another
+            # thread's handler interrupted the wait just before its timeout: check the number
+            if info is not None and info.si_signo in _STOP_SIGNALS:
+                self.on_signal(info.si_signo)
+
+    def restore(self, handlers: bool = False) -> None:
+        """Unblock the signals in the main thread again; with ``handlers`` put the earlier
+        handlers back too (else they stay: a signal after a stage has returned still exits at
+        once).  The thread ends within its 0.5 s timeout; until then it may still take one."""
+        self.done.set()
+        signal.pthread_sigmask(signal.SIG_SETMASK, self.old_mask)
+        if handlers:
+            for sig, old in self.old_handlers.items():
+                signal.signal(sig, old)
+
+
+def stop_on_signals(name: str, stop: threading.Event) -> StopSignals:
+    """SIGINT / SIGTERM set ``stop``; a second one exits at once (:class:`StopSignals`)."""
+    return StopSignals(name, stop)

@@ -13,7 +13,11 @@ Subcommands are thin: they parse options, call the library and print a summary.
 
 from __future__ import annotations
 
+import atexit
 import importlib
+import os
+import sys
+import threading
 from collections.abc import Iterator, MutableMapping
 from gettext import gettext as _
 from typing import Any
@@ -75,9 +79,52 @@ class _LazyCommands(MutableMapping):
         return len(set(COMMANDS) | set(self._loaded))
 
 
+#: Commands whose process, run as ``bnptrack`` / ``python -m bnptrack``, ends with
+#: :func:`exit_now` once the command is done (files closed, exit handlers run): the
+#: interpreter's teardown of what they loaded (numba and LLVM, scipy, Zenoh, Rerun) cost
+#: ``track`` about 0.2 s of CPU, and a pipeline stage 0.4-1.6 s between its last log line and
+#: its exit under load (docs/performance.md, start-up).
+FAST_EXIT = frozenset({"track", "launch", "replay", "stage"})
+
+
+def exit_now(code: object) -> None:
+    """End the process as the interpreter would at exit with ``code`` (``SystemExit``'s
+    rules), less the teardown of the modules: wait for the non-daemon threads, run the
+    ``atexit`` handlers (logging's flush, Rerun's), flush stdout and stderr, ``os._exit``."""
+    for t in threading.enumerate():
+        if t is not threading.main_thread() and not t.daemon:
+            t.join()
+    if code is not None and not isinstance(code, int):
+        print(code, file=sys.stderr)
+        code = 1
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe: nothing more can be said
+            pass
+    os._exit(code or 0)
+
+
+def _command_name(argv: list[str]) -> str:
+    """The command of a ``bnptrack`` command line (its first word that is no option)."""
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
 class _LazyGroup(click.Group):
     """A group whose listing (``bnptrack --help``) uses :data:`COMMANDS`' help paragraphs, so
-    that it imports no command module; every other use loads the command itself."""
+    that it imports no command module; every other use loads the command itself.  Run as the
+    process's command line (no ``args`` given: not a test's ``CliRunner``), a command of
+    :data:`FAST_EXIT` ends the process with :func:`exit_now`."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:
+        if args is not None or not standalone_mode or _command_name(sys.argv[1:]) not in FAST_EXIT:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        except SystemExit as exc:
+            exit_now(exc.code)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         names = self.list_commands(ctx)

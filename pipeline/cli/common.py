@@ -19,8 +19,6 @@ from typing import Any
 import click
 
 from bnptrack.tracker.messages import CodecError
-from bnptrack.pipeline.view import ViewerUnavailable
-from bnptrack.sinks.rerun_process import RecordingError
 from bnptrack.sources.mcap_log import McapLogError
 from bnptrack.tracker.config import ConfigError
 
@@ -63,7 +61,13 @@ class IncompleteError(CliError):
     exit_code = EXIT_INCOMPLETE
 
 
-_EXPECTED = (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError, ViewerUnavailable)
+def _expected() -> tuple[type[Exception], ...]:
+    """The failures a command reports on one line.  The viewer's and the recording's errors
+    are imported here, at a failure: most commands never load those modules."""
+    from bnptrack.pipeline.view import ViewerUnavailable
+    from bnptrack.sinks.rerun_process import RecordingError
+
+    return (ConfigError, CodecError, McapLogError, OSError, ValueError, RecordingError, ViewerUnavailable)
 
 
 def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -79,8 +83,8 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
             raise SystemExit(141) from None
-        except _EXPECTED as exc:
-            if os.environ.get("BNPTRACK_DEBUG"):
+        except Exception as exc:
+            if not isinstance(exc, _expected()) or os.environ.get("BNPTRACK_DEBUG"):
                 raise
             raise CliError(_describe(exc)) from exc
 

@@ -35,21 +35,24 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
     Example:
       bnptrack monitor --run r1 --connect tcp/127.0.0.1:7447
     """
-    import signal as _signal
     import threading as _threading
 
     import msgspec as _ms
 
     from bnptrack.pipeline.launch import stage_config
     from bnptrack.pipeline.config import load_pipeline
+    from bnptrack.pipeline.supervisor import stop_on_signals
 
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=None, connect=connect,
                        listen=(), mode=None)
     cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(cfg.zenoh, connect_timeout_s=connect_timeout))
     stop = _threading.Event()
-    for sig in (_signal.SIGINT, _signal.SIGTERM):
-        _signal.signal(sig, lambda *_: stop.set())
-    watch(cfg, stop, duration)
+    # taken off the main thread, which waits in the bus's receive (pipeline.supervisor.StopSignals)
+    signals = stop_on_signals("monitor", stop)
+    try:
+        watch(cfg, stop, duration)
+    finally:
+        signals.restore(handlers=True)
 
 
 def watch(cfg: Any, stop: Any, duration: float | None) -> None:

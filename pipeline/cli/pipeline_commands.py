@@ -26,7 +26,6 @@ from bnptrack.pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
-from bnptrack.pipeline.offline import OSPA_C, OSPA_P
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.resolve import TRACKERS
 
@@ -77,6 +76,8 @@ def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
     and the cardinality error over the frames with truth, and the tracks."""
     if not scores:
         return []
+    from bnptrack.pipeline.offline import OSPA_C, OSPA_P  # here: each stage process imports this module
+
     rows = []
     if scores.get("ospa") is not None:
         rows += [
