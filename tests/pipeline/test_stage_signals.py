@@ -5,8 +5,9 @@ The cause of a flaky ``test_sigint_stops_every_stage_and_flushes_files``: CPytho
 signal handler has run in the thread waiting in it; only the next message wakes it.  After a
 SIGTERM the other stages stop too, so the sink never got that message, never wrote
 ``sink.json`` and was killed by the launcher after ``supervisor.stop_timeout_s``.  Reproduced
-with a storm of signals (:data:`_HANG`; 3.11.7 hangs within a few calls, the test below shows
-it with the stage's own loop), cured by never letting the signals reach the main thread: they
+with a storm of signals (:data:`_HANG`, the stages' old way; 3.11.7 hung within a few calls.
+That reproduction is kept as a snippet, not as a test: it asserts the interpreter's bug, not
+this project's code, and would fail on a Python that fixes it), cured by never letting the signals reach the main thread: they
 are blocked there and taken by a thread with ``sigtimedwait``.
 
 Each case runs in a child process (signal masks and handlers are per process); the children
@@ -133,34 +134,6 @@ def test_restore_unblocks_the_signals_and_puts_handlers_back_when_asked():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=bnptrack_env(), capture_output=True,
                          text=True, timeout=60)
     assert out.stdout.split() == ["False", "True", "True", "True", "True"], out.stderr
-
-
-def test_signals_handled_in_the_waiting_main_thread_hang_simplequeue_get():
-    """The premise (CPython 3.11.7 here): with the handlers run by the main thread in its
-    wait (:data:`_HANG`, the stages' old way), a storm of signals leaves
-    ``SimpleQueue.get(timeout=0.05)`` waiting past its timeout: a SIGTERM after the storm sets
-    ``stop``, yet the loop has not ended 5 s later.  The storm thread then puts a message,
-    which ends the wait (and the child)."""
-    storm = textwrap.dedent("""
-        import time
-        ended = threading.Event()
-        def storm():
-            for _ in range(3000):
-                if ended.is_set():
-                    return
-                os.kill(os.getpid(), signal.SIGUSR1)
-                time.sleep(0.002)
-            os.kill(os.getpid(), signal.SIGTERM)
-            if not ended.wait(5):
-                print("still waiting 5 s after stop was set", flush=True)
-                q.put(None)
-        threading.Thread(target=storm).start()
-    """)
-    code = textwrap.dedent(_LOOP).replace("{setup}", textwrap.dedent(_HANG)).replace("{after}", "ended.set()")
-    code = code.replace("q = queue.SimpleQueue()\n", "q = queue.SimpleQueue()\n" + storm)
-    out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=bnptrack_env({"OPENBLAS_NUM_THREADS": "1"}),
-                         capture_output=True, text=True, timeout=120)
-    assert "still waiting 5 s after stop was set" in out.stdout, out.stdout + out.stderr
 
 
 def test_the_stop_signals_thread_keeps_the_same_storm_from_hanging_the_loop():
