@@ -26,35 +26,68 @@ from bnptrack.tracker._numerics import jit
 
 
 def np_sum(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cover - compiled
-    """``np.sum(a[lo:lo + n])`` in numpy's order (``pairwise_sum``): a plain loop below 8
-    terms, eight interleaved partial sums up to 128 terms, halves (at a multiple of 8) above."""
+    """``np.sum(a[lo:lo + n])`` in numpy's order (``pairwise_sum``): blocks of at most 128
+    terms (:func:`_pairwise_block`), and above 128 the sum of the two halves, split at a
+    multiple of 8.  The halving runs on an explicit stack, not by recursion: a cached kernel
+    that calls a recursive one crashes when it is loaded from numba's cache."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    f_lo = np.empty(64, dtype=np.int64)  # depth <= log2(n / 128) + 1
+    f_n = np.empty(64, dtype=np.int64)
+    f_left = np.empty(64)
+    f_right = np.zeros(64, dtype=np.bool_)  # the left half is summed; its right half is on top
+    depth, f_lo[0], f_n[0] = 0, lo, n
+    while True:
+        cl, cn = f_lo[depth], f_n[depth]
+        if cn > 128:  # descend into the left half
+            n2 = cn // 2
+            n2 -= n2 % 8
+            depth += 1
+            f_lo[depth], f_n[depth], f_right[depth] = cl, n2, False
+            continue
+        ret = _pairwise_block(a, cl, cn)
+        while True:  # hand the finished sum to the parents
+            if depth == 0:
+                return ret
+            is_right = f_right[depth]
+            depth -= 1
+            if not is_right:
+                f_left[depth] = ret
+                pl, pn = f_lo[depth], f_n[depth]
+                n2 = pn // 2
+                n2 -= n2 % 8
+                depth += 1
+                f_lo[depth], f_n[depth], f_right[depth] = pl + n2, pn - n2, True
+                break
+            ret = f_left[depth] + ret
+
+
+def _pairwise_block(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cover - compiled
+    """numpy's ``pairwise_sum`` of at most 128 terms: a plain loop below 8 terms, else eight
+    interleaved partial sums, combined pairwise, then the remainder."""
     if n < 8:
         res = 0.0
         for i in range(lo, lo + n):
             res += a[i]
         return res
-    if n <= 128:
-        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[lo + i]
-            r1 += a[lo + i + 1]
-            r2 += a[lo + i + 2]
-            r3 += a[lo + i + 3]
-            r4 += a[lo + i + 4]
-            r5 += a[lo + i + 5]
-            r6 += a[lo + i + 6]
-            r7 += a[lo + i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[lo + i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return np_sum(a, lo, n2) + np_sum(a, lo + n2, n - n2)
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
 
 
 # -- duplicate merging (tracker.bnp.clusters) ----------------------------------------------------
@@ -189,6 +222,7 @@ def divide(a, b):  # pragma: no cover - compiled
     return np.inf if (a > 0.0) == (np.copysign(1.0, b) > 0.0) else -np.inf
 
 
+_pairwise_block = jit(_pairwise_block)
 np_sum = jit(np_sum)
 divide = jit(divide, inline=True)
 merge_candidates = jit(merge_candidates)
