@@ -222,9 +222,228 @@ def divide(a, b):  # pragma: no cover - compiled
     return np.inf if (a > 0.0) == (np.copysign(1.0, b) > 0.0) else -np.inf
 
 
+# -- the existing clusters' update (tracker.bnp.filter, tracker.bnp.assignment) -----------------
+
+def npmax(a, b):  # pragma: no cover - compiled
+    """``np.maximum`` of two floats: nan if either is."""
+    return a if a >= b or a != a else b
+
+
+def clip01(x):  # pragma: no cover - compiled
+    """``np.clip(x, 0.0, 1.0)`` of a float (nan stays nan)."""
+    if x < 0.0:
+        return 0.0
+    return 1.0 if x > 1.0 else x
+
+
+def existence_update(ptr, idx, p_pairs, N, pd, q, pop, rho, eps):  # pragma: no cover - compiled
+    """The start of ``BnpTracker._update_existing``: the sampler's pairs sorted by cluster then
+    measurement (``ti``, ``mi``, ``p``), each cluster's detection probability (``bincount``,
+    clipped), the missed-detection weight ``w_miss``, the existence ``r`` and the decayed
+    popularity."""
+    M = ptr.shape[0] - 1
+    nnz = idx.shape[0]
+    first = np.zeros(N + 1, dtype=np.int64)
+    for j in range(nnz):
+        first[idx[j] + 1] += 1
+    for l in range(N):
+        first[l + 1] += first[l]
+    ti, mi, p = np.empty(nnz, dtype=np.int64), np.empty(nnz, dtype=np.int64), np.empty(nnz)
+    for m in range(M):
+        for j in range(ptr[m], ptr[m + 1]):
+            k = first[idx[j]]
+            ti[k], mi[k], p[k] = idx[j], m, p_pairs[j]
+            first[idx[j]] += 1
+    p_det = np.zeros(N)
+    for k in range(nnz):
+        p_det[ti[k]] += p[k]
+    w_miss, r, pop_new = np.empty(N), np.empty(N), np.empty(N)
+    for l in range(N):
+        p_det[l] = clip01(p_det[l])
+        miss_alive = q[l] * (1.0 - pd[l])
+        eps_alive = miss_alive / npmax(miss_alive + 1.0 - q[l], eps)
+        w_miss[l] = (1.0 - p_det[l]) * eps_alive
+        r[l] = clip01(p_det[l] + w_miss[l])
+        n_expected = p_det[l] / npmax(r[l], eps)
+        pop_new[l] = npmax(rho * pop[l] + (1.0 - rho) * n_expected, 1.0)
+    return ti, mi, p, w_miss, r, pop_new
+
+
+def jpda_select(n, ti, mi, p, small_limit):  # pragma: no cover - compiled
+    """The start of :func:`tracker.bnp.assignment.best_permutation_pairs`: the live pairs
+    (``p > 0`` of a cluster whose summed ``p`` is above 1e-9), each live cluster (ascending)
+    with its most likely measurement (the lowest on a tie) and summed ``p``; whether two
+    clusters prefer one measurement; whether the assignment is small (clusters x
+    measurements <= ``small_limit``: one block); and the arguments of its ``log``
+    (``[p of the live pairs, max(1 - p_det, 1e-300) per live cluster]``)."""
+    p_det = np.zeros(n)
+    for k in range(ti.shape[0]):
+        p_det[ti[k]] += p[k]
+    best_p = np.full(n, -1.0)
+    best_m = np.zeros(n, dtype=np.int64)
+    keep = np.zeros(ti.shape[0], dtype=np.bool_)
+    m_max = -1
+    for k in range(ti.shape[0]):
+        t = ti[k]
+        if p[k] > 0.0 and p_det[t] > 1e-9:
+            keep[k] = True
+            m_max = max(m_max, mi[k])
+            if p[k] > best_p[t] or (p[k] == best_p[t] and mi[k] < best_m[t]):
+                best_p[t], best_m[t] = p[k], mi[k]
+    lt, lm, lp = ti[keep], mi[keep], p[keep]
+    clusters = np.flatnonzero(best_p >= 0.0)
+    choice = best_m[clusters]
+    seen = np.zeros(m_max + 1, dtype=np.bool_)
+    conflict = False
+    for c in choice:
+        conflict = conflict or seen[c]
+        seen[c] = True
+    args = np.empty(lp.shape[0] + clusters.shape[0])
+    args[:lp.shape[0]] = lp
+    for i in range(clusters.shape[0]):
+        args[lp.shape[0] + i] = npmax(1.0 - p_det[clusters[i]], 1e-300)
+    small = clusters.shape[0] * (m_max + 1) <= small_limit
+    return clusters, choice, p_det, lt, lm, lp, conflict, small, args
+
+
+def jpda_solve(logs, clusters, choice, lt, lm, forbidden):  # pragma: no cover - compiled
+    """The JPDA* assignment of every live cluster in one block (``assignment._solve_block``):
+    cost ``min(-log p, forbidden)`` per live pair, ``-log(1 - p_det)`` on each cluster's
+    private "missed" column; a cluster the optimum leaves missed keeps ``choice``.  ``logs``:
+    numpy's ``log`` of :func:`jpda_select`'s ``args``.  Returns the new ``choice``."""
+    L = clusters.shape[0]
+    cols = np.unique(lm)
+    C = cols.shape[0]
+    cost = np.full((L, C + L), forbidden)
+    for k in range(lt.shape[0]):
+        row = np.searchsorted(clusters, lt[k])
+        col = np.searchsorted(cols, lm[k])
+        cost[row, col] = min(-logs[k], forbidden)
+    for i in range(L):
+        cost[i, C + i] = -logs[lt.shape[0] + i]
+    out = choice.copy()
+    col4row = lsap(cost)
+    for i in range(L):
+        if col4row[i] < C:
+            out[i] = cols[col4row[i]]
+    return out
+
+
+def lsap(cost):  # pragma: no cover - compiled
+    """Minimum-cost assignment of every row of ``cost`` (rows <= columns, finite): the shortest
+    augmenting path algorithm (Crouse 2016) as ``scipy.optimize.linear_sum_assignment``
+    implements it, ties included.  Returns each row's column (-1 if infeasible)."""
+    nr, nc = cost.shape
+    u, v, spc = np.zeros(nr), np.zeros(nc), np.empty(nc)
+    path = np.full(nc, -1, dtype=np.int64)
+    col4row = np.full(nr, -1, dtype=np.int64)
+    row4col = np.full(nc, -1, dtype=np.int64)
+    SR, SC = np.empty(nr, dtype=np.bool_), np.empty(nc, dtype=np.bool_)
+    remaining = np.empty(nc, dtype=np.int64)
+    for cur in range(nr):
+        min_val, i, n_rem, sink = 0.0, cur, nc, -1
+        for it in range(nc):
+            remaining[it] = nc - it - 1
+        SR[:] = False
+        SC[:] = False
+        spc[:] = np.inf
+        while sink == -1:
+            index, lowest = -1, np.inf
+            SR[i] = True
+            for it in range(n_rem):
+                j = remaining[it]
+                r = min_val + cost[i, j] - u[i] - v[j]
+                if r < spc[j]:
+                    path[j] = i
+                    spc[j] = r
+                if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
+                    lowest = spc[j]
+                    index = it
+            min_val = lowest
+            if min_val == np.inf:
+                return np.full(nr, -1, dtype=np.int64)
+            j = remaining[index]
+            if row4col[j] == -1:
+                sink = j
+            else:
+                i = row4col[j]
+            SC[j] = True
+            n_rem -= 1
+            remaining[index] = remaining[n_rem]
+        u[cur] += min_val
+        for i in range(nr):
+            if SR[i] and i != cur:
+                u[i] += min_val - spc[col4row[i]]
+        for j in range(nc):
+            if SC[j]:
+                v[j] -= min_val - spc[j]
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            tmp = col4row[i]
+            col4row[i] = j
+            j = tmp
+            if i == cur:
+                break
+    return col4row
+
+
+def moment_match(w_miss, r, ti, p, m_pred, P_pred, mu, P_upd, eps):  # pragma: no cover - compiled
+    """``filter._moment_match`` in the numpy code's order: each cluster's Gaussian over
+    "missed" (weight ``w_miss / r``) and its pairs ``ti`` (weight ``p / r``, updated means
+    ``mu``, covariance ``P_upd``; ``np.add.at`` in pair order), then symmetrised."""
+    N, d = m_pred.shape
+    inv_r = np.empty(N)
+    mean = np.empty((N, d))
+    for l in range(N):
+        inv_r[l] = 1.0 / npmax(r[l], eps)
+        w0 = w_miss[l] * inv_r[l]
+        for a in range(d):
+            mean[l, a] = w0 * m_pred[l, a]
+    L = ti.shape[0]
+    wp = np.empty(L)
+    for k in range(L):
+        wp[k] = p[k] * inv_r[ti[k]]
+        for a in range(d):
+            mean[ti[k], a] += wp[k] * mu[k, a]
+    cov = np.empty((N, d, d))
+    dev = np.empty(d)
+    w_det = np.zeros(N)
+    for k in range(L):
+        w_det[ti[k]] += wp[k]
+    for l in range(N):
+        w0 = w_miss[l] * inv_r[l]
+        for a in range(d):
+            dev[a] = m_pred[l, a] - mean[l, a]
+        for a in range(d):
+            for b in range(d):
+                cov[l, a, b] = w0 * (P_pred[l, a, b] + dev[a] * dev[b]) + w_det[l] * P_upd[l, a, b]
+    for k in range(L):
+        l = ti[k]
+        for a in range(d):
+            dev[a] = mu[k, a] - mean[l, a]
+        for a in range(d):
+            for b in range(d):
+                cov[l, a, b] += wp[k] * dev[a] * dev[b]
+    out = np.empty((N, d, d))
+    for l in range(N):
+        for a in range(d):
+            for b in range(d):
+                out[l, a, b] = 0.5 * (cov[l, a, b] + cov[l, b, a])
+    return mean, out
+
+
 _pairwise_block = jit(_pairwise_block)
 np_sum = jit(np_sum)
 divide = jit(divide, inline=True)
 merge_candidates = jit(merge_candidates)
 merge_groups = jit(merge_groups)
 merge_moments = jit(merge_moments)
+npmax = jit(npmax, inline=True)
+clip01 = jit(clip01, inline=True)
+existence_update = jit(existence_update)
+jpda_select = jit(jpda_select)
+jpda_solve = jit(jpda_solve)
+lsap = jit(lsap)
+moment_match = jit(moment_match)

@@ -11,6 +11,7 @@ from functools import cached_property
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
+from bnptrack.tracker.bnp import _kernels as _k
 from bnptrack.tracker.bnp.assignment import best_permutation_pairs
 from bnptrack.tracker.bnp.base_measure import BaseDistribution
 from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
@@ -185,21 +186,13 @@ class BnpTracker:
         N = state.n_clusters
         if N == 0:
             return _Clusters.empty()
-        ti, mi, p = _pairs_by_cluster(result)
-        p_det = np.clip(np.bincount(ti, weights=p, minlength=N), 0.0, 1.0)
-        pd = pred.p_detect
-        q = pred.q
-        miss_alive = q * (1.0 - pd)
-        eps_alive = miss_alive / np.maximum(miss_alive + 1.0 - q, _EPS)
-        w_miss = (1.0 - p_det) * eps_alive
-        r = np.clip(p_det + w_miss, 0.0, 1.0)
+        pr = result.pairs
+        ti, mi, p, w_miss, r, pop = _k.existence_update(pr.ptr, pr.idx, result.p_pairs, N, pred.p_detect, pred.q,
+                                                        state.popularity, float(self.config.popularity_decay), _EPS)
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p.size:
             ti, mi, p = best_permutation_pairs(N, ti, mi, p)
         mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r)
-        n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
-        rho = self.config.popularity_decay
-        pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
         return _Clusters(state.labels, mean, cov, r, pop)
 
     def _prune_floor(self, alpha: float, clutter) -> float:
@@ -320,14 +313,6 @@ def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int
     return p_ex, lab, p_sum
 
 
-def _pairs_by_cluster(result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sampler's gated pairs and ``Pr(c_m = l)``, sorted by cluster then measurement."""
-    pr = result.pairs
-    mt = pr.rows
-    order = np.lexsort((mt, pr.idx))
-    return pr.idx[order], mt[order], result.p_pairs[order]
-
-
 _capped_warned: list[bool] = []
 
 
@@ -345,21 +330,10 @@ def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndar
     measurement), computed only for the pairs that carry
     weight: a pair the sampler never used (gated out, or a non-finite measurement) never
     enters the arithmetic, so no ``0 * NaN`` can reach a state."""
-    inv_r = 1.0 / np.maximum(r, _EPS)
-    w0 = w_miss * inv_r  # (N,)
     carry = p > 0.0
-    ti, mi = ti[carry], mi[carry]
-    wp = p[carry] * inv_r[ti]  # (L,)
+    ti, mi, p = ti[carry], mi[carry], p[carry]
     mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
-    mean = w0[:, None] * pred.mean
-    np.add.at(mean, ti, wp[:, None] * mu)
-    dev0 = pred.mean - mean
-    dev = mu - mean[ti]
-    cov = w0[:, None, None] * (pred.cov + dev0[:, :, None] * dev0[:, None, :])
-    w_det = np.bincount(ti, weights=wp, minlength=len(r))
-    cov += w_det[:, None, None] * innov.P_upd
-    np.add.at(cov, ti, wp[:, None, None] * dev[:, :, None] * dev[:, None, :])
-    return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    return _k.moment_match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
 
 
 def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:
