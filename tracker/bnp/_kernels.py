@@ -434,6 +434,84 @@ def moment_match(w_miss, r, ti, p, m_pred, P_pred, mu, P_upd, eps):  # pragma: n
     return mean, out
 
 
+# -- births (tracker.bnp.base_measure) and the cardinality pmf (tracker.cardinality) ------------
+
+def birth_moments(w, mu_b, P_upd, pos, pcov, var_v, var_turn):  # pragma: no cover - compiled
+    """``BaseDistribution.posterior``'s moment match of each measurement's mixture: components
+    ``b < B`` (updated means ``mu_b[b, m]``, covariance ``P_upd[b]``) and the uniform part (last
+    row of ``w``: position ``pos[m]`` with covariance ``pcov[m]``, velocity variance ``var_v``
+    per axis, turn-rate variance ``var_turn``), with weights ``w (B + 1, M)`` summed over ``b``
+    in order as ``np.einsum`` does; ``w`` with no rows: the uniform part alone."""
+    B, M = mu_b.shape[0], pos.shape[0]
+    mean_u = np.zeros((M, 5))
+    cov_u = np.zeros((M, 5, 5))
+    for m in range(M):
+        mean_u[m, 0], mean_u[m, 2] = pos[m, 0], pos[m, 1]
+        cov_u[m, 0, 0], cov_u[m, 0, 2] = pcov[m, 0, 0], pcov[m, 0, 1]
+        cov_u[m, 2, 0], cov_u[m, 2, 2] = pcov[m, 1, 0], pcov[m, 1, 1]
+        cov_u[m, 1, 1] = var_v
+        cov_u[m, 3, 3] = var_v
+        cov_u[m, 4, 4] = var_turn
+    if w.shape[0] == 0:
+        return mean_u, cov_u
+    mean = np.zeros((M, 5))
+    for b in range(B + 1):
+        for m in range(M):
+            for i in range(5):
+                mean[m, i] += w[b, m] * (mu_b[b, m, i] if b < B else mean_u[m, i])
+    cov_w = np.zeros((M, 5, 5))
+    cov_d = np.zeros((M, 5, 5))
+    dev = np.empty(5)
+    for b in range(B + 1):
+        for m in range(M):
+            for i in range(5):
+                dev[i] = (mu_b[b, m, i] if b < B else mean_u[m, i]) - mean[m, i]
+            for i in range(5):
+                for j in range(5):
+                    cov_w[m, i, j] += w[b, m] * (P_upd[b, i, j] if b < B else cov_u[m, i, j])
+                    cov_d[m, i, j] += w[b, m] * dev[i] * dev[j]
+    out = np.empty((M, 5, 5))
+    for m in range(M):
+        for i in range(5):
+            for j in range(5):
+                out[m, i, j] = 0.5 * ((cov_w[m, i, j] + cov_d[m, i, j]) + (cov_w[m, j, i] + cov_d[m, j, i]))
+    return mean, out
+
+
+def cardinality_pmf(r, tail):  # pragma: no cover - compiled
+    """``truncate_tail(poisson_binomial(r), tail)`` of :mod:`tracker.cardinality`, the same
+    arithmetic (the recursion in the linear domain, the sure objects counted; the upper tails
+    summed from the end).  ``ok`` is False when an ``r`` is not finite (no pmf then)."""
+    n_sure, n_mid = 0, 0
+    mid = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        x = clip01(r[i])
+        if not np.isfinite(x):
+            return np.zeros(0), False
+        if x >= 1.0:
+            n_sure += 1
+        elif x > 0.0:
+            mid[n_mid] = x
+            n_mid += 1
+    p = np.zeros(n_sure + n_mid + 1)
+    q = p[n_sure:]
+    q[0] = 1.0
+    for i in range(n_mid):
+        ri = mid[i]
+        for j in range(i + 1, 0, -1):
+            q[j] = (1.0 - ri) * q[j] + ri * q[j - 1]
+        q[0] *= 1.0 - ri
+    if p.shape[0] <= 1:
+        return p, True
+    keep, acc = 1, 0.0
+    for n in range(p.shape[0] - 1, 0, -1):  # acc = sum(p[n:]), the tail beyond n - 1
+        acc += p[n]
+        if acc >= tail:
+            keep = n + 1
+            break
+    return p[:keep].copy(), True
+
+
 _pairwise_block = jit(_pairwise_block)
 np_sum = jit(np_sum)
 divide = jit(divide, inline=True)
@@ -447,3 +525,5 @@ jpda_select = jit(jpda_select)
 jpda_solve = jit(jpda_solve)
 lsap = jit(lsap)
 moment_match = jit(moment_match)
+birth_moments = jit(birth_moments)
+cardinality_pmf = jit(cardinality_pmf)

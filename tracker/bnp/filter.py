@@ -18,7 +18,7 @@ from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
-from bnptrack.tracker.cardinality import existence_cardinality
+from bnptrack.tracker.cardinality import TAIL
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
 
@@ -113,12 +113,13 @@ class BnpTracker:
         clutter = self.params.clutter(frame.kind, sensor)
         pred = self._predict(state, dt, frame.kind, sensor)
         innov = self._innovation(meas, pred)
-        problem = self._problem(state, pred, innov, meas, clutter, frame.z)
+        log_w = self.base.log_weights(meas, clutter, frame.z)  # the base measure's terms, for the sampler and births
+        problem = self._problem(state, pred, innov, meas, clutter, frame.z, log_w)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
                            chains=self.config.chains)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         floor = self._prune_floor(state.alpha, clutter)
-        born = self._births(frame, meas, clutter, result, floor)
+        born = self._births(frame, meas, clutter, result, floor, log_w, problem.log_new)
         kept, capped = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
         alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame, dt)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
@@ -135,7 +136,7 @@ class BnpTracker:
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                                   est.assignment_prob, diagnostics, existence_cardinality(new_state.existence))
+                                   est.assignment_prob, diagnostics, _cardinality(new_state.existence))
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
@@ -154,7 +155,7 @@ class BnpTracker:
             return kf.ukf_innovation(meas, pred.mean, pred.cov)
         return kf.ekf_innovation(meas, pred.mean, pred.cov)
 
-    def _problem(self, state, pred, innov, meas, clutter, Z) -> GibbsProblem:
+    def _problem(self, state, pred, innov, meas, clutter, Z, log_w) -> GibbsProblem:
         cfg = self.config
         M = Z.shape[0]
         if len(pred.mean):  # gated pairs only (KD-tree), never the (N, M) matrix
@@ -173,7 +174,7 @@ class BnpTracker:
             log_lik=None,
             pairs=pairs,
             log_clutter=np.full(M, clutter.log_intensity),
-            log_new=self.base.log_predictive(meas, clutter, Z),
+            log_new=self.base.log_predictive(meas, clutter, Z, log_w),
             popularity=state.popularity,
             alpha=state.alpha,
             d=state.d,
@@ -201,14 +202,15 @@ class BnpTracker:
         p_birth = self.birth_probability(alpha, clutter)
         return min(cfg.prune_threshold, cfg.birth_prune_fraction * p_birth) if p_birth > 0 else cfg.prune_threshold
 
-    def _births(self, frame: Frame, meas, clutter, result, floor: float) -> "_Clusters":
+    def _births(self, frame: Frame, meas, clutter, result, floor: float, log_w, log_u) -> "_Clusters":
         """New clusters (case D3/P3): every measurement whose Rao-Blackwellised probability of
-        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut)."""
+        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut).
+        ``log_w``, ``log_u``: the frame's base-measure terms and predictive densities."""
         p_new = result.p_new
         idx = np.flatnonzero(p_new >= max(floor, 1e-300))
         if idx.size == 0:
             return _Clusters.empty()
-        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind)
+        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind, log_w[:, idx], log_u[idx])
         labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
         return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
 
@@ -286,6 +288,15 @@ class BnpTracker:
                 assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
                 probs.append(float(p_best[m]))
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _cardinality(existence: np.ndarray) -> np.ndarray:
+    """:func:`tracker.cardinality.existence_cardinality`, compiled
+    (:func:`tracker.bnp._kernels.cardinality_pmf`, the same numbers)."""
+    pmf, ok = _k.cardinality_pmf(np.asarray(existence, dtype=float), TAIL)
+    if not ok:
+        raise ValueError("poisson_binomial: existence probabilities must be finite")
+    return pmf
 
 
 def _born_between(c, lo: int, hi: int) -> float:
