@@ -81,7 +81,7 @@ class BaseDistribution:
         return np.vstack([np.log(self.weights)[:, None] + ll, uniform[None]])
 
     def log_predictive(self, meas, clutter, Z: np.ndarray, log_w: np.ndarray | None = None) -> np.ndarray:
-        """:math:`\log u_H(z_m)` for ``(M, d)`` measurements (``log_w``: their
+        r""":math:`\log u_H(z_m)` for ``(M, d)`` measurements (``log_w``: their
         :meth:`log_weights`, if already computed)."""
         log_w = self.log_weights(meas, clutter, Z) if log_w is None else log_w
         return log_w[0] if log_w.shape[0] == 1 else logsumexp(log_w, axis=0)
