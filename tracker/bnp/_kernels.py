@@ -512,6 +512,38 @@ def cardinality_pmf(r, tail):  # pragma: no cover - compiled
     return p[:keep].copy(), True
 
 
+# -- the estimate's assignments (tracker.bnp.filter) ---------------------------------------------
+
+def estimate_assignments(ptr, idx, p_pairs, rep, p_new, born_m):  # pragma: no cover - compiled
+    """Each measurement's reported assignment: its most probable reported transitioned cluster
+    (the lowest index on a tie) or its own reported newborn (``born_m``: the measurements whose
+    newborn is reported; the transitioned cluster wins a tie), unless "none of the reported"
+    (``1 - `` their summed probability, clipped) is at least as probable.  Returns per
+    measurement the choice (cluster index, -2 its newborn, -1 none) and its probability."""
+    M = ptr.shape[0] - 1
+    choice = np.full(M, -1, dtype=np.int64)
+    prob = np.empty(M)
+    born_p = np.zeros(M)
+    for m in born_m:
+        born_p[m] = p_new[m]
+    for m in range(M):
+        p_sum, p_ex, t_ex = 0.0, 0.0, -1
+        for j in range(ptr[m], ptr[m + 1]):
+            if rep[idx[j]]:
+                p_sum += p_pairs[j]
+                if t_ex < 0 or p_pairs[j] > p_ex:
+                    p_ex, t_ex = p_pairs[j], idx[j]
+        use_born = born_p[m] > p_ex
+        p_best = born_p[m] if use_born else p_ex
+        p_none = clip01(1.0 - (p_sum + born_p[m]))
+        if p_best <= p_none:
+            prob[m] = p_none
+        else:
+            choice[m] = -2 if use_born else t_ex
+            prob[m] = p_best
+    return choice, prob
+
+
 _pairwise_block = jit(_pairwise_block)
 np_sum = jit(np_sum)
 divide = jit(divide, inline=True)
@@ -527,3 +559,4 @@ lsap = jit(lsap)
 moment_match = jit(moment_match)
 birth_moments = jit(birth_moments)
 cardinality_pmf = jit(cardinality_pmf)
+estimate_assignments = jit(estimate_assignments)

@@ -265,28 +265,16 @@ class BnpTracker:
             TrackEstimate(lab, state.mean[i].copy(), state.cov[i].copy(), float(state.existence[i]))
             for i, lab in enumerate(state.labels) if lab in reported
         )
-        M = frame.n_measurements
         # options per measurement: reported transitioned clusters, and its own newborn if reported
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
-        p_ex, lab_ex, p_sum = _best_reported(result, ex_rep, existing.labels, M)
-        born_p = np.zeros(M)
-        born_lab = np.full(M, None, dtype=object)
-        for lab in born.labels:
-            if lab in reported:
-                m = int(lab.split(".")[1])
-                born_p[m], born_lab[m] = result.p_new[m], lab
-        use_born = born_p > p_ex  # on a tie the transitioned cluster wins
-        p_best = np.where(use_born, born_p, p_ex)
-        p_none = np.clip(1.0 - (p_sum + born_p), 0.0, 1.0)
-        assignments: list[str | None] = []
-        probs: list[float] = []
-        for m in range(M):
-            if p_best[m] <= p_none[m]:
-                assignments.append(None)
-                probs.append(float(p_none[m]))
-            else:
-                assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
-                probs.append(float(p_best[m]))
+        born_of = {int(lab.split(".")[1]): lab for lab in born.labels if lab in reported}
+        pr = result.pairs
+        choice, prob = _k.estimate_assignments(pr.ptr, pr.idx, result.p_pairs, ex_rep, result.p_new,
+                                               np.fromiter(born_of, dtype=np.int64, count=len(born_of)))
+        labels = existing.labels
+        assignments = [None if c == -1 else (born_of[m] if c == -2 else labels[c])
+                       for m, c in enumerate(choice.tolist())]
+        probs = prob.tolist()
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
 
 
@@ -303,25 +291,6 @@ def _born_between(c, lo: int, hi: int) -> float:
     """Expected objects born at frames ``lo < f <= hi`` (labels ``"<f>.<m>"``): with ``lo`` the
     lag before the previous processed frame, each frame is counted once however frames skip."""
     return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lo < int(lab.split(".")[0]) <= hi))
-
-
-def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per measurement: the largest ``Pr(c_m = l)`` over reported clusters ``l`` (the lowest
-    index on a tie), that cluster's label (None if none) and the sum over reported clusters."""
-    pr = result.pairs
-    mt = pr.rows
-    sel = rep[pr.idx] if pr.idx.size else np.zeros(0, dtype=bool)
-    t, m, p = pr.idx[sel], mt[sel], result.p_pairs[sel]
-    p_sum = np.bincount(m, weights=p, minlength=M)
-    p_ex = np.zeros(M)
-    lab = np.full(M, None, dtype=object)
-    if t.size:
-        order = np.lexsort((t, -p, m))
-        first = order[np.r_[True, np.diff(m[order]) != 0]]
-        p_ex[m[first]] = p[first]
-        lab[m[first]] = [labels[i] for i in t[first].tolist()]
-    return p_ex, lab, p_sum
 
 
 _capped_warned: list[bool] = []
