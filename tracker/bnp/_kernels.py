@@ -222,6 +222,53 @@ def divide(a, b):  # pragma: no cover - compiled
     return np.inf if (a > 0.0) == (np.copysign(1.0, b) > 0.0) else -np.inf
 
 
+# -- the sampler's inputs (tracker.bnp.filter._problem) ------------------------------------------
+
+def problem_log_args(p_detect, q_pred, pop, d, eps):  # pragma: no cover - compiled
+    """The arguments of the cluster weights' logs, ``[q, P_D, miss, v - d]`` (one vector for
+    numpy's ``log``), with ``P_D`` clipped to ``[0, 1 - 1e-9]``, ``q`` to ``[0, 1]`` and
+    ``miss = max(q (1 - P_D) + 1 - q, eps)``; and the clipped ``q``."""
+    N = q_pred.shape[0]
+    out = np.empty(4 * N)
+    q = np.empty(N)
+    for l in range(N):
+        pd = p_detect[l]
+        if pd < 0.0:
+            pd = 0.0
+        elif pd > 1.0 - 1e-9:
+            pd = 1.0 - 1e-9
+        q[l] = clip01(q_pred[l])
+        out[l] = q[l]
+        out[N + l] = pd
+        out[2 * N + l] = npmax(q[l] * (1.0 - pd) + 1.0 - q[l], eps)
+        out[3 * N + l] = pop[l] - d
+    return out, q
+
+
+def problem_pairs(logs, q, pop, ti, mi, log_lik, M):  # pragma: no cover - compiled
+    """The gated pairs' ``log_first = log q + log P_D - log miss + log(v - d) + log_lik`` (the
+    numpy code's order; ``logs`` the logs of :func:`problem_log_args`), those with a finite
+    one kept as CSR by measurement (``ptr``, ``idx``, ``log_first``, ``log_lik``); and the
+    urn mass ``sum(q v)`` and ``sum(q)`` in numpy's order."""
+    N = q.shape[0]
+    L = ti.shape[0]
+    keep = np.zeros(L, dtype=np.bool_)
+    lf = np.empty(L)
+    ptr = np.zeros(M + 1, dtype=np.int64)
+    for k in range(L):
+        l = ti[k]
+        lf[k] = (((logs[l] + logs[N + l]) - logs[2 * N + l]) + logs[3 * N + l]) + log_lik[k]
+        if np.isfinite(lf[k]):
+            keep[k] = True
+            ptr[mi[k] + 1] += 1
+    for m in range(M):
+        ptr[m + 1] += ptr[m]
+    qv = np.empty(N)
+    for l in range(N):
+        qv[l] = q[l] * pop[l]
+    return ptr, ti[keep], lf[keep], log_lik[keep], np_sum(qv, 0, N), np_sum(q, 0, N)
+
+
 # -- the existing clusters' update (tracker.bnp.filter, tracker.bnp.assignment) -----------------
 
 def npmax(a, b):  # pragma: no cover - compiled
@@ -560,3 +607,5 @@ moment_match = jit(moment_match)
 birth_moments = jit(birth_moments)
 cardinality_pmf = jit(cardinality_pmf)
 estimate_assignments = jit(estimate_assignments)
+problem_log_args = jit(problem_log_args)
+problem_pairs = jit(problem_pairs)

@@ -96,6 +96,18 @@ class BnpTracker:
     def d_grid(self) -> np.ndarray:
         return D_GRID if self.config.infer_d else np.array([self.config.d])
 
+    @cached_property
+    def _log_prior_alpha(self) -> np.ndarray:
+        """Log prior of alpha on its grid; the grid is log-spaced, so a cell's width is
+        proportional to alpha (Jacobian term log alpha)."""
+        cfg = self.config
+        return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+
+    @cached_property
+    def _log_prior_d(self) -> np.ndarray:
+        cfg = self.config
+        return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)
+
     def initial_state(self) -> BnpState:
         grid = np.zeros((self.alpha_grid.size, self.d_grid.size))
         return BnpState(alpha=self.config.alpha, d=self.config.d, hyper_loglik=grid)
@@ -162,23 +174,21 @@ class BnpTracker:
             ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
         else:
             ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        pd = np.clip(pred.p_detect, 0.0, 1.0 - 1e-9)
-        q = np.clip(pred.q, 0.0, 1.0)
-        miss = np.maximum(q * (1.0 - pd) + 1.0 - q, _EPS)
+        args, q = _k.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
         with np.errstate(divide="ignore"):
-            log_det = np.log(q) + np.log(pd) - np.log(miss) + np.log(state.popularity - state.d)
-        pairs = SparsePairs.from_pairs(len(pred.mean), M, ti, mi, log_det[ti] + log_lik, log_lik)
+            logs = np.log(args)  # log q, log P_D, log miss, log(v - d)
+        ptr, idx, lf, ll, mass, d_bar = _k.problem_pairs(logs, q, state.popularity, ti, mi, log_lik, M)
         return GibbsProblem(
-            mass=float(np.sum(q * state.popularity)),
+            mass=float(mass),
             log_first=None,
             log_lik=None,
-            pairs=pairs,
+            pairs=SparsePairs(len(pred.mean), ptr, idx, lf, ll),
             log_clutter=np.full(M, clutter.log_intensity),
             log_new=self.base.log_predictive(meas, clutter, Z, log_w),
             popularity=state.popularity,
             alpha=state.alpha,
             d=state.d,
-            d_bar=float(q.sum()),
+            d_bar=float(d_bar),
             extended=cfg.extended,
             urn_normaliser=cfg.urn_normaliser,
         )
@@ -247,11 +257,9 @@ class BnpTracker:
             seated_popularity=state.popularity, seated_counts=counts,
         )
         hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
-        # log-spaced alpha grid: cell width is proportional to alpha (Jacobian term log alpha)
-        log_prior_a = log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
-        log_post = hyper + log_prior_a[:, None]
+        log_post = hyper + self._log_prior_alpha[:, None]
         if cfg.infer_d:
-            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+            log_post = log_post + self._log_prior_d[None, :]
         if cfg.hyper_estimate == "sample":
             i, j = sample_grid(rng, log_post)
             return float(self.alpha_grid[i]), float(self.d_grid[j]), hyper
