@@ -307,12 +307,11 @@ def test_problem_pairs_equal_numpy():
     rng = np.random.default_rng(3)
     N, M = 7, 9
     pd, q, pop = rng.uniform(0.2, 1.0, N), np.r_[0.0, rng.uniform(0, 1.2, N - 1)], rng.uniform(1, 2, N)
-    args, qc = k.problem_log_args(pd, q, pop, 0.1, _EPS)
-    with np.errstate(divide="ignore"):
-        logs = np.log(args)
+    args, qc, zero = k.problem_log_args(pd, q, pop, 0.1, _EPS)
+    assert zero.tolist() == [True] + [False] * (4 * N - 1)  # q[0] = 0
     mi, ti = np.nonzero(rng.random((M, N)) < 0.4)
     ll = rng.normal(-5, 2, ti.size)
-    ptr, idx, lf, llk, mass, d_bar = k.problem_pairs(logs, qc, pop, ti, mi, ll, M)
+    ptr, idx, lf, llk, mass, d_bar = k.problem_pairs(np.log(args), zero, qc, pop, ti, mi, ll, M)
     pdc, qr = np.clip(pd, 0.0, 1.0 - 1e-9), np.clip(q, 0.0, 1.0)
     miss = np.maximum(qr * (1.0 - pdc) + 1.0 - qr, _EPS)
     with np.errstate(divide="ignore"):

@@ -227,7 +227,8 @@ def divide(a, b):  # pragma: no cover - compiled
 def problem_log_args(p_detect, q_pred, pop, d, eps):  # pragma: no cover - compiled
     """The arguments of the cluster weights' logs, ``[q, P_D, miss, v - d]`` (one vector for
     numpy's ``log``), with ``P_D`` clipped to ``[0, 1 - 1e-9]``, ``q`` to ``[0, 1]`` and
-    ``miss = max(q (1 - P_D) + 1 - q, eps)``; and the clipped ``q``."""
+    ``miss = max(q (1 - P_D) + 1 - q, eps)``; and the clipped ``q``.  A zero argument is
+    given as 1 and flagged in ``zero`` (its log is ``-inf``: no divide warning to silence)."""
     N = q_pred.shape[0]
     out = np.empty(4 * N)
     q = np.empty(N)
@@ -242,15 +243,19 @@ def problem_log_args(p_detect, q_pred, pop, d, eps):  # pragma: no cover - compi
         out[N + l] = pd
         out[2 * N + l] = npmax(q[l] * (1.0 - pd) + 1.0 - q[l], eps)
         out[3 * N + l] = pop[l] - d
-    return out, q
+    zero = out == 0.0
+    out[zero] = 1.0
+    return out, q, zero
 
 
-def problem_pairs(logs, q, pop, ti, mi, log_lik, M):  # pragma: no cover - compiled
+def problem_pairs(logs, zero, q, pop, ti, mi, log_lik, M):  # pragma: no cover - compiled
     """The gated pairs' ``log_first = log q + log P_D - log miss + log(v - d) + log_lik`` (the
     numpy code's order; ``logs`` the logs of :func:`problem_log_args`), those with a finite
     one kept as CSR by measurement (``ptr``, ``idx``, ``log_first``, ``log_lik``); and the
     urn mass ``sum(q v)`` and ``sum(q)`` in numpy's order."""
     N = q.shape[0]
+    logs = logs.copy()
+    logs[zero] = -np.inf
     L = ti.shape[0]
     keep = np.zeros(L, dtype=np.bool_)
     lf = np.empty(L)

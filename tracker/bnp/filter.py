@@ -174,10 +174,9 @@ class BnpTracker:
             ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
         else:
             ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        args, q = _k.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
-        with np.errstate(divide="ignore"):
-            logs = np.log(args)  # log q, log P_D, log miss, log(v - d)
-        ptr, idx, lf, ll, mass, d_bar = _k.problem_pairs(logs, q, state.popularity, ti, mi, log_lik, M)
+        args, q, zero = _k.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
+        logs = np.log(args)  # log q, log P_D, log miss, log(v - d) (-inf where zero)
+        ptr, idx, lf, ll, mass, d_bar = _k.problem_pairs(logs, zero, q, state.popularity, ti, mi, log_lik, M)
         return GibbsProblem(
             mass=float(mass),
             log_first=None,
@@ -267,12 +266,10 @@ class BnpTracker:
         return alpha, d, hyper
 
     def _estimate(self, state: BnpState, frame: Frame, existing, born, result, problem) -> Estimate:
-        thr = self.config.existence_threshold
-        reported = {lab for lab, r in zip(state.labels, state.existence) if r > thr}
-        tracks = tuple(
-            TrackEstimate(lab, state.mean[i].copy(), state.cov[i].copy(), float(state.existence[i]))
-            for i, lab in enumerate(state.labels) if lab in reported
-        )
+        shown = np.flatnonzero(state.existence > self.config.existence_threshold).tolist()
+        reported = {state.labels[i] for i in shown}
+        tracks = tuple(TrackEstimate(state.labels[i], state.mean[i].copy(), state.cov[i].copy(),
+                                     float(state.existence[i])) for i in shown)
         # options per measurement: reported transitioned clusters, and its own newborn if reported
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
         born_of = {int(lab.split(".")[1]): lab for lab in born.labels if lab in reported}

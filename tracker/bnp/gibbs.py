@@ -661,8 +661,7 @@ def run_gibbs(
     alpha, d, d_bar = float(problem.alpha), float(problem.d), float(problem.d_bar)
     ex, lg, starts, pair_a, pair_b = _setup_kernel(pr.ptr, pr.idx, pr.log_first, pr.log_lik, log_clutter, log_new,
                                                    N, ext, alpha, d, d_bar, alpha + problem.mass, bool(swaps))
-    with np.errstate(under="ignore"):
-        w = np.exp(ex)
+    w = np.exp(ex)  # underflow to 0 is numpy's default (ignored)
     nnz, n_lik = pr.idx.size, pr.idx.size if ext else 0
     w_lik = w[nnz:2 * nnz] if ext else np.zeros(nnz)
     u_all = rng.random(chains * sweeps * (M + pair_a.size))  # per chain: sites, then exchanges (one stream)
