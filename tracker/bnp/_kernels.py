@@ -94,34 +94,94 @@ def _pairwise_block(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cove
 
 def merge_candidates(mean, cov, r, max_d2, margin):  # pragma: no cover - compiled
     r"""Pairs ``i < j`` (in ``np.triu_indices`` order) whose existences sum to at most 1 and
-    whose position-velocity distance may be within ``max_d2``.
+    whose position-velocity distance :math:`\Delta^T (P_i + P_j)^{-1} \Delta` may be within
+    ``max_d2``, and which of them the exact test (``np.linalg.solve``) must still decide.
 
-    A pair is left out only when a lower bound of its squared Mahalanobis distance exceeds
-    ``max_d2 (1 + margin)``: :math:`\Delta^T S^{-1} \Delta \ge \lVert\Delta\rVert^2 / \lambda_{max}(S)
-    \ge \lVert\Delta\rVert^2 / \mathrm{tr}\, S` for a positive definite ``S`` (the summed
-    covariances); a pair with a non-finite or non-positive bound is kept.  The kept pairs go
-    to the exact test (``np.linalg.solve``), so the merge decisions are those of testing every
-    pair."""
+    A pair is left out when a lower bound of its distance exceeds ``max_d2 (1 + margin)``:
+    :math:`\Delta^T S^{-1} \Delta \ge \lVert\Delta\rVert^2 / \mathrm{tr}\, S` for a positive
+    definite ``S``.  Otherwise the distance is computed here (Cholesky) and decides the pair
+    when it lies farther from ``max_d2`` than a bound of the rounding error of either
+    computation (:math:`10^3 \epsilon \kappa^2`, :math:`\kappa \le \lVert S\rVert_F
+    \lVert L^{-1}\rVert_F^2` the condition number); a pair with a symmetric ``S`` that is
+    not positive definite, non-finite, or too close to call is flagged ``undecided``.  The
+    decisions are therefore those of testing every pair with ``np.linalg.solve``."""
     n = r.shape[0]
     out_i = np.empty(n * (n - 1) // 2, dtype=np.int64)
     out_j = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    undecided = np.empty(n * (n - 1) // 2, dtype=np.bool_)
+    S = np.empty((4, 4))
+    e = np.empty(4)
     k = 0
     for i in range(n):
         for j in range(i + 1, n):
             if not (r[i] + r[j] <= 1.0):
                 continue
-            dist = 0.0
-            tr = 0.0
+            dist, tr = 0.0, 0.0
             for a in range(4):
-                e = mean[i, a] - mean[j, a]
-                dist += e * e
+                e[a] = mean[i, a] - mean[j, a]
+                dist += e[a] * e[a]
                 tr += cov[i, a, a] + cov[j, a, a]
             if tr > 0.0 and dist == dist and tr < np.inf and dist > max_d2 * (1.0 + margin) * tr:
                 continue
-            out_i[k] = i
-            out_j[k] = j
+            for a in range(4):
+                for b in range(4):
+                    S[a, b] = cov[i, a, b] + cov[j, a, b]
+            d2 = cholesky_distance(S, e, max_d2)
+            if d2 == -1.0:
+                state = 2  # undecided
+            elif d2 <= max_d2:
+                state = 1  # near
+            else:
+                state = 0
+            if state == 0:
+                continue
+            out_i[k], out_j[k], undecided[k] = i, j, state == 2
             k += 1
-    return out_i[:k], out_j[:k]
+    return out_i[:k], out_j[:k], undecided[:k]
+
+
+def cholesky_distance(S, e, max_d2):  # pragma: no cover - compiled
+    """:math:`e^T S^{-1} e` of a 4 x 4 ``S`` by Cholesky, or -1 when that cannot decide the
+    comparison with ``max_d2`` as ``np.linalg.solve`` would (see :func:`merge_candidates`)."""
+    L = np.zeros((4, 4))
+    s_norm = 0.0
+    for a in range(4):
+        for b in range(4):
+            if S[a, b] != S[b, a] or not np.isfinite(S[a, b]):
+                return -1.0
+            s_norm += S[a, b] * S[a, b]
+    for a in range(4):
+        acc = S[a, a]
+        for c in range(a):
+            acc -= L[a, c] * L[a, c]
+        if not acc > 0.0:
+            return -1.0
+        L[a, a] = np.sqrt(acc)
+        for b in range(a + 1, 4):
+            acc = S[b, a]
+            for c in range(a):
+                acc -= L[b, c] * L[a, c]
+            L[b, a] = acc / L[a, a]
+    inv = np.zeros((4, 4))  # L^-1, lower triangular
+    inv_norm = 0.0
+    for col in range(4):
+        for a in range(col, 4):
+            acc = 1.0 if a == col else 0.0
+            for c in range(col, a):
+                acc -= L[a, c] * inv[c, col]
+            inv[a, col] = acc / L[a, a]
+            inv_norm += inv[a, col] * inv[a, col]
+    d2 = 0.0
+    for a in range(4):
+        y = 0.0
+        for c in range(a + 1):
+            y += inv[a, c] * e[c]
+        d2 += y * y
+    kappa = np.sqrt(s_norm) * inv_norm  # >= the 2-norm condition number of S
+    tol = 1e3 * 2.220446049250313e-16 * kappa * kappa + 1e-12
+    if not (d2 == d2 and tol < 0.5 and abs(d2 - max_d2) > tol * max(d2, max_d2)):
+        return -1.0
+    return d2
 
 
 def merge_groups(r, ii, jj):  # pragma: no cover - compiled
@@ -599,6 +659,7 @@ def estimate_assignments(ptr, idx, p_pairs, rep, p_new, born_m):  # pragma: no c
 _pairwise_block = jit(_pairwise_block)
 np_sum = jit(np_sum)
 divide = jit(divide, inline=True)
+cholesky_distance = jit(cholesky_distance)
 merge_candidates = jit(merge_candidates)
 merge_groups = jit(merge_groups)
 merge_moments = jit(merge_moments)

@@ -47,16 +47,18 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c
-    ii, jj = _merge_candidates(c, max_d2)
+    ii, jj, undecided = _merge_candidates(c, max_d2)
+    if undecided.any():  # the exact test for the pairs the compiled bound could not decide
+        u = np.flatnonzero(undecided)
+        diff = c.mean[ii[u]][:, _POS_VEL] - c.mean[jj[u]][:, _POS_VEL]
+        S = (c.cov[ii[u]] + c.cov[jj[u]])[:, _POS_VEL][:, :, _POS_VEL]
+        d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+        near = np.ones(ii.size, dtype=bool)
+        near[u] = d2 <= max_d2
+        ii, jj = ii[near], jj[near]
     if ii.size == 0:
         return c
-    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
-    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
-    d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    near = d2 <= max_d2
-    if not near.any():
-        return c
-    ptr, members = _k.merge_groups(c.existence, ii[near], jj[near])
+    ptr, members = _k.merge_groups(c.existence, ii, jj)
     return _apply_groups(c, ptr, members) if ptr.size > 1 else c
 
 
@@ -64,16 +66,17 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
 _BOUND_MARGIN = 1e-3
 
 
-def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
+def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pairs ``i < j`` whose existences sum to at most 1 and which may lie within ``max_d2``
-    (a superset of the near ones: :func:`tracker.bnp._kernels.merge_candidates` leaves a pair
-    out only when a lower bound of its distance is above ``max_d2``)."""
+    (every near pair; :func:`tracker.bnp._kernels.merge_candidates`), and which of them are
+    still ``undecided`` (the others are near); above 200 clusters the candidates of a KD-tree
+    (:func:`_near_pairs`), all undecided."""
     r = c.existence
     if len(c.labels) <= 200:
         return _k.merge_candidates(c.mean, c.cov, r, float(max_d2), _BOUND_MARGIN)
     ii, jj = _near_pairs(c, max_d2)
     both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
-    return ii[both], jj[both]
+    return ii[both], jj[both], np.ones(int(both.sum()), dtype=bool)
 
 
 def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
