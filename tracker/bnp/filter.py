@@ -167,8 +167,11 @@ class BnpTracker:
             return kf.ukf_innovation(meas, pred.mean, pred.cov)
         return kf.ekf_innovation(meas, pred.mean, pred.cov)
 
-    def _problem(self, state, pred, innov, meas, clutter, Z, log_w) -> GibbsProblem:
+    def _problem(self, state, pred, innov, meas, clutter, Z, log_w=None) -> GibbsProblem:
+        """The frame's sampler inputs; ``log_w``: the base measure's :meth:`log_weights` of
+        ``Z`` (computed here when not given)."""
         cfg = self.config
+        log_w = self.base.log_weights(meas, clutter, Z) if log_w is None else log_w
         M = Z.shape[0]
         if len(pred.mean):  # gated pairs only (KD-tree), never the (N, M) matrix
             ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
