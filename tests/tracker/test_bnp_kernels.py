@@ -159,6 +159,24 @@ def test_merge_duplicates_equals_the_numpy_reference(seed):
         _same(getattr(got, a), getattr(want, a))
 
 
+@pytest.mark.parametrize("n", [230, 40])
+def test_merge_duplicates_equals_the_reference_with_undecided_pairs(n):
+    """Above 200 clusters (KD-tree candidates, all decided by ``np.linalg.solve``) and with a
+    pair exactly at the threshold (left to ``np.linalg.solve`` by the kernel): the same merge."""
+    rng = np.random.default_rng(n)
+    c = _random_clusters(rng, n)
+    c.mean[1] = c.mean[0]
+    c.mean[1, 0] += 30.0
+    c.cov[:2] = np.diag([50.0, 50.0, 50.0, 50.0, 1e-4])
+    c.existence[:2] = 0.3, 0.4  # d^2 = 30^2 / 100 = 9: at the threshold
+    if n <= 200:
+        assert k.merge_pass(c.mean, c.cov, c.existence, 9.0, 1e-3)[-1] is False
+    got, want = merge_duplicates(c, 9.0), _merge_reference(c, 9.0)
+    assert got.labels == want.labels and len(got.labels) < n
+    for a in ("mean", "cov", "existence", "popularity"):
+        _same(getattr(got, a), getattr(want, a))
+
+
 def test_merge_candidates_decide_as_the_exact_test():
     """Every pair within the distance is a candidate; the candidates decided here (Cholesky,
     away from the threshold) are exactly near; only a few are left to ``np.linalg.solve``."""

@@ -273,6 +273,23 @@ def merge_moments(mean0, cov0, r, ptr, members):  # pragma: no cover - compiled
     return mean, cov, r_out, keep
 
 
+def merge_pass(mean, cov, r, max_d2, margin):  # pragma: no cover - compiled
+    """:func:`merge_candidates`, then, when the kernel decided every pair, :func:`merge_groups`
+    and :func:`merge_moments` in the same call (one kernel to load, not three).  Returns the
+    candidates and their ``undecided`` flags, and ``done``: the groups and the merged moments
+    (with ``done`` False, the caller decides the undecided pairs and groups them itself)."""
+    ii, jj, undecided = merge_candidates(mean, cov, r, max_d2, margin)
+    n = r.shape[0]
+    if undecided.any() or ii.shape[0] == 0:
+        return (ii, jj, undecided, np.zeros(1, np.int64), np.zeros(0, np.int64), mean, cov, r,
+                np.ones(n, np.bool_), False)
+    ptr, members = merge_groups(r, ii, jj)
+    if ptr.shape[0] <= 1:
+        return ii, jj, undecided, ptr, members, mean, cov, r, np.ones(n, np.bool_), True
+    m2, c2, r2, keep = merge_moments(mean, cov, r, ptr, members)
+    return ii, jj, undecided, ptr, members, m2, c2, r2, keep, True
+
+
 def divide(a, b):  # pragma: no cover - compiled
     """``a / b`` with numpy's result for ``b == 0`` (nan or +-inf; numba's default raises)."""
     if b != 0.0:
@@ -663,6 +680,7 @@ cholesky_distance = jit(cholesky_distance)
 merge_candidates = jit(merge_candidates)
 merge_groups = jit(merge_groups)
 merge_moments = jit(merge_moments)
+merge_pass = jit(merge_pass)
 npmax = jit(npmax, inline=True)
 clip01 = jit(clip01, inline=True)
 existence_update = jit(existence_update)

@@ -47,7 +47,13 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c
-    ii, jj, undecided = _merge_candidates(c, max_d2)
+    if n <= 200:  # candidates, their distances, groups and moments in one compiled pass
+        ii, jj, undecided, ptr, members, mean, cov, r, keep, done = _k.merge_pass(
+            c.mean, c.cov, c.existence, float(max_d2), _BOUND_MARGIN)
+        if done:
+            return _relabel(c, ptr, members, mean, cov, r, keep) if ptr.size > 1 else c
+    else:
+        ii, jj, undecided = _merge_candidates(c, max_d2)
     if undecided.any():  # the exact test for the pairs the compiled bound could not decide
         u = np.flatnonzero(undecided)
         diff = c.mean[ii[u]][:, _POS_VEL] - c.mean[jj[u]][:, _POS_VEL]
@@ -67,13 +73,9 @@ _BOUND_MARGIN = 1e-3
 
 
 def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs ``i < j`` whose existences sum to at most 1 and which may lie within ``max_d2``
-    (every near pair; :func:`tracker.bnp._kernels.merge_candidates`), and which of them are
-    still ``undecided`` (the others are near); above 200 clusters the candidates of a KD-tree
-    (:func:`_near_pairs`), all undecided."""
+    """Above 200 clusters: the pairs ``i < j`` of a KD-tree (:func:`_near_pairs`) whose
+    existences sum to at most 1, all ``undecided`` (the exact test decides them)."""
     r = c.existence
-    if len(c.labels) <= 200:
-        return _k.merge_candidates(c.mean, c.cov, r, float(max_d2), _BOUND_MARGIN)
     ii, jj = _near_pairs(c, max_d2)
     both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
     return ii[both], jj[both], np.ones(int(both.sum()), dtype=bool)
@@ -124,7 +126,14 @@ def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
 def _apply_groups(c: _Clusters, ptr: np.ndarray, members: np.ndarray) -> _Clusters:
     """:func:`_merge_groups` of the groups in CSR form (``members[ptr[g]:ptr[g + 1]]``, leader
     first), the arithmetic in :func:`tracker.bnp._kernels.merge_moments`."""
-    mean, cov, r, keep = _k.merge_moments(c.mean, c.cov, c.existence, ptr, members)
+    return _relabel(c, ptr, members, *_k.merge_moments(c.mean, c.cov, c.existence, ptr, members))
+
+
+def _relabel(c: _Clusters, ptr: np.ndarray, members: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+             r: np.ndarray, keep: np.ndarray) -> _Clusters:
+    """The clusters after the merge of the groups ``members[ptr[g]:ptr[g + 1]]`` (leader first)
+    whose moments are ``mean``, ``cov``, ``r`` (every row) and rows ``keep``: each leader takes
+    its oldest member's label."""
     labels = list(c.labels)
     for a, b in zip(ptr[:-1].tolist(), ptr[1:].tolist()):
         group = members[a:b].tolist()
