@@ -1,7 +1,8 @@
 """ms per frame of DDP-EMM and DPY-STP on vo2017 (one process, one core), in the same run:
 the session-3 sampler (one chain, single-site moves only: ``swap_moves=false chains=1``) and
 today's default (two chains with pair exchanges), compiled by numba, and the default with
-every kernel interpreted (the same functions).
+the sampler's kernels interpreted (the same functions; ``gibbs.interpreted_kernels``: the
+sweeps and their set-up, not the rest of the step's kernels in ``tracker/bnp/_kernels.py``).
 
     taskset -c 0 python3 benchmarks/bnp_speed.py --seeds 3 [--repeats 5]
 

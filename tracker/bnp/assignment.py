@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bnptrack.tracker.bnp import _kernels as _k
+
 _FORBIDDEN = 1e6  # assignment cost of an impossible pair
 
 
@@ -34,35 +36,27 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
     (``linear_sum_assignment``), so the cost follows the size of the groups, not N x M.
     Returns one pair per cluster that has any mass, sorted by cluster.
     """
-    p_det = np.bincount(ti, weights=p, minlength=n)
-    live = (p > 0.0) & (p_det[ti] > 1e-9)
-    ti, mi, p = ti[live], mi[live], p[live]
-    if ti.size == 0:
-        return ti, mi, p
-    order = np.lexsort((mi, -p, ti))  # per cluster: most likely measurement first (lowest m on ties)
-    first = order[np.r_[True, np.diff(ti[order]) != 0]]
-    clusters, choice = ti[first], mi[first].copy()
-    _solve_shared(n, ti, mi, p, p_det, clusters, choice)
+    clusters, choice, p_det, lt, lm, lp, conflict, small, args = _k.jpda_select(
+        int(n), np.asarray(ti, dtype=np.int64), np.asarray(mi, dtype=np.int64), np.asarray(p, dtype=float), _SMALL)
+    if conflict and small:  # one assignment over every live cluster
+        choice = _k.jpda_solve(np.log(args), clusters, choice, lt, lm, _FORBIDDEN)
+    elif conflict:
+        _solve_components(n, lt, lm, lp, p_det, clusters, choice)
     return clusters, choice, p_det[clusters]
 
 
-def _solve_shared(n, ti, mi, p, p_det, clusters, choice) -> None:
-    """Per connected component with two or more clusters, the JPDA* assignment (updates
-    ``choice``, aligned with the sorted ``clusters``)."""
-    if np.unique(choice).size == choice.size:
-        return  # no two clusters prefer one measurement: each keeps its own
-    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize is slow to import (docs/performance.md, measured)
+#: Largest live clusters x measurements solved as one block (above: per connected component).
+_SMALL = 20_000
 
-    M = int(mi.max()) + 1
-    if clusters.size * M <= 20_000:  # small: one assignment over every live cluster
-        pos = np.searchsorted(clusters, ti)
-        r_idx = np.unique(pos, return_inverse=True)[1]
-        cols, c_idx = np.unique(mi, return_inverse=True)
-        _solve_block(r_idx, c_idx, pos, mi, p, p_det[ti], choice, linear_sum_assignment)
-        return
+
+def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
+    """Per connected component with two clusters preferring one measurement, the JPDA*
+    assignment (updates ``choice``, aligned with the sorted ``clusters``)."""
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize is slow to import (docs/performance.md, measured)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    M = int(mi.max()) + 1
     graph = coo_matrix((np.ones(ti.size), (ti, n + mi)), shape=(n + M, n + M))
     _, comp = connected_components(graph, directed=False)
     # a component whose clusters' most likely measurements are all different is solved by

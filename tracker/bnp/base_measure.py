@@ -32,6 +32,7 @@ import numpy as np
 
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.bnp import _kernels as _k
 from bnptrack.tracker.models.params import ModelParams
 
 
@@ -69,46 +70,42 @@ class BaseDistribution:
             innov = self._innovations[meas] = kf.ekf_innovation(meas, self.means, self.covs)
         return innov
 
-    def log_predictive(self, meas, clutter, Z: np.ndarray) -> np.ndarray:
-        """:math:`\\log u_H(z_m)` for ``(M, d)`` measurements."""
+    def log_weights(self, meas, clutter, Z: np.ndarray) -> np.ndarray:
+        """``(B + 1, M)``: the log of each component's term of :math:`u_H(z_m)` (weight times
+        predictive density), the uniform part last."""
         M = Z.shape[0]
         uniform = np.full(M, np.log(self.uniform_weight) + clutter.log_density) if self.uniform_weight > 0 else np.full(M, -np.inf)
         if self.weights.size == 0 or M == 0:
-            return uniform
+            return uniform[None]
         ll = kf.log_likelihood_matrix(meas, self._innovation(meas), Z)  # (B, M)
-        comps = np.log(self.weights)[:, None] + ll
-        return logsumexp(np.vstack([comps, uniform[None]]), axis=0)
+        return np.vstack([np.log(self.weights)[:, None] + ll, uniform[None]])
 
-    def posterior(self, meas, clutter, Z: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
-        """Moment-matched :math:`H` conditioned on each measurement: ``(M, 5)``, ``(M, 5, 5)``."""
-        mean_u, cov_u = self._uniform_posterior(meas, Z, kind)
+    def log_predictive(self, meas, clutter, Z: np.ndarray, log_w: np.ndarray | None = None) -> np.ndarray:
+        r""":math:`\log u_H(z_m)` for ``(M, d)`` measurements (``log_w``: their
+        :meth:`log_weights`, if already computed)."""
+        log_w = self.log_weights(meas, clutter, Z) if log_w is None else log_w
+        return log_w[0] if log_w.shape[0] == 1 else logsumexp(log_w, axis=0)
+
+    def posterior(self, meas, clutter, Z: np.ndarray, kind: str, log_w: np.ndarray | None = None,
+                  log_u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Moment-matched :math:`H` conditioned on each measurement: ``(M, 5)``, ``(M, 5, 5)``
+        (``log_w``, ``log_u``: the measurements' :meth:`log_weights` and :meth:`log_predictive`,
+        if already computed).  The mixture's moments: :func:`tracker.bnp._kernels.birth_moments`."""
         if self.weights.size == 0:
-            return mean_u, cov_u
+            return self._uniform_posterior(meas, Z, kind)
+        if log_w is None:
+            log_w = self.log_weights(meas, clutter, Z)
+            log_u = logsumexp(log_w, axis=0)
+        w = np.exp(log_w - log_u)  # (B+1, M)
         innov = self._innovation(meas)
-        ll = kf.log_likelihood_matrix(meas, innov, Z)  # (B, M)
-        logw = np.vstack([np.log(self.weights)[:, None] + ll,
-                          np.full((1, Z.shape[0]), np.log(self.uniform_weight) + clutter.log_density
-                                  if self.uniform_weight > 0 else -np.inf)])
-        w = np.exp(logw - logsumexp(logw, axis=0))  # (B+1, M)
-        mu = np.concatenate([kf.update_means(meas, innov, self.means, Z), mean_u[None]], axis=0)  # (B+1, M, 5)
-        P = np.concatenate([np.broadcast_to(innov.P_upd[:, None], (len(self.weights), Z.shape[0], 5, 5)),
-                            cov_u[None]], axis=0)
-        mean = np.einsum("bm,bmi->mi", w, mu)
-        dev = mu - mean[None]
-        cov = np.einsum("bm,bmij->mij", w, P) + np.einsum("bm,bmi,bmj->mij", w, dev, dev)
-        return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
+        mu = kf.update_means(meas, innov, self.means, Z)  # (B, M, 5)
+        pos, pcov = meas.birth_position(Z)
+        return _k.birth_moments(w, mu, innov.P_upd, pos, pcov, self.velocity_std**2, self.turn_std**2)
 
     def _uniform_posterior(self, meas, Z: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
         """The uniform part conditioned on each measurement: the measured position in the
         world frame (``meas.birth_position``: the sensor's pose and field of view), velocity
         and turn rate from the prior."""
-        n = Z.shape[0]
         pos, pcov = meas.birth_position(Z)
-        mean = np.zeros((n, 5))
-        mean[:, 0], mean[:, 2] = pos[:, 0], pos[:, 1]
-        cov = np.zeros((n, 5, 5))
-        cov[:, 0, 0], cov[:, 0, 2] = pcov[:, 0, 0], pcov[:, 0, 1]
-        cov[:, 2, 0], cov[:, 2, 2] = pcov[:, 1, 0], pcov[:, 1, 1]
-        cov[:, 1, 1] = cov[:, 3, 3] = self.velocity_std**2
-        cov[:, 4, 4] = self.turn_std**2
-        return mean, cov
+        return _k.birth_moments(np.zeros((0, 0)), np.zeros((0, 0, 5)), np.zeros((0, 5, 5)), pos, pcov,
+                                self.velocity_std**2, self.turn_std**2)

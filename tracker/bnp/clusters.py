@@ -8,6 +8,8 @@ from itertools import chain
 
 import numpy as np
 
+from bnptrack.tracker.bnp import _kernels as _k
+
 
 @dataclass(frozen=True)
 class _Clusters:
@@ -45,39 +47,38 @@ def merge_duplicates(c: _Clusters, max_d2: float) -> _Clusters:
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c
+    if n <= 200:  # candidates, their distances, groups and moments in one compiled pass
+        ii, jj, undecided, ptr, members, mean, cov, r, keep, done = _k.merge_pass(
+            c.mean, c.cov, c.existence, float(max_d2), _BOUND_MARGIN)
+        if done:
+            return _relabel(c, ptr, members, mean, cov, r, keep) if ptr.size > 1 else c
+    else:
+        ii, jj, undecided = _merge_candidates(c, max_d2)
+    if undecided.any():  # the exact test for the pairs the compiled bound could not decide
+        u = np.flatnonzero(undecided)
+        diff = c.mean[ii[u]][:, _POS_VEL] - c.mean[jj[u]][:, _POS_VEL]
+        S = (c.cov[ii[u]] + c.cov[jj[u]])[:, _POS_VEL][:, :, _POS_VEL]
+        d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+        near = np.ones(ii.size, dtype=bool)
+        near[u] = d2 <= max_d2
+        ii, jj = ii[near], jj[near]
+    if ii.size == 0:
+        return c
+    ptr, members = _k.merge_groups(c.existence, ii, jj)
+    return _apply_groups(c, ptr, members) if ptr.size > 1 else c
+
+
+#: Relative margin of the lower bound that leaves a pair out of the exact distance test.
+_BOUND_MARGIN = 1e-3
+
+
+def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Above 200 clusters: the pairs ``i < j`` of a KD-tree (:func:`_near_pairs`) whose
+    existences sum to at most 1, all ``undecided`` (the exact test decides them)."""
     r = c.existence
     ii, jj = _near_pairs(c, max_d2)
     both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
-    ii, jj = ii[both], jj[both]
-    if ii.size == 0:
-        return c
-    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
-    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
-    d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    near = d2 <= max_d2
-    if not near.any():
-        return c
-    neighbours: dict[int, set[int]] = {}
-    for i, j in zip(ii[near].tolist(), jj[near].tolist()):
-        neighbours.setdefault(i, set()).add(j)
-        neighbours.setdefault(j, set()).add(i)
-    order = np.argsort(-r, kind="stable")
-    rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
-    free = np.ones(n, dtype=bool)
-    groups: list[list[int]] = []  # groups of two or more; every other cluster stays as it is
-    for i in sorted(neighbours, key=rank.__getitem__):
-        if not free[i]:
-            continue
-        group, total = [i], r[i]
-        for j in sorted(neighbours[i], key=rank.__getitem__):  # decreasing existence
-            if free[j] and total + r[j] <= 1.0:
-                group.append(j)
-                total += r[j]
-        free[group] = False
-        if len(group) > 1:
-            groups.append(group)
-    return _merge_groups(c, groups) if groups else c
+    return ii[both], jj[both], np.ones(int(both.sum()), dtype=bool)
 
 
 def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -117,25 +118,29 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
 def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
     """Each group (leader first) becomes one cluster in its leader's place: existences added,
     existence-weighted moment match, the oldest member's label; the other clusters are kept."""
-    n = len(c.labels)
-    mean, cov, r = c.mean.copy(), c.cov.copy(), c.existence.copy()
+    ptr = np.zeros(len(groups) + 1, dtype=np.int64)
+    np.cumsum([len(g) for g in groups], out=ptr[1:])
+    return _apply_groups(c, ptr, np.concatenate([np.asarray(g, dtype=np.int64) for g in groups]))
+
+
+def _apply_groups(c: _Clusters, ptr: np.ndarray, members: np.ndarray) -> _Clusters:
+    """:func:`_merge_groups` of the groups in CSR form (``members[ptr[g]:ptr[g + 1]]``, leader
+    first), the arithmetic in :func:`tracker.bnp._kernels.merge_moments`."""
+    return _relabel(c, ptr, members, *_k.merge_moments(c.mean, c.cov, c.existence, ptr, members))
+
+
+def _relabel(c: _Clusters, ptr: np.ndarray, members: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+             r: np.ndarray, keep: np.ndarray) -> _Clusters:
+    """The clusters after the merge of the groups ``members[ptr[g]:ptr[g + 1]]`` (leader first)
+    whose moments are ``mean``, ``cov``, ``r`` (every row) and rows ``keep``: each leader takes
+    its oldest member's label."""
     labels = list(c.labels)
-    leaders = np.array([g[0] for g in groups])
-    members = np.concatenate([np.asarray(g) for g in groups])
-    gk = np.repeat(leaders, [len(g) for g in groups])  # member -> its leader
-    w = c.existence[members]
-    r[leaders] = np.bincount(gk, weights=w, minlength=n)[leaders]
-    w = w / r[gk]
-    mean[leaders] = 0.0
-    np.add.at(mean, gk, w[:, None] * c.mean[members])
-    dev = c.mean[members] - mean[gk]
-    cov[leaders] = 0.0
-    np.add.at(cov, gk, w[:, None, None] * (c.cov[members] + dev[:, :, None] * dev[:, None, :]))
-    for g in groups:
-        labels[g[0]] = min((c.labels[i] for i in g), key=_birth_frame)
-    keep = np.setdiff1d(np.arange(n), np.concatenate([np.asarray(g[1:]) for g in groups]))
-    return _Clusters(tuple(labels[k] for k in keep.tolist()), mean[keep], cov[keep],
-                     np.minimum(r[keep], 1.0), c.popularity[keep])
+    for a, b in zip(ptr[:-1].tolist(), ptr[1:].tolist()):
+        group = members[a:b].tolist()
+        labels[group[0]] = min((c.labels[i] for i in group), key=_birth_frame)
+    kept = np.flatnonzero(keep)
+    return _Clusters(tuple(labels[k] for k in kept.tolist()), mean[kept], cov[kept],
+                     np.minimum(r[kept], 1.0), c.popularity[kept])
 
 
 def _birth_frame(label: str) -> int:

@@ -11,13 +11,14 @@ from functools import cached_property
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
+from bnptrack.tracker.bnp import _kernels as _k
 from bnptrack.tracker.bnp.assignment import best_permutation_pairs
 from bnptrack.tracker.bnp.base_measure import BaseDistribution
 from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
-from bnptrack.tracker.cardinality import existence_cardinality
+from bnptrack.tracker.cardinality import TAIL
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
 
@@ -95,6 +96,18 @@ class BnpTracker:
     def d_grid(self) -> np.ndarray:
         return D_GRID if self.config.infer_d else np.array([self.config.d])
 
+    @cached_property
+    def _log_prior_alpha(self) -> np.ndarray:
+        """Log prior of alpha on its grid; the grid is log-spaced, so a cell's width is
+        proportional to alpha (Jacobian term log alpha)."""
+        cfg = self.config
+        return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+
+    @cached_property
+    def _log_prior_d(self) -> np.ndarray:
+        cfg = self.config
+        return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)
+
     def initial_state(self) -> BnpState:
         grid = np.zeros((self.alpha_grid.size, self.d_grid.size))
         return BnpState(alpha=self.config.alpha, d=self.config.d, hyper_loglik=grid)
@@ -112,12 +125,13 @@ class BnpTracker:
         clutter = self.params.clutter(frame.kind, sensor)
         pred = self._predict(state, dt, frame.kind, sensor)
         innov = self._innovation(meas, pred)
-        problem = self._problem(state, pred, innov, meas, clutter, frame.z)
+        log_w = self.base.log_weights(meas, clutter, frame.z)  # the base measure's terms, for the sampler and births
+        problem = self._problem(state, pred, innov, meas, clutter, frame.z, log_w)
         result = run_gibbs(problem, rng, self.config.sweeps, self.config.burn_in, swaps=self.config.swap_moves,
                            chains=self.config.chains)
         existing = self._update_existing(state, pred, innov, meas, frame.z, result)
         floor = self._prune_floor(state.alpha, clutter)
-        born = self._births(frame, meas, clutter, result, floor)
+        born = self._births(frame, meas, clutter, result, floor, log_w, problem.log_new)
         kept, capped = self._prune(merge_duplicates(_concat(existing, born), self.config.merge_distance), floor)
         alpha, d, hyper = self._hyper(rng, state, problem, result, kept, frame.frame, dt)
         new_state = BnpState(frame.frame, frame.stamp_ns, kept.labels, kept.mean, kept.cov,
@@ -134,7 +148,7 @@ class BnpTracker:
             "ms": (time.perf_counter() - t0) * 1e3,
         }
         return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                                   est.assignment_prob, diagnostics, existence_cardinality(new_state.existence))
+                                   est.assignment_prob, diagnostics, _cardinality(new_state.existence))
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
@@ -153,30 +167,30 @@ class BnpTracker:
             return kf.ukf_innovation(meas, pred.mean, pred.cov)
         return kf.ekf_innovation(meas, pred.mean, pred.cov)
 
-    def _problem(self, state, pred, innov, meas, clutter, Z) -> GibbsProblem:
+    def _problem(self, state, pred, innov, meas, clutter, Z, log_w=None) -> GibbsProblem:
+        """The frame's sampler inputs; ``log_w``: the base measure's :meth:`log_weights` of
+        ``Z`` (computed here when not given)."""
         cfg = self.config
+        log_w = self.base.log_weights(meas, clutter, Z) if log_w is None else log_w
         M = Z.shape[0]
         if len(pred.mean):  # gated pairs only (KD-tree), never the (N, M) matrix
             ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
         else:
             ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        pd = np.clip(pred.p_detect, 0.0, 1.0 - 1e-9)
-        q = np.clip(pred.q, 0.0, 1.0)
-        miss = np.maximum(q * (1.0 - pd) + 1.0 - q, _EPS)
-        with np.errstate(divide="ignore"):
-            log_det = np.log(q) + np.log(pd) - np.log(miss) + np.log(state.popularity - state.d)
-        pairs = SparsePairs.from_pairs(len(pred.mean), M, ti, mi, log_det[ti] + log_lik, log_lik)
+        args, q, zero = _k.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
+        logs = np.log(args)  # log q, log P_D, log miss, log(v - d) (-inf where zero)
+        ptr, idx, lf, ll, mass, d_bar = _k.problem_pairs(logs, zero, q, state.popularity, ti, mi, log_lik, M)
         return GibbsProblem(
-            mass=float(np.sum(q * state.popularity)),
+            mass=float(mass),
             log_first=None,
             log_lik=None,
-            pairs=pairs,
+            pairs=SparsePairs(len(pred.mean), ptr, idx, lf, ll),
             log_clutter=np.full(M, clutter.log_intensity),
-            log_new=self.base.log_predictive(meas, clutter, Z),
+            log_new=self.base.log_predictive(meas, clutter, Z, log_w),
             popularity=state.popularity,
             alpha=state.alpha,
             d=state.d,
-            d_bar=float(q.sum()),
+            d_bar=float(d_bar),
             extended=cfg.extended,
             urn_normaliser=cfg.urn_normaliser,
         )
@@ -185,21 +199,13 @@ class BnpTracker:
         N = state.n_clusters
         if N == 0:
             return _Clusters.empty()
-        ti, mi, p = _pairs_by_cluster(result)
-        p_det = np.clip(np.bincount(ti, weights=p, minlength=N), 0.0, 1.0)
-        pd = pred.p_detect
-        q = pred.q
-        miss_alive = q * (1.0 - pd)
-        eps_alive = miss_alive / np.maximum(miss_alive + 1.0 - q, _EPS)
-        w_miss = (1.0 - p_det) * eps_alive
-        r = np.clip(p_det + w_miss, 0.0, 1.0)
+        pr = result.pairs
+        ti, mi, p, w_miss, r, pop = _k.existence_update(pr.ptr, pr.idx, result.p_pairs, N, pred.p_detect, pred.q,
+                                                        state.popularity, float(self.config.popularity_decay), _EPS)
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p.size:
             ti, mi, p = best_permutation_pairs(N, ti, mi, p)
         mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r)
-        n_expected = p_det / np.maximum(r, _EPS)  # E[customers this frame | alive]
-        rho = self.config.popularity_decay
-        pop = np.maximum(rho * state.popularity + (1.0 - rho) * n_expected, 1.0)
         return _Clusters(state.labels, mean, cov, r, pop)
 
     def _prune_floor(self, alpha: float, clutter) -> float:
@@ -208,14 +214,15 @@ class BnpTracker:
         p_birth = self.birth_probability(alpha, clutter)
         return min(cfg.prune_threshold, cfg.birth_prune_fraction * p_birth) if p_birth > 0 else cfg.prune_threshold
 
-    def _births(self, frame: Frame, meas, clutter, result, floor: float) -> "_Clusters":
+    def _births(self, frame: Frame, meas, clutter, result, floor: float, log_w, log_u) -> "_Clusters":
         """New clusters (case D3/P3): every measurement whose Rao-Blackwellised probability of
-        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut)."""
+        opening one is above the prune floor (a fraction of ``p_birth``, never a fixed cut).
+        ``log_w``, ``log_u``: the frame's base-measure terms and predictive densities."""
         p_new = result.p_new
         idx = np.flatnonzero(p_new >= max(floor, 1e-300))
         if idx.size == 0:
             return _Clusters.empty()
-        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind)
+        mean, cov = self.base.posterior(meas, clutter, frame.z[idx], frame.kind, log_w[:, idx], log_u[idx])
         labels = tuple(f"{frame.frame}.{m}" for m in idx.tolist())
         return _Clusters(labels, mean, cov, p_new[idx], np.ones(idx.size))
 
@@ -252,11 +259,9 @@ class BnpTracker:
             seated_popularity=state.popularity, seated_counts=counts,
         )
         hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
-        # log-spaced alpha grid: cell width is proportional to alpha (Jacobian term log alpha)
-        log_prior_a = log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
-        log_post = hyper + log_prior_a[:, None]
+        log_post = hyper + self._log_prior_alpha[:, None]
         if cfg.infer_d:
-            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+            log_post = log_post + self._log_prior_d[None, :]
         if cfg.hyper_estimate == "sample":
             i, j = sample_grid(rng, log_post)
             return float(self.alpha_grid[i]), float(self.d_grid[j]), hyper
@@ -264,68 +269,36 @@ class BnpTracker:
         return alpha, d, hyper
 
     def _estimate(self, state: BnpState, frame: Frame, existing, born, result, problem) -> Estimate:
-        thr = self.config.existence_threshold
-        reported = {lab for lab, r in zip(state.labels, state.existence) if r > thr}
-        tracks = tuple(
-            TrackEstimate(lab, state.mean[i].copy(), state.cov[i].copy(), float(state.existence[i]))
-            for i, lab in enumerate(state.labels) if lab in reported
-        )
-        M = frame.n_measurements
+        shown = np.flatnonzero(state.existence > self.config.existence_threshold).tolist()
+        reported = {state.labels[i] for i in shown}
+        tracks = tuple(TrackEstimate(state.labels[i], state.mean[i].copy(), state.cov[i].copy(),
+                                     float(state.existence[i])) for i in shown)
         # options per measurement: reported transitioned clusters, and its own newborn if reported
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
-        p_ex, lab_ex, p_sum = _best_reported(result, ex_rep, existing.labels, M)
-        born_p = np.zeros(M)
-        born_lab = np.full(M, None, dtype=object)
-        for lab in born.labels:
-            if lab in reported:
-                m = int(lab.split(".")[1])
-                born_p[m], born_lab[m] = result.p_new[m], lab
-        use_born = born_p > p_ex  # on a tie the transitioned cluster wins
-        p_best = np.where(use_born, born_p, p_ex)
-        p_none = np.clip(1.0 - (p_sum + born_p), 0.0, 1.0)
-        assignments: list[str | None] = []
-        probs: list[float] = []
-        for m in range(M):
-            if p_best[m] <= p_none[m]:
-                assignments.append(None)
-                probs.append(float(p_none[m]))
-            else:
-                assignments.append(born_lab[m] if use_born[m] else lab_ex[m])
-                probs.append(float(p_best[m]))
+        born_of = {int(lab.split(".")[1]): lab for lab in born.labels if lab in reported}
+        pr = result.pairs
+        choice, prob = _k.estimate_assignments(pr.ptr, pr.idx, result.p_pairs, ex_rep, result.p_new,
+                                               np.fromiter(born_of, dtype=np.int64, count=len(born_of)))
+        labels = existing.labels
+        assignments = [None if c == -1 else (born_of[m] if c == -2 else labels[c])
+                       for m, c in enumerate(choice.tolist())]
+        probs = prob.tolist()
         return Estimate(frame.frame, frame.stamp_ns, tracks, tuple(assignments), tuple(probs))
+
+
+def _cardinality(existence: np.ndarray) -> np.ndarray:
+    """:func:`tracker.cardinality.existence_cardinality`, compiled
+    (:func:`tracker.bnp._kernels.cardinality_pmf`, the same numbers)."""
+    pmf, ok = _k.cardinality_pmf(np.asarray(existence, dtype=float), TAIL)
+    if not ok:
+        raise ValueError("poisson_binomial: existence probabilities must be finite")
+    return pmf
 
 
 def _born_between(c, lo: int, hi: int) -> float:
     """Expected objects born at frames ``lo < f <= hi`` (labels ``"<f>.<m>"``): with ``lo`` the
     lag before the previous processed frame, each frame is counted once however frames skip."""
     return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lo < int(lab.split(".")[0]) <= hi))
-
-
-def _best_reported(result, rep: np.ndarray, labels: tuple[str, ...], M: int
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per measurement: the largest ``Pr(c_m = l)`` over reported clusters ``l`` (the lowest
-    index on a tie), that cluster's label (None if none) and the sum over reported clusters."""
-    pr = result.pairs
-    mt = pr.rows
-    sel = rep[pr.idx] if pr.idx.size else np.zeros(0, dtype=bool)
-    t, m, p = pr.idx[sel], mt[sel], result.p_pairs[sel]
-    p_sum = np.bincount(m, weights=p, minlength=M)
-    p_ex = np.zeros(M)
-    lab = np.full(M, None, dtype=object)
-    if t.size:
-        order = np.lexsort((t, -p, m))
-        first = order[np.r_[True, np.diff(m[order]) != 0]]
-        p_ex[m[first]] = p[first]
-        lab[m[first]] = [labels[i] for i in t[first].tolist()]
-    return p_ex, lab, p_sum
-
-
-def _pairs_by_cluster(result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sampler's gated pairs and ``Pr(c_m = l)``, sorted by cluster then measurement."""
-    pr = result.pairs
-    mt = pr.rows
-    order = np.lexsort((mt, pr.idx))
-    return pr.idx[order], mt[order], result.p_pairs[order]
 
 
 _capped_warned: list[bool] = []
@@ -345,21 +318,10 @@ def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndar
     measurement), computed only for the pairs that carry
     weight: a pair the sampler never used (gated out, or a non-finite measurement) never
     enters the arithmetic, so no ``0 * NaN`` can reach a state."""
-    inv_r = 1.0 / np.maximum(r, _EPS)
-    w0 = w_miss * inv_r  # (N,)
     carry = p > 0.0
-    ti, mi = ti[carry], mi[carry]
-    wp = p[carry] * inv_r[ti]  # (L,)
+    ti, mi, p = ti[carry], mi[carry], p[carry]
     mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
-    mean = w0[:, None] * pred.mean
-    np.add.at(mean, ti, wp[:, None] * mu)
-    dev0 = pred.mean - mean
-    dev = mu - mean[ti]
-    cov = w0[:, None, None] * (pred.cov + dev0[:, :, None] * dev0[:, None, :])
-    w_det = np.bincount(ti, weights=wp, minlength=len(r))
-    cov += w_det[:, None, None] * innov.P_upd
-    np.add.at(cov, ti, wp[:, None, None] * dev[:, :, None] * dev[:, None, :])
-    return mean, 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    return _k.moment_match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
 
 
 def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:

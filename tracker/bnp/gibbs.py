@@ -48,6 +48,7 @@ from functools import cached_property
 import numpy as np
 
 from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp._kernels import np_sum
 
 CLUTTER = -1
 NEW = -2
@@ -409,7 +410,194 @@ def _group_pairs(meas_of, starts, sizes, M, n_keys):
     return out
 
 
-_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs)
+def _npmax(a, b):
+    """``np.maximum`` of two floats: nan if either is."""
+    return a if a >= b or a != a else b
+
+
+def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extended, alpha, d, d_bar, total_mass,
+                  swaps):
+    """The first compiled pass of :func:`run_gibbs`, the numpy code's arithmetic: the arguments
+    of :func:`_candidates`' ``exp`` (``[log_first, log_lik if extended, log_clutter, log_new]``
+    minus each measurement's shift, one vector), the arguments of :func:`log_joint`'s ``log``
+    (``(alpha + V) / (alpha + V + i)`` and ``alpha + d (d_bar + i)``, ``i < M``), the forward
+    and the reversed greedy starts (:func:`initial_assignment`) and the exchange pairs
+    (:func:`swap_pairs`)."""
+    M = ptr.shape[0] - 1
+    nnz = idx.shape[0]
+    shift = np.empty(M)
+    for m in range(M):
+        shift[m] = _npmax(log_clutter[m], log_new[m])
+    for m in range(M):
+        for j in range(ptr[m], ptr[m + 1]):
+            shift[m] = _npmax(shift[m], log_first[j])
+    if extended:
+        for m in range(M):
+            for j in range(ptr[m], ptr[m + 1]):
+                shift[m] = _npmax(shift[m], log_lik[j])
+    for m in range(M):
+        if not np.isfinite(shift[m]):
+            shift[m] = 0.0
+    n_lik = nnz if extended else 0
+    ex = np.empty(nnz + n_lik + 2 * M)
+    lg = np.empty(2 * M)
+    for m in range(M):
+        for j in range(ptr[m], ptr[m + 1]):
+            ex[j] = log_first[j] - shift[m]
+            if extended:
+                ex[nnz + j] = log_lik[j] - shift[m]
+        ex[nnz + n_lik + m] = log_clutter[m] - shift[m]
+        ex[nnz + n_lik + M + m] = log_new[m] - shift[m]
+        lg[m] = total_mass / (total_mass + m)
+        lg[M + m] = alpha + d * (d_bar + m)
+    starts = np.full((2, M), CLUTTER, dtype=np.int64)
+    if N > 0 and M > 0:
+        la = math.log(alpha + d * d_bar)
+        alt = np.empty(M)
+        best = np.full(M, -np.inf)
+        for m in range(M):
+            alt[m] = _npmax(log_clutter[m], la + log_new[m])
+            for j in range(ptr[m], ptr[m + 1]):
+                best[m] = log_first[j] if j == ptr[m] else _npmax(best[m], log_first[j])
+        order = np.argsort(-best, kind="mergesort")
+        starts[0] = _greedy(ptr, idx, log_first, N, alt, best, order, extended, True)
+        starts[1] = _greedy(ptr, idx, log_first, N, alt, best, order[::-1].copy(), extended, False)
+    if not swaps or N == 0:
+        return ex, lg, starts, np.zeros(0, np.int64), np.zeros(0, np.int64)
+    pair_a, pair_b = _swap_pairs_kernel(ptr, idx, N)
+    return ex, lg, starts, pair_a, pair_b
+
+
+def _swap_pairs_kernel(ptr, idx, N):
+    """:func:`swap_pairs` on the CSR pairs: every ``a < b`` sharing a cluster, sorted by ``(a, b)``."""
+    M = ptr.shape[0] - 1
+    size = np.zeros(N, dtype=np.int64)
+    for j in range(idx.shape[0]):
+        size[idx[j]] += 1
+    first = np.zeros(N + 1, dtype=np.int64)
+    n_keys = 0
+    for l in range(N):
+        first[l + 1] = first[l] + size[l]
+        n_keys += size[l] * (size[l] - 1) // 2
+    meas_of = np.empty(idx.shape[0], dtype=np.int64)
+    fill = first[:N].copy()
+    for m in range(M):  # measurements ascending within each cluster
+        for j in range(ptr[m], ptr[m + 1]):
+            meas_of[fill[idx[j]]] = m
+            fill[idx[j]] += 1
+    used = np.flatnonzero(size > 0)
+    key = np.unique(_group_pairs(meas_of, first[used], size[used], M, n_keys))
+    return key // M, key % M
+
+
+def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, u_all, pair_a, pair_b, ptr, idx,
+                   log_first, log_clutter, log_new, pop, par, extended, N, sweeps, burn_in, chains):
+    """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on its slice of the
+    uniforms (chain ``k``: ``sweeps x M`` for the sites, then ``sweeps x P`` for the exchanges),
+    the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
+    0's last state.  ``init`` is chain 0's start when ``has_init``."""
+    M = ptr.shape[0] - 1
+    nnz = idx.shape[0]
+    K = nnz + 2 * M
+    P = pair_a.shape[0]
+    tally_pair, tally_cn = np.zeros(nnz), np.zeros((2, M))
+    hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
+    opt = max(N, 1)
+    opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
+    first = np.empty(M, dtype=np.int64)
+    accepted, off = 0, 0
+    for k in range(chains):
+        c = init.copy() if k == 0 and has_init else starts[k % 2].copy()
+        cnt = np.zeros(N, dtype=np.int64)
+        st = np.zeros(2, dtype=np.int64)
+        for m in range(M):
+            if c[m] >= 0:
+                cnt[c[m]] += 1
+            if c[m] == NEW:
+                st[0] += 1
+            if c[m] != CLUTTER:
+                st[1] += 1
+        u = u_all[off:off + sweeps * M].reshape((sweeps, M))
+        off += sweeps * M
+        u_swap = u_all[off:off + sweeps * P].reshape((sweeps, P))
+        off += sweeps * P
+        accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, u_swap,
+                            pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+        if k == 0:
+            first[:] = c
+    kept = max(sweeps - burn_in, 1) * chains
+    rhat = _split_rhat_kernel(hs, hss, (sweeps - burn_in) // 2)
+    lj = np.nan if extended else _log_joint_kernel(first, ptr, idx, log_first, log_clutter, log_new, log_lg,
+                                                   par[4] > 0.0, N)
+    return tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first, lj, rhat, accepted
+
+
+def _log_joint_kernel(c, ptr, idx, log_first, log_clutter, log_new, log_lg, urn, N):
+    """:func:`_log_joint_point` (sums in numpy's order; ``log_lg`` the logs of
+    :func:`_setup_kernel`'s ``lg``)."""
+    M = c.shape[0]
+    used = np.zeros(N, dtype=np.bool_)
+    buf_cl, buf_new, buf_first = np.empty(M), np.empty(M), np.empty(M)
+    n_cl, n_new, n_cluster = 0, 0, 0
+    for m in range(M):
+        ch = c[m]
+        if ch == CLUTTER:
+            buf_cl[n_cl] = log_clutter[m]
+            n_cl += 1
+        elif ch == NEW:
+            buf_new[n_new] = log_new[m]
+            n_new += 1
+        elif ch >= 0:
+            if ch >= N or used[ch]:
+                return -np.inf
+            used[ch] = True
+            pos = -1
+            for j in range(ptr[m], ptr[m + 1]):
+                if idx[j] == ch:
+                    pos = j
+            if pos < 0:
+                return -np.inf  # gated out
+            buf_first[n_cluster] = log_first[pos]
+            n_cluster += 1
+    n_obj = M - n_cl
+    urn_term = np_sum(log_lg, 0, n_obj) if urn else 0.0
+    return (((np_sum(buf_cl, 0, n_cl) + urn_term) + np_sum(log_lg, M, n_new)) + np_sum(buf_new, 0, n_new)
+            + np_sum(buf_first, 0, n_cluster))
+
+
+def _split_rhat_kernel(hs, hss, n):
+    """:func:`split_rhat` in numpy's order (row-by-row means, sequential ``einsum``)."""
+    C, K = hs.shape
+    if n < 2 or K == 0:
+        return 1.0
+    mean = hs / n
+    var = np.empty((C, K))
+    for c in range(C):
+        for k in range(K):
+            var[c, k] = _npmax(hss[c, k] - n * mean[c, k] * mean[c, k], 0.0) / (n - 1)
+    top, live = -np.inf, False
+    for k in range(K):
+        w, mm = 0.0, 0.0
+        for c in range(C):
+            w += var[c, k]
+            mm += mean[c, k]
+        w, mm = w / C, mm / C
+        b = 0.0
+        for c in range(C):
+            dev = mean[c, k] - mm
+            b += dev * dev
+        v_plus = (n - 1) / n * w + b / (C - 1)
+        if v_plus > 1e-6:
+            live = True
+            r = np.sqrt(v_plus / _npmax(w, 1e-12))
+            top = _npmax(top, r)
+    if not live:
+        return 1.0
+    return 1000.0 if 1000.0 < top else top
+
+
+_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs, _npmax, _setup_kernel,
+               _swap_pairs_kernel, _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
 # the helpers are replaced by their compiled versions, which the compiled driver calls
 _greedy = jit(_greedy)  # noqa: F811
 _half_add = jit(_half_add, inline=True)
@@ -418,12 +606,19 @@ _site_pass = jit(_site_pass)
 _swap_pass = jit(_swap_pass)
 _sweeps = jit(_sweep_kernel)
 _group_pairs = jit(_group_pairs)  # noqa: F811
+_npmax = jit(_npmax, inline=True)
+_setup_kernel = jit(_setup_kernel)
+_swap_pairs_kernel = jit(_swap_pairs_kernel)
+_chains_kernel = jit(_chains_kernel)
+_log_joint_kernel = jit(_log_joint_kernel)
+_split_rhat_kernel = jit(_split_rhat_kernel)
 
 
 def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
-    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs")
+    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs", "_npmax",
+             "_setup_kernel", "_swap_pairs_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
     return dict(zip(names, _KERNELS_PY))
 
 
@@ -459,32 +654,27 @@ def run_gibbs(
     greedy start.  ``last``/``log_joint`` are chain 0's final state.  ``swaps=False`` with one
     chain is the session-3 sampler draw for draw (it draws no extra uniforms)."""
     N, M = problem.shape
-    cand = _candidates(problem)
-    pair_a, pair_b = swap_pairs(problem) if swaps and N else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    K = cand.idx.size + 2 * M
-    tally_pair, tally_cn = np.zeros(cand.idx.size), np.zeros((2, M))
-    hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
-    par = np.array([problem.alpha + problem.mass, problem.alpha, problem.d, problem.d_bar,
-                    1.0 if problem.urn_normaliser else 0.0], dtype=float)
-    pop = np.asarray(problem.popularity, dtype=float)
-    opt = max(N, 1)
-    scratch = (np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64))
-    accepted, first = 0, None
-    for k in range(chains):
-        start = init if k == 0 and init is not None else initial_assignment(problem, reverse=k % 2 == 1)
-        c = np.asarray(start).astype(np.int64)
-        cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
-        st = np.array([np.sum(c == NEW), np.sum(c != CLUTTER)], dtype=np.int64)
-        u = rng.random((sweeps, M))
-        u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
-        accepted += _sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
-                            cand.idx, cand.w_first, cand.w_lik, pop, u, u_swap, pair_a, pair_b, int(burn_in),
-                            2 * k, tally_pair, tally_cn, hs, hss, *scratch)
-        first = c if first is None else first
+    pr = problem.pairs
+    ext = bool(problem.extended)
+    log_clutter = np.asarray(problem.log_clutter, dtype=float)
+    log_new = np.asarray(problem.log_new, dtype=float)
+    alpha, d, d_bar = float(problem.alpha), float(problem.d), float(problem.d_bar)
+    ex, lg, starts, pair_a, pair_b = _setup_kernel(pr.ptr, pr.idx, pr.log_first, pr.log_lik, log_clutter, log_new,
+                                                   N, ext, alpha, d, d_bar, alpha + problem.mass, bool(swaps))
+    w = np.exp(ex)  # underflow to 0 is numpy's default (ignored)
+    nnz, n_lik = pr.idx.size, pr.idx.size if ext else 0
+    w_lik = w[nnz:2 * nnz] if ext else np.zeros(nnz)
+    u_all = rng.random(chains * sweeps * (M + pair_a.size))  # per chain: sites, then exchanges (one stream)
+    par = np.array([alpha + problem.mass, alpha, d, d_bar, 1.0 if problem.urn_normaliser else 0.0], dtype=float)
+    has_init = init is not None
+    start0 = np.asarray(init).astype(np.int64) if has_init else np.zeros(0, np.int64)
+    p_pairs, p_clutter, p_new, first, lj, rhat, accepted = _chains_kernel(
+        w[:nnz], w_lik, w[nnz + n_lik:nnz + n_lik + M], w[nnz + n_lik + M:], np.log(lg), starts, start0, has_init,
+        u_all, pair_a, pair_b, pr.ptr, pr.idx, pr.log_first, log_clutter, log_new,
+        np.asarray(problem.popularity, dtype=float), par, ext, N, int(sweeps), int(burn_in), int(chains))
     kept = max(sweeps - burn_in, 1) * chains
-    return GibbsResult(problem.pairs, tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first,
-                       log_joint(problem, first), kept, split_rhat(hs, hss, (sweeps - burn_in) // 2),
-                       int(accepted), int(pair_a.size * sweeps * chains))
+    return GibbsResult(problem.pairs, p_pairs, p_clutter, p_new, first, log_joint(problem, first) if ext else float(lj),
+                       kept, float(rhat), int(accepted), int(pair_a.size * sweeps * chains))
 
 
 def split_rhat(hs: np.ndarray, hss: np.ndarray, n: int) -> float:
