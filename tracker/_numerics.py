@@ -5,6 +5,10 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
   :data:`JIT` says which.  numba itself (0.4 s to import, more on a busy machine) is imported
   at the first call of a kernel, not when a tracker module is imported: a command that only
   builds or describes a tracker (``bnptrack launch``'s checks, ``track --help``) never pays it.
+  The kernels are cached in a directory named by a digest of every kernel-defining source
+  file (:func:`kernel_cache_dir`): numba checks only a kernel's own file before loading it
+  from its cache, so a kernel that calls (inlines) a kernel of another file that has since
+  changed would otherwise load stale machine code, or crash.
 * :func:`logsumexp` is :math:`\log \sum_i e^{a_i}` computed as
   :math:`t + \log \sum_i e^{a_i - t}`, :math:`t = \max_i a_i` (an all ``-inf`` input gives
   ``-inf``).
@@ -12,10 +16,12 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import math
 import os
 import threading
+from pathlib import Path
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -51,14 +57,18 @@ class _LazyKernel:
 
 def _compile_pending(kernel: _LazyKernel) -> Any:
     """Decorate every pending kernel with numba and rebind the module names that held them."""
-    from numba import njit
+    from numba import config, njit
 
     with _lock:
-        for k in _pending:
-            if k.dispatcher is None:
-                opts = {"inline": "always"} if k.inline else {}
-                k.dispatcher = njit(cache=True, nogil=True, **opts)(k.py_func)
-            _namespaces[id(k.py_func.__globals__)] = k.py_func.__globals__
+        before, config.CACHE_DIR = config.CACHE_DIR, kernel_cache_dir()
+        try:  # numba picks a kernel's cache directory when it decorates it
+            for k in _pending:
+                if k.dispatcher is None:
+                    opts = {"inline": "always"} if k.inline else {}
+                    k.dispatcher = njit(cache=True, nogil=True, **opts)(k.py_func)
+                _namespaces[id(k.py_func.__globals__)] = k.py_func.__globals__
+        finally:
+            config.CACHE_DIR = before
         _pending.clear()
         for namespace in _namespaces.values():
             for name, value in list(namespace.items()):
@@ -66,6 +76,31 @@ def _compile_pending(kernel: _LazyKernel) -> Any:
                     namespace[name] = value.dispatcher
         assert kernel.dispatcher is not None
         return kernel.dispatcher
+
+
+_KERNELS_ROOT = Path(__file__).resolve().parent  # every kernel lives in this package
+
+
+def kernel_sources_digest(root: Path = _KERNELS_ROOT) -> str:
+    """SHA-256 (16 hex digits) of the path and bytes of every ``.py`` file under ``root`` that
+    defines a kernel (its text contains ``jit(``), in path order."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        text = path.read_bytes()
+        if b"jit(" in text:
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0" + text + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def kernel_cache_dir() -> str:
+    """Where the compiled kernels are cached: ``$NUMBA_CACHE_DIR`` (numba's own setting) or
+    ``$XDG_CACHE_HOME/bnptrack/numba`` (``~/.cache/...``), then a folder named by
+    :func:`kernel_sources_digest`.  Editing any kernel file starts a fresh folder, so no
+    kernel is ever loaded with a stale copy of a kernel it calls from another file.  If the
+    folder cannot be written, numba falls back to its usual places."""
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "bnptrack", "numba")
+    return os.path.join(base, kernel_sources_digest())
 
 
 def jit(fn: F, inline: bool = False) -> F:
