@@ -24,9 +24,16 @@ stamps made consecutive), then measures, in one invocation:
    for that frame (its ``ms`` diagnostic: the wall time of ``tracker.step``).  Added is what the
    pipeline costs on top of the computation: two Zenoh hops, decoding and validation, encoding,
    the journal, scheduling.  The per-hop breakdown comes from the tracker's ``t_in``/``t_out``.
-3. **Transport floor**: one Zenoh hop between two bare processes (the ``Bus`` the stages use),
-   in client mode through a router and in peer mode, at the same rate; and the operating
-   system's own hop (a socketpair) for comparison.
+3. **Transport floors**: after each paced run, the *two-hop floor*, the pipeline's path with
+   nothing on it (a publisher process, a relay process republishing each sample at once, a
+   subscriber process, a router in this process, the stages' ``Bus``), with the pipeline's
+   traffic (/measurements and /truth per frame, /tracks back, the pipeline's sizes, the
+   subscriber subscribed as the sink is) and the sink's receipt stamp (the subscription
+   callback's), as many samples as the run had frames: the target's floor.  Beside it,
+   session 6's floor (one topic per hop, stamped on the subscriber's main thread).  Paced runs
+   and floors run without the ``/proc`` CPU sampler.  With both parts measured, also one hop
+   between two bare processes in client and peer mode, and the operating system's own hop (a
+   socketpair).  ``--first-puts SIZE [TOPIC]`` times the first puts on a fresh session.
 4. **Machine floor**: the offline tracker alone and beside bare Zenoh traffic (a router and a
    publisher in one process, a subscriber in another, three samples of the pipeline's sizes
    per frame at the offline frame rate: no tracker, codec or file), in ``--rounds``
@@ -403,6 +410,38 @@ def socket_floor(rate: float, n: int = 400) -> dict:
     return {"p50": pct(lat, 50), "p99": pct(lat, 99), "load_avg": load_avg()}
 
 
+def first_puts(size: int, warm: str | None, n: int = 30, period: float = 0.025) -> list[float]:
+    """Wall time (ms) of each of the first ``n`` puts of ``size`` bytes on a fresh ``tracks``
+    publisher (a router, the publisher's session and a subscriber's session in this process,
+    the stages' ``Bus``), one every ``period`` s; with ``warm``, three 20 KB samples on that
+    topic first (the subscriber subscribes to it too).  Session 7 found that one of the first
+    puts of a sample of several KB on a fresh session blocks for 5 to 120 ms (not with 600 B
+    samples; not after a few large samples on any subscribed topic of the same session; not
+    changed by ``express`` or ``transport/link/tx/queue/allocation/mode = "init"``): the
+    tracker stage's /tracks grow past that size around frame 10 of vo2017, and that put is
+    then the worst frame of most paced runs (docs/pipeline.md, Performance)."""
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
+
+    with Router(ZenohConfig()) as router:
+        ep = router.endpoints[0]
+        with Bus("puts", "sub", ZenohConfig(connect=[ep]), DeliveryConfig()) as sub, \
+                Bus("puts", "pub", ZenohConfig(connect=[ep]), DeliveryConfig()) as pub:
+            sub.subscribe(["tracks"] + ([warm] if warm else []))
+            pub.declare(["tracks"])
+            time.sleep(1.0)  # both sessions up, the subscriptions known to the router
+            for _ in range(3 if warm else 0):
+                pub.publish(warm, b"y" * 20_000)
+                time.sleep(period)
+            out = []
+            for i in range(n):
+                t0 = time.perf_counter()
+                pub.publish("tracks", b"x" * size, {"seq": i, "t": 0})
+                out.append((time.perf_counter() - t0) * 1e3)
+                time.sleep(period)
+    return out
+
+
 # --------------------------------------------------------------------------- machine floor
 
 
@@ -631,6 +670,11 @@ def main() -> None:
         return
     if len(sys.argv) == 5 and sys.argv[1] == "--traffic-publisher":
         _traffic_publisher(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
+        return
+    if len(sys.argv) >= 3 and sys.argv[1] == "--first-puts":  # --first-puts SIZE [WARM_TOPIC]
+        d = first_puts(int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else None)
+        print(f"first puts of {sys.argv[2]} B: max {max(d):.2f} ms (put #{int(np.argmax(d))}), median "
+              f"{np.median(d):.2f} ms; puts over 2 ms: {[(i, round(x, 1)) for i, x in enumerate(d) if x > 2]}")
         return
     if len(sys.argv) == 3 and sys.argv[1] == "--traffic-subscriber":
         _traffic_subscriber(sys.argv[2])
