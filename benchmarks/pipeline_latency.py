@@ -655,29 +655,37 @@ def _pipeline_mode(overrides: list[str]) -> str:
     return "client"
 
 
-def main() -> None:
+def _child_mode() -> bool:
+    """Run the child-process mode named by ``sys.argv`` (a floor's or the traffic's process,
+    ``--first-puts``); False when the command line is the benchmark's own."""
     if len(sys.argv) == 5 and sys.argv[1] == "--floor-subscriber":
         _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]))
-        return
+        return True
     if len(sys.argv) == 6 and sys.argv[1] == "--floor-subscriber2":
         _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]), "floor2", "tracks", sys.argv[5])
-        return
+        return True
     if len(sys.argv) == 7 and sys.argv[1] == "--floor-publisher2":
         _floor_publish(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]), sys.argv[6])
-        return
+        return True
     if len(sys.argv) == 4 and sys.argv[1] == "--floor-relay":
         _floor_relay(sys.argv[2], sys.argv[3])
-        return
+        return True
     if len(sys.argv) == 5 and sys.argv[1] == "--traffic-publisher":
         _traffic_publisher(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
-        return
+        return True
     if len(sys.argv) >= 3 and sys.argv[1] == "--first-puts":  # --first-puts SIZE [WARM_TOPIC]
         d = first_puts(int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else None)
         print(f"first puts of {sys.argv[2]} B: max {max(d):.2f} ms (put #{int(np.argmax(d))}), median "
               f"{np.median(d):.2f} ms; puts over 2 ms: {[(i, round(x, 1)) for i, x in enumerate(d) if x > 2]}")
-        return
+        return True
     if len(sys.argv) == 3 and sys.argv[1] == "--traffic-subscriber":
         _traffic_subscriber(sys.argv[2])
+        return True
+    return False
+
+
+def main() -> None:
+    if _child_mode():
         return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5, help="vo2017 runs of 100 frames in the log")
