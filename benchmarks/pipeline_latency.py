@@ -24,9 +24,16 @@ stamps made consecutive), then measures, in one invocation:
    for that frame (its ``ms`` diagnostic: the wall time of ``tracker.step``).  Added is what the
    pipeline costs on top of the computation: two Zenoh hops, decoding and validation, encoding,
    the journal, scheduling.  The per-hop breakdown comes from the tracker's ``t_in``/``t_out``.
-3. **Transport floor**: one Zenoh hop between two bare processes (the ``Bus`` the stages use),
-   in client mode through a router and in peer mode, at the same rate; and the operating
-   system's own hop (a socketpair) for comparison.
+3. **Transport floors**: after each paced run, the *two-hop floor*, the pipeline's path with
+   nothing on it (a publisher process, a relay process republishing each sample at once, a
+   subscriber process, a router in this process, the stages' ``Bus``), with the pipeline's
+   traffic (/measurements and /truth per frame, /tracks back, the pipeline's sizes, the
+   subscriber subscribed as the sink is) and the sink's receipt stamp (the subscription
+   callback's), as many samples as the run had frames: the target's floor.  Beside it,
+   session 6's floor (one topic per hop, stamped on the subscriber's main thread).  Paced runs
+   and floors run without the ``/proc`` CPU sampler.  With both parts measured, also one hop
+   between two bare processes in client and peer mode, and the operating system's own hop (a
+   socketpair).  ``--first-puts SIZE [TOPIC]`` times the first puts on a fresh session.
 4. **Machine floor**: the offline tracker alone and beside bare Zenoh traffic (a router and a
    publisher in one process, a subscriber in another, three samples of the pipeline's sizes
    per frame at the offline frame rate: no tracker, codec or file), in ``--rounds``
@@ -212,8 +219,11 @@ class CpuSampler:
 
 
 def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, rerun: bool,
-             sets: list[str]) -> dict:
-    """One ``replay`` of ``log`` (in this process's launcher); the sink's figures."""
+             sets: list[str], sample_cpu: bool = True) -> dict:
+    """One ``replay`` of ``log`` (in this process's launcher); the sink's figures.  With
+    ``sample_cpu``, the stages' CPU time is read from ``/proc`` every 50 ms meanwhile (a
+    thread of this process, which also holds the router: the paced runs go without it, as
+    their floors do)."""
     cfg = load_pipeline(None, [
         "source.kind='mcap'", f"source.log='{log}'", f"source.rate={rate}",
         f"tracker.tracker='{tracker_name}'", f"tracker.seed={seed}", f"sink.rerun={str(rerun).lower()}",
@@ -222,7 +232,11 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     import msgspec
 
     cfg = msgspec.structs.replace(cfg, out=str(out), run=f"bench-{out.name}-{os.getpid()}")
-    with CpuSampler(out) as cpu:
+    cpu = CpuSampler(out)
+    if sample_cpu:
+        with cpu:
+            res = launch(cfg, timeout=1800, handle_signals=True)
+    else:
         res = launch(cfg, timeout=1800, handle_signals=True)
     if not res.ok:
         raise SystemExit(f"pipeline failed: {res.error or res.incomplete}")
@@ -230,7 +244,7 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     lat = s["latency"]
     e2e, step = np.array(lat["e2e_ms"], float), np.array(lat["tracker_ms"], float)
     window = (s["t_first_pub_ns"] / 1e9, s["t_last_recv_ns"] / 1e9)
-    used = cpu.used(*window)
+    used = cpu.used(*window) if sample_cpu else {}
     n = s["tracks_written"]
     return {
         "frames": n,
@@ -250,21 +264,27 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
 
 
 def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
-                      topic: str = "measurements") -> None:
-    """(child process) receive ``n`` samples; print their latencies (since the first
-    publication, ``meta["t"]``) as JSON, taken when the main thread gets them (as a stage does)."""
+                      topic: str = "measurements", traffic: str = "bare") -> None:
+    """(child process) receive ``n`` samples of ``topic``; print their latencies (since the
+    first publication, ``meta["t"]``) as JSON.  ``bare`` (sessions 3-6): subscribed to
+    ``topic`` alone, the latency taken when the main thread gets the sample.  ``pipeline``
+    (the sink's place): subscribed to what the sink subscribes to (``measurements``, ``truth``,
+    ``tracks``), the latency taken when the sample arrives (``Event.t_recv_ns``, stamped in the
+    subscription callback): exactly the sink's receipt time of ``/tracks``."""
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus
 
     with Bus(run_id, "sub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
-        bus.subscribe([topic])
+        bus.subscribe(["measurements", "truth", "tracks"] if traffic == "pipeline" else [topic])
         bus.declare_alive("ready")
         lat = []
         while len(lat) < n:
             ev = bus.recv(10)
             if ev is None:
                 break
-            lat.append((time.time_ns() - ev.meta["t"]) / 1e6)
+            if ev.topic == topic:
+                t_recv = ev.t_recv_ns if traffic == "pipeline" else time.time_ns()
+                lat.append((t_recv - ev.meta["t"]) / 1e6)
     print(json.dumps(lat))
 
 
@@ -310,55 +330,61 @@ def _floor_relay(mode: str, endpoint: str) -> None:
                 bus.publish("tracks", out, {"seq": ev.meta["seq"], "t": ev.meta["t"]})
 
 
-def _floor_publish(mode: str, endpoint: str, n: int, rate: float) -> None:
+def _floor_publish(mode: str, endpoint: str, n: int, rate: float, traffic: str = "bare") -> None:
     """Publish ``n`` ``measurements`` samples of the pipeline's size at ``rate`` per second,
-    each stamped with its publication time, once the relay and the subscriber are ready."""
+    each stamped with its publication time, once the relay and the subscriber are ready;
+    with ``traffic="pipeline"`` each followed by a ``truth`` sample of the pipeline's size
+    stamped alike, as the source stage publishes a frame."""
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus
 
     with Bus("floor2", "pub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
-        bus.declare(["measurements"])
+        bus.declare(["measurements", "truth"] if traffic == "pipeline" else ["measurements"])
         if bus.wait_alive(["sub", "relay"], 60, "ready"):
             raise SystemExit("two-hop floor: relay or subscriber did not start")
         time.sleep(0.5)  # let the peers link up
-        payload = b"x" * TRAFFIC_SIZES[0]
+        payload, truth = b"x" * TRAFFIC_SIZES[0], b"x" * TRAFFIC_SIZES[1]
         for i in range(n):
-            bus.publish("measurements", payload, {"seq": i, "t": time.time_ns()})
+            t = time.time_ns()
+            bus.publish("measurements", payload, {"seq": i, "t": t})
+            if traffic == "pipeline":
+                bus.publish("truth", truth, {"seq": i, "t": t})
             time.sleep(1.0 / rate)
         time.sleep(1.0)  # keep the session a moment: the last samples leave
 
 
-def two_hop_floor(mode: str, rate: float, n: int = 400, own_process: bool = True) -> dict:
-    """The pipeline's two hops with nothing else: publisher -> relay process (republishes at
-    once, ``_floor_relay``) -> subscriber process, at ``rate`` per second with the pipeline's
-    payload sizes (/measurements in, /tracks out); through a router in this process
-    (``client``, like the launcher's embedded router) or peer to peer (``peer``).  The
-    publisher runs in a process of its own, as the pipeline's source does (``own_process``);
-    otherwise in this process, beside the router (the floor of sessions 4 and 5: its first hop
-    does not leave the router's process, so it is one process wake-up short of the pipeline's
-    path)."""
+def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline") -> dict:
+    """The pipeline's two hops with nothing else: a publisher process (the source's place) ->
+    a relay process (the tracker's: republishes each sample at once, ``_floor_relay``) -> a
+    subscriber process (the sink's), ``n`` samples at ``rate`` per second with the pipeline's
+    payload sizes (/measurements in, /tracks out), through a router in this process
+    (``client``, like the launcher's embedded router) or peer to peer (``peer``), with the
+    stages' ``Bus`` (the same publisher and subscriber settings).
+
+    ``traffic="pipeline"`` (the target's floor): the pipeline's traffic and receipt time too;
+    the publisher also puts a /truth sample per frame, the subscriber subscribes to
+    /measurements, /truth and /tracks as the sink does, and the latency is taken when the
+    /tracks sample arrives (the subscription callback's stamp, the sink's ``t_recv_ns``).
+    ``traffic="bare"``: the floor of session 6 (one topic per hop, the latency taken when the
+    subscriber's main thread gets the sample: one thread wake-up later than the sink's stamp)."""
     from bnptrack.pipeline.config import ZenohConfig
     from bnptrack.pipeline.transport import Router
 
     with Router(ZenohConfig()) as router:
         ep = router.endpoints[0]
-        sub = subprocess.Popen([sys.executable, __file__, "--floor-subscriber2", mode, ep, str(n)],
+        sub = subprocess.Popen([sys.executable, __file__, "--floor-subscriber2", mode, ep, str(n), traffic],
                                stdout=subprocess.PIPE, text=True)
         relay = subprocess.Popen([sys.executable, __file__, "--floor-relay", mode, ep], stdin=subprocess.PIPE)
         try:
-            if own_process:
-                pub = subprocess.Popen([sys.executable, __file__, "--floor-publisher2", mode, ep, str(n), str(rate)])
-            else:
-                _floor_publish(mode, ep, n, rate)
-            out, _ = sub.communicate(timeout=120)
-            if own_process:
-                pub.wait(60)
+            pub = subprocess.Popen([sys.executable, __file__, "--floor-publisher2", mode, ep, str(n), str(rate),
+                                    traffic])
+            out, _ = sub.communicate(timeout=120 + 2 * n / rate)
+            pub.wait(60)
         finally:
             relay.stdin.close()
             relay.wait(30)
     lat = json.loads(out)
-    return {"p50": pct(lat, 50), "p99": pct(lat, 99), "n": len(lat), "load_avg": load_avg(),
-            "publisher": "own process" if own_process else "the router's process"}
+    return {"p50": pct(lat, 50), "p99": pct(lat, 99), "n": len(lat), "load_avg": load_avg(), "traffic": traffic}
 
 
 def socket_floor(rate: float, n: int = 400) -> dict:
@@ -382,6 +408,38 @@ def socket_floor(rate: float, n: int = 400) -> dict:
     os.waitpid(pid, 0)
     a.close()
     return {"p50": pct(lat, 50), "p99": pct(lat, 99), "load_avg": load_avg()}
+
+
+def first_puts(size: int, warm: str | None, n: int = 30, period: float = 0.025) -> list[float]:
+    """Wall time (ms) of each of the first ``n`` puts of ``size`` bytes on a fresh ``tracks``
+    publisher (a router, the publisher's session and a subscriber's session in this process,
+    the stages' ``Bus``), one every ``period`` s; with ``warm``, three 20 KB samples on that
+    topic first (the subscriber subscribes to it too).  Session 7 found that one of the first
+    puts of a sample of several KB on a fresh session blocks for 5 to 120 ms (not with 600 B
+    samples; not after a few large samples on any subscribed topic of the same session; not
+    changed by ``express`` or ``transport/link/tx/queue/allocation/mode = "init"``): the
+    tracker stage's /tracks grow past that size around frame 10 of vo2017, and that put is
+    then the worst frame of most paced runs (docs/pipeline.md, Performance)."""
+    from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
+    from bnptrack.pipeline.transport import Bus, Router
+
+    with Router(ZenohConfig()) as router:
+        ep = router.endpoints[0]
+        with Bus("puts", "sub", ZenohConfig(connect=[ep]), DeliveryConfig()) as sub, \
+                Bus("puts", "pub", ZenohConfig(connect=[ep]), DeliveryConfig()) as pub:
+            sub.subscribe(["tracks"] + ([warm] if warm else []))
+            pub.declare(["tracks"])
+            time.sleep(1.0)  # both sessions up, the subscriptions known to the router
+            for _ in range(3 if warm else 0):
+                pub.publish(warm, b"y" * 20_000)
+                time.sleep(period)
+            out = []
+            for i in range(n):
+                t0 = time.perf_counter()
+                pub.publish("tracks", b"x" * size, {"seq": i, "t": 0})
+                out.append((time.perf_counter() - t0) * 1e3)
+                time.sleep(period)
+    return out
 
 
 # --------------------------------------------------------------------------- machine floor
@@ -560,11 +618,11 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
         print("  per hop p50 (p99): source -> tracker {:.2f} ({:.2f}) ms; in the tracker (decode, step, encode) "
               "{:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
                   *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
-        print(f"  two-hop floor ({two['mode']} mode, bare relay, pipeline payload sizes, {args.rate:g}/s, load "
-              f"{two['load_avg']:.2f}): p50 {two['p50']:.2f} ms, p99 {two['p99']:.2f} ms  <->  added p99 "
-              f"{pct(added, 99):.2f} ms = floor + {pct(added, 99) - two['p99']:.2f} ms")
-        old = two["in_router_process"]
-        print(f"  the same floor with the publisher in the router's process (sessions 4-5): p50 {old['p50']:.2f} ms, "
+        print(f"  two-hop floor ({two['mode']} mode, bare relay, the pipeline's traffic and receipt stamp, "
+              f"{args.rate:g}/s, load {two['load_avg']:.2f}): p50 {two['p50']:.2f} ms, p99 {two['p99']:.2f} ms  <->  "
+              f"added p99 {pct(added, 99):.2f} ms = floor + {pct(added, 99) - two['p99']:.2f} ms")
+        old = two["bare"]
+        print(f"  session 6's floor (one topic per hop, stamped on the main thread): p50 {old['p50']:.2f} ms, "
               f"p99 {old['p99']:.2f} ms  <->  added p99 = floor + {pct(added, 99) - old['p99']:.2f} ms")
     if "client" in floors:
         print("  transport floor, one hop p50 (p99): " + "; ".join(
@@ -574,9 +632,9 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
     over = [pct(p["added_ms"], 99) - f["p99"] for p, f in zip(paced_runs, floors["two_hop"])]
     print(f"  added p99 - two-hop floor p99 per run: {', '.join(format(o, '.2f') for o in over)} ms; median "
           f"{np.median(over):.2f} ms (target: <= 1 ms)")
-    old = [pct(p["added_ms"], 99) - f["in_router_process"]["p99"] for p, f in zip(paced_runs, floors["two_hop"])]
-    print(f"  ... against the floor with the publisher in the router's process: {', '.join(format(o, '.2f') for o in old)}"
-          f" ms; median {np.median(old):.2f} ms")
+    old = [pct(p["added_ms"], 99) - f["bare"]["p99"] for p, f in zip(paced_runs, floors["two_hop"])]
+    print(f"  ... against session 6's floor: {', '.join(format(o, '.2f') for o in old)} ms; median "
+          f"{np.median(old):.2f} ms")
     return float(np.median(over)) <= 1.0
 
 
@@ -597,24 +655,37 @@ def _pipeline_mode(overrides: list[str]) -> str:
     return "client"
 
 
-def main() -> None:
+def _child_mode() -> bool:
+    """Run the child-process mode named by ``sys.argv`` (a floor's or the traffic's process,
+    ``--first-puts``); False when the command line is the benchmark's own."""
     if len(sys.argv) == 5 and sys.argv[1] == "--floor-subscriber":
         _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]))
-        return
-    if len(sys.argv) == 5 and sys.argv[1] == "--floor-subscriber2":
-        _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]), "floor2", "tracks")
-        return
-    if len(sys.argv) == 6 and sys.argv[1] == "--floor-publisher2":
-        _floor_publish(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]))
-        return
+        return True
+    if len(sys.argv) == 6 and sys.argv[1] == "--floor-subscriber2":
+        _floor_subscriber(sys.argv[2], sys.argv[3], int(sys.argv[4]), "floor2", "tracks", sys.argv[5])
+        return True
+    if len(sys.argv) == 7 and sys.argv[1] == "--floor-publisher2":
+        _floor_publish(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]), sys.argv[6])
+        return True
     if len(sys.argv) == 4 and sys.argv[1] == "--floor-relay":
         _floor_relay(sys.argv[2], sys.argv[3])
-        return
+        return True
     if len(sys.argv) == 5 and sys.argv[1] == "--traffic-publisher":
         _traffic_publisher(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
-        return
+        return True
+    if len(sys.argv) >= 3 and sys.argv[1] == "--first-puts":  # --first-puts SIZE [WARM_TOPIC]
+        d = first_puts(int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else None)
+        print(f"first puts of {sys.argv[2]} B: max {max(d):.2f} ms (put #{int(np.argmax(d))}), median "
+              f"{np.median(d):.2f} ms; puts over 2 ms: {[(i, round(x, 1)) for i, x in enumerate(d) if x > 2]}")
+        return True
     if len(sys.argv) == 3 and sys.argv[1] == "--traffic-subscriber":
         _traffic_subscriber(sys.argv[2])
+        return True
+    return False
+
+
+def main() -> None:
+    if _child_mode():
         return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5, help="vo2017 runs of 100 frames in the log")
@@ -669,12 +740,15 @@ def paced_rounds(log: Path, args, tmp: Path) -> tuple[list[dict], dict]:
     mode = _pipeline_mode(args.set)
     runs, two = [], []
     for r in range(args.paced):
-        runs.append(pipeline(log, args.tracker, args.seed, tmp / f"paced{r}", args.rate, args.rerun, args.set))
-        two.append({**two_hop_floor(mode, args.rate), "mode": mode})
-        two[-1]["in_router_process"] = two_hop_floor(mode, args.rate, own_process=False)
-        print(f"  paced run {r + 1}: added p99 {pct(runs[-1]['added_ms'], 99):.2f} ms, two-hop floor p99 "
-              f"{two[-1]['p99']:.2f} ms (publisher in the router's process: "
-              f"{two[-1]['in_router_process']['p99']:.2f} ms; load {two[-1]['load_avg']:.2f})", flush=True)
+        runs.append(pipeline(log, args.tracker, args.seed, tmp / f"paced{r}", args.rate, args.rerun, args.set,
+                             sample_cpu=False))
+        n = runs[-1]["frames"]  # as many samples as the run has frames: p99s of the same rank
+        two.append({**two_hop_floor(mode, args.rate, n), "mode": mode})
+        two[-1]["bare"] = two_hop_floor(mode, args.rate, n, traffic="bare")
+        print(f"  paced run {r + 1}: added p50 {pct(runs[-1]['added_ms'], 50):.2f} p99 "
+              f"{pct(runs[-1]['added_ms'], 99):.2f} ms, two-hop floor p50 {two[-1]['p50']:.2f} p99 "
+              f"{two[-1]['p99']:.2f} ms (session 6's floor: p50 {two[-1]['bare']['p50']:.2f} p99 "
+              f"{two[-1]['bare']['p99']:.2f} ms; load {two[-1]['load_avg']:.2f})", flush=True)
     floors: dict = {"two_hop": two}
     if args.only is None:
         floors.update({m: transport_floor(m, args.rate) for m in ("client", "peer")})

@@ -10,7 +10,7 @@ from typing import Any
 import msgspec
 
 from bnptrack.tracker.messages import to_estimate, to_frame, to_truth
-from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
 from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
@@ -116,6 +116,7 @@ class SinkStage(StageBase):
         self.sinks.open(meta if meta is not None else {"run": self.run_id})
         failed = {f for f, sink in built if getattr(sink, "failed", False)}
         self.files = [f for f in self.files if f not in failed]
+        settle_heap()
         self.bus.declare_alive("ready")
         return True
 

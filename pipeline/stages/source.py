@@ -12,7 +12,7 @@ from pathlib import Path
 
 from bnptrack.tracker.messages import encode, from_truth
 from bnptrack.pipeline.config import PipelineConfig, SourceConfig
-from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, settle_heap
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.types import Frame
@@ -117,6 +117,7 @@ class SourceStage(StageBase):
         self.bus.declare_alive()
         self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=src_cfg.kind,
                                                metadata=metadata, pid=os.getpid()))
+        settle_heap()
         self.bus.declare_alive("ready")
         if not self._wait_ready(src_cfg):
             return EXIT_STOPPED

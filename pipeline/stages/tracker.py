@@ -15,7 +15,7 @@ import numpy as np
 from bnptrack.tracker.messages import encode, to_frame
 from bnptrack.pipeline.config import TrackerStageConfig
 from bnptrack.pipeline.journal import JOURNAL_NAME, TracksJournal
-from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
 from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
@@ -362,6 +362,7 @@ class TrackerStage(StageBase):
         if self.on_control(ev):
             if self.tracker is None and self.upstream in self.infos:
                 self._build(self.infos[self.upstream])
+                settle_heap()
                 self.bus.declare_alive("ready")
                 for acc in self.pending:
                     self._push(acc)
