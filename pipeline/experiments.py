@@ -150,33 +150,34 @@ def execute_run(job: RunJob) -> RunResult:
 
 def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
                    crossings: Sequence[tuple[str, str, int]], keep_tracks: bool) -> TrackerRun:
-    """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
-    :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
-    (alpha 2) and the label keeping through ``crossings``."""
+    """Run one tracker over a run's frames and score every frame: OSPA, OSPA(2) and GOSPA
+    (alpha 2) by one :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's
+    sink; the three share each frame's distance matrix) and the label keeping through
+    ``crossings``."""
     from bnptrack.pipeline.resolve import tracker_setup
     from bnptrack.sinks.crossings import crossing_label_keeping
-    from bnptrack.sinks.metrics import gospa
     from bnptrack.sinks.metrics import RunScorer
     from bnptrack.tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
-    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW)
-    rows, o2, est_tracks, kept = [], [], [], []
+    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW, gospa_alpha=2.0)
+    rows, est_tracks, kept = [], [], []
     for f, e, _ in run_tracker(tracker, frames, seed):
         scores = scorer.update(f, e)
-        o = scores["ospa"]
-        g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
-        rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
-        o2.append(scores["ospa2"])
-        est_tracks.append({t.label: t.position for t in e.tracks})
-        kept.append(e)
+        o, g = scores["ospa"], scores["gospa"]
+        rows.append((o.total, o.localisation, o.cardinality, scores["ospa2"], g.total, len(e.tracks),
+                     e.diagnostics.get("ms", np.nan)))
+        if crossings:
+            est_tracks.append({t.label: t.position for t in e.tracks})
+        if keep_tracks:
+            kept.append(e)
     r = np.array(rows, dtype=float)
     cross = None
     if crossings:
         true_tracks = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]
         res = crossing_label_keeping(true_tracks, est_tracks, crossings)
         cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
-    return TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3], r[:, 4], r[:, 5],
+    return TrackerRun(r[:, 0], r[:, 1], r[:, 2], r[:, 3], r[:, 4], r[:, 5], r[:, 6],
                       kept if keep_tracks else None, cross)
 
 
