@@ -211,7 +211,11 @@ def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str
 
 
 def _run_dask(jobs: Sequence[RunJob], address: str, progress) -> list[RunResult]:
-    from distributed import Client, as_completed
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ConfigError("--cluster needs Dask's distributed scheduler, an optional extra: "
+                          "pip install 'bnptrack[dask]' (local worker processes need nothing extra)") from None
 
     with Client(address) as client:
         futures = client.map(execute_run, list(jobs), pure=False)
