@@ -15,15 +15,20 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import os
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.tracker.config import ConfigError
+
+if TYPE_CHECKING:
+    from concurrent.futures import Executor
 
 
 @dataclass(frozen=True)
@@ -185,28 +190,57 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
 
 
 def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str | None = None,
-             progress: Callable[[int], None] | None = None) -> list[RunResult]:
-    """Run jobs on local processes (default) or a Dask cluster at ``cluster``; results in job order."""
+             progress: Callable[[int], None] | None = None, executor: Executor | None = None
+             ) -> list[RunResult]:
+    """Run jobs on local processes (default), a given ``executor`` (e.g. a warm pool from
+    :func:`warm_pool`, kept across calls) or a Dask cluster at ``cluster``; results in job order.
+
+    One task per run: a worker keeps its imports and compiled kernels from one run to the
+    next, and a task costs well under a millisecond against about half a second of run
+    (docs/performance.md), so chunking runs would only unbalance the workers' last runs."""
     if cluster:
         return _run_dask(jobs, cluster, progress)
-    if workers == 1:
+    if workers == 1 and executor is None:
         out = []
         for job in jobs:
             out.append(execute_run(job))
             if progress:
                 progress(1)
         return out
+    if executor is not None:
+        return _run_pool(executor, jobs, progress)
     from concurrent.futures import ProcessPoolExecutor
 
-    results: list[RunResult | None] = [None] * len(jobs)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
-        from concurrent.futures import as_completed
+        return _run_pool(pool, jobs, progress)
 
-        for fut in as_completed(futures):
-            results[futures[fut]] = fut.result()
-            if progress:
-                progress(1)
+
+def warm_pool(workers: int, experiment: str = "ddp-vs-glmb") -> Executor:
+    """A process pool of ``workers`` processes, each of which has imported the trackers and
+    loaded their compiled kernels (one run of ``experiment`` at start-up), for
+    :func:`run_jobs`'s ``executor`` when several batches of jobs share the workers or a
+    benchmark must not time the workers' start.  Close it with ``shutdown()``."""
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_warm_worker, initargs=(experiment,))
+    wait([pool.submit(os.getpid) for _ in range(workers)])  # one worker started per task while none is idle
+    return pool
+
+
+def _warm_worker(experiment: str) -> None:
+    exp = get_experiment(experiment)
+    execute_run(RunJob(experiment, 0, 0, "vo2017", exp.variants[0]))
+
+
+def _run_pool(pool: Executor, jobs: Sequence[RunJob], progress) -> list[RunResult]:
+    from concurrent.futures import as_completed
+
+    results: list[RunResult | None] = [None] * len(jobs)
+    futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
+    for fut in as_completed(futures):
+        results[futures[fut]] = fut.result()
+        if progress:
+            progress(1)
     return results  # type: ignore[return-value]
 
 
