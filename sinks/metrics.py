@@ -512,9 +512,6 @@ def _first_seen_ranks(scans: list[tuple]) -> tuple[np.ndarray, dict]:
     return np.fromiter(map(index.__getitem__, chain.from_iterable(scans)), np.intp, n), index
 
 
-_NO_POSITIONS = np.zeros((0, 2))
-
-
 class ScoreTally:
     """Running means of a run's scores, for progress lines and summaries (the pipeline's
     sink: ``sink.json`` ``scores``, its health messages, ``bnptrack launch``'s progress).
