@@ -15,15 +15,20 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import os
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.tracker.config import ConfigError
+
+if TYPE_CHECKING:
+    from concurrent.futures import Executor
 
 
 @dataclass(frozen=True)
@@ -188,26 +193,27 @@ def execute_run(job: RunJob) -> RunResult:
 def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
                    crossings: Sequence[tuple[str, str, int]], keep_tracks: bool,
                    metrics: Sequence[FrameMetric] = ()) -> TrackerRun:
-    """Run one tracker over a run's frames and score every frame: OSPA and OSPA(2) by
-    :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's sink), GOSPA
-    (alpha 2) and the label keeping through ``crossings``."""
+    """Run one tracker over a run's frames and score every frame: OSPA, OSPA(2) and GOSPA
+    (alpha 2) by one :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's
+    sink; the three share each frame's distance matrix), the experiment's extra ``metrics``
+    and the label keeping through ``crossings``."""
     from bnptrack.pipeline.resolve import tracker_setup
     from bnptrack.sinks.crossings import crossing_label_keeping
-    from bnptrack.sinks.metrics import gospa
     from bnptrack.sinks.metrics import RunScorer
     from bnptrack.tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
-    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW)
-    rows, o2, est_tracks, kept, extra = [], [], [], [], []
+    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW, gospa_alpha=2.0)
+    rows, est_tracks, kept, extra = [], [], [], []
     for f, e, _ in run_tracker(tracker, frames, seed):
         scores = scorer.update(f, e)
-        o = scores["ospa"]
-        g = gospa(f.truth.positions, e.positions, c=OSPA_C, p=OSPA_P, alpha=2.0)
-        rows.append((o.total, o.localisation, o.cardinality, g.total, len(e.tracks), e.diagnostics.get("ms", np.nan)))
-        o2.append(scores["ospa2"])
-        est_tracks.append({t.label: t.position for t in e.tracks})
-        kept.append(e)
+        o, g = scores["ospa"], scores["gospa"]
+        rows.append((o.total, o.localisation, o.cardinality, scores["ospa2"], g.total, len(e.tracks),
+                     e.diagnostics.get("ms", np.nan)))
+        if crossings:
+            est_tracks.append({t.label: t.position for t in e.tracks})
+        if keep_tracks:
+            kept.append(e)
         extra.append([m.fn(f.truth.positions, e.positions) for m in metrics])
     r = np.array(rows, dtype=float)
     cross = None
@@ -216,7 +222,7 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
         res = crossing_label_keeping(true_tracks, est_tracks, crossings)
         cross = np.array([pr.kept for pr in res.pairs], dtype=bool)
     ex = np.asarray(extra, dtype=float).reshape(len(extra), len(metrics), 2)
-    return TrackerRun(r[:, 0], r[:, 1], r[:, 2], np.asarray(o2, float), r[:, 3], r[:, 4], r[:, 5],
+    return TrackerRun(r[:, 0], r[:, 1], r[:, 2], r[:, 3], r[:, 4], r[:, 5], r[:, 6],
                       kept if keep_tracks else None, cross, {m.key: ex[:, i] for i, m in enumerate(metrics)})
 
 
@@ -224,33 +230,66 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
 
 
 def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str | None = None,
-             progress: Callable[[int], None] | None = None) -> list[RunResult]:
-    """Run jobs on local processes (default) or a Dask cluster at ``cluster``; results in job order."""
+             progress: Callable[[int], None] | None = None, executor: Executor | None = None
+             ) -> list[RunResult]:
+    """Run jobs on local processes (default), a given ``executor`` (e.g. a warm pool from
+    :func:`warm_pool`, kept across calls) or a Dask cluster at ``cluster``; results in job order.
+
+    One task per run: a worker keeps its imports and compiled kernels from one run to the
+    next, and a task costs well under a millisecond against about half a second of run
+    (docs/performance.md), so chunking runs would only unbalance the workers' last runs."""
     if cluster:
         return _run_dask(jobs, cluster, progress)
-    if workers == 1:
+    if workers == 1 and executor is None:
         out = []
         for job in jobs:
             out.append(execute_run(job))
             if progress:
                 progress(1)
         return out
+    if executor is not None:
+        return _run_pool(executor, jobs, progress)
     from concurrent.futures import ProcessPoolExecutor
 
-    results: list[RunResult | None] = [None] * len(jobs)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
-        from concurrent.futures import as_completed
+        return _run_pool(pool, jobs, progress)
 
-        for fut in as_completed(futures):
-            results[futures[fut]] = fut.result()
-            if progress:
-                progress(1)
+
+def warm_pool(workers: int, experiment: str = "ddp-vs-glmb") -> Executor:
+    """A process pool of ``workers`` processes, each of which has imported the trackers and
+    loaded their compiled kernels (one run of ``experiment`` at start-up), for
+    :func:`run_jobs`'s ``executor`` when several batches of jobs share the workers or a
+    benchmark must not time the workers' start.  Close it with ``shutdown()``."""
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_warm_worker, initargs=(experiment,))
+    wait([pool.submit(os.getpid) for _ in range(workers)])  # one worker started per task while none is idle
+    return pool
+
+
+def _warm_worker(experiment: str) -> None:
+    exp = get_experiment(experiment)
+    execute_run(RunJob(experiment, 0, 0, "vo2017", exp.variants[0]))
+
+
+def _run_pool(pool: Executor, jobs: Sequence[RunJob], progress) -> list[RunResult]:
+    from concurrent.futures import as_completed
+
+    results: list[RunResult | None] = [None] * len(jobs)
+    futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
+    for fut in as_completed(futures):
+        results[futures[fut]] = fut.result()
+        if progress:
+            progress(1)
     return results  # type: ignore[return-value]
 
 
 def _run_dask(jobs: Sequence[RunJob], address: str, progress) -> list[RunResult]:
-    from distributed import Client, as_completed
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ConfigError("--cluster needs Dask's distributed scheduler, an optional extra: "
+                          "pip install 'bnptrack[dask]' (local worker processes need nothing extra)") from None
 
     with Client(address) as client:
         futures = client.map(execute_run, list(jobs), pure=False)

@@ -131,6 +131,12 @@ def _gospa_unchecked(D: np.ndarray, c: float, p: float, alpha: float) -> GospaRe
         d = D[rows, cols]
     else:
         d = np.empty(0)
+    return _gospa_from_pairs(d, m, n, c, p, alpha)
+
+
+def _gospa_from_pairs(d: np.ndarray, m: int, n: int, c: float, p: float, alpha: float) -> GospaResult:
+    """GOSPA from the cut-off distances ``d`` of the optimally assigned pairs of ``m`` true and
+    ``n`` estimated points."""
     if alpha == 2.0:  # a pair at the cut-off costs the same as one missed plus one false
         d = d[d < c]
     loc_sum = math.fsum(d**p)
@@ -388,47 +394,122 @@ OSPA2_WINDOW = 10
 
 
 class RunScorer:
-    """Per-frame OSPA and OSPA(2) of a run, computed as frames arrive.
+    """Per-frame OSPA and OSPA(2) of a run (and GOSPA on request), computed as frames arrive.
 
     ``update(frame, estimate)`` returns ``{"ospa": OspaResult | None, "ospa2": float | None}``
-    (``None`` for a frame without truth), ready to pass to :meth:`sinks.rerun_sink.RerunSink.log`.  OSPA is
-    :func:`ospa` of (truth positions, estimated positions); OSPA(2) at frame k is
-    :func:`ospa2` over the last ``window`` frames, the value
-    :func:`ospa2_series` gives at k for the whole run.
+    (``None`` for a frame without truth), ready to pass to :meth:`sinks.rerun_sink.RerunSink.log`;
+    with ``gospa_alpha`` set, also ``"gospa"``: :func:`gospa` (truth, estimate) with that
+    alpha.  OSPA is :func:`ospa` of (truth positions, estimated positions); OSPA(2) at frame k
+    is :func:`ospa2` over the last ``window`` frames, the value :func:`ospa2_series` gives at k
+    for the whole run, bit for bit.
 
-    It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame, so it keeps
-    each scan as (labels, ``(n, 2)`` positions) and goes straight to the metrics' kernels
-    (the OSPA(2) window is built by the same ``_window_tracks`` as ``ospa2_series``'s);
-    the public functions' checks run only for a scan with a non-finite position, where they
-    raise their error.
+    It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame and on every
+    frame of a Monte Carlo study, so each frame's cut-off distance matrix is computed once
+    (:func:`scipy.spatial.distance.cdist`) and serves three times: OSPA and GOSPA share its
+    optimal assignment, and the OSPA(2) window (:class:`_TrackWindow`) keeps it as the
+    per-scan base distances of every (estimated, true) label pair of that scan.  The public
+    functions' checks run only for a scan with a non-finite position, where they raise.
     """
 
     def __init__(self, c: float = OSPA_C, p: float = OSPA_P, window: int = OSPA2_WINDOW,
-                 q: float = 1.0) -> None:
+                 q: float = 1.0, gospa_alpha: float | None = None) -> None:
         self.c, self.p, self.q, self.window = float(c), float(p), float(q), int(window)
-        self._est: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
-        self._true: deque[tuple[tuple[str, ...], np.ndarray]] = deque(maxlen=self.window)
+        self.alpha = None if gospa_alpha is None else check_alpha(gospa_alpha)
+        self._tracks = _TrackWindow(self.window, self.c, self.q)
 
     def update(self, frame: Frame, estimate: Estimate) -> dict[str, Any]:
         """The frame's scores (``bnptrack track``, the sink stage and experiments all score
         through this method)."""
         est = estimate.positions
-        self._est.append((estimate.labels, est))
-        if frame.truth is None:
-            self._true.append(((), _NO_POSITIONS))
-            return {"ospa": None, "ospa2": None}
         truth = frame.truth
+        if truth is None:
+            self._tracks.append(estimate.labels, (), np.empty((0, est.shape[0])))
+            return {"ospa": None, "ospa2": None} | ({} if self.alpha is None else {"gospa": None})
         true = truth.positions
-        self._true.append((tuple(truth.ids), true))
         if not (np.isfinite(est).all() and np.isfinite(true).all()):
             ospa(true, est, c=self.c, p=self.p)  # raises, naming the bad position
-        o = _ospa_unchecked(_cutoff_distances(true, est, self.c), self.c, self.p)
-        X, Y = _window_tracks(list(self._est), 2), _window_tracks(list(self._true), 2)
-        o2 = _ospa_unchecked(_track_distances(X, Y, self.c, self.q), self.c, self.p).total
-        return {"ospa": o, "ospa2": float(o2)}
+        D = _cutoff_distances(true, est, self.c)  # (truth, estimate)
+        self._tracks.append(estimate.labels, tuple(truth.ids), D)
+        o2 = _ospa_unchecked(self._tracks.distances(), self.c, self.p).total
+        if self.alpha is None:
+            return {"ospa": _ospa_unchecked(D, self.c, self.p), "ospa2": float(o2)}
+        o, g = _ospa_gospa(D, self.c, self.p, self.alpha)
+        return {"ospa": o, "ospa2": float(o2), "gospa": g}
 
 
-_NO_POSITIONS = np.zeros((0, 2))
+def _ospa_gospa(D: np.ndarray, c: float, p: float, alpha: float) -> tuple[OspaResult, GospaResult]:
+    """:func:`_ospa_unchecked` and :func:`_gospa_unchecked` of one truth-by-estimate matrix
+    from one optimal assignment: both solve it on ``D ** p`` (OSPA on the transpose when there
+    are more true points, which :func:`scipy.optimize.linear_sum_assignment` does internally
+    for the tall matrix anyway), so the pairs and every sum are those of the two functions."""
+    m, n = D.shape
+    if m == 0 or n == 0:
+        return _ospa_unchecked(D, c, p), _gospa_unchecked(D, c, p, alpha)
+    tall = m > n
+    cost = (D.T if tall else D) ** p
+    r, k = optimal_assignment(cost)
+    loc_term = math.fsum(cost[r, k]) / max(m, n)
+    card_term = c**p * abs(n - m) / max(m, n)
+    o = OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
+    return o, _gospa_from_pairs(D[k, r] if tall else D[r, k], m, n, c, p, alpha)
+
+
+class _TrackWindow:
+    """The last ``window`` scans of a run as (estimated labels, true labels, their
+    ``(n_true, n_est)`` cut-off distances) and the OSPA(2) base distances
+    (:func:`_track_distances`) of the labels present in them.
+
+    :meth:`distances` builds the same ``(n_labels_est, n_labels_true, W)`` array of per-scan
+    terms as :func:`_track_distances` (labels in first-seen order, as :func:`_window_tracks`)
+    with one indexed write of the scans' distances, and sums it the same way, so the result
+    is the same bit for bit without a position array or a distance computed twice.
+    """
+
+    def __init__(self, window: int, c: float, q: float) -> None:
+        self.window, self.c, self.q = window, c, q
+        self.cq = (np.array([c]) ** q)[0]  # the term of a scan where only one track exists
+        self._scans: deque[tuple] = deque(maxlen=window)  # (labels_e, labels_t, pair_e, pair_t, terms)
+
+    def append(self, est_labels: tuple, true_labels: tuple, D: np.ndarray) -> None:
+        """One scan: its labels and ``(len(true_labels), len(est_labels))`` cut-off distances."""
+        ne, nt = len(est_labels), len(true_labels)
+        pair_e = np.tile(np.arange(ne), nt)  # D.ravel()'s (estimate, truth) entries
+        pair_t = np.repeat(np.arange(nt), ne)
+        self._scans.append((est_labels, true_labels, pair_e, pair_t, (D ** self.q if self.q != 1.0 else D).ravel()))
+
+    def distances(self) -> np.ndarray:
+        """``(m, n)`` OSPA(2) base distances of the window's estimated and true tracks,
+        :func:`_track_distances` of :func:`_window_tracks` of the window, bit for bit."""
+        scans = self._scans
+        W = len(scans)
+        re, ie = _first_seen_ranks([s[0] for s in scans])
+        rt, it = _first_seen_ranks([s[1] for s in scans])
+        if not ie or not it:
+            return np.empty((len(ie), len(it)))
+        cnt_e, cnt_t = [len(s[0]) for s in scans], [len(s[1]) for s in scans]
+        ex = np.zeros((len(ie), W), dtype=bool)
+        ey = np.zeros((len(it), W), dtype=bool)
+        ex[re, np.repeat(np.arange(W), cnt_e)] = True
+        ey[rt, np.repeat(np.arange(W), cnt_t)] = True
+        union = ex[:, None, :] | ey[None, :, :]
+        per_scan = np.where(union, self.cq, 0.0)
+        pairs = [s[4].size for s in scans]
+        if any(pairs):
+            off_e = np.repeat(np.cumsum(cnt_e) - cnt_e, pairs)
+            off_t = np.repeat(np.cumsum(cnt_t) - cnt_t, pairs)
+            rows = re[np.concatenate([s[2] for s in scans]) + off_e]
+            cols = rt[np.concatenate([s[3] for s in scans]) + off_t]
+            per_scan[rows, cols, np.repeat(np.arange(W), pairs)] = np.concatenate([s[4] for s in scans])
+        mean = per_scan.sum(axis=-1) / np.maximum(union.sum(axis=-1), 1)
+        return mean if self.q == 1.0 else mean ** (1.0 / self.q)
+
+
+def _first_seen_ranks(scans: list[tuple]) -> tuple[np.ndarray, dict]:
+    """Every label of every scan numbered in first-seen order (:func:`_window_tracks`'s):
+    (the numbers, entry by entry; label -> number)."""
+    index = dict(zip(dict.fromkeys(chain.from_iterable(scans)), range(1 << 62)))
+    n = sum(map(len, scans))
+    return np.fromiter(map(index.__getitem__, chain.from_iterable(scans)), np.intp, n), index
 
 
 class ScoreTally:

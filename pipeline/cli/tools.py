@@ -258,7 +258,7 @@ Examples:
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Local worker processes (default: one per core).")
 @click.option("--cluster", metavar="ADDRESS", default=None,
-              help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes.")
+              help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes; needs the optional extra: pip install 'bnptrack[dask]'.")
 @click.option("--no-rrd", is_flag=True, help="Skip the .rrd recordings of the representative run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no summary.")
 @clean_errors

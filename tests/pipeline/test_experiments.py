@@ -52,7 +52,7 @@ def test_single_run_redone_alone_is_identical(local_results):
 
 
 def test_dask_cluster_gives_identical_results(local_results):
-    import distributed  # a runtime dependency (dask[distributed]): fail, do not skip
+    import distributed  # a test dependency (pyproject [test], and the [dask] extra): fail, do not skip
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   dashboard_address=None, host="127.0.0.1") as cluster:
         dask_results = run_jobs(JOBS, cluster=cluster.scheduler_address)
