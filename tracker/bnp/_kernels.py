@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bnptrack.tracker._lsap import lsap
 from bnptrack.tracker._numerics import jit
 
 
@@ -458,66 +459,6 @@ def jpda_solve(logs, clusters, choice, lt, lm, forbidden):  # pragma: no cover -
     return out
 
 
-def lsap(cost):  # pragma: no cover - compiled
-    """Minimum-cost assignment of every row of ``cost`` (rows <= columns, finite): the shortest
-    augmenting path algorithm (Crouse 2016) as ``scipy.optimize.linear_sum_assignment``
-    implements it, ties included.  Returns each row's column (-1 if infeasible)."""
-    nr, nc = cost.shape
-    u, v, spc = np.zeros(nr), np.zeros(nc), np.empty(nc)
-    path = np.full(nc, -1, dtype=np.int64)
-    col4row = np.full(nr, -1, dtype=np.int64)
-    row4col = np.full(nc, -1, dtype=np.int64)
-    SR, SC = np.empty(nr, dtype=np.bool_), np.empty(nc, dtype=np.bool_)
-    remaining = np.empty(nc, dtype=np.int64)
-    for cur in range(nr):
-        min_val, i, n_rem, sink = 0.0, cur, nc, -1
-        for it in range(nc):
-            remaining[it] = nc - it - 1
-        SR[:] = False
-        SC[:] = False
-        spc[:] = np.inf
-        while sink == -1:
-            index, lowest = -1, np.inf
-            SR[i] = True
-            for it in range(n_rem):
-                j = remaining[it]
-                r = min_val + cost[i, j] - u[i] - v[j]
-                if r < spc[j]:
-                    path[j] = i
-                    spc[j] = r
-                if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
-                    lowest = spc[j]
-                    index = it
-            min_val = lowest
-            if min_val == np.inf:
-                return np.full(nr, -1, dtype=np.int64)
-            j = remaining[index]
-            if row4col[j] == -1:
-                sink = j
-            else:
-                i = row4col[j]
-            SC[j] = True
-            n_rem -= 1
-            remaining[index] = remaining[n_rem]
-        u[cur] += min_val
-        for i in range(nr):
-            if SR[i] and i != cur:
-                u[i] += min_val - spc[col4row[i]]
-        for j in range(nc):
-            if SC[j]:
-                v[j] -= min_val - spc[j]
-        j = sink
-        while True:
-            i = path[j]
-            row4col[j] = i
-            tmp = col4row[i]
-            col4row[i] = j
-            j = tmp
-            if i == cur:
-                break
-    return col4row
-
-
 def moment_match(w_miss, r, ti, p, m_pred, P_pred, mu, P_upd, eps):  # pragma: no cover - compiled
     """``filter._moment_match`` in the numpy code's order: each cluster's Gaussian over
     "missed" (weight ``w_miss / r``) and its pairs ``ti`` (weight ``p / r``, updated means
@@ -686,7 +627,6 @@ clip01 = jit(clip01, inline=True)
 existence_update = jit(existence_update)
 jpda_select = jit(jpda_select)
 jpda_solve = jit(jpda_solve)
-lsap = jit(lsap)
 moment_match = jit(moment_match)
 birth_moments = jit(birth_moments)
 cardinality_pmf = jit(cardinality_pmf)

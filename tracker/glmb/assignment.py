@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bnptrack.tracker._lsap import lsap_into
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS
 
@@ -63,10 +64,10 @@ def _assign_dense(E: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _lsap_kernel(cost: np.ndarray, col: np.ndarray, solved: np.ndarray) -> None:  # pragma: no cover
     """Minimum-cost assignment of every row of each ``cost[h]`` (rows <= columns, +inf =
-    forbidden): the shortest augmenting path algorithm (Crouse 2016) exactly as
-    ``scipy.optimize.linear_sum_assignment`` implements it, batched over ``h`` and compiled
-    with numba.  Writes ``col[h]`` (the column of each row) and ``solved[h]`` (False when
-    no finite assignment exists; ``col[h]`` is then left unchanged)."""
+    forbidden): :func:`tracker._lsap.lsap_into` (scipy's ``linear_sum_assignment`` algorithm)
+    batched over ``h`` on one set of work arrays.  Writes ``col[h]`` (the column of each row)
+    and ``solved[h]`` (False when no finite assignment exists; ``col[h]`` is then left
+    unchanged)."""
     H, nr, nc = cost.shape
     u = np.empty(nr)
     v = np.empty(nc)
@@ -78,67 +79,7 @@ def _lsap_kernel(cost: np.ndarray, col: np.ndarray, solved: np.ndarray) -> None:
     SC = np.empty(nc, dtype=np.bool_)
     remaining = np.empty(nc, dtype=np.int64)
     for h in range(H):
-        u[:] = 0.0
-        v[:] = 0.0
-        path[:] = -1
-        col4row[:] = -1
-        row4col[:] = -1
-        feasible = True
-        for cur in range(nr):
-            # augmenting path from row cur
-            min_val = 0.0
-            i = cur
-            n_rem = nc
-            for it in range(nc):
-                remaining[it] = nc - it - 1
-            SR[:] = False
-            SC[:] = False
-            spc[:] = np.inf
-            sink = -1
-            while sink == -1:
-                index = -1
-                lowest = np.inf
-                SR[i] = True
-                for it in range(n_rem):
-                    j = remaining[it]
-                    r = min_val + cost[h, i, j] - u[i] - v[j]
-                    if r < spc[j]:
-                        path[j] = i
-                        spc[j] = r
-                    if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
-                        lowest = spc[j]
-                        index = it
-                min_val = lowest
-                if min_val == np.inf:
-                    break
-                j = remaining[index]
-                if row4col[j] == -1:
-                    sink = j
-                else:
-                    i = row4col[j]
-                SC[j] = True
-                n_rem -= 1
-                remaining[index] = remaining[n_rem]
-            if sink < 0:
-                feasible = False
-                break
-            u[cur] += min_val
-            for i in range(nr):
-                if SR[i] and i != cur:
-                    u[i] += min_val - spc[col4row[i]]
-            for j in range(nc):
-                if SC[j]:
-                    v[j] -= min_val - spc[j]
-            j = sink
-            while True:
-                i = path[j]
-                row4col[j] = i
-                tmp = col4row[i]
-                col4row[i] = j
-                j = tmp
-                if i == cur:
-                    break
-        if feasible:
+        if lsap_into(cost[h], col4row, u, v, spc, path, row4col, SR, SC, remaining):
             for i in range(nr):
                 col[h, i] = col4row[i]
             solved[h] = True
