@@ -33,7 +33,8 @@ stamps made consecutive), then measures, in one invocation:
    session 6's floor (one topic per hop, stamped on the subscriber's main thread).  Paced runs
    and floors run without the ``/proc`` CPU sampler.  With both parts measured, also one hop
    between two bare processes in client and peer mode, and the operating system's own hop (a
-   socketpair).  ``--first-puts SIZE [TOPIC]`` times the first puts on a fresh session.
+   socketpair).  ``--first-puts SIZE [TOPIC|shm]`` times the first puts on a fresh session
+   (``shm``: with Zenoh's shared memory turned back on, the default before this was found).
 4. **Machine floor**: the offline tracker alone and beside bare Zenoh traffic (a router and a
    publisher in one process, a subscriber in another, three samples of the pipeline's sizes
    per frame at the offline frame rate: no tracker, codec or file), in ``--rounds``
@@ -414,19 +415,21 @@ def first_puts(size: int, warm: str | None, n: int = 30, period: float = 0.025) 
     """Wall time (ms) of each of the first ``n`` puts of ``size`` bytes on a fresh ``tracks``
     publisher (a router, the publisher's session and a subscriber's session in this process,
     the stages' ``Bus``), one every ``period`` s; with ``warm``, three 20 KB samples on that
-    topic first (the subscriber subscribes to it too).  Session 7 found that one of the first
-    puts of a sample of several KB on a fresh session blocks for 5 to 120 ms (not with 600 B
-    samples; not after a few large samples on any subscribed topic of the same session; not
-    changed by ``express`` or ``transport/link/tx/queue/allocation/mode = "init"``): the
-    tracker stage's /tracks grow past that size around frame 10 of vo2017, and that put is
-    then the worst frame of most paced runs (docs/pipeline.md, Performance)."""
+    topic first (the subscriber subscribes to it too); ``warm == "shm"`` instead turns Zenoh's
+    shared-memory transport back on in the three sessions.  Session 7 found that one of the
+    first puts of a sample of several KB on a fresh session blocked for 5 to 120 ms; a second look
+    found why: Zenoh's shared memory (on by default) sends samples above 3 KB through a pool
+    that the first such put creates (``pipeline.transport.SHM_OFF``).  Without it no put of
+    5.8 KB took over 0.6 ms in three runs (docs/pipeline.md, Performance)."""
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus, Router
 
-    with Router(ZenohConfig()) as router:
+    extra = {"transport/shared_memory/enabled": "true"} if warm == "shm" else {}
+    warm = None if warm == "shm" else warm
+    with Router(ZenohConfig(extra=extra)) as router:
         ep = router.endpoints[0]
-        with Bus("puts", "sub", ZenohConfig(connect=[ep]), DeliveryConfig()) as sub, \
-                Bus("puts", "pub", ZenohConfig(connect=[ep]), DeliveryConfig()) as pub:
+        with Bus("puts", "sub", ZenohConfig(connect=[ep], extra=extra), DeliveryConfig()) as sub, \
+                Bus("puts", "pub", ZenohConfig(connect=[ep], extra=extra), DeliveryConfig()) as pub:
             sub.subscribe(["tracks"] + ([warm] if warm else []))
             pub.declare(["tracks"])
             time.sleep(1.0)  # both sessions up, the subscriptions known to the router
@@ -673,7 +676,7 @@ def _child_mode() -> bool:
     if len(sys.argv) == 5 and sys.argv[1] == "--traffic-publisher":
         _traffic_publisher(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
         return True
-    if len(sys.argv) >= 3 and sys.argv[1] == "--first-puts":  # --first-puts SIZE [WARM_TOPIC]
+    if len(sys.argv) >= 3 and sys.argv[1] == "--first-puts":  # --first-puts SIZE [WARM_TOPIC|shm]
         d = first_puts(int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else None)
         print(f"first puts of {sys.argv[2]} B: max {max(d):.2f} ms (put #{int(np.argmax(d))}), median "
               f"{np.median(d):.2f} ms; puts over 2 ms: {[(i, round(x, 1)) for i, x in enumerate(d) if x > 2]}")

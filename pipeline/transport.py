@@ -78,6 +78,17 @@ CONTROL_CACHE = 16
 #: Where a peer-mode stage listens unless ``zenoh.listen`` says otherwise (a free loopback port).
 PEER_LISTEN = ("tcp/127.0.0.1:0",)
 
+#: Zenoh's shared-memory transport, switched off in every session (``zenoh.extra`` may turn it
+#: back on).  Zenoh 1.x enables it by default and then sends each sample above 3 KB
+#: (``transport/shared_memory/transport_optimization/message_size_threshold``) through a
+#: shared-memory pool instead of the socket.  The pool is created lazily, by the first put of
+#: such a sample on the publishing thread itself: a file in /dev/shm created, sized, mapped and
+#: mlocked, and two watchdog threads started (seen with ``strace``).  That put blocked for 5 to
+#: 120 ms (``benchmarks/pipeline_latency.py --first-puts 5800``; 0.1-0.6 ms without shared
+#: memory), and it is the tracker's first /tracks of several KB, some ten frames into every
+#: run.  The samples of a pipeline are a few KB: a socket copy costs microseconds.
+SHM_OFF = ("transport/shared_memory/enabled", "false")
+
 #: Most samples one fetch reply set carries (a consumer asks again for the rest).
 FETCH_MAX = 2000
 
@@ -150,6 +161,8 @@ def session_config(
     if listen or mode != "client":
         ins("listen/endpoints", json.dumps(listen))
     ins("scouting/multicast/enabled", json.dumps(bool(zcfg.multicast_scouting)))
+    # no shared memory (see SHM_OFF): before ``extra``, which may turn it back on
+    ins(*SHM_OFF)
     if not router and connect and zcfg.connect_timeout_s > 0:
         # keep trying to reach the router for a while at start-up (it may come up a moment
         # later on another host) instead of failing at once
