@@ -30,7 +30,9 @@ class UpstreamWatch:
     """Whether a restarted stage is alone: none of the stages ``upstream`` (names of
     liveliness tokens) has been alive for ``after`` seconds on the stage's clock, and no
     publisher's cache answers for ``topics`` (``Bus.head``; asked only once the time is up).
-    Any live upstream, or a cache that answers, starts the count again."""
+    The count starts at the first call that finds no upstream alive (or at construction), not
+    at the last call that found one: a stage whose polls lag never stops waiting early.  Any
+    live upstream, or a cache that answers, starts the count again."""
 
     def __init__(self, bus: Any, upstream: Iterable[str], topics: Iterable[str], after: float,
                  monotonic: Callable[[], float]) -> None:
@@ -39,13 +41,15 @@ class UpstreamWatch:
         self.topics = tuple(topics)
         self.after = float(after)
         self._monotonic = monotonic
-        self.since = monotonic()
+        self.since: float | None = monotonic()  # absent since (None: an upstream is alive)
 
     def gone(self) -> bool:
         now = self._monotonic()
         if set(self.upstream) & self.bus.alive():
-            self.since = now
+            self.since = None
             return False
+        if self.since is None:
+            self.since = now
         if now - self.since < self.after:
             return False
         if any(self.bus.head(t) is not None for t in self.topics):  # a cache still holds the run
