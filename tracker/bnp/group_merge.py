@@ -18,14 +18,21 @@ pairs kept apart:
   probability at least ``min_prob``, or the measurement a cluster born this scan was born from).
 
 Every other pair merges as before (squared Mahalanobis distance at most ``max_d2`` on position
-and velocity, summed covariances; existences summing to at most 1).
+and velocity, summed covariances; existences summing to at most 1).  The pairs that may pass
+are found by a compiled pass (:func:`exclusive_candidates`, a necessary condition), so numpy's
+exact test runs on few pairs; the result is the all-pairs numpy code's, bit for bit
+(``tests/tracker/test_group_kernels.py``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups, _near_pairs
+
+#: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
+_ALL_PAIRS = 200
 
 
 def birth_frame(label: str) -> int:
@@ -57,12 +64,55 @@ def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: 
     return out
 
 
+#: Relative slack of :func:`exclusive_candidates`' bound (it only has to keep every pair that passes).
+_BOUND_SLACK = 1.0 + 1e-6
+
+
+def exclusive_candidates(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d2: float
+                         ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    r"""Pairs ``i < j`` (in ``np.triu_indices`` order) with ``r[i] + r[j] <= 1`` and
+    ``|d|^2 <= max_d2 tr(S) (1 + 1e-6)``, ``d`` the difference of the first four state entries
+    (position and velocity) and ``S`` the sum of their covariances: a superset of the pairs
+    within squared Mahalanobis distance ``max_d2``, since :math:`d^\top S^{-1} d \ge
+    \lVert d\rVert^2 / \lambda_{max}(S) \ge \lVert d\rVert^2 / \mathrm{tr}\,S` (S positive definite).
+    Only comparisons and products here: the exact distances stay numpy's."""
+    n = mean.shape[0]
+    ii = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    jj = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not r[i] + r[j] <= 1.0:
+                continue
+            dd = 0.0
+            tr = 0.0
+            for k in range(4):
+                x = mean[i, k] - mean[j, k]
+                dd += x * x
+                tr += cov[i, k, k] + cov[j, k, k]
+            if dd <= max_d2 * tr * _BOUND_SLACK:
+                ii[count] = i
+                jj[count] = j
+                count += 1
+    return ii[:count], jj[:count]
+
+
+exclusive_candidates = jit(exclusive_candidates)
+
+
 def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs close enough to merge, whose existences sum to at most 1, that may be one object."""
+    """Pairs close enough to merge, whose existences sum to at most 1, that may be one object.
+
+    With few clusters (every pair a candidate of :func:`tracker.bnp.clusters._near_pairs`) a
+    compiled pass (:func:`exclusive_candidates`) keeps the pairs that
+    may pass the distance test; the exact test (a batched solve, each pair on its own) runs on those."""
     r = c.existence
-    ii, jj = _near_pairs(c, max_d2)
-    keep = r[ii] + r[jj] <= 1.0
-    ii, jj = ii[keep], jj[keep]
+    if len(c.labels) <= _ALL_PAIRS:
+        ii, jj = exclusive_candidates(c.mean, c.cov, r, float(max_d2))
+    else:
+        ii, jj = _near_pairs(c, max_d2)
+        keep = r[ii] + r[jj] <= 1.0
+        ii, jj = ii[keep], jj[keep]
     if ii.size == 0:
         return ii, jj
     diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]

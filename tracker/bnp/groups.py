@@ -355,6 +355,43 @@ _option_logw = jit(_option_logw)
 _partition_kernel = jit(_partition_kernel)
 
 
+def theta_sums(R: np.ndarray, v: np.ndarray, slot: np.ndarray, n_used: int, h_lam: np.ndarray,
+               h_eta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Posterior mean ``(n_used, 2)`` and covariance ``(n_used, 2, 2)`` of each used cluster's
+    block of theta: ``lam = h_lam + sum R_l^-1``, ``eta = h_eta + sum R_l^-1 v_l`` over the
+    members ``l`` of the cluster ``slot[l]`` (in member order), ``cov = lam^-1``, ``mean = cov eta``.
+    The 2x2 inverses as :func:`tracker.bnp.groups.inv2` (entries over the determinant), the
+    products as ``np.einsum`` (from 0.0, in index order)."""
+    lam = np.empty((n_used, 2, 2))
+    eta = np.empty((n_used, 2))
+    for g in range(n_used):
+        lam[g] = h_lam
+        eta[g] = h_eta
+    for l in range(R.shape[0]):
+        a, b, c, d = R[l, 0, 0], R[l, 0, 1], R[l, 1, 0], R[l, 1, 1]
+        det = a * d - b * c
+        i00, i01, i10, i11 = d / det, -b / det, -c / det, a / det
+        g = slot[l]
+        lam[g, 0, 0] += i00
+        lam[g, 0, 1] += i01
+        lam[g, 1, 0] += i10
+        lam[g, 1, 1] += i11
+        eta[g, 0] += 0.0 + i00 * v[l, 0] + i01 * v[l, 1]
+        eta[g, 1] += 0.0 + i10 * v[l, 0] + i11 * v[l, 1]
+    cov = np.empty((n_used, 2, 2))
+    mean = np.empty((n_used, 2))
+    for g in range(n_used):
+        a, b, c, d = lam[g, 0, 0], lam[g, 0, 1], lam[g, 1, 0], lam[g, 1, 1]
+        det = a * d - b * c
+        cov[g, 0, 0], cov[g, 0, 1], cov[g, 1, 0], cov[g, 1, 1] = d / det, -b / det, -c / det, a / det
+        mean[g, 0] = 0.0 + cov[g, 0, 0] * eta[g, 0] + cov[g, 0, 1] * eta[g, 1]
+        mean[g, 1] = 0.0 + cov[g, 1, 0] * eta[g, 0] + cov[g, 1, 1] * eta[g, 1]
+    return mean, cov
+
+
+theta_sums = jit(theta_sums)
+
+
 #: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
 #: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
 _FLAT_INFORMATION = 1e-10
@@ -592,15 +629,10 @@ class GroupTracker:
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
-        for b in blocks:
-            Ri, _ = inv2(b.R)
+        for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
             h_lam, _ = inv2(b.h_cov)
-            lam = np.broadcast_to(h_lam, (used.size, 2, 2)).copy()
-            eta = np.broadcast_to(h_lam @ b.h_mean, (used.size, 2)).copy()
-            np.add.at(lam, slot, Ri)
-            np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
-            cov, _ = inv2(lam)
-            out.append((np.einsum("gij,gj->gi", cov, eta), cov))
+            out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
+                                  used.size, h_lam, h_lam @ b.h_mean))
         if len(out) == 1:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
@@ -639,17 +671,54 @@ class GroupTracker:
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik
         if cfg.hyper_likelihood == "history":
-            hyper = self._history_loglik(hist)
-        elif cfg.hyper_likelihood == "arrivals":
+            return self._history_hyper(hist)
+        if cfg.hyper_likelihood == "arrivals":
             hyper = cfg.hyper_forgetting * state.hyper2_loglik + arrivals_loglik_grid(
                 self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
         else:
             hyper = cfg.hyper_forgetting * state.hyper2_loglik + self._reseat_loglik(state, z)
-        log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
-                            + np.log(self.alpha_grid))[:, None]
-        if cfg.infer_d and cfg.d_prior == "gamma":
-            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+        return self._grid_posterior(hyper)
+
+    def _grid_posterior(self, hyper: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """Posterior means of (alpha_2, d) on the grid given the log-likelihood ``hyper`` and the priors."""
+        log_post = hyper + self._alpha_log_prior[:, None]
+        if self._d_log_prior is not None:
+            log_post = log_post + self._d_log_prior[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
+
+    @cached_property
+    def _alpha_log_prior(self) -> np.ndarray:
+        """alpha_2's Gamma prior on the grid plus log alpha (the grid is uniform in log alpha)."""
+        cfg = self.config
+        return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+
+    @cached_property
+    def _d_log_prior(self) -> np.ndarray | None:
+        cfg = self.config
+        if cfg.infer_d and cfg.d_prior == "gamma":
+            return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)
+        return None
+
+    @cached_property
+    def _history_memo(self) -> dict:
+        """The last history's key and result (:meth:`_history_hyper`)."""
+        return {}
+
+    def _history_hyper(self, hist: tuple) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d, log-likelihood) from the history's EPPF (:meth:`_history_loglik`).  The
+        history changes only when an object joins or leaves a cluster: a frame whose history
+        equals the last one's (live cluster totals, dead clusters' statistics) reuses its result,
+        which is a pure function of them."""
+        _, total, dead_k, dead_n, dead_factor = hist
+        key = (total.tobytes(), int(dead_k), int(dead_n), np.asarray(dead_factor).tobytes())
+        memo = self._history_memo
+        hit = memo.get("last")
+        if hit is not None and hit[0] == key:
+            alpha, d, hyper = hit[1]
+            return alpha, d, hyper.copy()
+        alpha, d, hyper = self._grid_posterior(self._history_loglik(hist))
+        memo["last"] = (key, (alpha, d, hyper.copy()))
         return alpha, d, hyper
 
     def _reseat_loglik(self, state: GroupState, z: np.ndarray) -> np.ndarray:

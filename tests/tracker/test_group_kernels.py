@@ -1,0 +1,165 @@
+"""The compiled passes of the two-level tracker's cluster level (group_merge.py's
+``exclusive_candidates``, groups.py's ``theta_sums``) and the history memo against the numpy
+code they replaced (kept here as the reference), bit for bit, on seed-pinned random inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters
+from bnptrack.tracker.bnp.group_merge import _candidate_pairs, _distinct, exclusive_candidates, merge_exclusive
+from bnptrack.tracker.bnp.groups import GROUP_PRESETS, Block, GroupTracker, inv2, theta_sums
+from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
+from bnptrack.tracker.models.params import load_params
+
+
+def _same(a, b) -> None:
+    """Equal bit for bit (nan where nan; signed zeros equal)."""
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b), strict=True)
+
+
+def _spd(rng: np.random.Generator, n: int, d: int, scale: float) -> np.ndarray:
+    A = rng.normal(size=(n, d, d)) * scale
+    return A @ np.swapaxes(A, 1, 2) + 0.1 * scale**2 * np.eye(d)
+
+
+def _clusters(seed: int, n: int) -> tuple[_Clusters, dict[str, int]]:
+    """Objects crowded in 200 m with random covariances and existences; labels of a few scans."""
+    rng = np.random.default_rng(seed)
+    mean = np.column_stack([rng.uniform(0, 200, n), rng.normal(0, 5, n), rng.uniform(0, 200, n),
+                            rng.normal(0, 5, n), rng.normal(0, 0.01, n)])
+    cov = _spd(rng, n, 5, 8.0)
+    labels = tuple(f"{rng.integers(0, 4)}.{m}" for m in range(n))
+    taken = {lab: int(rng.integers(0, 6)) for lab in labels if rng.random() < 0.5}
+    return _Clusters(labels, mean, cov, rng.uniform(0.02, 0.9, n), np.ones(n)), taken
+
+
+# -- numpy references (the code before the compiled passes) ------------------------------------
+
+def _candidate_pairs_reference(c: _Clusters, max_d2: float, taken: dict[str, int]):
+    r = c.existence
+    ii, jj = np.triu_indices(len(c.labels), k=1)
+    keep = r[ii] + r[jj] <= 1.0
+    ii, jj = ii[keep].astype(np.int64), jj[keep].astype(np.int64)
+    if ii.size == 0:
+        return ii, jj
+    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
+    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
+    d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+    ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
+    keep = ~_distinct(c.labels, taken, ii, jj)
+    return ii[keep], jj[keep]
+
+
+def _theta_reference(b: Block, slot: np.ndarray, n_used: int):
+    Ri, _ = inv2(b.R)
+    h_lam, _ = inv2(b.h_cov)
+    lam = np.broadcast_to(h_lam, (n_used, 2, 2)).copy()
+    eta = np.broadcast_to(h_lam @ b.h_mean, (n_used, 2)).copy()
+    np.add.at(lam, slot, Ri)
+    np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
+    cov, _ = inv2(lam)
+    return np.einsum("gij,gj->gi", cov, eta), cov
+
+
+# -- the merge's candidate pairs ------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+@pytest.mark.parametrize("max_d2", [4.0, 16.0, 100.0])
+def test_candidate_pairs_equal_reference(seed: int, max_d2: float) -> None:
+    c, taken = _clusters(seed, 40)
+    ii, jj = _candidate_pairs(c, max_d2, taken)
+    ri, rj = _candidate_pairs_reference(c, max_d2, taken)
+    _same(ii, ri)
+    _same(jj, rj)
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_candidates_superset_of_exact_pairs(seed: int) -> None:
+    """The bound keeps every pair within the distance, in np.triu_indices order, and drops many."""
+    c, _ = _clusters(seed, 40)
+    ii, jj = exclusive_candidates(c.mean, c.cov, c.existence, 9.0)
+    ri, rj = _candidate_pairs_reference(c, 9.0, {})
+    kept = set(zip(ii.tolist(), jj.tolist()))
+    assert set(zip(ri.tolist(), rj.tolist())) <= kept
+    assert ri.size > 0
+    order = ii * 40 + jj
+    assert np.all(np.diff(order) > 0)
+    both = int(np.sum(np.add.outer(c.existence, c.existence)[np.triu_indices(40, 1)] <= 1.0))
+    assert ii.size < both  # the bound prunes
+
+
+def test_candidates_hand_computed() -> None:
+    """Two objects 3 m apart in x, unit covariances: |d|^2 = 9, tr S = 8; kept iff 9 <= 8 max_d2."""
+    mean = np.array([[0.0, 0, 0, 0, 0], [3.0, 0, 0, 0, 0]])
+    cov = np.stack([np.eye(5), np.eye(5)])
+    r = np.array([0.5, 0.5])
+    assert exclusive_candidates(mean, cov, r, 1.125)[0].tolist() == [0]
+    assert exclusive_candidates(mean, cov, r, 1.12)[0].size == 0
+    assert exclusive_candidates(mean, cov, np.array([0.5, 0.6]), 100.0)[0].size == 0  # r sum > 1
+
+
+def test_merge_exclusive_with_many_clusters_uses_the_tree() -> None:
+    """Above 200 clusters the KD-tree path (unchanged) gives the reference's pairs too."""
+    c, taken = _clusters(7, 210)
+    ii, jj = _candidate_pairs(c, 9.0, taken)
+    ri, rj = _candidate_pairs_reference(c, 9.0, taken)
+    _same(ii, ri)
+    _same(jj, rj)
+    merged, renamed = merge_exclusive(c, 9.0, taken)
+    assert len(merged.labels) == 210 - len(renamed)
+
+
+# -- theta's posterior per used cluster -----------------------------------------------------------
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_theta_sums_equal_reference(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    L, G = 25, 7
+    b = Block(rng.normal(0, 10, (L, 2)), _spd(rng, L, 2, 3.0), np.zeros((0, 2)), np.zeros((0, 2, 2)),
+              rng.normal(0, 1, 2), _spd(rng, 1, 2, 30.0)[0])
+    slot = rng.integers(0, G, L)
+    slot[:G] = np.arange(G)
+    h_lam, _ = inv2(b.h_cov)
+    mean, cov = theta_sums(b.R, b.v, slot, G, h_lam, h_lam @ b.h_mean)
+    r_mean, r_cov = _theta_reference(b, slot, G)
+    _same(mean, r_mean)
+    _same(cov, r_cov)
+
+
+def test_theta_sums_one_member_hand_computed() -> None:
+    """Flat-ish prior 0, one member v = (1, 2) with R = diag(2, 4): cov = R, mean = v."""
+    mean, cov = theta_sums(np.array([[[2.0, 0.0], [0.0, 4.0]]]), np.array([[1.0, 2.0]]), np.array([0]), 1,
+                              np.zeros((2, 2)), np.zeros(2))
+    _same(cov[0], np.array([[2.0, -0.0], [-0.0, 4.0]]))
+    _same(mean[0], np.array([1.0, 2.0]))
+
+
+def _hyper_reference(tr: GroupTracker, hist: tuple):
+    cfg = tr.config
+    hyper = tr._history_loglik(hist)
+    log_post = hyper + (log_gamma_prior(tr.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
+                        + np.log(tr.alpha_grid))[:, None]
+    if cfg.infer_d and cfg.d_prior == "gamma":
+        log_post = log_post + log_gamma_prior(np.maximum(tr.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+    alpha, d = grid_mean(log_post, tr.alpha_grid, tr.d_grid)
+    return alpha, d, hyper
+
+
+# -- the history's (alpha_2, d): a repeated history reuses its result -----------------------------
+
+@pytest.mark.parametrize("name", ["ddp-groups", "dpyp-groups"])
+def test_history_memo_equals_fresh_computation(name: str) -> None:
+    tr = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)
+    fresh = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)
+    hists = [(None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size)),
+             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size)),
+             (None, np.array([4, 1], dtype=np.int64), 2, 5, np.full(tr.d_grid.size, -0.5)),
+             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size))]
+    for hist in hists:
+        alpha, d, hyper = tr._history_hyper(hist)
+        r_alpha, r_d, r_hyper = _hyper_reference(fresh, hist)
+        assert (alpha, d) == (r_alpha, r_d)
+        _same(hyper, r_hyper)
+    assert tr._history_memo["last"][0][0] == np.array([3, 1], dtype=np.int64).tobytes()
