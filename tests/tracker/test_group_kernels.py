@@ -9,7 +9,9 @@ import pytest
 
 from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters
 from bnptrack.tracker.bnp.group_merge import _candidate_pairs, _distinct, exclusive_candidates, merge_exclusive
-from bnptrack.tracker.bnp.groups import GROUP_PRESETS, Block, GroupTracker, inv2, theta_sums
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
+                                          _collect_shares, _partition_kernel, _table_priors, inv2, theta_sums)
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
 
@@ -61,6 +63,114 @@ def _theta_reference(b: Block, slot: np.ndarray, n_used: int):
     np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
     cov, _ = inv2(lam)
     return np.einsum("gij,gj->gi", cov, eta), cov
+
+
+def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov) -> None:
+    """The kernel before the per-table cache (main at the start of this work)."""
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
+    n = np.zeros(T)
+    lam, eta = lam0.copy(), eta0.copy()
+    Ri = np.empty((P, L, 2, 2))
+    Riv = np.empty((P, L, 2))
+    for p in range(P):
+        for l in range(L):
+            _inv_into(R[p, l], Ri[p, l])
+            Riv[p, l] = Ri[p, l] @ v[p, l]
+    for l in range(L):
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+    logw = np.empty(T)
+    cov = np.empty((2, 2))
+    Si = np.empty((2, 2))
+    S = u.shape[0]
+    for s in range(S):
+        for l in range(L):
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
+            _option_logw(n, v_star, alpha, d, logw)
+            for t in range(T):
+                if logw[t] == -np.inf:
+                    continue
+                for p in range(P):
+                    _inv_into(lam[p, t], cov)
+                    mu = cov @ eta[p, t]
+                    det = _inv_into(cov + R[p, l], Si)
+                    r = v[p, l] - mu
+                    logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    if p == 0 and s == S - 1:
+                        _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
+                        rec_mu[l, t] = rec_cov[l, t] @ (eta[0, t] - eta0[0, t] + h_eta)
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
+            c = np.cumsum(w)
+            k = min(int(np.searchsorted(c, u[s, l], side="right")), T - 1)
+            while w[k] == 0.0:  # never land on an impossible table through round-off
+                k -= 1
+            z[l] = k
+            if s == S - 1:
+                rec_p[l] = w
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+
+
+_partition_reference = jit(_partition_reference)
+
+
+# -- the object -> cluster Gibbs kernel -----------------------------------------------------------
+
+def _partition_inputs(seed: int, L: int, G: int):
+    rng = np.random.default_rng(seed)
+    P, T = 2, G + L
+    v = np.ascontiguousarray(np.stack([rng.normal(0, 8, (L, 2)), rng.normal(0, 60, (L, 2))]))
+    R = np.ascontiguousarray(np.stack([_spd(rng, L, 2, 4.0), _spd(rng, L, 2, 30.0)]))
+    lam0 = np.ascontiguousarray(np.stack([inv2(_spd(rng, T, 2, 10.0))[0], inv2(_spd(rng, T, 2, 100.0))[0]]))
+    eta0 = np.ascontiguousarray(np.einsum("ptij,ptj->pti", lam0, rng.normal(0, 10, (P, T, 2))))
+    h_lam = 1e-10 * np.eye(2)
+    v_star = np.concatenate([rng.integers(1, 4, G).astype(float), np.zeros(L)])
+    z = np.where(rng.random(L) < 0.7, rng.integers(0, max(G, 1), L), G + np.arange(L)).astype(np.int64)
+    u = rng.random((6, L))
+    return v, R, lam0, eta0, h_lam, np.zeros(2), v_star, z, u
+
+
+@pytest.mark.parametrize("seed,L,G", [(1, 8, 3), (2, 15, 5), (3, 1, 0), (4, 12, 0), (5, 20, 9)])
+@pytest.mark.parametrize("alpha,d", [(0.5, 0.0), (2.0, 0.3)])
+def test_partition_kernel_equals_reference(seed: int, L: int, G: int, alpha: float, d: float) -> None:
+    v, R, lam0, eta0, h_lam, h_eta, v_star, z, u = _partition_inputs(seed, L, G)
+    T = G + L
+    out = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
+    ref = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
+    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, out[0], alpha, d, u, *out[1:])
+    _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, ref[0], alpha, d, u, *ref[1:])
+    for a, b in zip(out, ref):
+        _same(a, b)
+    assert np.unique(out[0]).size > 1 or L == 1  # the sample moves objects between tables
+
+
+@pytest.mark.parametrize("seed,L,G", [(1, 6, 4), (2, 3, 0)])
+def test_table_priors_equal_prior_information(seed: int, L: int, G: int) -> None:
+    rng = np.random.default_rng(seed)
+    b = Block(np.zeros((L, 2)), np.zeros((L, 2, 2)), rng.normal(0, 10, (G, 2)), _spd(rng, G, 2, 5.0),
+              rng.normal(0, 1, 2), _spd(rng, 1, 2, 30.0)[0])
+    lam0, eta0 = np.empty((G + L, 2, 2)), np.empty((G + L, 2))
+    h_lam, _ = inv2(b.h_cov)
+    _table_priors(b.prior_cov, b.prior_mean, h_lam, h_lam @ b.h_mean, lam0, eta0)
+    r_lam, r_eta = b.prior_information()
+    _same(lam0, r_lam)
+    _same(eta0, r_eta)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_collect_shares_equal_reference(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    L, T = 9, 14
+    rec_p = rng.dirichlet(np.full(T, 0.3), L)
+    rec_p[rec_p < 1e-3] = 0.0
+    rec_mu, rec_cov = rng.normal(size=(L, T, 2)), rng.normal(size=(L, T, 2, 2))
+    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    ll, tt = np.nonzero(rec_p > 1e-4)
+    r_w = rec_p[ll, tt]
+    r_w = r_w / np.bincount(ll, weights=r_w, minlength=L)[ll]
+    _same(obj, ll.astype(np.int64))
+    _same(w, r_w)
+    _same(mu, rec_mu[ll, tt])
+    _same(cov, rec_cov[ll, tt])
 
 
 # -- the merge's candidate pairs ------------------------------------------------------------------

@@ -53,11 +53,10 @@ import numpy as np
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
-from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
+from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from bnptrack.tracker.cardinality import existence_cardinality
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
@@ -320,18 +319,29 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     logw = np.empty(T)
     cov = np.empty((2, 2))
     Si = np.empty((2, 2))
+    # each table's theta posterior (cov, mu) per part, recomputed only when its members change:
+    # the same operations on the same values as computing it for every object
+    t_cov = np.empty((P, T, 2, 2))
+    t_mu = np.empty((P, T, 2))
+    fresh = np.zeros(T, dtype=np.bool_)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
+            fresh[z[l]] = False
             _option_logw(n, v_star, alpha, d, logw)
             for t in range(T):
                 if logw[t] == -np.inf:
                     continue
+                if not fresh[t]:
+                    for p in range(P):
+                        _inv_into(lam[p, t], cov)
+                        t_mu[p, t] = cov @ eta[p, t]
+                        t_cov[p, t] = cov
+                    fresh[t] = True
                 for p in range(P):
-                    _inv_into(lam[p, t], cov)
-                    mu = cov @ eta[p, t]
-                    det = _inv_into(cov + R[p, l], Si)
+                    mu = t_mu[p, t]
+                    det = _inv_into(t_cov[p, t] + R[p, l], Si)
                     r = v[p, l] - mu
                     logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
@@ -347,6 +357,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
             if s == S - 1:
                 rec_p[l] = w
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+            fresh[z[l]] = False
 
 
 _inv_into = jit(_inv_into)
@@ -392,6 +403,53 @@ def theta_sums(R: np.ndarray, v: np.ndarray, slot: np.ndarray, n_used: int, h_la
 theta_sums = jit(theta_sums)
 
 
+def _table_priors(prior_cov, prior_mean, h_lam, h_eta, lam0, eta0) -> None:  # pragma: no cover - compiled
+    """:meth:`Block.prior_information` into ``lam0`` (T, 2, 2), ``eta0`` (T, 2): the G transitioned
+    tables' priors in information form (2x2 inverses as :func:`inv2`, products as ``np.einsum``:
+    from 0.0 in index order), then H_2's (``h_lam``, ``h_eta``) for the new ones."""
+    G = prior_cov.shape[0]
+    for g in range(G):
+        a, b, c, d = prior_cov[g, 0, 0], prior_cov[g, 0, 1], prior_cov[g, 1, 0], prior_cov[g, 1, 1]
+        det = a * d - b * c
+        i00, i01, i10, i11 = d / det, -b / det, -c / det, a / det
+        lam0[g, 0, 0], lam0[g, 0, 1], lam0[g, 1, 0], lam0[g, 1, 1] = i00, i01, i10, i11
+        eta0[g, 0] = 0.0 + i00 * prior_mean[g, 0] + i01 * prior_mean[g, 1]
+        eta0[g, 1] = 0.0 + i10 * prior_mean[g, 0] + i11 * prior_mean[g, 1]
+    for t in range(G, lam0.shape[0]):
+        lam0[t] = h_lam
+        eta0[t] = h_eta
+
+
+def _collect_shares(rec_p, rec_mu, rec_cov, min_p):  # pragma: no cover - compiled
+    """The options with conditional probability above ``min_p`` (row-major, as ``np.nonzero``), their
+    weights normalised per object (sums in index order from 0.0, as ``np.bincount``), thetas."""
+    L, T = rec_p.shape
+    count = 0
+    for l in range(L):
+        for t in range(T):
+            if rec_p[l, t] > min_p:
+                count += 1
+    obj = np.empty(count, dtype=np.int64)
+    w = np.empty(count)
+    mu = np.empty((count, 2))
+    cov = np.empty((count, 2, 2))
+    k = 0
+    for l in range(L):
+        first, total = k, 0.0
+        for t in range(T):
+            if rec_p[l, t] > min_p:
+                obj[k], w[k], mu[k], cov[k] = l, rec_p[l, t], rec_mu[l, t], rec_cov[l, t]
+                total += rec_p[l, t]
+                k += 1
+        for j in range(first, k):
+            w[j] = w[j] / total
+    return obj, w, mu, cov
+
+
+_table_priors = jit(_table_priors)
+_collect_shares = jit(_collect_shares)
+
+
 #: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
 #: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
 _FLAT_INFORMATION = 1e-10
@@ -411,9 +469,11 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
-    info = [b.prior_information() for b in blocks]
-    lam0 = np.ascontiguousarray(np.stack([i[0] for i in info]))
-    eta0 = np.ascontiguousarray(np.stack([i[1] for i in info]))
+    lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
+    for p, b in enumerate(blocks):  # compiled Block.prior_information
+        h_lam, _ = inv2(b.h_cov)
+        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean), h_lam,
+                      h_lam @ b.h_mean, lam0[p], eta0[p])
     v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
     R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
     z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
@@ -428,10 +488,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     new = np.unique(z[z >= G])
     remap = np.arange(T)
     remap[new] = G + np.arange(new.size)
-    ll, tt = np.nonzero(rec_p > 1e-4)
-    w = rec_p[ll, tt]
-    w = w / np.bincount(ll, weights=w, minlength=L)[ll]
-    return remap[z], Shares(ll.astype(np.int64), w, rec_mu[ll, tt], rec_cov[ll, tt])
+    return remap[z], Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -583,7 +640,7 @@ class GroupTracker:
         assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
         diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
         return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag,
-                               existence_cardinality(inner.existence))
+                               _cardinality(inner.existence))
 
     def periods_since(self, state: GroupState, frame: Frame) -> float:
         r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
