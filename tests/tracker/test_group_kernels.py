@@ -7,11 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters
-from bnptrack.tracker.bnp.group_merge import _candidate_pairs, _distinct, exclusive_candidates, merge_exclusive
+from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups
+from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth_frame, exclusive_candidates,
+                                              merge_exclusive)
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
-                                          _collect_shares, _partition_kernel, _table_priors, inv2, theta_sums)
+                                          _collect_shares, _partition_kernel, _table_priors, inv2, inv2_const,
+                                          theta_sums)
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
 
@@ -52,6 +54,38 @@ def _candidate_pairs_reference(c: _Clusters, max_d2: float, taken: dict[str, int
     ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
     keep = ~_distinct(c.labels, taken, ii, jj)
     return ii[keep], jj[keep]
+
+
+def _merge_exclusive_reference(c: _Clusters, max_d2: float, taken: dict[str, int]):
+    n = len(c.labels)
+    ii, jj = _candidate_pairs_reference(c, max_d2, taken)
+    if ii.size == 0:
+        return c, {}
+    near = np.zeros((n, n), dtype=bool)
+    near[ii, jj] = near[jj, ii] = True
+    r = c.existence
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(-r, kind="stable")] = np.arange(n)
+    free = np.ones(n, dtype=bool)
+    groups: list[list[int]] = []
+    for i in sorted(set(ii.tolist()) | set(jj.tolist()), key=rank.__getitem__):
+        if not free[i]:
+            continue
+        group, total = [i], r[i]
+        for j in sorted(np.flatnonzero(near[i]).tolist(), key=rank.__getitem__):
+            if free[j] and total + r[j] <= 1.0 and near[j, group].all():
+                group.append(j)
+                total += r[j]
+        free[group] = False
+        if len(group) > 1:
+            groups.append(group)
+    if not groups:
+        return c, {}
+    renamed = {}
+    for g in groups:
+        final = min((c.labels[k] for k in g), key=birth_frame)
+        renamed.update({c.labels[k]: final for k in g if c.labels[k] != final})
+    return _merge_groups(c, groups), renamed
 
 
 def _theta_reference(b: Block, slot: np.ndarray, n_used: int):
@@ -208,6 +242,31 @@ def test_candidates_hand_computed() -> None:
     assert exclusive_candidates(mean, cov, r, 1.125)[0].tolist() == [0]
     assert exclusive_candidates(mean, cov, r, 1.12)[0].size == 0
     assert exclusive_candidates(mean, cov, np.array([0.5, 0.6]), 100.0)[0].size == 0  # r sum > 1
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 8, 9])
+@pytest.mark.parametrize("max_d2", [9.0, 100.0])
+def test_merge_exclusive_equals_reference(seed: int, max_d2: float) -> None:
+    """The compiled greedy grouping (greedy_groups) merges as the Python loop did, bit for bit."""
+    c, taken = _clusters(seed, 40)
+    c = _Clusters(c.labels, c.mean, c.cov, c.existence * 0.6, c.popularity)  # more pairs may merge
+    merged, renamed = merge_exclusive(c, max_d2, taken)
+    ref, r_renamed = _merge_exclusive_reference(c, max_d2, taken)
+    assert renamed == r_renamed
+    assert merged.labels == ref.labels
+    for a, b in [(merged.mean, ref.mean), (merged.cov, ref.cov), (merged.existence, ref.existence),
+                 (merged.popularity, ref.popularity)]:
+        _same(a, b)
+    if max_d2 == 100.0:
+        assert renamed  # something merged
+
+
+def test_inv2_const_equals_inv2() -> None:
+    A = np.array([[900.0, 3.0], [3.0, 400.0]])
+    _same(inv2_const(A), inv2(A)[0])
+    out = inv2_const(A)
+    out[0, 0] = 7.0  # a copy: the remembered inverse is untouched
+    _same(inv2_const(A), inv2(A)[0])
 
 
 def test_merge_exclusive_with_many_clusters_uses_the_tree() -> None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker._numerics import jit
-from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups, _near_pairs
+from bnptrack.tracker.bnp.clusters import _POS_VEL, _apply_groups, _Clusters, _near_pairs
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
 _ALL_PAIRS = 200
@@ -133,28 +133,57 @@ def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple
     ii, jj = _candidate_pairs(c, max_d2, taken)
     if ii.size == 0:
         return c, {}
-    near = np.zeros((n, n), dtype=bool)
-    near[ii, jj] = near[jj, ii] = True
-    r = c.existence
-    rank = np.empty(n, dtype=np.int64)
-    rank[np.argsort(-r, kind="stable")] = np.arange(n)
-    free = np.ones(n, dtype=bool)
-    groups: list[list[int]] = []
-    for i in sorted(set(ii.tolist()) | set(jj.tolist()), key=rank.__getitem__):
-        if not free[i]:
-            continue
-        group, total = [i], r[i]
-        for j in sorted(np.flatnonzero(near[i]).tolist(), key=rank.__getitem__):
-            if free[j] and total + r[j] <= 1.0 and near[j, group].all():
-                group.append(j)
-                total += r[j]
-        free[group] = False
-        if len(group) > 1:
-            groups.append(group)
-    if not groups:
+    ptr, members = greedy_groups(ii, jj, c.existence, np.argsort(-c.existence, kind="stable"))
+    if ptr.size == 1:
         return c, {}
     renamed = {}
-    for g in groups:
-        final = min((c.labels[k] for k in g), key=birth_frame)
-        renamed.update({c.labels[k]: final for k in g if c.labels[k] != final})
-    return _merge_groups(c, groups), renamed
+    for g in range(ptr.size - 1):
+        group = members[ptr[g]:ptr[g + 1]].tolist()
+        final = min((c.labels[k] for k in group), key=birth_frame)
+        renamed.update({c.labels[k]: final for k in group if c.labels[k] != final})
+    return _apply_groups(c, ptr, members), renamed
+
+
+def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`merge_exclusive`'s greedy grouping of the candidate pairs ``(ii, jj)``: leaders in
+    ``order`` (decreasing existence ``r``, stable) among the clusters of a pair; each takes, in the
+    same order, its free partners whose existence keeps the group's sum (added in that order) at
+    most 1 and that are candidates with every member already in.  Groups of two or more in CSR
+    form: ``members[ptr[g]:ptr[g + 1]]``, leader first."""
+    n = r.size
+    near = np.zeros((n, n), dtype=np.bool_)
+    paired = np.zeros(n, dtype=np.bool_)
+    for k in range(ii.size):
+        near[ii[k], jj[k]] = near[jj[k], ii[k]] = True
+        paired[ii[k]] = paired[jj[k]] = True
+    free = np.ones(n, dtype=np.bool_)
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    members = np.empty(n, dtype=np.int64)
+    group = np.empty(n, dtype=np.int64)
+    n_groups, used = 0, 0
+    for i in order:
+        if not paired[i] or not free[i]:
+            continue
+        group[0], size, total = i, 1, r[i]
+        for j in order:
+            if not near[i, j] or not free[j] or not total + r[j] <= 1.0:
+                continue
+            ok = True
+            for m in range(size):
+                ok = ok and near[j, group[m]]
+            if ok:
+                group[size] = j
+                size += 1
+                total += r[j]
+        for m in range(size):
+            free[group[m]] = False
+        if size > 1:
+            members[used:used + size] = group[:size]
+            used += size
+            n_groups += 1
+            ptr[n_groups] = used
+    return ptr[:n_groups + 1], members[:used]
+
+
+greedy_groups = jit(greedy_groups)

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Literal
 
 import msgspec
@@ -196,6 +196,17 @@ def inv2(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inv[..., 0, 0], inv[..., 1, 1] = A[..., 1, 1], A[..., 0, 0]
     inv[..., 0, 1], inv[..., 1, 0] = -A[..., 0, 1], -A[..., 1, 0]
     return inv / det[..., None, None], det
+
+
+@lru_cache(maxsize=32)
+def _inv2_of_bytes(raw: bytes) -> np.ndarray:
+    return inv2(np.frombuffer(raw).reshape(2, 2))[0]
+
+
+def inv2_const(A: np.ndarray) -> np.ndarray:
+    """:func:`inv2`'s inverse of one 2x2 matrix that repeats from frame to frame (a prior's
+    covariance), remembered by its bytes: the same numbers without recomputing them."""
+    return _inv2_of_bytes(np.ascontiguousarray(A, dtype=float).tobytes()).copy()
 
 
 def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -471,7 +482,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     T = G + L
     lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
     for p, b in enumerate(blocks):  # compiled Block.prior_information
-        h_lam, _ = inv2(b.h_cov)
+        h_lam = inv2_const(b.h_cov)
         _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean), h_lam,
                       h_lam @ b.h_mean, lam0[p], eta0[p])
     v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
@@ -481,7 +492,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_p = np.zeros((L, T))
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
-    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2(blocks[0].h_cov)[0]
+    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2_const(blocks[0].h_cov)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
@@ -687,7 +698,7 @@ class GroupTracker:
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
         for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
-            h_lam, _ = inv2(b.h_cov)
+            h_lam = inv2_const(b.h_cov)
             out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
                                   used.size, h_lam, h_lam @ b.h_mean))
         if len(out) == 1:
