@@ -12,8 +12,8 @@ from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth
                                               merge_exclusive)
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
-                                          _collect_shares, _partition_kernel, _table_priors, inv2, inv2_const,
-                                          theta_sums)
+                                          Shares, _collect_shares, _compact, _partition_kernel, _table_priors, inv2,
+                                          inv2_const, share_velocity, theta_sums)
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
 
@@ -205,6 +205,45 @@ def test_collect_shares_equal_reference(seed: int) -> None:
     _same(w, r_w)
     _same(mu, rec_mu[ll, tt])
     _same(cov, rec_cov[ll, tt])
+
+
+def _share_velocity_reference(mean, cov, shares, S_w):
+    o = shares.obj
+    m, P = mean[o], cov[o]
+    vel = np.array([1, 3])
+    PHt = P[:, :, vel]
+    Si, _ = inv2(P[:, vel][:, :, vel] + S_w + shares.cov)
+    K = PHt @ Si
+    mu = m + np.einsum("pij,pj->pi", K, shares.mu - m[:, vel])
+    Pu = P - K @ np.swapaxes(PHt, 1, 2)
+    w = shares.w
+    new_mean = np.zeros_like(mean)
+    np.add.at(new_mean, o, w[:, None] * mu)
+    dev = mu - new_mean[o]
+    new_cov = np.zeros_like(cov)
+    np.add.at(new_cov, o, w[:, None, None] * (Pu + dev[:, :, None] * dev[:, None, :]))
+    return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_share_velocity_equals_reference(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    L, T = 7, 10
+    mean, cov = rng.normal(0, 20, (L, 5)), _spd(rng, L, 5, 3.0)
+    rec_p = rng.dirichlet(np.full(T, 0.4), L)
+    obj, w, mu, c = _collect_shares(rec_p, rng.normal(0, 10, (L, T, 2)), _spd(rng, L * T, 2, 2.0).reshape(L, T, 2, 2),
+                                    1e-4)
+    shares = Shares(obj, w, mu, c)
+    S_w = 100.0 * np.eye(2)
+    new_mean, new_cov = share_velocity(mean, cov, shares, S_w)
+    r_mean, r_cov = _share_velocity_reference(mean, cov, shares, S_w)
+    _same(new_mean, r_mean)
+    _same(new_cov, r_cov)
+
+
+def test_compact_hand_computed() -> None:
+    """Tables 0-2 transitioned; new tables 7 and 4 become 3 and 4 (increasing order)."""
+    _same(_compact(np.array([7, 1, 4, 7, 0]), 3, 9), np.array([4, 1, 3, 4, 0]))
 
 
 # -- the merge's candidate pairs ------------------------------------------------------------------

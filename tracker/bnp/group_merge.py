@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker._numerics import jit
-from bnptrack.tracker.bnp.clusters import _POS_VEL, _apply_groups, _Clusters, _near_pairs
+from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
 _ALL_PAIRS = 200
@@ -97,7 +97,23 @@ def exclusive_candidates(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d
     return ii[:count], jj[:count]
 
 
+def pair_differences(mean: np.ndarray, cov: np.ndarray, ii: np.ndarray, jj: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """``mean[ii] - mean[jj]`` and ``cov[ii] + cov[jj]`` on position and velocity (the first four
+    entries): ``(P, 4)``, ``(P, 4, 4)``."""
+    diff = np.empty((ii.size, 4))
+    S = np.empty((ii.size, 4, 4))
+    for p in range(ii.size):
+        i, j = ii[p], jj[p]
+        for a in range(4):
+            diff[p, a] = mean[i, a] - mean[j, a]
+            for b in range(4):
+                S[p, a, b] = cov[i, a, b] + cov[j, a, b]
+    return diff, S
+
+
 exclusive_candidates = jit(exclusive_candidates)
+pair_differences = jit(pair_differences)
 
 
 def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -115,8 +131,7 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tupl
         ii, jj = ii[keep], jj[keep]
     if ii.size == 0:
         return ii, jj
-    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
-    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
+    diff, S = pair_differences(c.mean, c.cov, ii, jj)  # _POS_VEL = [0, 1, 2, 3]
     d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
     ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
     keep = ~_distinct(c.labels, taken, ii, jj)  # a Python loop: only over the close pairs

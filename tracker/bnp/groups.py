@@ -335,6 +335,8 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     t_cov = np.empty((P, T, 2, 2))
     t_mu = np.empty((P, T, 2))
     fresh = np.zeros(T, dtype=np.bool_)
+    A = np.empty((2, 2))
+    r = np.empty(2)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
@@ -351,9 +353,11 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         t_cov[p, t] = cov
                     fresh[t] = True
                 for p in range(P):
-                    mu = t_mu[p, t]
-                    det = _inv_into(t_cov[p, t] + R[p, l], Si)
-                    r = v[p, l] - mu
+                    for i in range(2):  # t_cov + R and v - mu, into buffers
+                        r[i] = v[p, l, i] - t_mu[p, t, i]
+                        for j in range(2):
+                            A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
+                    det = _inv_into(A, Si)
                     logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
                         _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
@@ -457,7 +461,25 @@ def _collect_shares(rec_p, rec_mu, rec_cov, min_p):  # pragma: no cover - compil
     return obj, w, mu, cov
 
 
+def _compact(z, G, T):  # pragma: no cover - compiled
+    """``z`` with the new tables (``>= G``) renumbered ``G, G + 1, ...`` in increasing order."""
+    used = np.zeros(T, dtype=np.bool_)
+    for l in range(z.size):
+        used[z[l]] = True
+    remap = np.arange(T)
+    k = G
+    for t in range(G, T):
+        if used[t]:
+            remap[t] = k
+            k += 1
+    out = np.empty(z.size, dtype=np.int64)
+    for l in range(z.size):
+        out[l] = remap[z[l]]
+    return out
+
+
 _table_priors = jit(_table_priors)
+_compact = jit(_compact)
 _collect_shares = jit(_collect_shares)
 
 
@@ -496,10 +518,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
-    new = np.unique(z[z >= G])
-    remap = np.arange(T)
-    remap[new] = G + np.arange(new.size)
-    return remap[z], Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
+    return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -520,15 +539,41 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     PHt = P[:, :, _VEL]  # (P, 5, 2)
     Si, _ = inv2(P[:, _VEL][:, :, _VEL] + S_w + shares.cov)
     K = PHt @ Si
-    mu = m + np.einsum("pij,pj->pi", K, shares.mu - m[:, _VEL])
-    Pu = P - K @ np.swapaxes(PHt, 1, 2)
-    w = shares.w
-    new_mean = np.zeros_like(mean)
-    np.add.at(new_mean, o, w[:, None] * mu)
-    dev = mu - new_mean[o]
-    new_cov = np.zeros_like(cov)
-    np.add.at(new_cov, o, w[:, None, None] * (Pu + dev[:, :, None] * dev[:, None, :]))
-    return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
+    return _share_moments(mean.shape[0], m, P, K, K @ np.swapaxes(PHt, 1, 2), shares.mu, shares.w, o)
+
+
+def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s update and moment match after its gains ``K`` (Q, 5, 2) and
+    ``KHP`` = K (P H')' (Q, 5, 5): ``mu = m + K (s_mu - H m)`` (the product as ``np.einsum``:
+    from 0.0 in index order), ``Pu = P - KHP``; the mixture's mean and covariance per object,
+    added in option order (``np.add.at``), then symmetrised.  Returns ``(N, 5)``, ``(N, 5, 5)``."""
+    Q = o.size
+    mu = np.empty((Q, 5))
+    for q in range(Q):
+        d0, d1 = s_mu[q, 0] - m[q, 1], s_mu[q, 1] - m[q, 3]
+        for i in range(5):
+            mu[q, i] = m[q, i] + (0.0 + K[q, i, 0] * d0 + K[q, i, 1] * d1)
+    new_mean = np.zeros((N, 5))
+    for q in range(Q):
+        for i in range(5):
+            new_mean[o[q], i] += w[q] * mu[q, i]
+    new_cov = np.zeros((N, 5, 5))
+    dev = np.empty(5)
+    for q in range(Q):
+        for i in range(5):
+            dev[i] = mu[q, i] - new_mean[o[q], i]
+        for i in range(5):
+            for j in range(5):
+                new_cov[o[q], i, j] += w[q] * ((P[q, i, j] - KHP[q, i, j]) + dev[i] * dev[j])
+    sym = np.empty((N, 5, 5))
+    for n in range(N):
+        for i in range(5):
+            for j in range(5):
+                sym[n, i, j] = 0.5 * (new_cov[n, i, j] + new_cov[n, j, i])
+    return new_mean, sym
+
+
+_share_moments = jit(_share_moments)
 
 
 def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
