@@ -13,7 +13,7 @@ from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
                                           Shares, _collect_shares, _compact, _partition_kernel, _table_priors, inv2,
-                                          inv2_const, share_velocity, theta_sums)
+                                          inv2_const, share_turn, share_velocity, theta_sums)
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
 
@@ -239,6 +239,40 @@ def test_share_velocity_equals_reference(seed: int) -> None:
     r_mean, r_cov = _share_velocity_reference(mean, cov, shares, S_w)
     _same(new_mean, r_mean)
     _same(new_cov, r_cov)
+
+
+def _share_turn_reference(mean, cov, omega, var, z, within_var):
+    info = 1.0 / var
+    tot_i = np.bincount(z, weights=info)[z] - info
+    tot_m = np.bincount(z, weights=info * omega)[z] - info * omega
+    has = tot_i > 0
+    if not has.any():
+        return mean, cov
+    mean, cov = mean.copy(), cov.copy()
+    y = tot_m[has] / tot_i[has]
+    r = 1.0 / tot_i[has] + within_var
+    P = cov[has]
+    K = P[:, :, 4] / (P[:, 4, 4] + r)[:, None]
+    mean[has] = mean[has] + K * (y - mean[has, 4])[:, None]
+    Pu = P - K[:, :, None] * P[:, 4, None, :]
+    cov[has] = 0.5 * (Pu + np.swapaxes(Pu, 1, 2))
+    return mean, cov
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_share_turn_equals_reference(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    L = 11
+    mean, cov = rng.normal(0, 0.05, (L, 5)), _spd(rng, L, 5, 0.1)
+    z = rng.integers(0, 5, L)
+    omega, var = mean[:, 4], cov[:, 4, 4]
+    new_mean, new_cov = share_turn(mean, cov, omega, var, z, 1e-4)
+    r_mean, r_cov = _share_turn_reference(mean, cov, omega, var, z, 1e-4)
+    _same(new_mean, r_mean)
+    _same(new_cov, r_cov)
+    alone = np.arange(3)  # every member alone: nothing shared, the inputs returned
+    out = share_turn(mean[:3], cov[:3], omega[:3], var[:3], alone, 1e-4)
+    assert out[0] is not None and np.array_equal(out[0], mean[:3])
 
 
 def test_compact_hand_computed() -> None:

@@ -587,21 +587,48 @@ def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.nda
     A member alone takes none.  ``mean`` (L, 5), ``cov`` (L, 5, 5)."""
     if z.size < 2:
         return mean, cov
-    info = 1.0 / var
-    tot_i = np.bincount(z, weights=info)[z] - info
-    tot_m = np.bincount(z, weights=info * omega)[z] - info * omega
-    has = tot_i > 0
-    if not has.any():
-        return mean, cov
-    mean, cov = mean.copy(), cov.copy()
-    y = tot_m[has] / tot_i[has]
-    r = 1.0 / tot_i[has] + within_var
-    P = cov[has]
-    K = P[:, :, 4] / (P[:, 4, 4] + r)[:, None]  # (n, 5)
-    mean[has] = mean[has] + K * (y - mean[has, 4])[:, None]
-    Pu = P - K[:, :, None] * P[:, 4, None, :]
-    cov[has] = 0.5 * (Pu + np.swapaxes(Pu, 1, 2))
-    return mean, cov
+    new_mean, new_cov, shared = _share_turn_kernel(mean, cov, omega, var, z, float(within_var))
+    return (new_mean, new_cov) if shared else (mean, cov)
+
+
+def _share_turn_kernel(mean, cov, omega, var, z, within_var):  # pragma: no cover - compiled
+    """:func:`share_turn` compiled: the information sums per cluster added in member order from
+    0.0 (``np.bincount``), then each member with other members' information (> 0) updated as a
+    scalar Kalman step on ``x_4``, its covariance symmetrised.  The third output: any updated."""
+    L = z.size
+    info, im = np.empty(L), np.empty(L)
+    n_tables = 0
+    for l in range(L):
+        info[l] = 1.0 / var[l]
+        im[l] = info[l] * omega[l]
+        n_tables = max(n_tables, z[l] + 1)
+    s_i, s_m = np.zeros(n_tables), np.zeros(n_tables)
+    for l in range(L):
+        s_i[z[l]] += info[l]
+        s_m[z[l]] += im[l]
+    out_mean, out_cov = mean.copy(), cov.copy()
+    K, Pu = np.empty(5), np.empty((5, 5))
+    shared = False
+    for l in range(L):
+        tot_i = s_i[z[l]] - info[l]
+        if not tot_i > 0:
+            continue
+        shared = True
+        y = (s_m[z[l]] - im[l]) / tot_i
+        r = 1.0 / tot_i + within_var
+        for i in range(5):
+            K[i] = cov[l, i, 4] / (cov[l, 4, 4] + r)
+            out_mean[l, i] = mean[l, i] + K[i] * (y - mean[l, 4])
+        for i in range(5):
+            for j in range(5):
+                Pu[i, j] = cov[l, i, j] - K[i] * cov[l, 4, j]
+        for i in range(5):
+            for j in range(5):
+                out_cov[l, i, j] = 0.5 * (Pu[i, j] + Pu[j, i])
+    return out_mean, out_cov, shared
+
+
+_share_turn_kernel = jit(_share_turn_kernel)
 
 
 @dataclass(frozen=True)
