@@ -5,11 +5,20 @@ the same frame one right after the other (alternating which goes first) and the 
 medians is reported.
 
     python benchmarks/groups_speed.py --scenario groups --seeds 1 2 3
+
+``--fingerprint`` times nothing: it prints a digest of each tracker's output per seed (every
+frame's track labels, states, covariances, existences, clusters, assignments and their
+probabilities, cardinality pmf, and the state's objects and clusters), to compare two checkouts
+bit for bit:
+
+    PYTHONPATH=$PWD python benchmarks/groups_speed.py --fingerprint --scenario vo2017 --seeds 1 2 3 4 5 \
+        --trackers ddp-groups dpyp-groups
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
@@ -25,12 +34,37 @@ from bnptrack.tracker.registry import build  # noqa: E402
 from bnptrack.tracker.state import tracker_frame_rng  # noqa: E402
 
 
+def fingerprint(name: str, scenario: str, seed: int) -> str:
+    """SHA-256 (16 hex digits) of a two-level tracker's whole output on one run."""
+    sc = get_scenario(scenario, seed=seed) if is_generated(scenario) else get_scenario(scenario)
+    params = sc.adapt_params(load_params("vo2017"))
+    tracker = build(name, params)
+    state, h = tracker.initial_state(), hashlib.sha256()
+    for f in simulate_all(sc, params, seed):
+        state, est = tracker.step(state, f, tracker_frame_rng(seed, f.frame))
+        for t in est.tracks:
+            h.update(t.label.encode() + t.state.tobytes() + t.covariance.tobytes())
+            h.update(np.float64(t.existence).tobytes() + str(t.cluster).encode())
+        h.update(repr(est.assignments).encode() + np.asarray(est.assignment_prob).tobytes())
+        h.update(np.asarray(est.cardinality_pmf).tobytes())
+        for a in (state.mean, state.cov, state.existence, state.cluster, state.group_mean, state.group_cov,
+                  state.group_ids, np.float64(state.alpha2), np.float64(state.d2), state.hyper2_loglik):
+            h.update(np.asarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="groups")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--trackers", nargs=2, default=["ddp-groups", "ddp-mb"])
+    ap.add_argument("--fingerprint", action="store_true", help="print output digests instead of timing")
     args = ap.parse_args()
+    if args.fingerprint:
+        for name in args.trackers:
+            for seed in args.seeds:
+                print(f"{name} {args.scenario} {seed} {fingerprint(name, args.scenario, seed)}", flush=True)
+        return
     ms: dict[str, list[float]] = {t: [] for t in args.trackers}
     for seed in args.seeds:
         sc = get_scenario(args.scenario, seed=seed) if is_generated(args.scenario) else get_scenario(args.scenario)

@@ -18,14 +18,21 @@ pairs kept apart:
   probability at least ``min_prob``, or the measurement a cluster born this scan was born from).
 
 Every other pair merges as before (squared Mahalanobis distance at most ``max_d2`` on position
-and velocity, summed covariances; existences summing to at most 1).
+and velocity, summed covariances; existences summing to at most 1).  The pairs that may pass
+are found by a compiled pass (:func:`exclusive_candidates`, a necessary condition), so numpy's
+exact test runs on few pairs; the result is the all-pairs numpy code's, bit for bit
+(``tests/tracker/test_group_kernels.py``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups, _near_pairs
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
+
+#: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
+_ALL_PAIRS = 200
 
 
 def birth_frame(label: str) -> int:
@@ -57,16 +64,74 @@ def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: 
     return out
 
 
+#: Relative slack of :func:`exclusive_candidates`' bound (it only has to keep every pair that passes).
+_BOUND_SLACK = 1.0 + 1e-6
+
+
+def exclusive_candidates(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d2: float
+                         ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    r"""Pairs ``i < j`` (in ``np.triu_indices`` order) with ``r[i] + r[j] <= 1`` and
+    ``|d|^2 <= max_d2 tr(S) (1 + 1e-6)``, ``d`` the difference of the first four state entries
+    (position and velocity) and ``S`` the sum of their covariances: a superset of the pairs
+    within squared Mahalanobis distance ``max_d2``, since :math:`d^\top S^{-1} d \ge
+    \lVert d\rVert^2 / \lambda_{max}(S) \ge \lVert d\rVert^2 / \mathrm{tr}\,S` (S positive definite).
+    Only comparisons and products here: the exact distances stay numpy's."""
+    n = mean.shape[0]
+    ii = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    jj = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not r[i] + r[j] <= 1.0:
+                continue
+            dd = 0.0
+            tr = 0.0
+            for k in range(4):
+                x = mean[i, k] - mean[j, k]
+                dd += x * x
+                tr += cov[i, k, k] + cov[j, k, k]
+            if dd <= max_d2 * tr * _BOUND_SLACK:
+                ii[count] = i
+                jj[count] = j
+                count += 1
+    return ii[:count], jj[:count]
+
+
+def pair_differences(mean: np.ndarray, cov: np.ndarray, ii: np.ndarray, jj: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """``mean[ii] - mean[jj]`` and ``cov[ii] + cov[jj]`` on position and velocity (the first four
+    entries): ``(P, 4)``, ``(P, 4, 4)``."""
+    diff = np.empty((ii.size, 4))
+    S = np.empty((ii.size, 4, 4))
+    for p in range(ii.size):
+        i, j = ii[p], jj[p]
+        for a in range(4):
+            diff[p, a] = mean[i, a] - mean[j, a]
+            for b in range(4):
+                S[p, a, b] = cov[i, a, b] + cov[j, a, b]
+    return diff, S
+
+
+exclusive_candidates = jit(exclusive_candidates)
+pair_differences = jit(pair_differences)
+
+
 def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs close enough to merge, whose existences sum to at most 1, that may be one object."""
+    """Pairs close enough to merge, whose existences sum to at most 1, that may be one object.
+
+    With few clusters (every pair a candidate of :func:`tracker.bnp.clusters._near_pairs`) a
+    compiled pass (:func:`exclusive_candidates`) keeps the pairs that
+    may pass the distance test; the exact test (a batched solve, each pair on its own) runs on those."""
     r = c.existence
-    ii, jj = _near_pairs(c, max_d2)
-    keep = r[ii] + r[jj] <= 1.0
-    ii, jj = ii[keep], jj[keep]
+    if len(c.labels) <= _ALL_PAIRS:
+        ii, jj = exclusive_candidates(c.mean, c.cov, r, float(max_d2))
+    else:
+        ii, jj = _near_pairs(c, max_d2)
+        keep = r[ii] + r[jj] <= 1.0
+        ii, jj = ii[keep], jj[keep]
     if ii.size == 0:
         return ii, jj
-    diff = c.mean[ii][:, _POS_VEL] - c.mean[jj][:, _POS_VEL]
-    S = (c.cov[ii] + c.cov[jj])[:, _POS_VEL][:, :, _POS_VEL]
+    diff, S = pair_differences(c.mean, c.cov, ii, jj)  # _POS_VEL = [0, 1, 2, 3]
     d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
     ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
     keep = ~_distinct(c.labels, taken, ii, jj)  # a Python loop: only over the close pairs
@@ -83,28 +148,57 @@ def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple
     ii, jj = _candidate_pairs(c, max_d2, taken)
     if ii.size == 0:
         return c, {}
-    near = np.zeros((n, n), dtype=bool)
-    near[ii, jj] = near[jj, ii] = True
-    r = c.existence
-    rank = np.empty(n, dtype=np.int64)
-    rank[np.argsort(-r, kind="stable")] = np.arange(n)
-    free = np.ones(n, dtype=bool)
-    groups: list[list[int]] = []
-    for i in sorted(set(ii.tolist()) | set(jj.tolist()), key=rank.__getitem__):
-        if not free[i]:
-            continue
-        group, total = [i], r[i]
-        for j in sorted(np.flatnonzero(near[i]).tolist(), key=rank.__getitem__):
-            if free[j] and total + r[j] <= 1.0 and near[j, group].all():
-                group.append(j)
-                total += r[j]
-        free[group] = False
-        if len(group) > 1:
-            groups.append(group)
-    if not groups:
+    ptr, members = greedy_groups(ii, jj, c.existence, np.argsort(-c.existence, kind="stable"))
+    if ptr.size == 1:
         return c, {}
     renamed = {}
-    for g in groups:
-        final = min((c.labels[k] for k in g), key=birth_frame)
-        renamed.update({c.labels[k]: final for k in g if c.labels[k] != final})
-    return _merge_groups(c, groups), renamed
+    for g in range(ptr.size - 1):
+        group = members[ptr[g]:ptr[g + 1]].tolist()
+        final = min((c.labels[k] for k in group), key=birth_frame)
+        renamed.update({c.labels[k]: final for k in group if c.labels[k] != final})
+    return _apply_groups(c, ptr, members), renamed
+
+
+def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`merge_exclusive`'s greedy grouping of the candidate pairs ``(ii, jj)``: leaders in
+    ``order`` (decreasing existence ``r``, stable) among the clusters of a pair; each takes, in the
+    same order, its free partners whose existence keeps the group's sum (added in that order) at
+    most 1 and that are candidates with every member already in.  Groups of two or more in CSR
+    form: ``members[ptr[g]:ptr[g + 1]]``, leader first."""
+    n = r.size
+    near = np.zeros((n, n), dtype=np.bool_)
+    paired = np.zeros(n, dtype=np.bool_)
+    for k in range(ii.size):
+        near[ii[k], jj[k]] = near[jj[k], ii[k]] = True
+        paired[ii[k]] = paired[jj[k]] = True
+    free = np.ones(n, dtype=np.bool_)
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    members = np.empty(n, dtype=np.int64)
+    group = np.empty(n, dtype=np.int64)
+    n_groups, used = 0, 0
+    for i in order:
+        if not paired[i] or not free[i]:
+            continue
+        group[0], size, total = i, 1, r[i]
+        for j in order:
+            if not near[i, j] or not free[j] or not total + r[j] <= 1.0:
+                continue
+            ok = True
+            for m in range(size):
+                ok = ok and near[j, group[m]]
+            if ok:
+                group[size] = j
+                size += 1
+                total += r[j]
+        for m in range(size):
+            free[group[m]] = False
+        if size > 1:
+            members[used:used + size] = group[:size]
+            used += size
+            n_groups += 1
+            ptr[n_groups] = used
+    return ptr[:n_groups + 1], members[:used]
+
+
+greedy_groups = jit(greedy_groups)

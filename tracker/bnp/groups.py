@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Literal
 
 import msgspec
@@ -53,11 +53,10 @@ import numpy as np
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
-from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
+from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
-from bnptrack.tracker.cardinality import existence_cardinality
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
@@ -199,6 +198,17 @@ def inv2(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return inv / det[..., None, None], det
 
 
+@lru_cache(maxsize=32)
+def _inv2_of_bytes(raw: bytes) -> np.ndarray:
+    return inv2(np.frombuffer(raw).reshape(2, 2))[0]
+
+
+def inv2_const(A: np.ndarray) -> np.ndarray:
+    """:func:`inv2`'s inverse of one 2x2 matrix that repeats from frame to frame (a prior's
+    covariance), remembered by its bytes: the same numbers without recomputing them."""
+    return _inv2_of_bytes(np.ascontiguousarray(A, dtype=float).tobytes()).copy()
+
+
 def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r"""Posterior of :math:`\theta` given prior :math:`\mathcal N(m_0, C_0)` and members
     :math:`v_j \sim \mathcal N(\theta, R_j)` (``v`` (n, 2), ``R`` (n, 2, 2)):
@@ -320,19 +330,34 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     logw = np.empty(T)
     cov = np.empty((2, 2))
     Si = np.empty((2, 2))
+    # each table's theta posterior (cov, mu) per part, recomputed only when its members change:
+    # the same operations on the same values as computing it for every object
+    t_cov = np.empty((P, T, 2, 2))
+    t_mu = np.empty((P, T, 2))
+    fresh = np.zeros(T, dtype=np.bool_)
+    A = np.empty((2, 2))
+    r = np.empty(2)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
+            fresh[z[l]] = False
             _option_logw(n, v_star, alpha, d, logw)
             for t in range(T):
                 if logw[t] == -np.inf:
                     continue
+                if not fresh[t]:
+                    for p in range(P):
+                        _inv_into(lam[p, t], cov)
+                        t_mu[p, t] = cov @ eta[p, t]
+                        t_cov[p, t] = cov
+                    fresh[t] = True
                 for p in range(P):
-                    _inv_into(lam[p, t], cov)
-                    mu = cov @ eta[p, t]
-                    det = _inv_into(cov + R[p, l], Si)
-                    r = v[p, l] - mu
+                    for i in range(2):  # t_cov + R and v - mu, into buffers
+                        r[i] = v[p, l, i] - t_mu[p, t, i]
+                        for j in range(2):
+                            A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
+                    det = _inv_into(A, Si)
                     logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
                         _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
@@ -347,12 +372,115 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
             if s == S - 1:
                 rec_p[l] = w
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+            fresh[z[l]] = False
 
 
 _inv_into = jit(_inv_into)
 _move = jit(_move)
 _option_logw = jit(_option_logw)
 _partition_kernel = jit(_partition_kernel)
+
+
+def theta_sums(R: np.ndarray, v: np.ndarray, slot: np.ndarray, n_used: int, h_lam: np.ndarray,
+               h_eta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Posterior mean ``(n_used, 2)`` and covariance ``(n_used, 2, 2)`` of each used cluster's
+    block of theta: ``lam = h_lam + sum R_l^-1``, ``eta = h_eta + sum R_l^-1 v_l`` over the
+    members ``l`` of the cluster ``slot[l]`` (in member order), ``cov = lam^-1``, ``mean = cov eta``.
+    The 2x2 inverses as :func:`tracker.bnp.groups.inv2` (entries over the determinant), the
+    products as ``np.einsum`` (from 0.0, in index order)."""
+    lam = np.empty((n_used, 2, 2))
+    eta = np.empty((n_used, 2))
+    for g in range(n_used):
+        lam[g] = h_lam
+        eta[g] = h_eta
+    for l in range(R.shape[0]):
+        a, b, c, d = R[l, 0, 0], R[l, 0, 1], R[l, 1, 0], R[l, 1, 1]
+        det = a * d - b * c
+        i00, i01, i10, i11 = d / det, -b / det, -c / det, a / det
+        g = slot[l]
+        lam[g, 0, 0] += i00
+        lam[g, 0, 1] += i01
+        lam[g, 1, 0] += i10
+        lam[g, 1, 1] += i11
+        eta[g, 0] += 0.0 + i00 * v[l, 0] + i01 * v[l, 1]
+        eta[g, 1] += 0.0 + i10 * v[l, 0] + i11 * v[l, 1]
+    cov = np.empty((n_used, 2, 2))
+    mean = np.empty((n_used, 2))
+    for g in range(n_used):
+        a, b, c, d = lam[g, 0, 0], lam[g, 0, 1], lam[g, 1, 0], lam[g, 1, 1]
+        det = a * d - b * c
+        cov[g, 0, 0], cov[g, 0, 1], cov[g, 1, 0], cov[g, 1, 1] = d / det, -b / det, -c / det, a / det
+        mean[g, 0] = 0.0 + cov[g, 0, 0] * eta[g, 0] + cov[g, 0, 1] * eta[g, 1]
+        mean[g, 1] = 0.0 + cov[g, 1, 0] * eta[g, 0] + cov[g, 1, 1] * eta[g, 1]
+    return mean, cov
+
+
+theta_sums = jit(theta_sums)
+
+
+def _table_priors(prior_cov, prior_mean, h_lam, h_eta, lam0, eta0) -> None:  # pragma: no cover - compiled
+    """:meth:`Block.prior_information` into ``lam0`` (T, 2, 2), ``eta0`` (T, 2): the G transitioned
+    tables' priors in information form (2x2 inverses as :func:`inv2`, products as ``np.einsum``:
+    from 0.0 in index order), then H_2's (``h_lam``, ``h_eta``) for the new ones."""
+    G = prior_cov.shape[0]
+    for g in range(G):
+        a, b, c, d = prior_cov[g, 0, 0], prior_cov[g, 0, 1], prior_cov[g, 1, 0], prior_cov[g, 1, 1]
+        det = a * d - b * c
+        i00, i01, i10, i11 = d / det, -b / det, -c / det, a / det
+        lam0[g, 0, 0], lam0[g, 0, 1], lam0[g, 1, 0], lam0[g, 1, 1] = i00, i01, i10, i11
+        eta0[g, 0] = 0.0 + i00 * prior_mean[g, 0] + i01 * prior_mean[g, 1]
+        eta0[g, 1] = 0.0 + i10 * prior_mean[g, 0] + i11 * prior_mean[g, 1]
+    for t in range(G, lam0.shape[0]):
+        lam0[t] = h_lam
+        eta0[t] = h_eta
+
+
+def _collect_shares(rec_p, rec_mu, rec_cov, min_p):  # pragma: no cover - compiled
+    """The options with conditional probability above ``min_p`` (row-major, as ``np.nonzero``), their
+    weights normalised per object (sums in index order from 0.0, as ``np.bincount``), thetas."""
+    L, T = rec_p.shape
+    count = 0
+    for l in range(L):
+        for t in range(T):
+            if rec_p[l, t] > min_p:
+                count += 1
+    obj = np.empty(count, dtype=np.int64)
+    w = np.empty(count)
+    mu = np.empty((count, 2))
+    cov = np.empty((count, 2, 2))
+    k = 0
+    for l in range(L):
+        first, total = k, 0.0
+        for t in range(T):
+            if rec_p[l, t] > min_p:
+                obj[k], w[k], mu[k], cov[k] = l, rec_p[l, t], rec_mu[l, t], rec_cov[l, t]
+                total += rec_p[l, t]
+                k += 1
+        for j in range(first, k):
+            w[j] = w[j] / total
+    return obj, w, mu, cov
+
+
+def _compact(z, G, T):  # pragma: no cover - compiled
+    """``z`` with the new tables (``>= G``) renumbered ``G, G + 1, ...`` in increasing order."""
+    used = np.zeros(T, dtype=np.bool_)
+    for l in range(z.size):
+        used[z[l]] = True
+    remap = np.arange(T)
+    k = G
+    for t in range(G, T):
+        if used[t]:
+            remap[t] = k
+            k += 1
+    out = np.empty(z.size, dtype=np.int64)
+    for l in range(z.size):
+        out[l] = remap[z[l]]
+    return out
+
+
+_table_priors = jit(_table_priors)
+_compact = jit(_compact)
+_collect_shares = jit(_collect_shares)
 
 
 #: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
@@ -374,9 +502,11 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
-    info = [b.prior_information() for b in blocks]
-    lam0 = np.ascontiguousarray(np.stack([i[0] for i in info]))
-    eta0 = np.ascontiguousarray(np.stack([i[1] for i in info]))
+    lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
+    for p, b in enumerate(blocks):  # compiled Block.prior_information
+        h_lam = inv2_const(b.h_cov)
+        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean), h_lam,
+                      h_lam @ b.h_mean, lam0[p], eta0[p])
     v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
     R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
     z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
@@ -384,17 +514,11 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_p = np.zeros((L, T))
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
-    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2(blocks[0].h_cov)[0]
+    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2_const(blocks[0].h_cov)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
-    new = np.unique(z[z >= G])
-    remap = np.arange(T)
-    remap[new] = G + np.arange(new.size)
-    ll, tt = np.nonzero(rec_p > 1e-4)
-    w = rec_p[ll, tt]
-    w = w / np.bincount(ll, weights=w, minlength=L)[ll]
-    return remap[z], Shares(ll.astype(np.int64), w, rec_mu[ll, tt], rec_cov[ll, tt])
+    return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -415,15 +539,41 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     PHt = P[:, :, _VEL]  # (P, 5, 2)
     Si, _ = inv2(P[:, _VEL][:, :, _VEL] + S_w + shares.cov)
     K = PHt @ Si
-    mu = m + np.einsum("pij,pj->pi", K, shares.mu - m[:, _VEL])
-    Pu = P - K @ np.swapaxes(PHt, 1, 2)
-    w = shares.w
-    new_mean = np.zeros_like(mean)
-    np.add.at(new_mean, o, w[:, None] * mu)
-    dev = mu - new_mean[o]
-    new_cov = np.zeros_like(cov)
-    np.add.at(new_cov, o, w[:, None, None] * (Pu + dev[:, :, None] * dev[:, None, :]))
-    return new_mean, 0.5 * (new_cov + np.swapaxes(new_cov, 1, 2))
+    return _share_moments(mean.shape[0], m, P, K, K @ np.swapaxes(PHt, 1, 2), shares.mu, shares.w, o)
+
+
+def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s update and moment match after its gains ``K`` (Q, 5, 2) and
+    ``KHP`` = K (P H')' (Q, 5, 5): ``mu = m + K (s_mu - H m)`` (the product as ``np.einsum``:
+    from 0.0 in index order), ``Pu = P - KHP``; the mixture's mean and covariance per object,
+    added in option order (``np.add.at``), then symmetrised.  Returns ``(N, 5)``, ``(N, 5, 5)``."""
+    Q = o.size
+    mu = np.empty((Q, 5))
+    for q in range(Q):
+        d0, d1 = s_mu[q, 0] - m[q, 1], s_mu[q, 1] - m[q, 3]
+        for i in range(5):
+            mu[q, i] = m[q, i] + (0.0 + K[q, i, 0] * d0 + K[q, i, 1] * d1)
+    new_mean = np.zeros((N, 5))
+    for q in range(Q):
+        for i in range(5):
+            new_mean[o[q], i] += w[q] * mu[q, i]
+    new_cov = np.zeros((N, 5, 5))
+    dev = np.empty(5)
+    for q in range(Q):
+        for i in range(5):
+            dev[i] = mu[q, i] - new_mean[o[q], i]
+        for i in range(5):
+            for j in range(5):
+                new_cov[o[q], i, j] += w[q] * ((P[q, i, j] - KHP[q, i, j]) + dev[i] * dev[j])
+    sym = np.empty((N, 5, 5))
+    for n in range(N):
+        for i in range(5):
+            for j in range(5):
+                sym[n, i, j] = 0.5 * (new_cov[n, i, j] + new_cov[n, j, i])
+    return new_mean, sym
+
+
+_share_moments = jit(_share_moments)
 
 
 def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
@@ -437,21 +587,48 @@ def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.nda
     A member alone takes none.  ``mean`` (L, 5), ``cov`` (L, 5, 5)."""
     if z.size < 2:
         return mean, cov
-    info = 1.0 / var
-    tot_i = np.bincount(z, weights=info)[z] - info
-    tot_m = np.bincount(z, weights=info * omega)[z] - info * omega
-    has = tot_i > 0
-    if not has.any():
-        return mean, cov
-    mean, cov = mean.copy(), cov.copy()
-    y = tot_m[has] / tot_i[has]
-    r = 1.0 / tot_i[has] + within_var
-    P = cov[has]
-    K = P[:, :, 4] / (P[:, 4, 4] + r)[:, None]  # (n, 5)
-    mean[has] = mean[has] + K * (y - mean[has, 4])[:, None]
-    Pu = P - K[:, :, None] * P[:, 4, None, :]
-    cov[has] = 0.5 * (Pu + np.swapaxes(Pu, 1, 2))
-    return mean, cov
+    new_mean, new_cov, shared = _share_turn_kernel(mean, cov, omega, var, z, float(within_var))
+    return (new_mean, new_cov) if shared else (mean, cov)
+
+
+def _share_turn_kernel(mean, cov, omega, var, z, within_var):  # pragma: no cover - compiled
+    """:func:`share_turn` compiled: the information sums per cluster added in member order from
+    0.0 (``np.bincount``), then each member with other members' information (> 0) updated as a
+    scalar Kalman step on ``x_4``, its covariance symmetrised.  The third output: any updated."""
+    L = z.size
+    info, im = np.empty(L), np.empty(L)
+    n_tables = 0
+    for l in range(L):
+        info[l] = 1.0 / var[l]
+        im[l] = info[l] * omega[l]
+        n_tables = max(n_tables, z[l] + 1)
+    s_i, s_m = np.zeros(n_tables), np.zeros(n_tables)
+    for l in range(L):
+        s_i[z[l]] += info[l]
+        s_m[z[l]] += im[l]
+    out_mean, out_cov = mean.copy(), cov.copy()
+    K, Pu = np.empty(5), np.empty((5, 5))
+    shared = False
+    for l in range(L):
+        tot_i = s_i[z[l]] - info[l]
+        if not tot_i > 0:
+            continue
+        shared = True
+        y = (s_m[z[l]] - im[l]) / tot_i
+        r = 1.0 / tot_i + within_var
+        for i in range(5):
+            K[i] = cov[l, i, 4] / (cov[l, 4, 4] + r)
+            out_mean[l, i] = mean[l, i] + K[i] * (y - mean[l, 4])
+        for i in range(5):
+            for j in range(5):
+                Pu[i, j] = cov[l, i, j] - K[i] * cov[l, 4, j]
+        for i in range(5):
+            for j in range(5):
+                out_cov[l, i, j] = 0.5 * (Pu[i, j] + Pu[j, i])
+    return out_mean, out_cov, shared
+
+
+_share_turn_kernel = jit(_share_turn_kernel)
 
 
 @dataclass(frozen=True)
@@ -546,7 +723,7 @@ class GroupTracker:
         assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
         diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
         return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag,
-                               existence_cardinality(inner.existence))
+                               _cardinality(inner.existence))
 
     def periods_since(self, state: GroupState, frame: Frame) -> float:
         r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
@@ -592,15 +769,10 @@ class GroupTracker:
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
-        for b in blocks:
-            Ri, _ = inv2(b.R)
-            h_lam, _ = inv2(b.h_cov)
-            lam = np.broadcast_to(h_lam, (used.size, 2, 2)).copy()
-            eta = np.broadcast_to(h_lam @ b.h_mean, (used.size, 2)).copy()
-            np.add.at(lam, slot, Ri)
-            np.add.at(eta, slot, np.einsum("lij,lj->li", Ri, b.v))
-            cov, _ = inv2(lam)
-            out.append((np.einsum("gij,gj->gi", cov, eta), cov))
+        for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
+            h_lam = inv2_const(b.h_cov)
+            out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
+                                  used.size, h_lam, h_lam @ b.h_mean))
         if len(out) == 1:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
@@ -639,17 +811,54 @@ class GroupTracker:
         if not cfg.infer_alpha and not cfg.infer_d:
             return state.alpha2, state.d2, state.hyper2_loglik
         if cfg.hyper_likelihood == "history":
-            hyper = self._history_loglik(hist)
-        elif cfg.hyper_likelihood == "arrivals":
+            return self._history_hyper(hist)
+        if cfg.hyper_likelihood == "arrivals":
             hyper = cfg.hyper_forgetting * state.hyper2_loglik + arrivals_loglik_grid(
                 self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
         else:
             hyper = cfg.hyper_forgetting * state.hyper2_loglik + self._reseat_loglik(state, z)
-        log_post = hyper + (log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
-                            + np.log(self.alpha_grid))[:, None]
-        if cfg.infer_d and cfg.d_prior == "gamma":
-            log_post = log_post + log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+        return self._grid_posterior(hyper)
+
+    def _grid_posterior(self, hyper: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """Posterior means of (alpha_2, d) on the grid given the log-likelihood ``hyper`` and the priors."""
+        log_post = hyper + self._alpha_log_prior[:, None]
+        if self._d_log_prior is not None:
+            log_post = log_post + self._d_log_prior[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
+
+    @cached_property
+    def _alpha_log_prior(self) -> np.ndarray:
+        """alpha_2's Gamma prior on the grid plus log alpha (the grid is uniform in log alpha)."""
+        cfg = self.config
+        return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+
+    @cached_property
+    def _d_log_prior(self) -> np.ndarray | None:
+        cfg = self.config
+        if cfg.infer_d and cfg.d_prior == "gamma":
+            return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)
+        return None
+
+    @cached_property
+    def _history_memo(self) -> dict:
+        """The last history's key and result (:meth:`_history_hyper`)."""
+        return {}
+
+    def _history_hyper(self, hist: tuple) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d, log-likelihood) from the history's EPPF (:meth:`_history_loglik`).  The
+        history changes only when an object joins or leaves a cluster: a frame whose history
+        equals the last one's (live cluster totals, dead clusters' statistics) reuses its result,
+        which is a pure function of them."""
+        _, total, dead_k, dead_n, dead_factor = hist
+        key = (total.tobytes(), int(dead_k), int(dead_n), np.asarray(dead_factor).tobytes())
+        memo = self._history_memo
+        hit = memo.get("last")
+        if hit is not None and hit[0] == key:
+            alpha, d, hyper = hit[1]
+            return alpha, d, hyper.copy()
+        alpha, d, hyper = self._grid_posterior(self._history_loglik(hist))
+        memo["last"] = (key, (alpha, d, hyper.copy()))
         return alpha, d, hyper
 
     def _reseat_loglik(self, state: GroupState, z: np.ndarray) -> np.ndarray:
