@@ -260,16 +260,6 @@ class Block:
     h_mean: np.ndarray
     h_cov: np.ndarray
 
-    def prior_information(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(T, 2, 2)``, ``(T, 2)``: information form of each table's prior (G transitioned, L new)."""
-        L, G = self.v.shape[0], self.prior_mean.shape[0]
-        h_lam, _ = inv2(self.h_cov)
-        p_lam, _ = inv2(self.prior_cov)
-        lam0 = np.concatenate([p_lam, np.broadcast_to(h_lam, (L, 2, 2))])
-        eta0 = np.concatenate([np.einsum("gij,gj->gi", p_lam, self.prior_mean).reshape(G, 2),
-                               np.broadcast_to(h_lam @ self.h_mean, (L, 2))])
-        return lam0, eta0
-
 
 def _inv_into(A, out) -> float:
     """2x2 inverse of ``A`` into ``out``; returns det(A)."""
@@ -419,9 +409,9 @@ theta_sums = jit(theta_sums)
 
 
 def _table_priors(prior_cov, prior_mean, h_lam, h_eta, lam0, eta0) -> None:  # pragma: no cover - compiled
-    """:meth:`Block.prior_information` into ``lam0`` (T, 2, 2), ``eta0`` (T, 2): the G transitioned
-    tables' priors in information form (2x2 inverses as :func:`inv2`, products as ``np.einsum``:
-    from 0.0 in index order), then H_2's (``h_lam``, ``h_eta``) for the new ones."""
+    """Each table's prior in information form into ``lam0`` (T, 2, 2) and ``eta0`` (T, 2): the
+    G transitioned tables' (2x2 inverses as :func:`inv2`, products as ``np.einsum``: from 0.0
+    in index order), then H_2's (``h_lam``, ``h_eta``) for the new ones."""
     G = prior_cov.shape[0]
     for g in range(G):
         a, b, c, d = prior_cov[g, 0, 0], prior_cov[g, 0, 1], prior_cov[g, 1, 0], prior_cov[g, 1, 1]
@@ -503,7 +493,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
     lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
-    for p, b in enumerate(blocks):  # compiled Block.prior_information
+    for p, b in enumerate(blocks):  # the tables' priors, compiled
         h_lam = inv2_const(b.h_cov)
         _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean), h_lam,
                       h_lam @ b.h_mean, lam0[p], eta0[p])
