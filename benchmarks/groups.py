@@ -90,7 +90,7 @@ def main() -> None:
                     help="params.KEY=V or [tracker.]KEY=V (applied to every tracker)")
     ap.add_argument("--scene", action="append", default=[], help="scene KEY=V (generated scenarios)")
     ap.add_argument("--trajectory", action="store_true",
-                    help="also print d2 (mean over seeds, with the 10/90 % quantiles) every 10th frame")
+                    help="also print d2 (mean over seeds, with the 10/90 %% quantiles) every 10th frame")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, params {args.params}, seeds {seeds.start}..{seeds.stop - 1}, "
