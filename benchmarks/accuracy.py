@@ -3,7 +3,7 @@
 Prints, per tracker and parameter set: mean OSPA (total, localisation, cardinality; c=100,
 p=1, on position), OSPA(2) (window 10), mean |N_hat - N|, label switches per run, the
 fraction of crossing pairs that keep both labels (generated ``random`` scenes; each seed is
-its own scene) and ms per frame (median, p95).  Each seed runs in its own process (``--workers``) and is timed on one
+its own scene; below the row, why the others were not: :func:`crossing_failure`) and ms per frame (median, p95).  Each seed runs in its own process (``--workers``) and is timed on one
 core, so the ms figures are single-core figures.
 
     python benchmarks/accuracy.py --trackers ddp dpyp glmb --params vo2017 paper --seeds 20
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections import Counter
 import sys
 from concurrent.futures import ProcessPoolExecutor
 
@@ -77,9 +78,26 @@ def one_run(job):
     est_tracks = [{t.label: t.position for t in e.tracks} for e in ests]
     o2 = ospa2_series(est_tracks, true_tracks, window=10, c=100.0, p=1.0)
     r = np.array(rows)
-    kept = [p.kept for p in crossing_label_keeping(true_tracks, est_tracks, sc.crossings).pairs]
+    pairs = crossing_label_keeping(true_tracks, est_tracks, sc.crossings).pairs
+    kept = [p.kept for p in pairs]
     return dict(ospa=r[:, 0].mean(), loc=r[:, 1].mean(), card=r[:, 2].mean(), ospa2=float(np.mean(o2)),
-                card_err=r[:, 3].mean(), switches=label_switches(frames, ests), ms=r[:, 4], kept=kept)
+                card_err=r[:, 3].mean(), switches=label_switches(frames, ests), ms=r[:, 4], kept=kept,
+                lost=[crossing_failure(p) for p in pairs if not p.kept])
+
+
+def crossing_failure(p) -> str:
+    """Why a crossing pair did not keep both labels: ``unseen before`` (an object had no
+    track at the first scan checked, e.g. not yet confirmed), ``swap`` (the two labels
+    exchanged), ``lost after`` (an object had no track at the last scan checked), ``merged``
+    (one track for both after), ``relabel`` (an object's track replaced by another)."""
+    (a0, b0), (a1, b1) = p.labels_before, p.labels_after
+    if None in (a0, b0):
+        return "unseen before"
+    if (a1, b1) == (b0, a0):
+        return "swap"
+    if None in (a1, b1):
+        return "lost after"
+    return "merged" if a1 == b1 else "relabel"
 
 
 def main() -> None:
@@ -106,9 +124,12 @@ def main() -> None:
                 mean = {k: np.mean([r[k] for r in res]) for k in ("ospa", "loc", "card", "ospa2", "card_err", "switches")}
                 kept = [k for r in res for k in r["kept"]]
                 kept_txt = f"{np.mean(kept):.2f} ({sum(kept)}/{len(kept)})" if kept else "n/a"
+                lost = Counter(c for r in res for c in r["lost"])
                 print(f"| {tr} | {pa} | {mean['ospa']:.2f} | {mean['loc']:.2f} | {mean['card']:.2f} | {mean['ospa2']:.2f} | "
                       f"{mean['card_err']:.3f} | {mean['switches']:.2f} | {kept_txt} | {np.median(ms):.2f} | "
                       f"{np.percentile(ms, 95):.2f} |", flush=True)
+                if lost:
+                    print(f"  crossing pairs not kept: {dict(sorted(lost.items()))}", flush=True)
 
 
 if __name__ == "__main__":

@@ -14,9 +14,16 @@ cardinality part ``c |n - m| / max(n, m)`` split over the excess objects or trac
 ``missed new`` (objects at most 3 scans old, the youngest first), ``missed old`` (older),
 ``false dead`` (tracks whose last assigned object has died), ``false other``.
 
+``--calibration`` prints instead whether the clusters' existences are calibrated, by age (scans
+since the cluster's birth measurement; 4 = 4 and more) and existence bin: how often the
+measurement that opened the cluster was an object's detection (the simulator's draws replayed,
+``benchmarks/dropped_bound.labelled_detections``).  Calibrated young clusters have that
+fraction near their mean existence (for old clusters the birth measurement says little).
+
     python benchmarks/births.py --scenario random --seeds 20
     python benchmarks/births.py --scenario vo2017 --seeds 20 --set params.birth=[]
     python benchmarks/births.py --scenario random --first-seed 101 --seeds 20 --decompose
+    python benchmarks/births.py --scenario random --first-seed 101 --seeds 10 --calibration
 """
 
 from __future__ import annotations
@@ -112,11 +119,14 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="params.KEY=V (model parameters) or [tracker.]KEY=V (tracker settings)")
     ap.add_argument("--decompose", action="store_true", help="print the OSPA decomposition instead")
+    ap.add_argument("--calibration", action="store_true", help="print the existences' calibration by age instead")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")
     if args.decompose:
         return print_decomposition(args, seeds)
+    if args.calibration:
+        return print_calibration(args, seeds)
     print("| tracker | objects | delay mean | median | p90 | never confirmed | false-track scans/run | "
           "missed-object scans/run | mean p_birth | final alpha |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -140,6 +150,46 @@ def print_decomposition(args, seeds) -> None:
             mean = {k: float(np.mean([r[k] for r in res])) for k in PARTS}
             print(f"| {tr} | {sum(mean.values()):.2f} | " + " | ".join(f"{mean[k]:.2f}" for k in PARTS) + " |",
                   flush=True)
+
+
+CAL_BINS = np.array([0.0, 0.05, 0.15, 0.35, 0.5, 0.65, 0.8, 0.9, 1.0 + 1e-9])
+CAL_AGES = 5  # ages 0..3 and "4 and more"
+
+
+def object_rows(params, frame, seed: int) -> set[int]:
+    """Rows of ``frame.z`` that are objects' detections (the simulator's draws replayed)."""
+    from benchmarks.dropped_bound import labelled_detections
+    rows: set[int] = set()
+    for z in labelled_detections(params, frame, seed).values():
+        rows.update(np.flatnonzero(np.all(np.isclose(frame.z, z[None]), axis=1)).tolist())
+    return rows
+
+
+def calibration_run(job) -> np.ndarray:
+    """``(CAL_AGES, bins, 3)``: per age and existence bin, [clusters, object-born, sum of existence]
+    over every cluster of every frame (BNP trackers: labels ``"<birth frame>.<row>"``)."""
+    tracker_name, scenario, seed, overrides = job
+    sc, tracker, frames = setup(tracker_name, "vo2017", scenario, seed, overrides)
+    real = {f.frame: object_rows(tracker.params, f, seed) for f in frames}
+    acc = np.zeros((CAL_AGES, CAL_BINS.size - 1, 3))
+    for f, _, state in run(tracker, frames, seed):
+        for lab, r in zip(state.labels, state.existence.tolist()):
+            born, _, row = lab.partition(".")
+            age = min(f.frame - int(born), CAL_AGES - 1)
+            b = int(np.searchsorted(CAL_BINS, r, side="right")) - 1
+            acc[age, b] += (1.0, float(int(row) in real[int(born)]), r)
+    return acc
+
+
+def print_calibration(args, seeds) -> None:
+    with ProcessPoolExecutor(args.workers) as pool:
+        for tr in args.trackers:
+            acc = sum(pool.map(calibration_run, [(tr, args.scenario, s, args.overrides) for s in seeds]))
+            print(f"{tr}: per age, existence bin: clusters n, mean existence r, fraction object-born")
+            for age in range(CAL_AGES):
+                cells = [f"[{CAL_BINS[i]:.2f},{min(CAL_BINS[i + 1], 1):.2f}) n={int(n)} r={s / n:.2f} obj={k / n:.2f}"
+                         for i, (n, k, s) in enumerate(acc[age]) if n > 0]
+                print(f"age {age}{'+' if age == CAL_AGES - 1 else ''}: " + "; ".join(cells), flush=True)
 
 
 if __name__ == "__main__":
