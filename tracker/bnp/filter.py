@@ -256,7 +256,7 @@ class BnpTracker:
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
             n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
-            seated_popularity=state.popularity, seated_counts=counts,
+            seated_popularity=state.popularity, seated_counts=counts, urn_normaliser=cfg.urn_normaliser,
         )
         hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
         log_post = hyper + self._log_prior_alpha[:, None]

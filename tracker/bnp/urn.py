@@ -129,6 +129,7 @@ def frame_loglik_grid(
     n_new: float,
     seated_popularity: np.ndarray,
     seated_counts: np.ndarray,
+    urn_normaliser: bool = True,
 ) -> np.ndarray:
     r"""Log-likelihood of one frame's sampled partition on an ``(alpha, d)`` grid.
 
@@ -144,11 +145,18 @@ def frame_loglik_grid(
     ``alpha`` and ``d`` broadcast (e.g. ``(A, 1)`` and ``(1, D)``).  ``n_object`` and
     ``n_new`` may be expected (fractional) counts: the last, partial new table enters with
     its fraction as the exponent of its factor.
+
+    ``urn_normaliser=False`` is the likelihood of the point-object model whose Gibbs weights
+    have ``g_m = 1`` (:class:`tracker.bnp.config.BnpConfig.urn_normaliser`): the weights are
+    the unnormalised urn weights times :math:`e^{-(\alpha + V)}`, so the normaliser's two
+    terms :math:`M_o \log(\alpha + V) - \log (\alpha + V)^{\overline{M_o}}` drop out (as
+    they do from :func:`tracker.bnp.gibbs.log_joint`); with ``d = 0`` the alpha part is the
+    Poisson birth count's :math:`-\alpha + K_\text{new} \log \alpha`.
     """
     alpha = np.asarray(alpha, dtype=float)
     d = np.asarray(d, dtype=float)
     total = alpha + mass
-    out = -total + n_object * np.log(total) - log_rising(total, n_object)
+    out = -total + n_object * np.log(total) - log_rising(total, n_object) if urn_normaliser else -total
     j = 0
     while j < n_new:
         out = out + min(1.0, n_new - j) * np.log(alpha + d * (d_bar + j))
