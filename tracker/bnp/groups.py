@@ -77,12 +77,12 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 10.0
-    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
-    robustness setting more than the true spread (true convoys share velocity exactly): the
-    pseudo-measurement reuses information across frames, so it must not be tight (tuned on
-    ``groups`` and ``vo2017`` seeds 101-120, docs/trackers.md "Two-level model")."""
-    share_inflation_std: NonNeg = 0.0
+    within_std: Positive = 3.0
+    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta in
+    f(x | theta) (eqs. (2), (4)): the membership evidence.  Tight, as true convoys share velocity
+    (session 8; 10 before, which let objects 14 m/s apart share a cluster); the sharing's
+    robustness is ``share_inflation_std`` (docs/trackers.md, "Power-law group sizes")."""
+    share_inflation_std: NonNeg = 9.5
     """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
     Cov(theta^-l); the inflation stands for the information the members already share (each
     member's estimate holds last frame's share of the others), which the Gaussian update would
@@ -101,11 +101,12 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     centroid: bool = True
     """theta also holds the cluster's centroid (membership only; never shared): members'
     positions ~ N(centroid, within_pos_std^2 I), so far-apart objects do not group."""
-    within_pos_std: Positive = 40.0
-    """Spread (m) of members' positions about their cluster's centroid (tuned as ``within_std``)."""
+    within_pos_std: Positive = 20.0
+    """Spread (m) per axis of members' positions about their cluster's centroid: a formation of
+    radius 40 m (uniform in the disc) has 20 m per axis (session 8; 40 before, the radius)."""
     centroid_std: Positive = 2000.0
     """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
-    h2: Literal["vague", "birth"] = "vague"
+    h2: Literal["vague", "birth"] = "birth"
     """H_2, the base distribution of a new cluster's theta (eqs. (5)-(6) [case3, state3], (19)):
     "vague" is N(0, theta_std^2 I) on the velocity and N(0, centroid_std^2 I) on the centroid;
     "birth" is the object level's base distribution H (:mod:`tracker.bnp.base_measure`), the
@@ -130,7 +131,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_prior: Literal["gamma", "uniform"] = "gamma"
     """Prior of d: Gamma(d_shape, d_scale) (the project's reading of the paper's Gamma(1, 0.1)) or
     uniform on [0, 0.95]."""
-    urn_reading: Literal["all", "occupied"] = "all"
+    urn_reading: Literal["all", "occupied"] = "occupied"
     """How the Pitman-Yor discount enters the object -> cluster urn (eqs. (17)-(19), cases P1-P3;
     :func:`urn_log_weights`): "all" subtracts d from every cluster, transitioned ones included, and
     counts them all in the new cluster's d K; "occupied" discounts only the clusters the other
