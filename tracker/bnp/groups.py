@@ -11,11 +11,12 @@ adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md`
   with the known within-group spread :math:`S_w` = ``within_std**2 I``) and, for membership
   only, the group's centroid (members' positions :math:`\sim \mathcal N(c, \sigma_p^2 I)`,
   ``within_pos_std``; never shared).
-* **Base distribution** :math:`H_2 = \mathcal N(0, \sigma_0^2 I)` on each part: the
-  conjugate equivalent of the paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the
-  within-group covariance is known (fixed instead of drawn from the inverse-Wishart part);
-  :math:`\kappa_0 = 0` (a flat prior on the mean) is approached by a large :math:`\sigma_0`
-  (``theta_std`` 30 m/s, ``centroid_std`` 2 km).
+* **Base distribution** :math:`H_2`, Gaussian on each part: the conjugate equivalent of the
+  paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the within-group covariance is
+  known (fixed instead of drawn from the inverse-Wishart part).  By default (``h2 = "birth"``)
+  it is the object level's base distribution, the paper's one :math:`H`: velocity
+  :math:`\mathcal N(0, 20^2 I)` and the centroid with the moments of the uniform over the field
+  of view; ``"vague"`` approaches :math:`\kappa_0 = 0` by large variances (30 m/s, 2 km).
 * **Transition** of a cluster (Algorithm 1, step 2): it transitions iff it had at least one
   member (:math:`v^*_c \ge 1`, :math:`\lambda_c = 1`), with cardinality :math:`v^*_c` = its
   number of objects at the previous frame; :math:`\theta` moves by the kernel
@@ -24,11 +25,12 @@ adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md`
 * **Object -> cluster assignment** (eqs. (1), (3), (5) [case1-case3]; Pitman-Yor (17)-(19)):
   collapsed Gibbs (eqs. (13)-(14) [posttheta, Gibbs]) over the member objects' labels given
   their estimates; weights: a cluster already chosen :math:`\propto n_c + v^*_c - d`, a
-  transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
-  :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
+  transitioned one not yet chosen :math:`\propto v^*_c`, a new one
+  :math:`\propto \alpha_2 + d K`, K the clusters the other objects occupy (``urn_reading``
+  "occupied"; "all" discounts the transitioned ones too and counts them in K); likelihood the conjugate predictive, e.g.
   :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
-* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: each object's Pitman-Yor seat
-  once, when it enters the partition (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
+* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: the Pitman-Yor EPPF of the
+  partition's whole history (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
 * **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
   each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
   :math:`\theta` (the other current members, flat prior: the NIW's :math:`\kappa_0 = 0`; a
