@@ -97,7 +97,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
     theta_std: Positive = 30.0
-    """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
+    """With ``h2 = "vague"``: H_2 = N(0, theta_std^2 I), the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
     """phi: a transitioned cluster's theta random-walks with this std (m/s) per scan."""
     centroid: bool = True
@@ -107,7 +107,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Spread (m) per axis of members' positions about their cluster's centroid: a formation of
     radius 40 m (uniform in the disc) has 20 m per axis (session 8; 40 before, the radius)."""
     centroid_std: Positive = 2000.0
-    """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
+    """With ``h2 = "vague"``: H_2's centroid part, N(0, centroid_std^2 I) (vague over the field)."""
     h2: Literal["vague", "birth"] = "birth"
     """H_2, the base distribution of a new cluster's theta (eqs. (5)-(6) [case3, state3], (19)):
     "vague" is N(0, theta_std^2 I) on the velocity and N(0, centroid_std^2 I) on the centroid;
