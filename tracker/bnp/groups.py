@@ -11,11 +11,12 @@ adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md`
   with the known within-group spread :math:`S_w` = ``within_std**2 I``) and, for membership
   only, the group's centroid (members' positions :math:`\sim \mathcal N(c, \sigma_p^2 I)`,
   ``within_pos_std``; never shared).
-* **Base distribution** :math:`H_2 = \mathcal N(0, \sigma_0^2 I)` on each part: the
-  conjugate equivalent of the paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the
-  within-group covariance is known (fixed instead of drawn from the inverse-Wishart part);
-  :math:`\kappa_0 = 0` (a flat prior on the mean) is approached by a large :math:`\sigma_0`
-  (``theta_std`` 30 m/s, ``centroid_std`` 2 km).
+* **Base distribution** :math:`H_2`, Gaussian on each part: the conjugate equivalent of the
+  paper's :math:`\mathrm{NIW}(\mu_0, 0, \nu, I)` (Sec. 6) once the within-group covariance is
+  known (fixed instead of drawn from the inverse-Wishart part).  By default (``h2 = "birth"``)
+  it is the object level's base distribution, the paper's one :math:`H`: velocity
+  :math:`\mathcal N(0, 20^2 I)` and the centroid with the moments of the uniform over the field
+  of view; ``"vague"`` approaches :math:`\kappa_0 = 0` by large variances (30 m/s, 2 km).
 * **Transition** of a cluster (Algorithm 1, step 2): it transitions iff it had at least one
   member (:math:`v^*_c \ge 1`, :math:`\lambda_c = 1`), with cardinality :math:`v^*_c` = its
   number of objects at the previous frame; :math:`\theta` moves by the kernel
@@ -24,11 +25,12 @@ adds the object -> cluster level of the paper's Algorithm 1 (``docs/trackers.md`
 * **Object -> cluster assignment** (eqs. (1), (3), (5) [case1-case3]; Pitman-Yor (17)-(19)):
   collapsed Gibbs (eqs. (13)-(14) [posttheta, Gibbs]) over the member objects' labels given
   their estimates; weights: a cluster already chosen :math:`\propto n_c + v^*_c - d`, a
-  transitioned one not yet chosen :math:`\propto v^*_c - d`, a new one
-  :math:`\propto \alpha_2 + d K`; likelihood the conjugate predictive, e.g.
+  transitioned one not yet chosen :math:`\propto v^*_c`, a new one
+  :math:`\propto \alpha_2 + d K`, K the clusters the other objects occupy (``urn_reading``
+  "occupied"; "all" discounts the transitioned ones too and counts them in K); likelihood the conjugate predictive, e.g.
   :math:`\mathcal N(v_\ell; \hat\theta_c^{-\ell}, \Sigma_c^{-\ell} + P_{v,\ell} + S_w)`.
-* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: each object's Pitman-Yor seat
-  once, when it enters the partition (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
+* :math:`(\alpha_2, d)` on a grid with Gamma priors; likelihood: the Pitman-Yor EPPF of the
+  partition's whole history (eq. (20) [condd]; :mod:`tracker.bnp.group_hyper`).
 * **Sharing** (eq. (2) [state1]: :math:`F_\theta` depends on the cluster's :math:`\theta`):
   each member's velocity takes a Kalman pseudo-measurement of its cluster's leave-one-out
   :math:`\theta` (the other current members, flat prior: the NIW's :math:`\kappa_0 = 0`; a
@@ -77,12 +79,12 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
-    within_std: Positive = 10.0
-    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta.  A
-    robustness setting more than the true spread (true convoys share velocity exactly): the
-    pseudo-measurement reuses information across frames, so it must not be tight (tuned on
-    ``groups`` and ``vo2017`` seeds 101-120, docs/trackers.md "Two-level model")."""
-    share_inflation_std: NonNeg = 0.0
+    within_std: Positive = 3.0
+    """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta in
+    f(x | theta) (eqs. (2), (4)): the membership evidence.  Tight, as true convoys share velocity
+    (session 8; 10 before, which let objects 14 m/s apart share a cluster); the sharing's
+    robustness is ``share_inflation_std`` (docs/trackers.md, "Power-law group sizes")."""
+    share_inflation_std: NonNeg = 9.5
     """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
     Cov(theta^-l); the inflation stands for the information the members already share (each
     member's estimate holds last frame's share of the others), which the Gaussian update would
@@ -95,16 +97,24 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
     theta_std: Positive = 30.0
-    """H_2 = N(0, theta_std^2 I): the prior of a new cluster's velocity (m/s)."""
+    """With ``h2 = "vague"``: H_2 = N(0, theta_std^2 I), the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
     """phi: a transitioned cluster's theta random-walks with this std (m/s) per scan."""
     centroid: bool = True
     """theta also holds the cluster's centroid (membership only; never shared): members'
     positions ~ N(centroid, within_pos_std^2 I), so far-apart objects do not group."""
-    within_pos_std: Positive = 40.0
-    """Spread (m) of members' positions about their cluster's centroid (tuned as ``within_std``)."""
+    within_pos_std: Positive = 20.0
+    """Spread (m) per axis of members' positions about their cluster's centroid: a formation of
+    radius 40 m (uniform in the disc) has 20 m per axis (session 8; 40 before, the radius)."""
     centroid_std: Positive = 2000.0
-    """H_2's centroid part: N(0, centroid_std^2 I) (vague over the field)."""
+    """With ``h2 = "vague"``: H_2's centroid part, N(0, centroid_std^2 I) (vague over the field)."""
+    h2: Literal["vague", "birth"] = "birth"
+    """H_2, the base distribution of a new cluster's theta (eqs. (5)-(6) [case3, state3], (19)):
+    "vague" is N(0, theta_std^2 I) on the velocity and N(0, centroid_std^2 I) on the centroid;
+    "birth" is the object level's base distribution H (:mod:`tracker.bnp.base_measure`), the
+    paper's one H for both levels: velocity N(0, objects.birth_velocity_std^2 I), centroid the
+    Gaussian with the mean and covariance of the uniform over the sensor's field of view
+    (:func:`fov_moments`)."""
     centroid_drift_std: Positive = 10.0
     """phi on the centroid: it moves with theta's velocity plus this random walk (m per scan)."""
     sweeps: PosInt = 6
@@ -123,6 +133,11 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_prior: Literal["gamma", "uniform"] = "gamma"
     """Prior of d: Gamma(d_shape, d_scale) (the project's reading of the paper's Gamma(1, 0.1)) or
     uniform on [0, 0.95]."""
+    urn_reading: Literal["all", "occupied"] = "occupied"
+    """How the Pitman-Yor discount enters the object -> cluster urn (eqs. (17)-(19), cases P1-P3;
+    :func:`urn_log_weights`): "all" subtracts d from every cluster, transitioned ones included, and
+    counts them all in the new cluster's d K; "occupied" discounts only the clusters the other
+    objects occupy this frame and counts only those (eq. (19)'s D^(l-1)); identical when d = 0."""
     hyper_forgetting: PositiveProb = 0.98
     """Per-frame forgetting of the "arrivals" and "reseat" likelihoods ("history" has none)."""
     hyper_likelihood: Literal["history", "arrivals", "reseat"] = "history"
@@ -221,15 +236,28 @@ def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray
     return cov @ eta, cov
 
 
-def urn_log_weights(n: np.ndarray, v_star: np.ndarray, alpha: float, d: float) -> np.ndarray:
+def urn_log_weights(n: np.ndarray, v_star: np.ndarray, alpha: float, d: float,
+                    occupied: bool = False) -> np.ndarray:
     r"""Log prior weights of one object's options: each table then a new one (eqs. (case1)-(case3),
-    Pitman-Yor (eq1)-(eq3)).  Table :math:`c`: :math:`n_c + v^*_c - d` (D1/P1 if chosen this frame,
-    D2/P2 if only transitioned); new: :math:`\alpha + d K`, K = tables with :math:`n_c + v^*_c > 0`.
+    Pitman-Yor (eq1)-(eq3)).  ``occupied`` False (reading "all"): table :math:`c` weighs
+    :math:`n_c + v^*_c - d` (D1/P1 if chosen this frame, D2/P2 if only transitioned), new
+    :math:`\alpha + d K`, K = tables with :math:`n_c + v^*_c > 0`.  ``occupied`` True (reading
+    "occupied"): the discount acts on the tables the other objects occupy this frame only: a
+    chosen table :math:`n_c + v^*_c - d` (eq. (17)), a transitioned one not yet chosen
+    :math:`v^*_c` (eq. (18) without its discount), new :math:`\alpha + d D^{(\ell-1)}` with
+    :math:`D^{(\ell-1)}` = tables with :math:`n_c > 0`, "the clusters used by the previous objects"
+    (eq. (19) as written).  Both sum to :math:`\sum n + \sum v^* + \alpha`.
     Tables with :math:`n_c + v^*_c = 0` get weight 0."""
     occ = (n + v_star) > 0
-    w = np.where(occ, n + v_star - d, 0.0)
+    if occupied:
+        chosen = n > 0
+        w = np.where(chosen, n + v_star - d, np.where(occ, v_star, 0.0))
+        new = alpha + d * chosen.sum()
+    else:
+        w = np.where(occ, n + v_star - d, 0.0)
+        new = alpha + d * occ.sum()
     with np.errstate(divide="ignore"):
-        return np.log(np.append(w, alpha + d * occ.sum()))
+        return np.log(np.append(w, new))
 
 
 @dataclass(frozen=True)
@@ -280,16 +308,19 @@ def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
             eta[p, t] += sign * Riv[p, l]
 
 
-def _option_logw(n, v_star, alpha, d, logw) -> None:
+def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
     """Urn weights (:func:`urn_log_weights`) of every table; the first empty table stands for "new"."""
     K = 0
     for t in range(n.size):
-        K += 1 if n[t] + v_star[t] > 0 else 0
+        if occupied:
+            K += 1 if n[t] > 0 else 0
+        else:
+            K += 1 if n[t] + v_star[t] > 0 else 0
     free = -1
     for t in range(n.size):
         load = n[t] + v_star[t]
         if load > 0:
-            logw[t] = np.log(load - d)
+            logw[t] = np.log(v_star[t]) if occupied and n[t] == 0 else np.log(load - d)
         elif free < 0:
             free = t
             logw[t] = np.log(alpha + d * K)
@@ -297,8 +328,10 @@ def _option_logw(n, v_star, alpha, d, logw) -> None:
             logw[t] = -np.inf
 
 
-def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov) -> None:
-    """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available).
+def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
+                      occupied=False) -> None:
+    """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
+    the urn's reading (:func:`urn_log_weights`).
 
     ``v`` (P, L, 2), ``R`` (P, L, 2, 2): the members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2):
     the tables' priors; ``u`` (S, L) uniforms.  The last sweep's conditionals go to ``rec_p``
@@ -332,7 +365,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
         for l in range(L):
             _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
             fresh[z[l]] = False
-            _option_logw(n, v_star, alpha, d, logw)
+            _option_logw(n, v_star, alpha, d, logw, occupied)
             for t in range(T):
                 if logw[t] == -np.inf:
                     continue
@@ -479,7 +512,8 @@ _FLAT_INFORMATION = 1e-10
 
 
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
-                     init: np.ndarray, sweeps: int, flat_share: bool = False) -> tuple[np.ndarray, Shares]:
+                     init: np.ndarray, sweeps: int, flat_share: bool = False,
+                     occupied: bool = False) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -489,6 +523,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
+    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
@@ -507,7 +542,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2_const(blocks[0].h_cov)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
     _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
-                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov)
+                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
     return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
@@ -621,6 +656,20 @@ def _share_turn_kernel(mean, cov, omega, var, z, within_var):  # pragma: no cove
 _share_turn_kernel = jit(_share_turn_kernel)
 
 
+def fov_moments(detection, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (2,) and covariance (2, 2) of the uniform distribution over ``detection``'s field of
+    view (:meth:`tracker.models.clutter.Detection.visible`), on an ``n`` x ``n`` grid of cell
+    centres over the square of half-side ``range_max`` about the sensor."""
+    r = detection.range_max
+    g = (np.arange(n) + 0.5) / n * 2.0 * r - r
+    X, Y = np.meshgrid(detection.sensor_x + g, detection.sensor_y + g, indexing="ij")
+    x = np.zeros((X.size, 4))
+    x[:, 0], x[:, 2] = X.ravel(), Y.ravel()
+    inside = detection.visible(x)
+    pts = x[inside][:, [0, 2]]
+    return pts.mean(axis=0), np.cov(pts.T, bias=True)
+
+
 @dataclass(frozen=True)
 class GroupTracker:
     """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
@@ -655,7 +704,16 @@ class GroupTracker:
 
     @cached_property
     def h_cov(self) -> np.ndarray:
-        return self.config.theta_std**2 * np.eye(2)
+        """H_2's velocity covariance (:attr:`GroupConfig.h2`)."""
+        std = self.config.objects.birth_velocity_std if self.config.h2 == "birth" else self.config.theta_std
+        return std**2 * np.eye(2)
+
+    @cached_property
+    def h_pos(self) -> tuple[np.ndarray, np.ndarray]:
+        """H_2's centroid mean and covariance (:attr:`GroupConfig.h2`)."""
+        if self.config.h2 == "birth":
+            return fov_moments(self.params.detection())
+        return np.zeros(2), self.config.centroid_std**2 * np.eye(2)
 
     def initial_state(self) -> GroupState:
         inner = self.objects.initial_state()
@@ -735,7 +793,7 @@ class GroupTracker:
         pos = Block(mean[:, _POS], cov[:, _POS][:, :, _POS] + cfg.within_pos_std**2 * eye,
                     state.group_pos_mean + dt * state.group_mean,
                     state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
-                    np.zeros(2), cfg.centroid_std**2 * eye)
+                    *self.h_pos)
         return [vel, pos]
 
     def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
@@ -745,7 +803,8 @@ class GroupTracker:
         if init.size == 0:
             return np.zeros(0, dtype=np.int64), Shares.empty()
         return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps,
-                                flat_share=self.config.share_prior == "flat")
+                                flat_share=self.config.share_prior == "flat",
+                                occupied=self.config.urn_reading == "occupied")
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
         """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
