@@ -33,6 +33,7 @@ References
 from __future__ import annotations
 
 import math
+import sys
 from collections import deque
 from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass
@@ -44,6 +45,7 @@ from numpy.typing import ArrayLike
 
 from bnptrack.sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
                                  check_positive, check_same_dim, check_tracks, optimal_assignment)
+from bnptrack.tracker._numerics import JIT
 from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
@@ -101,9 +103,38 @@ def _cutoff_distances(X: np.ndarray, Y: np.ndarray, c: float) -> np.ndarray:
     """``(m, n)`` matrix of :math:`\\min(c, \\lVert x_i - y_j \\rVert)`."""
     if X.shape[0] == 0 or Y.shape[0] == 0:
         return np.empty((X.shape[0], Y.shape[0]))
-    from scipy.spatial.distance import cdist  # lazy, see optimal_assignment
+    return np.minimum(_euclidean(X, Y), c)
 
-    return np.minimum(cdist(X, Y), c)
+
+def _euclidean(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``scipy.spatial.distance.cdist(X, Y)`` (Euclidean), the same doubles without importing
+    ``scipy.spatial`` (0.1-0.4 s): like scipy, each pair's squared coordinate differences are
+    summed in coordinate order from 0, then square-rooted (``tests/sinks/test_metrics_solvers.py``)."""
+    X, Y = np.asarray(X, dtype=float), np.asarray(Y, dtype=float)
+    acc = np.zeros((X.shape[0], Y.shape[0]))
+    for k in range(X.shape[1]):
+        diff = X[:, k, None] - Y[None, :, k]
+        acc += diff * diff
+    return np.sqrt(acc)
+
+
+def _assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sinks.metric_checks.optimal_assignment`'s pairs.  In a process that has numba
+    imported already (``bnptrack track``, an experiment, the tracker stage) they come from
+    :func:`tracker._lsap.lsap`, the compiled port of scipy's algorithm (same pairs, ties
+    included; ``tests/sinks/test_metrics_solvers.py``), which spares ``scipy.optimize``'s
+    import (0.2-0.5 s); elsewhere (the sink stage) from scipy."""
+    nr, nc = cost.shape
+    if "numba" not in sys.modules or not JIT or nr == 0 or nc == 0 or not np.isfinite(cost).all():
+        return optimal_assignment(cost)
+    from bnptrack.tracker._lsap import lsap
+
+    tall = nr > nc  # scipy solves the transpose and returns the pairs by row
+    cols = lsap(np.ascontiguousarray(cost.T if tall else cost, dtype=float))
+    if tall:
+        order = np.argsort(cols)
+        return cols[order], order
+    return np.arange(nr), cols
 
 
 
@@ -117,7 +148,7 @@ def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
     if m == 0:
         return OspaResult(c, 0.0, c)
     cost = D**p
-    rows, cols = optimal_assignment(cost)
+    rows, cols = _assignment(cost)
     loc_term = math.fsum(cost[rows, cols]) / n  # correctly rounded, order-free
     card_term = c**p * (n - m) / n
     return OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
@@ -127,7 +158,7 @@ def _gospa_unchecked(D: np.ndarray, c: float, p: float, alpha: float) -> GospaRe
     """GOSPA from an ``(m, n)`` truth-by-estimate matrix of distances cut off at ``c``."""
     m, n = D.shape
     if m and n:
-        rows, cols = optimal_assignment(D**p)
+        rows, cols = _assignment(D**p)
         d = D[rows, cols]
     else:
         d = np.empty(0)
@@ -405,7 +436,7 @@ class RunScorer:
 
     It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame and on every
     frame of a Monte Carlo study, so each frame's cut-off distance matrix is computed once
-    (:func:`scipy.spatial.distance.cdist`) and serves three times: OSPA and GOSPA share its
+    (:func:`_euclidean`) and serves three times: OSPA and GOSPA share its
     optimal assignment, and the OSPA(2) window (:class:`_TrackWindow`) keeps it as the
     per-scan base distances of every (estimated, true) label pair of that scan.  The public
     functions' checks run only for a scan with a non-finite position, where they raise.
@@ -447,7 +478,7 @@ def _ospa_gospa(D: np.ndarray, c: float, p: float, alpha: float) -> tuple[OspaRe
         return _ospa_unchecked(D, c, p), _gospa_unchecked(D, c, p, alpha)
     tall = m > n
     cost = (D.T if tall else D) ** p
-    r, k = optimal_assignment(cost)
+    r, k = _assignment(cost)
     loc_term = math.fsum(cost[r, k]) / max(m, n)
     card_term = c**p * abs(n - m) / max(m, n)
     o = OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))

@@ -1,0 +1,69 @@
+"""What ``bnptrack track`` imports of scipy (issue 15, session 8): none of ``scipy.linalg``,
+``scipy.special``, ``scipy.optimize`` or ``scipy.spatial`` (0.6-1 s of imports between them)
+with the kernels compiled; numba still finds BLAS (``tracker._numerics.import_numba`` loads
+scipy's ``cython_blas`` alone), and a later ``import scipy.linalg`` is whole.  Checks of
+``sys.modules`` in a fresh interpreter; docs/performance.md has the timings."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from testkit import REPO_ROOT
+
+_SCIPY_PACKAGES = {"scipy.linalg", "scipy.special", "scipy.optimize", "scipy.spatial", "scipy.sparse", "scipy.stats"}
+
+_TRACK_PROBE = """
+import json, sys
+from bnptrack.pipeline.cli import main
+main.main(args={argv!r}, standalone_mode=False)
+print(json.dumps(sorted(sys.modules)), file=sys.stderr)
+"""
+
+
+def _run(code: str, tmp: Path) -> str:
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    env.pop("BNPTRACK_NO_JIT", None)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stderr.strip().splitlines()[-1]
+
+
+def test_track_imports_no_scipy_package(tmp_path: Path) -> None:
+    argv = ["track", "recordings/vo2017-s1.mcap", "--out", str(tmp_path / "t.mcap"), "-q"]
+    modules = set(json.loads(_run(_TRACK_PROBE.format(argv=argv), tmp_path)))
+    assert "numba" in modules and "scipy.linalg.cython_blas" in modules
+    assert sorted(modules & _SCIPY_PACKAGES) == []
+
+
+_BLAS_PROBE = """
+import json, sys
+import numpy as np
+from bnptrack.tracker._numerics import import_numba
+import_numba()
+import numba
+from numba.np import arraymath
+linalg_before = "scipy.linalg" in sys.modules
+
+@numba.njit
+def dot(a, b):
+    return np.dot(a, b)
+
+a = np.arange(6.0).reshape(2, 3)
+product = dot(a, a.T).tolist()
+import scipy.linalg
+import scipy.linalg.cython_blas as blas
+print(json.dumps([linalg_before, arraymath._HAVE_BLAS, product, scipy.linalg.cython_blas is blas,
+                  blas is sys.modules["scipy.linalg.cython_blas"], hasattr(scipy.linalg, "solve")]), file=sys.stderr)
+"""
+
+
+def test_numba_finds_blas_without_scipy_linalg(tmp_path: Path) -> None:
+    """[[0,1,2],[3,4,5]] times its transpose is [[5, 14], [14, 50]], through numba's BLAS."""
+    linalg_before, have_blas, product, bound, same, whole = json.loads(_run(_BLAS_PROBE, tmp_path))
+    assert (linalg_before, have_blas, product) == (False, True, [[5.0, 14.0], [14.0, 50.0]])
+    assert bound and same and whole
