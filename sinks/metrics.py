@@ -33,7 +33,6 @@ References
 from __future__ import annotations
 
 import math
-import sys
 from collections import deque
 from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass
@@ -45,7 +44,6 @@ from numpy.typing import ArrayLike
 
 from bnptrack.sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
                                  check_positive, check_same_dim, check_tracks, optimal_assignment)
-from bnptrack.tracker._numerics import JIT
 from bnptrack.tracker.types import Estimate, Frame
 
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
@@ -118,26 +116,6 @@ def _euclidean(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return np.sqrt(acc)
 
 
-def _assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sinks.metric_checks.optimal_assignment`'s pairs.  In a process that has numba
-    imported already (``bnptrack track``, an experiment, the tracker stage) they come from
-    :func:`tracker._lsap.lsap`, the compiled port of scipy's algorithm (same pairs, ties
-    included; ``tests/sinks/test_metrics_solvers.py``), which spares ``scipy.optimize``'s
-    import (0.2-0.5 s); elsewhere (the sink stage) from scipy."""
-    nr, nc = cost.shape
-    if "numba" not in sys.modules or not JIT or nr == 0 or nc == 0 or not np.isfinite(cost).all():
-        return optimal_assignment(cost)
-    from bnptrack.tracker._lsap import lsap
-
-    tall = nr > nc  # scipy solves the transpose and returns the pairs by row
-    cols = lsap(np.ascontiguousarray(cost.T if tall else cost, dtype=float))
-    if tall:
-        order = np.argsort(cols)
-        return cols[order], order
-    return np.arange(nr), cols
-
-
-
 def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
     """OSPA from an ``(m, n)`` matrix of base distances already cut off at ``c``."""
     m, n = D.shape
@@ -148,7 +126,7 @@ def _ospa_unchecked(D: np.ndarray, c: float, p: float) -> OspaResult:
     if m == 0:
         return OspaResult(c, 0.0, c)
     cost = D**p
-    rows, cols = _assignment(cost)
+    rows, cols = optimal_assignment(cost)
     loc_term = math.fsum(cost[rows, cols]) / n  # correctly rounded, order-free
     card_term = c**p * (n - m) / n
     return OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))
@@ -158,7 +136,7 @@ def _gospa_unchecked(D: np.ndarray, c: float, p: float, alpha: float) -> GospaRe
     """GOSPA from an ``(m, n)`` truth-by-estimate matrix of distances cut off at ``c``."""
     m, n = D.shape
     if m and n:
-        rows, cols = _assignment(D**p)
+        rows, cols = optimal_assignment(D**p)
         d = D[rows, cols]
     else:
         d = np.empty(0)
@@ -478,7 +456,7 @@ def _ospa_gospa(D: np.ndarray, c: float, p: float, alpha: float) -> tuple[OspaRe
         return _ospa_unchecked(D, c, p), _gospa_unchecked(D, c, p, alpha)
     tall = m > n
     cost = (D.T if tall else D) ** p
-    r, k = _assignment(cost)
+    r, k = optimal_assignment(cost)
     loc_term = math.fsum(cost[r, k]) / max(m, n)
     card_term = c**p * abs(n - m) / max(m, n)
     o = OspaResult(_root(loc_term + card_term, p), _root(loc_term, p), _root(card_term, p))

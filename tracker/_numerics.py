@@ -86,67 +86,96 @@ def _compile_pending(kernel: _LazyKernel) -> Any:
 
 def import_numba() -> None:
     """Import numba, first loading scipy's ``cython_blas`` extension module without the
-    ``scipy.linalg`` package around it (:func:`_load_cython_blas`).
+    ``scipy.linalg`` package around it (:func:`scipy_extension`).
 
     numba's import (``numba.np.arraymath``, at its first compile or cache load) checks that
     BLAS is there with ``import scipy.linalg.cython_blas``, which runs ``scipy.linalg``'s
     ``__init__``: 0.15-0.3 s of CPU (``scipy._lib``'s array-API layer imports ``numpy.f2py``,
     ``numpy.testing``, ...) that no kernel uses.  The module numba then finds is the very one
-    that import would have loaded (the same file, run once, under the same name), so numba
-    enables the same BLAS functions and its LAPACK width check still runs; a later ``import
-    scipy.linalg`` imports the package and finds this module in ``sys.modules``.  Nothing is
-    done when numba or ``scipy.linalg`` is already imported, and any failure leaves numba to
-    do its own check."""
+    that import would have loaded, so numba enables the same BLAS functions and its LAPACK
+    width check still runs.  Nothing is done when numba or ``scipy.linalg`` is already
+    imported."""
     if "numba" in sys.modules or "scipy.linalg" in sys.modules:
         return
-    with _lock:
-        if "scipy.linalg.cython_blas" not in sys.modules:
-            try:
-                _load_cython_blas()
-            except Exception:  # noqa: BLE001 - numba's own check decides then
-                sys.modules.pop("scipy.linalg.cython_blas", None)
+    if importlib.util.find_spec("scipy") is not None:
+        scipy_extension("linalg", "cython_blas")
     import numba  # noqa: F401
 
 
-def _load_cython_blas() -> None:
-    """Load ``scipy/linalg/cython_blas.<ext>`` as ``scipy.linalg.cython_blas`` (see
-    :func:`import_numba`); does nothing without scipy."""
+def scipy_extension(package: str, name: str) -> Any:
+    """scipy's compiled module ``scipy.<package>.<name>`` (e.g. ``optimize._lsap``, whose
+    ``linear_sum_assignment`` *is* ``scipy.optimize.linear_sum_assignment``), loaded from its
+    file under its full name without running the package's ``__init__`` when that package is
+    not imported yet: ``scipy.optimize`` costs 0.3-1 s to import (it imports
+    ``scipy.linalg``, ``scipy.spatial``, ``scipy.special``, ...) for one C function.  The
+    module is registered in ``sys.modules``, so a later ``import scipy.<package>`` finds it
+    (and binds it as the package's attribute, :class:`_BindExtensions`); if its file is not
+    where scipy keeps it, the ordinary import is used."""
+    full = f"scipy.{package}.{name}"
+    with _lock:
+        module = sys.modules.get(full)
+        if module is not None:
+            return module
+        if f"scipy.{package}" not in sys.modules:
+            module = _load_extension(package, name)
+    return module if module is not None else importlib.import_module(full)
+
+
+def _load_extension(package: str, name: str) -> Any:
+    """Load ``scipy/<package>/<name>.<ext>`` as ``scipy.<package>.<name>``, or None."""
     scipy_spec = importlib.util.find_spec("scipy")
-    if scipy_spec is None or not scipy_spec.submodule_search_locations:
-        return
-    name = "scipy.linalg.cython_blas"
-    for folder in scipy_spec.submodule_search_locations:
+    for folder in (scipy_spec.submodule_search_locations or []) if scipy_spec else []:
         for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-            path = os.path.join(folder, "linalg", "cython_blas" + suffix)
+            path = os.path.join(folder, package, name + suffix)
             if os.path.isfile(path):
+                full = f"scipy.{package}.{name}"
                 spec = importlib.util.spec_from_file_location(
-                    name, path, loader=importlib.machinery.ExtensionFileLoader(name, path))
+                    full, path, loader=importlib.machinery.ExtensionFileLoader(full, path))
                 module = importlib.util.module_from_spec(spec)
-                sys.modules[name] = module
-                spec.loader.exec_module(module)
-                sys.meta_path.insert(0, _BindCythonBlas())
-                return
+                sys.modules[full] = module
+                try:
+                    spec.loader.exec_module(module)
+                except BaseException:
+                    del sys.modules[full]
+                    raise
+                _BINDER.bind(f"scipy.{package}", name)
+                return module
+    return None
 
 
-class _BindCythonBlas(importlib.abc.MetaPathFinder):
-    """Found once, at the first ``import scipy.linalg`` after :func:`_load_cython_blas`: the
-    package's own spec, whose module gets the attribute ``cython_blas`` bound to the loaded
-    module once it has run (what the import of a submodule does to its package)."""
+class _BindExtensions(importlib.abc.MetaPathFinder):
+    """At the first import of a scipy package one of whose modules :func:`scipy_extension`
+    loaded alone: the package's own spec, whose module gets those modules bound as attributes
+    once it has run (what the import of a submodule does to its package)."""
 
-    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != "scipy.linalg":
+    def __init__(self) -> None:
+        self.pending: dict[str, list[str]] = {}
+
+    def bind(self, package: str, name: str) -> None:
+        self.pending.setdefault(package, []).append(name)
+        if self not in sys.meta_path:
+            sys.meta_path.insert(0, self)
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        names = self.pending.pop(fullname, None)
+        if names is None:
             return None
-        sys.meta_path.remove(self)
-        spec = importlib.util.find_spec(name)
+        if not self.pending:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
         if spec is not None and spec.loader is not None:
             run = spec.loader.exec_module
 
             def exec_module(module: Any) -> None:
                 run(module)
-                module.cython_blas = sys.modules["scipy.linalg.cython_blas"]
+                for name in names:
+                    setattr(module, name, sys.modules[f"{fullname}.{name}"])
 
             spec.loader.exec_module = exec_module
         return spec
+
+
+_BINDER = _BindExtensions()
 
 
 _KERNELS_ROOT = Path(__file__).resolve().parent  # every kernel lives in this package

@@ -1,20 +1,21 @@
-"""The scorer's own distance matrix and assignment (``sinks.metrics``) give what scipy's
-``cdist`` and ``linear_sum_assignment`` give: the same doubles (bit for bit) and the same
-pairs, ties included, on wide, tall and square problems; without numba or with ``JIT`` off
-the assignment is scipy's own."""
+"""The scorer's distance matrix (``sinks.metrics._euclidean``) is scipy's ``cdist``, bit for
+bit, and its assignment (``sinks.metric_checks.optimal_assignment``) is scipy's own
+``linear_sum_assignment``, loaded without importing ``scipy.optimize``
+(``tracker._numerics.scipy_extension``; docs/performance.md, start-up)."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
 from bnptrack.sinks import metrics
-from bnptrack.tracker import _numerics
-
-if _numerics.JIT:
-    import numba  # noqa: F401  (the scorer uses the compiled solver once numba is imported)
+from testkit import REPO_ROOT
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3, 4, 8, 9, 17])
@@ -29,43 +30,34 @@ def test_euclidean_is_cdist_bit_for_bit(dim: int) -> None:
         assert a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
 
 
-def _problems(rng: np.random.Generator, count: int):
-    for t in range(count):
-        m, n = (int(v) for v in rng.integers(1, 11, 2))
-        if t % 3 == 0:
-            yield rng.uniform(0.0, 100.0, (m, n))
-        elif t % 3 == 1:  # many ties
-            yield rng.integers(0, 3, (m, n)).astype(float)
-        else:  # OSPA costs: distances cut off at c = 100, squared (ties at the cut-off)
-            yield np.minimum(rng.uniform(0.0, 200.0, (m, n)), 100.0) ** 2
+def test_euclidean_hand_checked() -> None:
+    d = metrics._euclidean(np.array([[0.0, 0.0], [3.0, 4.0]]), np.array([[3.0, 0.0]]))
+    assert d.tolist() == [[3.0], [4.0]]
 
 
-def test_assignment_is_scipys_ties_included() -> None:
-    for cost in _problems(np.random.default_rng(3), 3000):
-        rows, cols = metrics._assignment(cost)
-        ref_rows, ref_cols = linear_sum_assignment(cost)
-        assert np.array_equal(rows, ref_rows) and np.array_equal(cols, ref_cols), cost
+_PROBE = """
+import json, sys
+import numpy as np
+from bnptrack.sinks.metric_checks import optimal_assignment
+from bnptrack.sinks.metrics import ospa
+cost = np.array([[4.0, 1.0, 3.0], [2.0, 0.0, 5.0]])
+pairs = [a.tolist() for a in optimal_assignment(cost)] + [a.tolist() for a in optimal_assignment(cost.T)]
+total = ospa(np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([[0.0, 1.0]]), c=100.0, p=1.0).total
+before = "scipy.optimize" in sys.modules
+import scipy.optimize
+import scipy.optimize._lsap as lsap
+print(json.dumps([pairs, total, before, scipy.optimize.linear_sum_assignment is lsap.linear_sum_assignment,
+                  scipy.optimize._lsap is sys.modules["scipy.optimize._lsap"]]))
+"""
 
 
-def test_assignment_hand_checked() -> None:
-    cost = np.array([[4.0, 1.0, 3.0], [2.0, 0.0, 5.0]])  # rows 0, 1 -> columns 1, 0 (total 3)
-    rows, cols = metrics._assignment(cost)
-    assert rows.tolist() == [0, 1] and cols.tolist() == [1, 0]
-    rows, cols = metrics._assignment(cost.T)  # tall: pairs listed by row
-    assert rows.tolist() == [0, 1] and cols.tolist() == [1, 0]
-
-
-def test_without_jit_the_assignment_is_scipys(monkeypatch: pytest.MonkeyPatch) -> None:
-    calls = []
-
-    def spy(cost: np.ndarray):
-        calls.append(cost.shape)
-        return linear_sum_assignment(cost)
-
-    monkeypatch.setattr(metrics, "optimal_assignment", spy)
-    cost = np.array([[1.0, 2.0], [2.0, 1.0]])
-    metrics._assignment(cost)
-    assert calls == ([] if _numerics.JIT else [(2, 2)])
-    monkeypatch.setattr(metrics, "JIT", False)
-    assert [a.tolist() for a in metrics._assignment(cost)] == [[0, 1], [0, 1]]
-    assert calls[-1] == (2, 2)
+def test_assignment_is_scipys_solver_without_scipy_optimize() -> None:
+    """Rows 0, 1 -> columns 1, 0 (total 3) and the transpose's pairs listed by row; OSPA of
+    {(0,0), (10,0)} against {(0,1)}: (1 + 100) / 2 = 50.5.  scipy.optimize is not imported
+    until asked for, and then is whole and holds the same solver."""
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    out = subprocess.run([sys.executable, "-c", _PROBE], cwd=REPO_ROOT, env=env, capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    pairs, total, before, same, bound = json.loads(out.strip().splitlines()[-1])
+    assert pairs == [[0, 1], [1, 0], [0, 1], [1, 0]]
+    assert total == 50.5 and before is False and same and bound
