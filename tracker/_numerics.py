@@ -99,7 +99,38 @@ def import_numba() -> None:
         return
     if importlib.util.find_spec("scipy") is not None:
         scipy_extension("linalg", "cython_blas")
-    import numba  # noqa: F401
+    if not LEAN_NUMBA:
+        import numba  # noqa: F401
+        return
+    _import_numba_lean()
+
+
+#: Set by the command line (``bnptrack track``, ``launch``, ``stage``, ``replay``: processes
+#: that run no code but the project's): numba's set-up leaves out its optional ``yaml`` and
+#: ``cffi`` support (:func:`_import_numba_lean`).
+LEAN_NUMBA = False
+
+
+def _import_numba_lean() -> None:
+    """Import numba and set its CPU target up (what the first kernel call does) with ``yaml``
+    and ``cffi`` unimportable meanwhile: numba imports them only to read a
+    ``.numba_config.yaml`` in the working directory (then left importable) and to compile calls
+    of cffi functions, which no kernel makes; they cost about 50 ms of CPU (pycparser compiles
+    its lexer's regular expressions).  Both are importable again afterwards."""
+    blocked = [m for m in ("yaml", "cffi") if m not in sys.modules]
+    if os.path.isfile(".numba_config.yaml") and "yaml" in blocked:
+        blocked.remove("yaml")
+    for m in blocked:
+        sys.modules[m] = None  # type: ignore[assignment]  # "import m" raises ImportError
+    try:
+        from numba.core.registry import cpu_target
+
+        cpu_target.typing_context.refresh()
+        cpu_target.target_context.refresh()
+    finally:
+        for m in blocked:
+            if sys.modules.get(m, 0) is None:
+                del sys.modules[m]
 
 
 def scipy_extension(package: str, name: str) -> Any:

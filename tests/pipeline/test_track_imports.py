@@ -17,10 +17,11 @@ from testkit import REPO_ROOT
 _SCIPY_PACKAGES = {"scipy.linalg", "scipy.special", "scipy.optimize", "scipy.spatial", "scipy.sparse", "scipy.stats"}
 
 _TRACK_PROBE = """
-import json, sys
+import atexit, json, sys
 from bnptrack.pipeline.cli import main
-main.main(args={argv!r}, standalone_mode=False)
-print(json.dumps(sorted(sys.modules)), file=sys.stderr)
+atexit.register(lambda: print(json.dumps(sorted(sys.modules)), file=sys.stderr))
+sys.argv = ["bnptrack", *{argv!r}]
+main(prog_name="bnptrack")  # as the command line runs it: ends with os._exit after the atexit handlers
 """
 
 
@@ -34,10 +35,33 @@ def _run(code: str, tmp: Path) -> str:
 
 
 def test_track_imports_no_scipy_package(tmp_path: Path) -> None:
+    """Neither scipy's packages nor numba's optional yaml and cffi (``LEAN_NUMBA``)."""
     argv = ["track", "recordings/vo2017-s1.mcap", "--out", str(tmp_path / "t.mcap"), "-q"]
     modules = set(json.loads(_run(_TRACK_PROBE.format(argv=argv), tmp_path)))
     assert "numba" in modules and "scipy.linalg.cython_blas" in modules
     assert sorted(modules & _SCIPY_PACKAGES) == []
+    assert sorted(modules & {"yaml", "cffi", "pycparser"}) == []
+    assert (tmp_path / "t.mcap").stat().st_size > 0
+
+
+_LEAN_PROBE = """
+import json, sys
+from bnptrack.tracker import _numerics
+_numerics.LEAN_NUMBA = True
+_numerics.preload()
+from numba.core.typing import cffi_utils
+from numba.core import config
+left_out = [m in sys.modules for m in ("yaml", "cffi")]
+import yaml, cffi
+print(json.dumps([left_out, cffi_utils.SUPPORTED, config._HAVE_YAML, _numerics._preload_kernel(1.5),
+                  yaml.safe_load("a: 1")]), file=sys.stderr)
+"""
+
+
+def test_lean_numba_leaves_yaml_and_cffi_importable(tmp_path: Path) -> None:
+    left_out, cffi_supported, have_yaml, kernel, parsed = json.loads(_run(_LEAN_PROBE, tmp_path))
+    assert left_out == [False, False] and not cffi_supported and not have_yaml
+    assert kernel == 2.5 and parsed == {"a": 1}
 
 
 _BLAS_PROBE = """
