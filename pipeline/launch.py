@@ -42,13 +42,7 @@ from typing import Any
 
 import msgspec
 
-from bnptrack.pipeline.config import (
-    PipelineConfig,
-    ZenohConfig,
-    check_run_id,
-    dump_pipeline,
-    resolve_run,
-)
+from bnptrack.pipeline.config import PipelineConfig, ZenohConfig, check_run_id, dump_pipeline, resolve_run
 from bnptrack.pipeline.progress import Status
 from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from bnptrack.pipeline.supervisor import (
@@ -363,7 +357,7 @@ class Launcher:
         z = cfg.zenoh
         if z.embedded_router:
             self.router, z, self.credentials = open_embedded_router(_quick_router(z), self.out, self.cfg.stages)
-            z = msgspec.structs.replace(z, router_extra=cfg.zenoh.router_extra)  # the stages' own
+            z = msgspec.structs.replace(z, router_extra=cfg.zenoh.router_extra)
         elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
@@ -514,12 +508,8 @@ class Launcher:
 
 
 def _quick_router(z: ZenohConfig) -> ZenohConfig:
-    """``z`` with Zenoh's ``scouting/delay`` 0 for the embedded router, unless
-    ``zenoh.router_extra`` sets it or multicast scouting is on: with the default 500 ms,
-    opening the router waits half a second (measured: 0.50 s of wall time, no CPU, against
-    0.014 s) for peers to scout before it returns, and the stages start only then.  Without
-    multicast scouting this router finds no one (its stages connect to it), so the wait only
-    delayed every launch."""
+    """``z`` with ``scouting/delay`` 0 for the embedded router (unless set, or multicast
+    scouting is on): Zenoh's 500 ms default held every launch half a second (docs/performance.md)."""
     if "scouting/delay" in z.router_extra or z.multicast_scouting:
         return z
     return msgspec.structs.replace(z, router_extra={**z.router_extra, "scouting/delay": "0"})
