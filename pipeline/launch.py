@@ -42,12 +42,7 @@ from typing import Any
 
 import msgspec
 
-from bnptrack.pipeline.config import (
-    PipelineConfig,
-    check_run_id,
-    dump_pipeline,
-    resolve_run,
-)
+from bnptrack.pipeline.config import PipelineConfig, ZenohConfig, check_run_id, dump_pipeline, resolve_run
 from bnptrack.pipeline.progress import Status
 from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from bnptrack.pipeline.supervisor import (
@@ -361,7 +356,8 @@ class Launcher:
         opens (with per-run credentials when the ACL or authentication asks for them)."""
         z = cfg.zenoh
         if z.embedded_router:
-            self.router, z, self.credentials = open_embedded_router(z, self.out, self.cfg.stages)
+            self.router, z, self.credentials = open_embedded_router(_quick_router(z), self.out, self.cfg.stages)
+            z = msgspec.structs.replace(z, router_extra=cfg.zenoh.router_extra)
         elif not z.connect and z.mode == "client":
             raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                               "zenoh.embedded_router = true)")
@@ -509,6 +505,14 @@ class Launcher:
                 self._write_stages()
             except OSError as exc:  # disk full: the stages are stopped all the same
                 log.error("launcher: cannot write %s: %s", self.out / "stages.json", exc)
+
+
+def _quick_router(z: ZenohConfig) -> ZenohConfig:
+    """``z`` with ``scouting/delay`` 0 for the embedded router (unless set, or multicast
+    scouting is on): Zenoh's 500 ms default held every launch half a second (docs/performance.md)."""
+    if "scouting/delay" in z.router_extra or z.multicast_scouting:
+        return z
+    return msgspec.structs.replace(z, router_extra={**z.router_extra, "scouting/delay": "0"})
 
 
 def _ranges(seqs: Sequence[int], limit: int = 8) -> str:

@@ -9,6 +9,8 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
   file (:func:`kernel_cache_dir`): numba checks only a kernel's own file before loading it
   from its cache, so a kernel that calls (inlines) a kernel of another file that has since
   changed would otherwise load stale machine code, or crash.
+* :func:`gammaln` is ``scipy.special.gammaln`` (the same doubles) without importing
+  ``scipy.special`` (see its docstring).
 * :func:`logsumexp` is :math:`\log \sum_i e^{a_i}` computed as
   :math:`t + \log \sum_i e^{a_i - t}`, :math:`t = \max_i a_i` (an all ``-inf`` input gives
   ``-inf``).
@@ -17,9 +19,12 @@ r"""Numerical helpers shared by the trackers: the one JIT switch and the one log
 from __future__ import annotations
 
 import hashlib
+import importlib.abc
+import importlib.machinery
 import importlib.util
 import math
 import os
+import sys
 import threading
 from pathlib import Path
 from collections.abc import Callable
@@ -57,6 +62,7 @@ class _LazyKernel:
 
 def _compile_pending(kernel: _LazyKernel) -> Any:
     """Decorate every pending kernel with numba and rebind the module names that held them."""
+    import_numba()
     from numba import config, njit
 
     with _lock:
@@ -76,6 +82,131 @@ def _compile_pending(kernel: _LazyKernel) -> Any:
                     namespace[name] = value.dispatcher
         assert kernel.dispatcher is not None
         return kernel.dispatcher
+
+
+def import_numba() -> None:
+    """Import numba, first loading scipy's ``cython_blas`` extension module without the
+    ``scipy.linalg`` package around it (:func:`scipy_extension`).
+
+    numba's import (``numba.np.arraymath``, at its first compile or cache load) checks that
+    BLAS is there with ``import scipy.linalg.cython_blas``, which runs ``scipy.linalg``'s
+    ``__init__``: 0.15-0.3 s of CPU (``scipy._lib``'s array-API layer imports ``numpy.f2py``,
+    ``numpy.testing``, ...) that no kernel uses.  The module numba then finds is the very one
+    that import would have loaded, so numba enables the same BLAS functions and its LAPACK
+    width check still runs.  Nothing is done when numba or ``scipy.linalg`` is already
+    imported."""
+    if "numba" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    if importlib.util.find_spec("scipy") is not None:
+        scipy_extension("linalg", "cython_blas")
+    if not LEAN_NUMBA:
+        import numba  # noqa: F401
+        return
+    _import_numba_lean()
+
+
+#: Set by the command line (``bnptrack track``, ``launch``, ``stage``, ``replay``: processes
+#: that run no code but the project's): numba's set-up leaves out its optional ``yaml`` and
+#: ``cffi`` support (:func:`_import_numba_lean`).
+LEAN_NUMBA = False
+
+
+def _import_numba_lean() -> None:
+    """Import numba and set its CPU target up (what the first kernel call does) with ``yaml``
+    and ``cffi`` unimportable meanwhile: numba imports them only to read a
+    ``.numba_config.yaml`` in the working directory (then left importable) and to compile calls
+    of cffi functions, which no kernel makes; they cost about 50 ms of CPU (pycparser compiles
+    its lexer's regular expressions).  Both are importable again afterwards."""
+    blocked = [m for m in ("yaml", "cffi") if m not in sys.modules]
+    if os.path.isfile(".numba_config.yaml") and "yaml" in blocked:
+        blocked.remove("yaml")
+    for m in blocked:
+        sys.modules[m] = None  # type: ignore[assignment]  # "import m" raises ImportError
+    try:
+        from numba.core.registry import cpu_target
+
+        cpu_target.typing_context.refresh()
+        cpu_target.target_context.refresh()
+    finally:
+        for m in blocked:
+            if sys.modules.get(m, 0) is None:
+                del sys.modules[m]
+
+
+def scipy_extension(package: str, name: str) -> Any:
+    """scipy's compiled module ``scipy.<package>.<name>`` (e.g. ``optimize._lsap``, whose
+    ``linear_sum_assignment`` *is* ``scipy.optimize.linear_sum_assignment``), loaded from its
+    file under its full name without running the package's ``__init__`` when that package is
+    not imported yet: ``scipy.optimize`` costs 0.3-1 s to import (it imports
+    ``scipy.linalg``, ``scipy.spatial``, ``scipy.special``, ...) for one C function.  The
+    module is registered in ``sys.modules``, so a later ``import scipy.<package>`` finds it
+    (and binds it as the package's attribute, :class:`_BindExtensions`); if its file is not
+    where scipy keeps it, the ordinary import is used."""
+    full = f"scipy.{package}.{name}"
+    with _lock:
+        module = sys.modules.get(full)
+        if module is not None:
+            return module
+        if f"scipy.{package}" not in sys.modules:
+            module = _load_extension(package, name)
+    return module if module is not None else importlib.import_module(full)
+
+
+def _load_extension(package: str, name: str) -> Any:
+    """Load ``scipy/<package>/<name>.<ext>`` as ``scipy.<package>.<name>``, or None."""
+    scipy_spec = importlib.util.find_spec("scipy")
+    for folder in (scipy_spec.submodule_search_locations or []) if scipy_spec else []:
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            path = os.path.join(folder, package, name + suffix)
+            if os.path.isfile(path):
+                full = f"scipy.{package}.{name}"
+                spec = importlib.util.spec_from_file_location(
+                    full, path, loader=importlib.machinery.ExtensionFileLoader(full, path))
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[full] = module
+                try:
+                    spec.loader.exec_module(module)
+                except BaseException:
+                    del sys.modules[full]
+                    raise
+                _BINDER.bind(f"scipy.{package}", name)
+                return module
+    return None
+
+
+class _BindExtensions(importlib.abc.MetaPathFinder):
+    """At the first import of a scipy package one of whose modules :func:`scipy_extension`
+    loaded alone: the package's own spec, whose module gets those modules bound as attributes
+    once it has run (what the import of a submodule does to its package)."""
+
+    def __init__(self) -> None:
+        self.pending: dict[str, list[str]] = {}
+
+    def bind(self, package: str, name: str) -> None:
+        self.pending.setdefault(package, []).append(name)
+        if self not in sys.meta_path:
+            sys.meta_path.insert(0, self)
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        names = self.pending.pop(fullname, None)
+        if names is None:
+            return None
+        if not self.pending:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            run = spec.loader.exec_module
+
+            def exec_module(module: Any) -> None:
+                run(module)
+                for name in names:
+                    setattr(module, name, sys.modules[f"{fullname}.{name}"])
+
+            spec.loader.exec_module = exec_module
+        return spec
+
+
+_BINDER = _BindExtensions()
 
 
 _KERNELS_ROOT = Path(__file__).resolve().parent  # every kernel lives in this package
@@ -140,3 +271,89 @@ def logsumexp(a: np.ndarray, axis: int | None = None):
     top = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(divide="ignore"):
         return np.squeeze(top, axis=axis) + np.log(np.sum(np.exp(a - top), axis=axis))
+
+
+# --------------------------------------------------------------------------- gammaln
+# scipy.special costs 0.25-0.5 s to import (its array-API layer imports numpy.f2py and
+# numpy.testing; docs/performance.md, start-up), and the DDP-EMM's (alpha, d) grid
+# (tracker.bnp.urn, tracker.bnp.group_hyper) is its only user on the tracking path.  scipy
+# evaluates gammaln with Cephes' lgam (S. L. Moshier, Cephes Math Library 2.2; scipy's
+# xsf::cephes::lgam); _lgam is that algorithm for 0 < x <= MAXLGM with the same constants and
+# the same order of every floating-point operation (log is the C library's, which numba calls
+# too), so its results are the same doubles (tests/tracker/test_gammaln.py compares millions).
+
+#: log(sqrt(2 pi)), and the largest argument with a finite result (Cephes' MAXLGM).
+_LS2PI = 0.91893853320467274178
+_MAXLGM = 2.556348e305
+
+
+def _lgam(x: float) -> float:  # pragma: no cover - compiled
+    """Cephes' ``lgam`` for ``0 < x <= MAXLGM``: recurrence to ``[2, 3)`` and a rational
+    approximation below 13, Stirling's series above (its short form above 1000)."""
+    if x < 13.0:
+        z, p, u = 1.0, 0.0, x
+        while u >= 3.0:
+            p -= 1.0
+            u = x + p
+            z *= u
+        while u < 2.0:
+            z /= u
+            p += 1.0
+            u = x + p
+        if u == 2.0:
+            return math.log(z)
+        p -= 2.0
+        x = x + p
+        num = -1.37825152569120859100e3
+        num = num * x - 3.88016315134637840924e4
+        num = num * x - 3.31612992738871184744e5
+        num = num * x - 1.16237097492762307383e6
+        num = num * x - 1.72173700820839662146e6
+        num = num * x - 8.53555664245765465627e5
+        den = x - 3.51815701436523470549e2
+        den = den * x - 1.70642106651881159223e4
+        den = den * x - 2.20528590553854454839e5
+        den = den * x - 1.13933444367982507207e6
+        den = den * x - 2.53252307177582951285e6
+        den = den * x - 2.01889141433532773231e6
+        return math.log(z) + x * num / den
+    q = (x - 0.5) * math.log(x) - x + _LS2PI
+    if x >= 1000.0:
+        if x > 1.0e8:
+            return q
+        p = 1.0 / (x * x)
+        return q + ((7.9365079365079365079365e-4 * p - 2.7777777777777777777778e-3) * p
+                    + 0.0833333333333333333333) / x
+    p = 1.0 / (x * x)
+    a = 8.11614167470508450300e-4
+    a = a * p - 5.95061904284301438324e-4
+    a = a * p + 7.93650340457716943945e-4
+    a = a * p - 2.77777777730099687205e-3
+    a = a * p + 8.33333333333331927722e-2
+    return q + a / x
+
+
+def _lgam_array(x: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[i] = _lgam(x[i])`` over two flat arrays."""
+    for i in range(x.size):
+        out[i] = _lgam(x[i])
+
+
+_lgam = jit(_lgam, inline=True)
+_lgam_array = jit(_lgam_array)
+
+
+def gammaln(x: float | np.ndarray) -> np.ndarray:
+    r""":math:`\log |\Gamma(x)|` elementwise, as ``scipy.special.gammaln(x)`` (the same doubles,
+    the same shape; a 0-d input gives a numpy scalar) without importing ``scipy.special``:
+    compiled Cephes ``lgam`` for ``0 < x <= MAXLGM``; scipy's own function for any other
+    argument (``x <= 0``, NaN, infinite) and in the interpreted mode (``BNPTRACK_NO_JIT=1``)."""
+    x = np.asarray(x, dtype=float)
+    flat = np.ascontiguousarray(x).reshape(-1)
+    if not JIT or not bool(np.all((flat > 0.0) & (flat <= _MAXLGM))):
+        from scipy.special import gammaln as scipy_gammaln  # the general case: scipy's own
+
+        return scipy_gammaln(x)
+    out = np.empty_like(flat)
+    _lgam_array(flat, out)
+    return out.reshape(x.shape)[()]

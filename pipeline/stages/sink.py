@@ -493,8 +493,6 @@ class SinkStage(StageBase):
 
     def _warm_up(self) -> None:
         warm_imports("bnptrack.sources.mcap_log", "bnptrack.pipeline.resolve")
-        if self.sink_cfg.score or self.sink_cfg.rerun:  # the scorer's kernels import scipy on first use
-            warm_imports("scipy.spatial.distance", "scipy.optimize")
         for name in self.sink_cfg.paths(self.ctx.out):
             for module in SINKS[name].imports:
                 try:

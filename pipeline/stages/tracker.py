@@ -34,7 +34,7 @@ log = logging.getLogger("bnptrack.stage")
 #: the lazy imports of tracker/bnp/assignment.py, clusters.py, urn.py, tracker/filtering.py).
 #: The stage imports them before it declares itself ready: a first import in the frame loop
 #: stalls that frame and queues the frames behind it (docs/pipeline.md, Performance).
-LAZY_IMPORTS = ("scipy.optimize", "scipy.sparse.csgraph", "scipy.spatial", "scipy.special")
+LAZY_IMPORTS = ("scipy.sparse.csgraph", "scipy.spatial")
 
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:

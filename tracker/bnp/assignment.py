@@ -52,7 +52,8 @@ _SMALL = 20_000
 def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
     """Per connected component with two clusters preferring one measurement, the JPDA*
     assignment (updates ``choice``, aligned with the sorted ``clusters``)."""
-    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize is slow to import (docs/performance.md, measured)
+    from bnptrack.tracker._numerics import scipy_extension  # scipy.optimize's solver, not its slow import
+    linear_sum_assignment = scipy_extension("optimize", "_lsap").linear_sum_assignment
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
