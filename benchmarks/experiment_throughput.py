@@ -16,6 +16,10 @@ configuration and the speed-up of 2 workers over 1 (wall time; and in CPU-limite
 runs per CPU second, which is what two free cores would turn into wall time).
 
     python3 benchmarks/experiment_throughput.py --experiment ddp-vs-glmb --runs 100 --dask --repeats 3
+
+``--trackers ddp-groups glmb`` runs only the paper's pair (two-level DDP-EMM and GLMB; the
+experiment's default also runs the single-level ablation ``ddp-mb``); a tracker's series are
+the same whichever others run beside it.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from bnptrack.pipeline.experiments import RunJob, get_experiment, run_jobs, warm_pool  # noqa: E402
+from bnptrack.pipeline.experiments import RunJob, get_experiment, run_jobs, select_trackers, warm_pool  # noqa: E402
 
 _SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
 
@@ -111,11 +115,17 @@ def main() -> None:
     ap.add_argument("--dask", action="store_true", help="also a Dask LocalCluster of each worker count")
     ap.add_argument("--no-pool", dest="pool", action="store_false", help="skip the local process pools")
     ap.add_argument("--repeats", type=int, default=1, help="run the configurations this many times, interleaved")
+    ap.add_argument("--trackers", nargs="+", default=(), metavar="NAME",
+                    help="only these of the experiment's trackers (registry names or labels, e.g. "
+                         "ddp-groups glmb: the paper's pair); default all")
     args = ap.parse_args()
     exp = get_experiment(args.experiment)
-    jobs = [RunJob(args.experiment, 1, i, "vo2017", exp.variants[0]) for i in range(args.runs)]
+    picked = select_trackers(exp, args.trackers)
+    jobs = [RunJob(args.experiment, 1, i, "vo2017", exp.variants[0], trackers=tuple(args.trackers))
+            for i in range(args.runs)]
     run_jobs(jobs[:1], workers=1)  # warm caches (numba) outside the timing
-    print(f"{args.experiment}: {args.runs} runs of {len(exp.trackers)} trackers x 100 frames; "
+    print(f"{args.experiment}: {args.runs} runs of {len(picked)} trackers ({', '.join(s.label for s in picked)}) "
+          f"x 100 frames; "
           f"load average {os.getloadavg()[0]:.1f} at the start, {os.cpu_count()} cores")
     configs = [("processes", w) for w in args.workers if args.pool] + [("dask", w) for w in args.workers if args.dask]
     with contextlib.ExitStack() as stack:

@@ -9,6 +9,9 @@ checkouts can be compared in one session (A, B, A, B):
 
     PYTHONPATH=$PWD nice -n 10 python3 benchmarks/scoring_throughput.py
     PYTHONPATH=/tmp/base nice -n 10 python3 $PWD/benchmarks/scoring_throughput.py
+
+Where ``RunScorer(compiled=True)`` exists (session 8) it scores as the Monte Carlo runner
+does, with the compiled OSPA(2) window; ``--numpy`` scores with the numpy window instead.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from bnptrack.sources.synthetic import simulate_all  # noqa: E402
 from bnptrack.tracker.state import run as run_tracker  # noqa: E402
 
 SHARED = "gospa_alpha" in inspect.signature(RunScorer).parameters
+#: RunScorer(compiled=True), the Monte Carlo runner's scorer since session 8 (False before)
+COMPILED = "compiled" in inspect.signature(RunScorer).parameters
 
 
 def record(runs: int) -> list[tuple[list, list]]:
@@ -45,9 +50,12 @@ def record(runs: int) -> list[tuple[list, list]]:
     return out
 
 
-def score(frames: list, estimates: list) -> list[tuple]:
+def score(frames: list, estimates: list, compiled: bool = COMPILED) -> list[tuple]:
     rows = []
-    scorer = RunScorer(100.0, 1.0, 10, gospa_alpha=2.0) if SHARED else RunScorer(100.0, 1.0, 10)
+    if compiled:
+        scorer = RunScorer(100.0, 1.0, 10, gospa_alpha=2.0, compiled=True)
+    else:
+        scorer = RunScorer(100.0, 1.0, 10, gospa_alpha=2.0) if SHARED else RunScorer(100.0, 1.0, 10)
     for f, e in zip(frames, estimates):
         s = scorer.update(f, e)
         g = s["gospa"] if SHARED else gospa(f.truth.positions, e.positions, c=100.0, p=1.0, alpha=2.0)
@@ -61,17 +69,22 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=6)
     ap.add_argument("--repeats", type=int, default=6)
+    ap.add_argument("--numpy", dest="compiled", action="store_false",
+                    help="score with the numpy OSPA(2) window (RunScorer's default) even where the "
+                         "compiled one (the runner's, session 8) exists")
     args = ap.parse_args()
+    compiled = COMPILED and args.compiled
     data = record(args.runs)
-    score(*data[0])  # scipy's first import outside the timing
+    score(*data[0], compiled=compiled)  # scipy's first import (and the kernel) outside the timing
     best, rows = float("inf"), []
     for _ in range(args.repeats):
         t0 = time.process_time()
-        rows = [score(f, e) for f, e in data]
+        rows = [score(f, e, compiled) for f, e in data]
         best = min(best, time.process_time() - t0)
     n = sum(len(f) for f, _ in data)
     digest = hashlib.sha256(np.array(rows, dtype=float).tobytes()).hexdigest()[:16]
-    print(f"{'shared' if SHARED else 'separate'} scoring: {1e6 * best / n:.1f} us per tracker-frame "
+    kind = ("shared" if SHARED else "separate") + (", compiled window" if compiled else "")
+    print(f"{kind} scoring: {1e6 * best / n:.1f} us per tracker-frame "
           f"(best of {args.repeats}, {n} frames), scores {digest}, load {os.getloadavg()[0]:.1f}")
 
 

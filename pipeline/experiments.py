@@ -137,6 +137,23 @@ class RunJob:
     params: str
     variant: Variant
     keep_tracks: bool = False
+    #: run only these of the experiment's trackers (registry names or labels; empty: all).
+    #: Every tracker draws from its own per-frame streams and the simulation from the run's
+    #: seed, so a tracker's series are the same whichever others run beside it.
+    trackers: tuple[str, ...] = ()
+
+
+def select_trackers(exp: Experiment, names: Sequence[str]) -> tuple[TrackerSpec, ...]:
+    """The trackers of ``exp`` named in ``names`` (registry name or label), in the
+    experiment's order; all of them when ``names`` is empty."""
+    if not names:
+        return exp.trackers
+    known = {s.name for s in exp.trackers} | {s.label for s in exp.trackers}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(f"experiment {exp.name!r} has no tracker {', '.join(map(repr, unknown))}; "
+                          f"valid: {', '.join(s.name for s in exp.trackers)}")
+    return tuple(s for s in exp.trackers if s.name in names or s.label in names)
 
 
 @dataclass
@@ -184,7 +201,7 @@ def execute_run(job: RunJob) -> RunResult:
     frames = simulate_all(scenario, params, seed)
     n_true = np.array([len(f.truth.ids) for f in frames])
     result = RunResult(job, n_true, frames=frames if job.keep_tracks else None)
-    for spec in exp.trackers:
+    for spec in select_trackers(exp, job.trackers):
         result.trackers[spec.label] = _score_tracker(spec, params, frames, seed, scenario.crossings,
                                                      job.keep_tracks, exp.metrics)
     return result
@@ -195,15 +212,16 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
                    metrics: Sequence[FrameMetric] = ()) -> TrackerRun:
     """Run one tracker over a run's frames and score every frame: OSPA, OSPA(2) and GOSPA
     (alpha 2) by one :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's
-    sink; the three share each frame's distance matrix), the experiment's extra ``metrics``
-    and the label keeping through ``crossings``."""
+    sink; the three share each frame's distance matrix; its OSPA(2) window compiled, the
+    same numbers: the trackers have loaded numba here anyway), the experiment's extra
+    ``metrics`` and the label keeping through ``crossings``."""
     from bnptrack.pipeline.resolve import tracker_setup
     from bnptrack.sinks.crossings import crossing_label_keeping
     from bnptrack.sinks.metrics import RunScorer
     from bnptrack.tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker
-    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW, gospa_alpha=2.0)
+    scorer = RunScorer(c=OSPA_C, p=OSPA_P, window=OSPA2_WINDOW, gospa_alpha=2.0, compiled=True)
     rows, est_tracks, kept, extra = [], [], [], []
     for f, e, _ in run_tracker(tracker, frames, seed):
         scores = scorer.update(f, e)

@@ -24,6 +24,8 @@ class _Marginals:
     existence: np.ndarray  # (L,) r(l) = sum_{I contains l} w(I)
     p_used: np.ndarray  # (M,) r_U(z_m) = sum_{h uses z_m} w_h
     pair_p: np.ndarray  # (L * M,) weight of the hypotheses assigning z_m to label l
+    n_per_hyp: np.ndarray  # (H,) each hypothesis's number of tracks
+    card: np.ndarray  # (maxN + 1,) cardinality distribution, GlmbState.cardinality()
 
 
 def _marginal_sums_kernel(hyp: np.ndarray, w: np.ndarray, label_id: np.ndarray, row_meas: np.ndarray,
@@ -76,19 +78,22 @@ def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
     h_idx, rows, existence, p_used, pair_p = _marginal_sums(
         np.ascontiguousarray(st.hyp_tracks, dtype=np.int64), w, label_id, np.ascontiguousarray(row_meas, dtype=np.int64),
         n_labels, n_meas)
-    return _Marginals(w, h_idx, rows, label_id, n_labels, existence, p_used, pair_p)
-
-
-def _map_cardinality(st: GlmbState, w: np.ndarray) -> tuple[int, np.ndarray]:
-    """MAP cardinality and the cardinality of each hypothesis."""
+    # GlmbState.cardinality(), computed once here for the estimators and the step's output
     n = np.sum(st.hyp_tracks >= 0, axis=1)
-    return int(np.argmax(np.bincount(n, weights=w))), n
+    card = np.bincount(n, weights=w, minlength=st.hyp_tracks.shape[1] + 1)
+    return _Marginals(w, h_idx, rows, label_id, n_labels, existence, p_used, pair_p, n, card)
+
+
+def _map_cardinality(st: GlmbState, mg: _Marginals) -> tuple[int, np.ndarray]:
+    """MAP cardinality and the cardinality of each hypothesis (the first maximum of the
+    distribution: its padding beyond the largest hypothesis is 0, below the maximum)."""
+    return int(np.argmax(mg.card)), mg.n_per_hyp
 
 
 def map_cardinality_rows(st: GlmbState, mg: _Marginals) -> np.ndarray:
     """Vo's ``extract_estimates``: the MAP cardinality :math:`\\hat n`, then the rows of the
     highest-weight hypothesis with :math:`\\hat n` labels."""
-    n_map, n = _map_cardinality(st, mg.w)
+    n_map, n = _map_cardinality(st, mg)
     best = int(np.argmax(np.where(n == n_map, st.log_w, -np.inf)))
     return st.hyp_tracks[best][st.hyp_tracks[best] >= 0].astype(np.int64)
 
@@ -102,7 +107,7 @@ def continuity_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ratio:
     histories (and so its labels) unless another labelling is more than ``1 / ratio`` times
     as likely -- a streaming, hysteresis form of Vo's track-based extraction.  The reported
     set is always one hypothesis (no two labels on one object)."""
-    n_map, n = _map_cardinality(st, mg.w)
+    n_map, n = _map_cardinality(st, mg)
     log_w = np.where(n == n_map, st.log_w, -np.inf)
     cand = np.flatnonzero(log_w >= np.max(log_w) + math.log(ratio))
     hyp = st.hyp_tracks[cand]
@@ -119,7 +124,7 @@ def marginal_label_rows(st: GlmbState, mg: _Marginals, continues: np.ndarray, ra
     estimate reported for the label (``continues`` (T,)) is preferred if its weight is at least
     ``ratio`` times that.  Per-label choices: two labels can report the same object when the
     posterior is split between labellings.  Returns the rows, one per label."""
-    n_map, _ = _map_cardinality(st, mg.w)
+    n_map, _ = _map_cardinality(st, mg)
     if n_map == 0:
         return np.zeros(0, dtype=np.int64)
     chosen = np.zeros(mg.n_labels, dtype=bool)

@@ -89,7 +89,7 @@ class GlmbTracker:
                                   birth_z=frame.z.copy(), birth_sensor=frame.sensor, birth_pose=frame.pose or (),
                                   birth_R=np.zeros((0, 0)) if frame.R is None else frame.R, birth_r_u=np.clip(marg.p_used, 0.0, 1.0),
                                   est_rows=rows)
-        card = new.cardinality()
+        card = marg.card  # new.cardinality(): the same hypotheses and weights
         diagnostics = {
             "n_hypotheses": float(new.n_hypotheses),
             "n_tracks": float(new.n_tracks),
@@ -242,7 +242,7 @@ class GlmbTracker:
         if np.any(det):
             mean[det] = kf.update_pairs(meas, innov, cands.mean, frame.z, row[det], j[det] - 1)
             cov[det] = innov.P_upd[row[det]]
-        labels = tuple(cands.labels[i] for i in row.tolist())
+        labels = tuple(map(cands.labels.__getitem__, row.tolist()))
         new = GlmbState(frame.frame, frame.stamp_ns, labels, np.ascontiguousarray(mean),
                         np.ascontiguousarray(cov), np.ascontiguousarray(hyp), log_w)
         parent = np.where(row < cands.n_survivors, row, -1).astype(np.int64)

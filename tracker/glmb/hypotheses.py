@@ -150,11 +150,20 @@ def merge_children(cand: np.ndarray, gamma: np.ndarray, log_w: np.ndarray, n_mea
 
 
 def prune_and_cap(log_w: np.ndarray, threshold: float, cap: int) -> np.ndarray:
-    """Indices of hypotheses kept: normalised weight above ``threshold``, best ``cap``."""
+    """Indices of hypotheses kept (ascending): normalised weight above ``threshold``, best
+    ``cap`` (ties at the cap: the lower indices, as a stable sort by weight would keep).
+
+    The best ``cap`` are found by one partition (the ``cap``-th largest weight ``v``: all
+    above it, then the first of those equal to it), not a sort: the same set, in linear
+    time (the cap bites in most frames of experiment 1, with 500 of about 550 children)."""
     w = np.exp(log_w - logsumexp(log_w))
     keep = np.flatnonzero(w > threshold)
     if keep.size == 0:
-        keep = np.array([int(np.argmax(log_w))])
+        return np.array([int(np.argmax(log_w))])
     if keep.size > cap:
-        keep = keep[np.argsort(-log_w[keep], kind="stable")[:cap]]
-    return np.sort(keep)
+        lw = log_w[keep]
+        v = np.partition(lw, lw.size - cap)[lw.size - cap]
+        sel = lw > v
+        sel[np.flatnonzero(lw == v)[:cap - int(np.count_nonzero(sel))]] = True
+        keep = keep[sel]
+    return keep
