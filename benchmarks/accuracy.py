@@ -1,4 +1,4 @@
-"""Accuracy and speed of any tracker (ddp, dpyp, glmb) on a scenario over many seeds.
+"""Accuracy and speed of any tracker (ddp, dpyp, ddp-mb, dpyp-mb, glmb) on a scenario over many seeds.
 
 Prints, per tracker and parameter set: mean OSPA (total, localisation, cardinality; c=100,
 p=1, on position), OSPA(2) (window 10), mean |N_hat - N|, label switches per run, the

@@ -72,7 +72,7 @@ def main() -> None:
     print(f"minimum over {args.repeats} interleaved repeat(s) per frame")
     print("| tracker | sampler | kernel | ms/frame median | p95 | CPU ms/frame mean | ratio to default compiled (median) |")
     print("|---|---|---|---|---|---|---|")
-    for name in ("ddp", "dpyp"):
+    for name in ("ddp-mb", "dpyp-mb"):
         runs: dict[int, list] = {i: [] for i in range(len(settings))}
         for _ in range(args.repeats):
             for i, (_, _, old, interp) in enumerate(settings):

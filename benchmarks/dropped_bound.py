@@ -78,8 +78,8 @@ class OracleTracker:
     """Known associations, births and deaths; each object filtered on its own (UKF or EKF)."""
 
     params: ModelParams
-    velocity_std: float = TRACKER_PRESETS["ddp"].birth_velocity_std
-    turn_std_deg: float = TRACKER_PRESETS["ddp"].birth_turn_std_deg
+    velocity_std: float = TRACKER_PRESETS["ddp-mb"].birth_velocity_std
+    turn_std_deg: float = TRACKER_PRESETS["ddp-mb"].birth_turn_std_deg
     filter: str = "ukf"
     confirm: int = 1
     """Report an object from its ``confirm``-th detection on (1: from the first; 2: the one

@@ -65,9 +65,9 @@ def vo_table(seeds: int, settings: list[tuple[bool, int, int]]) -> None:
     print("| swaps | chains x sweeps | R-hat median | p90 | p99 | frames > 1.1 | frames > 1.5 | swap accept | ms/frame median | p95 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for swaps, chains, sweeps in settings:
-        cfg = msgspec.structs.replace(TRACKER_PRESETS["ddp"], swap_moves=swaps, chains=chains, sweeps=sweeps,
+        cfg = msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], swap_moves=swaps, chains=chains, sweeps=sweeps,
                                       burn_in=min(5, sweeps // 4))
-        tracker = make_tracker("ddp", params, cfg)
+        tracker = make_tracker("ddp-mb", params, cfg)
         d = [e.diagnostics for s, fr in frames.items() for _, e, _ in run(tracker, fr, s)][1:]
         rh = np.array([x["rhat_max"] for x in d])
         ms = np.array([x["ms"] for x in d])

@@ -8,8 +8,8 @@ a track without a ``cluster`` is a singleton, so a single-level tracker scores 0
 has groups), the discount ``d2`` of the object partition (mean over frames >= 20; two-level
 trackers), and ms per frame (median; each seed in its own process, one core).
 
-    python benchmarks/groups.py --trackers ddp-groups ddp-mb glmb --scenario groups --seeds 20
-    python benchmarks/groups.py --trackers ddp-groups --set sharing=false --first-seed 101 --seeds 10
+    python benchmarks/groups.py --trackers ddp ddp-mb glmb --scenario groups --seeds 20
+    python benchmarks/groups.py --trackers ddp --set sharing=false --first-seed 101 --seeds 10
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def one_run(job):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--trackers", nargs="+", default=["ddp-groups", "ddp-mb", "glmb"])
+    ap.add_argument("--trackers", nargs="+", default=["ddp", "ddp-mb", "glmb"])
     ap.add_argument("--params", default="vo2017")
     ap.add_argument("--scenario", default="groups")
     ap.add_argument("--seeds", type=int, default=20)

@@ -1,4 +1,4 @@
-"""Time per frame of ``ddp-groups`` against ``ddp-mb``, interleaved frame by frame in one process.
+"""Time per frame of ``ddp`` (two-level) against ``ddp-mb``, interleaved frame by frame in one process.
 
 On a shared machine the load changes from second to second, so the two trackers are timed on
 the same frame one right after the other (alternating which goes first) and the ratio of the
@@ -12,7 +12,7 @@ probabilities, cardinality pmf, and the state's objects and clusters), to compar
 bit for bit:
 
     PYTHONPATH=$PWD python benchmarks/groups_speed.py --fingerprint --scenario vo2017 --seeds 1 2 3 4 5 \
-        --trackers ddp-groups dpyp-groups
+        --trackers ddp dpyp
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="groups")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
-    ap.add_argument("--trackers", nargs=2, default=["ddp-groups", "ddp-mb"])
+    ap.add_argument("--trackers", nargs=2, default=["ddp", "ddp-mb"])
     ap.add_argument("--fingerprint", action="store_true", help="print output digests instead of timing")
     args = ap.parse_args()
     if args.fingerprint:

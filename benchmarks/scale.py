@@ -102,7 +102,7 @@ def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: floa
     from bnptrack.tracker.state import tracker_frame_rng
 
     params, fr = simulate(n, frames, seed, clutter_ratio)
-    tracker = make_tracker("ddp", params)
+    tracker = make_tracker("ddp-mb", params)
     state = tracker.initial_state()
     ms, cpu, ospas, fracs, t_start = [], [], [], [], time.perf_counter()
     n_meas = []

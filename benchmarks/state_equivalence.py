@@ -1,5 +1,5 @@
-"""Do two versions of the BNP trackers give the same runs?  Dump the per-frame states and
-estimates of five settings (vo2017 ddp, dpy5 dpyp, proximity ddp-proximity, vo2017 extended,
+"""Do two versions of the single-level BNP trackers give the same runs?  Dump the per-frame states
+and estimates of five settings (vo2017 ddp-mb, dpy5 dpyp-mb, proximity ddp-mb-proximity, vo2017 extended,
 vo2017 mixture update; seed 3, 100 frames) from each tree, then compare:
 
     PYTHONPATH=$PWD python3 benchmarks/state_equivalence.py dump /tmp/new.pkl          # in this tree
@@ -20,9 +20,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-SETTINGS = [("vo2017", "ddp", "ddp", {}), ("dpy5", "dpyp", "dpyp", {}),
-            ("proximity", "ddp", "ddp-proximity", {}), ("vo2017", "ddp", "ddp", {"extended": True}),
-            ("vo2017", "ddp", "ddp", {"state_update": "mixture"})]
+SETTINGS = [("vo2017", "ddp-mb", "ddp-mb", {}), ("dpy5", "dpyp-mb", "dpyp-mb", {}),
+            ("proximity", "ddp-mb", "ddp-mb-proximity", {}), ("vo2017", "ddp-mb", "ddp-mb", {"extended": True}),
+            ("vo2017", "ddp-mb", "ddp-mb", {"state_update": "mixture"})]
 
 
 def dump(path: str) -> None:

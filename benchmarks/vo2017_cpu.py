@@ -1,4 +1,4 @@
-"""CPU ms per frame of a BNP tracker's ``step`` on vo2017, alone or A/B against another checkout.
+"""CPU ms per frame of a BNP tracker's ``step`` on vo2017 (default the single-level ``ddp-mb``), alone or A/B against another checkout.
 
 Alone (this tree)::
 
@@ -52,12 +52,12 @@ def measure(tracker_name: str, seeds: int, repeats: int) -> dict:
 
     from bnptrack.sources.scenarios import get_scenario
     from bnptrack.sources.synthetic import simulate_all
-    from bnptrack.tracker.bnp import make_tracker
     from bnptrack.tracker.models.params import load_params
+    from bnptrack.tracker.registry import build
     from bnptrack.tracker.state import tracker_frame_rng
 
     params = get_scenario("vo2017").adapt_params(load_params("vo2017"))
-    tracker = make_tracker(tracker_name, params)
+    tracker = build(tracker_name, params)
     runs = [simulate_all(get_scenario("vo2017"), params, s) for s in range(1, seeds + 1)]
     digest = hashlib.sha256()
 
@@ -91,7 +91,7 @@ def _child(root: str, args) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--tracker", default="ddp", choices=("ddp", "dpyp"))
+    ap.add_argument("--tracker", default="ddp-mb", choices=("ddp-mb", "dpyp-mb", "ddp", "dpyp"))
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--base", help="another checkout to time alternately with this one (A/B)")

@@ -1,6 +1,6 @@
 """bnptrack's trackers side by side with Stone Soup anchors, on the same frames, same metrics.
 
-Every tracker (bnptrack's ``ddp``, ``dpyp``, ``glmb``, built as ``benchmarks/accuracy.py``
+Every tracker (bnptrack's ``ddp``, ``dpyp``, ``glmb``; ``ddp-mb``, ``dpyp-mb`` on request; built as ``benchmarks/accuracy.py``
 builds them) and every anchor (Stone Soup GM-PHD (UKF) with measurement-driven birth
 ``ss-gmphd``, Stone Soup JPDA (UKF) with a multi-measurement initiator ``ss-jpda``; see
 ``benchmarks/stonesoup_anchors.py``) runs on the frames ``sources/synthetic.py`` simulates for

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class TrackerSpec:
-    """One tracker of an experiment: its registry name (``ddp-groups``, ``ddp-mb``, ``glmb``, ...),
+    """One tracker of an experiment: its registry name (``ddp``, ``ddp-mb``, ``glmb``, ...),
     preset, display label."""
 
     name: str
@@ -78,10 +78,10 @@ PAPER_SNR = (Variant("-3 dB", ("snr_db=-3",)),)
 
 
 def _pair(name: str, preset: str, label: str) -> tuple[TrackerSpec, TrackerSpec]:
-    """The two-level tracker (``NAME-groups``, label ``LABEL``) and its single-level ablation
-    (``NAME-mb``, label ``LABEL (mb)``) with the object level's preset ``preset``."""
-    two = f"{name}-groups" if preset == name else f"{name}-groups{preset[len(name):]}"
-    return (TrackerSpec(f"{name}-groups", two, label), TrackerSpec(f"{name}-mb", preset, f"{label} (mb)"))
+    """The two-level tracker (``NAME``, preset ``preset``, label ``LABEL``) and its single-level
+    ablation (``NAME-mb``, the matching preset ``NAME-mb...``, label ``LABEL (mb)``)."""
+    mb = f"{name}-mb{preset[len(name):]}"
+    return (TrackerSpec(name, preset, label), TrackerSpec(f"{name}-mb", mb, f"{label} (mb)"))
 
 
 _GLMB = TrackerSpec("glmb", "glmb", "GLMB")
@@ -110,7 +110,7 @@ EXPERIMENTS: dict[str, Experiment] = {
                    (*_pair("dpyp", "dpyp", "DPY-STP"), *_pair("ddp", "ddp", "DDP-EMM")), PAPER_SNR),
         Experiment("random", "Objects born anywhere: 20-30 objects, 3 crossing pairs, no birth "
                    "regions (generated random family; each run draws its own scene)", "random",
-                   (TrackerSpec("ddp", "ddp", "DDP-EMM"), TrackerSpec("dpyp", "dpyp", "DPY-STP"),
+                   (TrackerSpec("ddp-mb", "ddp-mb", "DDP-EMM (mb)"), TrackerSpec("dpyp-mb", "dpyp-mb", "DPY-STP (mb)"),
                     TrackerSpec("glmb", "glmb", "GLMB"))),
     )
 }

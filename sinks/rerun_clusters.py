@@ -2,7 +2,7 @@
 ``world/clusters`` links and the ``metrics/structure`` series (clusters, posterior cardinality).
 
 Automatic, not an option: a track whose estimate carries a ``cluster`` (the two-level trackers
-``ddp-groups`` / ``dpyp-groups``) is drawn, from that frame on, in its cluster's colour (its
+``ddp`` / ``dpyp``) is drawn, from that frame on, in its cluster's colour (its
 measurements and assignment lines too); a track without one keeps its label's colour.  Cluster
 colours come from the track palette (:func:`sinks.rerun_style.cluster_color`: never the
 truth, sensor, clutter or measurement colours), and clusters alive together differ from each

@@ -155,11 +155,12 @@ def forge_seq(seq: int, frame: int):
 
 
 def mem_cfg(tmp_path: Path, frames: int = 12, **extra: str):
-    """A small pipeline (sweeps 8, burn-in 2, no Rerun) writing to ``tmp_path/out``."""
+    """A small pipeline (the single-level ``ddp-mb``, sweeps 8, burn-in 2, no Rerun) writing to
+    ``tmp_path/out``."""
     from bnptrack.pipeline.config import PipelineConfig, resolve_run
     from bnptrack.tracker.config import apply_overrides
 
-    overrides = [f"source.frames={frames}", "tracker.overrides=['sweeps=8', 'burn_in=2']",
+    overrides = [f"source.frames={frames}", "tracker.tracker=ddp-mb", "tracker.overrides=['sweeps=8', 'burn_in=2']",
                  "sink.rerun=false", "tracker.snapshot_every=4", "delivery.eos_grace_s=0.3",
                  "supervisor.linger_s=0.5"]
     overrides += [f"{k}={v}" for k, v in extra.items()]

@@ -37,22 +37,17 @@ class TrackerKind:
 
 
 def _bnp(name: str, description: str) -> TrackerKind:
+    """The single-level tracker (``ddp-mb``, ``dpyp-mb``: objects = clusters), with its presets
+    (``ddp-mb``, ``dpyp-mb``, ``ddp-mb-proximity``, ``ddp-mb-snr``)."""
     from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, make_tracker
 
     return TrackerKind(name, description, BnpConfig, TRACKER_PRESETS,
                        lambda params, config: make_tracker(name, params, config))
 
 
-def _bnp_alias(name: str, preset: str, description: str) -> TrackerKind:
-    """The single-level tracker under another name (``ddp-mb``: today's ``ddp``, kept for ablations),
-    with every single-level preset (``ddp-mb`` with ``ddp-proximity``, ...)."""
-    from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
-
-    presets = {**TRACKER_PRESETS, name: TRACKER_PRESETS[preset]}
-    return TrackerKind(name, description, BnpConfig, presets, lambda params, config: BnpTracker(params, config, name))
-
-
 def _groups(name: str, description: str) -> TrackerKind:
+    """The two-level tracker (``ddp``, ``dpyp`` and their aliases ``ddp-groups``, ``dpyp-groups``),
+    with its presets (``ddp``, ``dpyp``, ``ddp-proximity``, ``ddp-snr`` and their ``-groups`` names)."""
     from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
 
     return TrackerKind(name, description, GroupConfig, GROUP_PRESETS,
@@ -66,15 +61,20 @@ def _glmb() -> TrackerKind:
                        GlmbConfig, GLMB_PRESETS, make_glmb)
 
 
+#: Since session 8 ``ddp``/``dpyp`` are the two-level trackers (before: the single level, now
+#: ``ddp-mb``/``dpyp-mb``); ``ddp-groups``/``dpyp-groups`` stay accepted as their aliases.
 _KINDS: dict[str, Callable[[], TrackerKind]] = {
-    "ddp": lambda: _bnp("ddp", "DDP-EMM: dependent Dirichlet process tracker"),
-    "dpyp": lambda: _bnp("dpyp", "DPY-STP: dependent Pitman-Yor process tracker"),
+    "ddp": lambda: _groups("ddp", "DDP-EMM (two-level): measurements -> objects -> motion clusters"),
+    "dpyp": lambda: _groups("dpyp", "DPY-STP (two-level): Pitman-Yor discount on the object partition"),
     "glmb": _glmb,
-    "ddp-mb": lambda: _bnp_alias("ddp-mb", "ddp", "DDP-EMM, single level (objects = clusters; same as ddp today)"),
-    "dpyp-mb": lambda: _bnp_alias("dpyp-mb", "dpyp", "DPY-STP, single level (objects = clusters; same as dpyp today)"),
-    "ddp-groups": lambda: _groups("ddp-groups", "Two-level DDP-EMM: measurements -> objects -> motion clusters"),
-    "dpyp-groups": lambda: _groups("dpyp-groups", "Two-level DPY-STP: Pitman-Yor discount on the object partition"),
+    "ddp-mb": lambda: _bnp("ddp-mb", "DDP-EMM, single level (objects = clusters; ddp before session 8)"),
+    "dpyp-mb": lambda: _bnp("dpyp-mb", "DPY-STP, single level (objects = clusters; dpyp before session 8)"),
+    "ddp-groups": lambda: _groups("ddp-groups", "alias of ddp"),
+    "dpyp-groups": lambda: _groups("dpyp-groups", "alias of dpyp"),
 }
+
+#: Accepted old names -> the name they build the same tracker as.
+ALIASES: Mapping[str, str] = {"ddp-groups": "ddp", "dpyp-groups": "dpyp"}
 
 #: Names of the trackers, in display order.
 TRACKERS: tuple[str, ...] = tuple(_KINDS)

@@ -149,8 +149,8 @@ class _LazyGroup(click.Group):
 def main() -> None:
     """bnptrack: streaming multi-object tracking with Bayesian nonparametric priors.
 
-    Simulate the paper's scenarios into MCAP logs and run the DDP-EMM (ddp) or DPY-STP
-    (dpyp) tracker over a log offline. Logs hold /measurements, /truth and /tracks as
+    Simulate the paper's scenarios into MCAP logs and run the two-level DDP-EMM (ddp) or
+    DPY-STP (dpyp) tracker, their single-level ddp-mb / dpyp-mb or the GLMB over a log offline. Logs hold /measurements, /truth and /tracks as
     JSON messages (see docs/formats.md and `bnptrack schema`).
 
     \b

@@ -138,7 +138,7 @@ def test_viewer_urls():
 def test_live_stream_carries_the_same_rows_as_the_file(tmp_path, receiver):
     params = load_params("vo2017")
     frames = simulate_all(get_scenario("vo2017"), params, 1)[:12]
-    estimates = [est for _f, est, _s in run(make_tracker("ddp", params), frames, 0)]
+    estimates = [est for _f, est, _s in run(make_tracker("ddp-mb", params), frames, 0)]
     path = tmp_path / "run.rrd"
     write_recording(path, frames, estimates, {"scenario": "vo2017"}, params=params, live=receiver.url,
                     handle_signals=False)
@@ -151,7 +151,7 @@ def test_track_connect_streams_and_fails_fast_without_a_viewer(tmp_path, receive
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     out = tmp_path / "t.mcap"
     cmd = [sys.executable, "-m", "bnptrack", "track", str(SHORT_LOG), "--out", str(out), "-q",
-           "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"]
+           "--tracker", "ddp-mb", "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"]
     res = subprocess.run([*cmd, "--connect", receiver.url], env=env, capture_output=True, text=True,
                          timeout=300)
     assert res.returncode == 0, res.stderr
@@ -173,7 +173,7 @@ def test_track_view_spawns_a_viewer_that_receives_the_run(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO), "BNPTRACK_VIEWER_HEADLESS": "1"}
     out = tmp_path / "t.mcap"
     res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(SHORT_LOG), "--out", str(out),
-                          "--view", "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"],
+                          "--view", "--tracker", "ddp-mb", "--set", "tracker.sweeps=5", "--set", "tracker.burn_in=1"],
                          env=env, capture_output=True, text=True, timeout=300)
     line = next((ln for ln in res.stderr.splitlines() if ln.startswith("viewer: ")), "")
     assert line, res.stderr

@@ -18,7 +18,8 @@ from bnptrack.sources.scenarios import get_scenario, scenario_names
 from bnptrack.tracker.config import ConfigError
 
 # a fast tracker for tests: few Gibbs sweeps
-FAST = ["--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2"]
+FAST_SET = ["--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2"]
+FAST = ["--tracker", "ddp-mb", *FAST_SET]  # the single-level tracker (`ddp` before session 8)
 
 
 def invoke(*args: str):
@@ -44,7 +45,7 @@ def vo_log(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def vo_tracks(vo_log, tmp_path_factory):
     out = tmp_path_factory.mktemp("tracks") / "vo2017-s1-ddp.mcap"
-    res = invoke("track", vo_log, "--tracker", "ddp", *FAST, "--out", out)
+    res = invoke("track", vo_log, "--tracker", "ddp-mb", *FAST_SET, "--out", out)
     return res, out
 
 
@@ -198,7 +199,7 @@ def test_track_writes_tracks(vo_log, vo_tracks):
         assert "ms" in est.diagnostics
     meta = read_metadata(out)
     assert meta["scenario"] == "vo2017" and meta["seed"] == "1"
-    assert meta["tracker"] == "ddp" and meta["tracker_seed"] == "0"
+    assert meta["tracker"] == "ddp-mb" and meta["tracker_seed"] == "0"
     # one /tracks message per frame on the channel
     assert sum(1 for topic, _, _ in messages(out) if topic == "/tracks") == 100
 
@@ -206,10 +207,10 @@ def test_track_writes_tracks(vo_log, vo_tracks):
 def test_track_default_out_and_dpyp(tmp_path):
     log = tmp_path / "d.mcap"
     assert invoke("simulate", "--scenario", "dpy5", "--seed", 2, "--out", log, "-q").exit_code == 0
-    res = invoke("track", log, "--tracker", "dpyp", *FAST, "--seed", 5, "--quiet")
+    res = invoke("track", log, "--tracker", "dpyp-mb", *FAST_SET, "--seed", 5, "--quiet")
     assert res.exit_code == 0, res.output
     assert res.output == ""
-    out = tmp_path / "d-dpyp.tracks.mcap"
+    out = tmp_path / "d-dpyp-mb.tracks.mcap"
     assert len(list(iter_tracks(out))) == 100
     assert read_metadata(out)["tracker_seed"] == "5"
 
@@ -292,7 +293,7 @@ def test_track_bad_config_and_same_out(vo_log, tmp_path):
 def test_track_config_file(vo_log, tmp_path):
     cfg = tmp_path / "fast.toml"
     cfg.write_text("sweeps = 6\nburn_in = 1\n")
-    res = invoke("track", vo_log, "--config", cfg, "--out", tmp_path / "t.mcap")
+    res = invoke("track", vo_log, "--tracker", "ddp-mb", "--config", cfg, "--out", tmp_path / "t.mcap")
     assert res.exit_code == 0, res.output
     assert "fast.toml" in res.output
 
@@ -377,13 +378,13 @@ def test_tracker_setup_resolves_once_and_writes_the_output_record():
     from bnptrack.tracker.bnp import TRACKER_PRESETS
 
     meta = {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}
-    s = tracker_setup("ddp", config="ddp-snr", overrides=("p_detect=0.8", "sweeps=7"), metadata=meta, seed=3)
+    s = tracker_setup("ddp-mb", config="ddp-mb-snr", overrides=("p_detect=0.8", "sweeps=7"), metadata=meta, seed=3)
     assert (s.params.p_detect, s.params.snr_db, s.params.range_clutter_rate) == (0.8, -5.0, 2.0)
-    assert s.config.sweeps == 7 and s.config.burn_in == TRACKER_PRESETS["ddp-snr"].burn_in
-    assert s.tracker.name == "ddp" and s.tracker.params == s.params
-    assert s.metadata == {**meta, "tracker": "ddp", "tracker_seed": "3", "tracker_params": "vo2017",
-                          "tracker_config": "ddp-snr", "tracker_overrides": "p_detect=0.8;sweeps=7"}
-    assert s.describe_config() == "preset ddp-snr; --set sweeps=7"
+    assert s.config.sweeps == 7 and s.config.burn_in == TRACKER_PRESETS["ddp-mb-snr"].burn_in
+    assert s.tracker.name == "ddp-mb" and s.tracker.params == s.params
+    assert s.metadata == {**meta, "tracker": "ddp-mb", "tracker_seed": "3", "tracker_params": "vo2017",
+                          "tracker_config": "ddp-mb-snr", "tracker_overrides": "p_detect=0.8;sweeps=7"}
+    assert s.describe_config() == "preset ddp-mb-snr; --set sweeps=7"
     assert s.describe_params().startswith("vo2017 (from the log's bnptrack.scenario record; scenario snr")
     assert meta == {"scenario": "snr", "params": "vo2017", "seed": "4", "snr_db": "-5.0"}  # not mutated
 

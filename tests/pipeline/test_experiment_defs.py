@@ -32,14 +32,15 @@ def test_two_level_trackers_beside_the_single_level_ones_and_the_glmb():
     assert labels["ddp-vs-glmb"] == ["DDP-EMM", "DDP-EMM (mb)", "GLMB"]
     assert labels["dpy-vs-ddp"] == ["DPY-STP", "DPY-STP (mb)", "DDP-EMM", "DDP-EMM (mb)"]
     prox = {t.label: (t.name, t.preset) for t in EXPERIMENTS["proximity"].trackers}
-    assert prox["DDP-EMM"] == ("ddp-groups", "ddp-groups-proximity")
-    assert prox["DDP-EMM (mb)"] == ("ddp-mb", "ddp-proximity")
+    assert prox["DDP-EMM"] == ("ddp", "ddp-proximity")
+    assert prox["DDP-EMM (mb)"] == ("ddp-mb", "ddp-mb-proximity")
     for e in EXPERIMENTS.values():  # every preset resolves, and the object level is the named preset's
         for t in e.trackers:
             assert t.preset in kind(t.name).presets, (e.name, t)
     from bnptrack.tracker.bnp.config import TRACKER_PRESETS
 
-    assert kind("ddp-groups").presets["ddp-groups-snr"].objects == TRACKER_PRESETS["ddp-snr"]
+    assert kind("ddp").presets["ddp-snr"].objects == TRACKER_PRESETS["ddp-mb-snr"]
+    assert kind("ddp-groups").presets["ddp-groups-snr"] == kind("ddp").presets["ddp-snr"]  # the old names
     assert [m.key for m in EXPERIMENTS["snr"].metrics] == ["within100", "range_ospa"]
 
 

@@ -84,7 +84,7 @@ def test_experiment_command_writes_outputs(tmp_path):
     assert res.exit_code == 0, res.output
     assert "| -3 dB | DPY-STP | 1 |" in res.output and "params paper" in res.output
     assert {p.name for p in out.iterdir()} >= {"summary.md", "summary.csv", "cardinality.png", "ospa.png",
-                                               "xy.png", "dpyp-groups-run0.rrd", "ddp-mb-run0.rrd"}
+                                               "xy.png", "dpyp-run0.rrd", "ddp-mb-run0.rrd"}
     bad = CliRunner().invoke(main, ["experiment", "nope"])
     assert bad.exit_code == 2 and "nope" in bad.output
 
@@ -94,11 +94,11 @@ def test_random_experiment_draws_a_scene_per_run_and_scores_crossings():
 
     jobs = [RunJob("random", 5, i, "vo2017", Variant("default")) for i in range(2)]
     (exp, sc0, p0, s0), (_, sc1, _, s1) = (_run_setup(j) for j in jobs)
-    assert [t.name for t in exp.trackers] == ["ddp", "dpyp", "glmb"]
+    assert [t.name for t in exp.trackers] == ["ddp-mb", "dpyp-mb", "glmb"]
     assert sc0.seed == s0 and sc1.seed == s1 and sc0 != sc1  # each run its own scene
     assert p0.birth == [] and len(sc0.crossings) == 3
     res = execute_run(jobs[0])
-    assert set(res.trackers) == {"DDP-EMM", "DPY-STP", "GLMB"}
+    assert set(res.trackers) == {"DDP-EMM (mb)", "DPY-STP (mb)", "GLMB"}
     assert res.n_true.tolist() == sc0.cardinality().tolist()
     for tr in res.trackers.values():
         assert tr.crossings_kept.shape == (3,) and tr.crossings_kept.dtype == bool
@@ -106,10 +106,10 @@ def test_random_experiment_draws_a_scene_per_run_and_scores_crossings():
     res2 = execute_run(jobs[1])
     res.trackers["GLMB"].crossings_kept = np.array([True, True, False])
     res2.trackers["GLMB"].crossings_kept = np.array([True, True, False])
-    res2.trackers["DDP-EMM"].crossings_kept = np.array([True, False, False])
+    res2.trackers["DDP-EMM (mb)"].crossings_kept = np.array([True, False, False])
     rows = {r["tracker"]: r for r in summary_rows([res, res2])}
     assert rows["GLMB"]["crossings_kept"] == pytest.approx(4 / 6)
     assert rows["GLMB"]["crossings_kept_std"] == 0.0 and rows["GLMB"]["crossing_pairs"] == 6
-    k0 = res.trackers["DDP-EMM"].crossings_kept.mean()
-    assert rows["DDP-EMM"]["crossings_kept"] == pytest.approx((k0 * 3 + 1) / 6)
+    k0 = res.trackers["DDP-EMM (mb)"].crossings_kept.mean()
+    assert rows["DDP-EMM (mb)"]["crossings_kept"] == pytest.approx((k0 * 3 + 1) / 6)
     assert "crossings_kept" not in summary_rows([execute_run(JOBS[0])])[0]

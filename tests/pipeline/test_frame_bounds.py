@@ -81,7 +81,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
     out = tmp_path / "out.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
-                          "--set", "sweeps=8", "--set", "burn_in=2"],
+                          "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"],
                          capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 2
     assert res.stderr.splitlines() == [
@@ -94,7 +94,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
         for f in frames[:12]:
             w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=f.frame + 1490))
     args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
-            "--set", "sweeps=8", "--set", "burn_in=2"]
+            "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"]
     res = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 2 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
     res = subprocess.run(args + ["--max-frame-gap", "1491"], capture_output=True, text=True, timeout=300, env=env)

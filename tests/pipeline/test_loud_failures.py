@@ -38,7 +38,7 @@ def _user_log(path, heading, send_pose, relative=True, seed=0):
 
 
 def _track(log, *extra):
-    return CliRunner().invoke(main, ["track", str(log), "--tracker", "ddp", "--out", str(log) + ".out.mcap", *extra])
+    return CliRunner().invoke(main, ["track", str(log), "--tracker", "ddp-mb", "--out", str(log) + ".out.mcap", *extra])
 
 
 def test_foreign_log_with_pose_and_r_tracks_its_objects(tmp_path):

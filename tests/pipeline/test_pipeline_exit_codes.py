@@ -120,7 +120,7 @@ def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
     out = tmp_path / "r"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     res = subprocess.run([sys.executable, "-m", "bnptrack", "replay", str(log), "--as-fast-as-possible",
-                          "--set", "sweeps=8", "--set", "burn_in=2", "--set", "sink.rerun=false",
+                          "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2", "--set", "sink.rerun=false",
                           "--out", str(out), "--timeout", "150", "-q"],
                          capture_output=True, text=True, timeout=200, env=env)
     assert res.returncode == 3, res.stderr
@@ -146,7 +146,7 @@ def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
     def launch(*extra, run="first"):
         return subprocess.run([sys.executable, "-m", "bnptrack", "launch", "--out", str(out), "--run", run,
                                "-q", "--set", "source.frames=3", "--set", "sink.rerun=false",
-                               "--set", "tracker.overrides=['sweeps=8', 'burn_in=2']", "--timeout", "150",
+                               "--set", "tracker.tracker=ddp-mb", "--set", "tracker.overrides=['sweeps=8', 'burn_in=2']", "--timeout", "150",
                                *extra], capture_output=True, text=True, timeout=200, env=env)
 
     assert launch().returncode == 0

@@ -130,7 +130,7 @@ def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     ``track LOG`` runs with the same ``--set`` items: the same /tracks (first 6 frames)."""
     from bnptrack.sources.mcap_log import iter_tracks
 
-    sets = ["--set", "p_detect=0.9", "--set", "sweeps=8", "--set", "tracker.burn_in=2"]
+    sets = ["--tracker", "ddp-mb", "--set", "p_detect=0.9", "--set", "sweeps=8", "--set", "tracker.burn_in=2"]
     off = tmp_path / "off.mcap"
     res = bnptrack("track", vo_log, *sets, "--out", off, "-q")
     assert res.returncode == 0, res.stderr

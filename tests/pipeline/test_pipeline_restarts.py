@@ -123,7 +123,7 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
     s = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
     meta, frames = source_frames(cfg)
-    tracker = tracker_setup("ddp", overrides=cfg.tracker.overrides, metadata=meta).tracker
+    tracker = tracker_setup("ddp-mb", overrides=cfg.tracker.overrides, metadata=meta).tracker
     ests = [e for _, e, _ in run_offline(tracker, list(frames), 0)]
 
     def strip(e):

@@ -265,7 +265,7 @@ def test_memory_pipeline_equals_offline(tmp_path):
     assert all(np.array_equal(a.z, b.z) for a, b in zip(log.frames, frames))
     assert all(np.array_equal(a.truth.states, b.truth.states) for a, b in zip(log.frames, frames))
     assert [_strip(e) for e in log.tracks] == [_strip(e) for e in ests]
-    assert log.metadata["tracker"] == "ddp" and log.metadata["run"] == "mem"
+    assert log.metadata["tracker"] == "ddp-mb" and log.metadata["run"] == "mem"
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert summary["complete"] and summary["frames_written"] == 12
     snap = read_snapshot(Path(cfg.out) / "tracker.snap")
@@ -769,10 +769,10 @@ def test_memory_pipeline_keeps_the_prior_of_an_earlier_run_only_if_asked(tmp_pat
     from bnptrack.pipeline.stages import source_frames
 
     meta, _ = source_frames(first)
-    tracker = tracker_setup("ddp", overrides=first.tracker.overrides, metadata=meta).tracker
+    tracker = tracker_setup("ddp-mb", overrides=first.tracker.overrides, metadata=meta).tracker
     offline_first = list(run(tracker, frames, 0))
     final = offline_first[-1][2]
-    start = keep_prior(tracker.initial_state(), snap, "ddp")
+    start = keep_prior(tracker.initial_state(), snap, "ddp-mb")
     assert start.n_clusters == 0 and start.frame == -1
     for f in PRIOR_FIELDS:
         assert np.array_equal(getattr(start, f), getattr(final, f))  # the snapshot is the final state

@@ -108,7 +108,7 @@ def test_memory_pipeline_with_source_topics_equals_track_topic(foreign_log, tmp_
     cfg = _mcap_cfg(tmp_path, foreign_log, MAPPING)
     assert run_memory_pipeline(cfg, MemoryNetwork()) == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
     off = tmp_path / "track.mcap"
-    res = CliRunner().invoke(main, ["track", str(foreign_log), *TOPIC_ARGS, "--set", "sweeps=8",
+    res = CliRunner().invoke(main, ["track", str(foreign_log), *TOPIC_ARGS, "--tracker", "ddp-mb", "--set", "sweeps=8",
                                     "--set", "burn_in=2", "--out", str(off), "-q"])
     assert res.exit_code == 0, res.output
     got, want = read_log(Path(cfg.out) / "tracks.mcap"), read_log(off)

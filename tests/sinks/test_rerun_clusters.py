@@ -26,7 +26,7 @@ from bnptrack.tracker.state import run  # noqa: E402
 
 N = 40
 SCENE = ("n_objects=1", "group_sizes=[3,3]", "passing_pairs=0", f"K={N}", f"life_min={N}")
-META = {"scenario": "groups", "params": "vo2017", "tracker": "ddp-groups", "seed": "101"}
+META = {"scenario": "groups", "params": "vo2017", "tracker": "ddp", "seed": "101"}
 RESERVED = [c[:3] for c in (SENSOR_COLOR, GREY_TRUTH, GREY_CLUTTER, WHITE_UNASSIGNED)]
 
 
@@ -35,7 +35,7 @@ def groups_run(tmp_path_factory):
     sc = get_scenario("groups", 101, scene=SCENE)
     params = sc.adapt_params(load_params("vo2017"))
     frames = simulate_all(sc, params, 101)[:N]
-    estimates = [e for _f, e, _s in run(build("ddp-groups", params), frames, 0)]
+    estimates = [e for _f, e, _s in run(build("ddp", params), frames, 0)]
     path = tmp_path_factory.mktemp("rrd") / "groups.rrd"
     write_recording(path, frames, estimates, META, params=params)
     return frames, estimates, path, read_rrd(path)
@@ -129,8 +129,8 @@ def test_groups_recording_draws_cluster_links_and_the_structure_series(groups_ru
 def test_a_single_level_recording_has_label_colours_and_no_clusters(tmp_path):
     params = load_params("vo2017")
     frames = simulate_all(get_scenario("vo2017"), params, 1)[:15]
-    estimates = [e for _f, e, _s in run(build("ddp", params), frames, 0)]
-    path = tmp_path / "ddp.rrd"
+    estimates = [e for _f, e, _s in run(build("ddp-mb", params), frames, 0)]
+    path = tmp_path / "ddp-mb.rrd"
     write_recording(path, frames, estimates, META, params=params)
     contents = read_rrd(path)
     assert "/world/clusters" not in contents

@@ -97,7 +97,7 @@ def frames_in(path: Path) -> set[int]:
 def vo_run():
     params = load_params("vo2017")
     frames = simulate_all(get_scenario("vo2017"), params, 1)[:N_FRAMES]
-    tracker = make_tracker("ddp", params)
+    tracker = make_tracker("ddp-mb", params)
     estimates = [est for _f, est, _s in run(tracker, frames, 0)]
     return params, frames, estimates
 
@@ -403,7 +403,7 @@ def test_range_only_measurements_are_rings(tmp_path):
     scenario = get_scenario("snr")
     params = scenario.adapt_params(params)
     frames = simulate_all(scenario, params, 1)[:8]
-    estimates = [e for _f, e, _s in run(make_tracker("ddp", params), frames, 0)]
+    estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames, 0)]
     path = tmp_path / "snr.rrd"
     write_recording(path, frames, estimates, {"scenario": "snr"}, params=params)
     assert rrd_verify(path).returncode == 0

@@ -130,7 +130,7 @@ def test_make_sink_from_a_table_entry_and_unknown_names(tmp_path):
 def vo_run():
     params = load_params("vo2017")
     frames = simulate_all(get_scenario("vo2017"), params, 1)[:N_FRAMES]
-    estimates = [est for _f, est, _s in run(make_tracker("ddp", params), frames, 0)]
+    estimates = [est for _f, est, _s in run(make_tracker("ddp-mb", params), frames, 0)]
     return params, frames, estimates
 
 

@@ -90,11 +90,11 @@ def test_track_records_to_a_sink_added_by_one_table_entry(csv_entry, tmp_path):
     log, out = tmp_path / "vo.mcap", tmp_path / "vo-ddp.tracks.mcap"
     res = invoke("simulate", "--scenario", "vo2017", "--params", "vo2017", "--seed", 1, "--out", log)
     assert res.exit_code == 0, res.output
-    res = invoke("track", log, "--tracker", "ddp", "--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2",
+    res = invoke("track", log, "--tracker", "ddp-mb", "--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2",
                  "--out", out, "--sink", "csv", "-q")
     assert res.exit_code == 0, res.output
     first, rows = read_rows(out.with_suffix(".csv"))  # next to --out, with the entry's suffix
-    assert first == "# tracker=ddp" and read_metadata(out)["tracker"] == "ddp"
+    assert first == "# tracker=ddp-mb" and read_metadata(out)["tracker"] == "ddp-mb"
     want = expected_rows(out)
     assert rows == want
     assert len({r[0] for r in rows}) > 50  # the frames with tracks, of 100 (vo2017)
@@ -144,13 +144,13 @@ def run_memory_pipeline(cfg: PipelineConfig, timeout: float = 120.0) -> dict[str
 
 
 def test_sink_stage_records_to_a_sink_added_by_one_table_entry(csv_entry, tmp_path):
-    overrides = ["source.frames=12", "tracker.overrides=['sweeps=8', 'burn_in=2']", "sink.rerun=false",
+    overrides = ["source.frames=12", "tracker.tracker=ddp-mb", "tracker.overrides=['sweeps=8', 'burn_in=2']", "sink.rerun=false",
                  "sink.outputs=['csv']", "delivery.eos_grace_s=0.3", "supervisor.linger_s=0.5"]
     cfg = resolve_run(apply_pipeline_overrides(PipelineConfig(run="csv", out=str(tmp_path / "out")), overrides))
     assert run_memory_pipeline(cfg) == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
     out = Path(cfg.out)
     first, rows = read_rows(out / "tracks.csv")
-    assert first == "# tracker=ddp"
+    assert first == "# tracker=ddp-mb"
     assert rows == expected_rows(out / "tracks.mcap")
     assert len({r[0] for r in rows}) >= 6 and len({r[2] for r in rows}) >= 2  # frames, labels
     summary = json.loads((out / SUMMARY_NAME).read_text())

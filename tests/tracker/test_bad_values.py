@@ -35,7 +35,7 @@ def test_frame_message_is_one_line_and_counts_rows():
 
 def test_step_rejects_a_frame_edited_in_place(vo_params, vo_frames):
     """Frame.z is a plain array: a NaN written after construction is caught by step itself."""
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     *_, (_, _, state) = run(tr, vo_frames[:5], 1)
     f = vo_frames[5]
     bad = Frame(f.frame, f.stamp_ns, f.sensor, f.kind, f.z.copy())

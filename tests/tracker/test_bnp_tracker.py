@@ -19,7 +19,7 @@ from bnptrack.tracker.types import Frame, Truth
 
 
 def test_same_seed_same_output(vo_params, vo_frames, estimates_equal):
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     a = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     b = [e for _, e, _ in run(tr, vo_frames[:25], 7)]
     assert all(estimates_equal(x, y) for x, y in zip(a, b))
@@ -27,8 +27,8 @@ def test_same_seed_same_output(vo_params, vo_frames, estimates_equal):
 
 def test_dpy_with_zero_discount_equals_ddp_draw_for_draw(vo_params, vo_frames, estimates_equal):
     """DPY-STP with d = 0 (not inferred) is DDP-EMM: identical estimates and states."""
-    ddp = make_tracker("ddp", vo_params)
-    dpy = make_tracker("dpyp", vo_params, msgspec.structs.replace(TRACKER_PRESETS["dpyp"], d=0.0, infer_d=False))
+    ddp = make_tracker("ddp-mb", vo_params)
+    dpy = make_tracker("dpyp-mb", vo_params, msgspec.structs.replace(TRACKER_PRESETS["dpyp-mb"], d=0.0, infer_d=False))
     assert dpy.config != ddp.config or dpy.name != ddp.name
     for (_, ea, sa), (_, eb, sb) in zip(run(ddp, vo_frames[:40], 3), run(dpy, vo_frames[:40], 3)):
         assert estimates_equal(ea, eb)
@@ -37,12 +37,12 @@ def test_dpy_with_zero_discount_equals_ddp_draw_for_draw(vo_params, vo_frames, e
 
 
 def test_dpy_infers_discount(vo_params, vo_frames):
-    tr = make_tracker("dpyp", vo_params)
+    tr = make_tracker("dpyp-mb", vo_params)
     ds = [st.d for _, _, st in run(tr, vo_frames[:40], 3)]
     assert len(set(ds)) > 1 and all(0.0 <= d < 1.0 for d in ds)
 
 
-@pytest.mark.parametrize("name", ["ddp", "dpyp"])
+@pytest.mark.parametrize("name", ["ddp-mb", "dpyp-mb"])
 def test_snapshot_restore_mid_stream_is_identical(vo_params, vo_frames, name, estimates_equal):
     tr = make_tracker(name, vo_params)
     full = [e for _, e, _ in run(tr, vo_frames[:40], 11)]
@@ -61,7 +61,7 @@ def test_restore_rejects_foreign_snapshot():
 
 
 def test_estimate_structure(vo_params, vo_frames):
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     for f, e, st in run(tr, vo_frames[:30], 2):
         assert len(e.assignments) == f.n_measurements == len(e.assignment_prob)
         assert all(0.0 <= p <= 1.0 for p in e.assignment_prob)
@@ -89,7 +89,7 @@ def test_birth_and_death_of_a_single_object(vo_params):
         z = meas.sample(rng, tr_k.states[:1]) if present else np.zeros((0, 2))
         frames.append(Frame(k, k * 10**9, "t", "bearing_range", z,
                             Truth(tr_k.ids[:1], tr_k.states[:1]) if present else Truth((), np.zeros((0, 5)))))
-    tracker = make_tracker("ddp", params)
+    tracker = make_tracker("ddp-mb", params)
     counts = [len(e.tracks) for _, e, _ in run(tracker, frames, 1)]
     assert counts[:4] == [0, 0, 0, 0]
     assert all(c == 1 for c in counts[6:25]), counts
@@ -99,7 +99,7 @@ def test_birth_and_death_of_a_single_object(vo_params):
 
 
 def test_gap_in_frames_predicts_through(vo_params, vo_frames):
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     frames = vo_frames[:30] + vo_frames[32:50]  # frames 31 and 32 missing
     last = None
     for f, e, st in run(tr, frames, 4):
@@ -109,7 +109,7 @@ def test_gap_in_frames_predicts_through(vo_params, vo_frames):
 
 
 def test_rejects_out_of_order_frame(vo_params, vo_frames):
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     st, _ = tr.step(tr.initial_state(), vo_frames[5], np.random.default_rng(0))
     with pytest.raises(ValueError, match="not after"):
         tr.step(st, vo_frames[4], np.random.default_rng(0))
@@ -119,7 +119,7 @@ def test_range_only_frames_run():
     """Range-only frames go through the same step (births on the boresight arc, docs/trackers.md)."""
     params = get_scenario("snr").adapt_params(load_params("vo2017"))
     frames = simulate_all(get_scenario("snr"), params, 1)[:30]
-    tr = make_tracker("ddp", params, TRACKER_PRESETS["ddp-snr"])
+    tr = make_tracker("ddp-mb", params, TRACKER_PRESETS["ddp-mb-snr"])
     for f, e, st in run(tr, frames, 1):
         assert len(e.assignments) == f.n_measurements
         assert st.mean.shape == (st.n_clusters, 5) and np.all(np.isfinite(st.mean))
@@ -138,7 +138,7 @@ def test_range_only_tracks_the_cardinality():
     seeds 1-12 mean 1.112 against 1.088 before (measured with both trees), so the bound on
     the worst seed is 2.4 (was 2.0)."""
     params = get_scenario("snr").adapt_params(load_params("vo2017"))
-    tr = make_tracker("ddp", params, TRACKER_PRESETS["ddp-snr"])
+    tr = make_tracker("ddp-mb", params, TRACKER_PRESETS["ddp-mb-snr"])
     errs, late = [], []
     for seed in (1, 2, 3):
         frames = simulate_all(get_scenario("snr"), params, seed)
@@ -180,7 +180,7 @@ def matched_labels(frames, ests, gate=100.0):
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_vo2017_accuracy(vo_params, seed):
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     ests = [e for _, e, _ in run(tr, frames, seed)]
     o = np.mean([ospa(f.truth.positions, e.positions, 100.0, 1.0).total for f, e in zip(frames, ests)])
     card = np.mean([abs(len(e.tracks) - len(f.truth.ids)) for f, e in zip(frames, ests)])
@@ -226,7 +226,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)[:22]
     worst = {}
     for update in ("best-permutation", "mixture"):
-        tr = make_tracker("ddp", vo_params, BnpConfig(state_update=update))
+        tr = make_tracker("ddp-mb", vo_params, BnpConfig(state_update=update))
         st = tr.initial_state()
         for f in frames:
             st, _ = tr.step(st, f, tracker_frame_rng(seed, f.frame))
@@ -293,14 +293,14 @@ def test_merge_never_joins_two_objects_that_both_exist():
 def test_step_reports_the_gibbs_convergence_diagnostic(vo_params, vo_frames):
     """diagnostics["rhat_max"] (split-chain R-hat over two chains) and ["swap_accept"] each frame;
     vo2017 seeds 1-5 (docs/trackers.md): R-hat above 1.1 on 1.8 % of frames, acceptance 0.10."""
-    tr = make_tracker("ddp", vo_params)
+    tr = make_tracker("ddp-mb", vo_params)
     d = [e.diagnostics for _, e, _ in run(tr, vo_frames[:60], 1)]
     rhat = np.array([x["rhat_max"] for x in d])
     acc = np.array([x["swap_accept"] for x in d])
     assert np.all(np.isfinite(rhat)) and np.all((rhat > 0) & (rhat <= 1000))
     assert np.mean(rhat > 1.1) < 0.1 and np.median(rhat) == pytest.approx(1.0, abs=0.05)
     assert np.all((acc >= 0) & (acc <= 1)) and 0.02 < acc[acc > 0].mean() < 0.5
-    old = make_tracker("ddp", vo_params, msgspec.structs.replace(TRACKER_PRESETS["ddp"], swap_moves=False))
+    old = make_tracker("ddp-mb", vo_params, msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], swap_moves=False))
     stuck = np.array([e.diagnostics["rhat_max"] for _, e, _ in run(old, vo_frames[:60], 1)])
     assert np.mean(stuck > 1.5) > 0.1  # single-site chains from the two starts often never meet
 
@@ -313,7 +313,7 @@ def test_births_survive_dense_clutter():
     24, 36 and 43, seed 1)."""
     params = load_params("vo2017", ["clutter_rate=150"])
     frames = simulate_all(get_scenario("vo2017"), params, 1)[:50]
-    tr = make_tracker("ddp", params, BnpConfig())
+    tr = make_tracker("ddp-mb", params, BnpConfig())
     found: dict[str, int] = {}
     p_birth = []
     for f, e, _ in run(tr, frames, 1):
@@ -339,7 +339,7 @@ def test_lagged_birth_count_estimates_the_birth_rate(seed):
     rate = len(sc.ids) / sc.K
     mean_alpha = {}
     for lag in (4, 0):
-        tr = make_tracker("ddp", params, BnpConfig(birth_lag=lag))
+        tr = make_tracker("ddp-mb", params, BnpConfig(birth_lag=lag))
         mean_alpha[lag] = np.mean([e.diagnostics["alpha"] for _, e, _ in run(tr, frames, 1)][30:])
     assert 0.5 * rate < mean_alpha[4] < 2.0 * rate, (rate, mean_alpha)
     assert mean_alpha[0] < 0.4 * rate, (rate, mean_alpha)

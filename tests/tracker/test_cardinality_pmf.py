@@ -85,7 +85,7 @@ def vo_first12():
     return params, simulate_all(get_scenario("vo2017"), params, 1)[:12]
 
 
-@pytest.mark.parametrize("name", ["ddp", "dpyp", "glmb"])
+@pytest.mark.parametrize("name", ["ddp-mb", "dpyp-mb", "glmb"])
 def test_every_tracker_reports_its_posterior_cardinality(vo_first12, name):
     params, frames = vo_first12
     tracker = build(name, params)
@@ -106,7 +106,7 @@ def test_the_two_level_tracker_reports_the_cardinality_of_its_merged_objects():
     sc = get_scenario("groups", 101, scene=("n_objects=1", "group_sizes=[3]", "passing_pairs=0", "K=30", "life_min=30"))
     params = sc.adapt_params(load_params("vo2017"))
     frames = simulate_all(sc, params, 101)[:15]
-    for _f, est, state in run(build("ddp-groups", params), frames, 0):
+    for _f, est, state in run(build("ddp", params), frames, 0):
         np.testing.assert_array_equal(est.cardinality_pmf, existence_cardinality(state.existence))
     assert any(t.cluster is not None for t in est.tracks)
 

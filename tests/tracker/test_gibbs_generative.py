@@ -94,7 +94,7 @@ def marginals(configs, weights, N, M):
 def setup(d):
     params = msgspec.structs.replace(load_params("vo2017"), p_survival=1.0, p_detect=PD, range_clutter_rate=LAM_C,
                                      range_max=RANGE_MAX, birth=[])
-    tr = make_tracker("dpyp" if d else "ddp", params, msgspec.structs.replace(TRACKER_PRESETS["ddp"], d=d))
+    tr = make_tracker("dpyp-mb" if d else "ddp-mb", params, msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], d=d))
     mean = np.array([[0.0, 0.0, 800.0, 0.0, 0.0], [0.0, 0.0, 835.0, 0.0, 0.0]])
     cov = np.tile(np.diag([100.0, 4.0, 100.0, 4.0, 1e-6]), (2, 1, 1))
     state = BnpState(0, 0, ("a", "b"), mean, cov, np.ones(2), np.array([1.0, 2.5]), 0.4, d)

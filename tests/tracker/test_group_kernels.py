@@ -403,7 +403,7 @@ def _hyper_reference(tr: GroupTracker, hist: tuple):
 
 # -- the history's (alpha_2, d): a repeated history reuses its result -----------------------------
 
-@pytest.mark.parametrize("name", ["ddp-groups", "dpyp-groups"])
+@pytest.mark.parametrize("name", ["ddp", "dpyp"])
 def test_history_memo_equals_fresh_computation(name: str) -> None:
     tr = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)
     fresh = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)

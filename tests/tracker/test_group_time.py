@@ -16,7 +16,7 @@ def _frame(k: int, stamp_ns: int) -> Frame:
 
 
 def test_scan_periods_come_from_the_stamps():
-    tr = make_tracker("ddp-groups", params="vo2017")  # T = 1 s
+    tr = make_tracker("ddp", params="vo2017")  # T = 1 s
     state = replace(tr.initial_state(), frame=3, stamp_ns=3_000_000_000)
     assert tr.periods_since(state, _frame(5, 4_500_000_000)) == 1.5  # 1.5 s later, two frame numbers on
     assert tr.periods_since(state, _frame(4, 6_000_000_000)) == 3.0  # a gap without a dropped number

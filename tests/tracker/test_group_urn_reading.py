@@ -51,10 +51,10 @@ def test_h2_birth_is_the_object_levels_base_distribution() -> None:
     import msgspec
 
     params = load_params("vo2017")
-    cfg = msgspec.structs.replace(GROUP_PRESETS["ddp-groups"], h2="birth")
+    cfg = msgspec.structs.replace(GROUP_PRESETS["ddp"], h2="birth")
     tr = GroupTracker(params, cfg)
     np.testing.assert_allclose(tr.h_cov, cfg.objects.birth_velocity_std**2 * np.eye(2))
     np.testing.assert_allclose(tr.h_pos[0], fov_moments(params.detection())[0])
-    vague = GroupTracker(params, msgspec.structs.replace(GROUP_PRESETS["ddp-groups"], h2="vague"))
+    vague = GroupTracker(params, msgspec.structs.replace(GROUP_PRESETS["ddp"], h2="vague"))
     np.testing.assert_allclose(vague.h_cov, 30.0**2 * np.eye(2))
     np.testing.assert_allclose(vague.h_pos[1], 2000.0**2 * np.eye(2))

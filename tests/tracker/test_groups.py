@@ -102,16 +102,16 @@ def _convoy(seed: int = 101):
 def test_registry_names():
     params = load_params("vo2017")
     mb = build("ddp-mb", params)
-    assert isinstance(mb, BnpTracker) and mb.name == "ddp-mb" and mb.config == TRACKER_PRESETS["ddp"]
-    assert build("dpyp-mb", params).config == TRACKER_PRESETS["dpyp"]
-    g = build("ddp-groups", params)
+    assert isinstance(mb, BnpTracker) and mb.name == "ddp-mb" and mb.config == TRACKER_PRESETS["ddp-mb"]
+    assert build("dpyp-mb", params).config == TRACKER_PRESETS["dpyp-mb"]
+    g = build("ddp", params)
     assert isinstance(g, GroupTracker) and g.config.d == 0.0 and not g.config.infer_d
-    assert build("dpyp-groups", params).config.infer_d
+    assert build("dpyp", params).config.infer_d
 
 
 def test_snapshot_round_trip_and_determinism():
     _, params, frames = _convoy()
-    tr = build("ddp-groups", params)
+    tr = build("ddp", params)
     states, ests = [], []
     for _, e, s in run(tr, frames[:40], seed=7):
         states.append(s)
@@ -146,7 +146,7 @@ def test_sharing_reduces_velocity_error_on_a_clean_convoy():
     params = apply_overrides(params, ["clutter_rate=2.0"])
     frames = simulate_all(sc, params, 101)
     # the default S_w (25 m/s, robust to wrong groups) and a tight one (3 m/s, fits a clean convoy)
-    cfg = build("ddp-groups", params).config
+    cfg = build("ddp", params).config
     alone = _velocity_error(params, frames, apply_overrides(cfg, ["sharing=false"]))
     shared = _velocity_error(params, frames, cfg)
     tight = _velocity_error(params, frames, apply_overrides(cfg, ["within_std=3.0", "share_inflation_std=0"]))
@@ -157,7 +157,7 @@ def test_sharing_reduces_velocity_error_on_a_clean_convoy():
 def test_tracks_carry_their_cluster_and_convoys_group():
     sc, params, frames = _convoy()
     group_of = {i: k for k, g in enumerate(sc.groups) for i in g}
-    tr = build("ddp-groups", params)
+    tr = build("ddp", params)
     est = [e for _, e, _ in run(tr, frames, seed=3)]
     last = est[-1]
     member = tr.config.member_existence

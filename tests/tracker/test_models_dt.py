@@ -140,7 +140,7 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
     from bnptrack.tracker.bnp import BnpConfig, BnpState, make_tracker
 
     p = load_params("vo2017")
-    tr = make_tracker("ddp", p, BnpConfig(filter=filt))
+    tr = make_tracker("ddp-mb", p, BnpConfig(filter=filt))
     x = np.array([100.0, 8.0, 900.0, -5.0, np.deg2rad(turn_deg)])
     P = np.diag([50.0, 4.0, 60.0, 3.0, 1e-4])
     st = BnpState(5, 5_000_000_000, ("1.0",), x[None], P[None], np.array([0.9]), np.ones(1))
@@ -154,7 +154,7 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
     assert np.all(np.abs(once.cov[0] - twice.cov[0]) <= tol * scale)
     assert once.q[0] == pytest.approx(twice.q[0], rel=1e-12)
     # the old rule (the paper's formula at dt) adds twice the velocity variance of two scans
-    old = make_tracker("ddp", load_params("vo2017", ["process_noise_dt='dwna'"]), BnpConfig(filter=filt))
+    old = make_tracker("ddp-mb", load_params("vo2017", ["process_noise_dt='dwna'"]), BnpConfig(filter=filt))
     assert old._predict(st, 2.0, "bearing_range").cov[0, 1, 1] > twice.cov[0, 1, 1] + 40.0
 
 
@@ -163,7 +163,7 @@ def test_bnp_hyperparameter_forgetting_is_per_scan_period():
     without clusters (nothing else depends on dt) frames 1 s and 2 s later differ only there."""
     from bnptrack.tracker.bnp import BnpState, make_tracker
 
-    tr = make_tracker("ddp", load_params("vo2017"))
+    tr = make_tracker("ddp-mb", load_params("vo2017"))
     grid = tr.initial_state().hyper_loglik
     h0 = -np.arange(grid.size, dtype=float).reshape(grid.shape) / 7.0
     st = BnpState(4, 4_000_000_000, alpha=0.1, hyper_loglik=h0)

@@ -130,7 +130,7 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
     """The cap is a memory guard (default 100000); when it bites, the step says so."""
     assert BnpConfig().max_clusters == 100_000
     params = load_params("vo2017")
-    tr = make_tracker("ddp", params, BnpConfig(max_clusters=3))
+    tr = make_tracker("ddp-mb", params, BnpConfig(max_clusters=3))
     from bnptrack.tracker.state import tracker_frame_rng
     from bnptrack.tracker.types import Frame
 

@@ -156,7 +156,7 @@ def _posed_frames(n_frames, kind, pose, sigma_xy=10.0):
 
 
 def _mean_ospa(params, frames):
-    tr = make_tracker("ddp", params)
+    tr = make_tracker("ddp-mb", params)
     d = []
     for f, est, _ in run(tr, frames, seed=2):
         d.append(ospa(f.truth.positions, est.positions).total)
@@ -201,7 +201,7 @@ def test_two_sensors_interleaved_share_one_state():
     assert [f.kind for f in frames[:2]] == ["bearing_range", "xy"] and frames[1].pose[0] == -1000.0
     assert frames[0].stamp_ns == frames[1].stamp_ns and [f.frame for f in frames[:3]] == [1, 2, 3]
     pa = apply_overrides(sc.adapt_params(p), ["birth=[]", "birth_rate=0.1"])  # regions are radar-centred
-    tr = make_tracker("ddp", pa)
+    tr = make_tracker("ddp-mb", pa)
     labels_by_sensor = {"radar": set(), "cam": set()}
     d = []
     for f, est, _ in run(tr, frames, seed=2):

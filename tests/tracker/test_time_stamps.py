@@ -65,7 +65,7 @@ def _ct_jacobian_numeric(x, dt, sa, st, eps=1e-6):
 @pytest.mark.parametrize("stamp_s, frame_no", [(5.0 + 0.63, 6), (7.0, 7), (7.5, 7)])  # irregular; dropped
 def test_bnp_predicts_once_over_dt(stamp_s, frame_no, mode):
     p = load_params("vo2017", [f"process_noise_dt='{mode}'"])
-    tr = make_tracker("ddp", p, BnpConfig(filter="ekf"))
+    tr = make_tracker("ddp-mb", p, BnpConfig(filter="ekf"))
     x = np.array([100.0, 8.0, 900.0, -5.0, np.deg2rad(3.0)])
     P = np.diag([50.0, 4.0, 60.0, 3.0, 1e-4])
     st = BnpState(5, 5 * S, ("1.0",), x[None], P[None], np.array([0.9]), np.ones(1))
@@ -93,7 +93,7 @@ def test_glmb_predicts_once_over_dt():
     assert np.exp(c.log_e[0]) == pytest.approx(p.p_survival**1.4, rel=1e-12)
 
 
-@pytest.mark.parametrize("make", [lambda p: make_tracker("ddp", p), lambda p: make_glmb(p)])
+@pytest.mark.parametrize("make", [lambda p: make_tracker("ddp-mb", p), lambda p: make_glmb(p)])
 def test_stamp_going_back_is_rejected(make):
     p = load_params("vo2017")
     tr = make(p)

@@ -93,16 +93,19 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             raise ValueError(f"burn_in ({self.burn_in}) must be smaller than sweeps ({self.sweeps})")
 
 
+#: The single-level trackers' presets (``--tracker ddp-mb`` / ``dpyp-mb``; before session 8
+#: these were ``ddp``, ``dpyp``, ``ddp-proximity``, ``ddp-snr``: those names now select the
+#: two-level tracker's presets, :data:`tracker.bnp.groups.GROUP_PRESETS`).
 TRACKER_PRESETS: dict[str, BnpConfig] = {
     # Experiment 1 (DDP-EMM vs GLMB): alpha ~ Gamma(1, 0.1).
-    "ddp": BnpConfig(),
+    "ddp-mb": BnpConfig(),
     # Experiments 4-5 (DPY-STP): alpha and d ~ Gamma(1, 0.1), both inferred.
-    "dpyp": BnpConfig(d=0.1, infer_d=True),
+    "dpyp-mb": BnpConfig(d=0.1, infer_d=True),
     # Experiment 2 (close proximity): alpha ~ Gamma(1, 0.3).
-    "ddp-proximity": BnpConfig(alpha_scale=0.3),
+    "ddp-mb-proximity": BnpConfig(alpha_scale=0.3),
     # Experiment 3 (varying SNR): alpha ~ Gamma(1, 0.2).  Range-only tracks cannot be localised
     # (position is known up to a rotation about the sensor), so they keep losing their
     # measurements to new clusters; counting the current sample's new clusters (birth_lag = 0)
     # keeps alpha high enough to re-open them (docs/trackers.md, "Births").
-    "ddp-snr": BnpConfig(alpha_scale=0.2, birth_lag=0),
+    "ddp-mb-snr": BnpConfig(alpha_scale=0.2, birth_lag=0),
 }

@@ -62,11 +62,12 @@ class _Prediction:
 
 @dataclass(frozen=True)
 class BnpTracker:
-    """DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
+    """Single-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker
+    (``ddp-mb`` / ``dpyp-mb``; also the two-level tracker's object level)."""
 
     params: ModelParams
     config: BnpConfig = BnpConfig()
-    name: str = "ddp"
+    name: str = "ddp-mb"
 
     @cached_property
     def motion(self):
@@ -325,7 +326,8 @@ def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndar
 
 
 def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:
-    """Build ``ddp`` (DDP-EMM) or ``dpyp`` (DPY-STP) with its preset unless ``config`` is given."""
-    if name not in ("ddp", "dpyp"):
-        raise ValueError(f"unknown BNP tracker {name!r} (expected 'ddp' or 'dpyp')")
+    """Build the single-level ``ddp-mb`` (DDP-EMM) or ``dpyp-mb`` (DPY-STP) with its preset
+    unless ``config`` is given."""
+    if name not in ("ddp-mb", "dpyp-mb"):
+        raise ValueError(f"unknown BNP tracker {name!r} (single level: expected 'ddp-mb' or 'dpyp-mb')")
     return BnpTracker(params, config if config is not None else TRACKER_PRESETS[name], name)

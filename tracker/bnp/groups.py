@@ -1,4 +1,5 @@
-r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp-groups``, ``dpyp-groups``).
+r"""The paper's two-level DDP: measurements -> objects -> motion clusters (``ddp``, ``dpyp``;
+aliases ``ddp-groups``, ``dpyp-groups``).
 
 :class:`GroupTracker` wraps a :class:`tracker.bnp.filter.BnpTracker` (the measurement ->
 object level: its clusters are objects, its customers measurements; its merge of duplicates is
@@ -148,12 +149,22 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (:mod:`tracker.bnp.group_hyper`)."""
 
 
-GROUP_PRESETS: dict[str, GroupConfig] = {
-    "ddp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"]),
-    "dpyp-groups": GroupConfig(objects=TRACKER_PRESETS["ddp"], d=0.1, infer_d=True),
+_PRESETS: dict[str, GroupConfig] = {
+    "ddp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"]),
+    "dpyp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"], d=0.1, infer_d=True),
     # the experiments' object levels (pipeline/experiments.py): experiment 2's and 3's presets
-    "ddp-groups-proximity": GroupConfig(objects=TRACKER_PRESETS["ddp-proximity"]),
-    "ddp-groups-snr": GroupConfig(objects=TRACKER_PRESETS["ddp-snr"]),
+    "ddp-proximity": GroupConfig(objects=TRACKER_PRESETS["ddp-mb-proximity"]),
+    "ddp-snr": GroupConfig(objects=TRACKER_PRESETS["ddp-mb-snr"]),
+}
+
+#: The two-level trackers' presets (``--tracker ddp`` / ``dpyp``), each also under its name of
+#: sessions 6-7 (``ddp-groups``, ``dpyp-groups``, ``ddp-groups-proximity``, ``ddp-groups-snr``).
+GROUP_PRESETS: dict[str, GroupConfig] = {
+    **_PRESETS,
+    "ddp-groups": _PRESETS["ddp"],
+    "dpyp-groups": _PRESETS["dpyp"],
+    "ddp-groups-proximity": _PRESETS["ddp-proximity"],
+    "ddp-groups-snr": _PRESETS["ddp-snr"],
 }
 
 
@@ -676,7 +687,7 @@ class GroupTracker:
 
     params: ModelParams
     config: GroupConfig = GroupConfig()
-    name: str = "ddp-groups"
+    name: str = "ddp"
 
     @cached_property
     def objects(self) -> BnpTracker:
@@ -937,7 +948,8 @@ class GroupTracker:
 
 
 def make_group_tracker(name: str, params: ModelParams, config: GroupConfig | None = None) -> GroupTracker:
-    """Build ``ddp-groups`` or ``dpyp-groups`` with its preset unless ``config`` is given."""
+    """Build the two-level ``ddp`` or ``dpyp`` (or a name of :data:`GROUP_PRESETS`, e.g. the alias
+    ``ddp-groups``) with its preset unless ``config`` is given."""
     if name not in GROUP_PRESETS:
         raise ValueError(f"unknown two-level tracker {name!r} (expected one of {', '.join(GROUP_PRESETS)})")
     return GroupTracker(params, config if config is not None else GROUP_PRESETS[name], name)
