@@ -186,6 +186,7 @@ class RerunSink:
         self._context_logged = False
         self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
         self._cc = ClusterColours()
+        self._clusters_begun = False  # world/clusters rows start at the first frame with a cluster
 
     # -- public ------------------------------------------------------------------------
     @property
@@ -458,9 +459,15 @@ class RerunSink:
             del self._history[lab]
 
     def _send_clusters(self, frames: list[_Rec]) -> None:
-        """``world/clusters`` of the kept frames, once a frame has had a motion cluster."""
+        """``world/clusters`` of the kept frames from the first frame that had a motion cluster
+        on (the same rows however the frames were batched)."""
         if not self._cc.seen:
             return
+        if not self._clusters_begun:
+            first = next((i for i, r in enumerate(frames) if (r.ccl >= 0).any()), None)
+            if first is None:
+                return
+            frames, self._clusters_begun = frames[first:], True
         if CLUSTERS not in self._styled:
             self._log_arrays(CLUSTERS, cluster_style(), static=True)
             self._styled.add(CLUSTERS)
