@@ -21,7 +21,7 @@ import pyarrow as pa
 from bnptrack.sinks.rerun_style import CARD_POSTERIOR, CLUSTER_COUNT, cluster_color, pack_rgba, unpack_rgba
 from bnptrack.tracker.cardinality import pmf_map, pmf_mean
 
-__all__ = ["ClusterColours", "track_clusters", "cluster_columns", "structure_rows"]
+__all__ = ["ClusterColours", "track_clusters", "cluster_columns", "from_first_cluster", "structure_rows"]
 
 
 def track_clusters(tracks: Sequence[Any]) -> np.ndarray:
@@ -72,6 +72,13 @@ def _frame_links(pos: np.ndarray, cl: np.ndarray, col: np.ndarray) -> tuple[np.n
     keep = big[inv]
     links = np.stack([cent[inv[keep]], pos[m][keep]], axis=1) if keep.any() else np.zeros((0, 2, 2))
     return cent[big], ids[big], cnt[big], ccol[big], links, col[m][keep]
+
+
+def from_first_cluster(rows: Sequence[Any]) -> list:
+    """``rows`` (each with ``ccl``, its tracks' cluster ids, -1: none) from the first one with a
+    cluster on; empty if none has one."""
+    first = next((i for i, r in enumerate(rows) if (np.asarray(r.ccl) >= 0).any()), len(rows))
+    return list(rows[first:])
 
 
 def cluster_columns(schema: Any, rows: Sequence[Any]) -> tuple[list, list]:

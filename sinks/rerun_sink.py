@@ -44,7 +44,7 @@ import rerun as rr
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
 from bnptrack.sinks.close_on_signal import CloseOnSignal
 from bnptrack.sinks.rerun_blueprint import default_blueprint
-from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, structure_rows, track_clusters
+from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_first_cluster, structure_rows, track_clusters
 from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
                                  send, track_colours, track_style)
 from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
@@ -186,7 +186,6 @@ class RerunSink:
         self._context_logged = False
         self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
         self._cc = ClusterColours()
-        self._clusters_begun = False  # world/clusters rows start at the first frame with a cluster
 
     # -- public ------------------------------------------------------------------------
     @property
@@ -459,16 +458,10 @@ class RerunSink:
             del self._history[lab]
 
     def _send_clusters(self, frames: list[_Rec]) -> None:
-        """``world/clusters`` of the kept frames from the first frame that had a motion cluster
-        on (the same rows however the frames were batched)."""
-        if not self._cc.seen:
-            return
-        if not self._clusters_begun:
-            first = next((i for i, r in enumerate(frames) if (r.ccl >= 0).any()), None)
-            if first is None:
-                return
-            frames, self._clusters_begun = frames[first:], True
+        """``world/clusters`` of the kept frames from the first one with a motion cluster (however batched)."""
         if CLUSTERS not in self._styled:
+            if not (frames := from_first_cluster(frames)):
+                return
             self._log_arrays(CLUSTERS, cluster_style(), static=True)
             self._styled.add(CLUSTERS)
         ks, ts = np.array([(r.k, r.t) for r in frames], dtype=np.int64).T
