@@ -244,11 +244,9 @@ distinct_pairs = jit(distinct_pairs)
 
 def _label_arrays(labels: tuple[str, ...], taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`distinct_pairs`' inputs: birth frames, whether dotted, taken measurement (-1: none)."""
-    n = len(labels)
-    birth = np.fromiter(map(birth_frame, labels), dtype=np.int64, count=n)
-    dotted = np.fromiter(("." in lab for lab in labels), dtype=np.bool_, count=n)
-    took = np.fromiter((taken.get(lab, -1) for lab in labels), dtype=np.int64, count=n)
-    return birth, dotted, took
+    rows = np.array([(birth_frame(lab), "." in lab, taken.get(lab, -1)) for lab in labels], dtype=np.int64)
+    rows = rows.reshape(len(labels), 3)
+    return rows[:, 0].copy(), rows[:, 1] != 0, rows[:, 2].copy()
 
 
 def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
