@@ -133,8 +133,10 @@ def pair_status(mean: np.ndarray, cov: np.ndarray, i: int, j: int, max_d2: float
 
     ``d``, ``S`` as :func:`pair_differences`; :math:`d^\top S^{-1} d = \lVert L^{-1} d\rVert^2`
     with ``S = L L'`` (Cholesky).  The value differs from numpy's (``np.linalg.solve`` then
-    ``np.einsum``) in its last bits only, by a relative error below about
-    :math:`8\,\mathrm{cond}(S)\,\epsilon` for both, so a pair is decided here only when
+    ``np.einsum``) in its last bits only: both are backward stable, and for positive definite
+    ``S`` the relative error of the quadratic form is a small multiple (<= 100 at 4x4) of
+    :math:`\mathrm{cond}(S)\,\epsilon` (not its square, since :math:`x^\top S x \ge
+    \lambda_{min} \lVert x\rVert^2`), at most about 1e-7 here; so a pair is decided here only when
     its distance is farther than :data:`_DECIDE_MARGIN` (relative) from ``max_d2`` and
     :math:`\mathrm{cond}(S) \le \mathrm{tr}(S)\,\lVert L^{-1}\rVert_F^2 \le` :data:`_MAX_COND`:
     then numpy's comparison has the same outcome.  Not positive definite, or not finite: 2."""

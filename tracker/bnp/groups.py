@@ -361,7 +361,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
-            Riv[p, l] = Ri[p, l] @ v[p, l]
+            np.dot(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (the same BLAS call), no temporary
     for l in range(L):
         _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
@@ -374,6 +374,9 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     fresh = np.zeros(T, dtype=np.bool_)
     A = np.empty((2, 2))
     r = np.empty(2)
+    Sir = np.empty(2)
+    B = np.empty((2, 2))
+    e = np.empty(2)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
@@ -386,7 +389,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                 if not fresh[t]:
                     for p in range(P):
                         _inv_into(lam[p, t], cov)
-                        t_mu[p, t] = cov @ eta[p, t]
+                        np.dot(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
                         t_cov[p, t] = cov
                     fresh[t] = True
                 for p in range(P):
@@ -395,10 +398,15 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
                     det = _inv_into(A, Si)
-                    logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    np.dot(Si, r, Sir)  # = Si @ r, into a buffer
+                    logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
-                        _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
-                        rec_mu[l, t] = rec_cov[l, t] @ (eta[0, t] - eta0[0, t] + h_eta)
+                        for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
+                            e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
+                            for j in range(2):
+                                B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
+                        _inv_into(B, rec_cov[l, t])
+                        np.dot(rec_cov[l, t], e, rec_mu[l, t])
             w = np.exp(logw - logw.max())
             w /= w.sum()
             c = np.cumsum(w)
