@@ -19,12 +19,15 @@ pairs kept apart:
 
 Every other pair merges as before (squared Mahalanobis distance at most ``max_d2`` on position
 and velocity, summed covariances; existences summing to at most 1).  The pairs that may pass
-are found by a compiled pass (:func:`exclusive_candidates`, a necessary condition), so numpy's
-exact test runs on few pairs; the result is the all-pairs numpy code's, bit for bit
-(``tests/tracker/test_group_kernels.py``).
+are found by one compiled pass (:func:`exclusive_pairs`: :func:`exclusive_candidates`' bound, a
+necessary condition; the exclusion; the exact test by :func:`pair_status` wherever its outcome
+cannot differ from numpy's batched solve, which decides the rest).
+The result is the all-pairs numpy code's, bit for bit (``tests/tracker/test_group_kernels.py``).
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 
@@ -35,8 +38,10 @@ from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
 _ALL_PAIRS = 200
 
 
+@lru_cache(maxsize=8192)
 def birth_frame(label: str) -> int:
-    """Birth frame of a cluster label ``"<frame>.<measurement>"`` (0 if it has none)."""
+    """Birth frame of a cluster label ``"<frame>.<measurement>"`` (0 if it has none); remembered
+    (a label lives many frames and is read every frame)."""
     head, _, _ = label.partition(".")
     return int(head) if head.lstrip("-").isdigit() else 0
 
@@ -112,30 +117,166 @@ def pair_differences(mean: np.ndarray, cov: np.ndarray, ii: np.ndarray, jj: np.n
     return diff, S
 
 
+#: Relative margin of :func:`exact_status`' decision: a pair nearer the threshold than this (or
+#: whose covariance is ill-conditioned) is decided by numpy's batched solve, as before.
+_DECIDE_MARGIN = 1e-6
+#: Largest bound on cond(S) for which the compiled distance decides (its relative error and
+#: numpy's, about 4 cond(S) 1e-16 each, stay far inside :data:`_DECIDE_MARGIN`).
+_MAX_COND = 1e7
+
+
+def pair_status(mean: np.ndarray, cov: np.ndarray, i: int, j: int, max_d2: float, S: np.ndarray, L: np.ndarray,
+                Li: np.ndarray, y: np.ndarray) -> int:  # pragma: no cover - compiled
+    r"""The exact test of pair ``(i, j)``, decided where it is safe: 1 if
+    :math:`d^\top S^{-1} d \le` ``max_d2``, 0 if not, 2 if numpy must decide (``S``, ``L``,
+    ``Li`` (4, 4) and ``y`` (4,) are scratch).
+
+    ``d``, ``S`` as :func:`pair_differences`; :math:`d^\top S^{-1} d = \lVert L^{-1} d\rVert^2`
+    with ``S = L L'`` (Cholesky).  The value differs from numpy's (``np.linalg.solve`` then
+    ``np.einsum``) in its last bits only: both are backward stable, and for positive definite
+    ``S`` the relative error of the quadratic form is a small multiple (<= 100 at 4x4) of
+    :math:`\mathrm{cond}(S)\,\epsilon` (not its square, since :math:`x^\top S x \ge
+    \lambda_{min} \lVert x\rVert^2`), at most about 1e-7 here; so a pair is decided here only when
+    its distance is farther than :data:`_DECIDE_MARGIN` (relative) from ``max_d2`` and
+    :math:`\mathrm{cond}(S) \le \mathrm{tr}(S)\,\lVert L^{-1}\rVert_F^2 \le` :data:`_MAX_COND`:
+    then numpy's comparison has the same outcome.  Not positive definite, or not finite: 2."""
+    tr = 0.0
+    for a in range(4):
+        for b in range(4):
+            S[a, b] = cov[i, a, b] + cov[j, a, b]
+        tr += S[a, a]
+    for a in range(4):  # Cholesky S = L L'
+        for b in range(a + 1):
+            acc = S[a, b]
+            for k in range(b):
+                acc -= L[a, k] * L[b, k]
+            if a != b:
+                L[a, b] = acc / L[b, b]
+            elif acc > 0.0:
+                L[a, a] = np.sqrt(acc)
+            else:
+                return 2
+    fro = 0.0
+    for b in range(4):  # L^-1 column by column (forward substitution), its Frobenius norm
+        for a in range(4):
+            acc = 1.0 if a == b else 0.0
+            for k in range(a):
+                acc -= L[a, k] * Li[k, b]
+            Li[a, b] = acc / L[a, a]
+            fro += Li[a, b] * Li[a, b]
+    d2 = 0.0
+    for a in range(4):  # y = L^-1 d
+        acc = mean[i, a] - mean[j, a]
+        for k in range(a):
+            acc -= L[a, k] * y[k]
+        y[a] = acc / L[a, a]
+        d2 += y[a] * y[a]
+    if not tr * fro <= _MAX_COND:
+        return 2
+    if d2 <= max_d2 * (1.0 - _DECIDE_MARGIN):
+        return 1
+    if d2 > max_d2 * (1.0 + _DECIDE_MARGIN):
+        return 0
+    return 2
+
+
+def exact_status(mean: np.ndarray, cov: np.ndarray, ii: np.ndarray, jj: np.ndarray, max_d2: float
+                 ) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`pair_status` of the pairs ``(ii, jj)`` (int8: 1 pass, 0 fail, 2 numpy decides)."""
+    out = np.empty(ii.size, dtype=np.int8)
+    S, L, Li, y = np.empty((4, 4)), np.zeros((4, 4)), np.zeros((4, 4)), np.empty(4)
+    for p in range(ii.size):
+        out[p] = pair_status(mean, cov, ii[p], jj[p], max_d2, S, L, Li, y)
+    return out
+
+
+def exclusive_pairs(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d2: float, birth: np.ndarray,
+                    dotted: np.ndarray, taken: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`exclusive_candidates`' pairs (same bound, same order) that are not
+    :func:`distinct_pairs` and that :func:`pair_status` does not reject: ``ii``, ``jj`` and
+    their status (1: within ``max_d2``; 2: numpy decides)."""
+    n = mean.shape[0]
+    ii = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    jj = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    status = np.empty(n * (n - 1) // 2, dtype=np.int8)
+    S, L, Li, y = np.empty((4, 4)), np.zeros((4, 4)), np.zeros((4, 4)), np.empty(4)
+    count = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not r[i] + r[j] <= 1.0:
+                continue
+            dd = 0.0
+            tr = 0.0
+            for k in range(4):
+                x = mean[i, k] - mean[j, k]
+                dd += x * x
+                tr += cov[i, k, k] + cov[j, k, k]
+            if not dd <= max_d2 * tr * _BOUND_SLACK:
+                continue
+            same_scan = birth[i] == birth[j] and dotted[i] and dotted[j]
+            if same_scan or (taken[i] >= 0 and taken[j] >= 0 and taken[i] != taken[j]):
+                continue
+            st = pair_status(mean, cov, i, j, max_d2, S, L, Li, y)
+            if st != 0:
+                ii[count], jj[count], status[count] = i, j, st
+                count += 1
+    return ii[:count], jj[:count], status[:count]
+
+
+def distinct_pairs(birth: np.ndarray, dotted: np.ndarray, taken: np.ndarray, ii: np.ndarray, jj: np.ndarray
+                   ) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`_distinct` on arrays: ``birth`` (N,) each label's :func:`birth_frame`, ``dotted``
+    (N,) whether it has a ``"."``, ``taken`` (N,) the measurement it took this scan (-1: none)."""
+    out = np.empty(ii.size, dtype=np.bool_)
+    for p in range(ii.size):
+        a, b = ii[p], jj[p]
+        same_scan = birth[a] == birth[b] and dotted[a] and dotted[b]
+        out[p] = same_scan or (taken[a] >= 0 and taken[b] >= 0 and taken[a] != taken[b])
+    return out
+
+
 exclusive_candidates = jit(exclusive_candidates)
 pair_differences = jit(pair_differences)
+pair_status = jit(pair_status)
+exact_status = jit(exact_status)
+exclusive_pairs = jit(exclusive_pairs)
+distinct_pairs = jit(distinct_pairs)
+
+
+def _label_arrays(labels: tuple[str, ...], taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`distinct_pairs`' inputs: birth frames, whether dotted, taken measurement (-1: none)."""
+    rows = np.array([(birth_frame(lab), "." in lab, taken.get(lab, -1)) for lab in labels], dtype=np.int64)
+    rows = rows.reshape(len(labels), 3)
+    return rows[:, 0].copy(), rows[:, 1] != 0, rows[:, 2].copy()
 
 
 def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """Pairs close enough to merge, whose existences sum to at most 1, that may be one object.
 
-    With few clusters (every pair a candidate of :func:`tracker.bnp.clusters._near_pairs`) a
-    compiled pass (:func:`exclusive_candidates`) keeps the pairs that
-    may pass the distance test; the exact test (a batched solve, each pair on its own) runs on those."""
+    With few clusters (every pair a candidate of :func:`tracker.bnp.clusters._near_pairs`) one
+    compiled pass (:func:`exclusive_pairs`) applies :func:`exclusive_candidates`' bound, the
+    exclusion (:func:`distinct_pairs`) and the exact test (:func:`pair_status`); with many, the
+    KD-tree's pairs go through the same tests.  Pairs the compiled test leaves undecided take
+    numpy's (a batched solve, each pair on its own), as before."""
     r = c.existence
-    if len(c.labels) <= _ALL_PAIRS:
-        ii, jj = exclusive_candidates(c.mean, c.cov, r, float(max_d2))
+    birth, dotted, took = _label_arrays(c.labels, taken)
+    if len(c.labels) <= _ALL_PAIRS:  # bound, exclusion and the exact test in one compiled pass
+        ii, jj, status = exclusive_pairs(c.mean, c.cov, r, float(max_d2), birth, dotted, took)
     else:
         ii, jj = _near_pairs(c, max_d2)
         keep = r[ii] + r[jj] <= 1.0
         ii, jj = ii[keep], jj[keep]
-    if ii.size == 0:
-        return ii, jj
-    diff, S = pair_differences(c.mean, c.cov, ii, jj)  # _POS_VEL = [0, 1, 2, 3]
-    d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    ii, jj = ii[d2 <= max_d2], jj[d2 <= max_d2]
-    keep = ~_distinct(c.labels, taken, ii, jj)  # a Python loop: only over the close pairs
-    return ii[keep], jj[keep]
+        keep = ~distinct_pairs(birth, dotted, took, ii, jj)
+        ii, jj = ii[keep], jj[keep]
+        status = exact_status(c.mean, c.cov, ii, jj, float(max_d2))
+    unsure = np.flatnonzero(status == 2)
+    if unsure.size:  # near the threshold or ill-conditioned: numpy's test, as before
+        diff, S = pair_differences(c.mean, c.cov, ii[unsure], jj[unsure])  # _POS_VEL = [0, 1, 2, 3]
+        d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
+        status[unsure] = d2 <= max_d2
+    passed = status == 1
+    return ii[passed], jj[passed]
 
 
 def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[_Clusters, dict[str, str]]:

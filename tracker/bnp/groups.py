@@ -235,6 +235,20 @@ def inv2_const(A: np.ndarray) -> np.ndarray:
     return _inv2_of_bytes(np.ascontiguousarray(A, dtype=float).tobytes()).copy()
 
 
+@lru_cache(maxsize=32)
+def _information_of_bytes(cov_raw: bytes | None, mean_raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    h_lam = _FLAT_INFORMATION * np.eye(2) if cov_raw is None else _inv2_of_bytes(cov_raw).copy()
+    return h_lam, h_lam @ np.frombuffer(mean_raw).copy()
+
+
+def prior_information(h_cov: np.ndarray | None, h_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """H_2's part in information form, ``(h_lam, h_lam @ h_mean)`` with ``h_lam`` =
+    :func:`inv2_const` of ``h_cov`` (``None``: the flat prior's ``_FLAT_INFORMATION * I``);
+    remembered by the bytes (the same priors every frame).  The arrays are shared: read only."""
+    cov_raw = None if h_cov is None else np.ascontiguousarray(h_cov, dtype=float).tobytes()
+    return _information_of_bytes(cov_raw, np.ascontiguousarray(h_mean, dtype=float).tobytes())
+
+
 def theta_posterior(m0: np.ndarray, C0: np.ndarray, v: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r"""Posterior of :math:`\theta` given prior :math:`\mathcal N(m_0, C_0)` and members
     :math:`v_j \sim \mathcal N(\theta, R_j)` (``v`` (n, 2), ``R`` (n, 2, 2)):
@@ -358,7 +372,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
-            Riv[p, l] = Ri[p, l] @ v[p, l]
+            np.dot(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (the same BLAS call), no temporary
     for l in range(L):
         _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
@@ -371,6 +385,9 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     fresh = np.zeros(T, dtype=np.bool_)
     A = np.empty((2, 2))
     r = np.empty(2)
+    Sir = np.empty(2)
+    B = np.empty((2, 2))
+    e = np.empty(2)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
@@ -383,7 +400,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                 if not fresh[t]:
                     for p in range(P):
                         _inv_into(lam[p, t], cov)
-                        t_mu[p, t] = cov @ eta[p, t]
+                        np.dot(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
                         t_cov[p, t] = cov
                     fresh[t] = True
                 for p in range(P):
@@ -392,10 +409,15 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
                     det = _inv_into(A, Si)
-                    logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    np.dot(Si, r, Sir)  # = Si @ r, into a buffer
+                    logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
-                        _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
-                        rec_mu[l, t] = rec_cov[l, t] @ (eta[0, t] - eta0[0, t] + h_eta)
+                        for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
+                            e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
+                            for j in range(2):
+                                B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
+                        _inv_into(B, rec_cov[l, t])
+                        np.dot(rec_cov[l, t], e, rec_mu[l, t])
             w = np.exp(logw - logw.max())
             w /= w.sum()
             c = np.cumsum(w)
@@ -540,9 +562,8 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     T = G + L
     lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
     for p, b in enumerate(blocks):  # the tables' priors, compiled
-        h_lam = inv2_const(b.h_cov)
-        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean), h_lam,
-                      h_lam @ b.h_mean, lam0[p], eta0[p])
+        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean),
+                      *prior_information(b.h_cov, b.h_mean), lam0[p], eta0[p])
     v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
     R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
     z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
@@ -550,9 +571,9 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_p = np.zeros((L, T))
     rec_mu = np.zeros((L, T, 2))
     rec_cov = np.zeros((L, T, 2, 2))
-    h_lam = _FLAT_INFORMATION * np.eye(2) if flat_share else inv2_const(blocks[0].h_cov)
+    h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_lam @ blocks[0].h_mean, seated, z,
+    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, seated, z,
                       float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
     return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
@@ -670,7 +691,16 @@ _share_turn_kernel = jit(_share_turn_kernel)
 def fov_moments(detection, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """Mean (2,) and covariance (2, 2) of the uniform distribution over ``detection``'s field of
     view (:meth:`tracker.models.clutter.Detection.visible`), on an ``n`` x ``n`` grid of cell
-    centres over the square of half-side ``range_max`` about the sensor."""
+    centres over the square of half-side ``range_max`` about the sensor.  A pure function of a
+    frozen ``detection``: remembered (:func:`_fov_moments`; every run of an experiment builds a
+    tracker, and the grid costs some 8 ms), copies returned."""
+    mean, cov = _fov_moments(detection, n)
+    return mean.copy(), cov.copy()
+
+
+@lru_cache(maxsize=16)
+def _fov_moments(detection, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fov_moments` computed (the arrays are shared: callers copy)."""
     r = detection.range_max
     g = (np.arange(n) + 0.5) / n * 2.0 * r - r
     X, Y = np.meshgrid(detection.sensor_x + g, detection.sensor_y + g, indexing="ij")
@@ -797,11 +827,13 @@ class GroupTracker:
         cfg = self.config
         eye = np.eye(2)
         dt = steps * self.params.T
-        vel = Block(mean[:, _VEL], cov[:, _VEL][:, :, _VEL] + self.S_w, state.group_mean,
+        # strided slices (1::2 = _VEL, 0::2 = _POS on the first four entries): the same numbers as
+        # fancy indexing, one copy fewer
+        vel = Block(mean[:, 1:4:2], cov[:, 1:4:2, 1:4:2] + self.S_w, state.group_mean,
                     state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
         if not cfg.centroid:
             return [vel]
-        pos = Block(mean[:, _POS], cov[:, _POS][:, :, _POS] + cfg.within_pos_std**2 * eye,
+        pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + cfg.within_pos_std**2 * eye,
                     state.group_pos_mean + dt * state.group_mean,
                     state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
                     *self.h_pos)
@@ -830,9 +862,8 @@ class GroupTracker:
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
         for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
-            h_lam = inv2_const(b.h_cov)
             out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
-                                  used.size, h_lam, h_lam @ b.h_mean))
+                                  used.size, *prior_information(b.h_cov, b.h_mean)))
         if len(out) == 1:
             out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
         return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
