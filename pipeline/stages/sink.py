@@ -64,6 +64,8 @@ class SinkStage(StageBase):
         self.e2e_ms: list[float] = []
         self.tracker_ms: list[float] = []
         self.hop_ms: list[tuple[float, float, float]] = []
+        self.handoff_ms: list[float] = []  # the tracker's callback -> main thread (t_deq - t_in)
+        self.meas_hop_ms: list[float] = []  # source -> this sink, the frame's /measurements
         self.seq_written: list[int] = []
         self.files: list[str] = []
         self.held: list[tuple[int, Any, Any, Any]] = []
@@ -160,7 +162,7 @@ class SinkStage(StageBase):
             self.frames_written += 1
         if tracks is not None:
             self.tracks_written += 1
-            self._note_latency(s, tracks)
+            self._note_latency(s, tracks, meas)
         if meas is GAP and tracks is None:  # a gap in every stream: nothing to record
             return
         payloads = self._payloads(meas, truth, tracks)
@@ -189,8 +191,10 @@ class SinkStage(StageBase):
                         tracks.payload if tracks is not None else None,
                         t_stamp if t_stamp != m.stamp_ns else None)
 
-    def _note_latency(self, s: int, tracks: Accepted) -> None:
-        """Per-frame latencies of a written ``/tracks`` (for sink.json and health)."""
+    def _note_latency(self, s: int, tracks: Accepted, meas: Any = GAP) -> None:
+        """Per-frame latencies of a written ``/tracks`` (for sink.json and health); with its
+        ``/measurements`` (``meas``), also that sample's hop to the sink (the same sample's hop
+        to the tracker, through the same router: the two differ by what the receivers do)."""
         t_pub = tracks.meta.get("t")
         self.t_last_ns = tracks.t_recv_ns
         if not isinstance(t_pub, int) or t_pub <= 0:
@@ -203,6 +207,11 @@ class SinkStage(StageBase):
         t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
         if isinstance(t_in, int) and isinstance(t_out, int):
             self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
+        t_deq = tracks.meta.get("t_deq")
+        if isinstance(t_in, int) and isinstance(t_deq, int):
+            self.handoff_ms.append((t_deq - t_in) / 1e6)
+        if meas is not GAP and isinstance(meas.meta.get("t"), int):
+            self.meas_hop_ms.append((meas.t_recv_ns - meas.meta["t"]) / 1e6)
         if self.t_first_pub_ns is None:
             self.t_first_pub_ns = t_pub
 
@@ -414,7 +423,9 @@ class SinkStage(StageBase):
             "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
                         "source_to_tracker_ms": [h[0] for h in self.hop_ms],
                         "in_tracker_ms": [h[1] for h in self.hop_ms],
-                        "tracker_to_sink_ms": [h[2] for h in self.hop_ms]},
+                        "tracker_to_sink_ms": [h[2] for h in self.hop_ms],
+                        "tracker_handoff_ms": self.handoff_ms,
+                        "source_to_sink_measurements_ms": self.meas_hop_ms},
         }
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         path = self.ctx.out / SUMMARY_NAME

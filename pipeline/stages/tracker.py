@@ -198,6 +198,8 @@ class TrackerStage(StageBase):
         self.last_seq = -1
         self.last_frame = -1
         self.last_stamp_ns: int | None = None
+        #: when the main thread took the sample being processed off the bus (``t_deq``)
+        self.t_deq_ns = 0
         self.bounds = FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s)
         self.rejected_seqs: list[int] = []
         self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
@@ -299,7 +301,7 @@ class TrackerStage(StageBase):
         # t: the source's publication time (end-to-end latency); t_in / t_out: when the
         # tracker received the frame and published its tracks (latency breakdown)
         meta = {"seq": s, "t": acc.meta.get("t", 0), "frame": frame.frame,
-                "t_in": acc.t_recv_ns, "t_out": self.clock.time_ns()}
+                "t_in": acc.t_recv_ns, "t_deq": self.t_deq_ns, "t_out": self.clock.time_ns()}
         self.bus.publish("tracks", payload, meta)
         # the state advances only once its output is out (a snapshot is always consistent)
         self.state, self.last_seq, self.last_frame = state, s, frame.frame
@@ -427,6 +429,7 @@ class TrackerStage(StageBase):
         while not self.ctx.stop.is_set():
             ev = self.bus.recv(0.05)
             if ev is not None:
+                self.t_deq_ns = self.clock.time_ns()
                 self._on_event(ev)
             self.health(extra=self._extra_health)
             if self.tracker is not None and self.holes.due(self.seq):
