@@ -73,6 +73,24 @@ def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: 
 _BOUND_SLACK = 1.0 + 1e-6
 
 
+def _within_bound(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, i: int, j: int, max_d2: float
+                  ) -> bool:  # pragma: no cover - compiled
+    r"""Whether the pair ``(i, j)`` passes :func:`exclusive_candidates`' bound: existences summing
+    to at most 1 and :math:`\lVert d\rVert^2 \le` ``max_d2`` :math:`\mathrm{tr}\,S` (with the slack)."""
+    if not r[i] + r[j] <= 1.0:
+        return False
+    dd = 0.0
+    tr = 0.0
+    for k in range(4):
+        x = mean[i, k] - mean[j, k]
+        dd += x * x
+        tr += cov[i, k, k] + cov[j, k, k]
+    return dd <= max_d2 * tr * _BOUND_SLACK
+
+
+_within_bound = jit(_within_bound, inline=True)
+
+
 def exclusive_candidates(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d2: float
                          ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     r"""Pairs ``i < j`` (in ``np.triu_indices`` order) with ``r[i] + r[j] <= 1`` and
@@ -87,15 +105,7 @@ def exclusive_candidates(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d
     count = 0
     for i in range(n):
         for j in range(i + 1, n):
-            if not r[i] + r[j] <= 1.0:
-                continue
-            dd = 0.0
-            tr = 0.0
-            for k in range(4):
-                x = mean[i, k] - mean[j, k]
-                dd += x * x
-                tr += cov[i, k, k] + cov[j, k, k]
-            if dd <= max_d2 * tr * _BOUND_SLACK:
+            if _within_bound(mean, cov, r, i, j, max_d2):
                 ii[count] = i
                 jj[count] = j
                 count += 1
@@ -204,15 +214,7 @@ def exclusive_pairs(mean: np.ndarray, cov: np.ndarray, r: np.ndarray, max_d2: fl
     count = 0
     for i in range(n):
         for j in range(i + 1, n):
-            if not r[i] + r[j] <= 1.0:
-                continue
-            dd = 0.0
-            tr = 0.0
-            for k in range(4):
-                x = mean[i, k] - mean[j, k]
-                dd += x * x
-                tr += cov[i, k, k] + cov[j, k, k]
-            if not dd <= max_d2 * tr * _BOUND_SLACK:
+            if not _within_bound(mean, cov, r, i, j, max_d2):
                 continue
             same_scan = birth[i] == birth[j] and dotted[i] and dotted[j]
             if same_scan or (taken[i] >= 0 and taken[j] >= 0 and taken[i] != taken[j]):
