@@ -21,13 +21,13 @@ import hashlib
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
+from _ab import last_json_line
+
 HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
-
 
 def measure(experiment: str, start: int, n: int, names: list[str]) -> dict:
     """Runs ``start .. start + n - 1`` in this process: CPU s per run and their fingerprint."""
@@ -55,14 +55,10 @@ def measure(experiment: str, start: int, n: int, names: list[str]) -> dict:
                 h.update(np.ascontiguousarray(getattr(tr, name), dtype=float).tobytes())
     return {"cpu_per_run": cpu / n, "fp": h.hexdigest()[:16], "load": os.getloadavg()[0]}
 
-
 def run_tree(root: str, args: argparse.Namespace, start: int) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--measure", "--experiment", args.experiment,
            "--start", str(start), "--runs", str(args.runs)] + (["--trackers", *args.trackers] if args.trackers else [])
-    out = subprocess.run(cmd, cwd=root, env={**os.environ, "PYTHONPATH": root}, check=True,
-                         capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
-
+    return last_json_line(cmd, root)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -93,7 +89,6 @@ def main() -> None:
     print(f"{args.rounds} rounds x {args.runs} runs: base {mb:.3f}, this tree {mt:.3f} CPU s/run; ratio of means "
           f"{mt / mb:.3f}; median per-round ratio {statistics.median(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f}); "
           f"10,000 runs on 2 free cores: base {1e4 * mb / 2 / 60:.1f} min, this tree {1e4 * mt / 2 / 60:.1f} min")
-
 
 if __name__ == "__main__":
     main()

@@ -20,12 +20,12 @@ import hashlib
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
-HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+from _ab import last_json_line
 
+HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 
 def measure(seeds: int, repeats: int, birth_regions: bool, overrides: list[str]) -> dict:
     """CPU ms per frame (fastest of ``repeats`` passes over the seeds) and the fingerprint."""
@@ -60,14 +60,10 @@ def measure(seeds: int, repeats: int, birth_regions: bool, overrides: list[str])
     best = min(one_pass(False) for _ in range(repeats))
     return {"ms": 1e3 * best / sum(len(f) for f in runs), "fingerprint": digest.hexdigest()[:16]}
 
-
 def run_tree(root: str, args: argparse.Namespace, overrides: list[str]) -> dict:
     cmd = ["taskset", "-c", str(args.cpu), "nice", "-n", "5", sys.executable, os.path.abspath(__file__), "--measure",
            "--seeds", str(args.seeds), "--repeats", str(args.repeats)] + ([] if args.birth_regions else ["--no-regions"]) + [f"--set={o}" for o in overrides]
-    out = subprocess.run(cmd, cwd=root, env={**os.environ, "PYTHONPATH": root}, check=True,
-                         capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
-
+    return last_json_line(cmd, root)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -99,7 +95,6 @@ def main() -> None:
     print(f"median of the per-round ratios {statistics.median(ratios):.2f}; fastest base / fastest this tree "
           f"{min(mins['base']):.3f} / {min(mins['new']):.3f} = {min(mins['base']) / min(mins['new']):.2f} "
           f"(load average {os.getloadavg()[0]:.1f})")
-
 
 if __name__ == "__main__":
     main()
