@@ -41,6 +41,10 @@ seeds 1-60 are rerun per seed for the pool (both tests; ``--pool-csv ari_121_300
         --first-seed 121 --seeds 180 --workers 1 --alternative greater --csv ari_121_300.csv \\
         --pool-summary 60,0.0027,0.0016
 
+Outcome (docs/results.md, chapter 7, "Session 9: ari"): seeds 121-300, dpyp 0.8918 against ddp
+0.8922, difference -0.0004 (SE 0.0010; 95 % CI [-0.0025, +0.0016]), one-sided t p 0.63, Wilcoxon
+p 0.57: the lead does not replicate. dpyp's d2: mean 0.342 over seeds, smallest 0.089.
+
 The last line printed is one JSON object with every figure.
 """
 
