@@ -1,29 +1,158 @@
 """Paired comparison of two trackers' group recovery (adjusted Rand index, as in
-``benchmarks/groups.py``) seed by seed, with a paired t statistic and a Wilcoxon signed-rank test:
+``benchmarks/groups.py``) seed by seed, with a paired t statistic, a Wilcoxon signed-rank test
+and a percentile bootstrap interval of the mean difference:
 
     python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl --seeds 60
 
 Session 8's figure (issue 14, "DPY-STP recovers the true groups better"): seeds 1-60, dpyp
 0.8972 against ddp 0.8945, difference +0.0027 (SE 0.0016, t 1.70), better on 25 seeds, worse on
-15, equal on 20, Wilcoxon p = 0.07.
+15, equal on 20, Wilcoxon p = 0.07 (two-sided).
+
+Session 9 ("ari"), a pre-registered replication, written down before any of its seeds ran:
+- Sample: seeds 121-300 of ``groups-pl`` (180 seeds never used before; 1-60 are session 8's,
+  101-120 chose the settings and are never reported). If the 4-seed timing says 180 will not
+  finish by 08:55 UTC, the block is cut to 121..121+K-1, K fixed from the timing alone; a run
+  stopped by the clock is analysed on the seeds completed in order (a time rule, not a data rule).
+- Primary test, on the fresh seeds alone: H1 "dpyp's ARI > ddp's", one-sided paired t and
+  one-sided Wilcoxon signed-rank (equal seeds dropped), alpha 0.05 each; shown only if both
+  reject. Also: the 95 % percentile bootstrap interval of the mean difference (10000 resamples,
+  generator seed 0).
+- Secondary: the paired t on the pool of seeds 1-60 and the fresh seeds. Session 8 kept no
+  per-seed values and rerunning 1-60 does not fit in the time, so the pool is formed from
+  session 8's printed summary (n 60, difference +0.0027, SE 0.0016; ``--pool-summary``), exact
+  up to that rounding; no pooled Wilcoxon unless 1-60 are rerun (``--pool-csv`` then).
+- Also reported: dpyp's inferred discount d2 (mean over frames >= 20, per seed; its mean and
+  10 % quantile over seeds) and the per-seed CSV (``--csv``).
+- Timing (seeds 1-4, already reported, so nothing fresh seen; 07:19-07:22 UTC, load 2 -> 9):
+  3 min 29 s for 4 seeds, 52 s a seed at ``--workers 1``; 180 seeds would need 157 min, and
+  07:27-08:55 holds about 100. Decided before any fresh seed ran: K = 90, seeds 121-210
+  (a 10 % margin for the rising load); the fallback above applies if the clock still stops it.
+
+    nice -n 10 python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl \\
+        --first-seed 121 --seeds 90 --workers 1 --alternative greater --csv ari_121_210.csv \\
+        --pool-summary 60,0.0027,0.0016
+
+Amendment (07:25 UTC, before any fresh ARI was looked at): the timing was almost all one-time
+numba compilation (the 121-210 run did 33 seeds in its first minute), so the cut had no reason
+left: the primary sample is seeds 121-300 after all (121-210 still reported, as registered), and
+seeds 1-60 are rerun per seed for the pool (both tests; ``--pool-csv ari_121_300.csv``):
+
+    nice -n 10 python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl \\
+        --first-seed 121 --seeds 180 --workers 1 --alternative greater --csv ari_121_300.csv \\
+        --pool-summary 60,0.0027,0.0016
+
+Outcome (docs/results.md, chapter 7, "Session 9: ari"): seeds 121-300, dpyp 0.8918 against ddp
+0.8922, difference -0.0004 (SE 0.0010; 95 % CI [-0.0025, +0.0016]), one-sided t p 0.63, Wilcoxon
+p 0.57: the lead does not replicate. dpyp's d2: mean 0.342 over seeds, smallest 0.089.
+
+The last line printed is one JSON object with every figure.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import t as tdist
+from scipy.stats import ttest_1samp, wilcoxon
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from groups import one_run  # noqa: E402
 
+FIELDS = ("seed", "ari_a", "ari_b", "d2_a", "d2_b")
 
-def _ari(job: tuple[str, str, str, int]) -> float:
-    tracker, params, scenario, seed = job
-    return one_run((tracker, params, scenario, seed, [], ()))["ari"]
+
+def _pair(job: tuple[str, str, str, str, int]) -> tuple[int, float, float, float, float]:
+    """One seed, both trackers: (seed, ARI a, ARI b, d2 a, d2 b)."""
+    a, b, params, scenario, seed = job
+    ra = one_run((a, params, scenario, seed, [], ()))
+    rb = one_run((b, params, scenario, seed, [], ()))
+    return seed, ra["ari"], rb["ari"], ra["d2"], rb["d2"]
+
+
+def bootstrap_ci(d: np.ndarray, n_boot: int = 10000, seed: int = 0, level: float = 0.95) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``d`` (seeds resampled with replacement)."""
+    rng = np.random.default_rng(seed)
+    means = d[rng.integers(0, d.size, size=(n_boot, d.size))].mean(axis=1)
+    q = (1.0 - level) / 2.0
+    return float(np.quantile(means, q)), float(np.quantile(means, 1.0 - q))
+
+
+def paired_stats(a: np.ndarray, b: np.ndarray, alternative: str = "two-sided", n_boot: int = 10000) -> dict:
+    """Paired a - b over the seeds where both are finite: means, t (SE = sd/sqrt n, ddof 1) with
+    its p, the Wilcoxon signed-rank p over the non-zero differences, counts and a bootstrap CI."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = np.asarray(a)[ok], np.asarray(b)[ok]
+    d = a - b
+    se = d.std(ddof=1) / np.sqrt(d.size)
+    nonzero = d[d != 0]
+    lo, hi = bootstrap_ci(d, n_boot)
+    return dict(n=int(d.size), mean_a=float(a.mean()), mean_b=float(b.mean()), diff=float(d.mean()),
+                se=float(se), t=float(d.mean() / se), p_t=float(ttest_1samp(d, 0.0, alternative=alternative).pvalue),
+                p_wilcoxon=float(wilcoxon(nonzero, alternative=alternative).pvalue) if nonzero.size else float("nan"),
+                better=int((d > 0).sum()), worse=int((d < 0).sum()), equal=int((d == 0).sum()),
+                ci95=[lo, hi], alternative=alternative)
+
+
+def pooled_t(n1: int, mean1: float, se1: float, d: np.ndarray, alternative: str = "two-sided") -> dict:
+    """Paired t on the union of a sample known only by (n1, mean1, se1) and the differences ``d``:
+    the union's mean and sd (ddof 1) rebuilt from the two samples' sums and sums of squares."""
+    d = d[np.isfinite(d)]
+    n = n1 + d.size
+    s1 = n1 * mean1
+    ss1 = (n1 - 1) * (se1 * np.sqrt(n1)) ** 2 + n1 * mean1**2
+    mean = (s1 + d.sum()) / n
+    var = (ss1 + (d**2).sum() - n * mean**2) / (n - 1)
+    se = np.sqrt(var / n)
+    t = mean / se
+    p = {"two-sided": 2 * tdist.sf(abs(t), n - 1), "greater": tdist.sf(t, n - 1), "less": tdist.cdf(t, n - 1)}
+    return dict(n=int(n), diff=float(mean), se=float(se), t=float(t), p_t=float(p[alternative]), alternative=alternative)
+
+
+def read_rows(path: str) -> list[tuple]:
+    """Per-seed rows of a ``--csv`` file."""
+    with open(path, newline="") as fh:
+        return [(int(r["seed"]), *(float(r[k]) for k in FIELDS[1:])) for r in csv.DictReader(fh)]
+
+
+def run_seeds(args, seeds: range) -> list[tuple]:
+    """Both trackers seed by seed, in seed order; each row is appended to ``--csv`` as it arrives."""
+    jobs = [(args.a, args.b, args.params, args.scenario, s) for s in seeds]
+    fh = open(args.csv, "w", newline="") if args.csv else None
+    w = csv.writer(fh) if fh else None
+    if w:
+        w.writerow(FIELDS)
+    rows = []
+    with ProcessPoolExecutor(args.workers) as pool:
+        for row in pool.map(_pair, jobs):
+            rows.append(row)
+            if w:
+                w.writerow(row)
+                fh.flush()
+    if fh:
+        fh.close()
+    return rows
+
+
+def report(label: str, s: dict, a: str, b: str) -> None:
+    print(f"{label}: n {s['n']}, mean ARI {a} {s['mean_a']:.4f}, {b} {s['mean_b']:.4f}; paired difference "
+          f"{s['diff']:+.4f} (SE {s['se']:.4f}, t {s['t']:.2f}, p {s['p_t']:.4f}; 95 % bootstrap CI "
+          f"[{s['ci95'][0]:+.4f}, {s['ci95'][1]:+.4f}]); {a} better on {s['better']}, worse on {s['worse']}, "
+          f"equal on {s['equal']} seeds; Wilcoxon signed-rank (ties dropped, {s['alternative']}): "
+          f"p = {s['p_wilcoxon']:.4f}", flush=True)
+
+
+def d2_summary(d2: np.ndarray) -> dict:
+    """The discount (mean over frames >= 20, one value a seed) over seeds: mean, 10 % quantile, min."""
+    d2 = d2[np.isfinite(d2)]
+    if not d2.size:
+        return dict(n=0)
+    return dict(n=int(d2.size), mean=float(d2.mean()), q10=float(np.quantile(d2, 0.1)), min=float(d2.min()))
 
 
 def main() -> None:
@@ -35,22 +164,31 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=60)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--alternative", choices=("two-sided", "greater", "less"), default="two-sided",
+                    help="H1 of both tests, on mean ARI a - b")
+    ap.add_argument("--csv", help="write the per-seed rows (seed, ari_a, ari_b, d2_a, d2_b) here")
+    ap.add_argument("--pool-csv", action="append", default=[],
+                    help="per-seed CSV of earlier seeds: also report the pool of them and this run")
+    ap.add_argument("--pool-summary", help="N,DIFF,SE of earlier seeds' paired differences: also the pooled t")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    with ProcessPoolExecutor(args.workers) as pool:
-        a = np.array(list(pool.map(_ari, [(args.a, args.params, args.scenario, s) for s in seeds])))
-        b = np.array(list(pool.map(_ari, [(args.b, args.params, args.scenario, s) for s in seeds])))
-    d = (a - b)[~np.isnan(a - b)]
-    se = d.std(ddof=1) / np.sqrt(d.size)
-    print(f"{args.scenario}, seeds {seeds.start}..{seeds.stop - 1}: mean ARI {args.a} {np.nanmean(a):.4f}, "
-          f"{args.b} {np.nanmean(b):.4f}")
-    print(f"paired difference {d.mean():+.4f} (SE {se:.4f}, t {d.mean() / se:.2f}); {args.a} better on "
-          f"{(d > 0).sum()}, worse on {(d < 0).sum()}, equal on {(d == 0).sum()} seeds")
-    from scipy.stats import wilcoxon
-
-    nonzero = d[d != 0]
-    if nonzero.size:
-        print(f"Wilcoxon signed-rank (ties dropped): p = {wilcoxon(nonzero).pvalue:.3f}")
+    rows = np.array(run_seeds(args, seeds), dtype=float)
+    out = dict(scenario=args.scenario, a=args.a, b=args.b, seeds=[seeds.start, seeds.stop - 1])
+    out["primary"] = paired_stats(rows[:, 1], rows[:, 2], args.alternative)
+    report(f"{args.scenario}, seeds {seeds.start}..{seeds.stop - 1}", out["primary"], args.a, args.b)
+    out["d2_a"], out["d2_b"] = d2_summary(rows[:, 3]), d2_summary(rows[:, 4])
+    print(f"d2 of {args.a} (mean over frames >= 20, over seeds): {out['d2_a']}")
+    if args.pool_csv:
+        pool = np.array([r for p in args.pool_csv for r in read_rows(p)] + rows.tolist(), dtype=float)
+        if np.unique(pool[:, 0]).size != pool.shape[0]:
+            raise SystemExit("--pool-csv: a seed appears twice")
+        out["pooled"] = paired_stats(pool[:, 1], pool[:, 2], args.alternative)
+        report(f"pooled with {', '.join(args.pool_csv)}", out["pooled"], args.a, args.b)
+    if args.pool_summary:
+        n1, m1, se1 = args.pool_summary.split(",")
+        out["pooled_summary"] = pooled_t(int(n1), float(m1), float(se1), rows[:, 1] - rows[:, 2], args.alternative)
+        print(f"pooled with the summary {args.pool_summary} (paired t only): {out['pooled_summary']}")
+    print(json.dumps(out))
 
 
 if __name__ == "__main__":
