@@ -21,7 +21,7 @@ from bnptrack.tracker.config import apply_overrides
 from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.state import restore, run, snapshot
 
-S_KERNEL = 25.0
+S_KERNEL = 25.0  # the tests pass it explicitly (BnpConfig default: 50)
 SIG_B = math.radians(2.0)
 SIG_R = 10.0
 V = math.pi * 2000.0  # |measurement box|: bearing [-90, 90] deg x range [0, 2000] m

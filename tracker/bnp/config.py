@@ -97,9 +97,10 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (conjugate inverse-gamma update; :func:`tracker.bnp.birth_memory.velocity_variance`)."""
     birth_memory_forgetting: PositiveProb = 0.99
     """Recorded births' weights (and alpha_H's log-likelihood) are multiplied by this per scan."""
-    birth_kernel_std: NonNeg = 25.0
+    birth_kernel_std: NonNeg = 50.0
     """Metres: the extent of an entry point, added (as s^2 I) to each recorded birth position's
-    own uncertainty in its kernel kappa."""
+    own uncertainty in its kernel kappa.  50 chosen on ``vo2017`` without regions, seeds 101-120,
+    among 10 / 25 / 50 / 100 / 200 (docs/trackers.md, "Births anywhere", session 9)."""
     birth_memory_lag: Annotated[int, msgspec.Meta(ge=1, le=50)] = 4
     """A cluster is recorded as a birth this many frames after it was born, with its existence
     then as its weight."""
