@@ -131,8 +131,11 @@ def kernels(pos: np.ndarray, cov: np.ndarray, kernel_std: float, var_v: float, v
     return means, covs
 
 
-def learned_base(base0: BaseDistribution, mem: BirthMemory, s: BirthSettings) -> BaseDistribution:
-    r""":math:`H_k` (module docstring) from the configured :math:`H_0` and the memory."""
+def learned_base(base0: BaseDistribution, mem: BirthMemory, s: BirthSettings, cache: dict | None = None
+                 ) -> BaseDistribution:
+    r""":math:`H_k` (module docstring) from the configured :math:`H_0` and the memory.  ``cache``
+    (optional, kept by the tracker): the components' predicted measurements by component set, so a
+    memory that did not change since the last frame costs no new EKF innovations (same numbers)."""
     var_v = velocity_variance(mem, s)
     base = base0 if var_v == base0.velocity_std**2 else replace(base0, velocity_std=float(np.sqrt(var_v)),
                                                                 _innovations={})
@@ -141,7 +144,13 @@ def learned_base(base0: BaseDistribution, mem: BirthMemory, s: BirthSettings) ->
     if share <= 0.0:
         return base
     means, covs = kernels(mem.pos, mem.cov, s.kernel_std, var_v, base.turn_std**2)
-    return base.mixed_with(share, mem.weight / total, means, covs)
+    innovations = None
+    if cache is not None:
+        key = (means.tobytes(), covs.tobytes(), var_v)
+        if key not in cache and len(cache) >= 8:
+            cache.clear()
+        innovations = cache.setdefault(key, {})
+    return base.mixed_with(share, mem.weight / total, means, covs, innovations)
 
 
 def birth_states(labels, mean: np.ndarray, cov: np.ndarray, existence: np.ndarray, lo: int, hi: int,
@@ -151,9 +160,9 @@ def birth_states(labels, mean: np.ndarray, cov: np.ndarray, existence: np.ndarra
     covariances ``(n, 2, 2)`` (:math:`J P J^T`), weights ``(n,)`` and :math:`\mathbb E|v|^2`
     ``(n,)``, in label order."""
     rows, taus = [], []
-    for i, (lab, r) in enumerate(zip(labels, existence.tolist())):
-        born = int(lab.split(".")[0])
-        if lo < born <= hi and r >= MIN_WEIGHT:
+    for i in np.flatnonzero(existence >= MIN_WEIGHT).tolist():
+        born = int(labels[i].split(".", 1)[0])
+        if lo < born <= hi:
             rows.append(i)
             taus.append((frame - born) * T)
     idx = np.array(rows, dtype=np.int64)
@@ -193,6 +202,8 @@ def record(mem: BirthMemory, base0: BaseDistribution, s: BirthSettings, meas, cl
     each new birth's predictive likelihood added to ``loglik`` (weighted by its weight) and the
     birth appended, in order; light and surplus births dropped."""
     pos, cov, w, vel_sq = births
+    if w.size == 0 and decay == 1.0:
+        return mem
     mem = BirthMemory(mem.pos, mem.cov, decay * mem.weight, decay * mem.loglik,
                       np.array([decay * mem.vel_stats[0] + w.sum(), decay * mem.vel_stats[1] + 0.5 * w @ vel_sq]))
     for j in range(w.size):

@@ -14,12 +14,13 @@ module).
 from __future__ import annotations
 
 import copy
+from functools import cached_property
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
 from bnptrack.tracker.bnp import filter as _filter
-from bnptrack.tracker.bnp.birth_memory import ALPHA_H_GRID, BirthMemory, BirthSettings, birth_states, learned_base, learned_share, record
+from bnptrack.tracker.bnp.birth_memory import ALPHA_H_GRID, BirthMemory, BirthSettings, birth_states, learned_base, record
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
 from bnptrack.tracker.models.params import ModelParams
@@ -60,9 +61,14 @@ class LearnedBirthTracker(BnpTracker):
         inner = super().initial_state()
         return LearnedBirthState(**{f.name: getattr(inner, f.name) for f in fields(BnpState)})
 
+    @cached_property
+    def _innovation_cache(self) -> dict:
+        """Predicted measurements of the learned components by component set (a pure cache)."""
+        return {}
+
     def frame_base(self, state: LearnedBirthState):
         """:math:`H_k` of the frame after ``state``."""
-        return learned_base(self.base, state.memory, self.settings)
+        return learned_base(self.base, state.memory, self.settings, self._innovation_cache)
 
     def step(self, state: LearnedBirthState, frame: Frame, rng: np.random.Generator
              ) -> tuple[LearnedBirthState, Estimate]:
@@ -73,16 +79,17 @@ class LearnedBirthTracker(BnpTracker):
         s = self.settings
         lo, hi = state.frame - s.lag, frame.frame - s.lag
         births = birth_states(inner.labels, inner.mean, inner.cov, inner.existence, lo, hi, frame.frame, self.params.T)
-        sensor = self.params.frame_sensor(frame)
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
         decay = s.forgetting ** (dt / self.params.T)
-        mem = record(state.memory, self.base, s, self.params.measurement(frame.kind, sensor),
-                     self.params.clutter(frame.kind, sensor), decay, births)
+        sensor = self.params.frame_sensor(frame) if births[2].size else None
+        meas = self.params.measurement(frame.kind, sensor) if sensor is not None else None
+        clutter = self.params.clutter(frame.kind, sensor) if sensor is not None else None
+        mem = record(state.memory, self.base, s, meas, clutter, decay, births)
         new = LearnedBirthState(**{f.name: getattr(inner, f.name) for f in fields(BnpState)},
                                 birth_pos=mem.pos, birth_cov=mem.cov, birth_weight=mem.weight,
                                 birth_loglik=mem.loglik, birth_vel_stats=mem.vel_stats)
-        W = float(mem.weight.sum())
-        diag = dict(est.diagnostics, birth_memory=float(mem.weight.size), birth_learned_share=learned_share(mem.loglik, W))
+        diag = dict(est.diagnostics, birth_memory=float(mem.weight.size),
+                    birth_uniform_weight=float(view.base.uniform_weight))
         return new, replace(est, diagnostics=diag)
 
 
