@@ -95,15 +95,17 @@ class BirthSettings:
     lag: int
     velocity_std: float
     velocity_strength: float
+    alpha_min: float = float(ALPHA_H_GRID[0])
 
 
-def learned_share(loglik: np.ndarray, total: float) -> float:
+def learned_share(loglik: np.ndarray, total: float, alpha_min: float = float(ALPHA_H_GRID[0])) -> float:
     r""":math:`\mathbb E[W / (\alpha_H + W)]` under the grid posterior
-    :math:`p(\alpha_H) \propto e^{\ell(\alpha_H)}` (log-uniform prior): the weight of the learned
-    part of :math:`H_k`."""
+    :math:`p(\alpha_H) \propto e^{\ell(\alpha_H)}` (prior log-uniform on the grid's points
+    :math:`\ge` ``alpha_min``): the weight of the learned part of :math:`H_k`."""
     if total <= 0.0:
         return 0.0
-    post = np.exp(loglik - logsumexp(loglik))
+    lp = np.where(ALPHA_H_GRID >= alpha_min * (1 - 1e-9), loglik, -np.inf)
+    post = np.exp(lp - logsumexp(lp))
     return float(np.sum(post * total / (ALPHA_H_GRID + total)))
 
 
@@ -140,7 +142,7 @@ def learned_base(base0: BaseDistribution, mem: BirthMemory, s: BirthSettings, ca
     base = base0 if var_v == base0.velocity_std**2 else replace(base0, velocity_std=float(np.sqrt(var_v)),
                                                                 _innovations={})
     total = float(mem.weight.sum()) if s.learn_where else 0.0
-    share = learned_share(mem.loglik, total)
+    share = learned_share(mem.loglik, total, s.alpha_min)
     if share <= 0.0:
         return base
     means, covs = kernels(mem.pos, mem.cov, s.kernel_std, var_v, base.turn_std**2)

@@ -55,7 +55,8 @@ class LearnedBirthTracker(BnpTracker):
     def settings(self) -> BirthSettings:
         c = self.config
         return BirthSettings(c.learn_births, c.learn_birth_velocity, c.birth_memory_forgetting, c.birth_kernel_std,
-                             c.birth_memory_lag, c.birth_velocity_std, c.birth_velocity_strength)
+                             c.birth_memory_lag, c.birth_velocity_std, c.birth_velocity_strength,
+                             c.birth_alpha_min)
 
     def initial_state(self) -> LearnedBirthState:
         inner = super().initial_state()

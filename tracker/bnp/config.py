@@ -104,6 +104,9 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     birth_memory_lag: Annotated[int, msgspec.Meta(ge=1, le=50)] = 4
     """A cluster is recorded as a birth this many frames after it was born, with its existence
     then as its weight."""
+    birth_alpha_min: Annotated[float, msgspec.Meta(ge=0.1, le=1000.0)] = 0.1
+    """The learned base distribution's concentration alpha_H (in births) has a log-uniform prior
+    on [birth_alpha_min, 1000] (:data:`tracker.bnp.birth_memory.ALPHA_H_GRID`)."""
     birth_velocity_strength: Positive = 5.0
     """Pseudo-births of the learned velocity variance's prior (at ``birth_velocity_std``)."""
 
