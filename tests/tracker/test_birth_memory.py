@@ -193,3 +193,27 @@ def test_recurring_entry_point_confirms_later_births_earlier(params):
     d_l, d_p = np.array(d_l, float), np.array(d_p, float)
     assert d_l[:, 3:].mean() < d_l[:, 0].mean() - 0.9, d_l
     assert d_l[:, 3:].mean() < d_p[:, 3:].mean() - 0.9, (d_l, d_p)
+
+
+def test_birth_states_propagate_back_to_the_birth_scan():
+    """Cluster "10.3" at frame 14 (tau = 4 s): b = p - 4 v, C = P_pp + 16 P_vv (diagonal P);
+    "12.0" is outside the window (10, 10], "10.1" is below MIN_WEIGHT."""
+    from bnptrack.tracker.bnp.birth_memory import birth_states
+
+    mean = np.array([[100.0, 5.0, 200.0, -2.0, 0.0]] * 3)
+    cov = np.array([np.diag([30.0, 4.0, 50.0, 9.0, 0.01])] * 3)
+    pos, C, w, vel_sq = birth_states(("10.3", "12.0", "10.1"), mean, cov, np.array([0.8, 0.9, 0.04]), 9, 10, 14, 1.0)
+    np.testing.assert_allclose(pos, [[80.0, 208.0]])
+    np.testing.assert_allclose(C, [np.diag([30.0 + 16 * 4.0, 50.0 + 16 * 9.0])])
+    np.testing.assert_allclose(w, [0.8])
+    np.testing.assert_allclose(vel_sq, [25.0 + 4.0 + 4.0 + 9.0])
+
+
+def test_learned_velocity_variance_is_the_conjugate_mean():
+    """n0 = 5 pseudo-births at 20 m/s, two births of weight 1 and 0.5 with E|v|^2 = 200 and
+    800: sigma^2 = (5 * 400 + (200 + 0.5 * 800) / 2) / (5 + 1.5)."""
+    from bnptrack.tracker.bnp.birth_memory import velocity_variance
+
+    mem = BirthMemory(vel_stats=np.array([1.5, 0.5 * (200.0 + 0.5 * 800.0)]))
+    assert velocity_variance(mem, _settings(learn_velocity=True)) == pytest.approx((2000.0 + 300.0) / 6.5)
+    assert velocity_variance(mem, _settings()) == 400.0

@@ -22,6 +22,10 @@ We use a birth *intensity* that is a sum of independent sources, normalised into
   multi-Bernoulli birth of the GLMB baseline), each with its expected births per scan
   :math:`r_i`: prior knowledge of where objects appear, an informative part of :math:`H` that
   adds to the uniform part instead of replacing it.  Without regions :math:`H` is uniform.
+
+With ``learn_births`` this :math:`H` is the base :math:`H_0` of a learned :math:`H_k` (a Polya-urn
+posterior predictive over the births so far, :meth:`BaseDistribution.mixed_with` adds its
+kernels): :mod:`tracker.bnp.birth_memory`.
 """
 
 from __future__ import annotations
