@@ -16,6 +16,10 @@ p = 1, split into localisation and cardinality parts), OSPA(2) (window 10), mean
 
     nice -n 10 python3 benchmarks/random_bound.py --scenario random --first-seed 101 --seeds 20
     nice -n 10 python3 benchmarks/random_bound.py --scenario random --seeds 20 --set sigma_accel=1
+    nice -n 10 python3 benchmarks/random_bound.py --scenario vo2017 --seeds 20 --set 'birth=[]'
+
+The overrides apply after the scenario's own settings (as in ``benchmarks/accuracy.py``), so
+``--set 'birth=[]'`` takes ``vo2017``'s birth regions away (the oracle's ``H`` is then uniform).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from benchmarks.dropped_bound import OracleTracker, labelled_detections  # noqa:
 from bnptrack.sinks.metrics import ospa, ospa2_series  # noqa: E402
 from bnptrack.sources.scenarios import get_scenario, is_generated  # noqa: E402
 from bnptrack.sources.synthetic import simulate_all  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
 from bnptrack.tracker.models.params import load_params  # noqa: E402
 
 C = 100.0
@@ -41,7 +46,7 @@ def one_run(job) -> dict[int, dict[str, float]]:
     """``{confirm: scores}`` of one seed, every ``confirm`` on the same frames and detections."""
     seed, scenario, overrides, confirms = job
     sc = get_scenario(scenario, seed if is_generated(scenario) else None)
-    params = sc.adapt_params(load_params("vo2017", overrides))
+    params = apply_overrides(sc.adapt_params(load_params("vo2017")), overrides)  # after the scenario's, as accuracy.py
     frames = simulate_all(sc, params, seed)
     dets = [labelled_detections(params, f, seed) for f in frames]
     truth = [dict(zip(f.truth.ids, f.truth.positions)) for f in frames]

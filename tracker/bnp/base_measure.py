@@ -22,6 +22,10 @@ We use a birth *intensity* that is a sum of independent sources, normalised into
   multi-Bernoulli birth of the GLMB baseline), each with its expected births per scan
   :math:`r_i`: prior knowledge of where objects appear, an informative part of :math:`H` that
   adds to the uniform part instead of replacing it.  Without regions :math:`H` is uniform.
+
+With ``learn_births`` this :math:`H` is the base :math:`H_0` of a learned :math:`H_k` (a Polya-urn
+posterior predictive over the births so far, :meth:`BaseDistribution.mixed_with` adds its
+kernels): :mod:`tracker.bnp.birth_memory`.
 """
 
 from __future__ import annotations
@@ -62,6 +66,19 @@ class BaseDistribution:
             covs = np.stack([np.diag(np.square(c.std)) for c in comps])
         return BaseDistribution(w, means, covs, float(uniform_weight), velocity_std, turn_std,
                                 np.deg2rad(params.bearing_half_fov_deg))
+
+    def mixed_with(self, share: float, weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
+                   innovations: dict | None = None) -> "BaseDistribution":
+        r""":math:`(1 - s) H + s \sum_i w_i \mathcal N(\mu_i, \Sigma_i)` (``weights`` summing to 1,
+        ``share`` = :math:`s`): the learned base distribution :math:`H_k` of
+        :mod:`tracker.bnp.birth_memory`.  The new components go after this one's.
+        ``innovations``: a cache of the components' predicted measurements per sensor model to
+        share with other mixtures of the same components (they depend on the components only)."""
+        keep = 1.0 - share
+        return BaseDistribution(np.concatenate([keep * self.weights, share * weights]),
+                                np.concatenate([self.means, means]), np.concatenate([self.covs, covs]),
+                                keep * self.uniform_weight, self.velocity_std, self.turn_std, self.half_fov,
+                                {} if innovations is None else innovations)
 
     def _innovation(self, meas):
         """Predicted measurements of the birth components (fixed: cached per sensor model)."""

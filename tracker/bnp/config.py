@@ -87,6 +87,28 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     "Births anywhere")."""
     extended: bool = False
     """Allow several measurements per object per frame (case D1/P1); off for point objects."""
+    learn_births: bool = False
+    """Learn where objects appear: the base distribution becomes the Polya-urn posterior
+    predictive H_k = E[alpha_H/(alpha_H+W)] H + E[1/(alpha_H+W)] sum_i w_i kappa(x; b_i) over the
+    births recorded so far (:mod:`tracker.bnp.birth_memory`; docs/trackers.md, "Births anywhere",
+    session 9).  Off by default (measured: docs/results.md, section 6)."""
+    learn_birth_velocity: bool = False
+    """Learn the newborn's per-axis velocity variance from the recorded births' velocities
+    (conjugate inverse-gamma update; :func:`tracker.bnp.birth_memory.velocity_variance`)."""
+    birth_memory_forgetting: PositiveProb = 0.99
+    """Recorded births' weights (and alpha_H's log-likelihood) are multiplied by this per scan."""
+    birth_kernel_std: NonNeg = 50.0
+    """Metres: the extent of an entry point, added (as s^2 I) to each recorded birth position's
+    own uncertainty in its kernel kappa.  50 chosen on ``vo2017`` without regions, seeds 101-120,
+    among 10 / 25 / 50 / 100 / 200 (docs/trackers.md, "Births anywhere", session 9)."""
+    birth_memory_lag: Annotated[int, msgspec.Meta(ge=1, le=50)] = 4
+    """A cluster is recorded as a birth this many frames after it was born, with its existence
+    then as its weight."""
+    birth_alpha_min: Annotated[float, msgspec.Meta(ge=0.1, le=1000.0)] = 0.1
+    """The learned base distribution's concentration alpha_H (in births) has a log-uniform prior
+    on [birth_alpha_min, 1000] (:data:`tracker.bnp.birth_memory.ALPHA_H_GRID`)."""
+    birth_velocity_strength: Positive = 5.0
+    """Pseudo-births of the learned velocity variance's prior (at ``birth_velocity_std``)."""
 
     def __post_init__(self) -> None:
         if self.burn_in >= self.sweeps:
