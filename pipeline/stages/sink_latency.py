@@ -1,0 +1,117 @@
+"""The sink's latency figures (``sink.json``'s ``latency``, the health counters' p50/p99, the
+launcher's summary line): which written ``/tracks`` are timed, and what they say.
+
+A latency is a frame's first delivery: the time from the source's publication (``t`` of the
+attachment) to this sink process's receipt of the frame's ``/tracks``.  A sink that
+(re)starts while the run is going receives the run so far from the publishers' caches (the
+Zenoh history, a restarted tracker's journal): those samples were published before it
+subscribed (the tracker's ``t_out``, else the source's ``t``, is earlier than the
+subscription), so their receipt is a re-delivery -- its "latency" is the age of the frame
+(seconds, the outage and the catch-up), not the pipeline's per-frame latency, and the first
+delivery's latency died with the killed process.  They are written like every frame but not
+timed; ``excluded`` counts them (and the frames recovered from a killed sink's ``.part`` file,
+which carry no time stamp).  A frame that waited live (a restarted tracker catching up) is
+timed: its delay is real (docs/pipeline.md, "Session 9: pipefix").
+"""
+
+from __future__ import annotations
+
+from collections.abc import MutableSequence
+from typing import Any
+
+__all__ = ["LatencyBook"]
+
+
+def _int(v: Any) -> int | None:
+    return v if isinstance(v, int) and not isinstance(v, bool) and v > 0 else None
+
+
+class LatencyBook:
+    """The timed frames of one sink process.  ``since_ns``: when it subscribed (its clock),
+    set by :meth:`subscribed`; ``counter``: the health counters' latency samples (appended
+    with each timed frame)."""
+
+    def __init__(self, counter: MutableSequence[float]) -> None:
+        self.counter = counter
+        self.since_ns: int | None = None
+        self.seq: list[int] = []
+        self.e2e_ms: list[float] = []
+        self.tracker_ms: list[float] = []
+        self.hop_ms: list[tuple[float, float, float]] = []
+        self.handoff_ms: list[float] = []  # the tracker's callback -> main thread (t_deq - t_in)
+        self.meas_hop_ms: list[float] = []  # source -> this sink, the frame's /measurements
+        self.history: list[int] = []  # seqs re-delivered from the caches (published before since_ns)
+        self.untimed = 0  # written /tracks without a publication time (recovered from a .part file)
+        self.last_ms: float | None = None  # the age of the last written frame (progress, health)
+        self.n_stamped = 0  # written /tracks with a publication time (timed or history)
+        self.t_first_pub_ns: int | None = None
+        self.t_last_ns: int | None = None
+
+    def subscribed(self, t_ns: int) -> None:
+        self.since_ns = int(t_ns)
+
+    def note(self, s: int, tracks: Any, meas: Any = None) -> None:
+        """Frame ``s``'s written ``/tracks`` (an ``Accepted``), with its ``/measurements``
+        (``meas``; ``None`` when missing): timed when first delivered, else counted."""
+        meta = tracks.meta
+        t_pub = _int(meta.get("t"))
+        if t_pub is None:
+            self.untimed += 1
+            return
+        self.n_stamped += 1
+        self.t_last_ns = tracks.t_recv_ns
+        if self.t_first_pub_ns is None:
+            self.t_first_pub_ns = t_pub
+        self.last_ms = (tracks.t_recv_ns - t_pub) / 1e6
+        t_out = _int(meta.get("t_out")) or t_pub
+        if self.since_ns is not None and t_out < self.since_ns:
+            self.history.append(s)
+            return
+        self._time(s, tracks, t_pub, meas)
+
+    def _time(self, s: int, tracks: Any, t_pub: int, meas: Any) -> None:
+        e2e = (tracks.t_recv_ns - t_pub) / 1e6
+        self.e2e_ms.append(e2e)
+        self.counter.append(e2e)
+        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
+        self.seq.append(s)
+        meta = tracks.meta
+        t_in, t_out, t_deq = _int(meta.get("t_in")), _int(meta.get("t_out")), _int(meta.get("t_deq"))
+        if t_in is not None and t_out is not None:
+            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
+        if t_in is not None and t_deq is not None:
+            self.handoff_ms.append((t_deq - t_in) / 1e6)
+        if meas is not None and _int(meas.meta.get("t")) is not None:
+            self.meas_hop_ms.append((meas.t_recv_ns - meas.meta["t"]) / 1e6)
+
+    def throughput_fps(self) -> float | None:
+        """Frames per second from the first stamped frame's publication to the last
+        ``/tracks``' receipt, over the frames with a publication time (a restarted sink's
+        history included: its span starts at the run's first frame)."""
+        if self.t_first_pub_ns is None or self.t_last_ns is None or self.n_stamped < 2:
+            return None
+        return self.n_stamped / max((self.t_last_ns - self.t_first_pub_ns) / 1e9, 1e-9)
+
+    def as_dict(self) -> dict[str, Any]:
+        """``sink.json``'s ``latency``: the timed frames' figures, aligned on ``seq`` (the hop
+        lists hold the frames whose attachment has the stamps), and what was not timed."""
+        return {"seq": self.seq, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
+                "source_to_tracker_ms": [h[0] for h in self.hop_ms],
+                "in_tracker_ms": [h[1] for h in self.hop_ms],
+                "tracker_to_sink_ms": [h[2] for h in self.hop_ms],
+                "tracker_handoff_ms": self.handoff_ms,
+                "source_to_sink_measurements_ms": self.meas_hop_ms,
+                "timed_frames": len(self.seq),
+                "excluded": {"redelivered": len(self.history), "recovered": self.untimed},
+                "redelivered_seq": _ranges(self.history)}
+
+
+def _ranges(seqs: list[int]) -> list[list[int]]:
+    """``seqs`` (ascending) as ``[first, last]`` runs."""
+    out: list[list[int]] = []
+    for s in seqs:
+        if out and s == out[-1][1] + 1:
+            out[-1][1] = s
+        else:
+            out.append([s, s])
+    return out
