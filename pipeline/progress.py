@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-__all__ = ["Status", "Progress", "progress_line", "describe_latency"]
+__all__ = ["Status", "Progress", "progress_line", "describe_latency", "describe_rejected"]
 
 
 @dataclass
@@ -164,4 +164,16 @@ def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
         text += f" (not timed: {', '.join(why)})"
     if text and lat.get("p50") is not None and not paced:
         text += " (frames published as fast as possible: includes queueing)"
+    return text
+
+
+def describe_rejected(summary: dict[str, Any]) -> str:
+    """The summary's ``rejected`` row from ``sink.json``: the samples the sink rejected and the
+    duplicates it dropped -- counted by the sink process that finished the run, which says so
+    when it was restarted (its predecessor's counts died with it; its dead letters are in
+    ``health.jsonl``)."""
+    c = summary.get("counters") or {}
+    text = f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"
+    if summary.get("restarted"):
+        text += "; counted by the restarted sink since its restart"
     return text

@@ -43,13 +43,11 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         if summary:
             rows.append(("frames", f"{summary.get('frames_written', 0)} "
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
-            c = summary.get("counters") or {}
-            rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
             from bnptrack.pipeline.launch import describe_missing
+            from bnptrack.pipeline.progress import describe_latency, describe_rejected
 
+            rows.append(("rejected", describe_rejected(summary)))
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
-            from bnptrack.pipeline.progress import describe_latency
-
             if lat_text := describe_latency(summary, paced):
                 rows.append(("latency", lat_text))
         rows += _score_rows(summary.get("scores"))

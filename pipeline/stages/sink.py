@@ -76,6 +76,7 @@ class SinkStage(StageBase):
         self.gone = ""  # why the sink stopped waiting (the upstream was gone)
         self.recovered = 0  # frames recovered from the earlier process's .part file
         self.earlier: dict | None = None  # the sink.json an earlier process of this run wrote
+        self.restarted = False  # an earlier sink process of this run left outputs: counters are ours only
 
     # -- output ------------------------------------------------------------------------
     def _metadata(self) -> tuple[bool, dict[str, str] | None]:
@@ -383,6 +384,7 @@ class SinkStage(StageBase):
             "recovered_frames": self.recovered,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
+            "restarted": self.restarted,  # the counters are this process's (an earlier one's are lost)
             "rejected_by_topic": self.intake.rejected_by_topic,
             "dropped": int(self.bus.dropped),
             "zenoh_misses": int(self.bus.misses),
@@ -453,7 +455,8 @@ class SinkStage(StageBase):
             seq.hold_catch_up_through(self.bus.head(name))
         self.bus.declare([f"eos/{self.name}"])
         self.bus.declare_alive()
-        if self._restarted():
+        self.restarted = self._restarted()
+        if self.restarted:
             self.alone = UpstreamWatch(self.bus, ["source"] + (["tracker"] if self.sink_cfg.tracks else []),
                                        topics, self.delivery.upstream_gone_s, self.clock.monotonic)
         outcome = self._record()

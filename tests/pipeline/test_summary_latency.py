@@ -16,8 +16,8 @@ import msgspec
 import pytest
 
 from bnptrack.pipeline.membus import MemoryNetwork
-from bnptrack.pipeline.progress import describe_latency
-from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, ManualClock, source_frames
+from bnptrack.pipeline.progress import describe_latency, describe_rejected
+from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, ManualClock, part_path, source_frames
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.sink_latency import LatencyBook
 from bnptrack.tracker.messages import encode, from_truth
@@ -28,41 +28,47 @@ from testkit import mem_cfg, run_memory_pipeline, wait_until
 AGO_NS = 600 * 10**9  # the history was published ten minutes before the sink subscribed
 
 
-def _publish_frames(bus, run: str, frames, seqs, t_of) -> None:
+def _publish_frames(src, trk, run: str, frames, seqs, t_of) -> None:
     """What the source and the tracker publish for frames ``seqs``: /measurements, /truth and
     /tracks (an empty estimate) with the attachments of the real stages; ``t_of(seq)`` is
     the source's publication time, the tracker's stamps follow it by 1-3 ms."""
     for s in seqs:
         f = frames[s]
         t = t_of(s)
-        bus.publish("measurements", encode(f, run), {"seq": s, "t": t, "frame": f.frame, "truth": True})
-        bus.publish("truth", encode(from_truth(f.frame, f.stamp_ns, f.truth, run)), {"seq": s, "t": t, "frame": f.frame})
+        src.publish("measurements", encode(f, run), {"seq": s, "t": t, "frame": f.frame, "truth": True})
+        src.publish("truth", encode(from_truth(f.frame, f.stamp_ns, f.truth, run)), {"seq": s, "t": t, "frame": f.frame})
         est = Estimate(frame=f.frame, stamp_ns=f.stamp_ns, tracks=(), diagnostics={"ms": 1.0})
-        bus.publish("tracks", encode(est, run), {"seq": s, "t": t, "frame": f.frame, "t_in": t + 10**6,
+        trk.publish("tracks", encode(est, run), {"seq": s, "t": t, "frame": f.frame, "t_in": t + 10**6,
                                                  "t_deq": t + 2 * 10**6, "t_out": t + 3 * 10**6})
 
 
-def _run_late_sink(tmp_path: Path, n: int, k: int) -> tuple[dict, int]:
-    """Frames ``0..k-1`` published (by fakes of the source and the tracker) ten minutes before
-    the sink stage starts, ``k..n-1`` live once it has subscribed; the sink's ``sink.json``
-    and the time it subscribed at (its clock)."""
+def _run_late_sink(tmp_path: Path, n: int, k: int, killed: bool = False) -> tuple[dict, int]:
+    """Frames ``0..k-1`` published (by fakes of the source and the tracker, alive) ten minutes
+    before the sink stage starts, ``k..n-1`` live once it has subscribed; ``killed``: an earlier
+    sink process of the run left its ``.tracks.mcap.part`` (cut short), so this one is a
+    restarted sink.  The sink's ``sink.json`` and the time it subscribed at (its clock)."""
     cfg = mem_cfg(tmp_path, frames=n)
     meta, frames = source_frames(cfg)
     frames = list(frames)
+    if killed:
+        Path(cfg.out).mkdir(parents=True)
+        part_path(Path(cfg.out) / "tracks.mcap").write_bytes(b"\x89MCAP0\r\n")  # killed at once
     net = MemoryNetwork()
     now = time.time_ns()
     clock = ManualClock(start_ns=now)  # stands still until the source's end of stream
     enc = msgspec.json.encode
-    up = net.bus(cfg.run, "upstream")
-    up.publish("info/source", enc(StageInfo(stage="source", run=cfg.run, kind="list", metadata=meta)))
-    up.publish("info/tracker", enc(StageInfo(stage="tracker", run=cfg.run, tracker="fake", metadata=meta)))
-    _publish_frames(up, cfg.run, frames, range(k), lambda s: now - AGO_NS + s * 20 * 10**6)
+    src, trk = net.bus(cfg.run, "source"), net.bus(cfg.run, "tracker")
+    src.declare_alive()
+    trk.declare_alive()
+    src.publish("info/source", enc(StageInfo(stage="source", run=cfg.run, kind="list", metadata=meta)))
+    trk.publish("info/tracker", enc(StageInfo(stage="tracker", run=cfg.run, tracker="fake", metadata=meta)))
+    _publish_frames(src, trk, cfg.run, frames, range(k), lambda s: now - AGO_NS + s * 20 * 10**6)
 
     def live() -> None:
         wait_until(lambda: "sink" in net.alive.get((cfg.run, "alive"), set()), 60, "the sink to subscribe")
-        _publish_frames(up, cfg.run, frames, range(k, n), lambda s: time.time_ns())
-        for stage in ("source", "tracker"):
-            up.publish(f"eos/{stage}", enc(EndOfStream(stage=stage, run=cfg.run, last_seq=n - 1, frames=n)))
+        _publish_frames(src, trk, cfg.run, frames, range(k, n), lambda s: time.time_ns())
+        for bus in (src, trk):
+            bus.publish(f"eos/{bus.stage}", enc(EndOfStream(stage=bus.stage, run=cfg.run, last_seq=n - 1, frames=n)))
 
     feeder = threading.Thread(target=live, daemon=True)
     feeder.start()
@@ -71,10 +77,12 @@ def _run_late_sink(tmp_path: Path, n: int, k: int) -> tuple[dict, int]:
     return json.loads((Path(cfg.out) / SUMMARY_NAME).read_text()), now
 
 
-def test_a_sink_that_joins_late_times_only_the_frames_delivered_live(tmp_path):
+def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
     n, k = 12, 8  # most of the run is history, as after a sink killed late in a run
-    s, now = _run_late_sink(tmp_path, n, k)
+    s, now = _run_late_sink(tmp_path, n, k, killed=True)
     assert s["complete"] and s["frames_written"] == n and s["tracks_written"] == n  # every frame recorded
+    assert s["restarted"] and describe_rejected(s) == (
+        "0 (duplicates dropped: 0); counted by the restarted sink since its restart")
     lat = s["latency"]
     assert lat["seq"] == list(range(k, n)) and lat["timed_frames"] == n - k
     assert lat["excluded"] == {"redelivered": k, "recovered": 0}
@@ -97,6 +105,7 @@ def test_a_sink_that_joins_late_times_only_the_frames_delivered_live(tmp_path):
 
 def test_a_sink_there_from_the_start_times_every_frame(tmp_path):
     s, _ = _run_late_sink(tmp_path, 6, 0)
+    assert not s["restarted"] and describe_rejected(s) == "0 (duplicates dropped: 0)"
     lat = s["latency"]
     assert lat["seq"] == list(range(6)) and lat["excluded"] == {"redelivered": 0, "recovered": 0}
     assert lat["redelivered_seq"] == []
