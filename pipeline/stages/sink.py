@@ -15,7 +15,7 @@ from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Acce
 from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
-from bnptrack.pipeline.stages.sink_latency import LatencyBook
+from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord
 from bnptrack.sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
 from bnptrack.tracker.types import FrameBounds
@@ -358,6 +358,7 @@ class SinkStage(StageBase):
             pass
         for f in self.files:
             part_path(f).unlink(missing_ok=True)
+        self.latency.discard()
 
     def _finalize(self, complete: bool) -> None:
         if not complete:
@@ -401,6 +402,7 @@ class SinkStage(StageBase):
         sync_parts(self.files)  # the outputs are on disk before the summary says they are done
         write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
         commit_parts(self.files)
+        self.latency.discard()  # sink.json holds the timed frames now
         self.files.append(str(path))
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
@@ -447,6 +449,7 @@ class SinkStage(StageBase):
         self.earlier = earlier_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
         if self.earlier is not None and self.earlier.get("complete"):
             return self._end_again(self.earlier)
+        self.latency.carry_over(self.ctx.out / LATENCY_PART, self.run_id)  # an earlier process's
         self._warm_up()
         topics = ["measurements", "truth"] + (["tracks"] if self.sink_cfg.tracks else [])
         self.latency.subscribed(self.clock.time_ns())  # what was published before is history
@@ -552,6 +555,7 @@ class SinkStage(StageBase):
                     self._on_event(ev)
             self._drain_ready()
             self._fetch_due()
+            self.latency.save_due(self.clock.monotonic())
             self.health(extra=self._sink_health)
             if self._check_end():
                 return "complete"

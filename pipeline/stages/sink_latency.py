@@ -8,18 +8,29 @@ Zenoh history, a restarted tracker's journal): those samples were published befo
 subscribed (the tracker's ``t_out``, else the source's ``t``, is earlier than the
 subscription), so their receipt is a re-delivery -- its "latency" is the age of the frame
 (seconds, the outage and the catch-up), not the pipeline's per-frame latency, and the first
-delivery's latency died with the killed process.  They are written like every frame but not
-timed; ``excluded`` counts them (and the frames recovered from a killed sink's ``.part`` file,
-which carry no time stamp).  A frame that waited live (a restarted tracker catching up) is
-timed: its delay is real (docs/pipeline.md, "Session 9: pipefix").
+delivery was timed by the killed process, if at all.  Each sink process saves its timed
+frames to :data:`LATENCY_PART` (about once a second) and a restarted one reads them back first:
+a re-delivered frame keeps its predecessor's first-delivery latency; one that no process timed
+(not yet saved when the predecessor was killed, or published while no sink ran) is written like
+every frame but not timed, and ``excluded`` counts it (and the frames recovered from a killed
+sink's ``.part`` file, which carry no time stamp).  A frame that waited live (a restarted tracker
+catching up) is timed: its delay is real (docs/pipeline.md, "Session 9: pipefix").
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import MutableSequence
-from typing import Any
+from pathlib import Path
+from typing import IO, Any
 
-__all__ = ["LatencyBook"]
+import msgspec
+
+__all__ = ["LatencyBook", "LATENCY_PART"]
+
+#: The timed frames of a run's sink processes so far, in the output directory until the run's
+#: ``sink.json`` holds them: a line ``{"run": RUN}``, then one JSON line per frame.
+LATENCY_PART = ".sink.latency.part"
 
 
 def _int(v: Any) -> int | None:
@@ -46,9 +57,65 @@ class LatencyBook:
         self.n_stamped = 0  # written /tracks with a publication time (timed or history)
         self.t_first_pub_ns: int | None = None
         self.t_last_ns: int | None = None
+        self.carried: set[int] = set()  # seqs timed by an earlier sink process of the run
+        self._unsaved: list[list] = []
+        self._path: Path | None = None
+        self._run = ""
+        self._file: IO[bytes] | None = None
+        self._saved_at = float("-inf")
 
     def subscribed(self, t_ns: int) -> None:
         self.since_ns = int(t_ns)
+
+    # -- across sink processes -------------------------------------------------------------
+    def carry_over(self, path: Path, run: str) -> None:
+        """Take the frames that earlier sink processes of run ``run`` timed and saved at
+        ``path`` (none: no such file, or another run's), and save this process's there too."""
+        self._path, self._run = path, run
+        try:
+            lines = path.read_bytes().split(b"\n")
+        except OSError:
+            return
+        try:
+            if msgspec.json.decode(lines[0]).get("run") != run:
+                return
+        except (msgspec.DecodeError, AttributeError):
+            return
+        self._file = open(path, "ab")  # noqa: SIM115 (closed by discard)
+        for line in lines[1:]:
+            try:
+                seq, e2e, tracker, hop, handoff, meas_hop = msgspec.json.decode(line)
+            except (msgspec.DecodeError, ValueError, TypeError):
+                continue  # the torn last line of a killed process
+            self._add(int(seq), e2e, tracker, tuple(hop) if hop else None, handoff, meas_hop)
+            self.carried.add(int(seq))
+
+    def save_due(self, now: float, every: float = 1.0) -> None:
+        """Save the frames timed since the last save, at most every ``every`` seconds."""
+        if self._unsaved and now - self._saved_at >= every:
+            self._saved_at = now
+            self.save()
+
+    def save(self) -> None:
+        if not self._unsaved or self._path is None:
+            return
+        if self._file is None:
+            self._file = open(self._path, "wb")  # noqa: SIM115 (closed by discard)
+            self._file.write(msgspec.json.encode({"run": self._run}) + b"\n")
+        self._file.write(b"".join(msgspec.json.encode(r) + b"\n" for r in self._unsaved))
+        self._file.flush()  # in the kernel: it survives a SIGKILL of this process
+        self._unsaved.clear()
+
+    def discard(self) -> None:
+        """Close and remove the file (the run's ``sink.json`` holds the figures now)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        if self._path is not None:
+            try:
+                os.unlink(self._path)
+            except FileNotFoundError:
+                pass
 
     def note(self, s: int, tracks: Any, meas: Any = None) -> None:
         """Frame ``s``'s written ``/tracks`` (an ``Accepted``), with its ``/measurements``
@@ -56,7 +123,7 @@ class LatencyBook:
         meta = tracks.meta
         t_pub = _int(meta.get("t"))
         if t_pub is None:
-            self.untimed += 1
+            self.untimed += s not in self.carried
             return
         self.n_stamped += 1
         self.t_last_ns = tracks.t_recv_ns
@@ -64,25 +131,41 @@ class LatencyBook:
             self.t_first_pub_ns = t_pub
         self.last_ms = (tracks.t_recv_ns - t_pub) / 1e6
         t_out = _int(meta.get("t_out")) or t_pub
+        if s in self.carried:  # timed on its first delivery, to an earlier sink process
+            return
         if self.since_ns is not None and t_out < self.since_ns:
             self.history.append(s)
             return
         self._time(s, tracks, t_pub, meas)
 
     def _time(self, s: int, tracks: Any, t_pub: int, meas: Any) -> None:
-        e2e = (tracks.t_recv_ns - t_pub) / 1e6
-        self.e2e_ms.append(e2e)
-        self.counter.append(e2e)
-        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
-        self.seq.append(s)
         meta = tracks.meta
         t_in, t_out, t_deq = _int(meta.get("t_in")), _int(meta.get("t_out")), _int(meta.get("t_deq"))
+        hop = None
         if t_in is not None and t_out is not None:
-            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
-        if t_in is not None and t_deq is not None:
-            self.handoff_ms.append((t_deq - t_in) / 1e6)
+            hop = ((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6)
+        handoff = (t_deq - t_in) / 1e6 if t_in is not None and t_deq is not None else None
+        meas_hop = None
         if meas is not None and _int(meas.meta.get("t")) is not None:
-            self.meas_hop_ms.append((meas.t_recv_ns - meas.meta["t"]) / 1e6)
+            meas_hop = (meas.t_recv_ns - meas.meta["t"]) / 1e6
+        rec = [s, (tracks.t_recv_ns - t_pub) / 1e6, float(tracks.msg.diagnostics.get("ms", float("nan"))),
+               hop, handoff, meas_hop]
+        self._add(*rec)
+        if self._path is not None:
+            self._unsaved.append(rec)
+
+    def _add(self, s: int, e2e: float, tracker: float, hop: Any, handoff: float | None,
+             meas_hop: float | None) -> None:
+        self.seq.append(s)
+        self.e2e_ms.append(e2e)
+        self.counter.append(e2e)
+        self.tracker_ms.append(tracker)
+        if hop is not None:
+            self.hop_ms.append(hop)
+        if handoff is not None:
+            self.handoff_ms.append(handoff)
+        if meas_hop is not None:
+            self.meas_hop_ms.append(meas_hop)
 
     def throughput_fps(self) -> float | None:
         """Frames per second from the first stamped frame's publication to the last
@@ -102,6 +185,7 @@ class LatencyBook:
                 "tracker_handoff_ms": self.handoff_ms,
                 "source_to_sink_measurements_ms": self.meas_hop_ms,
                 "timed_frames": len(self.seq),
+                "timed_by_earlier_sink": len(self.carried),
                 "excluded": {"redelivered": len(self.history), "recovered": self.untimed},
                 "redelivered_seq": _ranges(self.history)}
 

@@ -19,7 +19,7 @@ from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.progress import describe_latency, describe_rejected
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, ManualClock, part_path, source_frames
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
-from bnptrack.pipeline.stages.sink_latency import LatencyBook
+from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.tracker.messages import encode, from_truth
 from bnptrack.tracker.types import Estimate
 
@@ -42,17 +42,22 @@ def _publish_frames(src, trk, run: str, frames, seqs, t_of) -> None:
                                                  "t_deq": t + 2 * 10**6, "t_out": t + 3 * 10**6})
 
 
-def _run_late_sink(tmp_path: Path, n: int, k: int, killed: bool = False) -> tuple[dict, int]:
+def _run_late_sink(tmp_path: Path, n: int, k: int, killed: bool = False,
+                   saved: list[tuple[int, float]] = ()) -> tuple[dict, int]:
     """Frames ``0..k-1`` published (by fakes of the source and the tracker, alive) ten minutes
     before the sink stage starts, ``k..n-1`` live once it has subscribed; ``killed``: an earlier
     sink process of the run left its ``.tracks.mcap.part`` (cut short), so this one is a
-    restarted sink.  The sink's ``sink.json`` and the time it subscribed at (its clock)."""
+    restarted sink; ``saved``: (seq, latency in ms) of the frames that process timed and saved
+    (:data:`LATENCY_PART`, cut in the middle of the next line).  The sink's ``sink.json`` and
+    the time it subscribed at (its clock)."""
     cfg = mem_cfg(tmp_path, frames=n)
     meta, frames = source_frames(cfg)
     frames = list(frames)
     if killed:
         Path(cfg.out).mkdir(parents=True)
         part_path(Path(cfg.out) / "tracks.mcap").write_bytes(b"\x89MCAP0\r\n")  # killed at once
+    if saved:
+        _save_as_killed(Path(cfg.out) / LATENCY_PART, cfg.run, saved)
     net = MemoryNetwork()
     now = time.time_ns()
     clock = ManualClock(start_ns=now)  # stands still until the source's end of stream
@@ -112,6 +117,50 @@ def test_a_sink_there_from_the_start_times_every_frame(tmp_path):
     p50, p99 = s["counters"]["latency_ms"]["p50"], s["counters"]["latency_ms"]["p99"]
     assert describe_latency(s) == f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms"
     assert describe_latency(s, paced=False).endswith("(frames published as fast as possible: includes queueing)")
+
+
+def _save_as_killed(path: Path, run: str, saved) -> None:
+    """What a sink process killed after timing and saving the frames ``saved`` leaves."""
+    ms = 10**6
+    book = LatencyBook([])
+    book.carry_over(path, run)
+    for seq, e2e in saved:
+        book.note(seq, _Acc({"t": 1000 * ms, "t_in": 1001 * ms, "t_out": 1002 * ms}, int(1000 * ms + e2e * ms)))
+    book.save()
+    book._file.write(b'[99, 1.0, 2.0')  # the kill, in the middle of a line
+    book._file.close()
+
+
+def test_a_restarted_sink_keeps_the_latencies_its_killed_predecessor_timed(tmp_path):
+    """The killed sink process timed frames 0-5 live and saved them; 6 and 7 it received but had
+    not saved.  Its successor takes 0-5 with their first-delivery latencies, does not time 6-7
+    (re-delivered) and times 8-11 (live); the saved file is gone once sink.json holds them."""
+    n, k = 12, 8
+    saved = [(s, 4.0 + s) for s in range(6)]
+    s, _ = _run_late_sink(tmp_path, n, k, killed=True, saved=saved)
+    lat = s["latency"]
+    assert lat["seq"] == [*range(6), *range(k, n)] and lat["timed_frames"] == 10
+    assert lat["e2e_ms"][:6] == [4.0, 5.0, 6.0, 7.0, 8.0, 9.0]
+    assert lat["timed_by_earlier_sink"] == 6 and lat["excluded"] == {"redelivered": 2, "recovered": 0}
+    assert lat["redelivered_seq"] == [[6, 7]] and s["counters"]["latency_ms"]["n"] == 10
+    assert lat["tracker_to_sink_ms"][:6] == [2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    assert not (tmp_path / "out" / LATENCY_PART).exists()
+    assert "over 10 frame(s) (not timed: 2 re-delivered from the caches to the restarted sink)" in describe_latency(s)
+
+
+def test_a_saved_latency_file_of_another_run_is_ignored_and_replaced(tmp_path):
+    path = tmp_path / LATENCY_PART
+    _save_as_killed(path, "other", [(0, 5.0)])
+    book = LatencyBook([])
+    book.carry_over(path, "mine")
+    assert book.seq == [] and book.carried == set()
+    book.note(3, _Acc({"t": 10**9}, 10**9 + 2 * 10**6))
+    book.save()
+    again = LatencyBook([])
+    again.carry_over(path, "mine")
+    assert again.seq == [3] and again.e2e_ms == [2.0] and again.carried == {3}
+    again.discard()
+    assert not path.exists()
 
 
 class _Acc:
