@@ -143,7 +143,8 @@ class Progress:
 def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
     """The summary's latency line from ``sink.json`` (``""``: nothing to say): p50 and p99 of
     the frames timed on their first delivery and, when some were not timed, how many and why
-    -- re-delivered from the publishers' caches to a restarted (or late) sink, recovered from a
+    -- received from the publishers' caches by a restarted (or late) sink, published before it
+    subscribed (re-deliveries; their age measures the outage, not the pipeline), recovered from a
     killed sink's ``.part`` file (:mod:`pipeline.stages.sink_latency`)."""
     if not summary:
         return ""
@@ -151,7 +152,7 @@ def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
     book = summary.get("latency") or {}
     excluded = book.get("excluded") or {}
     why = [f"{n} {what}" for n, what in (
-        (int(excluded.get("redelivered") or 0), "re-delivered from the caches to the restarted sink"),
+        (int(excluded.get("from_caches") or 0), "from the caches, published before the restarted sink subscribed"),
         (int(excluded.get("recovered") or 0), "recovered from the killed sink's .part file")) if n]
     text = ""
     if lat.get("p50") is not None:

@@ -6,9 +6,9 @@ attachment) to this sink process's receipt of the frame's ``/tracks``.  A sink t
 (re)starts while the run is going receives the run so far from the publishers' caches (the
 Zenoh history, a restarted tracker's journal): those samples were published before it
 subscribed (the tracker's ``t_out``, else the source's ``t``, is earlier than the
-subscription), so their receipt is a re-delivery -- its "latency" is the age of the frame
-(seconds, the outage and the catch-up), not the pipeline's per-frame latency, and the first
-delivery was timed by the killed process, if at all.  Each sink process saves its timed
+subscription): a re-delivery, or a frame published while no sink ran.  Its "latency" is the
+age of the frame (seconds, the outage and the catch-up), not the pipeline's per-frame latency,
+and its first delivery was timed by the killed process, if at all.  Each sink process saves its timed
 frames to :data:`LATENCY_PART` (about once a second) and a restarted one reads them back first:
 a re-delivered frame keeps its predecessor's first-delivery latency; one that no process timed
 (not yet saved when the predecessor was killed, or published while no sink ran) is written like
@@ -51,7 +51,7 @@ class LatencyBook:
         self.hop_ms: list[tuple[float, float, float]] = []
         self.handoff_ms: list[float] = []  # the tracker's callback -> main thread (t_deq - t_in)
         self.meas_hop_ms: list[float] = []  # source -> this sink, the frame's /measurements
-        self.history: list[int] = []  # seqs re-delivered from the caches (published before since_ns)
+        self.history: list[int] = []  # seqs from the caches, published before since_ns, not carried
         self.untimed = 0  # written /tracks without a publication time (recovered from a .part file)
         self.last_ms: float | None = None  # the age of the last written frame (progress, health)
         self.n_stamped = 0  # written /tracks with a publication time (timed or history)
@@ -186,8 +186,8 @@ class LatencyBook:
                 "source_to_sink_measurements_ms": self.meas_hop_ms,
                 "timed_frames": len(self.seq),
                 "timed_by_earlier_sink": len(self.carried),
-                "excluded": {"redelivered": len(self.history), "recovered": self.untimed},
-                "redelivered_seq": _ranges(self.history)}
+                "excluded": {"from_caches": len(self.history), "recovered": self.untimed},
+                "from_caches_seq": _ranges(self.history)}
 
 
 def _ranges(seqs: list[int]) -> list[list[int]]:

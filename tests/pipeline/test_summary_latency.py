@@ -90,8 +90,8 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
         "0 (duplicates dropped: 0); counted by the restarted sink since its restart")
     lat = s["latency"]
     assert lat["seq"] == list(range(k, n)) and lat["timed_frames"] == n - k
-    assert lat["excluded"] == {"redelivered": k, "recovered": 0}
-    assert lat["redelivered_seq"] == [[0, k - 1]]
+    assert lat["excluded"] == {"from_caches": k, "recovered": 0}
+    assert lat["from_caches_seq"] == [[0, k - 1]]
     assert s["counters"]["latency_ms"]["n"] == n - k
     # the live frames' latency is the time on this machine's loopback, not the history's age
     # (600 s: the old code's p50 and p99 were those ages)
@@ -105,15 +105,15 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
     text = describe_latency(s)
     p50, p99 = s["counters"]["latency_ms"]["p50"], s["counters"]["latency_ms"]["p99"]
     assert text == (f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms over {n - k} frame(s) "
-                    f"(not timed: {k} re-delivered from the caches to the restarted sink)")
+                    f"(not timed: {k} from the caches, published before the restarted sink subscribed)")
 
 
 def test_a_sink_there_from_the_start_times_every_frame(tmp_path):
     s, _ = _run_late_sink(tmp_path, 6, 0)
     assert not s["restarted"] and describe_rejected(s) == "0 (duplicates dropped: 0)"
     lat = s["latency"]
-    assert lat["seq"] == list(range(6)) and lat["excluded"] == {"redelivered": 0, "recovered": 0}
-    assert lat["redelivered_seq"] == []
+    assert lat["seq"] == list(range(6)) and lat["excluded"] == {"from_caches": 0, "recovered": 0}
+    assert lat["from_caches_seq"] == []
     p50, p99 = s["counters"]["latency_ms"]["p50"], s["counters"]["latency_ms"]["p99"]
     assert describe_latency(s) == f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms"
     assert describe_latency(s, paced=False).endswith("(frames published as fast as possible: includes queueing)")
@@ -134,18 +134,18 @@ def _save_as_killed(path: Path, run: str, saved) -> None:
 def test_a_restarted_sink_keeps_the_latencies_its_killed_predecessor_timed(tmp_path):
     """The killed sink process timed frames 0-5 live and saved them; 6 and 7 it received but had
     not saved.  Its successor takes 0-5 with their first-delivery latencies, does not time 6-7
-    (re-delivered) and times 8-11 (live); the saved file is gone once sink.json holds them."""
+    (from the caches) and times 8-11 (live); the saved file is gone once sink.json holds them."""
     n, k = 12, 8
     saved = [(s, 4.0 + s) for s in range(6)]
     s, _ = _run_late_sink(tmp_path, n, k, killed=True, saved=saved)
     lat = s["latency"]
     assert lat["seq"] == [*range(6), *range(k, n)] and lat["timed_frames"] == 10
     assert lat["e2e_ms"][:6] == [4.0, 5.0, 6.0, 7.0, 8.0, 9.0]
-    assert lat["timed_by_earlier_sink"] == 6 and lat["excluded"] == {"redelivered": 2, "recovered": 0}
-    assert lat["redelivered_seq"] == [[6, 7]] and s["counters"]["latency_ms"]["n"] == 10
+    assert lat["timed_by_earlier_sink"] == 6 and lat["excluded"] == {"from_caches": 2, "recovered": 0}
+    assert lat["from_caches_seq"] == [[6, 7]] and s["counters"]["latency_ms"]["n"] == 10
     assert lat["tracker_to_sink_ms"][:6] == [2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
     assert not (tmp_path / "out" / LATENCY_PART).exists()
-    assert "over 10 frame(s) (not timed: 2 re-delivered from the caches to the restarted sink)" in describe_latency(s)
+    assert "over 10 frame(s) (not timed: 2 from the caches, published before the restarted sink subscribed)" in describe_latency(s)
 
 
 def test_a_saved_latency_file_of_another_run_is_ignored_and_replaced(tmp_path):
@@ -189,12 +189,12 @@ def test_the_latency_book_cuts_at_the_subscription_on_the_trackers_stamp():
     assert book.hop_ms == [(1.0, 1494.0, 5.0)] and book.handoff_ms == [1.0] and book.meas_hop_ms == [3.0]
     assert book.last_ms == 20.0  # the age of the last written frame (progress, health)
     d = book.as_dict()
-    assert d["excluded"] == {"redelivered": 1, "recovered": 1} and d["redelivered_seq"] == [[0, 0]]
+    assert d["excluded"] == {"from_caches": 1, "recovered": 1} and d["from_caches_seq"] == [[0, 0]]
     # three stamped frames from 990 ms to 2520 ms
     assert book.throughput_fps() == pytest.approx(3 / 1.53)
     assert describe_latency({"counters": {"latency_ms": {"n": 2, "p50": 760.0, "p99": 1485.2}}, "latency": d}) == (
-        "source -> sink p50 760.00 ms, p99 1485.20 ms over 2 frame(s) (not timed: 1 re-delivered from the "
-        "caches to the restarted sink, 1 recovered from the killed sink's .part file)")
+        "source -> sink p50 760.00 ms, p99 1485.20 ms over 2 frame(s) (not timed: 1 from the caches, "
+        "published before the restarted sink subscribed, 1 recovered from the killed sink's .part file)")
     assert describe_latency({"counters": {"latency_ms": {"n": 0, "p50": None}},
-                             "latency": {"excluded": {"redelivered": 0, "recovered": 4}}}) == (
+                             "latency": {"excluded": {"from_caches": 0, "recovered": 4}}}) == (
         "no frame timed (not timed: 4 recovered from the killed sink's .part file)")
