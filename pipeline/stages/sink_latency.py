@@ -19,6 +19,7 @@ catching up) is timed: its delay is real (docs/pipeline.md, "Session 9: pipefix"
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import MutableSequence
 from pathlib import Path
@@ -27,6 +28,8 @@ from typing import IO, Any
 import msgspec
 
 __all__ = ["LatencyBook", "LATENCY_PART"]
+
+log = logging.getLogger("bnptrack.stage")
 
 #: The timed frames of a run's sink processes so far, in the output directory until the run's
 #: ``sink.json`` holds them: a line ``{"run": RUN}``, then one JSON line per frame.
@@ -81,7 +84,10 @@ class LatencyBook:
                 return
         except (msgspec.DecodeError, AttributeError):
             return
-        self._file = open(path, "ab")  # noqa: SIM115 (closed by discard)
+        try:
+            self._file = open(path, "ab")  # noqa: SIM115 (closed by discard)
+        except OSError as exc:
+            self._give_up(exc)
         for line in lines[1:]:
             try:
                 seq, e2e, tracker, hop, handoff, meas_hop = msgspec.json.decode(line)
@@ -97,24 +103,38 @@ class LatencyBook:
             self.save()
 
     def save(self) -> None:
+        """Append the frames timed since the last save (best effort: the run goes on without
+        the file when it cannot be written; a restarted sink then times fewer frames)."""
         if not self._unsaved or self._path is None:
             return
-        if self._file is None:
-            self._file = open(self._path, "wb")  # noqa: SIM115 (closed by discard)
-            self._file.write(msgspec.json.encode({"run": self._run}) + b"\n")
-        self._file.write(b"".join(msgspec.json.encode(r) + b"\n" for r in self._unsaved))
-        self._file.flush()  # in the kernel: it survives a SIGKILL of this process
+        try:
+            if self._file is None:
+                self._file = open(self._path, "wb")  # noqa: SIM115 (closed by discard)
+                self._file.write(msgspec.json.encode({"run": self._run}) + b"\n")
+            self._file.write(b"".join(msgspec.json.encode(r) + b"\n" for r in self._unsaved))
+            self._file.flush()  # in the kernel: it survives a SIGKILL of this process
+        except OSError as exc:
+            self._give_up(exc)
         self._unsaved.clear()
+
+    def _give_up(self, exc: OSError) -> None:
+        log.warning("sink: cannot save the timed frames to %s (%s): a restarted sink would not have them",
+                    self._path, exc)
+        self.discard()
+        self._path = None
 
     def discard(self) -> None:
         """Close and remove the file (the run's ``sink.json`` holds the figures now)."""
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        f, self._file = self._file, None
+        try:
+            if f is not None:
+                f.close()
+        except OSError:  # a full disk: nothing more to do with it
+            pass
         if self._path is not None:
             try:
                 os.unlink(self._path)
-            except FileNotFoundError:
+            except OSError:  # gone already
                 pass
 
     def note(self, s: int, tracks: Any, meas: Any = None) -> None:

@@ -163,6 +163,21 @@ def test_a_saved_latency_file_of_another_run_is_ignored_and_replaced(tmp_path):
     assert not path.exists()
 
 
+def test_a_latency_file_that_cannot_be_written_does_not_stop_the_sink(tmp_path, caplog):
+    """Best effort: the frames stay timed in the process (sink.json); only a restarted sink would
+    lack them."""
+    book = LatencyBook([])
+    book.carry_over(tmp_path / "no such dir" / LATENCY_PART, "mine")
+    book.note(0, _Acc({"t": 10**9}, 10**9 + 10**6))
+    book.save()  # no directory: warned, not raised
+    book.note(1, _Acc({"t": 10**9}, 10**9 + 3 * 10**6))
+    book.save()
+    book.discard()
+    assert book.seq == [0, 1] and book.e2e_ms == [1.0, 3.0]
+    assert [r.getMessage().split(" (")[0] for r in caplog.records] == [
+        f"sink: cannot save the timed frames to {tmp_path / 'no such dir' / LATENCY_PART}"]
+
+
 class _Acc:
     """The fields of an ``Accepted`` that the latency book reads."""
 
