@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-__all__ = ["Status", "Progress", "progress_line"]
+__all__ = ["Status", "Progress", "progress_line", "describe_latency", "describe_rejected"]
 
 
 @dataclass
@@ -138,3 +138,43 @@ class Progress:
             self.stream.write("\r\x1b[2K" if self._transient else "\n")
             self.stream.flush()
             self._open = self._transient = False
+
+
+def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
+    """The summary's latency line from ``sink.json`` (``""``: nothing to say): p50 and p99 of
+    the frames timed on their first delivery and, when some were not timed, how many and why
+    -- received from the publishers' caches by a restarted (or late) sink, published before it
+    subscribed (re-deliveries; their age measures the outage, not the pipeline), recovered from a
+    killed sink's ``.part`` file (:mod:`pipeline.stages.sink_latency`)."""
+    if not summary:
+        return ""
+    lat = (summary.get("counters") or {}).get("latency_ms") or {}
+    book = summary.get("latency") or {}
+    excluded = book.get("excluded") or {}
+    why = [f"{n} {what}" for n, what in (
+        (int(excluded.get("from_caches") or 0), "from the caches, published before the restarted sink subscribed"),
+        (int(excluded.get("recovered") or 0), "recovered from the killed sink's .part file")) if n]
+    text = ""
+    if lat.get("p50") is not None:
+        text = f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms"
+        if why:
+            text += f" over {int(book.get('timed_frames', lat.get('n')) or 0)} frame(s)"
+    elif why:
+        text = "no frame timed"
+    if why:
+        text += f" (not timed: {', '.join(why)})"
+    if text and lat.get("p50") is not None and not paced:
+        text += " (frames published as fast as possible: includes queueing)"
+    return text
+
+
+def describe_rejected(summary: dict[str, Any]) -> str:
+    """The summary's ``rejected`` row from ``sink.json``: the samples the sink rejected and the
+    duplicates it dropped -- counted by the sink process that finished the run, which says so
+    when it was restarted (its predecessor's counts died with it; its dead letters are in
+    ``health.jsonl``)."""
+    c = summary.get("counters") or {}
+    text = f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"
+    if summary.get("restarted"):
+        text += "; counted by the restarted sink since its restart"
+    return text

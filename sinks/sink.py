@@ -41,7 +41,8 @@ class SinkEntry:
     filename: str = "run.out"
     required: bool = True
     imports: tuple[str, ...] = ()
-    """Modules worth importing before a run starts (slow imports), when the sink is used."""
+    """Modules worth importing before a run starts (slow imports, the sink's own and what its
+    first ``open`` imports), when the sink is used."""
     decoded: bool = True
     """The sink reads a record's decoded ``frame``, ``estimate``, ``scores`` and ``health``;
     ``False``: it writes the record's ``payloads`` alone when the record carries them (the
@@ -64,10 +65,17 @@ class UnknownSink(KeyError):
 #: The sinks by name.
 SINKS: dict[str, SinkEntry] = {
     "mcap": SinkEntry("bnptrack.sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
-                      "tracks.mcap", decoded=False),
+                      "tracks.mcap", decoded=False, imports=("bnptrack.sinks.mcap_writer",)),
     "rerun": SinkEntry("bnptrack.sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
-                       "run.rrd", required=False, imports=("bnptrack.sinks.rerun_sink",)),
+                       "run.rrd", required=False,
+                       imports=("bnptrack.sinks.rerun_adapter", "bnptrack.sinks.rerun_sink", "pyarrow.compute", "numpy.ma",
+                                "dateutil.relativedelta")),
 }
+# ``imports`` include what a sink's first ``open`` imports (mcap.writer's importlib.metadata;
+# pyarrow.compute, numpy.ma and dateutil, which the Rerun SDK imports on its first annotation
+# context and scalar): the pipeline's sink stage imports them while the tracker starts, not
+# between the tracker's readiness and the first frame (0.3-0.5 s there on a loaded machine;
+# docs/pipeline.md, "Session 9: pipefix")
 
 
 def check_sink_names(names: Sequence[str], key: str, table: Mapping[str, SinkEntry] | None = None) -> None:

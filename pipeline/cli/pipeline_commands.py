@@ -43,15 +43,13 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         if summary:
             rows.append(("frames", f"{summary.get('frames_written', 0)} "
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
-            c = summary.get("counters") or {}
-            rows.append(("rejected", f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"))
             from bnptrack.pipeline.launch import describe_missing
+            from bnptrack.pipeline.progress import describe_latency, describe_rejected
 
+            rows.append(("rejected", describe_rejected(summary)))
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
-            lat = (c.get("latency_ms") or {})
-            if lat.get("p50") is not None:
-                note = "" if paced else " (frames published as fast as possible: includes queueing)"
-                rows.append(("latency", f"source -> sink p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms{note}"))
+            if lat_text := describe_latency(summary, paced):
+                rows.append(("latency", lat_text))
         rows += _score_rows(summary.get("scores"))
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:

@@ -15,6 +15,7 @@ from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Acce
 from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
+from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord
 from bnptrack.sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
 from bnptrack.tracker.types import FrameBounds
@@ -61,12 +62,7 @@ class SinkStage(StageBase):
         self.tally = ScoreTally()
         self.frames_written = 0
         self.tracks_written = 0
-        self.e2e_ms: list[float] = []
-        self.tracker_ms: list[float] = []
-        self.hop_ms: list[tuple[float, float, float]] = []
-        self.handoff_ms: list[float] = []  # the tracker's callback -> main thread (t_deq - t_in)
-        self.meas_hop_ms: list[float] = []  # source -> this sink, the frame's /measurements
-        self.seq_written: list[int] = []
+        self.latency = LatencyBook(self.counters.latency_ms)  # the timed frames (first deliveries)
         self.files: list[str] = []
         self.held: list[tuple[int, Any, Any, Any]] = []
         self.bounds = FrameBounds(d.max_frame_gap, d.max_gap_s)
@@ -76,12 +72,11 @@ class SinkStage(StageBase):
         self.mismatched: dict[str, list[int]] = {}
         self.upstream_marked: set[str] = set()  # streams given the gaps their upstream stage reported
         self.t_first_ns: int | None = None
-        self.t_last_ns: int | None = None
-        self.t_first_pub_ns: int | None = None
         self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
         self.gone = ""  # why the sink stopped waiting (the upstream was gone)
         self.recovered = 0  # frames recovered from the earlier process's .part file
         self.earlier: dict | None = None  # the sink.json an earlier process of this run wrote
+        self.restarted = False  # an earlier sink process of this run left outputs: counters are ours only
 
     # -- output ------------------------------------------------------------------------
     def _metadata(self) -> tuple[bool, dict[str, str] | None]:
@@ -192,35 +187,16 @@ class SinkStage(StageBase):
                         t_stamp if t_stamp != m.stamp_ns else None)
 
     def _note_latency(self, s: int, tracks: Accepted, meas: Any = GAP) -> None:
-        """Per-frame latencies of a written ``/tracks`` (for sink.json and health); with its
-        ``/measurements`` (``meas``), also that sample's hop to the sink (the same sample's hop
-        to the tracker, through the same router: the two differ by what the receivers do)."""
-        t_pub = tracks.meta.get("t")
-        self.t_last_ns = tracks.t_recv_ns
-        if not isinstance(t_pub, int) or t_pub <= 0:
-            return
-        e2e = (tracks.t_recv_ns - t_pub) / 1e6
-        self.e2e_ms.append(e2e)
-        self.counters.latency_ms.append(e2e)
-        self.tracker_ms.append(float(tracks.msg.diagnostics.get("ms", float("nan"))))
-        self.seq_written.append(s)
-        t_in, t_out = tracks.meta.get("t_in"), tracks.meta.get("t_out")
-        if isinstance(t_in, int) and isinstance(t_out, int):
-            self.hop_ms.append(((t_in - t_pub) / 1e6, (t_out - t_in) / 1e6, (tracks.t_recv_ns - t_out) / 1e6))
-        t_deq = tracks.meta.get("t_deq")
-        if isinstance(t_in, int) and isinstance(t_deq, int):
-            self.handoff_ms.append((t_deq - t_in) / 1e6)
-        if meas is not GAP and isinstance(meas.meta.get("t"), int):
-            self.meas_hop_ms.append((meas.t_recv_ns - meas.meta["t"]) / 1e6)
-        if self.t_first_pub_ns is None:
-            self.t_first_pub_ns = t_pub
+        """Per-frame latencies of a written ``/tracks`` (for sink.json and health): timed
+        when first delivered to this process (:class:`~pipeline.stages.sink_latency.LatencyBook`)."""
+        self.latency.note(s, tracks, meas if meas is not GAP else None)
 
     def _sink_health(self) -> dict:
         """The sink's part of its health message: what the launcher's progress line shows
         (frames written, the newest frame seen, the last frame's latency, the scores)."""
         seen = self.streams["measurements"].max_seen
         return {"frames_written": self.frames_written, "next_seq": self.next_write,
-                "max_seq_seen": seen, "last_latency_ms": self.e2e_ms[-1] if self.e2e_ms else None,
+                "max_seq_seen": seen, "last_latency_ms": self.latency.last_ms,
                 "scores": self.tally.as_dict()}
 
     def _health_scalars(self) -> dict[str, float]:
@@ -228,8 +204,8 @@ class SinkStage(StageBase):
         out = {"received": c.received, "accepted": c.accepted, "rejected": c.rejected,
                "duplicates": c.duplicates, "late": c.late, "gaps": c.gaps,
                "dropped": float(self.bus.dropped)}
-        if self.e2e_ms:
-            out["latency_ms"] = self.e2e_ms[-1]
+        if self.latency.last_ms is not None:
+            out["latency_ms"] = self.latency.last_ms
         return {k: float(v) for k, v in out.items()}
 
     def _drain_ready(self) -> None:
@@ -382,6 +358,7 @@ class SinkStage(StageBase):
             pass
         for f in self.files:
             part_path(f).unlink(missing_ok=True)
+        self.latency.discard()
 
     def _finalize(self, complete: bool) -> None:
         if not complete:
@@ -396,9 +373,6 @@ class SinkStage(StageBase):
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
         missing = self._missing()
         src = self.eos_seen.get("source")
-        fps = None
-        if self.t_first_pub_ns is not None and self.t_last_ns is not None and self.tracks_written > 1:
-            fps = self.tracks_written / max((self.t_last_ns - self.t_first_pub_ns) / 1e9, 1e-9)
         summary = {
             "run": self.run_id,
             "complete": complete,
@@ -411,27 +385,24 @@ class SinkStage(StageBase):
             "recovered_frames": self.recovered,
             "source_error": src.error if src is not None else "",
             "counters": self.counters.as_dict(),
+            "restarted": self.restarted,  # the counters are this process's (an earlier one's are lost)
             "rejected_by_topic": self.intake.rejected_by_topic,
             "dropped": int(self.bus.dropped),
             "zenoh_misses": int(self.bus.misses),
             "files": self.files,
             "scores": self.tally.as_dict(),
             "view": self._view_command(),
-            "throughput_fps": fps,
-            "t_first_pub_ns": self.t_first_pub_ns,
-            "t_last_recv_ns": self.t_last_ns,
-            "latency": {"seq": self.seq_written, "e2e_ms": self.e2e_ms, "tracker_ms": self.tracker_ms,
-                        "source_to_tracker_ms": [h[0] for h in self.hop_ms],
-                        "in_tracker_ms": [h[1] for h in self.hop_ms],
-                        "tracker_to_sink_ms": [h[2] for h in self.hop_ms],
-                        "tracker_handoff_ms": self.handoff_ms,
-                        "source_to_sink_measurements_ms": self.meas_hop_ms},
+            "throughput_fps": self.latency.throughput_fps(),
+            "t_first_pub_ns": self.latency.t_first_pub_ns,
+            "t_last_recv_ns": self.latency.t_last_ns,
+            "latency": self.latency.as_dict(),
         }
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         path = self.ctx.out / SUMMARY_NAME
         sync_parts(self.files)  # the outputs are on disk before the summary says they are done
         write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
         commit_parts(self.files)
+        self.latency.discard()  # sink.json holds the timed frames now
         self.files.append(str(path))
         log.info("%s: wrote %d frame(s), %d /tracks message(s)%s to %s", self.name, self.frames_written,
                  self.tracks_written,
@@ -478,14 +449,17 @@ class SinkStage(StageBase):
         self.earlier = earlier_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
         if self.earlier is not None and self.earlier.get("complete"):
             return self._end_again(self.earlier)
+        self.latency.carry_over(self.ctx.out / LATENCY_PART, self.run_id)  # an earlier process's
         self._warm_up()
         topics = ["measurements", "truth"] + (["tracks"] if self.sink_cfg.tracks else [])
+        self.latency.subscribed(self.clock.time_ns())  # what was published before is history
         self.bus.subscribe(topics + ["info/*", "eos/*"])
         for name, seq in self.streams.items():  # where each stream's history ends
             seq.hold_catch_up_through(self.bus.head(name))
         self.bus.declare([f"eos/{self.name}"])
         self.bus.declare_alive()
-        if self._restarted():
+        self.restarted = self._restarted()
+        if self.restarted:
             self.alone = UpstreamWatch(self.bus, ["source"] + (["tracker"] if self.sink_cfg.tracks else []),
                                        topics, self.delivery.upstream_gone_s, self.clock.monotonic)
         outcome = self._record()
@@ -581,6 +555,7 @@ class SinkStage(StageBase):
                     self._on_event(ev)
             self._drain_ready()
             self._fetch_due()
+            self.latency.save_due(self.clock.monotonic())
             self.health(extra=self._sink_health)
             if self._check_end():
                 return "complete"
