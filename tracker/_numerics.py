@@ -60,24 +60,8 @@ class _LazyKernel:
         return dispatcher(*args)
 
 
-#: Set while a thread of :mod:`tracker._preload` sets numba up: the first kernel call waits
-#: for it (``_preload.Preload.wait_setup``) before it decorates anything itself.
-_setup_wait: Callable[[], None] | None = None
-
-
 def _compile_pending(kernel: _LazyKernel) -> Any:
-    """``kernel``'s dispatcher, after :func:`decorate_pending` (and the preload thread, if any)."""
-    wait = _setup_wait
-    if wait is not None:
-        wait()
-    decorate_pending()
-    assert kernel.dispatcher is not None
-    return kernel.dispatcher
-
-
-def decorate_pending() -> None:
-    """Import numba (:func:`import_numba`), decorate every pending kernel and rebind the module
-    names that held them."""
+    """Decorate every pending kernel with numba and rebind the module names that held them."""
     import_numba()
     from numba import config, njit
 
@@ -96,6 +80,8 @@ def decorate_pending() -> None:
             for name, value in list(namespace.items()):
                 if isinstance(value, _LazyKernel) and value.dispatcher is not None:
                     namespace[name] = value.dispatcher
+        assert kernel.dispatcher is not None
+        return kernel.dispatcher
 
 
 def import_numba() -> None:
@@ -117,15 +103,15 @@ def import_numba() -> None:
         import numba  # noqa: F401
         return
     _import_numba_lean()
-    from bnptrack.tracker._preload import lean_cache_loads
+    from bnptrack.tracker._kernel_cache import lean_cache_loads
 
     lean_cache_loads(kernel_cache_dir())
 
 
 #: Set by the command line (``bnptrack track``, ``launch``, ``stage``, ``replay``: processes
 #: that run no code but the project's): numba's set-up leaves out its optional ``yaml`` and
-#: ``cffi`` support (:func:`_import_numba_lean`) and loads cached kernels without parsing
-#: their linking bitcode (:func:`tracker._preload.lean_cache_loads`).
+#: ``cffi`` support (:func:`_import_numba_lean`), and cached kernels load without a parse of
+#: their linking bitcode (:func:`tracker._kernel_cache.lean_cache_loads`).
 LEAN_NUMBA = False
 
 

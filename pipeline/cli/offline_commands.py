@@ -266,22 +266,17 @@ def track(
       bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
       bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
     """
-    from bnptrack.tracker._preload import preloading
     from bnptrack.tracker.types import FrameBounds
 
-    with preloading(f"track-{tracker_name}") as preload:  # numba and the kernels, in a thread meanwhile
-        io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
-                           sink_names)
-        io.build()
-        setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
-                              metadata=read_metadata(log), seed=seed)
-        if preload is not None:
-            preload.go()
-        check_output_path(log, io.out)
-        if not quiet:
-            echo_rows([("log", str(log)), ("params", setup.describe_params()),
-                       ("config", setup.describe_config())])
-        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s))
+    io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
+                       sink_names)
+    io.build()
+    setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
+                          metadata=read_metadata(log), seed=seed)
+    check_output_path(log, io.out)
+    if not quiet:
+        echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
+    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s))
     for w in res.warnings:
         click.echo(f"warning: {w}", err=True)
     if not quiet:
