@@ -103,11 +103,15 @@ def import_numba() -> None:
         import numba  # noqa: F401
         return
     _import_numba_lean()
+    from bnptrack.tracker._kernel_cache import lean_cache_loads
+
+    lean_cache_loads(kernel_cache_dir())
 
 
 #: Set by the command line (``bnptrack track``, ``launch``, ``stage``, ``replay``: processes
 #: that run no code but the project's): numba's set-up leaves out its optional ``yaml`` and
-#: ``cffi`` support (:func:`_import_numba_lean`).
+#: ``cffi`` support (:func:`_import_numba_lean`), and cached kernels load without a parse of
+#: their linking bitcode (:func:`tracker._kernel_cache.lean_cache_loads`).
 LEAN_NUMBA = False
 
 
