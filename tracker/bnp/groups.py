@@ -57,6 +57,7 @@ from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
+from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
@@ -353,6 +354,30 @@ def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
             logw[t] = -np.inf
 
 
+def _draw(logw, w, u) -> int:
+    """The option of uniform ``u`` given log weights ``logw`` (T,); ``w`` (T,) receives the
+    normalised weights.  The numbers of ``w = exp(logw - max); w /= w.sum()`` and of
+    ``min(searchsorted(cumsum(w), u, "right"), T - 1)``, in loops without temporaries
+    (``sum`` and ``cumsum`` add in index order from the first entry)."""
+    T = logw.size
+    top = logw[0]
+    for t in range(1, T):
+        if logw[t] > top:
+            top = logw[t]
+    total = 0.0
+    for t in range(T):
+        w[t] = np.exp(logw[t] - top)
+        total += w[t]
+    for t in range(T):
+        w[t] = w[t] / total
+    acc = 0.0
+    for t in range(T):
+        acc += w[t]
+        if acc > u:
+            return t
+    return T - 1
+
+
 def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
                       occupied=False) -> None:
     """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
@@ -372,7 +397,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
-            np.dot(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (the same BLAS call), no temporary
+            gemv2(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (BLAS's rounding: group_fma)
     for l in range(L):
         _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
@@ -388,6 +413,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     Sir = np.empty(2)
     B = np.empty((2, 2))
     e = np.empty(2)
+    w = np.empty(T)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
@@ -400,7 +426,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                 if not fresh[t]:
                     for p in range(P):
                         _inv_into(lam[p, t], cov)
-                        np.dot(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
+                        gemv2(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
                         t_cov[p, t] = cov
                     fresh[t] = True
                 for p in range(P):
@@ -409,19 +435,16 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
                     det = _inv_into(A, Si)
-                    np.dot(Si, r, Sir)  # = Si @ r, into a buffer
-                    logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    gemv2(Si, r, Sir)  # = Si @ r, into a buffer
+                    logw[t] += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
                         for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
                             e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
                             for j in range(2):
                                 B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
                         _inv_into(B, rec_cov[l, t])
-                        np.dot(rec_cov[l, t], e, rec_mu[l, t])
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
-            c = np.cumsum(w)
-            k = min(int(np.searchsorted(c, u[s, l], side="right")), T - 1)
+                        gemv2(rec_cov[l, t], e, rec_mu[l, t])
+            k = _draw(logw, w, u[s, l])
             while w[k] == 0.0:  # never land on an impossible table through round-off
                 k -= 1
             z[l] = k
@@ -434,6 +457,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
 _inv_into = jit(_inv_into)
 _move = jit(_move)
 _option_logw = jit(_option_logw)
+_draw = jit(_draw)
 _partition_kernel = jit(_partition_kernel)
 
 
@@ -534,7 +558,38 @@ def _compact(z, G, T):  # pragma: no cover - compiled
     return out
 
 
+def _transition_kernel(z, ids, v0, R0, hl0, he0, v1, R1, hl1, he1, n_blocks):  # pragma: no cover - compiled
+    """:meth:`GroupTracker._transition_out` compiled: the tables used by ``z`` in increasing order
+    (``np.unique``), their ids ``ids[used]`` and member counts (float), and each block's theta
+    posterior (:func:`theta_sums`; zeros for an absent second block)."""
+    n_tab = 0
+    for l in range(z.size):
+        n_tab = max(n_tab, z[l] + 1)
+    count_of = np.zeros(n_tab, dtype=np.int64)
+    for l in range(z.size):
+        count_of[z[l]] += 1
+    pos = np.full(n_tab, -1, dtype=np.int64)
+    n_used = 0
+    for t in range(n_tab):
+        if count_of[t] > 0:
+            pos[t] = n_used
+            n_used += 1
+    g_ids, count = np.empty(n_used, dtype=np.int64), np.empty(n_used)
+    for t in range(n_tab):
+        if count_of[t] > 0:
+            g_ids[pos[t]], count[pos[t]] = ids[t], count_of[t]
+    slot = np.empty(z.size, dtype=np.int64)
+    for l in range(z.size):
+        slot[l] = pos[z[l]]
+    m0, c0 = theta_sums(R0, v0, slot, n_used, hl0, he0)
+    if n_blocks == 1:
+        return g_ids, count, m0, c0, np.zeros((n_used, 2)), np.zeros((n_used, 2, 2))
+    m1, c1 = theta_sums(R1, v1, slot, n_used, hl1, he1)
+    return g_ids, count, m0, c0, m1, c1
+
+
 _table_priors = jit(_table_priors)
+_transition_kernel = jit(_transition_kernel)
 _compact = jit(_compact)
 _collect_shares = jit(_collect_shares)
 
@@ -558,24 +613,53 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
     ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
     """
-    L, G = blocks[0].v.shape[0], v_star.size
-    T = G + L
-    lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
-    for p, b in enumerate(blocks):  # the tables' priors, compiled
-        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean),
-                      *prior_information(b.h_cov, b.h_mean), lam0[p], eta0[p])
-    v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
-    R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
-    z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
-    u = rng.random((sweeps, L))
-    rec_p = np.zeros((L, T))
-    rec_mu = np.zeros((L, T, 2))
-    rec_cov = np.zeros((L, T, 2, 2))
+    parts = []
+    for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
+        parts += [np.asarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
+                  *prior_information(b.h_cov, b.h_mean)]
+    if len(blocks) == 1:
+        parts += parts  # the second block's slot, unused (n_blocks = 1)
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
-    seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, seated, z,
-                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
-    return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
+    u = rng.random((sweeps, blocks[0].v.shape[0]))
+    z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
+                                np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied))
+    return z, Shares(*shares)
+
+
+def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
+                   alpha, d, u, occupied):  # pragma: no cover - compiled
+    """:func:`sample_partition` in one compiled call: the blocks' members stacked ``(P, L, 2)``,
+    ``(P, L, 2, 2)``; the tables' priors (:func:`_table_priors`); the start (``init``, -1: a new
+    table of its own); the sweeps (:func:`_partition_kernel`, ``s_lam``/``s_eta``: the shared
+    theta's prior); the sample compacted (:func:`_compact`) and the shares (:func:`_collect_shares`)."""
+    L, G = v0.shape[0], v_star.size
+    T = G + L
+    v = np.empty((n_blocks, L, 2))
+    R = np.empty((n_blocks, L, 2, 2))
+    lam0, eta0 = np.empty((n_blocks, T, 2, 2)), np.empty((n_blocks, T, 2))
+    for p in range(n_blocks):
+        vb, Rb = (v0, R0) if p == 0 else (v1, R1)
+        for l in range(L):
+            for i in range(2):
+                v[p, l, i] = vb[l, i]
+                for j in range(2):
+                    R[p, l, i, j] = Rb[l, i, j]
+        if p == 0:
+            _table_priors(pc0, pm0, hl0, he0, lam0[0], eta0[0])
+        else:
+            _table_priors(pc1, pm1, hl1, he1, lam0[1], eta0[1])
+    z = np.empty(L, dtype=np.int64)
+    for l in range(L):
+        z[l] = init[l] if init[l] >= 0 else G + l
+    seated = np.zeros(T)
+    seated[:G] = v_star
+    rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
+    _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
+    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    return _compact(z, G, T), obj, w, mu, cov
+
+
+_sample_kernel = jit(_sample_kernel)
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -859,14 +943,11 @@ class GroupTracker:
     def _transition_out(self, blocks: list[Block], z, ids) -> tuple:
         """Clusters with members (v* >= 1) and each block's theta posterior (prior H_2, information
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
-        used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
-        out = []
+        parts = []
         for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
-            out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
-                                  used.size, *prior_information(b.h_cov, b.h_mean)))
-        if len(out) == 1:
-            out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
-        return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
+            parts += [b.v, b.R, *prior_information(b.h_cov, b.h_mean)]
+        g_ids, count, *moments = _transition_kernel(z, ids, *(parts * 2)[:8], len(blocks))
+        return g_ids, count, moments[:2], moments[2:]
 
     def _history(self, state: GroupState, labels: tuple[str, ...], members: np.ndarray, member_ids: np.ndarray,
                  g_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
