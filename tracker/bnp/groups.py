@@ -594,6 +594,10 @@ _compact = jit(_compact)
 _collect_shares = jit(_collect_shares)
 
 
+#: H_2's velocity mean (read only).
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False
+
 #: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
 #: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
 _FLAT_INFORMATION = 1e-10
@@ -795,6 +799,14 @@ def _fov_moments(detection, n: int) -> tuple[np.ndarray, np.ndarray]:
     return pts.mean(axis=0), np.cov(pts.T, bias=True)
 
 
+def _rows_of(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``values[rows]`` as int64 with -1 where ``rows`` is -1 (an object not in the last state)."""
+    out = np.full(rows.size, -1, dtype=np.int64)
+    have = rows >= 0
+    out[have] = values[rows[have]]
+    return out
+
+
 @dataclass(frozen=True)
 class GroupTracker:
     """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
@@ -853,33 +865,36 @@ class GroupTracker:
         # (tracker.types.frame_dt): frame numbers x T for regular frames, bit for bit
         steps = self.periods_since(state, frame)
         inner, est = self.objects.step(state.inner(), frame, rng)
+        kept = None
         if self.config.merge == "exclusive":
-            inner, est = self._merge(inner, est)
+            inner, est, kept = self._merge(inner, est)
         members = np.flatnonzero(inner.existence >= self.config.member_existence)
-        prev = dict(zip(state.labels, state.cluster.tolist()))
-        init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
+        src = self._previous_rows(state, inner.labels)  # each object's row in the last state (-1: new)
+        init_ids = _rows_of(state.cluster, src[members])
         mean, cov = inner.mean.copy(), inner.cov.copy()
-        blocks = self._blocks(state, steps, mean[members], cov[members])
+        m_mean, m_cov = mean[members], cov[members]  # the members' states (copies; the blocks' views)
+        blocks = self._blocks(state, steps, m_mean, m_cov)
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
+            m_mean, m_cov = share_velocity(m_mean, m_cov, shares, self.S_share)
         if self.config.turn_within_std_deg > 0 and members.size:
-            mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
-                                                     inner.cov[members, 4, 4], z,
-                                                     np.deg2rad(self.config.turn_within_std_deg) ** 2)
+            m_mean, m_cov = share_turn(m_mean, m_cov, inner.mean[members, 4], inner.cov[members, 4, 4], z,
+                                       self._turn_within_var)
+        if members.size:
+            mean[members], cov[members] = m_mean, m_cov
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
         g_ids, g_count, (g_mean, g_cov), (p_mean, p_cov) = self._transition_out(blocks, z, ids)
-        hist = self._history(state, inner.labels, members, ids[z], g_ids)
+        hist = self._history(state, inner.labels, members, ids[z], g_ids, src)
         alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0, hist)
         new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
                                inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
                                g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist)
-        return new_state, self._estimate(new_state, est, t0)
+        return new_state, self._estimate(new_state, est, t0, kept)
 
     # -- pieces ---------------------------------------------------------------------------
-    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate]:
+    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate, list | None]:
         """The object level's duplicates merged without merging objects of one scan
         (:func:`tracker.bnp.group_merge.merge_exclusive`); the estimate's tracks re-read at the
         object level's threshold and its assignments renamed to the merged labels."""
@@ -888,15 +903,26 @@ class GroupTracker:
         merged, renamed = merge_exclusive(c, obj.merge_distance,
                                           taken_measurements(est.assignments, est.assignment_prob, 0.5, inner.labels, inner.frame))
         if not renamed:
-            return inner, est
+            return inner, est, None
         inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
                         existence=merged.existence, popularity=merged.popularity)
-        tracks = tuple(TrackEstimate(lab, inner.mean[i].copy(), inner.cov[i].copy(), float(inner.existence[i]))
-                       for i, lab in enumerate(inner.labels) if inner.existence[i] > obj.existence_threshold)
+        # the tracks re-read at the threshold: their labels and existences (the states are the
+        # cluster level's, read by _estimate)
+        kept = [(inner.labels[i], r) for i, r in enumerate(inner.existence.tolist()) if r > obj.existence_threshold]
         assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
-        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
-        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag,
-                               _cardinality(inner.existence))
+        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(kept)))
+        return inner, Estimate(est.frame, est.stamp_ns, (), assignments, est.assignment_prob, diag,
+                               _cardinality(inner.existence)), kept
+
+    @staticmethod
+    def _previous_rows(state: GroupState, labels: tuple[str, ...]) -> np.ndarray:
+        """Each of ``labels``' row in ``state`` (-1: not there; a label twice in ``state``: its last row)."""
+        row = {lab: i for i, lab in enumerate(state.labels)}
+        return np.array([row.get(lab, -1) for lab in labels], dtype=np.int64)
+
+    @cached_property
+    def _turn_within_var(self) -> float:
+        return np.deg2rad(self.config.turn_within_std_deg) ** 2
 
     def periods_since(self, state: GroupState, frame: Frame) -> float:
         r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
@@ -909,19 +935,34 @@ class GroupTracker:
         r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
         random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
         cfg = self.config
-        eye = np.eye(2)
         dt = steps * self.params.T
+        vel_drift, pos_within, pos_drift = self._phi_terms(steps)
         # strided slices (1::2 = _VEL, 0::2 = _POS on the first four entries): the same numbers as
         # fancy indexing, one copy fewer
         vel = Block(mean[:, 1:4:2], cov[:, 1:4:2, 1:4:2] + self.S_w, state.group_mean,
-                    state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
+                    state.group_cov + vel_drift, _ZERO2, self.h_cov)
         if not cfg.centroid:
             return [vel]
-        pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + cfg.within_pos_std**2 * eye,
-                    state.group_pos_mean + dt * state.group_mean,
-                    state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
-                    *self.h_pos)
+        pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + pos_within, state.group_pos_mean + dt * state.group_mean,
+                    state.group_pos_cov + dt**2 * state.group_cov + pos_drift, *self.h_pos)
         return [vel, pos]
+
+    @cached_property
+    def _phi_memo(self) -> dict:
+        return {}
+
+    def _phi_terms(self, steps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_blocks`' constant matrices for ``steps`` scan periods (remembered; read only):
+        theta's random walk ``steps theta_drift_std^2 I``, the members' spread about the centroid
+        ``within_pos_std^2 I`` and the centroid's walk ``steps centroid_drift_std^2 I``."""
+        hit = self._phi_memo.get(steps)
+        if hit is None:
+            cfg, eye = self.config, np.eye(2)
+            hit = (steps * cfg.theta_drift_std**2 * eye, cfg.within_pos_std**2 * eye,
+                   steps * cfg.centroid_drift_std**2 * eye)
+            if len(self._phi_memo) < 64:
+                self._phi_memo[steps] = hit
+        return hit
 
     def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
@@ -950,12 +991,14 @@ class GroupTracker:
         return g_ids, count, moments[:2], moments[2:]
 
     def _history(self, state: GroupState, labels: tuple[str, ...], members: np.ndarray, member_ids: np.ndarray,
-                 g_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+                 g_ids: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
         """The partition of every object ever in it (:func:`tracker.bnp.group_hyper.update_history`):
         the members' counts moved to their clusters; clusters that no longer transition folded into
-        the dead clusters' sufficient statistics.  Returns the state's history fields."""
-        prev = dict(zip(state.labels, state.counted.tolist()))
-        counted = np.array([prev.get(lab, -1) for lab in labels], dtype=np.int64)
+        the dead clusters' sufficient statistics.  ``rows``: each label's row in ``state``
+        (:meth:`_previous_rows`, computed when not given).  Returns the state's history fields."""
+        if rows is None:
+            rows = self._previous_rows(state, labels)
+        counted = _rows_of(state.counted, rows)
         totals = dict(zip(state.group_ids.tolist(), state.hist_total.tolist()))
         counted = update_history(counted, members, member_ids, totals)
         live = set(g_ids.tolist())
@@ -1042,14 +1085,16 @@ class GroupTracker:
                                  mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size),
                                  n_new=n_new, seated_popularity=state.group_count, seated_counts=counts)
 
-    def _estimate(self, state: GroupState, est: Estimate, t0: float) -> Estimate:
+    def _estimate(self, state: GroupState, est: Estimate, t0: float, kept: list | None = None) -> Estimate:
+        """The tracks (``kept``: labels and existences re-read by :meth:`_merge`, else the object
+        level's) with the cluster level's states and their clusters; each track's state and
+        covariance are rows of one fresh copy."""
         row = {lab: i for i, lab in enumerate(state.labels)}
-        tracks = []
-        for t in est.tracks:
-            i = row[t.label]
-            c = int(state.cluster[i])
-            tracks.append(TrackEstimate(t.label, state.mean[i].copy(), state.cov[i].copy(), t.existence,
-                                        None if c < 0 else c))
+        kept = [(t.label, t.existence) for t in est.tracks] if kept is None else kept
+        idx = np.array([row[lab] for lab, _ in kept], dtype=np.int64)
+        mean, cov, cluster = state.mean[idx], state.cov[idx], state.cluster[idx].tolist()
+        tracks = [TrackEstimate(lab, mean[k], cov[k], r, None if cluster[k] < 0 else cluster[k])
+                  for k, (lab, r) in enumerate(kept)]
         diag = dict(est.diagnostics)
         diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
                     ms=(time.perf_counter() - t0) * 1e3)
