@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bnptrack.tracker._numerics import JIT, jit
-from bnptrack.tracker.bnp.group_fma import dot2, exact_fma, gemv2
+from bnptrack.tracker.bnp.group_fma import dot2, exact_fma, gemv2, sum2
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -126,3 +126,38 @@ def test_interpreted_kernel_runs_the_same_formula() -> None:
     got = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     A, x = np.array([[0.1, 0.7], [-0.3, 1e-9]]), np.array([10.0, 1.0 / 3.0])
     assert got.split() == str(np.dot(A, x).tolist()).split() + [repr(float(x @ A[0]))]
+
+
+def _matmul_formula(A, B) -> np.ndarray:  # pragma: no cover - compiled
+    """``A @ B`` for ``(Q, n, 2) @ (Q, 2, m)``, each entry :func:`sum2`."""
+    Q, n, m = A.shape[0], A.shape[1], B.shape[2]
+    out = np.empty((Q, n, m))
+    for q in range(Q):
+        for i in range(n):
+            for j in range(m):
+                out[q, i, j] = sum2(A[q, i, 0], B[q, 0, j], A[q, i, 1], B[q, 1, j])
+    return out
+
+
+_matmul_formula = jit(_matmul_formula)
+
+
+@pytest.mark.skipif(not JIT, reason="compares numpy's matmul with the compiled formula")
+@pytest.mark.parametrize("special", [False, True])
+def test_sum2_equals_numpys_stacked_matmul(special: bool) -> None:
+    """share_velocity's gains: ``K = PHt @ Si`` (a fancy-indexed copy times a contiguous stack)
+    and ``K @ swapaxes(PHt)`` (a transposed view), as numpy computes them."""
+    rng = np.random.default_rng(11)
+    Q = 200_000
+    if special:
+        values = np.array([0.0, -0.0, 1.0, -1.0, 2.0, np.inf, -np.inf, np.nan, 1e308, -1e308, 5e-324, -5e-324])
+        P, Si, K = rng.choice(values, (Q, 5, 5)), rng.choice(values, (Q, 2, 2)), rng.choice(values, (Q, 5, 2))
+    else:
+        P = rng.normal(size=(Q, 5, 5)) * np.exp(rng.uniform(-8, 8, (Q, 5, 5)))
+        Si = rng.normal(size=(Q, 2, 2)) * np.exp(rng.uniform(-8, 8, (Q, 2, 2)))
+        K = rng.normal(size=(Q, 5, 2))
+    PHt = P[:, :, [1, 3]]
+    with np.errstate(all="ignore"):
+        assert _bits_equal(PHt @ Si, _matmul_formula(PHt, Si)).all()
+        PH = np.swapaxes(PHt, 1, 2)
+        assert _bits_equal(K @ PH, _matmul_formula(K, np.ascontiguousarray(PH))).all()

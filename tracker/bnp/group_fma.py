@@ -8,7 +8,9 @@ machine) rounds them with fused multiply-adds:
 
 * ``y = A x`` (gemv, row ``i``): :math:`y_i = \mathrm{fma}(A_{i0}, x_0, A_{i1} x_1) + 0` (the
   ``+ 0`` turns an exact ``-0.0`` into ``+0.0``, as BLAS's accumulator does);
-* ``a . b`` (dot): :math:`\mathrm{fma}(a_1, b_1, \mathrm{fma}(a_0, b_0, 0))`.
+* ``a . b`` (dot): :math:`\mathrm{fma}(a_1, b_1, \mathrm{fma}(a_0, b_0, 0))`;
+* numpy's stacked ``matmul`` with an inner dimension of 2 (``dgemm``; the sharing's gains in
+  :func:`tracker.bnp.groups.share_velocity`): each entry as the dot above (:func:`sum2`).
 
 :func:`gemv2` and :func:`dot2` compute exactly these with ``llvm.fma.f64`` (:func:`fma`, a numba
 intrinsic: one instruction on a CPU with FMA, a correctly rounded libm call otherwise): the
@@ -115,5 +117,13 @@ def dot2(a, b) -> float:
     return fma(a[1], b[1], fma(a[0], b[0], 0.0))
 
 
+def sum2(a0, b0, a1, b1) -> float:
+    """``a0 b0 + a1 b1`` rounded as :func:`dot2`: also each entry of numpy's stacked ``matmul``
+    with an inner dimension of 2 (``(Q, n, 2) @ (Q, 2, m)``, OpenBLAS ``dgemm``, either operand
+    transposed)."""
+    return fma(a1, b1, fma(a0, b0, 0.0))
+
+
 gemv2 = jit(gemv2, inline=True)
 dot2 = jit(dot2, inline=True)
+sum2 = jit(sum2, inline=True)

@@ -57,9 +57,9 @@ from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
-from bnptrack.tracker.bnp.group_fma import dot2, gemv2
+from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
-from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -211,8 +211,11 @@ class GroupState:
     """(D,) their sum_j log (1-d)^(n_j - 1) (rising factorial) on the tracker's d grid."""
 
     def inner(self) -> BnpState:
-        names = [f.name for f in fields(BnpState)]
-        return BnpState(**{n: getattr(self, n) for n in names})
+        return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
+
+
+#: :class:`BnpState`'s fields in order (the first fields of :class:`GroupState`).
+_INNER_FIELDS = tuple(f.name for f in fields(BnpState))
 
 
 # -- conjugate Gaussian algebra on 2-vectors (closed-form 2x2) --------------------------------
@@ -679,12 +682,35 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     """
     if shares.obj.size == 0:
         return mean, cov
-    o = shares.obj
-    m, P = mean[o], cov[o]
-    PHt = P[:, :, _VEL]  # (P, 5, 2)
-    Si, _ = inv2(P[:, _VEL][:, :, _VEL] + S_w + shares.cov)
-    K = PHt @ Si
-    return _share_moments(mean.shape[0], m, P, K, K @ np.swapaxes(PHt, 1, 2), shares.mu, shares.w, o)
+    return _share_velocity_kernel(mean, cov, shares.obj, S_w, shares.mu, shares.cov, shares.w)
+
+
+def _share_velocity_kernel(mean, cov, o, S_w, s_mu, s_cov, w):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s gains compiled, as its numpy code computed them: ``P = cov[o]``,
+    ``PHt = P[:, :, _VEL]``, ``Si = inv2(P_vv + S_w + s_cov)`` (:func:`inv2`: entries over the
+    determinant), ``K = PHt @ Si`` and ``KHP = K @ PHt'`` (numpy's stacked matmul: each entry
+    :func:`tracker.bnp.group_fma.sum2`); then :func:`_share_moments`."""
+    Q = o.size
+    m, P = np.empty((Q, 5)), np.empty((Q, 5, 5))
+    K, KHP = np.empty((Q, 5, 2)), np.empty((Q, 5, 5))
+    A, Si = np.empty((2, 2)), np.empty((2, 2))
+    vel = (1, 3)
+    for q in range(Q):
+        m[q] = mean[o[q]]
+        P[q] = cov[o[q]]
+        for i in range(2):
+            for j in range(2):
+                A[i, j] = (P[q, vel[i], vel[j]] + S_w[i, j]) + s_cov[q, i, j]
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        Si[0, 0], Si[1, 1] = A[1, 1] / det, A[0, 0] / det
+        Si[0, 1], Si[1, 0] = -A[0, 1] / det, -A[1, 0] / det
+        for i in range(5):
+            for j in range(2):
+                K[q, i, j] = sum2(P[q, i, 1], Si[0, j], P[q, i, 3], Si[1, j])
+        for i in range(5):
+            for j in range(5):
+                KHP[q, i, j] = sum2(K[q, i, 0], P[q, j, 1], K[q, i, 1], P[q, j, 3])
+    return _share_moments(mean.shape[0], m, P, K, KHP, s_mu, w, o)
 
 
 def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
@@ -719,6 +745,7 @@ def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
 
 
 _share_moments = jit(_share_moments)
+_share_velocity_kernel = jit(_share_velocity_kernel)
 
 
 def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
@@ -900,8 +927,8 @@ class GroupTracker:
         object level's threshold and its assignments renamed to the merged labels."""
         obj = self.config.objects
         c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
-        merged, renamed = merge_exclusive(c, obj.merge_distance,
-                                          taken_measurements(est.assignments, est.assignment_prob, 0.5, inner.labels, inner.frame))
+        arrays = label_arrays(inner.labels, est.assignments, est.assignment_prob, 0.5, inner.frame)
+        merged, renamed = merge_exclusive(c, obj.merge_distance, None, arrays)
         if not renamed:
             return inner, est, None
         inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
