@@ -120,3 +120,24 @@ def test_exclusive_pairs_equals_the_three_passes(seed: int, max_d2: float) -> No
     np.testing.assert_array_equal(jj, cj[cs != 0])
     np.testing.assert_array_equal(status, cs[cs != 0])
     assert (status == 1).sum() > 0 and ci.size > ii.size
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_label_arrays_equal_the_taken_dict_route(seed: int) -> None:
+    """``label_arrays`` (one pass) equals ``_label_arrays`` of ``taken_measurements``' dict:
+    MAP assignments above the threshold (the last one of a label that took several), the
+    measurement a cluster born this frame was born from, labels without a dot or frame."""
+    from bnptrack.tracker.bnp.group_merge import _label_arrays, label_arrays, taken_measurements
+
+    rng = np.random.default_rng(seed)
+    frame = int(rng.integers(3, 6))
+    labels = tuple(dict.fromkeys([f"{rng.integers(0, 7)}.{rng.integers(0, 9)}" for _ in range(30)]
+                                 + ["x", "-1.2", "12", f"{frame}.4"]))
+    assignments = tuple(None if rng.random() < 0.3 else labels[rng.integers(len(labels))] for _ in range(25))
+    probs = tuple(rng.uniform(0.2, 1.0, len(assignments)).tolist())
+    for fr in (frame, None):
+        want = _label_arrays(labels, taken_measurements(assignments, probs, 0.5, labels, fr))
+        got = label_arrays(labels, assignments, probs, 0.5, fr)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b, strict=True)
+    assert (got[2] >= 0).any() and (got[2] < 0).any()  # both kinds present

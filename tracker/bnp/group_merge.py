@@ -58,6 +58,32 @@ def taken_measurements(assignments, probs, min_prob: float, labels: tuple[str, .
     return taken
 
 
+@lru_cache(maxsize=8192)
+def _label_parts(label: str) -> tuple[int, bool, str, str]:
+    """:func:`birth_frame`, whether the label has a ``"."``, and its text before and after the
+    first ``"."`` (remembered)."""
+    head, dot, tail = label.partition(".")
+    return birth_frame(label), dot == ".", head, tail
+
+
+def label_arrays(labels: tuple[str, ...], assignments, probs, min_prob: float, frame: int | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_label_arrays` of :func:`taken_measurements`' dict, without building it: each label's
+    birth frame, whether dotted, and the measurement it took (the MAP assignment with probability
+    >= ``min_prob``, the last one if several; else, born at ``frame``, the measurement it was born
+    from; else -1)."""
+    taken = {lab: m for m, (lab, p) in enumerate(zip(assignments, probs)) if lab is not None and p >= min_prob}
+    head_now = None if frame is None else str(frame)
+    birth, dotted, took = [], [], []
+    for lab in labels:
+        b, dot, head, tail = _label_parts(lab)
+        birth.append(b)
+        dotted.append(dot)
+        m = taken.get(lab)
+        took.append(m if m is not None else (int(tail) if dot and head == head_now else -1))
+    return (np.array(birth, dtype=np.int64), np.array(dotted, dtype=bool), np.array(took, dtype=np.int64))
+
+
 def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Pairs ``(i, j)`` that explain different measurements of one scan (never one object)."""
     out = np.zeros(i.size, dtype=bool)
@@ -253,16 +279,18 @@ def _label_arrays(labels: tuple[str, ...], taken: dict[str, int]) -> tuple[np.nd
     return rows[:, 0].copy(), rows[:, 1] != 0, rows[:, 2].copy()
 
 
-def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
+                     arrays: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pairs close enough to merge, whose existences sum to at most 1, that may be one object.
 
     With few clusters (every pair a candidate of :func:`tracker.bnp.clusters._near_pairs`) one
     compiled pass (:func:`exclusive_pairs`) applies :func:`exclusive_candidates`' bound, the
     exclusion (:func:`distinct_pairs`) and the exact test (:func:`pair_status`); with many, the
     KD-tree's pairs go through the same tests.  Pairs the compiled test leaves undecided take
-    numpy's (a batched solve, each pair on its own), as before."""
+    numpy's (a batched solve, each pair on its own), as before.  ``arrays``: the labels'
+    :func:`label_arrays` (then ``taken`` is not read)."""
     r = c.existence
-    birth, dotted, took = _label_arrays(c.labels, taken)
+    birth, dotted, took = _label_arrays(c.labels, taken) if arrays is None else arrays
     if len(c.labels) <= _ALL_PAIRS:  # bound, exclusion and the exact test in one compiled pass
         ii, jj, status = exclusive_pairs(c.mean, c.cov, r, float(max_d2), birth, dotted, took)
     else:
@@ -281,14 +309,17 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tupl
     return ii[passed], jj[passed]
 
 
-def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int]) -> tuple[_Clusters, dict[str, str]]:
+def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
+                    arrays: tuple | None = None) -> tuple[_Clusters, dict[str, str]]:
     """Greedy merge (leaders in order of decreasing existence, as ``merge_duplicates``) of the
     candidate pairs; a cluster joins a leader's group only if it may be one object with every
-    member already in it.  Returns the clusters and the label each absorbed label now goes by."""
+    member already in it.  Returns the clusters and the label each absorbed label now goes by.
+    The measurements the labels took: ``taken`` (:func:`taken_measurements`) or, given,
+    ``arrays`` (:func:`label_arrays` of ``c.labels``)."""
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c, {}
-    ii, jj = _candidate_pairs(c, max_d2, taken)
+    ii, jj = _candidate_pairs(c, max_d2, taken, arrays)
     if ii.size == 0:
         return c, {}
     ptr, members = greedy_groups(ii, jj, c.existence, np.argsort(-c.existence, kind="stable"))

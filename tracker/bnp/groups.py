@@ -57,8 +57,9 @@ from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
+from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
-from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -210,8 +211,11 @@ class GroupState:
     """(D,) their sum_j log (1-d)^(n_j - 1) (rising factorial) on the tracker's d grid."""
 
     def inner(self) -> BnpState:
-        names = [f.name for f in fields(BnpState)]
-        return BnpState(**{n: getattr(self, n) for n in names})
+        return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
+
+
+#: :class:`BnpState`'s fields in order (the first fields of :class:`GroupState`).
+_INNER_FIELDS = tuple(f.name for f in fields(BnpState))
 
 
 # -- conjugate Gaussian algebra on 2-vectors (closed-form 2x2) --------------------------------
@@ -353,6 +357,30 @@ def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
             logw[t] = -np.inf
 
 
+def _draw(logw, w, u) -> int:
+    """The option of uniform ``u`` given log weights ``logw`` (T,); ``w`` (T,) receives the
+    normalised weights.  The numbers of ``w = exp(logw - max); w /= w.sum()`` and of
+    ``min(searchsorted(cumsum(w), u, "right"), T - 1)``, in loops without temporaries
+    (``sum`` and ``cumsum`` add in index order from the first entry)."""
+    T = logw.size
+    top = logw[0]
+    for t in range(1, T):
+        if logw[t] > top:
+            top = logw[t]
+    total = 0.0
+    for t in range(T):
+        w[t] = np.exp(logw[t] - top)
+        total += w[t]
+    for t in range(T):
+        w[t] = w[t] / total
+    acc = 0.0
+    for t in range(T):
+        acc += w[t]
+        if acc > u:
+            return t
+    return T - 1
+
+
 def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
                       occupied=False) -> None:
     """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
@@ -372,7 +400,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
-            np.dot(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (the same BLAS call), no temporary
+            gemv2(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (BLAS's rounding: group_fma)
     for l in range(L):
         _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
@@ -388,6 +416,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
     Sir = np.empty(2)
     B = np.empty((2, 2))
     e = np.empty(2)
+    w = np.empty(T)
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
@@ -400,7 +429,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                 if not fresh[t]:
                     for p in range(P):
                         _inv_into(lam[p, t], cov)
-                        np.dot(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
+                        gemv2(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
                         t_cov[p, t] = cov
                     fresh[t] = True
                 for p in range(P):
@@ -409,19 +438,16 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
                     det = _inv_into(A, Si)
-                    np.dot(Si, r, Sir)  # = Si @ r, into a buffer
-                    logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    gemv2(Si, r, Sir)  # = Si @ r, into a buffer
+                    logw[t] += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
                         for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
                             e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
                             for j in range(2):
                                 B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
                         _inv_into(B, rec_cov[l, t])
-                        np.dot(rec_cov[l, t], e, rec_mu[l, t])
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
-            c = np.cumsum(w)
-            k = min(int(np.searchsorted(c, u[s, l], side="right")), T - 1)
+                        gemv2(rec_cov[l, t], e, rec_mu[l, t])
+            k = _draw(logw, w, u[s, l])
             while w[k] == 0.0:  # never land on an impossible table through round-off
                 k -= 1
             z[l] = k
@@ -434,6 +460,7 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
 _inv_into = jit(_inv_into)
 _move = jit(_move)
 _option_logw = jit(_option_logw)
+_draw = jit(_draw)
 _partition_kernel = jit(_partition_kernel)
 
 
@@ -534,10 +561,45 @@ def _compact(z, G, T):  # pragma: no cover - compiled
     return out
 
 
+def _transition_kernel(z, ids, v0, R0, hl0, he0, v1, R1, hl1, he1, n_blocks):  # pragma: no cover - compiled
+    """:meth:`GroupTracker._transition_out` compiled: the tables used by ``z`` in increasing order
+    (``np.unique``), their ids ``ids[used]`` and member counts (float), and each block's theta
+    posterior (:func:`theta_sums`; zeros for an absent second block)."""
+    n_tab = 0
+    for l in range(z.size):
+        n_tab = max(n_tab, z[l] + 1)
+    count_of = np.zeros(n_tab, dtype=np.int64)
+    for l in range(z.size):
+        count_of[z[l]] += 1
+    pos = np.full(n_tab, -1, dtype=np.int64)
+    n_used = 0
+    for t in range(n_tab):
+        if count_of[t] > 0:
+            pos[t] = n_used
+            n_used += 1
+    g_ids, count = np.empty(n_used, dtype=np.int64), np.empty(n_used)
+    for t in range(n_tab):
+        if count_of[t] > 0:
+            g_ids[pos[t]], count[pos[t]] = ids[t], count_of[t]
+    slot = np.empty(z.size, dtype=np.int64)
+    for l in range(z.size):
+        slot[l] = pos[z[l]]
+    m0, c0 = theta_sums(R0, v0, slot, n_used, hl0, he0)
+    if n_blocks == 1:
+        return g_ids, count, m0, c0, np.zeros((n_used, 2)), np.zeros((n_used, 2, 2))
+    m1, c1 = theta_sums(R1, v1, slot, n_used, hl1, he1)
+    return g_ids, count, m0, c0, m1, c1
+
+
 _table_priors = jit(_table_priors)
+_transition_kernel = jit(_transition_kernel)
 _compact = jit(_compact)
 _collect_shares = jit(_collect_shares)
 
+
+#: H_2's velocity mean (read only).
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False
 
 #: Information (1/m^2 s^-2) of the flat prior on a shared theta (kappa_0 = 0): an option with no
 #: other member gives a pseudo-measurement of covariance ~1e10, i.e. no sharing.
@@ -558,24 +620,53 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
     ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
     """
-    L, G = blocks[0].v.shape[0], v_star.size
-    T = G + L
-    lam0, eta0 = np.empty((len(blocks), T, 2, 2)), np.empty((len(blocks), T, 2))
-    for p, b in enumerate(blocks):  # the tables' priors, compiled
-        _table_priors(np.ascontiguousarray(b.prior_cov), np.ascontiguousarray(b.prior_mean),
-                      *prior_information(b.h_cov, b.h_mean), lam0[p], eta0[p])
-    v = np.ascontiguousarray(np.stack([b.v for b in blocks]), dtype=float)
-    R = np.ascontiguousarray(np.stack([b.R for b in blocks]), dtype=float)
-    z = np.where(init >= 0, init, G + np.arange(L)).astype(np.int64)
-    u = rng.random((sweeps, L))
-    rec_p = np.zeros((L, T))
-    rec_mu = np.zeros((L, T, 2))
-    rec_cov = np.zeros((L, T, 2, 2))
+    parts = []
+    for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
+        parts += [np.asarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
+                  *prior_information(b.h_cov, b.h_mean)]
+    if len(blocks) == 1:
+        parts += parts  # the second block's slot, unused (n_blocks = 1)
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
-    seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, seated, z,
-                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
-    return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
+    u = rng.random((sweeps, blocks[0].v.shape[0]))
+    z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
+                                np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied))
+    return z, Shares(*shares)
+
+
+def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
+                   alpha, d, u, occupied):  # pragma: no cover - compiled
+    """:func:`sample_partition` in one compiled call: the blocks' members stacked ``(P, L, 2)``,
+    ``(P, L, 2, 2)``; the tables' priors (:func:`_table_priors`); the start (``init``, -1: a new
+    table of its own); the sweeps (:func:`_partition_kernel`, ``s_lam``/``s_eta``: the shared
+    theta's prior); the sample compacted (:func:`_compact`) and the shares (:func:`_collect_shares`)."""
+    L, G = v0.shape[0], v_star.size
+    T = G + L
+    v = np.empty((n_blocks, L, 2))
+    R = np.empty((n_blocks, L, 2, 2))
+    lam0, eta0 = np.empty((n_blocks, T, 2, 2)), np.empty((n_blocks, T, 2))
+    for p in range(n_blocks):
+        vb, Rb = (v0, R0) if p == 0 else (v1, R1)
+        for l in range(L):
+            for i in range(2):
+                v[p, l, i] = vb[l, i]
+                for j in range(2):
+                    R[p, l, i, j] = Rb[l, i, j]
+        if p == 0:
+            _table_priors(pc0, pm0, hl0, he0, lam0[0], eta0[0])
+        else:
+            _table_priors(pc1, pm1, hl1, he1, lam0[1], eta0[1])
+    z = np.empty(L, dtype=np.int64)
+    for l in range(L):
+        z[l] = init[l] if init[l] >= 0 else G + l
+    seated = np.zeros(T)
+    seated[:G] = v_star
+    rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
+    _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
+    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    return _compact(z, G, T), obj, w, mu, cov
+
+
+_sample_kernel = jit(_sample_kernel)
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -591,12 +682,35 @@ def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.nd
     """
     if shares.obj.size == 0:
         return mean, cov
-    o = shares.obj
-    m, P = mean[o], cov[o]
-    PHt = P[:, :, _VEL]  # (P, 5, 2)
-    Si, _ = inv2(P[:, _VEL][:, :, _VEL] + S_w + shares.cov)
-    K = PHt @ Si
-    return _share_moments(mean.shape[0], m, P, K, K @ np.swapaxes(PHt, 1, 2), shares.mu, shares.w, o)
+    return _share_velocity_kernel(mean, cov, shares.obj, S_w, shares.mu, shares.cov, shares.w)
+
+
+def _share_velocity_kernel(mean, cov, o, S_w, s_mu, s_cov, w):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s gains compiled, as its numpy code computed them: ``P = cov[o]``,
+    ``PHt = P[:, :, _VEL]``, ``Si = inv2(P_vv + S_w + s_cov)`` (:func:`inv2`: entries over the
+    determinant), ``K = PHt @ Si`` and ``KHP = K @ PHt'`` (numpy's stacked matmul: each entry
+    :func:`tracker.bnp.group_fma.sum2`); then :func:`_share_moments`."""
+    Q = o.size
+    m, P = np.empty((Q, 5)), np.empty((Q, 5, 5))
+    K, KHP = np.empty((Q, 5, 2)), np.empty((Q, 5, 5))
+    A, Si = np.empty((2, 2)), np.empty((2, 2))
+    vel = (1, 3)
+    for q in range(Q):
+        m[q] = mean[o[q]]
+        P[q] = cov[o[q]]
+        for i in range(2):
+            for j in range(2):
+                A[i, j] = (P[q, vel[i], vel[j]] + S_w[i, j]) + s_cov[q, i, j]
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        Si[0, 0], Si[1, 1] = A[1, 1] / det, A[0, 0] / det
+        Si[0, 1], Si[1, 0] = -A[0, 1] / det, -A[1, 0] / det
+        for i in range(5):
+            for j in range(2):
+                K[q, i, j] = sum2(P[q, i, 1], Si[0, j], P[q, i, 3], Si[1, j])
+        for i in range(5):
+            for j in range(5):
+                KHP[q, i, j] = sum2(K[q, i, 0], P[q, j, 1], K[q, i, 1], P[q, j, 3])
+    return _share_moments(mean.shape[0], m, P, K, KHP, s_mu, w, o)
 
 
 def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
@@ -631,6 +745,7 @@ def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
 
 
 _share_moments = jit(_share_moments)
+_share_velocity_kernel = jit(_share_velocity_kernel)
 
 
 def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
@@ -711,6 +826,14 @@ def _fov_moments(detection, n: int) -> tuple[np.ndarray, np.ndarray]:
     return pts.mean(axis=0), np.cov(pts.T, bias=True)
 
 
+def _rows_of(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``values[rows]`` as int64 with -1 where ``rows`` is -1 (an object not in the last state)."""
+    out = np.full(rows.size, -1, dtype=np.int64)
+    have = rows >= 0
+    out[have] = values[rows[have]]
+    return out
+
+
 @dataclass(frozen=True)
 class GroupTracker:
     """Two-level DDP-EMM (``config.d == 0`` and not ``infer_d``) or DPY-STP tracker."""
@@ -769,50 +892,64 @@ class GroupTracker:
         # (tracker.types.frame_dt): frame numbers x T for regular frames, bit for bit
         steps = self.periods_since(state, frame)
         inner, est = self.objects.step(state.inner(), frame, rng)
+        kept = None
         if self.config.merge == "exclusive":
-            inner, est = self._merge(inner, est)
+            inner, est, kept = self._merge(inner, est)
         members = np.flatnonzero(inner.existence >= self.config.member_existence)
-        prev = dict(zip(state.labels, state.cluster.tolist()))
-        init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
+        src = self._previous_rows(state, inner.labels)  # each object's row in the last state (-1: new)
+        init_ids = _rows_of(state.cluster, src[members])
         mean, cov = inner.mean.copy(), inner.cov.copy()
-        blocks = self._blocks(state, steps, mean[members], cov[members])
+        m_mean, m_cov = mean[members], cov[members]  # the members' states (copies; the blocks' views)
+        blocks = self._blocks(state, steps, m_mean, m_cov)
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
+            m_mean, m_cov = share_velocity(m_mean, m_cov, shares, self.S_share)
         if self.config.turn_within_std_deg > 0 and members.size:
-            mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
-                                                     inner.cov[members, 4, 4], z,
-                                                     np.deg2rad(self.config.turn_within_std_deg) ** 2)
+            m_mean, m_cov = share_turn(m_mean, m_cov, inner.mean[members, 4], inner.cov[members, 4, 4], z,
+                                       self._turn_within_var)
+        if members.size:
+            mean[members], cov[members] = m_mean, m_cov
         ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
         g_ids, g_count, (g_mean, g_cov), (p_mean, p_cov) = self._transition_out(blocks, z, ids)
-        hist = self._history(state, inner.labels, members, ids[z], g_ids)
+        hist = self._history(state, inner.labels, members, ids[z], g_ids, src)
         alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0, hist)
         new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
                                inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
                                g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist)
-        return new_state, self._estimate(new_state, est, t0)
+        return new_state, self._estimate(new_state, est, t0, kept)
 
     # -- pieces ---------------------------------------------------------------------------
-    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate]:
+    def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate, list | None]:
         """The object level's duplicates merged without merging objects of one scan
         (:func:`tracker.bnp.group_merge.merge_exclusive`); the estimate's tracks re-read at the
         object level's threshold and its assignments renamed to the merged labels."""
         obj = self.config.objects
         c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
-        merged, renamed = merge_exclusive(c, obj.merge_distance,
-                                          taken_measurements(est.assignments, est.assignment_prob, 0.5, inner.labels, inner.frame))
+        arrays = label_arrays(inner.labels, est.assignments, est.assignment_prob, 0.5, inner.frame)
+        merged, renamed = merge_exclusive(c, obj.merge_distance, None, arrays)
         if not renamed:
-            return inner, est
+            return inner, est, None
         inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
                         existence=merged.existence, popularity=merged.popularity)
-        tracks = tuple(TrackEstimate(lab, inner.mean[i].copy(), inner.cov[i].copy(), float(inner.existence[i]))
-                       for i, lab in enumerate(inner.labels) if inner.existence[i] > obj.existence_threshold)
+        # the tracks re-read at the threshold: their labels and existences (the states are the
+        # cluster level's, read by _estimate)
+        kept = [(inner.labels[i], r) for i, r in enumerate(inner.existence.tolist()) if r > obj.existence_threshold]
         assignments = tuple(renamed.get(a, a) if a is not None else None for a in est.assignments)
-        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(tracks)))
-        return inner, Estimate(est.frame, est.stamp_ns, tracks, assignments, est.assignment_prob, diag,
-                               _cardinality(inner.existence))
+        diag = dict(est.diagnostics, n_clusters=float(len(inner.labels)), n_tracks=float(len(kept)))
+        return inner, Estimate(est.frame, est.stamp_ns, (), assignments, est.assignment_prob, diag,
+                               _cardinality(inner.existence)), kept
+
+    @staticmethod
+    def _previous_rows(state: GroupState, labels: tuple[str, ...]) -> np.ndarray:
+        """Each of ``labels``' row in ``state`` (-1: not there; a label twice in ``state``: its last row)."""
+        row = {lab: i for i, lab in enumerate(state.labels)}
+        return np.array([row.get(lab, -1) for lab in labels], dtype=np.int64)
+
+    @cached_property
+    def _turn_within_var(self) -> float:
+        return np.deg2rad(self.config.turn_within_std_deg) ** 2
 
     def periods_since(self, state: GroupState, frame: Frame) -> float:
         r"""Scan periods :math:`\Delta t / T` since the last frame (1 before the first)."""
@@ -825,19 +962,34 @@ class GroupTracker:
         r"""theta's parts with the transitioned clusters' priors moved by :math:`\varphi`: the velocity
         random-walks (``theta_drift_std``); the centroid moves with the velocity (and ``centroid_drift_std``)."""
         cfg = self.config
-        eye = np.eye(2)
         dt = steps * self.params.T
+        vel_drift, pos_within, pos_drift = self._phi_terms(steps)
         # strided slices (1::2 = _VEL, 0::2 = _POS on the first four entries): the same numbers as
         # fancy indexing, one copy fewer
         vel = Block(mean[:, 1:4:2], cov[:, 1:4:2, 1:4:2] + self.S_w, state.group_mean,
-                    state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
+                    state.group_cov + vel_drift, _ZERO2, self.h_cov)
         if not cfg.centroid:
             return [vel]
-        pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + cfg.within_pos_std**2 * eye,
-                    state.group_pos_mean + dt * state.group_mean,
-                    state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
-                    *self.h_pos)
+        pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + pos_within, state.group_pos_mean + dt * state.group_mean,
+                    state.group_pos_cov + dt**2 * state.group_cov + pos_drift, *self.h_pos)
         return [vel, pos]
+
+    @cached_property
+    def _phi_memo(self) -> dict:
+        return {}
+
+    def _phi_terms(self, steps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_blocks`' constant matrices for ``steps`` scan periods (remembered; read only):
+        theta's random walk ``steps theta_drift_std^2 I``, the members' spread about the centroid
+        ``within_pos_std^2 I`` and the centroid's walk ``steps centroid_drift_std^2 I``."""
+        hit = self._phi_memo.get(steps)
+        if hit is None:
+            cfg, eye = self.config, np.eye(2)
+            hit = (steps * cfg.theta_drift_std**2 * eye, cfg.within_pos_std**2 * eye,
+                   steps * cfg.centroid_drift_std**2 * eye)
+            if len(self._phi_memo) < 64:
+                self._phi_memo[steps] = hit
+        return hit
 
     def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
@@ -859,22 +1011,21 @@ class GroupTracker:
     def _transition_out(self, blocks: list[Block], z, ids) -> tuple:
         """Clusters with members (v* >= 1) and each block's theta posterior (prior H_2, information
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
-        used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
-        out = []
+        parts = []
         for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
-            out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
-                                  used.size, *prior_information(b.h_cov, b.h_mean)))
-        if len(out) == 1:
-            out.append((np.zeros((used.size, 2)), np.zeros((used.size, 2, 2))))
-        return ids[used].astype(np.int64), count.astype(float), out[0], out[1]
+            parts += [b.v, b.R, *prior_information(b.h_cov, b.h_mean)]
+        g_ids, count, *moments = _transition_kernel(z, ids, *(parts * 2)[:8], len(blocks))
+        return g_ids, count, moments[:2], moments[2:]
 
     def _history(self, state: GroupState, labels: tuple[str, ...], members: np.ndarray, member_ids: np.ndarray,
-                 g_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+                 g_ids: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
         """The partition of every object ever in it (:func:`tracker.bnp.group_hyper.update_history`):
         the members' counts moved to their clusters; clusters that no longer transition folded into
-        the dead clusters' sufficient statistics.  Returns the state's history fields."""
-        prev = dict(zip(state.labels, state.counted.tolist()))
-        counted = np.array([prev.get(lab, -1) for lab in labels], dtype=np.int64)
+        the dead clusters' sufficient statistics.  ``rows``: each label's row in ``state``
+        (:meth:`_previous_rows`, computed when not given).  Returns the state's history fields."""
+        if rows is None:
+            rows = self._previous_rows(state, labels)
+        counted = _rows_of(state.counted, rows)
         totals = dict(zip(state.group_ids.tolist(), state.hist_total.tolist()))
         counted = update_history(counted, members, member_ids, totals)
         live = set(g_ids.tolist())
@@ -961,14 +1112,16 @@ class GroupTracker:
                                  mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size),
                                  n_new=n_new, seated_popularity=state.group_count, seated_counts=counts)
 
-    def _estimate(self, state: GroupState, est: Estimate, t0: float) -> Estimate:
+    def _estimate(self, state: GroupState, est: Estimate, t0: float, kept: list | None = None) -> Estimate:
+        """The tracks (``kept``: labels and existences re-read by :meth:`_merge`, else the object
+        level's) with the cluster level's states and their clusters; each track's state and
+        covariance are rows of one fresh copy."""
         row = {lab: i for i, lab in enumerate(state.labels)}
-        tracks = []
-        for t in est.tracks:
-            i = row[t.label]
-            c = int(state.cluster[i])
-            tracks.append(TrackEstimate(t.label, state.mean[i].copy(), state.cov[i].copy(), t.existence,
-                                        None if c < 0 else c))
+        kept = [(t.label, t.existence) for t in est.tracks] if kept is None else kept
+        idx = np.array([row[lab] for lab, _ in kept], dtype=np.int64)
+        mean, cov, cluster = state.mean[idx], state.cov[idx], state.cluster[idx].tolist()
+        tracks = [TrackEstimate(lab, mean[k], cov[k], r, None if cluster[k] < 0 else cluster[k])
+                  for k, (lab, r) in enumerate(kept)]
         diag = dict(est.diagnostics)
         diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
                     ms=(time.perf_counter() - t0) * 1e3)
