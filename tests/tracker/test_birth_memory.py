@@ -217,3 +217,29 @@ def test_learned_velocity_variance_is_the_conjugate_mean():
     mem = BirthMemory(vel_stats=np.array([1.5, 0.5 * (200.0 + 0.5 * 800.0)]))
     assert velocity_variance(mem, _settings(learn_velocity=True)) == pytest.approx((2000.0 + 300.0) / 6.5)
     assert velocity_variance(mem, _settings()) == 400.0
+
+
+def test_two_level_tracker_carries_the_learned_births(estimates_equal):
+    """``ddp`` with ``objects.learn_births``: its object level is the learned tracker, the memory
+    rides in :class:`GroupState` from frame to frame (so it grows), a snapshot at frame 30
+    resumes draw for draw, and the estimates differ from plain ``ddp`` (the option acts)."""
+    import msgspec
+
+    from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupState, make_group_tracker
+
+    sc, params = _vo_no_regions()
+    frames = simulate_all(sc, params, 2)[:45]
+    cfg = GROUP_PRESETS["ddp"]
+    learned = make_group_tracker("ddp", params, msgspec.structs.replace(
+        cfg, objects=msgspec.structs.replace(cfg.objects, learn_births=True)))
+    assert isinstance(learned.objects, LearnedBirthTracker)
+    assert not isinstance(make_group_tracker("ddp", params).objects, LearnedBirthTracker)
+    full = [e for _, e, _ in run(learned, frames, 5)]
+    *_, (_, _, state) = run(learned, frames[:30], 5)
+    assert isinstance(state, GroupState) and state.birth_weight.size >= 3
+    restored = restore(snapshot(state), GroupState)
+    np.testing.assert_array_equal(restored.birth_pos, state.birth_pos)
+    resumed = [e for _, e, _ in run(learned, frames[30:], 5, restored)]
+    assert all(estimates_equal(x, y) for x, y in zip(full[30:], resumed))
+    plain = [e for _, e, _ in run(make_group_tracker("ddp", params), frames, 5)]
+    assert not all(estimates_equal(x, y) for x, y in zip(full, plain))

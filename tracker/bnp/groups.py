@@ -55,6 +55,7 @@ import numpy as np
 
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
+from bnptrack.tracker.bnp.birth_tracker import LearnedBirthState, LearnedBirthTracker
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
@@ -209,13 +210,27 @@ class GroupState:
     """Objects counted in them."""
     dead_factor: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """(D,) their sum_j log (1-d)^(n_j - 1) (rising factorial) on the tracker's d grid."""
+    birth_pos: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_pos)
+    """The object level's recorded births (:class:`~tracker.bnp.birth_tracker.LearnedBirthState`;
+    empty unless ``objects.learn_births`` / ``objects.learn_birth_velocity``), and below."""
+    birth_cov: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_cov)
+    birth_weight: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_weight)
+    birth_loglik: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_loglik)
+    birth_vel_stats: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_vel_stats)
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
 
+    def inner_learned(self) -> LearnedBirthState:
+        """The object level's state with its recorded births (``objects.learn_births``)."""
+        return LearnedBirthState(*[getattr(self, n) for n in _LEARNED_FIELDS])
+
 
 #: :class:`BnpState`'s fields in order (the first fields of :class:`GroupState`).
 _INNER_FIELDS = tuple(f.name for f in fields(BnpState))
+#: :class:`LearnedBirthState`'s fields in order: the above, then the ``birth_*`` memory.
+_LEARNED_FIELDS = tuple(f.name for f in fields(LearnedBirthState))
+_BIRTH_FIELDS = _LEARNED_FIELDS[len(_INNER_FIELDS):]
 
 
 # -- conjugate Gaussian algebra on 2-vectors (closed-form 2x2) --------------------------------
@@ -847,7 +862,12 @@ class GroupTracker:
         """The object level; with ``merge == "exclusive"`` its own merge is off (done in :meth:`_merge`)."""
         cfg = self.config
         objects = msgspec.structs.replace(cfg.objects, merge_distance=0.0) if cfg.merge == "exclusive" else cfg.objects
-        return BnpTracker(self.params, objects, self.name)
+        learned = objects.learn_births or objects.learn_birth_velocity
+        return (LearnedBirthTracker if learned else BnpTracker)(self.params, objects, self.name)
+
+    @cached_property
+    def learns_births(self) -> bool:
+        return isinstance(self.objects, LearnedBirthTracker)
 
     @cached_property
     def alpha_grid(self) -> np.ndarray:
@@ -882,7 +902,7 @@ class GroupTracker:
     def initial_state(self) -> GroupState:
         inner = self.objects.initial_state()
         grid = np.zeros((self.alpha_grid.size, self.d_grid.size))
-        return GroupState(**{f.name: getattr(inner, f.name) for f in fields(BnpState)},
+        return GroupState(**{f.name: getattr(inner, f.name) for f in fields(type(inner))},
                           alpha2=self.config.alpha, d2=self.config.d, hyper2_loglik=grid)
 
     def step(self, state: GroupState, frame: Frame, rng: np.random.Generator) -> tuple[GroupState, Estimate]:
@@ -891,7 +911,7 @@ class GroupTracker:
         # scan periods since the last frame, from the stamps as the object level predicts
         # (tracker.types.frame_dt): frame numbers x T for regular frames, bit for bit
         steps = self.periods_since(state, frame)
-        inner, est = self.objects.step(state.inner(), frame, rng)
+        inner, est = self.objects.step(state.inner_learned() if self.learns_births else state.inner(), frame, rng)
         kept = None
         if self.config.merge == "exclusive":
             inner, est, kept = self._merge(inner, est)
@@ -917,7 +937,8 @@ class GroupTracker:
         alpha2, d2, hyper2 = self._hyper(state, z, init_ids < 0, hist)
         new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
                                inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
-                               g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist)
+                               g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist,
+                               *(getattr(inner, n) for n in _BIRTH_FIELDS if self.learns_births))
         return new_state, self._estimate(new_state, est, t0, kept)
 
     # -- pieces ---------------------------------------------------------------------------
