@@ -154,7 +154,7 @@ class Offline:
         stage.writer.flush()
         n = len(events)
         fps, cpu = n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n
-        stage.journal.close()
+        stage._close_journal()
         return fps, cpu
 
     def track_log_fps(self, out: Path, rerun: bool = False) -> tuple[float, float]:
@@ -251,6 +251,7 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     used = cpu.used(*window) if sample_cpu else {}
     n = s["tracks_written"]
     return {
+        "segments_ms": frame_segments(out, lat),
         "frames": n,
         "gaps": sum(len(v) for v in s["gaps"].values()),
         "fps": s["throughput_fps"],
@@ -262,6 +263,43 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
         "cpu_cores": {k: v / max(window[1] - window[0], 1e-9) for k, v in used.items()},
         "load_avg": load_avg(),
     }
+
+
+#: The frame path cut at the tracker's stamps (session 9): source publish -> tracker callback
+#: (``t_in``), the callback -> main thread hand-off (``t_deq``), the main thread's work before
+#: the step (intake: decoding and validation, sequencing, ``to_frame``, the bounds check, the
+#: frame's generator; ``t_s0``), the step (``t_s1``), the work after it up to the put (encoding,
+#: the attachment; ``t_out``), the put and the second hop to the sink's receipt stamp.
+SEGMENTS = ("source_to_tracker", "handoff", "pre_step", "step", "post_step", "tracker_to_sink")
+
+
+def frame_segments(out: Path, lat: dict) -> dict[str, list[float]]:
+    """Per frame, the milliseconds of each :data:`SEGMENTS` (empty lists when the tracker's
+    journal lacks the stamps, e.g. a tree older than session 9): the tracker's stamps are read
+    back from its journal (``<out>/tracker.journal``, the attachment of every /tracks
+    published), joined on ``seq`` with the sink's receipt (``sink.json``'s ``e2e_ms``)."""
+    from bnptrack.pipeline.journal import read_journal
+
+    path = out / "tracker.journal"
+    metas = {r.seq: r.meta for r in read_journal(path)} if path.exists() else {}
+    seg: dict[str, list[float]] = {k: [] for k in SEGMENTS}
+    for s, e2e in zip(lat.get("seq", []), lat["e2e_ms"]):
+        m = metas.get(s)
+        if m is None or not all(isinstance(m.get(k), int) for k in ("t", "t_in", "t_deq", "t_s0", "t_s1", "t_out")):
+            continue
+        stamps = [m["t"], m["t_in"], m["t_deq"], m["t_s0"], m["t_s1"], m["t_out"]]
+        for k, a, b in zip(SEGMENTS, stamps, stamps[1:]):
+            seg[k].append((b - a) / 1e6)
+        seg["tracker_to_sink"].append(e2e - (m["t_out"] - m["t"]) / 1e6)
+    return seg
+
+
+def report_segments(seg: dict[str, list[float]]) -> None:
+    """One line: p50 (p99) of each segment of the frame path."""
+    if not seg or not seg.get("step"):
+        return
+    print("  segments p50 (p99), ms: " + "; ".join(
+        f"{k} {pct(seg[k], 50):.3f} ({pct(seg[k], 99):.2f})" for k in SEGMENTS))
 
 
 # --------------------------------------------------------------------------- transport floor
@@ -629,6 +667,7 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
         print("  per hop p50 (p99): source -> tracker {:.2f} ({:.2f}) ms; in the tracker (decode, step, encode) "
               "{:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
                   *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
+        report_segments(paced.get("segments_ms", {}))
         if all(h.get(k) for k in SPLITS):
             print("  of which the tracker's hand-off (callback -> main thread) {:.2f} ({:.2f}) ms; the same "
                   "/measurements source -> sink {:.2f} ({:.2f}) ms".format(
