@@ -44,6 +44,12 @@ stamps made consecutive), then measures, in one invocation:
 
     python benchmarks/pipeline_latency.py                    # 5 x 100 frames, ddp, 3 rounds
     python benchmarks/pipeline_latency.py --tracker dpyp --rounds 5 --json out.json
+    python benchmarks/pipeline_latency.py --only acl-floor --paced 4      # the floor, bare / launcher's router
+    python benchmarks/pipeline_latency.py --only session-floor --paced 4  # the floor, one session / one each
+
+Each paced run also prints the frame path's segments (session 9), from the tracker's stamps
+read back from its journal: source -> tracker, hand-off, before the step, the step, after the
+step, the put and tracker -> sink.
 
 The sink writes no ``.rrd`` (``sink.rerun=false``) unless ``--rerun``.  Timings on a shared
 machine vary: the load average is printed beside the figures.
