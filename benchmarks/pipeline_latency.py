@@ -44,6 +44,12 @@ stamps made consecutive), then measures, in one invocation:
 
     python benchmarks/pipeline_latency.py                    # 5 x 100 frames, ddp, 3 rounds
     python benchmarks/pipeline_latency.py --tracker dpyp --rounds 5 --json out.json
+    python benchmarks/pipeline_latency.py --only acl-floor --paced 4      # the floor, bare / launcher's router
+    python benchmarks/pipeline_latency.py --only session-floor --paced 4  # the floor, one session / one each
+
+Each paced run also prints the frame path's segments (session 9), from the tracker's stamps
+read back from its journal: source -> tracker, hand-off, before the step, the step, after the
+step, the put and tracker -> sink.
 
 The sink writes no ``.rrd`` (``sink.rerun=false``) unless ``--rerun``.  Timings on a shared
 machine vary: the load average is printed beside the figures.
@@ -154,7 +160,7 @@ class Offline:
         stage.writer.flush()
         n = len(events)
         fps, cpu = n / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / n
-        stage.journal.close()
+        stage._close_journal()
         return fps, cpu
 
     def track_log_fps(self, out: Path, rerun: bool = False) -> tuple[float, float]:
@@ -251,6 +257,7 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     used = cpu.used(*window) if sample_cpu else {}
     n = s["tracks_written"]
     return {
+        "segments_ms": frame_segments(out, lat),
         "frames": n,
         "gaps": sum(len(v) for v in s["gaps"].values()),
         "fps": s["throughput_fps"],
@@ -264,7 +271,55 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     }
 
 
+#: The frame path cut at the tracker's stamps (session 9): source publish -> tracker callback
+#: (``t_in``), the callback -> main thread hand-off (``t_deq``), the main thread's work before
+#: the step (intake: decoding and validation, sequencing, ``to_frame``, the bounds check, the
+#: frame's generator; ``t_s0``), the step (``t_s1``), the work after it up to the put (encoding,
+#: the attachment; ``t_out``), the put and the second hop to the sink's receipt stamp.
+SEGMENTS = ("source_to_tracker", "handoff", "pre_step", "step", "post_step", "tracker_to_sink")
+
+
+def frame_segments(out: Path, lat: dict) -> dict[str, list[float]]:
+    """Per frame, the milliseconds of each :data:`SEGMENTS` (empty lists when the tracker's
+    journal lacks the stamps, e.g. a tree older than session 9): the tracker's stamps are read
+    back from its journal (``<out>/tracker.journal``, the attachment of every /tracks
+    published), joined on ``seq`` with the sink's receipt (``sink.json``'s ``e2e_ms``)."""
+    from bnptrack.pipeline.journal import read_journal
+
+    path = out / "tracker.journal"
+    metas = {r.seq: r.meta for r in read_journal(path)} if path.exists() else {}
+    seg: dict[str, list[float]] = {k: [] for k in SEGMENTS}
+    for s, e2e in zip(lat.get("seq", []), lat["e2e_ms"]):
+        m = metas.get(s)
+        if m is None or not all(isinstance(m.get(k), int) for k in ("t", "t_in", "t_deq", "t_s0", "t_s1", "t_out")):
+            continue
+        stamps = [m["t"], m["t_in"], m["t_deq"], m["t_s0"], m["t_s1"], m["t_out"]]
+        for k, a, b in zip(SEGMENTS, stamps, stamps[1:]):
+            seg[k].append((b - a) / 1e6)
+        seg["tracker_to_sink"].append(e2e - (m["t_out"] - m["t"]) / 1e6)
+    return seg
+
+
+def report_segments(seg: dict[str, list[float]]) -> None:
+    """One line: p50 (p99) of each segment of the frame path."""
+    if not seg or not seg.get("step"):
+        return
+    print("  segments p50 (p99), ms: " + "; ".join(
+        f"{k} {pct(seg[k], 50):.3f} ({pct(seg[k], 99):.2f})" for k in SEGMENTS))
+
+
 # --------------------------------------------------------------------------- transport floor
+
+
+#: The two-hop floor's process names; with ``--only acl-floor``'s access control, the stages'
+#: (the ACL lets the user named like a stage put on that stage's keys and hold its tokens).
+FLOOR_NAMES = {"pub": "pub", "relay": "relay", "sub": "sub"}
+ACL_FLOOR_NAMES = {"pub": "source", "relay": "tracker", "sub": "sink"}
+
+
+def _floor_name(role: str) -> str:
+    """A floor process's name (``BNPTRACK_FLOOR_ACL`` set: the stage's, for the ACL)."""
+    return (ACL_FLOOR_NAMES if os.environ.get("BNPTRACK_FLOOR_ACL") else FLOOR_NAMES)[role]
 
 
 def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
@@ -278,7 +333,7 @@ def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus
 
-    with Bus(run_id, "sub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
+    with Bus(run_id, _floor_name("sub"), ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.subscribe(["measurements", "truth", "tracks"] if traffic == "pipeline" else [topic])
         bus.declare_alive("ready")
         lat, first = [], []
@@ -324,7 +379,7 @@ def _floor_relay(mode: str, endpoint: str) -> None:
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus
 
-    with Bus("floor2", "relay", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
+    with Bus("floor2", _floor_name("relay"), ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.declare(["tracks"])
         bus.subscribe(["measurements"])
         bus.declare_alive("ready")
@@ -345,9 +400,9 @@ def _floor_publish(mode: str, endpoint: str, n: int, rate: float, traffic: str =
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus
 
-    with Bus("floor2", "pub", ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
+    with Bus("floor2", _floor_name("pub"), ZenohConfig(mode=mode, connect=[endpoint]), DeliveryConfig()) as bus:
         bus.declare(["measurements", "truth"] if traffic == "pipeline" else ["measurements"])
-        if bus.wait_alive(["sub", "relay"], 60, "ready"):
+        if bus.wait_alive([_floor_name("sub"), _floor_name("relay")], 60, "ready"):
             raise SystemExit("two-hop floor: relay or subscriber did not start")
         time.sleep(0.5)  # let the peers link up
         payload, truth = b"x" * TRAFFIC_SIZES[0], b"x" * TRAFFIC_SIZES[1]
@@ -360,7 +415,8 @@ def _floor_publish(mode: str, endpoint: str, n: int, rate: float, traffic: str =
         time.sleep(1.0)  # keep the session a moment: the last samples leave
 
 
-def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline") -> dict:
+def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline", acl: bool = False,
+                  sessions: bool = False) -> dict:
     """The pipeline's two hops with nothing else: a publisher process (the source's place) ->
     a relay process (the tracker's: republishes each sample at once, ``_floor_relay``) -> a
     subscriber process (the sink's), ``n`` samples at ``rate`` per second with the pipeline's
@@ -373,18 +429,26 @@ def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline
     /measurements, /truth and /tracks as the sink does, and the latency is taken when the
     /tracks sample arrives (the subscription callback's stamp, the sink's ``t_recv_ns``).
     ``traffic="bare"``: the floor of session 6 (one topic per hop, the latency taken when the
-    subscriber's main thread gets the sample: one thread wake-up later than the sink's stamp)."""
-    from bnptrack.pipeline.config import ZenohConfig
-    from bnptrack.pipeline.transport import Router
+    subscriber's main thread gets the sample: one thread wake-up later than the sink's stamp).
 
-    with Router(ZenohConfig()) as router:
-        ep = router.endpoints[0]
+    ``acl``: the router as ``launch`` opens it by default (per-run usernames and passwords,
+    the pipeline's access control, :func:`pipeline.supervisor.open_embedded_router`), each
+    process logged in as the stage whose place it takes.
+
+    ``sessions``: each floor process in a session of its own, as the launcher starts the stages
+    (``start_new_session``); with Linux's autogroup scheduling (``kernel.sched_autogroup_enabled``)
+    a session is a scheduling group, so the floor's processes then no longer share one group
+    with the router (and the benchmark)."""
+    router, env = _floor_router(acl)
+    with router:
+        ep = router.connect_endpoints[0]
         sub = subprocess.Popen([sys.executable, __file__, "--floor-subscriber2", mode, ep, str(n), traffic],
-                               stdout=subprocess.PIPE, text=True)
-        relay = subprocess.Popen([sys.executable, __file__, "--floor-relay", mode, ep], stdin=subprocess.PIPE)
+                               stdout=subprocess.PIPE, text=True, env=env["sub"], start_new_session=sessions)
+        relay = subprocess.Popen([sys.executable, __file__, "--floor-relay", mode, ep], stdin=subprocess.PIPE,
+                                 env=env["relay"], start_new_session=sessions)
         try:
             pub = subprocess.Popen([sys.executable, __file__, "--floor-publisher2", mode, ep, str(n), str(rate),
-                                    traffic])
+                                    traffic], env=env["pub"], start_new_session=sessions)
             out, _ = sub.communicate(timeout=120 + 2 * n / rate)
             pub.wait(60)
         finally:
@@ -394,6 +458,44 @@ def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline
     lat, first = json.loads(lines[0]), json.loads(lines[1]) if len(lines) > 1 else []
     return {"p50": pct(lat, 50), "p99": pct(lat, 99), "n": len(lat), "load_avg": load_avg(), "traffic": traffic,
             "first_hop_ms": first}
+
+
+def _floor_router(acl: bool) -> tuple:
+    """The two-hop floor's router and each floor process's environment: a bare router, or with
+    ``acl`` the launcher's (credentials and access control) and each process's login."""
+    from bnptrack.pipeline.config import ZenohConfig
+    from bnptrack.pipeline.transport import Router
+
+    if not acl:
+        return Router(ZenohConfig()), {role: None for role in FLOOR_NAMES}
+    from bnptrack.pipeline.supervisor import open_embedded_router
+
+    out = Path(tempfile.mkdtemp(prefix="acl-floor-"))
+    router, _z, cred = open_embedded_router(ZenohConfig(), out, list(ACL_FLOOR_NAMES.values()))
+    env = {role: {**os.environ, "BNPTRACK_FLOOR_ACL": "1", "BNPTRACK_ZENOH_USER": name,
+                  "BNPTRACK_ZENOH_PASSWORD": cred[name]} for role, name in ACL_FLOOR_NAMES.items()}
+    return router, env
+
+
+def floor_variant_rounds(args) -> list[dict]:
+    """``--only acl-floor``: ``--paced`` rounds of the two-hop floor through a bare router and
+    through the launcher's (authentication and access control), interleaved: what the router's
+    access control costs the two hops, with no stage code at all.  ``--only session-floor``: the
+    floor's processes in the benchmark's session and each in a session of its own (as the
+    launcher starts the stages), interleaved."""
+    variant = "acl" if args.only == "acl-floor" else "sessions"
+    rounds = []
+    for r in range(args.paced):
+        pair = {"bare": two_hop_floor("client", args.rate),
+                variant: two_hop_floor("client", args.rate, **{variant: True})}
+        rounds.append(pair)
+        print(f"  round {r + 1}: " + "; ".join(
+            f"{k} p50 {v['p50']:.2f} p99 {v['p99']:.2f} ms (first hop p50 {pct(v['first_hop_ms'], 50):.2f} p99 "
+            f"{pct(v['first_hop_ms'], 99):.2f}; load {v['load_avg']:.2f})" for k, v in pair.items()), flush=True)
+    for k in ("bare", variant):
+        print(f"  two-hop floor, {k} router: median p50 {np.median([p[k]['p50'] for p in rounds]):.2f} ms, "
+              f"median p99 {np.median([p[k]['p99'] for p in rounds]):.2f} ms")
+    return rounds
 
 
 def socket_floor(rate: float, n: int = 400) -> dict:
@@ -629,6 +731,7 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
         print("  per hop p50 (p99): source -> tracker {:.2f} ({:.2f}) ms; in the tracker (decode, step, encode) "
               "{:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
                   *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
+        report_segments(paced.get("segments_ms", {}))
         if all(h.get(k) for k in SPLITS):
             print("  of which the tracker's hand-off (callback -> main thread) {:.2f} ({:.2f}) ms; the same "
                   "/measurements source -> sink {:.2f} ({:.2f}) ms".format(
@@ -713,7 +816,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3, help="interleaved offline/pipeline throughput rounds")
     ap.add_argument("--paced", type=int, default=1, help="paced runs, each followed by its two-hop floor")
     ap.add_argument("--rate", type=float, default=20.0, help="paced run (and floors): frames per second")
-    ap.add_argument("--only", choices=("throughput", "latency"), default=None,
+    ap.add_argument("--only", choices=("throughput", "latency", "acl-floor", "session-floor"), default=None,
                     help="measure only this (default: both, the one-hop floors and the machine floor)")
     ap.add_argument("--rerun", action="store_true", help="also write run.rrd (the sink; bnptrack track --rrd)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -728,6 +831,9 @@ def main() -> None:
         log = tmp / "bench.mcap"
         n = make_log(log, args.runs)
         print(f"log: {n} frames ({args.runs} x vo2017), tracker {args.tracker}; load average {load0:.2f}", flush=True)
+        if args.only in ("acl-floor", "session-floor"):
+            figures[args.only] = floor_variant_rounds(args)
+            return
         off = Offline(log, args.tracker, args.seed)
         if args.only != "latency":
             figures["throughput"] = throughput_rounds(off, log, args, tmp)

@@ -49,7 +49,7 @@ class StageProcess:
             logf.flush()
             self.proc = subprocess.Popen(
                 self.argv, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
-                env=env, start_new_session=True,
+                env=env, process_group=0,
             )
         self.state = "running"
         self.restart_at = None
