@@ -175,6 +175,16 @@ def sensitivity(log: list, occupied: bool, tol: float = 0.05) -> dict:
     return dict(moves=moves, differ=differ, flips=flips, tv_sum=tv)
 
 
+def pair_errors(est: Estimate, group_of: dict[str, str]) -> tuple[int, int]:
+    """(split, merged): pairs of tracks in one true group but different clusters, and pairs in
+    different true groups (a free object is its own group) but one cluster."""
+    g = np.array([group_of.get(t.label, t.label) for t in est.tracks], dtype=object)
+    c = np.array([-1 if t.cluster is None else t.cluster for t in est.tracks])
+    same_g, same_c = g[:, None] == g[None], c[:, None] == c[None]
+    iu = np.triu_indices(g.size, 1)
+    return int((same_g & ~same_c)[iu].sum()), int((~same_g & same_c)[iu].sum())
+
+
 def one_seed(job: tuple) -> dict:
     """One seed, one prior: per-frame ARI, mean d2 (frames >= 20) and, if asked, the sensitivity."""
     name, scenario, seed, oracle, sens = job
@@ -183,13 +193,15 @@ def one_seed(job: tuple) -> dict:
     log: list | None = [] if sens else None
     tracker = oracle_tracker(name, params, oracle, log)
     group_of = {i: f"g{k}" for k, g in enumerate(sc.groups) for i in g}
-    aris, d2 = [], []
+    aris, d2, errs = [], [], np.zeros(2, dtype=np.int64)
     for f, e, _ in run(tracker, simulate_all(sc, params, seed), seed):
         a = frame_ari(f.truth, e, group_of)
+        errs += pair_errors(e, group_of)
         aris.append(np.nan if a is None else a)
         if f.frame >= 20:
             d2.append(e.diagnostics["d2"])
-    out = dict(seed=seed, name=name, ari_frames=aris, ari=float(np.nanmean(aris)), d2=float(np.mean(d2)))
+    out = dict(seed=seed, name=name, ari_frames=aris, ari=float(np.nanmean(aris)), d2=float(np.mean(d2)),
+               split=int(errs[0]), merged=int(errs[1]))
     if sens:
         out["sens"] = sensitivity(log, tracker.config.urn_reading == "occupied")
     return out
@@ -235,6 +247,8 @@ def summarise(pairs: list[tuple[dict, dict]]) -> dict:
     out["frame_level"] = dict(n=int(ok.sum()), mean_dpyp=float(fa[ok].mean()), mean_ddp=float(fb[ok].mean()),
                               frac_equal=float(np.mean(fa[ok] == fb[ok])), frac_ari1_dpyp=float(np.mean(fa[ok] == 1)),
                               frac_ari1_ddp=float(np.mean(fb[ok] == 1)))
+    out["pair_errors"] = {key: dict(split=sum(p[k]["split"] for p in pairs), merged=sum(p[k]["merged"] for p in pairs))
+                          for k, key in ((0, "dpyp"), (1, "ddp"))}
     if "sens" in pairs[0][0]:
         tot = {k: sum(p[0]["sens"][k] for p in pairs) for k in ("moves", "differ", "flips", "tv_sum")}
         out["sensitivity"] = dict(moves=tot["moves"], frac_differ_005=tot["differ"] / tot["moves"],

@@ -79,3 +79,13 @@ def test_sensitivity_is_zero_without_a_discount_and_counts_moves():
     list(run(tracker, _frames(3), 7))
     s = go.sensitivity(tracker_log, occupied=True)
     assert s == dict(moves=12, differ=0, flips=0, tv_sum=0.0)
+
+
+def test_pair_errors_count_split_and_merged_pairs():
+    """A, B one true group in clusters 1, 2 (one split pair); C free, D free, both in A's cluster 1:
+    A-C, A-D, C-D merged (three pairs)."""
+    from bnptrack.tracker.types import Estimate, TrackEstimate
+
+    x, P = np.zeros(5), np.eye(5)
+    tracks = tuple(TrackEstimate(lab, x, P, 1.0, c) for lab, c in (("A", 1), ("B", 2), ("C", 1), ("D", 1)))
+    assert go.pair_errors(Estimate(0, 0, tracks), {"A": "g0", "B": "g0"}) == (1, 3)
