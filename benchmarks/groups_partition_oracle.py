@@ -42,6 +42,13 @@ PRE-REGISTERED PLAN (written before any of seeds 301-360 ran; seeds 101-120 deve
     nice -n 10 python3 benchmarks/groups_partition_oracle.py --scenario groups-pl --first-seed 301 \\
         --seeds 60 --cov typical --sensitivity --csv oracle_pl_typical.csv
 
+Added at 08:05 UTC, after the dev seeds and after the primary run had started (none of its output
+seen), descriptive only: ``dpyp`` with the scene's own discount fixed (``--py-set d=0.6 --py-set
+infer_d=false``: the most favourable PY prior; the preset's Gamma(1, 0.1) prior on d holds d2
+near 0.19 on true partitions, dev seeds), seeds 301-360; and per-prior counts of split / merged
+true pairs (:func:`pair_errors`), which say whether the errors a PY prior could fix (merges: it
+favours more clusters) are there to fix.
+
 The last line printed is one JSON object with every figure.
 """
 
@@ -67,6 +74,7 @@ from groups_ari_paired import paired_stats  # noqa: E402
 from bnptrack.sources.scenarios import get_scenario  # noqa: E402
 from bnptrack.sources.synthetic import simulate_all  # noqa: E402
 from bnptrack.tracker.bnp.filter import BnpState  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
 from bnptrack.tracker.bnp.groups import GROUP_PRESETS, Block, GroupTracker, theta_posterior, urn_log_weights  # noqa: E402
 from bnptrack.tracker.models.params import load_params  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
@@ -125,9 +133,11 @@ class OracleGroupTracker(GroupTracker):
         return z, shares
 
 
-def oracle_tracker(name: str, params, oracle: TruthObjects, log: list | None = None) -> OracleGroupTracker:
-    """The ``name`` preset (``ddp`` / ``dpyp``) on the oracle object level (merge "objects")."""
-    config = msgspec.structs.replace(GROUP_PRESETS[name], merge="objects")
+def oracle_tracker(name: str, params, oracle: TruthObjects, log: list | None = None,
+                   overrides: tuple[str, ...] = ()) -> OracleGroupTracker:
+    """The ``name`` preset (``ddp`` / ``dpyp``) on the oracle object level (merge "objects"), with
+    ``overrides`` (``KEY=V``, :func:`bnptrack.tracker.config.apply_overrides`)."""
+    config = msgspec.structs.replace(apply_overrides(GROUP_PRESETS[name], list(overrides)), merge="objects")
     return OracleGroupTracker(params, config, name, oracle, log)
 
 
@@ -187,11 +197,11 @@ def pair_errors(est: Estimate, group_of: dict[str, str]) -> tuple[int, int]:
 
 def one_seed(job: tuple) -> dict:
     """One seed, one prior: per-frame ARI, mean d2 (frames >= 20) and, if asked, the sensitivity."""
-    name, scenario, seed, oracle, sens = job
+    name, scenario, seed, oracle, sens, overrides = job
     sc = get_scenario(scenario, seed=seed, scene=())
     params = sc.adapt_params(load_params("vo2017"))
     log: list | None = [] if sens else None
-    tracker = oracle_tracker(name, params, oracle, log)
+    tracker = oracle_tracker(name, params, oracle, log, overrides)
     group_of = {i: f"g{k}" for k, g in enumerate(sc.groups) for i in g}
     aris, d2, errs = [], [], np.zeros(2, dtype=np.int64)
     for f, e, _ in run(tracker, simulate_all(sc, params, seed), seed):
@@ -210,7 +220,8 @@ def one_seed(job: tuple) -> dict:
 def run_all(args, oracle: TruthObjects) -> list[tuple[dict, dict]]:
     """(dpyp, ddp) results seed by seed, in seed order."""
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    jobs = [(n, args.scenario, s, oracle, args.sensitivity and n == "dpyp") for s in seeds for n in ("dpyp", "ddp")]
+    jobs = [(n, args.scenario, s, oracle, args.sensitivity and n == "dpyp", tuple(args.py_set) if n == "dpyp" else ())
+            for s in seeds for n in ("dpyp", "ddp")]
     with ProcessPoolExecutor(args.workers) as pool:
         res = list(pool.map(one_seed, jobs))
     return list(zip(res[0::2], res[1::2]))
@@ -264,6 +275,7 @@ def main() -> None:
     ap.add_argument("--cov", choices=tuple(COVS), default="typical")
     ap.add_argument("--noise", action="store_true", help="perturb the true states by a draw from the covariance")
     ap.add_argument("--sensitivity", action="store_true", help="PY vs DP conditionals on the dpyp run")
+    ap.add_argument("--py-set", action="append", default=[], help="KEY=V override of the dpyp preset only")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--csv")
     args = ap.parse_args()
@@ -272,9 +284,9 @@ def main() -> None:
     if args.csv:
         write_csv(args.csv, pairs)
     out = dict(scenario=args.scenario, seeds=[args.first_seed, args.first_seed + args.seeds - 1], cov=args.cov,
-               noise=args.noise, **summarise(pairs))
+               noise=args.noise, py_set=args.py_set, **summarise(pairs))
     s = out["primary"]
-    print(f"{args.scenario} seeds {out['seeds']}, cov {args.cov}, noise {args.noise}: oracle ARI dpyp "
+    print(f"{args.scenario} seeds {out['seeds']}, cov {args.cov}, noise {args.noise}, dpyp {args.py_set}: oracle ARI dpyp "
           f"{s['mean_a']:.4f}, ddp {s['mean_b']:.4f}, diff {s['diff']:+.4f} (SE {s['se']:.4f}, one-sided t p "
           f"{s['p_t']:.3f}, Wilcoxon p {s['p_wilcoxon']:.3f}, CI [{s['ci95'][0]:+.4f}, {s['ci95'][1]:+.4f}]); "
           f"better {s['better']}, worse {s['worse']}, equal {s['equal']}; d2 {out['d2_dpyp']:.3f}", flush=True)
