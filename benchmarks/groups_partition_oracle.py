@@ -15,7 +15,8 @@ oracle never merges), and the subclass :class:`OracleGroupTracker` overrides the
 
 Covariances ("--cov"): ``typical`` = the tracker's median reported posterior std on
 ``groups-pl`` seeds 101-103 (dev seeds; ``ddp``, tracks with a cluster, 2300 track-frames):
-position 16.5 m, velocity 6.3 m/s per axis (/tmp command in docs/results.md); ``small`` =
+position 16.5 m, velocity 6.3 m/s per axis (a one-off script, /tmp/ari2_cov.py, not kept: the
+median over track-frames of the mean of the two axes' stds); ``small`` =
 1 m, 0.3 m/s.  turn-rate std 0.01 rad/s in both.  ``--noise`` also perturbs the true state by a
 draw from that covariance (the tracker's own estimate error, roughly), from the tracker's frame
 generator before the partition draws its uniforms, so both priors see the same noise.
