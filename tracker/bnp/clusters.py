@@ -4,6 +4,7 @@ object split over exclusive hypotheses."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import chain
 
 import numpy as np
@@ -143,6 +144,7 @@ def _relabel(c: _Clusters, ptr: np.ndarray, members: np.ndarray, mean: np.ndarra
                      np.minimum(r[kept], 1.0), c.popularity[kept])
 
 
+@lru_cache(maxsize=1 << 14)  # a cluster keeps its label for many frames
 def _birth_frame(label: str) -> int:
     """Birth frame of a cluster label ``"<frame>.<measurement>"`` (labels sort by it)."""
     head, _, _ = label.partition(".")
