@@ -147,3 +147,30 @@ def test_run_scorer_raises_on_a_non_finite_estimate():
     f = Frame(0, 0, "s", "xy", np.zeros((0, 2)), Truth(("a",), np.zeros((1, 5))))
     with pytest.raises(ValueError):
         RunScorer().update(f, Estimate(0, 0, (t,)))
+
+
+@pytest.mark.parametrize("dt_scale", [1.0, 0.5, 2.0])
+def test_predict_survival_and_detection_as_params(vo_params, vo_frames, dt_scale):
+    """P_S and P_D of the prediction equal ModelParams.survival_over and Detection.prob at the
+    predicted means, inside and outside the field of view (one test of it at dt = T)."""
+    from bnptrack.tracker import filtering as kf
+    from bnptrack.tracker.bnp.filter import BnpState
+
+    tr = make_tracker("ddp-mb", vo_params)
+    rng = np.random.default_rng(11)
+    n = 60
+    mean = np.column_stack([rng.uniform(-2500, 2500, n), rng.normal(0, 20, n), rng.uniform(-500, 2500, n),
+                            rng.normal(0, 20, n), rng.normal(0, 0.02, n)])
+    cov = np.broadcast_to(np.diag([100.0, 4.0, 100.0, 4.0, 1e-4]), (n, 5, 5)).copy()
+    state = BnpState(frame=3, labels=tuple(f"1.{i}" for i in range(n)), mean=mean, cov=cov,
+                     existence=rng.uniform(0.1, 1.0, n), popularity=np.ones(n))
+    frame = vo_frames[4]
+    sensor, _, _, detection = tr._sensor_models(frame)
+    dt = vo_params.T * dt_scale
+    pred = tr._predict(state, dt, frame.kind, sensor, detection)
+    m, P = kf.ukf_predict(vo_params.motion(dt) if dt != vo_params.T else tr.motion, mean, cov)
+    want_q = state.existence * vo_params.survival_over(m, dt, frame.kind, sensor)
+    want_pd = vo_params.detection(frame.kind, sensor).prob(m)
+    assert np.array_equal(pred.mean, m) and np.array_equal(pred.cov, P)
+    assert np.array_equal(pred.q, want_q) and np.array_equal(pred.p_detect, want_pd)
+    assert 0 < int(np.sum(want_pd > 0)) < n  # both sides of the field of view were tested

@@ -159,5 +159,7 @@ def _born_at(c: _Clusters, frame: int) -> float:
 
 
 def _concat(a: _Clusters, b: _Clusters) -> _Clusters:
+    if not b.labels:  # a frame without births: the same arrays (nothing mutates them), no copies
+        return a
     return _Clusters(a.labels + b.labels, np.concatenate([a.mean, b.mean]), np.concatenate([a.cov, b.cov]),
                      np.concatenate([a.existence, b.existence]), np.concatenate([a.popularity, b.popularity]))

@@ -175,11 +175,17 @@ class BnpTracker:
         ``detection``: the sensor's detection model (built here when not given)."""
         m, P, q = state.mean, state.cov, state.existence
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
-        if state.n_clusters:
-            m, P = predict(self._motion(dt), m, P)
-            q = q * self.params.survival_over(m, dt, kind, sensor)
         if detection is None:
             detection = self.params.detection(kind, sensor)
+        if state.n_clusters:
+            m, P = predict(self._motion(dt), m, P)
+            if dt == self.params.T and not self.params.sensors and sensor is not None:
+                # ModelParams.survival_over at dt = T with the frame's sensor alone: P_S and P_D
+                # from one field-of-view test of the predicted means (the same numbers)
+                inside = detection.visible(m)
+                ps = np.where(inside, self.params.p_survival, self.params.p_survival_outside)
+                return _Prediction(m, P, q * ps, np.where(inside, detection.p_detect_effective, 0.0))
+            q = q * self.params.survival_over(m, dt, kind, sensor)
         p_detect = detection.prob(m) if len(m) else np.zeros(0)
         return _Prediction(m, P, q, p_detect)
 
@@ -270,13 +276,13 @@ class BnpTracker:
             return state.alpha, state.d, state.hyper_loglik
         last = result.last
         counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
-        n_new_sample = int(np.sum(last == NEW))
+        n_new_sample = int(np.count_nonzero(last == NEW))
         lag = cfg.birth_lag  # frames (prev - lag, k - lag]: each counted once however numbers skip
         n_new = n_new_sample if lag == 0 else _born_between(kept, state.frame - lag, frame - lag)
         frame_ll = frame_loglik_grid(
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
-            n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
+            n_object=int(np.count_nonzero(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
             seated_popularity=state.popularity, seated_counts=counts, urn_normaliser=cfg.urn_normaliser,
         )
         hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
