@@ -10,6 +10,9 @@ its CPU time per run (``time.process_time``) and the SHA-256 fingerprint of ever
 the measuring process, so it works on checkouts without ``RunJob.trackers``).  It prints each
 round, the means, the ratio of the means, the median per-round ratio and the 10,000-run
 extrapolation on two free cores; equal fingerprints mean the same results bit for bit.
+``--repeats R`` times the same runs R times in each process and keeps the fastest pass (a
+burst of load on the shared machine inflates one pass, not all); ``--alternate`` runs this
+tree first in odd rounds.
 
     nice -n 10 python3 benchmarks/experiment_ab.py --base /tmp/base --rounds 8 --runs 25 --trackers ddp-groups glmb
 """
@@ -29,8 +32,9 @@ from _ab import last_json_line
 HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
 
-def measure(experiment: str, start: int, n: int, names: list[str]) -> dict:
-    """Runs ``start .. start + n - 1`` in this process: CPU s per run and their fingerprint."""
+def measure(experiment: str, start: int, n: int, names: list[str], repeats: int = 1) -> dict:
+    """Runs ``start .. start + n - 1`` in this process: CPU s per run (the fastest of
+    ``repeats`` passes over the same runs) and their fingerprint (every pass must give it)."""
     import dataclasses
 
     import numpy as np
@@ -43,21 +47,26 @@ def measure(experiment: str, start: int, n: int, names: list[str]) -> dict:
             s for s in exp.trackers if s.name in names or s.label in names))
     E.execute_run(E.RunJob(experiment, 999, 0, "vo2017", exp.variants[0]))  # warm-up, not timed
     jobs = [E.RunJob(experiment, 1, i, "vo2017", exp.variants[0]) for i in range(start, start + n)]
-    c0 = time.process_time()
-    results = [E.execute_run(j) for j in jobs]
-    cpu = time.process_time() - c0
-    h = hashlib.sha256()
-    for r in results:
-        h.update(r.n_true.tobytes())
-        for label, tr in sorted(r.trackers.items()):
-            h.update(label.encode())
-            for name in SERIES:
-                h.update(np.ascontiguousarray(getattr(tr, name), dtype=float).tobytes())
-    return {"cpu_per_run": cpu / n, "fp": h.hexdigest()[:16], "load": os.getloadavg()[0]}
+    cpus, fps = [], set()
+    for _ in range(max(repeats, 1)):
+        c0 = time.process_time()
+        results = [E.execute_run(j) for j in jobs]
+        cpus.append(time.process_time() - c0)
+        h = hashlib.sha256()
+        for r in results:
+            h.update(r.n_true.tobytes())
+            for label, tr in sorted(r.trackers.items()):
+                h.update(label.encode())
+                for name in SERIES:
+                    h.update(np.ascontiguousarray(getattr(tr, name), dtype=float).tobytes())
+        fps.add(h.hexdigest()[:16])
+    fp = fps.pop() if len(fps) == 1 else "PASSES-DIFFER"
+    return {"cpu_per_run": min(cpus) / n, "fp": fp, "load": os.getloadavg()[0]}
 
 def run_tree(root: str, args: argparse.Namespace, start: int) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--measure", "--experiment", args.experiment,
-           "--start", str(start), "--runs", str(args.runs)] + (["--trackers", *args.trackers] if args.trackers else [])
+           "--start", str(start), "--runs", str(args.runs)] + (["--trackers", *args.trackers] if args.trackers else []) \
+        + (["--repeats", str(args.repeats)] if args.repeats > 1 else [])
     return last_json_line(cmd, root)
 
 def main() -> None:
@@ -67,18 +76,25 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=8)
     ap.add_argument("--runs", type=int, default=25, help="runs per round and side")
     ap.add_argument("--trackers", nargs="+", default=[], metavar="NAME")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="passes over the same runs per process; the fastest counts (filters out load bursts)")
+    ap.add_argument("--alternate", action="store_true", help="this tree first in odd rounds (default: base first)")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--start", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.measure:
         sys.path.insert(0, os.getcwd())
-        print(json.dumps(measure(args.experiment, args.start, args.runs, args.trackers)))
+        print(json.dumps(measure(args.experiment, args.start, args.runs, args.trackers, args.repeats)))
         return
     print("| round | base CPU s/run | this tree CPU s/run | ratio | load | fingerprints |\n|---|---|---|---|---|---|")
     base_cpu, new_cpu, ratios = [], [], []
     for r in range(args.rounds):
-        b = run_tree(os.path.abspath(args.base), args, r * args.runs)
-        t = run_tree(HERE, args, r * args.runs)
+        if r % 2 and args.alternate:  # odd rounds: this tree first (cancels a drift within the round)
+            t = run_tree(HERE, args, r * args.runs)
+            b = run_tree(os.path.abspath(args.base), args, r * args.runs)
+        else:
+            b = run_tree(os.path.abspath(args.base), args, r * args.runs)
+            t = run_tree(HERE, args, r * args.runs)
         base_cpu.append(b["cpu_per_run"])
         new_cpu.append(t["cpu_per_run"])
         ratios.append(t["cpu_per_run"] / b["cpu_per_run"])

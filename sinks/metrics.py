@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike
 
 from bnptrack.sinks.metric_checks import (LabelledScan, as_scans, check_alpha, check_labelled_run, check_order, check_points,
                                  check_positive, check_same_dim, check_tracks, optimal_assignment)
-from bnptrack.tracker.types import Estimate, Frame
+from bnptrack.tracker.types import POSITION_INDEX, Estimate, Frame
 
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
            "track_distance", "RunScorer", "ScoreTally", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
@@ -414,13 +414,12 @@ class RunScorer:
 
     It runs on the tracker's thread of ``bnptrack track --rrd`` for every frame and on every
     frame of a Monte Carlo study, so each frame's cut-off distance matrix is computed once
-    (:func:`_euclidean`) and serves three times: OSPA and GOSPA share its
-    optimal assignment, and the OSPA(2) window (:class:`_TrackWindow`) keeps it as the
-    per-scan base distances of every (estimated, true) label pair of that scan.  The public
-    functions' checks run only for a scan with a non-finite position, where they raise.
-    ``compiled=True`` builds the window's terms with one compiled kernel
-    (:mod:`sinks._score_window`, numba: for processes that have it loaded, e.g. the Monte
-    Carlo runner's) instead of some twenty numpy calls: the same numbers bit for bit.
+    (:func:`_euclidean`) and serves three times: OSPA and GOSPA share its optimal assignment,
+    and the OSPA(2) window (:class:`_TrackWindow`) keeps it as the per-scan base distances of
+    every (estimated, true) label pair of that scan.  The public functions' checks run only for
+    a scan with a non-finite position, where they raise.  ``compiled=True`` builds the window's
+    terms with one compiled kernel (:mod:`sinks._score_window`, numba: for processes that have
+    it loaded, e.g. the Monte Carlo runner's) instead of some twenty numpy calls, bit for bit.
     """
 
     def __init__(self, c: float = OSPA_C, p: float = OSPA_P, window: int = OSPA2_WINDOW,
@@ -432,7 +431,7 @@ class RunScorer:
     def update(self, frame: Frame, estimate: Estimate) -> dict[str, Any]:
         """The frame's scores (``bnptrack track``, the sink stage and experiments all score
         through this method)."""
-        est = estimate.positions
+        est = _positions(estimate)
         truth = frame.truth
         if truth is None:
             self._tracks.append(estimate.labels, (), np.empty((0, est.shape[0])))
@@ -447,6 +446,12 @@ class RunScorer:
             return {"ospa": _ospa_unchecked(D, self.c, self.p), "ospa2": float(o2)}
         o, g = _ospa_gospa(D, self.c, self.p, self.alpha)
         return {"ospa": o, "ospa2": float(o2), "gospa": g}
+
+
+def _positions(estimate: Estimate) -> np.ndarray:
+    """``estimate.positions`` (``(N, 2)``) without a fancy-indexed row per track and a stack."""
+    x, y = POSITION_INDEX
+    return np.array([(t.state[x], t.state[y]) for t in estimate.tracks], dtype=float).reshape(-1, 2)
 
 
 def _ospa_gospa(D: np.ndarray, c: float, p: float, alpha: float) -> tuple[OspaResult, GospaResult]:

@@ -4,6 +4,7 @@ object split over exclusive hypotheses."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import chain
 
 import numpy as np
@@ -143,6 +144,7 @@ def _relabel(c: _Clusters, ptr: np.ndarray, members: np.ndarray, mean: np.ndarra
                      np.minimum(r[kept], 1.0), c.popularity[kept])
 
 
+@lru_cache(maxsize=1 << 14)  # a cluster keeps its label for many frames
 def _birth_frame(label: str) -> int:
     """Birth frame of a cluster label ``"<frame>.<measurement>"`` (labels sort by it)."""
     head, _, _ = label.partition(".")
@@ -157,5 +159,7 @@ def _born_at(c: _Clusters, frame: int) -> float:
 
 
 def _concat(a: _Clusters, b: _Clusters) -> _Clusters:
+    if not b.labels:  # a frame without births: the same arrays (nothing mutates them), no copies
+        return a
     return _Clusters(a.labels + b.labels, np.concatenate([a.mean, b.mean]), np.concatenate([a.cov, b.cov]),
                      np.concatenate([a.existence, b.existence]), np.concatenate([a.popularity, b.popularity]))

@@ -6,7 +6,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -121,10 +121,8 @@ class BnpTracker:
             raise ValueError(f"frame {frame.frame} is not after the last processed frame {state.frame}")
         check_finite_rows(frame.frame, frame.z)  # z may have been edited in place since construction
         dt = frame_dt(state.frame, state.stamp_ns, frame.frame, frame.stamp_ns, self.params.T)
-        sensor = self.params.frame_sensor(frame)
-        meas = self.params.measurement(frame.kind, sensor)
-        clutter = self.params.clutter(frame.kind, sensor)
-        pred = self._predict(state, dt, frame.kind, sensor)
+        sensor, meas, clutter, detection = self._sensor_models(frame)
+        pred = self._predict(state, dt, frame.kind, sensor, detection)
         innov = self._innovation(meas, pred)
         log_w = self.base.log_weights(meas, clutter, frame.z)  # the base measure's terms, for the sampler and births
         problem = self._problem(state, pred, innov, meas, clutter, frame.z, log_w)
@@ -152,15 +150,43 @@ class BnpTracker:
                                    est.assignment_prob, diagnostics, _cardinality(new_state.existence))
 
     # -- pieces ---------------------------------------------------------------------------
-    def _predict(self, state: BnpState, dt: float, kind: str, sensor=None) -> _Prediction:
+    @cached_property
+    def _model_cache(self) -> dict:
+        return {}
+
+    def _sensor_models(self, frame: Frame) -> tuple:
+        """The frame's sensor and its measurement, clutter and detection models, built once per
+        sensor set-up (name, kind, pose, R: what :meth:`ModelParams.frame_sensor` reads) and
+        reused while frames keep it (the last set-up only; as the GLMB's): the models' cached
+        properties (clutter volume, ``R``) are then computed once per run, not per frame."""
+        key = (frame.sensor, frame.kind, frame.pose, None if frame.R is None else np.asarray(frame.R).tobytes())
+        hit = self._model_cache.get(key)
+        if hit is None:
+            sensor = self.params.frame_sensor(frame)
+            hit = (sensor, self.params.measurement(frame.kind, sensor), self.params.clutter(frame.kind, sensor),
+                   self.params.detection(frame.kind, sensor))
+            self._model_cache.clear()
+            self._model_cache[key] = hit
+        return hit
+
+    def _predict(self, state: BnpState, dt: float, kind: str, sensor=None, detection=None) -> _Prediction:
         """Transition (Algorithm 1, step 2) over ``dt`` seconds in one step: phi = the CT model
-        built for ``dt`` (process noise ``Q(dt)``), q = r * P_S(x)^(dt/T) at the predicted mean."""
+        built for ``dt`` (process noise ``Q(dt)``), q = r * P_S(x)^(dt/T) at the predicted mean.
+        ``detection``: the sensor's detection model (built here when not given)."""
         m, P, q = state.mean, state.cov, state.existence
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
+        if detection is None:
+            detection = self.params.detection(kind, sensor)
         if state.n_clusters:
             m, P = predict(self._motion(dt), m, P)
+            if dt == self.params.T and not self.params.sensors and sensor is not None:
+                # ModelParams.survival_over at dt = T with the frame's sensor alone: P_S and P_D
+                # from one field-of-view test of the predicted means (the same numbers)
+                inside = detection.visible(m)
+                ps = np.where(inside, self.params.p_survival, self.params.p_survival_outside)
+                return _Prediction(m, P, q * ps, np.where(inside, detection.p_detect_effective, 0.0))
             q = q * self.params.survival_over(m, dt, kind, sensor)
-        p_detect = self.params.detection(kind, sensor).prob(m) if len(m) else np.zeros(0)
+        p_detect = detection.prob(m) if len(m) else np.zeros(0)
         return _Prediction(m, P, q, p_detect)
 
     def _innovation(self, meas, pred: _Prediction):
@@ -250,13 +276,13 @@ class BnpTracker:
             return state.alpha, state.d, state.hyper_loglik
         last = result.last
         counts = np.bincount(last[last >= 0], minlength=state.n_clusters)
-        n_new_sample = int(np.sum(last == NEW))
+        n_new_sample = int(np.count_nonzero(last == NEW))
         lag = cfg.birth_lag  # frames (prev - lag, k - lag]: each counted once however numbers skip
         n_new = n_new_sample if lag == 0 else _born_between(kept, state.frame - lag, frame - lag)
         frame_ll = frame_loglik_grid(
             self.alpha_grid[:, None], self.d_grid[None, :],
             mass=problem.mass, d_bar=problem.d_bar,
-            n_object=int(np.sum(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
+            n_object=int(np.count_nonzero(last != CLUTTER)) - n_new_sample + n_new, n_new=n_new,
             seated_popularity=state.popularity, seated_counts=counts, urn_normaliser=cfg.urn_normaliser,
         )
         hyper = cfg.hyper_forgetting ** (dt / self.params.T) * state.hyper_loglik + frame_ll  # forgetting per T
@@ -270,10 +296,12 @@ class BnpTracker:
         return alpha, d, hyper
 
     def _estimate(self, state: BnpState, frame: Frame, existing, born, result, problem) -> Estimate:
-        shown = np.flatnonzero(state.existence > self.config.existence_threshold).tolist()
+        rows = (state.existence > self.config.existence_threshold).nonzero()[0]
+        shown = rows.tolist()
         reported = {state.labels[i] for i in shown}
-        tracks = tuple(TrackEstimate(state.labels[i], state.mean[i].copy(), state.cov[i].copy(),
-                                     float(state.existence[i])) for i in shown)
+        # each track's mean and covariance: a row of one copy of the shown rows (never the state's)
+        tracks = tuple(TrackEstimate(state.labels[i], m, P, r) for i, m, P, r in
+                       zip(shown, state.mean[rows], state.cov[rows], state.existence[rows].tolist()))
         # options per measurement: reported transitioned clusters, and its own newborn if reported
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
         born_of = {int(lab.split(".")[1]): lab for lab in born.labels if lab in reported}
@@ -299,7 +327,13 @@ def _cardinality(existence: np.ndarray) -> np.ndarray:
 def _born_between(c, lo: int, hi: int) -> float:
     """Expected objects born at frames ``lo < f <= hi`` (labels ``"<f>.<m>"``): with ``lo`` the
     lag before the previous processed frame, each frame is counted once however frames skip."""
-    return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lo < int(lab.split(".")[0]) <= hi))
+    return float(sum(r for lab, r in zip(c.labels, c.existence.tolist()) if lo < _label_frame(lab) <= hi))
+
+
+@lru_cache(maxsize=1 << 14)
+def _label_frame(label: str) -> int:
+    """``int(label.split(".")[0])``, remembered: a cluster keeps its label for many frames."""
+    return int(label.split(".")[0])
 
 
 _capped_warned: list[bool] = []

@@ -71,7 +71,7 @@ def marginals(st: GlmbState, row_meas: np.ndarray, n_meas: int) -> _Marginals:
         # np.unique(labels, return_inverse=True) on the strings, without an object array
         uniq = sorted(set(st.labels))
         rank = {label: i for i, label in enumerate(uniq)}
-        label_id = np.fromiter((rank[label] for label in st.labels), dtype=np.int64, count=len(st.labels))
+        label_id = np.fromiter(map(rank.__getitem__, st.labels), dtype=np.int64, count=len(st.labels))
         n_labels = len(uniq)
     else:
         n_labels, label_id = 0, np.zeros(0, dtype=np.int64)
@@ -146,11 +146,10 @@ def estimate_from_rows(st: GlmbState, row_meas: np.ndarray, mg: _Marginals, fram
     labels' marginal existence, and as ``assignments`` the measurements those rows used
     (with the pair's posterior probability; other measurements: ``None`` with the clutter
     probability :math:`1 - r_U(z)`)."""
-    tracks = tuple(
-        TrackEstimate(st.labels[r], st.mean[r].copy(), st.cov[r].copy(),
-                      float(min(1.0, mg.existence[mg.label_id[r]])))
-        for r in rows.tolist()
-    )
+    # each track's mean and covariance: a row of one copy of the rows (never the state's)
+    exist = np.fmin(mg.existence[mg.label_id[rows]], 1.0).tolist()  # min(1.0, r) of each row (NaN: 1.0 too)
+    tracks = tuple(TrackEstimate(st.labels[r], m, P, e)
+                   for r, m, P, e in zip(rows.tolist(), st.mean[rows], st.cov[rows], exist))
     M = frame.n_measurements
     assignments: list[str | None] = [None] * M
     probs = np.clip(1.0 - mg.p_used[:M], 0.0, 1.0).tolist()
