@@ -58,6 +58,7 @@ from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
+from bnptrack.tracker.bnp.group_turn import turn_block
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
@@ -97,6 +98,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
+    member_turn: bool = False
+    """The turn rate is membership evidence too (:mod:`tracker.bnp.group_turn`, session 9): a
+    third part of theta in the partition's predictive, N(omega_l; omega_t^-l, Var + P_omega,l +
+    turn_within_std^2), prior H's turn rate for every table; False: velocity and centroid only."""
     theta_std: Positive = 30.0
     """With ``h2 = "vague"``: H_2 = N(0, theta_std^2 I), the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -831,13 +836,16 @@ class GroupTracker:
         # fancy indexing, one copy fewer
         vel = Block(mean[:, 1:4:2], cov[:, 1:4:2, 1:4:2] + self.S_w, state.group_mean,
                     state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
+        turn = [Block(*turn_block(mean[:, 4], cov[:, 4, 4], state.group_ids.size,
+                                  np.deg2rad(cfg.turn_within_std_deg) ** 2,
+                                  np.deg2rad(cfg.objects.birth_turn_std_deg) ** 2))] if cfg.member_turn else []
         if not cfg.centroid:
-            return [vel]
+            return [vel, *turn]
         pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + cfg.within_pos_std**2 * eye,
                     state.group_pos_mean + dt * state.group_mean,
                     state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
                     *self.h_pos)
-        return [vel, pos]
+        return [vel, pos, *turn]
 
     def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
@@ -861,7 +869,8 @@ class GroupTracker:
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
-        for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
+        for b in blocks[:1 + self.config.centroid]:  # compiled: theta_posterior's sums per cluster, vectorised
+            # (velocity and centroid; a turn-rate part, member_turn, is not carried: group_turn)
             out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
                                   used.size, *prior_information(b.h_cov, b.h_mean)))
         if len(out) == 1:
