@@ -58,6 +58,7 @@ from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
+from bnptrack.tracker.bnp.group_own import own_track_predictive
 from bnptrack.tracker.bnp.group_turn import turn_block
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
@@ -98,6 +99,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
+    own_track: bool = False
+    """An object's own singleton table is scored by its own track's predictive (the change of its
+    velocity estimate over the scan, :mod:`tracker.bnp.group_own`, session 9), not as if its
+    estimates at k-1 and k were independent data; False: the plain conjugate predictive."""
     member_turn: bool = False
     """The turn rate is membership evidence too (:mod:`tracker.bnp.group_turn`, session 9): a
     third part of theta in the partition's predictive, N(omega_l; omega_t^-l, Var + P_omega,l +
@@ -359,9 +364,11 @@ def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
 
 
 def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
-                      occupied=False) -> None:
+                      occupied, own, own_mu, own_A) -> None:
     """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
-    the urn's reading (:func:`urn_log_weights`).
+    the urn's reading (:func:`urn_log_weights`).  ``own`` (L,) / ``own_mu`` (L, 2) / ``own_A``
+    (L, 2, 2): object l's own singleton table (-1: none) and, while no other object sits there,
+    its velocity predictive N(own_mu, own_A) in place of part 0's (:mod:`tracker.bnp.group_own`).
 
     ``v`` (P, L, 2), ``R`` (P, L, 2, 2): the members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2):
     the tables' priors; ``u`` (S, L) uniforms.  The last sweep's conditionals go to ``rec_p``
@@ -413,6 +420,11 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         r[i] = v[p, l, i] - t_mu[p, t, i]
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
+                    if p == 0 and own[l] == t and n[t] == 0:  # its own track's predictive (group_own)
+                        for i in range(2):
+                            r[i] = v[0, l, i] - own_mu[l, i]
+                            for j in range(2):
+                                A[i, j] = own_A[l, i, j]
                     det = _inv_into(A, Si)
                     np.dot(Si, r, Sir)  # = Si @ r, into a buffer
                     logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
@@ -551,7 +563,7 @@ _FLAT_INFORMATION = 1e-10
 
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
                      init: np.ndarray, sweeps: int, flat_share: bool = False,
-                     occupied: bool = False) -> tuple[np.ndarray, Shares]:
+                     occupied: bool = False, own: tuple | None = None) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -561,7 +573,8 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
-    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
+    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).  ``own``:
+    ``(table, mu, A)`` of :func:`tracker.bnp.group_own.own_track_predictive` (None: none).
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
@@ -578,8 +591,10 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_cov = np.zeros((L, T, 2, 2))
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
+    if own is None:
+        own = (np.full(L, -1, dtype=np.int64), np.zeros((L, 2)), np.zeros((L, 2, 2)))
     _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, seated, z,
-                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
+                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied), *own)
     return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
@@ -781,7 +796,8 @@ class GroupTracker:
         init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
         mean, cov = inner.mean.copy(), inner.cov.copy()
         blocks = self._blocks(state, steps, mean[members], cov[members])
-        z, shares = self._partition(rng, state, blocks, init_ids)
+        own = self._own(state, inner, members, init_ids, cov[members], steps) if self.config.own_track else None
+        z, shares = self._partition(rng, state, blocks, init_ids, own)
         if self.config.sharing and members.size:
             mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
         if self.config.turn_within_std_deg > 0 and members.size:
@@ -847,7 +863,17 @@ class GroupTracker:
                     *self.h_pos)
         return [vel, pos, *turn]
 
-    def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
+    def _own(self, state: GroupState, inner: BnpState, members: np.ndarray, init_ids, cov_now, steps: float) -> tuple:
+        """:func:`tracker.bnp.group_own.own_track_predictive` for the members (``own_track``)."""
+        slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
+        init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
+        eye = np.eye(2)
+        q = self.params.sigma_accel**2 * (steps * self.params.T) ** 2 * eye
+        extra = 2.0 * self.S_w + steps * self.config.theta_drift_std**2 * eye
+        return own_track_predictive(state.labels, state.mean, state.cov, [inner.labels[i] for i in members.tolist()],
+                                    cov_now, init, state.group_count, q, extra)
+
+    def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids, own=None) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
         slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
         init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
@@ -855,7 +881,7 @@ class GroupTracker:
             return np.zeros(0, dtype=np.int64), Shares.empty()
         return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps,
                                 flat_share=self.config.share_prior == "flat",
-                                occupied=self.config.urn_reading == "occupied")
+                                occupied=self.config.urn_reading == "occupied", own=own)
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
         """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
