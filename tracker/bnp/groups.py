@@ -59,6 +59,7 @@ from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_own import own_track_predictive
+from bnptrack.tracker.bnp.group_share import informed, restrict
 from bnptrack.tracker.bnp.group_turn import turn_block
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
@@ -99,6 +100,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
+    share_min_info: NonNeg = 0.0
+    """A member receives the velocity sharing only when its own velocity information is at least
+    this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
+    :mod:`tracker.bnp.group_share`, session 9); 0: every member."""
     own_track: bool = False
     """An object's own singleton table is scored by its own track's predictive (the change of its
     velocity estimate over the scan, :mod:`tracker.bnp.group_own`, session 9), not as if its
@@ -799,7 +804,7 @@ class GroupTracker:
         own = self._own(state, inner, members, init_ids, cov[members], steps) if self.config.own_track else None
         z, shares = self._partition(rng, state, blocks, init_ids, own)
         if self.config.sharing and members.size:
-            mean[members], cov[members] = share_velocity(mean[members], cov[members], shares, self.S_share)
+            mean[members], cov[members] = self._share(mean[members], cov[members], shares)
         if self.config.turn_within_std_deg > 0 and members.size:
             mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
                                                      inner.cov[members, 4, 4], z,
@@ -862,6 +867,18 @@ class GroupTracker:
                     state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
                     *self.h_pos)
         return [vel, pos, *turn]
+
+    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)."""
+        keep = informed(cov, self.config.objects.birth_velocity_std**2, self.config.share_min_info)
+        if keep.all():
+            return share_velocity(mean, cov, shares, self.S_share)
+        rows, obj = restrict(shares.obj, keep)
+        mean, cov = mean.copy(), cov.copy()
+        if keep.any():
+            sub = Shares(obj, shares.w[rows], shares.mu[rows], shares.cov[rows])
+            mean[keep], cov[keep] = share_velocity(mean[keep], cov[keep], sub, self.S_share)
+        return mean, cov
 
     def _own(self, state: GroupState, inner: BnpState, members: np.ndarray, init_ids, cov_now, steps: float) -> tuple:
         """:func:`tracker.bnp.group_own.own_track_predictive` for the members (``own_track``)."""
