@@ -1,12 +1,10 @@
-"""Session 9 (helper "cross"): the crossing-pair options of the two-level tracker, by hand values."""
+"""Session 9 (helper "cross"): ``share_min_info``, the velocity sharing only to informed members, by hand values."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.bnp.group_own import own_track_predictive
 from bnptrack.tracker.bnp.group_share import informed, restrict
-from bnptrack.tracker.bnp.group_turn import turn_block
 from bnptrack.tracker.bnp.groups import GroupConfig, GroupTracker, Shares, share_velocity
 from bnptrack.tracker.models.params import load_params
 
@@ -29,33 +27,6 @@ def test_restrict_renumbers_the_kept_objects() -> None:
     rows, obj = restrict(np.array([0, 0, 1, 2, 2, 3]), np.array([True, False, True, True]))
     assert rows.tolist() == [0, 1, 3, 4, 5]
     assert obj.tolist() == [0, 0, 1, 1, 2]
-
-
-def test_turn_block_hand_values() -> None:
-    v, R, pm, pc, hm, hc = turn_block(np.array([0.01, -0.02]), np.array([1e-4, 4e-4]), 3, 1e-5, 2.5e-3)
-    assert np.array_equal(v, [[0.01, 0.0], [-0.02, 0.0]])
-    assert np.allclose(R[:, 0, 0], [1.1e-4, 4.1e-4]) and np.array_equal(R[:, 1, 1], [1.0, 1.0])
-    assert np.array_equal(R[:, 0, 1], [0.0, 0.0])
-    assert pm.shape == (3, 2) and not pm.any() and not hm.any()
-    assert np.array_equal(hc, np.diag([2.5e-3, 1e-12])) and np.array_equal(pc, np.broadcast_to(hc, (3, 2, 2)))
-
-
-def test_own_track_predictive_hand_values() -> None:
-    prev_mean = np.array([[0.0, 5.0, 0.0, -3.0, 0.0], [0.0, 1.0, 0.0, 1.0, 0.0]])
-    prev_cov = np.stack([_cov(64.0, 49.0), _cov(30.0, 30.0)])
-    cov_now = np.stack([_cov(60.0, 60.0), _cov(20.0, 20.0), _cov(9.0, 9.0)])
-    q, extra = 25.0 * np.eye(2), 22.0 * np.eye(2)
-    # member "a" was alone in table 0 (v* = 1); "b" shared table 1 (v* = 2); "c" is new
-    table, mu, A = own_track_predictive(("a", "b"), prev_mean, prev_cov, ["a", "b", "c"], cov_now,
-                                        np.array([0, 1, -1]), np.array([1.0, 2.0]), q, extra)
-    assert table.tolist() == [0, -1, -1]
-    assert np.array_equal(mu[0], [5.0, -3.0])
-    # [64 + 25 - 60, 49 + 25 - 60]_+ + 22 = diag(29 + 22, 14 + 22)
-    assert np.allclose(A[0], np.diag([51.0, 36.0]))
-    # a negative change is clamped to 0: 30 + 25 - 60 < 0 -> only the extra
-    _, _, A2 = own_track_predictive(("a",), prev_mean[1:], prev_cov[1:], ["a"], cov_now[:1],
-                                    np.array([0]), np.array([1.0]), q, extra)
-    assert np.allclose(A2[0], 22.0 * np.eye(2))
 
 
 def test_share_skips_an_uninformed_member_and_equals_share_velocity_for_the_rest() -> None:

@@ -170,8 +170,7 @@ def test_partition_kernel_equals_reference(seed: int, L: int, G: int, alpha: flo
     T = G + L
     out = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
     ref = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, out[0], alpha, d, u, *out[1:], False,
-                      np.full(L, -1, dtype=np.int64), np.zeros((L, 2)), np.zeros((L, 2, 2)))
+    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, out[0], alpha, d, u, *out[1:])
     _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, ref[0], alpha, d, u, *ref[1:])
     for a, b in zip(out, ref):
         _same(a, b)

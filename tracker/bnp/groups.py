@@ -58,10 +58,8 @@ from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
-from bnptrack.tracker.bnp.group_own import own_track_predictive
-from bnptrack.tracker.bnp.group_share import informed, restrict
-from bnptrack.tracker.bnp.group_turn import turn_block
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
+from bnptrack.tracker.bnp.group_share import informed, restrict
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -97,21 +95,13 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Prior of the leave-one-out theta a member shares: "flat" (the NIW's kappa_0 = 0: only the
     other members inform it; a member alone shares nothing) or H_2 (a singleton's velocity is
     pulled towards H_2's mean 0 every frame: H_2 counted once per frame)."""
-    turn_within_std_deg: NonNeg = 0.5
-    """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
-    (:func:`share_turn`), 0 does not."""
     share_min_info: NonNeg = 0.0
     """A member receives the velocity sharing only when its own velocity information is at least
     this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
-    :mod:`tracker.bnp.group_share`, session 9); 0: every member."""
-    own_track: bool = False
-    """An object's own singleton table is scored by its own track's predictive (the change of its
-    velocity estimate over the scan, :mod:`tracker.bnp.group_own`, session 9), not as if its
-    estimates at k-1 and k were independent data; False: the plain conjugate predictive."""
-    member_turn: bool = False
-    """The turn rate is membership evidence too (:mod:`tracker.bnp.group_turn`, session 9): a
-    third part of theta in the partition's predictive, N(omega_l; omega_t^-l, Var + P_omega,l +
-    turn_within_std^2), prior H's turn rate for every table; False: velocity and centroid only."""
+    :mod:`tracker.bnp.group_share`, session 9: crossing pairs); 0: every member."""
+    turn_within_std_deg: NonNeg = 0.5
+    """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
+    (:func:`share_turn`), 0 does not."""
     theta_std: Positive = 30.0
     """With ``h2 = "vague"``: H_2 = N(0, theta_std^2 I), the prior of a new cluster's velocity (m/s)."""
     theta_drift_std: Positive = 2.0
@@ -369,11 +359,9 @@ def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
 
 
 def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
-                      occupied, own, own_mu, own_A) -> None:
+                      occupied=False) -> None:
     """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
-    the urn's reading (:func:`urn_log_weights`).  ``own`` (L,) / ``own_mu`` (L, 2) / ``own_A``
-    (L, 2, 2): object l's own singleton table (-1: none) and, while no other object sits there,
-    its velocity predictive N(own_mu, own_A) in place of part 0's (:mod:`tracker.bnp.group_own`).
+    the urn's reading (:func:`urn_log_weights`).
 
     ``v`` (P, L, 2), ``R`` (P, L, 2, 2): the members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2):
     the tables' priors; ``u`` (S, L) uniforms.  The last sweep's conditionals go to ``rec_p``
@@ -425,11 +413,6 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
                         r[i] = v[p, l, i] - t_mu[p, t, i]
                         for j in range(2):
                             A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
-                    if p == 0 and own[l] == t and n[t] == 0:  # its own track's predictive (group_own)
-                        for i in range(2):
-                            r[i] = v[0, l, i] - own_mu[l, i]
-                            for j in range(2):
-                                A[i, j] = own_A[l, i, j]
                     det = _inv_into(A, Si)
                     np.dot(Si, r, Sir)  # = Si @ r, into a buffer
                     logw[t] += -0.5 * (r @ Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
@@ -568,7 +551,7 @@ _FLAT_INFORMATION = 1e-10
 
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
                      init: np.ndarray, sweeps: int, flat_share: bool = False,
-                     occupied: bool = False, own: tuple | None = None) -> tuple[np.ndarray, Shares]:
+                     occupied: bool = False) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -578,8 +561,7 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
-    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).  ``own``:
-    ``(table, mu, A)`` of :func:`tracker.bnp.group_own.own_track_predictive` (None: none).
+    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
     """
     L, G = blocks[0].v.shape[0], v_star.size
     T = G + L
@@ -596,10 +578,8 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     rec_cov = np.zeros((L, T, 2, 2))
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     seated = np.concatenate([v_star, np.zeros(L)]).astype(float)
-    if own is None:
-        own = (np.full(L, -1, dtype=np.int64), np.zeros((L, 2)), np.zeros((L, 2, 2)))
     _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, seated, z,
-                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied), *own)
+                      float(alpha), float(d), u, rec_p, rec_mu, rec_cov, bool(occupied))
     return _compact(z, G, T), Shares(*_collect_shares(rec_p, rec_mu, rec_cov, 1e-4))
 
 
@@ -801,8 +781,7 @@ class GroupTracker:
         init_ids = np.array([prev.get(inner.labels[i], -1) for i in members.tolist()], dtype=np.int64)
         mean, cov = inner.mean.copy(), inner.cov.copy()
         blocks = self._blocks(state, steps, mean[members], cov[members])
-        own = self._own(state, inner, members, init_ids, cov[members], steps) if self.config.own_track else None
-        z, shares = self._partition(rng, state, blocks, init_ids, own)
+        z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
             mean[members], cov[members] = self._share(mean[members], cov[members], shares)
         if self.config.turn_within_std_deg > 0 and members.size:
@@ -857,16 +836,13 @@ class GroupTracker:
         # fancy indexing, one copy fewer
         vel = Block(mean[:, 1:4:2], cov[:, 1:4:2, 1:4:2] + self.S_w, state.group_mean,
                     state.group_cov + steps * cfg.theta_drift_std**2 * eye, np.zeros(2), self.h_cov)
-        turn = [Block(*turn_block(mean[:, 4], cov[:, 4, 4], state.group_ids.size,
-                                  np.deg2rad(cfg.turn_within_std_deg) ** 2,
-                                  np.deg2rad(cfg.objects.birth_turn_std_deg) ** 2))] if cfg.member_turn else []
         if not cfg.centroid:
-            return [vel, *turn]
+            return [vel]
         pos = Block(mean[:, 0:3:2], cov[:, 0:3:2, 0:3:2] + cfg.within_pos_std**2 * eye,
                     state.group_pos_mean + dt * state.group_mean,
                     state.group_pos_cov + dt**2 * state.group_cov + steps * cfg.centroid_drift_std**2 * eye,
                     *self.h_pos)
-        return [vel, pos, *turn]
+        return [vel, pos]
 
     def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares) -> tuple[np.ndarray, np.ndarray]:
         """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)."""
@@ -880,17 +856,7 @@ class GroupTracker:
             mean[keep], cov[keep] = share_velocity(mean[keep], cov[keep], sub, self.S_share)
         return mean, cov
 
-    def _own(self, state: GroupState, inner: BnpState, members: np.ndarray, init_ids, cov_now, steps: float) -> tuple:
-        """:func:`tracker.bnp.group_own.own_track_predictive` for the members (``own_track``)."""
-        slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
-        init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
-        eye = np.eye(2)
-        q = self.params.sigma_accel**2 * (steps * self.params.T) ** 2 * eye
-        extra = 2.0 * self.S_w + steps * self.config.theta_drift_std**2 * eye
-        return own_track_predictive(state.labels, state.mean, state.cov, [inner.labels[i] for i in members.tolist()],
-                                    cov_now, init, state.group_count, q, extra)
-
-    def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids, own=None) -> tuple[np.ndarray, Shares]:
+    def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
         slot = {int(g): i for i, g in enumerate(state.group_ids.tolist())}
         init = np.array([slot.get(int(g), -1) for g in init_ids], dtype=np.int64)
@@ -898,7 +864,7 @@ class GroupTracker:
             return np.zeros(0, dtype=np.int64), Shares.empty()
         return sample_partition(rng, blocks, state.group_count, state.alpha2, state.d2, init, self.config.sweeps,
                                 flat_share=self.config.share_prior == "flat",
-                                occupied=self.config.urn_reading == "occupied", own=own)
+                                occupied=self.config.urn_reading == "occupied")
 
     def _ids(self, state: GroupState, z: np.ndarray) -> tuple[np.ndarray, int]:
         """Cluster id of each table: a transitioned one keeps its id, a new one takes the next."""
@@ -912,8 +878,7 @@ class GroupTracker:
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
         used, slot, count = np.unique(z, return_inverse=True, return_counts=True)
         out = []
-        for b in blocks[:1 + self.config.centroid]:  # compiled: theta_posterior's sums per cluster, vectorised
-            # (velocity and centroid; a turn-rate part, member_turn, is not carried: group_turn)
+        for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
             out.append(theta_sums(np.ascontiguousarray(b.R), np.ascontiguousarray(b.v), slot.astype(np.int64),
                                   used.size, *prior_information(b.h_cov, b.h_mean)))
         if len(out) == 1:
