@@ -42,14 +42,3 @@ def test_share_skips_an_uninformed_member_and_equals_share_velocity_for_the_rest
     assert np.array_equal(new_mean[[0, 2]], ref_mean) and np.array_equal(new_cov[[0, 2]], ref_cov)
     # object 0: gain 36 / (36 + S_share 9 + 9.5^2 + Cov(theta^-l) 9) on a residual of -20 m/s
     assert np.isclose(new_mean[0, 1], 10.0 - 20.0 * 36.0 / 144.25)
-
-
-def test_persistent_needs_the_same_cluster_with_two_objects_at_k_minus_1() -> None:
-    from bnptrack.tracker.bnp.group_share import persistent
-
-    group_ids, group_count = np.array([7, 9, 12]), np.array([3.0, 1.0, 2.0])
-    init_ids = np.array([7, 9, 12, -1, 7])
-    z = np.array([0, 1, 0, 0, 3])  # 3 = a new table
-    # stays in 7 (v* 3): yes; stays in its singleton 9: no; moves 12 -> 7: no; new object: no; to a new table: no
-    assert persistent(group_ids, group_count, init_ids, z).tolist() == [True, False, False, False, False]
-    assert persistent(np.zeros(0, dtype=np.int64), np.zeros(0), np.array([-1]), np.array([0])).tolist() == [False]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["informed", "persistent", "restrict"]
+__all__ = ["informed", "restrict"]
 
 
 def informed(cov: np.ndarray, prior_var: float, factor: float) -> np.ndarray:
@@ -44,14 +44,3 @@ def restrict(obj: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     new = np.cumsum(keep) - 1
     rows = np.flatnonzero(keep[obj])
     return rows, new[obj[rows]]
-
-
-def persistent(group_ids: np.ndarray, group_count: np.ndarray, init_ids: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Mask (L,): members whose sampled table ``z`` (< G: transitioned cluster ``group_ids[z]``) is
-    the cluster they were in at ``k-1`` (``init_ids``, -1: none) and that cluster had at least two
-    objects then (``group_count`` = v* >= 2): a membership that has lasted, not a meeting."""
-    G = group_ids.size
-    if G == 0:
-        return np.zeros(z.size, dtype=bool)
-    same = (z < G) & (init_ids == group_ids[np.minimum(z, G - 1)])
-    return same & (group_count[np.minimum(z, G - 1)] >= 2)

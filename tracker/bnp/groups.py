@@ -59,7 +59,7 @@ from bnptrack.tracker.bnp.clusters import _Clusters
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
-from bnptrack.tracker.bnp.group_share import informed, persistent, restrict
+from bnptrack.tracker.bnp.group_share import informed, restrict
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -99,10 +99,6 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """A member receives the velocity sharing only when its own velocity information is at least
     this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
     :mod:`tracker.bnp.group_share`, session 9: crossing pairs); 0: every member."""
-    share_persistent: bool = False
-    """A member receives the velocity sharing only when its sampled cluster is the one it shared
-    with another object at k-1 (v* >= 2; :func:`tracker.bnp.group_share.persistent`, session 9:
-    two objects that meet at one scan do not share until they stay together); False: every member."""
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
@@ -787,8 +783,7 @@ class GroupTracker:
         blocks = self._blocks(state, steps, mean[members], cov[members])
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            keep = persistent(state.group_ids, state.group_count, init_ids, z) if self.config.share_persistent else None
-            mean[members], cov[members] = self._share(mean[members], cov[members], shares, keep)
+            mean[members], cov[members] = self._share(mean[members], cov[members], shares)
         if self.config.turn_within_std_deg > 0 and members.size:
             mean[members], cov[members] = share_turn(mean[members], cov[members], inner.mean[members, 4],
                                                      inner.cov[members, 4, 4], z,
@@ -849,11 +844,9 @@ class GroupTracker:
                     *self.h_pos)
         return [vel, pos]
 
-    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares, keep=None) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)
-        and, if ``keep`` (L,) is given, only to those it marks (``share_persistent``)."""
-        keep = informed(cov, self.config.objects.birth_velocity_std**2, self.config.share_min_info) & (
-            True if keep is None else keep)
+    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)."""
+        keep = informed(cov, self.config.objects.birth_velocity_std**2, self.config.share_min_info)
         if keep.all():
             return share_velocity(mean, cov, shares, self.S_share)
         rows, obj = restrict(shares.obj, keep)
