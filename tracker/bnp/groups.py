@@ -61,6 +61,7 @@ from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
+from bnptrack.tracker.bnp.group_share import informed, restrict
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -96,6 +97,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Prior of the leave-one-out theta a member shares: "flat" (the NIW's kappa_0 = 0: only the
     other members inform it; a member alone shares nothing) or H_2 (a singleton's velocity is
     pulled towards H_2's mean 0 every frame: H_2 counted once per frame)."""
+    share_min_info: NonNeg = 0.0
+    """A member receives the velocity sharing only when its own velocity information is at least
+    this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
+    :mod:`tracker.bnp.group_share`, session 9: crossing pairs); 0: every member."""
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
@@ -923,7 +928,7 @@ class GroupTracker:
         blocks = self._blocks(state, steps, m_mean, m_cov)
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
-            m_mean, m_cov = share_velocity(m_mean, m_cov, shares, self.S_share)
+            m_mean, m_cov = self._share(m_mean, m_cov, shares)
         if self.config.turn_within_std_deg > 0 and members.size:
             m_mean, m_cov = share_turn(m_mean, m_cov, inner.mean[members, 4], inner.cov[members, 4, 4], z,
                                        self._turn_within_var)
@@ -1011,6 +1016,18 @@ class GroupTracker:
             if len(self._phi_memo) < 64:
                 self._phi_memo[steps] = hit
         return hit
+
+    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)."""
+        keep = informed(cov, self.config.objects.birth_velocity_std**2, self.config.share_min_info)
+        if keep.all():
+            return share_velocity(mean, cov, shares, self.S_share)
+        rows, obj = restrict(shares.obj, keep)
+        mean, cov = mean.copy(), cov.copy()
+        if keep.any():
+            sub = Shares(obj, shares.w[rows], shares.mu[rows], shares.cov[rows])
+            mean[keep], cov[keep] = share_velocity(mean[keep], cov[keep], sub, self.S_share)
+        return mean, cov
 
     def _partition(self, rng, state: GroupState, blocks: list[Block], init_ids) -> tuple[np.ndarray, Shares]:
         """Object -> cluster Gibbs (:func:`sample_partition`) warm-started at last frame's clusters."""
