@@ -96,13 +96,13 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
     return float(np.mean(d <= radius))
 
 
-def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float) -> dict:
+def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float, name: str = "ddp-mb") -> dict:
     from bnptrack.sinks.metrics import ospa
-    from bnptrack.tracker.bnp import make_tracker
+    from bnptrack.tracker.registry import build
     from bnptrack.tracker.state import tracker_frame_rng
 
     params, fr = simulate(n, frames, seed, clutter_ratio)
-    tracker = make_tracker("ddp-mb", params)
+    tracker = build(name, params)
     state = tracker.initial_state()
     ms, cpu, ospas, fracs, t_start = [], [], [], [], time.perf_counter()
     n_meas = []
@@ -136,10 +136,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--clutter-ratio", type=float, default=1.0)
     ap.add_argument("--budget-s", type=float, default=600.0, help="stop a run after this many seconds")
+    ap.add_argument("--tracker", default="ddp-mb", help="a registry name: ddp-mb (single level, the figures "
+                    "of docs/performance.md) or ddp (the two-level default of the commands)")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one is not None:
-        print(json.dumps(run_one(args.one, args.frames, args.seed, args.clutter_ratio, args.budget_s)))
+        print(json.dumps(run_one(args.one, args.frames, args.seed, args.clutter_ratio, args.budget_s, args.tracker)))
         return
     results = []
     print("| N | meas/frame | frames | ms/frame (median) | fps | CPU ms/frame (median) | peak RSS MiB | OSPA "
@@ -147,7 +149,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for n in [int(x) for x in args.ns.split(",")]:
         cmd = [sys.executable, __file__, "--one", str(n), "--frames", str(args.frames), "--seed", str(args.seed),
-               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s)]
+               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s), "--tracker", args.tracker]
         out = subprocess.run(cmd, capture_output=True, text=True)
         if out.returncode != 0:
             print(f"| {n} | failed: {out.stderr.strip().splitlines()[-1:]} |", flush=True)
