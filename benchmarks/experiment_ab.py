@@ -20,24 +20,20 @@ tree first in odd rounds.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import statistics
 import sys
 import time
 
-from _ab import last_json_line
+from _ab import fingerprint, last_json_line
 
 HERE = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
-SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
 
 def measure(experiment: str, start: int, n: int, names: list[str], repeats: int = 1) -> dict:
     """Runs ``start .. start + n - 1`` in this process: CPU s per run (the fastest of
     ``repeats`` passes over the same runs) and their fingerprint (every pass must give it)."""
     import dataclasses
-
-    import numpy as np
 
     from bnptrack.pipeline import experiments as E
 
@@ -52,14 +48,7 @@ def measure(experiment: str, start: int, n: int, names: list[str], repeats: int 
         c0 = time.process_time()
         results = [E.execute_run(j) for j in jobs]
         cpus.append(time.process_time() - c0)
-        h = hashlib.sha256()
-        for r in results:
-            h.update(r.n_true.tobytes())
-            for label, tr in sorted(r.trackers.items()):
-                h.update(label.encode())
-                for name in SERIES:
-                    h.update(np.ascontiguousarray(getattr(tr, name), dtype=float).tobytes())
-        fps.add(h.hexdigest()[:16])
+        fps.add(fingerprint(results))
     fp = fps.pop() if len(fps) == 1 else "PASSES-DIFFER"
     return {"cpu_per_run": min(cpus) / n, "fp": fp, "load": os.getloadavg()[0]}
 

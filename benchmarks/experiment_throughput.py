@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import hashlib
 import os
 import sys
 import time
@@ -37,19 +36,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from bnptrack.pipeline.experiments import RunJob, get_experiment, run_jobs, select_trackers, warm_pool  # noqa: E402
 
-_SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _ab import fingerprint  # noqa: E402
 
-
-def fingerprint(results) -> str:
-    """SHA-256 (first 16 hex digits) of every run's per-frame series except the timings."""
-    h = hashlib.sha256()
-    for r in results:
-        h.update(r.n_true.tobytes())
-        for label, tr in sorted(r.trackers.items()):
-            h.update(label.encode())
-            for name in _SERIES:
-                h.update(np.ascontiguousarray(getattr(tr, name), dtype=float).tobytes())
-    return h.hexdigest()[:16]
 
 
 def start_pool(stack: contextlib.ExitStack, workers: int):
