@@ -478,6 +478,11 @@ class SinkStage(StageBase):
 
     def _warm_up(self) -> None:
         warm_imports("bnptrack.sources.mcap_log", "bnptrack.pipeline.resolve")
+        # the open looks up the built-in parameter files (importlib.resources.files), whose
+        # first call imports importlib's resource readers (unless a .pth file did at start-up)
+        from importlib import resources
+
+        resources.files("bnptrack.tracker")
         for name in self.sink_cfg.paths(self.ctx.out):
             for module in SINKS[name].imports:
                 try:
