@@ -430,6 +430,7 @@ class SinkStage(StageBase):
     def _end_again(self, summary: dict) -> int:
         """Announce the recorded end of stream again (for stages still waiting for it)."""
         commit_parts(summary.get("files") or [])  # killed between sink.json and the renames
+        (self.ctx.out / LATENCY_PART).unlink(missing_ok=True)  # ... or before the timings' removal
         log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
                  self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
         self.bus.subscribe(["eos/*"])
