@@ -25,6 +25,7 @@ from bnptrack.sinks.metrics import OSPA_C, OSPA_P, RunScorer
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.sink import SinkSet, make_sink
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import McapLogError, iter_frames
 from bnptrack.sources.scenarios import OpenScenario, parse_crossings
 from bnptrack.sources.synthetic import simulate, simulate_sensors
@@ -353,9 +354,11 @@ def track_to_sinks(
     metadata: Mapping[str, str] | None,
     bounds: FrameBounds | None = None,
     topic_map: Mapping[str, str] | None = None,
+    window: FrameWindow | None = None,
 ) -> TrackResult:
-    """Track the frames of an MCAP log and record each frame, its estimate and its scores
-    (:class:`sinks.metrics.RunScorer`, as :attr:`TrackResult.frames` holds them) to ``sinks``,
+    """Track the frames of an MCAP log (those of ``window``; default: all) and record each frame,
+    its estimate and its scores (:class:`sinks.metrics.RunScorer`, as :attr:`TrackResult.frames`
+    holds them) to ``sinks``,
     opened with ``metadata`` and closed here (the files are complete when this returns).
     The record's ``crossings`` (a generated ``random`` scene) are scored
     (:attr:`TrackResult.crossings`).
@@ -370,7 +373,10 @@ def track_to_sinks(
     with sinks:
         sinks.open(metadata)
         crossings = parse_crossings((metadata or {}).get("crossings"))
-        return track_frames(tracker, iter_frames(Path(log), dict(topic_map or {})), seed, write, crossings, bounds)
+        frames = iter_frames(Path(log), dict(topic_map or {}))
+        if window is not None:
+            frames = window.cut(frames)
+        return track_frames(tracker, frames, seed, write, crossings, bounds)
 
 
 def track_log(

@@ -16,6 +16,7 @@ from typing import Any
 
 import msgspec
 
+from bnptrack.sources.frame_window import WINDOW_KEYS, FrameWindow
 from bnptrack.sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
 from bnptrack.tracker.config import ConfigError, apply_overrides, load_toml, split_item
 from bnptrack.tracker.models.params import ModelParams, load_params
@@ -32,6 +33,7 @@ __all__ = [
     "resolve_config",
     "split_overrides",
     "apply_split_overrides",
+    "window_overrides",
     "build_tracker",
     "tracker_settings_fields",
 ]
@@ -85,6 +87,35 @@ def split_overrides(
                 "use params.KEY or tracker.KEY to be explicit"
             )
     return tuple(to_params), tuple(to_tracker)
+
+
+def window_overrides(overrides: Sequence[str], window: FrameWindow) -> tuple[FrameWindow, tuple[str, ...]]:
+    """Take the ``source.KEY=V`` items of an offline command's ``--set`` (the keys of
+    :class:`sources.frame_window.FrameWindow`, as in ``replay``'s pipeline file) and apply them
+    to ``window``; return it (checked) and the other items.  ``source.`` keys that only a
+    pipeline has (``rate``, ``log``, ...) and ``sink.`` keys are :class:`ConfigError` naming the
+    item and what the command uses instead."""
+    rest: list[str] = []
+    for item in overrides:
+        key, value = split_item(item)
+        head, dot, name = key.partition(".")
+        if dot and head == "source":
+            if name not in WINDOW_KEYS:
+                raise ConfigError(f"--set {item!r}: an offline run reads its log's frames as fast as it can; "
+                                  f"its source keys are {', '.join(WINDOW_KEYS)}")
+            try:
+                window = apply_overrides(window, [f"{name}={value}"])
+            except ConfigError as exc:  # "--set overrides: Expected ... at $.frames": name the item
+                raise ConfigError(f"--set {item!r}: {str(exc).partition(': ')[2]}") from None
+        elif dot and head == "sink":
+            raise ConfigError(f"--set {item!r}: an offline run chooses its outputs with --out, --rrd and --sink")
+        else:
+            rest.append(item)
+    try:
+        window.check("source.")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    return window, tuple(rest)
 
 
 def apply_split_overrides(

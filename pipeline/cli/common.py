@@ -37,6 +37,9 @@ __all__ = [
     "require_measurements",
     "live_view",
     "open_live",
+    "parse_offset",
+    "START_HELP",
+    "END_HELP",
 ]
 
 #: Exit code of every reported (non-crash) failure.
@@ -129,7 +132,8 @@ TOPIC_HELP = (
 SET_HELP_TRACK = (
     "Override a setting, KEY=VALUE (VALUE is a TOML literal). params.KEY goes to the model "
     "parameters, tracker.KEY to the tracker settings; a bare KEY goes to whichever has it "
-    "(model parameters first). Repeatable."
+    "(model parameters first). source.KEY selects frames as in replay: source.frames=N (the first N), "
+    "source.start_s / end_s / start_frame / end_frame (= --start / --end). Repeatable."
 )
 SET_HELP_PIPE = (
     "Override a setting, KEY=VALUE (VALUE is a TOML literal). source.KEY, sink.KEY, delivery.KEY, "
@@ -233,3 +237,29 @@ def open_live(live: str) -> str:
     viewer = spawn_viewer()
     click.echo(f"viewer: {viewer.url} (pid {viewer.pid}; it stays open after the run)", err=True)
     return viewer.url
+
+
+#: ``--start`` / ``--end`` of ``replay`` and ``track`` (:class:`sources.frame_window.FrameWindow`).
+START_HELP = ("Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame number "
+              "N (40f).")
+END_HELP = "End at T seconds of log time after the first frame, or at frame N (both included)."
+
+
+def parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
+    """``--start`` / ``--end``: ``12.5`` or ``12.5s`` -> (12.5 s, None); ``40f`` -> (None, 40)."""
+    if text is None:
+        return None, None
+    t = text.strip().lower()
+    try:
+        if t.endswith("f"):
+            n = int(t[:-1])
+            if n < 0:
+                raise ValueError
+            return None, n
+        v = float(t[:-1] if t.endswith("s") else t)
+        if not v >= 0 or v == float("inf"):
+            raise ValueError
+        return v, None
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
+                                 "number (40f), >= 0", param_hint=opt) from None

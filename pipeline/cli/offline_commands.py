@@ -13,7 +13,9 @@ import click
 
 from bnptrack.pipeline.cli.common import (
     CONNECT_VIEW_HELP,
+    END_HELP,
     SET_HELP_TRACK,
+    START_HELP,
     VIEW_HELP,
     CliError,
     LazyHelpOption,
@@ -23,6 +25,7 @@ from bnptrack.pipeline.cli.common import (
     fmt,
     live_view,
     open_live,
+    parse_offset,
     require_measurements,
     TOPIC_HELP,
     topic_map,
@@ -31,9 +34,10 @@ from bnptrack.pipeline.cli.common import (
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, track_to_sinks)
-from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup
+from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
+from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import read_metadata
 from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
@@ -222,6 +226,8 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 )
 @click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
               help=TOPIC_HELP)
+@click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
+@click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)
 @click.option("--view", is_flag=True, help=VIEW_HELP + " Writes --rrd (default: the --out "
               "file with the suffix .rrd).")
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
@@ -243,6 +249,8 @@ def track(
     max_frame_gap: int,
     max_gap_s: float,
     topics: tuple[str, ...],
+    start: str | None,
+    end: str | None,
     view: bool,
     view_connect: str | None,
     sink_names: tuple[str, ...],
@@ -265,8 +273,11 @@ def track(
       bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-s1-ddp.mcap
       bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
       bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
+      bnptrack track recordings/vo2017-s1.mcap --start 20s --end 40f   # as replay --start/--end
     """
     from bnptrack.tracker.types import FrameBounds
+
+    window, overrides = _window(start, end, overrides)
 
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names)
@@ -276,7 +287,7 @@ def track(
     check_output_path(log, io.out)
     if not quiet:
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
-    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s))
+    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
     for w in res.warnings:
         click.echo(f"warning: {w}", err=True)
     if not quiet:
@@ -330,11 +341,25 @@ class _TrackIO:
     def _live_url(self) -> str | None:
         return open_live(self.live) if self.live is not None else None
 
-    def run(self, setup: TrackerSetup, seed: int, bounds) -> TrackResult:
-        """Track the log with ``setup``'s tracker and record it to the sinks."""
+    def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow) -> TrackResult:
+        """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
         check_outputs(self.log, self.outputs)
         self.params = setup.params
-        return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics)
+        return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,
+                              window)
+
+
+def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> tuple[FrameWindow, tuple[str, ...]]:
+    """``--start`` / ``--end`` and the ``source.KEY`` items of ``--set`` (the window of ``replay``),
+    and the other ``--set`` items."""
+    start_s, start_frame = parse_offset(start, "--start")
+    end_s, end_frame = parse_offset(end, "--end")
+    window = FrameWindow(start_s=start_s, start_frame=start_frame, end_s=end_s, end_frame=end_frame)
+    try:
+        window.check()
+    except ValueError:  # the options cannot mix units at one end: the end is before the start
+        raise click.BadParameter(f"{end!r} is before --start {start!r}", param_hint="--end") from None
+    return window_overrides(overrides, window)
 
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,

@@ -14,7 +14,9 @@ import click
 
 from bnptrack.pipeline.cli.common import (
     CONNECT_VIEW_HELP,
+    END_HELP,
     SET_HELP_PIPE,
+    START_HELP,
     TOPIC_HELP,
     VIEW_HELP,
     CliError,
@@ -23,6 +25,7 @@ from bnptrack.pipeline.cli.common import (
     echo_rows,
     literal_choices,
     open_live,
+    parse_offset,
     require_measurements,
     topic_map,
 )
@@ -199,11 +202,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
-@click.option("--start", "start", metavar="T|Nf", default=None,
-              help="Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame "
-              "number N (40f).")
-@click.option("--end", "end", metavar="T|Nf", default=None,
-              help="End at T seconds of log time after the first frame, or at frame N (both included).")
+@click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
+@click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)
 @click.option("--loop", "loops", type=click.IntRange(min=0), default=None, metavar="N",
               help="Replay N times (0: until Ctrl-C), each a fresh run (run id RUN-1, RUN-2, ...; "
               "output directories OUT/RUN-i) with a fresh tracker.")
@@ -244,8 +244,8 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     mapping = topic_map(topics)
     require_measurements(log, mapping)  # at once, as `track` (the source checks it again)
     cfg = load_pipeline(None)
-    start_s, start_frame = _parse_offset(start, "--start")
-    end_s, end_frame = _parse_offset(end, "--end")
+    start_s, start_frame = parse_offset(start, "--start")
+    end_s, end_frame = parse_offset(end, "--end")
     cfg = _ms.structs.replace(
         cfg,
         source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
@@ -267,26 +267,6 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         _run_pipeline(cfg, timeout, quiet, overwrite, view, view_connect)
         return
     _replay_loop(cfg, loops, timeout, quiet, overwrite, view, view_connect, keep_prior)
-
-
-def _parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
-    """``--start`` / ``--end``: ``12.5`` or ``12.5s`` -> (12.5 s, None); ``40f`` -> (None, 40)."""
-    if text is None:
-        return None, None
-    t = text.strip().lower()
-    try:
-        if t.endswith("f"):
-            n = int(t[:-1])
-            if n < 0:
-                raise ValueError
-            return None, n
-        v = float(t[:-1] if t.endswith("s") else t)
-        if not v >= 0 or v == float("inf"):
-            raise ValueError
-        return v, None
-    except ValueError:
-        raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
-                                 "number (40f), >= 0", param_hint=opt) from None
 
 
 def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overwrite: bool,

@@ -7,13 +7,13 @@ import logging
 import math
 import os
 from collections.abc import Iterator
-from itertools import islice
 from pathlib import Path
 
 from bnptrack.tracker.messages import encode, from_truth
 from bnptrack.pipeline.config import PipelineConfig, SourceConfig
 from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, settle_heap
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
+from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.types import Frame
 
@@ -49,10 +49,7 @@ def source_frames(cfg: PipelineConfig) -> tuple[dict[str, str] | None, Iterator[
         except McapLogError as exc:  # not an MCAP file at all: nothing to replay
             raise ConfigError(f"source.log: {exc}") from None
         frames = iter_frames(src_cfg.log, dict(src_cfg.topics))
-    frames = window_frames(frames, src_cfg)
-    if src_cfg.frames:
-        frames = islice(frames, src_cfg.frames)
-    return metadata, frames
+    return metadata, window_frames(frames, src_cfg)
 
 
 def check_channels(src_cfg: SourceConfig) -> None:
@@ -70,37 +67,19 @@ def check_channels(src_cfg: SourceConfig) -> None:
 
 def check_window(src_cfg: SourceConfig) -> None:
     """Raise :class:`ConfigError` for a window (``start_*`` / ``end_*``) that mixes seconds and
-    frames at one end or ends before it starts."""
-    for end in ("start", "end"):
-        if getattr(src_cfg, f"{end}_s") is not None and getattr(src_cfg, f"{end}_frame") is not None:
-            raise ConfigError(f"source.{end}_s and source.{end}_frame: give the {end} in seconds or in "
-                              "frames, not both")
-    if src_cfg.start_s is not None and src_cfg.end_s is not None and src_cfg.end_s < src_cfg.start_s:
-        raise ConfigError(f"source.end_s = {src_cfg.end_s:g} is before source.start_s = {src_cfg.start_s:g}")
-    if src_cfg.start_frame is not None and src_cfg.end_frame is not None and src_cfg.end_frame < src_cfg.start_frame:
-        raise ConfigError(f"source.end_frame = {src_cfg.end_frame} is before source.start_frame = {src_cfg.start_frame}")
+    frames at one end or ends before it starts (:meth:`sources.frame_window.FrameWindow.check`)."""
+    try:
+        FrameWindow.of(src_cfg).check("source.")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def window_frames(frames: Iterator[Frame], src_cfg: SourceConfig) -> Iterator[Frame]:
-    """The frames of ``frames`` inside the source's window (see :class:`SourceConfig`):
-    seconds count from the first frame's time stamp; the input is not read past the end."""
+    """The frames of ``frames`` inside the source's window and count (``source.frames``; see
+    :class:`SourceConfig`): seconds count from the first frame's time stamp; the input is not
+    read past the end."""
     check_window(src_cfg)
-    if src_cfg.start_s is None and src_cfg.end_s is None and src_cfg.start_frame is None and src_cfg.end_frame is None:
-        return frames
-    return _window(frames, src_cfg)
-
-
-def _window(frames: Iterator[Frame], src_cfg: SourceConfig) -> Iterator[Frame]:
-    stamp0 = None
-    for frame in frames:
-        if stamp0 is None:
-            stamp0 = frame.stamp_ns
-        t = (frame.stamp_ns - stamp0) / 1e9
-        if (src_cfg.end_s is not None and t > src_cfg.end_s) or (src_cfg.end_frame is not None and frame.frame > src_cfg.end_frame):
-            return
-        if (src_cfg.start_s is None or t >= src_cfg.start_s) and (src_cfg.start_frame is None or frame.frame >= src_cfg.start_frame):
-            yield frame
-
+    return FrameWindow.of(src_cfg).cut(frames)
 
 
 class SourceStage(StageBase):
