@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bnptrack.pipeline.config import PipelineConfig
+from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.tracker.config import ConfigError
 
 __all__ = ["check_pipeline", "listening"]
@@ -47,6 +48,12 @@ def _check_source(cfg: PipelineConfig) -> dict[str, str] | None:
     from bnptrack.pipeline.stages import source_frames
 
     metadata, frames = source_frames(cfg)
+    window = FrameWindow.of(cfg.source)
+    if window != FrameWindow() and next(frames, None) is None:  # read up to the window's first frame
+        if cfg.source.kind == "mcap":
+            raise ConfigError(window.no_frame(cfg.source.log, hint="; `bnptrack info LOG` lists a log's frames "
+                                              "and times"))
+        raise ConfigError(window.no_frame(f"source.scenario {cfg.source.scenario!r} (seed {cfg.source.seed})"))
     close = getattr(frames, "close", None)
     if close is not None:  # a generator: nothing was read yet
         close()

@@ -38,7 +38,7 @@ from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tr
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
 from bnptrack.sources.frame_window import FrameWindow
-from bnptrack.sources.mcap_log import read_metadata
+from bnptrack.sources.mcap_log import iter_frames, read_metadata
 from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
@@ -281,6 +281,7 @@ def track(
 
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names)
+    io.check_window(window)
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
@@ -340,6 +341,14 @@ class _TrackIO:
 
     def _live_url(self) -> str | None:
         return open_live(self.live) if self.live is not None else None
+
+    def check_window(self, window: FrameWindow) -> None:
+        """A window that holds none of the log's frames is an error before anything is written."""
+        if window != FrameWindow():
+            try:
+                window.check_not_empty(iter_frames(self.log, self.topics), str(self.log))
+            except ValueError as exc:
+                raise CliError(str(exc)) from None
 
     def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""

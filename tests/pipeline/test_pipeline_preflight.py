@@ -209,3 +209,15 @@ def test_listening_probes_tcp_and_tls_endpoints_only():
         assert listening([f"tcp/127.0.0.1:{_free_port()}", f"tls/localhost:{port}"]) is True
     assert listening([f"tcp/127.0.0.1:{_free_port()}"]) is False
     assert listening(["udp/127.0.0.1:7447"]) is None and listening([]) is None
+
+
+def test_replay_and_launch_with_a_window_past_the_end_fail_before_starting(vo_log, tmp_path):
+    """A window that holds no frame is an error before any process starts (it used to run a
+    pipeline of 0 frames for about 10 s and write empty outputs)."""
+    out = tmp_path / "r"
+    res = bnptrack("replay", vo_log, "--start", "500f", "--out", out)
+    assert_refused(res, out, f"{vo_log}: no frame in the window source.start_frame = 500; `bnptrack info LOG`")
+    res = bnptrack("launch", "--set", "source.end_s=10", "--set", "source.start_s=200", "--out", out)
+    assert_refused(res, out, "source.end_s = 10 is before source.start_s = 200")
+    res = bnptrack("launch", "--set", "source.start_frame=101", "--out", out)
+    assert_refused(res, out, "source.scenario 'vo2017' (seed 1): no frame in the window source.start_frame = 101")
