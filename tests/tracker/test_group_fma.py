@@ -1,7 +1,10 @@
-"""tracker/bnp/group_fma.py: the fused multiply-add products of the partition kernel equal the
-BLAS calls they replaced (numba's ``np.dot`` / ``@`` on 2x2 matrices and 2-vectors, and
-numpy's), bit for bit, on a million random products of mixed magnitudes and on every
-combination of special values (signed zeros, subnormals, huge, infinite, NaN)."""
+"""tracker/bnp/group_fma.py: the fused multiply-add products of the partition kernel are their
+formula in exact arithmetic, bit for bit, on every CPU (random products of mixed magnitudes and
+every combination of special values: signed zeros, subnormals, huge, infinite, NaN), and the
+BLAS calls they replaced (numba's ``np.dot`` / ``@`` on 2x2 matrices and 2-vectors, numpy's)
+agree within a two-term dot product's error bound.  Bit for bit against BLAS held on session 9's
+machine (OpenBLAS's Haswell kernels) and not on session 10's (AMD EPYC: ``ddot`` rounds
+otherwise), so no test depends on the CPU's BLAS kernels."""
 
 from __future__ import annotations
 
@@ -53,40 +56,74 @@ def _both(A, X, Y):
     return g1, d1, g2, d2
 
 
-@pytest.mark.skipif(not JIT, reason="compares numba's BLAS calls with the compiled formula")
-def test_fma_products_equal_blas_on_a_million_random_products() -> None:
-    rng = np.random.default_rng(20261202)
-    n = 1_000_000
+U = 2.0**-53  # unit round-off
+TINY = 2.0**-1074  # the smallest subnormal: underflow's absolute slack
+
+
+def _formula(A, X, Y):
+    """The formula in exact arithmetic (:func:`exact_fma`), element by element: what the
+    compiled products must equal on every CPU."""
+    n = A.shape[0]
+    g, d = np.empty((n, 2)), np.empty(n)
+    for k in range(n):
+        for i in range(2):
+            g[k, i] = exact_fma(A[k, i, 0], X[k, 0], A[k, i, 1] * X[k, 1]) + 0.0
+        d[k] = exact_fma(X[k, 1], Y[k, 1], exact_fma(X[k, 0], Y[k, 0], 0.0))
+    return g, d
+
+
+def _within_dot_bound(got, ref, a0b0, a1b1) -> np.ndarray:
+    """Both are two-term dot products rounded by some correct summation: each is within
+    gamma_2 (|a0 b0| + |a1 b1|) of the exact value, so they differ by at most twice that."""
+    return np.abs(got - ref) <= 4.0 * U * (np.abs(a0b0) + np.abs(a1b1)) * (1 + 4 * U) + 4 * TINY
+
+
+def _mixed(rng, n):
     A, X, Y = rng.normal(size=(n, 2, 2)), rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
     half = n // 2  # the second half spans 17 decades, so that products of mixed size add up
     A[half:] *= np.exp(rng.uniform(-20, 20, size=(n - half, 2, 2)))
     X[half:] *= np.exp(rng.uniform(-20, 20, size=(n - half, 2)))
     Y[half:] *= np.exp(rng.uniform(-20, 20, size=(n - half, 2)))
+    return A, X, Y
+
+
+@pytest.mark.skipif(not JIT, reason="compares the compiled products")
+def test_fma_products_equal_the_exact_formula_and_blas_within_its_error_bound() -> None:
+    """The compiled :func:`gemv2` / :func:`dot2` are the formula, bit for bit, on every CPU.
+    The BLAS calls they replaced round the same two-term sums in a CPU-dependent way (session
+    9's Intel machine, OpenBLAS's Haswell kernels: the same bits; session 10's AMD EPYC: ``ddot``
+    differs in the last bits), so against BLAS only the dot product's error bound holds."""
+    A, X, Y = _mixed(np.random.default_rng(20261202), 1_000_000)
     g1, d1, g2, d2 = _both(A, X, Y)
-    assert _bits_equal(g1, g2).all() and _bits_equal(d1, d2).all()
-    # not vacuous: the unfused formula differs in the last bit on a good share of them
-    plain = A[:, 0, 0] * X[:, 0] + A[:, 0, 1] * X[:, 1]
-    assert (plain != g1[:, 0]).mean() > 0.05
-    # numpy's own BLAS rounds the same way (its gemv and dot on a sample)
-    for k in range(0, n, 50_000):
+    sample = np.r_[0:10_000, 500_000:510_000]
+    rg, rd = _formula(A[sample], X[sample], Y[sample])
+    assert _bits_equal(g2[sample], rg).all() and _bits_equal(d2[sample], rd).all()
+    with np.errstate(all="ignore"):
+        for i in range(2):
+            assert _within_dot_bound(g1[:, i], g2[:, i], A[:, i, 0] * X[:, 0], A[:, i, 1] * X[:, 1]).all()
+        assert _within_dot_bound(d1, d2, X[:, 0] * Y[:, 0], X[:, 1] * Y[:, 1]).all()
+    # numpy's own BLAS calls agree with numba's (the same library)
+    for k in range(0, 1_000_000, 50_000):
         assert _bits_equal(np.dot(A[k], X[k]), g1[k]).all() and _bits_equal(np.float64(X[k] @ Y[k]), d1[k])
 
 
-@pytest.mark.skipif(not JIT, reason="compares numba's BLAS calls with the compiled formula")
-def test_fma_products_equal_blas_on_special_values() -> None:
+@pytest.mark.skipif(not JIT, reason="compares the compiled products")
+def test_fma_products_equal_the_exact_formula_on_special_values() -> None:
     special = np.array([0.0, -0.0, 1.0, -1.0, 2.0, np.inf, -np.inf, np.nan, 1e308, -1e308, 5e-324, -5e-324])
     rng = np.random.default_rng(7)
-    n = 200_000
+    n = 20_000
     A, X, Y = rng.choice(special, (n, 2, 2)), rng.choice(special, (n, 2)), rng.choice(special, (n, 2))
-    g1, d1, g2, d2 = _both(A, X, Y)
-    assert _bits_equal(g1, g2).all() and _bits_equal(d1, d2).all()
-    # the signed zeros are hit: BLAS gives +0.0 for -0.0 * 1 + -0.0 * 1 (gemv) ...
+    _, _, g2, d2 = _both(A, X, Y)
+    with np.errstate(all="ignore"):
+        rg, rd = _formula(A, X, Y)
+    assert _bits_equal(g2, rg).all() and _bits_equal(d2, rd).all()
+    # the signed zeros: +0.0 for -0.0 * 1 + -0.0 * 1 (gemv, as BLAS's accumulator gives) ...
     A0, X0 = np.array([[[-0.0, -0.0], [1.0, 1.0]]]), np.array([[1.0, 1.0]])
-    g1, d1, _, _ = _both(A0, X0, X0)
-    assert math.copysign(1.0, g1[0, 0]) == 1.0
-    # ... and keeps an underflowing negative dot product's sign
-    _, d1, _, d2 = _both(A0, np.array([[-5e-324, -5e-324]]), np.array([[5e-324, 5e-324]]))
-    assert math.copysign(1.0, d1[0]) == -1.0 and math.copysign(1.0, d2[0]) == -1.0
+    _, _, g2, _ = _both(A0, X0, X0)
+    assert math.copysign(1.0, g2[0, 0]) == 1.0
+    # ... and an underflowing negative dot product keeps its sign
+    _, _, _, d2 = _both(A0, np.array([[-5e-324, -5e-324]]), np.array([[5e-324, 5e-324]]))
+    assert math.copysign(1.0, d2[0]) == -1.0
 
 
 @pytest.mark.parametrize("a,b,c,want", [
@@ -94,6 +131,8 @@ def test_fma_products_equal_blas_on_special_values() -> None:
     (1.0 + 2.0**-52, 1.0 - 2.0**-53, -1.0, 2.0**-53 - 2.0**-105),
     (-0.0, 1.0, -0.0, -0.0), (0.0, -1.0, 0.0, 0.0), (1.0, -1.0, 1.0, 0.0),
     (-5e-324, 5e-324, 0.0, -0.0), (1e308, 10.0, 0.0, math.inf), (math.inf, 0.0, 1.0, math.nan),
+    # an exact product beyond the largest double plus an infinity: no overflow first (was nan)
+    (2.0, -1e308, math.inf, math.inf), (1e308, 10.0, -math.inf, -math.inf), (1.0, 1.0, math.nan, math.nan),
 ])
 def test_exact_fma_hand_values(a: float, b: float, c: float, want: float) -> None:
     got = exact_fma(a, b, c)
@@ -103,15 +142,17 @@ def test_exact_fma_hand_values(a: float, b: float, c: float, want: float) -> Non
         assert got == want and math.copysign(1.0, got) == math.copysign(1.0, want)
 
 
-def test_the_formula_in_exact_arithmetic_equals_numpys_blas() -> None:
+def test_the_formula_in_exact_arithmetic_is_within_blas_error_bound() -> None:
     """What the interpreted path (``BNPTRACK_NO_JIT=1``) computes, :func:`exact_fma` in the
-    same formula, against numpy's BLAS on random products."""
+    same formula, against numpy's BLAS on random products: within the two-term dot product's
+    error bound (bit for bit where the BLAS rounds this way, e.g. OpenBLAS's Haswell kernels)."""
     rng = np.random.default_rng(3)
     for _ in range(2000):
         A, x, y = rng.normal(size=(2, 2)), rng.normal(size=2), rng.normal(size=2)
-        ref = [exact_fma(A[i, 0], x[0], A[i, 1] * x[1]) + 0.0 for i in range(2)]
-        assert np.array_equal(np.array(ref), np.dot(A, x))
-        assert exact_fma(x[1], y[1], exact_fma(x[0], y[0], 0.0)) == x @ y
+        ref = np.array([exact_fma(A[i, 0], x[0], A[i, 1] * x[1]) + 0.0 for i in range(2)])
+        assert _within_dot_bound(ref, np.dot(A, x), A[:, 0] * x[0], A[:, 1] * x[1]).all()
+        d = exact_fma(x[1], y[1], exact_fma(x[0], y[0], 0.0))
+        assert _within_dot_bound(d, x @ y, x[0] * y[0], x[1] * y[1])
 
 
 def test_interpreted_kernel_runs_the_same_formula() -> None:
@@ -125,7 +166,8 @@ def test_interpreted_kernel_runs_the_same_formula() -> None:
     env = {**os.environ, "BNPTRACK_NO_JIT": "1", "PYTHONPATH": str(ROOT)}
     got = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     A, x = np.array([[0.1, 0.7], [-0.3, 1e-9]]), np.array([10.0, 1.0 / 3.0])
-    assert got.split() == str(np.dot(A, x).tolist()).split() + [repr(float(x @ A[0]))]
+    want = [exact_fma(A[i, 0], x[0], A[i, 1] * x[1]) + 0.0 for i in range(2)]
+    assert got.split() == str(want).split() + [repr(exact_fma(x[1], A[0, 1], exact_fma(x[0], A[0, 0], 0.0)))]
 
 
 def _matmul_formula(A, B) -> np.ndarray:  # pragma: no cover - compiled
@@ -142,13 +184,26 @@ def _matmul_formula(A, B) -> np.ndarray:  # pragma: no cover - compiled
 _matmul_formula = jit(_matmul_formula)
 
 
+def _matmul_exact(A, B) -> np.ndarray:
+    """``A @ B`` entry by entry in :func:`sum2`'s formula, exact arithmetic."""
+    Q, n, m = A.shape[0], A.shape[1], B.shape[2]
+    out = np.empty((Q, n, m))
+    for q in range(Q):
+        for i in range(n):
+            for j in range(m):
+                out[q, i, j] = exact_fma(A[q, i, 1], B[q, 1, j], exact_fma(A[q, i, 0], B[q, 0, j], 0.0))
+    return out
+
+
 @pytest.mark.skipif(not JIT, reason="compares numpy's matmul with the compiled formula")
 @pytest.mark.parametrize("special", [False, True])
-def test_sum2_equals_numpys_stacked_matmul(special: bool) -> None:
+def test_sum2_is_the_formula_and_numpys_stacked_matmul_within_its_bound(special: bool) -> None:
     """share_velocity's gains: ``K = PHt @ Si`` (a fancy-indexed copy times a contiguous stack)
-    and ``K @ swapaxes(PHt)`` (a transposed view), as numpy computes them."""
+    and ``K @ swapaxes(PHt)`` (a transposed view): the compiled :func:`sum2` is the formula bit
+    for bit; numpy's ``matmul`` (BLAS, CPU-dependent rounding) is within the dot product's error
+    bound on finite values."""
     rng = np.random.default_rng(11)
-    Q = 200_000
+    Q = 200_000 if not special else 4_000
     if special:
         values = np.array([0.0, -0.0, 1.0, -1.0, 2.0, np.inf, -np.inf, np.nan, 1e308, -1e308, 5e-324, -5e-324])
         P, Si, K = rng.choice(values, (Q, 5, 5)), rng.choice(values, (Q, 2, 2)), rng.choice(values, (Q, 5, 2))
@@ -157,7 +212,13 @@ def test_sum2_equals_numpys_stacked_matmul(special: bool) -> None:
         Si = rng.normal(size=(Q, 2, 2)) * np.exp(rng.uniform(-8, 8, (Q, 2, 2)))
         K = rng.normal(size=(Q, 5, 2))
     PHt = P[:, :, [1, 3]]
+    PH = np.ascontiguousarray(np.swapaxes(PHt, 1, 2))
     with np.errstate(all="ignore"):
-        assert _bits_equal(PHt @ Si, _matmul_formula(PHt, Si)).all()
-        PH = np.swapaxes(PHt, 1, 2)
-        assert _bits_equal(K @ PH, _matmul_formula(K, np.ascontiguousarray(PH))).all()
+        for A, B in ((PHt, Si), (K, PH)):
+            got = _matmul_formula(A, B)
+            part = slice(0, 2_000)
+            assert _bits_equal(got[part], _matmul_exact(A[part], B[part])).all()
+            if not special:
+                t0 = A[:, :, 0, None] * B[:, None, 0, :]
+                t1 = A[:, :, 1, None] * B[:, None, 1, :]
+                assert _within_dot_bound(A @ B, got, t0, t1).all()

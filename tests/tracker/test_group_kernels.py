@@ -14,6 +14,7 @@ from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
                                           Shares, _collect_shares, _compact, _partition_kernel, _table_priors, inv2,
                                           inv2_const, share_turn, share_velocity, theta_sums)
+from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
 
@@ -100,7 +101,9 @@ def _theta_reference(b: Block, slot: np.ndarray, n_used: int):
 
 
 def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov) -> None:
-    """The kernel before the per-table cache (main at the start of this work)."""
+    """The kernel before the per-table cache (main at the start of this work), with its 2x2
+    products in group_fma's formula as the kernel's (tests/tracker/test_group_fma.py checks the
+    formula; numba's ``@`` calls the CPU's BLAS, whose last bits differ between CPUs)."""
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     n = np.zeros(T)
     lam, eta = lam0.copy(), eta0.copy()
@@ -109,7 +112,7 @@ def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u,
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
-            Riv[p, l] = Ri[p, l] @ v[p, l]
+            gemv2(Ri[p, l], v[p, l], Riv[p, l])
     for l in range(L):
         _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
@@ -125,13 +128,16 @@ def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u,
                     continue
                 for p in range(P):
                     _inv_into(lam[p, t], cov)
-                    mu = cov @ eta[p, t]
+                    mu = np.empty(2)
+                    gemv2(cov, eta[p, t], mu)
                     det = _inv_into(cov + R[p, l], Si)
                     r = v[p, l] - mu
-                    logw[t] += -0.5 * (r @ (Si @ r)) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+                    Sir = np.empty(2)
+                    gemv2(Si, r, Sir)
+                    logw[t] += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
                     if p == 0 and s == S - 1:
                         _inv_into(lam[0, t] - lam0[0, t] + h_lam, rec_cov[l, t])
-                        rec_mu[l, t] = rec_cov[l, t] @ (eta[0, t] - eta0[0, t] + h_eta)
+                        gemv2(rec_cov[l, t], eta[0, t] - eta0[0, t] + h_eta, rec_mu[l, t])
             w = np.exp(logw - logw.max())
             w /= w.sum()
             c = np.cumsum(w)

@@ -1,10 +1,10 @@
-r"""The 2x2 products of the two-level tracker's partition kernel, as this machine's BLAS rounds them.
+r"""The 2x2 products of the two-level tracker's partition kernel, in one fixed rounding on every CPU.
 
 The collapsed Gibbs kernel of :mod:`tracker.bnp.groups` (``_partition_kernel``) computed its
 2x2 matrix-vector and 2-vector products with numba's ``np.dot`` / ``@``, i.e. calls of
 OpenBLAS's ``dgemv`` and ``ddot`` (through ``scipy.linalg.cython_blas``): some 100-200 ns per
-call on two numbers, most of the kernel's time.  OpenBLAS (0.3.31, Haswell kernels, on this
-machine) rounds them with fused multiply-adds:
+call on two numbers, most of the kernel's time.  OpenBLAS (0.3.31, Haswell kernels, on session
+9's Intel machine) rounds them with fused multiply-adds:
 
 * ``y = A x`` (gemv, row ``i``): :math:`y_i = \mathrm{fma}(A_{i0}, x_0, A_{i1} x_1) + 0` (the
   ``+ 0`` turns an exact ``-0.0`` into ``+0.0``, as BLAS's accumulator does);
@@ -14,12 +14,13 @@ machine) rounds them with fused multiply-adds:
 
 :func:`gemv2` and :func:`dot2` compute exactly these with ``llvm.fma.f64`` (:func:`fma`, a numba
 intrinsic: one instruction on a CPU with FMA, a correctly rounded libm call otherwise): the
-same doubles, bit for bit, including signed zeros, infinities and NaNs
-(``tests/tracker/test_group_fma.py`` checks them against numba's ``np.dot`` and numpy's on
-random and special values).  That ties the kernel to this formula: a BLAS that rounds
-differently (another CPU's kernels) would have given other last bits before, and now gives the
-formula's.  Interpreted (``BNPTRACK_NO_JIT=1``), :func:`fma` is the correctly rounded
-``a b + c`` in exact rational arithmetic.
+same doubles as that BLAS, bit for bit, including signed zeros, infinities and NaNs.  That ties
+the kernel to this formula: a BLAS that rounds differently (another CPU's kernels: session 10's
+AMD EPYC, whose ``ddot`` differs in the last bits) would have given other last bits before, and
+now gives the formula's.  ``tests/tracker/test_group_fma.py`` checks the compiled products
+against the formula in exact arithmetic, and BLAS's within a dot product's error bound.
+Interpreted (``BNPTRACK_NO_JIT=1``), :func:`fma` is the correctly rounded ``a b + c`` in exact
+rational arithmetic.
 
 numba is imported only when a kernel first runs (:mod:`tracker._numerics`): the intrinsic is
 built then (:class:`_LazyIntrinsic`), and every module name bound to it is rebound, as
@@ -41,8 +42,10 @@ def exact_fma(a: float, b: float, c: float) -> float:
     r""":math:`a b + c` rounded once (to nearest, ties to even), as IEEE 754's fusedMultiplyAdd;
     infinities and NaNs as ``a * b + c``.  A zero result takes the sign IEEE gives it: that of
     an exact ``a b + c`` of two zeros, else ``+0.0`` when the sum cancels."""
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+    if not (math.isfinite(a) and math.isfinite(b)):
         return a * b + c
+    if not math.isfinite(c):  # the exact, finite product does not overflow first: inf stays inf
+        return c
     exact = Fraction(a) * Fraction(b) + Fraction(c)
     if exact == 0:
         return (a * b) + c  # the signs of an exact zero sum: (+-0) + (+-0) or +0 on cancellation
@@ -107,13 +110,13 @@ else:
 
 
 def gemv2(A, x, out) -> None:
-    """``out = A @ x`` for a 2x2 ``A`` and 2-vector ``x``, rounded as this machine's BLAS ``dgemv``."""
+    """``out = A @ x`` for a 2x2 ``A`` and 2-vector ``x``: each row fma(A_i0, x_0, A_i1 x_1) + 0."""
     out[0] = fma(A[0, 0], x[0], A[0, 1] * x[1]) + 0.0
     out[1] = fma(A[1, 0], x[0], A[1, 1] * x[1]) + 0.0
 
 
 def dot2(a, b) -> float:
-    """``a @ b`` for two 2-vectors, rounded as this machine's BLAS ``ddot``."""
+    """``a @ b`` for two 2-vectors: fma(a_1, b_1, fma(a_0, b_0, 0))."""
     return fma(a[1], b[1], fma(a[0], b[0], 0.0))
 
 
