@@ -100,8 +100,10 @@ class CoastingOracle(OracleTracker):
     predicted (and reported, a false track) for ``coast`` scans after its last detection.  With
     P_D = 0.98 one miss says little (P(dead | one miss) is about 1/2 at a 2 % death hazard), so
     ``coast`` = 1 is what the trackers' existence does (0.66 after one miss, dropped after two);
-    ``coast`` = 0 stops reporting a live object at each of its misses (its filter goes on: a
-    track is kept, unreported, while it has missed at most ``max(coast, 1)`` scans in a row)."""
+    ``coast`` = 0 stops reporting a live object at each of its misses.  A track's filter goes
+    on, unreported, while it has missed at most ``max(coast, 1) + 1`` scans in a row (as the
+    trackers keep a twice-missed cluster, existence ~0.04, and drop it after the third miss);
+    an object detected again after that starts anew from ``H``."""
 
     coast: int = 1
 
@@ -114,7 +116,7 @@ class CoastingOracle(OracleTracker):
         for frame, dets in zip(frames, detections):
             dt = frame_dt(prev_frame, prev_stamp, frame.frame, frame.stamp_ns, self.params.T)
             prev_frame, prev_stamp = frame.frame, frame.stamp_ns
-            tracks = {i: self._predict(g, dt) for i, g in tracks.items() if misses[i] <= max(self.coast, 1)}
+            tracks = {i: self._predict(g, dt) for i, g in tracks.items() if misses[i] <= max(self.coast, 1) + 1}
             sensor = self.params.frame_sensor(frame)
             meas, clutter = self.params.measurement(frame.kind, sensor), self.params.clutter(frame.kind, sensor)
             for i in tracks:
