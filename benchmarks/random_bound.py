@@ -37,11 +37,19 @@ objects by the optimal assignment with cut-off c (as OSPA pairs them).  The step
 5. ``dead``: plus the unmatched tracks whose last matched object has died (late termination);
 6. ``false``: plus every other unmatched track (clutter, duplicates): the tracker's output.
 
-It also prints, per object, at which of its detections the tracker first matched it, and per
-run the track-scans of steps 5 and 6 and the object-scans lost in step 2.
+It also prints, per object, at which of its detections the tracker first matched it, per
+run the track-scans of steps 5 and 6 and the object-scans lost in step 2, and the
+``CoastingOracle`` (coast 1) from the same detection for reference.  ``--set`` overrides the
+model parameters of both (as above), ``--tracker-set`` the tracker's settings.
+
+``--coast N`` scores :class:`CoastingOracle` instead of the oracle: deaths seen only through
+missed detections, as a tracker sees them (an object reported while it has missed at most N
+scans in a row; a dead object's track reported for N scans after its last detection).
 
     nice -n 10 python3 benchmarks/random_bound.py --scenario random --first-seed 101 --decompose ddp
     nice -n 10 python3 benchmarks/random_bound.py --scenario vo2017 --set 'birth=[]' --decompose ddp-mb
+    nice -n 10 python3 benchmarks/random_bound.py --scenario random --decompose ddp-mb --tracker-set urn_normaliser=false
+    nice -n 10 python3 benchmarks/random_bound.py --scenario random --seeds 20 --coast 1
 """
 
 from __future__ import annotations
