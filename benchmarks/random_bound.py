@@ -31,8 +31,9 @@ objects by the optimal assignment with cut-off c (as OSPA pairs them).  The step
    (never, if the tracker never does) instead of from its ``confirm``-th detection;
 2. ``gaps``: ... only at the scans the tracker matches it (losses after the first report,
    label swaps onto another object, tracks that end before the object dies);
-3. ``positions``: the tracker's positions of those matched tracks instead of the oracle's
-   (localisation vs the oracle at the tracker's own reporting pattern);
+3. ``young``, ``positions``: the tracker's positions of those matched tracks instead of the
+   oracle's (localisation vs the oracle at the tracker's own reporting pattern), first for the
+   scans up to :data:`YOUNG` (3) after each object's first match, then for the rest;
 4. ``labels``: the tracker's labels instead of the true ids (OSPA(2) only: identity);
 5. ``dead``: plus the unmatched tracks whose last matched object has died (late termination);
 6. ``false``: plus every other unmatched track (clutter, duplicates): the tracker's output.
@@ -141,7 +142,9 @@ class CoastingOracle(OracleTracker):
         return out
 
 
-STEPS = ("oracle", "delay", "gaps", "positions", "labels", "dead", "false")
+STEPS = ("oracle", "delay", "gaps", "young", "positions", "labels", "dead", "false")
+YOUNG = 3
+"""Scans since the tracker first matched an object up to which its track counts as young."""
 
 
 @dataclass(frozen=True)
@@ -186,6 +189,7 @@ def hybrids(scans: Sequence[Scan], confirm: int = 3, c: float = C) -> dict[str, 
                               if i in scan.oracle and scan.looks.get(i, 0) >= confirm})
         out["delay"].append({i: pos[i] for i in scan.truth if first.get(i, k + 1) <= k and pos[i] is not None})
         out["gaps"].append({i: pos[i] for i in now})
+        out["young"].append({i: scan.tracks[j] if k - first[i] <= YOUNG else pos[i] for i, j in now.items()})
         out["positions"].append({i: scan.tracks[j] for i, j in now.items()})
         out["labels"].append({j: scan.tracks[j] for j in m})
         dead = {j: p for j, p in scan.tracks.items()

@@ -78,11 +78,12 @@ def _hand_scans() -> list[rb.Scan]:
 def test_decomposition_steps_by_hand():
     """Per-scan OSPA (c = 100, p = 1) of every step, worked out by hand: the oracle from the 3rd
     detection [100, 100, (10+100)/2, 10]; a reported from scan 1 (its first match); a lost at
-    scan 2; the tracker's positions (20 m, 30 m off); a's dead track; the false track."""
+    scan 2; the tracker's positions (20 m, 30 m off; both tracks young, so all in ``young``); a's
+    dead track; the false track."""
     scans = _hand_scans()
     steps = rb.hybrids(scans, confirm=3)
     expected = {"oracle": [100, 100, 55, 10], "delay": [100, 55, 55, 10], "gaps": [100, 55, 100, 10],
-                "positions": [100, 60, 100, 30], "labels": [100, 60, 100, 30], "dead": [100, 60, 100, 65],
+                "young": [100, 60, 100, 30], "positions": [100, 60, 100, 30], "labels": [100, 60, 100, 30], "dead": [100, 60, 100, 65],
                 "false": [100, 60, 100, (30 + 100 + 100) / 3]}
     scores = rb.score_steps(scans, steps)
     for k, per_scan in expected.items():
@@ -91,6 +92,18 @@ def test_decomposition_steps_by_hand():
     assert set(steps["positions"][3]) == {"b"}  # true ids until the labels step
     assert rb.first_report_looks(scans) == {"a": 2, "b": 3}
     assert scores["false"]["card_err"] == pytest.approx(np.mean([2, 1, 1, 2]))
+
+
+def test_young_positions_are_the_first_scans_after_the_first_match():
+    """One object matched from scan 0 on, the tracker 20 m off: its first YOUNG + 1 scans'
+    positions come in at ``young``, the rest at ``positions``."""
+    n = rb.YOUNG + 3
+    scans = [rb.Scan(truth={"a": _p(0)}, oracle={"a": _p(0)}, looks={"a": k + 1}, tracks={"t": _p(0, 20)})
+             for k in range(n)]
+    scores = rb.score_steps(scans, rb.hybrids(scans, confirm=1))
+    assert scores["gaps"]["ospa"] == pytest.approx(0.0)
+    assert scores["young"]["ospa"] == pytest.approx(20.0 * (rb.YOUNG + 1) / n)
+    assert scores["positions"]["ospa"] == pytest.approx(20.0)
 
 
 @pytest.mark.parametrize("coast", [0, 1])
