@@ -38,16 +38,6 @@ log = logging.getLogger("bnptrack.stage")
 #: stalls that frame and queues the frames behind it (docs/pipeline.md, Performance).
 LAZY_IMPORTS = ("scipy.sparse.csgraph", "scipy.spatial")
 
-#: Seconds the main thread leaves a frame's /tracks alone after publishing it before it does
-#: that frame's bookkeeping (the journal's append, a snapshot when due, the next frame's
-#: generator: :meth:`TrackerStage._settle`) and its periodic chores (health, holes, the end of
-#: stream), unless the next frame is already waiting.  The put only hands the sample to Zenoh's
-#: transmission thread; on a loaded two-core machine the main thread's Python work right after
-#: it competes with that thread, the router and the sink's receipt for the processors
-#: (docs/pipeline.md, "Session 9: latency").
-SETTLE_S = 0.005
-
-
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:
     """The tracker stage's :class:`~pipeline.resolve.TrackerSetup`, built by the one resolver
     ``bnptrack track`` uses: model parameters from ``tc.params`` or the source's metadata
@@ -219,9 +209,6 @@ class TrackerStage(StageBase):
         self.step_ms: deque = deque(maxlen=10_000)
         #: (frame, its unused generator): the stream of the frame expected next, built ahead
         self.next_rng: tuple[int, Any] | None = None
-        #: (seq, payload, attachment, frame) of the frame published last, whose bookkeeping
-        #: waits for :meth:`_settle` (:data:`SETTLE_S`)
-        self.unsettled: tuple[int, bytes, dict, int] | None = None
         self.writer = BackgroundWriter()
         self.finished_eos: EndOfStream | None = None
         self.holes = HoleWatch(FETCH_AFTER_S, self.clock.monotonic)
@@ -302,9 +289,11 @@ class TrackerStage(StageBase):
             self._step(s, item, frame)
 
     def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
-        """Track frame ``s`` and publish its tracks; the rest (journal, snapshot when due,
-        the next frame's generator) is left to :meth:`_settle`."""
-        self._settle()  # the previous frame's, first (its record before this one's)
+        """Track frame ``s``, publish its tracks, then journal them, snapshot when due and
+        build the next frame's generator (after the put: not between a frame's receipt and
+        its tracks)."""
+        from bnptrack.tracker.state import tracker_frame_rng
+
         rng = self._frame_rng(frame.frame)
         clock = self.clock
         t_s0 = clock.time_ns()
@@ -324,31 +313,16 @@ class TrackerStage(StageBase):
         # the state advances only once its output is out (a snapshot is always consistent)
         self.state, self.last_seq, self.last_frame = state, s, frame.frame
         self.last_stamp_ns = frame.stamp_ns
-        self.counters.processed += 1
-        self.counters.published += 1
-        self.since_snapshot += 1
-        self.unsettled = (s, payload, meta, frame.frame)
-
-    def _settle(self) -> None:
-        """The bookkeeping of the frame published last, done once its /tracks had the
-        processors for a moment (:data:`SETTLE_S`), and always before the next frame, a
-        snapshot or the journal's close: append its record to the journal (so a snapshot
-        still covers only frames in the journal: what a SIGKILL can lose is after the last
-        snapshot, recomputed on resume as before), snapshot when due, and build the next
-        frame's generator (not on that frame's way in, between its receipt and its tracks)."""
-        from bnptrack.tracker.state import tracker_frame_rng
-
-        done, self.unsettled = self.unsettled, None
-        if done is None:
-            return
-        s, payload, meta, k = done
         try:
             self.journal.append(s, payload, meta)
         except OSError as exc:
             raise StageIOError(self.name, self.journal.path, exc) from None
+        self.counters.processed += 1
+        self.counters.published += 1
+        self.since_snapshot += 1
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
-        self.next_rng = (k + 1, tracker_frame_rng(self.tc.seed, k + 1))
+        self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
 
     def _frame_rng(self, k: int) -> Any:
         """The tracker's stream of frame ``k`` (:func:`tracker.state.tracker_frame_rng`): the
@@ -362,7 +336,6 @@ class TrackerStage(StageBase):
 
     def snapshot(self, wait: bool = False) -> None:
         """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
-        self._settle()  # every frame it covers in the journal
         if self.tracker is None or self.state is None:
             return
         from bnptrack.tracker.state import snapshot
@@ -459,13 +432,10 @@ class TrackerStage(StageBase):
         """Track until the run is done (EXIT_OK) or the stage is stopped (EXIT_STOPPED)."""
         finished = False
         while not self.ctx.stop.is_set():
-            ev = self.bus.recv(0.05 if self.unsettled is None else SETTLE_S)
+            ev = self.bus.recv(0.05)
             if ev is not None:
                 self.t_deq_ns = self.clock.time_ns()
                 self._on_event(ev)
-                if self.unsettled is not None and not self.bus.backlog:
-                    continue  # a frame's tracks just went out: leave them the processors a moment
-            self._settle()
             self.health(extra=self._extra_health)
             if self.tracker is not None and self.holes.due(self.seq):
                 fetch_holes(self.bus, "measurements", self.seq, max(self.seq.buf), self._on_data)
@@ -526,7 +496,6 @@ class TrackerStage(StageBase):
 
     def _close_journal(self) -> None:
         """Close the journal; a failing final write names the journal (not an anonymous OSError)."""
-        self._settle()
         try:
             self.journal.close()
         except OSError as exc:

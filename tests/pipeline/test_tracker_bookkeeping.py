@@ -1,8 +1,8 @@
-"""The tracker stage leaves a frame's bookkeeping until its /tracks are out (session 9, issue 16):
-the journal's append, a due snapshot and the next frame's generator come :data:`SETTLE_S` after
-the publication, or at once when the next frame already waits, and always before the next
-frame, a snapshot or the journal's close.  What a snapshot covers is still in the journal, and
-the journal holds every published sample, in order, byte for byte."""
+"""The tracker stage's bookkeeping of a frame comes right after its /tracks put (session 10,
+issue 16; session 9's deferral by ``SETTLE_S`` showed no gain and was removed): the journal's
+append, a due snapshot and the next frame's generator, all before the next frame is taken.  What
+a snapshot covers is in the journal, and the journal holds every published sample, in order,
+byte for byte."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from bnptrack.pipeline.journal import read_journal
 from bnptrack.pipeline.membus import MemoryBus, MemoryNetwork
 from bnptrack.pipeline.stages import StageContext, TrackerStage
 from bnptrack.pipeline.stages.recovery import read_snapshot
-from bnptrack.pipeline.stages.tracker import SETTLE_S, build_stage_tracker
+from bnptrack.pipeline.stages.tracker import build_stage_tracker
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
 from bnptrack.tracker.messages import encode
@@ -53,20 +53,18 @@ def _journal(stage):
     return read_journal(stage.journal.path)
 
 
-def test_the_record_follows_the_publication_and_precedes_the_next_frame(tmp_path, frames):
+def test_the_record_follows_the_publication_before_the_next_frame(tmp_path, frames):
     stage = _stage(tmp_path)
     for seq, frame in enumerate(frames[:3]):
         stage._on_data(_event(frame, seq))
         published = [(p, m) for t, p, m in stage.bus.published if t == "tracks"]
-        assert len(published) == seq + 1  # the tracks are out ...
-        assert [r.seq for r in _journal(stage)] == list(range(seq))  # ... their record not yet
-        assert stage.next_rng is None  # nor the next frame's generator
+        assert len(published) == seq + 1
+        # the frame's record is in the journal as soon as its tracks are out
+        assert [(r.payload, r.meta) for r in _journal(stage)] == published
+        k, rng = stage.next_rng  # and the next frame's generator is built
+        assert k == frame.frame + 1
+        assert rng.random(3).tolist() == tracker_frame_rng(3, k).random(3).tolist()
         assert stage.last_seq == seq and stage.counters.processed == seq + 1
-    stage._settle()
-    assert [r.seq for r in _journal(stage)] == [0, 1, 2]
-    k, rng = stage.next_rng
-    assert k == frames[2].frame + 1
-    assert rng.random(3).tolist() == tracker_frame_rng(3, k).random(3).tolist()
     stage._close_journal()
     published = [(p, m) for t, p, m in stage.bus.published if t == "tracks"]
     assert [(r.payload, r.meta) for r in read_journal(stage.journal.path)] == published
@@ -76,33 +74,32 @@ def test_a_snapshot_covers_only_frames_already_in_the_journal(tmp_path, frames):
     stage = _stage(tmp_path, snapshot_every=3)
     for seq, frame in enumerate(frames[:4]):
         stage._on_data(_event(frame, seq))
-    # frame seq 2 made the snapshot due; it was taken when frame 3 came, before frame 3's step
+    # frame seq 2 made the snapshot due: taken right after its record, fsynced with the journal
     stage.writer.flush()
     snap = read_snapshot(stage.snap_path)
     assert snap.last_seq == 2 and snap.counters["processed"] == 3
-    assert [r.seq for r in read_journal(stage.journal.path)] == [0, 1, 2]  # fsynced with it
-    stage.snapshot(wait=True)  # a snapshot settles frame 3 first
+    assert [r.seq for r in read_journal(stage.journal.path)][:3] == [0, 1, 2]
+    stage.snapshot(wait=True)
     assert read_snapshot(stage.snap_path).last_seq == 3
     assert [r.seq for r in read_journal(stage.journal.path)] == [0, 1, 2, 3]
     stage._close_journal()
 
 
 class _RecordingBus(MemoryBus):
-    """Records each ``recv`` timeout with the journal's length and the backlog at that moment,
-    never waits, and stops the stage once the queue is empty and nothing is left to settle."""
+    """Records each ``recv`` timeout with the journal's length at that moment, never waits,
+    and stops the stage once the queue is empty."""
 
     stage: TrackerStage
 
     def recv(self, timeout=None):
-        st = self.stage
-        self.calls.append((timeout, len(st.journal), self.backlog))
+        self.calls.append((timeout, len(self.stage.journal)))
         ev = super().recv(0)
-        if ev is None and st.unsettled is None:
-            st.ctx.stop.set()
+        if ev is None:
+            self.stage.ctx.stop.set()
         return ev
 
 
-def test_the_loop_waits_settle_s_after_a_publication_unless_the_next_frame_waits(tmp_path, frames):
+def test_the_loop_journals_each_frame_before_it_takes_the_next(tmp_path, frames):
     net = MemoryNetwork()
     bus = _RecordingBus(net, "r", "tracker", 1000)
     bus.calls = []
@@ -111,14 +108,10 @@ def test_the_loop_waits_settle_s_after_a_publication_unless_the_next_frame_waits
     bus.stage = stage
     bus.subscribe(["measurements"])
     src = net.bus("r", "source")
-    for seq, frame in enumerate(frames[:2]):  # two frames queued at once
+    for seq, frame in enumerate(frames[:3]):  # three frames queued at once
         src.publish("measurements", encode(frame, "r"), {"seq": seq, "t": 1, "frame": frame.frame})
     assert stage._loop() == 130  # stopped (EXIT_STOPPED)
-    timeouts = [t for t, _n, _b in bus.calls]
-    # frame 0 with frame 1 waiting: settled at once (no short wait); frame 1 with nothing
-    # waiting: the next recv waits SETTLE_S, with frame 1's record still unwritten
-    assert timeouts[:3] == [0.05, 0.05, SETTLE_S]
-    assert bus.calls[1][1] == 1 and bus.calls[2][1] == 1
-    assert len(stage.journal) == 2 and stage.unsettled is None
+    # each recv after a frame finds that frame's record written; the loop's poll is unchanged
+    assert bus.calls == [(0.05, 0), (0.05, 1), (0.05, 2), (0.05, 3)]
     stage._close_journal()
-    assert [r.seq for r in read_journal(stage.journal.path)] == [0, 1]
+    assert [r.seq for r in read_journal(stage.journal.path)] == [0, 1, 2]
