@@ -18,13 +18,18 @@ birth prior's by the factor ``f`` = ``share_min_info``:
 :math:`\lambda_{\min}(P_{v,\ell}^{-1}) \ge f / \sigma_{v,H}^2`, i.e. the largest velocity std
 at most :math:`\sigma_{v,H} / \sqrt f`; the others keep their own estimate this frame (they
 stay in the partition and still inform the others' :math:`\theta`).
+
+:func:`own_update` (session 10, helper "unshared"; ``GroupConfig.membership`` / ``share_base``)
+keeps a second, sharing-free estimate per object: the object level's measurement update
+transplanted, in information form, from the shared state onto the object's own prediction, so
+that the membership (eq. (14) [Gibbs]) can read each object's own evidence once.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["informed", "restrict"]
+__all__ = ["informed", "own_update", "restrict"]
 
 
 def informed(cov: np.ndarray, prior_var: float, factor: float) -> np.ndarray:
@@ -44,3 +49,44 @@ def restrict(obj: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     new = np.cumsum(keep) - 1
     rows = np.flatnonzero(keep[obj])
     return rows, new[obj[rows]]
+
+
+def own_update(s_pred: tuple[np.ndarray, np.ndarray], post: tuple[np.ndarray, np.ndarray],
+               o_pred: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each object's own (sharing-free) posterior: the object level's measurement update,
+    taken out of its state in information form and applied to the own estimate's prediction
+    (session 10, ``GroupConfig.membership = "own"``).
+
+    The object level predicted the *shared* state to :math:`(m_s, P_s)` (``s_pred``) and
+    updated it to :math:`(m, P)` (``post``: the moment-matched mixture over its measurement
+    assignments, eq. (11) [likelihood]).  In information form the update added
+    :math:`I_z = P^{-1} - P_s^{-1}` (the measurement's information; here its positive part,
+    :math:`[\cdot]_+`: a mixture with a missed-detection branch can widen :math:`P` in a
+    direction) and pulled the mean by :math:`g = P^{-1}(m - m_s)` (for a linear(ised) update
+    :math:`H^T R^{-1}(z - H m_s)`).  The same information applied to the own prediction
+    :math:`(m_o, P_o)` (``o_pred``):
+
+    .. math::
+
+        J = P_o^{-1} + I_z, \qquad
+        \mu = m_o + J^{-1}\big(I_z (m_s - m_o) + g\big),
+
+    exact for a linear model (then :math:`I_z = H^T R^{-1} H` whatever the prior), the
+    linearisation point's difference otherwise.  Arrays ``(K, n)`` and ``(K, n, n)``.
+    """
+    m_s, P_s = s_pred
+    m, P = post
+    m_o, P_o = o_pred
+    J = np.linalg.inv(P)
+    I_z = _psd_part(J - np.linalg.inv(P_s))
+    g = np.einsum("kij,kj->ki", J, m - m_s)
+    cov = np.linalg.inv(np.linalg.inv(P_o) + I_z)
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    pull = np.einsum("kij,kj->ki", I_z, m_s - m_o) + g
+    return m_o + np.einsum("kij,kj->ki", cov, pull), cov
+
+
+def _psd_part(A: np.ndarray) -> np.ndarray:
+    """The positive semi-definite part of symmetric(ised) ``A`` (K, n, n): negative eigenvalues set to 0."""
+    w, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
+    return np.einsum("kij,kj,klj->kil", V, np.maximum(w, 0.0), V)
