@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bnptrack.tracker._numerics import jit
+
 __all__ = ["informed", "own_update", "restrict"]
 
 
@@ -74,19 +76,25 @@ def own_update(s_pred: tuple[np.ndarray, np.ndarray], post: tuple[np.ndarray, np
     exact for a linear model (then :math:`I_z = H^T R^{-1} H` whatever the prior), the
     linearisation point's difference otherwise.  Arrays ``(K, n)`` and ``(K, n, n)``.
     """
-    m_s, P_s = s_pred
-    m, P = post
-    m_o, P_o = o_pred
-    J = np.linalg.inv(P)
-    I_z = _psd_part(J - np.linalg.inv(P_s))
-    g = np.einsum("kij,kj->ki", J, m - m_s)
-    cov = np.linalg.inv(np.linalg.inv(P_o) + I_z)
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    pull = np.einsum("kij,kj->ki", I_z, m_s - m_o) + g
-    return m_o + np.einsum("kij,kj->ki", cov, pull), cov
+    c = np.ascontiguousarray
+    return _own_update_kernel(c(s_pred[0]), c(s_pred[1]), c(post[0]), c(post[1]), c(o_pred[0]), c(o_pred[1]))
 
 
-def _psd_part(A: np.ndarray) -> np.ndarray:
-    """The positive semi-definite part of symmetric(ised) ``A`` (K, n, n): negative eigenvalues set to 0."""
-    w, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
-    return np.einsum("kij,kj,klj->kil", V, np.maximum(w, 0.0), V)
+def _own_update_kernel(m_s, P_s, m, P, m_o, P_o):  # pragma: no cover - compiled
+    """:func:`own_update` row by row (compiled); the positive part of :math:`I_z` by its
+    eigen-decomposition (negative eigenvalues set to 0), the covariance symmetrised."""
+    K, n = m.shape
+    out_m, out_P = np.empty((K, n)), np.empty((K, n, n))
+    for k in range(K):
+        J = np.linalg.inv(P[k])
+        D = J - np.linalg.inv(P_s[k])
+        w, V = np.linalg.eigh(0.5 * (D + D.T))
+        I_z = (V * np.maximum(w, 0.0)) @ V.T
+        C = np.linalg.inv(np.linalg.inv(P_o[k]) + I_z)
+        C = 0.5 * (C + C.T)
+        out_P[k] = C
+        out_m[k] = m_o[k] + C @ (I_z @ (m_s[k] - m_o[k]) + J @ (m[k] - m_s[k]))
+    return out_m, out_P
+
+
+_own_update_kernel = jit(_own_update_kernel)

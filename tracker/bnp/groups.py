@@ -1019,9 +1019,11 @@ class GroupTracker:
         dt = steps * self.params.T
         motion = self.objects.motion if dt == self.params.T else self.params.motion(dt)
         predict = kf.ukf_predict if self.config.objects.filter == "ukf" else kf.ekf_predict
-        s_pred = predict(motion, state.mean[rows], state.cov[rows])
-        o_pred = predict(motion, state.own_mean[rows], state.own_cov[rows])
-        own_mean[have], own_cov[have] = own_update(s_pred, (inner.mean[have], inner.cov[have]), o_pred)
+        m, P = predict(motion, np.concatenate([state.mean[rows], state.own_mean[rows]]),
+                       np.concatenate([state.cov[rows], state.own_cov[rows]]))  # shared rows, then own
+        K = rows.size
+        own_mean[have], own_cov[have] = own_update((m[:K], P[:K]), (inner.mean[have], inner.cov[have]),
+                                                   (m[K:], P[K:]))
         return own_mean, own_cov
 
     @cached_property
