@@ -53,6 +53,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
+from bnptrack.tracker import filtering as kf
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.birth_tracker import LearnedBirthState, LearnedBirthTracker
@@ -61,7 +62,7 @@ from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
-from bnptrack.tracker.bnp.group_share import informed, restrict
+from bnptrack.tracker.bnp.group_share import informed, own_update, restrict
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
 from bnptrack.tracker.models.params import ModelParams
@@ -129,6 +130,18 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Gibbs sweeps over the object assignments per frame (the last one is kept)."""
     sharing: bool = True
     """Members' velocities take their cluster's leave-one-out theta as a pseudo-measurement."""
+    share_base: Literal["state", "own"] = "state"
+    """What the sharing updates: "state", the object's state, which holds every earlier frame's
+    shares (the information accumulates; ``share_inflation_std`` stands for it); "own", the
+    object's own, sharing-free estimate (as ``membership = "own"`` keeps it): each member's state is
+    its own estimate plus this frame's share only, and a non-member's state is its own estimate."""
+    membership: Literal["shared", "own"] = "shared"
+    """Which velocity and position estimate of each member the object -> cluster Gibbs (eqs.
+    (13)-(14) [posttheta, Gibbs]) and the clusters' theta read: "shared", the object's state,
+    which holds the pseudo-measurements of its cluster's theta shared at earlier frames (the
+    cluster's information counted again in its own membership test); "own", a second,
+    sharing-free estimate kept per object: the object level's measurement updates without the
+    sharing (:func:`tracker.bnp.group_share.own_update`; session 10, issue 11's crossings)."""
     alpha: Positive = 0.5
     alpha_shape: Positive = 1.0
     alpha_scale: Positive = 1.0
@@ -222,6 +235,11 @@ class GroupState:
     birth_weight: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_weight)
     birth_loglik: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_loglik)
     birth_vel_stats: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_vel_stats)
+    own_mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    """(N, 5) each object's own estimate, without the sharing (``membership = "own"``; empty
+    otherwise, and in snapshots from before session 10: then every object starts from its state)."""
+    own_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
+    """(N, 5, 5) its covariance."""
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
@@ -923,14 +941,17 @@ class GroupTracker:
         members = np.flatnonzero(inner.existence >= self.config.member_existence)
         src = self._previous_rows(state, inner.labels)  # each object's row in the last state (-1: new)
         init_ids = _rows_of(state.cluster, src[members])
-        mean, cov = inner.mean.copy(), inner.cov.copy()
+        own = self._own(state, inner, steps, src) if self._keeps_own else None
+        base = (inner.mean, inner.cov) if own is None or self.config.share_base == "state" else own
+        mean, cov = base[0].copy(), base[1].copy()
         m_mean, m_cov = mean[members], cov[members]  # the members' states (copies; the blocks' views)
-        blocks = self._blocks(state, steps, m_mean, m_cov)
+        read = None if own is None else (own if self.config.membership == "own" else (inner.mean, inner.cov))
+        blocks = self._blocks(state, steps, *((m_mean, m_cov) if read is None else (read[0][members], read[1][members])))
         z, shares = self._partition(rng, state, blocks, init_ids)
         if self.config.sharing and members.size:
             m_mean, m_cov = self._share(m_mean, m_cov, shares)
         if self.config.turn_within_std_deg > 0 and members.size:
-            m_mean, m_cov = share_turn(m_mean, m_cov, inner.mean[members, 4], inner.cov[members, 4, 4], z,
+            m_mean, m_cov = share_turn(m_mean, m_cov, base[0][members, 4], base[1][members, 4, 4], z,
                                        self._turn_within_var)
         if members.size:
             mean[members], cov[members] = m_mean, m_cov
@@ -943,7 +964,8 @@ class GroupTracker:
         new_state = GroupState(inner.frame, inner.stamp_ns, inner.labels, mean, cov, inner.existence,
                                inner.popularity, inner.alpha, inner.d, inner.hyper_loglik, cluster, g_ids,
                                g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist,
-                               *(getattr(inner, n) for n in _BIRTH_FIELDS if self.learns_births))
+                               *(getattr(inner, n) for n in _BIRTH_FIELDS if self.learns_births),
+                               **({} if own is None else {"own_mean": own[0], "own_cov": own[1]}))
         return new_state, self._estimate(new_state, est, t0, kept)
 
     # -- pieces ---------------------------------------------------------------------------
@@ -972,6 +994,37 @@ class GroupTracker:
         """Each of ``labels``' row in ``state`` (-1: not there; a label twice in ``state``: its last row)."""
         row = {lab: i for i, lab in enumerate(state.labels)}
         return np.array([row.get(lab, -1) for lab in labels], dtype=np.int64)
+
+    @cached_property
+    def _keeps_own(self) -> bool:
+        """Whether each object's own estimate is kept (``membership`` or ``share_base`` "own")."""
+        return self.config.membership == "own" or self.config.share_base == "own"
+
+    def _own(self, state: GroupState, inner: BnpState, steps: float, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""Each object's own estimate (``membership = "own"``), rows of ``inner``: the object level's
+        posterior where the object's state never took a share (new objects, and rows whose state
+        equals their own estimate); else its own last estimate predicted over ``steps`` scan
+        periods by the object level's filter and updated with the measurement information the object
+        level's update added to the shared prediction (:func:`tracker.bnp.group_share.own_update`)."""
+        own_mean, own_cov = inner.mean.copy(), inner.cov.copy()
+        if state.own_mean.shape[0] != len(state.labels):  # no own estimates (first frame, older snapshot)
+            return own_mean, own_cov
+        have = np.flatnonzero(src >= 0)
+        rows = src[have]
+        apart = (np.any(state.own_mean[rows] != state.mean[rows], axis=1)
+                 | np.any(state.own_cov[rows] != state.cov[rows], axis=(1, 2)))
+        if not apart.any():
+            return own_mean, own_cov
+        have, rows = have[apart], rows[apart]
+        dt = steps * self.params.T
+        motion = self.objects.motion if dt == self.params.T else self.params.motion(dt)
+        predict = kf.ukf_predict if self.config.objects.filter == "ukf" else kf.ekf_predict
+        m, P = predict(motion, np.concatenate([state.mean[rows], state.own_mean[rows]]),
+                       np.concatenate([state.cov[rows], state.own_cov[rows]]))  # shared rows, then own
+        K = rows.size
+        own_mean[have], own_cov[have] = own_update((m[:K], P[:K]), (inner.mean[have], inner.cov[have]),
+                                                   (m[K:], P[K:]))
+        return own_mean, own_cov
 
     @cached_property
     def _turn_within_var(self) -> float:
