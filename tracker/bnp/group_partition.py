@@ -182,14 +182,16 @@ def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
     t_lm[t] = lmax2(cov)
 
 
-def _score(t, l, v, R, n, v_star, alpha, d, K, occupied, t_mu, t_cov, A, Si, r, Sir) -> float:
-    """Log weight of object ``l`` at table ``t`` (a free ``t`` is the new table): the urn weight
-    (:func:`~tracker.bnp.groups.urn_log_weights`) plus each block's predictive, as the full scan adds them."""
-    load = n[t] + v_star[t]
-    if load > 0:
-        out = np.log(v_star[t]) if occupied and n[t] == 0 else np.log(load - d)
-    else:
-        out = np.log(alpha + d * K)
+def _urn_of(t, n, v_star, d, occupied) -> float:
+    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.groups.urn_log_weights`); it
+    changes only when ``n[t]`` does."""
+    return np.log(v_star[t]) if occupied and n[t] == 0 else np.log(n[t] + v_star[t] - d)
+
+
+def _score(t, l, v, R, urn, log2pi, t_mu, t_cov, A, Si, r, Sir) -> float:
+    """Log weight of object ``l`` at table ``t`` given its log urn weight ``urn``: plus each block's
+    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``)."""
+    out = urn
     for p in range(v.shape[0]):
         for i in range(2):  # t_cov + R and v - mu, into buffers
             r[i] = v[p, l, i] - t_mu[p, t, i]
@@ -197,7 +199,7 @@ def _score(t, l, v, R, n, v_star, alpha, d, K, occupied, t_mu, t_cov, A, Si, r, 
                 A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
         det = _inv_into(A, Si)
         gemv2(Si, r, Sir)  # = Si @ r, into a buffer
-        out += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - np.log(2.0 * np.pi)
+        out += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - log2pi
     return out
 
 
@@ -353,10 +355,11 @@ def _cap_of(t_cov, live, rho, q, T):
     return min(arr.max(), 4.0 * np.median(arr)) * (1.0 + 1e-9)
 
 
-def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p):
+def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
     """Collapsed Gibbs sweeps over ``z`` in place (module docstring); the arguments as
     :func:`~tracker.bnp.groups._partition_kernel`'s.  Returns the last sweep's options with
-    conditional above ``min_p`` as :func:`~tracker.bnp.groups._collect_shares` does: (obj, w, mu, cov)."""
+    conditional above ``min_p`` as :func:`~tracker.bnp.groups._collect_shares` does: (obj, w, mu, cov).
+    ``stats[0]``, ``stats[1]`` count the moves and the tables scored (added to)."""
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     if L == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))
@@ -382,6 +385,11 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
     for t in range(T):
         vmax = max(vmax, v_star[t])
     U = np.log(L + vmax + alpha + d * T + 1.0)
+    log2pi = np.log(2.0 * np.pi)
+    urn = np.zeros(T)
+    for t in range(T):
+        if live[t]:
+            urn[t] = _urn_of(t, n, v_star, d, occupied)
     cand, mark = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
     logw, w = np.empty(T), np.empty(T)
     A, Si, cov, B = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2))
@@ -400,6 +408,7 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
             if n[old] + v_star[old] > 0:
                 if occupied and n[old] == 0:
                     meta[1] -= 1
+                urn[old] = _urn_of(old, n, v_star, d, occupied)
                 _place(old, t_mu[q, old], t_lm[old], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
             else:
                 live[old] = False
@@ -407,19 +416,20 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
                 meta[2] = _heap_push(heap, meta[2], old)
             stamp += 1
             free = heap[0]
-            logw[free] = _score(free, l, v, R, n, v_star, alpha, d, meta[1], occupied, t_mu, t_cov, A, Si, r, Sir)
+            logw[free] = _score(free, l, v, R, np.log(alpha + d * meta[1]), log2pi, t_mu, t_cov, A, Si, r, Sir)
             mark[free], cand[0], m = stamp, free, 1
             top_lb = logw[free]
             if live[old]:
-                logw[old] = _score(old, l, v, R, n, v_star, alpha, d, meta[1], occupied, t_mu, t_cov, A, Si, r, Sir)
+                logw[old] = _score(old, l, v, R, urn[old], log2pi, t_mu, t_cov, A, Si, r, Sir)
                 mark[old], cand[1], m = stamp, old, 2
                 top_lb = max(top_lb, logw[old])
             m0 = m
             m = _gather(l, q, v, rho[l], c_l[l], top_lb, U, cap, geo, head, nxt, wide, meta, live, T, gate, cand, m,
                         mark, stamp, t_mu, t_lm)
             for k in range(m0, m):
-                logw[cand[k]] = _score(cand[k], l, v, R, n, v_star, alpha, d, meta[1], occupied, t_mu, t_cov, A,
-                                       Si, r, Sir)
+                logw[cand[k]] = _score(cand[k], l, v, R, urn[cand[k]], log2pi, t_mu, t_cov, A, Si, r, Sir)
+            stats[0] += 1
+            stats[1] += m
             _insertion_sort(cand, m)
             k = _draw_list(cand, m, logw, w, u[s, l])
             while w[cand[k]] == 0.0:  # never land on an impossible table through round-off
@@ -439,6 +449,7 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
             elif occupied and n[new] == 0:
                 meta[1] += 1
             _move(lam, eta, n, lam0, eta0, Ri, Riv, new, l, 1.0)
+            urn[new] = _urn_of(new, n, v_star, d, occupied)
             _refresh(lam, eta, new, t_mu, t_cov, cov, t_lm)
             _unplace(new, cell_of, head, nxt, prv, wide, wide_pos, meta)
             _place(new, t_mu[q, new], t_lm[new], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
@@ -458,6 +469,7 @@ _place = jit(_place, inline=True)
 _grid_geometry = jit(_grid_geometry)
 _refresh = jit(_refresh, inline=True)
 _score = jit(_score, inline=True)
+_urn_of = jit(_urn_of, inline=True)
 _insertion_sort = jit(_insertion_sort, inline=True)
 _draw_list = jit(_draw_list, inline=True)
 _gather = jit(_gather)

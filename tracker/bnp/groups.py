@@ -614,7 +614,8 @@ PARTITION_KERNELS = ("scan", "urn", "gated")
 
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
                      init: np.ndarray, sweeps: int, flat_share: bool = False,
-                     occupied: bool = False, kernel: str = "gated") -> tuple[np.ndarray, Shares]:
+                     occupied: bool = False, kernel: str = "gated", stats: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -625,7 +626,9 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     conditionals with the first block's leave-one-out theta given the other current members
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
     ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).  ``kernel``:
-    one of :data:`PARTITION_KERNELS` (the same numbers; "gated" is the fast one).
+    one of :data:`PARTITION_KERNELS` (the same numbers; "gated" is the fast one).  ``stats``: an
+    int64 array (2,) that receives the number of moves and of tables scored (added to; the "urn"
+    and "gated" kernels), or None.
     """
     if kernel not in PARTITION_KERNELS:
         raise ValueError(f"sample_partition: unknown kernel {kernel!r} (expected one of {', '.join(PARTITION_KERNELS)})")
@@ -639,17 +642,18 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     u = rng.random((sweeps, blocks[0].v.shape[0]))
     z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
                                 np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
-                                PARTITION_KERNELS.index(kernel))
+                                PARTITION_KERNELS.index(kernel), np.zeros(2, dtype=np.int64) if stats is None else stats)
     return z, Shares(*shares)
 
 
 def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
-                   alpha, d, u, occupied, mode):  # pragma: no cover - compiled
+                   alpha, d, u, occupied, mode, stats):  # pragma: no cover - compiled
     """:func:`sample_partition` in one compiled call: the blocks' members stacked ``(P, L, 2)``,
     ``(P, L, 2, 2)``; the tables' priors (:func:`_table_priors`); the start (``init``, -1: a new
     table of its own); the sweeps (``mode`` 0: :func:`_partition_kernel` then
     :func:`_collect_shares`; 1, 2: :func:`tracker.bnp.group_partition.gated_kernel` without, with
-    the gate; ``s_lam``/``s_eta``: the shared theta's prior); the sample compacted (:func:`_compact`)."""
+    the gate, counting into ``stats``; ``s_lam``/``s_eta``: the shared theta's prior); the sample
+    compacted (:func:`_compact`)."""
     L, G = v0.shape[0], v_star.size
     T = G + L
     v = np.empty((n_blocks, L, 2))
@@ -677,7 +681,7 @@ def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blo
         obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
     else:
         obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
-                                       1e-4)
+                                       1e-4, stats)
     return _compact(z, G, T), obj, w, mu, cov
 
 
