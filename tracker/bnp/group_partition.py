@@ -45,6 +45,11 @@ from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 #: Nats below an option's log weight beyond which a table's weight is exactly 0.0 after
 #: ``exp(logw - max)`` (double precision underflows to 0.0 below about -745.13; 15 nats to spare).
 MARGIN = 760.0
+#: The grid's cap on a table's covariance (largest eigenvalue) as a multiple of the median of the
+#: tables' and members' (tables above it are scored for every object).
+CAP_FACTOR = 4.0
+#: Grid cells per typical gate radius (the box of a query is about 2 r + 2 r / CELLS wide).
+CELLS = 1.0
 
 
 def _inv_into(A, out) -> float:
@@ -149,7 +154,7 @@ def _place(t, mu, lm, geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta) -
 
 def _grid_geometry(v, t_mu, live, rho, cap, T):
     """``geo`` = (x0, y0, cell size, nx, ny): the box of the objects' and the live tables' points,
-    cells about the typical gate radius (:data:`MARGIN`, the median ``rho``), at most 4 T + 16 cells."""
+    cells of 1 / :data:`CELLS` of the typical gate radius (:data:`MARGIN`, the median ``rho``), at most 4 T + 16 cells."""
     lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])
     for l in range(v.shape[0]):
         for i in range(2):
@@ -160,7 +165,7 @@ def _grid_geometry(v, t_mu, live, rho, cap, T):
             for i in range(2):
                 if np.isfinite(t_mu[t, i]):
                     lo[i], hi[i] = min(lo[i], t_mu[t, i]), max(hi[i], t_mu[t, i])
-    h = np.sqrt(2.0 * (MARGIN + 20.0) * (cap + np.median(rho)))
+    h = np.sqrt(2.0 * (MARGIN + 20.0) * (cap + np.median(rho))) / CELLS
     if not (np.isfinite(hi[0] - lo[0]) and np.isfinite(hi[1] - lo[1]) and h > 0.0 and np.isfinite(h)):
         return np.array([0.0, 0.0, 1.0, 1.0, 1.0])  # one cell: every table in it
     while True:
@@ -343,7 +348,7 @@ def _bound_terms(v, R, q):
 def _cap_of(t_cov, live, rho, q, T):
     """Largest eigenvalue allowed in the grid: the largest of the live tables' and the members'
     (then no table ever leaves the grid: a table's posterior is within each member's R and its
-    prior), at most 4x the median of them (larger ones go to the wide list)."""
+    prior), at most :data:`CAP_FACTOR` times the median of them (larger ones go to the wide list)."""
     arr = np.empty(rho.size + T)
     arr[:rho.size] = rho
     k = rho.size
@@ -352,7 +357,7 @@ def _cap_of(t_cov, live, rho, q, T):
             arr[k] = lmax2(t_cov[q, t])
             k += 1
     arr = arr[:k]
-    return min(arr.max(), 4.0 * np.median(arr)) * (1.0 + 1e-9)
+    return min(arr.max(), CAP_FACTOR * np.median(arr)) * (1.0 + 1e-9)
 
 
 def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
