@@ -116,3 +116,45 @@ def test_an_unknown_kernel_is_refused() -> None:
     blocks, v_star, init = _blocks(1, 3, 0, 100.0)
     with pytest.raises(ValueError, match="unknown kernel 'fast'"):
         _run("fast", blocks, v_star, init, 1.0, 0.0, True, 1)
+
+
+# -- group_merge.greedy_groups: O(pairs) against the dense (n, n) version it replaced --------------
+
+def _greedy_groups_dense(ii, jj, r, order):
+    """The session-9 code (a dense (n, n) table of the pairs), kept as the reference."""
+    n = r.size
+    near = np.zeros((n, n), dtype=bool)
+    near[ii, jj] = near[jj, ii] = True
+    paired = np.zeros(n, dtype=bool)
+    paired[ii] = paired[jj] = True
+    free = np.ones(n, dtype=bool)
+    ptr, members = [0], []
+    for i in order:
+        if not paired[i] or not free[i]:
+            continue
+        group, total = [i], r[i]
+        for j in order:
+            if near[i, j] and free[j] and total + r[j] <= 1.0 and all(near[j, m] for m in group):
+                group.append(j)
+                total += r[j]
+        free[group] = False
+        if len(group) > 1:
+            members += group
+            ptr.append(len(members))
+    return np.array(ptr, dtype=np.int64), np.array(members, dtype=np.int64)
+
+
+@pytest.mark.parametrize("seed,n,n_pairs", [(1, 5, 6), (2, 40, 120), (3, 300, 900), (4, 300, 3000)])
+def test_greedy_groups_equal_the_dense_version(seed, n, n_pairs) -> None:
+    from bnptrack.tracker.bnp.group_merge import greedy_groups
+
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, n, n_pairs), rng.integers(0, n, n_pairs)
+    keep = a < b
+    ii, jj = a[keep], b[keep]  # duplicates kept: the table ignores them, so must the CSR
+    r = rng.choice([0.1, 0.2, 0.25, 0.3, 0.5], n)
+    order = np.argsort(-r, kind="stable")
+    got, want = greedy_groups(ii, jj, r, order), _greedy_groups_dense(ii, jj, r, order)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert want[0].size > 1  # a group formed
