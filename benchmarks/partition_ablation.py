@@ -26,7 +26,6 @@ import argparse
 import json
 import os
 import pickle
-import resource
 import subprocess
 import sys
 import tempfile
@@ -86,9 +85,19 @@ def _same(a: list, b: list) -> bool:
                for (za, sa), (zb, sb) in zip(a, b))
 
 
+def _status_kib(key: str) -> float:
+    """A ``/proc/self/status`` figure in KiB (Linux)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key + ":"):
+                return float(line.split()[1])
+    raise RuntimeError(f"/proc/self/status has no {key}")
+
+
 def peak_rss(path: str, kernel: str) -> float:
     """Peak RSS (MiB) added by ``kernel`` on the last recorded call, in a subprocess (after a run on
-    two members of it, which loads numba and the kernel)."""
+    two members of it, which loads numba and the kernel): the peak reset by ``/proc/self/clear_refs``
+    (Linux) to the RSS before the call."""
     out = subprocess.run([sys.executable, __file__, "--rss-of", path, "--kernel", kernel], capture_output=True,
                          text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
@@ -111,9 +120,11 @@ def main() -> None:
         state, blocks, v_star, alpha, d, init, sweeps, flat, occ = calls[-1]
         small = [replace(b, v=b.v[:2], R=b.R[:2]) for b in blocks]
         run_kernel([(state, small, v_star, alpha, d, init[:2], sweeps, flat, occ)], args.kernel)  # loads numba
-        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        with open("/proc/self/clear_refs", "w") as fh:  # resets the peak (VmHWM) to the current RSS
+            fh.write("5")
+        base = _status_kib("VmRSS")
         run_kernel(calls[-1:], args.kernel)
-        print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024.0)
+        print((_status_kib("VmHWM") - base) / 1024.0)
         return
     rows = []
     print("| N | objects in the partition | kernel | CPU ms/frame | tables scored/move | extra peak RSS MiB "
