@@ -18,7 +18,8 @@ per move (object :math:`\ell` leaves its table, then joins one drawn from its co
 
   .. math:: \log w_t \le U + c_\ell - \tfrac12 |v_{q\ell} - \hat\theta_{qt}|^2 / (\Lambda + \rho_\ell),
 
-  :math:`U` an upper bound of every urn weight's log, :math:`c_\ell = \sum_p (-\tfrac12 \log\det R_{p\ell} - \log 2\pi)`,
+  :math:`U` an upper bound of every urn weight's log,
+  :math:`c_\ell = \sum_p (-\tfrac12 \log\det R_{p\ell} - \log 2\pi)`,
   :math:`\rho_\ell = \lambda_{\max}(R_{q\ell})`, :math:`\Lambda \ge \lambda_{\max}(C_{qt})` for every
   table in the grid (tables above it are "wide" and always scored).  A table whose bound is more
   than :data:`MARGIN` = 760 nats below an option already scored (the new table, the table the
@@ -154,7 +155,8 @@ def _place(t, mu, lm, geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta) -
 
 def _grid_geometry(v, t_mu, live, rho, cap, T):
     """``geo`` = (x0, y0, cell size, nx, ny): the box of the objects' and the live tables' points,
-    cells of 1 / :data:`CELLS` of the typical gate radius (:data:`MARGIN`, the median ``rho``), at most 4 T + 16 cells."""
+    cells of 1 / :data:`CELLS` of the typical gate radius (:data:`MARGIN`, the median ``rho``), at
+    most 4 T + 16 cells."""
     lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])
     for l in range(v.shape[0]):
         for i in range(2):

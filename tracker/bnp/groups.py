@@ -631,7 +631,8 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     and "gated" kernels), or None.
     """
     if kernel not in PARTITION_KERNELS:
-        raise ValueError(f"sample_partition: unknown kernel {kernel!r} (expected one of {', '.join(PARTITION_KERNELS)})")
+        raise ValueError(f"sample_partition: unknown kernel {kernel!r} "
+                         f"(expected one of {', '.join(PARTITION_KERNELS)})")
     parts = []
     for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
         parts += [np.asarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
@@ -640,9 +641,10 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
         parts += parts  # the second block's slot, unused (n_blocks = 1)
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     u = rng.random((sweeps, blocks[0].v.shape[0]))
+    counts = np.zeros(2, dtype=np.int64) if stats is None else stats
     z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
                                 np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
-                                PARTITION_KERNELS.index(kernel), np.zeros(2, dtype=np.int64) if stats is None else stats)
+                                PARTITION_KERNELS.index(kernel), counts)
     return z, Shares(*shares)
 
 
