@@ -339,34 +339,41 @@ def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarr
     ``order`` (decreasing existence ``r``, stable) among the clusters of a pair; each takes, in the
     same order, its free partners whose existence keeps the group's sum (added in that order) at
     most 1 and that are candidates with every member already in.  Groups of two or more in CSR
-    form: ``members[ptr[g]:ptr[g + 1]]``, leader first."""
+    form: ``members[ptr[g]:ptr[g + 1]]``, leader first.
+
+    O(pairs): each cluster's partners in ``order`` (CSR); a partner is a candidate with every
+    member when its count of members it pairs with equals the group's size (session 10; the dense
+    (n, n) table of before was O(n^2) in time and memory)."""
     n = r.size
-    near = np.zeros((n, n), dtype=np.bool_)
-    paired = np.zeros(n, dtype=np.bool_)
-    for k in range(ii.size):
-        near[ii[k], jj[k]] = near[jj[k], ii[k]] = True
-        paired[ii[k]] = paired[jj[k]] = True
+    rank = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        rank[order[k]] = k
+    adj_ptr, adj = _partners_by_rank(ii, jj, rank, n)
     free = np.ones(n, dtype=np.bool_)
+    hits = np.zeros(n, dtype=np.int64)  # members of the current group each cluster pairs with
     ptr = np.zeros(n + 1, dtype=np.int64)
     members = np.empty(n, dtype=np.int64)
     group = np.empty(n, dtype=np.int64)
     n_groups, used = 0, 0
     for i in order:
-        if not paired[i] or not free[i]:
+        if adj_ptr[i] == adj_ptr[i + 1] or not free[i]:
             continue
         group[0], size, total = i, 1, r[i]
-        for j in order:
-            if not near[i, j] or not free[j] or not total + r[j] <= 1.0:
+        for k in range(adj_ptr[i], adj_ptr[i + 1]):
+            hits[adj[k]] += 1
+        for k in range(adj_ptr[i], adj_ptr[i + 1]):
+            j = adj[k]
+            if not free[j] or not total + r[j] <= 1.0 or hits[j] != size:
                 continue
-            ok = True
-            for m in range(size):
-                ok = ok and near[j, group[m]]
-            if ok:
-                group[size] = j
-                size += 1
-                total += r[j]
+            group[size] = j
+            size += 1
+            total += r[j]
+            for q in range(adj_ptr[j], adj_ptr[j + 1]):
+                hits[adj[q]] += 1
         for m in range(size):
             free[group[m]] = False
+            for q in range(adj_ptr[group[m]], adj_ptr[group[m] + 1]):
+                hits[adj[q]] = 0
         if size > 1:
             members[used:used + size] = group[:size]
             used += size
@@ -375,4 +382,38 @@ def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarr
     return ptr[:n_groups + 1], members[:used]
 
 
+def _partners_by_rank(ii, jj, rank, n):  # pragma: no cover - compiled
+    """Each cluster's distinct partners among the pairs ``(ii, jj)``, in increasing ``rank``
+    (CSR: ``adj[ptr[i]:ptr[i + 1]]``)."""
+    deg = np.zeros(n + 1, dtype=np.int64)
+    for k in range(ii.size):
+        deg[ii[k] + 1] += 1
+        deg[jj[k] + 1] += 1
+    ptr = np.cumsum(deg)
+    fill = ptr[:-1].copy()
+    adj = np.empty(ptr[-1], dtype=np.int64)
+    for k in range(ii.size):
+        adj[fill[ii[k]]] = jj[k]
+        fill[ii[k]] += 1
+        adj[fill[jj[k]]] = ii[k]
+        fill[jj[k]] += 1
+    out = np.empty(ptr[-1], dtype=np.int64)
+    optr = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        seg = adj[ptr[i]:ptr[i + 1]]
+        keys = np.empty(seg.size, dtype=np.int64)
+        for k in range(seg.size):
+            keys[k] = rank[seg[k]]
+        srt = np.argsort(keys)
+        m = optr[i]
+        for k in range(seg.size):
+            j = seg[srt[k]]
+            if j != i and (k == 0 or keys[srt[k]] != keys[srt[k - 1]]):
+                out[m] = j
+                m += 1
+        optr[i + 1] = m
+    return optr, out
+
+
+_partners_by_rank = jit(_partners_by_rank)
 greedy_groups = jit(greedy_groups)

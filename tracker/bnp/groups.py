@@ -62,6 +62,7 @@ from bnptrack.tracker.bnp.filter import BnpState, BnpTracker, _cardinality
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2, sum2
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid, eppf_grid, size_factor, update_history
 from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
+from bnptrack.tracker.bnp.group_partition import _inv_into, _move, gated_kernel
 from bnptrack.tracker.bnp.group_share import informed, own_update, restrict
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
@@ -356,25 +357,6 @@ class Block:
     h_cov: np.ndarray
 
 
-def _inv_into(A, out) -> float:
-    """2x2 inverse of ``A`` into ``out``; returns det(A)."""
-    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-    out[0, 0], out[1, 1] = A[1, 1] / det, A[0, 0] / det
-    out[0, 1], out[1, 0] = -A[0, 1] / det, -A[1, 0] / det
-    return det
-
-
-def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
-    n[t] += sign
-    for p in range(lam.shape[0]):
-        if n[t] == 0:  # exact reset: no round-off drift
-            lam[p, t] = lam0[p, t]
-            eta[p, t] = eta0[p, t]
-        else:
-            lam[p, t] += sign * Ri[p, l]
-            eta[p, t] += sign * Riv[p, l]
-
-
 def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
     """Urn weights (:func:`urn_log_weights`) of every table; the first empty table stands for "new"."""
     K = 0
@@ -495,8 +477,6 @@ def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, re
             fresh[z[l]] = False
 
 
-_inv_into = jit(_inv_into)
-_move = jit(_move)
 _option_logw = jit(_option_logw)
 _draw = jit(_draw)
 _partition_kernel = jit(_partition_kernel)
@@ -644,9 +624,16 @@ _ZERO2.flags.writeable = False
 _FLAT_INFORMATION = 1e-10
 
 
+#: :func:`sample_partition`'s kernels: the full scan of every table per move (the reference,
+#: sessions 5-9), the incremental urn state without the gate, and the gated kernel (the default;
+#: :mod:`tracker.bnp.group_partition`).  All three draw the same sample bit for bit.
+PARTITION_KERNELS = ("scan", "urn", "gated")
+
+
 def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.ndarray, alpha: float, d: float,
                      init: np.ndarray, sweeps: int, flat_share: bool = False,
-                     occupied: bool = False) -> tuple[np.ndarray, Shares]:
+                     occupied: bool = False, kernel: str = "gated", stats: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, Shares]:
     """Collapsed Gibbs over object -> cluster assignments (eq. (Gibbs), theta integrated out).
 
     theta is the product of independent ``blocks`` (velocity first; optionally the centroid);
@@ -656,8 +643,14 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     sample (table indices, ``>= G`` for new clusters, compacted) and the last sweep's
     conditionals with the first block's leave-one-out theta given the other current members
     (prior H_2, or flat if ``flat_share``: the paper's kappa_0 = 0; :class:`Shares`).
-    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).
+    ``occupied``: the urn's reading of eqs. (17)-(19) (:func:`urn_log_weights`).  ``kernel``:
+    one of :data:`PARTITION_KERNELS` (the same numbers; "gated" is the fast one).  ``stats``: an
+    int64 array (2,) that receives the number of moves and of tables scored (added to; the "urn"
+    and "gated" kernels), or None.
     """
+    if kernel not in PARTITION_KERNELS:
+        raise ValueError(f"sample_partition: unknown kernel {kernel!r} "
+                         f"(expected one of {', '.join(PARTITION_KERNELS)})")
     parts = []
     for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
         parts += [np.asarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
@@ -666,17 +659,21 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
         parts += parts  # the second block's slot, unused (n_blocks = 1)
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     u = rng.random((sweeps, blocks[0].v.shape[0]))
+    counts = np.zeros(2, dtype=np.int64) if stats is None else stats
     z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
-                                np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied))
+                                np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
+                                PARTITION_KERNELS.index(kernel), counts)
     return z, Shares(*shares)
 
 
 def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
-                   alpha, d, u, occupied):  # pragma: no cover - compiled
+                   alpha, d, u, occupied, mode, stats):  # pragma: no cover - compiled
     """:func:`sample_partition` in one compiled call: the blocks' members stacked ``(P, L, 2)``,
     ``(P, L, 2, 2)``; the tables' priors (:func:`_table_priors`); the start (``init``, -1: a new
-    table of its own); the sweeps (:func:`_partition_kernel`, ``s_lam``/``s_eta``: the shared
-    theta's prior); the sample compacted (:func:`_compact`) and the shares (:func:`_collect_shares`)."""
+    table of its own); the sweeps (``mode`` 0: :func:`_partition_kernel` then
+    :func:`_collect_shares`; 1, 2: :func:`tracker.bnp.group_partition.gated_kernel` without, with
+    the gate, counting into ``stats``; ``s_lam``/``s_eta``: the shared theta's prior); the sample
+    compacted (:func:`_compact`)."""
     L, G = v0.shape[0], v_star.size
     T = G + L
     v = np.empty((n_blocks, L, 2))
@@ -698,9 +695,13 @@ def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blo
         z[l] = init[l] if init[l] >= 0 else G + l
     seated = np.zeros(T)
     seated[:G] = v_star
-    rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
-    _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
-    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    if mode == 0:
+        rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
+        _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
+        obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    else:
+        obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
+                                       1e-4, stats)
     return _compact(z, G, T), obj, w, mu, cov
 
 

@@ -1,0 +1,488 @@
+r"""The object -> cluster Gibbs kernel of the two-level tracker with O(candidate tables) moves
+(:func:`gated_kernel`; session 10, issue 15 "Speed and scale").
+
+It draws exactly what the full scan (:func:`tracker.bnp.groups._partition_kernel` followed by
+:func:`tracker.bnp.groups._collect_shares`) draws, bit for bit, with three changes to the work
+per move (object :math:`\ell` leaves its table, then joins one drawn from its conditional, eq.
+(14) [Gibbs]):
+
+* **Urn state kept incrementally.**  The number :math:`K` of occupied tables (the new table's
+  weight :math:`\alpha + dK`, eqs. (5), (19)) changes only for the two tables a move touches; the
+  one "new table" option is the lowest free slot, kept in a min-heap of the free slots.  The
+  full scan recounted both over all T = G + L slots per move.
+* **Gate by a bound (a spatial index).**  The conditional of table :math:`t` is
+  :math:`\log w_t = \log u_t + \sum_p \log \mathcal N(v_{p\ell}; \hat\theta_{pt}, C_{pt} + R_{p\ell})`
+  (urn weight :math:`u_t`, blocks :math:`p`: velocity, centroid).  With :math:`C_{pt} \succeq 0`,
+  :math:`\det(C + R) \ge \det R` and :math:`r'(C + R)^{-1} r \ge |r|^2 / (\lambda_{\max}(C) + \lambda_{\max}(R))`,
+  so on the indexed block q (the centroid when present, else the velocity)
+
+  .. math:: \log w_t \le U + c_\ell - \tfrac12 |v_{q\ell} - \hat\theta_{qt}|^2 / (\Lambda + \rho_\ell),
+
+  :math:`U` an upper bound of every urn weight's log,
+  :math:`c_\ell = \sum_p (-\tfrac12 \log\det R_{p\ell} - \log 2\pi)`,
+  :math:`\rho_\ell = \lambda_{\max}(R_{q\ell})`, :math:`\Lambda \ge \lambda_{\max}(C_{qt})` for every
+  table in the grid (tables above it are "wide" and always scored).  A table whose bound is more
+  than :data:`MARGIN` = 760 nats below an option already scored (the new table, the table the
+  object left) has :math:`\exp(\log w_t - \max) = 0.0` exactly in double precision (``exp``
+  underflows below -745.2), so it adds exactly 0.0 to the sums of the draw and is never drawn:
+  skipping it changes no bit.  The tables within the bound's radius are found in a uniform grid
+  over the tables' current :math:`\hat\theta_q` (cell lists; a table moves cell when a move changes
+  its members).
+* **Sparse records.**  The last sweep keeps only the options with conditional above ``min_p``
+  (what :func:`~tracker.bnp.groups._collect_shares` keeps of the dense (L, T) arrays), in the
+  same order, normalised the same way: O(L x few) memory instead of O(L x T).
+
+The candidates are scored and summed in table order, as the full scan sums them.  ``gate``
+False scores every occupied table (the urn part alone, for the ablation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp.group_fma import dot2, gemv2
+
+#: Nats below an option's log weight beyond which a table's weight is exactly 0.0 after
+#: ``exp(logw - max)`` (double precision underflows to 0.0 below about -745.13; 15 nats to spare).
+MARGIN = 760.0
+#: The grid's cap on a table's covariance (largest eigenvalue) as a multiple of the median of the
+#: tables' and members' (tables above it are scored for every object).
+CAP_FACTOR = 4.0
+#: Grid cells per typical gate radius (the box of a query is about 2 r + 2 r / CELLS wide).
+CELLS = 1.0
+
+
+def _inv_into(A, out) -> float:
+    """2x2 inverse of ``A`` into ``out``; returns det(A)."""
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    out[0, 0], out[1, 1] = A[1, 1] / det, A[0, 0] / det
+    out[0, 1], out[1, 0] = -A[0, 1] / det, -A[1, 0] / det
+    return det
+
+
+def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
+    n[t] += sign
+    for p in range(lam.shape[0]):
+        if n[t] == 0:  # exact reset: no round-off drift
+            lam[p, t] = lam0[p, t]
+            eta[p, t] = eta0[p, t]
+        else:
+            lam[p, t] += sign * Ri[p, l]
+            eta[p, t] += sign * Riv[p, l]
+
+
+def lmax2(A) -> float:
+    """Largest eigenvalue of the symmetric 2x2 ``A`` (of its symmetric part)."""
+    h = 0.5 * (A[0, 0] - A[1, 1])
+    b = 0.5 * (A[0, 1] + A[1, 0])
+    return 0.5 * (A[0, 0] + A[1, 1]) + np.sqrt(h * h + b * b)
+
+
+# -- the free slots: a binary min-heap ------------------------------------------------------------
+def _heap_push(heap, size, x) -> int:
+    """``x`` into the min-heap ``heap[:size]``; returns the new size."""
+    i = size
+    heap[i] = x
+    while i > 0:
+        parent = (i - 1) // 2
+        if heap[parent] <= heap[i]:
+            break
+        heap[parent], heap[i] = heap[i], heap[parent]
+        i = parent
+    return size + 1
+
+
+def _heap_pop(heap, size) -> int:
+    """The minimum ``heap[0]`` out of ``heap[:size]``; returns the new size."""
+    size -= 1
+    heap[0] = heap[size]
+    i = 0
+    while True:
+        a, b, k = 2 * i + 1, 2 * i + 2, i
+        if a < size and heap[a] < heap[k]:
+            k = a
+        if b < size and heap[b] < heap[k]:
+            k = b
+        if k == i:
+            return size
+        heap[k], heap[i] = heap[i], heap[k]
+        i = k
+
+
+# -- the grid of the tables' indexed block ---------------------------------------------------------
+def _cell_ij(x, y, geo):
+    """Grid cell (i, j) of a point, clamped to the grid (monotone in x and y)."""
+    fi = min(max((x - geo[0]) / geo[2], 0.0), geo[3] - 1.0)
+    fj = min(max((y - geo[1]) / geo[2], 0.0), geo[4] - 1.0)
+    return int(fi), int(fj)
+
+
+def _unplace(t, cell_of, head, nxt, prv, wide, wide_pos, meta) -> None:
+    """Table ``t`` out of its grid cell's list or the wide list (``meta[0]`` its length)."""
+    c = cell_of[t]
+    if c >= 0:
+        if prv[t] >= 0:
+            nxt[prv[t]] = nxt[t]
+        else:
+            head[c] = nxt[t]
+        if nxt[t] >= 0:
+            prv[nxt[t]] = prv[t]
+        cell_of[t] = -1
+    elif wide_pos[t] >= 0:
+        k, last = wide_pos[t], wide[meta[0] - 1]
+        wide[k], wide_pos[last] = last, k
+        wide_pos[t] = -1
+        meta[0] -= 1
+
+
+def _place(t, mu, lm, geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta) -> None:
+    """Table ``t`` (not placed) into the cell of ``mu``, or the wide list when its covariance's
+    largest eigenvalue ``lm`` exceeds ``cap`` or ``mu`` is not finite."""
+    if lm <= cap and np.isfinite(mu[0]) and np.isfinite(mu[1]):
+        i, j = _cell_ij(mu[0], mu[1], geo)
+        c = i * int(geo[4]) + j
+        nxt[t], prv[t] = head[c], -1
+        if head[c] >= 0:
+            prv[head[c]] = t
+        head[c] = t
+        cell_of[t] = c
+    else:
+        wide[meta[0]] = t
+        wide_pos[t] = meta[0]
+        meta[0] += 1
+
+
+def _grid_geometry(v, t_mu, live, rho, cap, T):
+    """``geo`` = (x0, y0, cell size, nx, ny): the box of the objects' and the live tables' points,
+    cells of 1 / :data:`CELLS` of the typical gate radius (:data:`MARGIN`, the median ``rho``), at
+    most 4 T + 16 cells."""
+    lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])
+    for l in range(v.shape[0]):
+        for i in range(2):
+            if np.isfinite(v[l, i]):
+                lo[i], hi[i] = min(lo[i], v[l, i]), max(hi[i], v[l, i])
+    for t in range(T):
+        if live[t]:
+            for i in range(2):
+                if np.isfinite(t_mu[t, i]):
+                    lo[i], hi[i] = min(lo[i], t_mu[t, i]), max(hi[i], t_mu[t, i])
+    h = np.sqrt(2.0 * (MARGIN + 20.0) * (cap + np.median(rho))) / CELLS
+    if not (np.isfinite(hi[0] - lo[0]) and np.isfinite(hi[1] - lo[1]) and h > 0.0 and np.isfinite(h)):
+        return np.array([0.0, 0.0, 1.0, 1.0, 1.0])  # one cell: every table in it
+    while True:
+        nx = np.floor((hi[0] - lo[0]) / h) + 1.0
+        ny = np.floor((hi[1] - lo[1]) / h) + 1.0
+        if nx * ny <= 4.0 * T + 16.0:
+            break
+        h *= 2.0
+    return np.array([lo[0], lo[1], h, nx, ny])
+
+
+def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
+    """Table ``t``'s theta posterior per block (``cov = lam^-1``, ``mu = cov eta``), as the full scan
+    computes it; ``t_lm[t]``: the largest eigenvalue of the last block's covariance."""
+    for p in range(lam.shape[0]):
+        _inv_into(lam[p, t], cov)
+        gemv2(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
+        t_cov[p, t] = cov
+    t_lm[t] = lmax2(cov)
+
+
+def _urn_of(t, n, v_star, d, occupied) -> float:
+    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.groups.urn_log_weights`); it
+    changes only when ``n[t]`` does."""
+    return np.log(v_star[t]) if occupied and n[t] == 0 else np.log(n[t] + v_star[t] - d)
+
+
+def _score(t, l, v, R, urn, log2pi, t_mu, t_cov, A, Si, r, Sir) -> float:
+    """Log weight of object ``l`` at table ``t`` given its log urn weight ``urn``: plus each block's
+    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``)."""
+    out = urn
+    for p in range(v.shape[0]):
+        for i in range(2):  # t_cov + R and v - mu, into buffers
+            r[i] = v[p, l, i] - t_mu[p, t, i]
+            for j in range(2):
+                A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
+        det = _inv_into(A, Si)
+        gemv2(Si, r, Sir)  # = Si @ r, into a buffer
+        out += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - log2pi
+    return out
+
+
+def _insertion_sort(a, m) -> None:
+    for i in range(1, m):
+        x = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > x:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = x
+
+
+def _draw_list(cand, m, logw, w, u) -> int:
+    """:func:`~tracker.bnp.groups._draw` over the tables ``cand[:m]`` (increasing): the position in
+    ``cand`` of the option of uniform ``u``; ``w[t]`` receives the normalised weights.  The other
+    tables' weights are exactly 0.0 and add nothing to the sums."""
+    top = logw[cand[0]]
+    for k in range(1, m):
+        if logw[cand[k]] > top:
+            top = logw[cand[k]]
+    total = 0.0
+    for k in range(m):
+        t = cand[k]
+        w[t] = np.exp(logw[t] - top)
+        total += w[t]
+    for k in range(m):
+        w[cand[k]] = w[cand[k]] / total
+    acc = 0.0
+    for k in range(m):
+        acc += w[cand[k]]
+        if acc > u:
+            return k
+    return m - 1
+
+
+def _gather(l, q, v, rho, c_l, top_lb, U, cap, geo, head, nxt, wide, meta, live, T, gate, cand, m, mark, stamp,
+            t_mu, t_lm):
+    """Append to ``cand[:m]`` every table not yet marked (``mark[t] == stamp``) that the bound
+    cannot exclude: the wide tables and the tables in the grid cells within the gate radius of
+    ``v[q, l]`` whose own bound (their covariance's largest eigenvalue ``t_lm``) does not exclude
+    them (all live tables when not ``gate`` or the point is not finite).  Returns the new count."""
+    x, y = v[q, l, 0], v[q, l, 1]
+    D = max(2.0 * (U + c_l - top_lb + MARGIN), 0.0)
+    rad = np.sqrt(D * (cap + rho))
+    if not gate or not (np.isfinite(x) and np.isfinite(y) and np.isfinite(rad)):
+        for t in range(T):
+            if live[t] and mark[t] != stamp:
+                mark[t] = stamp
+                cand[m] = t
+                m += 1
+        return m
+    i0, j0 = _cell_ij(x - rad, y - rad, geo)
+    i1, j1 = _cell_ij(x + rad, y + rad, geo)
+    ny = int(geo[4])
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            t = head[i * ny + j]
+            while t >= 0:
+                dx, dy = x - t_mu[q, t, 0], y - t_mu[q, t, 1]
+                if mark[t] != stamp and dx * dx + dy * dy <= D * (t_lm[t] + rho):
+                    mark[t] = stamp
+                    cand[m] = t
+                    m += 1
+                t = nxt[t]
+    for k in range(meta[0]):
+        t = wide[k]
+        if mark[t] != stamp:
+            mark[t] = stamp
+            cand[m] = t
+            m += 1
+    return m
+
+
+def _record(l, t, wt, lam, eta, lam0, eta0, h_lam, h_eta, rec, rec_obj, rec_w, rec_mu, rec_cov, B, e):
+    """The option (``l``, ``t``) of weight ``wt`` appended to the records (``rec[0]`` their count,
+    arrays grown by doubling): part 0's theta given the table's other current members and H_2.
+    Returns the arrays (new ones when grown)."""
+    k = rec[0]
+    if k == rec_obj.size:
+        cap = 2 * k + 16
+        o2, w2, m2, c2 = np.empty(cap, dtype=np.int64), np.empty(cap), np.empty((cap, 2)), np.empty((cap, 2, 2))
+        o2[:k], w2[:k], m2[:k], c2[:k] = rec_obj[:k], rec_w[:k], rec_mu[:k], rec_cov[:k]
+        rec_obj, rec_w, rec_mu, rec_cov = o2, w2, m2, c2
+    for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
+        e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
+        for j in range(2):
+            B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
+    _inv_into(B, rec_cov[k])
+    gemv2(rec_cov[k], e, rec_mu[k])
+    rec_obj[k], rec_w[k] = l, wt
+    rec[0] = k + 1
+    return rec_obj, rec_w, rec_mu, rec_cov
+
+
+def _normalise_records(rec_obj, rec_w, count) -> None:
+    """Each object's recorded weights over their sum (in record order from 0.0)."""
+    first = 0
+    while first < count:
+        last, total = first, 0.0
+        while last < count and rec_obj[last] == rec_obj[first]:
+            total += rec_w[last]
+            last += 1
+        for k in range(first, last):
+            rec_w[k] = rec_w[k] / total
+        first = last
+
+
+def _setup(v, R, lam0, eta0, v_star, z):
+    """The tables' information sums with the start ``z`` seated, each member's ``R^-1`` and
+    ``R^-1 v``, and every table's theta posterior."""
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
+    n = np.zeros(T)
+    lam, eta = lam0.copy(), eta0.copy()
+    Ri, Riv = np.empty((P, L, 2, 2)), np.empty((P, L, 2))
+    for p in range(P):
+        for l in range(L):
+            _inv_into(R[p, l], Ri[p, l])
+            gemv2(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (BLAS's rounding: group_fma)
+    for l in range(L):
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+    t_cov, t_mu, cov, t_lm = np.empty((P, T, 2, 2)), np.empty((P, T, 2)), np.empty((2, 2)), np.empty(T)
+    for t in range(T):
+        _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm)
+    return n, lam, eta, Ri, Riv, t_cov, t_mu, t_lm
+
+
+def _bound_terms(v, R, q):
+    """Per object: ``c_l`` = sum over blocks of -log det(R)/2 - log 2 pi, and ``rho_l`` = the
+    largest eigenvalue of its indexed block's R."""
+    P, L = v.shape[0], v.shape[1]
+    c, rho = np.zeros(L), np.empty(L)
+    for l in range(L):
+        for p in range(P):
+            det = R[p, l, 0, 0] * R[p, l, 1, 1] - R[p, l, 0, 1] * R[p, l, 1, 0]
+            c[l] += -0.5 * np.log(det) - np.log(2.0 * np.pi)
+        rho[l] = lmax2(R[q, l])
+    return c, rho
+
+
+def _cap_of(t_cov, live, rho, q, T):
+    """Largest eigenvalue allowed in the grid: the largest of the live tables' and the members'
+    (then no table ever leaves the grid: a table's posterior is within each member's R and its
+    prior), at most :data:`CAP_FACTOR` times the median of them (larger ones go to the wide list)."""
+    arr = np.empty(rho.size + T)
+    arr[:rho.size] = rho
+    k = rho.size
+    for t in range(T):
+        if live[t]:
+            arr[k] = lmax2(t_cov[q, t])
+            k += 1
+    arr = arr[:k]
+    return min(arr.max(), CAP_FACTOR * np.median(arr)) * (1.0 + 1e-9)
+
+
+def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
+    """Collapsed Gibbs sweeps over ``z`` in place (module docstring); the arguments as
+    :func:`~tracker.bnp.groups._partition_kernel`'s.  Returns the last sweep's options with
+    conditional above ``min_p`` as :func:`~tracker.bnp.groups._collect_shares` does: (obj, w, mu, cov).
+    ``stats[0]``, ``stats[1]`` count the moves and the tables scored (added to)."""
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
+    if L == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))
+    q = P - 1
+    n, lam, eta, Ri, Riv, t_cov, t_mu, t_lm = _setup(v, R, lam0, eta0, v_star, z)
+    live = (n + v_star) > 0
+    heap, meta = np.empty(T, dtype=np.int64), np.zeros(3, dtype=np.int64)  # meta: n_wide, K, heap size
+    for t in range(T):
+        if live[t]:
+            meta[1] += 1 if (n[t] > 0 or not occupied) else 0
+        else:
+            meta[2] = _heap_push(heap, meta[2], t)
+    c_l, rho = _bound_terms(v, R, q)
+    cap = _cap_of(t_cov, live, rho, q, T)
+    geo = _grid_geometry(v[q], t_mu[q], live, rho, cap, T)
+    head = np.full(int(geo[3] * geo[4]), -1, dtype=np.int64)
+    cell_of, nxt, prv = np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    wide, wide_pos = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    for t in range(T):
+        if live[t]:
+            _place(t, t_mu[q, t], t_lm[t], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
+    vmax = 0.0
+    for t in range(T):
+        vmax = max(vmax, v_star[t])
+    U = np.log(L + vmax + alpha + d * T + 1.0)
+    log2pi = np.log(2.0 * np.pi)
+    urn = np.zeros(T)
+    for t in range(T):
+        if live[t]:
+            urn[t] = _urn_of(t, n, v_star, d, occupied)
+    cand, mark = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    logw, w = np.empty(T), np.empty(T)
+    A, Si, cov, B = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2))
+    r, Sir, e = np.empty(2), np.empty(2), np.empty(2)
+    rec = np.zeros(1, dtype=np.int64)
+    rec_obj, rec_w = np.empty(4 * L + 16, dtype=np.int64), np.empty(4 * L + 16)
+    rec_mu, rec_cov = np.empty((4 * L + 16, 2)), np.empty((4 * L + 16, 2, 2))
+    S = u.shape[0]
+    stamp = 0
+    for s in range(S):
+        for l in range(L):
+            old = z[l]
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, old, l, -1.0)
+            _refresh(lam, eta, old, t_mu, t_cov, cov, t_lm)
+            _unplace(old, cell_of, head, nxt, prv, wide, wide_pos, meta)
+            if n[old] + v_star[old] > 0:
+                if occupied and n[old] == 0:
+                    meta[1] -= 1
+                urn[old] = _urn_of(old, n, v_star, d, occupied)
+                _place(old, t_mu[q, old], t_lm[old], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
+            else:
+                live[old] = False
+                meta[1] -= 1
+                meta[2] = _heap_push(heap, meta[2], old)
+            stamp += 1
+            free = heap[0]
+            logw[free] = _score(free, l, v, R, np.log(alpha + d * meta[1]), log2pi, t_mu, t_cov, A, Si, r, Sir)
+            mark[free], cand[0], m = stamp, free, 1
+            top_lb = logw[free]
+            if live[old]:
+                logw[old] = _score(old, l, v, R, urn[old], log2pi, t_mu, t_cov, A, Si, r, Sir)
+                mark[old], cand[1], m = stamp, old, 2
+                top_lb = max(top_lb, logw[old])
+            m0 = m
+            m = _gather(l, q, v, rho[l], c_l[l], top_lb, U, cap, geo, head, nxt, wide, meta, live, T, gate, cand, m,
+                        mark, stamp, t_mu, t_lm)
+            for k in range(m0, m):
+                logw[cand[k]] = _score(cand[k], l, v, R, urn[cand[k]], log2pi, t_mu, t_cov, A, Si, r, Sir)
+            stats[0] += 1
+            stats[1] += m
+            _insertion_sort(cand, m)
+            k = _draw_list(cand, m, logw, w, u[s, l])
+            while w[cand[k]] == 0.0:  # never land on an impossible table through round-off
+                k -= 1
+            new = cand[k]
+            if s == S - 1:
+                for j in range(m):
+                    if w[cand[j]] > min_p:
+                        rec_obj, rec_w, rec_mu, rec_cov = _record(l, cand[j], w[cand[j]], lam, eta, lam0, eta0,
+                                                                  h_lam, h_eta, rec, rec_obj, rec_w, rec_mu,
+                                                                  rec_cov, B, e)
+            z[l] = new
+            if not live[new]:  # the lowest free slot: a new table
+                meta[2] = _heap_pop(heap, meta[2])
+                live[new] = True
+                meta[1] += 1
+            elif occupied and n[new] == 0:
+                meta[1] += 1
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, new, l, 1.0)
+            urn[new] = _urn_of(new, n, v_star, d, occupied)
+            _refresh(lam, eta, new, t_mu, t_cov, cov, t_lm)
+            _unplace(new, cell_of, head, nxt, prv, wide, wide_pos, meta)
+            _place(new, t_mu[q, new], t_lm[new], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
+    _normalise_records(rec_obj, rec_w, rec[0])
+    k = rec[0]
+    return rec_obj[:k].copy(), rec_w[:k].copy(), rec_mu[:k].copy(), rec_cov[:k].copy()
+
+
+_inv_into = jit(_inv_into)
+_move = jit(_move)
+lmax2 = jit(lmax2, inline=True)
+_heap_push = jit(_heap_push)
+_heap_pop = jit(_heap_pop)
+_cell_ij = jit(_cell_ij, inline=True)
+_unplace = jit(_unplace, inline=True)
+_place = jit(_place, inline=True)
+_grid_geometry = jit(_grid_geometry)
+_refresh = jit(_refresh, inline=True)
+_score = jit(_score, inline=True)
+_urn_of = jit(_urn_of, inline=True)
+_insertion_sort = jit(_insertion_sort, inline=True)
+_draw_list = jit(_draw_list, inline=True)
+_gather = jit(_gather)
+_record = jit(_record)
+_normalise_records = jit(_normalise_records)
+_setup = jit(_setup)
+_bound_terms = jit(_bound_terms)
+_cap_of = jit(_cap_of)
+gated_kernel = jit(gated_kernel)
