@@ -19,6 +19,7 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     LazyHelpOption,
+    announce_first_compile,
     clean_errors,
     config_help,
     echo_rows,
@@ -278,7 +279,6 @@ def track(
     from bnptrack.tracker.types import FrameBounds
 
     window, overrides = _window(start, end, overrides)
-
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names)
     io.check_window(window)
@@ -288,15 +288,14 @@ def track(
     check_output_path(log, io.out)
     if not quiet:
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
+    announce_first_compile(quiet)
     res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
     for w in res.warnings:
         click.echo(f"warning: {w}", err=True)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
     if res.error is not None:
-        raise CliError(
-            f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}"
-        )
+        raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
 
 
 class _TrackIO:

@@ -21,6 +21,7 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     IncompleteError,
+    announce_first_compile,
     clean_errors,
     echo_rows,
     literal_choices,
@@ -107,6 +108,8 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
         from bnptrack.pipeline.live import viewer_url
 
         cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
+    if "tracker" in cfg.stages:
+        announce_first_compile(quiet)
     progress = None if quiet else Progress(sys.stderr)
     try:
         res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
