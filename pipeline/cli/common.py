@@ -277,4 +277,4 @@ def announce_first_compile(quiet: bool) -> None:
     folder = Path(kernel_cache_dir())
     if JIT and not (folder.is_dir() and any(folder.rglob("*.nbi"))):
         click.echo("bnptrack: first run of this version on this machine: compiling the numba kernels once "
-                   f"(about a minute on 2 cores); later runs load them from {folder}", err=True)
+                   f"(1-3 minutes on 2 cores); later runs load them from {folder}", err=True)
