@@ -258,14 +258,19 @@ def decompose_run(job) -> dict:
                 false_scans=n["false"] - n["dead"])
 
 
+def run_jobs(fn, jobs: list, workers: int) -> list:
+    """``fn`` over ``jobs``, in ``workers`` processes when more than one (results in job order)."""
+    if workers <= 1:
+        return [fn(j) for j in jobs]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as ex:
+        return list(ex.map(fn, jobs))
+
+
 def print_decomposition(args, seeds) -> None:
     jobs = [(args.decompose, args.scenario, s, args.overrides, args.tracker_set, args.confirm[0]) for s in seeds]
-    if args.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(args.workers) as ex:
-            res = list(ex.map(decompose_run, jobs))
-    else:
-        res = [decompose_run(j) for j in jobs]
+    res = run_jobs(decompose_run, jobs, args.workers)
     print(f"{args.decompose} vs the oracle reporting from detection {args.confirm[0]}, {args.scenario}, seeds "
           f"{seeds.start}-{seeds.stop - 1}, set {args.overrides or '-'}, tracker set {args.tracker_set or '-'}")
     print("| step | OSPA | + | OSPA(2) | + | mean abs(N_hat-N) |")
@@ -313,12 +318,7 @@ def main() -> None:
             args.confirm = [3]
         return print_decomposition(args, seeds)
     jobs = [(s, args.scenario, args.overrides, args.confirm, args.coast) for s in seeds]
-    if args.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(args.workers) as ex:
-            res = list(ex.map(one_run, jobs))
-    else:
-        res = [one_run(j) for j in jobs]
+    res = run_jobs(one_run, jobs, args.workers)
     print(f"oracle (UKF, true associations, births and deaths), {args.scenario}, seeds {seeds.start}-"
           f"{seeds.stop - 1}, set {args.overrides or '-'}, "
           + ("true deaths" if args.coast is None else f"deaths seen through misses, coast {args.coast}"))
