@@ -109,6 +109,7 @@ __all__ = [
 ]
 
 _chain = chain.from_iterable
+_F64 = np.dtype(float)
 
 # --------------------------------------------------------------------------- schema
 
@@ -516,7 +517,7 @@ def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
         return None
     labels = [str(t.label) for t in tracks]
     if rows is None or pmf is None or len(set(labels)) != n or len(est.assignments) != len(probs) \
-            or len(probs) > MAX_MEASUREMENTS or not all(0.0 <= p <= 1.0 for p in chain(probs, exist)) \
+            or len(probs) > MAX_MEASUREMENTS or not (_plain_unit(probs) and _plain_unit(exist)) \
             or not math.isfinite(sum(diag.values())):
         return None
     msgs = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
@@ -527,16 +528,28 @@ def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
                      assignment_prob=probs, diagnostics=diag, cardinality_pmf=pmf)
 
 
+def _plain_unit(values: list) -> bool:
+    """Every value in ``[0, 1]`` (NaN and inf fail: the sum is not finite then)."""
+    return not values or (math.isfinite(sum(values)) and min(values) >= 0.0 and max(values) <= 1.0)
+
+
 def _plain_rows(tracks: tuple, n: int) -> tuple[list, list] | None:
     """The tracks' states ``(n, 5)`` and covariances ``(n, 25)`` as lists of rows, all finite
-    (``None`` otherwise; ``ValueError`` for ragged ones)."""
-    if not n:
+    (``None`` otherwise; ``ValueError`` for ragged ones): each float64 array read by its own
+    ``tolist`` (no array built), anything else stacked by numpy as the checked path does."""
+    if all(type(t.state) is np.ndarray and t.state.dtype == _F64 and t.state.shape == (STATE_DIM,)
+           and type(t.covariance) is np.ndarray and t.covariance.dtype == _F64
+           and t.covariance.shape == (STATE_DIM, STATE_DIM) for t in tracks):
+        s = [t.state.tolist() for t in tracks]
+        c = [list(_chain(t.covariance.tolist())) for t in tracks]
+    elif n:
+        states = np.array([t.state for t in tracks], dtype=float)
+        covs = np.array([t.covariance for t in tracks], dtype=float)
+        if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
+            return None
+        s, c = states.tolist(), covs.reshape(n, COV_DIM).tolist()
+    else:
         return [], []
-    states = np.array([t.state for t in tracks], dtype=float)
-    covs = np.array([t.covariance for t in tracks], dtype=float)
-    if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
-        return None
-    s, c = states.tolist(), covs.reshape(n, COV_DIM).tolist()
     return (s, c) if math.isfinite(sum(map(sum, s)) + sum(map(sum, c))) else None
 
 
@@ -545,7 +558,10 @@ def _plain_pmf_field(pmf: Any) -> Any:
     :func:`_plain_pmf_ok`, else ``None``."""
     if pmf is None:
         return msgspec.UNSET
-    values = np.asarray(pmf, dtype=float).ravel().tolist()
+    if type(pmf) is np.ndarray and pmf.dtype == _F64 and pmf.ndim == 1:
+        values = pmf.tolist()
+    else:
+        values = np.asarray(pmf, dtype=float).ravel().tolist()
     return values if _plain_pmf_ok(values) else None
 
 

@@ -53,6 +53,14 @@ def test_plain_encode_gives_the_checked_bytes_and_golden_digest():
     cases = [_estimate(rng, k, n=k % 5, pmf=k % 3 > 0, cluster=k % 2 == 0) for k in range(30)]
     cases.append(Estimate(0, 0, ()))
     digest = hashlib.sha256()
+    # states and covariances that are not float64 arrays take numpy's stacking, to the same bytes
+    t0 = cases[3].tracks[0]
+    odd = (TrackEstimate("f32", t0.state.astype(np.float32), t0.covariance.astype(np.float32), 0.5),
+           TrackEstimate("list", list(t0.state), t0.covariance.tolist(), 0.5),
+           TrackEstimate("view", t0.state, t0.covariance.T, 0.5))
+    for est in (Estimate(1, 0, odd), Estimate(1, 0, odd[2:], (), (), {}, [0.25, 0.75])):
+        assert _plain_tracks_msg(est, "r") == _checked_tracks_msg(est, "r")
+        assert encode(est, "r") == msgspec.json.encode(from_estimate(est, "r"))
     for est in cases:
         msg = _plain_tracks_msg(est, "r")
         assert msg is not None and msg == _checked_tracks_msg(est, "r")
