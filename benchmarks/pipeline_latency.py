@@ -46,6 +46,7 @@ stamps made consecutive), then measures, in one invocation:
     python benchmarks/pipeline_latency.py --tracker dpyp --rounds 5 --json out.json
     python benchmarks/pipeline_latency.py --only acl-floor --paced 4      # the floor, bare / launcher's router
     python benchmarks/pipeline_latency.py --only session-floor --paced 4  # the floor, one session / one each
+    python benchmarks/pipeline_latency.py --only frame-path --rounds 5    # the stage's own work, in process
 
 Each paced run also prints the frame path's segments (session 9), from the tracker's stamps
 read back from its journal: source -> tracker, hand-off, before the step, the step, after the
@@ -306,6 +307,131 @@ def report_segments(seg: dict[str, list[float]]) -> None:
         return
     print("  segments p50 (p99), ms: " + "; ".join(
         f"{k} {pct(seg[k], 50):.3f} ({pct(seg[k], 99):.2f})" for k in SEGMENTS))
+
+
+# --------------------------------------------------------------------------- frame path, in process
+
+
+class _FixedTracker:
+    """A tracker whose step returns a precomputed estimate at once (the stage's own code alone)."""
+
+    def __init__(self, ests: list) -> None:
+        self.ests = {e.frame: e for e in ests}
+
+    def initial_state(self) -> None:
+        return None
+
+    def step(self, state, frame, rng):
+        return state, self.ests[frame.frame]
+
+
+class _NullBus:
+    """Publishes nothing: encodes the attachment as the Zenoh bus does and keeps it."""
+
+    def __init__(self) -> None:
+        import msgspec
+
+        self.enc, self.metas = msgspec.json.Encoder(), []
+
+    def publish(self, topic: str, payload: bytes, meta: dict | None = None) -> None:
+        if meta is not None:
+            self.enc.encode(meta)
+            self.metas.append(meta)
+
+
+def frame_path_inputs(tracker_name: str) -> tuple[list, list, list]:
+    """vo2017 seed 1 (100 frames): the frames, the tracker's estimates, and per frame its
+    received ``(measurements, truth, tracks)`` samples (events)."""
+    from bnptrack.pipeline.events import Event
+    from bnptrack.tracker.messages import encode, from_truth
+
+    frames = [replace(f, frame=i + 1, stamp_ns=(i + 1) * 10**9)
+              for i, f in enumerate(simulate(get_scenario("vo2017"), scenario_params("vo2017", "vo2017"), 1))]
+    setup = tracker_setup(tracker_name, metadata={"scenario": "vo2017", "params": "vo2017"})
+    ests = [est for _, est, _ in run(setup.tracker, frames, 0)]
+    events = [(Event("measurements", encode(f, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0),
+               Event("truth", encode(from_truth(f.frame, f.stamp_ns, f.truth, "inproc")), {"seq": i, "t": 0}, 0),
+               Event("tracks", encode(e, "inproc"), {"seq": i, "t": 0, "frame": f.frame}, 0))
+              for i, (f, e) in enumerate(zip(frames, ests))]
+    return frames, ests, events
+
+
+def stage_segments(ests: list, events: list, out: Path, sleep: float) -> dict[str, list[float]]:
+    """A ``TrackerStage`` (in-memory bus, a step that costs nothing) fed ``events`` one by one
+    as its loop does (``t_deq``, then ``_on_event``), ``sleep`` seconds apart; per frame, the
+    microseconds before the step (``t_s0 - t_deq``: intake, sequencing, ``to_frame``, the
+    generator) and after it (``t_out - t_s1``: the encoding, the attachment)."""
+    from bnptrack.pipeline.config import PipelineConfig, TrackerStageConfig, resolve_run
+    from bnptrack.pipeline.membus import MemoryNetwork
+    from bnptrack.pipeline.stages import StageContext, TrackerStage
+
+    cfg = resolve_run(PipelineConfig(run="inproc", out=str(out), tracker=TrackerStageConfig(seed=0)))
+    stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("inproc", "tracker"), name="tracker"))
+    stage._restore()
+    stage.tracker, stage.state = _FixedTracker(ests), None
+    stage.bus = stage.intake.bus = _NullBus()
+    for ev, _truth, _tracks in events:
+        if sleep:
+            time.sleep(sleep)
+        stage.t_deq_ns = time.time_ns()
+        stage._on_event(ev)
+    stage.writer.flush()
+    stage._close_journal()
+    metas = stage.bus.metas
+    return {"pre_step": [(m["t_s0"] - m["t_deq"]) / 1e3 for m in metas],
+            "post_step": [(m["t_out"] - m["t_s1"]) / 1e3 for m in metas]}
+
+
+def piece_times(ests: list, events: list, sleep: float) -> dict[str, list[float]]:
+    """Per frame, the microseconds of the frame path's codec pieces (the tracker's
+    ``Intake.check`` of /measurements: decoding and validation; ``to_frame``; ``encode`` of the
+    estimate; the sink's ``Intake.check`` of /truth and /tracks), ``sleep`` seconds apart (0:
+    back to back, caches warm)."""
+    from bnptrack.pipeline.stages.delivery import Intake
+    from bnptrack.pipeline.stages.health import Counters
+    from bnptrack.tracker.messages import encode, to_frame
+
+    intake = Intake("tracker", "inproc", _NullBus(), Counters(), 10**8)
+    out: dict[str, list[float]] = {"intake.check": [], "to_frame": [], "encode": [], "sink check /truth": [],
+                                   "sink check /tracks": []}
+    pc = time.perf_counter_ns
+    for (ev, truth, tracks), est in zip(events, ests):
+        if sleep:
+            time.sleep(sleep)
+        t = [pc()]
+        acc = intake.check(ev)
+        t.append(pc())
+        to_frame(acc.msg)
+        t.append(pc())
+        encode(est, "inproc")
+        t.append(pc())
+        assert intake.check(truth) is not None
+        t.append(pc())
+        assert intake.check(tracks) is not None
+        t.append(pc())
+        for k, a, b in zip(out, t, t[1:]):
+            out[k].append((b - a) / 1e3)
+    return out
+
+
+def frame_path(args) -> dict:
+    """``--only frame-path``: the tracker stage's own work on a frame, in process: the codec's
+    pieces and the stage's segments before and after the step, back to back (``hot``, best of
+    ``--rounds`` passes) and one frame every 1/``--rate`` s (``paced``: the caches go cold
+    between frames, as in a paced run).  Medians (p99) in microseconds."""
+    frames, ests, events = frame_path_inputs(args.tracker)
+    res: dict = {}
+    with tempfile.TemporaryDirectory() as d:
+        for mode, sleep, reps in (("hot", 0.0, args.rounds), ("paced", 1.0 / args.rate, 1)):
+            rows: dict[str, list[float]] = {}
+            for r in range(reps):
+                for k, v in {**piece_times(ests, events, sleep),
+                             **stage_segments(ests, events, Path(d) / f"{mode}{r}", sleep)}.items():
+                    rows.setdefault(k, []).extend(v)
+            res[mode] = {k: (pct(v, 50), pct(v, 99)) for k, v in rows.items()}
+            print(f"frame path, {mode} ({len(events)} frames x {reps}, load {load_avg():.2f}), us p50 (p99): "
+                  + "; ".join(f"{k} {a:.1f} ({b:.1f})" for k, (a, b) in res[mode].items()), flush=True)
+    return res
 
 
 # --------------------------------------------------------------------------- transport floor
@@ -816,7 +942,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3, help="interleaved offline/pipeline throughput rounds")
     ap.add_argument("--paced", type=int, default=1, help="paced runs, each followed by its two-hop floor")
     ap.add_argument("--rate", type=float, default=20.0, help="paced run (and floors): frames per second")
-    ap.add_argument("--only", choices=("throughput", "latency", "acl-floor", "session-floor"), default=None,
+    ap.add_argument("--only", choices=("throughput", "latency", "acl-floor", "session-floor", "frame-path"),
+                    default=None,
                     help="measure only this (default: both, the one-hop floors and the machine floor)")
     ap.add_argument("--rerun", action="store_true", help="also write run.rrd (the sink; bnptrack track --rrd)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -833,6 +960,11 @@ def main() -> None:
         print(f"log: {n} frames ({args.runs} x vo2017), tracker {args.tracker}; load average {load0:.2f}", flush=True)
         if args.only in ("acl-floor", "session-floor"):
             figures[args.only] = floor_variant_rounds(args)
+            return
+        if args.only == "frame-path":
+            figures["frame_path"] = frame_path(args)
+            if args.json:
+                args.json.write_text(json.dumps(figures, indent=1, default=str))
             return
         off = Offline(log, args.tracker, args.seed)
         if args.only != "latency":
