@@ -12,7 +12,9 @@ recorded (the module's function wrapped; the tracker calls it by that name) and 
   last-sweep records (sessions 5-9);
 * ``urn``: the urn state kept incrementally (K, the lowest free slot), sparse records, every
   occupied table still scored;
-* ``gated``: ``urn`` plus the grid and the bound (only tables the bound cannot exclude scored).
+* ``gated``: ``urn`` plus the grid and the bound (only tables the bound cannot exclude scored;
+  since session 11 also the exact quadratic form of the indexed block before each score, so
+  "tables scored" counts only the tables fully scored).
 
 Figures per kernel: CPU ms per frame (median over repeats of the sum over the kept frames,
 ``time.thread_time``), tables scored per move (``urn``, ``gated``), the peak RSS of one

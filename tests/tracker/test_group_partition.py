@@ -158,3 +158,28 @@ def test_greedy_groups_equal_the_dense_version(seed, n, n_pairs) -> None:
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert want[0].size > 1  # a group formed
+
+
+def test_a_table_the_grid_admits_but_the_exact_form_excludes_is_not_scored() -> None:
+    """Session 11's second test before scoring: two objects with elongated position covariances
+    (900 m^2 along x, 2500^2 m^2 along y); a second cluster 3 km away along x is inside the grid's
+    eigenvalue bound (|d|^2 / (lambda_max(C) + lambda_max(R)) is about 1.4 nats) but some 5,000 nats
+    below by the exact quadratic form: never scored, and the sample and shares equal the full scan's."""
+    vel = np.array([[5.0, 0.0], [5.1, 0.1]])
+    pos = np.array([[0.0, 0.0], [20.0, 0.0]])
+    Rv = np.tile(np.eye(2) * 10.0, (2, 1, 1))
+    Rp = np.tile(np.diag([900.0, 2500.0**2]), (2, 1, 1))
+    b0 = Block(vel, Rv, np.array([[5.0, 0.0], [5.0, 0.0]]), np.tile(np.eye(2) * 4.0, (2, 1, 1)), np.zeros(2),
+               400 * np.eye(2))
+    b1 = Block(pos, Rp, np.array([[10.0, 0.0], [3000.0, 0.0]]), np.tile(np.eye(2) * 400.0, (2, 1, 1)),
+               np.array([1500.0, 0.0]), 1e9 * np.eye(2))
+    init, v_star = np.array([0, 0]), np.array([2.0, 1.0])
+    stats = np.zeros(2, dtype=np.int64)
+    got = _run("gated", [b0, b1], v_star, init, 1.0, 0.0, True, 3, stats)
+    _same(got, _run("scan", [b0, b1], v_star, init, 1.0, 0.0, True, 3))
+    np.testing.assert_array_equal(got[0], [0, 0])
+    assert stats[0] == 6 * 2
+    assert stats[1] == 2 * stats[0]  # its own cluster and the new table: the far cluster is never scored
+    full = np.zeros(2, dtype=np.int64)
+    _run("urn", [b0, b1], v_star, init, 1.0, 0.0, True, 3, full)
+    assert full[1] == 3 * full[0]  # without the gate all three

@@ -17,7 +17,7 @@ from scipy.optimize import linear_sum_assignment
 from bnptrack.tracker.bnp import BnpConfig, make_tracker
 from bnptrack.tracker.bnp import filter as bnp_filter
 from bnptrack.tracker.bnp.assignment import best_permutation
-from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs
+from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs, ball_hits
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
 from bnptrack.tracker.models.measurement import BearingRange, RangeOnly
@@ -143,3 +143,62 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
             assert st.n_clusters <= 3
     assert est.diagnostics["clusters_capped"] > 0
     assert sum("max_clusters (3) reached" in r.message for r in caplog.records) == 1
+
+
+def _kdtree_near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
+    """``_near_pairs`` as sessions 4-10 computed it (above 200 clusters): a KD-tree's ball queries."""
+    from itertools import chain
+
+    from scipy.spatial import cKDTree
+
+    pos = c.mean[:, [0, 2]]
+    a, b, d = c.cov[:, 0, 0], c.cov[:, 2, 2], c.cov[:, 0, 2]
+    lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + d * d)
+    ok = np.flatnonzero(np.isfinite(pos).all(axis=1) & np.isfinite(lam))
+    radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
+    hits = cKDTree(pos[ok]).query_ball_point(pos[ok], radius, return_sorted=False)
+    lens = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
+    i = ok[np.repeat(np.arange(ok.size), lens)]
+    j = ok[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))]
+    lo, hi = np.minimum(i, j), np.maximum(i, j)
+    n = len(c.labels)
+    key = np.unique(lo[lo < hi] * n + hi[lo < hi])
+    lo, hi = key // n, key % n
+    d2p = np.sum((pos[lo] - pos[hi]) ** 2, axis=1)
+    near = d2p <= max_d2 * (lam[lo] + lam[hi]) * (1.0 + 1e-9)
+    return lo[near], hi[near]
+
+
+@pytest.mark.parametrize("seed,n,spread", [(1, 201, 500.0), (2, 800, 20000.0), (3, 2000, 40000.0), (4, 400, 0.0)])
+def test_near_pairs_grid_equals_the_kdtree_pairs(seed, n, spread):
+    """Session 11's grid (``ball_hits``) returns the KD-tree's pairs, in the same order: clusters of
+    every size of covariance (a few huge, one with a NaN mean, one not positive definite), some on
+    top of each other."""
+    rng = np.random.default_rng(seed)
+    mean = np.column_stack([rng.uniform(0, spread, n), rng.normal(0, 5, n), rng.uniform(0, spread, n),
+                            rng.normal(0, 5, n), np.zeros(n)])
+    mean[5:9, [0, 2]] = mean[4, [0, 2]]
+    mean[10, 0] = np.nan
+    scale = rng.choice([1.0, 30.0, 3000.0, 1e6], n, p=[0.6, 0.35, 0.045, 0.005])
+    cov = np.tile(np.diag([100.0, 25.0, 100.0, 25.0, 1e-4]), (n, 1, 1)) * scale[:, None, None]
+    cov[:, 0, 2] = cov[:, 2, 0] = 60.0 * rng.uniform(-1, 1, n) * scale
+    cov[11, 0, 0] = -50.0
+    c = _Clusters(tuple(str(i) for i in range(n)), mean, cov, np.full(n, 0.3), np.ones(n))
+    with np.errstate(invalid="ignore"):
+        want = _kdtree_near_pairs(c, 9.0)
+        got = _near_pairs(c, 9.0)
+    assert want[0].size > 20
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w, strict=True)
+
+
+def test_ball_hits_hold_every_point_of_each_ball():
+    """Each point's hits are the points within its radius (brute force), the point itself never."""
+    rng = np.random.default_rng(7)
+    pos = rng.uniform(0, 1000, (300, 2))
+    radius = rng.choice([5.0, 50.0, 400.0], 300, p=[0.5, 0.45, 0.05])
+    a, b = ball_hits(pos, radius)
+    got = set(zip(a.tolist(), b.tolist()))
+    d2 = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2)
+    want = {(i, j) for i, j in zip(*np.nonzero(d2 <= radius[:, None] ** 2)) if i != j}
+    assert len(want) > 300 and got == want

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from itertools import chain
 
 import numpy as np
 
+from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp import _kernels as _k
 
 
@@ -83,20 +83,21 @@ def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarr
 
 
 def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
-    r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a KD-tree on positions).
+    r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a grid on positions:
+    :func:`ball_hits`; a KD-tree's ball queries before session 11, the same pairs).
 
     The position-velocity distance is at least the position-only one, which is at least
     :math:`\lVert \Delta p \rVert^2 / (\lambda_i + \lambda_j)` with :math:`\lambda` the
     largest eigenvalue of a cluster's position covariance; so pair ``(i, j)`` is a candidate
     only if :math:`\lVert \Delta p\rVert^2 \le d^2_{max} (\lambda_i + \lambda_j) \le 2 d^2_{max}
     \max(\lambda_i, \lambda_j)`: each cluster queries the ball of radius
-    :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`."""
+    :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`.
+    The pairs returned are those of the test below (the same numpy expression, in key order);
+    the balls only have to hold them."""
     n = len(c.labels)
     if n <= 200:  # few clusters: every pair (cheaper than a tree)
         lo, hi = np.triu_indices(n, k=1)
         return lo.astype(np.int64), hi.astype(np.int64)
-    from scipy.spatial import cKDTree  # lazy: few clusters need no tree, and scipy.spatial is slow to import
-
     pos = c.mean[:, [0, 2]]
     a, b, d = c.cov[:, 0, 0], c.cov[:, 2, 2], c.cov[:, 0, 2]
     lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + d * d)
@@ -104,10 +105,8 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     if ok.size < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
-    hits = cKDTree(pos[ok]).query_ball_point(pos[ok], radius, return_sorted=False)
-    lens = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
-    i = ok[np.repeat(np.arange(ok.size), lens)]
-    j = ok[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))]
+    a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
+    i, j = ok[a], ok[b]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     key = np.unique(lo[lo < hi] * len(c.labels) + hi[lo < hi])
     lo, hi = key // len(c.labels), key % len(c.labels)
@@ -163,3 +162,60 @@ def _concat(a: _Clusters, b: _Clusters) -> _Clusters:
         return a
     return _Clusters(a.labels + b.labels, np.concatenate([a.mean, b.mean]), np.concatenate([a.cov, b.cov]),
                      np.concatenate([a.existence, b.existence]), np.concatenate([a.popularity, b.popularity]))
+
+
+def _cell_range(lo: float, hi: float, h: float, n: int) -> tuple[int, int]:  # pragma: no cover - compiled
+    """The cells ``0 .. n - 1`` of width ``h`` that ``[lo, hi]`` overlaps (clamped before the
+    conversion to int)."""
+    return int(min(max(np.floor(lo / h), 0.0), n - 1.0)), int(min(max(np.floor(hi / h), 0.0), n - 1.0))
+
+
+def ball_hits(pos: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Pairs ``(a, b)``, ``a != b``, with point ``b`` within about ``radius[a]`` of point ``a``
+    (squared distance at most ``radius[a]^2 (1 + 1e-6)``: a superset of the ball's points) from
+    cell lists on a uniform grid (cells of about the median radius, at most 4 n + 16 of them);
+    ``pos`` (n, 2) and ``radius`` (n,) finite.  In no particular order."""
+    n = pos.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    x0, x1, y0, y1 = pos[:, 0].min(), pos[:, 0].max(), pos[:, 1].min(), pos[:, 1].max()
+    h = np.median(radius)
+    if not (np.isfinite(h) and h > 1e-9 * max(x1 - x0, y1 - y0, 1.0)):
+        h = max(x1 - x0, y1 - y0, 1.0)
+    while (np.floor((x1 - x0) / h) + 1.0) * (np.floor((y1 - y0) / h) + 1.0) > 4.0 * n + 16.0:
+        h *= 2.0
+    nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
+    cell = np.empty(n, dtype=np.int64)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for k in range(n):
+        cell[k] = min(int((pos[k, 0] - x0) / h), nx - 1) * ny + min(int((pos[k, 1] - y0) / h), ny - 1)
+        start[cell[k] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill, members = start[:-1].copy(), np.empty(n, dtype=np.int64)
+    for k in range(n):
+        members[fill[cell[k]]] = k
+        fill[cell[k]] += 1
+    out_a, out_b, count = np.empty(4 * n, dtype=np.int64), np.empty(4 * n, dtype=np.int64), 0
+    for a in range(n):
+        r = radius[a] * (1.0 + 1e-6)
+        r2 = radius[a] * radius[a] * (1.0 + 1e-6)
+        if not np.isfinite(r2):  # no ball (a query with a radius that is not finite finds nothing)
+            continue
+        i0, i1 = _cell_range(pos[a, 0] - r - x0, pos[a, 0] + r - x0, h, nx)
+        j0, j1 = _cell_range(pos[a, 1] - r - y0, pos[a, 1] + r - y0, h, ny)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for k in range(start[i * ny + j], start[i * ny + j + 1]):
+                    b = members[k]
+                    dx, dy = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
+                    if b != a and dx * dx + dy * dy <= r2:
+                        if count == out_a.size:
+                            out_a, out_b = np.concatenate((out_a, out_a)), np.concatenate((out_b, out_b))
+                        out_a[count], out_b[count] = a, b
+                        count += 1
+    return out_a[:count].copy(), out_b[:count].copy()
+
+
+_cell_range = jit(_cell_range)
+ball_hits = jit(ball_hits)

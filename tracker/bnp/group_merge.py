@@ -28,6 +28,7 @@ The result is the all-pairs numpy code's, bit for bit (``tests/tracker/test_grou
 from __future__ import annotations
 
 from functools import lru_cache
+from operator import itemgetter
 
 import numpy as np
 
@@ -59,11 +60,15 @@ def taken_measurements(assignments, probs, min_prob: float, labels: tuple[str, .
 
 
 @lru_cache(maxsize=8192)
-def _label_parts(label: str) -> tuple[int, bool, str, str]:
-    """:func:`birth_frame`, whether the label has a ``"."``, and its text before and after the
-    first ``"."`` (remembered)."""
+def _label_parts(label: str) -> tuple[int, bool, str, int | None]:
+    """:func:`birth_frame`, whether the label has a ``"."``, its text before the first ``"."`` and
+    the integer after it (None if that text is not one; remembered)."""
     head, dot, tail = label.partition(".")
-    return birth_frame(label), dot == ".", head, tail
+    try:
+        number = int(tail) if dot else None
+    except ValueError:
+        number = None
+    return birth_frame(label), dot == ".", head, number
 
 
 def label_arrays(labels: tuple[str, ...], assignments, probs, min_prob: float, frame: int | None
@@ -71,17 +76,22 @@ def label_arrays(labels: tuple[str, ...], assignments, probs, min_prob: float, f
     """:func:`_label_arrays` of :func:`taken_measurements`' dict, without building it: each label's
     birth frame, whether dotted, and the measurement it took (the MAP assignment with probability
     >= ``min_prob``, the last one if several; else, born at ``frame``, the measurement it was born
-    from; else -1)."""
+    from; else -1).  The labels' parts are remembered (:func:`_label_parts`); only the labels
+    without a taken measurement are looked at one by one."""
     taken = {lab: m for m, (lab, p) in enumerate(zip(assignments, probs)) if lab is not None and p >= min_prob}
+    parts = list(map(_label_parts, labels))
+    n = len(parts)
+    birth = np.fromiter(map(itemgetter(0), parts), dtype=np.int64, count=n)
+    dotted = np.fromiter(map(itemgetter(1), parts), dtype=bool, count=n)
+    took = list(map(taken.get, labels))
     head_now = None if frame is None else str(frame)
-    birth, dotted, took = [], [], []
-    for lab in labels:
-        b, dot, head, tail = _label_parts(lab)
-        birth.append(b)
-        dotted.append(dot)
-        m = taken.get(lab)
-        took.append(m if m is not None else (int(tail) if dot and head == head_now else -1))
-    return (np.array(birth, dtype=np.int64), np.array(dotted, dtype=bool), np.array(took, dtype=np.int64))
+    for k in [k for k, m in enumerate(took) if m is None]:
+        _, dot, head, number = parts[k]
+        if dot and head == head_now:
+            took[k] = number if number is not None else int(labels[k].partition(".")[2])  # raises as before
+        else:
+            took[k] = -1
+    return birth, dotted, np.array(took, dtype=np.int64).reshape(n)
 
 
 def _distinct(labels: tuple[str, ...], taken: dict[str, int], i: np.ndarray, j: np.ndarray) -> np.ndarray:

@@ -1211,9 +1211,10 @@ class GroupTracker:
         row = {lab: i for i, lab in enumerate(state.labels)}
         kept = [(t.label, t.existence) for t in est.tracks] if kept is None else kept
         idx = np.array([row[lab] for lab, _ in kept], dtype=np.int64)
-        mean, cov, cluster = state.mean[idx], state.cov[idx], state.cluster[idx].tolist()
-        tracks = [TrackEstimate(lab, mean[k], cov[k], r, None if cluster[k] < 0 else cluster[k])
-                  for k, (lab, r) in enumerate(kept)]
+        # rows of the copies as views (list(): one pass in C, not an index per track)
+        mean, cov, cluster = list(state.mean[idx]), list(state.cov[idx]), state.cluster[idx].tolist()
+        tracks = [TrackEstimate(lab, m, P, r, None if g < 0 else g)
+                  for (lab, r), m, P, g in zip(kept, mean, cov, cluster)]
         diag = dict(est.diagnostics)
         diag.update(alpha2=state.alpha2, d2=state.d2, n_groups=float(state.group_ids.size),
                     ms=(time.perf_counter() - t0) * 1e3)
