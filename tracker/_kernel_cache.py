@@ -1,68 +1,107 @@
 """Cheaper loads of the kernels numba has cached (issue 15, start-up; docs/performance.md).
 
 A warm ``bnptrack track`` with the two-level tracker loads 27 compiled kernels from numba's
-cache.  numba keeps, beside each kernel's object code, the LLVM bitcode of its module, to link
-it into a kernel compiled later; at every load it parses that bitcode and walks all its
-functions and globals through llvmlite (hundreds of ctypes calls under the GIL) only to learn
-which symbols the library defines.  That was about 40 % of the loads' time.
+cache.  :func:`lean_cache_loads` (applied for the command line by
+:func:`tracker._numerics.import_numba`, ``LEAN_NUMBA``, when numba is a version it was checked
+with, :data:`LEAN_LOADS_VERSIONS`) leaves out three costs of numba's own load that a process
+which only runs cached kernels does not need:
 
-:func:`lean_cache_loads` reads the symbol names from a small file beside the cache instead
-(``symbols/<sha1 of the bitcode>``, written from numba's own walk the first time that bitcode
-is loaded) and parses the bitcode only if a fresh compile links the kernel.  The object code
-that runs is the cached one, unchanged.  :func:`tracker._numerics.import_numba` applies it for
-the command line (``LEAN_NUMBA``) when numba is a version it was checked with
-(:data:`LEAN_LOADS_VERSIONS`).
+* **The parse of each kernel's linking bitcode** (session 9).  numba keeps, beside each
+  kernel's object code, the LLVM bitcode of its module, to link it into a kernel compiled
+  later; at every load it parsed that bitcode and walked its functions and globals through
+  llvmlite only to learn which symbols the library defines.  Those names are read from a small
+  file beside the cache instead (``links/<sha1 of the bitcode>``, written from the parsed
+  module the first time that bitcode is loaded); the bitcode is parsed only if a fresh compile
+  links the kernel.
+* **The set-up of the compiler's registries** (session 11).  numba's ``Cache.load_overload``
+  first calls ``target_context.refresh()``, which imports and installs every typing and
+  lowering registry (numba's ``cpython``, ``np``, ``typed``, ``experimental`` modules,
+  0.3-0.6 s of CPU on this machine) although loading machine code types and lowers nothing.
+  The lean load runs only the part a loaded kernel links against, numba's runtime (NRT,
+  ``rtsys.initialize``), and checks that every external symbol the kernel's module declares
+  (same file) resolves before its object code is linked; if one does not (a symbol that
+  numba registers while it sets a registry up), it runs the whole refresh first, as numba
+  would have.  A kernel that is compiled (a cache miss) gets the whole set-up from numba's
+  compiler, which refreshes the contexts itself.
+* **``numpy.ma``** (session 11): numba's ``typeof`` of an ndarray asks
+  ``isinstance(val, np.ma.MaskedArray)``, and numpy 2 imports ``numpy.ma`` (0.05-0.12 s) at
+  that first attribute access.  An array whose type is exactly ``np.ndarray`` is no masked
+  array, so :func:`typeof_ndarray` types it without asking (the rest of numba's function, the
+  same types); any subclass goes to numba's own function.
+
+The object code that runs is the cached one, unchanged.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import threading
 from typing import Any
 
-__all__ = ["lean_cache_loads", "defined_symbols", "LEAN_LOADS_VERSIONS"]
+__all__ = ["lean_cache_loads", "defined_symbols", "external_symbols", "typeof_ndarray", "LEAN_LOADS_VERSIONS"]
 
 #: numba versions whose cache loading :func:`lean_cache_loads` replaces (it mirrors
-#: ``CPUCodeLibrary._unserialize`` of these versions); any other version is left alone.
+#: ``CPUCodeLibrary._unserialize``, ``Cache.load_overload`` and ``typeof``'s ndarray case of
+#: these versions); any other version is left alone.
 LEAN_LOADS_VERSIONS = ("0.68.",)
 
 
-def lean_cache_loads(cache_dir: str) -> bool:
-    """Make numba's cache loads skip the parse of each kernel's linking bitcode (see the
-    module's docstring); the symbol files go to ``cache_dir/symbols``.  Returns whether it
-    applies (set once per process; False for a numba version not in :data:`LEAN_LOADS_VERSIONS`)."""
+def lean_cache_loads(cache_dir: str, versions: tuple[str, ...] | None = None) -> bool:
+    """Make numba's cache loads lean (see the module's docstring); the link files go to
+    ``cache_dir/links``.  Returns whether it applies (set once per process; False for a numba
+    version not in ``versions``, by default :data:`LEAN_LOADS_VERSIONS`)."""
     import numba
-    from numba.core import codegen
+    from numba.core import caching, codegen
 
     library = codegen.JITCodeLibrary
     if getattr(library, "_bnptrack_lean", False):
         return True
-    if not numba.__version__.startswith(LEAN_LOADS_VERSIONS):
+    if not numba.__version__.startswith(LEAN_LOADS_VERSIONS if versions is None else versions):
         return False
+    _lean_unserialize(library, os.path.join(cache_dir, "links"))
+    _load_without_refresh(caching.Cache)
+    _typeof_without_numpy_ma()
+    library._bnptrack_lean = True
+    return True
+
+
+def _lean_unserialize(library: type, folder: str) -> None:
+    """Replace ``library._unserialize`` (an object-code cache entry) and
+    ``_get_module_for_linking`` (parse the bitcode when a compile first links the library)."""
+    from numba.core import codegen
+
     unserialize = library._unserialize.__func__
     for_linking = library._get_module_for_linking
-    folder = os.path.join(cache_dir, "symbols")
 
     def _unserialize(cls: type, cg: Any, state: tuple) -> Any:
         """numba's ``CPUCodeLibrary._unserialize`` for an object-code cache entry, less the
-        parse and walk of the bitcode when its symbol file exists."""
+        parse and walk of the bitcode when its link file exists, after a check that the
+        symbols the module declares resolve (else the registries are set up first)."""
         name, kind, data = state
         if kind != "object":
+            _refresh_cpu_target(cg)
             return unserialize(cls, cg, state)
         object_code, shared_bitcode = data
         path = os.path.join(folder, hashlib.sha1(shared_bitcode).hexdigest())
-        names = _read_symbols(path)
-        if names is None:  # numba's own load; its parsed module gives the names
-            lib = unserialize(cls, cg, state)
-            _write_symbols(path, defined_symbols(lib._shared_module))
-            return lib
+        links, module = _read_links(path), None
+        if links is None:
+            module = codegen.ll.parse_bitcode(shared_bitcode)
+            links = defined_symbols(module), external_symbols(module)
+            _write_links(path, *links)
+        defined, external = links
+        if not _all_resolve(cg, external):
+            _refresh_cpu_target(cg)
         lib = cg.create_library(name)
         lib.enable_object_caching()
         lib._set_compiled_object(object_code)
-        lib._bnptrack_bitcode = shared_bitcode  # parsed by _get_module_for_linking if needed
+        if module is None:
+            lib._bnptrack_bitcode = shared_bitcode  # parsed by _get_module_for_linking if needed
+        else:
+            lib._shared_module = module
         lib._finalize_final_module()
-        cg._engine._defined_symbols.update(names)
+        cg._engine._defined_symbols.update(defined)
         return lib
 
     def _get_module_for_linking(self: Any) -> Any:
@@ -73,8 +112,44 @@ def lean_cache_loads(cache_dir: str) -> bool:
 
     library._unserialize = classmethod(_unserialize)
     library._get_module_for_linking = _get_module_for_linking
-    library._bnptrack_lean = True
-    return True
+
+
+def _load_without_refresh(cache: type) -> None:
+    """Replace ``cache.load_overload``: for the CPU target, numba's runtime is initialised
+    (what a loaded kernel links against) instead of the whole ``target_context.refresh()``."""
+    from numba.core.registry import cpu_target
+    from numba.core.runtime import rtsys
+
+    load_overload = cache.load_overload
+
+    def _load_overload(self: Any, sig: Any, target_context: Any) -> Any:
+        if target_context is not cpu_target.target_context:
+            return load_overload(self, sig, target_context)
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+        return None  # the ``with`` block swallowed an exception (as numba's)
+
+    cache.load_overload = _load_overload
+
+
+def _refresh_cpu_target(cg: Any) -> None:
+    """``refresh()`` of the CPU target context whose codegen is ``cg`` (numba's own set-up of
+    every registry: what its load would have run first); nothing for another codegen."""
+    from numba.core.registry import cpu_target
+
+    context = cpu_target.target_context
+    if context.codegen() is cg:
+        context.refresh()
+
+
+def _all_resolve(cg: Any, names: list[str]) -> bool:
+    """Whether the engine of ``cg`` or the process's symbol table (llvmlite's
+    ``address_of_symbol``: C libraries, ``add_symbol`` entries) defines every name."""
+    from numba.core import codegen
+
+    defined = cg._engine._defined_symbols
+    return all(n in defined or codegen.ll.address_of_symbol(n) for n in names)
 
 
 def defined_symbols(module: Any) -> list[str]:
@@ -83,25 +158,68 @@ def defined_symbols(module: Any) -> list[str]:
     return [g.name for gs in (module.functions, module.global_variables) for g in gs if not g.is_declaration]
 
 
-def _read_symbols(path: str) -> list[str] | None:
-    """The names in a symbol file (one a line, ``end`` last), or None if it is missing or
-    incomplete."""
+def external_symbols(module: Any) -> list[str]:
+    """The symbols an LLVM module declares and another library must define (its function and
+    global variable declarations, LLVM's intrinsics ``llvm.*`` left out): what the linking of
+    its object code resolves."""
+    return [g.name for gs in (module.functions, module.global_variables) for g in gs
+            if g.is_declaration and not g.name.startswith("llvm.")]
+
+
+def _read_links(path: str) -> tuple[list[str], list[str]] | None:
+    """The defined and the external names of a link file (``d NAME`` and ``x NAME`` lines,
+    ``end`` last), or None if it is missing, incomplete or not of that form."""
     try:
         with open(path, encoding="utf-8") as f:
             lines = f.read().split("\n")
     except OSError:
         return None
-    return lines[:-1] if lines and lines[-1] == "end" else None
+    if not lines or lines[-1] != "end":
+        return None
+    defined, external = [], []
+    for line in lines[:-1]:
+        kind, _, name = line.partition(" ")
+        if kind not in ("d", "x") or not name:
+            return None
+        (defined if kind == "d" else external).append(name)
+    return defined, external
 
 
-def _write_symbols(path: str, names: list[str]) -> None:
-    """Write a symbol file atomically (another process may read it meanwhile); a cache folder
-    that cannot be written is no error (the next load walks the module again)."""
+def _write_links(path: str, defined: list[str], external: list[str]) -> None:
+    """Write a link file atomically (another process may read it meanwhile); a cache folder
+    that cannot be written is no error (the next load parses the module again)."""
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         tmp = f"{path}.{os.getpid()}.{threading.get_ident()}"
         with open(tmp, "w", encoding="utf-8") as f:
-            f.write("\n".join([*names, "end"]))
+            f.write("\n".join([*(f"d {n}" for n in defined), *(f"x {n}" for n in external), "end"]))
         os.replace(tmp, path)
     except OSError:
         pass
+
+
+def _typeof_without_numpy_ma() -> None:
+    """Register :func:`typeof_ndarray` as numba's ``typeof`` of ``np.ndarray``."""
+    import numpy as np
+    from numba.core.typing.typeof import typeof_impl
+
+    if typeof_impl.dispatch(np.ndarray) is not typeof_ndarray:
+        typeof_impl.register(np.ndarray, typeof_ndarray)
+
+
+def typeof_ndarray(val: Any, c: Any) -> Any:
+    """numba's ``typeof`` of an array (``numba.core.typing.typeof._typeof_ndarray``) without
+    its ``isinstance(val, np.ma.MaskedArray)`` test for an array of type exactly ``np.ndarray``
+    (no masked array; the test would import ``numpy.ma``); a subclass goes to numba's."""
+    from numba.core import errors, types
+    from numba.core.typing import typeof as numba_typeof
+    from numba.np import numpy_support
+
+    if type(val) is not sys.modules["numpy"].ndarray:
+        return numba_typeof._typeof_ndarray(val, c)
+    try:
+        dtype = numpy_support.from_dtype(val.dtype)
+    except errors.NumbaNotImplementedError:
+        raise errors.NumbaValueError(f"Unsupported array dtype: {val.dtype}")  # noqa: B904  (as numba)
+    layout = numpy_support.map_layout(val)
+    return types.Array(dtype, val.ndim, layout, readonly=not val.flags.writeable)

@@ -102,25 +102,29 @@ def import_numba() -> None:
     if not LEAN_NUMBA:
         import numba  # noqa: F401
         return
-    _import_numba_lean()
-    from bnptrack.tracker._kernel_cache import lean_cache_loads
+    from bnptrack.tracker import _kernel_cache
 
-    lean_cache_loads(kernel_cache_dir())
+    _import_numba_lean(lambda: _kernel_cache.lean_cache_loads(kernel_cache_dir()))
 
 
 #: Set by the command line (``bnptrack track``, ``launch``, ``stage``, ``replay``: processes
 #: that run no code but the project's): numba's set-up leaves out its optional ``yaml`` and
 #: ``cffi`` support (:func:`_import_numba_lean`), and cached kernels load without a parse of
-#: their linking bitcode (:func:`tracker._kernel_cache.lean_cache_loads`).
+#: their linking bitcode and without the set-up of numba's compiler registries
+#: (:func:`tracker._kernel_cache.lean_cache_loads`).
 LEAN_NUMBA = False
 
 
-def _import_numba_lean() -> None:
-    """Import numba and set its CPU target up (what the first kernel call does) with ``yaml``
-    and ``cffi`` unimportable meanwhile: numba imports them only to read a
-    ``.numba_config.yaml`` in the working directory (then left importable) and to compile calls
-    of cffi functions, which no kernel makes; they cost about 50 ms of CPU (pycparser compiles
-    its lexer's regular expressions).  Both are importable again afterwards."""
+def _import_numba_lean(lean_loads: Callable[[], bool]) -> None:
+    """Import numba with ``yaml`` and ``cffi`` unimportable meanwhile, then apply
+    ``lean_loads`` (:func:`tracker._kernel_cache.lean_cache_loads`); if that does not apply
+    (a numba version it was not checked with), set numba's CPU target up as its first cache
+    load would (``refresh()`` of the typing and target contexts), still without them.  numba
+    imports ``yaml`` only to read a ``.numba_config.yaml`` in the working directory (then left
+    importable) and ``cffi`` to compile calls of cffi functions, which no kernel makes
+    (``numba.core.typing.cffi_utils`` is imported meanwhile, so numba's cffi support stays off
+    in this process); they cost about 50 ms of CPU (pycparser compiles its lexer's regular
+    expressions).  Both are importable again afterwards."""
     blocked = [m for m in ("yaml", "cffi") if m not in sys.modules]
     if os.path.isfile(".numba_config.yaml") and "yaml" in blocked:
         blocked.remove("yaml")
@@ -128,9 +132,11 @@ def _import_numba_lean() -> None:
         sys.modules[m] = None  # type: ignore[assignment]  # "import m" raises ImportError
     try:
         from numba.core.registry import cpu_target
+        from numba.core.typing import cffi_utils  # noqa: F401
 
-        cpu_target.typing_context.refresh()
-        cpu_target.target_context.refresh()
+        if not lean_loads():
+            cpu_target.typing_context.refresh()
+            cpu_target.target_context.refresh()
     finally:
         for m in blocked:
             if sys.modules.get(m, 0) is None:

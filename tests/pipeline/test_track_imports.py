@@ -41,7 +41,23 @@ def test_track_imports_no_scipy_package(tmp_path: Path) -> None:
     assert "numba" in modules and "scipy.linalg.cython_blas" in modules
     assert sorted(modules & _SCIPY_PACKAGES) == []
     assert sorted(modules & {"yaml", "cffi", "pycparser"}) == []
+    assert "numpy.ma" not in modules  # numba's typeof of an ndarray, the summary's median (session 11)
     assert (tmp_path / "t.mcap").stat().st_size > 0
+
+
+def test_track_summary_median_is_numpys() -> None:
+    """``TrackResult.ms_median`` (``statistics.median``, no ``numpy.ma``) is ``np.median``'s
+    double for odd and even counts; NaN and infinite times are left out."""
+    import numpy as np
+
+    from bnptrack.pipeline.offline import FrameMetrics, TrackResult
+
+    for times in ([3.0, 1.0, 2.0], [0.1, 0.7, 0.2, 0.3000000000000001], [5.25], [1.0, float("nan"), 4.0, float("inf")]):
+        result = TrackResult("ddp", tuple(FrameMetrics(k, 0, 0, t) for k, t in enumerate(times)), 0)
+        finite = [t for t in times if np.isfinite(t)]
+        assert result.ms_median == float(np.median(finite))
+    assert TrackResult("ddp", (), 0).ms_median is None
+    assert TrackResult("ddp", (FrameMetrics(0, 0, 0, 4.0), FrameMetrics(1, 0, 0, 1.0)), 0).ms_median == 2.5
 
 
 _LEAN_PROBE = """
