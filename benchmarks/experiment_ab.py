@@ -12,7 +12,9 @@ round, the means, the ratio of the means, the median per-round ratio and the 10,
 extrapolation on two free cores; equal fingerprints mean the same results bit for bit.
 ``--repeats R`` times the same runs R times in each process and keeps the fastest pass (a
 burst of load on the shared machine inflates one pass, not all); ``--alternate`` runs this
-tree first in odd rounds.
+tree first in odd rounds.  ``--base-numba-cache DIR`` gives the base's processes their own
+``NUMBA_CACHE_DIR`` (each checkout keeps a warm cache; otherwise the first round's warm-up
+compiles the base's kernels into this one's).
 
     nice -n 10 python3 benchmarks/experiment_ab.py --base /tmp/base --rounds 8 --runs 25 --trackers ddp-groups glmb
 """
@@ -56,7 +58,15 @@ def run_tree(root: str, args: argparse.Namespace, start: int) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--measure", "--experiment", args.experiment,
            "--start", str(start), "--runs", str(args.runs)] + (["--trackers", *args.trackers] if args.trackers else []) \
         + (["--repeats", str(args.repeats)] if args.repeats > 1 else [])
-    return last_json_line(cmd, root)
+    cache = args.base_numba_cache if root != HERE else os.environ.get("NUMBA_CACHE_DIR")
+    saved = dict(os.environ)
+    if cache:  # each tree its own warm kernel cache (numba keys its files by the source's path)
+        os.environ["NUMBA_CACHE_DIR"] = cache
+    try:
+        return last_json_line(cmd, root)
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -68,6 +78,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1,
                     help="passes over the same runs per process; the fastest counts (filters out load bursts)")
     ap.add_argument("--alternate", action="store_true", help="this tree first in odd rounds (default: base first)")
+    ap.add_argument("--base-numba-cache", metavar="DIR",
+                    help="NUMBA_CACHE_DIR for the base's processes (default: this process's, as for this tree)")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--start", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
