@@ -63,7 +63,7 @@ def test_without_the_contests_a_kernel_is_compiled_inside_a_frame():
     contested assignment (and the two-level tracker's group kernels) inside a frame."""
     assert "bnptrack.tracker.bnp._kernels.jpda_solve" in _late_kernels("ddp", "vo2017", contests=False)["late"]
     late = _late_kernels("ddp-groups", "proximity", contests=False)["late"]
-    assert "bnptrack.tracker.bnp.groups._sample_kernel" in late
+    assert "bnptrack.tracker.bnp.group_partition.gated_kernel" in late
 
 
 def test_contest_frames_close_in_then_share_one_measurement():

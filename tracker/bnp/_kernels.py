@@ -349,7 +349,7 @@ def problem_pairs(logs, zero, q, pop, ti, mi, log_lik, M):  # pragma: no cover -
     qv = np.empty(N)
     for l in range(N):
         qv[l] = q[l] * pop[l]
-    return ptr, ti[keep], lf[keep], log_lik[keep], np_sum(qv, 0, N), np_sum(q, 0, N)
+    return ptr, ti[keep], lf[keep], log_lik[keep], np_sum(qv, np.int64(0), N), np_sum(q, np.int64(0), N)
 
 
 # -- the existing clusters' update (tracker.bnp.filter, tracker.bnp.assignment) -----------------
@@ -429,7 +429,8 @@ def jpda_select(n, ti, mi, p, small_limit):  # pragma: no cover - compiled
         conflict = conflict or seen[c]
         seen[c] = True
     args = np.empty(lp.shape[0] + clusters.shape[0])
-    args[:lp.shape[0]] = lp
+    for i in range(lp.shape[0]):  # not args[:n] = lp: a slice assignment compiles numba's string code
+        args[i] = lp[i]
     for i in range(clusters.shape[0]):
         args[lp.shape[0] + i] = npmax(1.0 - p_det[clusters[i]], 1e-300)
     small = clusters.shape[0] * (m_max + 1) <= small_limit

@@ -113,7 +113,7 @@ class BaseDistribution:
         if log_w is None:
             log_w = self.log_weights(meas, clutter, Z)
             log_u = logsumexp(log_w, axis=0)
-        w = np.exp(log_w - log_u)  # (B+1, M)
+        w = np.ascontiguousarray(np.exp(log_w - log_u))  # (B+1, M); C order as below: one compile of the kernel
         innov = self._innovation(meas)
         mu = kf.update_means(meas, innov, self.means, Z)  # (B, M, 5)
         pos, pcov = meas.birth_position(Z)

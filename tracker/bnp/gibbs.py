@@ -460,8 +460,11 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
             for j in range(ptr[m], ptr[m + 1]):
                 best[m] = log_first[j] if j == ptr[m] else _npmax(best[m], log_first[j])
         order = np.argsort(-best, kind="mergesort")
-        starts[0] = _greedy(ptr, idx, log_first, N, alt, best, order, extended, True)
-        starts[1] = _greedy(ptr, idx, log_first, N, alt, best, order[::-1].copy(), extended, False)
+        for k in range(2):  # forward, reversed; k == 0, not a literal True/False: one compile of _greedy
+            by = order if k == 0 else order[::-1].copy()
+            start = _greedy(ptr, idx, log_first, N, alt, best, by, extended, k == 0)
+            for m in range(M):  # not starts[k] = ...: a slice assignment compiles numba's string code
+                starts[k, m] = start[m]
     if not swaps or N == 0:
         return ex, lg, starts, np.zeros(0, np.int64), np.zeros(0, np.int64)
     pair_a, pair_b = _swap_pairs_kernel(ptr, idx, N)
@@ -475,7 +478,7 @@ def _swap_pairs_kernel(ptr, idx, N):
     for j in range(idx.shape[0]):
         size[idx[j]] += 1
     first = np.zeros(N + 1, dtype=np.int64)
-    n_keys = 0
+    n_keys = np.int64(0)  # not 0: a literal start compiles _group_pairs once more for Literal[int](0)
     for l in range(N):
         first[l + 1] = first[l] + size[l]
         n_keys += size[l] * (size[l] - 1) // 2
@@ -524,7 +527,8 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
         accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, u_swap,
                             pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
         if k == 0:
-            first[:] = c
+            for m in range(M):
+                first[m] = c[m]
     kept = max(sweeps - burn_in, 1) * chains
     rhat = _split_rhat_kernel(hs, hss, (sweeps - burn_in) // 2)
     lj = np.nan if extended else _log_joint_kernel(first, ptr, idx, log_first, log_clutter, log_new, log_lg,
@@ -538,7 +542,7 @@ def _log_joint_kernel(c, ptr, idx, log_first, log_clutter, log_new, log_lg, urn,
     M = c.shape[0]
     used = np.zeros(N, dtype=np.bool_)
     buf_cl, buf_new, buf_first = np.empty(M), np.empty(M), np.empty(M)
-    n_cl, n_new, n_cluster = 0, 0, 0
+    n_cl, n_new, n_cluster = np.int64(0), np.int64(0), np.int64(0)  # literal 0s compile np_sum for Literal[int](0)
     for m in range(M):
         ch = c[m]
         if ch == CLUTTER:
@@ -560,9 +564,10 @@ def _log_joint_kernel(c, ptr, idx, log_first, log_clutter, log_new, log_lg, urn,
             buf_first[n_cluster] = log_first[pos]
             n_cluster += 1
     n_obj = M - n_cl
-    urn_term = np_sum(log_lg, 0, n_obj) if urn else 0.0
-    return (((np_sum(buf_cl, 0, n_cl) + urn_term) + np_sum(log_lg, M, n_new)) + np_sum(buf_new, 0, n_new)
-            + np_sum(buf_first, 0, n_cluster))
+    lo = np.int64(0)
+    urn_term = np_sum(log_lg, lo, n_obj) if urn else 0.0
+    return (((np_sum(buf_cl, lo, n_cl) + urn_term) + np_sum(log_lg, M, n_new)) + np_sum(buf_new, lo, n_new)
+            + np_sum(buf_first, lo, n_cluster))
 
 
 def _split_rhat_kernel(hs, hss, n):

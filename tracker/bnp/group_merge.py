@@ -385,7 +385,8 @@ def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarr
             for q in range(adj_ptr[group[m]], adj_ptr[group[m] + 1]):
                 hits[adj[q]] = 0
         if size > 1:
-            members[used:used + size] = group[:size]
+            for m in range(size):  # not a slice assignment: that compiles numba's string code
+                members[used + m] = group[m]
             used += size
             n_groups += 1
             ptr[n_groups] = used

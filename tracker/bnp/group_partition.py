@@ -67,13 +67,16 @@ def _inv_into(A, out) -> float:
 
 def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
     n[t] += sign
-    for p in range(lam.shape[0]):
-        if n[t] == 0:  # exact reset: no round-off drift
-            lam[p, t] = lam0[p, t]
-            eta[p, t] = eta0[p, t]
-        else:
-            lam[p, t] += sign * Ri[p, l]
-            eta[p, t] += sign * Riv[p, l]
+    for p in range(lam.shape[0]):  # entry by entry: array (slice) assignments compile numba's string code
+        for i in range(2):
+            if n[t] == 0:  # exact reset: no round-off drift
+                eta[p, t, i] = eta0[p, t, i]
+                for j in range(2):
+                    lam[p, t, i, j] = lam0[p, t, i, j]
+            else:
+                eta[p, t, i] += sign * Riv[p, l, i]
+                for j in range(2):
+                    lam[p, t, i, j] += sign * Ri[p, l, i, j]
 
 
 def lmax2(A) -> float:
@@ -189,7 +192,9 @@ def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
     for p in range(lam.shape[0]):
         _inv_into(lam[p, t], cov)
         gemv2(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
-        t_cov[p, t] = cov
+        for i in range(2):  # not t_cov[p, t] = cov: a slice assignment compiles numba's string code
+            for j in range(2):
+                t_cov[p, t, i, j] = cov[i, j]
     t_lm[t] = lmax2(cov)
 
 
@@ -319,7 +324,12 @@ def _record(l, t, wt, lam, eta, lam0, eta0, h_lam, h_eta, rec, rec_obj, rec_w, r
     if k == rec_obj.size:
         cap = 2 * k + 16
         o2, w2, m2, c2 = np.empty(cap, dtype=np.int64), np.empty(cap), np.empty((cap, 2)), np.empty((cap, 2, 2))
-        o2[:k], w2[:k], m2[:k], c2[:k] = rec_obj[:k], rec_w[:k], rec_mu[:k], rec_cov[:k]
+        for i in range(k):  # entry by entry: a slice assignment compiles numba's string code
+            o2[i], w2[i] = rec_obj[i], rec_w[i]
+            for a in range(2):
+                m2[i, a] = rec_mu[i, a]
+                for b in range(2):
+                    c2[i, a, b] = rec_cov[i, a, b]
         rec_obj, rec_w, rec_mu, rec_cov = o2, w2, m2, c2
     for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
         e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
@@ -382,7 +392,8 @@ def _cap_of(t_cov, live, rho, q, T):
     (then no table ever leaves the grid: a table's posterior is within each member's R and its
     prior), at most :data:`CAP_FACTOR` times the median of them (larger ones go to the wide list)."""
     arr = np.empty(rho.size + T)
-    arr[:rho.size] = rho
+    for i in range(rho.size):  # not arr[:rho.size] = rho: a slice assignment compiles numba's string code
+        arr[i] = rho[i]
     k = rho.size
     for t in range(T):
         if live[t]:

@@ -491,9 +491,11 @@ def theta_sums(R: np.ndarray, v: np.ndarray, slot: np.ndarray, n_used: int, h_la
     products as ``np.einsum`` (from 0.0, in index order)."""
     lam = np.empty((n_used, 2, 2))
     eta = np.empty((n_used, 2))
-    for g in range(n_used):
-        lam[g] = h_lam
-        eta[g] = h_eta
+    for g in range(n_used):  # entry by entry: a slice assignment compiles numba's string code
+        for i in range(2):
+            eta[g, i] = h_eta[i]
+            for j in range(2):
+                lam[g, i, j] = h_lam[i, j]
     for l in range(R.shape[0]):
         a, b, c, d = R[l, 0, 0], R[l, 0, 1], R[l, 1, 0], R[l, 1, 1]
         det = a * d - b * c
@@ -531,9 +533,11 @@ def _table_priors(prior_cov, prior_mean, h_lam, h_eta, lam0, eta0) -> None:  # p
         lam0[g, 0, 0], lam0[g, 0, 1], lam0[g, 1, 0], lam0[g, 1, 1] = i00, i01, i10, i11
         eta0[g, 0] = 0.0 + i00 * prior_mean[g, 0] + i01 * prior_mean[g, 1]
         eta0[g, 1] = 0.0 + i10 * prior_mean[g, 0] + i11 * prior_mean[g, 1]
-    for t in range(G, lam0.shape[0]):
-        lam0[t] = h_lam
-        eta0[t] = h_eta
+    for t in range(G, lam0.shape[0]):  # entry by entry: a slice assignment compiles numba's string code
+        for i in range(2):
+            eta0[t, i] = h_eta[i]
+            for j in range(2):
+                lam0[t, i, j] = h_lam[i, j]
 
 
 def _collect_shares(rec_p, rec_mu, rec_cov, min_p):  # pragma: no cover - compiled
@@ -590,7 +594,7 @@ def _transition_kernel(z, ids, v0, R0, hl0, he0, v1, R1, hl1, he1, n_blocks):  #
     for l in range(z.size):
         count_of[z[l]] += 1
     pos = np.full(n_tab, -1, dtype=np.int64)
-    n_used = 0
+    n_used = np.int64(0)  # not 0: a literal start compiles theta_sums once more for n_used = Literal[int](0)
     for t in range(n_tab):
         if count_of[t] > 0:
             pos[t] = n_used
@@ -653,27 +657,52 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
                          f"(expected one of {', '.join(PARTITION_KERNELS)})")
     parts = []
     for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
-        parts += [np.asarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
+        parts += [np.ascontiguousarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
                   *prior_information(b.h_cov, b.h_mean)]
     if len(blocks) == 1:
         parts += parts  # the second block's slot, unused (n_blocks = 1)
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     u = rng.random((sweeps, blocks[0].v.shape[0]))
     counts = np.zeros(2, dtype=np.int64) if stats is None else stats
-    z, *shares = _sample_kernel(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
-                                np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
-                                PARTITION_KERNELS.index(kernel), counts)
+    sample = _sample_scan if kernel == "scan" else _sample_gated  # the reference compiles only if used
+    z, *shares = sample(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
+                        np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
+                        PARTITION_KERNELS.index(kernel), counts)
     return z, Shares(*shares)
 
 
-def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
-                   alpha, d, u, occupied, mode, stats):  # pragma: no cover - compiled
-    """:func:`sample_partition` in one compiled call: the blocks' members stacked ``(P, L, 2)``,
-    ``(P, L, 2, 2)``; the tables' priors (:func:`_table_priors`); the start (``init``, -1: a new
-    table of its own); the sweeps (``mode`` 0: :func:`_partition_kernel` then
-    :func:`_collect_shares`; 1, 2: :func:`tracker.bnp.group_partition.gated_kernel` without, with
-    the gate, counting into ``stats``; ``s_lam``/``s_eta``: the shared theta's prior); the sample
-    compacted (:func:`_compact`)."""
+def _sample_gated(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
+                  alpha, d, u, occupied, mode, stats):
+    """:func:`sample_partition`'s compiled steps: the inputs (:func:`_sample_setup`), the sweeps of
+    :func:`tracker.bnp.group_partition.gated_kernel` (``mode`` 1, 2: without, with the gate,
+    counting into ``stats``; ``s_lam``/``s_eta``: the shared theta's prior), the sample
+    compacted (:func:`_compact`).  Three calls from Python, not one kernel calling the three:
+    numba optimises a kernel's callees again inside each compiled caller, so a wrapper kernel
+    costs a first run seconds of compilation for microseconds per frame."""
+    v, R, lam0, eta0, z, seated = _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks,
+                                                v_star, init)
+    obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
+                                   1e-4, stats)
+    return _compact(z, v_star.size, seated.size), obj, w, mu, cov
+
+
+def _sample_scan(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
+                 alpha, d, u, occupied, mode, stats):
+    """:func:`_sample_gated` with ``mode`` 0, the reference: :func:`_partition_kernel`, then
+    :func:`_collect_shares` (compiled only when used)."""
+    v, R, lam0, eta0, z, seated = _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks,
+                                                v_star, init)
+    L, T = z.size, seated.size
+    rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
+    _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
+    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    return _compact(z, v_star.size, T), obj, w, mu, cov
+
+
+def _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, v_star, init):  # pragma: no cover
+    """The sweeps' inputs: the blocks' members stacked ``(P, L, 2)``, ``(P, L, 2, 2)``; the
+    tables' priors (:func:`_table_priors`); the start (``init``, -1: a new table of its own);
+    the tables' seated counts (``v_star``, then zeros)."""
     L, G = v0.shape[0], v_star.size
     T = G + L
     v = np.empty((n_blocks, L, 2))
@@ -694,18 +723,12 @@ def _sample_kernel(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blo
     for l in range(L):
         z[l] = init[l] if init[l] >= 0 else G + l
     seated = np.zeros(T)
-    seated[:G] = v_star
-    if mode == 0:
-        rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
-        _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
-        obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
-    else:
-        obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
-                                       1e-4, stats)
-    return _compact(z, G, T), obj, w, mu, cov
+    for t in range(G):  # not seated[:G] = v_star: a slice assignment compiles numba's string code
+        seated[t] = v_star[t]
+    return v, R, lam0, eta0, z, seated
 
 
-_sample_kernel = jit(_sample_kernel)
+_sample_setup = jit(_sample_setup)
 
 
 def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -735,8 +758,10 @@ def _share_velocity_kernel(mean, cov, o, S_w, s_mu, s_cov, w):  # pragma: no cov
     A, Si = np.empty((2, 2)), np.empty((2, 2))
     vel = (1, 3)
     for q in range(Q):
-        m[q] = mean[o[q]]
-        P[q] = cov[o[q]]
+        for i in range(5):  # not m[q] = mean[o[q]]: a slice assignment compiles numba's string code
+            m[q, i] = mean[o[q], i]
+            for j in range(5):
+                P[q, i, j] = cov[o[q], i, j]
         for i in range(2):
             for j in range(2):
                 A[i, j] = (P[q, vel[i], vel[j]] + S_w[i, j]) + s_cov[q, i, j]
@@ -1105,7 +1130,7 @@ class GroupTracker:
         form summed over the members: :func:`theta_posterior`, vectorised) for the next frame."""
         parts = []
         for b in blocks:  # compiled: theta_posterior's sums over each cluster's members, vectorised
-            parts += [b.v, b.R, *prior_information(b.h_cov, b.h_mean)]
+            parts += [np.ascontiguousarray(b.v), b.R, *prior_information(b.h_cov, b.h_mean)]  # one layout: one compile
         g_ids, count, *moments = _transition_kernel(z, ids, *(parts * 2)[:8], len(blocks))
         return g_ids, count, moments[:2], moments[2:]
 

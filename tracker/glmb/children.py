@@ -218,7 +218,7 @@ def _start_one(E: np.ndarray, c: np.ndarray, n: int, out: np.ndarray, best: np.n
     for root in range(n):
         if ptr[c[root]] == ptr[c[root] + 1] or _find(uf, root) != root:
             continue
-        nm = 0
+        nm = np.int64(0)  # not 0: a literal start compiles _solve_group again for Literal[int](0)
         for i in range(n):
             if ptr[c[i]] < ptr[c[i] + 1] and _find(uf, i) == root:
                 members[nm] = i
@@ -241,7 +241,7 @@ def _starts_kernel(E: np.ndarray, hyp: np.ndarray, n_surv: int, n_births: int, c
     owner = np.full(M, -1, dtype=np.int64)
     mark = np.zeros(M, dtype=np.int64)
     for h in range(H):
-        n = 0
+        n = np.int64(0)  # not 0: a literal start compiles _start_one again for Literal[int](0)
         for i in range(w):
             if hyp[h, i] >= 0:
                 cand[h, n] = hyp[h, i]
