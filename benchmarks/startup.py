@@ -13,7 +13,9 @@ change of machine load hits every command alike):
 
 and prints the median, min and max wall time of each over ``--rounds`` rounds, and the median
 CPU time (user + system of the process and those it waited for, e.g. a launch's stages), with
-the load average.  ``--pyc`` first byte-compiles the checkout (``compileall``, what ``pip
+the load average; for ``launch``, also where its wall time went (medians, from the
+source's log line ``published N frame(s) in T s``): the first frame published (the source
+waits until the tracker and the sink are ready), the last, and the launcher's exit.  ``--pyc`` first byte-compiles the checkout (``compileall``, what ``pip
 install`` does for an installed package): where ``PYTHONDONTWRITEBYTECODE=1`` is set (this
 machine's sessions set it), Python never writes the ``.pyc`` files of a source checkout, so
 without ``--pyc`` every process compiles the project's ~70 modules from source on every run
@@ -26,6 +28,11 @@ loads from the cache).  The children get ``PYTHONPATH`` = this checkout.
     nice -n 5 python3 benchmarks/startup.py --rounds 5 --no-launch --json out.json
     nice -n 5 python3 benchmarks/startup.py --rounds 3 --root /tmp/startup_base   # an older checkout
     nice -n 5 python3 benchmarks/startup.py --rounds 3 --pyc                       # .pyc files warm
+    python3 benchmarks/startup.py --pairs 8 --base /tmp/base --base-python /tmp/base-venv/bin/python
+
+``--pairs N --base DIR`` times only ``launch``, this checkout against the one in ``DIR`` (run
+by ``--base-python``), in ``N`` pairs one right after the other, the order flipped each pair: on a
+loaded machine the pairwise ratio is steadier than medians of separate runs.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -42,6 +50,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]  # --root replaces it
+LAUNCH = "bnptrack launch (100 frames)"
 #: CPU seconds (user + system) of each timed command line, run by run.
 CPU: dict[str, list[float]] = {}
 
@@ -68,6 +77,58 @@ def wall(argv: list[str], env: dict[str, str] | None = None) -> float:
     return elapsed
 
 
+_PUBLISHED = re.compile(r"^(\d\d):(\d\d):(\d\d)\.(\d{3}) \[source\] INFO \S+ published (\d+) frame\(s\) in ([\d.]+) s")
+
+
+def launch_phases(run_dir: Path, t_start: float, elapsed: float) -> tuple[float, float, float] | None:
+    """Where one launch's wall time went, from its source's log: (start to the first frame
+    published, first to last frame published, last frame published to the launcher's exit),
+    in seconds.  The source logs ``published N frame(s) in T s`` (ms time stamps, local
+    time) after its last frame; the first frame went out ``T`` earlier.  None when the log
+    has no such line."""
+    try:
+        lines = (run_dir / "logs" / "source.log").read_text().splitlines()
+    except OSError:
+        return None
+    hits = [m for m in map(_PUBLISHED.match, lines) if m]
+    if not hits:
+        return None
+    h, mi, sec, ms, _, took = hits[-1].groups()
+    day = time.mktime(time.localtime(t_start)[:3] + (0, 0, 0, 0, 0, -1))
+    t_last = day + int(h) * 3600 + int(mi) * 60 + int(sec) + int(ms) / 1e3
+    last = t_last - t_start
+    first = last - float(took)
+    return first, float(took), elapsed - last
+
+
+def launch_pairs(n: int, base: Path, base_python: str) -> None:
+    """``launch`` in ``n`` pairs: the checkout in ``base`` (run by ``base_python``, e.g. its
+    own venv's) and this one (``sys.executable``), one right after the other, the order
+    flipped each pair, so that both see the same load; prints each pair and the medians
+    (wall, CPU of the processes, first frame published) and of the pairwise wall ratio."""
+    sides = {"base": (base.resolve(), base_python), "this": (ROOT, sys.executable)}
+    res: dict[str, list[tuple[float, float, float]]] = {k: [] for k in sides}
+    with tempfile.TemporaryDirectory(prefix="bnp-startup-") as d:
+        for i in range(n):
+            for k in (list(sides) if i % 2 == 0 else list(sides)[::-1]):
+                root, py = sides[k]
+                argv = [py, "-m", "bnptrack", "launch", "--out", str(Path(d) / k), "--overwrite", "-q"]
+                t_start, cpu0 = time.time(), sum(resource.getrusage(resource.RUSAGE_CHILDREN)[:2])
+                subprocess.run(argv, cwd=root, env=dict(os.environ, PYTHONPATH=str(root)),
+                               stdout=subprocess.DEVNULL, check=True)
+                el = time.time() - t_start
+                ph = launch_phases(Path(d) / k, t_start, el)
+                cpu = sum(resource.getrusage(resource.RUSAGE_CHILDREN)[:2]) - cpu0
+                res[k].append((el, cpu, ph[0] if ph else float("nan")))
+            print(f"pair {i + 1}: " + " | ".join(f"{k} {res[k][-1][0]:.2f} s (CPU {res[k][-1][1]:.2f} s, first frame "
+                                                 f"{res[k][-1][2]:.2f} s)" for k in sides) + f"; load {os.getloadavg()[0]:.2f}")
+    for k in sides:
+        print(f"{k} ({sides[k][0]}): median wall {statistics.median(r[0] for r in res[k]):.3f} s, CPU "
+              f"{statistics.median(r[1] for r in res[k]):.3f} s, first frame {statistics.median(r[2] for r in res[k]):.3f} s")
+    ratios = [b[0] / a[0] for a, b in zip(res["base"], res["this"])]
+    print(f"wall this / base, pairwise: median {statistics.median(ratios):.3f} (range {min(ratios):.2f}-{max(ratios):.2f})")
+
+
 def byte_compile() -> None:
     """Write the ``.pyc`` files of the checkout's packages (``python -m compileall``)."""
     dirs = [str(ROOT / d) for d in ("bnptrack", "tracker", "sources", "sinks", "pipeline")]
@@ -86,7 +147,7 @@ def commands(tmp: Path, launch: bool) -> dict[str, list[str]]:
                                           str(tmp / "track.mcap")],
     }
     if launch:
-        cmds["bnptrack launch (100 frames)"] = [py, "-m", "bnptrack", "launch", "--out", str(tmp / "run"),
+        cmds[LAUNCH] = [py, "-m", "bnptrack", "launch", "--out", str(tmp / "run"),
                                                 "--overwrite", "-q"]
     return cmds
 
@@ -123,7 +184,15 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="Also write the rows to this file.")
     ap.add_argument("--root", type=Path, default=None, help="Time the checkout in this directory.")
     ap.add_argument("--pyc", action="store_true", help="Byte-compile the checkout first (compileall).")
+    ap.add_argument("--pairs", type=int, default=0, metavar="N",
+                    help="Only `launch`, in N pairs against --base (alternating order).")
+    ap.add_argument("--base", type=Path, default=None, help="With --pairs: the other checkout.")
+    ap.add_argument("--base-python", default=sys.executable, help="With --pairs: the base's Python.")
     args = ap.parse_args()
+    if args.pairs:
+        if args.base is None:
+            ap.error("--pairs needs --base DIR")
+        return launch_pairs(args.pairs, args.base, args.base_python)
     if args.root is not None:
         global ROOT
         ROOT = args.root.resolve()
@@ -135,9 +204,13 @@ def main() -> None:
         cmds = commands(tmp, args.launch)
         wall(cmds["bnptrack track vo2017-s1.mcap"])  # warm-up: numba cache, page cache
         times: dict[str, list[float]] = {name: [] for name in cmds}
+        phases: list[tuple[float, float, float]] = []
         for _ in range(args.rounds):
             for name, argv in cmds.items():
+                t_start = time.time()
                 times[name].append(wall(argv))
+                if name == LAUNCH and (ph := launch_phases(tmp / "run", t_start, times[name][-1])):
+                    phases.append(ph)
         cpu_by_name = {name: CPU[" ".join(argv)][-args.rounds:] for name, argv in cmds.items()}
         if args.numba:
             CPU.clear()
@@ -154,8 +227,12 @@ def main() -> None:
     print(f"{'command':40s} {'median s':>9s} {'min s':>7s} {'max s':>7s} {'CPU s':>7s}")
     for r in rows:
         print(f"{r['command']:40s} {r['median_s']:9.3f} {r['min_s']:7.3f} {r['max_s']:7.3f} {r['cpu_median_s']:7.3f}")
+    if phases:
+        print(f"launch, medians over {len(phases)} runs (from the source's log): first frame published "
+              + ", ".join(f"{label} {statistics.median(p[i] for p in phases):.3f} s" for i, label in
+                          enumerate(("at", "last frame after", "launcher's exit after the last frame"))))
     if args.json:
-        args.json.write_text(json.dumps({"load": [load0, load1], "rows": rows}, indent=1))
+        args.json.write_text(json.dumps({"load": [load0, load1], "rows": rows, "launch_phases": phases}, indent=1))
     print(json.dumps({"results": rows}))
 
 

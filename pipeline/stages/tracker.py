@@ -26,17 +26,25 @@ from bnptrack.tracker._numerics import preload
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.types import Frame, FrameBounds
 
-__all__ = ["LAZY_IMPORTS", "TrackerStage", "build_stage_tracker", "compiled_kernels", "contest_frames",
+__all__ = ["LAZY_IMPORTS", "LAZY_PAIRS", "TrackerStage", "build_stage_tracker", "compiled_kernels", "contest_frames",
            "preload_tracker", "warm_up_contests", "warm_up_tracker", "warm_tracker_imports"]
 
 log = logging.getLogger("bnptrack.stage")
 
-#: Modules the trackers import on first need, inside a step (``scipy.optimize`` on the first
-#: two clusters that prefer one measurement, ``scipy.spatial`` for many clusters, ...: see
-#: the lazy imports of tracker/bnp/assignment.py, clusters.py, urn.py, tracker/filtering.py).
-#: The stage imports them before it declares itself ready: a first import in the frame loop
-#: stalls that frame and queues the frames behind it (docs/pipeline.md, Performance).
+#: Modules the trackers import on first need, inside a step, on large frames only: the KD-tree
+#: gating (``scipy.spatial``, tracker/filtering.py) and the per-component JPDA* assignment
+#: (``scipy.sparse.csgraph``, tracker/bnp/assignment.py) take over from 20,000 track x
+#: measurement pairs.  A first import in the frame loop stalls that frame and queues the frames
+#: behind it (docs/pipeline.md, Performance), so the stage imports them in the background as
+#: soon as a frame reaches :data:`LAZY_PAIRS` (:meth:`TrackerStage._lazy_imports_due`), ahead
+#: of the frames that need them; a run whose frames stay small (vo2017: at most 33
+#: measurements) never pays for them (0.4-0.75 s of CPU before the first frame until session
+#: 11, docs/pipeline.md "Session 11: r2-launch").
 LAZY_IMPORTS = ("scipy.sparse.csgraph", "scipy.spatial")
+#: Measurements x max(measurements, tracks of the previous frame) of a frame from which the
+#: stage starts importing :data:`LAZY_IMPORTS` (a tenth of the 20,000 pairs that need them:
+#: the tracks of the next frames can grow to the measurements' number by births).
+LAZY_PAIRS = 2_000
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:
     """The tracker stage's :class:`~pipeline.resolve.TrackerSetup`, built by the one resolver
@@ -61,10 +69,10 @@ def warm_tracker_imports(name: str) -> None:
 
 
 def preload_tracker() -> None:
-    """numba's import and set-up (:func:`tracker._numerics.preload`), then the trackers' lazy
-    imports (:data:`LAZY_IMPORTS`): what the first frames would otherwise pay in the loop."""
+    """numba's import and set-up (:func:`tracker._numerics.preload`): what the first frames
+    would otherwise pay in the loop (the large frames' :data:`LAZY_IMPORTS` come later, in the
+    background, when a frame is large: :meth:`TrackerStage._lazy_imports_due`)."""
     preload()
-    warm_imports(*LAZY_IMPORTS)
 
 
 # -- warm-up: every kernel the tracker can hit, before the first frame ------------------
@@ -215,6 +223,9 @@ class TrackerStage(StageBase):
         self.alone: UpstreamWatch | None = None  # set when resumed: the rule for an upstream gone
         #: numba's import and set-up, started by run() while the stage waits for the source
         self.preloading: threading.Thread | None = None
+        #: the background import of LAZY_IMPORTS, started by the first large frame
+        self.lazy_importing: threading.Thread | None = None
+        self.last_tracks = 0  # tracks of the last frame's estimate
 
     # -- setup -------------------------------------------------------------------------
     def _restore(self) -> list[tuple[int, bytes, dict]]:
@@ -294,6 +305,10 @@ class TrackerStage(StageBase):
         its tracks)."""
         from bnptrack.tracker.state import tracker_frame_rng
 
+        if self.lazy_importing is None and self._lazy_imports_due(frame):
+            self.lazy_importing = threading.Thread(target=warm_imports, args=LAZY_IMPORTS,
+                                                   name="lazy-imports", daemon=True)
+            self.lazy_importing.start()
         rng = self._frame_rng(frame.frame)
         clock = self.clock
         t_s0 = clock.time_ns()
@@ -312,6 +327,7 @@ class TrackerStage(StageBase):
         self.step_ms.append((t1 - t0) * 1e3)
         # the state advances only once its output is out (a snapshot is always consistent)
         self.state, self.last_seq, self.last_frame = state, s, frame.frame
+        self.last_tracks = len(est.tracks)
         self.last_stamp_ns = frame.stamp_ns
         try:
             self.journal.append(s, payload, meta)
@@ -323,6 +339,15 @@ class TrackerStage(StageBase):
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
         self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
+
+    def _lazy_imports_due(self, frame: Frame) -> bool:
+        """Whether ``frame`` is large enough (:data:`LAZY_PAIRS`) for the large frames'
+        imports to start (those not imported yet): the steps that need them then wait only
+        for what is left of the import."""
+        m = int(np.shape(frame.z)[0])
+        if m * max(m, self.last_tracks) < LAZY_PAIRS:
+            return False
+        return any(name not in sys.modules for name in LAZY_IMPORTS)
 
     def _frame_rng(self, k: int) -> Any:
         """The tracker's stream of frame ``k`` (:func:`tracker.state.tracker_frame_rng`): the
