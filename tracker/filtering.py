@@ -63,6 +63,7 @@ __all__ = [
     "update_means",
     "update_pairs",
     "kalman_update",
+    "SCIPY_PAIRS",
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -560,8 +561,11 @@ def kalman_update(meas, innov: Innovation, m_pred: np.ndarray, z: np.ndarray
     return m_upd, innov.P_upd.copy()
 
 
-_DENSE_PAIRS = 20_000
-"""Below this many track x measurement pairs the gate is evaluated densely (same values)."""
+SCIPY_PAIRS = 20_000
+"""Track x measurement pairs of a frame from which the trackers use scipy: above it the gate
+is found with a KD-tree (``scipy.spatial``, :func:`gated_log_likelihood`; below, every pair is
+evaluated densely: the same values) and the JPDA* assignment is solved per connected component
+(``scipy.sparse.csgraph``, :func:`tracker.bnp.assignment.best_permutation_pairs`)."""
 
 
 def _angle_dims(meas, d: int) -> np.ndarray:
@@ -612,10 +616,10 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     """
     N, d = innov.z_pred.shape
     kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
-    if kind is not None and N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: every pair, compiled
+    if kind is not None and N * Z.shape[0] <= SCIPY_PAIRS:  # small frames: every pair, compiled
         return _kernels.loglik_gated(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
                                      kind == _kernels.KIND_BEARING_RANGE, gate_threshold(gate_prob, d), _LOG_2PI)
-    if N * Z.shape[0] <= _DENSE_PAIRS:  # small frames: the dense matrix is cheaper than a tree
+    if N * Z.shape[0] <= SCIPY_PAIRS:  # small frames: the dense matrix is cheaper than a tree
         dense = log_likelihood_matrix(meas, innov, Z, gate_prob)
         mi, ti = np.nonzero(np.isfinite(dense.T))
         return ti.astype(np.int64), mi.astype(np.int64), dense[ti, mi]

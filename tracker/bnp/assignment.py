@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker.bnp import _kernels as _k
+from bnptrack.tracker.filtering import SCIPY_PAIRS
 
 _FORBIDDEN = 1e6  # assignment cost of an impossible pair
 
@@ -37,7 +38,7 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
     Returns one pair per cluster that has any mass, sorted by cluster.
     """
     clusters, choice, p_det, lt, lm, lp, conflict, small, args = _k.jpda_select(
-        int(n), np.asarray(ti, dtype=np.int64), np.asarray(mi, dtype=np.int64), np.asarray(p, dtype=float), _SMALL)
+        int(n), np.asarray(ti, dtype=np.int64), np.asarray(mi, dtype=np.int64), np.asarray(p, dtype=float), SCIPY_PAIRS)
     if conflict and small:  # one assignment over every live cluster
         choice = _k.jpda_solve(np.log(args), clusters, choice, lt, lm, _FORBIDDEN)
     elif conflict:
@@ -45,8 +46,6 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
     return clusters, choice, p_det[clusters]
 
 
-#: Largest live clusters x measurements solved as one block (above: per connected component).
-_SMALL = 20_000
 
 
 def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
