@@ -664,38 +664,31 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     u = rng.random((sweeps, blocks[0].v.shape[0]))
     counts = np.zeros(2, dtype=np.int64) if stats is None else stats
-    sample = _sample_scan if kernel == "scan" else _sample_gated  # the reference compiles only if used
-    z, *shares = sample(*parts[:12], len(blocks), h_lam, h_eta, np.asarray(v_star, dtype=float),
-                        np.asarray(init, dtype=np.int64), float(alpha), float(d), u, bool(occupied),
-                        PARTITION_KERNELS.index(kernel), counts)
+    z, *shares = _sample(PARTITION_KERNELS.index(kernel), parts[:12], len(blocks), h_lam, h_eta,
+                         np.asarray(v_star, dtype=float), np.asarray(init, dtype=np.int64), float(alpha), float(d),
+                         u, bool(occupied), counts)
     return z, Shares(*shares)
 
 
-def _sample_gated(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
-                  alpha, d, u, occupied, mode, stats):
-    """:func:`sample_partition`'s compiled steps: the inputs (:func:`_sample_setup`), the sweeps of
-    :func:`tracker.bnp.group_partition.gated_kernel` (``mode`` 1, 2: without, with the gate,
-    counting into ``stats``; ``s_lam``/``s_eta``: the shared theta's prior), the sample
-    compacted (:func:`_compact`).  Three calls from Python, not one kernel calling the three:
-    numba optimises a kernel's callees again inside each compiled caller, so a wrapper kernel
-    costs a first run seconds of compilation for microseconds per frame."""
-    v, R, lam0, eta0, z, seated = _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks,
-                                                v_star, init)
-    obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
-                                   1e-4, stats)
-    return _compact(z, v_star.size, seated.size), obj, w, mu, cov
-
-
-def _sample_scan(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, s_lam, s_eta, v_star, init,
-                 alpha, d, u, occupied, mode, stats):
-    """:func:`_sample_gated` with ``mode`` 0, the reference: :func:`_partition_kernel`, then
-    :func:`_collect_shares` (compiled only when used)."""
-    v, R, lam0, eta0, z, seated = _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks,
-                                                v_star, init)
+def _sample(mode, parts, n_blocks, s_lam, s_eta, v_star, init, alpha, d, u, occupied, stats):
+    """:func:`sample_partition`'s compiled steps with the kernel ``mode`` (the index of
+    :data:`PARTITION_KERNELS`): the inputs (:func:`_sample_setup`; ``parts``: the two blocks'
+    six arrays), the sweeps, the sample compacted (:func:`_compact`).  The sweeps: ``mode`` 0,
+    the reference, :func:`_partition_kernel` then :func:`_collect_shares` (compiled only when
+    used); 1, 2: :func:`tracker.bnp.group_partition.gated_kernel` without, with the gate,
+    counting into ``stats``.  ``s_lam``/``s_eta``: the shared theta's prior.  Calls from
+    Python, not one kernel calling the others: numba optimises a kernel's callees again inside
+    each compiled caller, so a wrapper kernel costs a first run seconds of compilation for
+    microseconds per frame."""
+    v, R, lam0, eta0, z, seated = _sample_setup(*parts, n_blocks, v_star, init)
     L, T = z.size, seated.size
-    rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
-    _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
-    obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    if mode == 0:
+        rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
+        _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
+        obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    else:
+        obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
+                                       1e-4, stats)
     return _compact(z, v_star.size, T), obj, w, mu, cov
 
 
