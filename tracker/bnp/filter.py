@@ -177,17 +177,12 @@ class BnpTracker:
         predict = kf.ukf_predict if self.config.filter == "ukf" else kf.ekf_predict
         if detection is None:
             detection = self.params.detection(kind, sensor)
-        if state.n_clusters:
-            m, P = predict(self._motion(dt), m, P)
-            if dt == self.params.T and not self.params.sensors and sensor is not None:
-                # ModelParams.survival_over at dt = T with the frame's sensor alone: P_S and P_D
-                # from one field-of-view test of the predicted means (the same numbers)
-                inside = detection.visible(m)
-                ps = np.where(inside, self.params.p_survival, self.params.p_survival_outside)
-                return _Prediction(m, P, q * ps, np.where(inside, detection.p_detect_effective, 0.0))
-            q = q * self.params.survival_over(m, dt, kind, sensor)
-        p_detect = detection.prob(m) if len(m) else np.zeros(0)
-        return _Prediction(m, P, q, p_detect)
+        if not state.n_clusters:
+            return _Prediction(m, P, q, np.zeros(0))
+        m, P = predict(self._motion(dt), m, P)
+        visible = detection.visible(m)  # one field-of-view test for P_S and P_D
+        q = q * self.params.survival_over(m, dt, kind, sensor, visible)
+        return _Prediction(m, P, q, np.where(visible, detection.p_detect_effective, 0.0))
 
     def _innovation(self, meas, pred: _Prediction):
         if self.config.filter == "ukf":

@@ -182,11 +182,15 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             range_min=s.range_min,
         )
 
-    def survival(self, x: np.ndarray, kind: str = DEFAULT_KIND, sensor: Sensor | None = None) -> np.ndarray:
+    def survival(self, x: np.ndarray, kind: str = DEFAULT_KIND, sensor: Sensor | None = None,
+                 visible: np.ndarray | None = None) -> np.ndarray:
         """``(N,)`` P_S(x): ``p_survival`` inside the surveillance region, ``p_survival_outside``
         beyond.  The region is the field of view of the frame's sensor united with those of the
-        declared ``[sensors.*]`` (several sensors share one tracker state)."""
-        inside = self.detection(kind, sensor).visible(x)
+        declared ``[sensors.*]`` (several sensors share one tracker state).  ``visible``: the
+        frame's sensor's field-of-view test of ``x`` (``detection(kind, sensor).visible(x)``)
+        when the caller has made it (a tracker, for its P_D too): then the only test made here
+        is that of the declared sensors, none when there are none."""
+        inside = self.detection(kind, sensor).visible(x) if visible is None else visible
         for name, spec in self.sensors.items():
             if sensor is None or name != sensor.name:
                 k = spec.kind or kind
@@ -194,7 +198,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         return np.where(inside, self.p_survival, self.p_survival_outside)
 
     def survival_over(self, x: np.ndarray, dt: float, kind: str = DEFAULT_KIND,
-                      sensor: Sensor | None = None) -> np.ndarray:
+                      sensor: Sensor | None = None, visible: np.ndarray | None = None) -> np.ndarray:
         r"""``(N,)`` survival over the ``dt`` seconds that end at the states ``x`` (predicted means).
 
         One scan's ``P_S`` per ``T``: exactly :meth:`survival` at ``dt == T`` and
@@ -208,8 +212,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         ``dt = n T`` the product of the ``n`` per-scan survivals at the scan instants, as if
         the sensor had scanned and seen nothing (docs/models.md); at most
         ``_MAX_SURVIVAL_STEPS`` parts (a longer gap's parts span several scans).  ``"end"``:
-        :math:`P_S(x)^{\Delta t / T}`."""
-        ps = self.survival(x, kind, sensor)
+        :math:`P_S(x)^{\Delta t / T}`.  ``visible``: as for :meth:`survival` (of ``x`` only)."""
+        ps = self.survival(x, kind, sensor, visible)
         if dt == self.T:
             return ps
         n = min(math.ceil(dt / self.T - 1e-9), _MAX_SURVIVAL_STEPS)
