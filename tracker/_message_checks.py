@@ -2,7 +2,15 @@
 
 Every function raises :class:`CodecError` naming topic, frame and JSON path.  The checks read
 messages by attribute (``msg.frame``, ``msg.z``, ...), so this module does not import the
-message structs: :mod:`tracker.messages` imports it.  The topic names, schema versions and
+message structs: :mod:`tracker.messages` imports it.  They are the one statement of the rules,
+for decoding and encoding alike, and work on the decoded lists in plain Python: each rule is a
+quick test of the whole field (a few C-level calls: ``len``, ``set``, ``zip``, ``min``, ``max``,
+``sum`` on lists of a few dozen floats), and only when it fails the field's exhaustive check
+(numpy on the error path), which names the first entry that breaks the rule, or passes a
+field the quick test was too cautious for (a sum of large finite values that overflows).  On
+the pipeline's frame path a stage decodes one frame every 50 ms with its caches gone cold,
+where one small numpy call costs about 10 us (docs/pipeline.md, "Session 11: s11-lat"); numpy
+is used on the common path only for what needs it (``R``'s eigenvalues).  The topic names, schema versions and
 size limits of the contract live here because both modules need them;
 :mod:`tracker.messages` re-exports the public ones.
 """
@@ -12,13 +20,12 @@ from __future__ import annotations
 import math
 import re
 import sys
-from itertools import chain
 from typing import Any
 
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.models.measurement import KINDS, MeasurementKind, measurement_kind
+from bnptrack.tracker.models.measurement import KINDS, MeasurementKind
 from bnptrack.tracker.types import STATE_DIM
 
 # --------------------------------------------------------------------------- contract constants
@@ -62,9 +69,6 @@ MAX_ROW_DIM = 64
 COV_DIM = STATE_DIM * STATE_DIM
 
 _FMAX = sys.float_info.max
-_chain = chain.from_iterable
-_min_reduce = np.minimum.reduce
-_max_reduce = np.maximum.reduce
 
 
 class CodecError(ValueError):
@@ -92,6 +96,11 @@ def is_int(x: Any) -> bool:
     return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
 
 
+def _int(x: Any) -> bool:
+    """:func:`is_int`, answered at once for a Python ``int`` (every decoded integer)."""
+    return type(x) is int or is_int(x)
+
+
 def _versions(topic: str) -> tuple[int, ...]:
     return READ_VERSIONS.get(topic, (SCHEMA_VERSION,))
 
@@ -109,18 +118,34 @@ def _version_error(topic: str, frame: int | None, version: Any) -> CodecError:
 
 def check_header(topic: str, msg: Any) -> int:
     """Check v / frame / stamp_ns / run of the shared header; return the frame index."""
-    frame = msg.frame if is_int(msg.frame) else None
-    if not is_int(msg.v) or msg.v not in _versions(topic):
-        raise _version_error(topic, frame, msg.v)
-    if frame is None or frame < 0:
-        raise CodecError(topic, frame, f"frame must be an integer >= 0, got {msg.frame!r} - at `$.frame`")
-    if not is_int(msg.stamp_ns) or not 0 <= msg.stamp_ns <= MAX_STAMP:
-        raise CodecError(
-            topic, frame, f"stamp_ns must be an integer in [0, 2**63), got {msg.stamp_ns!r} - at `$.stamp_ns`"
-        )
+    v, frame, stamp = msg.v, msg.frame, msg.stamp_ns
+    known = frame if _int(frame) else None
+    if not _int(v) or v not in _versions(topic):
+        raise _version_error(topic, known, v)
+    if known is None or frame < 0:
+        raise CodecError(topic, known, f"frame must be an integer >= 0, got {frame!r} - at `$.frame`")
+    if not _int(stamp) or not 0 <= stamp <= MAX_STAMP:
+        raise CodecError(topic, frame, f"stamp_ns must be an integer in [0, 2**63), got {stamp!r} - at `$.stamp_ns`")
     if not isinstance(msg.run, str):
         raise CodecError(topic, frame, "run must be a string - at `$.run`")
-    return int(frame)
+    return frame if type(frame) is int else int(frame)
+
+
+def _rows_ok(rows: list, width: int) -> bool:
+    """Quick test: every row of ``width`` numbers, all finite (NaN and inf make the sum
+    non-finite; so does an overflow of large finite values: the exhaustive check then passes)."""
+    try:
+        return not rows or (set(map(len, rows)) == {width} and math.isfinite(sum(map(sum, rows))))
+    except TypeError:
+        return False
+
+
+def _unit_ok(values: list) -> bool:
+    """Quick test: every value a number in ``[0, 1]`` (NaN and inf fail: the sum is not finite)."""
+    try:
+        return not values or (math.isfinite(sum(values)) and min(values) >= 0.0 and max(values) <= 1.0)
+    except TypeError:
+        return False
 
 
 def _fmt_index(idx: tuple[int, ...]) -> str:
@@ -179,20 +204,20 @@ def _check_unique(topic: str, frame: int, names: list, path: str, what: str) -> 
             seen.add(name)
 
 
-def _check_strings(topic: str, frame: int, items: list, attr: str, path: str, what: str) -> list[str]:
-    """``getattr(item, attr)`` of every item, which must be strings and unique."""
-    names = []
-    for i, item in enumerate(items):
-        name = getattr(item, attr)
+def _check_strings(topic: str, frame: int, names: list, attr: str, path: str, what: str) -> None:
+    """The ``attr`` of every item (``names``, in order) must be a string, and unique."""
+    if all(type(name) is str for name in names) and len(set(names)) == len(names):
+        return
+    for i, name in enumerate(names):
         if not isinstance(name, str):
             raise CodecError(topic, frame, f"{attr} must be a string - at `{path}[{i}].{attr}`")
-        names.append(name)
     _check_unique(topic, frame, names, path, what)
-    return names
 
 
 def _check_unit(topic: str, frame: int, values: Any, what: str, path: str) -> None:
     """Every value in ``[0, 1]`` (NaN fails); ``path`` formats index ``i``."""
+    if _unit_ok(values):
+        return
     p = np.array(values, dtype=float)
     bad = ~((p >= 0.0) & (p <= 1.0))
     if bad.any():
@@ -203,38 +228,32 @@ def _check_unit(topic: str, frame: int, values: Any, what: str, path: str) -> No
 # --------------------------------------------------------------------------- /measurements
 
 
-def check_measurements(msg: Any) -> np.ndarray:
-    """Validate a measurements message; return ``z`` as an ``(M, d)`` float array."""
+def check_measurements(msg: Any) -> None:
+    """Validate a measurements message."""
     topic = TOPIC_MEASUREMENTS
     frame = check_header(topic, msg)
-    try:
-        kind = measurement_kind(msg.kind)
-    except (ValueError, TypeError):
-        raise CodecError(topic, frame, f"unknown kind {msg.kind!r} (known: {', '.join(KINDS)}) - at `$.kind`") from None
+    kind = KINDS.get(msg.kind) if isinstance(msg.kind, str) else None
+    if kind is None:
+        raise CodecError(topic, frame, f"unknown kind {msg.kind!r} (known: {', '.join(KINDS)}) - at `$.kind`")
     if not isinstance(msg.sensor, str):
         raise CodecError(topic, frame, "sensor must be a string - at `$.sensor`")
     rows = msg.z
     _check_size(topic, frame, rows, MAX_MEASUREMENTS, "$.z")
-    d = kind.dim
-    _check_pose_r(topic, frame, msg, d)
-    m = len(rows)
-    if m == 0:
-        return np.zeros((0, d))
-    # Fast path: one flat float array, one min and one max reduction.  NaN propagates
-    # through min/max and fails every comparison below; +-inf fails the bounds.
-    z = None
-    if set(map(len, rows)) == {d}:
-        try:
-            z = np.fromiter(_chain(rows), dtype=float, count=m * d).reshape(m, d)
-        except (TypeError, ValueError):
-            z = None
-    if z is None:
-        z = _rows_array(topic, frame, rows, d, "$.z[{i}]", f"z row (kind {msg.kind!r})")
-    lo = _min_reduce(z, axis=0).tolist()
-    hi = _max_reduce(z, axis=0).tolist()
-    if not all(a <= x and y <= b for a, b, x, y in zip(kind.low, kind.high, lo, hi)):
-        _measurement_error(topic, frame, z, kind)
-    return z
+    if msg.pose is not None or msg.R is not None:
+        _check_pose_r(topic, frame, msg, kind.dim)
+    if rows and not _within(rows, kind):
+        _measurement_error(topic, frame, msg.kind, rows, kind)
+
+
+def _within(rows: list, kind: MeasurementKind) -> bool:
+    """Quick test of ``z``: rows of the kind's dimension, every column finite (its sum; an
+    overflow fails too) and within the kind's bounds (its min and max)."""
+    try:
+        return set(map(len, rows)) == {kind.dim} and all(
+            math.isfinite(sum(col)) and lo <= min(col) and max(col) <= hi
+            for col, lo, hi in zip(zip(*rows), kind.low, kind.high))
+    except TypeError:
+        return False
 
 
 def _check_pose_r(topic: str, frame: int, msg: Any, d: int) -> None:
@@ -266,9 +285,10 @@ def _bound_text(lo: float, hi: float) -> str:
     return f"must be within [{'-pi' if lo == -math.pi else f'{lo:g}'}, {'pi' if hi == math.pi else f'{hi:g}'}]"
 
 
-def _measurement_error(topic: str, frame: int, z: np.ndarray, kind: MeasurementKind) -> None:
-    """Slow path: raise a CodecError for the first invalid entry of ``z`` (bounds of the
-    kind's registry entry)."""
+def _measurement_error(topic: str, frame: int, name: str, rows: list, kind: MeasurementKind) -> None:
+    """The exhaustive check of ``z`` (rows of a kind ``name``): raise a CodecError for the
+    first invalid row or entry (bounds of the kind's registry entry); pass when there is none."""
+    z = _rows_array(topic, frame, rows, kind.dim, "$.z[{i}]", f"z row (kind {name!r})")
     _check_finite(topic, frame, z, "$.z")
     names = _column_names(kind)
     for j in reversed(range(kind.dim)):  # range before bearing (the historical order of checks)
@@ -277,85 +297,86 @@ def _measurement_error(topic: str, frame: int, z: np.ndarray, kind: MeasurementK
         if bad.any():
             i = int(np.argmax(bad))
             raise CodecError(topic, frame, f"{names[j]} {_bound_text(lo, hi)}, got {float(col[i])!r} - at `$.z[{i}][{j}]`")
-    raise CodecError(topic, frame, "invalid measurement values - at `$.z`")  # unreachable
 
 
 # --------------------------------------------------------------------------- /truth, /tracks
 
 
-def check_truth(msg: Any) -> np.ndarray:
-    """Validate a truth message; return the ``(n, 5)`` states."""
+def check_truth(msg: Any) -> None:
+    """Validate a truth message."""
     topic = TOPIC_TRUTH
     frame = check_header(topic, msg)
-    _check_size(topic, frame, msg.objects, MAX_OBJECTS, "$.objects")
-    _check_strings(topic, frame, msg.objects, "id", "$.objects", "object id")
-    states = _rows_array(
-        topic, frame, [o.state for o in msg.objects], STATE_DIM, "$.objects[{i}].state", "state"
-    )
-    if states.shape[0] and not np.isfinite(states).all():
-        i, j = np.argwhere(~np.isfinite(states))[0]
-        raise CodecError(
-            topic, frame, f"non-finite value {float(states[i, j])!r} - at `$.objects[{i}].state[{j}]`"
-        )
-    return states
+    objects = msg.objects
+    _check_size(topic, frame, objects, MAX_OBJECTS, "$.objects")
+    _check_strings(topic, frame, [o.id for o in objects], "id", "$.objects", "object id")
+    _check_rows(topic, frame, [o.state for o in objects], STATE_DIM, "$.objects[{i}].state", "state")
 
 
-def check_tracks(msg: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Validate a tracks message; return the ``(n, 5)`` states and ``(n, 25)`` covariances."""
+def _check_rows(topic: str, frame: int, rows: list, width: int, row_path: str, what: str) -> None:
+    """Rows of ``width`` finite numbers (``row_path`` formats row ``i``, e.g.
+    ``"$.tracks[{i}].state"``): the quick test, then the exhaustive check."""
+    if _rows_ok(rows, width):
+        return
+    arr = _rows_array(topic, frame, rows, width, row_path, what)
+    if not np.isfinite(arr).all():
+        i, j = np.argwhere(~np.isfinite(arr))[0]
+        raise CodecError(topic, frame, f"non-finite value {float(arr[i, j])!r} - at `{row_path.format(i=i)}[{j}]`")
+
+
+def check_tracks(msg: Any) -> None:
+    """Validate a tracks message."""
     topic = TOPIC_TRACKS
     frame = check_header(topic, msg)
     _check_size(topic, frame, msg.tracks, MAX_TRACKS, "$.tracks")
     _check_size(topic, frame, msg.assignments, MAX_MEASUREMENTS, "$.assignments")
     _check_size(topic, frame, msg.assignment_prob, MAX_MEASUREMENTS, "$.assignment_prob")
     _check_size(topic, frame, msg.diagnostics, MAX_DIAGNOSTICS, "$.diagnostics")
-    states, covs = _check_track_rows(frame, msg.tracks)
+    _check_track_rows(frame, msg.tracks)
     _check_assignments(frame, msg)
     _check_pmf(frame, msg)
-    if msg.diagnostics:
-        keys = list(msg.diagnostics)
-        vals = np.array([msg.diagnostics[k] for k in keys], dtype=float)
+    diag = msg.diagnostics
+    if diag and not _finite_sum(diag.values()):
+        keys = list(diag)
+        vals = np.array([diag[k] for k in keys], dtype=float)
         if not np.isfinite(vals).all():
             i = int(np.argmax(~np.isfinite(vals)))
-            raise CodecError(
-                topic, frame, f"non-finite value {float(vals[i])!r} - at `$.diagnostics.{keys[i]}`"
-            )
-    return states, covs
+            raise CodecError(topic, frame, f"non-finite value {float(vals[i])!r} - at `$.diagnostics.{keys[i]}`")
 
 
-def _check_track_rows(frame: int, tracks: list) -> tuple[np.ndarray, np.ndarray]:
+def _finite_sum(values: Any) -> bool:
+    try:
+        return math.isfinite(sum(values))
+    except TypeError:
+        return False
+
+
+def _check_track_rows(frame: int, tracks: list) -> None:
     """Labels (strings, unique), states (5), covariances (25), all finite; existence in [0, 1]."""
     topic = TOPIC_TRACKS
-    _check_strings(topic, frame, tracks, "label", "$.tracks", "track label")
-    states = _rows_array(topic, frame, [t.state for t in tracks], STATE_DIM, "$.tracks[{i}].state", "state")
-    covs = _rows_array(
-        topic, frame, [t.covariance for t in tracks], COV_DIM, "$.tracks[{i}].covariance", "covariance"
-    )
+    _check_strings(topic, frame, [t.label for t in tracks], "label", "$.tracks", "track label")
+    states, covs = [t.state for t in tracks], [t.covariance for t in tracks]
+    if not (_rows_ok(states, STATE_DIM) and _rows_ok(covs, COV_DIM)):  # lengths of both, then values
+        _rows_array(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")
+        _rows_array(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
+        _check_rows(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")
+        _check_rows(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
     if tracks:
-        for arr, name in ((states, "state"), (covs, "covariance")):
-            if not np.isfinite(arr).all():
-                i, j = np.argwhere(~np.isfinite(arr))[0]
-                raise CodecError(
-                    topic, frame, f"non-finite value {float(arr[i, j])!r} - at `$.tracks[{i}].{name}[{j}]`"
-                )
         _check_unit(topic, frame, [t.existence for t in tracks], "existence", "$.tracks[{i}].existence")
-    return states, covs
 
 
 def _check_assignments(frame: int, msg: Any) -> None:
     """One probability in [0, 1] per assignment; every assignment a label or null."""
     topic = TOPIC_TRACKS
-    if len(msg.assignments) != len(msg.assignment_prob):
-        raise CodecError(
-            topic,
-            frame,
-            f"len(assignments) = {len(msg.assignments)} != len(assignment_prob) = "
-            f"{len(msg.assignment_prob)} - at `$.assignment_prob`",
-        )
-    for i, a in enumerate(msg.assignments):
-        if a is not None and not isinstance(a, str):
-            raise CodecError(topic, frame, f"assignment must be a label or null - at `$.assignments[{i}]`")
-    if msg.assignment_prob:
-        _check_unit(topic, frame, msg.assignment_prob, "probability", "$.assignment_prob[{i}]")
+    assignments, probs = msg.assignments, msg.assignment_prob
+    if len(assignments) != len(probs):
+        raise CodecError(topic, frame, f"len(assignments) = {len(assignments)} != len(assignment_prob) = "
+                                       f"{len(probs)} - at `$.assignment_prob`")
+    if not all(a is None or type(a) is str for a in assignments):
+        for i, a in enumerate(assignments):
+            if a is not None and not isinstance(a, str):
+                raise CodecError(topic, frame, f"assignment must be a label or null - at `$.assignments[{i}]`")
+    if probs:
+        _check_unit(topic, frame, probs, "probability", "$.assignment_prob[{i}]")
 
 
 def pmf_ok(p: np.ndarray) -> bool:
@@ -363,6 +384,19 @@ def pmf_ok(p: np.ndarray) -> bool:
     :data:`PMF_SUM_TOL`, at most :data:`MAX_PMF` entries."""
     return bool(0 < p.size <= MAX_PMF and np.isfinite(p).all() and (p >= 0.0).all()
                 and abs(float(p.sum()) - 1.0) <= PMF_SUM_TOL)
+
+
+def pmf_list_ok(pmf: list) -> bool:
+    """Quick test of :func:`pmf_ok` for a list of floats: its sum taken exactly
+    (``math.fsum``) and held to half the tolerance, so that a sum near the limit is left to
+    :func:`pmf_ok` (numpy's summation, the rule)."""
+    if not 0 < len(pmf) <= MAX_PMF:
+        return False
+    try:
+        s = math.fsum(pmf)
+    except (OverflowError, ValueError, TypeError):
+        return False
+    return math.isfinite(s) and min(pmf) >= 0.0 and abs(s - 1.0) <= PMF_SUM_TOL / 2
 
 
 def _check_pmf(frame: int, msg: Any) -> None:
@@ -374,6 +408,8 @@ def _check_pmf(frame: int, msg: Any) -> None:
     topic = TOPIC_TRACKS
     if msg.v < 3:
         raise CodecError(topic, frame, f"cardinality_pmf needs schema version 3, the message says {msg.v} - at `$.cardinality_pmf`")
+    if pmf_list_ok(pmf):
+        return
     p = np.array(pmf, dtype=float)
     if not pmf_ok(p):
         why = (f"{p.size} entries (1 to {MAX_PMF} allowed)" if not 0 < p.size <= MAX_PMF
@@ -384,51 +420,7 @@ def _check_pmf(frame: int, msg: Any) -> None:
                                        f" it has {why} - at `$.cardinality_pmf`")
 
 
-# --------------------------------------------------------------------------- fast path, decode errors
-
-
-def _in_unit(a: np.ndarray) -> bool:
-    return bool(((a >= 0.0) & (a <= 1.0)).all())  # NaN fails too
-
-
-def _stack(rows: list, n: int, width: int) -> np.ndarray | None:
-    if not n:
-        return np.zeros((0, width))
-    try:
-        a = np.array(rows, dtype=float).reshape(n, -1)
-    except (ValueError, TypeError):
-        return None
-    return a if a.shape[1] == width and np.isfinite(a).all() else None
-
-
-def estimate_arrays(est: Any, run: Any) -> tuple | None:
-    """Every check of the ``/tracks`` contract on an estimate's arrays (one vectorised pass
-    instead of :func:`check_tracks` on the message's lists): ``(labels, states, covs,
-    existence, probs, diagnostics, cardinality_pmf or None)`` when all pass, else ``None``
-    (the caller then takes the path that names the exact error)."""
-    tracks, n = est.tracks, len(est.tracks)
-    if not (is_int(est.frame) and est.frame >= 0 and is_int(est.stamp_ns) and 0 <= est.stamp_ns <= MAX_STAMP):
-        return None
-    if not isinstance(run, str) or n > MAX_TRACKS or len(est.diagnostics) > MAX_DIAGNOSTICS:
-        return None
-    labels = [str(t.label) for t in tracks]
-    probs = np.asarray(est.assignment_prob, dtype=float).ravel()
-    if len(set(labels)) != n or len(est.assignments) != probs.size or probs.size > MAX_MEASUREMENTS:
-        return None
-    diag = {str(k): float(v) for k, v in est.diagnostics.items()}
-    if not (_in_unit(probs) and all(map(math.isfinite, diag.values()))):
-        return None
-    states = _stack([t.state for t in tracks], n, STATE_DIM)
-    covs = _stack([t.covariance for t in tracks], n, COV_DIM)
-    exist = np.array([float(t.existence) for t in tracks], dtype=float)
-    if states is None or covs is None or not _in_unit(exist):
-        return None
-    pmf = getattr(est, "cardinality_pmf", None)
-    if pmf is not None:
-        pmf = np.asarray(pmf, dtype=float).ravel()
-        if not pmf_ok(pmf):
-            return None
-    return labels, states, covs, exist, probs, diag, pmf
+# --------------------------------------------------------------------------- decode errors
 
 
 class _Peek(msgspec.Struct):

@@ -49,7 +49,6 @@ Pure: msgspec, numpy and ``tracker`` only (no mcap, no zenoh).
 
 from __future__ import annotations
 
-import math
 from itertools import chain
 from typing import Annotated, Any, Union
 
@@ -66,8 +65,6 @@ from bnptrack.tracker._message_checks import (
     MAX_STAMP,
     MAX_TRACKS,
     MEASUREMENTS_SCHEMA_VERSION,
-    PMF_SUM_TOL,
-    READ_VERSIONS,
     SCHEMA_VERSION,
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
@@ -80,7 +77,6 @@ from bnptrack.tracker._message_checks import (
     check_tracks,
     check_truth,
     decode_error,
-    estimate_arrays,
     is_int,
 )
 from bnptrack.tracker.config import NonNegInt, Prob
@@ -247,87 +243,8 @@ def decode(topic: str, data: bytes | bytearray | memoryview | str) -> Msg:
     except msgspec.DecodeError as exc:  # ValidationError is a subclass
         raw = data.encode() if isinstance(data, str) else data
         raise decode_error(topic, raw, exc) from None
-    if not _PLAIN_CHECKS[type(msg)](msg):  # the common message, checked in plain Python
-        _CHECKS[type(msg)](msg)  # anything else: every rule, naming the first one broken
+    _CHECKS[type(msg)](msg)
     return msg
-
-
-# --------------------------------------------------------------------------- plain checks
-# The common decoded message, checked in plain Python: a few C-level calls (len, set, zip,
-# min, max, sum) on lists of a few dozen floats instead of the dozen or more numpy calls of
-# the full checks (tracker._message_checks).  On the pipeline's frame path a stage decodes
-# one frame every 50 ms with its caches gone cold, where one small numpy call costs about
-# 10 us (docs/pipeline.md, "Session 11: s11-lat").  Each answers True only when every rule of
-# the full check holds (they may say False for a valid message: the full check then runs and
-# accepts it); decoded floats are finite already (msgspec refuses NaN, Infinity and numbers
-# out of range), the sums below guard it anyway.
-
-
-def _plain_header(msg: Any, versions: tuple[int, ...]) -> bool:
-    v, frame, stamp = msg.v, msg.frame, msg.stamp_ns
-    return (type(v) is int and v in versions and type(frame) is int and frame >= 0
-            and type(stamp) is int and 0 <= stamp <= MAX_STAMP and type(msg.run) is str)
-
-
-def _plain_measurements(msg: MeasurementsMsg) -> bool:
-    """``check_measurements``' rules for a message without ``pose`` and ``R``."""
-    if msg.pose is not None or msg.R is not None or not _plain_header(msg, READ_VERSIONS[TOPIC_MEASUREMENTS]):
-        return False
-    kind = KINDS.get(msg.kind) if type(msg.kind) is str else None
-    rows = msg.z
-    if kind is None or type(msg.sensor) is not str or len(rows) > MAX_MEASUREMENTS:
-        return False
-    if not rows:
-        return True
-    d = kind.dim
-    if set(map(len, rows)) != {d}:
-        return False
-    return all(math.isfinite(sum(col)) and lo <= min(col) and max(col) <= hi
-               for col, lo, hi in zip(zip(*rows), kind.low, kind.high))
-
-
-def _plain_truth(msg: TruthMsg) -> bool:
-    """``check_truth``'s rules."""
-    objs = msg.objects
-    if not _plain_header(msg, (SCHEMA_VERSION,)) or len(objs) > MAX_OBJECTS:
-        return False
-    ids = [o.id for o in objs]
-    return (len(set(ids)) == len(ids) and all(type(i) is str for i in ids)
-            and all(len(o.state) == STATE_DIM and math.isfinite(sum(o.state)) for o in objs))
-
-
-def _plain_tracks(msg: TracksMsg) -> bool:
-    """``check_tracks``' rules."""
-    tracks, assignments, probs = msg.tracks, msg.assignments, msg.assignment_prob
-    if not _plain_header(msg, READ_VERSIONS[TOPIC_TRACKS]) or len(tracks) > MAX_TRACKS \
-            or len(assignments) > MAX_MEASUREMENTS or len(probs) != len(assignments) \
-            or len(msg.diagnostics) > MAX_DIAGNOSTICS or not math.isfinite(sum(msg.diagnostics.values())):
-        return False
-    labels = [t.label for t in tracks]
-    if len(set(labels)) != len(labels) or not all(type(x) is str for x in labels):
-        return False
-    if not all(len(t.state) == STATE_DIM and len(t.covariance) == COV_DIM and 0.0 <= t.existence <= 1.0
-               and math.isfinite(sum(t.state) + sum(t.covariance)) for t in tracks):
-        return False
-    if not all(a is None or type(a) is str for a in assignments) or not all(0.0 <= p <= 1.0 for p in probs):
-        return False
-    pmf = msg.cardinality_pmf
-    return pmf is msgspec.UNSET or pmf is None or (msg.v >= TRACKS_SCHEMA_VERSION and _plain_pmf_ok(pmf))
-
-
-def _plain_pmf_ok(pmf: list) -> bool:
-    """``pmf_ok`` for a list of floats: its sum taken exactly (``math.fsum``) and held to half
-    the tolerance, so that a sum near the limit goes to the full check (numpy's summation)."""
-    if not 0 < len(pmf) <= MAX_PMF:
-        return False
-    try:
-        s = math.fsum(pmf)
-    except (OverflowError, ValueError, TypeError):
-        return False
-    return math.isfinite(s) and min(pmf) >= 0.0 and abs(s - 1.0) <= PMF_SUM_TOL / 2
-
-
-_PLAIN_CHECKS = {MeasurementsMsg: _plain_measurements, TruthMsg: _plain_truth, TracksMsg: _plain_tracks}
 
 
 def to_frame(msg: MeasurementsMsg, truth: Truth | None = None) -> Frame:
@@ -474,95 +391,43 @@ def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
     )
 
 
-def _checked_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
-    """The message :func:`from_estimate` builds, when every check of the contract passes on
-    the estimate's arrays (``tracker._message_checks.estimate_arrays``); ``None`` otherwise."""
-    arrays = estimate_arrays(est, run)
-    if arrays is None:
-        return None
-    labels, states, covs, exist, probs, diag, pmf_arr = arrays
-    pmf = _pmf_field(pmf_arr)
-    tracks = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
-                       cluster=None if t.cluster is None else int(t.cluster))
-              for lab, st, cv, ex, t in zip(labels, states.tolist(), covs.tolist(), exist.tolist(), est.tracks)]
-    return TracksMsg(
-        v=_tracks_version(tracks, pmf),
-        run=run,
-        frame=int(est.frame),
-        stamp_ns=int(est.stamp_ns),
-        tracks=tracks,
-        assignments=[None if a is None else str(a) for a in est.assignments],
-        assignment_prob=probs.tolist(),
-        diagnostics=diag,
-        cardinality_pmf=pmf,
-    )
-
-
 def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
-    """The message :func:`_checked_tracks_msg` builds, checked in plain Python (see "plain
-    checks" above: two numpy calls to stack the states and covariances, the rest on lists);
-    ``None`` when a rule fails or the estimate is not the common one (then the checked path)."""
-    tracks, n = est.tracks, len(est.tracks)
-    frame, stamp = est.frame, est.stamp_ns
-    if type(frame) is not int or frame < 0 or type(stamp) is not int or not 0 <= stamp <= MAX_STAMP \
-            or type(run) is not str or n > MAX_TRACKS or len(est.diagnostics) > MAX_DIAGNOSTICS:
+    """The message :func:`from_estimate` builds (not validated either), built faster for the
+    common estimate: Python integer frame and stamp, float64 track arrays each read by its own
+    ``tolist`` (anything else stacked by numpy); ``None`` for any other (then
+    :func:`from_estimate`, which names what is off)."""
+    tracks = est.tracks
+    if type(est.frame) is not int or type(est.stamp_ns) is not int:
         return None
     try:
+        rows = _plain_rows(tracks, len(tracks))
         probs = [float(p) for p in est.assignment_prob]
-        exist = [float(t.existence) for t in tracks]
-        diag = {str(k): float(v) for k, v in est.diagnostics.items()}
-        rows = _plain_rows(tracks, n)
-        pmf = _plain_pmf_field(getattr(est, "cardinality_pmf", None))
+        msgs = [TrackMsg(label=str(t.label), state=st, covariance=cv, existence=float(t.existence),
+                         cluster=None if t.cluster is None else int(t.cluster))
+                for st, cv, t in zip(rows[0], rows[1], tracks)]
     except (TypeError, ValueError):
         return None
-    labels = [str(t.label) for t in tracks]
-    if rows is None or pmf is None or len(set(labels)) != n or len(est.assignments) != len(probs) \
-            or len(probs) > MAX_MEASUREMENTS or not (_plain_unit(probs) and _plain_unit(exist)) \
-            or not math.isfinite(sum(diag.values())):
-        return None
-    msgs = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
-                     cluster=None if t.cluster is None else int(t.cluster))
-            for lab, st, cv, ex, t in zip(labels, rows[0], rows[1], exist, tracks)]
-    return TracksMsg(v=_tracks_version(msgs, pmf), run=run, frame=frame, stamp_ns=stamp, tracks=msgs,
+    pmf = getattr(est, "cardinality_pmf", None)
+    pmf = pmf.tolist() if type(pmf) is np.ndarray and pmf.dtype == _F64 and pmf.ndim == 1 else _pmf_field(pmf)
+    return TracksMsg(v=_tracks_version(msgs, pmf), run=run, frame=est.frame, stamp_ns=est.stamp_ns, tracks=msgs,
                      assignments=[None if a is None else str(a) for a in est.assignments],
-                     assignment_prob=probs, diagnostics=diag, cardinality_pmf=pmf)
+                     assignment_prob=probs, diagnostics={str(k): float(v) for k, v in est.diagnostics.items()},
+                     cardinality_pmf=pmf)
 
 
-def _plain_unit(values: list) -> bool:
-    """Every value in ``[0, 1]`` (NaN and inf fail: the sum is not finite then)."""
-    return not values or (math.isfinite(sum(values)) and min(values) >= 0.0 and max(values) <= 1.0)
-
-
-def _plain_rows(tracks: tuple, n: int) -> tuple[list, list] | None:
-    """The tracks' states ``(n, 5)`` and covariances ``(n, 25)`` as lists of rows, all finite
-    (``None`` otherwise; ``ValueError`` for ragged ones): each float64 array read by its own
-    ``tolist`` (no array built), anything else stacked by numpy as the checked path does."""
+def _plain_rows(tracks: tuple, n: int) -> tuple[list, list]:
+    """The tracks' states ``(n, 5)`` and covariances ``(n, 25)`` as lists of rows
+    (``ValueError`` for other shapes): each float64 array read by its own ``tolist`` (no array
+    built), anything else stacked by numpy."""
     if all(type(t.state) is np.ndarray and t.state.dtype == _F64 and t.state.shape == (STATE_DIM,)
            and type(t.covariance) is np.ndarray and t.covariance.dtype == _F64
            and t.covariance.shape == (STATE_DIM, STATE_DIM) for t in tracks):
-        s = [t.state.tolist() for t in tracks]
-        c = [list(_chain(t.covariance.tolist())) for t in tracks]
-    elif n:
-        states = np.array([t.state for t in tracks], dtype=float)
-        covs = np.array([t.covariance for t in tracks], dtype=float)
-        if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
-            return None
-        s, c = states.tolist(), covs.reshape(n, COV_DIM).tolist()
-    else:
-        return [], []
-    return (s, c) if math.isfinite(sum(map(sum, s)) + sum(map(sum, c))) else None
-
-
-def _plain_pmf_field(pmf: Any) -> Any:
-    """The wire value of a ``cardinality_pmf`` (``UNSET``: none) when it passes
-    :func:`_plain_pmf_ok`, else ``None``."""
-    if pmf is None:
-        return msgspec.UNSET
-    if type(pmf) is np.ndarray and pmf.dtype == _F64 and pmf.ndim == 1:
-        values = pmf.tolist()
-    else:
-        values = np.asarray(pmf, dtype=float).ravel().tolist()
-    return values if _plain_pmf_ok(values) else None
+        return [t.state.tolist() for t in tracks], [list(_chain(t.covariance.tolist())) for t in tracks]
+    states = np.array([t.state for t in tracks], dtype=float)
+    covs = np.array([t.covariance for t in tracks], dtype=float)
+    if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
+        raise ValueError("not the common estimate")
+    return states.tolist(), covs.reshape(n, COV_DIM).tolist()
 
 
 def _encode_msg(msg: Msg) -> bytes:
@@ -583,14 +448,12 @@ def encode(item: Msg | Frame | Estimate, run: str = "") -> bytes:
 
     ``item`` is a message struct (it carries its own ``run``: pass none), a :class:`Frame`
     (its ``/measurements`` message; the truth is not included: encode :func:`from_truth`) or an
-    :class:`Estimate` (its ``/tracks`` message, checked on the estimate's stacked arrays;
-    anything off takes the message path, which names the exact error).
+    :class:`Estimate` (its ``/tracks`` message).  Every message is checked by the contract's
+    rules (``tracker._message_checks``) before it is written.
     """
     if isinstance(item, Estimate):
         msg = _plain_tracks_msg(item, run)
-        if msg is None:
-            msg = _checked_tracks_msg(item, run)
-        return _encode_msg(from_estimate(item, run)) if msg is None else _ENCODER.encode(msg)
+        return _encode_msg(from_estimate(item, run) if msg is None else msg)
     if isinstance(item, Frame):
         return _encode_msg(from_frame(item, run))
     if run:

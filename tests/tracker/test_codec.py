@@ -481,11 +481,11 @@ def test_decode_msg_dispatch():
     assert isinstance(msgspec.json.decode(encode(f)), dict)
 
 
-def test_encode_tracks_fast_path_gives_the_checked_bytes():
-    """encode(estimate) checks the estimate on stacked arrays; its bytes are those of the
-    reference path (from_estimate + validation + encode), and whatever the fast check refuses
-    goes through the reference path, which raises the precise error (test above)."""
-    from bnptrack.tracker.messages import _checked_tracks_msg, from_estimate
+def test_encode_tracks_fast_path_gives_the_reference_bytes():
+    """encode(estimate) builds the common estimate's message faster (``_plain_tracks_msg``);
+    its bytes are those of the reference path (from_estimate + validation + encode), the
+    rest takes the reference path, and both raise the precise error of the one check."""
+    from bnptrack.tracker.messages import _plain_tracks_msg, from_estimate
 
     rng = np.random.default_rng(11)
     cases = [make_estimate(rng, k=k) for k in range(20)]
@@ -494,16 +494,17 @@ def test_encode_tracks_fast_path_gives_the_checked_bytes():
                        assignments=(None, "t0"), assignment_prob=(np.float64(0.0), 1.0),
                        diagnostics={"alpha": np.float32(1.5)})]
     for est in cases:
-        assert _checked_tracks_msg(est, "r") is not None
+        msg = _plain_tracks_msg(est, "r")
+        assert msg is None if isinstance(est.frame, np.integer) else msg == from_estimate(est, "r")
         assert encode(est, "r") == encode(from_estimate(est, "r"))
     t0 = cases[3].tracks[0]
-    for bad in (Estimate(1, 0, (t0, t0)),  # duplicate label
-                Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)),
-                Estimate(1, 0, (), ("a",), (np.nan,)),
-                Estimate(1, 2**63, ())):
-        assert _checked_tracks_msg(bad, "r") is None
-        with pytest.raises(CodecError):
+    for bad, field in ((Estimate(1, 0, (t0, t0)), "$.tracks[1]"),  # duplicate label
+                       (Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)), "$.tracks[0].existence"),
+                       (Estimate(1, 0, (), ("a",), (np.nan,)), "$.assignment_prob[0]"),
+                       (Estimate(1, 2**63, ()), "$.stamp_ns")):
+        with pytest.raises(CodecError) as ei:
             encode(bad, "r")
+        check_err(ei, TOPIC_TRACKS, 1, field)
 
 
 def test_track_cluster_schema_2_and_version_1_logs_still_read():

@@ -1,7 +1,8 @@
-"""The codec's plain-Python checks (session 11, issue 16: the frame path's latency): the
-common message is checked without numpy, and those checks are never looser than the full
-ones (tracker._message_checks): what they accept the full check accepts, with the same bytes;
-what they refuse goes to the full check, which names the error."""
+"""The codec's plain-Python checks (session 11, issue 16: the frame path's latency; one set of
+rules since session 12, tracker._message_checks): the common message is checked without numpy
+(each rule's quick test), anything else by the rule's exhaustive check, which names the error
+or passes what the quick test was too cautious for; encode(estimate) builds the common
+estimate's message faster, to the bytes of from_estimate."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from bnptrack.tracker._message_checks import check_measurements, check_tracks, check_truth
+from bnptrack.tracker._message_checks import check_measurements, check_tracks, check_truth, pmf_list_ok
 from bnptrack.tracker.messages import (
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
@@ -22,11 +23,7 @@ from bnptrack.tracker.messages import (
     TracksMsg,
     TruthMsg,
     TruthObject,
-    _checked_tracks_msg,
-    _plain_measurements,
-    _plain_tracks,
     _plain_tracks_msg,
-    _plain_truth,
     decode,
     encode,
     from_estimate,
@@ -48,7 +45,7 @@ def _estimate(rng: np.random.Generator, k: int, n: int = 4, m: int = 7, pmf: boo
                     p / p.sum() if pmf else None)
 
 
-def test_plain_encode_gives_the_checked_bytes_and_golden_digest():
+def test_plain_encode_gives_the_reference_bytes_and_golden_digest():
     rng = np.random.default_rng(5)
     cases = [_estimate(rng, k, n=k % 5, pmf=k % 3 > 0, cluster=k % 2 == 0) for k in range(30)]
     cases.append(Estimate(0, 0, ()))
@@ -59,11 +56,11 @@ def test_plain_encode_gives_the_checked_bytes_and_golden_digest():
            TrackEstimate("list", list(t0.state), t0.covariance.tolist(), 0.5),
            TrackEstimate("view", t0.state, t0.covariance.T, 0.5))
     for est in (Estimate(1, 0, odd), Estimate(1, 0, odd[2:], (), (), {}, [0.25, 0.75])):
-        assert _plain_tracks_msg(est, "r") == _checked_tracks_msg(est, "r")
+        assert _plain_tracks_msg(est, "r") == from_estimate(est, "r")
         assert encode(est, "r") == msgspec.json.encode(from_estimate(est, "r"))
     for est in cases:
         msg = _plain_tracks_msg(est, "r")
-        assert msg is not None and msg == _checked_tracks_msg(est, "r")
+        assert msg is not None and msg == from_estimate(est, "r")
         data = encode(est, "r")
         assert data == msgspec.json.encode(from_estimate(est, "r"))
         digest.update(data)
@@ -71,24 +68,35 @@ def test_plain_encode_gives_the_checked_bytes_and_golden_digest():
     assert digest.hexdigest()[:16] == "28d87f71011e9cf0"
 
 
-def test_plain_encode_refuses_what_is_not_the_common_estimate():
+def test_encode_names_the_error_of_any_estimate_by_the_one_check():
     rng = np.random.default_rng(6)
     good = _estimate(rng, 3)
     t0 = good.tracks[0]
-    pmf = np.array([0.5, 0.5 + 0.9e-6])  # within the tolerance, but nearer the limit than half of it
-    for est in (Estimate(np.int64(3), 9, good.tracks),  # numpy integers: the checked path takes them
-                Estimate(1, 0, (t0, t0)),  # duplicate label
-                Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)),
-                Estimate(1, 0, (TrackEstimate("x", np.r_[t0.state[:4], np.inf], t0.covariance, 0.5),)),
-                Estimate(1, 0, (), ("a",), (np.nan,)),
-                Estimate(1, 0, (), (), (), {"a": np.nan}),
-                Estimate(1, 2**63, ()),
-                Estimate(1, 0, (), (), (), {}, pmf)):
-        assert _plain_tracks_msg(est, "r") is None
-    # the near-limit pmf is valid: the checked path writes it
-    assert _checked_tracks_msg(Estimate(1, 0, (), (), (), {}, pmf), "r") is not None
-    with pytest.raises(CodecError, match="existence"):
-        encode(Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)), "r")
+    # numpy integers and ragged rows are not the common estimate: from_estimate builds those
+    wide = TrackEstimate("w", np.r_[t0.state, 0.0], t0.covariance, 0.5)
+    assert _plain_tracks_msg(Estimate(np.int64(3), 9, good.tracks), "r") is None
+    assert _plain_tracks_msg(Estimate(1, 0, (wide,)), "r") is None
+    assert encode(Estimate(np.int64(3), 9, good.tracks), "r") == encode(Estimate(3, 9, good.tracks), "r")
+    bad = [(Estimate(1, 0, (t0, t0)), rf"duplicate track label '{t0.label}' - at `\$\.tracks\[1\]`"),
+           (Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)),
+            r"existence must be in \[0, 1\], got 1\.5 - at `\$\.tracks\[0\]\.existence`"),
+           (Estimate(1, 0, (TrackEstimate("x", np.r_[t0.state[:4], np.inf], t0.covariance, 0.5),)),
+            r"non-finite value inf - at `\$\.tracks\[0\]\.state\[4\]`"),
+           (Estimate(1, 0, (wide,)), r"state of length 6, expected 5 - at `\$\.tracks\[0\]\.state`"),
+           (Estimate(1, 0, (), ("a",), (np.nan,)), r"probability must be in \[0, 1\], got nan"),
+           (Estimate(1, 0, (), (), (), {"a": np.nan}), r"non-finite value nan - at `\$\.diagnostics\.a`"),
+           (Estimate(1, 2**63, ()), r"stamp_ns must be an integer in \[0, 2\*\*63\)"),
+           (Estimate(1, 0, (), (), (), {}, [0.5, 0.6]), r"it has a sum of 1\.1"),
+           (Estimate(1, 0, (), (), (), {}, [0.5, 0.5 + 2e-6]), r"it has a sum of 1\.0000019")]
+    for est, text in bad:
+        with pytest.raises(CodecError, match=text):
+            encode(est, "r")
+    # within the tolerance but nearer the limit than the quick test's half of it: the rule
+    # (numpy's sum) passes it
+    pmf = np.array([0.5, 0.5 + 0.9e-6])
+    assert not pmf_list_ok(pmf.tolist())
+    est = Estimate(1, 0, (), (), (), {}, pmf)
+    assert encode(est, "r") == msgspec.json.encode(from_estimate(est, "r"))
 
 
 def _meas(**over) -> MeasurementsMsg:
@@ -98,19 +106,23 @@ def _meas(**over) -> MeasurementsMsg:
     return MeasurementsMsg(**fields)
 
 
-def test_plain_measurements_check_accepts_the_common_message_and_is_never_looser():
-    assert _plain_measurements(_meas()) and _plain_measurements(_meas(z=[]))
-    assert _plain_measurements(_meas(kind="range", z=[[5.0]]))
-    bad = [_meas(v=3), _meas(frame=-1), _meas(stamp_ns=2**63), _meas(kind="nope"), _meas(z=[[0.1]]),
-           _meas(z=[[0.1, float("nan")]]), _meas(z=[[4.0, 1.0]]), _meas(z=[[0.1, -1.0]]),
-           _meas(z=[[0.1, float("inf")]]), _meas(run=None)]
-    for msg in bad:
-        assert not _plain_measurements(msg)
-        with pytest.raises(CodecError):
+def test_measurements_check_accepts_the_common_message_and_names_errors():
+    for msg in (_meas(), _meas(z=[]), _meas(kind="range", z=[[5.0]]), _meas(pose=[0.0, 0.0, 0.0]),
+                _meas(R=[[0.01, 0.0], [0.0, 4.0]])):
+        check_measurements(msg)
+    # a sum of large finite values overflows: the quick test fails, the exhaustive check passes
+    check_measurements(_meas(z=[[0.1, 1e308], [0.2, 1e308]]))
+    bad = [(_meas(v=3), "unsupported schema version 3"), (_meas(frame=-1), "frame must be an integer >= 0"),
+           (_meas(stamp_ns=2**63), "stamp_ns must be an integer"), (_meas(kind="nope"), "unknown kind 'nope'"),
+           (_meas(z=[[0.1]]), r"z row \(kind 'bearing_range'\) of length 1, expected 2 - at `\$\.z\[0\]`"),
+           (_meas(z=[[0.1, float("nan")]]), r"non-finite value nan - at `\$\.z\[0\]\[1\]`"),
+           (_meas(z=[[4.0, 1.0]]), r"bearing must be within \[-pi, pi\], got 4\.0 - at `\$\.z\[0\]\[0\]`"),
+           (_meas(z=[[0.1, -1.0]]), r"range must be >= 0, got -1\.0 - at `\$\.z\[0\]\[1\]`"),
+           (_meas(z=[[0.1, float("inf")]]), r"non-finite value inf - at `\$\.z\[0\]\[1\]`"),
+           (_meas(run=None), "run must be a string"), (_meas(sensor=3), "sensor must be a string")]
+    for msg, text in bad:
+        with pytest.raises(CodecError, match=text):
             check_measurements(msg)
-    # pose and R: valid, but left to the full check
-    with_pose = _meas(pose=[0.0, 0.0, 0.0])
-    assert not _plain_measurements(with_pose) and check_measurements(with_pose).shape == (2, 2)
 
 
 def _tracks(**over) -> TracksMsg:
@@ -122,25 +134,37 @@ def _tracks(**over) -> TracksMsg:
     return TracksMsg(**fields)
 
 
-def test_plain_tracks_and_truth_checks_are_never_looser():
+def test_tracks_and_truth_checks_accept_the_common_message_and_name_errors():
     track = TrackMsg(label="a", state=[1.0] * 5, covariance=[0.0] * 25, existence=0.9)
-    assert _plain_tracks(_tracks()) and _plain_tracks(_tracks(v=1, cardinality_pmf=msgspec.UNSET))
-    bad = [_tracks(v=2), _tracks(tracks=[track, track]), _tracks(assignment_prob=[0.8]),
-           _tracks(assignment_prob=[0.8, 1.5]), _tracks(diagnostics={"x": float("nan")}),
-           _tracks(cardinality_pmf=[0.5, 0.6]), _tracks(cardinality_pmf=[-0.5, 1.5]),
-           _tracks(tracks=[TrackMsg(label="a", state=[float("nan")] * 5, covariance=[0.0] * 25, existence=0.9)]),
-           _tracks(tracks=[TrackMsg(label="a", state=[1.0] * 5, covariance=[0.0] * 25, existence=1.1)])]
-    for msg in bad:
-        assert not _plain_tracks(msg)
-        with pytest.raises(CodecError):
+    check_tracks(_tracks())
+    check_tracks(_tracks(v=1, cardinality_pmf=msgspec.UNSET))
+    bad = [(_tracks(v=4), "unsupported schema version 4"),
+           (_tracks(tracks=[track, track]), r"duplicate track label 'a' - at `\$\.tracks\[1\]`"),
+           (_tracks(assignment_prob=[0.8]), r"len\(assignments\) = 2 != len\(assignment_prob\) = 1"),
+           (_tracks(assignment_prob=[0.8, 1.5]), r"probability must be in \[0, 1\], got 1\.5 - at `\$\.assignment_prob\[1\]`"),
+           (_tracks(assignments=["a", 3]), r"assignment must be a label or null - at `\$\.assignments\[1\]`"),
+           (_tracks(diagnostics={"x": float("nan")}), r"non-finite value nan - at `\$\.diagnostics\.x`"),
+           (_tracks(cardinality_pmf=[0.5, 0.6]), r"it has a sum of 1\.1"),
+           (_tracks(cardinality_pmf=[-0.5, 1.5]), "it has a negative entry -0.5"),
+           (_tracks(v=2, cardinality_pmf=[1.0]), "cardinality_pmf needs schema version 3"),
+           (_tracks(tracks=[TrackMsg(label="a", state=[float("nan")] * 5, covariance=[0.0] * 25, existence=0.9)]),
+            r"non-finite value nan - at `\$\.tracks\[0\]\.state\[0\]`"),
+           (_tracks(tracks=[TrackMsg(label="a", state=[1.0] * 5, covariance=[0.0] * 24, existence=0.9)]),
+            r"covariance of length 24, expected 25 - at `\$\.tracks\[0\]\.covariance`"),
+           (_tracks(tracks=[TrackMsg(label="a", state=[1.0] * 5, covariance=[0.0] * 25, existence=1.1)]),
+            r"existence must be in \[0, 1\], got 1\.1 - at `\$\.tracks\[0\]\.existence`")]
+    for msg, text in bad:
+        with pytest.raises(CodecError, match=text):
             check_tracks(msg)
-    truth = TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[1.0] * 5)])
-    assert _plain_truth(truth)
-    for msg in (TruthMsg(v=2, run="r", frame=1, stamp_ns=0, objects=[]),
-                TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[1.0] * 5)] * 2),
-                TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[float("inf")] * 5)])):
-        assert not _plain_truth(msg)
-        with pytest.raises(CodecError):
+    check_truth(TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[1.0] * 5)]))
+    for msg, text in ((TruthMsg(v=2, run="r", frame=1, stamp_ns=0, objects=[]), "unsupported schema version 2"),
+                      (TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[1.0] * 5)] * 2),
+                       r"duplicate object id 'a' - at `\$\.objects\[1\]`"),
+                      (TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id=5, state=[1.0] * 5)]),
+                       r"id must be a string - at `\$\.objects\[0\]\.id`"),
+                      (TruthMsg(v=1, run="r", frame=1, stamp_ns=0, objects=[TruthObject(id="a", state=[float("inf")] * 5)]),
+                       r"non-finite value inf - at `\$\.objects\[0\]\.state\[0\]`")):
+        with pytest.raises(CodecError, match=text):
             check_truth(msg)
 
 
@@ -149,7 +173,7 @@ def test_decode_of_the_common_messages_round_trips_and_still_names_errors():
     est = _estimate(rng, 4)
     data = encode(est, "r")
     msg = decode(TOPIC_TRACKS, data)
-    assert _plain_tracks(msg) and msgspec.json.encode(msg) == data
+    assert msgspec.json.encode(msg) == data
     assert decode(TOPIC_TRUTH, b'{"frame":1,"stamp_ns":0,"objects":[{"id":"a","state":[1,2,3,4,5]}]}').objects[0].state[4] == 5.0
     with pytest.raises(CodecError, match=r"range must be >= 0, got -1.0 - at `\$\.z\[1\]\[1\]`"):
         decode(TOPIC_MEASUREMENTS, b'{"frame":1,"stamp_ns":0,"sensor":"s","kind":"bearing_range","z":[[0,1],[0,-1]]}')
