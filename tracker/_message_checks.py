@@ -69,6 +69,9 @@ MAX_ROW_DIM = 64
 COV_DIM = STATE_DIM * STATE_DIM
 
 _FMAX = sys.float_info.max
+_V1 = (SCHEMA_VERSION,)
+_STR = frozenset({str})
+_LABEL_TYPES = frozenset({str, type(None)})
 
 
 class CodecError(ValueError):
@@ -96,13 +99,8 @@ def is_int(x: Any) -> bool:
     return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
 
 
-def _int(x: Any) -> bool:
-    """:func:`is_int`, answered at once for a Python ``int`` (every decoded integer)."""
-    return type(x) is int or is_int(x)
-
-
 def _versions(topic: str) -> tuple[int, ...]:
-    return READ_VERSIONS.get(topic, (SCHEMA_VERSION,))
+    return READ_VERSIONS.get(topic, _V1)
 
 
 def _versions_text(topic: str) -> str:
@@ -119,25 +117,19 @@ def _version_error(topic: str, frame: int | None, version: Any) -> CodecError:
 def check_header(topic: str, msg: Any) -> int:
     """Check v / frame / stamp_ns / run of the shared header; return the frame index."""
     v, frame, stamp = msg.v, msg.frame, msg.stamp_ns
-    known = frame if _int(frame) else None
-    if not _int(v) or v not in _versions(topic):
+    if type(v) is int and type(frame) is int and type(stamp) is int and type(msg.run) is str \
+            and v in READ_VERSIONS.get(topic, _V1) and frame >= 0 and 0 <= stamp <= MAX_STAMP:
+        return frame  # the quick test: a decoded header
+    known = frame if is_int(frame) else None
+    if not is_int(v) or v not in _versions(topic):
         raise _version_error(topic, known, v)
     if known is None or frame < 0:
         raise CodecError(topic, known, f"frame must be an integer >= 0, got {frame!r} - at `$.frame`")
-    if not _int(stamp) or not 0 <= stamp <= MAX_STAMP:
+    if not is_int(stamp) or not 0 <= stamp <= MAX_STAMP:
         raise CodecError(topic, frame, f"stamp_ns must be an integer in [0, 2**63), got {stamp!r} - at `$.stamp_ns`")
     if not isinstance(msg.run, str):
         raise CodecError(topic, frame, "run must be a string - at `$.run`")
-    return frame if type(frame) is int else int(frame)
-
-
-def _rows_ok(rows: list, width: int) -> bool:
-    """Quick test: every row of ``width`` numbers, all finite (NaN and inf make the sum
-    non-finite; so does an overflow of large finite values: the exhaustive check then passes)."""
-    try:
-        return not rows or (set(map(len, rows)) == {width} and math.isfinite(sum(map(sum, rows))))
-    except TypeError:
-        return False
+    return int(frame)
 
 
 def _unit_ok(values: list) -> bool:
@@ -206,7 +198,7 @@ def _check_unique(topic: str, frame: int, names: list, path: str, what: str) -> 
 
 def _check_strings(topic: str, frame: int, names: list, attr: str, path: str, what: str) -> None:
     """The ``attr`` of every item (``names``, in order) must be a string, and unique."""
-    if all(type(name) is str for name in names) and len(set(names)) == len(names):
+    if set(map(type, names)) <= _STR and len(set(names)) == len(names):
         return
     for i, name in enumerate(names):
         if not isinstance(name, str):
@@ -238,7 +230,8 @@ def check_measurements(msg: Any) -> None:
     if not isinstance(msg.sensor, str):
         raise CodecError(topic, frame, "sensor must be a string - at `$.sensor`")
     rows = msg.z
-    _check_size(topic, frame, rows, MAX_MEASUREMENTS, "$.z")
+    if len(rows) > MAX_MEASUREMENTS:
+        _check_size(topic, frame, rows, MAX_MEASUREMENTS, "$.z")
     if msg.pose is not None or msg.R is not None:
         _check_pose_r(topic, frame, msg, kind.dim)
     if rows and not _within(rows, kind):
@@ -307,16 +300,20 @@ def check_truth(msg: Any) -> None:
     topic = TOPIC_TRUTH
     frame = check_header(topic, msg)
     objects = msg.objects
-    _check_size(topic, frame, objects, MAX_OBJECTS, "$.objects")
+    if len(objects) > MAX_OBJECTS:
+        _check_size(topic, frame, objects, MAX_OBJECTS, "$.objects")
     _check_strings(topic, frame, [o.id for o in objects], "id", "$.objects", "object id")
+    try:  # the quick test
+        if all(len(o.state) == STATE_DIM and math.isfinite(sum(o.state)) for o in objects):
+            return
+    except TypeError:
+        pass
     _check_rows(topic, frame, [o.state for o in objects], STATE_DIM, "$.objects[{i}].state", "state")
 
 
 def _check_rows(topic: str, frame: int, rows: list, width: int, row_path: str, what: str) -> None:
-    """Rows of ``width`` finite numbers (``row_path`` formats row ``i``, e.g.
-    ``"$.tracks[{i}].state"``): the quick test, then the exhaustive check."""
-    if _rows_ok(rows, width):
-        return
+    """The exhaustive check of rows of ``width`` finite numbers (``row_path`` formats row
+    ``i``, e.g. ``"$.tracks[{i}].state"``), after their quick test failed."""
     arr = _rows_array(topic, frame, rows, width, row_path, what)
     if not np.isfinite(arr).all():
         i, j = np.argwhere(~np.isfinite(arr))[0]
@@ -354,14 +351,18 @@ def _check_track_rows(frame: int, tracks: list) -> None:
     """Labels (strings, unique), states (5), covariances (25), all finite; existence in [0, 1]."""
     topic = TOPIC_TRACKS
     _check_strings(topic, frame, [t.label for t in tracks], "label", "$.tracks", "track label")
+    try:  # the quick test, one pass
+        if all(len(t.state) == STATE_DIM and len(t.covariance) == COV_DIM and 0.0 <= t.existence <= 1.0
+               and math.isfinite(sum(t.state) + sum(t.covariance)) for t in tracks):
+            return
+    except TypeError:
+        pass
     states, covs = [t.state for t in tracks], [t.covariance for t in tracks]
-    if not (_rows_ok(states, STATE_DIM) and _rows_ok(covs, COV_DIM)):  # lengths of both, then values
-        _rows_array(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")
-        _rows_array(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
-        _check_rows(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")
-        _check_rows(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
-    if tracks:
-        _check_unit(topic, frame, [t.existence for t in tracks], "existence", "$.tracks[{i}].existence")
+    _rows_array(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")  # lengths of both, then values
+    _rows_array(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
+    _check_rows(topic, frame, states, STATE_DIM, "$.tracks[{i}].state", "state")
+    _check_rows(topic, frame, covs, COV_DIM, "$.tracks[{i}].covariance", "covariance")
+    _check_unit(topic, frame, [t.existence for t in tracks], "existence", "$.tracks[{i}].existence")
 
 
 def _check_assignments(frame: int, msg: Any) -> None:
@@ -371,7 +372,7 @@ def _check_assignments(frame: int, msg: Any) -> None:
     if len(assignments) != len(probs):
         raise CodecError(topic, frame, f"len(assignments) = {len(assignments)} != len(assignment_prob) = "
                                        f"{len(probs)} - at `$.assignment_prob`")
-    if not all(a is None or type(a) is str for a in assignments):
+    if not set(map(type, assignments)) <= _LABEL_TYPES:
         for i, a in enumerate(assignments):
             if a is not None and not isinstance(a, str):
                 raise CodecError(topic, frame, f"assignment must be a label or null - at `$.assignments[{i}]`")
