@@ -50,3 +50,16 @@ def test_zero_survival_is_allowed():
     p = load_params("vo2017", ["p_survival_outside=0.0"])
     assert p.survival_over(_leaving(2010.0), 2.0)[0] == 0.0
     assert p.survival_over(_leaving(1500.0), 2.0)[0] == pytest.approx(0.99**2, rel=1e-12)
+
+
+@pytest.mark.parametrize("dt", [0.5, 1.0, 2.0])
+def test_the_callers_field_of_view_test_gives_the_same_survival(dt):
+    """``visible``: the frame's sensor's own test of the states (a tracker's P_D shares it,
+    BnpTracker._predict) gives the survival computed without it, bit for bit, with no declared
+    sensor and with one (``far``, 2500 m up, sees 3000 m: 0.99 there only with it)."""
+    x = np.vstack([_leaving(1990.0), _leaving(2010.0), _leaving(3000.0), _leaving(4600.0)])
+    for p, want in ((load_params("vo2017"), [0.99, 0.7, 0.7, 0.7]),
+                    (load_params("vo2017", ["sensors.far.y=2500.0"]), [0.99, 0.7, 0.99, 0.7])):
+        seen = p.detection().visible(x)
+        np.testing.assert_array_equal(p.survival_over(x, dt, visible=seen), p.survival_over(x, dt))
+        np.testing.assert_array_equal(p.survival(x, visible=seen), want)
