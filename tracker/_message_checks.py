@@ -132,7 +132,7 @@ def check_header(topic: str, msg: Any) -> int:
     return int(frame)
 
 
-def _unit_ok(values: list) -> bool:
+def unit_ok(values: list) -> bool:
     """Quick test: every value a number in ``[0, 1]`` (NaN and inf fail: the sum is not finite)."""
     try:
         return not values or (math.isfinite(sum(values)) and min(values) >= 0.0 and max(values) <= 1.0)
@@ -208,7 +208,7 @@ def _check_strings(topic: str, frame: int, names: list, attr: str, path: str, wh
 
 def _check_unit(topic: str, frame: int, values: Any, what: str, path: str) -> None:
     """Every value in ``[0, 1]`` (NaN fails); ``path`` formats index ``i``."""
-    if _unit_ok(values):
+    if unit_ok(values):
         return
     p = np.array(values, dtype=float)
     bad = ~((p >= 0.0) & (p <= 1.0))

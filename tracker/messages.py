@@ -49,6 +49,7 @@ Pure: msgspec, numpy and ``tracker`` only (no mcap, no zenoh).
 
 from __future__ import annotations
 
+import math
 from itertools import chain
 from typing import Annotated, Any, Union
 
@@ -78,6 +79,8 @@ from bnptrack.tracker._message_checks import (
     check_truth,
     decode_error,
     is_int,
+    pmf_list_ok,
+    unit_ok,
 )
 from bnptrack.tracker.config import NonNegInt, Prob
 from bnptrack.tracker.models.measurement import KINDS, measurement_kind
@@ -392,42 +395,68 @@ def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
 
 
 def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
-    """The message :func:`from_estimate` builds (not validated either), built faster for the
-    common estimate: Python integer frame and stamp, float64 track arrays each read by its own
-    ``tolist`` (anything else stacked by numpy); ``None`` for any other (then
-    :func:`from_estimate`, which names what is off)."""
-    tracks = est.tracks
-    if type(est.frame) is not int or type(est.stamp_ns) is not int:
+    """The message :func:`from_estimate` builds, checked as it is built by the contract's quick
+    tests (``tracker._message_checks``: plain Python on lists; two numpy calls to stack track
+    arrays that are not float64, none otherwise): ``None`` when one fails or the estimate is
+    not the common one, and :func:`encode` then takes the reference path (:func:`from_estimate`
+    and every check), which names the error or writes what the quick tests were too cautious
+    for (the same bytes)."""
+    tracks, n = est.tracks, len(est.tracks)
+    frame, stamp = est.frame, est.stamp_ns
+    if type(frame) is not int or frame < 0 or type(stamp) is not int or not 0 <= stamp <= MAX_STAMP \
+            or type(run) is not str or n > MAX_TRACKS or len(est.diagnostics) > MAX_DIAGNOSTICS:
         return None
     try:
-        rows = _plain_rows(tracks, len(tracks))
         probs = [float(p) for p in est.assignment_prob]
-        msgs = [TrackMsg(label=str(t.label), state=st, covariance=cv, existence=float(t.existence),
-                         cluster=None if t.cluster is None else int(t.cluster))
-                for st, cv, t in zip(rows[0], rows[1], tracks)]
+        exist = [float(t.existence) for t in tracks]
+        diag = {str(k): float(v) for k, v in est.diagnostics.items()}
+        rows = _plain_rows(tracks, n)
+        pmf = _plain_pmf_field(getattr(est, "cardinality_pmf", None))
     except (TypeError, ValueError):
         return None
-    pmf = getattr(est, "cardinality_pmf", None)
-    pmf = pmf.tolist() if type(pmf) is np.ndarray and pmf.dtype == _F64 and pmf.ndim == 1 else _pmf_field(pmf)
-    return TracksMsg(v=_tracks_version(msgs, pmf), run=run, frame=est.frame, stamp_ns=est.stamp_ns, tracks=msgs,
+    labels = [str(t.label) for t in tracks]
+    if rows is None or pmf is None or len(set(labels)) != n or len(est.assignments) != len(probs) \
+            or len(probs) > MAX_MEASUREMENTS or not (unit_ok(probs) and unit_ok(exist)) \
+            or not math.isfinite(sum(diag.values())):
+        return None
+    msgs = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
+                     cluster=None if t.cluster is None else int(t.cluster))
+            for lab, st, cv, ex, t in zip(labels, rows[0], rows[1], exist, tracks)]
+    return TracksMsg(v=_tracks_version(msgs, pmf), run=run, frame=frame, stamp_ns=stamp, tracks=msgs,
                      assignments=[None if a is None else str(a) for a in est.assignments],
-                     assignment_prob=probs, diagnostics={str(k): float(v) for k, v in est.diagnostics.items()},
-                     cardinality_pmf=pmf)
+                     assignment_prob=probs, diagnostics=diag, cardinality_pmf=pmf)
 
 
-def _plain_rows(tracks: tuple, n: int) -> tuple[list, list]:
-    """The tracks' states ``(n, 5)`` and covariances ``(n, 25)`` as lists of rows
-    (``ValueError`` for other shapes): each float64 array read by its own ``tolist`` (no array
-    built), anything else stacked by numpy."""
+def _plain_rows(tracks: tuple, n: int) -> tuple[list, list] | None:
+    """The tracks' states ``(n, 5)`` and covariances ``(n, 25)`` as lists of rows, all finite
+    (``None`` otherwise; ``ValueError`` for ragged ones): each float64 array read by its own
+    ``tolist`` (no array built), anything else stacked by numpy."""
     if all(type(t.state) is np.ndarray and t.state.dtype == _F64 and t.state.shape == (STATE_DIM,)
            and type(t.covariance) is np.ndarray and t.covariance.dtype == _F64
            and t.covariance.shape == (STATE_DIM, STATE_DIM) for t in tracks):
-        return [t.state.tolist() for t in tracks], [list(_chain(t.covariance.tolist())) for t in tracks]
-    states = np.array([t.state for t in tracks], dtype=float)
-    covs = np.array([t.covariance for t in tracks], dtype=float)
-    if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
-        raise ValueError("not the common estimate")
-    return states.tolist(), covs.reshape(n, COV_DIM).tolist()
+        s = [t.state.tolist() for t in tracks]
+        c = [list(_chain(t.covariance.tolist())) for t in tracks]
+    elif n:
+        states = np.array([t.state for t in tracks], dtype=float)
+        covs = np.array([t.covariance for t in tracks], dtype=float)
+        if states.shape != (n, STATE_DIM) or covs.shape != (n, STATE_DIM, STATE_DIM):
+            return None
+        s, c = states.tolist(), covs.reshape(n, COV_DIM).tolist()
+    else:
+        return [], []
+    return (s, c) if math.isfinite(sum(map(sum, s)) + sum(map(sum, c))) else None
+
+
+def _plain_pmf_field(pmf: Any) -> Any:
+    """The wire value of a ``cardinality_pmf`` (``UNSET``: none) when it passes
+    ``pmf_list_ok``, else ``None``."""
+    if pmf is None:
+        return msgspec.UNSET
+    if type(pmf) is np.ndarray and pmf.dtype == _F64 and pmf.ndim == 1:
+        values = pmf.tolist()
+    else:
+        values = np.asarray(pmf, dtype=float).ravel().tolist()
+    return values if pmf_list_ok(values) else None
 
 
 def _encode_msg(msg: Msg) -> bytes:
@@ -448,12 +477,14 @@ def encode(item: Msg | Frame | Estimate, run: str = "") -> bytes:
 
     ``item`` is a message struct (it carries its own ``run``: pass none), a :class:`Frame`
     (its ``/measurements`` message; the truth is not included: encode :func:`from_truth`) or an
-    :class:`Estimate` (its ``/tracks`` message).  Every message is checked by the contract's
-    rules (``tracker._message_checks``) before it is written.
+    :class:`Estimate` (its ``/tracks`` message: the common estimate's checked by the rules'
+    quick tests as it is built; anything off takes the message path, :func:`from_estimate`
+    and every check, which names the exact error).  The rules are those of
+    ``tracker._message_checks``, for decoding and encoding alike.
     """
     if isinstance(item, Estimate):
         msg = _plain_tracks_msg(item, run)
-        return _encode_msg(from_estimate(item, run) if msg is None else msg)
+        return _encode_msg(from_estimate(item, run)) if msg is None else _ENCODER.encode(msg)
     if isinstance(item, Frame):
         return _encode_msg(from_frame(item, run))
     if run:

@@ -482,9 +482,10 @@ def test_decode_msg_dispatch():
 
 
 def test_encode_tracks_fast_path_gives_the_reference_bytes():
-    """encode(estimate) builds the common estimate's message faster (``_plain_tracks_msg``);
-    its bytes are those of the reference path (from_estimate + validation + encode), the
-    rest takes the reference path, and both raise the precise error of the one check."""
+    """encode(estimate) builds and checks the common estimate's message in plain Python
+    (``_plain_tracks_msg``); its bytes are those of the reference path (from_estimate +
+    validation + encode), and whatever it refuses takes the reference path, which raises the
+    precise error."""
     from bnptrack.tracker.messages import _plain_tracks_msg, from_estimate
 
     rng = np.random.default_rng(11)
@@ -502,6 +503,7 @@ def test_encode_tracks_fast_path_gives_the_reference_bytes():
                        (Estimate(1, 0, (TrackEstimate("x", t0.state, t0.covariance, 1.5),)), "$.tracks[0].existence"),
                        (Estimate(1, 0, (), ("a",), (np.nan,)), "$.assignment_prob[0]"),
                        (Estimate(1, 2**63, ()), "$.stamp_ns")):
+        assert _plain_tracks_msg(bad, "r") is None
         with pytest.raises(CodecError) as ei:
             encode(bad, "r")
         check_err(ei, TOPIC_TRACKS, 1, field)

@@ -2,7 +2,8 @@
 rules since session 12, tracker._message_checks): the common message is checked without numpy
 (each rule's quick test), anything else by the rule's exhaustive check, which names the error
 or passes what the quick test was too cautious for; encode(estimate) builds the common
-estimate's message faster, to the bytes of from_estimate."""
+estimate's message checked by the same quick tests, to the bytes of from_estimate, and leaves
+anything else to from_estimate and the checks."""
 
 from __future__ import annotations
 
@@ -89,13 +90,14 @@ def test_encode_names_the_error_of_any_estimate_by_the_one_check():
            (Estimate(1, 0, (), (), (), {}, [0.5, 0.6]), r"it has a sum of 1\.1"),
            (Estimate(1, 0, (), (), (), {}, [0.5, 0.5 + 2e-6]), r"it has a sum of 1\.0000019")]
     for est, text in bad:
+        assert _plain_tracks_msg(est, "r") is None  # the reference path names it
         with pytest.raises(CodecError, match=text):
             encode(est, "r")
-    # within the tolerance but nearer the limit than the quick test's half of it: the rule
-    # (numpy's sum) passes it
+    # within the tolerance but nearer the limit than the quick test's half of it: the
+    # reference path's rule (numpy's sum) passes it
     pmf = np.array([0.5, 0.5 + 0.9e-6])
-    assert not pmf_list_ok(pmf.tolist())
     est = Estimate(1, 0, (), (), (), {}, pmf)
+    assert not pmf_list_ok(pmf.tolist()) and _plain_tracks_msg(est, "r") is None
     assert encode(est, "r") == msgspec.json.encode(from_estimate(est, "r"))
 
 
