@@ -301,6 +301,39 @@ def frame_segments(out: Path, lat: dict) -> dict[str, list[float]]:
     return seg
 
 
+#: Bins of the time between the sink's receipt of a frame's /measurements and of its /tracks
+#: (ms): in the first, the sink's main thread may still hold the GIL for that frame's
+#: /measurements and /truth when the /tracks callback wants it (session 12).
+SINK_GAP_BINS = ((-1e9, 1.0, "< 1"), (1.0, 3.0, "1-3"), (3.0, 5.0, "3-5"), (5.0, 1e9, ">= 5"))
+
+
+def sink_gap_split(paced: dict) -> list[tuple[str, int, float, float]]:
+    """Per :data:`SINK_GAP_BINS` bin of the gap (sink receipt of /tracks minus that of the
+    frame's /measurements): ``(label, frames, tracker -> sink p50, p90)``; empty when the
+    per-frame lists are not aligned (a frame without one of the stamps)."""
+    h = paced["hops_ms"]
+    e2e = np.asarray(paced["e2e_ms"], float)
+    meas = np.asarray(h.get("source_to_sink_measurements_ms", []), float)
+    t2s = np.asarray(h.get("tracker_to_sink_ms", []), float)
+    if not e2e.size or not e2e.size == meas.size == t2s.size:
+        return []
+    gap = e2e - meas
+    out = []
+    for lo, hi, label in SINK_GAP_BINS:
+        sel = t2s[(gap >= lo) & (gap < hi)]
+        if sel.size:
+            out.append((label, int(sel.size), pct(sel, 50), pct(sel, 90)))
+    return out
+
+
+def report_sink_gap(paced: dict) -> None:
+    """One line: tracker -> sink by :func:`sink_gap_split`'s bins."""
+    rows = sink_gap_split(paced)
+    if rows:
+        print("  tracker -> sink p50 (p90) by the sink's /measurements -> /tracks gap: " + "; ".join(
+            f"{label} ms: {n} frames {a:.2f} ({b:.2f})" for label, n, a, b in rows))
+
+
 def report_segments(seg: dict[str, list[float]]) -> None:
     """One line: p50 (p99) of each segment of the frame path."""
     if not seg or not seg.get("step"):
@@ -858,6 +891,7 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
               "{:.2f} ({:.2f}) ms; tracker -> sink {:.2f} ({:.2f}) ms".format(
                   *(v for k in HOPS for v in (pct(h[k], 50), pct(h[k], 99)))))
         report_segments(paced.get("segments_ms", {}))
+        report_sink_gap(paced)
         if all(h.get(k) for k in SPLITS):
             print("  of which the tracker's hand-off (callback -> main thread) {:.2f} ({:.2f}) ms; the same "
                   "/measurements source -> sink {:.2f} ({:.2f}) ms".format(

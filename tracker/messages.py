@@ -251,23 +251,18 @@ def decode(topic: str, data: bytes | bytearray | memoryview | str) -> Msg:
 
 
 def to_frame(msg: MeasurementsMsg, truth: Truth | None = None) -> Frame:
-    """A (validated) measurements message as a :class:`Frame`."""
+    """A measurements message checked by :func:`decode` as a :class:`Frame`.  Its ``z`` is
+    not checked again (:meth:`Frame.checked`: the codec's checks are the edge's); a message
+    not from :func:`decode` goes through ``Frame(...)`` instead."""
     d = measurement_kind(msg.kind).dim
     z = (
         np.fromiter(_chain(msg.z), dtype=float, count=len(msg.z) * d).reshape(-1, d)
         if msg.z
         else np.zeros((0, d))
     )
-    return Frame(
-        frame=msg.frame,
-        stamp_ns=msg.stamp_ns,
-        sensor=msg.sensor,
-        kind=msg.kind,
-        z=z,
-        truth=truth,
-        pose=None if msg.pose is None else tuple(msg.pose),
-        R=None if msg.R is None else np.array(msg.R, dtype=float),
-    )
+    return Frame.checked(msg.frame, msg.stamp_ns, msg.sensor, msg.kind, z, truth,
+                         None if msg.pose is None else tuple(msg.pose),
+                         None if msg.R is None else np.array(msg.R, dtype=float))
 
 
 def to_truth(msg: TruthMsg) -> Truth:

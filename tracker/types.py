@@ -117,6 +117,29 @@ class Frame:
         z = np.asarray(self.z, dtype=float).reshape(-1, d)
         check_finite_rows(self.frame, z)
         object.__setattr__(self, "z", z)
+        self._check_pose_r(d)
+
+    @classmethod
+    def checked(cls, frame: int, stamp_ns: int, sensor: str, kind: str, z: np.ndarray,
+                truth: Truth | None = None, pose: tuple[float, float, float] | None = None,
+                R: np.ndarray | None = None) -> Frame:
+        """A frame of data already checked at the edge: the codec's :func:`tracker.messages.decode`
+        (:func:`tracker.messages.to_frame` builds its frames here).  ``kind`` must be a kind of
+        the registry and ``z`` a float64 ``(M, d)`` array of finite values of that kind: they
+        are taken as they are, not checked a second time (the constructor's check of ``z``
+        costs about 140 us on a paced pipeline's frame path: docs/pipeline.md, "Session 12:
+        s12-lat").  ``pose`` and ``R`` are checked and normalised as by the constructor.
+        Anything not checked by the codec goes through ``Frame(...)``."""
+        self = object.__new__(cls)
+        self.__dict__.update(frame=frame, stamp_ns=stamp_ns, sensor=sensor, kind=kind, z=z, truth=truth,
+                             pose=pose, R=R)
+        if pose is not None or R is not None:
+            self._check_pose_r(KINDS[kind].dim)
+        return self
+
+    def _check_pose_r(self, d: int) -> None:
+        """Check ``pose`` (3 finite numbers, stored as a tuple of floats) and ``R`` (a ``(d, d)``
+        symmetric positive-definite matrix, stored symmetrised)."""
         if self.pose is not None:
             pose = tuple(float(v) for v in self.pose)
             if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
