@@ -24,6 +24,7 @@ from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, S
 from bnptrack.pipeline.stages.salvage import UpstreamWatch
 from bnptrack.tracker._numerics import preload
 from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.filtering import SCIPY_PAIRS
 from bnptrack.tracker.types import Frame, FrameBounds
 
 __all__ = ["LAZY_IMPORTS", "LAZY_PAIRS", "TrackerStage", "build_stage_tracker", "compiled_kernels", "contest_frames",
@@ -33,8 +34,8 @@ log = logging.getLogger("bnptrack.stage")
 
 #: Modules the trackers import on first need, inside a step, on large frames only: the KD-tree
 #: gating (``scipy.spatial``, tracker/filtering.py) and the per-component JPDA* assignment
-#: (``scipy.sparse.csgraph``, tracker/bnp/assignment.py) take over from 20,000 track x
-#: measurement pairs.  A first import in the frame loop stalls that frame and queues the frames
+#: (``scipy.sparse.csgraph``, tracker/bnp/assignment.py) take over from
+#: :data:`~tracker.filtering.SCIPY_PAIRS` track x measurement pairs.  A first import in the frame loop stalls that frame and queues the frames
 #: behind it (docs/pipeline.md, Performance), so the stage imports them in the background as
 #: soon as a frame reaches :data:`LAZY_PAIRS` (:meth:`TrackerStage._lazy_imports_due`), ahead
 #: of the frames that need them; a run whose frames stay small (vo2017: at most 33
@@ -42,9 +43,9 @@ log = logging.getLogger("bnptrack.stage")
 #: 11, docs/pipeline.md "Session 11: r2-launch").
 LAZY_IMPORTS = ("scipy.sparse.csgraph", "scipy.spatial")
 #: Measurements x max(measurements, tracks of the previous frame) of a frame from which the
-#: stage starts importing :data:`LAZY_IMPORTS` (a tenth of the 20,000 pairs that need them:
+#: stage starts importing :data:`LAZY_IMPORTS` (a tenth of the pairs that need them:
 #: the tracks of the next frames can grow to the measurements' number by births).
-LAZY_PAIRS = 2_000
+LAZY_PAIRS = SCIPY_PAIRS // 10
 
 def build_stage_tracker(tc: TrackerStageConfig, metadata: dict[str, str] | None) -> Any:
     """The tracker stage's :class:`~pipeline.resolve.TrackerSetup`, built by the one resolver
@@ -344,7 +345,7 @@ class TrackerStage(StageBase):
         """Whether ``frame`` is large enough (:data:`LAZY_PAIRS`) for the large frames'
         imports to start (those not imported yet): the steps that need them then wait only
         for what is left of the import."""
-        m = int(np.shape(frame.z)[0])
+        m = frame.z.shape[0]  # an ndarray: Frame's constructors make it one
         if m * max(m, self.last_tracks) < LAZY_PAIRS:
             return False
         return any(name not in sys.modules for name in LAZY_IMPORTS)
