@@ -611,39 +611,68 @@ def content_rows(path: Path) -> dict[tuple[str, str], list[str]]:
 
 
 _TRACKER = r"""
-import json, pickle, signal, sys
+import json, os, pickle, select, signal, sys, threading
 signal.signal(signal.SIGINT, signal.default_int_handler)  # a foreground job: see start_tracker
 sys.path.insert(0, sys.argv[3])
 from bnptrack.sinks.rerun_process import RecordingProcess
 frames, estimates, params = pickle.load(open(sys.argv[2], "rb"))
-start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6] == "wait"
+start, n, wait = sys.argv[4], int(sys.argv[5]), sys.argv[6]
+mask = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+def take_sigint_elsewhere():  # another thread gets the SIGINT: this one blocks it (see the test)
+    threading.Thread(target=threading.Event().wait, daemon=True).start()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+def until_a_signal():  # not sys.stdin.read(): see start_tracker
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    signal.set_wakeup_fd(w)  # the C-level handler writes here, whenever the signal comes
+    try:
+        select.select([r, sys.stdin], [], [])
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
 with RecordingProcess(start=start) as rec:
     print(type(rec._proc).__name__, flush=True)
+    if wait == "elsewhere":
+        take_sigint_elsewhere()  # after the fork: no other thread before it
     rec.open(sys.argv[1], params=params, metadata=json.loads(sys.argv[7]))
     for f, e in zip(frames[:n], estimates[:n]):
         rec.log(f, e)  # in the pipe when it returns (the pipe holds far more than 8 frames)
     print("sent", flush=True)
-    if wait:
-        sys.stdin.read()  # until a signal ends it
+    if wait != "exit":
+        until_a_signal()  # until a signal ends it
 """
 _CHILD_KIND = {"fork": "_ForkedChild", "exec": "Popen"}
 
 
-def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tuple[subprocess.Popen, Path]:
+def start_tracker(vo_run, tmp_path: Path, start: str, n: int,
+                  wait: str = "exit") -> tuple[subprocess.Popen, Path]:
     """A tracker-like process that records ``n`` frames of ``vo_run`` through a
     ``RecordingProcess(start=start)`` (rerun is not imported there, so ``fork`` is allowed),
-    then waits for a signal (``wait``) or closes the recording and exits.
+    then closes the recording and exits (``wait="exit"``) or waits for a signal (``"wait"``;
+    ``"elsewhere"``: with SIGINT blocked in its main thread and another thread to take it).
 
     It is always started with SIGINT ignored, as this test process has it when it runs as a
     background job of a non-interactive shell (``pytest ... &`` in a script: the shell ignores
     SIGINT and SIGQUIT for it, and every child inherits that, Python keeping an ignored SIGINT
     ignored).  The script puts Python's ``KeyboardInterrupt`` handler back, as for a foreground
-    job at a terminal; without that, a SIGINT would not end it (the test would wait 60 s)."""
+    job at a terminal; without that, a SIGINT would not end it (the test would wait 60 s).
+
+    How it waits (``until_a_signal`` in the script): not in ``sys.stdin.read()``.  A signal
+    runs CPython's C-level handler at once, which only notes it; the Python handler (here:
+    raise ``KeyboardInterrupt``) runs at the interpreter's next check.  When the SIGINT landed
+    after the last check and before ``read(2)`` started (under load: the script was preempted
+    there), ``read(2)`` blocked with no ``EINTR`` to come and the script waited for good: the
+    test's 60 s ran out (seen once in a full suite at load 3-4; gdb: blocked in ``read(0)``
+    with ``_PyRuntime.ceval.signals_pending == 1``).  The script now waits in ``select`` on
+    :func:`signal.set_wakeup_fd`'s pipe, to which the C-level handler itself writes: the wait
+    ends whenever the signal came."""
     params, frames, estimates = vo_run
     data = tmp_path / "run.pkl"
     data.write_bytes(pickle.dumps((frames, estimates, params)))
     path = tmp_path / f"{start}.rrd"
-    args = [str(path), str(data), str(REPO), start, str(n), "wait" if wait else "exit", json.dumps(META)]
+    args = [str(path), str(data), str(REPO), start, str(n), wait, json.dumps(META)]
     old_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the child (see above)
     try:
         proc = subprocess.Popen([sys.executable, "-c", _TRACKER, *args], stdin=subprocess.PIPE,
@@ -657,7 +686,7 @@ def start_tracker(vo_run, tmp_path: Path, start: str, n: int, wait: bool) -> tup
 
 @pytest.mark.parametrize("start", ["fork", "exec"])
 def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path, start):
-    proc, path = start_tracker(vo_run, tmp_path, start, N_FRAMES, wait=False)
+    proc, path = start_tracker(vo_run, tmp_path, start, N_FRAMES)
     assert proc.wait(timeout=120) == 0
     assert rrd_verify(path).returncode == 0
     got, want = content_rows(path), content_rows(recording)
@@ -708,7 +737,7 @@ def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_pat
     whole process group (a Ctrl-C): the tracker's process closes the recording on its way out;
     the child, in a session of its own, is not interrupted."""
     _params, frames, _estimates = vo_run
-    proc, path = start_tracker(vo_run, tmp_path, start, 8, wait=True)
+    proc, path = start_tracker(vo_run, tmp_path, start, 8, wait="wait")
     try:
         os.killpg(proc.pid, sig)
         proc.wait(timeout=60)
@@ -720,6 +749,36 @@ def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_pat
     # after a SIGKILL the orphaned child finishes on its own (an empty file passes rrd verify)
     wait_until(lambda: path.stat().st_size and rrd_verify(path).returncode == 0, 90,
                "the recording to be finalised", interval=0.5)
+    assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
+
+
+def _main_thread_state(pid: int) -> str:
+    """The scheduler state of ``pid``'s main thread (``R``, ``S``, ...: Linux ``/proc``)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+
+
+@pytest.mark.parametrize("start", ["fork", "exec"])
+def test_recording_finalised_when_the_sigint_is_not_taken_by_the_waiting_thread(vo_run, tmp_path, start):
+    """The tracker's main thread is already blocked in its wait when the SIGINT comes, and
+    the C-level handler runs elsewhere (the main thread blocks SIGINT; the kernel hands it to
+    another thread): the state in which a wait that counts on ``EINTR`` (the script's former
+    ``sys.stdin.read()``) never ends, and that a SIGINT landing just before the wait's system
+    call creates at random (see :func:`start_tracker`).  Deterministic: the signal is sent once
+    the main thread sleeps; the wait must end and the recording be finalised all the same."""
+    _params, frames, _estimates = vo_run
+    proc, path = start_tracker(vo_run, tmp_path, start, 8, wait="elsewhere")
+    try:
+        # after "sent" the main thread's only sleep is its wait (the other thread sleeps throughout)
+        wait_until(lambda: _main_thread_state(proc.pid) == "S", 60, "the tracker to wait",
+                   abort=lambda: proc.poll() is not None)
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGINT
+    assert rrd_verify(path).returncode == 0
     assert sorted(frames_in(path)) == [f.frame for f in frames[:8]]
 
 
