@@ -95,19 +95,23 @@ def _listening(port: int) -> bool:
         return False
 
 
-def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> Viewer:
-    """Start the Rerun viewer on a free port of 127.0.0.1 and wait until it listens.
-
-    ``headless`` (default: :data:`HEADLESS_ENV`) runs it without a window.  Raises
-    :class:`pipeline.view.ViewerUnavailable` when there is no display (Linux without
-    ``DISPLAY`` / ``WAYLAND_DISPLAY``) or the viewer exits or does not listen in ``timeout``
-    seconds.  Its output goes to a log file in the temporary directory (named in errors).
-    """
-    from bnptrack.pipeline.view import ViewerUnavailable, viewer_failure
-    from bnptrack.sinks.rerun_tools import RerunToolError, rerun_cli, rerun_env
-
+def _headless(headless: bool | None) -> bool:
+    """``headless``, or by default whether :data:`HEADLESS_ENV` is set (not ``0``)."""
     if headless is None:
-        headless = os.environ.get(HEADLESS_ENV, "0") not in ("", "0")
+        return os.environ.get(HEADLESS_ENV, "0") not in ("", "0")
+    return headless
+
+
+def viewer_command(*, headless: bool | None = None) -> list[str]:
+    """The command :func:`spawn_viewer` runs, less its port: the ``rerun`` CLI, headless when
+    ``headless`` (default: :data:`HEADLESS_ENV`).  Raises
+    :class:`pipeline.view.ViewerUnavailable` when there is no display (Linux without
+    ``DISPLAY`` / ``WAYLAND_DISPLAY``) or no ``rerun`` CLI: the commands call it while checking
+    their options, before anything is written (``--view``)."""
+    from bnptrack.pipeline.view import ViewerUnavailable
+    from bnptrack.sinks.rerun_tools import RerunToolError, rerun_cli
+
+    headless = _headless(headless)
     if not headless and sys.platform.startswith("linux") and not (
             os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise ViewerUnavailable(
@@ -119,10 +123,24 @@ def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> View
         cli = rerun_cli()
     except RerunToolError as exc:
         raise ViewerUnavailable(str(exc)) from exc
+    return [*cli, "--headless"] if headless else cli
+
+
+def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> Viewer:
+    """Start the Rerun viewer on a free port of 127.0.0.1 and wait until it listens.
+
+    ``headless`` (default: :data:`HEADLESS_ENV`) runs it without a window.  Raises
+    :class:`pipeline.view.ViewerUnavailable` when :func:`viewer_command` does (no display, no
+    CLI) or the viewer exits or does not listen in ``timeout`` seconds.  Its output goes to a
+    log file in the temporary directory (named in errors).
+    """
+    from bnptrack.pipeline.view import ViewerUnavailable, viewer_failure
+    from bnptrack.sinks.rerun_tools import rerun_env
+
+    headless = _headless(headless)
+    command = viewer_command(headless=headless)
     port = free_port()
-    cmd = [*cli, "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
-    if headless:
-        cmd.append("--headless")
+    cmd = [*command, "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
     fd, name = tempfile.mkstemp(prefix="bnptrack-viewer-", suffix=".log")
     log = Path(name)
     with os.fdopen(fd, "wb") as log_f:

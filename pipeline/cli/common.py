@@ -218,15 +218,21 @@ def require_measurements(log: Path, topics: dict[str, str]) -> None:
 
 
 def live_view(view: bool, connect: str | None) -> str | None:
-    """``"spawn"`` (``--view``), a viewer URL (``--connect``; checked now: a viewer must be
-    listening there) or None."""
+    """``"spawn"`` (``--view``; checked now: a display and the ``rerun`` CLI, so that a
+    command fails before it opens its outputs), a viewer URL (``--connect``; checked now: a
+    viewer must be listening there) or None."""
     if view and connect:
         raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
     if connect:
         from bnptrack.pipeline.live import check_viewer
 
         return check_viewer(connect)
-    return "spawn" if view else None
+    if not view:
+        return None
+    from bnptrack.pipeline.live import viewer_command
+
+    viewer_command()  # no display or no rerun CLI: say so now, before any file is opened
+    return "spawn"
 
 
 def open_live(live: str) -> str:
