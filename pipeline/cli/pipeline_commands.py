@@ -96,11 +96,14 @@ def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
 
 
 def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False,
-                  view: bool = False, view_connect: str | None = None) -> None:
+                  view: bool = False, view_connect: str | None = None, origin: Path | None = None) -> None:
+    """Launch ``cfg`` and report it; a configuration error names ``origin``, the pipeline file
+    the configuration came from (its values with the command's ``--set`` items)."""
     import msgspec as _ms
 
     from bnptrack.pipeline.launch import launch as _launch
     from bnptrack.pipeline.progress import Progress
+    from bnptrack.tracker.config import ConfigError
 
     if view and view_connect:
         raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
@@ -115,6 +118,10 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
         res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
                       overwrite=overwrite, progress=None if progress is None else progress.update,
                       view=view)
+    except ConfigError as exc:  # raised by the checks, before anything started
+        if origin is None or str(exc).startswith(str(origin)):
+            raise
+        raise ConfigError(f"{origin}: {exc}") from None
     finally:
         if progress is not None:
             progress.close()
@@ -186,7 +193,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     if routers:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
             cfg.zenoh, embedded_router=False, connect=routers))
-    _run_pipeline(cfg, timeout, quiet, overwrite, view, viewers[0] if viewers else None)
+    _run_pipeline(cfg, timeout, quiet, overwrite, view, viewers[0] if viewers else None, pipeline_file)
 
 
 @click.command()

@@ -67,7 +67,9 @@ def test_launch_pipeline_file_errors_fail_before_starting(tmp_path, toml, needle
     pipe = tmp_path / "p.toml"
     pipe.write_text(toml)
     out = tmp_path / "out"
-    assert_refused(bnptrack("launch", pipe, "--out", out), out, needle)
+    res = bnptrack("launch", pipe, "--out", out)
+    assert_refused(res, out, needle)
+    assert res.stderr.startswith(f"Error: {pipe}: "), res.stderr  # the file is named
 
 
 def test_launch_out_that_is_a_file_is_refused(tmp_path):
