@@ -83,6 +83,7 @@ class Progress:
         self.tty = self.stream.isatty() if tty is None else tty
         self.period = float(period)
         self._last_t: float | None = None
+        self._last_line = ""  # the last line printed
         self._last_frames: tuple[int, int] | None = None  # (frames, sink health t_ns)
         self._fps: float | None = None
         self._open = False  # a line in place is on screen
@@ -115,8 +116,10 @@ class Progress:
         force = force or st.phase == "final"
         if not force and self._last_t is not None and st.elapsed_s - self._last_t < self.period:
             return False
-        self._last_t = st.elapsed_s
         line = progress_line(st, self._rate(st.sink))
+        if line == self._last_line:  # the final line of a run whose last update said it all
+            return False
+        self._last_t, self._last_line = st.elapsed_s, line
         if self.tty:
             self.stream.write("\r\x1b[2K" + line)
             self._open = True

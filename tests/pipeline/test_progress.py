@@ -60,6 +60,19 @@ def test_progress_non_tty_plain_lines_once_a_second_with_rate():
     assert lines[4] == "stage tracker restarted (pid 1)" and len(lines) == 5
 
 
+def test_progress_final_line_equal_to_the_last_is_not_repeated():
+    """A short run: the sink's last health message came with the last update, in the same
+    tenth of a second; the final line would repeat it word for word (session 13's review)."""
+    buf = io.StringIO()
+    pr = Progress(buf, tty=False, period=1.0)
+    assert pr.update(Status(1.1, source=_source(30), sink=_sink(30, 50.0)))
+    assert not pr.update(Status(1.14, source=_source(30), sink=_sink(30, 50.0), phase="final"))
+    assert pr.update(Status(1.3, source=_source(30), sink=_sink(30, 50.0), phase="final"))  # a new time
+    lines = buf.getvalue().splitlines()
+    assert lines == ["[   1.1 s] frames 30, lag 0 frames / 2.5 ms, tracks 3",
+                     "[   1.3 s] frames 30, lag 0 frames / 2.5 ms, tracks 3"]
+
+
 def test_progress_checking_line_on_a_terminal_only_and_erased_if_nothing_follows():
     buf = io.StringIO()
     assert not Progress(buf, tty=False).update(Status(0.0, phase="checking"))
