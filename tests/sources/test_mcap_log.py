@@ -346,6 +346,18 @@ def test_not_an_mcap_file(tmp_path):
         list(iter_frames(tmp_path / "missing.mcap"))
 
 
+def test_an_empty_file_is_named_empty_not_a_log_without_channels(tmp_path):
+    """A 0-byte file holds no record at all; the channel listing the commands check first
+    said "no /measurements channel ... Its channels: none" (session 13's review)."""
+    from bnptrack.sources.mcap_log import log_channels
+
+    p = tmp_path / "empty.mcap"
+    p.write_bytes(b"")
+    with pytest.raises(McapLogError, match=r"not an MCAP file: the file is empty \(0 bytes\)") as err:
+        log_channels(p)
+    assert str(p) in str(err.value) and err.value.kind == "corrupt"
+
+
 def test_unflushed_writer_crash_loses_little(tmp_path):
     """Copy the file while the writer is still open (as after a crash)."""
     frames = make_frames(11, n=23)
