@@ -36,6 +36,7 @@ __all__ = [
     "topic_map",
     "require_measurements",
     "live_view",
+    "one_viewer",
     "open_live",
     "parse_offset",
     "START_HELP",
@@ -217,12 +218,17 @@ def require_measurements(log: Path, topics: dict[str, str]) -> None:
         raise CliError(missing_measurements_message(log, channels))
 
 
+def one_viewer(view: bool, connect: str | None) -> None:
+    """``--view`` and ``--connect URL`` exclude each other (a usage error)."""
+    if view and connect:
+        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+
+
 def live_view(view: bool, connect: str | None) -> str | None:
     """``"spawn"`` (``--view``; checked now: a display and the ``rerun`` CLI, so that a
     command fails before it opens its outputs), a viewer URL (``--connect``; checked now: a
     viewer must be listening there) or None."""
-    if view and connect:
-        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    one_viewer(view, connect)
     if connect:
         from bnptrack.pipeline.live import check_viewer
 

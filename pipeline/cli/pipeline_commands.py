@@ -25,6 +25,7 @@ from bnptrack.pipeline.cli.common import (
     clean_errors,
     echo_rows,
     literal_choices,
+    one_viewer,
     open_live,
     parse_offset,
     require_measurements,
@@ -105,8 +106,7 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
     from bnptrack.pipeline.progress import Progress
     from bnptrack.tracker.config import ConfigError
 
-    if view and view_connect:
-        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    one_viewer(view, view_connect)
     if view_connect:  # checked with the rest of the configuration (pipeline.preflight)
         from bnptrack.pipeline.live import viewer_url
 
@@ -293,8 +293,7 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 
     base = cfg.run or make_run_id(cfg)
     root = Path(cfg.out) if cfg.out else Path("recordings")
-    if view and view_connect:
-        raise click.UsageError("--view starts a viewer, --connect URL uses a running one: give one of them")
+    one_viewer(view, view_connect)
     if view:  # one viewer for every run of the loop
         view_connect = open_live("spawn")
     for i in itertools.count(1):

@@ -50,3 +50,15 @@ def test_pipeline_view_without_a_display_starts_nothing(tmp_path, command):
     out = tmp_path / "run"
     _refused(_bnptrack(*command, "--view", "--out", str(out)))
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", [("launch",), ("replay", str(VO2017)), ("replay", str(VO2017), "--loop", "2"),
+                                     ("track", str(VO2017))], ids=["launch", "replay", "replay-loop", "track"])
+def test_view_and_connect_together_are_a_usage_error(tmp_path, command):
+    """One rule (``cli.common.one_viewer``) for every command that streams to a viewer."""
+    out = tmp_path / "run"
+    r = _bnptrack(*command, "--view", "--connect", "rerun+http://127.0.0.1:1/proxy", "--out", str(out))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == (
+        "Error: --view starts a viewer, --connect URL uses a running one: give one of them")
+    assert not out.exists()
