@@ -328,7 +328,19 @@ def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None
     its payload must still follow the contract).  Raises :class:`McapLogError` after the last
     readable frame if the file is truncated, corrupt, holds an invalid message or a
     non-increasing frame index on ``/measurements``.
+
+    A channel of ``topic_map`` whose messages are of a ROS 2 / Foxglove type of
+    :data:`sources.readers.READERS` (``{"/radar/scan": "/measurements"}``) is read by
+    :func:`sources.robot_log.iter_robot_frames`; :class:`ValueError` (one line listing the
+    trackable channels) for a channel bnptrack cannot read.
     """
+    if topic_map:
+        from bnptrack.sources.robot_log import iter_robot_frames, robot_topics
+
+        robot = robot_topics(path, topic_map)
+        if robot:
+            yield from iter_robot_frames(path, robot)
+            return
     for _, pair in _iter_log(path, _INPUT_TOPICS, topic_map=topic_map):
         yield _pair_to_frame(pair)
 
@@ -495,6 +507,12 @@ def missing_measurements_message(path: str | os.PathLike, channels: list[Channel
     """The error for a log without a ``/measurements`` channel: its channels and how to map one."""
     listing = "; ".join(f"{c.topic} ({c.schema or 'no schema'}, {c.message_encoding}, {c.messages} messages)"
                         for c in channels) or "none"
+    from bnptrack.sources.robot_log import trackable_listing
+
+    robot = trackable_listing(channels)
+    if robot != "none":
+        return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel; choose its measurements with --topic. "
+                f"Trackable channels: {robot}")
     example = next((c.topic for c in channels if c.topic not in (TOPIC_TRUTH, TOPIC_TRACKS)), "/radar/detections")
     return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel, so there is nothing to track. "
             f"Its channels: {listing}. To read a channel as the measurements, map it: "

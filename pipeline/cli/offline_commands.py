@@ -225,7 +225,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
     "frame's (a time stamp that goes back is always an error).",
 )
-@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+@click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
               help=TOPIC_HELP)
 @click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
 @click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)

@@ -1,0 +1,53 @@
+"""``radar_msgs/msg/RadarScan`` -> ``bearing_range`` (a reader of :data:`sources.readers.READERS`).
+
+Azimuth convention.  A ``RadarReturn``'s ``azimuth`` follows REP 103: radians in the radar's
+frame (x forward, y left), **positive anticlockwise** from the radar's boresight (+x).
+bnptrack's bearing is measured from the boresight **towards the sensor's right**, i.e.
+positive clockwise seen from above (docs/formats.md, "Conventions and units").  So::
+
+    bearing = -azimuth            (wrapped to [-pi, pi] when |azimuth| > pi)
+    range   = range
+
+``elevation``, ``doppler_velocity`` and ``amplitude`` are not used (a 2-D tracker; the
+range is taken as the ground range).  The fields are ``float32`` in the message, so the
+values are those ``float32`` numbers exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from bnptrack.sources.readers import Scan, finite_rows, stamp_ns_of
+
+__all__ = ["RadarScanReader", "bearing_of_azimuth"]
+
+
+def bearing_of_azimuth(azimuth: np.ndarray) -> np.ndarray:
+    """bnptrack bearings of REP 103 azimuths (exact negation; wrapped only outside [-pi, pi])."""
+    b = -np.asarray(azimuth, dtype=np.float64)
+    out = np.abs(b) > np.pi
+    if out.any():
+        b[out] = (b[out] + np.pi) % (2.0 * np.pi) - np.pi
+    return b
+
+
+class RadarScanReader:
+    """Read a decoded ``RadarScan``: one row ``[bearing, range]`` per return."""
+
+    kind = "bearing_range"
+
+    def scan(self, msg: Any) -> Scan:
+        returns = msg.returns
+        z = np.empty((len(returns), 2))
+        if returns:
+            z[:, 0] = [r.azimuth for r in returns]
+            z[:, 1] = [r.range for r in returns]
+            z = finite_rows(z)
+            if (z[:, 1] < 0).any():
+                i = int(np.argmax(z[:, 1] < 0))
+                raise ValueError(f"return {i} has a negative range {z[i, 1]!r}")
+            z[:, 0] = bearing_of_azimuth(z[:, 0])
+        header = msg.header
+        return Scan(stamp_ns_of(header.stamp.sec, header.stamp.nanosec), header.frame_id, z)
