@@ -15,7 +15,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from bnptrack.sources.read_pointcloud2 import xy_columns
-from bnptrack.sources.readers import Scan, stamp_ns_of
+from bnptrack.sources.scan import Scan, stamp_ns_of
 from bnptrack.sources.tf_static import IDENTITY, pose_of_transform
 
 __all__ = ["FoxglovePointCloudReader", "NUMERIC_TYPES"]
@@ -35,14 +35,31 @@ def _ns(obj: Any) -> SimpleNamespace:
 
 
 def _field(fields: Any, name: str) -> tuple[int, str]:
-    for f in fields:
-        if f.name == name:
-            t = _TYPE_NAMES.get(f.type, f.type) if isinstance(f.type, str) else int(f.type)
+    for f in fields:  # a JSON field may omit what is at its default (offset 0)
+        if getattr(f, "name", "") == name:
+            ftype = getattr(f, "type", 0)
+            t = _TYPE_NAMES.get(ftype, 0) if isinstance(ftype, str) else int(ftype)
             dtype = NUMERIC_TYPES.get(t)
             if dtype is None:
-                raise ValueError(f"field {name!r} has an unknown type {f.type!r}")
-            return int(f.offset), dtype
-    raise ValueError(f"the cloud has no {name!r} field (fields: {', '.join(f.name for f in fields) or 'none'})")
+                raise ValueError(f"field {name!r} has an unknown type {ftype!r}")
+            return int(getattr(f, "offset", 0)), dtype
+    names = ", ".join(getattr(f, "name", "?") for f in fields) or "none"
+    raise ValueError(f"the cloud has no {name!r} field (fields: {names})")
+
+
+def _xyzw(d: Any, keys: str) -> SimpleNamespace:
+    """A JSON vector / quaternion with its omitted (default) components as 0."""
+    d = d if isinstance(d, dict) else {}
+    return SimpleNamespace(**{k: float(d.get(k, 0.0)) for k in keys})
+
+
+def _place(position: Any, q: Any) -> Any:
+    """The cloud's pose as a ground-plane transform (an all-zero quaternion: no rotation)."""
+    if (q.x, q.y, q.z, q.w) == (0, 0, 0, 0):
+        q = SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0)
+    if (position.x, position.y, q.x, q.y, q.z, q.w) == (0, 0, 0, 0, 0, 1):
+        return IDENTITY
+    return pose_of_transform(position, q)
 
 
 class FoxglovePointCloudReader:
@@ -52,25 +69,19 @@ class FoxglovePointCloudReader:
 
     def scan(self, msg: Any) -> Scan:
         if isinstance(msg, dict):
-            msg = _ns(msg)
-            data = base64.b64decode(msg.data) if getattr(msg, "data", "") else b""
-            ts = getattr(msg, "timestamp", None)
-            stamp = stamp_ns_of(ts.sec, ts.nsec) if ts is not None else None
+            data = base64.b64decode(msg.get("data", ""))
+            ts = msg.get("timestamp") or {}
+            stamp = stamp_ns_of(ts.get("sec", 0), ts.get("nsec", 0))
+            fields = [_ns(f) for f in msg.get("fields", [])]
+            stride, frame_id = int(msg.get("point_stride", 0)), str(msg.get("frame_id", ""))
+            pose = msg.get("pose") or {}
+            place = _place(_xyzw(pose.get("position"), "xyz"), _xyzw(pose.get("orientation"), "xyzw"))
         else:
-            data = bytes(msg.data)
-            stamp = stamp_ns_of(msg.timestamp.seconds, msg.timestamp.nanos) if msg.HasField("timestamp") else None
-        fields = list(getattr(msg, "fields", []))
+            data, fields, stride, frame_id = bytes(msg.data), list(msg.fields), int(msg.point_stride), msg.frame_id
+            stamp = stamp_ns_of(msg.timestamp.seconds, msg.timestamp.nanos)
+            place = _place(msg.pose.position, msg.pose.orientation)
         (ox, tx), (oy, ty) = _field(fields, "x"), _field(fields, "y")
-        stride = int(msg.point_stride)
         if stride <= 0:
             raise ValueError(f"point_stride must be > 0, got {stride}")
         z = xy_columns(data, (ox, oy), (tx, ty), len(data) // stride, stride)
-        pose = getattr(msg, "pose", None)
-        place = IDENTITY
-        if pose is not None and getattr(pose, "orientation", None) is not None:
-            q = pose.orientation
-            if (q.x, q.y, q.z, q.w) != (0, 0, 0, 0):  # an unset orientation is no rotation
-                place = pose_of_transform(pose.position, q)
-            elif (pose.position.x, pose.position.y) != (0, 0):
-                place = pose_of_transform(pose.position, SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0))
-        return Scan(stamp, str(getattr(msg, "frame_id", "")), place.place(z))
+        return Scan(stamp, frame_id, place.place(z))

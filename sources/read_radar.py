@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from bnptrack.sources.readers import Scan, finite_rows, stamp_ns_of
+from bnptrack.sources.scan import Scan, finite_rows, stamp_ns_of
 
 __all__ = ["RadarScanReader", "bearing_of_azimuth"]
 

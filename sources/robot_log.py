@@ -29,52 +29,20 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from mcap.reader import SeekingReader
 from mcap.records import Channel, DataEnd, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from bnptrack.sources.mcap_log import ChannelInfo, McapLogError, log_channels
-from bnptrack.sources.readers import MessageReader, ReaderEntry, Scan, reader_entry
+from bnptrack.sources.channels import ChannelInfo, channel_list, trackable, trackable_listing
+from bnptrack.sources.log_errors import McapLogError
+from bnptrack.sources.readers import MessageReader, Scan, reader_entry
 from bnptrack.sources.tf_static import StaticTransforms
 from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 from bnptrack.tracker.types import Frame
 
-__all__ = ["TF_STATIC", "TF_SCHEMA", "channel_list", "trackable", "robot_topics", "iter_robot_frames",
-           "trackable_listing"]
+__all__ = ["TF_STATIC", "TF_SCHEMA", "robot_topics", "iter_robot_frames"]
 
 TF_STATIC = "/tf_static"
 TF_SCHEMA = "tf2_msgs/msg/TFMessage"
-
-
-def channel_list(path: str | os.PathLike) -> list[ChannelInfo]:
-    """The channels of a log, from its summary when it has one (no message is read), else
-    by streaming it (:func:`sources.mcap_log.log_channels`)."""
-    try:
-        with open(path, "rb") as f:
-            summary = SeekingReader(f).get_summary()
-    except Exception:
-        summary = None
-    if summary is None or summary.statistics is None:
-        return log_channels(path)
-    counts = summary.statistics.channel_message_counts
-    out = []
-    for cid, ch in summary.channels.items():
-        sc = summary.schemas.get(ch.schema_id)
-        out.append(ChannelInfo(ch.topic, sc.name if sc else "", sc.encoding if sc else "", ch.message_encoding,
-                               counts.get(cid, 0), None, None))
-    return out
-
-
-def trackable(channel: ChannelInfo) -> ReaderEntry | None:
-    """The reader of a channel's messages, or ``None`` when bnptrack cannot track them."""
-    return reader_entry(channel.schema, channel.message_encoding)
-
-
-def trackable_listing(channels: Iterable[ChannelInfo]) -> str:
-    """``/radar/scan (radar_msgs/msg/RadarScan -> bearing_range: --topic /radar/scan); ...``."""
-    items = [f"{c.topic} ({c.schema} -> {e.kind}: --topic {c.topic})"
-             for c in channels if (e := trackable(c)) is not None]
-    return "; ".join(items) or "none"
 
 
 def robot_topics(path: str | os.PathLike, topic_map: Mapping[str, str],

@@ -216,7 +216,8 @@ def require_measurements(log: Path, topics: dict[str, str]) -> None:
     cannot read (:func:`sources.robot_log.robot_topics`), before anything is tracked."""
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
     from bnptrack.sources.mcap_log import missing_measurements_message
-    from bnptrack.sources.robot_log import channel_list, robot_topics
+    from bnptrack.sources.channels import channel_list
+    from bnptrack.sources.robot_log import robot_topics
 
     channels = channel_list(log)
     try:

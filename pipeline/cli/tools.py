@@ -66,7 +66,8 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
 
 def _trackable_note(channel) -> str:
     """What ``info`` says of a channel bnptrack can track: its kind and the ``--topic`` to use."""
-    from bnptrack.sources.robot_log import TF_SCHEMA, TF_STATIC, trackable
+    from bnptrack.sources.channels import trackable
+    from bnptrack.sources.robot_log import TF_SCHEMA, TF_STATIC
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
     entry = trackable(channel)

@@ -57,7 +57,8 @@ def check_channels(src_cfg: SourceConfig) -> None:
     ``source.topics`` to) ``/measurements``: the error of ``bnptrack track`` (the log's
     channels and how to map one), plus the pipeline file's key."""
     from bnptrack.sources.mcap_log import missing_measurements_message
-    from bnptrack.sources.robot_log import channel_list, robot_topics
+    from bnptrack.sources.channels import channel_list
+    from bnptrack.sources.robot_log import robot_topics
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
     channels = channel_list(src_cfg.log)
