@@ -60,7 +60,7 @@ def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
         size = os.fstat(f.fileno()).st_size
         if size == 0:  # the reader would find no record, not a bad magic
             raise McapLogError(spath, "corrupt", 0, 0, None, "not an MCAP file: the file is empty (0 bytes)")
-        reader = StreamReader(f, validate_crcs=False, record_size_limit=_record_limit(size))
+        reader = StreamReader(f, validate_crcs=False, record_size_limit=record_limit(size))
         try:
             for rec in reader.records:
                 if isinstance(rec, Schema):

@@ -27,8 +27,8 @@ __all__ = ["RadarScanReader", "bearing_of_azimuth"]
 def bearing_of_azimuth(azimuth: np.ndarray) -> np.ndarray:
     """bnptrack bearings of REP 103 azimuths (exact negation; wrapped only outside [-pi, pi])."""
     b = -np.asarray(azimuth, dtype=np.float64)
-    out = np.abs(b) > np.pi
-    if out.any():
+    if b.size and np.abs(b).max() > np.pi:
+        out = np.abs(b) > np.pi
         b[out] = (b[out] + np.pi) % (2.0 * np.pi) - np.pi
     return b
 
@@ -39,13 +39,11 @@ class RadarScanReader:
     kind = "bearing_range"
 
     def scan(self, msg: Any) -> Scan:
-        returns = msg.returns
-        z = np.empty((len(returns), 2))
-        if returns:
-            z[:, 0] = [r.azimuth for r in returns]
-            z[:, 1] = [r.range for r in returns]
-            z = finite_rows(z)
-            if (z[:, 1] < 0).any():
+        z = np.array([(r.azimuth, r.range) for r in msg.returns], dtype=np.float64).reshape(-1, 2)
+        if z.shape[0]:
+            if not np.isfinite(z).all():
+                z = finite_rows(z)
+            if z.shape[0] and z[:, 1].min() < 0:
                 i = int(np.argmax(z[:, 1] < 0))
                 raise ValueError(f"return {i} has a negative range {z[i, 1]!r}")
             z[:, 0] = bearing_of_azimuth(z[:, 0])
