@@ -23,6 +23,9 @@ from bnptrack.sources.scan import Scan, finite_rows, stamp_ns_of
 
 __all__ = ["RadarScanReader", "bearing_of_azimuth"]
 
+_PI = float(np.pi)
+_INF = float("inf")
+
 
 def bearing_of_azimuth(azimuth: np.ndarray) -> np.ndarray:
     """bnptrack bearings of REP 103 azimuths (exact negation; wrapped only outside [-pi, pi])."""
@@ -33,19 +36,29 @@ def bearing_of_azimuth(azimuth: np.ndarray) -> np.ndarray:
     return b
 
 
+def _checked(z: np.ndarray) -> np.ndarray:
+    """Rows ``[bearing, range]`` without non-finite rows, bearings wrapped to [-pi, pi];
+    :class:`ValueError` for a negative range."""
+    negative = z[:, 1] < 0
+    if negative.any():
+        i = int(np.argmax(negative))
+        raise ValueError(f"return {i} has a negative range {float(z[i, 1])!r}")
+    z = finite_rows(z)
+    z[:, 0] = bearing_of_azimuth(-z[:, 0])  # the columns hold -azimuth
+    return z
+
+
 class RadarScanReader:
     """Read a decoded ``RadarScan``: one row ``[bearing, range]`` per return."""
 
     kind = "bearing_range"
 
     def scan(self, msg: Any) -> Scan:
-        z = np.array([(r.azimuth, r.range) for r in msg.returns], dtype=np.float64).reshape(-1, 2)
+        z = np.array([(-r.azimuth, r.range) for r in msg.returns], dtype=np.float64).reshape(-1, 2)
         if z.shape[0]:
-            if not np.isfinite(z).all():
-                z = finite_rows(z)
-            if z.shape[0] and z[:, 1].min() < 0:
-                i = int(np.argmax(z[:, 1] < 0))
-                raise ValueError(f"return {i} has a negative range {z[i, 1]!r}")
-            z[:, 0] = bearing_of_azimuth(z[:, 0])
+            lo, hi = z.min(axis=0), z.max(axis=0)
+            # one test for the usual scan (NaN fails every comparison): else the slow path
+            if not (lo[1] >= 0.0 and lo[0] >= -_PI and hi[0] <= _PI and hi[1] < _INF):
+                z = _checked(z)
         header = msg.header
         return Scan(stamp_ns_of(header.stamp.sec, header.stamp.nanosec), header.frame_id, z)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 from mcap.records import Channel, DataEnd, Message, Schema
@@ -77,15 +76,9 @@ def robot_topics(path: str | os.PathLike, topic_map: Mapping[str, str],
     return robot
 
 
-@dataclass
-class _Pending:
-    """A message read but not yet a frame (its pose may come later in the file)."""
-
-    stamp_ns: int
-    order: int
-    kind: str
-    scan: Scan
-    sensor: str
+#: A message read but not yet a frame (its pose may come later in the file):
+#: ``(stamp_ns, order, kind, scan, sensor)``.
+_Pending = tuple[int, int, str, Scan, str]
 
 
 class _RobotScanner:
@@ -96,6 +89,8 @@ class _RobotScanner:
         self.topics = frozenset(topics)
         self.tf = StaticTransforms()
         self.pending: list[_Pending] = []
+        self.in_order = True
+        """Whether ``pending`` is in time order as read (no sort needed)."""
         self.n_messages = 0
         self.offset = 0
         self.schemas: dict[int, Schema] = {}
@@ -162,7 +157,10 @@ class _RobotScanner:
             raise self._error("invalid", f"{topic} message {self.n_messages}: {type(exc).__name__}: {exc}",
                               topic) from exc
         stamp = scan.stamp_ns if scan.stamp_ns is not None else rec.log_time
-        self.pending.append(_Pending(stamp, len(self.pending), reader.kind, scan, scan.frame_id or topic))
+        pending = self.pending
+        if pending and stamp < pending[-1][0]:
+            self.in_order = False
+        pending.append((stamp, len(pending), reader.kind, scan, scan.frame_id or topic))
 
 
 def _rosbags_decoder(schema: Schema) -> Callable[[bytes], Any] | None:
@@ -204,18 +202,20 @@ def _decoder(message_encoding: str, schema: Schema | None) -> Callable[[bytes], 
     return decode
 
 
-def _frames(pending: list[_Pending], tf: StaticTransforms) -> Iterator[Frame]:
-    """The pending messages as frames in time order, numbered from 1, placed by ``tf``."""
+def _frames(scanner: _RobotScanner) -> Iterator[Frame]:
+    """The pending messages as frames in time order (file order among equal stamps),
+    numbered from 1, placed by the static transforms."""
+    pending = scanner.pending if scanner.in_order else sorted(scanner.pending, key=lambda p: (p[0], p[1]))
     poses: dict[str, Any] = {}
-    for k, p in enumerate(sorted(pending, key=lambda p: (p.stamp_ns, p.order)), start=1):
-        if p.sensor not in poses:
-            poses[p.sensor] = tf.pose(p.sensor)
-        pose = poses[p.sensor]
-        z = p.scan.z
-        if pose is not None and p.kind == "xy":
+    for k, (stamp, _, kind, scan, sensor) in enumerate(pending, start=1):
+        if sensor not in poses:
+            pose = scanner.tf.pose(sensor)
+            poses[sensor] = (pose, pose.bnptrack_pose() if pose is not None else None)
+        pose, frame_pose = poses[sensor]
+        z = scan.z
+        if pose is not None and kind == "xy":
             z = pose.place(z)
-        yield Frame.checked(k, p.stamp_ns, p.sensor, p.kind, z,
-                            pose=pose.bnptrack_pose() if pose is not None else None)
+        yield Frame.checked(k, stamp, sensor, kind, z, pose=frame_pose)
 
 
 def iter_robot_frames(path: str | os.PathLike, topics: Iterable[str]) -> Iterator[Frame]:
@@ -225,6 +225,6 @@ def iter_robot_frames(path: str | os.PathLike, topics: Iterable[str]) -> Iterato
     try:
         scanner.run()
     except McapLogError:
-        yield from _frames(scanner.pending, scanner.tf)
+        yield from _frames(scanner)
         raise
-    yield from _frames(scanner.pending, scanner.tf)
+    yield from _frames(scanner)

@@ -4,16 +4,15 @@ modules without an import cycle."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 __all__ = ["Scan", "stamp_ns_of", "finite_rows"]
 
 
-@dataclass(frozen=True)
-class Scan:
-    """One message's measurements.
+class Scan(NamedTuple):
+    """One message's measurements (a named tuple: one per message, made cheaply).
 
     ``stamp_ns``: the message's own time (``header.stamp``, Foxglove's ``timestamp``), ``None``
     when it has none (the log reader then takes the MCAP log time).  ``frame_id``: the frame

@@ -287,3 +287,22 @@ def test_the_foxglove_sink_writes_scene_updates_beside_the_tracks(radar_runs):
             axes = sorted([e.spheres[1].size.x, e.spheres[1].size.y])
             assert axes == pytest.approx(sorted(4 * np.sqrt(np.linalg.eigvalsh(cov))))
         assert scene.deletions[0].type == 1  # ALL: a track that ended disappears
+
+
+def test_radar_rows_are_checked_at_the_edge():
+    """Non-finite returns are dropped, an azimuth beyond pi is wrapped, a negative range is an
+    error naming the return."""
+    from types import SimpleNamespace as NS
+
+    from bnptrack.sources.read_radar import RadarScanReader
+
+    def msg(*returns):
+        return NS(header=NS(stamp=NS(sec=1, nanosec=5), frame_id="r"),
+                  returns=[NS(azimuth=a, range=r) for a, r in returns])
+
+    scan = RadarScanReader().scan(msg((0.5, 10.0), (float("nan"), 20.0), (-3.5, 30.0)))
+    assert scan.stamp_ns == 1_000_000_005 and scan.frame_id == "r"
+    assert np.allclose(scan.z, [[-0.5, 10.0], [3.5 - 2 * math.pi, 30.0]], rtol=0, atol=1e-15)
+    assert RadarScanReader().scan(msg()).z.shape == (0, 2)
+    with pytest.raises(ValueError, match="return 1 has a negative range -2.0"):
+        RadarScanReader().scan(msg((0.5, 10.0), (0.1, -2.0)))
