@@ -74,6 +74,11 @@ def pose_of_transform(translation: Any, rotation: Any) -> Pose2D:
         raise ValueError("the rotation points the frame's x axis straight up or down (no ground-plane heading)")
     if norm != 1.0:
         c, s = c / norm, s / norm
+    # a quaternion of a right angle is not exact in floats (cos 45 deg != sin 45 deg): a
+    # component within 1e-12 of 0 is 0, so a yaw of 90 degrees gives heading 0 exactly
+    c, s = (0.0 if abs(c) < 1e-12 else c), (0.0 if abs(s) < 1e-12 else s)
+    if c == 0.0 or s == 0.0:
+        c, s = math.copysign(1.0, c) if c else 0.0, math.copysign(1.0, s) if s else 0.0
     return Pose2D(float(translation.x), float(translation.y), c, s)
 
 

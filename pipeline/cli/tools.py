@@ -100,7 +100,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     except McapLogError as exc:
         error = exc
     if not stamps:
-        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: see --topic)"))]
+        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: give --topic with a trackable channel)"))]
     rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
                        f"{truth} with truth)")]
     for (name, kind), (n, poses) in sensors.items():
