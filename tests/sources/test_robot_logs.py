@@ -305,3 +305,30 @@ def test_radar_rows_are_checked_at_the_edge():
     assert RadarScanReader().scan(msg()).z.shape == (0, 2)
     with pytest.raises(ValueError, match="return 1 has a negative range -2.0"):
         RadarScanReader().scan(msg((0.5, 10.0), (0.1, -2.0)))
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+def test_the_pipeline_replays_a_ros2_log_like_track_with_the_foxglove_sink(logs, tmp_path):
+    """``source.topics = {"/radar/scan" = "/measurements"}`` and ``sink.outputs = ["foxglove"]``
+    (in memory): the /tracks of ``bnptrack track --topic /radar/scan``, and the scene channel
+    beside them in the same tracks.mcap."""
+    from bnptrack.pipeline.membus import MemoryNetwork
+    from bnptrack.pipeline.stages import EXIT_OK
+    from testkit import mem_cfg, run_memory_pipeline
+
+    noise = str(logs["dir"] / "noise.toml")
+    cfg = mem_cfg(tmp_path, frames=12, **{"source.kind": "'mcap'", "source.log": repr(str(logs["ros"])),
+                                           "source.topics": '{"/radar/scan" = "/measurements"}',
+                                           "tracker.params": repr(noise), "sink.outputs": '["foxglove"]'})
+    assert run_memory_pipeline(cfg, MemoryNetwork()) == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    off = tmp_path / "track.mcap"
+    _track(str(logs["ros"]), "--topic", "/radar/scan", "--params", noise, "--tracker", "ddp-mb", "--set", "sweeps=8",
+           "--set", "burn_in=2", "--end", "12f", "--out", str(off))
+    got = Path(cfg.out) / "tracks.mcap"
+    piped = [{**t, "run": ""} for t in _tracks(got)]  # the pipeline names its run
+    assert piped == _tracks(off) and len(piped) == 12
+    with open(got, "rb") as f:
+        scene = [m for _, ch, m in make_reader(f).iter_messages(log_time_order=False) if ch.topic == "/tracks/scene"]
+    assert len(scene) == 12
