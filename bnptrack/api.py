@@ -101,6 +101,7 @@ class TrackRun:
 def track(
     frames: PathLike | Iterable[Frame], tracker: str = "ddp", *, params: str | ModelParams | None = None,
     overrides: Sequence[str] = (), config: str | None = None, seed: int = 0, scenario: str | None = None,
+    topics: Sequence[str] = (),
 ) -> TrackRun:
     """Run tracker ``tracker`` over ``frames`` (a list of :class:`Frame` or an MCAP log's path)
     with tracker seed ``seed``, scoring each frame that carries truth.
@@ -108,6 +109,9 @@ def track(
     Parameters as :func:`make_tracker`; for a log, ``params=None`` takes the set named in the
     log's scenario record (as ``bnptrack track`` does), for frames it means ``vo2017``.
     ``scenario`` (for frames; a log's record names its own) adds that scenario's birth regions.
+    ``topics`` (for a log) are ``--topic`` items: ``["/radar/scan"]`` reads a ROS 2 / Foxglove
+    channel (several: several sensors), ``["/radar/detections=/measurements"]`` maps a
+    bnptrack JSON channel.
     """
     is_log = isinstance(frames, (str, os.PathLike))
     if is_log and scenario:
@@ -118,9 +122,25 @@ def track(
         params = "vo2017"
     setup = tracker_setup(tracker, params=params, config=config, overrides=tuple(overrides),
                           metadata=metadata, seed=seed)
-    source = iter_frames(Path(frames)) if is_log else frames
+    if topics and not is_log:
+        raise ConfigError("track(frames, topics=...): topics choose the channels of a log; frames have none")
+    source = iter_frames(Path(frames), _topic_map(Path(frames), topics)) if is_log else frames
     estimates: list[Estimate] = []
     result = track_frames(setup.tracker, source, seed, lambda _f, est, _m: estimates.append(est))
     if result.error is not None:
         raise result.error
     return TrackRun(estimates, result)
+
+
+def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:
+    """``topics`` as the channel mapping of :func:`sources.mcap_log.iter_frames`, checked
+    against the log (a channel bnptrack cannot read is a :class:`ConfigError`)."""
+    from bnptrack.pipeline.config import parse_topic_item
+    from bnptrack.sources.robot_log import robot_topics
+
+    try:
+        mapping = dict(parse_topic_item(t) for t in topics)
+        robot_topics(log, mapping)
+    except ValueError as exc:
+        raise ConfigError(f"track(topics=...): {exc}") from None
+    return mapping

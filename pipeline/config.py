@@ -151,12 +151,15 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 def parse_topic_item(item: str) -> tuple[str, str]:
-    """A channel mapping item ``SRC=/measurements`` (or ``SRC=/truth``) as ``(SRC, DST)``;
-    :class:`ValueError` names the item otherwise (``--topic`` of ``track`` / ``replay`` and
-    ``source.topics``)."""
+    """A channel mapping item ``SRC=/measurements`` (or ``SRC=/truth``) as ``(SRC, DST)``; a
+    bare ``SRC`` (``--topic /radar/scan``: a ROS 2 / Foxglove channel whose kind its schema
+    gives) means ``SRC=/measurements``; :class:`ValueError` names the item otherwise
+    (``--topic`` of ``track`` / ``replay`` and ``source.topics``)."""
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRUTH
 
     src, sep, dst = item.partition("=")
+    if not sep and src:
+        return src, TOPIC_MEASUREMENTS
     if not sep or not src or dst not in (TOPIC_MEASUREMENTS, TOPIC_TRUTH):
         raise ValueError(f"{item!r}: expected SRC={TOPIC_MEASUREMENTS} (or SRC={TOPIC_TRUTH})")
     return src, dst

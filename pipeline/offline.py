@@ -327,11 +327,14 @@ def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
 
 def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
     """Refuse outputs (sink name -> file) that overwrite the input log or one another."""
+    from bnptrack.sinks.sink import SINKS
+
     seen: dict[Path, str] = {}
     for name, path in outputs.items():
         check_output_path(log, path)
         other = seen.setdefault(Path(path).resolve(), name)
-        if other != name:
+        entry = SINKS.get(name)
+        if other != name and not (entry is not None and entry.beside == other):
             raise ValueError(f"{path}: the {name} output would overwrite the {other} output")
 
 

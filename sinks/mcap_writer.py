@@ -45,6 +45,11 @@ _SCHEMA_NAMES = {
 }
 
 
+#: The writers open in this process by file (real path): a sink that writes a channel of its
+#: own beside ``/tracks`` (the ``foxglove`` sink) writes into the same file (:meth:`McapLogWriter.open_at`).
+_OPEN: dict[str, "McapLogWriter"] = {}
+
+
 class McapLogWriter:
     """Write frames, truth and tracks to an MCAP file (use as a context manager).
 
@@ -82,6 +87,7 @@ class McapLogWriter:
             self._file.close()
             raise
         self._channels: dict[str, int] = {}
+        _OPEN[os.path.realpath(self.path)] = self
         self._flush_every = flush_every
         self._since_flush = 0
         self._closed = False
@@ -169,6 +175,25 @@ class McapLogWriter:
         self.n_tracks += 1
         self._tick()
 
+    @staticmethod
+    def open_at(path: str | os.PathLike) -> "McapLogWriter | None":
+        """The writer of this process that has ``path`` open, or ``None``."""
+        return _OPEN.get(os.path.realpath(os.fspath(path)))
+
+    def write_message(self, topic: str, schema: tuple[str, str, bytes], message_encoding: str, data: bytes,
+                      stamp_ns: int, frame: int) -> None:
+        """Write one message of a channel other than bnptrack's own (``schema``: name,
+        encoding, data; the channel is registered on its first message), with the times and
+        flushing of the frames."""
+        self._check_open()
+        ch = self._channels.get(topic)
+        if ch is None:
+            sid = self._writer.register_schema(*schema)
+            ch = self._channels[topic] = self._writer.register_channel(topic, message_encoding, sid)
+        stamp = int(stamp_ns)
+        self._writer.add_message(ch, log_time=stamp, data=data, publish_time=stamp, sequence=int(frame) & 0xFFFFFFFF)
+        self._tick()
+
     def flush(self) -> None:
         """Close the current chunk and flush it to the OS."""
         self._check_open()
@@ -180,6 +205,8 @@ class McapLogWriter:
         if self._closed:
             return
         self._closed = True
+        if _OPEN.get(os.path.realpath(self.path)) is self:
+            del _OPEN[os.path.realpath(self.path)]
         try:
             self._writer.finish()
         finally:

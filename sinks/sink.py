@@ -48,6 +48,10 @@ class SinkEntry:
     ``False``: it writes the record's ``payloads`` alone when the record carries them (the
     MCAP log), so a caller that has the payloads need not decode the frame for it."""
 
+    beside: str | None = None
+    """The sink whose file this one writes into when both are in a run (its own channel beside
+    the other's: the ``foxglove`` scene in the ``mcap`` log); the same file is then no clash."""
+
     def load(self) -> Callable[[SinkOptions], Sink]:
         if callable(self.factory):
             return self.factory
@@ -70,6 +74,9 @@ SINKS: dict[str, SinkEntry] = {
                        "run.rrd", required=False,
                        imports=("bnptrack.sinks.rerun_adapter", "bnptrack.sinks.rerun_sink", "pyarrow.compute", "numpy.ma",
                                 "dateutil.relativedelta")),
+    "foxglove": SinkEntry("bnptrack.sinks.foxglove_sink:FoxgloveSceneSink",
+                          "the tracks as foxglove.SceneUpdate messages (/tracks/scene) in the MCAP log",
+                          "tracks.mcap", required=False, beside="mcap"),
 }
 # ``imports`` include what a sink's first ``open`` imports (mcap.writer's importlib.metadata;
 # pyarrow.compute, numpy.ma and dateutil, which the Rerun SDK imports on its first annotation

@@ -25,7 +25,7 @@ from typing import Any, Iterable, Iterator
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.reader import SeekingReader
-from mcap.records import Channel, DataEnd, Message, Metadata, Schema
+from mcap.records import Channel, DataEnd, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from bnptrack.tracker.messages import (
@@ -41,6 +41,8 @@ from bnptrack.tracker.messages import (
     to_truth,
 )
 from bnptrack.tracker.types import Estimate, Frame
+from bnptrack.sources.channels import ChannelInfo, log_channels, record_limit as _record_limit
+from bnptrack.sources.log_errors import McapLogError
 
 __all__ = [
     "METADATA_NAME",
@@ -64,59 +66,6 @@ _INPUT_TOPICS = frozenset({TOPIC_MEASUREMENTS, TOPIC_TRUTH})
 # --------------------------------------------------------------------------- errors
 
 
-class McapLogError(Exception):
-    """A log that could not be read to its end.
-
-    Everything readable before the problem has already been yielded when this is raised.
-
-    Attributes
-    ----------
-    path: the file.
-    kind: ``"truncated"`` (the file ends early), ``"corrupt"`` (unreadable bytes) or
-        ``"invalid"`` (a message breaks the schema, or frame indices do not increase).
-    offset: byte offset up to which the file was read successfully.
-    n_messages: messages read so far (all topics; for ``"invalid"``, the 1-based number of the
-        offending message).
-    last_frame: last frame index delivered to the caller (``None`` if none).
-    reason: what went wrong (for ``"invalid"``, the CodecError text naming topic and frame).
-    topic, frame: topic and frame of the offending message, when known.
-    """
-
-    def __init__(
-        self,
-        path: str,
-        kind: str,
-        offset: int,
-        n_messages: int,
-        last_frame: int | None,
-        reason: str,
-        topic: str | None = None,
-        frame: int | None = None,
-    ) -> None:
-        self.path = path
-        self.kind = kind
-        self.offset = offset
-        self.n_messages = n_messages
-        self.last_frame = last_frame
-        self.reason = reason
-        self.topic = topic
-        self.frame = frame
-        what = {"truncated": "truncated", "corrupt": "corrupt data", "invalid": "invalid message"}[kind]
-        where = (
-            f"after frame {last_frame}" if last_frame is not None else "before the first complete frame"
-        )
-        super().__init__(
-            f"{path}: {what} {where} (message {n_messages}, byte offset {offset}): {reason}"
-        )
-
-    def __reduce__(self):
-        return (
-            type(self),
-            (self.path, self.kind, self.offset, self.n_messages, self.last_frame,
-             self.reason, self.topic, self.frame),
-        )
-
-
 class _StreamFailure(Exception):
     """Internal: the record stream broke (truncated or corrupt)."""
 
@@ -127,16 +76,6 @@ class _StreamFailure(Exception):
 
 
 # --------------------------------------------------------------------------- reading
-
-
-def _record_limit(size: int) -> int:
-    """Largest record length we try to read.
-
-    A valid record never exceeds the file; a length that runs past the end of the file but
-    is below this limit is read short and reported as truncation (the usual crash damage);
-    absurd lengths (corrupt bytes) are refused without allocating them.
-    """
-    return max(size, 16 * 2**20)
 
 
 class _Scanner:
@@ -328,7 +267,19 @@ def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None
     its payload must still follow the contract).  Raises :class:`McapLogError` after the last
     readable frame if the file is truncated, corrupt, holds an invalid message or a
     non-increasing frame index on ``/measurements``.
+
+    A channel of ``topic_map`` whose messages are of a ROS 2 / Foxglove type of
+    :data:`sources.readers.READERS` (``{"/radar/scan": "/measurements"}``) is read by
+    :func:`sources.robot_log.iter_robot_frames`; :class:`ValueError` (one line listing the
+    trackable channels) for a channel bnptrack cannot read.
     """
+    if topic_map:
+        from bnptrack.sources.robot_log import iter_robot_frames, robot_topics
+
+        robot = robot_topics(path, topic_map)
+        if robot:
+            yield from iter_robot_frames(path, robot)
+            return
     for _, pair in _iter_log(path, _INPUT_TOPICS, topic_map=topic_map):
         yield _pair_to_frame(pair)
 
@@ -433,68 +384,16 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str] | None:
 # --------------------------------------------------------------------------- channels
 
 
-@dataclass(frozen=True)
-class ChannelInfo:
-    """One channel of a file: topic, schema name and encoding, message encoding, count and
-    the first / last ``log_time`` (ns; ``None`` without messages)."""
-
-    topic: str
-    schema: str
-    schema_encoding: str
-    message_encoding: str
-    messages: int
-    first_ns: int | None
-    last_ns: int | None
-
-
-def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
-    """Every channel of an MCAP file with its message count (streams the whole file; a
-    damaged tail ends the count).  Raises :class:`McapLogError` if the file cannot be opened
-    or is not MCAP."""
-    spath = os.fspath(path)
-    try:
-        f = open(spath, "rb")
-    except OSError as exc:
-        raise McapLogError(spath, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
-    schemas: dict[int, Any] = {}
-    chans: dict[int, Channel] = {}
-    counts: dict[int, list] = {}
-    with f:
-        size = os.fstat(f.fileno()).st_size
-        if size == 0:  # the reader would find no record, not a bad magic
-            raise McapLogError(spath, "corrupt", 0, 0, None, "not an MCAP file: the file is empty (0 bytes)")
-        reader = StreamReader(f, validate_crcs=False, record_size_limit=_record_limit(size))
-        try:
-            for rec in reader.records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    chans[rec.id] = rec
-                    counts.setdefault(rec.id, [0, None, None])
-                elif isinstance(rec, Message) and rec.channel_id in counts:
-                    c = counts[rec.channel_id]
-                    c[0] += 1
-                    c[1] = rec.log_time if c[1] is None else min(c[1], rec.log_time)
-                    c[2] = rec.log_time if c[2] is None else max(c[2], rec.log_time)
-                elif isinstance(rec, DataEnd):
-                    break
-        except InvalidMagic as exc:
-            raise McapLogError(spath, "corrupt", 0, 0, None, f"not an MCAP file: {exc}") from exc
-        except Exception:  # a damaged tail: report what was read
-            pass
-    out = []
-    for cid, ch in chans.items():
-        sc = schemas.get(ch.schema_id)
-        n, first, last = counts[cid]
-        out.append(ChannelInfo(ch.topic, sc.name if sc else "", sc.encoding if sc else "",
-                               ch.message_encoding, n, first, last))
-    return out
-
-
 def missing_measurements_message(path: str | os.PathLike, channels: list[ChannelInfo]) -> str:
     """The error for a log without a ``/measurements`` channel: its channels and how to map one."""
     listing = "; ".join(f"{c.topic} ({c.schema or 'no schema'}, {c.message_encoding}, {c.messages} messages)"
                         for c in channels) or "none"
+    from bnptrack.sources.channels import trackable_listing
+
+    robot = trackable_listing(channels)
+    if robot != "none":
+        return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel; choose its measurements with --topic. "
+                f"Trackable channels: {robot}")
     example = next((c.topic for c in channels if c.topic not in (TOPIC_TRUTH, TOPIC_TRACKS)), "/radar/detections")
     return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel, so there is nothing to track. "
             f"Its channels: {listing}. To read a channel as the measurements, map it: "

@@ -128,8 +128,10 @@ CONNECT_VIEW_HELP = (
     "rerun+http://127.0.0.1:N/proxy)."
 )
 TOPIC_HELP = (
-    "Read channel SRC as /measurements (or /truth), e.g. --topic /radar/detections=/measurements; "
-    "its payload must still follow the contract of docs/formats.md. Repeatable."
+    "Read channel SRC: a ROS 2 or Foxglove channel by its name, the kind from its schema (e.g. "
+    "--topic /radar/scan; `bnptrack info LOG` lists the trackable ones; several topics: several "
+    "sensors), or a bnptrack JSON channel as /measurements (or /truth), e.g. "
+    "--topic /radar/detections=/measurements. Repeatable."
 )
 SET_HELP_TRACK = (
     "Override a setting, KEY=VALUE (VALUE is a TOML literal). params.KEY goes to the model "
@@ -209,11 +211,19 @@ def topic_map(items: tuple[str, ...]) -> dict[str, str]:
 
 
 def require_measurements(log: Path, topics: dict[str, str]) -> None:
-    """Exit 2 listing the log's channels when none is (or is mapped to) /measurements."""
+    """Exit 2 listing the log's channels when none is (or is mapped to) /measurements, and
+    listing its trackable channels when a ``--topic`` names a channel of a type bnptrack
+    cannot read (:func:`sources.robot_log.robot_topics`), before anything is tracked."""
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
-    from bnptrack.sources.mcap_log import log_channels, missing_measurements_message
+    from bnptrack.sources.mcap_log import missing_measurements_message
+    from bnptrack.sources.channels import channel_list
+    from bnptrack.sources.robot_log import robot_topics
 
-    channels = log_channels(log)
+    channels = channel_list(log)
+    try:
+        robot_topics(log, topics, channels)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
     if not any(topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
         raise CliError(missing_measurements_message(log, channels))
 

@@ -225,7 +225,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
     "frame's (a time stamp that goes back is always an error).",
 )
-@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+@click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
               help=TOPIC_HELP)
 @click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
 @click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)
@@ -234,8 +234,8 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
 @click.option("--sink", "sink_names", multiple=True, metavar="NAME", callback=_check_sinks,
               help="Also record to the sink NAME of the table of sinks (sinks/sink.py), next to --out "
-              "with its file suffix; mcap (--out) and rerun (--rrd) are chosen by their own options. "
-              "Repeatable.")
+              "with its file suffix (--sink foxglove: a foxglove.SceneUpdate channel beside /tracks in --out); mcap "
+              "(--out) and rerun (--rrd) are chosen by their own options. Repeatable.")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @clean_errors
 def track(

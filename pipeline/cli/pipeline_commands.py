@@ -220,7 +220,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--keep-prior", is_flag=True,
               help="With --loop: each replay's tracker starts from the prior the previous replay "
               "ended with (DDP-EMM / DPY-STP: alpha, d and their likelihood), with no track.")
-@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
+@click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
               help=TOPIC_HELP + " (source.topics of the pipeline file)")
 @click.option("--view", is_flag=True, help=VIEW_HELP)
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)

@@ -24,36 +24,60 @@ __all__ = ["info", "export", "view", "experiment", "schema"]
 
 @click.command()
 @click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--topic", "topics", multiple=True, metavar="SRC=/measurements",
-              help="Read channel SRC as /measurements (as `bnptrack track --topic`).")
+@click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
+              help="Read channel SRC (as `bnptrack track --topic`).")
 @clean_errors
 def info(log: Path, topics: tuple[str, ...]) -> None:
     """Describe an MCAP log: channels, frames, sensors, time, and its record.
 
-    Prints every channel (topic, schema and encodings, message count); for /measurements the
+    Prints every channel (topic, schema and encodings, message count; for a channel bnptrack
+    can track, its kind and the exact --topic to give track / replay); for /measurements the
     frames, sensors and kinds (with their poses when the frames carry them), the time span and
     frame rate from the stamps; and the bnptrack.scenario record (scenario, params, seed).
 
     \b
-    Example:
+    Examples:
       bnptrack info recordings/vo2017-s1.mcap
+      bnptrack info robot.mcap --topic /radar/scan   # frames and sensors of a ROS 2 channel
     """
     from bnptrack.sources.mcap_log import log_channels
+    from bnptrack.sources.robot_log import robot_topics
 
     channels = log_channels(log)
     rows = [("log", f"{log} ({log.stat().st_size} bytes)")]
     for c in channels:
         rows.append(("channel", f"{c.topic}: schema {c.schema or '-'} ({c.schema_encoding or '-'}), "
-                                f"encoding {c.message_encoding}, {c.messages} messages"))
+                                f"encoding {c.message_encoding}, {c.messages} messages{_trackable_note(c)}"))
     if not channels:
         rows.append(("channel", "none"))
-    rows += _frame_rows(log, topic_map(topics))
+    mapping = topic_map(topics)
+    try:
+        robot_topics(log, mapping, channels)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    rows += _frame_rows(log, mapping)
     meta = read_metadata(log)
     if meta:
         rows += [(f"record.{k}", v) for k, v in meta.items()]
     else:
         rows.append(("record", "none (no bnptrack.scenario metadata: give --params to track)"))
     echo_rows(rows)
+
+
+def _trackable_note(channel) -> str:
+    """What ``info`` says of a channel bnptrack can track: its kind and the ``--topic`` to use."""
+    from bnptrack.sources.channels import trackable
+    from bnptrack.sources.robot_log import TF_SCHEMA, TF_STATIC
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
+
+    entry = trackable(channel)
+    if entry is not None:
+        return f"; trackable ({entry.kind}): --topic {channel.topic}"
+    if channel.topic == TOPIC_MEASUREMENTS:
+        return "; trackable (bnptrack measurements, read by default)"
+    if channel.topic == TF_STATIC and channel.schema == TF_SCHEMA:
+        return "; sensor poses (static transforms)"
+    return ""
 
 
 def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
@@ -76,7 +100,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     except McapLogError as exc:
         error = exc
     if not stamps:
-        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: see --topic)"))]
+        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: give --topic with a trackable channel)"))]
     rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
                        f"{truth} with truth)")]
     for (name, kind), (n, poses) in sensors.items():

@@ -56,10 +56,16 @@ def check_channels(src_cfg: SourceConfig) -> None:
     """Raise :class:`ConfigError` when no channel of ``source.log`` is (or is mapped by
     ``source.topics`` to) ``/measurements``: the error of ``bnptrack track`` (the log's
     channels and how to map one), plus the pipeline file's key."""
-    from bnptrack.sources.mcap_log import log_channels, missing_measurements_message
+    from bnptrack.sources.mcap_log import missing_measurements_message
+    from bnptrack.sources.channels import channel_list
+    from bnptrack.sources.robot_log import robot_topics
     from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
-    channels = log_channels(src_cfg.log)
+    channels = channel_list(src_cfg.log)
+    try:
+        robot_topics(src_cfg.log, src_cfg.topics, channels)
+    except ValueError as exc:
+        raise ConfigError(f"source.topics: {exc}") from None
     if not any(src_cfg.topics.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
         raise ConfigError(f"{missing_measurements_message(src_cfg.log, channels)}; in a pipeline file: "
                           f"source.topics = {{\"SRC\" = \"{TOPIC_MEASUREMENTS}\"}}")

@@ -44,7 +44,8 @@ def _mcap_cfg(tmp_path: Path, log: Path, topics: dict[str, str] | None = None, *
 def test_parse_topic_item_and_the_source_topics_key():
     assert parse_topic_item("/radar/detections=/measurements") == ("/radar/detections", "/measurements")
     assert parse_topic_item("/gt=/truth") == ("/gt", "/truth")
-    for bad in ("/radar/detections", "=/measurements", "/radar=/tracks", "/radar=measurements"):
+    assert parse_topic_item("/radar/scan") == ("/radar/scan", "/measurements")  # kind from the schema
+    for bad in ("=/measurements", "/radar=/tracks", "/radar=measurements"):
         with pytest.raises(ValueError, match=r"expected SRC=/measurements \(or SRC=/truth\)"):
             parse_topic_item(bad)
     cfg = load_pipeline(None, ["source.kind='mcap'", 'source.topics={"/radar/detections" = "/measurements"}'])

@@ -118,9 +118,9 @@ def test_make_sink_from_a_table_entry_and_unknown_names(tmp_path):
     assert isinstance(sink, FakeSink)
     assert made == [SinkOptions(tmp_path / "run.csv", run_id="r1")]
     assert isinstance(made[0].path, Path)
-    with pytest.raises(UnknownSink, match=r"unknown sink 'csv' \(known: mcap, rerun\)"):
+    with pytest.raises(UnknownSink, match=r"unknown sink 'csv' \(known: foxglove, mcap, rerun\)"):
         make_sink("csv", SinkOptions(tmp_path / "x"))
-    assert sorted(SINKS) == ["mcap", "rerun"]
+    assert sorted(SINKS) == ["foxglove", "mcap", "rerun"]
 
 
 # --------------------------------------------------------------------------- the entries

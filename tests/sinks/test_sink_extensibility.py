@@ -104,8 +104,8 @@ def test_track_records_to_a_sink_added_by_one_table_entry(csv_entry, tmp_path):
 def test_an_unknown_sink_is_a_one_line_error_naming_the_table(csv_entry, tmp_path):
     res = invoke("track", tmp_path / "x.mcap", "--sink", "parquet")
     assert res.exit_code == 2
-    assert "unknown sink 'parquet' (known: csv, mcap, rerun)" in res.output
-    with pytest.raises(ConfigError, match=r"sink.outputs: unknown sink 'parquet' \(known: csv, mcap, rerun\)"):
+    assert "unknown sink 'parquet' (known: csv, foxglove, mcap, rerun)" in res.output
+    with pytest.raises(ConfigError, match=r"sink.outputs: unknown sink 'parquet' \(known: csv, foxglove, mcap, rerun\)"):
         apply_pipeline_overrides(PipelineConfig(), ["sink.outputs=['parquet']"])
 
 
