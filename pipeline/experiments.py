@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bnptrack.pipeline.experiment_summary import (EXTRA_LABELS, RunScores, TrackerScores, summarise,
+from bnptrack.pipeline.experiment_summary import (EXTRA_LABELS, RunScores, TrackerScores, ci_halfwidth, summarise,
                                                   write_summary)
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.tracker.config import ConfigError
@@ -378,10 +378,12 @@ def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Pat
         for ax, (key, name) in zip(axes, (("ospa", "OSPA"), ("ospa_loc", "localisation"), ("ospa_card", "cardinality"))):
             for t in trackers:
                 a = np.array([getattr(r.trackers[t], key) for r in runs])
-                ax.plot(k, a.mean(0), label=t)
-                ax.fill_between(k, np.percentile(a, 10, 0), np.percentile(a, 90, 0), alpha=0.2)
+                line, = ax.plot(k, a.mean(0), label=t)
+                ax.fill_between(k, np.percentile(a, 10, 0), np.percentile(a, 90, 0), alpha=0.12, color=line.get_color())
+                half = np.array([ci_halfwidth(col) for col in a.T])
+                ax.fill_between(k, a.mean(0) - half, a.mean(0) + half, alpha=0.4, color=line.get_color(), lw=0)
             ax.set(ylabel=f"{name} (m)")
-        axes[0].set_title(f"{title} {v}: OSPA (c=100, p=1), mean and 10-90% band over {len(runs)} runs")
+        axes[0].set_title(f"{title} {v}: OSPA (c=100, p=1): mean, its 95% interval (dark) and the 10-90% band (light) over {len(runs)} runs")
         axes[0].legend()
         axes[-1].set_xlabel("scan k")
         paths.append(_save(fig, out / f"ospa{suffix}.png"))
