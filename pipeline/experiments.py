@@ -13,7 +13,6 @@ cluster).
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 import os
 import zlib
@@ -24,6 +23,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bnptrack.pipeline.experiment_summary import (EXTRA_LABELS, RunScores, TrackerScores, ci_halfwidth, summarise,
+                                                  write_summary)
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.tracker.config import ConfigError
 
@@ -90,7 +91,8 @@ _GLMB = TrackerSpec("glmb", "glmb", "GLMB")
 def _range_metrics() -> tuple[FrameMetric, ...]:
     from bnptrack.sinks.range_scores import range_ospa, within_gate
 
-    return (FrameMetric("within100", "within 100 m", within_gate), FrameMetric("range_ospa", "range OSPA", range_ospa))
+    return (FrameMetric("within100", EXTRA_LABELS["within100"], within_gate),
+            FrameMetric("range_ospa", EXTRA_LABELS["range_ospa"], range_ospa))
 
 
 EXPERIMENTS: dict[str, Experiment] = {
@@ -248,10 +250,11 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
 
 
 def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str | None = None,
-             progress: Callable[[int], None] | None = None, executor: Executor | None = None
+             progress: Callable[[RunResult], None] | None = None, executor: Executor | None = None
              ) -> list[RunResult]:
     """Run jobs on local processes (default), a given ``executor`` (e.g. a warm pool from
     :func:`warm_pool`, kept across calls) or a Dask cluster at ``cluster``; results in job order.
+    ``progress`` is called with each result as it finishes (in the order runs finish).
 
     One task per run: a worker keeps its imports and compiled kernels from one run to the
     next, and a task costs well under a millisecond against about half a second of run
@@ -263,7 +266,7 @@ def run_jobs(jobs: Sequence[RunJob], *, workers: int | None = None, cluster: str
         for job in jobs:
             out.append(execute_run(job))
             if progress:
-                progress(1)
+                progress(out[-1])
         return out
     if executor is not None:
         return _run_pool(executor, jobs, progress)
@@ -296,9 +299,10 @@ def _run_pool(pool: Executor, jobs: Sequence[RunJob], progress) -> list[RunResul
     results: list[RunResult | None] = [None] * len(jobs)
     futures = {pool.submit(execute_run, job): i for i, job in enumerate(jobs)}
     for fut in as_completed(futures):
-        results[futures[fut]] = fut.result()
+        i = futures[fut]
+        results[i] = fut.result()
         if progress:
-            progress(1)
+            progress(results[i])
     return results  # type: ignore[return-value]
 
 
@@ -314,99 +318,32 @@ def _run_dask(jobs: Sequence[RunJob], address: str, progress) -> list[RunResult]
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[RunResult | None] = [None] * len(jobs)
         for fut in as_completed(futures):
-            results[index[fut.key]] = fut.result()
+            i = index[fut.key]
+            results[i] = fut.result()
             if progress:
-                progress(1)
+                progress(results[i])
     return results  # type: ignore[return-value]
 
 
 # --------------------------------------------------------------------------- summaries
 
-METRICS = (("ospa", "OSPA"), ("ospa_loc", "OSPA loc"), ("ospa_card", "OSPA card"), ("ospa2", "OSPA(2)"),
-           ("gospa", "GOSPA"), ("card_err", "card. error"), ("ms", "ms/frame"))
+
+def run_scores(result: RunResult) -> RunScores:
+    """The numbers of one run that its experiment's table needs (:mod:`pipeline.experiment_summary`)."""
+    trackers = {}
+    for t, tr in result.trackers.items():
+        values = (tr.ospa.mean(), tr.ospa_loc.mean(), tr.ospa_card.mean(), tr.ospa2.mean(), tr.gospa.mean(),
+                  np.abs(tr.n_est - result.n_true).mean(), np.nanmedian(tr.ms))
+        kept = () if tr.crossings_kept is None else tuple(bool(k) for k in tr.crossings_kept)
+        extra = {k: (float(x[:, 0].sum()), float(x[:, 1].sum())) for k, x in tr.extra.items()}
+        trackers[t] = TrackerScores(tuple(float(v) for v in values), kept, extra)
+    return RunScores(result.job.variant.label, result.job.run, trackers)
 
 
-def summary_rows(results: Sequence[RunResult]) -> list[dict]:
-    """Mean and spread (std over runs of the per-run means) of every metric, per variant/tracker."""
-    rows = []
-    variants = list(dict.fromkeys(r.job.variant.label for r in results))
-    trackers = list(dict.fromkeys(t for r in results for t in r.trackers))
-    for v in variants:
-        runs = [r for r in results if r.job.variant.label == v]
-        for t in trackers:
-            per_run = {k: [] for k, _ in METRICS}
-            for r in runs:
-                tr = r.trackers[t]
-                per_run["ospa"].append(tr.ospa.mean())
-                per_run["ospa_loc"].append(tr.ospa_loc.mean())
-                per_run["ospa_card"].append(tr.ospa_card.mean())
-                per_run["ospa2"].append(tr.ospa2.mean())
-                per_run["gospa"].append(tr.gospa.mean())
-                per_run["card_err"].append(np.abs(tr.n_est - r.n_true).mean())
-                per_run["ms"].append(np.nanmedian(tr.ms))
-            row = {"variant": v, "tracker": t, "runs": len(runs)}
-            for k, _ in METRICS:
-                a = np.asarray(per_run[k], float)
-                row[k] = float(a.mean())
-                row[k + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
-            row.update(_crossing_summary([r.trackers[t].crossings_kept for r in runs]))
-            row.update(_extra_summary([r.trackers[t].extra for r in runs]))
-            rows.append(row)
-    return rows
-
-
-def _crossing_summary(per_run: Sequence[np.ndarray | None]) -> dict:
-    """``crossings_kept``: the fraction of all crossing pairs of all runs that kept both
-    labels (std: of the per-run fractions); ``crossing_pairs``: their number.  Empty when the
-    scenario has no crossing pairs."""
-    kept = [np.asarray(k, bool) for k in per_run if k is not None and len(k)]
-    if not kept:
-        return {}
-    frac = np.array([k.mean() for k in kept])
-    allk = np.concatenate(kept)
-    return {"crossings_kept": float(allk.mean()),
-            "crossings_kept_std": float(frac.std(ddof=1)) if frac.size > 1 else 0.0,
-            "crossing_pairs": int(allk.size)}
-
-
-def _extra_summary(per_run: Sequence[dict[str, np.ndarray]]) -> dict:
-    """Each :class:`FrameMetric`'s per-run ``sum(num) / sum(den)``: mean and std over runs."""
-    out = {}
-    for key in per_run[0] if per_run else ():
-        a = np.array([x[key][:, 0].sum() / max(x[key][:, 1].sum(), 1e-12) for x in per_run])
-        out[key] = float(a.mean())
-        out[key + "_std"] = float(a.std(ddof=1)) if a.size > 1 else 0.0
-    return out
-
-
-def _extra_columns(rows: list[dict]) -> list[tuple[str, str]]:
-    labels = {m.key: m.label for e in EXPERIMENTS.values() for m in e.metrics}
-    return [(k, labels[k]) for k in labels if k in rows[0]]
-
-
-def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
-    md, csv_path = out / "summary.md", out / "summary.csv"
-    with csv_path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    metrics = list(METRICS) + ([("crossings_kept", "crossings kept")] if "crossings_kept" in rows[0] else [])
-    metrics += _extra_columns(rows)
-    lines = [f"# {title}", "", "Mean over runs (± std of the per-run means). OSPA/OSPA(2)/GOSPA: c = 100 m, "
-             "p = 1, on position; OSPA(2) window 10 scans; ms/frame: per-run median."
-             + (" Crossings kept: fraction of all crossing pairs whose two objects keep their track "
-                "label from scan c-5 to c+5 (Hungarian, gate 100 m; ± std of the per-run fractions)."
-                if "crossings_kept" in rows[0] else "")
-             + (" Within 100 m: fraction of object-frames with an estimate within 100 m (one-to-one); range "
-                "OSPA: 1-D OSPA on range from the sensor (c = 100 m, p = 1), what a range-only sensor "
-                "observes (sinks/range_scores.py)." if "within100" in rows[0] else ""), "",
-             "| variant | tracker | runs | " + " | ".join(h for _, h in metrics) + " |",
-             "|---|---|---|" + "---|" * len(metrics)]
-    for r in rows:
-        cells = " | ".join(f"{r[k]:.2f} ± {r[k + '_std']:.2f}" for k, _ in metrics)
-        lines.append(f"| {r['variant']} | {r['tracker']} | {r['runs']} | {cells} |")
-    md.write_text("\n".join(lines) + "\n")
-    return md, csv_path
+def summary_rows(results: Sequence[RunResult | RunScores]) -> list[dict]:
+    """Mean, std (of the per-run values) and 95 % interval of every metric, per variant and
+    tracker (:func:`pipeline.experiment_summary.summarise`)."""
+    return summarise([r if isinstance(r, RunScores) else run_scores(r) for r in results])
 
 
 def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Path]:
@@ -441,10 +378,12 @@ def write_plots(results: Sequence[RunResult], out: Path, title: str) -> list[Pat
         for ax, (key, name) in zip(axes, (("ospa", "OSPA"), ("ospa_loc", "localisation"), ("ospa_card", "cardinality"))):
             for t in trackers:
                 a = np.array([getattr(r.trackers[t], key) for r in runs])
-                ax.plot(k, a.mean(0), label=t)
-                ax.fill_between(k, np.percentile(a, 10, 0), np.percentile(a, 90, 0), alpha=0.2)
+                line, = ax.plot(k, a.mean(0), label=t)
+                ax.fill_between(k, np.percentile(a, 10, 0), np.percentile(a, 90, 0), alpha=0.12, color=line.get_color())
+                half = np.array([ci_halfwidth(col) for col in a.T])
+                ax.fill_between(k, a.mean(0) - half, a.mean(0) + half, alpha=0.4, color=line.get_color(), lw=0)
             ax.set(ylabel=f"{name} (m)")
-        axes[0].set_title(f"{title} {v}: OSPA (c=100, p=1), mean and 10-90% band over {len(runs)} runs")
+        axes[0].set_title(f"{title} {v}: OSPA (c=100, p=1): mean, its 95% interval (dark) and the 10-90% band (light) over {len(runs)} runs")
         axes[0].legend()
         axes[-1].set_xlabel("scan k")
         paths.append(_save(fig, out / f"ospa{suffix}.png"))
@@ -515,29 +454,69 @@ class ExperimentOutput:
     seconds: float
 
 
+def _jobs_to_run(exp: Experiment, seed: int, params: str, runs: int, have: dict) -> list[RunJob]:
+    """Runs ``0 .. runs-1`` of every variant that ``have`` (the journal's runs) lacks, plus the
+    representative run 0 of each variant redone for its plots and recordings when the journal
+    holds it."""
+    jobs = [RunJob(exp.name, seed, i, params, v, keep_tracks=(i == 0)) for v in exp.variants for i in range(runs)
+            if (v.label, i) not in have]
+    return jobs + [RunJob(exp.name, seed, 0, params, v, keep_tracks=True) for v in exp.variants
+                   if (v.label, 0) in have]
+
+
+def _progress_bar(name: str, total: int, done: int):
+    """A progress bar with the rate and the time left, starting at the runs already journalled."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=done, desc=name, unit="run", smoothing=0.05)
+
+
 def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = DEFAULT_EXPERIMENT_PARAMS,
                    out: Path | None = None, workers: int | None = None, cluster: str | None = None,
-                   quiet: bool = False, rrd: bool = True) -> ExperimentOutput:
-    """Run experiment ``name`` end to end and write its outputs into ``out``."""
+                   quiet: bool = False, rrd: bool = True, fresh: bool = False) -> ExperimentOutput:
+    """Run experiment ``name`` end to end and write its outputs into ``out``.
+
+    Every finished run is journalled in ``out/runs.jsonl`` (:mod:`pipeline.experiment_journal`):
+    started again with the same ``out``, the experiment runs only the runs the journal lacks
+    (``fresh`` starts over).  The table covers runs ``0 .. runs-1`` of every variant; the
+    plots, the runs executed in this invocation."""
     import time
+
+    from bnptrack.pipeline.experiment_journal import JOURNAL_NAME, RunJournal, code_fingerprint
 
     exp = get_experiment(name)
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     out = Path(out) if out is not None else Path("recordings") / "experiments" / f"{name}-{params}-s{seed}"
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [RunJob(name, seed, i, params, v, keep_tracks=(i == 0)) for v in exp.variants for i in range(runs)]
-    t0 = time.perf_counter()
-    if quiet:
-        results = run_jobs(jobs, workers=workers, cluster=cluster)
-    else:
-        from tqdm import tqdm
+    if fresh:
+        (out / JOURNAL_NAME).unlink(missing_ok=True)
+    setup = {"experiment": name, "seed": seed, "params": params, "trackers": [t.label for t in exp.trackers],
+             "variants": [v.label for v in exp.variants], "code": code_fingerprint()}
+    journal, done = RunJournal.open(out, setup)
+    have = {(s.variant, s.run): s for s in done}
+    jobs = _jobs_to_run(exp, seed, params, runs, have)
+    bar = None if quiet else _progress_bar(name, len(exp.variants) * runs,
+                                           sum((v.label, i) in have for v in exp.variants for i in range(runs)))
 
-        with tqdm(total=len(jobs), desc=name, unit="run") as bar:
-            results = run_jobs(jobs, workers=workers, cluster=cluster, progress=bar.update)
+    def record(result: RunResult) -> None:
+        key = (result.job.variant.label, result.job.run)
+        if key not in have:  # not the representative run redone
+            have[key] = run_scores(result)
+            journal.append(have[key])
+            if bar is not None:
+                bar.update(1)
+
+    t0 = time.perf_counter()
+    try:
+        results = run_jobs(jobs, workers=workers, cluster=cluster, progress=record)
+    finally:
+        journal.close()
+        if bar is not None:
+            bar.close()
     seconds = time.perf_counter() - t0
     title = f"{name} ({exp.description}; params {params}, seed {seed}, {runs} runs)"
-    rows = summary_rows(results)
+    rows = summary_rows([have[(v.label, i)] for v in exp.variants for i in range(runs)])
     md, csv_path = write_summary(rows, out, title)
     plots = write_plots(results, out, name)
     recs: list[Path] = []

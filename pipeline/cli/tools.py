@@ -259,14 +259,21 @@ _EXPERIMENT_HELP = """Run one of the paper's simulation experiments as a Monte C
 Writes summary.md / summary.csv (mean and spread over runs of OSPA and its parts,
 OSPA(2), GOSPA, cardinality error, ms per frame; for random also the fraction of
 crossing pairs that keep both labels), PNG plots mirroring the paper's
-figures and one .rrd per tracker of run 0. Runs are seeded from (NAME, --seed, run
-index): a run redone alone, locally or on a Dask cluster, gives the same numbers.
+figures and one .rrd per tracker of run 0. Each mean has its 95% confidence
+interval. Runs are seeded from (NAME, --seed, run index): a run redone alone,
+locally or on a Dask cluster, gives the same numbers.
+
+Resumable: every finished run is appended to OUT/runs.jsonl. The same command
+started again (after a stop, a crash, or with a larger --runs) runs only the
+runs that file lacks; --fresh starts over. A file written by other tracker code
+is refused, so runs of two versions are never pooled.
 
 \b
 Examples:
   bnptrack experiment ddp-vs-glmb --runs 100
   bnptrack experiment snr --runs 20 --params vo2017 --out out/snr
   bnptrack experiment dpy-vs-ddp --runs 1000 --cluster tcp://scheduler:8786
+  bnptrack experiment ddp-vs-glmb --runs 10000 --no-rrd   (stop and rerun at will)
 """
 
 
@@ -284,16 +291,17 @@ Examples:
 @click.option("--cluster", metavar="ADDRESS", default=None,
               help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes; needs the optional extra: pip install 'bnptrack[dask]'.")
 @click.option("--no-rrd", is_flag=True, help="Skip the .rrd recordings of the representative run.")
+@click.option("--fresh", is_flag=True, help="Discard OUT/runs.jsonl and start from run 0.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no summary.")
 @clean_errors
 def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | None, workers: int | None,
-               cluster: str | None, no_rrd: bool, quiet: bool) -> None:
+               cluster: str | None, no_rrd: bool, fresh: bool, quiet: bool) -> None:
     """Run one of the paper's simulation experiments (help: ``_EXPERIMENT_HELP``, drawn from
     :data:`pipeline.experiments.EXPERIMENTS`)."""
     from bnptrack.pipeline.experiments import run_experiment
 
     res = run_experiment(name, runs=runs, seed=seed, params=params_name, out=out, workers=workers,
-                         cluster=cluster, quiet=quiet, rrd=not no_rrd)
+                         cluster=cluster, quiet=quiet, rrd=not no_rrd, fresh=fresh)
     if not quiet:
         click.echo(res.summary_md.read_text())
         rows = [("took", f"{res.seconds:.1f} s for {len(res.rows) and res.rows[0]['runs']} run(s) per condition"),
