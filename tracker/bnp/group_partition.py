@@ -25,9 +25,9 @@ per move (object :math:`\ell` leaves its table, then joins one drawn from its co
   than :data:`MARGIN` = 50 nats below an option already scored (the new table, the table the
   object left) weighs less than :math:`e^{-50} \approx 2 \cdot 10^{-22}` of that option, and
   the T tables skipped in a move less than :math:`T \cdot 2 \cdot 10^{-22}` of the move's total
-  (:math:`10^{-18}` at T = 5,000), a millionth of a double's rounding unit: a skip can move a
-  sum's last bit only in the rare sum that lies that close to a rounding boundary, and a draw
-  only when its uniform does.  (A 760-nat margin, where ``exp`` underflows to exactly 0.0,
+  (:math:`10^{-18}` at T = 5,000), under a hundredth of a double's rounding unit: a skip can
+  move a sum's last bit only in the rare sum that lies that close to a rounding boundary, and a
+  draw only when its uniform does.  (A 760-nat margin, where ``exp`` underflows to exactly 0.0,
   changes no bit, but in a dense scene it spans the whole field: at 1,000 objects in vo2017's
   2 km field it scored 153 of 323 tables per move, against 16 at 50 nats.)  The tables within the bound's radius are found in a uniform grid
   over the tables' current :math:`\hat\theta_q` (cell lists; a table moves cell when a move changes
