@@ -49,6 +49,9 @@ SUITE = (
               ("--seeds", "1", "--anchors", "--json"), ("--seeds", "20", "--workers", "2", "--json")),
     Benchmark("scale", "scale.py", "How does the time per frame grow with the number of objects?",
               ("--ns", "10,100", "--frames", "10"), ()),
+    Benchmark("scale-dense", "scale.py", "How fast is a dense scene: N objects in one radar's own field?",
+              ("--mode", "dense", "--tracker", "ddp", "--ns", "100,300", "--frames", "10"),
+              ("--mode", "dense", "--tracker", "ddp", "--ns", "100,300,1000", "--frames", "30")),
     Benchmark("startup", "startup.py", "How long do the commands take to start (warm kernel cache)?",
               ("--rounds", "1", "--no-launch"), ("--rounds", "5", "--pyc")),
     Benchmark("rerun-overhead", "rerun_overhead.py", "What does writing a Rerun recording cost an offline run?",
@@ -65,7 +68,7 @@ SUITE = (
 
 SETS = {
     "accuracy": ("accuracy", "births", "groups", "sensors", "vs-stonesoup"),
-    "speed": ("scale", "startup", "rerun-overhead", "robot-log-read", "experiment-throughput"),
+    "speed": ("scale", "scale-dense", "startup", "rerun-overhead", "robot-log-read", "experiment-throughput"),
     "pipeline": ("pipeline-latency", "faults"),
     "quick": ("accuracy", "groups", "scale", "startup", "robot-log-read"),
 }

@@ -24,13 +24,22 @@ machine wall time also counts the time other processes hold the core),
 ``rss_mib`` the process's peak resident set (``resource.getrusage``), ``ospa`` (c = 100 m,
 p = 1) averaged over the last 20 frames, ``tracked_fraction`` the fraction of true objects
 with a reported track within 100 m, averaged over the last 20 frames.  ``--budget-s`` stops
-a run early (the row says how many frames it ran).  The last line printed is one JSON object
-``{"results": [...]}``.
+a run early (the row says how many frames it ran).  ``growth`` is the mean ms/frame of the
+last 5 frames over that of frames 1-5 (does the per-frame cost stay flat over the run?),
+``growth_cpu`` the same of the CPU times.  The
+last line printed is one JSON object ``{"results": [...]}``.
+
+**Scene family ``dense-N``** (``--mode dense``): the vo2017 sensor's own field whatever N (the
+2000 m half disc, bearing noise 2 deg, range noise 10 m, P_D 0.98, 15 clutter per scan, births
+anywhere: the vo2017 model unchanged), N objects placed and moving as above, so at N = 1000 a
+frame holds about 1000 measurements in a field vo2017 fills with 10.  The tracker starts with
+one track at each true state (existence 1), one period before frame 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -44,6 +53,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 LAST = 20  # frames averaged for OSPA and tracked_fraction
+SEED_FRAME = -1_000_000  # the frame in the labels of the dense scene's initial tracks
 
 
 def scene_params(n: int, clutter_ratio: float):
@@ -54,11 +64,20 @@ def scene_params(n: int, clutter_ratio: float):
                                    sigma_bearing_deg=float(2.0 * 2000.0 / R), birth_rate=0.01 * n)
 
 
-def simulate(n: int, frames: int, seed: int, clutter_ratio: float):
-    """Frames of the ``scale-N`` scene (module docstring)."""
+def dense_params():
+    """The ``dense-N`` scene's model: vo2017's own (its 2 km half disc, bearing-range, P_D 0.98,
+    15 clutter per scan, births anywhere), whatever N."""
+    from bnptrack.tracker.models.params import load_params
+
+    return load_params("vo2017")
+
+
+def simulate(n: int, frames: int, seed: int, clutter_ratio: float, dense: bool = False):
+    """Frames of the ``scale-N`` (or ``dense-N``) scene (module docstring) and the true states
+    one period before frame 0 (``(n, 5)``, what :func:`seeded_state` starts from)."""
     from bnptrack.tracker.types import Frame, Truth
 
-    params = scene_params(n, clutter_ratio)
+    params = dense_params() if dense else scene_params(n, clutter_ratio)
     meas = params.measurement("bearing_range")
     R, half = params.range_max, np.deg2rad(90.0)
     rng = np.random.default_rng(seed)
@@ -68,7 +87,8 @@ def simulate(n: int, frames: int, seed: int, clutter_ratio: float):
     pos0 = np.stack([rad * np.sin(brg), rad * np.cos(brg)], axis=1)
     vel = np.stack([speed * np.sin(heading), speed * np.cos(heading)], axis=1)
     ids = np.array([f"o{i}" for i in range(n)])
-    out = []
+    out, before = [], np.column_stack([pos0[:, 0] - params.T * vel[:, 0], vel[:, 0],
+                                       pos0[:, 1] - params.T * vel[:, 1], vel[:, 1], np.zeros(n)])
     for k in range(frames):
         pos = pos0 + k * params.T * vel
         states = np.column_stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1], np.zeros(n)])
@@ -81,7 +101,29 @@ def simulate(n: int, frames: int, seed: int, clutter_ratio: float):
         z = np.concatenate([z_obj, z_c])[rng.permutation(det.sum() + n_c)]
         out.append(Frame(k, int(k * params.T * 1e9), "radar0", "bearing_range", z,
                          Truth(tuple(ids[inside].tolist()), states[inside])))
-    return params, out
+    return params, out, before
+
+
+def seeded_state(tracker, x: np.ndarray):
+    """The tracker's initial state holding one track per row of ``x`` (existence 1, popularity
+    1, covariance 10 m / 2 m/s / 0.01 rad/s; the group level's clusters empty; a GLMB with one
+    hypothesis holding them all)."""
+    import dataclasses
+
+    state = tracker.initial_state()
+    n = len(x)
+    cov = np.repeat(np.diag([10.0**2, 2.0**2, 10.0**2, 2.0**2, 0.01**2])[None], n, axis=0)
+    # "<frame>.<index>" as births are, of a frame long before the run: tracks that exist before
+    # it are not births of its first frames (the object level's alpha posterior counts the
+    # births of frame k - birth_lag, which would count these 1000s if labelled frame -1)
+    labels = tuple(f"{SEED_FRAME}.{i}" for i in range(n))
+    names = {f.name for f in dataclasses.fields(state)}
+    if "hyp_tracks" in names:
+        return dataclasses.replace(state, labels=labels, mean=x.copy(), cov=cov,
+                                   hyp_tracks=np.arange(n, dtype=np.int64)[None], log_w=np.zeros(1))
+    extra = {k: np.full(n, -1, dtype=np.int64) for k in ("cluster", "counted") if k in names}
+    return dataclasses.replace(state, labels=labels, mean=x.copy(), cov=cov, existence=np.ones(n),
+                               popularity=np.ones(n), **extra)
 
 
 def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float = 100.0) -> float:
@@ -96,15 +138,17 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
     return float(np.mean(d <= radius))
 
 
-def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float, name: str = "ddp-mb") -> dict:
+def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float, name: str = "ddp-mb",
+            dense: bool = False) -> dict:
     from bnptrack.sinks.metrics import ospa
     from bnptrack.tracker.registry import build
     from bnptrack.tracker.state import tracker_frame_rng
 
-    params, fr = simulate(n, frames, seed, clutter_ratio)
+    params, fr, before = simulate(n, frames, seed, clutter_ratio, dense)
     tracker = build(name, params)
-    state = tracker.initial_state()
+    state = seeded_state(tracker, before) if dense else tracker.initial_state()
     ms, cpu, ospas, fracs, t_start = [], [], [], [], time.perf_counter()
+    digest = hashlib.sha1()
     n_meas = []
     for f in fr:
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -112,6 +156,8 @@ def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: floa
         ms.append((time.perf_counter() - t0) * 1e3)
         cpu.append((time.thread_time() - c0) * 1e3)
         n_meas.append(f.n_measurements)
+        for t in est.tracks:
+            digest.update(t.label.encode() + np.asarray(t.state, dtype=float).tobytes())
         if f.frame >= frames - LAST:
             X = f.truth.positions
             Y = np.array([t.position for t in est.tracks]).reshape(-1, 2)
@@ -120,13 +166,17 @@ def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: floa
         if time.perf_counter() - t_start > budget_s:
             break
     med = float(np.median(ms[1:] if len(ms) > 1 else ms))
+    growth = [float(np.mean(x[-5:]) / np.mean(x[1:6])) if len(x) >= 11 else None for x in (ms, cpu)]
     return {"n": n, "frames": len(ms), "measurements_per_frame": float(np.mean(n_meas)),
             "ms_per_frame": round(med, 2), "fps": round(1e3 / med, 2),
             "cpu_ms_per_frame": round(float(np.median(cpu[1:] if len(cpu) > 1 else cpu)), 2),
             "tracked_fraction": round(float(np.mean(fracs)), 4) if fracs else None,
             "rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
             "ospa": round(float(np.mean(ospas)), 2) if ospas else None,
-            "n_tracks_last": len(est.tracks)}
+            "n_tracks_last": len(est.tracks), "tracks_sha1": digest.hexdigest()[:16],
+            "growth": None if growth[0] is None else round(growth[0], 3),
+            "growth_cpu": None if growth[1] is None else round(growth[1], 3),
+            "ms_first": [round(x, 1) for x in ms[:10]], "ms_last": [round(x, 1) for x in ms[-5:]]}
 
 
 def main() -> None:
@@ -138,18 +188,21 @@ def main() -> None:
     ap.add_argument("--budget-s", type=float, default=600.0, help="stop a run after this many seconds")
     ap.add_argument("--tracker", default="ddp-mb", help="a registry name: ddp-mb (single level, the figures "
                     "of docs/performance.md) or ddp (the two-level default of the commands)")
+    ap.add_argument("--mode", choices=("scale", "dense"), default="scale",
+                    help="scale: the field grows with N (constant density); dense: the vo2017 field for every N")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one is not None:
-        print(json.dumps(run_one(args.one, args.frames, args.seed, args.clutter_ratio, args.budget_s, args.tracker)))
+        print(json.dumps(run_one(args.one, args.frames, args.seed, args.clutter_ratio, args.budget_s, args.tracker,
+                                 args.mode == "dense")))
         return
     results = []
     print("| N | meas/frame | frames | ms/frame (median) | fps | CPU ms/frame (median) | peak RSS MiB | OSPA "
-          "| tracked_fraction |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| tracked_fraction | growth (wall, CPU) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in [int(x) for x in args.ns.split(",")]:
         cmd = [sys.executable, __file__, "--one", str(n), "--frames", str(args.frames), "--seed", str(args.seed),
-               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s), "--tracker", args.tracker]
+               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s), "--tracker", args.tracker, "--mode", args.mode]
         out = subprocess.run(cmd, capture_output=True, text=True)
         if out.returncode != 0:
             print(f"| {n} | failed: {out.stderr.strip().splitlines()[-1:]} |", flush=True)
@@ -158,7 +211,7 @@ def main() -> None:
         results.append(r)
         print(f"| {n} | {r['measurements_per_frame']:.0f} | {r['frames']} | {r['ms_per_frame']} | {r['fps']} "
               f"| {r['cpu_ms_per_frame']} "
-              f"| {r['rss_mib']} | {r['ospa']} | {r['tracked_fraction']} |", flush=True)
+              f"| {r['rss_mib']} | {r['ospa']} | {r['tracked_fraction']} | {r['growth']}, {r['growth_cpu']} |", flush=True)
     print(json.dumps({"results": results}))
 
 

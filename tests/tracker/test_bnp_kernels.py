@@ -96,7 +96,8 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
         u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
         accepted += g._sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
                               cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, u_swap,
-                              pair_a, pair_b, burn_in, 2 * ch, tally_pair, tally_cn, hs, hss, *scratch)
+                              pair_a, pair_b, burn_in, 2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
+                              g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
         first = c if first is None else first
     kept = max(sweeps - burn_in, 1) * chains
     return (tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first, g.log_joint(problem, first),

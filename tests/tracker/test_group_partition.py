@@ -85,10 +85,11 @@ def test_a_far_table_is_skipped_and_the_draw_equals_the_full_scans() -> None:
     assert full[1] == 3 * full[0]  # without the gate: both clusters and the new table
 
 
-def test_the_margin_underflows_exp_to_zero() -> None:
-    """A table more than MARGIN nats below another option weighs exactly 0.0 after exp(logw - max)."""
-    assert np.exp(-MARGIN + 14.0) == 0.0
-    assert np.exp(np.float64(-746.0)) == 0.0
+def test_tables_beyond_the_margin_weigh_under_a_hundredth_of_a_rounding_unit() -> None:
+    """5,000 tables each more than MARGIN nats below an option weigh together less than a
+    hundredth of a double's rounding unit (2^-53) of that option; 36 nats would not."""
+    assert 5000 * np.exp(-MARGIN) < 0.01 * np.finfo(float).eps / 2
+    assert 5000 * np.exp(-36.0) > np.finfo(float).eps / 2
 
 
 def test_heap_returns_the_lowest_slot_first() -> None:

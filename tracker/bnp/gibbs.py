@@ -30,7 +30,7 @@ set; the conditionals above restricted to the allowed values are exactly its ful
 Single-site moves cannot exchange two measurements that compete for one cluster (the holder
 must first pass through clutter or a new cluster), so each sweep is followed by a
 Metropolis-Hastings exchange of the assignments of every pair of measurements whose gates
-share a cluster (:func:`_swap_pass`; it keeps every count of the urn, so the acceptance ratio
+share a cluster (:func:`tracker.bnp.swap_moves.swap_pass`; it keeps every count of the urn, so the acceptance ratio
 is the ratio of the two measurements' own factors).  Several chains from different greedy
 starts give the split-chain R-hat of the marginals (:func:`split_rhat`).
 
@@ -49,9 +49,10 @@ import numpy as np
 
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp._kernels import np_sum
-
-CLUTTER = -1
-NEW = -2
+from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, gate_bits
+from bnptrack.tracker.bnp.swap_moves import KERNELS_PY as SWAP_KERNELS_PY
+from bnptrack.tracker.bnp.swap_moves import own_weight as _own_weight
+from bnptrack.tracker.bnp.swap_moves import swap_pass as _swap_pass
 
 
 @dataclass(frozen=True)
@@ -257,11 +258,13 @@ def _candidates(problem: GibbsProblem) -> _Candidates:
 
 
 def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u_row,
-               keep, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+               keep, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, own):
     """One systematic-scan sweep of single-site full-conditional draws (mutates ``c``, ``cnt``,
     ``st = [K_new, M_o]`` and, when ``keep``, the Rao-Blackwellised tallies: each visit adds
     its full conditional to ``tally_pair`` (by pair)/``tally_cn``, and to the split-half sums
-    ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``)."""
+    ``hs[half]``/``hss[half]`` (squares) used by the R-hat diagnostic when ``half >= 0``) and
+    ``own`` (each measurement's :func:`tracker.bnp.swap_moves.own_weight` at its value, for the
+    exchange pass)."""
     total_mass, alpha, d, d_bar, use_g = par[0], par[1], par[2], par[3], par[4] > 0.0
     M = c.shape[0]
     nnz = idx.shape[0]
@@ -296,16 +299,24 @@ def _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_firs
         x = u_row[m] * total
         if x < wc:
             choice = CLUTTER
+            own[m] = wc
         elif x < wc + wn:
             choice = NEW
+            own[m] = w_newbase[m]
         else:
             x -= wc + wn
-            choice = opt_l[n_opt - 1] if n_opt > 0 else NEW  # round-off guard
+            pick = n_opt - 1  # round-off guard (no option: new)
             for i in range(n_opt):
                 if x < opt_w[i]:
-                    choice = opt_l[i]
+                    pick = i
                     break
                 x -= opt_w[i]
+            if pick >= 0:
+                choice = opt_l[pick]
+                own[m] = w_first[opt_j[pick]]
+            else:
+                choice = NEW
+                own[m] = w_newbase[m]
         if keep:
             inv = 1.0 / total
             tally_cn[0, m] += wc * inv
@@ -331,52 +342,8 @@ def _half_add(hs, hss, h, k, v):
     hss[h, k] += v * v
 
 
-def _own_weight(m, ch, w_clutter, w_newbase, ptr, idx, w_first):
-    """Measurement ``m``'s own factor of the joint for value ``ch`` (scaled like the sweeps):
-    clutter ``lambda_c kappa``, new ``u_H`` (the urn factors of a swap cancel), or the D2/P2
-    weight of a cluster holding only ``m`` (0 when gated out)."""
-    if ch == CLUTTER:
-        return w_clutter[m]
-    if ch == NEW:
-        return w_newbase[m]
-    for j in range(ptr[m], ptr[m + 1]):
-        if idx[j] == ch:
-            return w_first[j]
-    return 0.0
-
-
-def _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row):
-    r"""Metropolis-Hastings exchange of two measurements' assignments, for every pair that
-    shares a candidate cluster (a fixed list; each exchange is its own inverse, so the
-    proposal is symmetric).  An exchange keeps every count (:math:`M_o`, :math:`K_\text{new}`,
-    cluster sizes), so the joint ratio is the product of the two measurements' own factors.
-    In extended mode clusters holding several measurements are left alone.  Returns the
-    number of accepted exchanges."""
-    accepted = 0
-    for p in range(pair_a.shape[0]):
-        a = pair_a[p]
-        b = pair_b[p]
-        ca = c[a]
-        cb = c[b]
-        if ca == cb:
-            continue
-        if extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1)):
-            continue
-        new = (_own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
-               * _own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first))
-        if new <= 0.0:
-            continue
-        old = (_own_weight(a, ca, w_clutter, w_newbase, ptr, idx, w_first)
-               * _own_weight(b, cb, w_clutter, w_newbase, ptr, idx, w_first))
-        if u_row[p] * old < new:
-            c[a] = cb
-            c[b] = ca
-            accepted += 1
-    return accepted
-
-
 def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
-                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j):
+                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits):
     """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
 
     Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
@@ -386,14 +353,17 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
     kept = sweeps - burn_in
     half_len = kept // 2
     accepted = 0
+    own = np.empty(c.shape[0])
+    for m in range(c.shape[0]):
+        own[m] = _own_weight(m, c[m], w_clutter, w_newbase, ptr, idx, w_first)
     for s in range(sweeps):
         i = s - burn_in
         half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
         _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
-                   i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+                   i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, own)
         if u_swap.shape[1] > 0:
             accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
-                                   u_swap[s])
+                                   u_swap[s], bits, own)
     return accepted
 
 
@@ -508,6 +478,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
     opt = max(N, 1)
     opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
     first = np.empty(M, dtype=np.int64)
+    bits = gate_bits(ptr, idx, N, MAX_BYTES) if P > 0 else np.zeros((0, 0), dtype=np.uint8)
     accepted, off = 0, 0
     for k in range(chains):
         c = init.copy() if k == 0 and has_init else starts[k % 2].copy()
@@ -525,7 +496,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
         u_swap = u_all[off:off + sweeps * P].reshape((sweeps, P))
         off += sweeps * P
         accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, u_swap,
-                            pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j)
+                            pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits)
         if k == 0:
             for m in range(M):
                 first[m] = c[m]
@@ -601,14 +572,12 @@ def _split_rhat_kernel(hs, hss, n):
     return 1000.0 if 1000.0 < top else top
 
 
-_KERNELS_PY = (_site_pass, _half_add, _own_weight, _swap_pass, _sweep_kernel, _greedy, _group_pairs, _npmax, _setup_kernel,
+_KERNELS_PY = (_site_pass, _half_add, _sweep_kernel, _greedy, _group_pairs, _npmax, _setup_kernel,
                _swap_pairs_kernel, _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
 # the helpers are replaced by their compiled versions, which the compiled driver calls
 _greedy = jit(_greedy)  # noqa: F811
 _half_add = jit(_half_add, inline=True)
-_own_weight = jit(_own_weight)
 _site_pass = jit(_site_pass)
-_swap_pass = jit(_swap_pass)
 _sweeps = jit(_sweep_kernel)
 _group_pairs = jit(_group_pairs)  # noqa: F811
 _npmax = jit(_npmax, inline=True)
@@ -622,9 +591,11 @@ _split_rhat_kernel = jit(_split_rhat_kernel)
 def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
-    names = ("_site_pass", "_half_add", "_own_weight", "_swap_pass", "_sweeps", "_greedy", "_group_pairs", "_npmax",
+    names = ("_site_pass", "_half_add", "_sweeps", "_greedy", "_group_pairs", "_npmax",
              "_setup_kernel", "_swap_pairs_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
-    return dict(zip(names, _KERNELS_PY))
+    swaps = SWAP_KERNELS_PY  # tracker.bnp.swap_moves' kernels, by the names this module binds
+    return {**dict(zip(names, _KERNELS_PY)), "gate_bits": swaps["gate_bits"], "_own_weight": swaps["own_weight"],
+            "_swap_pass": swaps["swap_pass"]}
 
 
 def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:

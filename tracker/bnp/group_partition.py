@@ -22,10 +22,14 @@ per move (object :math:`\ell` leaves its table, then joins one drawn from its co
   :math:`c_\ell = \sum_p (-\tfrac12 \log\det R_{p\ell} - \log 2\pi)`,
   :math:`\rho_\ell = \lambda_{\max}(R_{q\ell})`, :math:`\Lambda \ge \lambda_{\max}(C_{qt})` for every
   table in the grid (tables above it are "wide" and always scored).  A table whose bound is more
-  than :data:`MARGIN` = 760 nats below an option already scored (the new table, the table the
-  object left) has :math:`\exp(\log w_t - \max) = 0.0` exactly in double precision (``exp``
-  underflows below -745.2), so it adds exactly 0.0 to the sums of the draw and is never drawn:
-  skipping it changes no bit.  The tables within the bound's radius are found in a uniform grid
+  than :data:`MARGIN` = 50 nats below an option already scored (the new table, the table the
+  object left) weighs less than :math:`e^{-50} \approx 2 \cdot 10^{-22}` of that option, and
+  the T tables skipped in a move less than :math:`T \cdot 2 \cdot 10^{-22}` of the move's total
+  (:math:`10^{-18}` at T = 5,000), under a hundredth of a double's rounding unit: a skip can
+  move a sum's last bit only in the rare sum that lies that close to a rounding boundary, and a
+  draw only when its uniform does.  (A 760-nat margin, where ``exp`` underflows to exactly 0.0,
+  changes no bit, but in a dense scene it spans the whole field: at 1,000 objects in vo2017's
+  2 km field it scored 153 of 323 tables per move, against 16 at 50 nats.)  The tables within the bound's radius are found in a uniform grid
   over the tables' current :math:`\hat\theta_q` (cell lists; a table moves cell when a move changes
   its members).  Each table the grid returns is then tested once more before it is scored, with the exact
   quadratic form of block q in place of its eigenvalue bound
@@ -47,9 +51,9 @@ import numpy as np
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 
-#: Nats below an option's log weight beyond which a table's weight is exactly 0.0 after
-#: ``exp(logw - max)`` (double precision underflows to 0.0 below about -745.13; 15 nats to spare).
-MARGIN = 760.0
+#: Nats below an option's log weight beyond which a table is not scored: its weight is below
+#: e^-50 (2e-22) of that option's (module docstring).
+MARGIN = 50.0
 #: The grid's cap on a table's covariance (largest eigenvalue) as a multiple of the median of the
 #: tables' and members' (tables above it are scored for every object).
 CAP_FACTOR = 4.0
