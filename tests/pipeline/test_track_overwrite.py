@@ -1,0 +1,45 @@
+"""``track`` never replaces a finished output without ``--overwrite``: an existing ``--out``,
+``--rrd`` or ``--sink`` file is refused (exit 2) before the log is read, and left as it was."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from bnptrack.pipeline.cli import main
+
+LOG = Path(__file__).resolve().parents[2] / "recordings" / "vo2017-s1.mcap"
+
+
+def track(*args: str):
+    return CliRunner().invoke(main, ["track", *args, "--tracker", "ddp-mb", "--end", "5f", "-q"])
+
+
+def test_an_existing_out_is_refused_and_kept(tmp_path):
+    log = tmp_path / "log.mcap"
+    shutil.copy(LOG, log)
+    out = tmp_path / "tracks.mcap"
+    assert track(str(log), "--out", str(out)).exit_code == 0
+    finished = out.read_bytes()
+    res = track(str(log), "--out", str(out))
+    assert res.exit_code == 2
+    assert f"{out} exists: give --overwrite to replace it, or another --out" in res.output
+    assert out.read_bytes() == finished
+
+
+def test_an_existing_recording_is_refused_too(tmp_path):
+    out, rrd = tmp_path / "t.mcap", tmp_path / "t.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    res = track(str(LOG), "--out", str(out), "--rrd", str(rrd))
+    assert res.exit_code == 2 and f"{rrd} exists" in res.output
+    assert not out.exists() and rrd.read_bytes() == b"an earlier recording"
+
+
+def test_overwrite_replaces_the_file(tmp_path):
+    out = tmp_path / "tracks.mcap"
+    out.write_bytes(b"old")
+    res = track(str(LOG), "--out", str(out), "--overwrite")
+    assert res.exit_code == 0, res.output
+    assert out.read_bytes()[:8] == b"\x89MCAP0\r\n"
