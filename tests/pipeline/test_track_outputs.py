@@ -1,5 +1,6 @@
-"""``track`` never replaces a finished output without ``--overwrite``: an existing ``--out``,
-``--rrd`` or ``--sink`` file is refused (exit 2) before the log is read, and left as it was."""
+"""What `track` does with its files: an existing output is never replaced without
+``--overwrite`` (refused with exit 2 before the log is read, and left as it was), and a log cut
+short before its channels is reported as truncated."""
 
 from __future__ import annotations
 
@@ -43,3 +44,14 @@ def test_overwrite_replaces_the_file(tmp_path):
     res = track(str(LOG), "--out", str(out), "--overwrite")
     assert res.exit_code == 0, res.output
     assert out.read_bytes()[:8] == b"\x89MCAP0\r\n"
+
+
+def test_a_log_cut_before_its_channels_is_reported_as_truncated(tmp_path):
+    data = LOG.read_bytes()
+    for size in (1, 8, 100, 1000):
+        cut = tmp_path / f"cut{size}.mcap"
+        cut.write_bytes(data[:size])
+        res = track(str(cut), "--out", str(tmp_path / f"out{size}.mcap"))
+        assert res.exit_code == 2
+        assert f"the file ends after {size} bytes, before any channel is declared" in res.output
+        assert "no /measurements channel" not in res.output
