@@ -290,6 +290,8 @@ def track(
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
+    if setup.choice.warning:
+        click.echo(f"warning: {setup.choice.warning}", err=True)
     if not quiet:
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
     announce_first_compile(quiet)

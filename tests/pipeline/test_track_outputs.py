@@ -55,3 +55,15 @@ def test_a_log_cut_before_its_channels_is_reported_as_truncated(tmp_path):
         assert res.exit_code == 2
         assert f"the file ends after {size} bytes, before any channel is declared" in res.output
         assert "no /measurements channel" not in res.output
+
+
+def test_an_unknown_scenario_in_the_record_is_a_warning(tmp_path):
+    import bnptrack
+
+    frames = bnptrack.read_log(LOG).frames[:5]
+    log = bnptrack.write_log(tmp_path / "harbour.mcap", frames, {"scenario": "harbour", "params": "vo2017"})
+    res = track(str(log), "--out", str(tmp_path / "out.mcap"))
+    assert res.exit_code == 0, res.output
+    assert "warning: the log's record names an unknown scenario 'harbour', so no scenario defaults" in res.output
+    known = bnptrack.write_log(tmp_path / "vo.mcap", frames, {"scenario": "vo2017", "params": "vo2017"})
+    assert "warning" not in track(str(known), "--out", str(tmp_path / "out2.mcap")).output
