@@ -325,6 +325,17 @@ def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
         raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
 
 
+def refuse_existing(outputs: Mapping[str, Path], overwrite: bool) -> None:
+    """Refuse output files that exist already (a finished run would be replaced by this one,
+    complete or not) unless ``overwrite``."""
+    if overwrite:
+        return
+    taken = sorted({str(p) for p in outputs.values() if Path(p).exists()})
+    if taken:
+        raise ConfigError(f"{taken[0]} exists{' (and ' + str(len(taken) - 1) + ' more)' if len(taken) > 1 else ''}: "
+                          "give --overwrite to replace it, or another --out")
+
+
 def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
     """Refuse outputs (sink name -> file) that overwrite the input log or one another."""
     from bnptrack.sinks.sink import SINKS

@@ -141,6 +141,8 @@ class ParamsChoice:
     source: str
     reason: str
     overrides: tuple[str, ...] = ()
+    warning: str | None = None
+    """What the user should know before tracking (one line), e.g. an unknown scenario."""
 
     def describe(self, final: ModelParams | None = None, overrides: Sequence[str] = ()) -> str:
         """One line: source, reason, the log's overrides, extra ``--set`` items and the SNR
@@ -203,13 +205,18 @@ def _params_from_record(meta: Mapping[str, str]) -> ParamsChoice:
 
 
 def _adapt_to_scenario(choice: ParamsChoice, scenario: str | None) -> ParamsChoice:
-    """Apply the defaults of the scenario a log's record names (unknown names: unchanged)."""
+    """Apply the defaults of the scenario a log's record names.  An unknown name changes
+    nothing, and says so: its birth regions, SNR and clutter defaults cannot be applied."""
     if not scenario:
         return choice
     try:
         sc = adapting_scenario(scenario)
     except ConfigError:
-        return choice
+        return ParamsChoice(choice.params, choice.source, f"{choice.reason}; scenario {scenario!r}: unknown",
+                            choice.overrides,
+                            f"the log's record names an unknown scenario {scenario!r}, so no scenario defaults "
+                            "(birth regions, SNR, range clutter) are applied; give --params FILE.toml with "
+                            "[[birth]] regions if new objects appear only in known places")
     params = sc.adapt_params(choice.params)
     regions = f"{len(params.birth)} birth regions" if params.birth else "no birth regions"
     return ParamsChoice(params, choice.source, f"{choice.reason}; scenario {scenario}: {regions}",

@@ -77,8 +77,10 @@ def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
                     break
         except InvalidMagic as exc:
             raise McapLogError(spath, "corrupt", 0, 0, None, f"not an MCAP file: {exc}") from exc
-        except Exception:  # a damaged tail: report what was read
-            pass
+        except Exception as exc:  # a damaged tail: report what was read
+            if not chans:  # nothing declared before the damage: a file cut short, not a log without channels
+                raise McapLogError(spath, "truncated", 0, 0, None,
+                                   f"the file ends after {size} bytes, before any channel is declared") from exc
     out = []
     for cid, ch in chans.items():
         sc = schemas.get(ch.schema_id)

@@ -34,7 +34,7 @@ from bnptrack.pipeline.cli.common import (
 )
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
-                              open_sinks, track_to_sinks)
+                              open_sinks, refuse_existing, track_to_sinks)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
@@ -236,6 +236,8 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
               help="Also record to the sink NAME of the table of sinks (sinks/sink.py), next to --out "
               "with its file suffix (--sink foxglove: a foxglove.SceneUpdate channel beside /tracks in --out); mcap "
               "(--out) and rerun (--rrd) are chosen by their own options. Repeatable.")
+@click.option("--overwrite", is_flag=True, help="Replace output files that exist (without it, an existing --out, "
+              "--rrd or --sink file is refused with exit code 2 before anything is read).")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @clean_errors
 def track(
@@ -255,6 +257,7 @@ def track(
     view: bool,
     view_connect: str | None,
     sink_names: tuple[str, ...],
+    overwrite: bool,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -281,11 +284,14 @@ def track(
     window, overrides = _window(start, end, overrides)
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names)
+    refuse_existing(io.outputs, overwrite)
     io.check_window(window)
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
+    if setup.choice.warning:
+        click.echo(f"warning: {setup.choice.warning}", err=True)
     if not quiet:
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
     announce_first_compile(quiet)

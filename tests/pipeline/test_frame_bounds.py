@@ -93,7 +93,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
     with McapLogWriter(log, {"scenario": "vo2017", "params": "vo2017", "seed": "1"}) as w:
         for f in frames[:12]:
             w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=f.frame + 1490))
-    args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
+    args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q", "--overwrite",
             "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"]
     res = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 2 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
