@@ -283,17 +283,13 @@ def track(
 
     window, overrides = _window(start, end, overrides)
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
-                       sink_names)
-    refuse_existing(io.outputs, overwrite)
+                       sink_names, overwrite)
     io.check_window(window)
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
-    if setup.choice.warning:
-        click.echo(f"warning: {setup.choice.warning}", err=True)
-    if not quiet:
-        echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
+    _header(log, setup, quiet)
     announce_first_compile(quiet)
     res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
     for w in res.warnings:
@@ -302,6 +298,15 @@ def track(
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
     if res.error is not None:
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
+
+
+def _header(log: Path, setup: TrackerSetup, quiet: bool) -> None:
+    """What ``track`` says before it starts: a warning about the parameters, then (unless
+    ``quiet``) the log, params and config lines."""
+    if setup.choice.warning:
+        click.echo(f"warning: {setup.choice.warning}", err=True)
+    if not quiet:
+        echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
 
 
 class _TrackIO:
@@ -325,14 +330,15 @@ class _TrackIO:
 
     @classmethod
     def open(cls, log: Path, out: Path, rrd: Path | None, topics: tuple[str, ...], view: bool,
-             view_connect: str | None, extra: tuple[str, ...]) -> _TrackIO:
-        """Check the options and choose the sinks."""
+             view_connect: str | None, extra: tuple[str, ...], overwrite: bool) -> _TrackIO:
+        """Check the options and choose the sinks (existing files refused unless ``overwrite``)."""
         mapping = topic_map(topics)
         require_measurements(log, mapping)
         live = live_view(view, view_connect)
         if live is not None and rrd is None:
             rrd = out.with_suffix(".rrd")
         outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
+        refuse_existing(outputs, overwrite)
         return cls(log, outputs, mapping, live)
 
     def build(self) -> None:
