@@ -90,6 +90,14 @@ def test_sources_and_sinks_do_not_import_the_pipeline():
     assert _violations(lambda m, n: _top(m) in ("sources", "sinks") and _top(n) == "pipeline") == []
 
 
+def test_sinks_do_not_import_sources():
+    assert _violations(lambda m, n: _top(m) == "sinks" and _top(n) == "sources") == []
+
+
+def test_sources_do_not_import_sinks():
+    assert _violations(lambda m, n: _top(m) == "sources" and _top(n) == "sinks") == []
+
+
 def test_tracker_imports_nothing_above_it():
     assert _violations(lambda m, n: _top(m) == "tracker" and _top(n) in ("pipeline", "sources", "sinks")) == []
 
