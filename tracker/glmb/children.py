@@ -1,4 +1,4 @@
-r"""The GLMB's hypothesis arithmetic of a frame in compiled passes (issue 15).
+r"""The GLMB's hypothesis arithmetic of a frame in compiled passes.
 
 :meth:`GlmbTracker._children <tracker.glmb.filter.GlmbTracker._children>` used to chain about
 sixty numpy calls per frame (candidate sets, the greedy start and its clash test, the dense
