@@ -268,7 +268,7 @@ def _bare_imports(path: Path) -> list[str]:
 
 
 def test_every_import_goes_through_the_bnptrack_namespace():
-    """The installed distribution claims one top-level name, ``bnptrack`` (issue 13): a user's own
+    """The installed distribution claims one top-level name, ``bnptrack``: a user's own
     ``tracker.py`` beside a notebook must not shadow the project's tracker package."""
     files = [p for d in (*PACKAGES, "bnptrack", "tests", "benchmarks") for p in sorted((ROOT / d).rglob("*.py"))]
     assert [b for p in files for b in _bare_imports(p)] == []
