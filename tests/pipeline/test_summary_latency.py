@@ -3,7 +3,7 @@ of first deliveries.  A sink that (re)starts while the run is going receives the
 from the publishers' caches; those frames were published before it subscribed, and timing
 them from their first publication gave "latency p50 18147 ms" after a sink restart in a
 3,000-frame replay.  They are recorded but not timed, and counted (docs/pipeline.md,
-"Latency").  In memory, with stage-level fakes for the source and the tracker."""
+"Latency after a restart").  In memory, with stage-level fakes for the source and the tracker."""
 
 from __future__ import annotations
 

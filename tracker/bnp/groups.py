@@ -89,7 +89,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta in
     f(x | theta) (eqs. (2), (4)): the membership evidence.  Tight, as true convoys share velocity
     (10 m/s lets objects 14 m/s apart share a cluster); the sharing's
-    robustness is ``share_inflation_std`` (docs/trackers.md, "Power-law group sizes")."""
+    robustness is ``share_inflation_std`` (docs/trackers.md, "Deviations, stated")."""
     share_inflation_std: NonNeg = 9.5
     """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
     Cov(theta^-l); the inflation stands for the information the members already share (each
