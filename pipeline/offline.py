@@ -248,7 +248,7 @@ OUTSIDE_FOV_WARN = 0.5
 
 @dataclass
 class RunHealth:
-    """Counts that tell a run that cannot work (issue 13, item 6): per sensor, the
+    """Counts that tell a run that cannot work: per sensor, the
     measurements outside the sensor's field of view (where the model says only nothing can
     be: the clutter density is 0 there), and the frames with measurements."""
 

@@ -215,10 +215,10 @@ def sink_left_output(cfg: PipelineConfig, out: Path) -> bool:
     """Whether a sink process of run ``cfg.run`` left an output in ``out`` that a sink
     restarted with nobody else there finalizes (exit 3): a ``sink.json`` of this run, or a
     ``.tracks.mcap.part`` with a readable frame (:func:`pipeline.stages.salvage_part`)."""
-    from bnptrack.pipeline.stages.recovery import part_path
+    from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, part_path
     from bnptrack.pipeline.stages.salvage import earlier_summary, salvage_part
 
-    if earlier_summary(out / "sink.json", cfg.run) is not None:
+    if earlier_summary(out / SUMMARY_NAME, cfg.run) is not None:
         return True
     found = salvage_part(part_path(out / cfg.sink.mcap_name), cfg.run) if cfg.sink.mcap else None
     return found is not None and bool(found.frames)

@@ -3,7 +3,7 @@
 File layout written by :class:`McapLogWriter` (read back by :mod:`sources.mcap_log`; described
 in docs/formats.md):
 
-* one ``Metadata`` record named ``METADATA_NAME`` (``"bnptrack.scenario"``) with string
+* one ``Metadata`` record named ``tracker.messages.METADATA_NAME`` (``"bnptrack.scenario"``) with string
   keys, e.g. ``{"scenario": "vo2017", "params": "vo2017", "seed": "1"}``;
 * channels ``/measurements``, ``/truth``, ``/tracks`` (registered on first use), message
   encoding ``json``, schema encoding ``jsonschema`` (the schemas of :mod:`tracker.messages`);
@@ -19,8 +19,8 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from bnptrack.sources.mcap_log import METADATA_NAME
 from bnptrack.tracker.messages import (
+    METADATA_NAME,
     SCHEMA_VERSION,
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,

@@ -1,4 +1,4 @@
-r"""What one static range sensor can observe, scored (issue 14, item 5; the ``snr`` experiment).
+r"""What one static range sensor can observe, scored (the ``snr`` experiment).
 
 A range-only sensor at :math:`s` measures :math:`r = \lVert p - s \rVert`.  For straight-line
 motion :math:`p(t) = p_0 + v t` (sensor at the origin),

@@ -82,7 +82,7 @@ SINKS: dict[str, SinkEntry] = {
 # pyarrow.compute, numpy.ma and dateutil, which the Rerun SDK imports on its first annotation
 # context and scalar): the pipeline's sink stage imports them while the tracker starts, not
 # between the tracker's readiness and the first frame (0.3-0.5 s there on a loaded machine;
-# docs/pipeline.md, "Session 9: pipefix")
+# docs/pipeline.md, "Latency")
 
 
 def check_sink_names(names: Sequence[str], key: str, table: Mapping[str, SinkEntry] | None = None) -> None:

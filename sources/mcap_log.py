@@ -29,6 +29,7 @@ from mcap.records import Channel, DataEnd, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from bnptrack.tracker.messages import (
+    METADATA_NAME,
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
     TOPIC_TRUTH,
@@ -56,9 +57,6 @@ __all__ = [
     "log_channels",
     "missing_measurements_message",
 ]
-
-#: Name of the metadata record describing how a log was produced.
-METADATA_NAME = "bnptrack.scenario"
 
 _INPUT_TOPICS = frozenset({TOPIC_MEASUREMENTS, TOPIC_TRUTH})
 

@@ -216,7 +216,7 @@ def sensor_rng(seed: int, k: int, i: int) -> np.random.Generator:
 
 def simulate_sensors(scenario: Scenario, params: ModelParams, seed: int, sensors: Sequence[str]
                      ) -> Iterator[Frame]:
-    """Frames of several sensors observing one scene, interleaved by time (issue 13, item 3).
+    """Frames of several sensors observing one scene, interleaved by time.
 
     Every scan ``k`` yields one frame per sensor, in the order of ``sensors``, all stamped
     ``round(k T 10^9)`` (the sensors scan at the same instants) and numbered

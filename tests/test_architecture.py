@@ -90,6 +90,14 @@ def test_sources_and_sinks_do_not_import_the_pipeline():
     assert _violations(lambda m, n: _top(m) in ("sources", "sinks") and _top(n) == "pipeline") == []
 
 
+def test_sinks_do_not_import_sources():
+    assert _violations(lambda m, n: _top(m) == "sinks" and _top(n) == "sources") == []
+
+
+def test_sources_do_not_import_sinks():
+    assert _violations(lambda m, n: _top(m) == "sources" and _top(n) == "sinks") == []
+
+
 def test_tracker_imports_nothing_above_it():
     assert _violations(lambda m, n: _top(m) == "tracker" and _top(n) in ("pipeline", "sources", "sinks")) == []
 
@@ -260,7 +268,7 @@ def _bare_imports(path: Path) -> list[str]:
 
 
 def test_every_import_goes_through_the_bnptrack_namespace():
-    """The installed distribution claims one top-level name, ``bnptrack`` (issue 13): a user's own
+    """The installed distribution claims one top-level name, ``bnptrack``: a user's own
     ``tracker.py`` beside a notebook must not shadow the project's tracker package."""
     files = [p for d in (*PACKAGES, "bnptrack", "tests", "benchmarks") for p in sorted((ROOT / d).rglob("*.py"))]
     assert [b for p in files for b in _bare_imports(p)] == []

@@ -1,4 +1,4 @@
-"""Cheaper loads of the kernels numba has cached (issue 15, start-up; docs/performance.md).
+"""Cheaper loads of the kernels numba has cached (start-up; docs/performance.md).
 
 A warm ``bnptrack track`` with the two-level tracker loads 27 compiled kernels from numba's
 cache.  :func:`lean_cache_loads` (applied for the command line by
@@ -6,14 +6,14 @@ cache.  :func:`lean_cache_loads` (applied for the command line by
 with, :data:`LEAN_LOADS_VERSIONS`) leaves out three costs of numba's own load that a process
 which only runs cached kernels does not need:
 
-* **The parse of each kernel's linking bitcode** (session 9).  numba keeps, beside each
+* **The parse of each kernel's linking bitcode**.  numba keeps, beside each
   kernel's object code, the LLVM bitcode of its module, to link it into a kernel compiled
   later; at every load it parsed that bitcode and walked its functions and globals through
   llvmlite only to learn which symbols the library defines.  Those names are read from a small
   file beside the cache instead (``links/<sha1 of the bitcode>``, written from the parsed
   module the first time that bitcode is loaded); the bitcode is parsed only if a fresh compile
   links the kernel.
-* **The set-up of the compiler's registries** (session 11).  numba's ``Cache.load_overload``
+* **The set-up of the compiler's registries**.  numba's ``Cache.load_overload``
   first calls ``target_context.refresh()``, which imports and installs every typing and
   lowering registry (numba's ``cpython``, ``np``, ``typed``, ``experimental`` modules,
   0.3-0.6 s of CPU on this machine) although loading machine code types and lowers nothing.
@@ -23,7 +23,7 @@ which only runs cached kernels does not need:
   numba registers while it sets a registry up), it runs the whole refresh first, as numba
   would have.  A kernel that is compiled (a cache miss) gets the whole set-up from numba's
   compiler, which refreshes the contexts itself.
-* **``numpy.ma``** (session 11): numba's ``typeof`` of an ndarray asks
+* **``numpy.ma``**: numba's ``typeof`` of an ndarray asks
   ``isinstance(val, np.ma.MaskedArray)``, and numpy 2 imports ``numpy.ma`` (0.05-0.12 s) at
   that first attribute access.  An array whose type is exactly ``np.ndarray`` is no masked
   array, so :func:`typeof_ndarray` types it without asking (the rest of numba's function, the

@@ -9,7 +9,7 @@ quick test of the whole field (a few C-level calls: ``len``, ``set``, ``zip``, `
 (numpy on the error path), which names the first entry that breaks the rule, or passes a
 field the quick test was too cautious for (a sum of large finite values that overflows).  On
 the pipeline's frame path a stage decodes one frame every 50 ms with its caches gone cold,
-where one small numpy call costs about 10 us (docs/pipeline.md, "Session 11: s11-lat"); numpy
+where one small numpy call costs about 10 us (docs/pipeline.md, "Latency"); numpy
 is used on the common path only for what needs it (``R``'s eigenvalues).  The topic names, schema versions and
 size limits of the contract live here because both modules need them;
 :mod:`tracker.messages` re-exports the public ones.

@@ -87,6 +87,7 @@ from bnptrack.tracker.models.measurement import KINDS, measurement_kind
 from bnptrack.tracker.types import STATE_DIM, Estimate, Frame, TrackEstimate, Truth
 
 __all__ = [
+    "METADATA_NAME",
     "SCHEMA_VERSION",
     "TOPIC_MEASUREMENTS",
     "TOPIC_TRUTH",
@@ -106,6 +107,10 @@ __all__ = [
     "to_estimate",
     "json_schema",
 ]
+
+#: Name of the MCAP ``Metadata`` record that describes how a log was produced (written by
+#: ``sinks.mcap_writer``, read by ``sources.mcap_log``; docs/formats.md).
+METADATA_NAME = "bnptrack.scenario"
 
 _chain = chain.from_iterable
 _F64 = np.dtype(float)

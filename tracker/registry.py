@@ -61,14 +61,14 @@ def _glmb() -> TrackerKind:
                        GlmbConfig, GLMB_PRESETS, make_glmb)
 
 
-#: Since session 8 ``ddp``/``dpyp`` are the two-level trackers (before: the single level, now
-#: ``ddp-mb``/``dpyp-mb``); ``ddp-groups``/``dpyp-groups`` stay accepted as their aliases.
+#: ``ddp``/``dpyp`` are the two-level trackers (the single level is ``ddp-mb``/``dpyp-mb``);
+#: ``ddp-groups``/``dpyp-groups`` are accepted as their aliases.
 _KINDS: dict[str, Callable[[], TrackerKind]] = {
     "ddp": lambda: _groups("ddp", "DDP-EMM (two-level): measurements -> objects -> motion clusters"),
     "dpyp": lambda: _groups("dpyp", "DPY-STP (two-level): Pitman-Yor discount on the object partition"),
     "glmb": _glmb,
-    "ddp-mb": lambda: _bnp("ddp-mb", "DDP-EMM, single level (objects = clusters; ddp before session 8)"),
-    "dpyp-mb": lambda: _bnp("dpyp-mb", "DPY-STP, single level (objects = clusters; dpyp before session 8)"),
+    "ddp-mb": lambda: _bnp("ddp-mb", "DDP-EMM, single level (objects = clusters)"),
+    "dpyp-mb": lambda: _bnp("dpyp-mb", "DPY-STP, single level (objects = clusters)"),
     "ddp-groups": lambda: _groups("ddp-groups", "alias of ddp"),
     "dpyp-groups": lambda: _groups("dpyp-groups", "alias of dpyp"),
 }

@@ -127,8 +127,8 @@ class Frame:
         (:func:`tracker.messages.to_frame` builds its frames here).  ``kind`` must be a kind of
         the registry and ``z`` a float64 ``(M, d)`` array of finite values of that kind: they
         are taken as they are, not checked a second time (the constructor's check of ``z``
-        costs about 140 us on a paced pipeline's frame path: docs/pipeline.md, "Session 12:
-        s12-lat").  ``pose`` and ``R`` are checked and normalised as by the constructor.
+        costs about 140 us on a paced pipeline's frame path: docs/pipeline.md,
+        "Latency").  ``pose`` and ``R`` are checked and normalised as by the constructor.
         Anything not checked by the codec goes through ``Frame(...)``."""
         self = object.__new__(cls)
         self.__dict__.update(frame=frame, stamp_ns=stamp_ns, sensor=sensor, kind=kind, z=z, truth=truth,

@@ -304,7 +304,8 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
             click.echo(f"loop {i}{f'/{loops}' if loops else ''}: run {run}", err=True)
         one = _ms.structs.replace(cfg, run=run, out=str(root / run))
         if keep_prior and i > 1:
-            prev = root / f"{base}-{i - 1}" / "tracker.snap"
+            from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME
+            prev = root / f"{base}-{i - 1}" / SNAPSHOT_NAME
             one = _ms.structs.replace(one, tracker=_ms.structs.replace(one.tracker, prior_from=str(prev)))
         _run_pipeline(one, timeout, quiet, overwrite, False, view_connect)
 

@@ -142,7 +142,7 @@ def salvage_part(path: str | Path, run: str) -> Salvage | None:
     between its messages.  Payloads that do not decode end the salvage."""
     from mcap.records import Channel, DataEnd, Message, Metadata
 
-    from bnptrack.sources.mcap_log import METADATA_NAME
+    from bnptrack.tracker.messages import METADATA_NAME
 
     path = Path(path)
     if not path.is_file():

@@ -14,7 +14,7 @@ a re-delivered frame keeps its predecessor's first-delivery latency; one that no
 (not yet saved when the predecessor was killed, or published while no sink ran) is written like
 every frame but not timed, and ``excluded`` counts it (and the frames recovered from a killed
 sink's ``.part`` file, which carry no time stamp).  A frame that waited live (a restarted tracker
-catching up) is timed: its delay is real (docs/pipeline.md, "Session 9: pipefix").
+catching up) is timed: its delay is real (docs/pipeline.md, "Latency after a restart").
 """
 
 from __future__ import annotations

@@ -39,8 +39,8 @@ log = logging.getLogger("bnptrack.stage")
 #: behind it (docs/pipeline.md, Performance), so the stage imports them in the background as
 #: soon as a frame reaches :data:`LAZY_PAIRS` (:meth:`TrackerStage._lazy_imports_due`), ahead
 #: of the frames that need them; a run whose frames stay small (vo2017: at most 33
-#: measurements) never pays for them (0.4-0.75 s of CPU before the first frame until session
-#: 11, docs/pipeline.md "Session 11: r2-launch").
+#: measurements) never pays for them (importing them up front costs 0.4-0.75 s of CPU before the
+#: first frame).
 LAZY_IMPORTS = ("scipy.sparse.csgraph", "scipy.spatial")
 #: Measurements x max(measurements, tracks of the previous frame) of a frame from which the
 #: stage starts importing :data:`LAZY_IMPORTS` (a tenth of the pairs that need them:

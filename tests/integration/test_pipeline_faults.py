@@ -1,4 +1,4 @@
-"""Issue 17: nothing lost, nothing forged -- restarts at any moment, history for restarted
+"""Nothing lost, nothing forged -- restarts at any moment, history for restarted
 consumers, a pipeline closed to other local processes, bounded resources.
 
 The tests here run stage processes over real Zenoh sessions (loopback only, every wait
@@ -55,7 +55,7 @@ def _tracks(path: Path) -> list:
 
 @pytest.mark.parametrize("role", ["sink", "tracker"])
 def test_a_stage_killed_just_after_the_run_was_recorded_leaves_it_complete(tmp_path, role):
-    """Issue 17, failure 1 and 11: SIGKILL of the sink (or the tracker) the moment sink.json
+    """SIGKILL of the sink (or the tracker) the moment sink.json
     appears.  The recording stays complete (30 frames, equal to offline `track`), the launch
     ends with exit 0, and no stage records anything again."""
     out = tmp_path / "run"
@@ -114,7 +114,7 @@ def _forge(endpoint: str, run: str, user: str = "", password: str = "") -> str:
 
 @pytest.mark.parametrize("who", ["anonymous", "wrong-password"])
 def test_a_default_launch_refuses_forged_samples_from_other_local_processes(tmp_path, who):
-    """Issue 17, failures 4-7 with the default launch: per-run credentials and the ACL keep
+    """With the default launch, per-run credentials and the ACL keep
     an outsider (no credentials, or a stage's name with a wrong password) out; the run ends
     complete, equal to offline `track`, nothing rejected."""
     out = tmp_path / "run"
@@ -182,7 +182,7 @@ def _limit_file_size() -> None:  # in the child, before exec: every file it writ
 
 
 def test_a_file_that_cannot_be_written_stops_the_run_with_one_line_naming_it(tmp_path):
-    """Issue 17 item 6 (disk full / I/O error, here EFBIG from RLIMIT_FSIZE): one line naming
+    """Disk full or I/O error (here EFBIG from RLIMIT_FSIZE): one line naming
     the stage and the file, every stage process stopped, exit 2 within 10 s of the error, no
     .part or temporary file left."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -229,7 +229,7 @@ def long_log(tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_long_run_tracker_then_sink_killed_at_seeded_points_equals_offline(tmp_path, long_log, seed):
-    """Issue 17 item 3: in a 2,000-frame replay at 50 frames/s (client mode, the default
+    """In a 2,000-frame replay at 50 frames/s (client mode, the default
     launch), SIGKILL the tracker at a seeded frame, then the sink at a later one.  The
     restarted stages get what they miss (history, explicit fetch): the output equals
     offline `track`, no gap, exit 0."""

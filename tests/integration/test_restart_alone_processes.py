@@ -1,4 +1,4 @@
-"""Issue 17 item 2 over real processes: a sink started by hand (`bnptrack stage sink`) after
+"""Over real processes: a sink started by hand (`bnptrack stage sink`) after
 a run whose sink was SIGKILLed mid-run and whose source and tracker have exited ends within
 a bound with exit 3, a sink.json naming what is missing, and the frames the killed sink had
 written intact (the in-memory cases: tests/pipeline/test_restart_alone.py)."""

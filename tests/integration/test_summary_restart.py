@@ -1,7 +1,7 @@
-"""Session 9 (pipefix, issue 16), over real processes and Zenoh on loopback: a sink SIGKILLed in
+"""Over real processes and Zenoh on loopback: a sink SIGKILLed in
 the middle of a replay is restarted; its successor keeps the first-delivery latencies the killed
 process timed and saved, does not time the frames it gets from the caches that nobody timed, and
-the summary says how many (docs/pipeline.md, "Session 9: pipefix").  The logic in memory:
+the summary says how many (docs/pipeline.md, "Latency after a restart").  The logic in memory:
 tests/pipeline/test_summary_latency.py."""
 
 from __future__ import annotations

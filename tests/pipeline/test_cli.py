@@ -19,7 +19,7 @@ from bnptrack.tracker.config import ConfigError
 
 # a fast tracker for tests: few Gibbs sweeps
 FAST_SET = ["--set", "tracker.sweeps=8", "--set", "tracker.burn_in=2"]
-FAST = ["--tracker", "ddp-mb", *FAST_SET]  # the single-level tracker (`ddp` before session 8)
+FAST = ["--tracker", "ddp-mb", *FAST_SET]  # the single-level tracker
 
 
 def invoke(*args: str):
@@ -368,7 +368,7 @@ def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
     assert abs(sum(tracks) - sum(truth)) < 0.15 * sum(truth)
 
 
-# --------------------------------------------------------------------------- resolver (issue 12)
+# --------------------------------------------------------------------------- resolver
 
 
 def test_tracker_setup_resolves_once_and_writes_the_output_record():

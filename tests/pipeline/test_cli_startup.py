@@ -1,4 +1,4 @@
-"""Start-up of the ``bnptrack`` command line (issue 15): what ``bnptrack --help`` and
+"""Start-up of the ``bnptrack`` command line: what ``bnptrack --help`` and
 ``bnptrack track`` import, and that the lazily loaded command table lists exactly the commands'
 own help.  Checks of ``sys.modules`` in a fresh interpreter, not timings (docs/performance.md
 has the timings, from ``benchmarks/startup.py``)."""

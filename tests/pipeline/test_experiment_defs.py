@@ -1,4 +1,4 @@
-"""The experiments as the paper ran them (issue 14 item 5): parameter set, SNR, trackers, range scores."""
+"""The experiments as the paper ran them: parameter set, SNR, trackers, range scores."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def test_two_level_trackers_beside_the_single_level_ones_and_the_glmb():
     from bnptrack.tracker.bnp.config import TRACKER_PRESETS
 
     assert kind("ddp").presets["ddp-snr"].objects == TRACKER_PRESETS["ddp-mb-snr"]
-    assert kind("ddp-groups").presets["ddp-groups-snr"] == kind("ddp").presets["ddp-snr"]  # the old names
+    assert kind("ddp-groups").presets["ddp-groups-snr"] == kind("ddp").presets["ddp-snr"]  # the aliases
     assert [m.key for m in EXPERIMENTS["snr"].metrics] == ["within100", "range_ospa"]
 
 

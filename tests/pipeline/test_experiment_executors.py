@@ -1,4 +1,4 @@
-"""Executors of the Monte Carlo runs (issue 15): a warm process pool gives the same results
+"""Executors of the Monte Carlo runs: a warm process pool gives the same results
 as a run redone alone; Dask is an optional extra: the core install runs experiments on local
 processes, ``--cluster`` without Dask says which extra to install, the CLI documents it."""
 

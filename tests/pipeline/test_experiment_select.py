@@ -1,4 +1,4 @@
-"""RunJob(trackers=...) (issue 15, Monte Carlo throughput: the paper's pair timed alone): a
+"""RunJob(trackers=...) (Monte Carlo throughput: the paper's pair timed alone): a
 tracker's series are those it has when the whole experiment runs, bit for bit."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""bnptrack export RUN --csv / --parquet (issue 13, item 8)."""
+"""bnptrack export RUN --csv / --parquet."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Bounds on what a valid-looking frame or sample can do (issue 17 item 5): frame-number and
+"""Bounds on what a valid-looking frame or sample can do: frame-number and
 time-stamp jumps (tracker.types.FrameBounds), offline (`bnptrack track`) and in the pipeline
 (tracker and sink stages over the in-memory bus), and sequence numbers far ahead of a
 Sequencer's window."""

@@ -1,4 +1,4 @@
-"""The frame path's time stamps (session 8, second pass, issue 16): the tracker's /tracks
+"""The frame path's time stamps: the tracker's /tracks
 attachment says when its main thread took the frame off the bus (``t_deq``, between the
 receipt ``t_in`` and the publication ``t_out``), and the sink's ``sink.json`` splits the
 first hop: the tracker's hand-off (``t_deq - t_in``) and the same /measurements sample's hop

@@ -1,8 +1,8 @@
-"""The launcher starts each stage in a process group of its own but in the launcher's session
-(session 9, issue 16): a terminal's Ctrl-C still reaches the launcher alone, and with Linux's
+"""The launcher starts each stage in a process group of its own but in the launcher's session:
+a terminal's Ctrl-C still reaches the launcher alone, and with Linux's
 autogroup scheduling (one scheduling group per session) the stages share the router's group,
 as the two-hop floor's processes do, instead of one group each (``--only session-floor`` of
-benchmarks/pipeline_latency.py: separate sessions doubled the floor's p99 at load 8-12)."""
+benchmarks/pipeline_latency.py: separate sessions double the floor's p99 at load 8-12)."""
 
 from __future__ import annotations
 

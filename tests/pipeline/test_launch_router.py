@@ -1,5 +1,5 @@
 """The launcher's embedded Zenoh router opens without Zenoh's 500 ms scouting wait
-(``pipeline.launch._quick_router``, docs/performance.md, start-up session 8), unless the user
+(``pipeline.launch._quick_router``, docs/performance.md, start-up), unless the user
 set ``scouting/delay`` or turned multicast scouting on; the stages' settings are untouched."""
 
 from __future__ import annotations

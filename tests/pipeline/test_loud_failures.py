@@ -1,4 +1,4 @@
-"""Loud when it cannot work (issue 13, item 6) and the user's own-sensor log."""
+"""Loud when it cannot work and the user's own-sensor log."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The exit code and the summary tell the truth (issue 17 item 1): a run whose output is
+"""The exit code and the summary tell the truth: a run whose output is
 incomplete (a gap, a rejected frame, a stage that gave up) ends with exit code 3 and says
 what is missing and where."""
 

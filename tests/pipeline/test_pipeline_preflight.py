@@ -1,6 +1,6 @@
 """``bnptrack launch`` / ``replay`` validate the whole pipeline before any process starts
 (pipeline/preflight.py), ``--set`` keys mean the same in every command, and connection
-failures are one line with a hint (issue 16 item 3)."""
+failures are one line with a hint."""
 
 from __future__ import annotations
 
@@ -214,8 +214,8 @@ def test_listening_probes_tcp_and_tls_endpoints_only():
 
 
 def test_replay_and_launch_with_a_window_past_the_end_fail_before_starting(vo_log, tmp_path):
-    """A window that holds no frame is an error before any process starts (it used to run a
-    pipeline of 0 frames for about 10 s and write empty outputs)."""
+    """A window that holds no frame is an error before any process starts (not a
+    pipeline of 0 frames that runs for about 10 s and writes empty outputs)."""
     out = tmp_path / "r"
     res = bnptrack("replay", vo_log, "--start", "500f", "--out", out)
     assert_refused(res, out, f"{vo_log}: no frame in the window source.start_frame = 500; `bnptrack info LOG`")

@@ -1,4 +1,4 @@
-"""Issue 17, in memory (pipeline.membus): restarts at any moment leave complete, identical
+"""In memory (pipeline.membus): restarts at any moment leave complete, identical
 outputs, and restarted consumers get the history (the stages over real Zenoh sessions:
 tests/integration/test_pipeline_faults.py)."""
 
@@ -108,7 +108,7 @@ def test_a_sink_killed_between_its_summary_and_the_renames_is_completed(tmp_path
 
 
 def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guessed(tmp_path):
-    """Issue 17 item 3: frames 3-6 never arrive (neither live nor in the subscribers'
+    """Frames 3-6 never arrive (neither live nor in the subscribers'
     history), but their publishers still hold them: the tracker and the sink fetch them
     explicitly, so there is no gap and the tracks equal the offline run of every frame."""
     from bnptrack.pipeline.stages import source_frames
@@ -134,9 +134,8 @@ def test_frames_lost_on_the_way_are_fetched_from_the_publishers_cache_not_guesse
 
 
 def test_sequencer_catch_up_holds_until_the_announced_live_head():
-    """Issue 17 failure 8: Sequencer(32, 0, catch_up=10000), push(0), push(5000) declared
-    4,968 gaps and push(1) was late, because catch-up ended when the buffer was empty once.
-    With the publisher's live head announced (5000), catch-up holds until seq 5000 is
+    """Sequencer(32, 0, catch_up=10000), push(0), push(5000): catch-up does not end when the
+    buffer is empty once (that would declare 4,968 gaps and push(1) late).  With the publisher's live head announced (5000), catch-up holds until seq 5000 is
     released: nothing is declared missing and the history 1..4999 is accepted."""
     from bnptrack.pipeline.stages import GAP, Sequencer
 

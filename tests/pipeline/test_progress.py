@@ -62,7 +62,7 @@ def test_progress_non_tty_plain_lines_once_a_second_with_rate():
 
 def test_progress_final_line_equal_to_the_last_is_not_repeated():
     """A short run: the sink's last health message came with the last update, in the same
-    tenth of a second; the final line would repeat it word for word (session 13's review)."""
+    tenth of a second; the final line would repeat it word for word."""
     buf = io.StringIO()
     pr = Progress(buf, tty=False, period=1.0)
     assert pr.update(Status(1.1, source=_source(30), sink=_sink(30, 50.0)))

@@ -1,4 +1,4 @@
-"""``replay --topic`` and ``source.topics`` (issue 16 item 4, issue 13 item 6): a log whose
+"""``replay --topic`` and ``source.topics``: a log whose
 channels are named by a foreign sensor replays to the /tracks ``track --topic`` gives on it;
 the mapping is a key of the pipeline file, checked at the edge with the errors of ``track``."""
 

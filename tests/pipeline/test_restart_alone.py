@@ -1,4 +1,4 @@
-"""Issue 17 item 2, in memory: a stage restarted after the others have left never hangs,
+"""In memory: a stage restarted after the others have left never hangs,
 never truncates a finished output, and finalizes what it has (docs/pipeline.md, "Restart at
 any moment").  The same over real processes: tests/integration/test_restart_alone_processes.py."""
 

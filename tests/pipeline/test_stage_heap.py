@@ -1,6 +1,6 @@
-"""The stages freeze their start-up heap before they declare themselves ready (issue 16: the
+"""The stages freeze their start-up heap before they declare themselves ready (otherwise the
 first full garbage collections of the tracker and sink stages, 88 and 116 ms with the
-modules' and the warm-up's objects, fell among the first frames of a paced run)."""
+modules' and the warm-up's objects, fall among the first frames of a paced run)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""Session 9 (pipefix, issue 16): the latency a run's summary and ``sink.json`` report is that
+"""The latency a run's summary and ``sink.json`` report is that
 of first deliveries.  A sink that (re)starts while the run is going receives the run so far
 from the publishers' caches; those frames were published before it subscribed, and timing
 them from their first publication gave "latency p50 18147 ms" after a sink restart in a
-3,000-frame replay.  They are recorded but not timed, and counted (docs/pipeline.md, "Session
-9: pipefix").  In memory, with stage-level fakes for the source and the tracker."""
+3,000-frame replay.  They are recorded but not timed, and counted (docs/pipeline.md,
+"Latency after a restart").  In memory, with stage-level fakes for the source and the tracker."""
 
 from __future__ import annotations
 
@@ -94,7 +94,7 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
     assert lat["from_caches_seq"] == [[0, k - 1]]
     assert s["counters"]["latency_ms"]["n"] == n - k
     # the live frames' latency is the time on this machine's loopback, not the history's age
-    # (600 s: the old code's p50 and p99 were those ages)
+    # (600 s: timing the history would give p50 and p99 of those ages)
     assert all(0 <= e < 60_000 for e in lat["e2e_ms"]) and len(lat["e2e_ms"]) == n - k
     assert s["counters"]["latency_ms"]["p99"] < 60_000
     assert lat["tracker_to_sink_ms"] == pytest.approx([e - 3.0 for e in lat["e2e_ms"]])

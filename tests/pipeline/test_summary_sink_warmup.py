@@ -1,8 +1,8 @@
-"""Session 9 (pipefix, issue 16): the sink stage imports before it declares itself alive, while
+"""The sink stage imports before it declares itself alive, while
 the tracker starts, what its sinks' first ``open`` would import (mcap.writer and its
 importlib.metadata; pyarrow.compute, numpy.ma and dateutil, which the Rerun SDK imports on its
 first annotation context).  Opened between the tracker's readiness and the first frame, they
-cost 0.3-0.5 s there on a loaded machine (docs/pipeline.md, "Session 9: pipefix").  In a fresh
+cost 0.3-0.5 s there on a loaded machine (docs/pipeline.md, "Latency").  In a fresh
 interpreter: after the stage's warm-up, opening its sinks imports only the sinks' own factory
 modules."""
 
@@ -40,5 +40,5 @@ def test_after_the_warm_up_opening_the_sinks_imports_only_their_factories(tmp_pa
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert doc["files"] == ["tracks.mcap", "run.rrd"]  # both sinks were built and opened
-    # the old warm-up left mcap.writer, importlib.metadata, pyarrow.compute, numpy.ma, ... here
+    # without the warm-up: mcap.writer, importlib.metadata, pyarrow.compute, numpy.ma, ... here
     assert [m for m in doc["new"] if not m.startswith("bnptrack.sinks.")] == [], doc["new"]

@@ -1,4 +1,4 @@
-"""What ``bnptrack track`` imports of scipy (issue 15, session 8): none of ``scipy.linalg``,
+"""What ``bnptrack track`` imports of scipy: none of ``scipy.linalg``,
 ``scipy.special``, ``scipy.optimize`` or ``scipy.spatial`` (0.6-1 s of imports between them)
 with the kernels compiled; numba still finds BLAS (``tracker._numerics.import_numba`` loads
 scipy's ``cython_blas`` alone), and a later ``import scipy.linalg`` is whole.  Checks of
@@ -41,7 +41,7 @@ def test_track_imports_no_scipy_package(tmp_path: Path) -> None:
     assert "numba" in modules and "scipy.linalg.cython_blas" in modules
     assert sorted(modules & _SCIPY_PACKAGES) == []
     assert sorted(modules & {"yaml", "cffi", "pycparser"}) == []
-    assert "numpy.ma" not in modules  # numba's typeof of an ndarray, the summary's median (session 11)
+    assert "numpy.ma" not in modules  # numba's typeof of an ndarray, the summary's median
     assert (tmp_path / "t.mcap").stat().st_size > 0
 
 

@@ -1,5 +1,4 @@
-"""The tracker stage's bookkeeping of a frame comes right after its /tracks put (session 10,
-issue 16; session 9's deferral by ``SETTLE_S`` showed no gain and was removed): the journal's
+"""The tracker stage's bookkeeping of a frame comes right after its /tracks put: the journal's
 append, a due snapshot and the next frame's generator, all before the next frame is taken.  What
 a snapshot covers is in the journal, and the journal holds every published sample, in order,
 byte for byte."""

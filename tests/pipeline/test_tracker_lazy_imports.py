@@ -1,7 +1,6 @@
 """The tracker stage imports the large frames' modules (``LAZY_IMPORTS``: scipy.spatial,
 scipy.sparse.csgraph) in the background once a frame is large, not before it declares itself
-ready (session 11, r2-launch: 0.4-0.75 s of CPU on the launch's critical path that no vo2017
-frame needs)."""
+ready (0.4-0.75 s of CPU on the launch's critical path that no vo2017 frame needs)."""
 
 from __future__ import annotations
 

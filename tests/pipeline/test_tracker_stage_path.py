@@ -1,6 +1,6 @@
 """The tracker stage imports before it is ready what a step would import on first need
-(issue 16: a first ``scipy.optimize`` import inside frame 3's step, 0.2-0.7 s, queued the
-frames behind it and made the paced run's added-latency p99)."""
+(a first ``scipy.optimize`` import inside frame 3's step, 0.2-0.7 s, would queue the frames
+behind it and make the paced run's added-latency p99)."""
 
 from __future__ import annotations
 
@@ -42,8 +42,8 @@ def _imported_by_steps(preload: bool) -> list[str]:
 
 
 def test_after_the_stage_preload_the_first_frames_import_nothing():
-    # since issue 15's compiled DDP-EMM step (its JPDA* assignment no longer calls scipy's
-    # linear_sum_assignment) the steps import nothing even without the preload ...
+    # the compiled DDP-EMM step (its JPDA* assignment does not call scipy's
+    # linear_sum_assignment) imports nothing even without the preload ...
     assert _imported_by_steps(preload=False) == []
     # ... with it, nothing
     assert _imported_by_steps(preload=True) == []

@@ -1,5 +1,5 @@
 """The tracker stage's warm-up reaches every compiled kernel the tracker hits on real scenes
-(issue 16: the contested JPDA* assignment was first compiled at vo2017's frame 4 inside a paced
+(otherwise the contested JPDA* assignment is first compiled at vo2017's frame 4 inside a paced
 run, a 2.5 s stall on a cold kernel cache and 23-40 ms on a warm one; the two-level trackers'
 group kernels at frames 2-23)."""
 

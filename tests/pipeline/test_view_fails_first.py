@@ -1,6 +1,6 @@
 """``--view`` where no viewer can start (no display, not headless) is refused while the
 command checks its options: one line, exit code 2, and no output opened, so an existing
-``--out`` file keeps its bytes (session 13's review found ``track --view`` truncating it first)."""
+``--out`` file keeps its bytes (``track --view`` does not truncate it first)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""RunScorer's shared per-frame distances (issue 15: Monte Carlo throughput): OSPA, GOSPA and
+"""RunScorer's shared per-frame distances (Monte Carlo throughput): OSPA, GOSPA and
 the OSPA(2) window from one cut-off distance matrix per frame must give what the public
 functions give, bit for bit, and the hand-computed values."""
 

@@ -1,4 +1,4 @@
-"""RunScorer(compiled=True) (issue 15, Monte Carlo throughput): the OSPA(2) window built by one
+"""RunScorer(compiled=True) (Monte Carlo throughput): the OSPA(2) window built by one
 compiled kernel (sinks/_score_window.py) gives what the numpy path gives, bit for bit, on
 runs whose labels appear, vanish and come back, and the hand-computed values."""
 

@@ -1,4 +1,4 @@
-"""Issue 12's extensibility target: a new sink is one class plus one entry of
+"""Extensibility: a new sink is one class plus one entry of
 :data:`sinks.sink.SINKS`.  A CSV sink defined here (one row per track per frame), added as one
 table entry, receives the same records from ``bnptrack track`` (offline, ``--sink csv``) and
 from the pipeline's sink stage on the in-memory bus (``sink.outputs = ['csv']``); its rows are

@@ -348,7 +348,7 @@ def test_not_an_mcap_file(tmp_path):
 
 def test_an_empty_file_is_named_empty_not_a_log_without_channels(tmp_path):
     """A 0-byte file holds no record at all; the channel listing the commands check first
-    said "no /measurements channel ... Its channels: none" (session 13's review)."""
+    does not say "no /measurements channel ... Its channels: none"."""
     from bnptrack.sources.mcap_log import log_channels
 
     p = tmp_path / "empty.mcap"

@@ -431,7 +431,7 @@ def test_snr_scenario_range_clutter_default_and_override():
 
 
 def test_open_scenario_applies_overrides_snr_and_scenario_defaults_once():
-    """Issue 12 item 4: one function opens a scenario.  snr: the --set item, the scenario's
+    """One function opens a scenario.  snr: the --set item, the scenario's
     -3 dB, 2 range clutter per scan and its 11 entry points; the record holds them."""
     from bnptrack.sources.scenarios import open_scenario
 

@@ -1,4 +1,4 @@
-"""Non-finite measurements at the API edge (issue 11 item 6): refused with a message naming the
+"""Non-finite measurements at the API edge: refused with a message naming the
 frame and the row; NaN distances are outside the gate; the moment-matched update touches only
 the pairs that carry weight, so no 0 * NaN reaches a track state.
 

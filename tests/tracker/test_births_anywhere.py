@@ -1,4 +1,4 @@
-"""Issue 11, accuracy of births anywhere: the point-object weights without the urn normaliser
+"""Accuracy of births anywhere: the point-object weights without the urn normaliser
 (``BnpConfig.urn_normaliser``) and the OSPA decomposition of ``benchmarks/births.py``."""
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ def _same(a, b) -> None:
     np.testing.assert_array_equal(np.asarray(a), np.asarray(b), strict=True)
 
 
-# -- numpy references (the code before issue 15's compiled passes) ------------------------------
+# -- numpy references of the compiled passes ----------------------------------------------------
 
 def _merge_reference(c: _Clusters, max_d2: float) -> _Clusters:
     n = len(c.labels)

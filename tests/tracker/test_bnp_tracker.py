@@ -307,8 +307,8 @@ def test_step_reports_the_gibbs_convergence_diagnostic(vo_params, vo_frames):
 
 def test_births_survive_dense_clutter():
     """150 clutter returns per scan, no birth regions: a measurement no cluster explains opens a
-    new one with probability p_birth ~ 2e-4, five times below the fixed 1e-3 cut that used to
-    decide births (``birth_min_prob``) and so disabled them.  The prune floor follows p_birth,
+    new one with probability p_birth ~ 2e-4, five times below a fixed 1e-3 cut
+    (``birth_min_prob``), which would disable births.  The prune floor follows p_birth,
     so the five objects present by scan 20 are all confirmed by scan 50 (measured: scans 8, 20,
     24, 36 and 43, seed 1)."""
     params = load_params("vo2017", ["clutter_rate=150"])

@@ -1,5 +1,5 @@
-"""The codec's plain-Python checks (session 11, issue 16: the frame path's latency; one set of
-rules since session 12, tracker._message_checks): the common message is checked without numpy
+"""The codec's plain-Python checks (the frame path's latency; one set of rules,
+tracker._message_checks): the common message is checked without numpy
 (each rule's quick test), anything else by the rule's exhaustive check, which names the error
 or passes what the quick test was too cautious for; encode(estimate) builds the common
 estimate's message checked by the same quick tests, to the bytes of from_estimate, and leaves

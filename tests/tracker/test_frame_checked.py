@@ -1,4 +1,4 @@
-"""``Frame.checked`` (session 12, issue 16: the frame path's latency): the codec's frames are
+"""``Frame.checked`` (the frame path's latency): the codec's frames are
 built without checking ``z`` a second time, and are the frames the public constructor builds
 from the same data; the public constructor and the codec still check what they checked."""
 

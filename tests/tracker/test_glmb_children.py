@@ -1,4 +1,4 @@
-"""The GLMB's compiled children (tracker/glmb/children.py, issue 15) against the numpy
+"""The GLMB's compiled children (tracker/glmb/children.py) against the numpy
 reference: candidate sets, optimal starts by connected groups, distinct children and their
 weights, bit for bit; and brute force on small problems."""
 

@@ -1,5 +1,5 @@
-"""prune_and_cap by partition (issue 15, Monte Carlo throughput): the same kept set as the
-stable sort by weight it replaced, ties at the cap included, and hand-checked cases."""
+"""prune_and_cap by partition (Monte Carlo throughput): the same kept set as a
+stable sort by weight, ties at the cap included, and hand-checked cases."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Session 9 (helper "cross"): ``share_min_info``, the velocity sharing only to informed members, by hand values."""
+"""``share_min_info``, the velocity sharing only to informed members, by hand values."""
 
 from __future__ import annotations
 

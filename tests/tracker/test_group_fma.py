@@ -2,9 +2,9 @@
 formula in exact arithmetic, bit for bit, on every CPU (random products of mixed magnitudes and
 every combination of special values: signed zeros, subnormals, huge, infinite, NaN), and the
 BLAS calls they replaced (numba's ``np.dot`` / ``@`` on 2x2 matrices and 2-vectors, numpy's)
-agree within a two-term dot product's error bound.  Bit for bit against BLAS held on session 9's
-machine (OpenBLAS's Haswell kernels) and not on session 10's (AMD EPYC: ``ddot`` rounds
-otherwise), so no test depends on the CPU's BLAS kernels."""
+agree within a two-term dot product's error bound.  Bit for bit against BLAS holds with
+OpenBLAS's Haswell kernels and not with an AMD EPYC's (its ``ddot`` rounds otherwise), so no
+test depends on the CPU's BLAS kernels."""
 
 from __future__ import annotations
 
@@ -90,9 +90,8 @@ def _mixed(rng, n):
 @pytest.mark.skipif(not JIT, reason="compares the compiled products")
 def test_fma_products_equal_the_exact_formula_and_blas_within_its_error_bound() -> None:
     """The compiled :func:`gemv2` / :func:`dot2` are the formula, bit for bit, on every CPU.
-    The BLAS calls they replaced round the same two-term sums in a CPU-dependent way (session
-    9's Intel machine, OpenBLAS's Haswell kernels: the same bits; session 10's AMD EPYC: ``ddot``
-    differs in the last bits), so against BLAS only the dot product's error bound holds."""
+    BLAS rounds the same two-term sums in a CPU-dependent way (an Intel CPU with
+    OpenBLAS's Haswell kernels: the same bits; an AMD EPYC: ``ddot`` differs in the last bits), so against BLAS only the dot product's error bound holds."""
     A, X, Y = _mixed(np.random.default_rng(20261202), 1_000_000)
     g1, d1, g2, d2 = _both(A, X, Y)
     sample = np.r_[0:10_000, 500_000:510_000]

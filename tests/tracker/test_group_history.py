@@ -1,4 +1,4 @@
-"""The object partition's whole history as the likelihood of (alpha_2, d) (issue 14, session 7):
+"""The object partition's whole history as the likelihood of (alpha_2, d):
 the Pitman-Yor EPPF on the grid (hand values, the urn's EPPF), the history's bookkeeping (hand
 case) and the Pitman-Yor scene partition (generative checks against closed forms)."""
 

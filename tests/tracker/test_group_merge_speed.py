@@ -1,4 +1,4 @@
-"""Session 8's compiled exact test and exclusion of the two-level tracker's merge
+"""The compiled exact test and exclusion of the two-level tracker's merge
 (group_merge.py's ``exact_status``, ``distinct_pairs``, ``exclusive_pairs``) and the remembered field-of-view
 moments (groups.py's ``fov_moments``): the same decisions and numbers as the numpy code."""
 
@@ -14,7 +14,7 @@ from bnptrack.tracker.models.params import load_params
 
 
 def _numpy_d2(mean, cov, ii, jj) -> np.ndarray:
-    """The numpy exact test's distances (batched solve, then einsum), as before session 8."""
+    """The numpy exact test's distances (batched solve, then einsum): the reference."""
     diff, S = pair_differences(mean, cov, ii, jj)
     return np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
 

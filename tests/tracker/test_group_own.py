@@ -1,4 +1,4 @@
-"""Session 10 (helper "unshared"): membership on each object's own, sharing-free estimate
+"""Membership on each object's own, sharing-free estimate
 (``GroupConfig.membership = "own"``, :func:`tracker.bnp.group_share.own_update`)."""
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def test_own_membership_snapshot_resume_and_an_old_snapshot_loads() -> None:
         assert [t.label for t in e.tracks] == [t.label for t in r.tracks]
         for a, b in zip(e.tracks, r.tracks):
             np.testing.assert_array_equal(a.state, b.state)
-    # a snapshot from before session 10 has no own estimates: it loads and runs on
+    # a snapshot without own estimates loads and runs on
     old = dataclasses.replace(mid, own_mean=np.zeros((0, 5)), own_cov=np.zeros((0, 5, 5)))
     doc = restore(snapshot(old), GroupState)
     later = list(run(tr, frames[30:], seed=7, state=doc))

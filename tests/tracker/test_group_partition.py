@@ -162,7 +162,7 @@ def test_greedy_groups_equal_the_dense_version(seed, n, n_pairs) -> None:
 
 
 def test_a_table_the_grid_admits_but_the_exact_form_excludes_is_not_scored() -> None:
-    """Session 11's second test before scoring: two objects with elongated position covariances
+    """The second test before scoring: two objects with elongated position covariances
     (900 m^2 along x, 2500^2 m^2 along y); a second cluster 3 km away along x is inside the grid's
     eigenvalue bound (|d|^2 / (lambda_max(C) + lambda_max(R)) is about 1.4 nats) but some 5,000 nats
     below by the exact quadratic form: never scored, and the sample and shares equal the full scan's."""

@@ -1,4 +1,4 @@
-"""Parts of the two-level tracker added in issue 14's second session: the exclusive merge, the
+"""Parts of the two-level tracker: the exclusive merge, the
 arrivals' Pitman-Yor likelihood of (alpha_2, d) and the shared turn rate (hand-computed values)."""
 
 from __future__ import annotations

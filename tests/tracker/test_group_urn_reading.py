@@ -1,5 +1,5 @@
 """The object -> cluster urn's two readings of eqs. (17)-(19) and H_2 from the object level's base
-distribution (docs/trackers.md, "Power-law group sizes")."""
+distribution (docs/trackers.md, "Deviations, stated")."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """What a first run (an empty kernel cache) compiles: each kernel once, and none of numba's string
-code (docs/performance.md, session 11: s11-cold).
+code (docs/performance.md, cold start).
 
 numba compiles a kernel a kernel calls once per distinct argument type, and a constant argument
 or a counter that starts at a constant is typed ``Literal[int](0)`` first: a whole extra

@@ -1,4 +1,4 @@
-"""Time between frames dt != T (issue 13, item 4): process noise Q(dt), survival and births
+"""Time between frames dt != T: process noise Q(dt), survival and births
 over dt, the hyperparameter birth lag across skipped frame numbers (docs/models.md, "Time
 between frames")."""
 
@@ -153,7 +153,7 @@ def test_one_prediction_over_a_gap_equals_two_scans(filt, turn_deg, tol):
     scale = np.sqrt(np.outer(np.diag(once.cov[0]), np.diag(once.cov[0])))
     assert np.all(np.abs(once.cov[0] - twice.cov[0]) <= tol * scale)
     assert once.q[0] == pytest.approx(twice.q[0], rel=1e-12)
-    # the old rule (the paper's formula at dt) adds twice the velocity variance of two scans
+    # the paper's formula at dt (``dwna``) adds twice the velocity variance of two scans
     old = make_tracker("ddp-mb", load_params("vo2017", ["process_noise_dt='dwna'"]), BnpConfig(filter=filt))
     assert old._predict(st, 2.0, "bearing_range").cov[0, 1, 1] > twice.cov[0, 1, 1] + 40.0
 

@@ -1,4 +1,4 @@
-"""Issue 12's extensibility target: a measurement kind is its model class plus its registry
+"""Extensibility: a measurement kind is its model class plus its registry
 entry.  The kind ``range_bearing_deg`` (``z = [range_m, bearing_deg]``: the bearing-range
 radar with its columns swapped and the bearing in degrees) exists only in this file; it is
 simulated, encoded and decoded, tracked by ddp and glmb, warmed up and drawn by the Rerun sink

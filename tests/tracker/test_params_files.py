@@ -1,4 +1,4 @@
-"""Params files name only what they change (issue 13, item 5)."""
+"""Params files name only what they change."""
 
 from __future__ import annotations
 

@@ -146,7 +146,7 @@ def test_link_files_incomplete_or_malformed_are_ignored(tmp_path: Path) -> None:
     path = tmp_path / "s"
     path.write_text("d a\nx b")  # no "end": a write cut short
     assert _kernel_cache._read_links(str(path)) is None
-    path.write_text("a\nb\nend")  # session 9's symbol file form
+    path.write_text("a\nb\nend")  # the older symbol file form, without the link list
     assert _kernel_cache._read_links(str(path)) is None
     _kernel_cache._write_links(str(path), ["a", "b"], ["c"])
     assert _kernel_cache._read_links(str(path)) == (["a", "b"], ["c"])

@@ -1,5 +1,5 @@
-"""Tracker names since session 8 (issue 14 item 1): ``ddp`` / ``dpyp`` build the two-level
-trackers, ``ddp-mb`` / ``dpyp-mb`` the single-level one, and the old two-level names
+"""Tracker names: ``ddp`` / ``dpyp`` build the two-level
+trackers, ``ddp-mb`` / ``dpyp-mb`` the single-level one, and the two-level aliases
 ``ddp-groups`` / ``dpyp-groups`` still resolve to the same trackers and presets."""
 
 import pytest

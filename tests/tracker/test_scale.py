@@ -1,6 +1,6 @@
 """The sparse (gated) paths of DDP-EMM against their dense references, and the memory guard.
 
-Each sparse piece must give what the dense computation it replaced gives: the gated pairs and
+Each sparse piece must give what its dense reference gives: the gated pairs and
 their log-likelihoods bit for bit, the per-component JPDA* assignment the global one, the
 KD-tree pre-filter of duplicate merging every pair within the merge distance, the vectorised
 log joint the sequential one.
@@ -146,7 +146,7 @@ def test_max_clusters_guard_warns_once_and_reports(caplog):
 
 
 def _kdtree_near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
-    """``_near_pairs`` as sessions 4-10 computed it (above 200 clusters): a KD-tree's ball queries."""
+    """``_near_pairs`` by a KD-tree's ball queries (the reference for the grid, above 200 clusters)."""
     from itertools import chain
 
     from scipy.spatial import cKDTree
@@ -171,7 +171,7 @@ def _kdtree_near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndar
 
 @pytest.mark.parametrize("seed,n,spread", [(1, 201, 500.0), (2, 800, 20000.0), (3, 2000, 40000.0), (4, 400, 0.0)])
 def test_near_pairs_grid_equals_the_kdtree_pairs(seed, n, spread):
-    """Session 11's grid (``ball_hits``) returns the KD-tree's pairs, in the same order: clusters of
+    """The grid (``ball_hits``) returns the KD-tree's pairs, in the same order: clusters of
     every size of covariance (a few huge, one with a NaN mean, one not positive definite), some on
     top of each other."""
     rng = np.random.default_rng(seed)

@@ -1,4 +1,4 @@
-"""Sensor geometry as data, Cartesian detections, several sensors (issue 13, items 1-3)."""
+"""Sensor geometry as data, Cartesian detections, several sensors."""
 
 from __future__ import annotations
 

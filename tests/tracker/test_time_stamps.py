@@ -1,4 +1,4 @@
-"""Time from stamps: one prediction per frame over dt = stamp difference (issue 13, item 4)."""
+"""Time from stamps: one prediction per frame over dt = stamp difference."""
 
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ solver) and :mod:`~tracker.bnp.groups` (the two-level trackers).
 """
 
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from bnptrack.tracker.bnp.birth_tracker import make_tracker  # the learned-H_k dispatch (session 9)
+from bnptrack.tracker.bnp.birth_tracker import make_tracker  # the learned-H_k dispatch
 from bnptrack.tracker.bnp.filter import BnpState, BnpTracker
 
 __all__ = ["BnpConfig", "BnpState", "BnpTracker", "TRACKER_PRESETS", "make_tracker"]

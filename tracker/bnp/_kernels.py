@@ -1,5 +1,5 @@
-r"""Compiled passes of the DDP-EMM / DPY-STP step (issue 15): the same arithmetic as the numpy
-code they replaced, bit for bit.
+r"""Compiled passes of the DDP-EMM / DPY-STP step: the same arithmetic as the numpy
+reference code, bit for bit.
 
 The step chained about a hundred numpy calls on arrays of a few dozen entries, so the
 interpreter's per-call cost, not the arithmetic, set its time.  Here the bookkeeping runs in a

@@ -84,7 +84,7 @@ def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarr
 
 def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a grid on positions:
-    :func:`ball_hits`; a KD-tree's ball queries before session 11, the same pairs).
+    :func:`ball_hits`; the same pairs as a KD-tree's ball queries).
 
     The position-velocity distance is at least the position-only one, which is at least
     :math:`\lVert \Delta p \rVert^2 / (\lambda_i + \lambda_j)` with :math:`\lambda` the

@@ -52,8 +52,8 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (summed covariances) and whose existences sum to at most 1 are one object split over
     exclusive hypotheses: they are merged (existences added).  0 disables merging."""
     birth_velocity_std: Positive = 20.0
-    """Base distribution H (uniform part): velocity std (m/s) per axis of a new cluster.  20
-    (was 30 before session 6): chosen on ``random`` and ``vo2017`` seeds 101-120, near the
+    """Base distribution H (uniform part): velocity std (m/s) per axis of a new cluster.  20:
+    chosen on ``random`` and ``vo2017`` seeds 101-120, near the
     per-axis RMS speed of objects moving at 5-40 m/s in any direction (17 m/s); a narrower
     prior predicts a newborn's second detection more sharply (docs/trackers.md, "Births
     anywhere")."""
@@ -90,8 +90,8 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     learn_births: bool = False
     """Learn where objects appear: the base distribution becomes the Polya-urn posterior
     predictive H_k = E[alpha_H/(alpha_H+W)] H + E[1/(alpha_H+W)] sum_i w_i kappa(x; b_i) over the
-    births recorded so far (:mod:`tracker.bnp.birth_memory`; docs/trackers.md, "Births anywhere",
-    session 9).  Off by default (measured: docs/results.md, section 6)."""
+    births recorded so far (:mod:`tracker.bnp.birth_memory`; docs/trackers.md, "Births anywhere").
+    Off by default (measured: docs/results.md, section 6)."""
     learn_birth_velocity: bool = False
     """Learn the newborn's per-axis velocity variance from the recorded births' velocities
     (conjugate inverse-gamma update; :func:`tracker.bnp.birth_memory.velocity_variance`)."""
@@ -100,7 +100,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     birth_kernel_std: NonNeg = 50.0
     """Metres: the extent of an entry point, added (as s^2 I) to each recorded birth position's
     own uncertainty in its kernel kappa.  50 chosen on ``vo2017`` without regions, seeds 101-120,
-    among 10 / 25 / 50 / 100 / 200 (docs/trackers.md, "Births anywhere", session 9)."""
+    among 10 / 25 / 50 / 100 / 200 (docs/trackers.md, "Births anywhere")."""
     birth_memory_lag: Annotated[int, msgspec.Meta(ge=1, le=50)] = 4
     """A cluster is recorded as a birth this many frames after it was born, with its existence
     then as its weight."""
@@ -115,9 +115,9 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             raise ValueError(f"burn_in ({self.burn_in}) must be smaller than sweeps ({self.sweeps})")
 
 
-#: The single-level trackers' presets (``--tracker ddp-mb`` / ``dpyp-mb``; before session 8
-#: these were ``ddp``, ``dpyp``, ``ddp-proximity``, ``ddp-snr``: those names now select the
-#: two-level tracker's presets, :data:`tracker.bnp.groups.GROUP_PRESETS`).
+#: The single-level trackers' presets (``--tracker ddp-mb`` / ``dpyp-mb``; the names ``ddp``,
+#: ``dpyp``, ``ddp-proximity``, ``ddp-snr`` select the two-level tracker's presets,
+#: :data:`tracker.bnp.groups.GROUP_PRESETS`).
 TRACKER_PRESETS: dict[str, BnpConfig] = {
     # Experiment 1 (DDP-EMM vs GLMB): alpha ~ Gamma(1, 0.1).
     "ddp-mb": BnpConfig(),

@@ -16,7 +16,7 @@ partition's Pitman-Yor EPPF :math:`\prod_{k<K}(\alpha + k d)\,/\,(\alpha+1)^{\ov
 \prod_c (1-d)^{\overline{n_c-1}}` (for objects that stay).  Re-counting every frame's re-seating
 (``hyper_likelihood = "reseat"``, :func:`tracker.bnp.urn.frame_loglik_grid`) multiplies in a
 factor :math:`(v^*_c + i - d)` for each of ~50 re-seats of every object, each falling with
-:math:`d`, and drives :math:`d` to 0 whatever the group sizes (issue 14).
+:math:`d`, and drives :math:`d` to 0 whatever the group sizes.
 """
 
 from __future__ import annotations

@@ -352,8 +352,8 @@ def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarr
     form: ``members[ptr[g]:ptr[g + 1]]``, leader first.
 
     O(pairs): each cluster's partners in ``order`` (CSR); a partner is a candidate with every
-    member when its count of members it pairs with equals the group's size (session 10; the dense
-    (n, n) table of before was O(n^2) in time and memory)."""
+    member when its count of members it pairs with equals the group's size (a dense
+    (n, n) table would be O(n^2) in time and memory)."""
     n = r.size
     rank = np.empty(n, dtype=np.int64)
     for k in range(n):

@@ -1,5 +1,5 @@
 r"""The object -> cluster Gibbs kernel of the two-level tracker with O(candidate tables) moves
-(:func:`gated_kernel`; session 10, issue 15 "Speed and scale").
+(:func:`gated_kernel`).
 
 It draws exactly what the full scan (:func:`tracker.bnp.groups._partition_kernel` followed by
 :func:`tracker.bnp.groups._collect_shares`) draws, bit for bit, with three changes to the work
@@ -34,8 +34,8 @@ per move (object :math:`\ell` leaves its table, then joins one drawn from its co
   its members).  Each table the grid returns is then tested once more before it is scored, with the exact
   quadratic form of block q in place of its eigenvalue bound
   (:math:`\log w_t \le u_t + c_\ell - \tfrac12 r'(C_{qt} + R_{q\ell})^{-1} r`, :func:`_score_candidates`;
-  one division, no logarithm) against the best option scored so far (session 11: a third of
-  the tables the grid returns at 1,000 objects, whose full score cost two logarithms).
+  one division, no logarithm) against the best option scored so far (a third of
+  the tables the grid returns at 1,000 objects, whose full score costs two logarithms).
 * **Sparse records.**  The last sweep keeps only the options with conditional above ``min_p``
   (what :func:`~tracker.bnp.groups._collect_shares` keeps of the dense (L, T) arrays), in the
   same order, normalised the same way: O(L x few) memory instead of O(L x T).

@@ -1,5 +1,4 @@
-r"""Which members receive the velocity sharing (session 9, helper "cross";
-``GroupConfig.share_min_info``).
+r"""Which members receive the velocity sharing (``GroupConfig.share_min_info``).
 
 The sharing (:func:`tracker.bnp.groups.share_velocity`) gives member :math:`\ell` a Kalman
 pseudo-measurement of its cluster's leave-one-out :math:`\theta`, with gain
@@ -11,7 +10,7 @@ weaker that evidence, so an object whose velocity is still about its birth prior
 and is then given the cluster's velocity almost entirely (gain 0.6-0.8).  A newborn or
 unresolved object next to a crossing object takes the crossing object's velocity, and every
 later membership test sees a velocity that agrees because it was copied (docs/trackers.md,
-"Session 9: cross").
+"Crossing objects").
 
 :func:`informed` keeps the sharing to members whose own velocity information exceeds the
 birth prior's by the factor ``f`` = ``share_min_info``:
@@ -19,7 +18,7 @@ birth prior's by the factor ``f`` = ``share_min_info``:
 at most :math:`\sigma_{v,H} / \sqrt f`; the others keep their own estimate this frame (they
 stay in the partition and still inform the others' :math:`\theta`).
 
-:func:`own_update` (session 10, helper "unshared"; ``GroupConfig.membership`` / ``share_base``)
+:func:`own_update` (``GroupConfig.membership`` / ``share_base``)
 keeps a second, sharing-free estimate per object: the object level's measurement update
 transplanted, in information form, from the shared state onto the object's own prediction, so
 that the membership (eq. (14) [Gibbs]) can read each object's own evidence once.
@@ -57,7 +56,7 @@ def own_update(s_pred: tuple[np.ndarray, np.ndarray], post: tuple[np.ndarray, np
                o_pred: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     r"""Each object's own (sharing-free) posterior: the object level's measurement update,
     taken out of its state in information form and applied to the own estimate's prediction
-    (session 10, ``GroupConfig.membership = "own"``).
+    (``GroupConfig.membership = "own"``).
 
     The object level predicted the *shared* state to :math:`(m_s, P_s)` (``s_pred``) and
     updated it to :math:`(m, P)` (``post``: the moment-matched mixture over its measurement

@@ -88,8 +88,8 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     within_std: Positive = 3.0
     """S_w = within_std^2 I: spread (m/s) of member velocities about their cluster's theta in
     f(x | theta) (eqs. (2), (4)): the membership evidence.  Tight, as true convoys share velocity
-    (session 8; 10 before, which let objects 14 m/s apart share a cluster); the sharing's
-    robustness is ``share_inflation_std`` (docs/trackers.md, "Power-law group sizes")."""
+    (10 m/s lets objects 14 m/s apart share a cluster); the sharing's
+    robustness is ``share_inflation_std`` (docs/trackers.md, "Deviations, stated")."""
     share_inflation_std: NonNeg = 9.5
     """Sharing only: the pseudo-measurement's covariance is S_w + share_inflation_std^2 I +
     Cov(theta^-l); the inflation stands for the information the members already share (each
@@ -102,7 +102,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     share_min_info: NonNeg = 0.0
     """A member receives the velocity sharing only when its own velocity information is at least
     this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
-    :mod:`tracker.bnp.group_share`, session 9: crossing pairs); 0: every member."""
+    :mod:`tracker.bnp.group_share`: crossing pairs); 0: every member."""
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`share_turn`), 0 does not."""
@@ -115,7 +115,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     positions ~ N(centroid, within_pos_std^2 I), so far-apart objects do not group."""
     within_pos_std: Positive = 20.0
     """Spread (m) per axis of members' positions about their cluster's centroid: a formation of
-    radius 40 m (uniform in the disc) has 20 m per axis (session 8; 40 before, the radius)."""
+    radius 40 m (uniform in the disc) has 20 m per axis (not 40, the radius)."""
     centroid_std: Positive = 2000.0
     """With ``h2 = "vague"``: H_2's centroid part, N(0, centroid_std^2 I) (vague over the field)."""
     h2: Literal["vague", "birth"] = "birth"
@@ -142,7 +142,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     which holds the pseudo-measurements of its cluster's theta shared at earlier frames (the
     cluster's information counted again in its own membership test); "own", a second,
     sharing-free estimate kept per object: the object level's measurement updates without the
-    sharing (:func:`tracker.bnp.group_share.own_update`; session 10, issue 11's crossings)."""
+    sharing (:func:`tracker.bnp.group_share.own_update`; for crossing objects)."""
     alpha: Positive = 0.5
     alpha_shape: Positive = 1.0
     alpha_scale: Positive = 1.0
@@ -178,8 +178,8 @@ _PRESETS: dict[str, GroupConfig] = {
     "ddp-snr": GroupConfig(objects=TRACKER_PRESETS["ddp-mb-snr"]),
 }
 
-#: The two-level trackers' presets (``--tracker ddp`` / ``dpyp``), each also under its name of
-#: sessions 6-7 (``ddp-groups``, ``dpyp-groups``, ``ddp-groups-proximity``, ``ddp-groups-snr``).
+#: The two-level trackers' presets (``--tracker ddp`` / ``dpyp``), each also under an alias
+#: (``ddp-groups``, ``dpyp-groups``, ``ddp-groups-proximity``, ``ddp-groups-snr``).
 GROUP_PRESETS: dict[str, GroupConfig] = {
     **_PRESETS,
     "ddp-groups": _PRESETS["ddp"],
@@ -238,7 +238,7 @@ class GroupState:
     birth_vel_stats: np.ndarray = field(default_factory=lambda: LearnedBirthState().birth_vel_stats)
     own_mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
     """(N, 5) each object's own estimate, without the sharing (``membership = "own"``; empty
-    otherwise, and in snapshots from before session 10: then every object starts from its state)."""
+    otherwise, and in snapshots that lack it: then every object starts from its state)."""
     own_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
     """(N, 5, 5) its covariance."""
 
@@ -628,8 +628,8 @@ _ZERO2.flags.writeable = False
 _FLAT_INFORMATION = 1e-10
 
 
-#: :func:`sample_partition`'s kernels: the full scan of every table per move (the reference,
-#: sessions 5-9), the incremental urn state without the gate, and the gated kernel (the default;
+#: :func:`sample_partition`'s kernels: the full scan of every table per move (the reference),
+#: the incremental urn state without the gate, and the gated kernel (the default;
 #: :mod:`tracker.bnp.group_partition`).  All three draw the same sample bit for bit.
 PARTITION_KERNELS = ("scan", "urn", "gated")
 

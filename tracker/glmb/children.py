@@ -1,7 +1,7 @@
-r"""The GLMB's hypothesis arithmetic of a frame in compiled passes (issue 15).
+r"""The GLMB's hypothesis arithmetic of a frame in compiled passes.
 
-:meth:`GlmbTracker._children <tracker.glmb.filter.GlmbTracker._children>` used to chain about
-sixty numpy calls per frame (candidate sets, the greedy start and its clash test, the dense
+In numpy, :meth:`GlmbTracker._children <tracker.glmb.filter.GlmbTracker._children>` would chain
+about sixty calls per frame (candidate sets, the greedy start and its clash test, the dense
 assignment cost tensor of the hard parents, chain split, per-chain copies, two lexicographic
 ``unique_rows``, the pair keys and a grouped log-sum-exp).  Here the same arithmetic runs in
 numba kernels over plain arrays, one parent (or one sample) at a time, with the same results
