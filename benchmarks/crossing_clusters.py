@@ -1,5 +1,5 @@
 """Why crossing pairs lose their labels under the two-level tracker: the cluster membership of
-the two objects' tracks around the crossing scan (session 9, helper "cross").
+the two objects' tracks around the crossing scan.
 
 For each crossing pair ``(a, b, c)`` of a generated scene (``random``): the tracks assigned
 to ``a`` and ``b`` at each scan ``c-5 .. c+5`` (as :func:`sinks.crossings.crossing_label_keeping`,

@@ -1,4 +1,4 @@
-"""A measured lower bound for the "every third frame dropped" target of issue 13.
+"""A measured lower bound for the "every third frame dropped" target (every third frame dropped).
 
 An **oracle tracker** that knows which detection is which object's (no clutter confusion), when
 each object is born and when it dies: it starts an object at its first detection (the BNP

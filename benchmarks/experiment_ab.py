@@ -1,5 +1,5 @@
 """CPU time per run of experiment 1 (or any experiment): this tree against another checkout,
-interleaved, the same runs on both sides (issue 15, Monte Carlo throughput).
+interleaved, the same runs on both sides.
 
 Round ``r`` runs, one after the other, a fresh process per tree (``PYTHONPATH`` = that tree,
 base first) that runs one warm-up run (imports, compiled kernels), then runs

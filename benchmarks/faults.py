@@ -1,4 +1,4 @@
-"""Reliability figures of the pipeline (issue 17): cases tried, cases with nothing lost.
+"""Reliability figures of the pipeline: cases tried, cases with nothing lost.
 
 Each family of faults is run against real stage processes on loopback (or, for the file
 and sample cases, against the same code in this process) and scored: a case *holds* when

@@ -1,4 +1,4 @@
-"""Mixing of the frame Gibbs sampler (issue 11 item 5), old (single-site only) against new
+"""Mixing of the frame Gibbs sampler, old (single-site only) against new
 (single-site + pair exchanges), in the same run:
 
 1. the toy of ``tests/tracker/test_urn_gibbs.py``: two measurements at 0.29 and 0.33 compete for one

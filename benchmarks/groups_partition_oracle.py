@@ -1,5 +1,5 @@
 """Can the prior matter?  The object -> cluster partition of the two-level tracker run on the TRUE
-object states (issue 14, "DPY-STP recovers the true groups better than DDP-EMM").
+object states.
 
 The measurement -> object level of :class:`bnptrack.tracker.bnp.groups.GroupTracker` is replaced by
 an oracle (:class:`TruthObjects`): at every frame its objects are the true ones (labels = truth ids,

@@ -30,7 +30,7 @@ stamps made consecutive), then measures, in one invocation:
    traffic (/measurements and /truth per frame, /tracks back, the pipeline's sizes, the
    subscriber subscribed as the sink is) and the sink's receipt stamp (the subscription
    callback's), as many samples as the run had frames: the target's floor.  Beside it,
-   session 6's floor (one topic per hop, stamped on the subscriber's main thread).  Paced runs
+   the one-topic floor (one topic per hop, stamped on the subscriber's main thread).  Paced runs
    and floors run without the ``/proc`` CPU sampler.  With both parts measured, also one hop
    between two bare processes in client and peer mode, and the operating system's own hop (a
    socketpair).  ``--first-puts SIZE [TOPIC|shm]`` times the first puts on a fresh session
@@ -48,7 +48,7 @@ stamps made consecutive), then measures, in one invocation:
     python benchmarks/pipeline_latency.py --only session-floor --paced 4  # the floor, one session / one each
     python benchmarks/pipeline_latency.py --only frame-path --rounds 5    # the stage's own work, in process
 
-Each paced run also prints the frame path's segments (session 9), from the tracker's stamps
+Each paced run also prints the frame path's segments, from the tracker's stamps
 read back from its journal: source -> tracker, hand-off, before the step, the step, after the
 step, the put and tracker -> sink.
 
@@ -89,7 +89,7 @@ from bnptrack.tracker.state import run  # noqa: E402
 
 STAGES = ("source", "tracker", "sink")
 HOPS = ("source_to_tracker_ms", "in_tracker_ms", "tracker_to_sink_ms")
-#: Finer splits (session 8, second pass): the tracker's callback -> main thread hand-off, and
+#: Finer splits: the tracker's callback -> main thread hand-off, and
 #: the frame's /measurements from the source to the sink (the same sample's other receiver).
 SPLITS = ("tracker_handoff_ms", "source_to_sink_measurements_ms")
 
@@ -272,7 +272,7 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
     }
 
 
-#: The frame path cut at the tracker's stamps (session 9): source publish -> tracker callback
+#: The frame path cut at the tracker's stamps: source publish -> tracker callback
 #: (``t_in``), the callback -> main thread hand-off (``t_deq``), the main thread's work before
 #: the step (intake: decoding and validation, sequencing, ``to_frame``, the bounds check, the
 #: frame's generator; ``t_s0``), the step (``t_s1``), the work after it up to the put (encoding,
@@ -303,7 +303,7 @@ def frame_segments(out: Path, lat: dict) -> dict[str, list[float]]:
 
 #: Bins of the time between the sink's receipt of a frame's /measurements and of its /tracks
 #: (ms): in the first, the sink's main thread may still hold the GIL for that frame's
-#: /measurements and /truth when the /tracks callback wants it (session 12).
+#: /measurements and /truth when the /tracks callback wants it.
 SINK_GAP_BINS = ((-1e9, 1.0, "< 1"), (1.0, 3.0, "1-3"), (3.0, 5.0, "3-5"), (5.0, 1e9, ">= 5"))
 
 
@@ -904,7 +904,7 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
             print(f"  the floor's /measurements publisher -> subscriber (one hop, as the sink gets it): "
                   f"p50 {pct(f, 50):.2f} ms, p99 {pct(f, 99):.2f} ms")
         old = two["bare"]
-        print(f"  session 6's floor (one topic per hop, stamped on the main thread): p50 {old['p50']:.2f} ms, "
+        print(f"  the one-topic floor (one topic per hop, stamped on the main thread): p50 {old['p50']:.2f} ms, "
               f"p99 {old['p99']:.2f} ms  <->  added p99 = floor + {pct(added, 99) - old['p99']:.2f} ms")
     if "client" in floors:
         print("  transport floor, one hop p50 (p99): " + "; ".join(
@@ -915,7 +915,7 @@ def report_latency(args, paced_runs: list[dict], floors: dict) -> bool:
     print(f"  added p99 - two-hop floor p99 per run: {', '.join(format(o, '.2f') for o in over)} ms; median "
           f"{np.median(over):.2f} ms (target: <= 1 ms)")
     old = [pct(p["added_ms"], 99) - f["bare"]["p99"] for p, f in zip(paced_runs, floors["two_hop"])]
-    print(f"  ... against session 6's floor: {', '.join(format(o, '.2f') for o in old)} ms; median "
+    print(f"  ... against the one-topic floor: {', '.join(format(o, '.2f') for o in old)} ms; median "
           f"{np.median(old):.2f} ms")
     return float(np.median(over)) <= 1.0
 
@@ -1038,7 +1038,7 @@ def paced_rounds(log: Path, args, tmp: Path) -> tuple[list[dict], dict]:
         two[-1]["bare"] = two_hop_floor(mode, args.rate, n, traffic="bare")
         print(f"  paced run {r + 1}: added p50 {pct(runs[-1]['added_ms'], 50):.2f} p99 "
               f"{pct(runs[-1]['added_ms'], 99):.2f} ms, two-hop floor p50 {two[-1]['p50']:.2f} p99 "
-              f"{two[-1]['p99']:.2f} ms (session 6's floor: p50 {two[-1]['bare']['p50']:.2f} p99 "
+              f"{two[-1]['p99']:.2f} ms (the one-topic floor: p50 {two[-1]['bare']['p50']:.2f} p99 "
               f"{two[-1]['bare']['p99']:.2f} ms; load {two[-1]['load_avg']:.2f})", flush=True)
     floors: dict = {"two_hop": two}
     if args.only is None:

@@ -1,4 +1,4 @@
-"""An oracle bound for the generated families (``random``, ``random-cv``; issue 11).
+"""An oracle bound for the generated families (``random``, ``random-cv``).
 
 The oracle of :mod:`benchmarks.dropped_bound` (:class:`OracleTracker`): it knows which
 detection is which object's (no clutter confusion, no association error), when each object is

@@ -2,7 +2,7 @@
 
 Two parts:
 
-1. The whole command, the figure the target of issue 6 names ("the sink adds under 10% to an
+1. The whole command, the figure the sink's target names ("the sink adds under 10% to an
    offline `bnptrack track --rrd` run"): ``python -m bnptrack track LOG -q`` and the same with
    ``--rrd FILE``, run alternately (A B A B ...) ``--repeats`` times each, so that the load of
    other processes hits both alike.  For each: wall clock (``time.perf_counter`` around the

@@ -1,4 +1,4 @@
-"""Bring your own sensor: one scene measured several ways (issue 13 targets).
+"""Bring your own sensor: one scene measured several ways.
 
 The vo2017 scene (seeds 1..N; its birth regions) tracked by DDP-EMM (or ``--tracker``; another
 scene with ``--scenario``, a generated family drawing one scene per seed), mean OSPA

@@ -1,6 +1,6 @@
 """Start-up time of the ``bnptrack`` commands, beside interpreter baselines from the same run.
 
-Issue 15's start-up targets: ``bnptrack --help`` <= 0.3 s, ``bnptrack track
+Start-up targets: ``bnptrack --help`` <= 0.3 s, ``bnptrack track
 recordings/vo2017-s1.mcap`` <= 1.0 s on a warm machine (second run) and ``bnptrack launch``
 (100 frames, the default pipeline) <= 3 s.  Each round runs, one after the other (so that a
 change of machine load hits every command alike):

@@ -8,7 +8,7 @@ simulates vo2017 seeds 1..``--seeds`` (100 frames each), tracks them once untime
 cache, file cache), then ``--repeats`` timed passes; each frame's ``step`` is timed with
 ``time.thread_time`` (CPU time of this thread: on a shared machine wall time also counts the
 time other processes hold the core).  It prints the median over frames of each frame's fastest
-time (the figure of issue 15), the mean CPU ms per frame of the fastest pass, and a fingerprint
+time, the mean CPU ms per frame of the fastest pass, and a fingerprint
 of every estimate (labels, means, covariances, existences, assignments and their
 probabilities, cardinality pmf, every diagnostic but ``ms``).
 

@@ -215,9 +215,9 @@ def test_the_size_rules_see_a_long_function(tmp_path):
 
 
 def _layout_row(folder: str) -> str:
-    readme = (ROOT / "README.md").read_text()
-    rows = [line for line in readme.splitlines() if line.startswith(f"| `{folder}/` |")]
-    assert len(rows) == 1, f"README's layout table needs one row for {folder}/"
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith(f"| `{folder}/` |")]
+    assert len(rows) == 1, f"docs/architecture.md's module map needs one row for {folder}/"
     return rows[0]
 
 
@@ -247,16 +247,16 @@ def test_layout_paths_follow_the_parentheses():
 
 
 @pytest.mark.parametrize("pkg", PACKAGES)
-def test_the_readme_layout_names_every_module(pkg):
-    """Every module and sub-package of ``pkg`` is named, at its path, in its README layout row,
-    and the row names no path that does not exist."""
+def test_the_module_map_names_every_module(pkg):
+    """Every module and sub-package of ``pkg`` is named, at its path, in its row of the module
+    map (docs/architecture.md), and the row names no path that does not exist."""
     named = _layout_paths(_layout_row(pkg))
     base = ROOT / pkg
     present = {str(p.relative_to(base)) for p in base.rglob("*.py") if p.name != "__init__.py"}
     present |= {str(p.relative_to(base)) + "/" for p in base.rglob("*")
                 if p.is_dir() and p.name != "__pycache__"}
-    assert sorted(present - named) == [], f"{pkg}/: not in README's layout row"
-    assert sorted(named - present) == [], f"{pkg}/: the README names what does not exist"
+    assert sorted(present - named) == [], f"{pkg}/: not in the module map's row"
+    assert sorted(named - present) == [], f"{pkg}/: the module map names what does not exist"
 
 
 def _bare_imports(path: Path) -> list[str]:
