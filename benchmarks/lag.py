@@ -63,7 +63,7 @@ def lagged(tracker_params, frames, online, lag, smooth):
         state, st = layer.step(state, f, None)
         if st.lagged is not None:
             out.append(st.lagged)
-    out.extend(layer.flush(state))
+    out.extend(e for _f, e in layer.flush(state))
     return out, (time.process_time() - t0) * 1e3 / len(frames)
 
 

@@ -22,13 +22,17 @@ tracker's state plus the window (:class:`LagState`), so a snapshot of it resumes
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from bnptrack.tracker.models.params import ModelParams
-from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
+import msgspec
+
+from bnptrack.tracker.state import SNAPSHOT_VERSION, _pack, _unpack, restore, snapshot, tracker_frame_rng
+from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth, frame_dt
 
 #: chi-square gate on a measurement's squared Mahalanobis distance (99.9 % for 2 dimensions).
 GATE_CHI2 = 13.8
@@ -52,6 +56,8 @@ class LagStep:
 
     online: Estimate
     lagged: Estimate | None
+    frame: Frame | None = None
+    """The frame ``lagged`` is the estimate of."""
 
 
 @dataclass(frozen=True)
@@ -86,15 +92,16 @@ class FixedLag:
         if len(frames) <= self.lag:
             return LagState(inner, frames, online, state.renamed), LagStep(est, None)
         lagged, renamed = self._publish(frames, online, dict(state.renamed))
-        return LagState(inner, frames[1:], online[1:], renamed), LagStep(est, lagged)
+        return LagState(inner, frames[1:], online[1:], renamed), LagStep(est, lagged, frames[0])
 
-    def flush(self, state: LagState) -> list[Estimate]:
-        """The frames still in the window at the end of the stream, oldest first."""
+    def flush(self, state: LagState) -> list[tuple[Frame, Estimate]]:
+        """The frames still in the window at the end of the stream and their lagged
+        estimates, oldest first."""
         out, frames, online, renamed = [], state.frames, state.online, dict(state.renamed)
         while frames:
             est, renamed_t = self._publish(frames, online, renamed)
             renamed = dict(renamed_t)
-            out.append(est)
+            out.append((frames[0], est))
             frames, online = frames[1:], online[1:]
         return out
 
@@ -111,44 +118,68 @@ class FixedLag:
         for tr in tracks.values():
             if not tr.present[0] and tr.label not in renamed and ended:
                 self._continue(tr, ended, frames, renamed)
+        final: dict[str, str] = {}
+        for te in self._existing(tracks, frames):
+            final[te.label] = renamed.get(te.label, te.label)
+            out.append(replace(te, label=final[te.label]))
         for tr in tracks.values():
-            te = self._existing(tr, frames) if tr.present[0] else self._backfilled(tr, frames, used, assign)
-            if te is not None:
-                out.append(replace(te, label=renamed.get(tr.label, tr.label)))
+            te = None if tr.present[0] else self._backfilled(tr, frames, used, assign)
+            if te is not None:  # a continued label still in use here: the track's own label
+                label = renamed.get(tr.label, tr.label)
+                final[tr.label] = tr.label if label in final.values() else label
+                out.append(replace(te, label=final[tr.label]))
         est = online[0]
-        assign = [renamed.get(a, a) if a is not None else None for a in assign]
+        assign = [None if a is None else final.get(a, a) for a in assign]
         renamed = {k: v for k, v in renamed.items() if k in tracks}
         diag = dict(est.diagnostics, lag=float(self.lag))
         lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob, diag,
                           est.cardinality_pmf)
         return lagged, tuple(sorted(renamed.items()))
 
-    def _existing(self, tr: _Track, frames) -> TrackEstimate | None:
-        """A track present at the published frame: dropped when it is dead by the newest frame
-        and was not detected since; else its (smoothed) moments."""
-        if not tr.present[-1] and not tr.detected.any():
-            return None
-        run = _run_from(tr.present, 0)
-        if not tr.present[-1]:
-            run = min(run, int(np.flatnonzero(tr.detected)[-1]) + 1)
-        x, P = tr.x[0], tr.P[0]
-        if self.smooth and run > 1:
-            x, P = self._rts(tr, frames, run)
-        return TrackEstimate(tr.label, x, P, float(tr.existence[0]), tr.cluster[0])
+    def _existing(self, tracks: dict, frames) -> list[TrackEstimate]:
+        """The tracks present at the published frame, but those dead by the newest frame and
+        not detected since, with their (smoothed) moments."""
+        keep, runs = [], []
+        for tr in tracks.values():
+            if not tr.present[0] or (not tr.present[-1] and not tr.detected.any()):
+                continue
+            run = _run_from(tr.present, 0)
+            if not tr.present[-1]:
+                run = min(run, int(np.flatnonzero(tr.detected)[-1]) + 1)
+            keep.append(tr)
+            runs.append(run)
+        if not keep:
+            return []
+        X = np.stack([t.x for t in keep])
+        P = np.stack([t.P for t in keep])
+        xs, Ps = (self._rts(X, P, np.array(runs), frames) if self.smooth else (X[:, 0], P[:, 0]))
+        return [TrackEstimate(t.label, xs[j], Ps[j], float(t.existence[0]), t.cluster[0])
+                for j, t in enumerate(keep)]
 
-    def _rts(self, tr: _Track, frames, run: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rauch-Tung-Striebel over window frames ``0 .. run-1``: the smoothed moments at 0."""
-        xs, Ps = tr.x[run - 1], tr.P[run - 1]
-        for i in range(run - 2, -1, -1):
-            m = self.params.motion(self._dt(frames[i], frames[i + 1]))
-            x, P = tr.x[i], tr.P[i]
-            J = m.jacobian(x[None])[0]
-            xp = m.f(x[None])[0]
-            Pp = J @ P @ J.T + m.Q
-            C = np.linalg.solve(Pp, J @ P).T
-            xs = x + C @ (xs - xp)
-            Ps = P + C @ (Ps - Pp) @ C.T
-        return xs, 0.5 * (Ps + Ps.T)
+    def _rts(self, X: np.ndarray, P: np.ndarray, runs: np.ndarray, frames) -> tuple[np.ndarray, np.ndarray]:
+        """Rauch-Tung-Striebel for ``n`` tracks at once: filtered moments ``X`` ``(n, W, 5)``,
+        ``P`` ``(n, W, 5, 5)`` over the window, track ``j`` smoothed over frames
+        ``0 .. runs[j]-1``; returns the smoothed moments at frame 0."""
+        idx = np.arange(len(runs))
+        xs, Ps = X[idx, runs - 1].copy(), P[idx, runs - 1].copy()
+        for i in range(int(runs.max()) - 2, -1, -1):
+            on = runs > i + 1
+            m, Q = self._motion(self._dt(frames[i], frames[i + 1]))
+            x, Pi = X[on, i], P[on, i]
+            J = m.jacobian(x)
+            Pp = J @ Pi @ J.transpose(0, 2, 1) + Q
+            C = np.linalg.solve(Pp, J @ Pi).transpose(0, 2, 1)
+            xs[on] = x + np.einsum("nij,nj->ni", C, xs[on] - m.f(x))
+            Ps[on] = Pi + C @ (Ps[on] - Pp) @ C.transpose(0, 2, 1)
+        return xs, 0.5 * (Ps + Ps.transpose(0, 2, 1))
+
+    def _motion(self, dt: float):
+        """The motion model over ``dt`` and its process noise (kept per ``dt``)."""
+        cache = self.__dict__.setdefault("_motions", {})
+        if dt not in cache:
+            m = self.params.motion(dt)
+            cache[dt] = (m, m.Q if dt > 0 else None)
+        return cache[dt]
 
     def _backfilled(self, tr: _Track, frames, used, assign) -> TrackEstimate | None:
         """A track first reported later in the window, followed back to the published frame
@@ -157,7 +188,10 @@ class FixedLag:
         if not tr.present[b]:
             return None
         run = _run_from(tr.present, b)
-        x, P = (self._rts(_shift(tr, b), frames[b:], run - b) if self.smooth and run - b > 1 else (tr.x[b], tr.P[b]))
+        x, P = tr.x[b], tr.P[b]
+        if self.smooth and run - b > 1:
+            xs, Ps = self._rts(tr.x[None, b:], tr.P[None, b:], np.array([run - b]), frames[b:])
+            x, P = xs[0], Ps[0]
         picks = []
         for i in range(b - 1, -1, -1):
             x, P, m = self._back_step(x, P, frames[i], frames[i + 1], used[i])
@@ -173,10 +207,10 @@ class FixedLag:
         """Predict ``(x, P)`` from ``later`` back to ``frame`` and update it with the nearest
         unassigned measurement of ``frame`` inside the gate; ``m`` is its row (``None``: none)."""
         dt = self._dt(frame, later)
-        back = self.params.motion(-dt)
+        back, _ = self._motion(-dt)
         J = back.jacobian(x[None])[0]
         x = back.f(x[None])[0]
-        P = J @ (P + self.params.motion(dt).Q) @ J.T
+        P = J @ (P + self._motion(dt)[1]) @ J.T
         if used is None or frame.n_measurements == 0:
             return x, P, None
         meas = self.params.measurement(frame.kind, self.params.frame_sensor(frame))
@@ -221,6 +255,29 @@ class FixedLag:
         return self._dt_static(self.params, a, b)
 
 
+def run_lagged(layer: FixedLag, frames: Iterable[Frame], seed: int,
+               on_online: Callable[[Frame, Estimate], None] | None = None,
+               ) -> Iterator[tuple[Frame, Estimate, LagState]]:
+    """As :func:`tracker.state.run` for a :class:`FixedLag` layer: yields each published
+    ``(frame, lagged estimate, state)``, the window's frames flushed at the end of ``frames``
+    (also when the frame source raises: the window is published, then the error re-raised).
+    ``on_online(frame, estimate)`` sees each online estimate as it is made."""
+    state, error = layer.initial_state(), None
+    try:
+        for frame in frames:
+            state, out = layer.step(state, frame, tracker_frame_rng(seed, frame.frame))
+            if on_online is not None:
+                on_online(frame, out.online)
+            if out.lagged is not None:
+                yield out.frame, out.lagged, state
+    except Exception as exc:  # noqa: BLE001 -- re-raised once the window is published
+        error = exc
+    for frame, est in layer.flush(state):
+        yield frame, est, state
+    if error is not None:
+        raise error
+
+
 def _run_from(present: np.ndarray, i: int) -> int:
     """End (exclusive) of the run of presence starting at ``i``."""
     j = i
@@ -229,28 +286,66 @@ def _run_from(present: np.ndarray, i: int) -> int:
     return j
 
 
-def _shift(tr: _Track, b: int) -> _Track:
-    return _Track(tr.label, tr.present[b:], tr.x[b:], tr.P[b:], tr.detected[b:], tr.existence[b:], tr.cluster[b:])
-
-
 def _records(online) -> dict[str, _Track]:
     """Each label's record over the window's online estimates."""
     W = len(online)
-    labels: dict[str, None] = {}
-    for e in online:
+    by_label: dict[str, list] = {}
+    for i, e in enumerate(online):
         for t in e.tracks:
-            labels.setdefault(t.label)
+            by_label.setdefault(t.label, [None] * W)[i] = t
+    detected = [set(e.assignments) for e in online]
     out = {}
-    for lab in labels:
-        present = np.zeros(W, bool)
-        detected = np.zeros(W, bool)
-        x, P = np.zeros((W, 5)), np.tile(np.eye(5), (W, 1, 1))
-        ex, cl = np.zeros(W), [None] * W
-        for i, e in enumerate(online):
-            detected[i] = lab in e.assignments
-            for t in e.tracks:
-                if t.label == lab:
-                    present[i], x[i], P[i], ex[i], cl[i] = True, t.state, t.covariance, t.existence, t.cluster
-                    break
-        out[lab] = _Track(lab, present, x, P, detected, ex, tuple(cl))
+    for lab, row in by_label.items():
+        present = np.array([t is not None for t in row])
+        first = next(t for t in row if t is not None)
+        x = np.stack([(t or first).state for t in row])
+        P = np.stack([(t or first).covariance for t in row])
+        ex = np.array([0.0 if t is None else t.existence for t in row])
+        cl = tuple(None if t is None else t.cluster for t in row)
+        out[lab] = _Track(lab, present, x, P, np.array([lab in d for d in detected]), ex, cl)
     return out
+
+
+# --------------------------------------------------------------------------- snapshots
+
+
+def snapshot_lag(state: LagState) -> bytes:
+    """Serialise a :class:`LagState` exactly: the tracker's state (:func:`tracker.state.snapshot`),
+    the window's frames (with truth) and online estimates, and the continued labels."""
+    doc = {"v": SNAPSHOT_VERSION, "inner": snapshot(state.inner), "frames": [_frame_doc(f) for f in state.frames],
+           "online": [_estimate_doc(e) for e in state.online], "renamed": [list(p) for p in state.renamed]}
+    return msgspec.msgpack.encode(doc)
+
+
+def restore_lag(data: bytes, inner_cls: type) -> LagState:
+    """Inverse of :func:`snapshot_lag` for a tracker whose state class is ``inner_cls``."""
+    doc = msgspec.msgpack.decode(data)
+    if not isinstance(doc, dict) or doc.get("v") != SNAPSHOT_VERSION or "inner" not in doc:
+        raise ValueError("not a fixed-lag snapshot (expected a document with the tracker state and its window)")
+    return LagState(restore(doc["inner"], inner_cls), tuple(_frame_of(d) for d in doc["frames"]),
+                    tuple(_estimate_of(d) for d in doc["online"]), tuple(tuple(p) for p in doc["renamed"]))
+
+
+def _frame_doc(f: Frame) -> dict:
+    truth = None if f.truth is None else {"ids": list(f.truth.ids), "states": _pack(f.truth.states)}
+    return {"frame": f.frame, "stamp_ns": f.stamp_ns, "sensor": f.sensor, "kind": f.kind, "z": _pack(f.z),
+            "truth": truth, "pose": None if f.pose is None else list(f.pose), "R": None if f.R is None else _pack(f.R)}
+
+
+def _frame_of(d: dict) -> Frame:
+    truth = None if d["truth"] is None else Truth(tuple(d["truth"]["ids"]), _unpack(d["truth"]["states"]))
+    return Frame(d["frame"], d["stamp_ns"], d["sensor"], d["kind"], _unpack(d["z"]), truth,
+                 None if d["pose"] is None else tuple(d["pose"]), None if d["R"] is None else _unpack(d["R"]))
+
+
+def _estimate_doc(e: Estimate) -> dict:
+    tracks = [[t.label, _pack(t.state), _pack(t.covariance), float(t.existence), t.cluster] for t in e.tracks]
+    return {"frame": e.frame, "stamp_ns": e.stamp_ns, "tracks": tracks, "assignments": list(e.assignments),
+            "assignment_prob": [float(p) for p in e.assignment_prob], "diagnostics": dict(e.diagnostics),
+            "pmf": None if e.cardinality_pmf is None else _pack(e.cardinality_pmf)}
+
+
+def _estimate_of(d: dict) -> Estimate:
+    tracks = tuple(TrackEstimate(lab, _unpack(x), _unpack(P), ex, cl) for lab, x, P, ex, cl in d["tracks"])
+    return Estimate(d["frame"], d["stamp_ns"], tracks, tuple(d["assignments"]), tuple(d["assignment_prob"]),
+                    dict(d["diagnostics"]), None if d["pmf"] is None else _unpack(d["pmf"]))
