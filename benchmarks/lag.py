@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 from accuracy import setup  # noqa: E402
 from bnptrack.sinks.crossings import crossing_label_keeping  # noqa: E402
 from bnptrack.sinks.metrics import ospa, ospa2_series  # noqa: E402
-from bnptrack.tracker.lag import FixedLag  # noqa: E402
+from bnptrack.tracker.lag import SWAP_MARGIN, FixedLag  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
 
 
@@ -55,8 +55,8 @@ def score(sc, frames, ests):
     return dict(ospa=float(np.mean(o)), ospa2=float(np.mean(o2)), card=float(np.mean(card)), kept=kept)
 
 
-def lagged(tracker_params, frames, online, lag, smooth):
-    layer = FixedLag(_Replay(online), tracker_params, lag, smooth=smooth)
+def lagged(tracker_params, frames, online, lag, smooth, margin):
+    layer = FixedLag(_Replay(online), tracker_params, lag, smooth=smooth, swap_margin=margin)
     state, out = layer.initial_state(), []
     t0 = time.process_time()
     for f in frames:
@@ -85,12 +85,12 @@ def one_seed(job):
                 pickle.dump((online, online_ms), fh)
     params = tracker.params if hasattr(tracker, "params") else None
     rows = {}
-    for lag, smooth in configs:
+    for lag, smooth, margin in configs:
         if lag == 0:
-            rows[(lag, smooth)] = dict(score(sc, frames, online), ms=online_ms)
+            rows[(lag, smooth, margin)] = dict(score(sc, frames, online), ms=online_ms)
         else:
-            ests, ms = lagged(params, frames, online, lag, smooth)
-            rows[(lag, smooth)] = dict(score(sc, frames, ests), ms=ms)
+            ests, ms = lagged(params, frames, online, lag, smooth, margin)
+            rows[(lag, smooth, margin)] = dict(score(sc, frames, ests), ms=ms)
     return rows
 
 
@@ -102,14 +102,18 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--lags", type=int, nargs="+", default=[0, 1, 3])
+    ap.add_argument("--swap-margins", nargs="+", default=[str(SWAP_MARGIN)],
+                    help="swap margins of the layer (tracker.lag.SWAP_MARGIN), 'none': no crossing resolution")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    configs = [(0, False)] + [(lag, s) for lag in args.lags if lag > 0 for s in (False, True)]
+    margins = [None if m == "none" else float(m) for m in args.swap_margins]
+    configs = [(0, False, None)] + [(lag, s, m) for lag in args.lags if lag > 0 for s in (False, True)
+                                    for m in margins]
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")
-    print("| tracker | lag | smoothing | OSPA | OSPA(2) | abs(N_hat-N) | crossings kept | ms/frame (online: tracker; lagged: layer) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| tracker | lag | smoothing | swap margin | OSPA | OSPA(2) | abs(N_hat-N) | crossings kept | ms/frame (online: tracker; lagged: layer) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     with ProcessPoolExecutor(args.workers) as pool:
         for tr in args.trackers:
             res = list(pool.map(one_seed, [(tr, args.params, args.scenario, s, args.overrides, configs) for s in seeds]))
@@ -118,7 +122,7 @@ def main() -> None:
                 kept = [k for r in rs for k in r["kept"]]
                 kept_txt = f"{sum(kept)}/{len(kept)}" if kept else "n/a"
                 m = {k: np.mean([r[k] for r in rs]) for k in ("ospa", "ospa2", "card", "ms")}
-                print(f"| {tr} | {c[0]} | {'RTS' if c[1] else '-'} | {m['ospa']:.2f} | {m['ospa2']:.2f} | "
+                print(f"| {tr} | {c[0]} | {'RTS' if c[1] else '-'} | {c[2]} | {m['ospa']:.2f} | {m['ospa2']:.2f} | "
                       f"{m['card']:.3f} | {kept_txt} | {m['ms']:.2f} |", flush=True)
 
 

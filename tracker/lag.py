@@ -36,6 +36,12 @@ from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth, frame_
 
 #: chi-square gate on a measurement's squared Mahalanobis distance (99.9 % for 2 dimensions).
 GATE_CHI2 = 13.8
+#: A crossing is resolved as a label swap when swapping the two tracks' measurements after it
+#: lowers the pair's summed squared innovations (each filtered on from its state at the oldest
+#: frame of the window) by more than this; ``None`` (the default): crossings are left as the
+#: tracker decided them (on ``random`` seeds 101-110 no margin kept more crossing pairs:
+#: docs/results.md, "Fixed-lag output").
+SWAP_MARGIN: float | None = None
 
 
 @dataclass(frozen=True)
@@ -47,6 +53,10 @@ class LagState:
     frames: tuple[Frame, ...] = ()
     online: tuple[Estimate, ...] = ()
     renamed: tuple[tuple[str, str], ...] = ()
+    """Continued tracks: a track's label -> the label it continues."""
+    swaps: tuple[tuple[int, str, str], ...] = ()
+    """Crossings resolved as label swaps: ``(frame, a, b)``, labels ``a`` and ``b`` exchanged
+    from ``frame`` on (in order)."""
 
 
 @dataclass(frozen=True)
@@ -71,16 +81,19 @@ class _Track:
     detected: np.ndarray
     existence: np.ndarray
     cluster: tuple
+    rows: tuple = ()
+    """The measurement row assigned to the label at each frame (``-1``: none)."""
 
 
 class FixedLag:
     """``tracker`` with its output delayed by ``lag`` scans and re-decided in hindsight."""
 
     def __init__(self, tracker: Any, params: ModelParams, lag: int, smooth: bool = True,
-                 gate: float = GATE_CHI2) -> None:
+                 gate: float = GATE_CHI2, swap_margin: float | None = SWAP_MARGIN) -> None:
         if int(lag) < 1:
             raise ValueError(f"FixedLag: lag must be >= 1 scans, got {lag!r}")
         self.tracker, self.params, self.lag, self.smooth, self.gate = tracker, params, int(lag), smooth, gate
+        self.swap_margin = swap_margin
         self.name = tracker.name
 
     def initial_state(self) -> LagState:
@@ -90,24 +103,23 @@ class FixedLag:
         inner, est = self.tracker.step(state.inner, frame, rng)
         frames, online = state.frames + (frame,), state.online + (est,)
         if len(frames) <= self.lag:
-            return LagState(inner, frames, online, state.renamed), LagStep(est, None)
-        lagged, renamed = self._publish(frames, online, dict(state.renamed))
-        return LagState(inner, frames[1:], online[1:], renamed), LagStep(est, lagged, frames[0])
+            return replace(state, inner=inner, frames=frames, online=online), LagStep(est, None)
+        lagged, renamed, swaps = self._publish(frames, online, dict(state.renamed), list(state.swaps))
+        return LagState(inner, frames[1:], online[1:], renamed, swaps), LagStep(est, lagged, frames[0])
 
     def flush(self, state: LagState) -> list[tuple[Frame, Estimate]]:
         """The frames still in the window at the end of the stream and their lagged
         estimates, oldest first."""
-        out, frames, online, renamed = [], state.frames, state.online, dict(state.renamed)
+        out, frames, online, renamed, swaps = [], state.frames, state.online, state.renamed, state.swaps
         while frames:
-            est, renamed_t = self._publish(frames, online, renamed)
-            renamed = dict(renamed_t)
+            est, renamed, swaps = self._publish(frames, online, dict(renamed), list(swaps))
             out.append((frames[0], est))
             frames, online = frames[1:], online[1:]
         return out
 
     # ------------------------------------------------------------------ publishing one frame
 
-    def _publish(self, frames, online, renamed: dict[str, str]) -> tuple[Estimate, tuple]:
+    def _publish(self, frames, online, renamed: dict[str, str], swaps: list) -> tuple[Estimate, tuple, tuple]:
         tracks = _records(online)
         used = [set() for _ in frames]
         for i, e in enumerate(online):
@@ -118,14 +130,19 @@ class FixedLag:
         for tr in tracks.values():
             if not tr.present[0] and tr.label not in renamed and ended:
                 self._continue(tr, ended, frames, renamed)
+        if self.swap_margin is not None:
+            swaps += self._crossings(tracks, frames, renamed, swaps)
+        perm = _permutation(swaps, frames[0].frame)
         final: dict[str, str] = {}
         for te in self._existing(tracks, frames):
-            final[te.label] = renamed.get(te.label, te.label)
+            label = renamed.get(te.label, te.label)
+            final[te.label] = perm.get(label, label)
             out.append(replace(te, label=final[te.label]))
         for tr in tracks.values():
             te = None if tr.present[0] else self._backfilled(tr, frames, used, assign)
             if te is not None:  # a continued label still in use here: the track's own label
                 label = renamed.get(tr.label, tr.label)
+                label = perm.get(label, label)
                 final[tr.label] = tr.label if label in final.values() else label
                 out.append(replace(te, label=final[tr.label]))
         est = online[0]
@@ -134,7 +151,7 @@ class FixedLag:
         diag = dict(est.diagnostics, lag=float(self.lag))
         lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob, diag,
                           est.cardinality_pmf)
-        return lagged, tuple(sorted(renamed.items()))
+        return lagged, tuple(sorted(renamed.items())), tuple(swaps)
 
     def _existing(self, tracks: dict, frames) -> list[TrackEstimate]:
         """The tracks present at the published frame, but those dead by the newest frame and
@@ -228,6 +245,52 @@ class FixedLag:
         P = P - K @ S @ K.T
         return x, 0.5 * (P + P.T), m
 
+    def _crossings(self, tracks: dict, frames, renamed: dict[str, str], swaps: list) -> list:
+        """Pairs of tracks within the gate of each other at window frame 1 whose states at
+        frame 0, predicted to the newest frame, fit each other's newest states better than their
+        own (by more than ``swap_margin``): a swap ``(frame 1, a, b)`` of their labels."""
+        W = len(frames)
+        both = [t for t in tracks.values() if t.present.all()]
+        if W < 3 or len(both) < 2:
+            return []
+        pos = np.stack([t.x[1][[0, 2]] for t in both])
+        done = {(a, b) for f, a, b in swaps if f > frames[0].frame - W} | {(b, a) for f, a, b in swaps
+                                                                          if f > frames[0].frame - W}
+        found = []
+        for i, j in zip(*np.triu_indices(len(both), 1)):
+            A, B = both[i], both[j]
+            d = pos[i] - pos[j]
+            S = A.P[1][np.ix_([0, 2], [0, 2])] + B.P[1][np.ix_([0, 2], [0, 2])]
+            ka, kb = renamed.get(A.label, A.label), renamed.get(B.label, B.label)
+            if (ka, kb) in done or not d @ np.linalg.solve(S, d) < self.gate:
+                continue
+            keep = self._nis(A, A, frames) + self._nis(B, B, frames)
+            swap = self._nis(A, B, frames) + self._nis(B, A, frames)
+            if keep - swap > self.swap_margin:
+                found.append((frames[1].frame, ka, kb))
+                done |= {(ka, kb), (kb, ka)}
+        return found
+
+    def _nis(self, start: _Track, meas: _Track, frames) -> float:
+        """Sum of squared innovations (Mahalanobis) of ``meas``'s measurements at window frames
+        1 .. W-1 under an extended Kalman filter started from ``start``'s state at frame 0."""
+        x, P, total = start.x[0], start.P[0], 0.0
+        for i in range(1, len(frames)):
+            m, Q = self._motion(self._dt(frames[i - 1], frames[i]))
+            J = m.jacobian(x[None])[0]
+            x, P = m.f(x[None])[0], J @ P @ J.T + Q
+            if meas.rows[i] < 0:
+                continue
+            f = frames[i]
+            model = self.params.measurement(f.kind, self.params.frame_sensor(f))
+            H = model.jacobian(x[None])[0]
+            S = H @ P @ H.T + model.R
+            r = model.residual(f.z[meas.rows[i]][None], model.h(x[None]))[0]
+            total += float(r @ np.linalg.solve(S, r))
+            K = np.linalg.solve(S, H @ P).T
+            x, P = x + K @ r, P - K @ S @ K.T
+        return total
+
     def _continue(self, tr: _Track, ended: list[_Track], frames, renamed: dict[str, str]) -> None:
         """Give newborn ``tr`` the label of an ended track whose last state its back-followed
         state meets inside the gate (first such track)."""
@@ -278,6 +341,15 @@ def run_lagged(layer: FixedLag, frames: Iterable[Frame], seed: int,
         raise error
 
 
+def _permutation(swaps, frame: int) -> dict[str, str]:
+    """The label map in effect at ``frame``: the swaps from frames up to it, in order."""
+    perm: dict[str, str] = {}
+    for f, a, b in swaps:
+        if f <= frame:
+            perm[a], perm[b] = perm.get(b, b), perm.get(a, a)
+    return perm
+
+
 def _run_from(present: np.ndarray, i: int) -> int:
     """End (exclusive) of the run of presence starting at ``i``."""
     j = i
@@ -302,7 +374,8 @@ def _records(online) -> dict[str, _Track]:
         P = np.stack([(t or first).covariance for t in row])
         ex = np.array([0.0 if t is None else t.existence for t in row])
         cl = tuple(None if t is None else t.cluster for t in row)
-        out[lab] = _Track(lab, present, x, P, np.array([lab in d for d in detected]), ex, cl)
+        rows = tuple(e.assignments.index(lab) if lab in d else -1 for e, d in zip(online, detected))
+        out[lab] = _Track(lab, present, x, P, np.array([lab in d for d in detected]), ex, cl, rows)
     return out
 
 
@@ -313,7 +386,8 @@ def snapshot_lag(state: LagState) -> bytes:
     """Serialise a :class:`LagState` exactly: the tracker's state (:func:`tracker.state.snapshot`),
     the window's frames (with truth) and online estimates, and the continued labels."""
     doc = {"v": SNAPSHOT_VERSION, "inner": snapshot(state.inner), "frames": [_frame_doc(f) for f in state.frames],
-           "online": [_estimate_doc(e) for e in state.online], "renamed": [list(p) for p in state.renamed]}
+           "online": [_estimate_doc(e) for e in state.online], "renamed": [list(p) for p in state.renamed],
+           "swaps": [list(p) for p in state.swaps]}
     return msgspec.msgpack.encode(doc)
 
 
@@ -323,7 +397,8 @@ def restore_lag(data: bytes, inner_cls: type) -> LagState:
     if not isinstance(doc, dict) or doc.get("v") != SNAPSHOT_VERSION or "inner" not in doc:
         raise ValueError("not a fixed-lag snapshot (expected a document with the tracker state and its window)")
     return LagState(restore(doc["inner"], inner_cls), tuple(_frame_of(d) for d in doc["frames"]),
-                    tuple(_estimate_of(d) for d in doc["online"]), tuple(tuple(p) for p in doc["renamed"]))
+                    tuple(_estimate_of(d) for d in doc["online"]), tuple(tuple(p) for p in doc["renamed"]),
+                    tuple(tuple(p) for p in doc["swaps"]))
 
 
 def _frame_doc(f: Frame) -> dict:
