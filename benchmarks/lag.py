@@ -67,11 +67,13 @@ def lagged(tracker_params, frames, online, lag, smooth, margin):
     return out, (time.process_time() - t0) * 1e3 / len(frames)
 
 
-def one_seed(job):
-    tracker_name, params_name, scenario, seed, overrides, configs = job
+def online_run(tracker_name, params_name, scenario, seed, overrides):
+    """The scene, tracker, frames, online estimates and tracker ms per frame of one seed (kept
+    in the folder ``$LAG_CACHE`` when set, so another lag or a calibration table reuses them)."""
     sc, tracker, frames = setup(tracker_name, params_name, scenario, seed, overrides)
     cache = os.environ.get("LAG_CACHE")
-    path = cache and os.path.join(cache, f"{tracker_name}-{scenario}-{seed}-{abs(hash(tuple(overrides)))}.pkl")
+    key = "_".join(overrides).replace("/", "-").replace(" ", "")
+    path = cache and os.path.join(cache, f"{tracker_name}-{params_name}-{scenario}-{seed}-{key}.pkl")
     if path and os.path.exists(path):
         with open(path, "rb") as fh:
             online, online_ms = pickle.load(fh)
@@ -83,6 +85,12 @@ def one_seed(job):
         if path:
             with open(path, "wb") as fh:
                 pickle.dump((online, online_ms), fh)
+    return sc, tracker, frames, online, online_ms
+
+
+def one_seed(job):
+    tracker_name, params_name, scenario, seed, overrides, configs = job
+    sc, tracker, frames, online, online_ms = online_run(tracker_name, params_name, scenario, seed, overrides)
     params = tracker.params if hasattr(tracker, "params") else None
     rows = {}
     for lag, smooth, margin in configs:
