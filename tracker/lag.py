@@ -246,9 +246,10 @@ class FixedLag:
         return x, 0.5 * (P + P.T), m
 
     def _crossings(self, tracks: dict, frames, renamed: dict[str, str], swaps: list) -> list:
-        """Pairs of tracks within the gate of each other at window frame 1 whose states at
-        frame 0, predicted to the newest frame, fit each other's newest states better than their
-        own (by more than ``swap_margin``): a swap ``(frame 1, a, b)`` of their labels."""
+        """Pairs of tracks within the gate of each other at window frame 1 (their closest
+        approach) whose measurements after it fit each other's earlier states better than their
+        own (summed squared innovations lower by more than ``swap_margin``): a swap
+        ``(frame 2, a, b)`` of their labels."""
         W = len(frames)
         both = [t for t in tracks.values() if t.present.all()]
         if W < 3 or len(both) < 2:
@@ -267,18 +268,20 @@ class FixedLag:
             keep = self._nis(A, A, frames) + self._nis(B, B, frames)
             swap = self._nis(A, B, frames) + self._nis(B, A, frames)
             if keep - swap > self.swap_margin:
-                found.append((frames[1].frame, ka, kb))
+                found.append((frames[2].frame, ka, kb))
                 done |= {(ka, kb), (kb, ka)}
         return found
 
-    def _nis(self, start: _Track, meas: _Track, frames) -> float:
-        """Sum of squared innovations (Mahalanobis) of ``meas``'s measurements at window frames
-        1 .. W-1 under an extended Kalman filter started from ``start``'s state at frame 0."""
+    def _nis(self, start: _Track, after: _Track, frames) -> float:
+        """Sum of squared innovations (Mahalanobis) under an extended Kalman filter started from
+        ``start``'s state at window frame 0 of ``start``'s measurement at frame 1 (the closest
+        approach) and ``after``'s at frames 2 .. W-1."""
         x, P, total = start.x[0], start.P[0], 0.0
         for i in range(1, len(frames)):
             m, Q = self._motion(self._dt(frames[i - 1], frames[i]))
             J = m.jacobian(x[None])[0]
             x, P = m.f(x[None])[0], J @ P @ J.T + Q
+            meas = start if i == 1 else after
             if meas.rows[i] < 0:
                 continue
             f = frames[i]

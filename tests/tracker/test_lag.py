@@ -149,3 +149,22 @@ def test_the_window_is_published_when_the_source_fails():
 def test_lag_must_be_positive():
     with pytest.raises(ValueError, match="lag must be >= 1"):
         FixedLag(Scripted({}), PARAMS, 0)
+
+
+def test_a_swapped_crossing_is_undone_when_crossing_resolution_is_on():
+    # objects 1 (east at 10 m/s) and 2 (west at 10 m/s) pass within 3 m of each other at x = 130 at frame 3; the tracker
+    # swaps labels there: "p" follows object 1 up to frame 3, then object 2
+    def obj(k, which):
+        return [100.0 + 10 * k, 10.0, 50.0, 0.0, 0.0] if which == 1 else [160.0 - 10 * k, -10.0, 53.0, 0.0, 0.0]
+
+    frames = [_xy(k, [obj(k, 1)[0:3:2], obj(k, 2)[0:3:2]]) for k in range(8)]
+    script = {k: [("p", obj(k, 1 if k <= 3 else 2), 0 if k <= 3 else 1),
+                  ("q", obj(k, 2 if k <= 3 else 1), 1 if k <= 3 else 0)] for k in range(8)}
+
+    def labels_of_object_1(margin):
+        layer = FixedLag(Scripted(script), PARAMS, 3, smooth=False, swap_margin=margin)
+        out = {f.frame: e for f, e, _ in run_lagged(layer, frames, seed=0)}
+        return [next(t.label for t in out[k].tracks if np.allclose(t.position, obj(k, 1)[0:3:2])) for k in range(8)]
+
+    assert labels_of_object_1(None) == ["p"] * 4 + ["q"] * 4   # as the tracker decided
+    assert labels_of_object_1(4.0) == ["p"] * 8                  # resolved by the scans after it
