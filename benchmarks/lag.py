@@ -116,7 +116,7 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    margins = [None if m == "none" else float(m) for m in args.swap_margins]
+    margins = [None if m.lower() == "none" else float(m) for m in args.swap_margins]
     configs = [(0, False, None)] + [(lag, s, m) for lag in args.lags if lag > 0 for s in (False, True)
                                     for m in margins]
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")
@@ -130,7 +130,7 @@ def main() -> None:
                 kept = [k for r in rs for k in r["kept"]]
                 kept_txt = f"{sum(kept)}/{len(kept)}" if kept else "n/a"
                 m = {k: np.mean([r[k] for r in rs]) for k in ("ospa", "ospa2", "card", "ms")}
-                print(f"| {tr} | {c[0]} | {'RTS' if c[1] else '-'} | {c[2]} | {m['ospa']:.2f} | {m['ospa2']:.2f} | "
+                print(f"| {tr} | {c[0]} | {'RTS' if c[1] else '-'} | {'none' if c[2] is None else c[2]} | {m['ospa']:.2f} | {m['ospa2']:.2f} | "
                       f"{m['card']:.3f} | {kept_txt} | {m['ms']:.2f} |", flush=True)
 
 
