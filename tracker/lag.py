@@ -94,6 +94,7 @@ class FixedLag:
             raise ValueError(f"FixedLag: lag must be >= 1 scans, got {lag!r}")
         self.tracker, self.params, self.lag, self.smooth, self.gate = tracker, params, int(lag), smooth, gate
         self.swap_margin = swap_margin
+        self._motions: dict[float, tuple] = {}
         self.name = tracker.name
 
     def initial_state(self) -> LagState:
@@ -192,11 +193,10 @@ class FixedLag:
 
     def _motion(self, dt: float):
         """The motion model over ``dt`` and its process noise (kept per ``dt``)."""
-        cache = self.__dict__.setdefault("_motions", {})
-        if dt not in cache:
+        if dt not in self._motions:
             m = self.params.motion(dt)
-            cache[dt] = (m, m.Q if dt > 0 else None)
-        return cache[dt]
+            self._motions[dt] = (m, m.Q if dt >= 0 else None)
+        return self._motions[dt]
 
     def _backfilled(self, tr: _Track, frames, used, assign) -> TrackEstimate | None:
         """A track first reported later in the window, followed back to the published frame
@@ -313,12 +313,9 @@ class FixedLag:
                 renamed[tr.label] = label
                 return
 
-    @staticmethod
-    def _dt_static(params: ModelParams, a: Frame, b: Frame) -> float:
-        return frame_dt(a.frame, a.stamp_ns, b.frame, b.stamp_ns, params.T)
-
     def _dt(self, a: Frame, b: Frame) -> float:
-        return self._dt_static(self.params, a, b)
+        """Seconds from frame ``a`` to frame ``b`` (:func:`tracker.types.frame_dt`)."""
+        return frame_dt(a.frame, a.stamp_ns, b.frame, b.stamp_ns, self.params.T)
 
 
 def run_lagged(layer: FixedLag, frames: Iterable[Frame], seed: int,
