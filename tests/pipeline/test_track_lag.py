@@ -57,3 +57,25 @@ def test_cli_track_lag_writes_lagged_tracks(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--lag", "-1", "-q"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--lag" in bad.stderr
+
+
+def test_a_lagged_ddp_run_resumed_from_a_snapshot_publishes_the_same():
+    from bnptrack.tracker.lag import restore_lag, snapshot_lag
+    from bnptrack.tracker.state import tracker_frame_rng
+
+    frames = bnptrack.simulate("vo2017", seed=6)[:24]
+    tracker = bnptrack.make_tracker("ddp")
+    layer = FixedLag(tracker, tracker.params, 3)
+    whole = [e for _f, e, _s in run_lagged(layer, frames, 5)]
+    state, resumed = layer.initial_state(), []
+    for i, f in enumerate(frames):
+        if i == 12:  # a crash after frame 11: restart from the snapshot
+            state = restore_lag(snapshot_lag(state), type(tracker.initial_state()))
+        state, out = layer.step(state, f, tracker_frame_rng(5, f.frame))
+        resumed += [] if out.lagged is None else [out.lagged]
+    resumed += [e for _f, e in layer.flush(state)]
+    assert len(resumed) == len(whole) == 24
+    for a, b in zip(whole, resumed):
+        assert a.labels == b.labels and a.assignments == b.assignments
+        for ta, tb in zip(a.tracks, b.tracks):
+            assert np.array_equal(ta.state, tb.state) and np.array_equal(ta.covariance, tb.covariance)
