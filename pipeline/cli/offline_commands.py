@@ -300,7 +300,7 @@ def track(
     for w in res.warnings:
         click.echo(f"warning: {w}", err=True)
     if not quiet:
-        echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
+        echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
     if res.error is not None:
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
 
@@ -388,9 +388,11 @@ def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> t
 
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
-                rrd: Path | None) -> list[tuple[str, str]]:
+                rrd: Path | None, lag: int = 0) -> list[tuple[str, str]]:
     """The summary rows of ``track``: scores (with truth), tracks, time, files."""
     rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
+    if lag:
+        rows.append(("lag", f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"))
     if res.has_truth:
         rows.append(
             ("mean OSPA", f"{fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
