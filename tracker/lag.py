@@ -121,6 +121,10 @@ class FixedLag:
     # ------------------------------------------------------------------ publishing one frame
 
     def _publish(self, frames, online, renamed: dict[str, str], swaps: list) -> tuple[Estimate, tuple, tuple]:
+        """The lagged estimate of the window's oldest frame, and the continued labels and
+        swaps to keep.  Its assignments are the online ones under the published labels (plus a
+        new track's first detections); it has no cardinality distribution (the online one
+        counts the online tracks)."""
         tracks = _records(online)
         used = [set() for _ in frames]
         for i, e in enumerate(online):
@@ -150,8 +154,7 @@ class FixedLag:
         assign = [None if a is None else final.get(a, a) for a in assign]
         renamed = {k: v for k, v in renamed.items() if k in tracks}
         diag = dict(est.diagnostics, lag=float(self.lag))
-        lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob, diag,
-                          est.cardinality_pmf)
+        lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob, diag)
         return lagged, tuple(sorted(renamed.items())), tuple(swaps)
 
     def _existing(self, tracks: dict, frames) -> list[TrackEstimate]:
