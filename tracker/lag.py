@@ -38,10 +38,11 @@ from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth, frame_
 GATE_CHI2 = 13.8
 #: A crossing is resolved as a label swap when swapping the two tracks' measurements after it
 #: lowers the pair's summed squared innovations (each filtered on from its state at the oldest
-#: frame of the window) by more than this; ``None`` (the default): crossings are left as the
-#: tracker decided them (on ``random`` seeds 101-110 no margin kept more crossing pairs:
-#: docs/results.md, "Fixed-lag output").
-SWAP_MARGIN: float | None = None
+#: frame of the window) by more than this; ``None``: crossings are left as the tracker decided
+#: them.  0 was chosen on ``random`` seeds 101-110 (crossing pairs kept with ``--lag 3``: 25/30
+#: against 21/30 without; margins 1, 2, 4, 9 kept 21-22: docs/results.md, "Fixed-lag output").
+#: It needs a window of at least 3 frames (``lag >= 2``).
+SWAP_MARGIN: float | None = 0.0
 
 
 @dataclass(frozen=True)
@@ -258,27 +259,29 @@ class FixedLag:
         if W < 3 or len(both) < 2:
             return []
         pos = np.stack([t.x[1][[0, 2]] for t in both])
-        done = {(a, b) for f, a, b in swaps if f > frames[0].frame - W} | {(b, a) for f, a, b in swaps
-                                                                          if f > frames[0].frame - W}
-        found = []
-        for i, j in zip(*np.triu_indices(len(both), 1)):
+        Pp = np.stack([t.P[1][np.ix_([0, 2], [0, 2])] for t in both])
+        D = pos[:, None] - pos[None]
+        d2 = np.einsum("abi,abij,abj->ab", D, np.linalg.inv(Pp[:, None] + Pp[None]), D)
+        recent = [(a, b) for f, a, b in swaps if f > frames[0].frame - W]
+        done = set(recent) | {(b, a) for a, b in recent}
+        found, models = [], [None] * W
+        for i, j in zip(*np.nonzero(np.triu(d2 < self.gate, 1))):
             A, B = both[i], both[j]
-            d = pos[i] - pos[j]
-            S = A.P[1][np.ix_([0, 2], [0, 2])] + B.P[1][np.ix_([0, 2], [0, 2])]
             ka, kb = renamed.get(A.label, A.label), renamed.get(B.label, B.label)
-            if (ka, kb) in done or not d @ np.linalg.solve(S, d) < self.gate:
+            if (ka, kb) in done:
                 continue
-            keep = self._nis(A, A, frames) + self._nis(B, B, frames)
-            swap = self._nis(A, B, frames) + self._nis(B, A, frames)
+            keep = self._nis(A, A, frames, models) + self._nis(B, B, frames, models)
+            swap = self._nis(A, B, frames, models) + self._nis(B, A, frames, models)
             if keep - swap > self.swap_margin:
                 found.append((frames[2].frame, ka, kb))
                 done |= {(ka, kb), (kb, ka)}
         return found
 
-    def _nis(self, start: _Track, after: _Track, frames) -> float:
+    def _nis(self, start: _Track, after: _Track, frames, models: list) -> float:
         """Sum of squared innovations (Mahalanobis) under an extended Kalman filter started from
         ``start``'s state at window frame 0 of ``start``'s measurement at frame 1 (the closest
-        approach) and ``after``'s at frames 2 .. W-1."""
+        approach) and ``after``'s at frames 2 .. W-1 (``models``: each frame's measurement model,
+        filled as needed)."""
         x, P, total = start.x[0], start.P[0], 0.0
         for i in range(1, len(frames)):
             m, Q = self._motion(self._dt(frames[i - 1], frames[i]))
@@ -288,7 +291,9 @@ class FixedLag:
             if meas.rows[i] < 0:
                 continue
             f = frames[i]
-            model = self.params.measurement(f.kind, self.params.frame_sensor(f))
+            if models[i] is None:
+                models[i] = self.params.measurement(f.kind, self.params.frame_sensor(f))
+            model = models[i]
             H = model.jacobian(x[None])[0]
             S = H @ P @ H.T + model.R
             r = model.residual(f.z[meas.rows[i]][None], model.h(x[None]))[0]
