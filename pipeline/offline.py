@@ -402,8 +402,11 @@ def track_to_sinks(
     too); the outputs then hold that prefix and :attr:`TrackResult.error` holds the error.
     """
 
+    online: dict[int, Estimate] = {}
+
     def write(frame: Frame, est: Estimate, metrics: FrameMetrics) -> None:
-        sinks.write(SinkRecord(frame, est, {"ospa": metrics.ospa_result, "ospa2": metrics.ospa2}))
+        sinks.write(SinkRecord(frame, est, {"ospa": metrics.ospa_result, "ospa2": metrics.ospa2},
+                               online=online.pop(frame.frame, None)))
 
     with sinks:
         sinks.open(metadata)
@@ -411,7 +414,8 @@ def track_to_sinks(
         frames = iter_frames(Path(log), dict(topic_map or {}))
         if window is not None:
             frames = window.cut(frames)
-        return track_frames(tracker, frames, seed, write, crossings, bounds, lag)
+        return track_frames(tracker, frames, seed, write, crossings, bounds, lag,
+                            lambda frame, est: online.__setitem__(frame.frame, est))
 
 
 def track_log(

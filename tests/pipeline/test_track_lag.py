@@ -3,11 +3,13 @@ tracker.lag recorded and scored in place of the online one, which stays availabl
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 import bnptrack
 from bnptrack.tracker.lag import FixedLag, run_lagged
@@ -54,6 +56,17 @@ def test_cli_track_lag_writes_lagged_tracks(tmp_path):
     assert len(written) == 100 and all(e.diagnostics["lag"] == 3.0 for e in written)
     for a, b in zip(api.estimates, written):
         assert a.labels == b.labels
+    # the online estimates beside them, frame for frame
+    with open(out, "rb") as fh:
+        online = [json.loads(m.data) for _s, _c, m in make_reader(fh).iter_messages(topics=["/tracks_online"])]
+    assert [m["frame"] for m in online] == [e.frame for e in api.online]
+    assert [[t["label"] for t in m["tracks"]] for m in online] == [list(e.labels) for e in api.online]
+    assert any(m["tracks"] != [] for m in online) and all("lag" not in m.get("diagnostics", {}) for m in online)
+    plain = tmp_path / "plain.mcap"
+    subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--tracker", "ddp-mb", "--seed", "2",
+                    "--out", str(plain), "-q"], check=True, capture_output=True)
+    with open(plain, "rb") as fh:
+        assert "/tracks_online" not in {c.topic for c in make_reader(fh).get_summary().channels.values()}
     bad = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--lag", "-1", "-q"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--lag" in bad.stderr
