@@ -270,36 +270,41 @@ class FixedLag:
             ka, kb = renamed.get(A.label, A.label), renamed.get(B.label, B.label)
             if (ka, kb) in done:
                 continue
-            keep = self._nis(A, A, frames, models) + self._nis(B, B, frames, models)
-            swap = self._nis(A, B, frames, models) + self._nis(B, A, frames, models)
+            nis = self._nis((A, B, A, B), (A, B, B, A), frames, models)
+            keep, swap = nis[0] + nis[1], nis[2] + nis[3]
             if keep - swap > self.swap_margin:
                 found.append((frames[2].frame, ka, kb))
                 done |= {(ka, kb), (kb, ka)}
         return found
 
-    def _nis(self, start: _Track, after: _Track, frames, models: list) -> float:
-        """Sum of squared innovations (Mahalanobis) under an extended Kalman filter started from
-        ``start``'s state at window frame 0 of ``start``'s measurement at frame 1 (the closest
-        approach) and ``after``'s at frames 2 .. W-1 (``models``: each frame's measurement model,
-        filled as needed)."""
-        x, P, total = start.x[0], start.P[0], 0.0
+    def _nis(self, starts: tuple, afters: tuple, frames, models: list) -> np.ndarray:
+        """For each hypothesis ``h``: the sum of squared innovations (Mahalanobis) under an
+        extended Kalman filter started from ``starts[h]``'s state at window frame 0, of
+        ``starts[h]``'s measurement at frame 1 (the closest approach) and ``afters[h]``'s at
+        frames 2 .. W-1 (``models``: each frame's measurement model, filled as needed)."""
+        x = np.stack([t.x[0] for t in starts])
+        P = np.stack([t.P[0] for t in starts])
+        total = np.zeros(len(starts))
         for i in range(1, len(frames)):
             m, Q = self._motion(self._dt(frames[i - 1], frames[i]))
-            J = m.jacobian(x[None])[0]
-            x, P = m.f(x[None])[0], J @ P @ J.T + Q
-            meas = start if i == 1 else after
-            if meas.rows[i] < 0:
+            J = m.jacobian(x)
+            x, P = m.f(x), J @ P @ J.transpose(0, 2, 1) + Q
+            rows = np.array([(s if i == 1 else a).rows[i] for s, a in zip(starts, afters)])
+            on = rows >= 0
+            if not on.any():
                 continue
             f = frames[i]
             if models[i] is None:
                 models[i] = self.params.measurement(f.kind, self.params.frame_sensor(f))
             model = models[i]
-            H = model.jacobian(x[None])[0]
-            S = H @ P @ H.T + model.R
-            r = model.residual(f.z[meas.rows[i]][None], model.h(x[None]))[0]
-            total += float(r @ np.linalg.solve(S, r))
-            K = np.linalg.solve(S, H @ P).T
-            x, P = x + K @ r, P - K @ S @ K.T
+            xo, Po = x[on], P[on]
+            H = model.jacobian(xo)
+            S = H @ Po @ H.transpose(0, 2, 1) + model.R
+            r = model.residual(f.z[rows[on]], model.h(xo))
+            total[on] += np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
+            K = np.linalg.solve(S, H @ Po).transpose(0, 2, 1)
+            x[on] = xo + np.einsum("nij,nj->ni", K, r)
+            P[on] = Po - K @ S @ K.transpose(0, 2, 1)
         return total
 
     def _continue(self, tr: _Track, ended: list[_Track], frames, renamed: dict[str, str]) -> None:
