@@ -82,6 +82,8 @@ class TrackRun:
 
     estimates: list[Estimate] = field(repr=False)
     result: TrackResult = field(repr=False)
+    online: list[Estimate] = field(default_factory=list, repr=False)
+    """With ``lag`` > 0: the online estimates the lagged ones were re-decided from (else empty)."""
 
     @property
     def mean_ospa(self) -> float | None:
@@ -101,7 +103,7 @@ class TrackRun:
 def track(
     frames: PathLike | Iterable[Frame], tracker: str = "ddp", *, params: str | ModelParams | None = None,
     overrides: Sequence[str] = (), config: str | None = None, seed: int = 0, scenario: str | None = None,
-    topics: Sequence[str] = (),
+    topics: Sequence[str] = (), lag: int = 0,
 ) -> TrackRun:
     """Run tracker ``tracker`` over ``frames`` (a list of :class:`Frame` or an MCAP log's path)
     with tracker seed ``seed``, scoring each frame that carries truth.
@@ -112,7 +114,11 @@ def track(
     ``topics`` (for a log) are ``--topic`` items: ``["/radar/scan"]`` reads a ROS 2 / Foxglove
     channel (several: several sensors), ``["/radar/detections=/measurements"]`` maps a
     bnptrack JSON channel.
+    ``lag`` > 0 gives the fixed-lag output (as ``bnptrack track --lag``; docs/trackers.md,
+    "Fixed-lag output"), with the online estimates in :attr:`TrackRun.online`.
     """
+    if not isinstance(lag, int) or lag < 0:
+        raise ConfigError(f"track(lag={lag!r}): lag must be an integer >= 0 (scans)")
     is_log = isinstance(frames, (str, os.PathLike))
     if is_log and scenario:
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
@@ -126,10 +132,12 @@ def track(
         raise ConfigError("track(frames, topics=...): topics choose the channels of a log; frames have none")
     source = iter_frames(Path(frames), _topic_map(Path(frames), topics)) if is_log else frames
     estimates: list[Estimate] = []
-    result = track_frames(setup.tracker, source, seed, lambda _f, est, _m: estimates.append(est))
+    online: list[Estimate] = []
+    result = track_frames(setup.tracker, source, seed, lambda _f, est, _m: estimates.append(est), lag=lag,
+                          on_online=lambda _f, est: online.append(est))
     if result.error is not None:
         raise result.error
-    return TrackRun(estimates, result)
+    return TrackRun(estimates, result, online)
 
 
 def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:

@@ -32,6 +32,7 @@ from bnptrack.sources.scenarios import OpenScenario, parse_crossings
 from bnptrack.sources.synthetic import simulate, simulate_sensors
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.lag import FixedLag, run_lagged
 from bnptrack.tracker.state import run
 from bnptrack.tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
 
@@ -208,8 +209,14 @@ def track_frames(
     on_estimate: Callable[[Frame, Estimate, FrameMetrics], None] | None = None,
     crossings: Sequence[tuple[str, str, int]] = (),
     bounds: FrameBounds | None = None,
+    lag: int = 0,
+    on_online: Callable[[Frame, Estimate], None] | None = None,
 ) -> TrackResult:
     """Run ``tracker`` over ``frames`` (``tracker.state.run``), scoring every frame.
+
+    With ``lag`` > 0 the estimates scored and passed on are the fixed-lag output
+    (:mod:`tracker.lag`: frame ``k - lag`` published when frame ``k`` arrives, the last
+    ``lag`` frames at the end), and ``on_online(frame, estimate)`` sees each online estimate.
 
     ``on_estimate(frame, estimate, metrics)`` is called after each frame is scored (e.g. to
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
@@ -227,7 +234,8 @@ def track_frames(
     health = RunHealth(getattr(tracker, "params", None))
     scorer = RunScorer()
     try:
-        for frame, est, _state in run(tracker, bounded_frames(frames, bounds or FrameBounds()), seed):
+        for frame, est, _state in _estimates(tracker, bounded_frames(frames, bounds or FrameBounds()), seed,
+                                             lag, on_online):
             health.add(frame)
             row = frame_metrics(frame, est, scorer=scorer)
             if on_estimate is not None:
@@ -240,6 +248,14 @@ def track_frames(
         error = exc
     return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings),
                        health.warnings(final))
+
+
+def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,
+               on_online: Callable[[Frame, Estimate], None] | None):
+    """The online run (``lag`` 0) or the fixed-lag run of ``tracker`` over ``frames``."""
+    if lag <= 0:
+        return run(tracker, frames, seed)
+    return run_lagged(FixedLag(tracker, tracker.params, lag), frames, seed, on_online)
 
 
 #: A sensor's measurements are "mostly" outside its field of view above this fraction.
@@ -372,8 +388,10 @@ def track_to_sinks(
     bounds: FrameBounds | None = None,
     topic_map: Mapping[str, str] | None = None,
     window: FrameWindow | None = None,
+    lag: int = 0,
 ) -> TrackResult:
-    """Track the frames of an MCAP log (those of ``window``; default: all) and record each frame,
+    """Track the frames of an MCAP log (those of ``window``; default: all; with ``lag`` > 0
+    the fixed-lag output of :mod:`tracker.lag`) and record each frame,
     its estimate and its scores (:class:`sinks.metrics.RunScorer`, as :attr:`TrackResult.frames`
     holds them) to ``sinks``,
     opened with ``metadata`` and closed here (the files are complete when this returns).
@@ -384,8 +402,11 @@ def track_to_sinks(
     too); the outputs then hold that prefix and :attr:`TrackResult.error` holds the error.
     """
 
+    online: dict[int, Estimate] = {}
+
     def write(frame: Frame, est: Estimate, metrics: FrameMetrics) -> None:
-        sinks.write(SinkRecord(frame, est, {"ospa": metrics.ospa_result, "ospa2": metrics.ospa2}))
+        sinks.write(SinkRecord(frame, est, {"ospa": metrics.ospa_result, "ospa2": metrics.ospa2},
+                               online=online.pop(frame.frame, None)))
 
     with sinks:
         sinks.open(metadata)
@@ -393,7 +414,8 @@ def track_to_sinks(
         frames = iter_frames(Path(log), dict(topic_map or {}))
         if window is not None:
             frames = window.cut(frames)
-        return track_frames(tracker, frames, seed, write, crossings, bounds)
+        return track_frames(tracker, frames, seed, write, crossings, bounds, lag,
+                            lambda frame, est: online.__setitem__(frame.frame, est))
 
 
 def track_log(

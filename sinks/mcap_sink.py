@@ -1,6 +1,7 @@
 """The MCAP log as a :class:`sinks.sink.Sink` (the ``mcap`` entry of :data:`sinks.sink.SINKS`):
 :class:`McapSink` writes ``/measurements``, ``/truth`` and ``/tracks`` of each record, as the
-pipeline's sink stage and ``bnptrack track`` write them."""
+pipeline's sink stage and ``bnptrack track`` write them (and, for a lagged run, the online
+estimates to ``/tracks_online``)."""
 
 from __future__ import annotations
 
@@ -44,6 +45,8 @@ class McapSink:
             w.write_frame(record.frame)
         if record.estimate is not None:
             w.write_tracks(record.estimate)
+        if record.online is not None:
+            w.write_online_tracks(record.online)
 
     def close(self) -> None:
         if self.writer is not None:

@@ -31,12 +31,16 @@ from bnptrack.tracker.messages import (
 )
 from bnptrack.tracker.types import Estimate, Frame
 
-__all__ = ["DEFAULT_CHUNK_SIZE", "DEFAULT_FLUSH_EVERY", "McapLogWriter"]
+__all__ = ["DEFAULT_CHUNK_SIZE", "DEFAULT_FLUSH_EVERY", "McapLogWriter", "TOPIC_TRACKS_ONLINE"]
 
 #: Chunk size used by :class:`McapLogWriter` (small, so a cut file loses little).
 DEFAULT_CHUNK_SIZE = 4 * 1024
 #: Writes (``write_frame``/``write_tracks`` calls) between explicit flushes.
 DEFAULT_FLUSH_EVERY = 5
+
+#: The channel of a lagged run's online estimates (``bnptrack track --lag N``), beside its
+#: ``/tracks`` (the lagged ones); the same messages as ``/tracks``.
+TOPIC_TRACKS_ONLINE = "/tracks_online"
 
 _SCHEMA_NAMES = {
     TOPIC_MEASUREMENTS: "bnptrack.Measurements",
@@ -150,6 +154,12 @@ class McapLogWriter:
         """Write one ``/tracks`` message."""
         self._check_open()
         self.write_encoded_tracks(encode(est, run), est.stamp_ns, est.frame)
+
+    def write_online_tracks(self, est: Estimate, run: str = "") -> None:
+        """Write one ``/tracks_online`` message (:data:`TOPIC_TRACKS_ONLINE`)."""
+        schema = json.dumps(json_schema(TOPIC_TRACKS), separators=(",", ":")).encode()
+        self.write_message(TOPIC_TRACKS_ONLINE, (_SCHEMA_NAMES[TOPIC_TRACKS], "jsonschema", schema), "json",
+                           encode(est, run), est.stamp_ns, est.frame)
 
     def write_encoded_frame(
         self, measurements: bytes, truth: bytes | None, stamp_ns: int, frame: int

@@ -43,6 +43,8 @@ class SinkRecord:
     scored it (``{"ospa": OspaResult | None, "ospa2": float | None}``); ``None``: a sink that
     draws scores computes them.  ``health``: pipeline counters at this frame (time series of
     the Rerun recording).  ``payloads``: the messages' bytes when the caller has them.
+    ``online``: with a lagged ``estimate`` (``bnptrack track --lag``), the tracker's online
+    estimate of the same frame (the MCAP sink writes it to ``/tracks_online``).
     """
 
     frame: Frame | None
@@ -50,6 +52,7 @@ class SinkRecord:
     scores: Mapping[str, Any] | None = None
     health: Mapping[str, float] | None = None
     payloads: Payloads | None = None
+    online: Estimate | None = None
 
 
 @runtime_checkable

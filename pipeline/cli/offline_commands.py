@@ -238,6 +238,10 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
               "(--out) and rerun (--rrd) are chosen by their own options. Repeatable.")
 @click.option("--overwrite", is_flag=True, help="Replace output files that exist (without it, an existing --out, "
               "--rrd or --sink file is refused with exit code 2 before anything is read).")
+@click.option("--lag", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
+              help="Publish each frame N scans late, re-decided with the N scans that followed: births "
+              "from the first detection, deaths at the last detection, broken tracks continued, states "
+              "smoothed (docs/trackers.md, \"Fixed-lag output\"). 0: the online output.")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @clean_errors
 def track(
@@ -258,6 +262,7 @@ def track(
     view_connect: str | None,
     sink_names: tuple[str, ...],
     overwrite: bool,
+    lag: int,
     quiet: bool,
 ) -> None:
     """Run a tracker over an MCAP log offline and write its tracks.
@@ -291,11 +296,11 @@ def track(
     check_output_path(log, io.out)
     _header(log, setup, quiet)
     announce_first_compile(quiet)
-    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
+    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window, lag)
     for w in res.warnings:
         click.echo(f"warning: {w}", err=True)
     if not quiet:
-        echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
+        echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
     if res.error is not None:
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
 
@@ -361,12 +366,12 @@ class _TrackIO:
             except ValueError as exc:
                 raise CliError(str(exc)) from None
 
-    def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow) -> TrackResult:
+    def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,
-                              window)
+                              window, lag)
 
 
 def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> tuple[FrameWindow, tuple[str, ...]]:
@@ -383,9 +388,11 @@ def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> t
 
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
-                rrd: Path | None) -> list[tuple[str, str]]:
+                rrd: Path | None, lag: int = 0) -> list[tuple[str, str]]:
     """The summary rows of ``track``: scores (with truth), tracks, time, files."""
     rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
+    if lag:
+        rows.append(("lag", f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"))
     if res.has_truth:
         rows.append(
             ("mean OSPA", f"{fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
