@@ -1,4 +1,4 @@
-"""The benchmark suite's runner: ``python3 -m benchmarks list | run NAME|SET ... [--full]``.
+"""The benchmark suite's runner: ``python3 -m benchmarks list | run NAME|SET ... [--full] | report``.
 
 Each benchmark is a script in this folder that prints a table and, where it has one, a JSON
 line last. ``run`` executes the named benchmarks (or every benchmark of a named set) with
@@ -7,6 +7,9 @@ exit code, seconds) and one JSON line per benchmark, and writes that line to
 ``benchmarks/results/NAME.json``.  Without ``--full`` every benchmark runs with small
 arguments (a few seeds or rounds), enough to check it works and to see rough figures; with
 ``--full``, the arguments its figures in the docs were measured with.
+
+``report`` regenerates docs/results.md (``benchmarks/report.py``: the paper's five experiments,
+their tables and the verdict on each claim).
 
 benchmarks/README.md lists the benchmarks and the question each one answers.
 """
@@ -121,6 +124,11 @@ def main(argv: list[str] | None = None) -> int:
     run = sub.add_parser("run", help="run benchmarks or sets")
     run.add_argument("names", nargs="+", metavar="NAME|SET")
     run.add_argument("--full", action="store_true", help="the arguments of the documented figures")
+    sub.add_parser("report", help="regenerate docs/results.md (benchmarks/report.py; its options follow)")
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["report"]:
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        return subprocess.run([sys.executable, str(HERE / "report.py"), *argv[1:]], cwd=ROOT, env=env).returncode
     ns = ap.parse_args(argv)
     if ns.command == "list":
         for b in SUITE:
