@@ -9,7 +9,9 @@ being stopped at any moment; ``--runs`` may grow between invocations.
 
 A line cut short by a crash (the last one, without its newline) is dropped and rewritten.  A
 journal of another setup, or of other tracker code, is refused: runs of two versions of the
-trackers are not pooled into one table.
+trackers are not pooled into one table.  After a change that should not move any number (a
+faster kernel, a refactor), :func:`adopt` carries a journal over once some of its runs, redone
+by the new code, gave the same scores (``bnptrack experiment --revalidate K``).
 """
 
 from __future__ import annotations
@@ -103,6 +105,38 @@ class RunJournal:
 
     def close(self) -> None:
         self._fh.close()
+
+
+def journal_runs(out: Path) -> tuple[dict, list[RunScores]]:
+    """The header and the runs of ``out/runs.jsonl`` as they are (no setup check)."""
+    path = Path(out) / JOURNAL_NAME
+    header = json.loads(path.read_text().splitlines()[0])
+    return header, _read(path, header)[0]
+
+
+def same_scores(a: RunScores, b: RunScores, timing: int) -> bool:
+    """Equal scores of every tracker, except the clock reading at index ``timing``."""
+    if a.trackers.keys() != b.trackers.keys():
+        return False
+    for t, x in a.trackers.items():
+        y = b.trackers[t]
+        keep = [i for i in range(len(x.values)) if i != timing]
+        if [x.values[i] for i in keep] != [y.values[i] for i in keep] or x.crossings_kept != y.crossings_kept \
+                or x.extra != y.extra:
+            return False
+    return True
+
+
+def adopt(out: Path, code: str) -> None:
+    """Rewrite the journal's header with ``code`` (the runs kept as they are): called once
+    redone runs matched the journal's."""
+    path = Path(out) / JOURNAL_NAME
+    lines = path.read_bytes().split(b"\n", 1)
+    header = json.loads(lines[0])
+    header["code"] = code
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes((json.dumps(header) + "\n").encode() + lines[1])
+    os.replace(tmp, path)
 
 
 def _read(path: Path, header: dict) -> tuple[list[RunScores], int]:

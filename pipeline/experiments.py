@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bnptrack.pipeline.experiment_summary import (EXTRA_LABELS, RunScores, TrackerScores, ci_halfwidth, summarise,
+from bnptrack.pipeline.experiment_summary import (EXTRA_LABELS, METRICS, RunScores, TrackerScores, ci_halfwidth, summarise,
                                                   write_summary)
 from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.tracker.config import ConfigError
@@ -464,6 +464,26 @@ def _jobs_to_run(exp: Experiment, seed: int, params: str, runs: int, have: dict)
                    if (v.label, 0) in have]
 
 
+def _revalidate(name: str, seed: int, params: str, out: Path, code: str, k: int, workers, cluster) -> None:
+    """Redo ``k`` of the journal's runs (evenly spread) with this code; adopt the journal when
+    every one gives the same scores, else refuse naming the first run that differs."""
+    from bnptrack.pipeline.experiment_journal import adopt, journal_runs, same_scores
+
+    header, done = journal_runs(out)
+    if header.get("code") == code or not done:
+        return
+    picks = [done[int(i)] for i in np.linspace(0, len(done) - 1, min(k, len(done)))]
+    exp = get_experiment(name)
+    variants = {v.label: v for v in exp.variants}
+    jobs = [RunJob(name, seed, s.run, params, variants[s.variant]) for s in picks]
+    timing = [k for k, _ in METRICS].index("ms")
+    for old, new in zip(picks, run_jobs(jobs, workers=workers, cluster=cluster)):
+        if not same_scores(old, run_scores(new), timing):
+            raise ConfigError(f"{out}: run {old.run} ({old.variant}) redone by this code gives other scores than "
+                              "the journal's: its runs cannot be carried over; use --fresh or another --out")
+    adopt(out, code)
+
+
 def _progress_bar(name: str, total: int, done: int):
     """A progress bar with the rate and the time left, starting at the runs already journalled."""
     from tqdm import tqdm
@@ -473,12 +493,14 @@ def _progress_bar(name: str, total: int, done: int):
 
 def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = DEFAULT_EXPERIMENT_PARAMS,
                    out: Path | None = None, workers: int | None = None, cluster: str | None = None,
-                   quiet: bool = False, rrd: bool = True, fresh: bool = False) -> ExperimentOutput:
+                   quiet: bool = False, rrd: bool = True, fresh: bool = False,
+                   revalidate: int = 0) -> ExperimentOutput:
     """Run experiment ``name`` end to end and write its outputs into ``out``.
 
     Every finished run is journalled in ``out/runs.jsonl`` (:mod:`pipeline.experiment_journal`):
     started again with the same ``out``, the experiment runs only the runs the journal lacks
-    (``fresh`` starts over).  The table covers runs ``0 .. runs-1`` of every variant; the
+    (``fresh`` starts over; ``revalidate`` K carries over a journal of other tracker code
+    once K of its runs, redone, give the same scores).  The table covers runs ``0 .. runs-1`` of every variant; the
     plots, the runs executed in this invocation."""
     import time
 
@@ -493,6 +515,8 @@ def run_experiment(name: str, *, runs: int = 100, seed: int = 1, params: str = D
         (out / JOURNAL_NAME).unlink(missing_ok=True)
     setup = {"experiment": name, "seed": seed, "params": params, "trackers": [t.label for t in exp.trackers],
              "variants": [v.label for v in exp.variants], "code": code_fingerprint()}
+    if revalidate and (out / JOURNAL_NAME).exists():
+        _revalidate(name, seed, params, out, setup["code"], revalidate, workers, cluster)
     journal, done = RunJournal.open(out, setup)
     have = {(s.variant, s.run): s for s in done}
     jobs = _jobs_to_run(exp, seed, params, runs, have)

@@ -266,7 +266,8 @@ locally or on a Dask cluster, gives the same numbers.
 Resumable: every finished run is appended to OUT/runs.jsonl. The same command
 started again (after a stop, a crash, or with a larger --runs) runs only the
 runs that file lacks; --fresh starts over. A file written by other tracker code
-is refused, so runs of two versions are never pooled.
+is refused, so runs of two versions are never pooled, unless --revalidate K
+redoes K of its runs with this code and every one gives the same scores.
 
 \b
 Examples:
@@ -292,16 +293,18 @@ Examples:
               help="Run on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of local processes; needs the optional extra: pip install 'bnptrack[dask]'.")
 @click.option("--no-rrd", is_flag=True, help="Skip the .rrd recordings of the representative run.")
 @click.option("--fresh", is_flag=True, help="Discard OUT/runs.jsonl and start from run 0.")
+@click.option("--revalidate", type=click.IntRange(min=1), default=None, metavar="K",
+              help="Carry over a journal written by other tracker code once K of its runs, redone, give the same scores.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no summary.")
 @clean_errors
 def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | None, workers: int | None,
-               cluster: str | None, no_rrd: bool, fresh: bool, quiet: bool) -> None:
+               cluster: str | None, no_rrd: bool, fresh: bool, revalidate: int | None, quiet: bool) -> None:
     """Run one of the paper's simulation experiments (help: ``_EXPERIMENT_HELP``, drawn from
     :data:`pipeline.experiments.EXPERIMENTS`)."""
     from bnptrack.pipeline.experiments import run_experiment
 
     res = run_experiment(name, runs=runs, seed=seed, params=params_name, out=out, workers=workers,
-                         cluster=cluster, quiet=quiet, rrd=not no_rrd, fresh=fresh)
+                         cluster=cluster, quiet=quiet, rrd=not no_rrd, fresh=fresh, revalidate=revalidate or 0)
     if not quiet:
         click.echo(res.summary_md.read_text())
         rows = [("took", f"{res.seconds:.1f} s for {len(res.rows) and res.rows[0]['runs']} run(s) per condition"),

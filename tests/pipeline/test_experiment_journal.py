@@ -118,3 +118,34 @@ def test_killed_experiment_resumes_to_the_same_table(tmp_path):
     assert not (out / "summary.csv").exists()
     subprocess.run([*args, "--out", str(out)], check=True, timeout=600)
     assert table(out) == table(tmp_path / "whole")
+
+
+def _set_code(out: Path, code: str) -> None:
+    lines = (out / JOURNAL_NAME).read_text().splitlines(keepends=True)
+    header = json.loads(lines[0])
+    header["code"] = code
+    (out / JOURNAL_NAME).write_text(json.dumps(header) + "\n" + "".join(lines[1:]))
+
+
+def test_revalidate_carries_over_a_journal_whose_runs_redo_the_same(tmp_path):
+    out = tmp_path / "exp"
+    run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False)
+    before = table(out)
+    _set_code(out, "another version")
+    with pytest.raises(ConfigError, match="other tracker code"):
+        run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False)
+    run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False, revalidate=2)
+    assert json.loads((out / JOURNAL_NAME).read_text().splitlines()[0])["code"] == code_fingerprint()
+    assert len((out / JOURNAL_NAME).read_text().splitlines()) == 3 and table(out) == before
+
+
+def test_revalidate_refuses_a_journal_whose_runs_differ(tmp_path):
+    out = tmp_path / "exp"
+    run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False)
+    lines = (out / JOURNAL_NAME).read_text().splitlines(keepends=True)
+    record = json.loads(lines[2])
+    record["trackers"]["GLMB"]["values"][0] += 1.0  # run 1's GLMB OSPA, as another version gave it
+    (out / JOURNAL_NAME).write_text("".join(lines[:2]) + json.dumps(record) + "\n")
+    _set_code(out, "another version")
+    with pytest.raises(ConfigError, match="run 1 .* redone by this code gives other scores"):
+        run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False, revalidate=2)
