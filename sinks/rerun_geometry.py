@@ -15,7 +15,7 @@ import numpy as np
 
 from bnptrack.sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
-__all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses",
+__all__ = ["SceneGeometry", "ellipses", "gather", "nice_step", "truth_crosses",
            "measurement_xy", "hits_per_row", "assignment_index", "track_strips",
            "truth_trails", "EMPTY2", "EMPTY22", "EMPTY_U16", "EMPTY_U32"]
 
@@ -27,26 +27,25 @@ EMPTY_U32 = np.zeros(0, dtype=np.uint32)
 
 @dataclass(frozen=True)
 class SceneGeometry:
-    """The scene of a run's sensor: range (m), half field of view (rad), the ``(x0, x1, y0, y1)``
-    box drawn, the half-size of a truth cross (m), the unit circle of the ellipses
-    (``(ELLIPSE_POINTS + 1, 2)``) and the angles of a range ring."""
+    """The scene drawn: the ``(x0, x1, y0, y1)`` box (m), the half-size of a truth cross (m)
+    and the unit circle of the ellipses (``(ELLIPSE_POINTS + 1, 2)``)."""
 
-    range_max: float
-    half_fov: float
     bounds: tuple[float, float, float, float]
     cross: float
     circle: np.ndarray
-    arc: np.ndarray
 
     @classmethod
-    def of(cls, params: Any) -> SceneGeometry:
-        """From the run's :class:`tracker.models.params.ModelParams` (``None``: a 2000 m /
-        +-90 deg field)."""
-        rng = float(getattr(params, "range_max", 2000.0))
-        half = math.radians(float(getattr(params, "bearing_half_fov_deg", 90.0)))
+    def of(cls, bounds: tuple[float, float, float, float]) -> SceneGeometry:
+        """The scene of the box ``bounds`` (the sensors' fields of view,
+        :func:`sinks.rerun_sensors.scene_extent`)."""
         circle = np.linspace(0.0, 2.0 * np.pi, ELLIPSE_POINTS + 1)
-        return cls(rng, half, fov_bounds(rng, half), 0.015 * rng,
-                   np.stack([np.cos(circle), np.sin(circle)], axis=-1), np.linspace(-half, half, 49))
+        span = max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1.0)
+        return cls(tuple(float(b) for b in bounds), 0.0075 * span,  # type: ignore[arg-type]
+                   np.stack([np.cos(circle), np.sin(circle)], axis=-1))
+
+    def with_bounds(self, bounds: tuple[float, float, float, float]) -> SceneGeometry:
+        """The same scene over a larger box (the cross keeps its size)."""
+        return SceneGeometry(tuple(float(b) for b in bounds), self.cross, self.circle)  # type: ignore[arg-type]
 
 
 def ellipses(center: np.ndarray, cov: np.ndarray, circle: np.ndarray, k: float) -> np.ndarray:
@@ -75,15 +74,6 @@ def gather(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np
     np.cumsum(lengths, out=offsets[1:])
     idx = np.arange(offsets[-1]) - np.repeat(offsets[:-1] - starts, lengths)
     return points[idx], lengths
-
-
-def fov_bounds(range_max: float, half_fov: float) -> tuple[float, float, float, float]:
-    """(x0, x1, y0, y1) box around the sensor's field of view, with a 5% margin."""
-    a = np.linspace(-half_fov, half_fov, 181)
-    xs = np.concatenate([[0.0], range_max * np.sin(a)])
-    ys = np.concatenate([[0.0], range_max * np.cos(a)])
-    m = 0.05 * range_max
-    return float(xs.min() - m), float(xs.max() + m), float(ys.min() - m), float(ys.max() + m)
 
 
 def nice_step(span: float) -> float:

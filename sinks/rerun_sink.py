@@ -47,12 +47,14 @@ from bnptrack.sinks.rerun_blueprint import default_blueprint
 from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_first_cluster, structure_rows, track_clusters
 from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
                                  send, track_colours, track_style)
-from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
-                                  measurement_xy, track_strips, truth_crosses, truth_trails)
-from bnptrack.sinks.rerun_scene import write_static
-from bnptrack.sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
-                               FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, MEASUREMENTS, OSPA,
-                               OSPA2, R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_RING, RINGS,
+from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index,
+                                  track_strips, truth_crosses, truth_trails)
+from bnptrack.sinks.rerun_measurements import measurement_chunks
+from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, write_static
+from bnptrack.sinks.rerun_sensors import SensorBook, fov_outline, grown, scene_extent
+from bnptrack.sinks.rerun_style import (CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
+                               FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, OSPA,
+                               OSPA2, R_RING, RINGS,
                                SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
                                label_color, pack_rgba, unpack_rgba)
 from bnptrack.tracker.types import Estimate, Frame
@@ -77,7 +79,7 @@ class _Rec(NamedTuple):
     tcls: np.ndarray  # (n,) class ids of the tracks
     tcol: np.ndarray  # (n,) packed colours of the tracks (their cluster's, else their label's)
     ccl: np.ndarray  # (n,) motion cluster of the tracks (-1: none)
-    kind: str
+    model: Any  # the frame's measurement model (its sensor's, as the tracker resolved it)
     z: np.ndarray  # (M, d) measurements
     idx: np.ndarray | None  # (M,) index of the assigned track, -1 clutter; None: no assignments
     truth_ids: tuple[str, ...] | None
@@ -97,9 +99,10 @@ class RerunSink:
             ``bnptrack_version`` and ``rerun_version`` are added.
         trail: number of positions (the current one included) in the trail drawn behind each
             track and each true object.
-        params: the model parameters of the run (:class:`tracker.models.params.ModelParams`),
-            for the measurement model (sensor position) and the field of view; default: the
-            sensor at the origin with a 2000 m / +-90 deg field.
+        params: the model parameters of the run (:class:`tracker.models.params.ModelParams`):
+            each frame's sensor (pose, field of view) and measurement model are resolved from
+            them and the frame as the tracker resolves them (:class:`sinks.rerun_sensors.SensorBook`);
+            default: the built-in ``vo2017`` set.
         handle_signals: install SIGTERM/SIGINT handlers (main thread only) that finalise the
             file (footer written) before the signal's previous disposition runs.
         live: a Rerun gRPC URL (``rerun+http://HOST:PORT/proxy``: a viewer, e.g. one started by
@@ -146,7 +149,8 @@ class RerunSink:
         self._time: tuple[int, int] | None = None  # (frame, stamp) last set on the stream
         self._last_flush = time.monotonic()
 
-        self._geo = SceneGeometry.of(params)
+        self._sensors = SensorBook(params)
+        self._geo = SceneGeometry.of(scene_extent(self._sensors.declared()))
         self.live = live or None
         self._rec = self._open_stream(application_id)
         self._s = Schema()
@@ -182,7 +186,7 @@ class RerunSink:
         self._styled: set[str] = set()
         self._colors: dict[str, int] = {}
         self._truth_live: set[str] = set()
-        self._meas_models: dict[str, Any] = {}
+        self._legend_rgb: tuple[int, int, int] | None = None  # the first track's colour
         self._context_logged = False
         self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
         self._cc = ClusterColours()
@@ -215,6 +219,8 @@ class RerunSink:
                 self._truth_layout = False  # a log without truth: no (empty) OSPA panel
                 self._rec.send_blueprint(default_blueprint(scene_bounds=self._geo.bounds, truth=False),
                                          make_active=True, make_default=True)
+            sensor, model = self._sensors.resolve(frame)
+            self._draw_sensors(k, t, sensor)
             tracks = estimate.tracks
             labels = tuple(tr.label for tr in tracks)
             if set(labels) != self._live:
@@ -231,12 +237,44 @@ class RerunSink:
                 tids, tpos = truth.ids, truth.positions
             else:
                 tids = tpos = None
-            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, frame.kind, frame.z, idx,
+            self._grow(pos)
+            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, model, frame.z, idx,
                                      tids, tpos))
             self._log_scalars(k, t, frame, estimate, ospa, ospa2, health)
             self._prev_frame = k
             if time.monotonic() - self._last_flush >= self.flush_interval:
                 self.flush(wait=False)
+
+    def _draw_sensors(self, k: int, t: int, sensor: Any) -> None:
+        """Draw the frame's sensor (and, at the first frame, the declared ones) where it is not
+        drawn yet at its present pose; grow the scene to its field of view."""
+        first = self._prev_frame is None
+        todo = self._sensors.to_draw([*(self._sensors.declared() if first else ()), sensor])
+        if not todo:
+            return
+        self._at(k, t)
+        for s in todo:
+            log_sensor(self._rec, s, self._sensors.colour(s))
+        if not self._grow(np.concatenate([fov_outline(s) for s in todo])):
+            self._log_legend()
+
+    def _grow(self, points: np.ndarray) -> bool:
+        """Grow the scene (view bounds, grid, legend) to hold ``points``; whether it grew."""
+        if not points.shape[0] or (new := grown(self._geo.bounds, points)) is None:
+            return False
+        self._geo = self._geo.with_bounds(new)
+        self._rec.send_blueprint(default_blueprint(scene_bounds=new, truth=self._truth_layout),
+                                 make_active=True, make_default=True)
+        log_grid(self._rec, new)
+        self._log_legend()
+        return True
+
+    def _log_legend(self) -> None:
+        sensors = [(s, self._sensors.colour(s)) for s in self._sensors.drawn]
+        if self._legend_rgb is None:
+            log_legend(self._rec, self._geo, sensors)
+        else:
+            log_legend(self._rec, self._geo, sensors, self._legend_rgb)
 
     def _track_arrays(self, tracks: Any, labels: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids, packed colours
@@ -468,91 +506,16 @@ class RerunSink:
         for comps in cluster_columns(self._s, frames):
             self._send(CLUSTERS, ks, ts, comps)
 
-    def _measurement_model(self, kind: str) -> Any:
-        model = self._meas_models.get(kind)
-        if model is None:
-            if self._params is not None:
-                model = self._params.measurement(kind)
-            else:
-                from bnptrack.tracker.models.measurement import measurement_kind
-
-                model = measurement_kind(kind).model()
-            self._meas_models[kind] = model
-        return model
-
     def _send_measurements(self, frames: list[_Rec]) -> None:
-        """Measurements, measurement->track lines and (range-only) rings of all kept frames."""
-        for kind in dict.fromkeys(r.kind for r in frames):
-            self._send_kind([r for r in frames if r.kind == kind], kind)
-
-    def _send_kind(self, rows: list[_Rec], kind: str) -> None:
-        """The measurements of the kept frames of one kind (coloured by the track they were
-        assigned to), then their lines and rings."""
-        s = self._s
-        ks = np.array([r.k for r in rows], dtype=np.int64)
-        ts = np.array([r.t for r in rows], dtype=np.int64)
-        counts = np.array([r.z.shape[0] for r in rows], dtype=np.int64)
-        ntr = np.array([r.pos.shape[0] for r in rows], dtype=np.int64)
-        Z = np.concatenate([r.z for r in rows])
-        tpos = np.concatenate([r.pos for r in rows])
-        tcls = np.concatenate([r.tcls for r in rows])
-        tcol = np.concatenate([r.tcol for r in rows])
-        has = np.repeat(np.array([r.idx is not None for r in rows]), counts)
-        idx = np.concatenate([r.idx if r.idx is not None else np.full(r.z.shape[0], -1)
-                              for r in rows]).astype(np.int64)
-        tr_off = np.concatenate([[0], np.cumsum(ntr)[:-1]])
-        hit = idx >= 0
-        gidx = np.where(hit, idx + np.repeat(tr_off, counts), 0)
-        model = self._measurement_model(kind)
-        # rows that fix no position (range-only): their loci (rings) go to world/measurements/rings
-        xy = measurement_xy(model, Z, tpos, gidx, hit)
-        cls = np.where(hit, tcls[gidx] if tcls.size else 0,
-                       np.where(has, CLUTTER_CLASS, UNASSIGNED_CLASS)).astype(np.uint16)
-        col = np.where(hit, tcol[gidx] if tcol.size else 0,
-                       np.where(has, pack_rgba(GREY_CLUTTER), pack_rgba(WHITE_UNASSIGNED))).astype(np.uint32)
-        radii = np.where(hit, R_MEAS_ASSIGNED, R_MEAS_CLUTTER).astype(np.float32)
-        self._send(MEASUREMENTS, ks, ts, [
-            ("Points2D:positions", s.positions(xy), counts),
-            ("Points2D:class_ids", pa.array(cls, type=pa.uint16()), counts),
-            ("Points2D:colors", pa.array(col, type=pa.uint32()), counts),
-            ("Points2D:radii", pa.array(radii, type=pa.float32()), counts),
-        ])
-        nh = int(hit.sum())
-        lines = np.empty((nh, 2, 2))
-        lines[:, 0] = xy[hit]
-        lines[:, 1] = tpos[gidx[hit]] if nh else lines[:, 1]
-        self._send_lines(ks, ts, lines, hits_per_row(hit, counts), cls[hit], col[hit])
-        if not getattr(model, "fixes_position", True):
-            self._send_rings(ks, ts, counts, Z, model, cls, col)
-
-    def _send_lines(self, ks: np.ndarray, ts: np.ndarray, lines: np.ndarray, per_row: np.ndarray,
-                    cls: np.ndarray, col: np.ndarray) -> None:
-        """Measurement -> track lines ``(n, 2, 2)``, ``per_row[i]`` of them at frame ``ks[i]``."""
-        self._send(ASSIGNMENTS, ks, ts, [
-            ("LineStrips2D:strips", self._s.strip_array(lines.reshape(-1, 2), np.full(lines.shape[0], 2)),
-             per_row),
-            ("LineStrips2D:colors", pa.array((col & np.uint32(0xFFFFFF00)) | np.uint32(150),
-                                             type=pa.uint32()), per_row),
-            ("LineStrips2D:class_ids", pa.array(cls, type=pa.uint16()), per_row),
-        ])
-
-    def _send_rings(self, ks: np.ndarray, ts: np.ndarray, counts: np.ndarray, Z: np.ndarray, model: Any,
-                    cls: np.ndarray, col: np.ndarray) -> None:
-        """Measurements that fix no position: one arc of each row's locus (the range ring of a
-        range-only row) over the scene's bearings."""
-        if RINGS not in self._styled:
-            self._rec.log(RINGS, rr.LineStrips2D.from_fields(
-                radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
-            self._styled.add(RINGS)
-        a = self._geo.arc
-        arcs = model.locus(Z, a)
-        self._send(RINGS, ks, ts, [
-            ("LineStrips2D:strips", self._s.strip_array(arcs.reshape(-1, 2), np.full(Z.shape[0], a.size)),
-             counts),
-            ("LineStrips2D:colors", pa.array((col & np.uint32(0xFFFFFF00)) | np.uint32(90),
-                                             type=pa.uint32()), counts),
-            ("LineStrips2D:class_ids", pa.array(cls, type=pa.uint16()), counts),
-        ])
+        """Measurements, measurement->track lines and (range-only) rings of all kept frames,
+        per sensor model (:mod:`sinks.rerun_measurements`)."""
+        for model in dict.fromkeys(r.model for r in frames):
+            for entity, ks, ts, comps in measurement_chunks(self._s, [r for r in frames if r.model == model], model):
+                if entity == RINGS and RINGS not in self._styled:
+                    self._rec.log(RINGS, rr.LineStrips2D.from_fields(
+                        radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
+                    self._styled.add(RINGS)
+                self._send(entity, ks, ts, comps)
 
     def _send_truth(self, frames: list[_Rec]) -> None:
         """Grey crosses and trails of the true objects of the kept frames that have truth."""

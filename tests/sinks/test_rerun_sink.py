@@ -127,7 +127,7 @@ def test_entity_tree_and_timelines(vo_run, contents):
     _params, frames, estimates = vo_run
     paths = set(contents)
     expected = {
-        "/world", "/world/sensor", "/world/measurements", "/world/assignments", "/world/truth",
+        "/world", "/world/sensors/sim0", "/world/measurements", "/world/assignments", "/world/truth",
         "/world/truth/trails", "/metrics/cardinality", "/metrics/ospa", "/metrics/ospa2",
         "/diagnostics/alpha", "/diagnostics/d", "/diagnostics/n_clusters",
         "/diagnostics/log_joint", "/diagnostics/ms", "/events", "/metadata",
@@ -296,8 +296,8 @@ def test_scene_grid_axes_and_legend(contents):
     ticks = contents["/world/grid/ticks"][0].column("Points2D:labels").to_pylist()[0]
     assert ticks[:9] == ["-2000", "-1500", "-1000", "-500", "0", "500", "1000", "1500", "2000"]
     legend = {p.rsplit("/", 1)[1] for p in contents if p.startswith("/world/legend/")}
-    assert legend == {"measurement", "clutter", "assigned", "truth", "track", "ellipse"}
-    clutter = contents["/world/legend/clutter"][0]
+    assert legend == {"measurement", "clutter", "assigned", "truth", "track", "ellipse", "sensors"}
+    clutter = contents["/world/legend/clutter"][-1]
     assert clutter.column("Points2D:labels").to_pylist() == [["clutter (no track)"]]
 
 
