@@ -95,11 +95,13 @@ class SensorBook:
         self._colours: dict[str, tuple[int, int, int, int]] = {}
 
     def declared(self) -> list[Sensor]:
-        """The sensors of the parameter set's ``[sensors.NAME]`` tables (none: the default
-        sensor), resolved as for a frame of their kind without a pose."""
-        if not self.params.sensors:
-            return [self.params.sensor("", DEFAULT_KIND)]
+        """The sensors of the parameter set's ``[sensors.NAME]`` tables, resolved as for a
+        frame of their kind without a pose (none without tables)."""
         return [self.params.sensor(name, spec.kind or DEFAULT_KIND) for name, spec in self.params.sensors.items()]
+
+    def default(self) -> Sensor:
+        """The parameter set's default sensor (origin, boresight +y)."""
+        return self.params.sensor("", DEFAULT_KIND)
 
     def resolve(self, frame: Frame) -> tuple[Sensor, Any]:
         """The frame's sensor and measurement model, as the tracker resolves them."""

@@ -51,7 +51,7 @@ from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32
                                   track_strips, truth_crosses, truth_trails)
 from bnptrack.sinks.rerun_measurements import measurement_chunks
 from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, write_static
-from bnptrack.sinks.rerun_sensors import SensorBook, fov_outline, grown, scene_extent
+from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
 from bnptrack.sinks.rerun_style import (CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
                                FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, OSPA,
                                OSPA2, R_RING, RINGS,
@@ -150,7 +150,7 @@ class RerunSink:
         self._last_flush = time.monotonic()
 
         self._sensors = SensorBook(params)
-        self._geo = SceneGeometry.of(scene_extent(self._sensors.declared()))
+        self._geo = SceneGeometry.of(scene_extent(self._sensors.declared() or [self._sensors.default()]))
         self.live = live or None
         self._rec = self._open_stream(application_id)
         self._s = Schema()
@@ -247,7 +247,8 @@ class RerunSink:
 
     def _draw_sensors(self, k: int, t: int, sensor: Any) -> None:
         """Draw the frame's sensor (and, at the first frame, the declared ones) where it is not
-        drawn yet at its present pose; grow the scene to its field of view."""
+        drawn yet at its present pose; grow the scene to its field of view (at the first frame
+        of a run without declared sensors: set the scene to it)."""
         first = self._prev_frame is None
         todo = self._sensors.to_draw([*(self._sensors.declared() if first else ()), sensor])
         if not todo:
@@ -255,12 +256,17 @@ class RerunSink:
         self._at(k, t)
         for s in todo:
             log_sensor(self._rec, s, self._sensors.colour(s))
-        if not self._grow(np.concatenate([fov_outline(s) for s in todo])):
+        outlines = np.concatenate([fov_outline(s) for s in todo])
+        if not self._grow(outlines, reset=first and not self._sensors.params.sensors):
             self._log_legend()
 
-    def _grow(self, points: np.ndarray) -> bool:
-        """Grow the scene (view bounds, grid, legend) to hold ``points``; whether it grew."""
-        if not points.shape[0] or (new := grown(self._geo.bounds, points)) is None:
+    def _grow(self, points: np.ndarray, reset: bool = False) -> bool:
+        """Grow the scene (view bounds, grid, legend) to hold ``points`` (``reset``: set it to
+        them); whether it changed."""
+        if not points.shape[0]:
+            return False
+        new = box_of(points) if reset else grown(self._geo.bounds, points)
+        if new is None or new == self._geo.bounds:
             return False
         self._geo = self._geo.with_bounds(new)
         self._rec.send_blueprint(default_blueprint(scene_bounds=new, truth=self._truth_layout),

@@ -1,0 +1,151 @@
+"""A recording draws each sensor at its pose and each measurement where its sensor saw it: a
+radar at (1500, -700) heading 40 deg declared in the parameters, and an ``xy`` lidar at
+(3000, 1000) whose frames carry their own pose.  Positions are read back from the ``.rrd``."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("CI", "1")  # before `import rerun`: no analytics
+
+from collections import defaultdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from bnptrack.sinks.rerun_sink import write_recording  # noqa: E402
+from bnptrack.sources.scenarios import get_scenario  # noqa: E402
+from bnptrack.sources.synthetic import measure_with, measurement_frame_rng, move_truth  # noqa: E402
+from bnptrack.tracker.bnp import make_tracker  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
+from bnptrack.tracker.models.params import load_params  # noqa: E402
+from bnptrack.tracker.state import run  # noqa: E402
+from bnptrack.tracker.types import Frame  # noqa: E402
+
+N_FRAMES = 30
+RADAR = (1500.0, -700.0, float(np.deg2rad(40.0)))
+LIDAR = (3000.0, 1000.0, float(np.deg2rad(-30.0)))
+
+
+def posed_log(kind: str, pose: tuple[float, float, float], *, pose_in_frames: bool):
+    """vo2017 seed 1 moved to lie around a sensor at ``pose`` and measured by it.  Returns the
+    frames and the parameters the run is tracked and recorded with: with ``pose_in_frames`` each
+    frame carries the pose (the parameters declare no sensor), else the parameters'
+    ``[sensors.s]`` table holds it (the frames carry none)."""
+    sc = get_scenario("vo2017")
+    table = [f"sensors.s.kind='{kind}'", f"sensors.s.x={pose[0]}", f"sensors.s.y={pose[1]}",
+             f"sensors.s.heading_deg={np.rad2deg(pose[2])}"]
+    anywhere = ["birth=[]", "birth_rate=0.1"]  # the scene's birth regions are not moved
+    measured = sc.adapt_params(apply_overrides(load_params("vo2017"), table))
+    frames = []
+    for k, tr in enumerate(sc.truth(1.0)[:N_FRAMES], start=1):
+        moved = move_truth(tr, pose)
+        z, kd, ps = measure_with(measurement_frame_rng(1, k), moved, measured, kind, "s")
+        frames.append(Frame(k, k * 10**9, "s", kd, z, moved, pose=ps if pose_in_frames else None))
+    base = sc.adapt_params(load_params("vo2017"))
+    params = apply_overrides(base, anywhere if pose_in_frames else [*table, *anywhere])
+    return frames, params
+
+
+def read_rrd(path: Path) -> dict[str, list]:
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        out[chunk.entity_path].append(chunk.to_record_batch())
+    return out
+
+
+def by_frame(batches: list, column: str) -> dict[int, object]:
+    out: dict[int, object] = {}
+    for rb in batches:
+        if "frame" in rb.schema.names and column in rb.schema.names:
+            for f, v in zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()):
+                if v is not None:
+                    out[f] = v
+    return out
+
+
+CASES = {
+    "radar_params": ("bearing_range", RADAR, False),
+    "lidar_frames": ("xy", LIDAR, True),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def recorded(request, tmp_path_factory):
+    kind, pose, in_frames = CASES[request.param]
+    frames, params = posed_log(kind, pose, pose_in_frames=in_frames)
+    estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames, 0)]
+    path = tmp_path_factory.mktemp("posed") / f"{request.param}.rrd"
+    write_recording(path, frames, estimates, {"scenario": request.param}, params=params)
+    return pose, frames, estimates, params, read_rrd(path)
+
+
+def test_sensor_drawn_at_its_pose_and_nothing_at_the_default(recorded):
+    pose, _frames, _estimates, _params, contents = recorded
+    sensors = [p for p in contents if p.startswith("/world/sensors/")]
+    assert sensors == ["/world/sensors/s"]
+    assert "/world/sensor" not in contents
+    dots = by_frame(contents["/world/sensors/s"], "Points2D:positions")
+    assert dots and all(np.allclose(v[0], pose[:2], atol=1e-2) for v in dots.values())
+    outline = np.asarray(next(iter(by_frame(contents["/world/sensors/s"], "LineStrips2D:strips").values()))[0])
+    # the wedge's apex is the sensor, its far arc 2000 m away, centred on the heading
+    np.testing.assert_allclose(outline[0], pose[:2], atol=1e-2)
+    far = outline[1:-1] - pose[:2]
+    np.testing.assert_allclose(np.hypot(*far.T), 2000.0, rtol=1e-5)
+    mid = far[far.shape[0] // 2]
+    assert np.arctan2(mid[0], mid[1]) == pytest.approx(pose[2], abs=1e-4)
+    assert np.hypot(*outline.T).min() > 100.0  # no part of it at the default sensor's origin
+
+
+def test_assigned_measurements_lie_on_their_tracks(recorded):
+    """Each drawn measurement is the frame's sensor model's ``to_cartesian`` (the tracker's own
+    model), and the assigned ones lie within a few sigma of their tracks."""
+    _pose, frames, estimates, params, contents = recorded
+    pts = by_frame(contents["/world/measurements"], "Points2D:positions")
+    d2 = []
+    for f, e in zip(frames, estimates):
+        model = params.measurement(f.kind, params.frame_sensor(f))
+        xy, mcov = model.to_cartesian(f.z)
+        np.testing.assert_allclose(pts[f.frame], xy, rtol=1e-6, atol=0.05)
+        tracks = {t.label: t for t in e.tracks}
+        for m, lab in enumerate(e.assignments):
+            if lab is None:
+                continue
+            t = tracks[lab]
+            S = t.covariance[np.ix_([0, 2], [0, 2])] + mcov[m]
+            r = np.asarray(pts[f.frame][m]) - t.position
+            d2.append(float(r @ np.linalg.solve(S, r)))
+    d2 = np.array(d2)
+    assert d2.size > 2 * N_FRAMES  # the objects were tracked and their measurements assigned
+    assert np.median(np.sqrt(d2)) < 2.0
+    assert np.quantile(np.sqrt(d2), 0.95) < 4.0
+
+
+def test_scene_covers_the_field_of_view_and_the_tracks(recorded):
+    pose, _frames, estimates, _params, contents = recorded
+    grid = np.asarray(contents["/world/grid"][-1].column("LineStrips2D:strips").to_pylist()[-1], dtype=float)
+    lo, hi = grid.reshape(-1, 2).min(axis=0), grid.reshape(-1, 2).max(axis=0)
+    outline = np.asarray(next(iter(by_frame(contents["/world/sensors/s"], "LineStrips2D:strips").values()))[0])
+    tracks = np.concatenate([e.positions for e in estimates if e.tracks])
+    for p in (outline, tracks):
+        assert (p >= lo - 1e-6).all() and (p <= hi + 1e-6).all()
+
+
+def test_several_sensors_each_with_its_colour_and_legend_entry(tmp_path):
+    frames, params = posed_log("bearing_range", RADAR, pose_in_frames=False)
+    params = apply_overrides(params, ["sensors.lidar.kind='xy'", f"sensors.lidar.x={LIDAR[0]}",
+                                      f"sensors.lidar.y={LIDAR[1]}"])
+    estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames[:5], 0)]
+    path = tmp_path / "two.rrd"
+    write_recording(path, frames[:5], estimates, {}, params=params)
+    c = read_rrd(path)
+    colours = {p: by_frame(c[p], "Points2D:colors")[1][0] for p in ("/world/sensors/s", "/world/sensors/lidar")}
+    assert len(set(colours.values())) == 2
+    lidar = by_frame(c["/world/sensors/lidar"], "Points2D:positions")[1][0]
+    np.testing.assert_allclose(lidar, LIDAR[:2], atol=1e-2)
+    legend = c["/world/legend/sensors"][-1]
+    assert legend.column("Points2D:labels").to_pylist()[-1] == ["sensor s (bearing_range)", "sensor lidar (xy)"]
+    assert sorted(legend.column("Points2D:colors").to_pylist()[-1]) == sorted(colours.values())
