@@ -16,7 +16,7 @@ import numpy as np
 from bnptrack.sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
 __all__ = ["SceneGeometry", "ellipses", "gather", "nice_step", "truth_crosses",
-           "measurement_xy", "hits_per_row", "assignment_index", "track_strips",
+           "measurement_xy", "labels_shown", "hits_per_row", "assignment_index", "track_strips",
            "truth_trails", "EMPTY2", "EMPTY22", "EMPTY_U16", "EMPTY_U32"]
 
 EMPTY2 = np.zeros((0, 2))
@@ -104,6 +104,21 @@ def measurement_xy(model: Any, Z: np.ndarray, tpos: np.ndarray, gidx: np.ndarray
     if hit.any():
         toward[hit] = tpos[gidx[hit]]
     return model.locus_point(Z, toward)
+
+
+def labels_shown(pos: np.ndarray, order: np.ndarray, box: tuple[float, float]) -> np.ndarray:
+    """``(n,)`` which of the ``(n, 2)`` track positions show their name: taken in ``order``
+    (oldest track first), a name is shown unless a shown one lies within ``box`` = (dx, dy)
+    (m; a name is wider than high), so that the names of nearby tracks do not overprint."""
+    n = pos.shape[0]
+    shown = np.zeros(n, dtype=bool)
+    if n == 0:
+        return shown
+    d = np.abs(pos[:, None, :] - pos[None, :, :])
+    near = (d[..., 0] < box[0]) & (d[..., 1] < box[1])
+    for i in order:
+        shown[i] = not (near[i] & shown).any()
+    return shown
 
 
 def hits_per_row(hit: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from bnptrack.sinks.rerun_style import (ASSIGNMENTS, AXES, ELLIPSE_SIGMA, GREY_C
                                SENSORS, TRUTH, TRUTH_TRAILS, WHITE_UNASSIGNED, WORLD)
 from bnptrack.tracker.models.sensors import Sensor
 
-__all__ = ["write_static", "log_grid", "log_legend", "log_sensor"]
+__all__ = ["write_static", "log_grid", "log_legend", "log_sensor", "view_bounds"]
 
 
 def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[str, str], trail: int) -> None:
@@ -39,9 +39,9 @@ def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[s
     rec.log(METADATA, rr.TextDocument(
         "# bnptrack run\n\n| key | value |\n| --- | --- |\n" + rows + "\n\n"
         "Scene: x east, y north (m), each sensor at its pose with its field of view, grid lines every "
-        f"{nice_step((scene.bounds[1] - scene.bounds[0]) / 8):g} m; the legend is in the top "
-        "corners. Tracks: dot + short name (T1, T2, ... in order of confirmation; hover a "
-        "track for its internal label, in its entity path), trail of the "
+        f"{nice_step((scene.bounds[1] - scene.bounds[0]) / 8):g} m; the legend is above the scene. "
+        "Tracks: dot + name (T<birth frame>.<index>, as in the summary and the export; a name "
+        "beside an older track's is hidden), trail of the "
         f"last {trail} positions, {ELLIPSE_SIGMA:g}-sigma position ellipse. Measurements "
         "take the colour of the track they were assigned to; grey dots are clutter; thin lines "
         "join a measurement to its track. Grey crosses and thin trails: ground truth.",
@@ -92,20 +92,32 @@ def log_sensor(rec: rr.RecordingStream, sensor: Sensor, colour: tuple[int, int, 
             rr.LineStrips2D([fov_outline(sensor)], radii=-0.75, colors=[(*colour[:3], 150)], draw_order=0.1))
 
 
+_LEGEND_ROWS = 3
+_ROW = 0.07  # legend row height, a fraction of the scene's height
+
+
+def view_bounds(bounds: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The box the view opens on: the scene ``bounds`` and, above them, the legend's band."""
+    x0, x1, y0, y1 = bounds
+    return x0, x1, y0, y1 + (_LEGEND_ROWS + 0.5) * _ROW * (y1 - y0)
+
+
 def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                sensors: Sequence[tuple[Sensor, tuple[int, int, int, int]]],
-               track_rgb: tuple[int, int, int] = PALETTE[2]) -> None:
-    """Static legend in the scene's top corners, one entity per symbol:
-    ``world/legend/<what>``, the symbol drawn as in the scene with its meaning as label;
-    ``world/legend/sensors`` one dot per sensor (with its colour) under the right column.
-    ``track_rgb``: the colour of the track symbols (the first track's, once there is one)."""
+               track: tuple[tuple[int, int, int], str] | None = None) -> None:
+    """Static legend in a band above the scene (:func:`view_bounds`), one entity per symbol:
+    ``world/legend/<what>``, the symbol drawn as in the scene with its meaning as label; in
+    the middle column ``world/legend/sensors``, one dot per sensor in its colour.  ``track``:
+    the colour and name of the first track, drawn as the track symbols' example (before it, a
+    palette colour and no name)."""
     x0, x1, y0, y1 = scene.bounds
     w, h = x1 - x0, y1 - y0
-    dy = 0.09 * h
-    left, right = x0 + 0.2 * w, x1 - 0.17 * w
-    top = y1 - 0.03 * h
+    dy = _ROW * h
+    left, mid, right = x0 + 0.15 * w, x0 + 0.5 * w, x1 - 0.15 * w
+    top = y1 + _LEGEND_ROWS * dy
+    track_rgb, name = track if track is not None else (PALETTE[2], "")
 
-    def at(col: float, row: int) -> np.ndarray:
+    def at(col: float, row: float) -> np.ndarray:
         return np.array([col, top - row * dy])
 
     rec.log(f"{LEGEND}/measurement", rr.Points2D([at(left, 0)], radii=R_MEAS_ASSIGNED, colors=[WHITE_UNASSIGNED],
@@ -122,8 +134,8 @@ def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
         colors=[GREY_TRUTH], labels=["truth", ""], show_labels=True), static=True)
     c = at(right, 1)
     trail = c + np.stack([np.linspace(-0.06 * w, 0.0, 6), 0.01 * w * np.sin(np.linspace(0, 3, 6))], -1)
-    rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb], labels=["track T1 + trail"],
-                                           show_labels=True),
+    rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb],
+                                           labels=[f"track {name} + trail".replace("  ", " ")], show_labels=True),
             rr.LineStrips2D([trail], radii=R_TRAIL, colors=[track_rgb]), static=True)
     c = at(right, 2)
     ell = c + scene.circle * (0.03 * w, 0.012 * h)
@@ -131,8 +143,9 @@ def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                                                  labels=[f"{ELLIPSE_SIGMA:g}-sigma ellipse"], show_labels=True),
             static=True)
     if sensors:
+        step = min(1.0, (_LEGEND_ROWS - 1) / max(len(sensors) - 1, 1))
         rec.log(f"{LEGEND}/sensors", rr.Points2D(
-            [at(right, 3 + i) for i in range(len(sensors))], radii=-6.0, colors=[c for _s, c in sensors],
+            [at(mid, i * step) for i in range(len(sensors))], radii=-6.0, colors=[c for _s, c in sensors],
             labels=[f"sensor {sensor_title(s)} ({s.kind})" for s, _c in sensors], show_labels=True), static=True)
 
 

@@ -48,16 +48,16 @@ from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_
 from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
                                  send, track_colours, track_style)
 from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index,
-                                  track_strips, truth_crosses, truth_trails)
+                                  labels_shown, track_strips, truth_crosses, truth_trails)
 from bnptrack.sinks.rerun_measurements import measurement_chunks
-from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, write_static
+from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, view_bounds, write_static
 from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
 from bnptrack.sinks.rerun_style import (CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
                                FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, OSPA,
                                OSPA2, R_RING, RINGS,
                                SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
                                label_color, pack_rgba, unpack_rgba)
-from bnptrack.tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame, display_name
 
 if TYPE_CHECKING:
     from bnptrack.sinks.metrics import OspaResult
@@ -79,6 +79,7 @@ class _Rec(NamedTuple):
     tcls: np.ndarray  # (n,) class ids of the tracks
     tcol: np.ndarray  # (n,) packed colours of the tracks (their cluster's, else their label's)
     ccl: np.ndarray  # (n,) motion cluster of the tracks (-1: none)
+    shown: np.ndarray  # (n,) whether the track's name shows (not beside an older track's)
     model: Any  # the frame's measurement model (its sensor's, as the tracker resolved it)
     z: np.ndarray  # (M, d) measurements
     idx: np.ndarray | None  # (M,) index of the assigned track, -1 clutter; None: no assignments
@@ -164,7 +165,7 @@ class RerunSink:
         """The recording stream, saving to :attr:`path` (and streaming to :attr:`live`)."""
         rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
         self._truth_layout = True  # the blueprint's; switched off at a first frame without truth
-        blueprint = default_blueprint(scene_bounds=self._geo.bounds)
+        blueprint = default_blueprint(scene_bounds=view_bounds(self._geo.bounds))
         if self.live:
             rec.set_sinks(rr.GrpcSink(self.live), rr.FileSink(self.path), default_blueprint=blueprint)
         else:
@@ -186,9 +187,8 @@ class RerunSink:
         self._styled: set[str] = set()
         self._colors: dict[str, int] = {}
         self._truth_live: set[str] = set()
-        self._legend_rgb: tuple[int, int, int] | None = None  # the first track's colour
+        self._legend_track: tuple[tuple[int, int, int], str] | None = None  # the first track's colour, name
         self._context_logged = False
-        self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
         self._cc = ClusterColours()
 
     # -- public ------------------------------------------------------------------------
@@ -217,7 +217,7 @@ class RerunSink:
             k, t = int(frame.frame), int(frame.stamp_ns)
             if self._prev_frame is None and frame.truth is None and self._truth_layout:
                 self._truth_layout = False  # a log without truth: no (empty) OSPA panel
-                self._rec.send_blueprint(default_blueprint(scene_bounds=self._geo.bounds, truth=False),
+                self._rec.send_blueprint(default_blueprint(scene_bounds=view_bounds(self._geo.bounds), truth=False),
                                          make_active=True, make_default=True)
             sensor, model = self._sensors.resolve(frame)
             self._draw_sensors(k, t, sensor)
@@ -229,6 +229,11 @@ class RerunSink:
                 self._at(k, t)
                 self._log_context()
             pos, cov, tcls, tcol, ccl = self._track_arrays(tracks, labels)
+            x0, x1, y0, y1 = self._geo.bounds  # a name (under its dot): about 1/10 of the width, 1/16 of the height
+            shown = labels_shown(pos, np.argsort(tcls, kind="stable"), (0.1 * (x1 - x0), 0.06 * (y1 - y0)))
+            if self._legend_track is None and labels:  # the legend shows the first track as drawn
+                self._legend_track = (unpack_rgba(int(tcol[0]))[:3], display_name(labels[0]))
+                self._log_legend()
             idx = assignment_index(frame.n_measurements, estimate.assignments, labels)
             truth = frame.truth
             if truth is not None:
@@ -238,7 +243,7 @@ class RerunSink:
             else:
                 tids = tpos = None
             self._grow(pos)
-            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, model, frame.z, idx,
+            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, shown, model, frame.z, idx,
                                      tids, tpos))
             self._log_scalars(k, t, frame, estimate, ospa, ospa2, health)
             self._prev_frame = k
@@ -269,18 +274,15 @@ class RerunSink:
         if new is None or new == self._geo.bounds:
             return False
         self._geo = self._geo.with_bounds(new)
-        self._rec.send_blueprint(default_blueprint(scene_bounds=new, truth=self._truth_layout),
+        self._rec.send_blueprint(default_blueprint(scene_bounds=view_bounds(new), truth=self._truth_layout),
                                  make_active=True, make_default=True)
         log_grid(self._rec, new)
         self._log_legend()
         return True
 
     def _log_legend(self) -> None:
-        sensors = [(s, self._sensors.colour(s)) for s in self._sensors.drawn]
-        if self._legend_rgb is None:
-            log_legend(self._rec, self._geo, sensors)
-        else:
-            log_legend(self._rec, self._geo, sensors, self._legend_rgb)
+        log_legend(self._rec, self._geo, [(s, self._sensors.colour(s)) for s in self._sensors.drawn],
+                   self._legend_track)
 
     def _track_arrays(self, tracks: Any, labels: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids, packed colours
@@ -358,7 +360,7 @@ class RerunSink:
         (its name and colour), so hovering a measurement names the track it went to."""
         classes = [(CLUTTER_CLASS, "clutter", pack_rgba(GREY_CLUTTER)),
                    (UNASSIGNED_CLASS, "measurement", pack_rgba(WHITE_UNASSIGNED))]
-        classes += [(self._class[lab], f"{self._names[lab]} (label {lab})", self._colors[lab])
+        classes += [(self._class[lab], display_name(lab), self._colors[lab])
                     for lab in sorted(self._live, key=self._class.__getitem__)]
         self._log_arrays(WORLD, annotation_context(self._s, classes))
         self._context_logged = True
@@ -384,12 +386,10 @@ class RerunSink:
         self._at(k, t)
         for lab in ended:
             self._clears.append((self._track_path(lab), k, t))
-            self._event(f"track {self._names[lab]} ended (label {lab}, last seen at frame {self._prev_frame})")
+            self._event(f"track {display_name(lab)} ended (last seen at frame {self._prev_frame})")
         taken = [unpack_rgba(self._colors[o]) for o in labels if o in self._live]
         for lab in born:
-            name = self._names.get(lab)
-            if name is None:  # T1, T2, ... in order of confirmation; kept if the label comes back
-                name = self._names[lab] = f"T{len(self._names) + 1}"
+            name = display_name(lab)
             self._class[lab] = self._next_class
             self._next_class = (FIRST_LABEL_CLASS if self._next_class >= MAX_CLASS
                                 else self._next_class + 1)
@@ -399,7 +399,7 @@ class RerunSink:
             if self._colors.get(lab) != packed:  # static style: fixed for the label's life
                 self._colors[lab] = packed
                 self._log_arrays(self._track_path(lab), track_style(name), static=True)
-            self._event(f"track {name} born (label {lab})")
+            self._event(f"track {name} born")
         self._live = now
         if born:  # new classes: re-log the context, with the live labels only
             self._class = {lab: self._class[lab] for lab in labels}
@@ -475,17 +475,18 @@ class RerunSink:
             for i, lab in enumerate(r.labels):
                 g = per.get(lab)
                 if g is None:
-                    g = per[lab] = ([], [], [], [], [])
+                    g = per[lab] = ([], [], [], [], [], [])
                 g[0].append(r.k)
                 g[1].append(r.t)
                 g[2].append(r.pos[i])
                 g[3].append(r.cov[i])
                 g[4].append(r.tcol[i])
+                g[5].append(r.shown[i])
         # a label that ended (Clear) and came back starts a new trail after the clear
         cleared: dict[str, list[int]] = {}
         for path, k, _t in clears:
             cleared.setdefault(path, []).append(k)
-        for lab, (ks, ts, ps, cs, cols) in per.items():
+        for lab, (ks, ts, ps, cs, cols, shows) in per.items():
             path = self._track_path(lab)
             P = np.array(ps)
             kk = np.asarray(ks, dtype=np.int64)
@@ -497,6 +498,7 @@ class RerunSink:
                 ("Points2D:positions", s.positions(P), np.ones(W, dtype=np.int64)),
                 ("LineStrips2D:strips", s.strip_array(pts, lengths), np.full(W, 2)),
                 *track_colours(np.array(cols, dtype=np.uint32)),
+                ("Points2D:show_labels", pa.array(np.array(shows, dtype=bool)), np.ones(W, dtype=np.int64)),
             ])
         for lab in [lab for lab in self._history if lab not in self._live]:
             del self._history[lab]
