@@ -1,6 +1,6 @@
 """A recording draws each sensor at its pose and each measurement where its sensor saw it: a
 radar at (1500, -700) heading 40 deg declared in the parameters, and an ``xy`` lidar at
-(3000, 1000) whose frames carry their own pose.  Positions are read back from the ``.rrd``."""
+(3000, 1000) heading -30 deg whose frames carry their own pose (``benchmarks/posed_sensor_logs.py``).  Positions are read back from the ``.rrd``."""
 
 from __future__ import annotations
 
@@ -14,38 +14,13 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+from benchmarks.posed_sensor_logs import LIDAR, RADAR, posed_log  # noqa: E402
 from bnptrack.sinks.rerun_sink import write_recording  # noqa: E402
-from bnptrack.sources.scenarios import get_scenario  # noqa: E402
-from bnptrack.sources.synthetic import measure_with, measurement_frame_rng, move_truth  # noqa: E402
 from bnptrack.tracker.bnp import make_tracker  # noqa: E402
 from bnptrack.tracker.config import apply_overrides  # noqa: E402
-from bnptrack.tracker.models.params import load_params  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
-from bnptrack.tracker.types import Frame  # noqa: E402
 
 N_FRAMES = 30
-RADAR = (1500.0, -700.0, float(np.deg2rad(40.0)))
-LIDAR = (3000.0, 1000.0, float(np.deg2rad(-30.0)))
-
-
-def posed_log(kind: str, pose: tuple[float, float, float], *, pose_in_frames: bool):
-    """vo2017 seed 1 moved to lie around a sensor at ``pose`` and measured by it.  Returns the
-    frames and the parameters the run is tracked and recorded with: with ``pose_in_frames`` each
-    frame carries the pose (the parameters declare no sensor), else the parameters'
-    ``[sensors.s]`` table holds it (the frames carry none)."""
-    sc = get_scenario("vo2017")
-    table = [f"sensors.s.kind='{kind}'", f"sensors.s.x={pose[0]}", f"sensors.s.y={pose[1]}",
-             f"sensors.s.heading_deg={np.rad2deg(pose[2])}"]
-    anywhere = ["birth=[]", "birth_rate=0.1"]  # the scene's birth regions are not moved
-    measured = sc.adapt_params(apply_overrides(load_params("vo2017"), table))
-    frames = []
-    for k, tr in enumerate(sc.truth(1.0)[:N_FRAMES], start=1):
-        moved = move_truth(tr, pose)
-        z, kd, ps = measure_with(measurement_frame_rng(1, k), moved, measured, kind, "s")
-        frames.append(Frame(k, k * 10**9, "s", kd, z, moved, pose=ps if pose_in_frames else None))
-    base = sc.adapt_params(load_params("vo2017"))
-    params = apply_overrides(base, anywhere if pose_in_frames else [*table, *anywhere])
-    return frames, params
 
 
 def read_rrd(path: Path) -> dict[str, list]:
@@ -76,7 +51,7 @@ CASES = {
 @pytest.fixture(scope="module", params=sorted(CASES))
 def recorded(request, tmp_path_factory):
     kind, pose, in_frames = CASES[request.param]
-    frames, params = posed_log(kind, pose, pose_in_frames=in_frames)
+    frames, params = posed_log(kind, pose, pose_in_frames=in_frames, n_frames=N_FRAMES)
     estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames, 0)]
     path = tmp_path_factory.mktemp("posed") / f"{request.param}.rrd"
     write_recording(path, frames, estimates, {"scenario": request.param}, params=params)
@@ -135,7 +110,7 @@ def test_scene_covers_the_field_of_view_and_the_tracks(recorded):
 
 
 def test_several_sensors_each_with_its_colour_and_legend_entry(tmp_path):
-    frames, params = posed_log("bearing_range", RADAR, pose_in_frames=False)
+    frames, params = posed_log("bearing_range", RADAR, pose_in_frames=False, n_frames=5)
     params = apply_overrides(params, ["sensors.lidar.kind='xy'", f"sensors.lidar.x={LIDAR[0]}",
                                       f"sensors.lidar.y={LIDAR[1]}"])
     estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames[:5], 0)]
@@ -149,3 +124,28 @@ def test_several_sensors_each_with_its_colour_and_legend_entry(tmp_path):
     legend = c["/world/legend/sensors"][-1]
     assert legend.column("Points2D:labels").to_pylist()[-1] == ["sensor s (bearing_range)", "sensor lidar (xy)"]
     assert sorted(legend.column("Points2D:colors").to_pylist()[-1]) == sorted(colours.values())
+
+
+def test_track_rrd_draws_the_params_sensor_pose(tmp_path):
+    """``bnptrack track LOG --params FILE --rrd`` (the recording in a child process) resolves
+    the sensor from the parameter file as the tracker does: assignment lines stay short."""
+    from click.testing import CliRunner
+
+    from benchmarks.posed_sensor_logs import params_toml
+    from bnptrack import write_log
+    from bnptrack.pipeline.cli import main
+
+    frames, _params = posed_log("bearing_range", RADAR, pose_in_frames=False, n_frames=N_FRAMES)
+    log, toml, rrd = tmp_path / "radar.mcap", tmp_path / "radar.toml", tmp_path / "r.rrd"
+    write_log(log, frames)
+    toml.write_text(params_toml("bearing_range", RADAR))
+    res = CliRunner().invoke(main, ["track", str(log), "--params", str(toml), "--rrd", str(rrd),
+                                    "--out", str(tmp_path / "t.mcap")])
+    assert res.exit_code == 0, res.output
+    c = read_rrd(rrd)
+    assert [p for p in c if p.startswith("/world/sensors/")] == ["/world/sensors/s"]
+    np.testing.assert_allclose(by_frame(c["/world/sensors/s"], "Points2D:positions")[1][0], RADAR[:2], atol=1e-2)
+    lines = [np.asarray(seg, dtype=float) for v in by_frame(c["/world/assignments"], "LineStrips2D:strips").values()
+             for seg in v]
+    lengths = np.array([np.hypot(*(s[0] - s[1])) for s in lines])
+    assert lengths.size > N_FRAMES and np.median(lengths) < 50.0 and lengths.max() < 300.0
