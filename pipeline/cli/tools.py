@@ -132,7 +132,8 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
 def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
     """Export a run's tracks (the output of `track`) as a table.
 
-    One row per track per frame: frame, stamp_ns, label, the state [px, vx, py, vy, omega],
+    One row per track per frame: frame, stamp_ns, label, name (the display name the viewer
+    and the summary show), the state [px, vx, py, vy, omega],
     its covariance diagonal (var_*) and the existence. When the run has truth, a second file
     holds one row per frame: OSPA (c=100 m, p=1, position) and its parts, cardinality error.
 
