@@ -112,11 +112,40 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     span = (stamps[-1] - stamps[0]) / 1e9
     dt = np.diff(np.asarray(stamps, dtype=np.int64)) / 1e9
     rate = f"{(len(stamps) - 1) / span:.3g} frames/s" if span > 0 else "n/a (all stamps equal)"
-    rows.append(("time", f"{stamps[0] / 1e9:.3f} - {stamps[-1] / 1e9:.3f} s (span {span:.3f} s), {rate}"
-                 + (f", dt median {np.median(dt):.3g} s, min {dt.min():.3g}, max {dt.max():.3g}" if dt.size else "")))
+    origin = " after t = 0" if stamps[-1] < _DATE_FROM_NS else ""
+    rows.append(("time", f"{stamp_text(stamps[0])} to {stamp_text(stamps[-1])}{origin} (span {duration_text(span)}), {rate}"
+                 + (f", dt median {duration_text(float(np.median(dt)))}, min {duration_text(float(dt.min()))}, "
+                    f"max {duration_text(float(dt.max()))}" if dt.size else "")))
     if error is not None:
         rows.append(("error", str(error)))
     return rows
+
+
+#: Stamps from this one on (2001-09-09) read as dates; smaller ones as seconds from the origin.
+_DATE_FROM_NS = 10**18
+
+
+def stamp_text(stamp_ns: int) -> str:
+    """A time stamp as a UTC date and time (``2024-03-01 12:00:05.250 UTC``) when it is one,
+    else (a log that counts from 0) as seconds from the origin (``5.250 s``)."""
+    if stamp_ns < _DATE_FROM_NS:
+        return f"{stamp_ns / 1e9:.3f} s"
+    from datetime import datetime, timezone
+
+    d = datetime.fromtimestamp(stamp_ns // 10**9, tz=timezone.utc)
+    return f"{d:%Y-%m-%d %H:%M:%S}.{stamp_ns % 10**9 // 10**6:03d} UTC"
+
+
+def duration_text(seconds: float) -> str:
+    """A duration: ``250 ms``, ``59 s``, ``1.5 s``, ``2 min 05 s``, ``3 h 02 min 05 s``."""
+    if seconds < 1.0:
+        return f"{seconds * 1e3:.3g} ms"
+    if seconds < 60.0:
+        return f"{seconds:.3g} s"
+    total = int(round(seconds))
+    h, rest = divmod(total, 3600)
+    m, sec = divmod(rest, 60)
+    return f"{h} h {m:02d} min {sec:02d} s" if h else f"{m} min {sec:02d} s"
 
 
 # --------------------------------------------------------------------------- export
