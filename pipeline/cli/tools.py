@@ -11,7 +11,8 @@ from pathlib import Path
 import click
 
 from bnptrack.pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
-from bnptrack.tracker.messages import MSG_TYPES, json_schema
+from bnptrack.tracker.message_units import described_schema
+from bnptrack.tracker.messages import MSG_TYPES
 from bnptrack.pipeline.experiments import DEFAULT_EXPERIMENT_PARAMS, EXPERIMENTS
 from bnptrack.sources.mcap_log import McapLogError, read_metadata
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
@@ -350,8 +351,9 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
 def schema(topic: str) -> None:
     """Print the JSON Schema of a channel's messages.
 
-    TOPIC is /measurements, /truth or /tracks. The same schema is stored in every MCAP log for its channel (schema encoding
-    jsonschema). The leading slash is optional.
+    TOPIC is /measurements, /truth or /tracks. Each property's "description" gives its unit
+    (m, m/s, rad, ns, ...). The same schema, without those descriptions, is stored in every MCAP
+    log for its channel (schema encoding jsonschema). The leading slash is optional.
 
     \b
     Example:
@@ -362,4 +364,4 @@ def schema(topic: str) -> None:
         raise click.UsageError(
             f"unknown topic {topic!r}; valid topics: {', '.join(MSG_TYPES)}"
         )
-    click.echo(json.dumps(json_schema(name), indent=2))
+    click.echo(json.dumps(described_schema(name), indent=2))
