@@ -21,7 +21,10 @@ against the tracker's own; see docs/rerun.md.
 The parts: :mod:`sinks.rerun_style` (entity paths, colours, sizes), :mod:`sinks.rerun_geometry`
 (ellipses, trails, crosses, rings: numpy), :mod:`sinks.rerun_columns` (ready Arrow columns),
 :mod:`sinks.rerun_clusters` (colours by motion cluster, cluster links, the structure series),
-:mod:`sinks.rerun_scene` (static content), :mod:`sinks.rerun_blueprint` (the layout),
+:mod:`sinks.rerun_sensors` (each frame's sensor and measurement model, resolved as the tracker
+resolves them; fields of view; the scene's extent), :mod:`sinks.rerun_measurements` (the
+measurement columns, in the world frame through that model),
+:mod:`sinks.rerun_scene` (static content, the sensors), :mod:`sinks.rerun_blueprint` (the layout),
 :mod:`sinks.rerun_tools` (the ``rerun`` CLI: verify, repair; analytics off) and
 :mod:`sinks.rerun_process` (the recording in a child process).
 """

@@ -149,3 +149,27 @@ def test_track_rrd_draws_the_params_sensor_pose(tmp_path):
              for seg in v]
     lengths = np.array([np.hypot(*(s[0] - s[1])) for s in lines])
     assert lengths.size > N_FRAMES and np.median(lengths) < 50.0 and lengths.max() < 300.0
+
+
+def test_a_moving_sensor_is_drawn_at_each_frames_pose(tmp_path):
+    """A pose that changes frame by frame: the sensor is drawn again at each new pose, and each
+    frame's measurements go through that frame's pose."""
+    from dataclasses import replace
+
+    from bnptrack.tracker.models.params import load_params
+
+    frames, _ = posed_log("bearing_range", RADAR, pose_in_frames=True, n_frames=6)
+    poses = [(RADAR[0] + 100.0 * k, RADAR[1], RADAR[2]) for k in range(6)]
+    # the same rows seen from a sensor that moved 100 m east per frame
+    frames = [replace(f, pose=p) for f, p in zip(frames, poses)]
+    params = load_params("vo2017")
+    estimates = [e for _f, e, _s in run(make_tracker("ddp-mb", params), frames, 0)]
+    path = tmp_path / "moving.rrd"
+    write_recording(path, frames, estimates, {}, params=params)
+    c = read_rrd(path)
+    dots = by_frame(c["/world/sensors/s"], "Points2D:positions")
+    assert sorted(dots) == [f.frame for f in frames]
+    for f, p in zip(frames, poses):
+        np.testing.assert_allclose(dots[f.frame][0], p[:2], atol=1e-2)
+        want = params.measurement(f.kind, params.frame_sensor(f)).to_cartesian(f.z)[0]
+        np.testing.assert_allclose(by_frame(c["/world/measurements"], "Points2D:positions")[f.frame], want, atol=0.05)
