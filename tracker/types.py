@@ -26,12 +26,12 @@ def display_name(label: str) -> str:
     pure function of its internal label, so it is the same in every reader, for the track's
     whole life and across a resumed run.
 
-    The trackers' labels ``"<birth frame>.<index>"`` (the frame the track was born at and the
-    index of the measurement that started it) read ``T<birth frame>.<index>``: ``"26.0"`` ->
-    ``"T26.0"``.  Any other label is shown as it is.
+    The trackers' labels ``"<birth frame>.<tag>"`` (the frame the track was born at and the
+    measurement or hypothesis that started it) read ``T<birth frame>.<tag>``: ``"26.0"`` ->
+    ``"T26.0"``, ``"2.z4"`` -> ``"T2.z4"``.  Any other label is shown as it is.
     """
     head, dot, tail = label.partition(".")
-    if dot and head.isdigit() and tail.isdigit():
+    if dot and head.isdigit() and tail.isalnum():
         return f"T{label}"
     return label
 

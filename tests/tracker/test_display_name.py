@@ -10,7 +10,7 @@ from bnptrack.sinks.rerun_geometry import labels_shown
 from bnptrack.tracker.types import TrackEstimate, display_name
 
 
-@pytest.mark.parametrize("label, name", [("1.4", "T1.4"), ("26.0", "T26.0"), ("t1", "t1"), ("a.b", "a.b"),
+@pytest.mark.parametrize("label, name", [("1.4", "T1.4"), ("26.0", "T26.0"), ("2.z4", "T2.z4"), ("t1", "t1"), ("a.b", "a.b"), ("1.a-b", "1.a-b"),
                                          ("12", "12"), ("1.", "1."), ("", "")])
 def test_display_name_of_a_label(label, name):
     assert display_name(label) == name
