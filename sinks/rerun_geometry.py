@@ -109,15 +109,25 @@ def measurement_xy(model: Any, Z: np.ndarray, tpos: np.ndarray, gidx: np.ndarray
 def labels_shown(pos: np.ndarray, order: np.ndarray, box: tuple[float, float]) -> np.ndarray:
     """``(n,)`` which of the ``(n, 2)`` track positions show their name: taken in ``order``
     (oldest track first), a name is shown unless a shown one lies within ``box`` = (dx, dy)
-    (m; a name is wider than high), so that the names of nearby tracks do not overprint."""
+    (m; a name is wider than high), so that the names of nearby tracks do not overprint.
+
+    The shown names are kept in a grid of ``box``-sized cells, so each test looks at the few
+    shown names of the 3 x 3 cells around (linear in ``n``)."""
     n = pos.shape[0]
     shown = np.zeros(n, dtype=bool)
-    if n == 0:
+    bx, by = float(box[0]), float(box[1])
+    if n == 0 or not (bx > 0.0 and by > 0.0):
         return shown
-    d = np.abs(pos[:, None, :] - pos[None, :, :])
-    near = (d[..., 0] < box[0]) & (d[..., 1] < box[1])
-    for i in order:
-        shown[i] = not (near[i] & shown).any()
+    xy = pos.tolist()
+    cells: dict[tuple[int, int], list[int]] = {}
+    for i in np.asarray(order).tolist():
+        x, y = xy[i]
+        cx, cy = math.floor(x / bx), math.floor(y / by)
+        near = any(abs(x - xy[j][0]) < bx and abs(y - xy[j][1]) < by
+                   for ax in (cx - 1, cx, cx + 1) for ay in (cy - 1, cy, cy + 1) for j in cells.get((ax, ay), ()))
+        if not near:
+            shown[i] = True
+            cells.setdefault((cx, cy), []).append(i)
     return shown
 
 

@@ -29,3 +29,17 @@ def test_names_of_nearby_tracks_are_thinned_oldest_first():
     # the older one keeps its name whichever comes first in the arrays
     assert labels_shown(pos, np.array([1, 0, 2, 3]), (100.0, 50.0)).tolist() == [False, True, True, True]
     assert labels_shown(np.zeros((0, 2)), np.zeros(0, dtype=int), (1.0, 1.0)).tolist() == []
+
+
+def test_thinning_equals_the_pairwise_rule():
+    """The grid search gives what testing every pair gives (random scenes, hand-written rule)."""
+    rng = np.random.default_rng(7)
+    for n in (1, 5, 50, 300):
+        pos = rng.uniform(-2000.0, 2000.0, (n, 2))
+        order = rng.permutation(n)
+        box = (400.0, 240.0)
+        want = np.zeros(n, dtype=bool)
+        for i in order:
+            d = np.abs(pos[want] - pos[i])
+            want[i] = not ((d[:, 0] < box[0]) & (d[:, 1] < box[1])).any()
+        np.testing.assert_array_equal(labels_shown(pos, order, box), want)
