@@ -1,6 +1,7 @@
 """``bnptrack export``: a run's tracks (and per-frame metrics) as CSV or Parquet tables.
 
-One row per track per frame: ``frame, stamp_ns, label, px, vx, py, vy, omega`` (the state),
+One row per track per frame: ``frame, stamp_ns, label, name, px, vx, py, vy, omega`` (the state;
+``name`` the track's display name, :func:`tracker.types.display_name`, as the viewer shows it),
 ``var_px .. var_omega`` (the covariance diagonal) and ``existence``.  When the run has truth
 (``/truth``), a second table holds one row per frame: ``frame, stamp_ns, n_true, n_tracks,
 n_measurements, ospa, ospa_localisation, ospa_cardinality, cardinality_error`` (OSPA c = 100 m,
@@ -15,9 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bnptrack.sources.mcap_log import read_log
+from bnptrack.tracker.types import display_name
 
 STATE_NAMES = ("px", "vx", "py", "vy", "omega")
-TRACK_COLUMNS = ("frame", "stamp_ns", "label", *STATE_NAMES, *(f"var_{n}" for n in STATE_NAMES), "existence")
+TRACK_COLUMNS = ("frame", "stamp_ns", "label", "name", *STATE_NAMES, *(f"var_{n}" for n in STATE_NAMES), "existence")
 METRIC_COLUMNS = ("frame", "stamp_ns", "n_true", "n_tracks", "n_measurements", "ospa", "ospa_localisation",
                   "ospa_cardinality", "cardinality_error")
 
@@ -41,7 +43,7 @@ def run_tables(run: str | os.PathLike) -> tuple[list[tuple], list[tuple]]:
     tracks, metrics = [], []
     for est in log.tracks:
         for t in est.tracks:
-            tracks.append((est.frame, est.stamp_ns, t.label, *map(float, t.state),
+            tracks.append((est.frame, est.stamp_ns, t.label, display_name(t.label), *map(float, t.state),
                            *map(float, t.covariance.diagonal()), float(t.existence)))
         f = frames.get(est.frame)
         if f is not None and f.truth is not None:

@@ -136,6 +136,8 @@ class TrackResult:
     """Label keeping through the log's crossing pairs (``None``: no pairs or no truth)."""
     warnings: tuple[str, ...] = ()
     """Why the run probably cannot work (:class:`RunHealth`): printed by ``track``."""
+    final_names: tuple[str, ...] = ()
+    """Display names (:func:`tracker.types.display_name`) of the last frame's tracks."""
 
     @property
     def n_frames(self) -> int:
@@ -228,7 +230,7 @@ def track_frames(
     :func:`sinks.metrics.crossing_label_keeping` into :attr:`TrackResult.crossings`.
     """
     rows: list[FrameMetrics] = []
-    final = 0
+    final, names = 0, ()
     error: McapLogError | FrameBoundError | None = None
     seen: list[tuple[Frame, Estimate]] = []
     health = RunHealth(getattr(tracker, "params", None))
@@ -241,13 +243,13 @@ def track_frames(
             if on_estimate is not None:
                 on_estimate(frame, est, row)
             rows.append(row)
-            final = len(est.tracks)
+            final, names = len(est.tracks), tuple(t.name for t in est.tracks)
             if crossings:
                 seen.append((frame, est))
     except (McapLogError, FrameBoundError) as exc:
         error = exc
     return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings),
-                       health.warnings(final))
+                       health.warnings(final), names)
 
 
 def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,

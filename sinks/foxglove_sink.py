@@ -27,6 +27,7 @@ import numpy as np
 
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.records import SinkOptions, SinkRecord
+from bnptrack.tracker.types import display_name
 
 __all__ = ["FoxgloveSceneSink", "TOPIC_SCENE", "SCENE_SCHEMA", "scene_update", "track_display_name"]
 
@@ -46,8 +47,9 @@ SCENE_SCHEMA = json.dumps({
 
 
 def track_display_name(track: Any) -> str:
-    """The name shown beside a track: its label."""
-    return str(track.label)
+    """The name shown beside a track: :func:`tracker.types.display_name` of its label (the
+    same name as in the Rerun recording, the summary and the export)."""
+    return display_name(str(track.label))
 
 
 def _time(stamp_ns: int) -> dict[str, int]:

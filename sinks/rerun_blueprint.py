@@ -51,8 +51,16 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(DIAG_NAMES), health:
 
 
 def _metric_views(truth: bool) -> list[Any]:
-    structure = rrb.TimeSeriesView(origin=STRUCTURE, name="clusters; posterior cardinality mean and MAP")
+    """The metric panels, each legend in the corner its curves leave free: the counts start
+    low (top left), OSPA starts at its cut-off until the first tracks are confirmed and falls
+    (top right), so that no legend hides the first frames."""
+    low_start = rrb.PlotLegend(rrb.Corner2D.LeftTop)
+    structure = rrb.TimeSeriesView(origin=STRUCTURE, name="clusters; posterior cardinality mean and MAP",
+                                   plot_legend=low_start)
     if not truth:
-        return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)"), structure]
-    return [rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true"), structure,
-            rrb.TimeSeriesView(origin="metrics", contents=[OSPA, OSPA2], name="OSPA (c=100 m, p=1) and OSPA(2)")]
+        return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)",
+                                   plot_legend=low_start), structure]
+    return [rrb.TimeSeriesView(origin=CARDINALITY, name="cardinality: estimated vs true", plot_legend=low_start),
+            structure,
+            rrb.TimeSeriesView(origin="metrics", contents=[OSPA, OSPA2], name="OSPA (c=100 m, p=1) and OSPA(2)",
+                               plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop))]

@@ -115,13 +115,14 @@ def entity_part(part: str) -> str:
 
 
 def track_style(name: str) -> dict[str, pa.Array]:
-    """The static style of a track's entity: short name, sizes and draw order.  Its colours are
+    """The static style of a track's entity: display name, sizes and draw order.  Its colours are
     temporal (:func:`track_colours`): a track of a two-level tracker takes its cluster's colour,
-    which changes with the cluster (a static colour would shadow them)."""
+    which changes with the cluster (a static colour would shadow them); so is whether its name
+    shows (``Points2D:show_labels``: hidden beside an older track's,
+    :func:`sinks.rerun_geometry.labels_shown`)."""
     return {
         "Points2D:labels": pa.array([name], type=pa.string()),
         "Points2D:radii": pa.array([R_TRACK], type=pa.float32()),
-        "Points2D:show_labels": pa.array([True], type=pa.bool_()),
         "Points2D:draw_order": pa.array([5.0], type=pa.float32()),
         "LineStrips2D:radii": pa.array([R_TRAIL, R_ELLIPSE], type=pa.float32()),
         "LineStrips2D:show_labels": pa.array([False], type=pa.bool_()),

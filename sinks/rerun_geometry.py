@@ -15,8 +15,8 @@ import numpy as np
 
 from bnptrack.sinks.rerun_style import ELLIPSE_POINTS, ELLIPSE_SIGMA
 
-__all__ = ["SceneGeometry", "ellipses", "gather", "fov_bounds", "nice_step", "truth_crosses",
-           "measurement_xy", "hits_per_row", "assignment_index", "track_strips",
+__all__ = ["SceneGeometry", "ellipses", "gather", "nice_step", "truth_crosses",
+           "measurement_xy", "labels_shown", "hits_per_row", "assignment_index", "track_strips",
            "truth_trails", "EMPTY2", "EMPTY22", "EMPTY_U16", "EMPTY_U32"]
 
 EMPTY2 = np.zeros((0, 2))
@@ -27,26 +27,25 @@ EMPTY_U32 = np.zeros(0, dtype=np.uint32)
 
 @dataclass(frozen=True)
 class SceneGeometry:
-    """The scene of a run's sensor: range (m), half field of view (rad), the ``(x0, x1, y0, y1)``
-    box drawn, the half-size of a truth cross (m), the unit circle of the ellipses
-    (``(ELLIPSE_POINTS + 1, 2)``) and the angles of a range ring."""
+    """The scene drawn: the ``(x0, x1, y0, y1)`` box (m), the half-size of a truth cross (m)
+    and the unit circle of the ellipses (``(ELLIPSE_POINTS + 1, 2)``)."""
 
-    range_max: float
-    half_fov: float
     bounds: tuple[float, float, float, float]
     cross: float
     circle: np.ndarray
-    arc: np.ndarray
 
     @classmethod
-    def of(cls, params: Any) -> SceneGeometry:
-        """From the run's :class:`tracker.models.params.ModelParams` (``None``: a 2000 m /
-        +-90 deg field)."""
-        rng = float(getattr(params, "range_max", 2000.0))
-        half = math.radians(float(getattr(params, "bearing_half_fov_deg", 90.0)))
+    def of(cls, bounds: tuple[float, float, float, float]) -> SceneGeometry:
+        """The scene of the box ``bounds`` (the sensors' fields of view,
+        :func:`sinks.rerun_sensors.scene_extent`)."""
         circle = np.linspace(0.0, 2.0 * np.pi, ELLIPSE_POINTS + 1)
-        return cls(rng, half, fov_bounds(rng, half), 0.015 * rng,
-                   np.stack([np.cos(circle), np.sin(circle)], axis=-1), np.linspace(-half, half, 49))
+        span = max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1.0)
+        return cls(tuple(float(b) for b in bounds), 0.0075 * span,  # type: ignore[arg-type]
+                   np.stack([np.cos(circle), np.sin(circle)], axis=-1))
+
+    def with_bounds(self, bounds: tuple[float, float, float, float]) -> SceneGeometry:
+        """The same scene over a larger box (the cross keeps its size)."""
+        return SceneGeometry(tuple(float(b) for b in bounds), self.cross, self.circle)  # type: ignore[arg-type]
 
 
 def ellipses(center: np.ndarray, cov: np.ndarray, circle: np.ndarray, k: float) -> np.ndarray:
@@ -77,15 +76,6 @@ def gather(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np
     return points[idx], lengths
 
 
-def fov_bounds(range_max: float, half_fov: float) -> tuple[float, float, float, float]:
-    """(x0, x1, y0, y1) box around the sensor's field of view, with a 5% margin."""
-    a = np.linspace(-half_fov, half_fov, 181)
-    xs = np.concatenate([[0.0], range_max * np.sin(a)])
-    ys = np.concatenate([[0.0], range_max * np.cos(a)])
-    m = 0.05 * range_max
-    return float(xs.min() - m), float(xs.max() + m), float(ys.min() - m), float(ys.max() + m)
-
-
 def nice_step(span: float) -> float:
     """The largest round grid step (1, 2 or 5 x 10^n metres) not above ``span``."""
     base = 10.0 ** math.floor(math.log10(max(span, 1e-9)))
@@ -114,6 +104,31 @@ def measurement_xy(model: Any, Z: np.ndarray, tpos: np.ndarray, gidx: np.ndarray
     if hit.any():
         toward[hit] = tpos[gidx[hit]]
     return model.locus_point(Z, toward)
+
+
+def labels_shown(pos: np.ndarray, order: np.ndarray, box: tuple[float, float]) -> np.ndarray:
+    """``(n,)`` which of the ``(n, 2)`` track positions show their name: taken in ``order``
+    (oldest track first), a name is shown unless a shown one lies within ``box`` = (dx, dy)
+    (m; a name is wider than high), so that the names of nearby tracks do not overprint.
+
+    The shown names are kept in a grid of ``box``-sized cells, so each test looks at the few
+    shown names of the 3 x 3 cells around (linear in ``n``)."""
+    n = pos.shape[0]
+    shown = np.zeros(n, dtype=bool)
+    bx, by = float(box[0]), float(box[1])
+    if n == 0 or not (bx > 0.0 and by > 0.0):
+        return shown
+    xy = pos.tolist()
+    cells: dict[tuple[int, int], list[int]] = {}
+    for i in np.asarray(order).tolist():
+        x, y = xy[i]
+        cx, cy = math.floor(x / bx), math.floor(y / by)
+        near = any(abs(x - xy[j][0]) < bx and abs(y - xy[j][1]) < by
+                   for ax in (cx - 1, cx, cx + 1) for ay in (cy - 1, cy, cy + 1) for j in cells.get((ax, ay), ()))
+        if not near:
+            shown[i] = True
+            cells.setdefault((cx, cy), []).append(i)
+    return shown
 
 
 def hits_per_row(hit: np.ndarray, counts: np.ndarray) -> np.ndarray:

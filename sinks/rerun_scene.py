@@ -1,27 +1,32 @@
-"""The static content of a recording (written once, at the start): the run's metadata, the
-sensor and its field of view, the metric grid with its axes and tick labels, the legend and the
-fixed styles of the measurements, assignments and truth."""
+"""The static content of a recording (written at the start): the run's metadata, the metric grid
+with its axes and tick labels, the legend and the fixed styles of the measurements, assignments
+and truth (grid and legend are written again when the scene grows); and the sensors, each drawn
+at its pose (:func:`log_sensor`, from the frame it is first seen at, again when it moves)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import rerun as rr
 
+from bnptrack.sinks.rerun_columns import entity_part
 from bnptrack.sinks.rerun_geometry import SceneGeometry, nice_step
+from bnptrack.sinks.rerun_sensors import fov_outline, sensor_title
 from bnptrack.sinks.rerun_style import (ASSIGNMENTS, AXES, ELLIPSE_SIGMA, GREY_CLUTTER, GREY_TRUTH, GREY_TRUTH_TRAIL, GRID,
                                GRID_TICKS, LEGEND, MEASUREMENTS, METADATA, PALETTE, R_ASSIGN_LINE, R_ELLIPSE,
                                R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_TRACK, R_TRAIL, R_TRUTH_CROSS, R_TRUTH_TRAIL,
-                               SENSOR, SENSOR_COLOR, TRUTH, TRUTH_TRAILS, WHITE_UNASSIGNED, WORLD)
+                               SENSORS, TRUTH, TRUTH_TRAILS, WHITE_UNASSIGNED, WORLD)
+from bnptrack.tracker.models.sensors import Sensor
 
-__all__ = ["write_static", "log_grid", "log_legend"]
+__all__ = ["write_static", "log_grid", "log_legend", "log_sensor", "view_bounds"]
 
 
 def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[str, str], trail: int) -> None:
     """The static content of a recording: run metadata (document and recording property), the
-    y-up transform, the sensor and its field of view, the grid, the legend and the styles of
-    the measurements, assignments and truth."""
+    y-up transform, the grid, the legend and the styles of the measurements, assignments and
+    truth."""
     meta = {str(k): str(v) for k, v in metadata.items()}
     meta.setdefault("bnptrack_version", _version("bnptrack"))
     meta.setdefault("rerun_version", rr.__version__)
@@ -33,24 +38,17 @@ def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[s
     rows = "\n".join(f"| {k} | {_md(v)} |" for k, v in meta.items())
     rec.log(METADATA, rr.TextDocument(
         "# bnptrack run\n\n| key | value |\n| --- | --- |\n" + rows + "\n\n"
-        "Scene: x east, y north (m), sensor at the origin, grid lines every "
-        f"{nice_step((scene.bounds[1] - scene.bounds[0]) / 8):g} m; the legend is in the top "
-        "corners. Tracks: dot + short name (T1, T2, ... in order of confirmation; hover a "
-        "track for its internal label, in its entity path), trail of the "
+        "Scene: x east, y north (m), each sensor at its pose with its field of view, grid lines every "
+        f"{nice_step((scene.bounds[1] - scene.bounds[0]) / 8):g} m; the legend is above the scene. "
+        "Tracks: dot + name (T<birth frame>.<index>, as in the summary and the export; a name "
+        "beside an older track's is hidden), trail of the "
         f"last {trail} positions, {ELLIPSE_SIGMA:g}-sigma position ellipse. Measurements "
         "take the colour of the track they were assigned to; grey dots are clutter; thin lines "
         "join a measurement to its track. Grey crosses and thin trails: ground truth.",
         media_type=rr.MediaType.MARKDOWN), static=True)
     rec.log(WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # draw +y up
-    arc = np.linspace(-scene.half_fov, scene.half_fov, 91)
-    fov = np.concatenate([[[0.0, 0.0]],
-                          np.stack([scene.range_max * np.sin(arc), scene.range_max * np.cos(arc)], -1),
-                          [[0.0, 0.0]]])
-    rec.log(SENSOR, rr.Points2D([[0.0, 0.0]], radii=-6.0, colors=[SENSOR_COLOR], labels=["sensor"]),
-            rr.LineStrips2D([fov], radii=-0.75, colors=[(110, 110, 110, 150)], draw_order=0.1),
-            static=True)
     log_grid(rec, scene.bounds)
-    log_legend(rec, scene)
+    log_legend(rec, scene, ())
     # styles that do not change from frame to frame
     rec.log(MEASUREMENTS, rr.Points2D.from_fields(show_labels=False, draw_order=3.0), static=True)
     rec.log(ASSIGNMENTS, rr.LineStrips2D.from_fields(radii=[R_ASSIGN_LINE], show_labels=False,
@@ -85,18 +83,41 @@ def log_grid(rec: rr.RecordingStream, bounds: tuple[float, float, float, float])
                                     show_labels=True, draw_order=0.05), static=True)
 
 
-def log_legend(rec: rr.RecordingStream, scene: SceneGeometry) -> None:
-    """Static legend in the scene's top corners (empty: outside the field of view), one
-    entity per symbol: ``world/legend/<what>``, the symbol drawn as in the scene with its
-    meaning as label."""
+def log_sensor(rec: rr.RecordingStream, sensor: Sensor, colour: tuple[int, int, int, int]) -> None:
+    """The sensor at its pose (at the stream's present time): ``world/sensors/<name>``, a dot
+    labelled with its name and the outline of its field of view, in its own colour."""
+    rec.log(f"{SENSORS}/{entity_part(sensor_title(sensor))}",
+            rr.Points2D([[sensor.x, sensor.y]], radii=-6.0, colors=[colour], labels=[sensor_title(sensor)],
+                        show_labels=True),
+            rr.LineStrips2D([fov_outline(sensor)], radii=-0.75, colors=[(*colour[:3], 150)], draw_order=0.1))
+
+
+_LEGEND_ROWS = 3
+_ROW = 0.07  # legend row height, a fraction of the scene's height
+
+
+def view_bounds(bounds: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The box the view opens on: the scene ``bounds`` and, above them, the legend's band."""
+    x0, x1, y0, y1 = bounds
+    return x0, x1, y0, y1 + (_LEGEND_ROWS + 0.5) * _ROW * (y1 - y0)
+
+
+def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
+               sensors: Sequence[tuple[Sensor, tuple[int, int, int, int]]],
+               track: tuple[tuple[int, int, int], str] | None = None) -> None:
+    """Static legend in a band above the scene (:func:`view_bounds`), one entity per symbol:
+    ``world/legend/<what>``, the symbol drawn as in the scene with its meaning as label; in
+    the middle column ``world/legend/sensors``, one dot per sensor in its colour.  ``track``:
+    the colour and name of the first track, drawn as the track symbols' example (before it, a
+    palette colour and no name)."""
     x0, x1, y0, y1 = scene.bounds
     w, h = x1 - x0, y1 - y0
-    dy = 0.09 * h
-    left, right = x0 + 0.2 * w, x1 - 0.17 * w
-    top = y1 - 0.03 * h
-    track_rgb = PALETTE[2]
+    dy = _ROW * h
+    left, mid, right = x0 + 0.15 * w, x0 + 0.5 * w, x1 - 0.15 * w
+    top = y1 + _LEGEND_ROWS * dy
+    track_rgb, name = track if track is not None else (PALETTE[2], "")
 
-    def at(col: float, row: int) -> np.ndarray:
+    def at(col: float, row: float) -> np.ndarray:
         return np.array([col, top - row * dy])
 
     rec.log(f"{LEGEND}/measurement", rr.Points2D([at(left, 0)], radii=R_MEAS_ASSIGNED, colors=[WHITE_UNASSIGNED],
@@ -113,14 +134,19 @@ def log_legend(rec: rr.RecordingStream, scene: SceneGeometry) -> None:
         colors=[GREY_TRUTH], labels=["truth", ""], show_labels=True), static=True)
     c = at(right, 1)
     trail = c + np.stack([np.linspace(-0.06 * w, 0.0, 6), 0.01 * w * np.sin(np.linspace(0, 3, 6))], -1)
-    rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb], labels=["track T1 + trail"],
-                                           show_labels=True),
+    rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb],
+                                           labels=[f"track {name} + trail".replace("  ", " ")], show_labels=True),
             rr.LineStrips2D([trail], radii=R_TRAIL, colors=[track_rgb]), static=True)
     c = at(right, 2)
     ell = c + scene.circle * (0.03 * w, 0.012 * h)
     rec.log(f"{LEGEND}/ellipse", rr.LineStrips2D([ell], radii=R_ELLIPSE, colors=[(*track_rgb, 170)],
                                                  labels=[f"{ELLIPSE_SIGMA:g}-sigma ellipse"], show_labels=True),
             static=True)
+    if sensors:
+        step = min(1.0, (_LEGEND_ROWS - 1) / max(len(sensors) - 1, 1))
+        rec.log(f"{LEGEND}/sensors", rr.Points2D(
+            [at(mid, i * step) for i in range(len(sensors))], radii=-6.0, colors=[c for _s, c in sensors],
+            labels=[f"sensor {sensor_title(s)} ({s.kind})" for s, _c in sensors], show_labels=True), static=True)
 
 
 def _ident(key: str) -> str:

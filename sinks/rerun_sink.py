@@ -21,7 +21,10 @@ against the tracker's own; see docs/rerun.md.
 The parts: :mod:`sinks.rerun_style` (entity paths, colours, sizes), :mod:`sinks.rerun_geometry`
 (ellipses, trails, crosses, rings: numpy), :mod:`sinks.rerun_columns` (ready Arrow columns),
 :mod:`sinks.rerun_clusters` (colours by motion cluster, cluster links, the structure series),
-:mod:`sinks.rerun_scene` (static content), :mod:`sinks.rerun_blueprint` (the layout),
+:mod:`sinks.rerun_sensors` (each frame's sensor and measurement model, resolved as the tracker
+resolves them; fields of view; the scene's extent), :mod:`sinks.rerun_measurements` (the
+measurement columns, in the world frame through that model),
+:mod:`sinks.rerun_scene` (static content, the sensors), :mod:`sinks.rerun_blueprint` (the layout),
 :mod:`sinks.rerun_tools` (the ``rerun`` CLI: verify, repair; analytics off) and
 :mod:`sinks.rerun_process` (the recording in a child process).
 """
@@ -47,15 +50,17 @@ from bnptrack.sinks.rerun_blueprint import default_blueprint
 from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_first_cluster, structure_rows, track_clusters
 from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
                                  send, track_colours, track_style)
-from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, hits_per_row,
-                                  measurement_xy, track_strips, truth_crosses, truth_trails)
-from bnptrack.sinks.rerun_scene import write_static
-from bnptrack.sinks.rerun_style import (ASSIGNMENTS, CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
-                               FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, MEASUREMENTS, OSPA,
-                               OSPA2, R_MEAS_ASSIGNED, R_MEAS_CLUTTER, R_RING, RINGS,
+from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index,
+                                  labels_shown, track_strips, truth_crosses, truth_trails)
+from bnptrack.sinks.rerun_measurements import measurement_chunks
+from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, view_bounds, write_static
+from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
+from bnptrack.sinks.rerun_style import (CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
+                               FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, OSPA,
+                               OSPA2, R_RING, RINGS,
                                SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
                                label_color, pack_rgba, unpack_rgba)
-from bnptrack.tracker.types import Estimate, Frame
+from bnptrack.tracker.types import Estimate, Frame, display_name
 
 if TYPE_CHECKING:
     from bnptrack.sinks.metrics import OspaResult
@@ -77,7 +82,8 @@ class _Rec(NamedTuple):
     tcls: np.ndarray  # (n,) class ids of the tracks
     tcol: np.ndarray  # (n,) packed colours of the tracks (their cluster's, else their label's)
     ccl: np.ndarray  # (n,) motion cluster of the tracks (-1: none)
-    kind: str
+    shown: np.ndarray  # (n,) whether the track's name shows (not beside an older track's)
+    model: Any  # the frame's measurement model (its sensor's, as the tracker resolved it)
     z: np.ndarray  # (M, d) measurements
     idx: np.ndarray | None  # (M,) index of the assigned track, -1 clutter; None: no assignments
     truth_ids: tuple[str, ...] | None
@@ -97,9 +103,10 @@ class RerunSink:
             ``bnptrack_version`` and ``rerun_version`` are added.
         trail: number of positions (the current one included) in the trail drawn behind each
             track and each true object.
-        params: the model parameters of the run (:class:`tracker.models.params.ModelParams`),
-            for the measurement model (sensor position) and the field of view; default: the
-            sensor at the origin with a 2000 m / +-90 deg field.
+        params: the model parameters of the run (:class:`tracker.models.params.ModelParams`):
+            each frame's sensor (pose, field of view) and measurement model are resolved from
+            them and the frame as the tracker resolves them (:class:`sinks.rerun_sensors.SensorBook`);
+            default: the built-in ``vo2017`` set.
         handle_signals: install SIGTERM/SIGINT handlers (main thread only) that finalise the
             file (footer written) before the signal's previous disposition runs.
         live: a Rerun gRPC URL (``rerun+http://HOST:PORT/proxy``: a viewer, e.g. one started by
@@ -146,7 +153,8 @@ class RerunSink:
         self._time: tuple[int, int] | None = None  # (frame, stamp) last set on the stream
         self._last_flush = time.monotonic()
 
-        self._geo = SceneGeometry.of(params)
+        self._sensors = SensorBook(params)
+        self._geo = SceneGeometry.of(scene_extent(self._sensors.declared() or [self._sensors.default()]))
         self.live = live or None
         self._rec = self._open_stream(application_id)
         self._s = Schema()
@@ -160,7 +168,7 @@ class RerunSink:
         """The recording stream, saving to :attr:`path` (and streaming to :attr:`live`)."""
         rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
         self._truth_layout = True  # the blueprint's; switched off at a first frame without truth
-        blueprint = default_blueprint(scene_bounds=self._geo.bounds)
+        blueprint = default_blueprint(scene_bounds=view_bounds(self._geo.bounds))
         if self.live:
             rec.set_sinks(rr.GrpcSink(self.live), rr.FileSink(self.path), default_blueprint=blueprint)
         else:
@@ -182,9 +190,8 @@ class RerunSink:
         self._styled: set[str] = set()
         self._colors: dict[str, int] = {}
         self._truth_live: set[str] = set()
-        self._meas_models: dict[str, Any] = {}
+        self._legend_track: tuple[tuple[int, int, int], str] | None = None  # the first track's colour, name
         self._context_logged = False
-        self._names: dict[str, str] = {}  # label -> short name (T1, T2, ... in order of birth)
         self._cc = ClusterColours()
 
     # -- public ------------------------------------------------------------------------
@@ -213,8 +220,10 @@ class RerunSink:
             k, t = int(frame.frame), int(frame.stamp_ns)
             if self._prev_frame is None and frame.truth is None and self._truth_layout:
                 self._truth_layout = False  # a log without truth: no (empty) OSPA panel
-                self._rec.send_blueprint(default_blueprint(scene_bounds=self._geo.bounds, truth=False),
+                self._rec.send_blueprint(default_blueprint(scene_bounds=view_bounds(self._geo.bounds), truth=False),
                                          make_active=True, make_default=True)
+            sensor, model = self._sensors.resolve(frame)
+            self._draw_sensors(k, t, sensor)
             tracks = estimate.tracks
             labels = tuple(tr.label for tr in tracks)
             if set(labels) != self._live:
@@ -223,6 +232,11 @@ class RerunSink:
                 self._at(k, t)
                 self._log_context()
             pos, cov, tcls, tcol, ccl = self._track_arrays(tracks, labels)
+            x0, x1, y0, y1 = self._geo.bounds  # a name (under its dot): about 1/10 of the width, 1/16 of the height
+            shown = labels_shown(pos, np.argsort(tcls, kind="stable"), (0.1 * (x1 - x0), 0.06 * (y1 - y0)))
+            if self._legend_track is None and labels:  # the legend shows the first track as drawn
+                self._legend_track = (unpack_rgba(int(tcol[0]))[:3], display_name(labels[0]))
+                self._log_legend()
             idx = assignment_index(frame.n_measurements, estimate.assignments, labels)
             truth = frame.truth
             if truth is not None:
@@ -231,12 +245,47 @@ class RerunSink:
                 tids, tpos = truth.ids, truth.positions
             else:
                 tids = tpos = None
-            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, frame.kind, frame.z, idx,
+            self._grow(pos)
+            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, shown, model, frame.z, idx,
                                      tids, tpos))
             self._log_scalars(k, t, frame, estimate, ospa, ospa2, health)
             self._prev_frame = k
             if time.monotonic() - self._last_flush >= self.flush_interval:
                 self.flush(wait=False)
+
+    def _draw_sensors(self, k: int, t: int, sensor: Any) -> None:
+        """Draw the frame's sensor (and, at the first frame, the declared ones) where it is not
+        drawn yet at its present pose; grow the scene to its field of view (at the first frame
+        of a run without declared sensors: set the scene to it)."""
+        first = self._prev_frame is None
+        todo = self._sensors.to_draw([*(self._sensors.declared() if first else ()), sensor])
+        if not todo:
+            return
+        self._at(k, t)
+        for s in todo:
+            log_sensor(self._rec, s, self._sensors.colour(s))
+        outlines = np.concatenate([fov_outline(s) for s in todo])
+        if not self._grow(outlines, reset=first and not self._sensors.params.sensors):
+            self._log_legend()
+
+    def _grow(self, points: np.ndarray, reset: bool = False) -> bool:
+        """Grow the scene (view bounds, grid, legend) to hold ``points`` (``reset``: set it to
+        them); whether it changed."""
+        if not points.shape[0]:
+            return False
+        new = box_of(points) if reset else grown(self._geo.bounds, points)
+        if new is None or new == self._geo.bounds:
+            return False
+        self._geo = self._geo.with_bounds(new)
+        self._rec.send_blueprint(default_blueprint(scene_bounds=view_bounds(new), truth=self._truth_layout),
+                                 make_active=True, make_default=True)
+        log_grid(self._rec, new)
+        self._log_legend()
+        return True
+
+    def _log_legend(self) -> None:
+        log_legend(self._rec, self._geo, [(s, self._sensors.colour(s)) for s in self._sensors.drawn],
+                   self._legend_track)
 
     def _track_arrays(self, tracks: Any, labels: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids, packed colours
@@ -314,7 +363,7 @@ class RerunSink:
         (its name and colour), so hovering a measurement names the track it went to."""
         classes = [(CLUTTER_CLASS, "clutter", pack_rgba(GREY_CLUTTER)),
                    (UNASSIGNED_CLASS, "measurement", pack_rgba(WHITE_UNASSIGNED))]
-        classes += [(self._class[lab], f"{self._names[lab]} (label {lab})", self._colors[lab])
+        classes += [(self._class[lab], display_name(lab), self._colors[lab])
                     for lab in sorted(self._live, key=self._class.__getitem__)]
         self._log_arrays(WORLD, annotation_context(self._s, classes))
         self._context_logged = True
@@ -340,12 +389,10 @@ class RerunSink:
         self._at(k, t)
         for lab in ended:
             self._clears.append((self._track_path(lab), k, t))
-            self._event(f"track {self._names[lab]} ended (label {lab}, last seen at frame {self._prev_frame})")
+            self._event(f"track {display_name(lab)} ended (last seen at frame {self._prev_frame})")
         taken = [unpack_rgba(self._colors[o]) for o in labels if o in self._live]
         for lab in born:
-            name = self._names.get(lab)
-            if name is None:  # T1, T2, ... in order of confirmation; kept if the label comes back
-                name = self._names[lab] = f"T{len(self._names) + 1}"
+            name = display_name(lab)
             self._class[lab] = self._next_class
             self._next_class = (FIRST_LABEL_CLASS if self._next_class >= MAX_CLASS
                                 else self._next_class + 1)
@@ -355,7 +402,7 @@ class RerunSink:
             if self._colors.get(lab) != packed:  # static style: fixed for the label's life
                 self._colors[lab] = packed
                 self._log_arrays(self._track_path(lab), track_style(name), static=True)
-            self._event(f"track {name} born (label {lab})")
+            self._event(f"track {name} born")
         self._live = now
         if born:  # new classes: re-log the context, with the live labels only
             self._class = {lab: self._class[lab] for lab in labels}
@@ -431,17 +478,18 @@ class RerunSink:
             for i, lab in enumerate(r.labels):
                 g = per.get(lab)
                 if g is None:
-                    g = per[lab] = ([], [], [], [], [])
+                    g = per[lab] = ([], [], [], [], [], [])
                 g[0].append(r.k)
                 g[1].append(r.t)
                 g[2].append(r.pos[i])
                 g[3].append(r.cov[i])
                 g[4].append(r.tcol[i])
+                g[5].append(r.shown[i])
         # a label that ended (Clear) and came back starts a new trail after the clear
         cleared: dict[str, list[int]] = {}
         for path, k, _t in clears:
             cleared.setdefault(path, []).append(k)
-        for lab, (ks, ts, ps, cs, cols) in per.items():
+        for lab, (ks, ts, ps, cs, cols, shows) in per.items():
             path = self._track_path(lab)
             P = np.array(ps)
             kk = np.asarray(ks, dtype=np.int64)
@@ -453,6 +501,7 @@ class RerunSink:
                 ("Points2D:positions", s.positions(P), np.ones(W, dtype=np.int64)),
                 ("LineStrips2D:strips", s.strip_array(pts, lengths), np.full(W, 2)),
                 *track_colours(np.array(cols, dtype=np.uint32)),
+                ("Points2D:show_labels", pa.array(np.array(shows, dtype=bool)), np.ones(W, dtype=np.int64)),
             ])
         for lab in [lab for lab in self._history if lab not in self._live]:
             del self._history[lab]
@@ -468,91 +517,16 @@ class RerunSink:
         for comps in cluster_columns(self._s, frames):
             self._send(CLUSTERS, ks, ts, comps)
 
-    def _measurement_model(self, kind: str) -> Any:
-        model = self._meas_models.get(kind)
-        if model is None:
-            if self._params is not None:
-                model = self._params.measurement(kind)
-            else:
-                from bnptrack.tracker.models.measurement import measurement_kind
-
-                model = measurement_kind(kind).model()
-            self._meas_models[kind] = model
-        return model
-
     def _send_measurements(self, frames: list[_Rec]) -> None:
-        """Measurements, measurement->track lines and (range-only) rings of all kept frames."""
-        for kind in dict.fromkeys(r.kind for r in frames):
-            self._send_kind([r for r in frames if r.kind == kind], kind)
-
-    def _send_kind(self, rows: list[_Rec], kind: str) -> None:
-        """The measurements of the kept frames of one kind (coloured by the track they were
-        assigned to), then their lines and rings."""
-        s = self._s
-        ks = np.array([r.k for r in rows], dtype=np.int64)
-        ts = np.array([r.t for r in rows], dtype=np.int64)
-        counts = np.array([r.z.shape[0] for r in rows], dtype=np.int64)
-        ntr = np.array([r.pos.shape[0] for r in rows], dtype=np.int64)
-        Z = np.concatenate([r.z for r in rows])
-        tpos = np.concatenate([r.pos for r in rows])
-        tcls = np.concatenate([r.tcls for r in rows])
-        tcol = np.concatenate([r.tcol for r in rows])
-        has = np.repeat(np.array([r.idx is not None for r in rows]), counts)
-        idx = np.concatenate([r.idx if r.idx is not None else np.full(r.z.shape[0], -1)
-                              for r in rows]).astype(np.int64)
-        tr_off = np.concatenate([[0], np.cumsum(ntr)[:-1]])
-        hit = idx >= 0
-        gidx = np.where(hit, idx + np.repeat(tr_off, counts), 0)
-        model = self._measurement_model(kind)
-        # rows that fix no position (range-only): their loci (rings) go to world/measurements/rings
-        xy = measurement_xy(model, Z, tpos, gidx, hit)
-        cls = np.where(hit, tcls[gidx] if tcls.size else 0,
-                       np.where(has, CLUTTER_CLASS, UNASSIGNED_CLASS)).astype(np.uint16)
-        col = np.where(hit, tcol[gidx] if tcol.size else 0,
-                       np.where(has, pack_rgba(GREY_CLUTTER), pack_rgba(WHITE_UNASSIGNED))).astype(np.uint32)
-        radii = np.where(hit, R_MEAS_ASSIGNED, R_MEAS_CLUTTER).astype(np.float32)
-        self._send(MEASUREMENTS, ks, ts, [
-            ("Points2D:positions", s.positions(xy), counts),
-            ("Points2D:class_ids", pa.array(cls, type=pa.uint16()), counts),
-            ("Points2D:colors", pa.array(col, type=pa.uint32()), counts),
-            ("Points2D:radii", pa.array(radii, type=pa.float32()), counts),
-        ])
-        nh = int(hit.sum())
-        lines = np.empty((nh, 2, 2))
-        lines[:, 0] = xy[hit]
-        lines[:, 1] = tpos[gidx[hit]] if nh else lines[:, 1]
-        self._send_lines(ks, ts, lines, hits_per_row(hit, counts), cls[hit], col[hit])
-        if not getattr(model, "fixes_position", True):
-            self._send_rings(ks, ts, counts, Z, model, cls, col)
-
-    def _send_lines(self, ks: np.ndarray, ts: np.ndarray, lines: np.ndarray, per_row: np.ndarray,
-                    cls: np.ndarray, col: np.ndarray) -> None:
-        """Measurement -> track lines ``(n, 2, 2)``, ``per_row[i]`` of them at frame ``ks[i]``."""
-        self._send(ASSIGNMENTS, ks, ts, [
-            ("LineStrips2D:strips", self._s.strip_array(lines.reshape(-1, 2), np.full(lines.shape[0], 2)),
-             per_row),
-            ("LineStrips2D:colors", pa.array((col & np.uint32(0xFFFFFF00)) | np.uint32(150),
-                                             type=pa.uint32()), per_row),
-            ("LineStrips2D:class_ids", pa.array(cls, type=pa.uint16()), per_row),
-        ])
-
-    def _send_rings(self, ks: np.ndarray, ts: np.ndarray, counts: np.ndarray, Z: np.ndarray, model: Any,
-                    cls: np.ndarray, col: np.ndarray) -> None:
-        """Measurements that fix no position: one arc of each row's locus (the range ring of a
-        range-only row) over the scene's bearings."""
-        if RINGS not in self._styled:
-            self._rec.log(RINGS, rr.LineStrips2D.from_fields(
-                radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
-            self._styled.add(RINGS)
-        a = self._geo.arc
-        arcs = model.locus(Z, a)
-        self._send(RINGS, ks, ts, [
-            ("LineStrips2D:strips", self._s.strip_array(arcs.reshape(-1, 2), np.full(Z.shape[0], a.size)),
-             counts),
-            ("LineStrips2D:colors", pa.array((col & np.uint32(0xFFFFFF00)) | np.uint32(90),
-                                             type=pa.uint32()), counts),
-            ("LineStrips2D:class_ids", pa.array(cls, type=pa.uint16()), counts),
-        ])
+        """Measurements, measurement->track lines and (range-only) rings of all kept frames,
+        per sensor model (:mod:`sinks.rerun_measurements`)."""
+        for model in dict.fromkeys(r.model for r in frames):
+            for entity, ks, ts, comps in measurement_chunks(self._s, [r for r in frames if r.model == model], model):
+                if entity == RINGS and RINGS not in self._styled:
+                    self._rec.log(RINGS, rr.LineStrips2D.from_fields(
+                        radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
+                    self._styled.add(RINGS)
+                self._send(entity, ks, ts, comps)
 
     def _send_truth(self, frames: list[_Rec]) -> None:
         """Grey crosses and trails of the true objects of the kept frames that have truth."""

@@ -1,10 +1,11 @@
 """What a Rerun recording of a run looks like: its entity paths, annotation classes, colours and
 sizes (:mod:`sinks.rerun_sink` writes them; the tests read them back).  Does not import rerun.
 
-Entity tree (``world`` is drawn with +y up; positions in metres, sensor at the origin)::
+Entity tree (``world`` is drawn with +y up; positions in metres, world frame)::
 
     world                      AnnotationContext (class 0 clutter, 1 unassigned, 2.. labels)
-    world/sensor               sensor position and field of view (static)
+    world/sensors/<name>       each sensor at its pose: dot, name, field-of-view wedge (a ring
+                               for range-only kinds); logged again when its pose changes
     world/grid                 metric grid (static); world/grid/axes x and y axes, world/grid/ticks
                                tick labels in metres
     world/legend/<what>        legend symbols with their meaning (static, top corners)
@@ -42,7 +43,7 @@ __all__ = ["label_color", "cluster_color", "pack_rgba", "unpack_rgba", "PALETTE"
 # --------------------------------------------------------------------------- entity paths
 
 WORLD = "world"
-SENSOR = "world/sensor"
+SENSORS = "world/sensors"
 MEASUREMENTS = "world/measurements"
 RINGS = "world/measurements/rings"
 ASSIGNMENTS = "world/assignments"

@@ -20,6 +20,22 @@ from bnptrack.tracker.models.measurement import KINDS
 #: ``Frame`` checks a kind against the registry itself, so a kind registered later is valid.
 SensorKind = Literal[tuple(KINDS)]  # type: ignore[valid-type]
 
+def display_name(label: str) -> str:
+    """The one name a track is shown by -- in the Rerun recording, ``track``'s summary, the
+    ``export`` tables, the Foxglove scene and the Python API (:attr:`TrackEstimate.name`): a
+    pure function of its internal label, so it is the same in every reader, for the track's
+    whole life and across a resumed run.
+
+    The trackers' labels ``"<birth frame>.<tag>"`` (the frame the track was born at and the
+    measurement or hypothesis that started it) read ``T<birth frame>.<tag>``: ``"26.0"`` ->
+    ``"T26.0"``, ``"2.z4"`` -> ``"T2.z4"``.  Any other label is shown as it is.
+    """
+    head, dot, tail = label.partition(".")
+    if dot and head.isdigit() and tail.isalnum():
+        return f"T{label}"
+    return label
+
+
 #: Object state layout used everywhere: ``[px, vx, py, vy, omega]``.
 STATE_DIM = 5
 POSITION_INDEX = (0, 2)
@@ -167,6 +183,11 @@ class TrackEstimate:
     @property
     def position(self) -> np.ndarray:
         return self.state[list(POSITION_INDEX)]
+
+    @property
+    def name(self) -> str:
+        """The track's display name (:func:`display_name` of its label)."""
+        return display_name(self.label)
 
 
 @dataclass(frozen=True)

@@ -389,7 +389,8 @@ def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> t
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
                 rrd: Path | None, lag: int = 0) -> list[tuple[str, str]]:
-    """The summary rows of ``track``: scores (with truth), tracks, time, files."""
+    """The summary rows of ``track``: scores (with truth), tracks (with their display names),
+    time, files."""
     rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
     if lag:
         rows.append(("lag", f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"))
@@ -405,10 +406,19 @@ def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
     else:
         rows.append(("mean OSPA", "n/a (the log has no /truth)"))
     rows += [
-        ("final tracks", str(res.final_tracks)),
+        ("final tracks", final_tracks_text(res.final_tracks, res.final_names)),
         ("ms per frame", f"median {fmt(res.ms_median)}, p95 {fmt(res.ms_p95)}"),
         ("wrote", f"{out} ({out.stat().st_size} bytes)"),
     ]
     if rrd is not None:
         rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; bnptrack view {rrd})"))
     return rows
+
+
+def final_tracks_text(n: int, names: tuple[str, ...], most: int = 12) -> str:
+    """``8: T1.4 T9.4 ...``: the number of final tracks and their display names (the names
+    the recording, the export and the Foxglove scene show), the first ``most`` of them."""
+    if not names:
+        return str(n)
+    shown = " ".join(names[:most])
+    return f"{n}: {shown}" + (f" (+{len(names) - most} more)" if len(names) > most else "")

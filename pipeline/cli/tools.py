@@ -11,7 +11,8 @@ from pathlib import Path
 import click
 
 from bnptrack.pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
-from bnptrack.tracker.messages import MSG_TYPES, json_schema
+from bnptrack.tracker.message_units import described_schema
+from bnptrack.tracker.messages import MSG_TYPES
 from bnptrack.pipeline.experiments import DEFAULT_EXPERIMENT_PARAMS, EXPERIMENTS
 from bnptrack.sources.mcap_log import McapLogError, read_metadata
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
@@ -112,11 +113,40 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     span = (stamps[-1] - stamps[0]) / 1e9
     dt = np.diff(np.asarray(stamps, dtype=np.int64)) / 1e9
     rate = f"{(len(stamps) - 1) / span:.3g} frames/s" if span > 0 else "n/a (all stamps equal)"
-    rows.append(("time", f"{stamps[0] / 1e9:.3f} - {stamps[-1] / 1e9:.3f} s (span {span:.3f} s), {rate}"
-                 + (f", dt median {np.median(dt):.3g} s, min {dt.min():.3g}, max {dt.max():.3g}" if dt.size else "")))
+    origin = " after t = 0" if stamps[-1] < _DATE_FROM_NS else ""
+    rows.append(("time", f"{stamp_text(stamps[0])} to {stamp_text(stamps[-1])}{origin} (span {duration_text(span)}), {rate}"
+                 + (f", dt median {duration_text(float(np.median(dt)))}, min {duration_text(float(dt.min()))}, "
+                    f"max {duration_text(float(dt.max()))}" if dt.size else "")))
     if error is not None:
         rows.append(("error", str(error)))
     return rows
+
+
+#: Stamps from this one on (2001-09-09) read as dates; smaller ones as seconds from the origin.
+_DATE_FROM_NS = 10**18
+
+
+def stamp_text(stamp_ns: int) -> str:
+    """A time stamp as a UTC date and time (``2024-03-01 12:00:05.250 UTC``) when it is one,
+    else (a log that counts from 0) as seconds from the origin (``5.250 s``)."""
+    if stamp_ns < _DATE_FROM_NS:
+        return f"{stamp_ns / 1e9:.3f} s"
+    from datetime import datetime, timezone
+
+    d = datetime.fromtimestamp(stamp_ns // 10**9, tz=timezone.utc)
+    return f"{d:%Y-%m-%d %H:%M:%S}.{stamp_ns % 10**9 // 10**6:03d} UTC"
+
+
+def duration_text(seconds: float) -> str:
+    """A duration: ``250 ms``, ``59 s``, ``1.5 s``, ``2 min 05 s``, ``3 h 02 min 05 s``."""
+    if seconds < 1.0:
+        return f"{seconds * 1e3:.3g} ms"
+    if seconds < 60.0:
+        return f"{seconds:.3g} s"
+    total = int(round(seconds))
+    h, rest = divmod(total, 3600)
+    m, sec = divmod(rest, 60)
+    return f"{h} h {m:02d} min {sec:02d} s" if h else f"{m} min {sec:02d} s"
 
 
 # --------------------------------------------------------------------------- export
@@ -132,7 +162,8 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
 def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
     """Export a run's tracks (the output of `track`) as a table.
 
-    One row per track per frame: frame, stamp_ns, label, the state [px, vx, py, vy, omega],
+    One row per track per frame: frame, stamp_ns, label, name (the display name the viewer
+    and the summary show), the state [px, vx, py, vy, omega],
     its covariance diagonal (var_*) and the existence. When the run has truth, a second file
     holds one row per frame: OSPA (c=100 m, p=1, position) and its parts, cardinality error.
 
@@ -323,8 +354,9 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
 def schema(topic: str) -> None:
     """Print the JSON Schema of a channel's messages.
 
-    TOPIC is /measurements, /truth or /tracks. The same schema is stored in every MCAP log for its channel (schema encoding
-    jsonschema). The leading slash is optional.
+    TOPIC is /measurements, /truth or /tracks. Each property's "description" gives its unit
+    (m, m/s, rad, ns, ...). The same schema, without those descriptions, is stored in every MCAP
+    log for its channel (schema encoding jsonschema). The leading slash is optional.
 
     \b
     Example:
@@ -335,4 +367,4 @@ def schema(topic: str) -> None:
         raise click.UsageError(
             f"unknown topic {topic!r}; valid topics: {', '.join(MSG_TYPES)}"
         )
-    click.echo(json.dumps(json_schema(name), indent=2))
+    click.echo(json.dumps(described_schema(name), indent=2))

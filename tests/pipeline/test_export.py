@@ -16,7 +16,7 @@ def test_export_rows_match_the_run(tmp_path):
     log, run = tmp_path / "vo.mcap", tmp_path / "vo-ddp.mcap"
     r = CliRunner()
     assert r.invoke(main, ["simulate", "--seed", "1", "--out", str(log), "-q"]).exit_code == 0
-    res = r.invoke(main, ["track", str(log), "--tracker", "ddp", "--out", str(run)])
+    res = res_track = r.invoke(main, ["track", str(log), "--tracker", "ddp", "--out", str(run)])
     assert res.exit_code == 0, res.output
     printed_ospa = float(res.output.split("mean OSPA")[1].split()[0])
     res = r.invoke(main, ["export", str(run), "--csv", str(tmp_path / "t.csv"), "--parquet", str(tmp_path / "t.parquet")])
@@ -28,6 +28,10 @@ def test_export_rows_match_the_run(tmp_path):
     t = first.tracks[0]
     row = rows[0]
     assert int(row["frame"]) == first.frame and row["label"] == t.label
+    # one display name everywhere: the export's, the summary's and the Python API's
+    assert all(r["name"] == f"T{r['label']}" for r in rows) and row["name"] == t.name
+    last = [tr.name for tr in ests[-1].tracks]
+    assert last and f"final tracks      {len(last)}: {' '.join(last[:12])}" in res_track.output
     np.testing.assert_allclose([float(row[k]) for k in ("px", "vx", "py", "vy", "omega")], t.state, rtol=1e-15)
     np.testing.assert_allclose(float(row["var_py"]), t.covariance[2, 2], rtol=1e-15)
     assert float(row["existence"]) == t.existence
@@ -35,7 +39,8 @@ def test_export_rows_match_the_run(tmp_path):
     assert len(metrics) == 100
     assert abs(np.mean([float(m["ospa"]) for m in metrics]) - printed_ospa) <= 0.005  # printed with 2 decimals
     table = pq.read_table(tmp_path / "t.parquet")
-    assert table.num_rows == len(rows) and table.column_names[:3] == ["frame", "stamp_ns", "label"]
+    assert table.num_rows == len(rows) and table.column_names[:4] == ["frame", "stamp_ns", "label", "name"]
+    assert table.column("name").to_pylist() == [r["name"] for r in rows]
 
 
 def test_export_needs_tracks(tmp_path):

@@ -119,7 +119,7 @@ def test_info_lists_channels_sensors_time_and_record(tmp_path):
     out = res.output
     assert "/measurements: schema bnptrack.Measurements (jsonschema), encoding json, 60 messages" in out
     assert "sensor            radar0: kind bearing_range, 60 frames, pose (0, 0, 90 deg)" in out
-    assert "0.500 - 30.000 s (span 29.500 s), 2 frames/s, dt median 0.5 s" in out
+    assert "0.500 s to 30.000 s after t = 0 (span 29.5 s), 2 frames/s, dt median 500 ms" in out
     assert "record            none" in out
     sim = tmp_path / "vo.mcap"
     assert CliRunner().invoke(main, ["simulate", "--seed", "2", "--out", str(sim), "-q"]).exit_code == 0

@@ -127,7 +127,7 @@ def test_entity_tree_and_timelines(vo_run, contents):
     _params, frames, estimates = vo_run
     paths = set(contents)
     expected = {
-        "/world", "/world/sensor", "/world/measurements", "/world/assignments", "/world/truth",
+        "/world", "/world/sensors/sim0", "/world/measurements", "/world/assignments", "/world/truth",
         "/world/truth/trails", "/metrics/cardinality", "/metrics/ospa", "/metrics/ospa2",
         "/diagnostics/alpha", "/diagnostics/d", "/diagnostics/n_clusters",
         "/diagnostics/log_joint", "/diagnostics/ms", "/events", "/metadata",
@@ -184,11 +184,11 @@ def test_diagnostics_series(vo_run, contents):
 
 
 def short_names(estimates) -> dict[str, str]:
-    """Label -> T1, T2, ... in order of first appearance (confirmation)."""
+    """Label -> its display name: "T" and the label ("26.0" -> "T26.0")."""
     names: dict[str, str] = {}
     for e in estimates:
         for lab in e.labels:
-            names.setdefault(lab, f"T{len(names) + 1}")
+            names.setdefault(lab, f"T{lab}")
     return names
 
 
@@ -243,7 +243,7 @@ def test_measurements_coloured_by_assignment(vo_run, contents):
         ctx = contexts[max(k for k in contexts if k <= f.frame)]
         names = {c["class_id"]: c["class_description"]["info"]["label"] for c in ctx[0]}
         got = [names[c] for c in cls[f.frame]]
-        want = ["clutter" if a is None else f"{short[a]} (label {a})" for a in e.assignments]
+        want = ["clutter" if a is None else short[a] for a in e.assignments]
         assert got == want
         hit = [a is not None for a in e.assignments]
         n_assigned += sum(hit)
@@ -282,7 +282,7 @@ def test_metadata_blueprint_and_events(vo_run, recording, contents):
     texts = [t for rb in contents["/events"] for row in rb.column("TextLog:text").to_pylist()
              for t in (row or [])]
     first = next(lab for e in estimates for lab in e.labels)
-    assert f"track T1 born (label {first})" in texts
+    assert f"track T{first} born" in texts
 
 
 def test_scene_grid_axes_and_legend(contents):
@@ -296,9 +296,9 @@ def test_scene_grid_axes_and_legend(contents):
     ticks = contents["/world/grid/ticks"][0].column("Points2D:labels").to_pylist()[0]
     assert ticks[:9] == ["-2000", "-1500", "-1000", "-500", "0", "500", "1000", "1500", "2000"]
     legend = {p.rsplit("/", 1)[1] for p in contents if p.startswith("/world/legend/")}
-    assert legend == {"measurement", "clutter", "assigned", "truth", "track", "ellipse"}
-    clutter = contents["/world/legend/clutter"][0]
-    assert clutter.column("Points2D:labels").to_pylist() == [["clutter (no track)"]]
+    assert legend == {"measurement", "clutter", "assigned", "truth", "track", "ellipse", "sensors"}
+    clutter = contents["/world/legend/clutter"][-1]
+    assert clutter.column("Points2D:labels").to_pylist()[-1] == ["clutter (no track)"]
 
 
 def test_track_colours_differ_from_truth_sensor_and_measurement_colours():

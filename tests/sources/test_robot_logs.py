@@ -258,6 +258,8 @@ def _time_to_proto(obj):
 
 def test_the_foxglove_sink_writes_scene_updates_beside_the_tracks(radar_runs):
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    from bnptrack.tracker.types import display_name
     from google.protobuf.json_format import ParseDict
     from google.protobuf.timestamp_pb2 import Timestamp
 
@@ -277,7 +279,7 @@ def test_the_foxglove_sink_writes_scene_updates_beside_the_tracks(radar_runs):
     assert set(scenes) == set(tracks) and len(scenes) == N_FRAMES
     for stamp, scene in scenes.items():
         assert [e.id for e in scene.entities] == [t["label"] for t in tracks[stamp]]
-        assert [e.texts[0].text for e in scene.entities] == [t["label"] for t in tracks[stamp]]
+        assert [e.texts[0].text for e in scene.entities] == [display_name(t["label"]) for t in tracks[stamp]]
         for e, t in zip(scene.entities, tracks[stamp]):
             assert (e.spheres[0].pose.position.x, e.spheres[0].pose.position.y) == (t["state"][0], t["state"][2])
             vx, vy = t["state"][1], t["state"][3]
