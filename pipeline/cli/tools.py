@@ -169,7 +169,7 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
 
     \b
     Example:
-      bnptrack export recordings/vo2017-s1-ddp.tracks.mcap --csv tracks.csv
+      bnptrack export recordings/vo2017-ddp.mcap --csv tracks.csv
     """
     from bnptrack.pipeline.export import export as do_export
 
@@ -253,8 +253,8 @@ def view(
 
     \b
     Examples:
-      bnptrack view recordings/vo2017-s1-ddp.rrd
-      bnptrack view recordings/vo2017-s1-ddp.rrd --screenshot shot.png --frame 60
+      bnptrack view recordings/vo2017-ddp.rrd
+      bnptrack view recordings/vo2017-ddp.rrd --screenshot shot.png --frame 60
       bnptrack view broken.rrd --repair fixed.rrd
     """
     from bnptrack.pipeline.view import ViewerUnavailable, open_viewer, screenshot
