@@ -121,6 +121,33 @@ def _setup_of(journal: Path) -> dict:
     return {k: v for k, v in header.items() if k != "format"}
 
 
+#: The experiments run at the paper's protocol (10,000 runs), journalled under benchmarks/protocol/.
+PROTOCOL = ("ddp-vs-glmb", "dpy-vs-glmb")
+PROTOCOL_DIR = Path(__file__).resolve().parent / "protocol"
+
+
+def protocol_section(runs: int, workers: int | None) -> str:
+    """Experiments 1 and 4 over the first ``runs`` runs of their journals in
+    benchmarks/protocol/ (resumed: runs the journals lack are run now; a journal of other
+    tracker code is carried over only if 20 of its runs, redone, give the same scores)."""
+    from bnptrack.pipeline.experiments import run_experiment
+
+    parts = []
+    for name in PROTOCOL:
+        out = PROTOCOL_DIR / name
+        res = run_experiment(name, runs=runs, out=out, workers=workers, quiet=True, rrd=False, revalidate=20)
+        from bnptrack.pipeline.experiment_journal import journal_runs
+
+        _, done = journal_runs(out)
+        scores = [s for s in done if s.run < runs]
+        claim = next(c for c in CLAIMS if c.experiment == name)
+        rows = decide(scores, claim)
+        parts.append(f"**{name}**, {runs} runs (`bnptrack experiment {name} --runs {runs} --no-rrd "
+                     f"--out benchmarks/protocol/{name}`):\n\n{experiment_table(res.summary_md)}\n\n"
+                     + "".join(f"Claim \"{claim.text}\": {r['cells']}: {r['verdict']}.\n" for r in rows))
+    return "\n".join(parts)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python3 -m benchmarks report", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -130,10 +157,14 @@ def main(argv: list[str] | None = None) -> int:
                     help="where the experiments write (and resume) their runs")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "results.md")
+    ap.add_argument("--protocol-runs", type=int, default=0,
+                    help="also experiments 1 and 4 over this many runs of their journals in benchmarks/protocol/")
     ns = ap.parse_args(argv)
     results = run_all(ns.runs, ns.snr_runs, ns.experiments, ns.workers)
+    protocol = (protocol_section(ns.protocol_runs, ns.workers) if ns.protocol_runs else
+                "Not part of this report: run `python3 -m benchmarks report --protocol-runs N`.")
     text = TEMPLATE.read_text()
-    text = text.replace("{{machine}}", machine_line()).replace("{{claims}}", claims_table(results))
+    text = text.replace("{{protocol}}", protocol).replace("{{machine}}", machine_line()).replace("{{claims}}", claims_table(results))
     text = text.replace("{{runs}}", str(ns.runs)).replace("{{snr_runs}}", str(ns.snr_runs))
     for name, (res, _) in results.items():
         text = text.replace("{{table:" + name + "}}", experiment_table(res.summary_md))
