@@ -8,11 +8,13 @@ traceback instead.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
 import typing
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +83,8 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            return fn(*args, **kwargs)
+            with one_line_warnings():
+                return fn(*args, **kwargs)
         except click.ClickException:
             raise
         except BrokenPipeError:  # e.g. `bnptrack schema /tracks | head`: stop quietly
@@ -94,6 +97,28 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             raise CliError(_describe(exc)) from exc
 
     return wrapper
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Print each :class:`tracker.input_checks.InputWarning` raised meanwhile as one line on
+    stderr (``warning: ...``; each distinct message once); other warnings as Python shows them."""
+    from bnptrack.tracker.input_checks import InputWarning
+
+    shown: set[str] = set()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        show = warnings.showwarning
+
+        def one_line(message: Any, category: type, *rest: Any, **kw: Any) -> None:
+            if not issubclass(category, InputWarning):
+                show(message, category, *rest, **kw)
+            elif str(message) not in shown:
+                shown.add(str(message))
+                click.echo(f"warning: {message}", err=True)
+
+        warnings.showwarning = one_line
+        yield
 
 
 def _describe(exc: BaseException) -> str:

@@ -34,13 +34,14 @@ from bnptrack.pipeline.cli.common import (
 )
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
-                              open_sinks, refuse_existing, track_to_sinks)
+                              open_sinks, read_log_start, refuse_existing, track_to_sinks)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
 from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import iter_frames, read_metadata
 from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
+from bnptrack.tracker.input_checks import check_frames
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
 __all__ = ["simulate", "track"]
@@ -289,6 +290,7 @@ def track(
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
+    check_frames(setup.params, io.head)
     check_output_path(log, io.out)
     if setup.choice.warning:
         click.echo(f"warning: {setup.choice.warning}", err=True)
@@ -296,8 +298,6 @@ def track(
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
     announce_first_compile(quiet)
     res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
-    for w in res.warnings:
-        click.echo(f"warning: {w}", err=True)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
     if res.error is not None:
@@ -314,6 +314,7 @@ class _TrackIO:
         self.log, self.outputs, self.topics, self.live = log, outputs, topics, live
         self.params = None
         self.sinks: SinkSet | None = None
+        self.head: list = []  # the log's first frames (:func:`pipeline.offline.read_log_start`)
 
     @property
     def out(self) -> Path:
@@ -329,11 +330,14 @@ class _TrackIO:
         """Check the options and choose the sinks."""
         mapping = topic_map(topics)
         require_measurements(log, mapping)
+        head = read_log_start(log, mapping)
         live = live_view(view, view_connect)
         if live is not None and rrd is None:
             rrd = out.with_suffix(".rrd")
         outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
-        return cls(log, outputs, mapping, live)
+        io = cls(log, outputs, mapping, live)
+        io.head = head
+        return io
 
     def build(self) -> None:
         """Build the sinks now, before the tracker: a sink that starts work at once does it
