@@ -67,6 +67,7 @@ def check_frames(params: Any, frames: Iterable[Any]) -> None:
     stamps in another unit and for pose headings in degrees."""
     declared: Mapping[str, Any] = getattr(params, "sensors", None) or {}
     stamps: dict[str, list[int]] = {}
+    degrees_seen = False
     for f in frames:
         if declared and f.sensor not in declared and f.pose is None:
             raise ConfigError(
@@ -75,12 +76,11 @@ def check_frames(params: Any, frames: Iterable[Any]) -> None:
                 f"{', '.join(repr(n) for n in declared)}{did_you_mean(f.sensor, list(declared))}; "
                 f"fix the name, or add a [sensors.{f.sensor}] table with its pose")
         stamps.setdefault(f.sensor, []).append(int(f.stamp_ns))
-        if f.pose is not None and abs(float(f.pose[2])) > 2 * math.pi:
-            h = float(f.pose[2])
+        if not degrees_seen and f.pose is not None and abs(float(f.pose[2])) > 2 * math.pi:
+            degrees_seen, h = True, float(f.pose[2])
             warn(f"sensor {f.sensor!r}: frame {f.frame} has pose heading {h:g}, outside [-2pi, 2pi]: "
                  f"a pose heading is in radians (from +y towards +x); if {h:g} is degrees, send "
                  f"{math.radians(h):.6g}")
-            break
     for sensor, times in stamps.items():
         _check_spacing(sensor, times)
 
