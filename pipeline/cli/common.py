@@ -43,7 +43,6 @@ __all__ = [
     "parse_offset",
     "START_HELP",
     "END_HELP",
-    "announce_first_compile",
 ]
 
 #: Exit code of every reported (non-crash) failure.
@@ -311,17 +310,3 @@ def parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
     except ValueError:
         raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
                                  "number (40f), >= 0", param_hint=opt) from None
-
-
-def announce_first_compile(quiet: bool) -> None:
-    """Say on stderr, once, that this run compiles the numba kernels (a first run of this
-    version on this machine: the kernel cache folder holds no compiled kernel yet), so that the
-    minute of silence is explained.  Nothing with ``quiet`` or a warm cache."""
-    if quiet:
-        return
-    from bnptrack.tracker._numerics import JIT, kernel_cache_dir
-
-    folder = Path(kernel_cache_dir())
-    if JIT and not (folder.is_dir() and any(folder.rglob("*.nbi"))):
-        click.echo("bnptrack: first run of this version on this machine: compiling the numba kernels once "
-                   f"(1-3 minutes on 2 cores); later runs load them from {folder}", err=True)

@@ -19,7 +19,6 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     LazyHelpOption,
-    announce_first_compile,
     clean_errors,
     config_help,
     echo_rows,
@@ -32,6 +31,7 @@ from bnptrack.pipeline.cli.common import (
     topic_map,
     tracker_help,
 )
+from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, read_log_start, refuse_existing, track_to_sinks)
@@ -296,8 +296,8 @@ def track(
         click.echo(f"warning: {setup.choice.warning}", err=True)
     if not quiet:
         echo_rows([("log", str(log)), ("params", setup.describe_params()), ("config", setup.describe_config())])
-    announce_first_compile(quiet)
-    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
+    with compile_progress(tracker_name, quiet):
+        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd))
     if res.error is not None:

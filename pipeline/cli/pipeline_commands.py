@@ -21,7 +21,6 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     IncompleteError,
-    announce_first_compile,
     clean_errors,
     echo_rows,
     literal_choices,
@@ -31,6 +30,7 @@ from bnptrack.pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
+from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.resolve import TRACKERS
 
@@ -111,13 +111,13 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
         from bnptrack.pipeline.live import viewer_url
 
         cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
-    if "tracker" in cfg.stages:
-        announce_first_compile(quiet)
+    compiling = compile_progress(cfg.tracker.tracker, quiet or "tracker" not in cfg.stages)
     progress = None if quiet else Progress(sys.stderr)
     try:
-        res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
-                      overwrite=overwrite, progress=None if progress is None else progress.update,
-                      view=view)
+        with compiling:
+            res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
+                          overwrite=overwrite, progress=None if progress is None else progress.update,
+                          view=view)
     except ConfigError as exc:  # raised by the checks, before anything started
         if origin is None or str(exc).startswith(str(origin)):
             raise
