@@ -32,7 +32,7 @@ class CompileProgress:
     """Counts the index files that appear in ``folder`` against ``total`` kernels to compile,
     printing a line to ``out`` at most every :data:`INTERVAL_S` seconds when the count changed."""
 
-    def __init__(self, tracker: str, folder: Path, total: int, out: TextIO) -> None:
+    def __init__(self, tracker: str, folder: Path, total: int, out: TextIO | None) -> None:
         self.tracker, self.folder, self.total, self.out = tracker, folder, total, out
         self.before = _index_files(folder)
         self.t0 = time.monotonic()
@@ -74,7 +74,8 @@ class CompileProgress:
             (self.folder / f"compiled-{self.tracker}").write_text("")
 
     def _say(self, text: str) -> None:
-        print(f"bnptrack: {text}", file=self.out, flush=True)
+        if self.out is not None:
+            print(f"bnptrack: {text}", file=self.out, flush=True)
 
 
 def _start_helper(tracker: str) -> subprocess.Popen | None:
@@ -114,16 +115,17 @@ def _uncached_kernels(tracker: str, folder: Path) -> int:
 @contextlib.contextmanager
 def compile_progress(tracker: str, quiet: bool, out: TextIO | None = None, helper: bool = True) -> Iterator[None]:
     """Show the compilation of tracker ``tracker``'s kernels while the block runs, on its
-    first run on this machine (see the module's docstring), with (``helper``) the second
-    process of :mod:`tracker.precompile` compiling them from the other end; nothing with
-    ``quiet``, without numba or once the tracker has run here."""
+    first run on this machine (see the module's docstring; nothing printed with ``quiet``),
+    with (``helper``) the second process of :mod:`tracker.precompile` compiling them from the
+    other end; nothing at all without numba or once the tracker has run here."""
     from bnptrack.tracker._numerics import JIT, kernel_cache_dir
 
     folder = Path(kernel_cache_dir())
-    if quiet or not JIT or (folder / f"compiled-{tracker}").exists():
+    if not JIT or (folder / f"compiled-{tracker}").exists():
         yield
         return
-    progress = CompileProgress(tracker, folder, _uncached_kernels(tracker, folder), out or sys.stderr)
+    progress = CompileProgress(tracker, folder, _uncached_kernels(tracker, folder),
+                               None if quiet else out or sys.stderr)
     progress.start(helper)
     ok = False
     try:

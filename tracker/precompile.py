@@ -45,37 +45,62 @@ def load_manifest(path: Path = MANIFEST) -> dict[str, list[tuple[str, str, Any]]
 
 
 def _dispatcher(module: str, qualname: str) -> Any:
-    """The numba dispatcher of kernel ``module.qualname`` (decorating the pending kernels)."""
+    """The numba dispatcher of the kernel whose Python function is ``module.qualname`` (it may
+    be bound under another name: ``_sweeps = jit(_sweep_kernel)``), or None."""
     from bnptrack.tracker import _numerics
 
-    kernel = getattr(importlib.import_module(module), qualname)
-    if isinstance(kernel, _numerics._LazyKernel):
-        return kernel.dispatcher or _numerics._compile_pending(kernel)
-    return kernel
+    importlib.import_module(module)
+    for kernel in list(_numerics._defined):
+        fn = kernel.py_func
+        if fn.__module__ == module and fn.__qualname__ == qualname:
+            return kernel.dispatcher or _numerics._compile_pending(kernel)
+    return None
 
 
-def precompile(tracker: str) -> int:
+def precompile(tracker: str, manifest: Path = MANIFEST) -> int:
     """Compile tracker ``tracker``'s kernels of the manifest from the last to the first,
-    stopping at the first one the run has cached meanwhile (one cached before is skipped);
-    return how many it compiled."""
+    stopping at the first one the run has cached meanwhile (one cached before, or by this
+    process as the callee of another, is skipped); return how many it compiled."""
     from bnptrack.tracker import _numerics, registry
 
-    entries = load_manifest().get(tracker, [])
+    entries = load_manifest(manifest).get(tracker, [])
     if not entries:
         return 0
     registry.kind(tracker)
-    before = {str(p) for p in Path(_numerics.kernel_cache_dir()).rglob("*.nbi")}
+    mine = {str(p) for p in Path(_numerics.kernel_cache_dir()).rglob("*.nbi")}  # cached before
+    _note_compiles(mine)
     done = 0
     for module, qualname, sig in reversed(entries):
         dispatcher = _dispatcher(module, qualname)
-        index = str(dispatcher._cache._cache_file._index_path)
+        cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+        if cache_file is None:  # not a cached numba kernel (any more): nothing to do
+            continue
+        index = str(cache_file._index_path)
         if Path(index).exists() and dispatcher._cache.load_overload(sig, dispatcher.targetctx) is not None:
-            if index in before:
+            if index in mine:
                 continue
             break  # the run has got here
         dispatcher.compile(sig)
         done += 1
     return done
+
+
+def _note_compiles(paths: set[str]) -> None:
+    """Add to ``paths`` the index file of every kernel this process compiles from now on
+    (its callees included: numba's ``numba:compile`` events)."""
+    from numba.core import event
+
+    class _Listener(event.Listener):
+        def on_start(self, ev: event.Event) -> None:
+            pass
+
+        def on_end(self, ev: event.Event) -> None:
+            cache = getattr((ev.data or {}).get("dispatcher"), "_cache", None)
+            cache_file = getattr(cache, "_cache_file", None)
+            if cache_file is not None:
+                paths.add(str(cache_file._index_path))
+
+    event.register("numba:compile", _Listener())
 
 
 if __name__ == "__main__":  # pragma: no cover - run as a process by pipeline.compile_notice
