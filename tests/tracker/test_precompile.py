@@ -32,9 +32,9 @@ def test_precompile_caches_from_the_end_and_skips_what_was_cached(tmp_path):
     manifest = tmp_path / "manifest.pkl"
     rows = [("bnptrack.tracker._numerics", "_preload_kernel", (types.float64,)),
             ("bnptrack.tracker._numerics", "_lgam_array", (types.float64[::1], types.float64[::1]))]
-    manifest.write_bytes(pickle.dumps({"numba": numba.__version__, "trackers": {"t": rows}}))
+    manifest.write_bytes(pickle.dumps({"numba": numba.__version__, "trackers": {"ddp": rows}}))
     code = ("import sys; from pathlib import Path; from bnptrack.tracker.precompile import precompile; "
-            "print(precompile('t', Path(sys.argv[1])))")
+            "print(precompile('ddp', Path(sys.argv[1])))")
     env = bnptrack_env({"NUMBA_CACHE_DIR": str(tmp_path / "cache")})
     runs = [subprocess.run([sys.executable, "-c", code, str(manifest)], cwd=REPO_ROOT, env=env,
                            capture_output=True, text=True, timeout=300) for _ in range(2)]
