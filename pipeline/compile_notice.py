@@ -22,7 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TextIO
 
-__all__ = ["compile_progress", "CompileProgress"]
+__all__ = ["compile_progress", "CompileProgress", "FirstCompile"]
 
 #: Seconds between two progress lines (at most).
 INTERVAL_S = 1.0
@@ -112,24 +112,48 @@ def _uncached_kernels(tracker: str, folder: Path) -> int:
                if not any(n.startswith(prefix + ".py") for n in names))
 
 
+class FirstCompile:
+    """:class:`CompileProgress` begun when a run is past its checks (:meth:`begin`, at most
+    once; ``launch`` / ``replay`` call it at the launcher's first status after them, so an
+    error in the configuration prints nothing of it) and ended with the run (:meth:`end`)."""
+
+    def __init__(self, tracker: str, quiet: bool, out: TextIO | None = None, helper: bool = True) -> None:
+        self.tracker, self.quiet, self.out, self.helper = tracker, quiet, out, helper
+        self.progress: CompileProgress | None = None
+        self._begun = False
+
+    def begin(self) -> None:
+        from bnptrack.tracker import registry
+        from bnptrack.tracker._numerics import JIT, kernel_cache_dir
+
+        if self._begun:
+            return
+        self._begun = True
+        folder = Path(kernel_cache_dir())
+        if not JIT or self.tracker not in registry.TRACKERS or (folder / f"compiled-{self.tracker}").exists():
+            return
+        self.progress = CompileProgress(self.tracker, folder, _uncached_kernels(self.tracker, folder),
+                                        None if self.quiet else self.out or sys.stderr)
+        self.progress.start(self.helper)
+
+    def end(self, ok: bool) -> None:
+        if self.progress is not None:
+            self.progress.finish(ok)
+            self.progress = None
+
+
 @contextlib.contextmanager
 def compile_progress(tracker: str, quiet: bool, out: TextIO | None = None, helper: bool = True) -> Iterator[None]:
     """Show the compilation of tracker ``tracker``'s kernels while the block runs, on its
     first run on this machine (see the module's docstring; nothing printed with ``quiet``),
     with (``helper``) the second process of :mod:`tracker.precompile` compiling them from the
-    other end; nothing at all without numba or once the tracker has run here."""
-    from bnptrack.tracker._numerics import JIT, kernel_cache_dir
-
-    folder = Path(kernel_cache_dir())
-    if not JIT or (folder / f"compiled-{tracker}").exists():
-        yield
-        return
-    progress = CompileProgress(tracker, folder, _uncached_kernels(tracker, folder),
-                               None if quiet else out or sys.stderr)
-    progress.start(helper)
+    other end; nothing at all without numba, for an unknown tracker or once the tracker has run
+    here."""
+    first = FirstCompile(tracker, quiet, out, helper)
+    first.begin()
     ok = False
     try:
         yield
         ok = True
     finally:
-        progress.finish(ok)
+        first.end(ok)
