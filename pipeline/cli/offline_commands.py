@@ -290,7 +290,6 @@ def track(
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
-    check_frames(setup.params, io.head)
     check_output_path(log, io.out)
     if setup.choice.warning:
         click.echo(f"warning: {setup.choice.warning}", err=True)
@@ -361,6 +360,7 @@ class _TrackIO:
 
     def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
+        check_frames(setup.params, self.head)  # a misspelt sensor: an error before tracking
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,
