@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bnptrack.pipeline.offline import TrackResult, track_frames
+from bnptrack.pipeline.offline import TrackResult, read_log_start, track_frames
 from bnptrack.pipeline.resolve import tracker_setup
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sources.mcap_log import LogContents, iter_frames, read_log, read_metadata
@@ -22,6 +22,7 @@ from bnptrack.sources.scenarios import open_scenario
 from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
 from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.input_checks import SCAN_FRAMES, check_frames
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import Tracker
 from bnptrack.tracker.types import Estimate, Frame
@@ -96,7 +97,9 @@ class TrackRun:
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """Why the run probably could not work (e.g. measurements outside the field of view)."""
+        """Why the run probably could not work (e.g. measurements outside the field of view);
+        each was also raised with ``warnings.warn``
+        (:class:`bnptrack.tracker.input_checks.InputWarning`)."""
         return self.result.warnings
 
 
@@ -130,7 +133,10 @@ def track(
                           metadata=metadata, seed=seed)
     if topics and not is_log:
         raise ConfigError("track(frames, topics=...): topics choose the channels of a log; frames have none")
-    source = iter_frames(Path(frames), _topic_map(Path(frames), topics)) if is_log else frames
+    mapping = _topic_map(Path(frames), topics) if is_log else None
+    check_frames(setup.params, read_log_start(frames, mapping) if is_log else
+                 list(frames[:SCAN_FRAMES]) if isinstance(frames, Sequence) else [])
+    source = iter_frames(Path(frames), mapping) if is_log else frames
     estimates: list[Estimate] = []
     online: list[Estimate] = []
     result = track_frames(setup.tracker, source, seed, lambda _f, est, _m: estimates.append(est), lag=lag,

@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -119,11 +120,53 @@ def viewer_command(*, headless: bool | None = None) -> list[str]:
             "you can see it (`rerun`, or `rerun --serve-web` for a browser) and pass "
             "--connect rerun+http://HOST:9876/proxy, or open the recording afterwards with "
             "`bnptrack view`")
+    if not headless and sys.platform.startswith("linux"):
+        unreachable = display_unreachable(os.environ)
+        if unreachable:
+            raise ViewerUnavailable(
+                f"--view: {unreachable}: the viewer cannot open a window; start the display, or run a "
+                "viewer where you can see it and pass --connect rerun+http://HOST:9876/proxy, or open "
+                "the recording afterwards with `bnptrack view`")
     try:
         cli = rerun_cli()
     except RerunToolError as exc:
         raise ViewerUnavailable(str(exc)) from exc
     return [*cli, "--headless"] if headless else cli
+
+
+def display_unreachable(env: Mapping[str, str]) -> str:
+    """Why no window can open on the display of ``env``, or ``""`` when one can be reached:
+    a Wayland socket (``$XDG_RUNTIME_DIR/$WAYLAND_DISPLAY``) that exists, or an X server that
+    accepts a connection on ``DISPLAY`` (its local socket ``/tmp/.X11-unix/X<N>``, abstract
+    or on disk, or TCP port 6000 + N of a ``HOST:N``).  Checked in well under a second."""
+    wayland = env.get("WAYLAND_DISPLAY", "")
+    if wayland:
+        path = wayland if os.path.isabs(wayland) else os.path.join(env.get("XDG_RUNTIME_DIR", ""), wayland)
+        if os.path.exists(path):
+            return ""
+    display = env.get("DISPLAY", "")
+    if not display:
+        return f"the Wayland display {wayland} has no socket" if wayland else "no display"
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return f"DISPLAY={display} is not of the form [HOST]:N"
+    if host and host not in ("unix", "localhost") and not host.startswith("/"):
+        targets = [(socket.AF_INET, (host, 6000 + int(number)))]
+    else:
+        path = f"/tmp/.X11-unix/X{number}"
+        targets = [(socket.AF_UNIX, "\0" + path), (socket.AF_UNIX, path)]
+        if host == "localhost":
+            targets.append((socket.AF_INET, ("127.0.0.1", 6000 + int(number))))
+    for family, address in targets:
+        try:
+            with socket.socket(family, socket.SOCK_STREAM) as s:
+                s.settimeout(1.0)
+                s.connect(address)
+                return ""
+        except OSError:
+            continue
+    return f"no X server answers on DISPLAY={display}"
 
 
 def spawn_viewer(*, headless: bool | None = None, timeout: float = 30.0) -> Viewer:

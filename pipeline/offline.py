@@ -27,10 +27,13 @@ from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.sink import SinkSet, make_sink
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
 from bnptrack.sources.frame_window import FrameWindow
-from bnptrack.sources.mcap_log import McapLogError, iter_frames
+from bnptrack.sources.mcap_log import McapLogError, first_frames, iter_frames
 from bnptrack.sources.scenarios import OpenScenario, parse_crossings
 from bnptrack.sources.synthetic import simulate, simulate_sensors
 from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.input_checks import SCAN_FRAMES, warn
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
+from bnptrack.tracker.models.measurement import measurement_kind
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.lag import FixedLag, run_lagged
 from bnptrack.tracker.state import run
@@ -46,6 +49,7 @@ __all__ = [
     "FrameMetrics",
     "TrackResult",
     "RunHealth",
+    "read_log_start",
     "simulate_to_log",
     "frame_metrics",
     "track_frames",
@@ -248,8 +252,10 @@ def track_frames(
                 seen.append((frame, est))
     except (McapLogError, FrameBoundError) as exc:
         error = exc
-    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings),
-                       health.warnings(final), names)
+    notes = health.warnings(final)
+    for note in notes:
+        warn(note)
+    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings), notes, names)
 
 
 def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,
@@ -260,6 +266,21 @@ def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,
     return run_lagged(FixedLag(tracker, tracker.params, lag), frames, seed, on_online)
 
 
+def read_log_start(log: str | os.PathLike, topics: Mapping[str, str] | None) -> list[Frame]:
+    """The first frames of ``log`` (:data:`tracker.input_checks.SCAN_FRAMES`), read while a
+    command checks its options (``track``; ``launch`` / ``replay`` in their checks), for
+    :func:`tracker.input_checks.check_frames`.  A first ``/measurements`` message that does
+    not decode, under its own name or mapped there with ``--topic``, is a
+    :class:`ConfigError`: nothing has been started or written yet."""
+    mapped = [src for src, dst in (topics or {}).items() if dst == TOPIC_MEASUREMENTS]
+    try:
+        return first_frames(log, dict(topics or {}) or None, SCAN_FRAMES)
+    except McapLogError as exc:
+        what = f"channel {mapped[0]} (--topic {mapped[0]}=/measurements)" if mapped else "its /measurements"
+        raise ConfigError(f"{log}: {what} does not decode as bnptrack measurements (`bnptrack schema "
+                          f"/measurements` gives the contract): {exc.reason}") from None
+
+
 #: A sensor's measurements are "mostly" outside its field of view above this fraction.
 OUTSIDE_FOV_WARN = 0.5
 
@@ -268,12 +289,15 @@ OUTSIDE_FOV_WARN = 0.5
 class RunHealth:
     """Counts that tell a run that cannot work: per sensor, the
     measurements outside the sensor's field of view (where the model says only nothing can
-    be: the clutter density is 0 there), and the frames with measurements."""
+    be: the clutter density is 0 there), the sum of their bearings' unit vectors (a boresight
+    to suggest), whether any of its frames had a pose, and the frames with measurements."""
 
     params: Any
     total: dict[str, int] = field(default_factory=dict)
     outside: dict[str, int] = field(default_factory=dict)
     sensors: dict[str, Any] = field(default_factory=dict)
+    posed: set[str] = field(default_factory=set)
+    bearings: dict[str, complex] = field(default_factory=dict)
     nonempty: int = 0
 
     def add(self, frame: Frame) -> None:
@@ -283,10 +307,16 @@ class RunHealth:
         if not isinstance(self.params, ModelParams):
             return
         s = self.params.frame_sensor(frame)
-        out = int(np.sum(~np.isfinite(self.params.clutter(frame.kind, s).logpdf(frame.z))))
+        lost = ~np.isfinite(self.params.clutter(frame.kind, s).logpdf(frame.z))
         self.total[frame.sensor] = self.total.get(frame.sensor, 0) + frame.n_measurements
-        self.outside[frame.sensor] = self.outside.get(frame.sensor, 0) + out
+        self.outside[frame.sensor] = self.outside.get(frame.sensor, 0) + int(np.sum(lost))
         self.sensors[frame.sensor] = s
+        if frame.pose is not None:
+            self.posed.add(frame.sensor)
+        if 0 in measurement_kind(frame.kind).wrapped:  # a bearing column: where the sensor looks
+            b = frame.z[lost, 0] + s.heading
+            self.bearings[frame.sensor] = self.bearings.get(frame.sensor, 0j) + complex(
+                float(np.sum(np.sin(b))), float(np.sum(np.cos(b))))
 
     def warnings(self, final_tracks: int) -> tuple[str, ...]:
         out = []
@@ -298,9 +328,7 @@ class RunHealth:
                     f"{100 * frac:.0f}% of the {n} measurements of sensor {name!r} ({s.kind}) fall outside "
                     f"its field of view (at ({s.x:g}, {s.y:g}) m, heading {np.rad2deg(s.heading):g} deg, "
                     f"+-{np.rad2deg(s.half_fov):g} deg, range {s.range_min:g}-{s.range_max:g} m), so the "
-                    f"trackers treat them as impossible. Check the sensor pose (a [sensors.{name}] table "
-                    f"in --params FILE.toml, or per-frame 'pose'), its field of view (half_fov_deg, "
-                    f"range_max) and the kind (docs/models.md, 'Sensors').")
+                    f"trackers treat them as impossible. " + self._fix(name))
         if final_tracks == 0 and self.nonempty >= 5:
             out.append(
                 f"the run ended with 0 tracks from {self.nonempty} frames with measurements. Likely "
@@ -309,6 +337,21 @@ class RunHealth:
                 f"that do not match the data (p_detect, clutter_rate, sigma_*: --params FILE.toml "
                 f"or --set KEY=VALUE), or no births (birth_rate = 0 without birth regions).")
         return tuple(out)
+
+    def _fix(self, name: str) -> str:
+        """What to do about sensor ``name``'s measurements outside its field of view: without
+        any pose (no table, no per-frame pose), the ``[sensors.NAME]`` table to add."""
+        declared = name in getattr(self.params, "sensors", {})
+        if declared or name in self.posed:
+            return (f"Check the sensor pose (a [sensors.{name}] table in --params FILE.toml, or "
+                    f"per-frame 'pose'), its field of view (half_fov_deg, range_max) and the kind "
+                    f"(docs/models.md, 'Sensors').")
+        v = self.bearings.get(name)
+        heading = f"{np.degrees(np.arctan2(v.real, v.imag)):.0f}" if v else "<boresight, deg from +y>"
+        return (f"The sensor has no pose: add to --params FILE.toml the table "
+                f"[sensors.{name}] x = <m> y = <m> heading_deg = {heading} (its position and "
+                f"boresight; the measurements point to heading_deg = {heading}), or send a "
+                f"per-frame 'pose' (docs/models.md, 'Sensors').")
 
 
 def score_crossings(

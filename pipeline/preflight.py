@@ -22,6 +22,7 @@ from pathlib import Path
 from bnptrack.pipeline.config import PipelineConfig
 from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.input_checks import check_frames
 
 __all__ = ["check_pipeline", "listening"]
 
@@ -37,10 +38,23 @@ def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
     _check_taken(cfg, overwrite)
     _check_zenoh(cfg)
     metadata = _check_source(cfg) if "source" in cfg.stages else None
+    head = _log_start(cfg)
     if "tracker" in cfg.stages:  # last: it imports the tracker (about a second)
         from bnptrack.pipeline.stages import build_stage_tracker
 
-        build_stage_tracker(cfg.tracker, metadata)
+        check_frames(build_stage_tracker(cfg.tracker, metadata).params, head)
+    else:
+        check_frames(None, head)
+
+
+def _log_start(cfg: PipelineConfig) -> list:
+    """The first frames of the source's log (none for a synthetic source), decoded now: a
+    first ``/measurements`` message that does not decode is refused before any process starts."""
+    if "source" not in cfg.stages or cfg.source.kind != "mcap":
+        return []
+    from bnptrack.pipeline.offline import read_log_start
+
+    return read_log_start(cfg.source.log, dict(cfg.source.topics))
 
 
 def _check_source(cfg: PipelineConfig) -> dict[str, str] | None:

@@ -18,7 +18,7 @@ import msgspec
 
 from bnptrack.sources.frame_window import WINDOW_KEYS, FrameWindow
 from bnptrack.sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
-from bnptrack.tracker.config import ConfigError, apply_overrides, load_toml, split_item
+from bnptrack.tracker.config import ConfigError, apply_overrides, did_you_mean, load_toml, split_item
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import TRACKERS
 
@@ -82,8 +82,8 @@ def split_overrides(
             to_tracker.append(f"{key}={value}")
         else:
             raise ConfigError(
-                f"--set {item!r}: unknown key '{key}': not a model parameter "
-                f"({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
+                f"--set {item!r}: unknown key '{key}'{did_you_mean(head, p_fields + t_fields)}: not a model "
+                f"parameter ({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
                 "use params.KEY or tracker.KEY to be explicit"
             )
     return tuple(to_params), tuple(to_tracker)
@@ -123,7 +123,13 @@ def apply_split_overrides(
 ) -> tuple[ModelParams, msgspec.Struct]:
     """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
     p_over, t_over = split_overrides(overrides, type(config))
-    return apply_overrides(params, p_over), apply_overrides(config, t_over)
+    typed = {"params": [], "tracker": []}  # each item as the user typed it, for the errors
+    for item in overrides:
+        head, dot, _ = split_item(item)[0].partition(".")
+        dest = head if dot and head in typed else ("params" if head in ModelParams.__struct_fields__ else "tracker")
+        typed[dest].append(item)
+    return (apply_overrides(params, p_over, typed["params"]),
+            apply_overrides(config, t_over, typed["tracker"]))
 
 
 # --------------------------------------------------------------------------- params

@@ -50,6 +50,7 @@ __all__ = [
     "McapLogError",
     "LogContents",
     "iter_frames",
+    "first_frames",
     "iter_tracks",
     "read_log",
     "read_metadata",
@@ -280,6 +281,27 @@ def iter_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None
             return
     for _, pair in _iter_log(path, _INPUT_TOPICS, topic_map=topic_map):
         yield _pair_to_frame(pair)
+
+
+def first_frames(path: str | os.PathLike, topic_map: dict[str, str] | None = None, n: int = 200) -> list[Frame]:
+    """Up to the first ``n`` frames of a log (:func:`iter_frames`), read before a run to check
+    them.  A log whose first ``/measurements`` message does not decode (e.g. a channel mapped
+    with ``--topic SRC=/measurements`` that holds another message type) raises
+    :class:`McapLogError` (kind ``"invalid"``); any later problem only ends the list there
+    (the run reports it where it stops)."""
+    out: list[Frame] = []
+    frames = iter_frames(path, topic_map)
+    try:
+        for frame in frames:
+            out.append(frame)
+            if len(out) >= n:
+                break
+    except McapLogError as exc:
+        if exc.kind == "invalid" and not out and exc.topic == TOPIC_MEASUREMENTS:
+            raise
+    finally:
+        frames.close()
+    return out
 
 
 def iter_tracks(path: str | os.PathLike) -> Iterator[Estimate]:

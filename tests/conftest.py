@@ -7,6 +7,7 @@ fakes, the in-memory pipeline runner) are in tests/testkit.py; this conftest put
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,9 @@ from bnptrack.tracker.models.params import load_params
 
 
 INTEGRATION_DIR = Path(__file__).resolve().parent / "integration"
+
+# Whether this run is CI's (testkit.require_renderer), noted before a test module sets CI.
+os.environ.setdefault("BNPTRACK_TESTS_UNDER_CI", "1" if os.environ.get("CI") else "0")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -283,6 +283,43 @@ def png_stats(png: "str | Path | bytes") -> dict[str, float]:
             "variance": float(lum.var()), "distinct": float(np.unique(lum).size)}
 
 
+#: Where Vulkan loaders look for installable client drivers (a GPU's, or Mesa's software one).
+VULKAN_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
+RENDERER_INSTALL = "apt-get install -y mesa-vulkan-drivers"
+#: ``"1"`` when ``CI`` was set as the test run started (conftest.py notes it before the Rerun
+#: test modules set ``CI`` themselves to keep rerun's analytics off).
+UNDER_CI_ENV = "BNPTRACK_TESTS_UNDER_CI"
+
+
+def vulkan_drivers() -> list[str]:
+    """The Vulkan driver manifests of this machine (``VK_ICD_FILENAMES`` / ``VK_DRIVER_FILES``,
+    else the ``*.json`` files of :data:`VULKAN_ICD_DIRS`)."""
+    import glob
+    import os
+
+    listed = os.environ.get("VK_DRIVER_FILES") or os.environ.get("VK_ICD_FILENAMES")
+    if listed:
+        return [f for f in listed.split(os.pathsep) if os.path.isfile(f)]
+    return sorted(f for d in VULKAN_ICD_DIRS for f in glob.glob(os.path.join(d, "*.json")))
+
+
+def require_renderer() -> None:
+    """For a test that renders with the Rerun viewer: without any Vulkan driver it is skipped,
+    naming the driver and its install command, except under CI (``CI`` set when the test run
+    started, as .ci/run does, which installs the driver; :data:`UNDER_CI_ENV`), where it fails."""
+    import os
+
+    import pytest
+
+    if vulkan_drivers():
+        return
+    why = ("no Vulkan driver on this machine (the Rerun viewer renders with one; without a GPU: "
+           f"Mesa's software driver, `{RENDERER_INSTALL}`)")
+    if os.environ.get(UNDER_CI_ENV) == "1":
+        pytest.fail(f"{why}; CI must have it")
+    pytest.skip(why)
+
+
 def bnptrack_env(extra: "dict[str, str] | None" = None) -> dict[str, str]:
     """The environment of a ``python -m bnptrack`` subprocess: this checkout first on
     ``PYTHONPATH``, Rerun's analytics off, plus ``extra``."""

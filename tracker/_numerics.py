@@ -40,6 +40,7 @@ JIT: bool = importlib.util.find_spec("numba") is not None and os.environ.get("BN
 _lock = threading.Lock()
 _pending: list[_LazyKernel] = []
 _namespaces: dict[int, dict[str, Any]] = {}  # the modules that define kernels
+_defined: list[_LazyKernel] = []  # every kernel defined, in order
 
 
 class _LazyKernel:
@@ -253,7 +254,17 @@ def jit(fn: F, inline: bool = False) -> F:
     kernel = _LazyKernel(fn, inline)
     with _lock:
         _pending.append(kernel)
+        _defined.append(kernel)
     return kernel  # type: ignore[return-value]
+
+
+def kernel_file_prefixes() -> list[str]:
+    """The names numba gives the cache files of every kernel defined so far that compiles on
+    its own (not inlined): ``<file stem>.<qualname>-<first line>`` (then ``.py311.nbi``)."""
+    with _lock:
+        kernels = [k for k in _defined if not k.inline]
+    return [f"{Path(k.py_func.__code__.co_filename).stem}.{k.__qualname__}-{k.py_func.__code__.co_firstlineno}"
+            for k in kernels]
 
 
 def _preload_kernel(x: float) -> float:

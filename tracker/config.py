@@ -56,10 +56,11 @@ def did_you_mean(key: str, known: Sequence[str]) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
-def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str) -> None:
+def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: str | None = None) -> None:
     """Set ``data[a][b]...= value`` for ``key = "a.b..."``.  A missing table under an empty
     table (a name-keyed table such as ``sensors``: ``--set sensors.radar0.x=5``) is created;
-    the struct validation that follows checks its keys."""
+    the struct validation that follows checks its keys.  Errors name the key as ``shown``
+    (default ``key``)."""
     parts = key.split(".")
     node, created = data, False
     for i, part in enumerate(parts[:-1]):
@@ -74,7 +75,8 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str) -> None
         node = child
     if parts[-1] not in node and not created:
         known = ", ".join(sorted(node)) or "(none)"
-        raise ConfigError(f"{origin}: unknown key '{key}'{did_you_mean(parts[-1], list(node))} (known here: {known})")
+        raise ConfigError(f"{origin}: unknown key '{shown or key}'{did_you_mean(parts[-1], list(node))} "
+                          f"(known here: {known})")
     node[parts[-1]] = value
 
 
@@ -92,14 +94,17 @@ def split_item(item: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
-def apply_overrides(obj: S, overrides: Sequence[str]) -> S:
-    """Return a copy of ``obj`` with ``key=value`` overrides applied and re-validated."""
+def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = ()) -> S:
+    """Return a copy of ``obj`` with ``key=value`` overrides applied and re-validated.
+    ``typed``: the same items as the user typed them (e.g. ``tracker.sweeps=10`` for
+    ``sweeps=10``), named in the errors instead."""
     if not overrides:
         return obj
     data = msgspec.to_builtins(obj)
-    for item in overrides:
+    shown = list(typed) if len(typed) == len(overrides) else list(overrides)
+    for item, as_typed in zip(overrides, shown):
         key, text = split_item(item)
-        _set_dotted(data, key, parse_value(text), f"--set {item!r}")
+        _set_dotted(data, key, parse_value(text), f"--set {as_typed!r}", split_item(as_typed)[0])
     return convert(data, type(obj), "--set overrides")
 
 

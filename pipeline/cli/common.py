@@ -8,11 +8,13 @@ traceback instead.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
 import typing
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +43,6 @@ __all__ = [
     "parse_offset",
     "START_HELP",
     "END_HELP",
-    "announce_first_compile",
 ]
 
 #: Exit code of every reported (non-crash) failure.
@@ -81,7 +82,8 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            return fn(*args, **kwargs)
+            with one_line_warnings():
+                return fn(*args, **kwargs)
         except click.ClickException:
             raise
         except BrokenPipeError:  # e.g. `bnptrack schema /tracks | head`: stop quietly
@@ -94,6 +96,28 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             raise CliError(_describe(exc)) from exc
 
     return wrapper
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Print each :class:`tracker.input_checks.InputWarning` raised meanwhile as one line on
+    stderr (``warning: ...``; each distinct message once); other warnings as Python shows them."""
+    from bnptrack.tracker.input_checks import InputWarning
+
+    shown: set[str] = set()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", InputWarning)
+        show = warnings.showwarning
+
+        def one_line(message: Any, category: type, *rest: Any, **kw: Any) -> None:
+            if not issubclass(category, InputWarning):
+                show(message, category, *rest, **kw)
+            elif str(message) not in shown:
+                shown.add(str(message))
+                click.echo(f"warning: {message}", err=True)
+
+        warnings.showwarning = one_line
+        yield
 
 
 def _describe(exc: BaseException) -> str:
@@ -286,17 +310,3 @@ def parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:
     except ValueError:
         raise click.BadParameter(f"{text!r}: expected seconds of log time (12.5 or 12.5s) or a frame "
                                  "number (40f), >= 0", param_hint=opt) from None
-
-
-def announce_first_compile(quiet: bool) -> None:
-    """Say on stderr, once, that this run compiles the numba kernels (a first run of this
-    version on this machine: the kernel cache folder holds no compiled kernel yet), so that the
-    minute of silence is explained.  Nothing with ``quiet`` or a warm cache."""
-    if quiet:
-        return
-    from bnptrack.tracker._numerics import JIT, kernel_cache_dir
-
-    folder = Path(kernel_cache_dir())
-    if JIT and not (folder.is_dir() and any(folder.rglob("*.nbi"))):
-        click.echo("bnptrack: first run of this version on this machine: compiling the numba kernels once "
-                   f"(1-3 minutes on 2 cores); later runs load them from {folder}", err=True)

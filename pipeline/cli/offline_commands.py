@@ -19,7 +19,6 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     LazyHelpOption,
-    announce_first_compile,
     clean_errors,
     config_help,
     echo_rows,
@@ -32,15 +31,17 @@ from bnptrack.pipeline.cli.common import (
     topic_map,
     tracker_help,
 )
+from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
-                              open_sinks, refuse_existing, track_to_sinks)
+                              open_sinks, read_log_start, refuse_existing, track_to_sinks)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
 from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import iter_frames, read_metadata
 from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
+from bnptrack.tracker.input_checks import check_frames
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
 
 __all__ = ["simulate", "track"]
@@ -295,10 +296,8 @@ def track(
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
     _header(log, setup, quiet)
-    announce_first_compile(quiet)
-    res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window, lag)
-    for w in res.warnings:
-        click.echo(f"warning: {w}", err=True)
+    with compile_progress(tracker_name, quiet):
+        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window, lag)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
     if res.error is not None:
@@ -324,6 +323,7 @@ class _TrackIO:
         self.log, self.outputs, self.topics, self.live = log, outputs, topics, live
         self.params = None
         self.sinks: SinkSet | None = None
+        self.head: list = []  # the log's first frames (:func:`pipeline.offline.read_log_start`)
 
     @property
     def out(self) -> Path:
@@ -339,12 +339,15 @@ class _TrackIO:
         """Check the options and choose the sinks (existing files refused unless ``overwrite``)."""
         mapping = topic_map(topics)
         require_measurements(log, mapping)
+        head = read_log_start(log, mapping)
         live = live_view(view, view_connect)
         if live is not None and rrd is None:
             rrd = out.with_suffix(".rrd")
         outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
         refuse_existing(outputs, overwrite)
-        return cls(log, outputs, mapping, live)
+        io = cls(log, outputs, mapping, live)
+        io.head = head
+        return io
 
     def build(self) -> None:
         """Build the sinks now, before the tracker: a sink that starts work at once does it
@@ -368,6 +371,7 @@ class _TrackIO:
 
     def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
+        check_frames(setup.params, self.head)  # a misspelt sensor: an error before tracking
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,

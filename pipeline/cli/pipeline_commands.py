@@ -21,7 +21,6 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     IncompleteError,
-    announce_first_compile,
     clean_errors,
     echo_rows,
     literal_choices,
@@ -31,6 +30,7 @@ from bnptrack.pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
+from bnptrack.pipeline.compile_notice import FirstCompile
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.resolve import TRACKERS
 
@@ -111,18 +111,27 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
         from bnptrack.pipeline.live import viewer_url
 
         cfg = _ms.structs.replace(cfg, sink=_ms.structs.replace(cfg.sink, view_url=viewer_url(view_connect)))
-    if "tracker" in cfg.stages:
-        announce_first_compile(quiet)
+    first = FirstCompile(cfg.tracker.tracker, quiet) if "tracker" in cfg.stages else None
     progress = None if quiet else Progress(sys.stderr)
+
+    def on_status(status: Any) -> None:
+        if first is not None and status.phase != "checking":  # past the checks: compiling
+            first.begin()
+        if progress is not None:
+            progress.update(status)
+
+    ok = False
     try:
         res = _launch(cfg, echo=None if progress is None else progress.echo, timeout=timeout,
-                      overwrite=overwrite, progress=None if progress is None else progress.update,
-                      view=view)
+                      overwrite=overwrite, progress=on_status, view=view)
+        ok = True
     except ConfigError as exc:  # raised by the checks, before anything started
         if origin is None or str(exc).startswith(str(origin)):
             raise
         raise ConfigError(f"{origin}: {exc}") from None
     finally:
+        if first is not None:
+            first.end(ok)
         if progress is not None:
             progress.close()
     _report_launch(res, quiet, paced=cfg.source.rate > 0)

@@ -58,7 +58,7 @@ def test_replay_unknown_tracker_fails_before_starting(vo_log, tmp_path):
     ('[source]\nscenario = "vo2071"\n', "unknown scenario 'vo2071'"),
     ('[source]\noverrides = ["p_detect=2"]\n', "p_detect"),
     ('[tracker]\nconfig = "dddp"\n', "--config 'dddp': not a preset of ddp"),
-    ('[tracker]\ntracker = "glmb"\noverrides = ["tracker.alpha=2"]\n', "unknown key 'alpha'"),
+    ('[tracker]\ntracker = "glmb"\noverrides = ["tracker.alpha=2"]\n', "unknown key 'tracker.alpha'"),
     ('[zenoh]\nembedded_router = false\n', "zenoh.connect: a client needs router endpoints"),
     ('[zenoh]\nusers_file = "/nonexistent/users.txt"\n', "zenoh.users_file: /nonexistent/users.txt: no such file"),
     ('[sink]\nmcap_name = "../x.mcap"\n', "sink.mcap_name"),

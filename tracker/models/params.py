@@ -19,6 +19,7 @@ import numpy as np
 
 from bnptrack.tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
+from bnptrack.tracker.input_checks import check_sensor_spec
 from bnptrack.tracker.models.clutter import ClutterModel, Detection
 from bnptrack.tracker.models.measurement import DEFAULT_KIND, KINDS, MeasurementModel, measurement_kind
 from bnptrack.tracker.models.motion import CoordinatedTurn
@@ -100,6 +101,7 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             if spec.kind is not None and spec.kind not in KINDS:
                 raise ValueError(f"[sensors.{name}] kind = {spec.kind!r} is not a measurement kind "
                                  f"(known: {', '.join(KINDS)})")
+            check_sensor_spec(name, spec.heading_deg)
 
     # --- model factories -------------------------------------------------------------
     @property

@@ -1,0 +1,206 @@
+"""A user's own mistakes are loud: an error before tracking where the result cannot be right, a
+one-line warning naming the fix otherwise (tracker/input_checks.py, pipeline.offline)."""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from mcap.writer import Writer
+
+from bnptrack.pipeline.cli import main
+from bnptrack.sinks.mcap_writer import McapLogWriter
+from bnptrack.tracker.types import Frame
+
+
+def _log(path, sensor="radar1", dt_ns=500_000_000, pose=None, n=30, relative_heading=0.0):
+    """Two objects seen by a bearing-range sensor at the origin (bearings from +y plus
+    ``relative_heading``), one scan every ``dt_ns`` nanoseconds."""
+    rng = np.random.default_rng(4)
+    with McapLogWriter(path, None) as w:
+        for k in range(1, n + 1):
+            t = 0.5 * k
+            pos = np.array([[100 + 3 * t, 800 + 4 * t], [-200 - 5 * t, 1200 + 2 * t]])
+            b = np.arctan2(pos[:, 0], pos[:, 1]) + relative_heading + rng.normal(0, 0.01, 2)
+            z = np.stack([(b + np.pi) % (2 * np.pi) - np.pi, np.hypot(pos[:, 0], pos[:, 1])], 1)
+            w.write_frame(Frame(k, k * dt_ns, sensor, "bearing_range", z, pose=pose))
+    return path
+
+
+def _params(tmp_path, heading_deg="0.0"):
+    p = tmp_path / "radar.toml"
+    p.write_text(f'extends = "vo2017"\n[sensors.radar1]\nx = 0.0\ny = 0.0\nheading_deg = {heading_deg}\n')
+    return p
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _one_line(output, needle):
+    """The one output line holding ``needle`` (it must be there)."""
+    lines = [line for line in output.splitlines() if needle in line]
+    assert lines, output
+    return lines[0]
+
+
+# --------------------------------------------------------------------------- errors before tracking
+
+
+def test_misspelt_sensor_is_an_error_with_did_you_mean(tmp_path):
+    log = _log(tmp_path / "typo.mcap", sensor="radarl")
+    res = _run("track", log, "--params", _params(tmp_path), "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert "sensor 'radarl' has no [sensors.radarl] table" in line and "(did you mean 'radar1'?)" in line
+
+
+def test_misspelt_sensor_is_refused_by_replay_before_any_process(tmp_path):
+    log = _log(tmp_path / "typo.mcap", sensor="radarl")
+    out = tmp_path / "r"
+    res = _run("replay", log, "--params", _params(tmp_path), "--out", out, "--as-fast-as-possible", "-q")
+    assert res.exit_code == 2, res.output
+    assert "(did you mean 'radar1'?)" in res.output
+    assert not out.exists()
+
+
+def test_a_sensor_with_its_own_pose_needs_no_table(tmp_path):
+    log = _log(tmp_path / "posed.mcap", sensor="radar2", pose=(0.0, 0.0, 0.0))
+    res = _run("track", log, "--params", _params(tmp_path), "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0, res.output
+    assert "warning" not in res.output
+
+
+def _foreign_payload_log(path):
+    """A channel /radar whose JSON is some other message type."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("radar.Detections", "jsonschema", b"{}")
+        cid = w.register_channel("/radar", "json", sid)
+        for k in range(1, 11):
+            data = json.dumps({"stamp": k * 0.1, "targets": [[1.0, 2.0]]}).encode()
+            w.add_message(cid, log_time=k * 10**8, publish_time=k * 10**8, sequence=k, data=data)
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize("cmd", ["track", "replay", "launch"])
+def test_undecodable_topic_is_refused_while_options_are_checked(tmp_path, cmd):
+    log = _foreign_payload_log(tmp_path / "radar.mcap")
+    out = tmp_path / "out"
+    if cmd == "launch":
+        args = ["launch", "--set", "source.kind='mcap'", "--set", f"source.log='{log}'", "--set",
+                'source.topics={"/radar" = "/measurements"}', "--out", out, "-q"]
+    else:
+        args = [cmd, log, "--topic", "/radar=/measurements", "--out", out, "-q"]
+        args += ["--as-fast-as-possible"] if cmd == "replay" else []
+    res = _run(*args)
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert "channel /radar (--topic /radar=/measurements) does not decode as bnptrack measurements" in line
+    assert "unknown field `stamp`" in line
+    assert not out.exists()  # nothing started, nothing written
+
+
+# --------------------------------------------------------------------------- --set typos
+
+
+def test_bare_set_key_typo_suggests_the_model_parameter(tmp_path):
+    log = _log(tmp_path / "a.mcap")
+    res = _run("track", log, "--set", "p_detcet=0.9", "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 2
+    assert "unknown key 'p_detcet' (did you mean 'p_detect'?)" in res.output
+
+
+@pytest.mark.parametrize("cmd", ["track", "launch"])
+def test_prefixed_set_key_typo_names_the_key_as_typed(tmp_path, cmd):
+    log = _log(tmp_path / "a.mcap")
+    args = ["track", log] if cmd == "track" else ["launch"]
+    res = _run(*args, "--set", "tracker.sweps=10", "--out", tmp_path / "o", "-q")
+    assert res.exit_code == 2
+    line = _one_line(res.output, "Error:")
+    assert line.startswith("Error: --set 'tracker.sweps=10': unknown key 'tracker.sweps' (did you mean 'sweeps'?)")
+
+
+# --------------------------------------------------------------------------- warnings
+
+
+def test_stamps_in_milliseconds_warn_naming_the_unit(tmp_path):
+    log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)  # 0.5 s written as 500 "ns"
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0, res.output
+    line = _one_line(res.output, "warning: sensor 'radar0': the median spacing")
+    assert "500 ns between scans" in line
+    assert "they look like milliseconds (the spacing would be 0.5 s): multiply them by 1e+06" in line
+
+
+def test_stamps_far_apart_warn_naming_the_unit(tmp_path):
+    log = _log(tmp_path / "us.mcap", sensor="radar0", dt_ns=500_000 * 10**9)  # 0.5 s in us, times 1e9
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    line = _one_line(res.output, "warning: sensor 'radar0': the median spacing")
+    assert "139 h between scans" in line and "microseconds converted as seconds" in line
+    assert "divide them by 1e+06" in line
+
+
+def test_pose_heading_in_degrees_warns(tmp_path):
+    log = _log(tmp_path / "deg.mcap", sensor="radar0", pose=(0.0, 0.0, 40.0))
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    line = _one_line(res.output, "warning: sensor 'radar0': frame 1 has pose heading 40, outside [-2pi, 2pi]")
+    assert "if 40 is degrees, send 0.698132" in line
+    assert res.output.count("has pose heading") == 1  # once, not once per frame
+
+
+def test_heading_deg_in_radians_warns(tmp_path):
+    log = _log(tmp_path / "a.mcap", relative_heading=-0.698)
+    res = _run("track", log, "--params", _params(tmp_path, "0.698"), "--out", tmp_path / "t.mcap", "-q")
+    line = _one_line(res.output, "warning: [sensors.radar1] heading_deg = 0.698 looks like radians (39.99 deg)")
+    assert "write heading_deg = 39.99" in line
+
+
+def test_whole_degrees_and_nanosecond_stamps_give_no_warning(tmp_path):
+    log = _log(tmp_path / "a.mcap", relative_heading=-np.deg2rad(5.0))
+    res = _run("track", log, "--params", _params(tmp_path, "5"), "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
+
+
+def test_no_pose_outside_the_field_of_view_shows_the_table_to_add(tmp_path):
+    log = _log(tmp_path / "south.mcap", sensor="radar0", relative_heading=np.deg2rad(135.0))
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    line = _one_line(res.output, "fall outside its field of view")
+    assert "sensor 'radar0'" in line
+    # the table to add, with the boresight the bearings point to (135 deg plus the objects' own
+    # bearings, -9 to +8 deg from the sensor's boresight)
+    table = re.search(r"\[sensors\.radar0\] x = <m> y = <m> heading_deg = (-?\d+) ", line)
+    assert table is not None, line
+    assert 130 <= int(table.group(1)) <= 140
+
+
+# --------------------------------------------------------------------------- Python
+
+
+def test_python_raises_the_warnings_through_warnings_warn(tmp_path):
+    import bnptrack
+    from bnptrack.tracker.input_checks import InputWarning
+
+    log = _log(tmp_path / "east-ms.mcap", sensor="radar0", dt_ns=500, relative_heading=np.deg2rad(135.0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = bnptrack.track(log, "ddp-mb", params="vo2017")
+    texts = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    assert any("they look like milliseconds" in t for t in texts), texts
+    assert any("fall outside its field of view" in t for t in texts), texts
+    assert all(w in texts for w in run.warnings)
+
+
+def test_python_misspelt_sensor_raises_config_error(tmp_path):
+    import bnptrack
+    from bnptrack.tracker.config import ConfigError
+
+    log = _log(tmp_path / "typo.mcap", sensor="radarl")
+    with pytest.raises(ConfigError, match="did you mean 'radar1'"):
+        bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
