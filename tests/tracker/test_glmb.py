@@ -683,7 +683,7 @@ def test_cli_track_glmb_on_a_log_without_birth_regions(tmp_path):
 
     def mean_ospa(*extra: str) -> float:
         out = CliRunner().invoke(main, ["track", str(log), "--tracker", "glmb", "--out",
-                                        str(tmp_path / "t.mcap"), *extra])
+                                        str(tmp_path / "t.mcap"), "--overwrite", *extra])
         assert out.exit_code == 0, out.output
         line = next(l for l in out.output.splitlines() if l.startswith("mean OSPA"))
         return float(line.split()[2])
