@@ -52,6 +52,7 @@ from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_st
                                  send, track_colours, track_style)
 from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index,
                                   labels_shown, track_strips, truth_crosses, truth_trails)
+from bnptrack.sinks.rerun_live import open_file_and_live
 from bnptrack.sinks.rerun_measurements import measurement_chunks
 from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, view_bounds, write_static
 from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
@@ -111,9 +112,10 @@ class RerunSink:
             file (footer written) before the signal's previous disposition runs.
         live: a Rerun gRPC URL (``rerun+http://HOST:PORT/proxy``: a viewer, e.g. one started by
             ``rerun`` or ``bnptrack launch --view``): the recording is streamed there too, as it
-            is written to ``path`` (the same rows: ``rr.set_sinks(GrpcSink, FileSink)``).  A
-            viewer that goes away does not stop the file: :meth:`close` logs the failed
-            flush and still finishes the file (Rerun gives up on the stream after about 5 s).
+            is written to ``path`` (the same rows, on a second stream:
+            :mod:`sinks.rerun_live`).  A viewer that goes away or stops reading does not hold
+            the file back: :meth:`close` finishes the file first, then gives the viewer a few
+            seconds and leaves it behind with a warning.
         flush_interval: ``log`` keeps each frame's data in memory; at most this many seconds
             apart (checked at each ``log``), the frames kept are sent to the file as columns,
             one Arrow chunk per entity.  ``0`` sends every frame at once.  A writer killed by
@@ -166,13 +168,12 @@ class RerunSink:
 
     def _open_stream(self, application_id: str) -> rr.RecordingStream:
         """The recording stream, saving to :attr:`path` (and streaming to :attr:`live`)."""
-        rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
         self._truth_layout = True  # the blueprint's; switched off at a first frame without truth
         blueprint = default_blueprint(scene_bounds=view_bounds(self._geo.bounds))
-        if self.live:
-            rec.set_sinks(rr.GrpcSink(self.live), rr.FileSink(self.path), default_blueprint=blueprint)
-        else:
-            rec.save(self.path, default_blueprint=blueprint)
+        if self.live:  # two streams: a frozen viewer must not hold the file back
+            return open_file_and_live(application_id, self.recording_id, str(self.path), self.live, blueprint)
+        rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
+        rec.save(self.path, default_blueprint=blueprint)
         return rec
 
     def _init_state(self) -> None:

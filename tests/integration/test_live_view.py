@@ -194,3 +194,31 @@ def test_track_view_spawns_a_viewer_that_receives_the_run(tmp_path):
         assert tl[0].start == 1 and out.with_suffix(".rrd").stat().st_size > 0
     finally:
         os.kill(pid, signal.SIGTERM)
+
+
+def test_a_frozen_viewer_neither_holds_the_run_nor_the_file(tmp_path, receiver):
+    """A viewer that stops reading (SIGSTOP): the recording still ends within seconds, with a
+    complete file (its footer written), and the viewer is left behind."""
+    import threading
+
+    params = load_params("vo2017")
+    frames = simulate_all(get_scenario("vo2017"), params, 1)[:30]
+    estimates = [est for _f, est, _s in run(make_tracker("ddp-mb", params), frames, 0)]
+    path = tmp_path / "run.rrd"
+    os.kill(receiver.proc.pid, signal.SIGSTOP)
+    try:
+        t0 = time.monotonic()
+        worker = threading.Thread(target=write_recording, daemon=True, args=(path, frames, estimates),
+                                  kwargs={"params": params, "live": receiver.url, "handle_signals": False})
+        worker.start()
+        worker.join(60)
+        elapsed = time.monotonic() - t0
+        assert not worker.is_alive(), "the recording waited for the frozen viewer"
+        assert elapsed < 20
+    finally:
+        os.kill(receiver.proc.pid, signal.SIGCONT)
+    verify = subprocess.run([*rerun_cli(), "rrd", "verify", str(path)], env=rerun_env(), capture_output=True,
+                            text=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
+    got = rows(path)
+    assert "/world/measurements" in got and sum(map(len, got.values())) > 100
