@@ -42,6 +42,7 @@ def test_interval_is_students_t_over_runs():
     assert row["ospa_ci"] == pytest.approx(2.484138, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_resumed_experiment_equals_an_uninterrupted_one(tmp_path):
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     run_experiment(EXP, runs=3, seed=4, params="vo2017", out=whole, workers=1, quiet=True, rrd=False)
@@ -127,6 +128,7 @@ def _set_code(out: Path, code: str) -> None:
     (out / JOURNAL_NAME).write_text(json.dumps(header) + "\n" + "".join(lines[1:]))
 
 
+@pytest.mark.slow
 def test_revalidate_carries_over_a_journal_whose_runs_redo_the_same(tmp_path):
     out = tmp_path / "exp"
     run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False)
@@ -139,6 +141,7 @@ def test_revalidate_carries_over_a_journal_whose_runs_redo_the_same(tmp_path):
     assert len((out / JOURNAL_NAME).read_text().splitlines()) == 3 and table(out) == before
 
 
+@pytest.mark.slow
 def test_revalidate_refuses_a_journal_whose_runs_differ(tmp_path):
     out = tmp_path / "exp"
     run_experiment(EXP, runs=2, seed=4, params="vo2017", out=out, workers=1, quiet=True, rrd=False)

@@ -17,6 +17,9 @@ import textwrap
 
 import pytest
 
+#: compile machinery: fresh interpreters compiling and loading kernels (docs/testing.md, markers)
+pytestmark = pytest.mark.slow
+
 from bnptrack.tracker import _numerics
 from tests.testkit import REPO_ROOT, bnptrack_env
 

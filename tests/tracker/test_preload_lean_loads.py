@@ -15,7 +15,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from testkit import REPO_ROOT
+
+#: subprocess probes of the kernel loading machinery (docs/testing.md, markers)
+pytestmark = pytest.mark.slow
 
 _KERNELS = '''
 import math
