@@ -32,7 +32,7 @@ from typing import Any
 from mcap.records import Channel, DataEnd, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from bnptrack.sources.channels import ChannelInfo, channel_list, trackable, trackable_listing
+from bnptrack.sources.channels import ChannelInfo, channel_list, record_limit, trackable, trackable_listing
 from bnptrack.sources.log_errors import McapLogError
 from bnptrack.sources.readers import MessageReader, Scan, reader_entry
 from bnptrack.sources.tf_static import StaticTransforms
@@ -104,7 +104,7 @@ class _RobotScanner:
             raise McapLogError(self.path, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
         with f:
             size = os.fstat(f.fileno()).st_size
-            records = StreamReader(f, validate_crcs=True, record_size_limit=max(size, 16 * 2**20)).records
+            records = StreamReader(f, validate_crcs=True, record_size_limit=record_limit(size)).records
             while True:
                 self.offset = f.tell()
                 try:
