@@ -360,3 +360,41 @@ def finish(p, timeout: float) -> tuple[int, str]:
         out, err = p.communicate(timeout=10)
         pytest.fail(f"{p.args} did not finish in {timeout} s:\n{(out or b'').decode()}\n{(err or b'').decode()}")
     return p.returncode, (out or b"").decode() + (err or b"").decode()
+
+
+# --------------------------------------------------------------------------- recordings
+
+
+def read_rrd(path: Path) -> dict[str, list]:
+    """Entity path -> Arrow record batches of its chunks (the file's first recording)."""
+    from collections import defaultdict
+
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        out[chunk.entity_path].append(chunk.to_record_batch())
+    return out
+
+
+def by_frame(batches: list, column: str) -> dict[int, object]:
+    """``frame`` -> value of ``column`` over the temporal rows of an entity."""
+    out: dict[int, object] = {}
+    for rb in batches:
+        names = rb.schema.names
+        if "frame" not in names or column not in names:
+            continue
+        for f, v in zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()):
+            if v is not None:
+                out[f] = v
+    return out
+
+
+def rrd_verify(path: Path):
+    """``rerun rrd verify PATH`` (exit code 0: the file is complete and readable)."""
+    import subprocess
+
+    from bnptrack.sinks.rerun_tools import rerun_cli, rerun_env
+
+    return subprocess.run([*rerun_cli(), "rrd", "verify", str(path)], capture_output=True,
+                          text=True, timeout=60, env=rerun_env(), check=False)

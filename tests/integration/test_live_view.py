@@ -32,7 +32,7 @@ from bnptrack.tracker.config import ConfigError  # noqa: E402
 from bnptrack.tracker.models.params import load_params  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
 
-from testkit import REPO_ROOT, require_renderer, wait_until  # noqa: E402
+from testkit import REPO_ROOT, require_renderer, rrd_verify, wait_until  # noqa: E402
 
 REPO = REPO_ROOT
 SHORT_LOG = REPO / "recordings" / "vo2017-s1.mcap"
@@ -217,8 +217,7 @@ def test_a_frozen_viewer_neither_holds_the_run_nor_the_file(tmp_path, receiver):
         assert elapsed < 20
     finally:
         os.kill(receiver.proc.pid, signal.SIGCONT)
-    verify = subprocess.run([*rerun_cli(), "rrd", "verify", str(path)], env=rerun_env(), capture_output=True,
-                            text=True, timeout=60)
+    verify = rrd_verify(path)
     assert verify.returncode == 0, verify.stderr
     got = rows(path)
     assert "/world/measurements" in got and sum(map(len, got.values())) > 100

@@ -8,8 +8,6 @@ import os
 
 os.environ.setdefault("CI", "1")  # before `import rerun`: no analytics
 
-from collections import defaultdict  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -19,27 +17,13 @@ from bnptrack.sinks.rerun_sink import write_recording  # noqa: E402
 from bnptrack.tracker.bnp import make_tracker  # noqa: E402
 from bnptrack.tracker.config import apply_overrides  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
+from testkit import by_frame, read_rrd  # noqa: E402
 
 N_FRAMES = 30
 
 
-def read_rrd(path: Path) -> dict[str, list]:
-    from rerun.chunk import RrdReader
-
-    out: dict[str, list] = defaultdict(list)
-    for chunk in RrdReader(path).stream():
-        out[chunk.entity_path].append(chunk.to_record_batch())
-    return out
 
 
-def by_frame(batches: list, column: str) -> dict[int, object]:
-    out: dict[int, object] = {}
-    for rb in batches:
-        if "frame" in rb.schema.names and column in rb.schema.names:
-            for f, v in zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()):
-                if v is not None:
-                    out[f] = v
-    return out
 
 
 CASES = {

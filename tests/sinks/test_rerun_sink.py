@@ -31,11 +31,11 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from bnptrack.pipeline.view import ViewerUnavailable, screenshot  # noqa: E402
-from testkit import png_stats, require_renderer  # noqa: E402
+from testkit import by_frame, png_stats, read_rrd, require_renderer, rrd_verify  # noqa: E402
 from bnptrack.sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
 from bnptrack.sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
 from bnptrack.sinks.rerun_style import PALETTE, label_color  # noqa: E402
-from bnptrack.sinks.rerun_tools import repair, rerun_cli, rerun_env  # noqa: E402
+from bnptrack.sinks.rerun_tools import repair, rerun_env  # noqa: E402
 from bnptrack.sinks.rerun_process import RecordingError, RecordingProcess  # noqa: E402
 from bnptrack.sources.scenarios import get_scenario  # noqa: E402
 from bnptrack.sources.synthetic import simulate_all  # noqa: E402
@@ -53,32 +53,10 @@ META = {"scenario": "vo2017", "params": "vo2017", "tracker": "ddp", "seed": "1"}
 # --------------------------------------------------------------------------- helpers
 
 
-def rrd_verify(path: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*rerun_cli(), "rrd", "verify", str(path)], capture_output=True,
-                          text=True, timeout=60, env=rerun_env(), check=False)
 
 
-def read_rrd(path: Path) -> dict[str, list]:
-    """Entity path -> Arrow record batches of its chunks (the file's first recording)."""
-    from rerun.chunk import RrdReader
-
-    out: dict[str, list] = defaultdict(list)
-    for chunk in RrdReader(path).stream():
-        out[chunk.entity_path].append(chunk.to_record_batch())
-    return out
 
 
-def by_frame(batches: list, column: str) -> dict[int, object]:
-    """``frame`` -> value of ``column`` over the temporal rows of an entity."""
-    out: dict[int, object] = {}
-    for rb in batches:
-        names = rb.schema.names
-        if "frame" not in names or column not in names:
-            continue
-        for f, v in zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()):
-            if v is not None:
-                out[f] = v
-    return out
 
 
 def frames_in(path: Path) -> set[int]:
