@@ -43,6 +43,7 @@ from typing import Any
 import msgspec
 
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig, check_run_id, dump_pipeline, resolve_run
+from bnptrack.pipeline.outcome import SinkWait, check_eos, describe_missing, foreign_eos, unsent_eos
 from bnptrack.pipeline.progress import Status
 from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
 from bnptrack.pipeline.supervisor import (
@@ -66,6 +67,7 @@ from bnptrack.pipeline.stages import (
     StageIOError,
     UpstreamGone,
 )
+from bnptrack.pipeline.stages.base import StopFlag, set_stop
 from bnptrack.tracker.config import ConfigError
 
 __all__ = ["Launcher", "launch", "run_stage", "stage_config", "configure_logging", "describe_missing"]
@@ -91,30 +93,31 @@ def configure_logging(stage: str, level: str = "INFO") -> None:
 
 
 def run_stage(role: str, cfg: PipelineConfig, name: str | None = None, parent_pid: int | None = None,
-              stop: threading.Event | None = None) -> int:
+              stop: threading.Event | None = None, report: Callable[[dict], None] | None = None) -> int:
     """Run one stage in this process until it finishes or is stopped; return its exit code.
 
     Installs SIGINT/SIGTERM handlers (a second signal exits at once), watches
     ``parent_pid`` (the launcher: if it disappears the stage stops), opens the Zenoh session
-    and always closes it.
+    and always closes it.  ``report`` sends the stage's reports to its launcher
+    (:class:`pipeline.stage_link.StageLink`).
     """
     if role not in STAGES:
         raise ConfigError(f"unknown stage {role!r}; stages: {', '.join(STAGES)}")
     name = name or role
-    stop = stop or threading.Event()
+    stop = stop or StopFlag()
     # Zenoh's threads run our (short) sample callbacks under the GIL: let them in sooner
     # than the default 5 ms while the main thread computes
     sys.setswitchinterval(0.001)
     signals = stop_on_signals(name, stop) if threading.current_thread() is threading.main_thread() else None
     try:
-        return _run_with_bus(role, cfg, name, parent_pid, stop)
+        return _run_with_bus(role, cfg, name, parent_pid, stop, report)
     finally:
         if signals is not None:
             signals.restore()
 
 
 def _run_with_bus(role: str, cfg: PipelineConfig, name: str, parent_pid: int | None,
-                  stop: threading.Event) -> int:
+                  stop: threading.Event, report: Callable[[dict], None] | None = None) -> int:
     """:func:`run_stage` once the signals are taken care of: open the bus, run the stage."""
     from bnptrack.pipeline.transport import Bus, NoRouterError, TransportError
 
@@ -128,7 +131,10 @@ def _run_with_bus(role: str, cfg: PipelineConfig, name: str, parent_pid: int | N
         log.error("%s", exc)
         return EXIT_CRASH
     try:
-        return _run_profiled(STAGES[role](StageContext(cfg, bus, stop, name)), name)
+        ctx = StageContext(cfg, bus, stop, name)
+        if report is not None:
+            ctx.report = report
+        return _run_profiled(STAGES[role](ctx), name)
     except ConfigError as exc:
         log.error("%s: configuration error: %s", name, exc)
         return EXIT_CONFIG
@@ -150,7 +156,7 @@ def _watch_parent(name: str, parent_pid: int, stop: threading.Event) -> None:
         while not stop.wait(0.5):
             if os.getppid() != parent_pid:
                 log.error("%s: the launcher (pid %d) is gone: stopping", name, parent_pid)
-                stop.set()
+                set_stop(stop, f"its launcher, pid {parent_pid}, is gone")
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
@@ -226,6 +232,8 @@ class Launcher:
         self.viewer = None
         self._data_error = ""  # the source stopped on a data error
         self._sink_done_at: float | None = None
+        self._sink_wait: SinkWait | None = None  # a stage was given up: the sink records what it has
+        self._conflict = ""  # the source saw an end of stream of its name it did not send
 
     # -- public ----------------------------------------------------------------------
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -274,12 +282,17 @@ class Launcher:
         result.elapsed_s = time.monotonic() - t0
         result.restarts = {s.role: s.restarts for s in self.stages}
         self._conclude(result)
+        for sp in self.stages:
+            sp.close_link()
         return result
 
     def _stage_env(self) -> dict[str, str]:
         env = dict(os.environ)
         env.setdefault("PYTHONUNBUFFERED", "1")
         env.setdefault("RERUN_ANALYTICS", "0")
+        if self.credentials:  # each stage gets its own on its link: no other in its environment
+            env.pop("BNPTRACK_ZENOH_USER", None)
+            env.pop("BNPTRACK_ZENOH_PASSWORD", None)
         # children run this checkout even if the package is not installed
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
@@ -292,8 +305,8 @@ class Launcher:
             argv = [self.python, "-m", "bnptrack", "stage", role, "--pipeline", str(cfg_path),
                     "--name", role, "--parent-pid", str(os.getpid()), "--log-level", self.log_level]
             sp = StageProcess(role, argv, self.out / "logs" / f"{role}.log")
-            if role in self.credentials:
-                sp.env = {"BNPTRACK_ZENOH_USER": role, "BNPTRACK_ZENOH_PASSWORD": self.credentials[role]}
+            if role in self.credentials:  # down the stage's private link, not its environment
+                sp.key = (role, self.credentials[role])
             self.stages.append(sp)
             sp.start(env)
         self._write_stages()
@@ -315,13 +328,16 @@ class Launcher:
                 result.error = (f"{src_err} -- the pipeline processed the "
                                 f"{result.summary.get('frames_written', 0)} readable frame(s)")
                 result.ok = False
-        if result.gave_up:
-            result.incomplete = result.error
-            missing = describe_missing(result.summary)
-            if missing:
-                result.incomplete += f"; {missing}"
-        elif result.ok:
-            result.incomplete = describe_missing(result.summary)
+        conflict = ""
+        if not result.interrupted:  # the end of stream the sink ended on must be the source's own
+            conflict, result.summary = check_eos(self.out, result.summary, self.stages)
+            conflict = conflict or self._conflict
+        missing = describe_missing(result.summary)
+        if result.gave_up and result.summary and not (missing or conflict):  # the exit code follows the output
+            self.echo(f"{result.error}; the output is complete all the same")
+            result.ok, result.error = True, ""
+        elif result.gave_up or result.ok:
+            result.incomplete = "; ".join(p for p in (result.error if result.gave_up else "", conflict, missing) if p)
             result.ok = not result.incomplete
 
     def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
@@ -396,7 +412,15 @@ class Launcher:
                 except OSError as exc:
                     result.error = f"launcher: cannot write {self.out / 'stages.json'}: {exc}"
                     return
-            if self._finished(result):
+            if (conflict := foreign_eos(self.stages)) and not self._sink_wait:
+                self._conflict = conflict
+                self.echo(f"{conflict}: stopping every stage")
+                result.ok = not self._data_error
+                return
+            if self._sink_wait is not None:
+                if not self._sink_wait.waiting(self.stages, self.monitor.latest.get("sink")):
+                    return
+            elif self._finished(result):
                 return
 
     def _check_stage(self, sp: StageProcess, env: dict[str, str], result: LaunchResult) -> str:
@@ -441,7 +465,11 @@ class Launcher:
             result.error = settled or (f"stage {sp.role} crashed ({what}) and was restarted "
                                        f"{sp.restarts} time(s) already; giving up (log: {sp.log_path})")
             result.gave_up = sp.role
-            return "stop"
+            if settled or sp.role == "sink" or not any(o.role == "sink" and o.alive() for o in self.stages):
+                return "stop"
+            self.echo(f"{result.error}; the sink records what it has")
+            self._sink_wait = SinkWait(self.cfg.delivery.eos_grace_s + 1.0)
+            return "changed"
         sp.state = "restarting"
         sp.restart_at = time.monotonic() + sup.restart_backoff_s
         self.echo(f"stage {sp.role} (pid {sp.pid}) crashed ({what}); restarting "
@@ -459,7 +487,7 @@ class Launcher:
             if self._sink_done_at is None:
                 self._sink_done_at = time.monotonic()
                 return False
-            if time.monotonic() - self._sink_done_at <= self.cfg.supervisor.linger_s:
+            if time.monotonic() - self._sink_done_at <= self.cfg.supervisor.linger_s and not unsent_eos(self.stages):
                 return False
             self.echo("the sink has finished; stopping the remaining stages")
             self._stop_all()
@@ -513,38 +541,6 @@ def _quick_router(z: ZenohConfig) -> ZenohConfig:
     if "scouting/delay" in z.router_extra or z.multicast_scouting:
         return z
     return msgspec.structs.replace(z, router_extra={**z.router_extra, "scouting/delay": "0"})
-
-
-def _ranges(seqs: Sequence[int], limit: int = 8) -> str:
-    """``[1, 2, 3, 7]`` -> ``"1-3, 7"`` (at most ``limit`` ranges, then ``"..."``)."""
-    parts: list[str] = []
-    start = prev = None
-    for x in [*seqs, None]:
-        if x is not None and prev is not None and x == prev + 1:
-            prev = x
-            continue
-        if start is not None:
-            parts.append(str(start) if start == prev else f"{start}-{prev}")
-        start = prev = x
-    more = len(parts) > limit
-    return ", ".join(parts[:limit]) + (f", ... ({len(seqs)} in all)" if more else "")
-
-
-def describe_missing(summary: dict | None) -> str:
-    """One line saying what a run's output lacks (``""``: it is complete), from the sink's
-    ``sink.json``: no summary, a sink that stopped before the end of stream, and each
-    ``missing`` entry (topic, sequence numbers, why)."""
-    if not summary:
-        return f"the sink wrote no {SUMMARY_NAME}"
-    parts = []
-    if not summary.get("complete", False):
-        parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
-    for m in summary.get("missing") or []:
-        seqs = m.get("seqs") or []  # none, with from_seq: the rest of a run of unknown length
-        where = f"from seq {m['from_seq']} on" if not seqs and m.get("from_seq") is not None else \
-            f"of {len(seqs)} frame(s), seq {_ranges(seqs)}"
-        parts.append(f"{m.get('topic')} {where}: {m.get('why')}")
-    return "; ".join(parts)
 
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,

@@ -4,6 +4,8 @@ and the stage's side of the launcher's SIGTERM (:func:`stop_on_signals`)."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import logging
 import os
@@ -12,7 +14,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,10 +22,12 @@ from typing import Any
 import msgspec
 
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
+from bnptrack.pipeline.stage_link import LauncherLink
 from bnptrack.pipeline.stages import EXIT_STOPPED
+from bnptrack.pipeline.stages.base import set_stop
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
-           "sink_left_output", "write_stages", "stop_stages", "StopSignals", "stop_on_signals"]
+           "sink_left_output", "write_stages", "record_exit", "stop_stages", "StopSignals", "stop_on_signals"]
 
 log = logging.getLogger("bnptrack.launch")
 
@@ -40,20 +44,48 @@ class StageProcess:
     restart_at: float | None = None
     history: list[dict] = field(default_factory=list)
     env: dict[str, str] = field(default_factory=dict)
+    key: tuple[str, str] | None = None
+    """The stage's Zenoh (user, password): sent down its :class:`LauncherLink`, never in its
+    environment, command line or a file."""
+    link: LauncherLink | None = None
+    reports: list[dict] = field(default_factory=list)
+    """What the stage's processes reported on their links, in order (over restarts)."""
 
     def start(self, env: dict[str, str]) -> None:
         env = {**env, **self.env}
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "ab") as logf:
-            logf.write(f"--- start #{self.restarts} {time.strftime('%H:%M:%S')}\n".encode())
-            logf.flush()
-            self.proc = subprocess.Popen(
-                self.argv, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
-                env=env, process_group=0,
-            )
+        self.poll_reports()
+        if self.link is not None:
+            self.link.close()
+        self.link = link = LauncherLink()
+        user, password = self.key or ("", "")
+        link.send_key(user, password)
+        try:
+            with open(self.log_path, "ab") as logf:
+                logf.write(f"--- start #{self.restarts} {time.strftime('%H:%M:%S')}\n".encode())
+                logf.flush()
+                self.proc = subprocess.Popen(
+                    [*self.argv, "--link-fd", str(link.child_fd())], stdin=subprocess.DEVNULL, stdout=logf,
+                    stderr=subprocess.STDOUT, env=env, process_group=0, pass_fds=(link.child_fd(),),
+                )
+        finally:
+            link.closed_in_parent()
         self.state = "running"
         self.restart_at = None
         self.history.append({"pid": self.proc.pid, "start": time.time()})
+
+    def close_link(self) -> None:
+        """Take the last reports and close the link (the process has exited)."""
+        self.poll_reports()
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+
+    def poll_reports(self) -> list[dict]:
+        """Every report the stage's processes sent so far (reads what has arrived)."""
+        if self.link is not None:
+            self.reports.extend(self.link.poll())
+        return self.reports
 
     @property
     def pid(self) -> int | None:
@@ -236,7 +268,7 @@ def open_embedded_router(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tu
     try:
         router = Router(z)
     finally:
-        if generated:  # the router has read it; the stages get theirs by environment
+        if generated:  # the router has read it; each stage gets its own on its private link
             Path(z.users_file).unlink(missing_ok=True)
             z = msgspec.structs.replace(z, users_file="")
     z = msgspec.structs.replace(z, embedded_router=False, connect=router.connect_endpoints)
@@ -245,7 +277,7 @@ def open_embedded_router(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tu
 
 def _credentials(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[dict[str, str], ZenohConfig]:
     """Per-run credentials: one random password per stage (and one for the launcher's
-    monitor), given to each process in its environment only, and the ACL that lets each
+    monitor), given to each process on its private link only (:mod:`pipeline.stage_link`), and the ACL that lets each
     stage put only on its own keys.  The users file (mode 0600) lives only until the
     router has read it."""
     credentials = {name: secrets.token_urlsafe(18) for name in [*stages, "launcher"]}
@@ -257,11 +289,59 @@ def _credentials(z: ZenohConfig, out: Path, stages: Sequence[str]) -> tuple[dict
 
 
 def write_stages(out: Path, stages: Sequence[StageProcess]) -> None:
-    """``<out>/stages.json``: pid, state, restarts, exit code and log of each stage (atomic)."""
+    """``<out>/stages.json``: pid, state, restarts, exit code and log of each stage (atomic,
+    under ``<out>/.stages.lock``).  A stage process that recorded its own exit
+    (:func:`record_exit`) before this launcher saw it keeps that record."""
     doc = {s.role: {"pid": s.pid, "state": s.state, "restarts": s.restarts,
                     "returncode": s.returncode, "log": str(s.log_path), "history": s.history}
            for s in stages}
-    tmp = out / ".stages.json.tmp"
+    with _stages_lock(out):
+        earlier = _read_stages(out)
+        for role, rec in doc.items():
+            own = earlier.get(role)
+            if rec["state"] == "running" and isinstance(own, dict) and own.get("pid") == rec["pid"] \
+                    and own.get("exited"):
+                rec.update(state=own.get("state"), returncode=own.get("returncode"), exited=True)
+        _replace_stages(out, doc)
+
+
+def record_exit(out: Path, role: str, code: int) -> None:
+    """A stage process's own record of its exit (``code``) in ``<out>/stages.json``, when the
+    file lists this process: its launcher may be gone (SIGKILL), and the file must not say
+    that the stage still runs.  Errors are ignored (the stage's exit code stands)."""
+    try:
+        with _stages_lock(out):
+            doc = _read_stages(out)
+            rec = doc.get(role)
+            if not isinstance(rec, dict) or rec.get("pid") != os.getpid():
+                return
+            rec.update(state={0: "done", 3: "done", 130: "stopped"}.get(code, "exited"), returncode=code,
+                       exited=True)
+            _replace_stages(out, doc)
+    except OSError as exc:
+        log.debug("%s: cannot record its exit in %s: %s", role, out / "stages.json", exc)
+
+
+@contextlib.contextmanager
+def _stages_lock(out: Path) -> Iterator[None]:
+    fd = os.open(out / ".stages.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _read_stages(out: Path) -> dict:
+    try:
+        doc = json.loads((out / "stages.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _replace_stages(out: Path, doc: dict) -> None:
+    tmp = out / f".stages.json.{os.getpid()}.tmp"
     try:
         tmp.write_text(json.dumps(doc, indent=1))
         os.replace(tmp, out / "stages.json")
@@ -324,7 +404,7 @@ class StopSignals:
         if self.stop.is_set():
             os._exit(EXIT_STOPPED)
         log.info("%s: %s: stopping (flushing files)", self.name, signal.Signals(signum).name)
-        self.stop.set()
+        set_stop(self.stop, signal.Signals(signum).name)
 
     def _take(self) -> None:
         # the timeout only bounds how long this thread outlives restore(); a signal is taken at once

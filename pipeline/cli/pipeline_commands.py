@@ -332,11 +332,12 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
 @click.option("--name", default=None, help="Stage name (default: the role).")
 @click.option("--parent-pid", type=int, default=None, hidden=True)
+@click.option("--link-fd", type=int, default=None, hidden=True)
 @click.option("--log-level", default="INFO", show_default=True, help="Logging level.")
 @clean_errors
 def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tuple[str, ...],
           listen: tuple[str, ...], mode: str | None, out: Path | None, overrides: tuple[str, ...],
-          name: str | None, parent_pid: int | None, log_level: str) -> None:
+          name: str | None, parent_pid: int | None, link_fd: int | None, log_level: str) -> None:
     """Run one pipeline stage in this process (to place stages on different hosts).
 
     Every stage of a run uses the same --run and reaches the others through a Zenoh router
@@ -354,11 +355,23 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
     """
     from bnptrack.pipeline.launch import configure_logging, run_stage, stage_config
     from bnptrack.pipeline.config import load_pipeline
+    from bnptrack.pipeline.stage_link import linked_stage
+    from bnptrack.pipeline.supervisor import record_exit
+    from bnptrack.tracker.config import ConfigError
 
     configure_logging(name or role, log_level)
     cfg = stage_config(load_pipeline(pipeline_file, overrides), run=run_id, out=str(out) if out else None,
                        connect=connect, listen=listen, mode=mode)
-    code = run_stage(role, cfg, name=name, parent_pid=parent_pid)
+    cfg, link = linked_stage(cfg, link_fd)
+    code = 1
+    try:
+        code = run_stage(role, cfg, name=name, parent_pid=parent_pid, report=link.report if link else None)
+    except ConfigError:
+        code = 2
+        raise
+    finally:
+        if parent_pid:  # the launcher may be gone: stages.json must not say this one still runs
+            record_exit(Path(cfg.out), role, code)
     raise SystemExit(code)
 
 

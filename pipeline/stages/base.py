@@ -106,16 +106,44 @@ class ManualClock:
         return stop.is_set()
 
 
+class StopFlag(threading.Event):
+    """A stage's stop flag that remembers why it was first set (:meth:`stop`)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.reason = ""
+
+    def stop(self, reason: str) -> None:
+        if not self.is_set():
+            self.reason = reason
+        self.set()
+
+
+def stop_reason(stop: threading.Event) -> str:
+    """Why ``stop`` was set (``""``: not said)."""
+    return stop.reason if isinstance(stop, StopFlag) else ""
+
+
+def set_stop(stop: threading.Event, reason: str) -> None:
+    """Set ``stop``, saying why when it is a :class:`StopFlag`."""
+    if isinstance(stop, StopFlag):
+        stop.stop(reason)
+    else:
+        stop.set()
+
+
 @dataclass
 class StageContext:
-    """What a stage needs: the (resolved) pipeline, its bus, a stop flag, its name and the
-    clock it reads the time from (default: the real one)."""
+    """What a stage needs: the (resolved) pipeline, its bus, a stop flag, its name, the
+    clock it reads the time from (default: the real one) and where it reports to its
+    launcher (``report``: the source's published count and last seq; default: nowhere)."""
 
     cfg: PipelineConfig
     bus: Any
     stop: threading.Event = field(default_factory=threading.Event)
     name: str = ""
     clock: Clock = field(default_factory=SystemClock)
+    report: Callable[[dict], None] = field(default=lambda msg: None)
 
     @property
     def run(self) -> str:

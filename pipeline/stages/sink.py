@@ -10,7 +10,8 @@ from typing import Any
 import msgspec
 
 from bnptrack.tracker.messages import to_estimate, to_frame, to_truth
-from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
+from bnptrack.pipeline.stages.base import (EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError,
+                                           settle_heap, stop_reason, warm_imports)
 from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
@@ -371,7 +372,7 @@ class SinkStage(StageBase):
         if self.sinks is not None:
             self.sinks.close()
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
-        missing = self._missing()
+        missing = self._missing(complete)
         src = self.eos_seen.get("source")
         summary = {
             "run": self.run_id,
@@ -380,10 +381,12 @@ class SinkStage(StageBase):
             "tracks_written": self.tracks_written,
             "last_seq": self.next_write - 1,
             "gaps": gaps,
-            "output_complete": complete and not missing,
+            "output_complete": not missing,  # incomplete: _missing lists every seq not written
             "missing": missing,
             "recovered_frames": self.recovered,
             "source_error": src.error if src is not None else "",
+            # the source's end of stream this sink ended on (the launcher checks it against the source's own)
+            "source_eos": {"last_seq": src.last_seq, "frames": src.frames} if src is not None else None,
             "counters": self.counters.as_dict(),
             "restarted": self.restarted,  # the counters are this process's (an earlier one's are lost)
             "rejected_by_topic": self.intake.rejected_by_topic,
@@ -413,18 +416,21 @@ class SinkStage(StageBase):
         rrd = self.ctx.out / self.sink_cfg.rrd_name
         return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
 
-    def _missing(self) -> list[dict[str, Any]]:
-        """What ``tracks.mcap`` lacks, and why (:func:`~pipeline.stages.health.missing_entries`)."""
+    def _missing(self, complete: bool) -> list[dict[str, Any]]:
+        """What ``tracks.mcap`` lacks, and why (:func:`~pipeline.stages.health.missing_entries`);
+        before the end of stream also every frame after the last one written."""
         tr = self.eos_seen.get("tracker")
         gaps = {name: seq.gaps for name, seq in self.streams.items()}
         return missing_entries(gaps, tr.rejected if tr is not None else (), self.rejected_seqs,
-                               self.mismatched) + self._missing_tail()
+                               self.mismatched) + ([] if complete else self._missing_tail())
 
     def _missing_tail(self) -> list[dict[str, Any]]:
-        if not self.gone:
-            return []
-        why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.last_frame}, from the "
-                           "killed sink's .part file)" if self.recovered else "")
+        """The frames after the last one written (up to the source's end of stream, when known)."""
+        if self.gone:
+            why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.last_frame}, from the "
+                               "killed sink's .part file)" if self.recovered else "")
+        else:
+            why = f"not received: the sink was stopped ({stop_reason(self.ctx.stop) or 'by a signal'})"
         return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
 
     def _end_again(self, summary: dict) -> int:

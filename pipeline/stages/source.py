@@ -7,6 +7,7 @@ import logging
 import math
 import os
 from collections.abc import Iterator
+from typing import Any
 from pathlib import Path
 
 from bnptrack.tracker.messages import encode, from_truth
@@ -93,6 +94,21 @@ class SourceStage(StageBase):
     until the ``done_by`` stages have finished."""
 
     role = "source"
+    sent_eos: EndOfStream | None = None
+
+    def on_control(self, ev: Any) -> bool:
+        """Control messages; an end of stream of this source's name that it did not send is
+        reported to the launcher (``foreign_eos``: a forged one, the launcher stops the run)."""
+        before = self.eos_seen.get(self.name)
+        handled = super().on_control(ev)
+        seen = self.eos_seen.get(self.name)
+        if seen is not None and seen is not before:
+            sent = self.sent_eos
+            if sent is None or (seen.last_seq, seen.frames) != (sent.last_seq, sent.frames):
+                log.error("%s: an end of stream of %s at seq %d that this process did not send", self.name,
+                          self.name, seen.last_seq)
+                self.ctx.report({"foreign_eos": {"last_seq": seen.last_seq, "frames": seen.frames}})
+        return handled
 
     def run(self) -> int:
         src_cfg = self.cfg.source
@@ -110,9 +126,14 @@ class SourceStage(StageBase):
         seq, stopped, error = self._publish_all(frames, src_cfg, t0)
         if stopped:
             log.info("%s: stopped after %d frame(s)", self.name, seq + 1)
+            self.ctx.report({"stopped": {"last_seq": seq, "frames": seq + 1}})
             self.health(force=True)
             return EXIT_STOPPED
         eos = EndOfStream(stage=self.name, run=self.run_id, last_seq=seq, frames=seq + 1, error=error)
+        # the launcher knows this end of stream before anyone can act on it (checked against
+        # the one the sink records: a forged one conflicts)
+        self.ctx.report({"eos": {"last_seq": seq, "frames": seq + 1}})
+        self.sent_eos = eos
         self.publish_control("eos", eos)
         log.info("%s: published %d frame(s) in %.2f s; waiting for %s to finish", self.name, seq + 1,
                  self.clock.monotonic() - t0, ", ".join(src_cfg.done_by) or "nobody")
