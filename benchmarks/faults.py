@@ -28,6 +28,8 @@ Families (``--only`` picks some):
   temporary files left;
 * ``taken``: a launch on an ``--out`` that holds another run: refused (exit 2), the other
   run's files unchanged;
+* ``stolen-key``, ``exit-truth``: stage keys taken from another process's view and forged ends
+  of stream; exit codes that follow the output (``benchmarks/faults_eos.py``);
 * ``restart-alone``: a stage started by hand (``bnptrack stage``, on a router of its own) after
   the others have left: ``--points`` runs (100 frames at 25 frames/s, ``max_restarts = 0``)
   whose sink is SIGKILLed at a seeded frame, then a sink started by hand must end within 90 s
@@ -537,7 +539,8 @@ def family_restart_alone(work: Path, points: int, seed: int) -> list[dict]:
     return cases
 
 
-FAMILIES = ("kill", "stop", "forged", "malformed", "mcap", "full", "taken", "restart-alone")
+FAMILIES = ("kill", "stop", "forged", "malformed", "mcap", "full", "taken", "restart-alone", "stolen-key",
+            "exit-truth")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -546,6 +549,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", type=int, default=10, help="seeded kill points per stage (short runs)")
     ap.add_argument("--long", type=int, default=0, help="kills per stage in 2,000-frame runs at 50 frames/s")
     ap.add_argument("--malformed", type=int, default=10_000)
+    ap.add_argument("--runs", type=int, default=3, help="stolen-key: runs of each of its two cases")
     ap.add_argument("--seed", type=int, default=17)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -569,11 +573,15 @@ def main(argv: list[str] | None = None) -> int:
                 cases += family_taken(work)
             elif fam == "restart-alone":
                 cases += family_restart_alone(work, args.points, args.seed)
+            elif fam in ("stolen-key", "exit-truth"):  # benchmarks/faults_eos.py
+                from faults_eos import family_exit_truth, family_stolen_key
+
+                cases += family_stolen_key(work, args.runs) if fam == "stolen-key" else family_exit_truth(work)
     print("\nfamily      tried  nothing lost")
     table = {}
     for c in cases:
         key = c["family"] + (f"/{c['role']}/{c['run']}" if c["family"] == "kill" else
-                             f"/{c['role']}" if c["family"] == "restart-alone" else "")
+                             f"/{c['role']}" if c["family"] in ("restart-alone", "stolen-key", "exit-truth") else "")
         t = table.setdefault(key, [0, 0])
         if c["ok"] is None:
             continue
