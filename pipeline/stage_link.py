@@ -23,6 +23,7 @@ from typing import Any
 import msgspec
 
 from bnptrack.pipeline.config import PipelineConfig
+from bnptrack.tracker.config import ConfigError
 
 __all__ = ["LauncherLink", "StageLink", "linked_stage", "eos_conflict"]
 
@@ -91,7 +92,7 @@ class StageLink:
         try:
             self.sock = socket.socket(fileno=fd)
         except OSError as exc:
-            raise ValueError(f"--link-fd {fd}: not a socket inherited from the launcher ({exc.strerror})") from None
+            raise ValueError(f"not a socket inherited from the launcher ({exc.strerror})") from None
 
     def read_key(self, timeout: float = KEY_TIMEOUT_S) -> tuple[str, str]:
         """The stage's (user, password), the first line on the channel."""
@@ -100,7 +101,7 @@ class StageLink:
             ready, _, _ = select.select([self.sock], [], [], timeout)
             chunk = self.sock.recv(4096) if ready else b""
             if not chunk:
-                raise ValueError("--link-fd: the launcher sent no credentials")
+                raise ValueError("the launcher sent no credentials")
             buf += chunk
         msg = json.loads(buf.partition(b"\n")[0])
         return str(msg["user"]), str(msg["password"])
@@ -125,8 +126,11 @@ def linked_stage(cfg: PipelineConfig, fd: int | None) -> tuple[PipelineConfig, S
     removed from this process's environment), and the link (``None`` without ``fd``)."""
     if fd is None:
         return cfg, None
-    link = StageLink(fd)
-    user, password = link.read_key()
+    try:
+        link = StageLink(fd)
+        user, password = link.read_key()
+    except (ValueError, OSError, KeyError) as exc:  # not started by a launcher: one line, exit 2
+        raise ConfigError(f"--link-fd {fd}: {exc}") from None
     if not user:
         return cfg, link
     os.environ.pop("BNPTRACK_ZENOH_USER", None)
