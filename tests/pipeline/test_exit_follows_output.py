@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from bnptrack.pipeline.membus import MemoryNetwork
-from bnptrack.pipeline.outcome import describe_missing
+from bnptrack.pipeline.outcome import SinkWait, describe_missing
 from bnptrack.pipeline.stages import EXIT_STOPPED, SUMMARY_NAME, ManualClock, SinkStage, SourceStage, StageContext
 from bnptrack.pipeline.stages.base import StopFlag
 from bnptrack.pipeline.supervisor import StageProcess, record_exit, write_stages
@@ -102,3 +102,13 @@ def test_a_stage_records_its_own_exit_and_the_launcher_keeps_that_record(tmp_pat
     record_exit(tmp_path, "source", 130)
     assert json.loads((tmp_path / "stages.json").read_text())["source"]["state"] == "stopped"
     assert not list(tmp_path.glob(".stages.json.*.tmp"))
+
+
+def test_after_a_stage_is_given_up_the_launcher_waits_while_the_sink_makes_progress(tmp_path):
+    sink = StageProcess("sink", [], tmp_path / "sink.log", state="running")
+    wait = SinkWait(idle_s=0.3)
+    assert wait.waiting([sink], {"counters": {"accepted": 1}})
+    wait_until(lambda: not wait.waiting([sink], {"counters": {"accepted": 1}}), 10, "the sink to be idle for 0.3 s")
+    assert wait.waiting([sink], {"counters": {"accepted": 2}})  # progress: the wait starts again
+    sink.state = "done"
+    assert not wait.waiting([sink], {"counters": {"accepted": 3}})
