@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from bnptrack.pipeline.membus import MemoryNetwork
-from bnptrack.pipeline.outcome import check_eos, describe_missing
+from bnptrack.pipeline.outcome import check_eos, describe_missing, foreign_eos
 from bnptrack.pipeline.stage_link import LauncherLink, StageLink, eos_conflict
 from bnptrack.pipeline.stages import EXIT_OK, STAGES, SUMMARY_NAME, ManualClock, StageContext
 from bnptrack.pipeline.supervisor import StageProcess
@@ -97,6 +97,11 @@ def test_a_forged_end_of_stream_the_sink_ended_on_is_a_conflict_named_in_sink_js
     forger.publish("eos/source", json.dumps({"stage": "source", "run": cfg.run, "last_seq": 4, "frames": 5}).encode())
     reports: list = []
     assert _run(cfg, net, reports) == {"sink": EXIT_OK, "source": EXIT_OK}
+    # the source saw the forged one on the bus and told its launcher (which stops the run)
+    assert reports == [{"foreign_eos": {"last_seq": 4, "frames": 5}}, {"eos": {"last_seq": 11, "frames": 12}}]
+    assert foreign_eos([_source_process(tmp_path, reports)]) == (
+        "end of stream conflict: an end of stream of the source at seq 4 (5 frame(s)) that the source process "
+        "never sent was put on the bus (a forged end of stream)")
     out = Path(cfg.out)
     summary = json.loads((out / SUMMARY_NAME).read_text())
     assert summary["source_eos"] == {"last_seq": 4, "frames": 5} and summary["output_complete"] is True
@@ -120,6 +125,13 @@ def test_eos_conflict_reference_texts():
         "(42 frame(s)) that the source process never sent (a forged end of stream); it had published "
         "60 frame(s), up to seq 59, when it was stopped")
     assert eos_conflict(None, None, rec).endswith("that the source process never sent (a forged end of stream)")
+
+
+def test_a_restarted_source_that_receives_its_predecessors_end_of_stream_is_no_conflict(tmp_path):
+    own = {"eos": {"last_seq": 11, "frames": 12}}
+    again = {"foreign_eos": {"last_seq": 11, "frames": 12}}  # the cache's history, to the new process
+    assert foreign_eos([_source_process(tmp_path, [own, again])]) == ""
+    assert foreign_eos([_source_process(tmp_path, [own, {"foreign_eos": {"last_seq": 3, "frames": 4}}])]) != ""
 
 
 def test_check_eos_is_silent_without_a_source_here(tmp_path):
