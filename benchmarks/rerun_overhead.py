@@ -167,7 +167,7 @@ def _child_share(args: argparse.Namespace, tmp: Path, params, kept: list) -> tup
     with the child's settings, over the frames and estimates ``kept``, in this process."""
     from bnptrack.sinks.rerun_sink import RerunSink
     from bnptrack.sinks.rerun_process import CHILD_FLUSH_INTERVAL
-    from bnptrack.sinks.metrics import RunScorer
+    from bnptrack.sinks.run_scorer import RunScorer
 
     score, sink_log, sink_closes = [], [], []
     for r in range(args.repeats):

@@ -213,13 +213,13 @@ def _score_tracker(spec: TrackerSpec, params, frames: list, seed: int,
                    crossings: Sequence[tuple[str, str, int]], keep_tracks: bool,
                    metrics: Sequence[FrameMetric] = ()) -> TrackerRun:
     """Run one tracker over a run's frames and score every frame: OSPA, OSPA(2) and GOSPA
-    (alpha 2) by one :class:`sinks.metrics.RunScorer` (as ``bnptrack track`` and the pipeline's
+    (alpha 2) by one :class:`sinks.run_scorer.RunScorer` (as ``bnptrack track`` and the pipeline's
     sink; the three share each frame's distance matrix; its OSPA(2) window compiled, the
     same numbers: the trackers have loaded numba here anyway), the experiment's extra
     ``metrics`` and the label keeping through ``crossings``."""
     from bnptrack.pipeline.resolve import tracker_setup
     from bnptrack.sinks.crossings import crossing_label_keeping
-    from bnptrack.sinks.metrics import RunScorer
+    from bnptrack.sinks.run_scorer import RunScorer
     from bnptrack.tracker.state import run as run_tracker
 
     tracker = tracker_setup(spec.name, params=params, config=spec.preset).tracker

@@ -3,7 +3,7 @@
 
 What a run uses (parameters, settings, the tracker) is resolved by :mod:`pipeline.resolve`,
 the scenario by :func:`sources.scenarios.open_scenario`; frames are scored by
-:class:`sinks.metrics.RunScorer`, as the pipeline's sink and the experiments score them.
+:class:`sinks.run_scorer.RunScorer`, as the pipeline's sink and the experiments score them.
 The tracker and the metrics (which pull in scipy) are imported where they are used, so
 ``bnptrack --help`` stays quick.
 """
@@ -22,7 +22,8 @@ import numpy as np
 
 from bnptrack.sinks.crossings import CrossingResult
 from bnptrack.sinks.metrics import OspaResult
-from bnptrack.sinks.metrics import OSPA_C, OSPA_P, RunScorer
+from bnptrack.sinks.metrics import OSPA_C, OSPA_P
+from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.sink import SinkSet, make_sink
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
@@ -117,7 +118,7 @@ class FrameMetrics:
     ospa_cardinality: float | None = None
     cardinality_error: float | None = None
     ospa2: float | None = None
-    """OSPA(2) over the window ending at this frame (:class:`sinks.metrics.RunScorer`)."""
+    """OSPA(2) over the window ending at this frame (:class:`sinks.run_scorer.RunScorer`)."""
 
     @property
     def ospa_result(self) -> OspaResult | None:
@@ -184,7 +185,7 @@ class TrackResult:
 def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P,
                   scorer: RunScorer | None = None) -> FrameMetrics:
     """OSPA (on position) and cardinality error of one estimate against the frame's truth,
-    scored by ``scorer`` (a run's :class:`sinks.metrics.RunScorer`, which then also gives
+    scored by ``scorer`` (a run's :class:`sinks.run_scorer.RunScorer`, which then also gives
     the frame's OSPA(2); default: a scorer of this frame alone, cut-off ``c``, order ``p``)."""
     from bnptrack.sinks.metrics import cardinality_error
 
@@ -437,7 +438,7 @@ def track_to_sinks(
 ) -> TrackResult:
     """Track the frames of an MCAP log (those of ``window``; default: all; with ``lag`` > 0
     the fixed-lag output of :mod:`tracker.lag`) and record each frame,
-    its estimate and its scores (:class:`sinks.metrics.RunScorer`, as :attr:`TrackResult.frames`
+    its estimate and its scores (:class:`sinks.run_scorer.RunScorer`, as :attr:`TrackResult.frames`
     holds them) to ``sinks``,
     opened with ``metadata`` and closed here (the files are complete when this returns).
     The record's ``crossings`` (a generated ``random`` scene) are scored

@@ -1,4 +1,4 @@
-"""The OSPA(2) window's per-scan terms as one compiled kernel (:class:`sinks.metrics.RunScorer`
+"""The OSPA(2) window's per-scan terms as one compiled kernel (:class:`sinks.run_scorer.RunScorer`
 with ``compiled=True``: the Monte Carlo runner, whose workers have numba loaded by the
 trackers anyway).
 

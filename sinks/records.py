@@ -39,7 +39,7 @@ class SinkRecord:
     ``frame``: the measurements (and truth) of the frame, ``None`` when they were lost
     upstream (a gap in the pipeline: the tracks alone are recorded).  ``estimate``: the
     tracker's output for the frame, ``None`` when there is none (a log without tracker).
-    ``scores``: the frame's :meth:`sinks.metrics.RunScorer.update` result when the caller has
+    ``scores``: the frame's :meth:`sinks.run_scorer.RunScorer.update` result when the caller has
     scored it (``{"ospa": OspaResult | None, "ospa2": float | None}``); ``None``: a sink that
     draws scores computes them.  ``health``: pipeline counters at this frame (time series of
     the Rerun recording).  ``payloads``: the messages' bytes when the caller has them.

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from bnptrack.sinks.metrics import RunScorer
+from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
 
 __all__ = ["RerunRecordSink", "rerun_sink"]
@@ -29,7 +29,7 @@ class RerunRecordSink:
     """Write the records to the ``.rrd`` file ``options.path`` (streamed to ``options.live``
     too, when given).  A record without frame or estimate draws nothing (the recording shows
     the run's frames with their tracks).  Records without ``scores`` are scored with a
-    :class:`sinks.metrics.RunScorer` of the default OSPA / OSPA(2) settings."""
+    :class:`sinks.run_scorer.RunScorer` of the default OSPA / OSPA(2) settings."""
 
     def __init__(self, options: SinkOptions) -> None:
         self.options = options

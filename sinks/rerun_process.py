@@ -1,7 +1,7 @@
 """A Rerun recording written by a child process, off the tracker's critical path.
 
 :class:`RecordingProcess` records a run like :func:`sinks.rerun_sink.write_recording` does
-(each frame scored by :class:`sinks.metrics.RunScorer`, then logged to a
+(each frame scored by :class:`sinks.run_scorer.RunScorer`, then logged to a
 :class:`sinks.rerun_sink.RerunSink`), but the sink runs in a child Python process.  The
 tracker's process scores the frame (OSPA and OSPA(2); scipy is loaded there anyway), pickles
 ``(frame, estimate, scores)`` and writes the bytes to the child's stdin without ever blocking:
@@ -58,7 +58,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, NoReturn
 
-from bnptrack.sinks.metrics import RunScorer
+from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.records import SinkOptions, SinkRecord
 
 if TYPE_CHECKING:

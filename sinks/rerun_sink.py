@@ -44,7 +44,8 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P, RunScorer
+from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
+from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.close_on_signal import CloseOnSignal
 from bnptrack.sinks.rerun_blueprint import default_blueprint
 from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_first_cluster, structure_rows, track_clusters

@@ -54,7 +54,7 @@ class SinkStage(StageBase):
         self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
         self.next_write = 0
         self.sinks: SinkSet | None = None
-        from bnptrack.sinks.metrics import RunScorer, ScoreTally
+        from bnptrack.sinks.run_scorer import RunScorer, ScoreTally
 
         self.scorer = RunScorer()
         #: decode each frame (numpy arrays, scores, health counters) only for a consumer: the

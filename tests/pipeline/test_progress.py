@@ -1,5 +1,5 @@
 """Progress lines of `bnptrack launch` / `replay` (pipeline.progress) and the running scores
-behind them (sinks.metrics.ScoreTally)."""
+behind them (sinks.run_scorer.ScoreTally)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from bnptrack.pipeline.progress import Progress, Status, progress_line
 from bnptrack.sinks.metrics import OspaResult
-from bnptrack.sinks.metrics import ScoreTally
+from bnptrack.sinks.run_scorer import ScoreTally
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 

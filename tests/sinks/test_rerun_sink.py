@@ -32,7 +32,8 @@ import pytest  # noqa: E402
 
 from bnptrack.pipeline.view import ViewerUnavailable, screenshot  # noqa: E402
 from testkit import by_frame, png_stats, read_rrd, require_renderer, rrd_verify  # noqa: E402
-from bnptrack.sinks.metrics import RunScorer, ospa, ospa2_series  # noqa: E402
+from bnptrack.sinks.metrics import ospa, ospa2_series  # noqa: E402
+from bnptrack.sinks.run_scorer import RunScorer  # noqa: E402
 from bnptrack.sinks.rerun_sink import RerunSink, write_recording  # noqa: E402
 from bnptrack.sinks.rerun_style import PALETTE, label_color  # noqa: E402
 from bnptrack.sinks.rerun_tools import repair, rerun_env  # noqa: E402

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.sinks.metrics import RunScorer, gospa, ospa, ospa2_series
+from bnptrack.sinks.metrics import gospa, ospa, ospa2_series
+
+from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, Truth
 
 C = 100.0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bnptrack.sinks._score_window import _first_seen
-from bnptrack.sinks.metrics import RunScorer
+from bnptrack.sinks.run_scorer import RunScorer
 from tests.sinks.test_run_scorer_shared import C, _estimate, _frame, _random_run
 
 

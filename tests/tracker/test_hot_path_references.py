@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from bnptrack.sinks.metrics import RunScorer, _positions
+from bnptrack.sinks.run_scorer import RunScorer, _positions
 from bnptrack.tracker.bnp import make_tracker
 from bnptrack.tracker.bnp.clusters import _birth_frame, _Clusters
 from bnptrack.tracker.bnp.filter import BnpTracker, _born_between
