@@ -39,7 +39,7 @@ def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, o
 
     import msgspec as _ms
 
-    from bnptrack.pipeline.launch import stage_config
+    from bnptrack.pipeline.stage_process import stage_config
     from bnptrack.pipeline.config import load_pipeline
     from bnptrack.pipeline.supervisor import stop_on_signals
 

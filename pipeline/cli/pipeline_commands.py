@@ -48,7 +48,7 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         if summary:
             rows.append(("frames", f"{summary.get('frames_written', 0)} "
                                    f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
-            from bnptrack.pipeline.launch import describe_missing
+            from bnptrack.pipeline.outcome import describe_missing
             from bnptrack.pipeline.progress import describe_latency, describe_rejected
 
             rows.append(("rejected", describe_rejected(summary)))
@@ -353,7 +353,7 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
       bnptrack stage tracker --run r1 --connect tcp/10.0.0.5:7447 --out /data/r1
       bnptrack stage source  --run r1 --connect tcp/10.0.0.5:7447 --set source.frames=50
     """
-    from bnptrack.pipeline.launch import configure_logging, run_stage, stage_config
+    from bnptrack.pipeline.stage_process import configure_logging, run_stage, stage_config
     from bnptrack.pipeline.config import load_pipeline
     from bnptrack.pipeline.stage_link import linked_stage
     from bnptrack.pipeline.supervisor import record_exit

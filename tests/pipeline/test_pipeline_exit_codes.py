@@ -15,8 +15,8 @@ import pytest
 
 from bnptrack.pipeline.cli import EXIT_INCOMPLETE, IncompleteError
 from bnptrack.pipeline.cli.pipeline_commands import _report_launch
-from bnptrack.pipeline.launch import Launcher, describe_missing
-from bnptrack.pipeline.outcome import _ranges
+from bnptrack.pipeline.launch import Launcher
+from bnptrack.pipeline.outcome import _ranges, describe_missing
 from bnptrack.pipeline.supervisor import LaunchResult
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME

@@ -12,7 +12,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from bnptrack.pipeline.launch import describe_missing
+from bnptrack.pipeline.outcome import describe_missing
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import (
     EXIT_DATA,

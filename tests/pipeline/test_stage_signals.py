@@ -30,7 +30,7 @@ from testkit import REPO_ROOT, bnptrack_env
 #: (``<thread>``: where the stop handler ran), and exits 0.
 _LOOP = """
 import os, queue, signal, sys, threading
-from bnptrack.pipeline import launch, supervisor
+from bnptrack.pipeline import stage_process, supervisor
 stop = threading.Event()
 where = []
 {setup}
@@ -47,7 +47,7 @@ print("stopped", where[0] if where else "?", flush=True)
 
 #: The stage's handling (the cure).
 _CURED = """
-launch.configure_logging("t")
+stage_process.configure_logging("t")
 signals = supervisor.stop_on_signals("t", stop)
 on_signal = signals.on_signal
 def recording(signum, frame=None):
@@ -118,7 +118,7 @@ def test_a_second_signal_exits_at_once_with_130():
 def test_restore_unblocks_the_signals_and_puts_handlers_back_when_asked():
     code = textwrap.dedent("""
         import signal, threading
-        from bnptrack.pipeline import launch, supervisor
+        from bnptrack.pipeline import stage_process, supervisor
         before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
         s = supervisor.stop_on_signals("t", threading.Event())
         during = signal.pthread_sigmask(signal.SIG_BLOCK, [])
