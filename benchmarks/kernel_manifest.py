@@ -3,7 +3,7 @@ in the order a first run compiles them (tracker/precompile.py compiles them from
 in a second process on a first run).
 
 For each tracker, a child process with an empty kernel cache (``NUMBA_CACHE_DIR`` a fresh
-temporary folder) runs the tracker stage's warm-up (``pipeline.stages.tracker.warm_up_tracker``)
+temporary folder) runs the tracker stage's warm-up (``pipeline.stages.tracker_warmup.warm_up_tracker``)
 and then tracks the 100 frames of ``recordings/vo2017-s1.mcap``, recording every compilation of
 a project kernel (numba's ``numba:compile`` events, in the order they end).  Run it again after
 changing a kernel's arguments: a stale manifest only costs the second process useless work.
@@ -47,7 +47,7 @@ def child(tracker: str, out: str) -> None:
     event.register("numba:compile", Listener())
     from bnptrack.pipeline.offline import track_frames
     from bnptrack.pipeline.resolve import tracker_setup
-    from bnptrack.pipeline.stages.tracker import warm_up_tracker
+    from bnptrack.pipeline.stages.tracker_warmup import warm_up_tracker
     from bnptrack.sources.mcap_log import iter_frames, read_metadata
 
     setup = tracker_setup(tracker, metadata=read_metadata(LOG))

@@ -833,7 +833,7 @@ def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
     import subprocess
     import sys
 
-    code = ("import sys; from bnptrack.pipeline.stages.tracker import warm_tracker_imports; "
+    code = ("import sys; from bnptrack.pipeline.stages.tracker_warmup import warm_tracker_imports; "
             "warm_tracker_imports(sys.argv[1]); print(int('bnptrack.tracker.bnp' in sys.modules), "
             "int('bnptrack.tracker.glmb' in sys.modules))")
     root = REPO_ROOT

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import bnptrack.pipeline.stages.tracker as tracker_stage
+import bnptrack.pipeline.stages.tracker_warmup as tracker_warmup
 from bnptrack.pipeline.config import DeliveryConfig, PipelineConfig, TrackerStageConfig, resolve_run
 from bnptrack.pipeline.events import Event
 from bnptrack.pipeline.membus import MemoryNetwork
@@ -56,7 +57,7 @@ def _push(stage, frame, seq):
 def test_the_stage_is_ready_without_the_large_frames_imports():
     assert LAZY_IMPORTS == ("scipy.sparse.csgraph", "scipy.spatial") and LAZY_PAIRS == 2_000
     # the preload before ready is numba's alone
-    assert "warm_imports" not in tracker_stage.preload_tracker.__code__.co_names
+    assert "warm_imports" not in tracker_warmup.preload_tracker.__code__.co_names
 
 
 def test_vo2017_frames_never_start_the_imports(tmp_path, imports):

@@ -16,7 +16,8 @@ from testkit import REPO_ROOT, bnptrack_env
 _PROBE = r"""
 import json, sys
 from bnptrack.pipeline.config import TrackerStageConfig
-from bnptrack.pipeline.stages.tracker import {preload}build_stage_tracker, warm_up_tracker
+from bnptrack.pipeline.stages.tracker import build_stage_tracker
+from bnptrack.pipeline.stages.tracker_warmup import {preload}warm_up_tracker
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
 from bnptrack.tracker.state import tracker_frame_rng

@@ -20,8 +20,9 @@ from testkit import REPO_ROOT, bnptrack_env
 _PROBE = r"""
 import json
 from bnptrack.pipeline.config import TrackerStageConfig
-import bnptrack.pipeline.stages.tracker as warmup
-from bnptrack.pipeline.stages.tracker import build_stage_tracker, warm_up_tracker
+import bnptrack.pipeline.stages.tracker_warmup as warmup
+from bnptrack.pipeline.stages.tracker import build_stage_tracker
+from bnptrack.pipeline.stages.tracker_warmup import warm_up_tracker
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
 from bnptrack.tracker._numerics import JIT
@@ -67,7 +68,7 @@ def test_without_the_contests_a_kernel_is_compiled_inside_a_frame():
 
 
 def test_contest_frames_close_in_then_share_one_measurement():
-    from bnptrack.pipeline.stages.tracker import BORN_FRAMES, CONTEST, EMPTY_FRAMES, contest_frames
+    from bnptrack.pipeline.stages.tracker_warmup import BORN_FRAMES, CONTEST, EMPTY_FRAMES, contest_frames
 
     frames = list(contest_frames("bearing_range", (0.1, 500.0), 16.0))
     # 5 frames 200 m apart, then 180, 160 (closest 16 units = 160 m), 2 frames of the middle, 3 empty
