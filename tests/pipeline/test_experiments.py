@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bnptrack.pipeline.experiment_plots import write_plots
 from bnptrack.pipeline.experiments import (
     EXPERIMENTS,
     RunJob,
@@ -14,7 +15,6 @@ from bnptrack.pipeline.experiments import (
     run_jobs,
     run_seed,
     summary_rows,
-    write_plots,
     write_summary,
 )
 from bnptrack.tracker.config import ConfigError
