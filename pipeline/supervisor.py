@@ -25,6 +25,7 @@ from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.stage_link import LauncherLink
 from bnptrack.pipeline.stages import EXIT_STOPPED
 from bnptrack.pipeline.stages.base import set_stop
+from bnptrack.pipeline.stages.summary import read_summary
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
            "sink_left_output", "write_stages", "record_exit", "stop_stages", "StopSignals", "stop_on_signals"]
@@ -233,13 +234,10 @@ def recorded_complete(summary_path: Path, run: str) -> bool:
     renaming its outputs, should it have been killed in between)."""
     from bnptrack.pipeline.stages.recovery import commit_parts
 
-    try:
-        summary = json.loads(summary_path.read_text())
-    except (OSError, ValueError):
+    summary = read_summary(summary_path, run)
+    if summary is None or not summary.complete:
         return False
-    if not isinstance(summary, dict) or summary.get("run") != run or not summary.get("complete"):
-        return False
-    commit_parts(summary.get("files") or [])
+    commit_parts(summary.files)
     return True
 
 
@@ -248,9 +246,9 @@ def sink_left_output(cfg: PipelineConfig, out: Path) -> bool:
     restarted with nobody else there finalizes (exit 3): a ``sink.json`` of this run, or a
     ``.tracks.mcap.part`` with a readable frame (:func:`pipeline.stages.salvage_part`)."""
     from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, part_path
-    from bnptrack.pipeline.stages.salvage import earlier_summary, salvage_part
+    from bnptrack.pipeline.stages.salvage import salvage_part
 
-    if earlier_summary(out / SUMMARY_NAME, cfg.run) is not None:
+    if read_summary(out / SUMMARY_NAME, cfg.run) is not None:
         return True
     found = salvage_part(part_path(out / cfg.sink.mcap_name), cfg.run) if cfg.sink.mcap else None
     return found is not None and bool(found.frames)

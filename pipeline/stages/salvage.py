@@ -15,8 +15,7 @@ from typing import Any
 from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH, Accepted
 from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
 
-__all__ = ["UpstreamGone", "UpstreamWatch", "SalvagedFrame", "Salvage", "salvage_part", "missing_tail",
-           "earlier_summary"]
+__all__ = ["UpstreamGone", "UpstreamWatch", "SalvagedFrame", "Salvage", "salvage_part", "missing_tail"]
 
 log = logging.getLogger("bnptrack.stage")
 
@@ -61,19 +60,6 @@ class UpstreamWatch:
         """Why the stage stops waiting (the ``why`` of what it lacks)."""
         return (f"upstream gone before the end of stream: no live {' or '.join(self.upstream)} for "
                 f"{self.after:g} s and no cache holds the rest of the run")
-
-
-def earlier_summary(path: Path, run: str) -> dict | None:
-    """The ``sink.json`` at ``path`` when an earlier sink process of run ``run`` wrote it
-    (``None``: none, unreadable, or another run's).  A sink restarted after that must not
-    reopen, i.e. truncate, the files it names: when it says ``complete``, not at all."""
-    import msgspec
-
-    try:
-        summary = msgspec.json.decode(Path(path).read_bytes())
-    except (OSError, msgspec.DecodeError):
-        return None
-    return summary if isinstance(summary, dict) and summary.get("run") == run else None
 
 
 def missing_tail(streams: Iterable[str], first: int, source_eos: Any, why: str) -> list[dict[str, Any]]:

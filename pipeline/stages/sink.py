@@ -7,15 +7,14 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import msgspec
-
 from bnptrack.tracker.messages import to_estimate, to_frame, to_truth
 from bnptrack.pipeline.stages.base import (EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError,
                                            settle_heap, stop_reason, warm_imports)
 from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, NO_TRUTH, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
-from bnptrack.pipeline.stages.health import missing_entries, _JSON, EndOfStream, StageInfo
+from bnptrack.pipeline.stages.health import missing_entries, EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
-from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, earlier_summary, missing_tail, salvage_part
+from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, missing_tail, salvage_part
+from bnptrack.pipeline.stages.summary import RunSummary, read_summary
 from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord
 from bnptrack.sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
@@ -76,7 +75,7 @@ class SinkStage(StageBase):
         self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
         self.gone = ""  # why the sink stopped waiting (the upstream was gone)
         self.recovered = 0  # frames recovered from the earlier process's .part file
-        self.earlier: dict | None = None  # the sink.json an earlier process of this run wrote
+        self.earlier: RunSummary | None = None  # the sink.json an earlier process of this run wrote
         self.restarted = False  # an earlier sink process of this run left outputs: counters are ours only
 
     # -- output ------------------------------------------------------------------------
@@ -374,36 +373,36 @@ class SinkStage(StageBase):
         gaps = {name: list(seq.gaps) for name, seq in self.streams.items()}
         missing = self._missing(complete)
         src = self.eos_seen.get("source")
-        summary = {
-            "run": self.run_id,
-            "complete": complete,
-            "frames_written": self.frames_written,
-            "tracks_written": self.tracks_written,
-            "last_seq": self.next_write - 1,
-            "gaps": gaps,
-            "output_complete": not missing,  # incomplete: _missing lists every seq not written
-            "missing": missing,
-            "recovered_frames": self.recovered,
-            "source_error": src.error if src is not None else "",
+        summary = RunSummary(
+            run=self.run_id,
+            complete=complete,
+            frames_written=self.frames_written,
+            tracks_written=self.tracks_written,
+            last_seq=self.next_write - 1,
+            gaps=gaps,
+            output_complete=not missing,  # incomplete: _missing lists every seq not written
+            missing=missing,
+            recovered_frames=self.recovered,
+            source_error=src.error if src is not None else "",
             # the source's end of stream this sink ended on (the launcher checks it against the source's own)
-            "source_eos": {"last_seq": src.last_seq, "frames": src.frames} if src is not None else None,
-            "counters": self.counters.as_dict(),
-            "restarted": self.restarted,  # the counters are this process's (an earlier one's are lost)
-            "rejected_by_topic": self.intake.rejected_by_topic,
-            "dropped": int(self.bus.dropped),
-            "zenoh_misses": int(self.bus.misses),
-            "files": self.files,
-            "scores": self.tally.as_dict(),
-            "view": self._view_command(),
-            "throughput_fps": self.latency.throughput_fps(),
-            "t_first_pub_ns": self.latency.t_first_pub_ns,
-            "t_last_recv_ns": self.latency.t_last_ns,
-            "latency": self.latency.as_dict(),
-        }
+            source_eos={"last_seq": src.last_seq, "frames": src.frames} if src is not None else None,
+            counters=self.counters.as_dict(),
+            restarted=self.restarted,  # the counters are this process's (an earlier one's are lost)
+            rejected_by_topic=self.intake.rejected_by_topic,
+            dropped=int(self.bus.dropped),
+            zenoh_misses=int(self.bus.misses),
+            files=self.files,
+            scores=self.tally.as_dict(),
+            view=self._view_command(),
+            throughput_fps=self.latency.throughput_fps(),
+            t_first_pub_ns=self.latency.t_first_pub_ns,
+            t_last_recv_ns=self.latency.t_last_ns,
+            latency=self.latency.as_dict(),
+        )
         self.ctx.out.mkdir(parents=True, exist_ok=True)
         path = self.ctx.out / SUMMARY_NAME
         sync_parts(self.files)  # the outputs are on disk before the summary says they are done
-        write_atomic(path, msgspec.json.format(_JSON.encode(summary), indent=1))
+        write_atomic(path, summary.encode())
         commit_parts(self.files)
         self.latency.discard()  # sink.json holds the timed frames now
         self.files.append(str(path))
@@ -433,28 +432,26 @@ class SinkStage(StageBase):
             why = f"not received: the sink was stopped ({stop_reason(self.ctx.stop) or 'by a signal'})"
         return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
 
-    def _end_again(self, summary: dict) -> int:
+    def _end_again(self, summary: RunSummary) -> int:
         """Announce the recorded end of stream again (for stages still waiting for it)."""
-        commit_parts(summary.get("files") or [])  # killed between sink.json and the renames
+        commit_parts(summary.files)  # killed between sink.json and the renames
         (self.ctx.out / LATENCY_PART).unlink(missing_ok=True)  # ... or before the timings' removal
         log.info("%s: %s already records the complete run (%d frame(s)); not reopening it",
-                 self.name, self.ctx.out / SUMMARY_NAME, summary.get("frames_written", 0))
+                 self.name, self.ctx.out / SUMMARY_NAME, summary.frames_written)
         self.bus.subscribe(["eos/*"])
         self.bus.declare([f"eos/{self.name}"])
         self.bus.declare_alive()
-        gaps = sorted({int(g) for v in (summary.get("gaps") or {}).values() for g in v})
         self.publish_control("eos", EndOfStream(
-            stage=self.name, run=self.run_id, last_seq=int(summary.get("last_seq", -1)),
-            frames=int(summary.get("frames_written", 0)), gaps=gaps,
-            error=summary.get("source_error") or "", files=list(summary.get("files") or [])))
+            stage=self.name, run=self.run_id, last_seq=summary.last_seq, frames=summary.frames_written,
+            gaps=summary.all_gaps(), error=summary.source_error, files=list(summary.files)))
         self.linger_until_alone(self.cfg.supervisor.linger_s, at_least=1.0)
         return EXIT_OK
 
     def run(self) -> int:
         # an earlier sink process of this run finished: a complete run is never reopened
         # (truncated); an incomplete one is kept unless this sink records the run itself
-        self.earlier = earlier_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
-        if self.earlier is not None and self.earlier.get("complete"):
+        self.earlier = read_summary(self.ctx.out / SUMMARY_NAME, self.run_id)
+        if self.earlier is not None and self.earlier.complete:
             return self._end_again(self.earlier)
         self.latency.carry_over(self.ctx.out / LATENCY_PART, self.run_id)  # an earlier process's
         self._warm_up()
@@ -536,9 +533,9 @@ class SinkStage(StageBase):
         written to its ``.part`` file (read before anything reopens it), as if received:
         every sink gets them again."""
         if self.earlier is not None:
-            commit_parts(self.earlier.get("files") or [])  # killed between sink.json and the renames
+            commit_parts(self.earlier.files)  # killed between sink.json and the renames
             log.info("%s: %s already records %d frame(s) of this run (output incomplete); keeping it",
-                     self.name, self.ctx.out / SUMMARY_NAME, self.earlier.get("frames_written", 0))
+                     self.name, self.ctx.out / SUMMARY_NAME, self.earlier.frames_written)
             return "kept"
         found = salvage_part(part_path(self.ctx.out / self.sink_cfg.mcap_name), self.run_id)
         if (found is None or not found.frames) and outcome == "alone":

@@ -1,0 +1,80 @@
+"""What a run's sink says it recorded: ``<out>/sink.json`` as a typed :class:`RunSummary`,
+written by the sink stage and read back by a restarted sink and the supervisor.
+
+The file's bytes are :meth:`RunSummary.encode`: the fields in their declared order, one per
+line (``msgspec.json.format(..., indent=1)``), the keys docs/pipeline.md lists.  Every field
+has a default, so a file that lacks one (or has one more) still reads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+__all__ = ["RunSummary", "read_summary"]
+
+
+class RunSummary(msgspec.Struct, frozen=True, kw_only=True):
+    """The sink's account of a run (``sink.json``)."""
+
+    run: str = ""
+    #: the sink recorded everything up to the source's end of stream
+    complete: bool = False
+    frames_written: int = 0
+    tracks_written: int = 0
+    last_seq: int = -1
+    #: per stream (``measurements``, ``truth``, ``tracks``): the sequence numbers recorded as gaps
+    gaps: dict[str, list[int]] = {}
+    #: complete, and nothing missing
+    output_complete: bool = False
+    #: what ``tracks.mcap`` lacks: ``{"topic", "seqs", "why"}`` (or ``"from_seq"`` for a tail)
+    missing: list[dict[str, Any]] = []
+    recovered_frames: int = 0
+    source_error: str = ""
+    #: the source's end of stream the sink ended on: ``{"last_seq", "frames"}`` (the launcher
+    #: checks it against the source process's own reports)
+    source_eos: dict[str, int] | None = None
+    counters: dict[str, Any] = {}
+    #: the counters are this process's (an earlier sink process of the run was killed)
+    restarted: bool = False
+    rejected_by_topic: dict[str, int] = {}
+    dropped: int = 0
+    zenoh_misses: int = 0
+    files: list[str] = []
+    scores: dict[str, Any] = {}
+    #: the command that opens the recording (``""``: no ``run.rrd``)
+    view: str = ""
+    throughput_fps: float | None = None
+    t_first_pub_ns: int | None = None
+    t_last_recv_ns: int | None = None
+    latency: dict[str, Any] = {}
+
+    @classmethod
+    def of(cls, doc: Mapping[str, Any]) -> RunSummary:
+        """A summary from a ``sink.json`` document already decoded (``msgspec.ValidationError``
+        names a field of the wrong type)."""
+        return msgspec.convert(doc, cls)
+
+    def encode(self) -> bytes:
+        """``sink.json``'s bytes."""
+        return msgspec.json.format(_ENC.encode(self), indent=1)
+
+    def all_gaps(self) -> list[int]:
+        """Every stream's gaps, sorted, once each."""
+        return sorted({int(g) for v in self.gaps.values() for g in v})
+
+
+_ENC = msgspec.json.Encoder()
+_DEC = msgspec.json.Decoder(RunSummary)
+
+
+def read_summary(path: str | Path, run: str | None = None) -> RunSummary | None:
+    """The ``sink.json`` at ``path`` (``None``: none, unreadable, or, with ``run``, another run's)."""
+    try:
+        summary = _DEC.decode(Path(path).read_bytes())
+    except (OSError, msgspec.DecodeError):  # ValidationError is a DecodeError
+        return None
+    return summary if run is None or summary.run == run else None

@@ -1,0 +1,53 @@
+"""``sink.json`` as a typed :class:`RunSummary`: its bytes are those of the document it
+replaces (same keys, same order, same layout), it reads back, and a file that lacks fields,
+has more (the launcher's ``eos_conflict``), belongs to another run or is not JSON reads as
+what it is."""
+
+import json
+
+import msgspec
+import pytest
+
+from bnptrack.pipeline.stages.summary import RunSummary, read_summary
+
+#: A sink.json document as the sink stage writes it: every key, in the order written.
+DOC = {
+    "run": "r1", "complete": True, "frames_written": 9, "tracks_written": 8, "last_seq": 8,
+    "gaps": {"measurements": [], "truth": [], "tracks": [5]}, "output_complete": False,
+    "missing": [{"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"}],
+    "recovered_frames": 0, "source_error": "", "source_eos": {"last_seq": 8, "frames": 9}, "counters": {"received": 27, "rejected": 1, "duplicates": 2},
+    "restarted": False, "rejected_by_topic": {"measurements": 1}, "dropped": 0, "zenoh_misses": 0,
+    "files": ["/o/tracks.mcap", "/o/sink.json"], "scores": {"frames": 9, "ospa": 12.5, "ospa2": None},
+    "view": "bnptrack view /o/run.rrd", "throughput_fps": 9.75, "t_first_pub_ns": 1_000, "t_last_recv_ns": 2_000,
+    "latency": {"timed_frames": 8, "excluded": {"from_caches": 0, "recovered": 0}},
+}
+
+
+def test_the_bytes_are_those_of_the_document():
+    s = RunSummary(**DOC)
+    assert s.encode() == msgspec.json.format(msgspec.json.encode(DOC), indent=1)
+    assert list(json.loads(s.encode())) == list(DOC) == list(RunSummary.__struct_fields__)
+
+
+def test_it_reads_back(tmp_path):
+    path = tmp_path / "sink.json"
+    path.write_bytes(RunSummary(**DOC).encode())
+    s = read_summary(path, "r1")
+    assert s == RunSummary(**DOC)
+    assert s.all_gaps() == [5] and s.frames_written == 9 and s.files[0] == "/o/tracks.mcap"
+    assert read_summary(path, "another-run") is None
+    assert read_summary(tmp_path / "none.json") is None
+
+
+def test_a_short_or_broken_file(tmp_path):
+    short = tmp_path / "short.json"
+    short.write_text('{"run": "r1", "complete": true, "eos_conflict": "a forged end of stream"}')
+    s = read_summary(short, "r1")
+    assert s.complete and s.frames_written == 0 and s.last_seq == -1 and s.files == [] and s.source_eos is None
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"run": "r1", "frames_written": "nine"}')
+    assert read_summary(bad) is None
+    bad.write_text("{not json")
+    assert read_summary(bad) is None
+    with pytest.raises(msgspec.ValidationError, match="frames_written"):
+        RunSummary.of({"frames_written": "nine"})
