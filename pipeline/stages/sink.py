@@ -15,6 +15,7 @@ from bnptrack.pipeline.stages.health import missing_entries, EndOfStream, StageI
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path, sync_parts, write_atomic
 from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch, missing_tail, salvage_part
 from bnptrack.pipeline.stages.summary import RunSummary, read_summary
+from bnptrack.pipeline.stages.sink_align import FrameAligner, Reject, Write
 from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.sinks.records import Payloads, Sink, SinkOptions, SinkRecord
 from bnptrack.sinks.sink import SINKS, OptionalSink, SinkSet, make_sink
@@ -48,10 +49,8 @@ class SinkStage(StageBase):
         }
         if self.sink_cfg.tracks:
             self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
-        self.ready: dict[str, dict[int, Any]] = {k: {} for k in self.streams}
         self.holes = {k: HoleWatch(FETCH_AFTER_S, self.clock.monotonic) for k in self.streams}
         self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
-        self.next_write = 0
         self.sinks: SinkSet | None = None
         from bnptrack.sinks.run_scorer import RunScorer, ScoreTally
 
@@ -65,11 +64,8 @@ class SinkStage(StageBase):
         self.latency = LatencyBook(self.counters.latency_ms)  # the timed frames (first deliveries)
         self.files: list[str] = []
         self.held: list[tuple[int, Any, Any, Any]] = []
-        self.bounds = FrameBounds(d.max_frame_gap, d.max_gap_s)
-        self.last_frame = -1
-        self.last_stamp_ns: int | None = None
-        self.rejected_seqs: list[int] = []
-        self.mismatched: dict[str, list[int]] = {}
+        #: the pure core: which frames to record, in order (:mod:`pipeline.stages.sink_align`)
+        self.align = FrameAligner(self.streams, FrameBounds(d.max_frame_gap, d.max_gap_s))
         self.upstream_marked: set[str] = set()  # streams given the gaps their upstream stage reported
         self.t_first_ns: int | None = None
         self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone
@@ -195,7 +191,7 @@ class SinkStage(StageBase):
         """The sink's part of its health message: what the launcher's progress line shows
         (frames written, the newest frame seen, the last frame's latency, the scores)."""
         seen = self.streams["measurements"].max_seen
-        return {"frames_written": self.frames_written, "next_seq": self.next_write,
+        return {"frames_written": self.frames_written, "next_seq": self.align.next_write,
                 "max_seq_seen": seen, "last_latency_ms": self.latency.last_ms,
                 "scores": self.tally.as_dict()}
 
@@ -212,55 +208,21 @@ class SinkStage(StageBase):
         """Write every frame for which each stream has released its item (or a gap)."""
         if not self._open():
             return
-        ready = self.ready
-        has_tracks = "tracks" in ready
-        while True:
-            s = self.next_write
-            if s not in ready["measurements"] or s not in ready["truth"]:
-                return
-            if has_tracks and s not in ready["tracks"]:
-                return
-            meas = ready["measurements"].pop(s)
-            truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas)
-            tracks = self._same_frame(s, "tracks", ready["tracks"].pop(s), meas) if has_tracks else None
-            if self._in_bounds(s, meas):
-                self._write(s, meas, truth, tracks)
-            self.next_write += 1
-
-    def _in_bounds(self, s: int, meas: Any) -> bool:
-        """Whether frame ``s`` may be recorded: its frame number and stamp advance within
-        the frame bounds (as the tracker checks them); otherwise none of its messages are
-        written, and it is rejected and counted."""
-        if meas is GAP:
-            return True
-        m = meas.msg
-        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
-        if why is not None:
-            self.intake.reject_sample("measurements", meas.payload, s, why)
-            self.rejected_seqs.append(s)
-            return False
-        self.last_frame, self.last_stamp_ns = m.frame, m.stamp_ns
-        return True
-
-    def _same_frame(self, s: int, stream: str, item: Any, meas: Any) -> Any:
-        """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if
-        either is missing; otherwise :data:`GAP` (dropped, logged, counted as rejected)."""
-        if item is GAP or item is NO_TRUTH or meas is GAP or item.msg.frame == meas.msg.frame:
-            return item
-        log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
-                  self.name, s, stream, item.msg.frame, meas.msg.frame, stream)
-        self.counters.rejected += 1
-        self.mismatched.setdefault(stream, []).append(s)
-        return GAP
+        for act in self.align.drain():
+            if isinstance(act, Write):
+                self._write(act.seq, act.meas, act.truth, act.tracks)
+            elif isinstance(act, Reject):
+                self.intake.reject_sample("measurements", act.payload, act.seq, act.why)
+            else:
+                log.error("%s: seq %d: /%s is for frame %d but /measurements is frame %d; dropping the %s",
+                          self.name, act.seq, act.stream, act.frame, act.meas_frame, act.stream)
+                self.counters.rejected += 1
 
     # -- intake ------------------------------------------------------------------------
     def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:
-        r = self.ready[stream]
-        for s, item in released:
-            if item is GAP:
-                self.counters.gaps += 1
-                log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
-            r[s] = item
+        for s in self.align.release(stream, released):
+            self.counters.gaps += 1
+            log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
 
     def _push(self, stream: str, seq: int, item: Any) -> None:
         status, released = self.streams[stream].push(seq, item)
@@ -326,7 +288,7 @@ class SinkStage(StageBase):
                 else:
                     done = False
         self._drain_ready()
-        return done and self.next_write > last
+        return done and self.align.next_write > last
 
     def _fetch(self, stream: str, upto: int) -> int:
         """Fetch what ``stream`` misses up to ``upto`` from its publisher's cache.  The truth
@@ -364,7 +326,7 @@ class SinkStage(StageBase):
         if not complete:
             # write what we have, in order: everything received so far, gaps for the holes
             self._open(force=True)
-            top = max([self.next_write - 1] + [s.max_seen for s in self.streams.values()])
+            top = max([self.align.next_write - 1] + [s.max_seen for s in self.streams.values()])
             for name, seq in self.streams.items():
                 self._release(name, seq.flush_through(top))
             self._drain_ready()
@@ -378,7 +340,7 @@ class SinkStage(StageBase):
             complete=complete,
             frames_written=self.frames_written,
             tracks_written=self.tracks_written,
-            last_seq=self.next_write - 1,
+            last_seq=self.align.next_write - 1,
             gaps=gaps,
             output_complete=not missing,  # incomplete: _missing lists every seq not written
             missing=missing,
@@ -420,17 +382,17 @@ class SinkStage(StageBase):
         before the end of stream also every frame after the last one written."""
         tr = self.eos_seen.get("tracker")
         gaps = {name: seq.gaps for name, seq in self.streams.items()}
-        return missing_entries(gaps, tr.rejected if tr is not None else (), self.rejected_seqs,
-                               self.mismatched) + ([] if complete else self._missing_tail())
+        return missing_entries(gaps, tr.rejected if tr is not None else (), self.align.rejected_seqs,
+                               self.align.mismatched) + ([] if complete else self._missing_tail())
 
     def _missing_tail(self) -> list[dict[str, Any]]:
         """The frames after the last one written (up to the source's end of stream, when known)."""
         if self.gone:
-            why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.last_frame}, from the "
+            why = self.gone + (f" (recovered {self.recovered} frame(s), up to frame {self.align.last_frame}, from the "
                                "killed sink's .part file)" if self.recovered else "")
         else:
             why = f"not received: the sink was stopped ({stop_reason(self.ctx.stop) or 'by a signal'})"
-        return missing_tail(self.streams, self.next_write, self.eos_seen.get("source"), why)
+        return missing_tail(self.streams, self.align.next_write, self.eos_seen.get("source"), why)
 
     def _end_again(self, summary: RunSummary) -> int:
         """Announce the recorded end of stream again (for stages still waiting for it)."""
@@ -474,7 +436,7 @@ class SinkStage(StageBase):
         if outcome in ("stopped", "kept"):
             return EXIT_STOPPED
         self.publish_control("eos", EndOfStream(
-            stage=self.name, run=self.run_id, last_seq=self.next_write - 1, frames=self.frames_written,
+            stage=self.name, run=self.run_id, last_seq=self.align.next_write - 1, frames=self.frames_written,
             gaps=sorted({g for v in self.streams.values() for g in v.gaps}),
             error=self.eos_seen["source"].error, files=self.files))
         self.linger_until_alone(self.cfg.supervisor.linger_s)
@@ -547,11 +509,12 @@ class SinkStage(StageBase):
         self._open(force=True, meta_if_unknown=found.metadata)
         for s, f in enumerate(found.frames):
             self._write(s, *f.items(s, self.sink_cfg.tracks))
-            self.last_frame, self.last_stamp_ns = f.frame, f.stamp_ns
-        self.recovered = self.next_write = len(found.frames)
-        self.streams = {k: Sequencer.for_delivery(self.delivery, self.next_write, k) for k in self.streams}
+        self.recovered = len(found.frames)
+        last = found.frames[-1]
+        self.align.restart_at(self.recovered, last.frame, last.stamp_ns)
+        self.streams = {k: Sequencer.for_delivery(self.delivery, self.align.next_write, k) for k in self.streams}
         log.info("%s: recovered %d frame(s) (up to frame %d) from the killed sink's .part file", self.name,
-                 self.recovered, self.last_frame)
+                 self.recovered, self.align.last_frame)
         return outcome
 
     def _loop(self) -> str:
