@@ -13,14 +13,15 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.messages import encode, to_frame
+from bnptrack.tracker.messages import encode
 from bnptrack.pipeline.config import TrackerStageConfig
 from bnptrack.pipeline.journal import JOURNAL_NAME, TracksJournal
 from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
-from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, GAP, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
 from bnptrack.pipeline.stages.salvage import UpstreamWatch
+from bnptrack.pipeline.stages.tracker_core import Skip, Step, TrackerCore
 from bnptrack.pipeline.stages.tracker_warmup import preload_tracker, warm_tracker_imports, warm_up_tracker
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.filtering import SCIPY_PAIRS
@@ -76,16 +77,13 @@ class TrackerStage(StageBase):
         self.snap_path = self.ctx.out / SNAPSHOT_NAME
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes,
                              time_ns=self.clock.time_ns)
-        self.seq = Sequencer.for_delivery(self.delivery, 0, "measurements")
+        #: the pure core: which frames to track, in order (:mod:`pipeline.stages.tracker_core`)
+        self.core = TrackerCore(Sequencer.for_delivery(self.delivery, 0, "measurements"),
+                                FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s))
         self.tracker = None
         self.state = None
-        self.last_seq = -1
-        self.last_frame = -1
-        self.last_stamp_ns: int | None = None
         #: when the main thread took the sample being processed off the bus (``t_deq``)
         self.t_deq_ns = 0
-        self.bounds = FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s)
-        self.rejected_seqs: list[int] = []
         self.journal = TracksJournal(self.ctx.out / JOURNAL_NAME, self.delivery.cache_frames)
         self.pending: list[Accepted] = []
         self.restored: Snapshot | None = None
@@ -113,7 +111,7 @@ class TrackerStage(StageBase):
             return []
         if self.snap_path.exists():
             self._apply_snapshot(read_snapshot(self.snap_path))
-        return self.journal.resume(self.last_seq)
+        return self.journal.resume(self.core.last_seq)
 
     def _apply_snapshot(self, snap: Snapshot) -> None:
         if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
@@ -123,11 +121,9 @@ class TrackerStage(StageBase):
                 f"{self.tc.tracker!r}, seed {self.tc.seed}); delete it or set tracker.resume = false"
             )
         self.restored = snap
-        self.last_seq, self.last_frame = snap.last_seq, snap.last_frame
-        self.last_stamp_ns = snap.last_stamp_ns
-        self.rejected_seqs = list(snap.rejected)
-        self.seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
-        self.seq.restore_gaps(snap.gaps)
+        seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
+        seq.restore_gaps(snap.gaps)
+        self.core.resume(seq, snap.last_seq, snap.last_frame, snap.last_stamp_ns, snap.rejected)
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
@@ -162,19 +158,14 @@ class TrackerStage(StageBase):
     # -- per frame ---------------------------------------------------------------------
     def _process(self, released: list[tuple[int, Any]]) -> None:
         for s, item in released:
-            if item is GAP:
+            act = self.core.decide(s, item)
+            if isinstance(act, Step):
+                self._step(s, act.item, act.frame)
+            elif isinstance(act, Skip):
                 self.counters.gaps += 1
                 log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
-                self.last_seq = s
-                continue
-            frame = to_frame(item.msg)
-            why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
-            if why is not None:  # before the tracker predicts through the jump
-                self.intake.reject_sample("measurements", item.payload, s, why)
-                self.rejected_seqs.append(s)
-                self.last_seq = s
-                continue
-            self._step(s, item, frame)
+            else:
+                self.intake.reject_sample("measurements", act.payload, s, act.why)
 
     def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
         """Track frame ``s``, publish its tracks, then journal them, snapshot when due and
@@ -203,9 +194,9 @@ class TrackerStage(StageBase):
         self.bus.publish("tracks", payload, meta)
         self.step_ms.append((t1 - t0) * 1e3)
         # the state advances only once its output is out (a snapshot is always consistent)
-        self.state, self.last_seq, self.last_frame = state, s, frame.frame
+        self.state = state
+        self.core.stepped(s, frame)
         self.last_tracks = len(est.tracks)
-        self.last_stamp_ns = frame.stamp_ns
         try:
             self.journal.append(s, payload, meta)
         except OSError as exc:
@@ -242,10 +233,11 @@ class TrackerStage(StageBase):
             return
         from bnptrack.tracker.state import snapshot
 
+        core = self.core
         snap = Snapshot(
-            run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=self.last_seq,
-            last_frame=self.last_frame, state=snapshot(self.state), gaps=list(self.seq.gaps),
-            last_stamp_ns=self.last_stamp_ns, rejected=list(self.rejected_seqs),
+            run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=core.last_seq,
+            last_frame=core.last_frame, state=snapshot(self.state), gaps=list(core.seq.gaps),
+            last_stamp_ns=core.last_stamp_ns, rejected=list(core.rejected_seqs),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=self.clock.time_ns(), eos=self.finished_eos,
@@ -274,14 +266,14 @@ class TrackerStage(StageBase):
         self._push(acc)
 
     def _push(self, acc: Accepted) -> None:
-        status, released = self.seq.push(acc.seq, acc)
+        status, released = self.core.push(acc.seq, acc)
         if status == "accepted":
             self.counters.accepted += 1
             self.last_progress = self.clock.monotonic()
         elif status == "duplicate":
             self.counters.duplicates += 1
         elif status == "far":
-            self.intake.reject_sample("measurements", acc.payload, acc.seq, self.seq.far_reason(acc.seq))
+            self.intake.reject_sample("measurements", acc.payload, acc.seq, self.core.seq.far_reason(acc.seq))
         else:
             self.counters.late += 1
             log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
@@ -291,10 +283,10 @@ class TrackerStage(StageBase):
     def _extra_health(self) -> dict:
         a = np.fromiter(self.step_ms, float) if self.step_ms else np.zeros(0)
         return {
-            "last_seq": self.last_seq,
-            "last_frame": self.last_frame,
+            "last_seq": self.core.last_seq,
+            "last_frame": self.core.last_frame,
             "step_ms_p50": float(np.median(a)) if a.size else None,
-            "pending": self.seq.pending,
+            "pending": self.core.seq.pending,
         }
 
     # -- loop --------------------------------------------------------------------------
@@ -316,7 +308,7 @@ class TrackerStage(StageBase):
             return self._end_again()
         self.bus.subscribe(["measurements", "info/*", "eos/*"])
         # where the history ends: hold the catch-up window until there
-        self.seq.hold_catch_up_through(self.bus.head("measurements"))
+        self.core.seq.hold_catch_up_through(self.bus.head("measurements"))
         self.bus.declare_alive()
         if self.restored is not None:
             self.alone = UpstreamWatch(self.bus, [self.upstream], ["measurements"],
@@ -339,8 +331,9 @@ class TrackerStage(StageBase):
                 self.t_deq_ns = self.clock.time_ns()
                 self._on_event(ev)
             self.health(extra=self._extra_health)
-            if self.tracker is not None and self.holes.due(self.seq):
-                fetch_holes(self.bus, "measurements", self.seq, max(self.seq.buf), self._on_data)
+            seq = self.core.seq
+            if self.tracker is not None and self.holes.due(seq):
+                fetch_holes(self.bus, "measurements", seq, max(seq.buf), self._on_data)
             if not finished and self.tracker is not None and self.upstream in self.eos_seen:
                 finished = self._check_end(self.eos_seen[self.upstream])
             if finished and set(self.tc.done_by) <= set(self.eos_seen):
@@ -354,7 +347,7 @@ class TrackerStage(StageBase):
         (the snapshot and the journal), announce no end of stream (the run did not end
         here) and exit EXIT_DATA (finished, output incomplete)."""
         log.error("%s: run %s: %s; processed up to seq %d (frame %d): %s and %s keep it", self.name,
-                  self.run_id, self.alone.reason(), self.last_seq, self.last_frame, self.snap_path,
+                  self.run_id, self.alone.reason(), self.core.last_seq, self.core.last_frame, self.snap_path,
                   self.journal.path)
         return EXIT_DATA
 
@@ -375,24 +368,25 @@ class TrackerStage(StageBase):
     def _check_end(self, eos: EndOfStream) -> bool:
         """After the source's end of stream: declare what is still missing after the grace
         period gaps; once everything is processed, snapshot and announce the end (True)."""
-        if not self.seq.complete_through(eos.last_seq):
+        seq = self.core.seq
+        if not seq.complete_through(eos.last_seq):
             # grace counts from the later of the last progress and the end of stream
             idle = self.clock.monotonic() - max(self.last_progress, self.eos_time[self.upstream])
             if idle >= self.delivery.eos_grace_s and self.bus.backlog == 0 and \
-                    not fetch_holes(self.bus, "measurements", self.seq, eos.last_seq, self._on_data):
+                    not fetch_holes(self.bus, "measurements", seq, eos.last_seq, self._on_data):
                 log.warning("%s: end of stream: frames still missing after %.1f s without "
                             "progress are gaps", self.name, idle)
-                self._process(self.seq.flush_through(eos.last_seq))
-        if not self.seq.complete_through(eos.last_seq):
+                self._process(seq.flush_through(eos.last_seq))
+        if not seq.complete_through(eos.last_seq):
             return False
         self.finished_eos = EndOfStream(
             stage=self.name, run=self.run_id, last_seq=eos.last_seq,
-            frames=self.counters.processed, gaps=list(self.seq.gaps),
-            rejected=list(self.rejected_seqs), error=eos.error)
+            frames=self.counters.processed, gaps=list(seq.gaps),
+            rejected=list(self.core.rejected_seqs), error=eos.error)
         self.snapshot(wait=True)
         self.publish_control("eos", self.finished_eos)
         log.info("%s: processed %d frame(s) (%d gap(s)); waiting for %s", self.name,
-                 self.counters.processed, len(self.seq.gaps), ", ".join(self.tc.done_by) or "nobody")
+                 self.counters.processed, len(seq.gaps), ", ".join(self.tc.done_by) or "nobody")
         self.health(force=True, extra=self._extra_health)
         return True
 

@@ -63,7 +63,7 @@ def test_the_record_follows_the_publication_before_the_next_frame(tmp_path, fram
         k, rng = stage.next_rng  # and the next frame's generator is built
         assert k == frame.frame + 1
         assert rng.random(3).tolist() == tracker_frame_rng(3, k).random(3).tolist()
-        assert stage.last_seq == seq and stage.counters.processed == seq + 1
+        assert stage.core.last_seq == seq and stage.counters.processed == seq + 1
     stage._close_journal()
     published = [(p, m) for t, p, m in stage.bus.published if t == "tracks"]
     assert [(r.payload, r.meta) for r in read_journal(stage.journal.path)] == published

@@ -1,0 +1,89 @@
+"""The tracker stage's pure core: which ``/measurements`` frames to track, in sequence order.
+
+:class:`TrackerCore` holds the stream's :class:`~pipeline.stages.delivery.Sequencer` and the
+position of the run (last seq, frame and stamp; the frames rejected).  For each frame the
+sequencer releases, :meth:`TrackerCore.decide` returns what to do as data: :class:`Step`
+(track it), :class:`Skip` (a gap: predict through it), :class:`Reject` (its frame number or
+stamp breaks the frame bounds).  The position advances past a tracked frame only when the
+stage says its tracks are out (:meth:`TrackerCore.stepped`), so a snapshot taken at any
+point is consistent.  No bus, no clock, no file: :class:`~pipeline.stages.tracker.TrackerStage`
+carries the actions out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from bnptrack.pipeline.stages.delivery import GAP, Sequencer
+from bnptrack.tracker.messages import to_frame
+from bnptrack.tracker.types import Frame, FrameBounds
+
+__all__ = ["Reject", "Skip", "Step", "TrackerCore"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """Track frame ``seq``: ``item`` as received, ``frame`` decoded."""
+
+    seq: int
+    item: Any
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class Skip:
+    """Frame ``seq`` is a gap: the tracker predicts through it."""
+
+    seq: int
+
+
+@dataclass(frozen=True)
+class Reject:
+    """Frame ``seq`` breaks the frame bounds (``why``), before the tracker predicts through
+    the jump: it is not tracked."""
+
+    seq: int
+    payload: bytes
+    why: str
+
+
+class TrackerCore:
+    """The order of a run's ``/measurements`` and the position reached in it."""
+
+    def __init__(self, seq: Sequencer, bounds: FrameBounds) -> None:
+        self.seq = seq
+        self.bounds = bounds
+        self.last_seq = -1
+        self.last_frame = -1
+        self.last_stamp_ns: int | None = None
+        self.rejected_seqs: list[int] = []
+
+    def resume(self, seq: Sequencer, last_seq: int, last_frame: int, last_stamp_ns: int | None,
+               rejected: list[int]) -> None:
+        """Continue from a snapshot's position (``seq``: its sequencer, gaps restored)."""
+        self.seq = seq
+        self.last_seq, self.last_frame, self.last_stamp_ns = last_seq, last_frame, last_stamp_ns
+        self.rejected_seqs = list(rejected)
+
+    def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
+        """:meth:`Sequencer.push`: the status of ``item`` and the frames it releases."""
+        return self.seq.push(seq, item)
+
+    def decide(self, s: int, item: Any) -> Step | Skip | Reject:
+        """What to do with released frame ``s`` (a gap or a rejected frame moves the position
+        past it at once; a frame to track, once :meth:`stepped`)."""
+        if item is GAP:
+            self.last_seq = s
+            return Skip(s)
+        frame = to_frame(item.msg)
+        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
+        if why is not None:
+            self.rejected_seqs.append(s)
+            self.last_seq = s
+            return Reject(s, item.payload, why)
+        return Step(s, item, frame)
+
+    def stepped(self, s: int, frame: Frame) -> None:
+        """Frame ``s`` is tracked and its tracks are out: the position moves past it."""
+        self.last_seq, self.last_frame, self.last_stamp_ns = s, frame.frame, frame.stamp_ns
