@@ -18,6 +18,8 @@ columnar chunk per entity (``RecordingStream.send_columns``).  Rare things (birt
 annotation context) are logged at once.  ``benchmarks/rerun_overhead.py`` measures the cost
 against the tracker's own; see docs/rerun.md.
 
+The class's two halves: :mod:`sinks.rerun_rows` (what is logged at once: births, ends, events,
+the annotation context) and :mod:`sinks.rerun_chunks` (the kept frames sent as columns).
 The parts: :mod:`sinks.rerun_style` (entity paths, colours, sizes), :mod:`sinks.rerun_geometry`
 (ellipses, trails, crosses, rings: numpy), :mod:`sinks.rerun_columns` (ready Arrow columns),
 :mod:`sinks.rerun_clusters` (colours by motion cluster, cluster links, the structure series),
@@ -38,7 +40,7 @@ import time
 import uuid
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -48,20 +50,15 @@ from bnptrack.sinks.metrics import OSPA2_WINDOW, OSPA_C, OSPA_P
 from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.close_on_signal import CloseOnSignal
 from bnptrack.sinks.rerun_blueprint import default_blueprint
-from bnptrack.sinks.rerun_clusters import ClusterColours, cluster_columns, from_first_cluster, structure_rows, track_clusters
-from bnptrack.sinks.rerun_columns import (Schema, annotation_context, cluster_style, entity_part, log_arrays, scalar_columns,
-                                 send, track_colours, track_style)
-from bnptrack.sinks.rerun_geometry import (EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index,
-                                  labels_shown, track_strips, truth_crosses, truth_trails)
+from bnptrack.sinks.rerun_chunks import ChunkSender, KeptFrame
+from bnptrack.sinks.rerun_clusters import ClusterColours, track_clusters
+from bnptrack.sinks.rerun_columns import Schema, entity_part, log_arrays
+from bnptrack.sinks.rerun_geometry import EMPTY2, EMPTY22, EMPTY_U16, EMPTY_U32, SceneGeometry, assignment_index, labels_shown
 from bnptrack.sinks.rerun_live import open_file_and_live
-from bnptrack.sinks.rerun_measurements import measurement_chunks
+from bnptrack.sinks.rerun_rows import RowLogger
 from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, view_bounds, write_static
 from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
-from bnptrack.sinks.rerun_style import (CARDINALITY, CLUSTERS, CLUTTER_CLASS, DIAG_NAMES, DIAGNOSTICS, EVENTS,
-                               FIRST_LABEL_CLASS, GREY_CLUTTER, HEALTH, MAX_CLASS, OSPA,
-                               OSPA2, R_RING, RINGS,
-                               SERIES, TRACKS, TRUTH, TRUTH_TRAILS, UNASSIGNED_CLASS, WHITE_UNASSIGNED, WORLD,
-                               label_color, pack_rgba, unpack_rgba)
+from bnptrack.sinks.rerun_style import DIAG_NAMES, DIAGNOSTICS, FIRST_LABEL_CLASS, SERIES, TRACKS, unpack_rgba
 from bnptrack.tracker.types import Estimate, Frame, display_name
 
 if TYPE_CHECKING:
@@ -73,26 +70,7 @@ __all__ = ["RerunSink", "write_recording"]
 _log = logging.getLogger("bnptrack.rerun")
 
 
-class _Rec(NamedTuple):
-    """What :meth:`RerunSink.log` keeps of one frame until the next flush."""
-
-    k: int
-    t: int
-    labels: tuple[str, ...]
-    pos: np.ndarray  # (n, 2) track positions
-    cov: np.ndarray  # (n, 2, 2) position covariances
-    tcls: np.ndarray  # (n,) class ids of the tracks
-    tcol: np.ndarray  # (n,) packed colours of the tracks (their cluster's, else their label's)
-    ccl: np.ndarray  # (n,) motion cluster of the tracks (-1: none)
-    shown: np.ndarray  # (n,) whether the track's name shows (not beside an older track's)
-    model: Any  # the frame's measurement model (its sensor's, as the tracker resolved it)
-    z: np.ndarray  # (M, d) measurements
-    idx: np.ndarray | None  # (M,) index of the assigned track, -1 clutter; None: no assignments
-    truth_ids: tuple[str, ...] | None
-    truth_pos: np.ndarray | None
-
-
-class RerunSink:
+class RerunSink(RowLogger, ChunkSender):
     """Write a tracking run to a Rerun ``.rrd`` recording, frame by frame.
 
     Args:
@@ -179,7 +157,7 @@ class RerunSink:
 
     def _init_state(self) -> None:
         # kept until the next flush
-        self._frames: list[_Rec] = []
+        self._frames: list[KeptFrame] = []
         self._scalars: dict[str, list[tuple[int, int, list[float]]]] = {}
         self._clears: list[tuple[str, int, int]] = []
         # label state
@@ -248,7 +226,7 @@ class RerunSink:
             else:
                 tids = tpos = None
             self._grow(pos)
-            self._frames.append(_Rec(k, t, labels, pos, cov, tcls, tcol, ccl, shown, model, frame.z, idx,
+            self._frames.append(KeptFrame(k, t, labels, pos, cov, tcls, tcol, ccl, shown, model, frame.z, idx,
                                      tids, tpos))
             self._log_scalars(k, t, frame, estimate, ospa, ospa2, health)
             self._prev_frame = k
@@ -355,27 +333,8 @@ class RerunSink:
         for key in DIAG_NAMES:
             self._series_style(f"{DIAGNOSTICS}/{key}", [DIAG_NAMES[key]], [(120, 190, 255)])
 
-    def _series_style(self, entity: str, names: list[str], colors: list[tuple[int, int, int]]) -> None:
-        self._rec.log(entity, rr.SeriesLines(names=names, colors=colors, widths=[1.5] * len(names)),
-                      static=True)
-        self._styled.add(entity)
-
-    def _log_context(self) -> None:
-        """Annotation context of ``world``: clutter, unassigned, and one class per live label
-        (its name and colour), so hovering a measurement names the track it went to."""
-        classes = [(CLUTTER_CLASS, "clutter", pack_rgba(GREY_CLUTTER)),
-                   (UNASSIGNED_CLASS, "measurement", pack_rgba(WHITE_UNASSIGNED))]
-        classes += [(self._class[lab], display_name(lab), self._colors[lab])
-                    for lab in sorted(self._live, key=self._class.__getitem__)]
-        self._log_arrays(WORLD, annotation_context(self._s, classes))
-        self._context_logged = True
-
     def _log_arrays(self, path: str, comps: dict[str, pa.Array], static: bool = False) -> None:
         log_arrays(self._rec, self._s, path, comps, static)
-
-    def _event(self, text: str, level: str = "INFO") -> None:
-        self._log_arrays(EVENTS, {"TextLog:text": pa.array([text], type=pa.string()),
-                                  "TextLog:level": pa.array([level], type=pa.string())})
 
     def _track_path(self, label: str) -> str:
         path = self._paths.get(label)
@@ -383,174 +342,6 @@ class RerunSink:
             path = self._paths[label] = f"{TRACKS}/{entity_part(label)}"
         return path
 
-    def _labels_changed(self, k: int, t: int, labels: tuple[str, ...]) -> None:
-        """Births and ends of labels: styles, clears, events, annotation context."""
-        now = set(labels)
-        born = [lab for lab in labels if lab not in self._live]
-        ended = sorted(self._live - now, key=self._class.__getitem__)
-        self._at(k, t)
-        for lab in ended:
-            self._clears.append((self._track_path(lab), k, t))
-            self._event(f"track {display_name(lab)} ended (last seen at frame {self._prev_frame})")
-        taken = [unpack_rgba(self._colors[o]) for o in labels if o in self._live]
-        for lab in born:
-            name = display_name(lab)
-            self._class[lab] = self._next_class
-            self._next_class = (FIRST_LABEL_CLASS if self._next_class >= MAX_CLASS
-                                else self._next_class + 1)
-            rgba = label_color(lab, taken)
-            taken.append(rgba)
-            packed = pack_rgba(rgba)
-            if self._colors.get(lab) != packed:  # static style: fixed for the label's life
-                self._colors[lab] = packed
-                self._log_arrays(self._track_path(lab), track_style(name), static=True)
-            self._event(f"track {name} born")
-        self._live = now
-        if born:  # new classes: re-log the context, with the live labels only
-            self._class = {lab: self._class[lab] for lab in labels}
-            self._colors = {lab: self._colors[lab] for lab in labels}
-            self._log_context()
-
-    def _truth_changed(self, k: int, t: int, ids: tuple[str, ...]) -> None:
-        now = set(ids)
-        self._at(k, t)
-        for gone in sorted(self._truth_live - now):
-            self._event(f"truth {gone} ended (last seen at frame {self._prev_frame})", level="DEBUG")
-        for new in ids:
-            if new not in self._truth_live:
-                self._event(f"truth {new} born", level="DEBUG")
-        self._truth_live = now
-
-    def _log_scalars(self, k: int, t: int, frame: Frame, estimate: Estimate,
-                     ospa: OspaResult | None, ospa2: float | None,
-                     health: Mapping[str, float] | None) -> None:
-        keep = self._scalars
-        n_est = float(len(estimate.tracks))
-        card = [n_est, float(len(frame.truth.ids))] if frame.truth is not None else [n_est]
-        keep.setdefault(CARDINALITY, []).append((k, t, card))
-        if ospa is not None:
-            keep.setdefault(OSPA, []).append(
-                (k, t, [float(ospa.total), float(ospa.localisation), float(ospa.cardinality)]))
-        if ospa2 is not None:
-            keep.setdefault(OSPA2, []).append((k, t, [float(ospa2)]))
-        for entity, values in structure_rows(estimate, self._frames[-1].ccl, self._cc.seen):
-            keep.setdefault(entity, []).append((k, t, values))
-        paths = self._paths
-        for key, value in estimate.diagnostics.items():
-            entity = paths.get(("diag", key))
-            if entity is None:
-                entity = paths[("diag", key)] = f"{DIAGNOSTICS}/{entity_part(str(key))}"
-                if entity not in self._styled:
-                    self._series_style(entity, [str(key)], [(120, 190, 255)])
-            keep.setdefault(entity, []).append((k, t, [float(value)]))
-        if health:
-            for key, value in health.items():
-                entity = paths.get(("health", key))
-                if entity is None:
-                    entity = paths[("health", key)] = f"{HEALTH}/{entity_part(str(key))}"
-                    self._series_style(entity, [str(key)], [label_color(str(key))[:3]])
-                keep.setdefault(entity, []).append((k, t, [float(value)]))
-
-    # -- columnar send -------------------------------------------------------------------
-    def _send(self, path: str, ks: np.ndarray, ts: np.ndarray,
-              comps: list[tuple[str, pa.Array, np.ndarray]]) -> None:
-        send(self._rec, self._s, path, ks, ts, comps)
-
-    def _send_kept(self) -> None:
-        """Turn the kept frames into one chunk per entity and send them."""
-        frames, self._frames = self._frames, []
-        scalars, self._scalars = self._scalars, {}
-        clears, self._clears = self._clears, []
-        if frames:
-            self._send_tracks(frames, clears)
-            self._send_measurements(frames)
-            self._send_truth(frames)
-            self._send_clusters(frames)
-        for entity, rows in scalars.items():
-            self._send(entity, *scalar_columns(rows))
-        for path, k, t in clears:
-            self._send(path, np.array([k]), np.array([t]),
-                       [("Clear:is_recursive", pa.array([True], type=pa.bool_()), np.array([1]))])
-
-    def _send_tracks(self, frames: list[_Rec], clears: list[tuple[str, int, int]]) -> None:
-        s = self._s
-        # group the kept frames by label, in order
-        per: dict[str, tuple[list[Any], ...]] = {}
-        for r in frames:
-            for i, lab in enumerate(r.labels):
-                g = per.get(lab)
-                if g is None:
-                    g = per[lab] = ([], [], [], [], [], [])
-                g[0].append(r.k)
-                g[1].append(r.t)
-                g[2].append(r.pos[i])
-                g[3].append(r.cov[i])
-                g[4].append(r.tcol[i])
-                g[5].append(r.shown[i])
-        # a label that ended (Clear) and came back starts a new trail after the clear
-        cleared: dict[str, list[int]] = {}
-        for path, k, _t in clears:
-            cleared.setdefault(path, []).append(k)
-        for lab, (ks, ts, ps, cs, cols, shows) in per.items():
-            path = self._track_path(lab)
-            P = np.array(ps)
-            kk = np.asarray(ks, dtype=np.int64)
-            pts, lengths, self._history[lab] = track_strips(
-                self._history.get(lab, EMPTY2), P, np.array(cs), kk, cleared.get(path, ()), self.trail,
-                self._geo.circle)
-            W = P.shape[0]
-            self._send(path, kk, np.asarray(ts), [
-                ("Points2D:positions", s.positions(P), np.ones(W, dtype=np.int64)),
-                ("LineStrips2D:strips", s.strip_array(pts, lengths), np.full(W, 2)),
-                *track_colours(np.array(cols, dtype=np.uint32)),
-                ("Points2D:show_labels", pa.array(np.array(shows, dtype=bool)), np.ones(W, dtype=np.int64)),
-            ])
-        for lab in [lab for lab in self._history if lab not in self._live]:
-            del self._history[lab]
-
-    def _send_clusters(self, frames: list[_Rec]) -> None:
-        """``world/clusters`` of the kept frames from the first one with a motion cluster (however batched)."""
-        if CLUSTERS not in self._styled:
-            if not (frames := from_first_cluster(frames)):
-                return
-            self._log_arrays(CLUSTERS, cluster_style(), static=True)
-            self._styled.add(CLUSTERS)
-        ks, ts = np.array([(r.k, r.t) for r in frames], dtype=np.int64).T
-        for comps in cluster_columns(self._s, frames):
-            self._send(CLUSTERS, ks, ts, comps)
-
-    def _send_measurements(self, frames: list[_Rec]) -> None:
-        """Measurements, measurement->track lines and (range-only) rings of all kept frames,
-        per sensor model (:mod:`sinks.rerun_measurements`)."""
-        for model in dict.fromkeys(r.model for r in frames):
-            for entity, ks, ts, comps in measurement_chunks(self._s, [r for r in frames if r.model == model], model):
-                if entity == RINGS and RINGS not in self._styled:
-                    self._rec.log(RINGS, rr.LineStrips2D.from_fields(
-                        radii=[R_RING], show_labels=False, draw_order=0.5), static=True)
-                    self._styled.add(RINGS)
-                self._send(entity, ks, ts, comps)
-
-    def _send_truth(self, frames: list[_Rec]) -> None:
-        """Grey crosses and trails of the true objects of the kept frames that have truth."""
-        s = self._s
-        rows = [r for r in frames if r.truth_ids is not None]
-        if not rows:
-            return
-        ks = np.array([r.k for r in rows], dtype=np.int64)
-        ts = np.array([r.t for r in rows], dtype=np.int64)
-        counts = np.array([len(r.truth_ids) for r in rows], dtype=np.int64)
-        TP = np.concatenate([r.truth_pos for r in rows])
-        n = TP.shape[0]
-        cross = truth_crosses(TP, self._geo.cross)
-        labels = pa.array([f"truth {tid}" for r in rows for tid in r.truth_ids for _ in (0, 1)],
-                          type=pa.string())
-        self._send(TRUTH, ks, ts, [
-            ("LineStrips2D:strips", s.strip_array(cross.reshape(-1, 2), np.full(2 * n, 2)), 2 * counts),
-            ("LineStrips2D:labels", labels, 2 * counts),
-        ])
-        pts, lengths, self._truth_history = truth_trails(
-            [(r.truth_ids, r.truth_pos) for r in rows], self._truth_history, self.trail)
-        self._send(TRUTH_TRAILS, ks, ts, [("LineStrips2D:strips", s.strip_array(pts, lengths), counts)])
 
 def write_recording(
     path: str | os.PathLike,
