@@ -18,6 +18,7 @@ def _frame(k: int, ids=("a",), n_truth: int = 1) -> Frame:
     return Frame(k, k * S, "s", "xy", np.zeros((0, 2)), Truth(ids, np.zeros((n_truth, 5))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("gap", [1, 2])
 def test_oracle_is_a_kalman_filter_from_its_birth(gap):
     """xy sensor (R = 10^2 I), sigma_a = 5, birth velocity std 20: at birth the state is the

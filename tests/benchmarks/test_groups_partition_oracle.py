@@ -33,6 +33,7 @@ def test_conditional_of_two_objects_matches_the_hand_computation():
     assert p0[0] == pytest.approx(1 / (c + r * r) / (1 / (c + r * r) + alpha / (s * s + r * r)), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_conditional_equals_the_kernels_last_move():
     """The last object's conditional in the kernel's last sweep is given the others' final tables:
     the options above 1e-4 (Shares, renormalised) are the same numbers as :func:`go.conditional`."""
@@ -62,6 +63,7 @@ def _frames(n: int) -> list[Frame]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["ddp", "dpyp"])
 def test_two_far_apart_pairs_are_recovered_by_both_priors(name):
     """4 objects in two pairs: the oracle partition is the true one at every frame (ARI 1)."""

@@ -128,6 +128,7 @@ def test_coasting_oracle_reports_objects_seen_in_the_last_coast_scans(coast):
     assert (dead_reported > 0) == (coast > 0)
 
 
+@pytest.mark.slow
 def test_decomposition_ends_at_the_trackers_own_scores():
     """random, seed 101, ddp-mb: the last step is the tracker's output, scored as accuracy.py does."""
     from benchmarks.accuracy import setup

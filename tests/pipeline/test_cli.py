@@ -343,6 +343,7 @@ def test_resolve_params_applies_the_logs_scenario_defaults():
     assert plain.params.snr_db is None and plain.params.range_clutter_rate is None
 
 
+@pytest.mark.slow
 def test_track_finds_objects_anywhere_in_a_log_without_a_record(tmp_path):
     """A user's own log: objects born anywhere (a random scene, seed 7), written with no
     bnptrack.scenario record, tracked with the defaults and no flags.  Measured: mean OSPA

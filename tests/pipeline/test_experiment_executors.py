@@ -36,6 +36,7 @@ def test_experiment_help_documents_the_extra():
     assert "--cluster" in out and "bnptrack[dask]" in out
 
 
+@pytest.mark.slow
 def test_warm_pool_keeps_its_workers_and_gives_the_runs_redone_alone():
     """Two batches on one warm pool: the same worker processes serve both, and every run
     equals the same run executed alone in this process, bit for bit."""

@@ -12,6 +12,7 @@ from bnptrack.tracker.config import ConfigError
 SERIES = ("ospa", "ospa_loc", "ospa_card", "ospa2", "gospa", "n_est")
 
 
+@pytest.mark.slow
 def test_selected_trackers_give_the_series_of_the_full_run():
     exp = get_experiment("ddp-vs-glmb")
     full = execute_run(RunJob("ddp-vs-glmb", 3, 0, "vo2017", exp.variants[0]))

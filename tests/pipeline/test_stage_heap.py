@@ -8,6 +8,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from testkit import REPO_ROOT, bnptrack_env
 
 # In a fresh interpreter (nothing frozen yet): a tracker stage on the in-memory bus gets the
@@ -33,6 +35,7 @@ print(json.dumps([before, after, ready]))
 """
 
 
+@pytest.mark.slow
 def test_the_tracker_stage_freezes_its_heap_when_it_becomes_ready(tmp_path):
     out = subprocess.run([sys.executable, "-c", _PROBE.format(out=str(tmp_path))], cwd=REPO_ROOT,
                          env=bnptrack_env(), capture_output=True, text=True, timeout=300)

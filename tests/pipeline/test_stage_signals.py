@@ -23,6 +23,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from testkit import REPO_ROOT, bnptrack_env
 
 #: A child that loops on ``SimpleQueue.get(timeout=0.05)`` as the stages' bus does, with
@@ -136,6 +138,7 @@ def test_restore_unblocks_the_signals_and_puts_handlers_back_when_asked():
     assert out.stdout.split() == ["False", "True", "True", "True", "True"], out.stderr
 
 
+@pytest.mark.slow
 def test_the_stop_signals_thread_keeps_the_same_storm_from_hanging_the_loop():
     """The cure under the premise's storm: SIGUSR1 blocked in the main thread as the stop
     signals are (the same mechanism), the loop sees ``stop`` right after the SIGTERM."""

@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from testkit import REPO_ROOT
 
 _SCIPY_PACKAGES = {"scipy.linalg", "scipy.special", "scipy.optimize", "scipy.spatial", "scipy.sparse", "scipy.stats"}
@@ -102,6 +104,7 @@ print(json.dumps([linalg_before, arraymath._HAVE_BLAS, product, scipy.linalg.cyt
 """
 
 
+@pytest.mark.slow
 def test_numba_finds_blas_without_scipy_linalg(tmp_path: Path) -> None:
     """[[0,1,2],[3,4,5]] times its transpose is [[5, 14], [14, 50]], through numba's BLAS."""
     linalg_before, have_blas, product, bound, same, whole = json.loads(_run(_BLAS_PROBE, tmp_path))

@@ -45,6 +45,7 @@ def test_api_lag_zero_is_the_online_run():
         bnptrack.track(frames, lag=-1)
 
 
+@pytest.mark.slow
 def test_cli_track_lag_writes_lagged_tracks(tmp_path):
     log = tmp_path / "s5.mcap"
     bnptrack.simulate("vo2017", seed=5, out=log)

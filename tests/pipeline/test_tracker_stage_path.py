@@ -8,6 +8,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from testkit import REPO_ROOT, bnptrack_env
 
 # In a fresh interpreter (sys.modules must start clean): build and warm the stage's tracker
@@ -42,6 +44,7 @@ def _imported_by_steps(preload: bool) -> list[str]:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_after_the_stage_preload_the_first_frames_import_nothing():
     # the compiled DDP-EMM step (its JPDA* assignment does not call scipy's
     # linear_sum_assignment) imports nothing even without the preload ...

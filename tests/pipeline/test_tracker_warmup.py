@@ -52,6 +52,7 @@ def _late_kernels(tracker: str, scene: str, contests: bool = True) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tracker,scene", [("ddp", "vo2017"), ("dpyp", "proximity"), ("ddp-groups", "proximity")])
 def test_no_kernel_is_compiled_after_the_stage_warm_up(tracker, scene):
     got = _late_kernels(tracker, scene)
@@ -59,6 +60,7 @@ def test_no_kernel_is_compiled_after_the_stage_warm_up(tracker, scene):
     assert got["ready"] >= 10  # the count sees the kernels (not an empty table)
 
 
+@pytest.mark.slow
 def test_without_the_contests_a_kernel_is_compiled_inside_a_frame():
     """The check above is not blind: with the registry's warm-up alone the scenes compile the
     contested assignment (and the two-level tracker's group kernels) inside a frame."""

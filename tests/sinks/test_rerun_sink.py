@@ -709,6 +709,7 @@ def test_recording_process_abort_and_child_failure(vo_run, tmp_path):
         rec.open(Path("/proc/no-such-dir/x.rrd"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("start", ["fork", "exec"])
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
 def test_recording_finalised_when_the_tracker_process_is_stopped(vo_run, tmp_path, sig, start):

@@ -38,6 +38,7 @@ def test_digest_follows_every_kernel_file_and_only_them(tmp_path):
     assert _numerics.kernel_sources_digest(root) not in (first, second)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_key", ["NUMBA_CACHE_DIR", "XDG_CACHE_HOME"])
 def test_kernels_are_cached_under_the_digest_folder(tmp_path, env_key):
     if not _numerics.JIT:

@@ -25,6 +25,7 @@ def test_the_manifest_names_kernels_that_exist_for_this_numba():
         assert isinstance(sig, tuple)
 
 
+@pytest.mark.slow
 def test_precompile_caches_from_the_end_and_skips_what_was_cached(tmp_path):
     import numba
     from numba import types

@@ -91,6 +91,7 @@ def test_sequential_urn_reproduces_eppf(alpha, d):
     assert chi.pvalue > 1e-3
 
 
+@pytest.mark.slow
 def test_partition_gibbs_leaves_eppf_invariant():
     """Prior-only Gibbs over partitions with the urn's conditionals samples the PY EPPF."""
     n, alpha, d = 5, 1.2, 0.3
@@ -180,6 +181,7 @@ def test_gibbs_marginals_match_exact_enumeration(d, extended):
         assert np.all(res.p_cluster.sum(axis=1) <= 1.0 + 1e-9)
 
 
+@pytest.mark.slow
 def test_geweke_getting_it_right():
     """Marginal-conditional vs successive-conditional simulation of (c, z) agree (Geweke 2004)."""
     mu, sigma, prior_first, alpha, d, lam_c = [0.3, 0.7], 0.08, [2.0, 1.0], 0.5, 0.2, 1.5
