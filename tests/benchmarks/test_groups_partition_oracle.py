@@ -12,6 +12,9 @@ from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.state import run
 from bnptrack.tracker.types import Frame, Truth
 
+#: statistical oracles over many simulated runs: the slow tier (docs/testing.md)
+pytestmark = pytest.mark.slow
+
 
 def _block(v: np.ndarray, r: float, h: float, G: int = 0) -> Block:
     L = v.shape[0]
@@ -33,7 +36,6 @@ def test_conditional_of_two_objects_matches_the_hand_computation():
     assert p0[0] == pytest.approx(1 / (c + r * r) / (1 / (c + r * r) + alpha / (s * s + r * r)), rel=1e-12)
 
 
-@pytest.mark.slow
 def test_conditional_equals_the_kernels_last_move():
     """The last object's conditional in the kernel's last sweep is given the others' final tables:
     the options above 1e-4 (Shares, renormalised) are the same numbers as :func:`go.conditional`."""
@@ -63,7 +65,6 @@ def _frames(n: int) -> list[Frame]:
     return out
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", ["ddp", "dpyp"])
 def test_two_far_apart_pairs_are_recovered_by_both_priors(name):
     """4 objects in two pairs: the oracle partition is the true one at every frame (ARI 1)."""

@@ -14,6 +14,9 @@ from bnptrack.sources.scenarios import get_scenario
 from bnptrack.sources.synthetic import simulate_all
 from bnptrack.tracker.models.params import load_params
 
+#: statistical oracles over many simulated runs: the slow tier (docs/testing.md)
+pytestmark = pytest.mark.slow
+
 
 def _unconfirmed_per_frame(seed: int, confirm: int) -> float:
     """Mean over frames of the live objects with fewer than ``confirm`` detections so far:
@@ -128,7 +131,6 @@ def test_coasting_oracle_reports_objects_seen_in_the_last_coast_scans(coast):
     assert (dead_reported > 0) == (coast > 0)
 
 
-@pytest.mark.slow
 def test_decomposition_ends_at_the_trackers_own_scores():
     """random, seed 101, ddp-mb: the last step is the tracker's output, scored as accuracy.py does."""
     from benchmarks.accuracy import setup

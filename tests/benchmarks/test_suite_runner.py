@@ -30,6 +30,7 @@ def test_the_last_json_line_is_the_result():
     assert runner._last_json("no json here\n") is None
 
 
+@pytest.mark.slow
 def test_a_run_records_exit_code_command_and_result(capsys):
     bench = runner.Benchmark("scale", "scale.py", "q", ("--ns", "10", "--frames", "3"))
     record = runner.run_one(bench, full=False)

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
 from click.testing import CliRunner
 
 from bnptrack.pipeline.cli import FAST_EXIT, _command_name, main
@@ -41,6 +42,7 @@ def test_the_command_word_is_found_after_the_group_options():
     assert {"track", "launch", "replay", "stage"} == FAST_EXIT
 
 
+@pytest.mark.slow
 def test_track_exits_fast_with_its_code_output_and_exit_handlers(tmp_path):
     out = tmp_path / "t.mcap"
     r = _run("track", str(VO2017), "--out", str(out))

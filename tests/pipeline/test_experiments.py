@@ -47,10 +47,12 @@ def local_results():
     return run_jobs(JOBS, workers=2)
 
 
+@pytest.mark.slow
 def test_single_run_redone_alone_is_identical(local_results):
     assert same(execute_run(JOBS[1]), local_results[1])
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_identical_results(local_results):
     import distributed  # a test dependency (pyproject [test], and the [dask] extra): fail, do not skip
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
@@ -59,6 +61,7 @@ def test_dask_cluster_gives_identical_results(local_results):
     assert all(same(a, b) for a, b in zip(local_results, dask_results))
 
 
+@pytest.mark.slow
 def test_summary_and_plots(local_results, tmp_path):
     rows = summary_rows(local_results)
     assert [r["tracker"] for r in rows] == ["DPY-STP", "DPY-STP (mb)", "DDP-EMM", "DDP-EMM (mb)"]
@@ -73,6 +76,7 @@ def test_summary_and_plots(local_results, tmp_path):
     assert all(p.stat().st_size > 10_000 for p in paths)
 
 
+@pytest.mark.slow
 def test_experiment_command_writes_outputs(tmp_path):
     from click.testing import CliRunner
 
@@ -89,6 +93,7 @@ def test_experiment_command_writes_outputs(tmp_path):
     assert bad.exit_code == 2 and "nope" in bad.output
 
 
+@pytest.mark.slow
 def test_random_experiment_draws_a_scene_per_run_and_scores_crossings():
     from bnptrack.pipeline.experiments import _run_setup
 
