@@ -1,6 +1,6 @@
 """The network of bnptrack: with :mod:`pipeline.transport_session` (a
-:class:`~pipeline.config.ZenohConfig` as Zenoh sessions, the :class:`Router`), the only
-modules that import zenoh.
+:class:`~pipeline.config.ZenohConfig` as Zenoh sessions, the :class:`Router`) and
+:mod:`pipeline.transport_liveliness` (the liveliness tokens), the only modules that import zenoh.
 
 It gives the stages a small, zenoh-free interface, :class:`Bus` (the in-memory twin used by the tests is
 :class:`pipeline.membus.MemoryBus`):
@@ -53,6 +53,7 @@ import zenoh.ext as zext
 from bnptrack.pipeline.acl import KEY_ROOT
 from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
 from bnptrack.pipeline.events import Event
+from bnptrack.pipeline.transport_liveliness import Liveliness
 from bnptrack.pipeline.transport_session import (SHM_OFF, NoRouterError, Router, TransportError, open_session,
                                                  session_config)
 
@@ -101,7 +102,7 @@ def key(run: str, topic: str) -> str:
     return f"{KEY_ROOT}/{run}/{topic}"
 
 
-class Bus:
+class Bus(Liveliness):
     """A stage's connection to the run's topics (see the module docstring).
 
     ``connect`` overrides ``zcfg.connect``.  Use as a context manager or call :meth:`close`:
@@ -376,38 +377,3 @@ class Bus:
         shows its direct links to the other stages under ``peers``)."""
         info = self.session.info
         return {"routers": len(list(info.routers_zid())), "peers": len(list(info.peers_zid()))}
-
-    # -- liveliness ----------------------------------------------------------------------
-    def declare_alive(self, kind: str = "alive") -> None:
-        """Declare the liveliness token ``bnptrack/<run>/<kind>/<stage>``: ``alive`` once the
-        subscriptions exist, ``ready`` once the stage can process its first frame."""
-        if kind not in self._tokens:
-            self._tokens[kind] = self.session.liveliness().declare_token(f"{self.prefix}{kind}/{self.stage}")
-
-    def _on_token(self, sample: Any) -> None:
-        kind, _, name = str(sample.key_expr)[len(self.prefix):].partition("/")
-        with self._alive_changed:
-            names = self._present.setdefault(kind, set())
-            if sample.kind == zenoh.SampleKind.PUT:
-                names.add(name)
-            else:
-                names.discard(name)
-            self._alive_changed.notify_all()
-
-    def alive(self, kind: str = "alive") -> set[str]:
-        """Stages whose ``alive`` (or ``ready``) token is currently visible."""
-        with self._alive_lock:
-            return set(self._present.get(kind, ()))
-
-    def wait_alive(self, names: Iterable[str], timeout: float, kind: str = "alive") -> set[str]:
-        """Wait until every stage in ``names`` has its ``kind`` token (or ``timeout``); return
-        the missing ones."""
-        want = set(names)
-        deadline = time.monotonic() + timeout
-        with self._alive_changed:
-            while True:
-                missing = want - self._present.get(kind, set())
-                left = deadline - time.monotonic()
-                if not missing or left <= 0:
-                    return missing
-                self._alive_changed.wait(min(left, 0.2))

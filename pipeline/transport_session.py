@@ -1,8 +1,8 @@
 """Zenoh sessions of bnptrack: a :class:`~pipeline.config.ZenohConfig` as a ``zenoh.Config``
 (mode, endpoints, TLS, credentials, the router's access control; :func:`session_config`),
 opened with one-line errors (:func:`open_session`), and the :class:`Router` in this process.
-With :mod:`pipeline.transport` (the stages' :class:`~pipeline.transport.Bus`), the only
-modules that import zenoh."""
+With :mod:`pipeline.transport` (the stages' :class:`~pipeline.transport.Bus`) and
+:mod:`pipeline.transport_liveliness`, the only modules that import zenoh."""
 
 from __future__ import annotations
 

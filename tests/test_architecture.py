@@ -115,7 +115,7 @@ def test_string_imports_count_as_edges():
 
 
 def test_only_the_transport_imports_zenoh():
-    transport = {"pipeline.transport", "pipeline.transport_session"}
+    transport = {"pipeline.transport", "pipeline.transport_session", "pipeline.transport_liveliness"}
     assert _violations(lambda m, n: _top(n) == "zenoh" and m not in transport) == []
 
 
