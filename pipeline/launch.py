@@ -39,15 +39,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import msgspec
 
-from bnptrack.pipeline.config import PipelineConfig, ZenohConfig, check_run_id, dump_pipeline, resolve_run
+from bnptrack.pipeline.config import PipelineConfig, check_run_id, dump_pipeline, resolve_run
+from bnptrack.pipeline.launch_setup import LaunchSetup
 from bnptrack.pipeline.outcome import SinkWait, check_eos, describe_missing, foreign_eos, unsent_eos
 from bnptrack.pipeline.progress import Status
-from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run, run_files
-from bnptrack.pipeline.supervisor import (HealthMonitor, LaunchResult, StageProcess, open_embedded_router, recorded_complete, sink_left_output, stop_stages, write_stages)
-from bnptrack.pipeline.stages import (EXIT_CONFIG, EXIT_DATA, EXIT_IO, EXIT_OK, JOURNAL_NAME, SNAPSHOT_NAME, SUMMARY_NAME)
-from bnptrack.tracker.config import ConfigError
+from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run
+from bnptrack.pipeline.supervisor import (HealthMonitor, LaunchResult, StageProcess, recorded_complete, sink_left_output, stop_stages, write_stages)
+from bnptrack.pipeline.stages import EXIT_CONFIG, EXIT_DATA, EXIT_IO, EXIT_OK, SUMMARY_NAME
 
 __all__ = ["Launcher", "launch"]
 
@@ -59,7 +58,7 @@ _DATA_ERROR = "the source stopped on a data error (see its log)"
 # --------------------------------------------------------------------------- supervisor
 
 
-class Launcher:
+class Launcher(LaunchSetup):
     """Start and supervise the stages of ``cfg`` (see the module docstring).
 
     ``echo`` receives one-line messages (stages started, restarted; the CLI prints them on
@@ -146,18 +145,6 @@ class Launcher:
             sp.close_link()
         return result
 
-    def _stage_env(self) -> dict[str, str]:
-        env = dict(os.environ)
-        env.setdefault("PYTHONUNBUFFERED", "1")
-        env.setdefault("RERUN_ANALYTICS", "0")
-        if self.credentials:  # each stage gets its own on its link: no other in its environment
-            env.pop("BNPTRACK_ZENOH_USER", None)
-            env.pop("BNPTRACK_ZENOH_PASSWORD", None)
-        # children run this checkout even if the package is not installed
-        root = str(Path(__file__).resolve().parent.parent)
-        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        return env
-
     def _start_stages(self, cfg_path: Path, env: dict[str, str]) -> None:
         """Start every stage (sink first) as ``python -m bnptrack stage ROLE``."""
         order = [r for r in ("sink", "tracker", "source") if r in self.cfg.stages]
@@ -200,51 +187,7 @@ class Launcher:
             result.incomplete = "; ".join(p for p in (result.error if result.gave_up else "", conflict, missing) if p)
             result.ok = not result.incomplete
 
-    def _spawn_viewer(self, cfg: PipelineConfig) -> PipelineConfig:
-        """``view``: start a Rerun viewer (left open after the run) and have the sink stream
-        ``run.rrd``'s rows to it (``sink.view_url``)."""
-        from bnptrack.pipeline.live import spawn_viewer
-
-        if not cfg.sink.rerun:
-            raise ConfigError("--view needs the Rerun sink (sink.rerun = true)")
-        self.viewer = spawn_viewer()
-        self.echo(f"viewer: {self.viewer.url} (pid {self.viewer.pid}; it stays open after the run)")
-        return msgspec.structs.replace(cfg, sink=msgspec.structs.replace(cfg.sink, view_url=self.viewer.url))
-
-    def _remove_earlier_run(self) -> None:
-        """Remove the files an earlier run left in ``out`` (only there with ``overwrite``:
-        :func:`check_pipeline` refuses them otherwise), so that none is mistaken for this
-        run's (a stale snapshot would even be resumed)."""
-        for name in {*run_files(self.cfg), SNAPSHOT_NAME, JOURNAL_NAME, SUMMARY_NAME}:
-            path = self.out / name
-            if path.is_dir():  # logs/
-                for f in path.glob("*.log"):
-                    f.unlink()
-                continue
-            try:
-                path.unlink()
-            except FileNotFoundError:
-                pass
-
     # -- network -----------------------------------------------------------------------
-    def _network(self, cfg: PipelineConfig) -> PipelineConfig:
-        """The stages' pipeline: with ``zenoh.embedded_router``, the router this launcher
-        opens (with per-run credentials when the ACL or authentication asks for them)."""
-        z = cfg.zenoh
-        if z.embedded_router:
-            self.router, z, self.credentials = open_embedded_router(_quick_router(z), self.out, self.cfg.stages)
-            z = msgspec.structs.replace(z, router_extra=cfg.zenoh.router_extra)
-        elif not z.connect and z.mode == "client":
-            raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
-                              "zenoh.embedded_router = true)")
-        return msgspec.structs.replace(cfg, zenoh=z)
-
-    def _close_network(self) -> None:
-        self.monitor.close()
-        if self.router is not None:
-            self.router.close()
-            self.router = None
-
     # -- supervision -------------------------------------------------------------------
     def _write_stages(self) -> None:
         write_stages(self.out, self.stages)
@@ -393,14 +336,6 @@ class Launcher:
                 self._write_stages()
             except OSError as exc:  # disk full: the stages are stopped all the same
                 log.error("launcher: cannot write %s: %s", self.out / "stages.json", exc)
-
-
-def _quick_router(z: ZenohConfig) -> ZenohConfig:
-    """``z`` with ``scouting/delay`` 0 for the embedded router (unless set, or multicast
-    scouting is on): Zenoh's 500 ms default held every launch half a second (docs/performance.md)."""
-    if "scouting/delay" in z.router_extra or z.multicast_scouting:
-        return z
-    return msgspec.structs.replace(z, router_extra={**z.router_extra, "scouting/delay": "0"})
 
 
 def launch(cfg: PipelineConfig, *, echo: Callable[[str], None] | None = None,

@@ -1,5 +1,5 @@
 """The launcher's embedded Zenoh router opens without Zenoh's 500 ms scouting wait
-(``pipeline.launch._quick_router``, docs/performance.md, start-up), unless the user
+(``pipeline.launch_setup._quick_router``, docs/performance.md, start-up), unless the user
 set ``scouting/delay`` or turned multicast scouting on; the stages' settings are untouched."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import msgspec
 
 from bnptrack.pipeline.config import ZenohConfig
-from bnptrack.pipeline.launch import _quick_router
+from bnptrack.pipeline.launch_setup import _quick_router
 
 
 def test_the_embedded_router_does_not_wait_for_scouting() -> None:
