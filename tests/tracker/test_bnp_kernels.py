@@ -92,10 +92,9 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
         c = g.initial_assignment(problem, reverse=ch % 2 == 1).astype(np.int64)
         cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
         st = np.array([np.sum(c == g.NEW), np.sum(c != g.CLUTTER)], dtype=np.int64)
-        u = rng.random((sweeps, M))
-        u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
+        u = rng.random((sweeps, M))  # then each exchange pass draws one uniform per pair from rng
         accepted += g._sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
-                              cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, u_swap,
+                              cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, rng,
                               pair_a, pair_b, burn_in, 2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
                               g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
         first = c if first is None else first

@@ -342,9 +342,11 @@ def _half_add(hs, hss, h, k, v):
     hss[h, k] += v * v
 
 
-def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
+def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, rng,
                   pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits):
-    """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
+    """All sweeps of one chain: a single-site pass on ``u[s]``, then the exchange pass (when
+    pairs are given) on one uniform per pair drawn from ``rng`` as the pass starts (so the
+    uniforms of one pass are in memory at a time, not those of every sweep).
 
     Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
     split-chain halves ``h0`` and ``h0 + 1`` of the R-hat sums (the middle one is dropped when
@@ -361,9 +363,9 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
         half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
         _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
                    i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, own)
-        if u_swap.shape[1] > 0:
+        if pair_a.shape[0] > 0:
             accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
-                                   u_swap[s], bits, own)
+                                   rng.random(pair_a.shape[0]), bits, own)
     return accepted
 
 
@@ -442,32 +444,61 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
 
 
 def _swap_pairs_kernel(ptr, idx, N):
-    """:func:`swap_pairs` on the CSR pairs: every ``a < b`` sharing a cluster, sorted by ``(a, b)``."""
+    """:func:`swap_pairs` on the CSR pairs: every ``a < b`` sharing a cluster, sorted by ``(a, b)``.
+
+    Measurement by measurement: ``a``'s partners are the later members of each of its gated
+    clusters (each cluster's members ascending; ``cursor[l]`` is ``a``'s place in cluster
+    ``l``), marked once (``stamp``) and sorted; one pass counts, the second fills.  No list of
+    every (cluster, pair) key is built or sorted."""
     M = ptr.shape[0] - 1
     size = np.zeros(N, dtype=np.int64)
     for j in range(idx.shape[0]):
         size[idx[j]] += 1
     first = np.zeros(N + 1, dtype=np.int64)
-    n_keys = np.int64(0)  # not 0: a literal start compiles _group_pairs once more for Literal[int](0)
     for l in range(N):
         first[l + 1] = first[l] + size[l]
-        n_keys += size[l] * (size[l] - 1) // 2
     meas_of = np.empty(idx.shape[0], dtype=np.int64)
     fill = first[:N].copy()
     for m in range(M):  # measurements ascending within each cluster
         for j in range(ptr[m], ptr[m + 1]):
             meas_of[fill[idx[j]]] = m
             fill[idx[j]] += 1
-    used = np.flatnonzero(size > 0)
-    key = np.unique(_group_pairs(meas_of, first[used], size[used], M, n_keys))
-    return key // M, key % M
+    stamp = np.full(M, -1, dtype=np.int64)
+    row = np.empty(M, dtype=np.int64)
+    n_pairs = np.int64(0)
+    pair_a, pair_b = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    for fill_pass in range(2):
+        cursor = first[:N].copy()
+        stamp[:] = -1
+        out = np.int64(0)
+        for a in range(M):
+            n = 0
+            for j in range(ptr[a], ptr[a + 1]):
+                l = idx[j]
+                cursor[l] += 1  # now past a
+                for q in range(cursor[l], first[l + 1]):
+                    b = meas_of[q]
+                    if stamp[b] != a:
+                        stamp[b] = a
+                        row[n] = b
+                        n += 1
+            if fill_pass == 1:
+                part = np.sort(row[:n])
+                for i in range(n):
+                    pair_a[out + i] = a
+                    pair_b[out + i] = part[i]
+            out += n
+        if fill_pass == 0:
+            n_pairs = out
+            pair_a, pair_b = np.empty(n_pairs, dtype=np.int64), np.empty(n_pairs, dtype=np.int64)
+    return pair_a, pair_b
 
 
-def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, u_all, pair_a, pair_b, ptr, idx,
+def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, rng, pair_a, pair_b, ptr, idx,
                    log_first, log_clutter, log_new, pop, par, extended, N, sweeps, burn_in, chains):
-    """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on its slice of the
-    uniforms (chain ``k``: ``sweeps x M`` for the sites, then ``sweeps x P`` for the exchanges),
-    the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
+    """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on uniforms drawn
+    from ``rng`` in one stream (chain ``k``: ``sweeps x M`` for the sites, then ``P`` for each
+    sweep's exchanges, drawn as each exchange pass starts), the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
     0's last state.  ``init`` is chain 0's start when ``has_init``."""
     M = ptr.shape[0] - 1
     nnz = idx.shape[0]
@@ -479,7 +510,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
     opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
     first = np.empty(M, dtype=np.int64)
     bits = gate_bits(ptr, idx, N, MAX_BYTES) if P > 0 else np.zeros((0, 0), dtype=np.uint8)
-    accepted, off = 0, 0
+    accepted = 0
     for k in range(chains):
         c = init.copy() if k == 0 and has_init else starts[k % 2].copy()
         cnt = np.zeros(N, dtype=np.int64)
@@ -491,11 +522,8 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
                 st[0] += 1
             if c[m] != CLUTTER:
                 st[1] += 1
-        u = u_all[off:off + sweeps * M].reshape((sweeps, M))
-        off += sweeps * M
-        u_swap = u_all[off:off + sweeps * P].reshape((sweeps, P))
-        off += sweeps * P
-        accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, u_swap,
+        u = rng.random((sweeps, M))
+        accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, rng,
                             pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits)
         if k == 0:
             for m in range(M):
@@ -640,13 +668,12 @@ def run_gibbs(
     w = np.exp(ex)  # underflow to 0 is numpy's default (ignored)
     nnz, n_lik = pr.idx.size, pr.idx.size if ext else 0
     w_lik = w[nnz:2 * nnz] if ext else np.zeros(nnz)
-    u_all = rng.random(chains * sweeps * (M + pair_a.size))  # per chain: sites, then exchanges (one stream)
     par = np.array([alpha + problem.mass, alpha, d, d_bar, 1.0 if problem.urn_normaliser else 0.0], dtype=float)
     has_init = init is not None
     start0 = np.asarray(init).astype(np.int64) if has_init else np.zeros(0, np.int64)
     p_pairs, p_clutter, p_new, first, lj, rhat, accepted = _chains_kernel(
         w[:nnz], w_lik, w[nnz + n_lik:nnz + n_lik + M], w[nnz + n_lik + M:], np.log(lg), starts, start0, has_init,
-        u_all, pair_a, pair_b, pr.ptr, pr.idx, pr.log_first, log_clutter, log_new,
+        rng, pair_a, pair_b, pr.ptr, pr.idx, pr.log_first, log_clutter, log_new,
         np.asarray(problem.popularity, dtype=float), par, ext, N, int(sweeps), int(burn_in), int(chains))
     kept = max(sweeps - burn_in, 1) * chains
     return GibbsResult(problem.pairs, p_pairs, p_clutter, p_new, first, log_joint(problem, first) if ext else float(lj),
