@@ -355,3 +355,42 @@ def test_problem_pairs_equal_numpy():
     want = g.SparsePairs.from_pairs(N, M, ti, mi, log_det[ti] + ll, ll)
     _same(ptr, want.ptr), _same(idx, want.idx), _same(lf, want.log_first), _same(llk, want.log_lik)
     assert (mass, d_bar) == (np.sum(qr * pop), qr.sum()) and math.isfinite(mass)
+
+
+def test_exchange_pairs_hand_values_with_a_bounded_cluster():
+    """Cluster 0 gates measurements 0-3 (log_first -1, -3, -2, -4): bounded to 2 members it
+    pairs only 0 and 2; cluster 1 pairs 3 and 4, cluster 2 pairs 1 and 2."""
+    from bnptrack.tracker.bnp.swap_moves import exchange_pairs
+
+    first = np.full((3, 5), -np.inf)
+    first[0, :4] = [-1.0, -3.0, -2.0, -4.0]
+    first[1, 3:] = [-1.0, -1.0]
+    first[2, 1:3] = [-5.0, -5.0]
+    problem = g.GibbsProblem(log_first=first, log_lik=first, log_clutter=np.zeros(5), log_new=np.zeros(5),
+                             popularity=np.ones(3), alpha=1.0, d=0.0, d_bar=0.0, mass=1.0)
+    pr = problem.pairs
+    for cap, want in ((2, [(0, 2), (1, 2), (3, 4)]),
+                      (4, [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (3, 4)])):
+        a, b = exchange_pairs(pr.ptr, pr.idx, pr.log_first, 3, cap)
+        assert list(zip(a.tolist(), b.tolist())) == want
+        ra, rb = g.swap_pairs(problem, cap)
+        assert list(zip(ra.tolist(), rb.tolist())) == want
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exchange_pairs_equal_the_numpy_pairs(seed):
+    """The compiled exchange list equals :func:`swap_pairs` on random gates, bounded or not."""
+    from bnptrack.tracker.bnp.swap_moves import exchange_pairs
+
+    rng = np.random.default_rng(seed)
+    N, M = 12, 60
+    first = np.where(rng.random((N, M)) < 0.4, rng.normal(-3.0, 1.0, (N, M)).round(1), -np.inf)
+    problem = g.GibbsProblem(log_first=first, log_lik=first, log_clutter=np.zeros(M), log_new=np.zeros(M),
+                             popularity=np.ones(N), alpha=1.0, d=0.0, d_bar=0.0, mass=1.0)
+    pr = problem.pairs
+    for cap in (3, 10, 1000):
+        a, b = exchange_pairs(pr.ptr, pr.idx, pr.log_first, N, cap)
+        ra, rb = g.swap_pairs(problem, cap)
+        assert a.size > 0
+        np.testing.assert_array_equal(a, ra)
+        np.testing.assert_array_equal(b, rb)

@@ -49,7 +49,8 @@ import numpy as np
 
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp._kernels import np_sum
-from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, gate_bits
+from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, PAIR_MEMBERS, gate_bits
+from bnptrack.tracker.bnp.swap_moves import exchange_pairs as _exchange_pairs
 from bnptrack.tracker.bnp.swap_moves import KERNELS_PY as SWAP_KERNELS_PY
 from bnptrack.tracker.bnp.swap_moves import own_weight as _own_weight
 from bnptrack.tracker.bnp.swap_moves import swap_pass as _swap_pass
@@ -439,59 +440,8 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
                 starts[k, m] = start[m]
     if not swaps or N == 0:
         return ex, lg, starts, np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pair_a, pair_b = _swap_pairs_kernel(ptr, idx, N)
+    pair_a, pair_b = _exchange_pairs(ptr, idx, log_first, N, PAIR_MEMBERS)
     return ex, lg, starts, pair_a, pair_b
-
-
-def _swap_pairs_kernel(ptr, idx, N):
-    """:func:`swap_pairs` on the CSR pairs: every ``a < b`` sharing a cluster, sorted by ``(a, b)``.
-
-    Measurement by measurement: ``a``'s partners are the later members of each of its gated
-    clusters (each cluster's members ascending; ``cursor[l]`` is ``a``'s place in cluster
-    ``l``), marked once (``stamp``) and sorted; one pass counts, the second fills.  No list of
-    every (cluster, pair) key is built or sorted."""
-    M = ptr.shape[0] - 1
-    size = np.zeros(N, dtype=np.int64)
-    for j in range(idx.shape[0]):
-        size[idx[j]] += 1
-    first = np.zeros(N + 1, dtype=np.int64)
-    for l in range(N):
-        first[l + 1] = first[l] + size[l]
-    meas_of = np.empty(idx.shape[0], dtype=np.int64)
-    fill = first[:N].copy()
-    for m in range(M):  # measurements ascending within each cluster
-        for j in range(ptr[m], ptr[m + 1]):
-            meas_of[fill[idx[j]]] = m
-            fill[idx[j]] += 1
-    stamp = np.full(M, -1, dtype=np.int64)
-    row = np.empty(M, dtype=np.int64)
-    n_pairs = np.int64(0)
-    pair_a, pair_b = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    for fill_pass in range(2):
-        cursor = first[:N].copy()
-        stamp[:] = -1
-        out = np.int64(0)
-        for a in range(M):
-            n = 0
-            for j in range(ptr[a], ptr[a + 1]):
-                l = idx[j]
-                cursor[l] += 1  # now past a
-                for q in range(cursor[l], first[l + 1]):
-                    b = meas_of[q]
-                    if stamp[b] != a:
-                        stamp[b] = a
-                        row[n] = b
-                        n += 1
-            if fill_pass == 1:
-                part = np.sort(row[:n])
-                for i in range(n):
-                    pair_a[out + i] = a
-                    pair_b[out + i] = part[i]
-            out += n
-        if fill_pass == 0:
-            n_pairs = out
-            pair_a, pair_b = np.empty(n_pairs, dtype=np.int64), np.empty(n_pairs, dtype=np.int64)
-    return pair_a, pair_b
 
 
 def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, rng, pair_a, pair_b, ptr, idx,
@@ -601,7 +551,7 @@ def _split_rhat_kernel(hs, hss, n):
 
 
 _KERNELS_PY = (_site_pass, _half_add, _sweep_kernel, _greedy, _group_pairs, _npmax, _setup_kernel,
-               _swap_pairs_kernel, _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
+               _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
 # the helpers are replaced by their compiled versions, which the compiled driver calls
 _greedy = jit(_greedy)  # noqa: F811
 _half_add = jit(_half_add, inline=True)
@@ -610,7 +560,6 @@ _sweeps = jit(_sweep_kernel)
 _group_pairs = jit(_group_pairs)  # noqa: F811
 _npmax = jit(_npmax, inline=True)
 _setup_kernel = jit(_setup_kernel)
-_swap_pairs_kernel = jit(_swap_pairs_kernel)
 _chains_kernel = jit(_chains_kernel)
 _log_joint_kernel = jit(_log_joint_kernel)
 _split_rhat_kernel = jit(_split_rhat_kernel)
@@ -620,25 +569,33 @@ def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
     names = ("_site_pass", "_half_add", "_sweeps", "_greedy", "_group_pairs", "_npmax",
-             "_setup_kernel", "_swap_pairs_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
+             "_setup_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
     swaps = SWAP_KERNELS_PY  # tracker.bnp.swap_moves' kernels, by the names this module binds
     return {**dict(zip(names, _KERNELS_PY)), "gate_bits": swaps["gate_bits"], "_own_weight": swaps["own_weight"],
-            "_swap_pass": swaps["swap_pass"]}
+            "_swap_pass": swaps["swap_pass"],
+            "_exchange_pairs": swaps["exchange_pairs"]}
 
 
-def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs ``a < b`` of measurements whose gates share at least one cluster, sorted by
-    ``(a, b)`` (built cluster by cluster from the sparse pairs)."""
+def swap_pairs(problem: GibbsProblem, max_members: int = PAIR_MEMBERS) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``a < b`` of measurements that share a cluster, sorted by ``(a, b)`` (built
+    cluster by cluster from the sparse pairs).  A cluster whose gate holds more than
+    ``max_members`` measurements pairs only its ``max_members`` most likely ones (highest
+    ``log_first``, ties: the lower index)."""
     pr = problem.pairs
     M = pr.n_meas
-    by_cluster = np.argsort(pr.idx, kind="stable")  # measurements ascending within a cluster
-    meas_of = pr.rows[by_cluster]
+    by_cluster = np.lexsort((pr.rows, pr.idx))  # measurements ascending within a cluster
     starts = np.r_[0, np.flatnonzero(np.diff(pr.idx[by_cluster])) + 1] if by_cluster.size else np.zeros(0, np.int64)
     sizes = np.diff(np.r_[starts, by_cluster.size]).astype(np.int64)
+    groups = [by_cluster[s0:s0 + n] for s0, n in zip(starts.tolist(), sizes.tolist())]
+    groups = [g if g.size <= max_members else np.sort(g[np.lexsort((pr.rows[g], -pr.log_first[g]))[:max_members]])
+              for g in groups]
+    sizes = np.array([g.size for g in groups], dtype=np.int64)
     n_keys = int(np.sum(sizes * (sizes - 1) // 2))
     if n_keys == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    key = np.unique(_group_pairs(meas_of, starts.astype(np.int64), sizes, M, n_keys))
+    meas_of = pr.rows[np.concatenate(groups)]
+    starts = np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)
+    key = np.unique(_group_pairs(meas_of, starts, sizes, M, n_keys))
     return (key // M).astype(np.int64), (key % M).astype(np.int64)
 
 
