@@ -394,3 +394,23 @@ def test_exchange_pairs_equal_the_numpy_pairs(seed):
         assert a.size > 0
         np.testing.assert_array_equal(a, ra)
         np.testing.assert_array_equal(b, rb)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_large_best_permutation_equals_scipy_on_the_whole_problem(seed):
+    """Above ``SCIPY_PAIRS`` (per component, pairs costlier than their cluster's "missed"
+    dropped first) the JPDA* choice equals scipy's assignment of the whole dense problem."""
+    from bnptrack.tracker.filtering import SCIPY_PAIRS
+
+    rng = np.random.default_rng(seed)
+    N, M = 220, 160
+    assert N * M > SCIPY_PAIRS
+    near = np.abs(np.arange(N)[:, None] * M / N - np.arange(M)[None, :]) < 6  # banded: many components touch
+    P = np.where(near & (rng.random((N, M)) < 0.6), rng.random((N, M)), 0.0)
+    P /= np.maximum(P.sum(axis=1, keepdims=True) * rng.uniform(1.0, 1.5, (N, 1)), 1e-300)
+    ti, mi = np.nonzero(P > 0)
+    p = P[ti, mi]
+    got, want = best_permutation_pairs(N, ti, mi, p), _best_permutation_reference(N, ti, mi, p)
+    assert np.sum(got[1] != np.array([mi[ti == t][np.argmax(p[ti == t])] for t in got[0]])) > 0  # conflicts solved
+    for a, b in zip(got, want):
+        _same(a, b)
