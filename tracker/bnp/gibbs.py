@@ -31,7 +31,10 @@ Single-site moves cannot exchange two measurements that compete for one cluster 
 must first pass through clutter or a new cluster), so each sweep is followed by a
 Metropolis-Hastings exchange of the assignments of every pair of measurements whose gates
 share a cluster (:func:`tracker.bnp.swap_moves.swap_pass`; it keeps every count of the urn, so the acceptance ratio
-is the ratio of the two measurements' own factors).  Several chains from different greedy
+is the ratio of the two measurements' own factors).  A cluster whose gate holds more than
+:data:`tracker.bnp.swap_moves.PAIR_MEMBERS` measurements pairs only its most likely ones
+(:func:`tracker.bnp.swap_moves.exchange_pairs`): the list is fixed for the frame, so every
+exchange stays its own inverse and the target is unchanged; only the moves offered differ.  Several chains from different greedy
 starts give the split-chain R-hat of the marginals (:func:`split_rhat`).
 
 The sweeps run on a sparse (gated) candidate list per measurement, compiled with numba

@@ -11,6 +11,13 @@ such a proposal without scanning the two measurements' gated pairs; the proposal
 are scored as before, with the current assignments' factors kept per measurement (``own``)
 instead of looked up again, so every draw, acceptance and tally is the same.
 
+The exchange list (:func:`exchange_pairs`) pairs the measurements of each cluster's gate.  A
+gate that holds a large share of the frame (a track lost near the sensor, a new cluster's
+broad prior) would give O(M^2) pairs alone (one gate of 2,920 measurements gave 4.26 million
+at 3,000 objects in vo2017's field), so a cluster pairs at most :data:`PAIR_MEMBERS` of its measurements, those
+of highest ``log_first`` (the likeliest to take it); the others still reach it by single-site
+moves.  Below the bound the list is every pair sharing a cluster, unchanged.
+
 The table has ``M x ceil(N / 8)`` bytes; above :data:`MAX_BYTES` (a scene of tens of thousands
 of measurements and objects) none is built and every proposal is scored by the scan.
 """
