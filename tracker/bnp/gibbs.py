@@ -443,7 +443,7 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
                 starts[k, m] = start[m]
     if not swaps or N == 0:
         return ex, lg, starts, np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pair_a, pair_b = _exchange_pairs(ptr, idx, log_first, N, PAIR_MEMBERS)
+    pair_a, pair_b = _exchange_pairs(ptr, idx, log_first, N, np.int64(PAIR_MEMBERS))  # not a Literal[int]
     return ex, lg, starts, pair_a, pair_b
 
 
