@@ -626,7 +626,7 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     g = gate_threshold(gate_prob, d)
     ti, mi = _gate_candidates(meas, innov, Z, g)
     if ti.size:
-        key = np.unique(mi * N + ti)  # sorted by measurement, then track; images deduplicated
+        key = _numerics.unique_ints(mi * N + ti)  # sorted by measurement, then track; images deduplicated
         mi, ti = key // N, key % N
     r = meas.residual(Z[mi], innov.z_pred[ti])
     D2 = np.sum((r[:, None, :] @ innov.S_inv[ti])[:, 0, :] * r, axis=-1)

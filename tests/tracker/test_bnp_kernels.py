@@ -92,10 +92,9 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
         c = g.initial_assignment(problem, reverse=ch % 2 == 1).astype(np.int64)
         cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
         st = np.array([np.sum(c == g.NEW), np.sum(c != g.CLUTTER)], dtype=np.int64)
-        u = rng.random((sweeps, M))
-        u_swap = rng.random((sweeps, pair_a.size)) if pair_a.size else np.zeros((sweeps, 0))
+        u = rng.random((sweeps, M))  # then each exchange pass draws one uniform per pair from rng
         accepted += g._sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
-                              cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, u_swap,
+                              cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, rng,
                               pair_a, pair_b, burn_in, 2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
                               g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
         first = c if first is None else first
@@ -356,3 +355,62 @@ def test_problem_pairs_equal_numpy():
     want = g.SparsePairs.from_pairs(N, M, ti, mi, log_det[ti] + ll, ll)
     _same(ptr, want.ptr), _same(idx, want.idx), _same(lf, want.log_first), _same(llk, want.log_lik)
     assert (mass, d_bar) == (np.sum(qr * pop), qr.sum()) and math.isfinite(mass)
+
+
+def test_exchange_pairs_hand_values_with_a_bounded_cluster():
+    """Cluster 0 gates measurements 0-3 (log_first -1, -3, -2, -4): bounded to 2 members it
+    pairs only 0 and 2; cluster 1 pairs 3 and 4, cluster 2 pairs 1 and 2."""
+    from bnptrack.tracker.bnp.swap_moves import exchange_pairs
+
+    first = np.full((3, 5), -np.inf)
+    first[0, :4] = [-1.0, -3.0, -2.0, -4.0]
+    first[1, 3:] = [-1.0, -1.0]
+    first[2, 1:3] = [-5.0, -5.0]
+    problem = g.GibbsProblem(log_first=first, log_lik=first, log_clutter=np.zeros(5), log_new=np.zeros(5),
+                             popularity=np.ones(3), alpha=1.0, d=0.0, d_bar=0.0, mass=1.0)
+    pr = problem.pairs
+    for cap, want in ((2, [(0, 2), (1, 2), (3, 4)]),
+                      (4, [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (3, 4)])):
+        a, b = exchange_pairs(pr.ptr, pr.idx, pr.log_first, 3, cap)
+        assert list(zip(a.tolist(), b.tolist())) == want
+        ra, rb = g.swap_pairs(problem, cap)
+        assert list(zip(ra.tolist(), rb.tolist())) == want
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exchange_pairs_equal_the_numpy_pairs(seed):
+    """The compiled exchange list equals :func:`swap_pairs` on random gates, bounded or not."""
+    from bnptrack.tracker.bnp.swap_moves import exchange_pairs
+
+    rng = np.random.default_rng(seed)
+    N, M = 12, 60
+    first = np.where(rng.random((N, M)) < 0.4, rng.normal(-3.0, 1.0, (N, M)).round(1), -np.inf)
+    problem = g.GibbsProblem(log_first=first, log_lik=first, log_clutter=np.zeros(M), log_new=np.zeros(M),
+                             popularity=np.ones(N), alpha=1.0, d=0.0, d_bar=0.0, mass=1.0)
+    pr = problem.pairs
+    for cap in (3, 10, 1000):
+        a, b = exchange_pairs(pr.ptr, pr.idx, pr.log_first, N, cap)
+        ra, rb = g.swap_pairs(problem, cap)
+        assert a.size > 0
+        np.testing.assert_array_equal(a, ra)
+        np.testing.assert_array_equal(b, rb)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_large_best_permutation_equals_scipy_on_the_whole_problem(seed):
+    """Above ``SCIPY_PAIRS`` (per component, pairs costlier than their cluster's "missed"
+    dropped first) the JPDA* choice equals scipy's assignment of the whole dense problem."""
+    from bnptrack.tracker.filtering import SCIPY_PAIRS
+
+    rng = np.random.default_rng(seed)
+    N, M = 220, 160
+    assert N * M > SCIPY_PAIRS
+    near = np.abs(np.arange(N)[:, None] * M / N - np.arange(M)[None, :]) < 6  # banded: many components touch
+    P = np.where(near & (rng.random((N, M)) < 0.6), rng.random((N, M)), 0.0)
+    P /= np.maximum(P.sum(axis=1, keepdims=True) * rng.uniform(1.0, 1.5, (N, 1)), 1e-300)
+    ti, mi = np.nonzero(P > 0)
+    p = P[ti, mi]
+    got, want = best_permutation_pairs(N, ti, mi, p), _best_permutation_reference(N, ti, mi, p)
+    assert np.sum(got[1] != np.array([mi[ti == t][np.argmax(p[ti == t])] for t in got[0]])) > 0  # conflicts solved
+    for a, b in zip(got, want):
+        _same(a, b)

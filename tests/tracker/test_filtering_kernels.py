@@ -196,3 +196,16 @@ def test_pair_updates_match_the_numpy_reference(monkeypatch, meas):
     if isinstance(meas, BearingRange):
         r[0] = wrap_angle(r[0])
     np.testing.assert_allclose(new[0], m[ti[0]] + innov.gain[ti[0]] @ r, rtol=1e-14, atol=1e-9)
+
+
+def test_unique_ints_equals_numpy_unique():
+    """The sort-based unique gives numpy's values, order and dtype (hand case, then random)."""
+    from bnptrack.tracker._numerics import unique_ints
+
+    assert unique_ints(np.array([7, 3, 7, -1, 3], dtype=np.int64)).tolist() == [-1, 3, 7]
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 2, 9, 5000):
+        x = rng.integers(-20, 400, n)
+        got, want = unique_ints(x), np.unique(x)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)

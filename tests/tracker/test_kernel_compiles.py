@@ -27,7 +27,7 @@ _PROBE = textwrap.dedent("""
     import json
     import numpy as np
     from numba.core import event
-    from bnptrack.tracker.bnp import _kernels, gibbs, groups
+    from bnptrack.tracker.bnp import _kernels, gibbs, groups, swap_moves
 
     compiled = []
 
@@ -51,7 +51,7 @@ _PROBE = textwrap.dedent("""
     v, R = rng.normal(size=(4, 2)), np.tile(np.eye(2), (4, 1, 1))
     g_ids, count, *moments = groups._transition_kernel(z, ids, v, R, np.eye(2), np.zeros(2), v, R, np.eye(2),
                                                        np.zeros(2), 1)
-    kernels = {"_greedy": gibbs._greedy, "_group_pairs": gibbs._group_pairs, "np_sum": _kernels.np_sum,
+    kernels = {"_greedy": gibbs._greedy, "exchange_pairs": swap_moves.exchange_pairs, "np_sum": _kernels.np_sum,
                "_pairwise_block": _kernels._pairwise_block, "theta_sums": groups.theta_sums}
     print(json.dumps({"compiled": compiled, "signatures": {k: [str(s) for s in f.signatures]
                                                            for k, f in kernels.items()},
@@ -72,7 +72,7 @@ def cold_run(tmp_path_factory) -> dict:
 
 def test_each_called_kernel_compiles_once_without_literal_arguments(cold_run):
     sigs = cold_run["signatures"]
-    assert {k: len(v) for k, v in sigs.items()} == {"_greedy": 1, "_group_pairs": 1, "np_sum": 1,
+    assert {k: len(v) for k, v in sigs.items()} == {"_greedy": 1, "exchange_pairs": 1, "np_sum": 1,
                                                     "_pairwise_block": 1, "theta_sums": 1}
     assert not [s for v in sigs.values() for s in v if "Literal" in s]
     assert "int64, int64" in sigs["np_sum"][0]  # (array, lo, n): both counts plain int64

@@ -31,7 +31,8 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
     maximises :math:`\sum_l \log p_{l, m(l)}` with "missed" (cost
     :math:`-\log(1 - \sum_m p_{lm})`) as every cluster's private alternative; a cluster the
     assignment leaves missed keeps its mass on its most likely measurement.  Row sums
-    (detection probabilities) are unchanged.  The problem separates over the connected
+    (detection probabilities) are unchanged.  A pair whose cost exceeds its cluster's
+    "missed" cost is in no optimum; without those the problem separates over the connected
     components of the pairs graph: a component with one cluster needs no solver (either
     way its mass goes to its most likely measurement), the others are solved one by one
     (``linear_sum_assignment``), so the cost follows the size of the groups, not N x M.
@@ -57,6 +58,12 @@ def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
     from scipy.sparse.csgraph import connected_components
 
     M = int(mi.max()) + 1
+    # an edge costlier than its cluster's "missed" column is in no optimum (moving that
+    # cluster to missed frees the column and costs less): dropped, the components shrink
+    useful = np.minimum(-np.log(p), _FORBIDDEN) <= -np.log(np.maximum(1.0 - p_det[ti], 1e-300))
+    ti, mi, p = ti[useful], mi[useful], p[useful]
+    if ti.size == 0:
+        return
     graph = coo_matrix((np.ones(ti.size), (ti, n + mi)), shape=(n + M, n + M))
     _, comp = connected_components(graph, directed=False)
     # a component whose clusters' most likely measurements are all different is solved by

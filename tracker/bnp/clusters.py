@@ -8,7 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker._numerics import jit, unique_ints
 from bnptrack.tracker.bnp import _kernels as _k
 
 
@@ -108,7 +108,7 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
     i, j = ok[a], ok[b]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
-    key = np.unique(lo[lo < hi] * len(c.labels) + hi[lo < hi])
+    key = unique_ints(lo[lo < hi] * len(c.labels) + hi[lo < hi])
     lo, hi = key // len(c.labels), key % len(c.labels)
     d2p = np.sum((pos[lo] - pos[hi]) ** 2, axis=1)
     near = d2p <= max_d2 * (lam[lo] + lam[hi]) * (1.0 + 1e-9)

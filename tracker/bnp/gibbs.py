@@ -31,7 +31,10 @@ Single-site moves cannot exchange two measurements that compete for one cluster 
 must first pass through clutter or a new cluster), so each sweep is followed by a
 Metropolis-Hastings exchange of the assignments of every pair of measurements whose gates
 share a cluster (:func:`tracker.bnp.swap_moves.swap_pass`; it keeps every count of the urn, so the acceptance ratio
-is the ratio of the two measurements' own factors).  Several chains from different greedy
+is the ratio of the two measurements' own factors).  A cluster whose gate holds more than
+:data:`tracker.bnp.swap_moves.PAIR_MEMBERS` measurements pairs only its most likely ones
+(:func:`tracker.bnp.swap_moves.exchange_pairs`): the list is fixed for the frame, so every
+exchange stays its own inverse and the target is unchanged; only the moves offered differ.  Several chains from different greedy
 starts give the split-chain R-hat of the marginals (:func:`split_rhat`).
 
 The sweeps run on a sparse (gated) candidate list per measurement, compiled with numba
@@ -49,7 +52,8 @@ import numpy as np
 
 from bnptrack.tracker._numerics import jit
 from bnptrack.tracker.bnp._kernels import np_sum
-from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, gate_bits
+from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, PAIR_MEMBERS, gate_bits
+from bnptrack.tracker.bnp.swap_moves import exchange_pairs as _exchange_pairs
 from bnptrack.tracker.bnp.swap_moves import KERNELS_PY as SWAP_KERNELS_PY
 from bnptrack.tracker.bnp.swap_moves import own_weight as _own_weight
 from bnptrack.tracker.bnp.swap_moves import swap_pass as _swap_pass
@@ -342,9 +346,11 @@ def _half_add(hs, hss, h, k, v):
     hss[h, k] += v * v
 
 
-def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, u_swap,
+def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, rng,
                   pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits):
-    """All sweeps of one chain: a single-site pass, then the exchange pass (when pairs are given).
+    """All sweeps of one chain: a single-site pass on ``u[s]``, then the exchange pass (when
+    pairs are given) on one uniform per pair drawn from ``rng`` as the pass starts (so the
+    uniforms of one pass are in memory at a time, not those of every sweep).
 
     Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
     split-chain halves ``h0`` and ``h0 + 1`` of the R-hat sums (the middle one is dropped when
@@ -361,9 +367,9 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
         half = h0 if 0 <= i < half_len else (h0 + 1 if i >= kept - half_len else -1)
         _site_pass(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u[s],
                    i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, own)
-        if u_swap.shape[1] > 0:
+        if pair_a.shape[0] > 0:
             accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
-                                   u_swap[s], bits, own)
+                                   rng.random(pair_a.shape[0]), bits, own)
     return accepted
 
 
@@ -437,37 +443,15 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
                 starts[k, m] = start[m]
     if not swaps or N == 0:
         return ex, lg, starts, np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pair_a, pair_b = _swap_pairs_kernel(ptr, idx, N)
+    pair_a, pair_b = _exchange_pairs(ptr, idx, log_first, N, np.int64(PAIR_MEMBERS))  # not a Literal[int]
     return ex, lg, starts, pair_a, pair_b
 
 
-def _swap_pairs_kernel(ptr, idx, N):
-    """:func:`swap_pairs` on the CSR pairs: every ``a < b`` sharing a cluster, sorted by ``(a, b)``."""
-    M = ptr.shape[0] - 1
-    size = np.zeros(N, dtype=np.int64)
-    for j in range(idx.shape[0]):
-        size[idx[j]] += 1
-    first = np.zeros(N + 1, dtype=np.int64)
-    n_keys = np.int64(0)  # not 0: a literal start compiles _group_pairs once more for Literal[int](0)
-    for l in range(N):
-        first[l + 1] = first[l] + size[l]
-        n_keys += size[l] * (size[l] - 1) // 2
-    meas_of = np.empty(idx.shape[0], dtype=np.int64)
-    fill = first[:N].copy()
-    for m in range(M):  # measurements ascending within each cluster
-        for j in range(ptr[m], ptr[m + 1]):
-            meas_of[fill[idx[j]]] = m
-            fill[idx[j]] += 1
-    used = np.flatnonzero(size > 0)
-    key = np.unique(_group_pairs(meas_of, first[used], size[used], M, n_keys))
-    return key // M, key % M
-
-
-def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, u_all, pair_a, pair_b, ptr, idx,
+def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_init, rng, pair_a, pair_b, ptr, idx,
                    log_first, log_clutter, log_new, pop, par, extended, N, sweeps, burn_in, chains):
-    """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on its slice of the
-    uniforms (chain ``k``: ``sweeps x M`` for the sites, then ``sweeps x P`` for the exchanges),
-    the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
+    """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on uniforms drawn
+    from ``rng`` in one stream (chain ``k``: ``sweeps x M`` for the sites, then ``P`` for each
+    sweep's exchanges, drawn as each exchange pass starts), the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
     0's last state.  ``init`` is chain 0's start when ``has_init``."""
     M = ptr.shape[0] - 1
     nnz = idx.shape[0]
@@ -479,7 +463,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
     opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
     first = np.empty(M, dtype=np.int64)
     bits = gate_bits(ptr, idx, N, MAX_BYTES) if P > 0 else np.zeros((0, 0), dtype=np.uint8)
-    accepted, off = 0, 0
+    accepted = 0
     for k in range(chains):
         c = init.copy() if k == 0 and has_init else starts[k % 2].copy()
         cnt = np.zeros(N, dtype=np.int64)
@@ -491,11 +475,8 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
                 st[0] += 1
             if c[m] != CLUTTER:
                 st[1] += 1
-        u = u_all[off:off + sweeps * M].reshape((sweeps, M))
-        off += sweeps * M
-        u_swap = u_all[off:off + sweeps * P].reshape((sweeps, P))
-        off += sweeps * P
-        accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, u_swap,
+        u = rng.random((sweeps, M))
+        accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, rng,
                             pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits)
         if k == 0:
             for m in range(M):
@@ -573,7 +554,7 @@ def _split_rhat_kernel(hs, hss, n):
 
 
 _KERNELS_PY = (_site_pass, _half_add, _sweep_kernel, _greedy, _group_pairs, _npmax, _setup_kernel,
-               _swap_pairs_kernel, _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
+               _chains_kernel, _log_joint_kernel, _split_rhat_kernel)
 # the helpers are replaced by their compiled versions, which the compiled driver calls
 _greedy = jit(_greedy)  # noqa: F811
 _half_add = jit(_half_add, inline=True)
@@ -582,7 +563,6 @@ _sweeps = jit(_sweep_kernel)
 _group_pairs = jit(_group_pairs)  # noqa: F811
 _npmax = jit(_npmax, inline=True)
 _setup_kernel = jit(_setup_kernel)
-_swap_pairs_kernel = jit(_swap_pairs_kernel)
 _chains_kernel = jit(_chains_kernel)
 _log_joint_kernel = jit(_log_joint_kernel)
 _split_rhat_kernel = jit(_split_rhat_kernel)
@@ -592,25 +572,33 @@ def interpreted_kernels() -> dict[str, object]:
     """The module globals that make :func:`run_gibbs` run every kernel interpreted (for the
     compiled-vs-interpreted test and benchmark: ``monkeypatch.setattr(gibbs, k, v)``)."""
     names = ("_site_pass", "_half_add", "_sweeps", "_greedy", "_group_pairs", "_npmax",
-             "_setup_kernel", "_swap_pairs_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
+             "_setup_kernel", "_chains_kernel", "_log_joint_kernel", "_split_rhat_kernel")
     swaps = SWAP_KERNELS_PY  # tracker.bnp.swap_moves' kernels, by the names this module binds
     return {**dict(zip(names, _KERNELS_PY)), "gate_bits": swaps["gate_bits"], "_own_weight": swaps["own_weight"],
-            "_swap_pass": swaps["swap_pass"]}
+            "_swap_pass": swaps["swap_pass"],
+            "_exchange_pairs": swaps["exchange_pairs"]}
 
 
-def swap_pairs(problem: GibbsProblem) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs ``a < b`` of measurements whose gates share at least one cluster, sorted by
-    ``(a, b)`` (built cluster by cluster from the sparse pairs)."""
+def swap_pairs(problem: GibbsProblem, max_members: int = PAIR_MEMBERS) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``a < b`` of measurements that share a cluster, sorted by ``(a, b)`` (built
+    cluster by cluster from the sparse pairs).  A cluster whose gate holds more than
+    ``max_members`` measurements pairs only its ``max_members`` most likely ones (highest
+    ``log_first``, ties: the lower index)."""
     pr = problem.pairs
     M = pr.n_meas
-    by_cluster = np.argsort(pr.idx, kind="stable")  # measurements ascending within a cluster
-    meas_of = pr.rows[by_cluster]
+    by_cluster = np.lexsort((pr.rows, pr.idx))  # measurements ascending within a cluster
     starts = np.r_[0, np.flatnonzero(np.diff(pr.idx[by_cluster])) + 1] if by_cluster.size else np.zeros(0, np.int64)
     sizes = np.diff(np.r_[starts, by_cluster.size]).astype(np.int64)
+    groups = [by_cluster[s0:s0 + n] for s0, n in zip(starts.tolist(), sizes.tolist())]
+    groups = [g if g.size <= max_members else np.sort(g[np.lexsort((pr.rows[g], -pr.log_first[g]))[:max_members]])
+              for g in groups]
+    sizes = np.array([g.size for g in groups], dtype=np.int64)
     n_keys = int(np.sum(sizes * (sizes - 1) // 2))
     if n_keys == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    key = np.unique(_group_pairs(meas_of, starts.astype(np.int64), sizes, M, n_keys))
+    meas_of = pr.rows[np.concatenate(groups)]
+    starts = np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)
+    key = np.unique(_group_pairs(meas_of, starts, sizes, M, n_keys))
     return (key // M).astype(np.int64), (key % M).astype(np.int64)
 
 
@@ -640,13 +628,12 @@ def run_gibbs(
     w = np.exp(ex)  # underflow to 0 is numpy's default (ignored)
     nnz, n_lik = pr.idx.size, pr.idx.size if ext else 0
     w_lik = w[nnz:2 * nnz] if ext else np.zeros(nnz)
-    u_all = rng.random(chains * sweeps * (M + pair_a.size))  # per chain: sites, then exchanges (one stream)
     par = np.array([alpha + problem.mass, alpha, d, d_bar, 1.0 if problem.urn_normaliser else 0.0], dtype=float)
     has_init = init is not None
     start0 = np.asarray(init).astype(np.int64) if has_init else np.zeros(0, np.int64)
     p_pairs, p_clutter, p_new, first, lj, rhat, accepted = _chains_kernel(
         w[:nnz], w_lik, w[nnz + n_lik:nnz + n_lik + M], w[nnz + n_lik + M:], np.log(lg), starts, start0, has_init,
-        u_all, pair_a, pair_b, pr.ptr, pr.idx, pr.log_first, log_clutter, log_new,
+        rng, pair_a, pair_b, pr.ptr, pr.idx, pr.log_first, log_clutter, log_new,
         np.asarray(problem.popularity, dtype=float), par, ext, N, int(sweeps), int(burn_in), int(chains))
     kept = max(sweeps - burn_in, 1) * chains
     return GibbsResult(problem.pairs, p_pairs, p_clutter, p_new, first, log_joint(problem, first) if ext else float(lj),

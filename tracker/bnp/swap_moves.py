@@ -11,6 +11,13 @@ such a proposal without scanning the two measurements' gated pairs; the proposal
 are scored as before, with the current assignments' factors kept per measurement (``own``)
 instead of looked up again, so every draw, acceptance and tally is the same.
 
+The exchange list (:func:`exchange_pairs`) pairs the measurements of each cluster's gate.  A
+gate that holds a large share of the frame (a track lost near the sensor, a new cluster's
+broad prior) would give O(M^2) pairs alone (one gate of 2,920 measurements gave 4.26 million
+at 3,000 objects in vo2017's field), so a cluster pairs at most :data:`PAIR_MEMBERS` of its measurements, those
+of highest ``log_first`` (the likeliest to take it); the others still reach it by single-site
+moves.  Below the bound the list is every pair sharing a cluster, unchanged.
+
 The table has ``M x ceil(N / 8)`` bytes; above :data:`MAX_BYTES` (a scene of tens of thousands
 of measurements and objects) none is built and every proposal is scored by the scan.
 """
@@ -27,6 +34,83 @@ NEW = -2
 
 #: Largest bit table built (bytes); larger problems score every proposal (the same result).
 MAX_BYTES = 64 << 20
+
+#: Most measurements of one cluster's gate that pair up through it (its most likely ones).
+PAIR_MEMBERS = 256
+
+
+def _members(ptr, idx, log_first, N, max_members):
+    """Each cluster's members, CSR by cluster (``meas_of[first[l]:end[l]]``, ascending): its
+    gate's measurements, or, when the gate holds more than ``max_members``, the
+    ``max_members`` of highest ``log_first`` (ties: the lower index); ``member[j]`` whether
+    pair ``j`` is one."""
+    M = ptr.shape[0] - 1
+    size = np.zeros(N, dtype=np.int64)
+    for j in range(idx.shape[0]):
+        size[idx[j]] += 1
+    first = np.zeros(N + 1, dtype=np.int64)
+    for l in range(N):
+        first[l + 1] = first[l] + size[l]
+    meas_of = np.empty(idx.shape[0], dtype=np.int64)
+    pos_of = np.empty(idx.shape[0], dtype=np.int64)
+    end = first[:N].copy()
+    for m in range(M):  # measurements ascending within each cluster
+        for j in range(ptr[m], ptr[m + 1]):
+            meas_of[end[idx[j]]] = m
+            pos_of[end[idx[j]]] = j
+            end[idx[j]] += 1
+    member = np.ones(idx.shape[0], dtype=np.bool_)
+    for l in range(N):
+        if size[l] > max_members:
+            lo = first[l]
+            order = np.argsort(-log_first[pos_of[lo:lo + size[l]]], kind="mergesort")
+            for i in range(max_members, size[l]):
+                member[pos_of[lo + order[i]]] = False
+            kept = np.sort(meas_of[lo + order[:max_members]])
+            for i in range(max_members):
+                meas_of[lo + i] = kept[i]
+            end[l] = lo + max_members
+    return first, end, meas_of, member
+
+
+def exchange_pairs(ptr, idx, log_first, N, max_members):
+    """The exchange list: every pair ``a < b`` of measurements that are both members
+    (:func:`_members`) of one cluster, sorted by ``(a, b)``.
+
+    Measurement by measurement: ``a``'s partners are the later members of each cluster it is a
+    member of (``cursor[l]`` is ``a``'s place in cluster ``l``), marked once (``stamp``) and
+    sorted; one pass counts, the second fills."""
+    M = ptr.shape[0] - 1
+    first, end, meas_of, member = _members(ptr, idx, log_first, N, max_members)
+    stamp = np.full(M, -1, dtype=np.int64)
+    row = np.empty(M, dtype=np.int64)
+    pair_a, pair_b = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    for fill_pass in range(2):
+        cursor = first[:N].copy()
+        stamp[:] = -1
+        out = np.int64(0)
+        for a in range(M):
+            n = 0
+            for j in range(ptr[a], ptr[a + 1]):
+                if not member[j]:
+                    continue
+                l = idx[j]
+                cursor[l] += 1  # now past a
+                for q in range(cursor[l], end[l]):
+                    b = meas_of[q]
+                    if stamp[b] != a:
+                        stamp[b] = a
+                        row[n] = b
+                        n += 1
+            if fill_pass == 1:
+                part = np.sort(row[:n])
+                for i in range(n):
+                    pair_a[out + i] = a
+                    pair_b[out + i] = part[i]
+            out += n
+        if fill_pass == 0:
+            pair_a, pair_b = np.empty(out, dtype=np.int64), np.empty(out, dtype=np.int64)
+    return pair_a, pair_b
 
 
 def gate_bits(ptr, idx, N, max_bytes):
@@ -102,7 +186,10 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     return accepted
 
 
-KERNELS_PY = {"gate_bits": gate_bits, "gated": gated, "own_weight": own_weight, "swap_pass": swap_pass}
+KERNELS_PY = {"gate_bits": gate_bits, "gated": gated, "own_weight": own_weight, "swap_pass": swap_pass,
+              "exchange_pairs": exchange_pairs, "_members": _members}
+_members = jit(_members)
+exchange_pairs = jit(exchange_pairs)  # noqa: F811
 gate_bits = jit(gate_bits)  # noqa: F811
 gated = jit(gated, inline=True)  # noqa: F811
 own_weight = jit(own_weight)  # noqa: F811
