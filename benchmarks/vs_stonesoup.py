@@ -325,6 +325,14 @@ def selftest() -> int:
         near = [lab for lab, p in last if np.linalg.norm(p - truth) < 25.0]
         checks[f"{name}: one estimate within 25 m at frame 5"] = len(last) == 1 and len(near) == 1
         checks[f"{name}: label kept over frames 4-5"] = [lab for lab, _ in outs[-2]] == near
+    from benchmarks.lagged_anchors import smoothed_jpda
+
+    online, same, _ = smoothed_jpda(params, JpdaSettings(), frames, 0, Scan)
+    checks["ss-jpda: smoothing over 0 scans changes nothing"] = all(
+        a.labels == b.labels and np.array_equal(a.positions, b.positions) for a, b in zip(online, same))
+    _, smoothed, _ = smoothed_jpda(params, JpdaSettings(), frames, 2, Scan)
+    checks["ss-jpda --lag 2: the smoothed track within 25 m at frame 3"] = len(smoothed[2].labels) == 1 and \
+        np.linalg.norm(smoothed[2].positions[0] - frames[2].truth.positions[0]) < 25.0
     for what, ok in checks.items():
         print(f"{'ok  ' if ok else 'FAIL'} {what}")
     return 0 if all(checks.values()) else 1
