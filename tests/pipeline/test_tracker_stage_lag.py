@@ -108,3 +108,12 @@ def test_a_stage_refuses_a_snapshot_of_another_lag(tmp_path):
     bus = MemoryNetwork().bus(cfg.run, "tracker")
     with pytest.raises(ConfigError, match="lag 0 does not match.*lag 1"):
         STAGES["tracker"](StageContext(cfg, bus, name="tracker")).run()
+
+
+def test_the_glmb_stage_takes_a_lag_too(tmp_path):
+    cfg = mem_cfg(tmp_path, frames=8, **{"tracker.lag": "1", "tracker.tracker": "glmb", "tracker.overrides": "[]"})
+    codes = run_memory_pipeline(cfg, MemoryNetwork())
+    assert codes == {"sink": EXIT_OK, "tracker": EXIT_OK, "source": EXIT_OK}
+    log = read_log(Path(cfg.out) / "tracks.mcap")
+    assert len(log.tracks) == 8 and all(e.lag == 1 for e in log.tracks)
+    assert [strip(e) for e in log.tracks] == [strip(e) for e in _offline_lagged(cfg, 1)]
