@@ -24,6 +24,12 @@ that filled the cache, so their time ratio is not from one sitting.
 
 Anchor settings (``--anchor-set phd.birth_rate=0.2 --anchor-set jpda.min_points=4``) default
 to the values tuned on seeds 101-110 (docs/vs_stonesoup.md).
+
+``--lag N`` adds fixed-lag rows (``benchmarks/lagged_anchors.py``): each bnptrack tracker through
+the fixed-lag layer (``NAME --lag N``) and the JPDA anchor smoothed by Stone Soup's unscented RTS
+smoother over the same ``N`` scans (``ss-jpda --lag N``), so lagged figures meet lagged anchors.
+
+    nice -n 5 python benchmarks/vs_stonesoup.py --scenario random --trackers ddp --anchors ss-jpda --lag 3
 """
 
 from __future__ import annotations
@@ -77,6 +83,12 @@ class Job:
     anchor_sets: tuple[str, ...]
     anchor_cache: str = ""
     """Directory of cached anchor runs ("" = no cache; :func:`anchor_cache_key`)."""
+    lag: int = 0
+    """Scans of hindsight (0: online; ``N``: the fixed-lag row, ``benchmarks/lagged_anchors.py``)."""
+
+    @property
+    def name(self) -> str:
+        return self.tracker if not self.lag else f"{self.tracker} --lag {self.lag}"
 
 
 @dataclass(frozen=True)
@@ -163,6 +175,17 @@ def _run_bnp(job: Job, params, frames) -> tuple[list[Scan], int]:
     return out, 0
 
 
+def _run_lagged(job: Job, params, frames) -> tuple[list[Scan], int]:
+    """The fixed-lag scans of a bnptrack tracker or of the smoothed JPDA anchor."""
+    from benchmarks.lagged_anchors import lagged_bnp, smoothed_jpda
+
+    if job.tracker in ANCHORS:
+        _online, smoothed, n_warn = smoothed_jpda(params, anchor_settings(job.anchor_sets)[1], frames, job.lag, Scan)
+        return smoothed, n_warn
+    config = apply_overrides(kind(job.tracker).presets[job.tracker], list(job.tracker_sets))
+    return lagged_bnp(build(job.tracker, params, config), params, frames, job.seed, job.lag, Scan), 0
+
+
 def score(frames, scans: list[Scan], crossings=()) -> dict:
     """The project's metrics of one run (one tracker, one seed)."""
     o = [ospa(f.truth.positions, s.positions, c=100.0, p=1.0).total for f, s in zip(frames, scans)]
@@ -211,11 +234,13 @@ def run_job(job: Job) -> dict:
     params = sc.adapt_params(load_params(job.params, model))
     frames = simulate_all(sc, params, job.seed)
     cached = False
-    if job.tracker in ANCHORS and job.anchor_cache:
+    if job.lag:
+        scans, n_warn = _run_lagged(job, params, frames)
+    elif job.tracker in ANCHORS and job.anchor_cache:
         scans, n_warn, cached = _cached_anchor(job, params, frames)
     else:
         scans, n_warn = (_run_anchor if job.tracker in ANCHORS else _run_bnp)(job, params, frames)
-    return dict(tracker=job.tracker, seed=job.seed, warnings=n_warn, cached=cached,
+    return dict(tracker=job.name, seed=job.seed, warnings=n_warn, cached=cached,
                 **score(frames, scans, sc.crossings))
 
 
@@ -300,6 +325,14 @@ def selftest() -> int:
         near = [lab for lab, p in last if np.linalg.norm(p - truth) < 25.0]
         checks[f"{name}: one estimate within 25 m at frame 5"] = len(last) == 1 and len(near) == 1
         checks[f"{name}: label kept over frames 4-5"] = [lab for lab, _ in outs[-2]] == near
+    from benchmarks.lagged_anchors import smoothed_jpda
+
+    online, same, _ = smoothed_jpda(params, JpdaSettings(), frames, 0, Scan)
+    checks["ss-jpda: smoothing over 0 scans changes nothing"] = all(
+        a.labels == b.labels and np.array_equal(a.positions, b.positions) for a, b in zip(online, same))
+    _, smoothed, _ = smoothed_jpda(params, JpdaSettings(), frames, 2, Scan)
+    checks["ss-jpda --lag 2: the smoothed track within 25 m at frame 3"] = len(smoothed[2].labels) == 1 and \
+        np.linalg.norm(smoothed[2].positions[0] - frames[2].truth.positions[0]) < 25.0
     for what, ok in checks.items():
         print(f"{'ok  ' if ok else 'FAIL'} {what}")
     return 0 if all(checks.values()) else 1
@@ -319,6 +352,8 @@ def _args(argv=None) -> argparse.Namespace:
     ap.add_argument("--tracker-set", action="append", default=[], help="bnptrack tracker config override")
     ap.add_argument("--anchor-set", action="append", default=[], help="anchor setting, e.g. phd.gate=5")
     ap.add_argument("--anchor-cache", default="", help="directory of cached anchor runs (reused when the key matches)")
+    ap.add_argument("--lag", type=int, default=0, metavar="N",
+                    help="also the fixed-lag rows: trackers through the lag layer, ss-jpda smoothed (RTS) over N scans")
     ap.add_argument("--workers", type=int, default=1, help="process pool size (default 1)")
     ap.add_argument("--json", action="store_true", help="also print one JSON line with the summary")
     ap.add_argument("--selftest", action="store_true", help="run the anchors on a tiny scene and check them")
@@ -333,10 +368,18 @@ def main(argv=None) -> int:
     if args.selftest:
         return selftest()
     anchor_settings(tuple(args.anchor_set))  # validate before starting the pool
-    names = list(args.trackers) + list(args.anchors)
+    if args.lag < 0:
+        print(f"--lag must be >= 0, got {args.lag}", file=sys.stderr)
+        return 2
+    from benchmarks.lagged_anchors import SMOOTHED_ANCHORS
+
+    runs = [(n, 0) for n in list(args.trackers) + list(args.anchors)]
+    if args.lag:
+        runs += [(n, args.lag) for n in args.trackers] + [(n, args.lag) for n in args.anchors if n in SMOOTHED_ANCHORS]
     seeds = range(args.seed_start, args.seed_start + args.seeds)
     jobs = [Job(n, args.scenario, s, args.params, tuple(args.param_sets), tuple(args.tracker_set),
-                tuple(args.anchor_set), args.anchor_cache) for s in seeds for n in names]
+                tuple(args.anchor_set), args.anchor_cache, lag) for s in seeds for n, lag in runs]
+    names = [j.name for j in jobs[:len(runs)]]
     with ProcessPoolExecutor(args.workers) as pool:
         results = []
         for r in pool.map(run_job, jobs):

@@ -231,7 +231,8 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     ``prior_from``: the ``tracker.snap`` of an earlier run of the same tracker; a stage that does
     not resume starts from that run's prior (the BNP trackers' concentration ``alpha``,
     discount ``d`` and their accumulated likelihood) with no track (``replay --loop
-    --keep-prior``).
+    --keep-prior``).  ``lag``: publish each frame's tracks ``lag`` scans late, re-decided with
+    the scans after it (the fixed-lag output of ``bnptrack track --lag``; 0: online).
     """
 
     tracker: str = "ddp"
@@ -242,6 +243,7 @@ class TrackerStageConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     snapshot_every: PosInt = 50
     resume: bool = True
     prior_from: str = ""
+    lag: NonNegInt = 0
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])
 
 

@@ -43,13 +43,16 @@ readers accept 1 and 2, writers write 1 when a message uses none of them (so ver
 still read it)."""
 TRACKS_SCHEMA_VERSION = 3
 """``/tracks`` version 2 adds the optional ``cluster`` of a track (two-level trackers); version 3
-the optional ``cardinality_pmf`` of a frame.  Writers write the lowest version that has the
-fields a message uses: 3 with a ``cardinality_pmf``, else 2 when a track carries a ``cluster``,
-else 1."""
+the optional ``cardinality_pmf`` of a frame; version 4 the optional header field ``lag`` (the
+scans of hindsight of a fixed-lag output).  Writers write the lowest version that has the
+fields a message uses: 4 with a ``lag`` above 0, else 3 with a ``cardinality_pmf``, else 2 when a
+track carries a ``cluster``, else 1."""
+#: ``/tracks`` version that added the header field ``lag``.
+TRACKS_LAG_VERSION = 4
 #: ``/tracks`` version that added ``cluster`` (a message with a cluster and no pmf is written so).
 TRACKS_CLUSTER_VERSION = 2
 #: Versions read per topic (a topic not listed reads only :data:`SCHEMA_VERSION`).
-READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2, 3)}
+READ_VERSIONS = {TOPIC_MEASUREMENTS: (1, 2), TOPIC_TRACKS: (1, 2, 3, 4)}
 #: ``sum(cardinality_pmf)`` must be within this of 1 (the writer's tail cut is 1e-9).
 PMF_SUM_TOL = 1e-6
 #: Entries a ``cardinality_pmf`` may have (``n = 0 .. 100 000``).
@@ -331,6 +334,7 @@ def check_tracks(msg: Any) -> None:
     _check_track_rows(frame, msg.tracks)
     _check_assignments(frame, msg)
     _check_pmf(frame, msg)
+    _check_lag(frame, msg)
     diag = msg.diagnostics
     if diag and not _finite_sum(diag.values()):
         keys = list(diag)
@@ -398,6 +402,18 @@ def pmf_list_ok(pmf: list) -> bool:
     except (OverflowError, ValueError, TypeError):
         return False
     return math.isfinite(s) and min(pmf) >= 0.0 and abs(s - 1.0) <= PMF_SUM_TOL / 2
+
+
+def _check_lag(frame: int, msg: Any) -> None:
+    """``lag`` (version 4; absent is fine): an integer >= 0, only in version 4."""
+    lag = getattr(msg, "lag", msgspec.UNSET)
+    if lag is msgspec.UNSET:
+        return
+    if not is_int(lag) or lag < 0:
+        raise CodecError(TOPIC_TRACKS, frame, f"lag must be an integer >= 0, got {lag!r} - at `$.lag`")
+    if msg.v < TRACKS_LAG_VERSION:
+        raise CodecError(TOPIC_TRACKS, frame, f"lag needs schema version {TRACKS_LAG_VERSION}, the message says "
+                                              f"{msg.v} - at `$.lag`")
 
 
 def _check_pmf(frame: int, msg: Any) -> None:

@@ -154,8 +154,8 @@ class FixedLag:
         est = online[0]
         assign = [None if a is None else final.get(a, a) for a in assign]
         renamed = {k: v for k, v in renamed.items() if k in tracks}
-        diag = dict(est.diagnostics, lag=float(self.lag))
-        lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob, diag)
+        lagged = Estimate(est.frame, est.stamp_ns, tuple(out), tuple(assign), est.assignment_prob,
+                          dict(est.diagnostics), lag=self.lag)
         return lagged, tuple(sorted(renamed.items())), tuple(swaps)
 
     def _existing(self, tracks: dict, frames) -> list[TrackEstimate]:

@@ -34,6 +34,8 @@ FIELD_UNITS: dict[str, dict[str, str]] = {
     "TruthObject": {"id": "object id (text, no unit)", "state": "state " + _STATE},
     "TracksMsg": {
         **_HEADER,
+        "lag": "scans of hindsight (integer, no unit): 0 or absent online; N for a fixed-lag output, "
+               "made when frame + N had arrived",
         "tracks": "reported tracks (see TrackMsg)",
         "assignments": "per measurement, in the order of z: the track label it was assigned to, or null",
         "assignment_prob": "per measurement: probability of its assignment, 0..1 (no unit)",

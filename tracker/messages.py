@@ -19,13 +19,17 @@ Three messages, each a JSON object that starts with the shared :class:`Header`
 
 ``/tracks`` (:class:`TracksMsg`)::
 
-    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0,
+    {"v": 2, "run": "", "frame": 0, "stamp_ns": 0, "lag": 3,   # lag: optional (v4)
      "tracks": [{"label": "t1", "state": [5 floats], "covariance": [25 floats, row-major],
                  "existence": 0.97}, ...],
      "assignments": ["t1", null, ...],          # one per measurement, input order
      "assignment_prob": [0.93, 0.71, ...],      # one per measurement
      "diagnostics": {"alpha": 1.2, ...},        # optional, default {}
      "cardinality_pmf": [0.01, 0.2, ...]}       # optional (v3): p(n), n = 0 .. N_max
+
+  ``lag`` (version 4, a header field of ``/tracks`` only; absent = 0) is the number of scans of
+  hindsight of a fixed-lag output (:mod:`tracker.lag`): the message of frame ``k`` was made when
+  frame ``k + lag`` had arrived.
 
 The API: :func:`decode` (bytes -> validated message), :func:`encode` (message, ``Frame`` or
 ``Estimate`` -> validated bytes), the conversions :func:`from_frame`, :func:`from_truth`,
@@ -71,6 +75,7 @@ from bnptrack.tracker._message_checks import (
     TOPIC_TRACKS,
     TOPIC_TRUTH,
     TRACKS_CLUSTER_VERSION,
+    TRACKS_LAG_VERSION,
     TRACKS_SCHEMA_VERSION,
     V1_KINDS,
     CodecError,
@@ -186,6 +191,10 @@ class TrackMsg(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 class TracksMsg(Header, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """A tracker's output for one frame (topic ``/tracks``)."""
 
+    lag: Union[NonNegInt, msgspec.UnsetType] = msgspec.UNSET
+    """(version 4; not written when 0) scans of hindsight: the output of a fixed-lag layer
+    (:mod:`tracker.lag`), made when frame ``frame + lag`` had arrived.  On the wire it follows
+    the shared header's four fields."""
     tracks: Annotated[list[TrackMsg], msgspec.Meta(max_length=MAX_TRACKS)]
     assignments: Annotated[
         list[Union[str, None]], msgspec.Meta(max_length=MAX_MEASUREMENTS)
@@ -282,7 +291,16 @@ def to_truth(msg: TruthMsg) -> Truth:
 
 
 def to_estimate(msg: TracksMsg) -> Estimate:
-    """A (validated) tracks message as an :class:`Estimate`."""
+    """A (validated) tracks message as an :class:`Estimate`.  A message older than version 4
+    that carries its lag as the diagnostic ``lag`` (as fixed-lag logs once did) gets it as
+    :attr:`Estimate.lag`."""
+    diagnostics = dict(msg.diagnostics)
+    lag = msg.lag
+    if lag is msgspec.UNSET:
+        old = diagnostics.pop("lag", 0.0)
+        lag = int(old) if float(old).is_integer() and old >= 0 else 0
+        if lag == 0 and old != 0.0:
+            diagnostics["lag"] = old
     tracks = tuple(
         TrackEstimate(
             label=t.label,
@@ -299,8 +317,9 @@ def to_estimate(msg: TracksMsg) -> Estimate:
         tracks=tracks,
         assignments=tuple(msg.assignments),
         assignment_prob=tuple(float(p) for p in msg.assignment_prob),
-        diagnostics=dict(msg.diagnostics),
+        diagnostics=diagnostics,
         cardinality_pmf=None if msg.cardinality_pmf is msgspec.UNSET else np.array(msg.cardinality_pmf, dtype=float),
+        lag=lag,
     )
 
 
@@ -354,8 +373,11 @@ def from_truth(frame_index: int, stamp_ns: int, truth: Truth, run: str = "") -> 
     )
 
 
-def _tracks_version(tracks: list[TrackMsg], pmf: Any) -> int:
-    """The lowest ``/tracks`` version with the fields used (3: a pmf; 2: a cluster; else 1)."""
+def _tracks_version(tracks: list[TrackMsg], pmf: Any, lag: Any = msgspec.UNSET) -> int:
+    """The lowest ``/tracks`` version with the fields used (4: a lag; 3: a pmf; 2: a cluster;
+    else 1)."""
+    if lag is not msgspec.UNSET:
+        return TRACKS_LAG_VERSION
     if pmf is not msgspec.UNSET:
         return TRACKS_SCHEMA_VERSION
     return TRACKS_CLUSTER_VERSION if any(t.cluster is not None for t in tracks) else SCHEMA_VERSION
@@ -381,17 +403,25 @@ def from_estimate(est: Estimate, run: str = "") -> TracksMsg:
         for t in est.tracks
     ]
     pmf = _pmf_field(getattr(est, "cardinality_pmf", None))
+    lag = _lag_field(getattr(est, "lag", 0))
     return TracksMsg(
-        v=_tracks_version(tracks, pmf),
+        v=_tracks_version(tracks, pmf, lag),
         run=run,
         frame=idx,
         stamp_ns=_as_int(topic, idx, est.stamp_ns, "stamp_ns"),
+        lag=lag,
         tracks=tracks,
         assignments=[None if a is None else str(a) for a in est.assignments],
         assignment_prob=np.asarray(est.assignment_prob, dtype=float).ravel().tolist(),
         diagnostics={str(k): float(v) for k, v in est.diagnostics.items()},
         cardinality_pmf=pmf,
     )
+
+
+def _lag_field(lag: Any) -> Any:
+    """The wire value of an estimate's ``lag`` (``UNSET``: 0, not written; anything else than
+    an integer is left to the check to name)."""
+    return msgspec.UNSET if is_int(lag) and lag == 0 else lag
 
 
 def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
@@ -402,8 +432,9 @@ def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
     and every check), which names the error or writes what the quick tests were too cautious
     for (the same bytes)."""
     tracks, n = est.tracks, len(est.tracks)
-    frame, stamp = est.frame, est.stamp_ns
+    frame, stamp, lag = est.frame, est.stamp_ns, est.lag
     if type(frame) is not int or frame < 0 or type(stamp) is not int or not 0 <= stamp <= MAX_STAMP \
+            or type(lag) is not int or lag < 0 \
             or type(run) is not str or n > MAX_TRACKS or len(est.diagnostics) > MAX_DIAGNOSTICS:
         return None
     try:
@@ -422,7 +453,8 @@ def _plain_tracks_msg(est: Estimate, run: str) -> TracksMsg | None:
     msgs = [TrackMsg(label=lab, state=st, covariance=cv, existence=ex,
                      cluster=None if t.cluster is None else int(t.cluster))
             for lab, st, cv, ex, t in zip(labels, rows[0], rows[1], exist, tracks)]
-    return TracksMsg(v=_tracks_version(msgs, pmf), run=run, frame=frame, stamp_ns=stamp, tracks=msgs,
+    lag = msgspec.UNSET if lag == 0 else lag
+    return TracksMsg(v=_tracks_version(msgs, pmf, lag), run=run, frame=frame, stamp_ns=stamp, lag=lag, tracks=msgs,
                      assignments=[None if a is None else str(a) for a in est.assignments],
                      assignment_prob=probs, diagnostics=diag, cardinality_pmf=pmf)
 

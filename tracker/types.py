@@ -198,7 +198,9 @@ class Estimate:
     and ``assignment_prob[m]`` its posterior probability; ``diagnostics`` holds scalar
     tracker diagnostics (alpha, d, number of clusters, log-likelihood, ms per frame);
     ``cardinality_pmf`` the posterior cardinality distribution ``p(n)``, ``n = 0 .. N_max``
-    (``(N_max + 1,)``, tail below 1e-9 dropped: :mod:`tracker.cardinality`), or ``None``.
+    (``(N_max + 1,)``, tail below 1e-9 dropped: :mod:`tracker.cardinality`), or ``None``;
+    ``lag`` the scans of hindsight (0: the online estimate; ``N``: a fixed-lag output,
+    :mod:`tracker.lag`, made when frame ``frame + N`` had arrived).
     """
 
     frame: int
@@ -208,6 +210,7 @@ class Estimate:
     assignment_prob: tuple[float, ...] = ()
     diagnostics: dict[str, float] = field(default_factory=dict)
     cardinality_pmf: np.ndarray | None = None
+    lag: int = 0
 
     @property
     def positions(self) -> np.ndarray:

@@ -143,6 +143,13 @@ _OVERWRITE_OPT = click.option(
     "directory is refused with exit code 2; a directory with a live run is always refused).",
 )
 
+_LAG_OPT = click.option(
+    "--lag", type=click.IntRange(min=0), default=None, metavar="N",
+    help="The tracker publishes each frame's /tracks N scans late (when frame k + N arrives), "
+    "re-decided with the N scans that followed and smoothed, as `bnptrack track --lag N` "
+    "(docs/trackers.md, \"Fixed-lag output\"). Default: tracker.lag of the pipeline (0: online).",
+)
+
 _TIMEOUT_OPT = click.option(
     "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
     help="Stop everything and fail if the pipeline has not finished after this long.",
@@ -162,13 +169,14 @@ _TIMEOUT_OPT = click.option(
               "a Rerun URL (rerun+http://HOST:PORT/proxy) instead streams the recording live to "
               "that running viewer.")
 @click.option("--view", is_flag=True, help=VIEW_HELP)
+@_LAG_OPT
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
 @clean_errors
 def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str | None,
-           out: Path | None, connect: tuple[str, ...], view: bool, timeout: float | None, overwrite: bool,
-           quiet: bool) -> None:
+           out: Path | None, connect: tuple[str, ...], view: bool, lag: int | None, timeout: float | None,
+           overwrite: bool, quiet: bool) -> None:
     """Run the streaming pipeline: every stage in its own process, linked by Zenoh.
 
     With no PIPELINE.toml: a synthetic vo2017 source (seed 1) -> the DDP-EMM tracker
@@ -189,6 +197,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     from bnptrack.pipeline.config import load_pipeline
 
     cfg = load_pipeline(pipeline_file, overrides)
+    if lag is not None:
+        cfg = _ms.structs.replace(cfg, tracker=_ms.structs.replace(cfg.tracker, lag=lag))
     if run_id:
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
@@ -233,6 +243,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
               help=TOPIC_HELP + " (source.topics of the pipeline file)")
 @click.option("--view", is_flag=True, help=VIEW_HELP)
 @click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@_LAG_OPT
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors (no progress lines).")
@@ -240,8 +251,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: str | None,
            params_arg: str | None, seed: int, overrides: tuple[str, ...], run_id: str | None,
            out: Path | None, start: str | None, end: str | None, loops: int | None, keep_prior: bool,
-           topics: tuple[str, ...], view: bool, view_connect: str | None, timeout: float | None, overwrite: bool,
-           quiet: bool) -> None:
+           topics: tuple[str, ...], view: bool, view_connect: str | None, lag: int | None, timeout: float | None,
+           overwrite: bool, quiet: bool) -> None:
     """Replay an MCAP measurement log through the streaming pipeline.
 
     Same processes as `launch`, with an MCAP replay source. The tracks do not depend on the
@@ -270,7 +281,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
         source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
                                    start_s=start_s, start_frame=start_frame, end_s=end_s,
                                    end_frame=end_frame, topics=mapping),
-        tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed,
+        tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed, lag=lag or 0,
                                     config=config_arg or "", params=params_arg or ""),
     )
     from bnptrack.pipeline.config import apply_pipeline_overrides

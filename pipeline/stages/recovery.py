@@ -145,6 +145,12 @@ class Snapshot(msgspec.Struct, kw_only=True):
     last_stamp_ns: int | None = None
     rejected: list[int] = []
     eos: EndOfStream | None = None  # set once the tracker has finished the run
+    lag: int = 0
+    """The stage's ``tracker.lag``: ``state`` holds the fixed-lag window too
+    (:mod:`pipeline.stages.tracker_output`)."""
+    published_seq: int | None = None
+    """The last ``/tracks`` sequence number published (``None``: ``last_seq``; with a lag, the
+    one before the window's first frame): the journal is cut back to it on resume."""
 
 
 def read_snapshot(path: str | os.PathLike) -> Snapshot:
@@ -210,7 +216,10 @@ PRIOR_FIELDS = ("alpha", "d", "hyper_loglik")
 
 def keep_prior(initial: Any, snap: Snapshot, tracker: str) -> Any:
     """``initial`` (a fresh state: no track) with the :data:`PRIOR_FIELDS` of the state in
-    ``snap`` (an earlier run of the same tracker); :class:`ConfigError` otherwise."""
+    ``snap`` (an earlier run of the same tracker, with or without a lag); :class:`ConfigError`
+    otherwise."""
+    from bnptrack.pipeline.stages.tracker_output import inner_snapshot
+
     import dataclasses
 
     from bnptrack.tracker.state import restore
@@ -220,5 +229,5 @@ def keep_prior(initial: Any, snap: Snapshot, tracker: str) -> Any:
     if not all(hasattr(initial, f) for f in PRIOR_FIELDS):
         raise ConfigError(f"tracker.prior_from: the {tracker} tracker has no prior to keep "
                           f"({', '.join(PRIOR_FIELDS)})")
-    old = restore(snap.state, type(initial))
+    old = restore(inner_snapshot(snap.state, snap.lag), type(initial))
     return dataclasses.replace(initial, **{f: getattr(old, f) for f in PRIOR_FIELDS})

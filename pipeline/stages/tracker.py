@@ -21,6 +21,7 @@ from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, Accepted, HoleWatch
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
 from bnptrack.pipeline.stages.salvage import UpstreamWatch
+from bnptrack.pipeline.stages.tracker_output import StageOutput
 from bnptrack.pipeline.stages.tracker_snapshots import TrackerSnapshots
 from bnptrack.pipeline.stages.tracker_core import Skip, Step, TrackerCore
 from bnptrack.pipeline.stages.tracker_warmup import preload_tracker, warm_tracker_imports, warm_up_tracker
@@ -101,24 +102,24 @@ class TrackerStage(TrackerSnapshots, StageBase):
         #: the background import of LAZY_IMPORTS, started by the first large frame
         self.lazy_importing: threading.Thread | None = None
         self.last_tracks = 0  # tracks of the last frame's estimate
+        self.output: StageOutput | None = None  # the tracker with the stage's lag
 
     # -- setup -------------------------------------------------------------------------
     def _build(self, info: StageInfo) -> None:
-        from bnptrack.tracker.state import restore
-
         tc = self.tc
         if self.preloading is not None:  # no import of the build races the preload's
             self.preloading.join()
         setup = build_stage_tracker(tc, info.metadata)
         self.tracker = setup.tracker
+        self.output = StageOutput(self.tracker, setup.params, tc.lag)
         initial = self.tracker.initial_state()
         if self.restored is not None:
-            self.state = restore(self.restored.state, type(initial))
+            self.state = self.output.restore(self.restored.state, type(initial))
         elif tc.prior_from:
-            self.state = keep_prior(initial, read_snapshot(tc.prior_from), tc.tracker)
+            self.state = self.output.initial_state(keep_prior(initial, read_snapshot(tc.prior_from), tc.tracker))
             log.info("%s: starting from the prior of %s", self.name, tc.prior_from)
         else:
-            self.state = initial
+            self.state = self.output.initial_state(initial)
         warm_up_tracker(self.tracker)
         self.publish_control("info", StageInfo(stage=self.name, run=self.run_id, kind=tc.tracker,
                                                metadata={**setup.metadata, "run": self.run_id}, tracker=tc.tracker,
@@ -140,9 +141,9 @@ class TrackerStage(TrackerSnapshots, StageBase):
                 self.intake.reject_sample("measurements", act.payload, s, act.why)
 
     def _step(self, s: int, acc: Accepted, frame: Frame) -> None:
-        """Track frame ``s``, publish its tracks, then journal them, snapshot when due and
-        build the next frame's generator (after the put: not between a frame's receipt and
-        its tracks)."""
+        """Track frame ``s``, publish its tracks (with a lag: those of the frame ``lag``
+        before), then journal them, snapshot when due and build the next frame's generator
+        (after the put: not between a frame's receipt and its tracks)."""
         from bnptrack.tracker.state import tracker_frame_rng
 
         if self.lazy_importing is None and self._lazy_imports_due(frame):
@@ -153,32 +154,56 @@ class TrackerStage(TrackerSnapshots, StageBase):
         clock = self.clock
         t_s0 = clock.time_ns()
         t0 = clock.perf_counter()
-        state, est = self.tracker.step(self.state, frame, rng)
+        # t: the source's publication time (end-to-end latency); t_in: when the tracker
+        # received the frame; t_deq: when the main thread took it off the bus
+        entry = (s, {"t": acc.meta.get("t", 0), "t_in": acc.t_recv_ns, "t_deq": self.t_deq_ns})
+        state, out = self.output.step(self.state, frame, rng, entry)
         t1 = clock.perf_counter()
         t_s1 = clock.time_ns()
-        payload = encode(est, self.run_id)
-        # t: the source's publication time (end-to-end latency); t_in / t_out: when the
-        # tracker received the frame and published its tracks; t_deq: when the main thread
-        # took it off the bus; t_s0 / t_s1: around the step (the per-segment breakdown of
-        # benchmarks/pipeline_latency.py, read back from the journal)
-        meta = {"seq": s, "t": acc.meta.get("t", 0), "frame": frame.frame, "t_in": acc.t_recv_ns,
-                "t_deq": self.t_deq_ns, "t_s0": t_s0, "t_s1": t_s1, "t_out": clock.time_ns()}
-        self.bus.publish("tracks", payload, meta)
+        records = [self._publish(e, est, t_s0, t_s1) for e, est in out]
         self.step_ms.append((t1 - t0) * 1e3)
         # the state advances only once its output is out (a snapshot is always consistent)
         self.state = state
         self.core.stepped(s, frame)
-        self.last_tracks = len(est.tracks)
-        try:
-            self.journal.append(s, payload, meta)
-        except OSError as exc:
-            raise StageIOError(self.name, self.journal.path, exc) from None
+        self._journal(records)
         self.counters.processed += 1
-        self.counters.published += 1
         self.since_snapshot += 1
         if self.since_snapshot >= self.tc.snapshot_every:
             self.snapshot()
         self.next_rng = (frame.frame + 1, tracker_frame_rng(self.tc.seed, frame.frame + 1))
+
+    def _publish(self, entry: tuple[int, dict], est: Any, t_s0: int, t_s1: int) -> tuple[int, bytes, dict]:
+        """Publish ``est`` as the ``/tracks`` sample of ``entry``'s sequence number; returns
+        its journal record.  ``t_s0`` / ``t_s1``: around the step, ``t_out``: when the tracks
+        were published (the per-segment breakdown of benchmarks/pipeline_latency.py, read
+        back from the journal)."""
+        s, taken = entry
+        payload = encode(est, self.run_id)
+        meta = {"seq": s, "t": taken["t"], "frame": est.frame, "t_in": taken["t_in"], "t_deq": taken["t_deq"],
+                "t_s0": t_s0, "t_s1": t_s1, "t_out": self.clock.time_ns()}
+        self.bus.publish("tracks", payload, meta)
+        self.last_tracks = len(est.tracks)
+        return s, payload, meta
+
+    def _journal(self, records: list[tuple[int, bytes, dict]]) -> None:
+        """Append published samples to the journal (after the state advanced)."""
+        for s, payload, meta in records:
+            try:
+                self.journal.append(s, payload, meta)
+            except OSError as exc:
+                raise StageIOError(self.name, self.journal.path, exc) from None
+            self.counters.published += 1
+
+    def _flush_window(self) -> None:
+        """At the end of the stream: publish the frames still in the fixed-lag window."""
+        if self.output is None:
+            return
+        state, out = self.output.flush(self.state)
+        if out:
+            now = self.clock.time_ns()
+            records = [self._publish(e, est, now, now) for e, est in out]
+            self.state = state
+            self._journal(records)
 
     def _lazy_imports_due(self, frame: Frame) -> bool:
         """Whether ``frame`` is large enough (:data:`LAZY_PAIRS`) for the large frames'
@@ -326,6 +351,7 @@ class TrackerStage(TrackerSnapshots, StageBase):
                 self._process(seq.flush_through(eos.last_seq))
         if not seq.complete_through(eos.last_seq):
             return False
+        self._flush_window()
         self.finished_eos = EndOfStream(
             stage=self.name, run=self.run_id, last_seq=eos.last_seq,
             frames=self.counters.processed, gaps=list(seq.gaps),

@@ -3,7 +3,7 @@
 stage that had finished the run announcing its end again.
 
 :class:`TrackerSnapshots` is a base class of :class:`~pipeline.stages.tracker.TrackerStage`
-and works on its state: ``tc``, ``snap_path``, ``core``, ``tracker``, ``state``, ``journal``,
+and works on its state: ``tc``, ``snap_path``, ``core``, ``tracker``, ``output``, ``state``, ``journal``,
 ``writer``, ``counters``, ``restored``, ``finished_eos``, ``since_snapshot``.
 """
 
@@ -16,6 +16,7 @@ import msgspec
 from bnptrack.pipeline.stages.base import EXIT_OK, StageIOError
 from bnptrack.pipeline.stages.delivery import Sequencer
 from bnptrack.pipeline.stages.recovery import Snapshot, read_snapshot
+from bnptrack.pipeline.stages.tracker_output import WindowState, published_through
 from bnptrack.tracker.config import ConfigError
 
 __all__ = ["TrackerSnapshots"]
@@ -34,14 +35,18 @@ class TrackerSnapshots:
             return []
         if self.snap_path.exists():
             self._apply_snapshot(read_snapshot(self.snap_path))
-        return self.journal.resume(self.core.last_seq)
+        restored = self.restored
+        published = self.core.last_seq if restored is None or restored.published_seq is None \
+            else restored.published_seq
+        return self.journal.resume(published)
 
     def _apply_snapshot(self, snap: Snapshot) -> None:
-        if (snap.run, snap.tracker, snap.seed) != (self.run_id, self.tc.tracker, self.tc.seed):
+        tc = self.tc
+        if (snap.run, snap.tracker, snap.seed, snap.lag) != (self.run_id, tc.tracker, tc.seed, tc.lag):
             raise ConfigError(
                 f"{self.snap_path}: snapshot of run {snap.run!r}, tracker {snap.tracker!r}, seed "
-                f"{snap.seed} does not match this stage (run {self.run_id!r}, tracker "
-                f"{self.tc.tracker!r}, seed {self.tc.seed}); delete it or set tracker.resume = false"
+                f"{snap.seed}, lag {snap.lag} does not match this stage (run {self.run_id!r}, tracker "
+                f"{tc.tracker!r}, seed {tc.seed}, lag {tc.lag}); delete it or set tracker.resume = false"
             )
         self.restored = snap
         seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
@@ -58,12 +63,12 @@ class TrackerSnapshots:
         """Snapshot the state (written in the background; ``wait``: until it is on disk)."""
         if self.tracker is None or self.state is None:
             return
-        from bnptrack.tracker.state import snapshot
-
         core = self.core
+        entries = self.state.entries if isinstance(self.state, WindowState) else ()
         snap = Snapshot(
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=core.last_seq,
-            last_frame=core.last_frame, state=snapshot(self.state), gaps=list(core.seq.gaps),
+            last_frame=core.last_frame, state=self.output.snapshot(self.state), gaps=list(core.seq.gaps),
+            lag=self.tc.lag, published_seq=published_through(core.last_seq, entries),
             last_stamp_ns=core.last_stamp_ns, rejected=list(core.rejected_seqs),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},

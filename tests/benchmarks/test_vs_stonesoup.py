@@ -140,3 +140,20 @@ def test_missing_stonesoup_prints_one_line_and_exits(monkeypatch, capsys):
     assert vs.main(["--seeds", "1"]) == 2
     err = capsys.readouterr().err
     assert err.strip() == vs.MISSING and "pip install -e '.[compare]'" in err
+
+
+def test_lagged_rows_of_a_tracker_are_the_fixed_lag_layer_output():
+    from benchmarks.lagged_anchors import lagged_bnp
+    from benchmarks.vs_stonesoup import _tiny_scene
+    from bnptrack.tracker.lag import FixedLag, run_lagged
+    from bnptrack.tracker.registry import build, kind
+
+    params = load_params("vo2017", ["birth=[]"])
+    frames = _tiny_scene(params, 8)
+    tracker = build("ddp-mb", params, kind("ddp-mb").presets["ddp-mb"])
+    scans = lagged_bnp(tracker, params, frames, 3, 2, Scan)
+    direct = [e for _f, e, _s in run_lagged(FixedLag(tracker, params, 2), frames, 3)]
+    assert len(scans) == len(direct) == 8
+    for s, e in zip(scans, direct):
+        assert s.labels == e.labels and s.ms >= 0
+        np.testing.assert_array_equal(s.positions, np.asarray(e.positions).reshape(-1, 2))

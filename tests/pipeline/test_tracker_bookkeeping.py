@@ -14,6 +14,7 @@ from bnptrack.pipeline.membus import MemoryBus, MemoryNetwork
 from bnptrack.pipeline.stages import StageContext, TrackerStage
 from bnptrack.pipeline.stages.recovery import read_snapshot
 from bnptrack.pipeline.stages.tracker import build_stage_tracker
+from bnptrack.pipeline.stages.tracker_output import StageOutput
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
 from bnptrack.tracker.messages import encode
@@ -34,7 +35,9 @@ def _stage(tmp_path, bus=None, snapshot_every=50):
                                                                 snapshot_every=snapshot_every)))
     stage = TrackerStage(StageContext(cfg, bus or MemoryNetwork().bus("r", "tracker"), name="tracker"))
     stage._restore()
-    stage.tracker = build_stage_tracker(stage.tc, META).tracker
+    setup = build_stage_tracker(stage.tc, META)
+    stage.tracker = setup.tracker
+    stage.output = StageOutput(setup.tracker, setup.params, 0)
     stage.state = stage.tracker.initial_state()
     return stage
 

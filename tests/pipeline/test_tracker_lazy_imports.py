@@ -14,6 +14,7 @@ from bnptrack.pipeline.events import Event
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import StageContext, TrackerStage
 from bnptrack.pipeline.stages.tracker import LAZY_IMPORTS, LAZY_PAIRS, build_stage_tracker
+from bnptrack.pipeline.stages.tracker_output import StageOutput
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
 from bnptrack.tracker.messages import encode
@@ -37,7 +38,9 @@ def _stage(tmp_path):
                                      tracker=TrackerStageConfig(tracker="ddp", seed=3)))
     stage = TrackerStage(StageContext(cfg, MemoryNetwork().bus("r", "tracker"), name="tracker"))
     stage._restore()
-    stage.tracker = build_stage_tracker(stage.tc, META).tracker
+    setup = build_stage_tracker(stage.tc, META)
+    stage.tracker = setup.tracker
+    stage.output = StageOutput(setup.tracker, setup.params, 0)
     stage.state = stage.tracker.initial_state()
     return stage
 
@@ -84,6 +87,7 @@ def test_a_large_frame_starts_them_once_before_its_step(tmp_path, imports):
             return self.tracker.step(state, frame, rng)
 
     stage.tracker = Noting(stage.tracker)
+    stage.output = StageOutput(stage.tracker, None, 0)
     _push(stage, _frame(1, 44), 0)  # 44 x 44 = 1936 < 2000: nothing yet
     assert imports == [] and started_at == [0]
     _push(stage, _frame(2, 45), 1)  # 45 x 45 = 2025: started before the frame's step

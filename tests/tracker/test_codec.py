@@ -420,7 +420,7 @@ def _track(**over):
         ({"assignment_prob": [0.5]}, ["len(assignments) = 2", "len(assignment_prob) = 1"]),
         ({"assignments": ["t1", 3]}, ["$.assignments[1]"]),
         ({"diagnostics": {"alpha": "x"}}, ["$.diagnostics"]),
-        ({"v": 4}, ["unsupported schema version 4"]),
+        ({"v": 5}, ["unsupported schema version 5"]),
         ({"tracks": [_track(label=f"t{i}") for i in range(MAX_TRACKS + 1)]}, ["$.tracks"]),
     ],
 )

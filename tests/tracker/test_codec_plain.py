@@ -140,7 +140,7 @@ def test_tracks_and_truth_checks_accept_the_common_message_and_name_errors():
     track = TrackMsg(label="a", state=[1.0] * 5, covariance=[0.0] * 25, existence=0.9)
     check_tracks(_tracks())
     check_tracks(_tracks(v=1, cardinality_pmf=msgspec.UNSET))
-    bad = [(_tracks(v=4), "unsupported schema version 4"),
+    bad = [(_tracks(v=5), "unsupported schema version 5"),
            (_tracks(tracks=[track, track]), r"duplicate track label 'a' - at `\$\.tracks\[1\]`"),
            (_tracks(assignment_prob=[0.8]), r"len\(assignments\) = 2 != len\(assignment_prob\) = 1"),
            (_tracks(assignment_prob=[0.8, 1.5]), r"probability must be in \[0, 1\], got 1\.5 - at `\$\.assignment_prob\[1\]`"),

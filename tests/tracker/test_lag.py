@@ -61,7 +61,7 @@ def test_every_frame_is_published_once_in_order_with_its_lag():
     frames = [_xy(k, [[0.0, 0.0]]) for k in range(6)]
     out = _run({k: [] for k in range(6)}, frames, lag=2)
     assert [k for k, _ in out] == [0, 1, 2, 3, 4, 5]
-    assert all(e.diagnostics["lag"] == 2.0 and e.frame == k for k, e in out)
+    assert all(e.lag == 2 and e.frame == k for k, e in out)
 
 
 def test_a_dead_track_ends_at_its_last_detection():
