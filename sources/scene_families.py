@@ -1,4 +1,4 @@
-r"""Seeded generated scenario families: ``random`` and the held-out ``random-cv``.
+r"""Seeded generated scenario families: ``random``, the held-out ``random-cv`` and the ``groups`` families.
 
 A family is a pure function ``(family name, scene seed, family parameters) -> Scenario``
 (:func:`generate_scene`).  The parameters are a :class:`SceneFamily` (``--set scene.KEY=VALUE``
@@ -51,6 +51,14 @@ side of the crossing) is redrawn.
     (``Pr(s) ~ s^-(1+d)``); plus one free object.  ``group_partition = "sizes"`` is the first
     version (8 groups with i.i.d. sizes ``Pr(s) ~ s^-group_size_power`` on 1-10, not a PY
     partition: its EPPF barely tells ``d`` from 0, ``docs/trackers.md``).
+``groups-py`` (where a discount can matter)
+    A Pitman-Yor partition (``py_alpha`` 1, ``py_discount`` 0.6; 0 and 0.3 by ``scene.py_discount``)
+    of ``py_objects..py_objects_max`` (100-300) objects, no size cap, no passing pairs: every
+    group's centre is uniform in a disc of ``group_region`` (400 m) about one anchor point that
+    moves with the scene velocity (speed 2-8 m/s, straight), its velocity that velocity plus
+    N(0, ``group_velocity_std``^2 I) (2 m/s), its members within ``member_spacing * sqrt(size)``
+    (15 m) of its centre; plus one free object; ``K`` = 50 scans.  Groups overlap in space and
+    velocity, so a membership is ambiguous from one frame.
 
 Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
 are defined for ``T = 1`` s (the crossing distance holds for that period).
@@ -80,6 +88,10 @@ __all__ = [
     "CROSSING_MIN_SIDE",
 ]
 
+#: ``groups-py``'s scene settings (chosen on scene seeds 101-110, which no reported figure uses).
+GROUPS_PY_REGION = 400.0
+GROUPS_PY_VEL_STD = 2.0
+GROUPS_PY_SPACING = 15.0
 #: Scans a crossing-pair object is present on each side of its crossing scan (at least).
 CROSSING_MIN_SIDE = 7
 _MAX_TRIES = 2000
@@ -126,8 +138,19 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     Pitman-Yor partition of ``py_objects`` objects (``py_alpha``, ``py_discount``), sizes <=
     ``group_size_max`` (redrawn), singletons included (size-1 groups)."""
     py_objects: int = 24
+    py_objects_max: int = 0
+    """0: the partition has exactly ``py_objects`` objects; else uniform in ``py_objects..py_objects_max``."""
     py_alpha: float = 1.0
     py_discount: float = 0.6
+    group_region: float = 0.0
+    """0: a group's centre anywhere in the box; > 0: uniform in a disc of this radius (m) about
+    the scene's anchor, one point that moves with the scene velocity (groups overlap in space)."""
+    group_velocity_std: float = 0.0
+    """0: each group's velocity drawn as a free object's; > 0: the scene velocity (drawn once, as
+    a free object's) plus N(0, std^2 I) per group, turn rate 0 (groups overlap in velocity)."""
+    member_spacing: float = 0.0
+    """0: members within ``group_spacing`` of the centre; > 0: within ``member_spacing * sqrt(size)``
+    (the same density for every size)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -158,6 +181,10 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             (self.py_objects >= 2 * self.passing_pairs and 0.0 <= self.py_discount < 1.0
              and self.py_alpha > -self.py_discount, "need py_objects >= 2 passing_pairs, 0 <= py_discount < 1, "
              "py_alpha > -py_discount"),
+            (self.py_objects_max == 0 or self.py_objects_max >= self.py_objects, "need py_objects_max >= py_objects (or 0)"),
+            (0.0 <= self.group_region <= 1000.0 and 0.0 <= self.group_velocity_std <= 20.0
+             and 0.0 <= self.member_spacing <= 50.0,
+             "need group_region in [0, 1000] m, group_velocity_std in [0, 20] m/s, member_spacing in [0, 50] m"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -182,6 +209,12 @@ FAMILIES: dict[str, SceneFamily] = {
         group_size_max=10, group_size_power=1.5, life_min=20, speed_min=5.0, speed_max=30.0,
         turn_max_deg=2.0, group_partition="pitman-yor",
     ),
+    "groups-py": SceneFamily(
+        n_min=1, n_max=1, crossing_pairs=0, life_min=20, speed_min=2.0, speed_max=8.0, turn_max_deg=0.0,
+        straight_fraction=1.0, group_size_min=1, group_size_max=300, group_partition="pitman-yor",
+        py_objects=100, py_objects_max=300, group_region=GROUPS_PY_REGION, group_velocity_std=GROUPS_PY_VEL_STD,
+        member_spacing=GROUPS_PY_SPACING, K=50,
+    ),
 }
 
 _DESCRIPTIONS = {
@@ -194,6 +227,8 @@ _DESCRIPTIONS = {
     "groups-pl": "Generated: groups that are a Pitman-Yor partition (d 0.6, alpha 1) of 24 objects, sizes <= 10 "
                  "(many singletons, a few big groups), one passing pair, "
                  "plus 1 independent object",
+    "groups-py": "Generated: groups that are a Pitman-Yor partition (d 0.6, alpha 1) of 100-300 objects, "
+                 "overlapping in space and velocity (ambiguous memberships), plus 1 independent object",
 }
 
 
@@ -357,8 +392,9 @@ def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -
 
 def _group_sizes(rng: np.random.Generator, fam: SceneFamily) -> list[int]:
     if fam.group_partition == "pitman-yor" and not fam.group_sizes:
+        n = int(rng.integers(fam.py_objects, fam.py_objects_max + 1)) if fam.py_objects_max else fam.py_objects
         for _ in range(_MAX_TRIES):
-            sizes = pitman_yor_sizes(rng, fam.py_objects, fam.py_alpha, fam.py_discount)
+            sizes = pitman_yor_sizes(rng, n, fam.py_alpha, fam.py_discount)
             if max(sizes) <= fam.group_size_max and len(sizes) >= 2 * fam.passing_pairs:
                 return sizes
         raise ConfigError("scene: no Pitman-Yor partition within group_size_max; relax the scene.* settings")
@@ -378,16 +414,50 @@ def _offsets(rng: np.random.Generator, size: int, radius: float) -> np.ndarray:
     return out
 
 
-def _group(rng: np.random.Generator, fam: SceneFamily, size: int) -> list[_Object]:
+@dataclass(frozen=True)
+class _Anchor:
+    """The scene's shared point and velocity (``group_region`` / ``group_velocity_std``)."""
+
+    pos: np.ndarray  # at scan 1
+    vel: np.ndarray  # [vx, vy, omega]
+
+
+def _anchor(rng: np.random.Generator, fam: SceneFamily) -> _Anchor:
+    """A point and a velocity (a free object's, turn rate 0) that keep the point in the box for all K scans."""
+    for _ in range(_MAX_TRIES):
+        pos = _position(rng, fam)
+        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
+        vel[2] = 0.0
+        if _inside_run(_propagate(_state(pos, vel), fam.K - 1, 1.0), fam) == fam.K:
+            return _Anchor(pos, vel)
+    raise ConfigError("scene: could not place the group anchor inside the field; relax the scene.* settings")
+
+
+def _group_motion(rng: np.random.Generator, fam: SceneFamily, b: int, anchor: _Anchor | None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A group's ``(velocity, centre at scan b)``: free (anchor None, the ``groups`` draws) or about the anchor."""
+    if anchor is None:
+        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
+        return vel, _position(rng, fam)
+    vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
+    if fam.group_velocity_std > 0:
+        vel = anchor.vel + np.append(rng.normal(0.0, fam.group_velocity_std, 2), 0.0)
+    if fam.group_region <= 0:
+        return vel, _position(rng, fam)
+    centre = anchor.pos + (b - 1) * anchor.vel[:2] + _offsets(rng, 2, fam.group_region)[1]
+    return vel, centre
+
+
+def _group(rng: np.random.Generator, fam: SceneFamily, size: int, anchor: _Anchor | None = None) -> list[_Object]:
     """A formation born in the box: members share velocity and turn rate, offset positions."""
+    radius = fam.member_spacing * np.sqrt(size) if fam.member_spacing > 0 else fam.group_spacing
     for _ in range(_MAX_TRIES):
         b = _birth_scan(rng, fam, np.zeros(0, dtype=int))
         life = int(rng.integers(fam.life_min, fam.life_max + 1))
         d = min(b + life - 1, fam.K)
-        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
-        centre = _position(rng, fam)
+        vel, centre = _group_motion(rng, fam, b, anchor)
         objs = []
-        for off in _offsets(rng, size, fam.group_spacing):
+        for off in _offsets(rng, size, radius):
             x = _state(centre + off, vel)
             kept = _inside_run(_propagate(x, d - b, 1.0), fam)
             if kept < fam.life_min:
@@ -432,7 +502,9 @@ def _all_groups(rng: np.random.Generator, fam: SceneFamily) -> list[list[_Object
     out: list[list[_Object]] = []
     for i in range(fam.passing_pairs):
         out += _passing_groups(rng, fam, (sizes[2 * i], sizes[2 * i + 1]))
-    out += [_group(rng, fam, s) for s in sizes[2 * fam.passing_pairs:]]
+    shared = fam.group_region > 0 or fam.group_velocity_std > 0
+    anchor = _anchor(rng, fam) if shared else None
+    out += [_group(rng, fam, s, anchor) for s in sizes[2 * fam.passing_pairs:]]
     return out
 
 
@@ -462,7 +534,7 @@ def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
         objs += [a, b]
     objs += [_free_object(rng, fam, bursts) for _ in range(n - len(objs))]
     member_of: list[list[int]] = []
-    for g in _all_groups(rng, fam) if fam.n_groups or fam.group_sizes else []:
+    for g in _all_groups(rng, fam) if fam.n_groups or fam.group_sizes or fam.group_partition == "pitman-yor" else []:
         member_of.append(list(range(len(objs), len(objs) + len(g))))
         objs += g
     n = len(objs)
