@@ -47,6 +47,7 @@ from bnptrack.sinks.partitions import binder_point, n_blocks, similarity_matrix,
 from bnptrack.sources.scenarios import get_scenario  # noqa: E402
 from bnptrack.sources.synthetic import simulate_all  # noqa: E402
 from bnptrack.tracker.bnp.group_posterior import PosteriorGroupTracker, grid_interval  # noqa: E402
+from bnptrack.tracker.config import apply_overrides  # noqa: E402
 from bnptrack.tracker.models.params import load_params  # noqa: E402
 from bnptrack.tracker.registry import build, kind  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
@@ -60,8 +61,8 @@ D_FRAMES = (10, 20, 30, 40, 50)
 EFFECTS = {"ari": 0.02, "ospa": 0.5, "ospa2": 0.5}
 
 
-def posterior_tracker(name: str, params, opts: dict) -> PosteriorGroupTracker:
-    base = build(name, params, kind(name).presets[name])
+def posterior_tracker(name: str, params, opts: dict, overrides: tuple[str, ...] = ()) -> PosteriorGroupTracker:
+    base = build(name, params, apply_overrides(kind(name).presets[name], list(overrides)))
     return PosteriorGroupTracker(base.params, base.config, base.name, **opts)
 
 
@@ -106,15 +107,15 @@ def _log_iter(tracker: PosteriorGroupTracker):
 
 
 def one_pair(job: tuple) -> dict:
-    d, seed, opts, scene = job
+    d, seed, opts, scene, overrides = job
     t0 = time.process_time()
     sc = get_scenario(FAMILY, seed=seed, scene=(f"py_discount={d}", *scene))
     params = sc.adapt_params(load_params("vo2017"))
     frames = simulate_all(sc, params, seed)
     out = {"d": d, "seed": seed, "objects": len(sc.targets), "groups": len(sc.groups), "settings": opts,
-           "scene": list(scene)}
+           "scene": list(scene), "set": list(overrides)}
     for name in TRACKERS:
-        out[name] = score_tracker(posterior_tracker(name, params, opts), sc, frames, seed)
+        out[name] = score_tracker(posterior_tracker(name, params, opts, overrides), sc, frames, seed)
     out["cpu_s"] = round(time.process_time() - t0, 1)
     return out
 
@@ -130,7 +131,7 @@ def run_jobs(args) -> None:
     done = {(r["d"], r["seed"]) for r in read_journal(args.journal)}
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     # seed-major order: a run stopped early holds every d on the same first seeds
-    jobs = [(d, s, opts, tuple(args.scene)) for s in seeds for d in args.discounts if (d, s) not in done]
+    jobs = [(d, s, opts, tuple(args.scene), tuple(args.overrides)) for s in seeds for d in args.discounts if (d, s) not in done]
     args.journal.parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(args.workers) as pool, args.journal.open("a") as fh:
         for r in pool.map(one_pair, jobs):
@@ -220,8 +221,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--burn", type=int, default=20)
     ap.add_argument("--keep", type=int, default=20)
     ap.add_argument("--first-frame", type=int, default=10)
-    ap.add_argument("--every", type=int, default=5)
+    ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--scene", action="append", default=[], help="further scene.* settings, KEY=VALUE (dev runs)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    help="a tracker setting KEY=VALUE for both trackers (dev runs)")
     ap.add_argument("--analyse", action="store_true", help="only analyse the journal")
 
     args = ap.parse_args(argv)

@@ -56,7 +56,7 @@ side of the crossing) is redrawn.
     of ``py_objects..py_objects_max`` (100-300) objects, no size cap, no passing pairs: every
     group's centre is uniform in a disc of ``group_region`` (400 m) about one anchor point that
     moves with the scene velocity (speed 2-8 m/s, straight), its velocity that velocity plus
-    N(0, ``group_velocity_std``^2 I) (2 m/s), its members within ``member_spacing * sqrt(size)``
+    N(0, ``group_velocity_std``^2 I) (5 m/s), its members within ``member_spacing * sqrt(size)``
     (15 m) of its centre; plus one free object; ``K`` = 50 scans.  Groups overlap in space and
     velocity, so a membership is ambiguous from one frame.
 
@@ -90,7 +90,7 @@ __all__ = [
 
 #: ``groups-py``'s scene settings (chosen on scene seeds 101-110, which no reported figure uses).
 GROUPS_PY_REGION = 400.0
-GROUPS_PY_VEL_STD = 2.0
+GROUPS_PY_VEL_STD = 5.0
 GROUPS_PY_SPACING = 15.0
 #: Scans a crossing-pair object is present on each side of its crossing scan (at least).
 CROSSING_MIN_SIDE = 7
