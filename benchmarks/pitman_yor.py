@@ -210,6 +210,26 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def verdict_text(result: dict) -> str:
+    """One paragraph: for which true d the claim holds, does not hold or is not decided, and for
+    each metric whether its interval excludes a difference as large as the pre-stated effect."""
+    by = {}
+    for d, r in result.items():
+        by.setdefault(r["verdict"], []).append(d)
+    parts = [f"**{v}** for true d = {', '.join(ds)}" for v, ds in by.items()]
+    small = []
+    for d, r in result.items():
+        inside = [m for m, c in r["cells"].items() if -c["effect"] < c["mean"] - c["half"] and c["mean"] + c["half"] < c["effect"]]
+        if inside:
+            names = {"ari": "ARI", "ospa": "OSPA", "ospa2": "OSPA(2)"}
+            small.append(f"d = {d}: {', '.join(names[m] for m in inside)}")
+    text = "On `groups-py` the claim \"DPY-STP beats DDP-EMM\" " + "; ".join(parts) + "."
+    if small:
+        text += (" Intervals inside (-effect, +effect), i.e. no difference as large as the pre-stated effect: "
+                 + "; ".join(small) + ".")
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--discounts", type=float, nargs="+", default=[0.0, 0.3, 0.6])
@@ -232,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         run_jobs(args)
     result = analyse(read_journal(args.journal), EFFECTS)
     print(markdown(result))
+    print()
+    print(verdict_text(result))
     print(json.dumps(result))
     return 0
 

@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         import pitman_yor
 
-        py_text = pitman_yor.markdown(py)
+        py_text = pitman_yor.markdown(py) + "\n\n" + pitman_yor.verdict_text(py)
     else:
         py_text = "Not run yet: `benchmarks/pitman_yor.py` (the command above) writes the journal this table reads."
     text = text.replace("{{protocol}}", protocol).replace("{{machine}}", machine_line())
