@@ -216,14 +216,14 @@ def verdict_text(result: dict) -> str:
     by = {}
     for d, r in result.items():
         by.setdefault(r["verdict"], []).append(d)
-    parts = [f"**{v}** for true d = {', '.join(ds)}" for v, ds in by.items()]
+    parts = [f"true d = {', '.join(ds)}: **{v}**" for v, ds in by.items()]
     small = []
     for d, r in result.items():
         inside = [m for m, c in r["cells"].items() if -c["effect"] < c["mean"] - c["half"] and c["mean"] + c["half"] < c["effect"]]
         if inside:
             names = {"ari": "ARI", "ospa": "OSPA", "ospa2": "OSPA(2)"}
             small.append(f"d = {d}: {', '.join(names[m] for m in inside)}")
-    text = "On `groups-py` the claim \"DPY-STP beats DDP-EMM\" " + "; ".join(parts) + "."
+    text = "On `groups-py`, the claim \"DPY-STP beats DDP-EMM\": " + "; ".join(parts) + "."
     if small:
         text += (" Intervals inside (-effect, +effect), i.e. no difference as large as the pre-stated effect: "
                  + "; ".join(small) + ".")

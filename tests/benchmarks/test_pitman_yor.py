@@ -69,11 +69,11 @@ def test_analysis_per_discount_and_the_report_rows(tmp_path):
     assert "| 0.6 | 4 (1-4) | 0.520 / 0.500 |" in text
     assert report.pitman_yor_result(tmp_path / "absent.jsonl") is None
     # ARI +0.02 exactly, no spread: its interval is not inside (-0.02, +0.02); OSPA -0.5 is not either
-    assert py.verdict_text(res).startswith('On `groups-py` the claim "DPY-STP beats DDP-EMM" **')
+    assert py.verdict_text(res).startswith('On `groups-py`, the claim "DPY-STP beats DDP-EMM": true d = ')
 
 
 def test_verdict_text_names_the_small_intervals():
     recs = [_record(0.3, s, 0.001 * (s % 3 - 1), -1.0 - 0.01 * s, -1.0 - 0.01 * s) for s in range(8)]
     text = py.verdict_text(py.analyse(recs, py.EFFECTS))
     # ARI differences -0.001, 0, +0.001: interval well inside +-0.02; OSPA's at -1: outside +-0.5
-    assert "**not decided** for true d = 0.3" in text and "d = 0.3: ARI." in text
+    assert "true d = 0.3: **not decided**." in text and "d = 0.3: ARI." in text
