@@ -68,11 +68,24 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import msgspec
 import numpy as np
 
+from bnptrack.sources.scene_geometry import (
+    _MAX_TRIES,
+    CROSSING_MIN_SIDE,
+    _birth_scan,
+    _crossing_side,
+    _inside_run,
+    _Object,
+    _position,
+    _propagate,
+    _state,
+    _velocity,
+    in_field,
+)
+from bnptrack.sources.scene_groups import _all_groups, pitman_yor_sizes
 from bnptrack.tracker.config import ConfigError, apply_overrides
 from bnptrack.tracker.models.motion import CoordinatedTurn
 
@@ -86,15 +99,13 @@ __all__ = [
     "family_template",
     "in_field",
     "CROSSING_MIN_SIDE",
+    "pitman_yor_sizes",
 ]
 
 #: ``groups-py``'s scene settings (chosen on scene seeds 101-110, which no reported figure uses).
 GROUPS_PY_REGION = 400.0
 GROUPS_PY_VEL_STD = 5.0
 GROUPS_PY_SPACING = 15.0
-#: Scans a crossing-pair object is present on each side of its crossing scan (at least).
-CROSSING_MIN_SIDE = 7
-_MAX_TRIES = 2000
 
 
 class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -265,70 +276,8 @@ class _Wrapped(msgspec.Struct, frozen=True):
 
 
 # ----------------------------------------------------------------------------------
-# Geometry
-# ----------------------------------------------------------------------------------
-def in_field(states: np.ndarray, fam: SceneFamily) -> np.ndarray:
-    """``(...)`` bool: position of ``(..., 5)`` states inside the family's box."""
-    px, py = states[..., 0], states[..., 2]
-    r = np.hypot(px, py)
-    bearing = np.arctan2(px, py)
-    return ((r >= fam.range_min) & (r <= fam.range_max)
-            & (np.abs(bearing) <= np.deg2rad(fam.bearing_max_deg)))
-
-
-def _propagate(x: np.ndarray, steps: int, T: float) -> np.ndarray:
-    """``(steps + 1, 5)``: ``x`` and ``steps`` noiseless transitions with period ``T``."""
-    ct = CoordinatedTurn(T=T)
-    out = np.empty((steps + 1, 5))
-    out[0] = x
-    for i in range(steps):
-        out[i + 1] = ct.f(out[i])
-    return out
-
-
-def _inside_run(traj: np.ndarray, fam: SceneFamily) -> int:
-    """Length of the leading run of ``traj`` inside the box."""
-    inside = in_field(traj, fam)
-    return int(inside.size if inside.all() else np.argmin(inside))
-
-
-def _position(rng: np.random.Generator, fam: SceneFamily) -> np.ndarray:
-    """A position uniform over the area of the box."""
-    r = np.sqrt(rng.uniform(fam.range_min**2, fam.range_max**2))
-    b = np.deg2rad(rng.uniform(-fam.bearing_max_deg, fam.bearing_max_deg))
-    return np.array([r * np.sin(b), r * np.cos(b)])
-
-
-def _velocity(rng: np.random.Generator, fam: SceneFamily, heading: float) -> np.ndarray:
-    """``[vx, vy, omega]``: random speed along ``heading`` (rad from +x), random turn rate."""
-    speed = rng.uniform(fam.speed_min, fam.speed_max)
-    straight = fam.turn_max_deg == 0.0 or rng.uniform() < fam.straight_fraction
-    omega = 0.0 if straight else np.deg2rad(rng.uniform(-fam.turn_max_deg, fam.turn_max_deg))
-    return np.array([speed * np.cos(heading), speed * np.sin(heading), omega])
-
-
-def _state(pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
-    return np.array([pos[0], vel[0], pos[1], vel[1], vel[2]])
-
-
-# ----------------------------------------------------------------------------------
 # Objects
 # ----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Object:
-    x_birth: np.ndarray  # state at the birth scan
-    birth: int
-    death: int
-
-
-def _birth_scan(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> int:
-    last = fam.K - fam.life_min + 1
-    if bursts.size:
-        b = int(rng.choice(bursts)) + int(rng.integers(0, fam.burst_spread + 1))
-        return min(b, last)
-    return int(rng.integers(1, last + 1))
-
-
 def _free_object(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> _Object:
     """One object born in the box, truncated when it leaves (redrawn if too short)."""
     for _ in range(_MAX_TRIES):
@@ -340,14 +289,6 @@ def _free_object(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray)
         if kept >= fam.life_min:
             return _Object(x, b, b + kept - 1)
     raise ConfigError("scene: could not place an object inside the field; relax the scene.* settings")
-
-
-def _crossing_side(x_c: np.ndarray, steps: int, T: float, fam: SceneFamily) -> tuple[np.ndarray, int]:
-    """Trajectory from the crossing state over ``steps`` scans (``T = -1``: backwards),
-    truncated at leaving the box; returns it and the scans kept beyond ``c``."""
-    traj = _propagate(x_c, steps, T)
-    kept = _inside_run(traj, fam)
-    return traj, kept - 1
 
 
 def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object, _Object, int]:
@@ -374,138 +315,6 @@ def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object,
         if len(objs) == 2:
             return objs[0], objs[1], c
     raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
-
-
-def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -> list[int]:
-    """Table sizes, in order of opening, of ``n`` customers seated by the Pitman-Yor Chinese
-    restaurant: table ``j`` with weight ``n_j - d``, a new one with ``alpha + d K``."""
-    sizes: list[int] = []
-    for _ in range(n):
-        w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
-        j = int(rng.choice(w.size, p=w / w.sum()))
-        if j == len(sizes):
-            sizes.append(1)
-        else:
-            sizes[j] += 1
-    return sizes
-
-
-def _group_sizes(rng: np.random.Generator, fam: SceneFamily) -> list[int]:
-    if fam.group_partition == "pitman-yor" and not fam.group_sizes:
-        n = int(rng.integers(fam.py_objects, fam.py_objects_max + 1)) if fam.py_objects_max else fam.py_objects
-        for _ in range(_MAX_TRIES):
-            sizes = pitman_yor_sizes(rng, n, fam.py_alpha, fam.py_discount)
-            if max(sizes) <= fam.group_size_max and len(sizes) >= 2 * fam.passing_pairs:
-                return sizes
-        raise ConfigError("scene: no Pitman-Yor partition within group_size_max; relax the scene.* settings")
-    if fam.group_sizes:
-        return list(fam.group_sizes)
-    sizes = np.arange(fam.group_size_min, fam.group_size_max + 1)
-    p = sizes.astype(float) ** -fam.group_size_power
-    return [int(x) for x in rng.choice(sizes, size=fam.n_groups, p=p / p.sum())]
-
-
-def _offsets(rng: np.random.Generator, size: int, radius: float) -> np.ndarray:
-    """``(size, 2)`` member offsets uniform in a disc (the first member at the centre)."""
-    r = radius * np.sqrt(rng.uniform(size=size))
-    phi = rng.uniform(-np.pi, np.pi, size=size)
-    out = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
-    out[0] = 0.0
-    return out
-
-
-@dataclass(frozen=True)
-class _Anchor:
-    """The scene's shared point and velocity (``group_region`` / ``group_velocity_std``)."""
-
-    pos: np.ndarray  # at scan 1
-    vel: np.ndarray  # [vx, vy, omega]
-
-
-def _anchor(rng: np.random.Generator, fam: SceneFamily) -> _Anchor:
-    """A point and a velocity (a free object's, turn rate 0) that keep the point in the box for all K scans."""
-    for _ in range(_MAX_TRIES):
-        pos = _position(rng, fam)
-        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
-        vel[2] = 0.0
-        if _inside_run(_propagate(_state(pos, vel), fam.K - 1, 1.0), fam) == fam.K:
-            return _Anchor(pos, vel)
-    raise ConfigError("scene: could not place the group anchor inside the field; relax the scene.* settings")
-
-
-def _group_motion(rng: np.random.Generator, fam: SceneFamily, b: int, anchor: _Anchor | None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """A group's ``(velocity, centre at scan b)``: free (anchor None, the ``groups`` draws) or about the anchor."""
-    if anchor is None:
-        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
-        return vel, _position(rng, fam)
-    vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
-    if fam.group_velocity_std > 0:
-        vel = anchor.vel + np.append(rng.normal(0.0, fam.group_velocity_std, 2), 0.0)
-    if fam.group_region <= 0:
-        return vel, _position(rng, fam)
-    centre = anchor.pos + (b - 1) * anchor.vel[:2] + _offsets(rng, 2, fam.group_region)[1]
-    return vel, centre
-
-
-def _group(rng: np.random.Generator, fam: SceneFamily, size: int, anchor: _Anchor | None = None) -> list[_Object]:
-    """A formation born in the box: members share velocity and turn rate, offset positions."""
-    radius = fam.member_spacing * np.sqrt(size) if fam.member_spacing > 0 else fam.group_spacing
-    for _ in range(_MAX_TRIES):
-        b = _birth_scan(rng, fam, np.zeros(0, dtype=int))
-        life = int(rng.integers(fam.life_min, fam.life_max + 1))
-        d = min(b + life - 1, fam.K)
-        vel, centre = _group_motion(rng, fam, b, anchor)
-        objs = []
-        for off in _offsets(rng, size, radius):
-            x = _state(centre + off, vel)
-            kept = _inside_run(_propagate(x, d - b, 1.0), fam)
-            if kept < fam.life_min:
-                break
-            objs.append(_Object(x, b, b + kept - 1))
-        if len(objs) == size:
-            return objs
-    raise ConfigError("scene: could not place a group inside the field; relax the scene.* settings")
-
-
-def _passing_groups(rng: np.random.Generator, fam: SceneFamily, sizes: tuple[int, int]) -> list[list[_Object]]:
-    """Two formations whose centres meet at a random scan, headings 30-150 deg apart."""
-    m = CROSSING_MIN_SIDE
-    for _ in range(_MAX_TRIES):
-        c = int(rng.integers(m + 1, fam.K - m + 1))
-        p = _position(rng, fam)
-        h_a = rng.uniform(-np.pi, np.pi)
-        h_b = h_a + rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 150.0))
-        groups = []
-        for size, heading in zip(sizes, (h_a, h_b)):
-            vel = _velocity(rng, fam, heading)
-            before = int(rng.integers(m, 40))
-            after = int(rng.integers(m, 40))
-            objs = []
-            for off in _offsets(rng, size, fam.group_spacing):
-                x_c = _state(p + off, vel)
-                back, n_back = _crossing_side(x_c, min(before, c - 1), -1.0, fam)
-                _, n_fwd = _crossing_side(x_c, min(after, fam.K - c), 1.0, fam)
-                if n_back < m or n_fwd < m:
-                    break
-                objs.append(_Object(back[n_back], c - n_back, c + n_fwd))
-            if len(objs) < size:
-                break
-            groups.append(objs)
-        if len(groups) == 2:
-            return groups
-    raise ConfigError("scene: could not place passing groups inside the field; relax the scene.* settings")
-
-
-def _all_groups(rng: np.random.Generator, fam: SceneFamily) -> list[list[_Object]]:
-    sizes = _group_sizes(rng, fam)
-    out: list[list[_Object]] = []
-    for i in range(fam.passing_pairs):
-        out += _passing_groups(rng, fam, (sizes[2 * i], sizes[2 * i + 1]))
-    shared = fam.group_region > 0 or fam.group_velocity_std > 0
-    anchor = _anchor(rng, fam) if shared else None
-    out += [_group(rng, fam, s, anchor) for s in sizes[2 * fam.passing_pairs:]]
-    return out
 
 
 def family_template(name: str):
