@@ -46,6 +46,9 @@ SUITE = (
               ("--seeds", "2", "--workers", "1"), ("--seeds", "20")),
     Benchmark("groups", "groups.py", "What does the two-level model buy on objects moving in groups?",
               ("--trackers", "ddp", "ddp-mb", "--seeds", "2", "--workers", "1"), ("--seeds", "20")),
+    Benchmark("pitman-yor", "pitman_yor.py", "Does DPY-STP beat DDP-EMM where the true partition is Pitman-Yor?",
+              ("--analyse", "--journal", "benchmarks/pitman_yor/runs.jsonl"),
+              ("--first-seed", "1", "--seeds", "40", "--journal", "benchmarks/pitman_yor/runs.jsonl")),
     Benchmark("sensors", "sensors.py", "How well does one scene track when measured by other sensors?",
               ("--seeds", "1", "--workers", "1"), ("--seeds", "10")),
     Benchmark("vs-stonesoup", "vs_stonesoup.py", "How do the trackers compare with Stone Soup's (needs the compare extra)?",
@@ -70,7 +73,7 @@ SUITE = (
 )
 
 SETS = {
-    "accuracy": ("accuracy", "births", "groups", "sensors", "vs-stonesoup"),
+    "accuracy": ("accuracy", "births", "groups", "pitman-yor", "sensors", "vs-stonesoup"),
     "speed": ("scale", "scale-dense", "startup", "rerun-overhead", "robot-log-read", "experiment-throughput"),
     "pipeline": ("pipeline-latency", "faults"),
     "quick": ("accuracy", "groups", "scale", "startup", "robot-log-read"),

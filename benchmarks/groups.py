@@ -34,8 +34,10 @@ from bnptrack.tracker.registry import build, kind  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
 
 
-def frame_ari(truth, est, group_of: dict[str, str], gate: float = 100.0) -> float | None:
-    """ARI of the tracks' clusters against the true groups over the matched objects (``None``: < 2)."""
+def frame_ari(truth, est, group_of: dict[str, str], gate: float = 100.0, cluster_of: dict | None = None) -> float | None:
+    """ARI of the tracks' clusters against the true groups over the matched objects (``None``: < 2).
+    ``cluster_of``: each track label's block, instead of the tracks' own ``cluster`` (a label
+    not in it is a block of its own)."""
     if len(truth.ids) < 2 or len(est.tracks) < 2:
         return None
     D = np.linalg.norm(truth.positions[:, None] - est.positions[None], axis=2)
@@ -44,8 +46,11 @@ def frame_ari(truth, est, group_of: dict[str, str], gate: float = 100.0) -> floa
     true = [group_of.get(truth.ids[i], truth.ids[i]) for i in rows[ok]]
     if len(set(true)) == len(true):  # no true group with 2 matched members: ARI says nothing
         return None
-    inferred = [est.tracks[j].label if est.tracks[j].cluster is None else f"c{est.tracks[j].cluster}"
-                for j in cols[ok]]
+    if cluster_of is not None:
+        inferred = [str(cluster_of.get(est.tracks[j].label, est.tracks[j].label)) for j in cols[ok]]
+    else:
+        inferred = [est.tracks[j].label if est.tracks[j].cluster is None else f"c{est.tracks[j].cluster}"
+                    for j in cols[ok]]
     return adjusted_rand_index(true, inferred)
 
 

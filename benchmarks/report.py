@@ -154,6 +154,37 @@ def protocol_section(runs: int, workers: int | None) -> str:
     return "\n".join(parts)
 
 
+PITMAN_YOR_JOURNAL = Path(__file__).resolve().parent / "pitman_yor" / "runs.jsonl"
+
+
+def pitman_yor_result(journal: Path = PITMAN_YOR_JOURNAL) -> dict | None:
+    """The pre-registered Pitman-Yor test (``benchmarks/pitman_yor.py``) analysed from its journal
+    of scored runs, with the pre-registered effects; None when the journal is absent."""
+    import sys
+
+    if not journal.exists():
+        return None
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import pitman_yor
+
+    return pitman_yor.analyse(pitman_yor.read_journal(journal), pitman_yor.EFFECTS)
+
+
+def pitman_yor_rows(result: dict | None) -> str:
+    """The Pitman-Yor test's rows of the claims table (one per true d)."""
+    if not result:
+        return ""
+    rows = []
+    for d, r in result.items():
+        c = r["cells"]
+        cells = "; ".join(f"{label} {c[m]['mean']:+.3f} ± {c[m]['half']:.3f} (SE {c[m]['se']:.3f}; "
+                          f"{c[m]['need']} runs for {c[m]['effect']:g}{unit})"
+                          for m, label, unit in (("ari", "ARI", ""), ("ospa", "OSPA", " m"), ("ospa2", "OSPA(2)", " m")))
+        rows.append(f"\n| pitman-yor | DPY-STP beats DDP-EMM where the true partition is Pitman-Yor (`groups-py`, "
+                    f"paired DPY-STP - DDP-EMM; ARI: larger is better) | true d {d} | {r['runs']} | {cells} | **{r['verdict']}** |")
+    return "".join(rows)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python3 -m benchmarks report", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -170,7 +201,18 @@ def main(argv: list[str] | None = None) -> int:
     protocol = (protocol_section(ns.protocol_runs, ns.workers) if ns.protocol_runs else
                 "Not part of this report: run `python3 -m benchmarks report --protocol-runs N`.")
     text = TEMPLATE.read_text()
-    text = text.replace("{{protocol}}", protocol).replace("{{machine}}", machine_line()).replace("{{claims}}", claims_table(results))
+    py = pitman_yor_result()
+    if py:
+        import sys
+
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import pitman_yor
+
+        py_text = pitman_yor.markdown(py) + "\n\n" + pitman_yor.verdict_text(py)
+    else:
+        py_text = "Not run yet: `benchmarks/pitman_yor.py` (the command above) writes the journal this table reads."
+    text = text.replace("{{protocol}}", protocol).replace("{{machine}}", machine_line())
+    text = text.replace("{{claims}}", claims_table(results) + pitman_yor_rows(py)).replace("{{pitman_yor}}", py_text)
     text = text.replace("{{runs}}", str(ns.runs)).replace("{{snr_runs}}", str(ns.snr_runs))
     for name, (res, _) in results.items():
         text = text.replace("{{table:" + name + "}}", experiment_table(res.summary_md))

@@ -77,6 +77,9 @@ and ``scene`` settings):
     one pair of groups passing each other, plus independent objects; ``groups-pl``'s groups
     are a Pitman-Yor partition (d 0.6) of 24 objects: power-law sizes, many singletons.  True
     membership in :attr:`Scenario.groups`.
+``groups-py``
+    A Pitman-Yor partition (alpha 1, d 0.6; ``scene.py_discount``) of 100-300 objects whose
+    groups overlap in space and velocity (one frame does not decide a membership), 50 scans.
 
 The trajectories depend only on the sampling period ``T`` (:meth:`Scenario.truth` takes it
 from the parameter set); the scenario tables are defined for ``T = 1`` s.

@@ -1,4 +1,4 @@
-r"""Seeded generated scenario families: ``random`` and the held-out ``random-cv``.
+r"""Seeded generated scenario families: ``random``, the held-out ``random-cv`` and the ``groups`` families.
 
 A family is a pure function ``(family name, scene seed, family parameters) -> Scenario``
 (:func:`generate_scene`).  The parameters are a :class:`SceneFamily` (``--set scene.KEY=VALUE``
@@ -51,6 +51,14 @@ side of the crossing) is redrawn.
     (``Pr(s) ~ s^-(1+d)``); plus one free object.  ``group_partition = "sizes"`` is the first
     version (8 groups with i.i.d. sizes ``Pr(s) ~ s^-group_size_power`` on 1-10, not a PY
     partition: its EPPF barely tells ``d`` from 0, ``docs/trackers.md``).
+``groups-py`` (where a discount can matter)
+    A Pitman-Yor partition (``py_alpha`` 1, ``py_discount`` 0.6; 0 and 0.3 by ``scene.py_discount``)
+    of ``py_objects..py_objects_max`` (100-300) objects, no size cap, no passing pairs: every
+    group's centre is uniform in a disc of ``group_region`` (400 m) about one anchor point that
+    moves with the scene velocity (speed 2-8 m/s, straight), its velocity that velocity plus
+    N(0, ``group_velocity_std``^2 I) (5 m/s), its members within ``member_spacing * sqrt(size)``
+    (15 m) of its centre; plus one free object; ``K`` = 50 scans.  Groups overlap in space and
+    velocity, so a membership is ambiguous from one frame.
 
 Objects are named ``T1..TN`` in order of birth scan (ties: generation order).  The tables
 are defined for ``T = 1`` s (the crossing distance holds for that period).
@@ -60,11 +68,24 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import msgspec
 import numpy as np
 
+from bnptrack.sources.scene_geometry import (
+    _MAX_TRIES,
+    CROSSING_MIN_SIDE,
+    _birth_scan,
+    _crossing_side,
+    _inside_run,
+    _Object,
+    _position,
+    _propagate,
+    _state,
+    _velocity,
+    in_field,
+)
+from bnptrack.sources.scene_groups import _all_groups, pitman_yor_sizes
 from bnptrack.tracker.config import ConfigError, apply_overrides
 from bnptrack.tracker.models.motion import CoordinatedTurn
 
@@ -78,11 +99,13 @@ __all__ = [
     "family_template",
     "in_field",
     "CROSSING_MIN_SIDE",
+    "pitman_yor_sizes",
 ]
 
-#: Scans a crossing-pair object is present on each side of its crossing scan (at least).
-CROSSING_MIN_SIDE = 7
-_MAX_TRIES = 2000
+#: ``groups-py``'s scene settings (chosen on scene seeds 101-110, which no reported figure uses).
+GROUPS_PY_REGION = 400.0
+GROUPS_PY_VEL_STD = 5.0
+GROUPS_PY_SPACING = 15.0
 
 
 class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -126,8 +149,19 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     Pitman-Yor partition of ``py_objects`` objects (``py_alpha``, ``py_discount``), sizes <=
     ``group_size_max`` (redrawn), singletons included (size-1 groups)."""
     py_objects: int = 24
+    py_objects_max: int = 0
+    """0: the partition has exactly ``py_objects`` objects; else uniform in ``py_objects..py_objects_max``."""
     py_alpha: float = 1.0
     py_discount: float = 0.6
+    group_region: float = 0.0
+    """0: a group's centre anywhere in the box; > 0: uniform in a disc of this radius (m) about
+    the scene's anchor, one point that moves with the scene velocity (groups overlap in space)."""
+    group_velocity_std: float = 0.0
+    """0: each group's velocity drawn as a free object's; > 0: the scene velocity (drawn once, as
+    a free object's) plus N(0, std^2 I) per group, turn rate 0 (groups overlap in velocity)."""
+    member_spacing: float = 0.0
+    """0: members within ``group_spacing`` of the centre; > 0: within ``member_spacing * sqrt(size)``
+    (the same density for every size)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -158,6 +192,10 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             (self.py_objects >= 2 * self.passing_pairs and 0.0 <= self.py_discount < 1.0
              and self.py_alpha > -self.py_discount, "need py_objects >= 2 passing_pairs, 0 <= py_discount < 1, "
              "py_alpha > -py_discount"),
+            (self.py_objects_max == 0 or self.py_objects_max >= self.py_objects, "need py_objects_max >= py_objects (or 0)"),
+            (0.0 <= self.group_region <= 1000.0 and 0.0 <= self.group_velocity_std <= 20.0
+             and 0.0 <= self.member_spacing <= 50.0,
+             "need group_region in [0, 1000] m, group_velocity_std in [0, 20] m/s, member_spacing in [0, 50] m"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -182,6 +220,12 @@ FAMILIES: dict[str, SceneFamily] = {
         group_size_max=10, group_size_power=1.5, life_min=20, speed_min=5.0, speed_max=30.0,
         turn_max_deg=2.0, group_partition="pitman-yor",
     ),
+    "groups-py": SceneFamily(
+        n_min=1, n_max=1, crossing_pairs=0, life_min=20, speed_min=2.0, speed_max=8.0, turn_max_deg=0.0,
+        straight_fraction=1.0, group_size_min=1, group_size_max=300, group_partition="pitman-yor",
+        py_objects=100, py_objects_max=300, group_region=GROUPS_PY_REGION, group_velocity_std=GROUPS_PY_VEL_STD,
+        member_spacing=GROUPS_PY_SPACING, K=50,
+    ),
 }
 
 _DESCRIPTIONS = {
@@ -194,6 +238,8 @@ _DESCRIPTIONS = {
     "groups-pl": "Generated: groups that are a Pitman-Yor partition (d 0.6, alpha 1) of 24 objects, sizes <= 10 "
                  "(many singletons, a few big groups), one passing pair, "
                  "plus 1 independent object",
+    "groups-py": "Generated: groups that are a Pitman-Yor partition (d 0.6, alpha 1) of 100-300 objects, "
+                 "overlapping in space and velocity (ambiguous memberships), plus 1 independent object",
 }
 
 
@@ -230,70 +276,8 @@ class _Wrapped(msgspec.Struct, frozen=True):
 
 
 # ----------------------------------------------------------------------------------
-# Geometry
-# ----------------------------------------------------------------------------------
-def in_field(states: np.ndarray, fam: SceneFamily) -> np.ndarray:
-    """``(...)`` bool: position of ``(..., 5)`` states inside the family's box."""
-    px, py = states[..., 0], states[..., 2]
-    r = np.hypot(px, py)
-    bearing = np.arctan2(px, py)
-    return ((r >= fam.range_min) & (r <= fam.range_max)
-            & (np.abs(bearing) <= np.deg2rad(fam.bearing_max_deg)))
-
-
-def _propagate(x: np.ndarray, steps: int, T: float) -> np.ndarray:
-    """``(steps + 1, 5)``: ``x`` and ``steps`` noiseless transitions with period ``T``."""
-    ct = CoordinatedTurn(T=T)
-    out = np.empty((steps + 1, 5))
-    out[0] = x
-    for i in range(steps):
-        out[i + 1] = ct.f(out[i])
-    return out
-
-
-def _inside_run(traj: np.ndarray, fam: SceneFamily) -> int:
-    """Length of the leading run of ``traj`` inside the box."""
-    inside = in_field(traj, fam)
-    return int(inside.size if inside.all() else np.argmin(inside))
-
-
-def _position(rng: np.random.Generator, fam: SceneFamily) -> np.ndarray:
-    """A position uniform over the area of the box."""
-    r = np.sqrt(rng.uniform(fam.range_min**2, fam.range_max**2))
-    b = np.deg2rad(rng.uniform(-fam.bearing_max_deg, fam.bearing_max_deg))
-    return np.array([r * np.sin(b), r * np.cos(b)])
-
-
-def _velocity(rng: np.random.Generator, fam: SceneFamily, heading: float) -> np.ndarray:
-    """``[vx, vy, omega]``: random speed along ``heading`` (rad from +x), random turn rate."""
-    speed = rng.uniform(fam.speed_min, fam.speed_max)
-    straight = fam.turn_max_deg == 0.0 or rng.uniform() < fam.straight_fraction
-    omega = 0.0 if straight else np.deg2rad(rng.uniform(-fam.turn_max_deg, fam.turn_max_deg))
-    return np.array([speed * np.cos(heading), speed * np.sin(heading), omega])
-
-
-def _state(pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
-    return np.array([pos[0], vel[0], pos[1], vel[1], vel[2]])
-
-
-# ----------------------------------------------------------------------------------
 # Objects
 # ----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Object:
-    x_birth: np.ndarray  # state at the birth scan
-    birth: int
-    death: int
-
-
-def _birth_scan(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> int:
-    last = fam.K - fam.life_min + 1
-    if bursts.size:
-        b = int(rng.choice(bursts)) + int(rng.integers(0, fam.burst_spread + 1))
-        return min(b, last)
-    return int(rng.integers(1, last + 1))
-
-
 def _free_object(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray) -> _Object:
     """One object born in the box, truncated when it leaves (redrawn if too short)."""
     for _ in range(_MAX_TRIES):
@@ -305,14 +289,6 @@ def _free_object(rng: np.random.Generator, fam: SceneFamily, bursts: np.ndarray)
         if kept >= fam.life_min:
             return _Object(x, b, b + kept - 1)
     raise ConfigError("scene: could not place an object inside the field; relax the scene.* settings")
-
-
-def _crossing_side(x_c: np.ndarray, steps: int, T: float, fam: SceneFamily) -> tuple[np.ndarray, int]:
-    """Trajectory from the crossing state over ``steps`` scans (``T = -1``: backwards),
-    truncated at leaving the box; returns it and the scans kept beyond ``c``."""
-    traj = _propagate(x_c, steps, T)
-    kept = _inside_run(traj, fam)
-    return traj, kept - 1
 
 
 def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object, _Object, int]:
@@ -341,101 +317,6 @@ def _crossing_pair(rng: np.random.Generator, fam: SceneFamily) -> tuple[_Object,
     raise ConfigError("scene: could not place a crossing pair inside the field; relax the scene.* settings")
 
 
-def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -> list[int]:
-    """Table sizes, in order of opening, of ``n`` customers seated by the Pitman-Yor Chinese
-    restaurant: table ``j`` with weight ``n_j - d``, a new one with ``alpha + d K``."""
-    sizes: list[int] = []
-    for _ in range(n):
-        w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
-        j = int(rng.choice(w.size, p=w / w.sum()))
-        if j == len(sizes):
-            sizes.append(1)
-        else:
-            sizes[j] += 1
-    return sizes
-
-
-def _group_sizes(rng: np.random.Generator, fam: SceneFamily) -> list[int]:
-    if fam.group_partition == "pitman-yor" and not fam.group_sizes:
-        for _ in range(_MAX_TRIES):
-            sizes = pitman_yor_sizes(rng, fam.py_objects, fam.py_alpha, fam.py_discount)
-            if max(sizes) <= fam.group_size_max and len(sizes) >= 2 * fam.passing_pairs:
-                return sizes
-        raise ConfigError("scene: no Pitman-Yor partition within group_size_max; relax the scene.* settings")
-    if fam.group_sizes:
-        return list(fam.group_sizes)
-    sizes = np.arange(fam.group_size_min, fam.group_size_max + 1)
-    p = sizes.astype(float) ** -fam.group_size_power
-    return [int(x) for x in rng.choice(sizes, size=fam.n_groups, p=p / p.sum())]
-
-
-def _offsets(rng: np.random.Generator, size: int, radius: float) -> np.ndarray:
-    """``(size, 2)`` member offsets uniform in a disc (the first member at the centre)."""
-    r = radius * np.sqrt(rng.uniform(size=size))
-    phi = rng.uniform(-np.pi, np.pi, size=size)
-    out = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
-    out[0] = 0.0
-    return out
-
-
-def _group(rng: np.random.Generator, fam: SceneFamily, size: int) -> list[_Object]:
-    """A formation born in the box: members share velocity and turn rate, offset positions."""
-    for _ in range(_MAX_TRIES):
-        b = _birth_scan(rng, fam, np.zeros(0, dtype=int))
-        life = int(rng.integers(fam.life_min, fam.life_max + 1))
-        d = min(b + life - 1, fam.K)
-        vel = _velocity(rng, fam, rng.uniform(-np.pi, np.pi))
-        centre = _position(rng, fam)
-        objs = []
-        for off in _offsets(rng, size, fam.group_spacing):
-            x = _state(centre + off, vel)
-            kept = _inside_run(_propagate(x, d - b, 1.0), fam)
-            if kept < fam.life_min:
-                break
-            objs.append(_Object(x, b, b + kept - 1))
-        if len(objs) == size:
-            return objs
-    raise ConfigError("scene: could not place a group inside the field; relax the scene.* settings")
-
-
-def _passing_groups(rng: np.random.Generator, fam: SceneFamily, sizes: tuple[int, int]) -> list[list[_Object]]:
-    """Two formations whose centres meet at a random scan, headings 30-150 deg apart."""
-    m = CROSSING_MIN_SIDE
-    for _ in range(_MAX_TRIES):
-        c = int(rng.integers(m + 1, fam.K - m + 1))
-        p = _position(rng, fam)
-        h_a = rng.uniform(-np.pi, np.pi)
-        h_b = h_a + rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 150.0))
-        groups = []
-        for size, heading in zip(sizes, (h_a, h_b)):
-            vel = _velocity(rng, fam, heading)
-            before = int(rng.integers(m, 40))
-            after = int(rng.integers(m, 40))
-            objs = []
-            for off in _offsets(rng, size, fam.group_spacing):
-                x_c = _state(p + off, vel)
-                back, n_back = _crossing_side(x_c, min(before, c - 1), -1.0, fam)
-                _, n_fwd = _crossing_side(x_c, min(after, fam.K - c), 1.0, fam)
-                if n_back < m or n_fwd < m:
-                    break
-                objs.append(_Object(back[n_back], c - n_back, c + n_fwd))
-            if len(objs) < size:
-                break
-            groups.append(objs)
-        if len(groups) == 2:
-            return groups
-    raise ConfigError("scene: could not place passing groups inside the field; relax the scene.* settings")
-
-
-def _all_groups(rng: np.random.Generator, fam: SceneFamily) -> list[list[_Object]]:
-    sizes = _group_sizes(rng, fam)
-    out: list[list[_Object]] = []
-    for i in range(fam.passing_pairs):
-        out += _passing_groups(rng, fam, (sizes[2 * i], sizes[2 * i + 1]))
-    out += [_group(rng, fam, s) for s in sizes[2 * fam.passing_pairs:]]
-    return out
-
-
 def family_template(name: str):
     """A target-less :class:`Scenario` of family ``name``: what every scene of the family
     shares (sensor kind, ``K``, no birth regions), for :meth:`Scenario.adapt_params` without
@@ -462,7 +343,7 @@ def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
         objs += [a, b]
     objs += [_free_object(rng, fam, bursts) for _ in range(n - len(objs))]
     member_of: list[list[int]] = []
-    for g in _all_groups(rng, fam) if fam.n_groups or fam.group_sizes else []:
+    for g in _all_groups(rng, fam) if fam.n_groups or fam.group_sizes or fam.group_partition == "pitman-yor" else []:
         member_of.append(list(range(len(objs), len(objs) + len(g))))
         objs += g
     n = len(objs)
