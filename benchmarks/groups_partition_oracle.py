@@ -76,7 +76,9 @@ from bnptrack.sources.scenarios import get_scenario  # noqa: E402
 from bnptrack.sources.synthetic import simulate_all  # noqa: E402
 from bnptrack.tracker.bnp.filter import BnpState  # noqa: E402
 from bnptrack.tracker.config import apply_overrides  # noqa: E402
-from bnptrack.tracker.bnp.groups import GROUP_PRESETS, Block, GroupTracker, theta_posterior, urn_log_weights  # noqa: E402
+from bnptrack.tracker.bnp.group_sample import Block, urn_log_weights  # noqa: E402
+from bnptrack.tracker.bnp.group_theta import theta_posterior  # noqa: E402
+from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupTracker  # noqa: E402
 from bnptrack.tracker.models.params import load_params  # noqa: E402
 from bnptrack.tracker.state import run  # noqa: E402
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate  # noqa: E402

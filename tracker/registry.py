@@ -48,7 +48,8 @@ def _bnp(name: str, description: str) -> TrackerKind:
 def _groups(name: str, description: str) -> TrackerKind:
     """The two-level tracker (``ddp``, ``dpyp`` and their aliases ``ddp-groups``, ``dpyp-groups``),
     with its presets (``ddp``, ``dpyp``, ``ddp-proximity``, ``ddp-snr`` and their ``-groups`` names)."""
-    from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupConfig, make_group_tracker
+    from bnptrack.tracker.bnp.group_config import GROUP_PRESETS, GroupConfig
+    from bnptrack.tracker.bnp.groups import make_group_tracker
 
     return TrackerKind(name, description, GroupConfig, GROUP_PRESETS,
                        lambda params, config: make_group_tracker(name, params, config))

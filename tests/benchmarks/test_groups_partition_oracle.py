@@ -7,7 +7,7 @@ import pytest
 
 import benchmarks.groups_partition_oracle as go
 from benchmarks.groups import frame_ari
-from bnptrack.tracker.bnp.groups import Block, sample_partition
+from bnptrack.tracker.bnp.group_sample import Block, sample_partition
 from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.state import run
 from bnptrack.tracker.types import Frame, Truth

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker.bnp.group_share import informed, restrict
-from bnptrack.tracker.bnp.groups import GroupConfig, GroupTracker, Shares, share_velocity
+from bnptrack.tracker.bnp.group_sample import Shares
+from bnptrack.tracker.bnp.group_share import share_velocity
+from bnptrack.tracker.bnp.groups import GroupConfig, GroupTracker
 from bnptrack.tracker.models.params import load_params
 
 

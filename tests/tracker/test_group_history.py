@@ -49,13 +49,13 @@ def test_tracker_history_folds_clusters_that_stop_transitioning():
     state = GroupState(labels=("a", "b", "c"), counted=np.array([5, 5, 6]), group_ids=np.array([5, 6]),
                        hist_total=np.array([3, 1]), dead_k=1, dead_n=2, dead_factor=size_factor(D_GRID, [2]))
     # this frame: a -> 5, b -> 7, new object e -> 7; c is no member and cluster 6 does not transition
-    counted, total, dead_k, dead_n, factor = tr._history(state, ("a", "b", "c", "e"), np.array([0, 1, 3]),
-                                                         np.array([5, 7, 7]), np.array([5, 7]))
+    counted, total, dead_k, dead_n, factor = tr.hyper.history(state, ("a", "b", "c", "e"), np.array([0, 1, 3]),
+                                                              np.array([5, 7, 7]), np.array([5, 7]))
     np.testing.assert_array_equal(counted, [5, 7, 6, 7])
     np.testing.assert_array_equal(total, [2, 2])
     assert (dead_k, dead_n) == (2, 3)
     np.testing.assert_allclose(factor, size_factor(D_GRID, [2, 1]))
-    ll = tr._history_loglik((counted, total, dead_k, dead_n, factor))
+    ll = tr.hyper.history_loglik((counted, total, dead_k, dead_n, factor))
     i, j = 10, 6
     assert ll[i, j] == pytest.approx(log_eppf(np.array([2, 2, 2, 1]), ALPHA_GRID[i], D_GRID[j]))
 

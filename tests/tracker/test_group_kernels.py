@@ -1,5 +1,5 @@
 """The compiled passes of the two-level tracker's cluster level (group_merge.py's
-``exclusive_candidates``, groups.py's ``theta_sums``) and the history memo against the numpy
+``exclusive_candidates``, group_theta.py's ``theta_sums``) and the history memo against the numpy
 code they replaced (kept here as the reference), bit for bit, on seed-pinned random inputs."""
 
 from __future__ import annotations
@@ -11,9 +11,12 @@ from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups
 from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth_frame, exclusive_candidates,
                                               merge_exclusive)
 from bnptrack.tracker._numerics import jit
-from bnptrack.tracker.bnp.groups import (GROUP_PRESETS, Block, GroupTracker, _inv_into, _move, _option_logw,
-                                          Shares, _collect_shares, _compact, _partition_kernel, _table_priors, inv2,
-                                          inv2_const, share_turn, share_velocity, theta_sums)
+from bnptrack.tracker.bnp.group_partition import _inv_into, _move
+from bnptrack.tracker.bnp.group_sample import Block, Shares, _compact, _table_priors
+from bnptrack.tracker.bnp.group_scan import _collect_shares, _option_logw, _partition_kernel
+from bnptrack.tracker.bnp.group_share import share_turn, share_velocity
+from bnptrack.tracker.bnp.group_theta import inv2, inv2_const, theta_sums
+from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupTracker
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.urn import grid_mean, log_gamma_prior
 from bnptrack.tracker.models.params import load_params
@@ -397,13 +400,13 @@ def test_theta_sums_one_member_hand_computed() -> None:
 
 
 def _hyper_reference(tr: GroupTracker, hist: tuple):
-    cfg = tr.config
-    hyper = tr._history_loglik(hist)
-    log_post = hyper + (log_gamma_prior(tr.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
-                        + np.log(tr.alpha_grid))[:, None]
+    cfg, h = tr.config, tr.hyper
+    hyper = h.history_loglik(hist)
+    log_post = hyper + (log_gamma_prior(h.alpha_grid, cfg.alpha_shape, cfg.alpha_scale)
+                        + np.log(h.alpha_grid))[:, None]
     if cfg.infer_d and cfg.d_prior == "gamma":
-        log_post = log_post + log_gamma_prior(np.maximum(tr.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
-    alpha, d = grid_mean(log_post, tr.alpha_grid, tr.d_grid)
+        log_post = log_post + log_gamma_prior(np.maximum(h.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)[None, :]
+    alpha, d = grid_mean(log_post, h.alpha_grid, h.d_grid)
     return alpha, d, hyper
 
 
@@ -413,13 +416,13 @@ def _hyper_reference(tr: GroupTracker, hist: tuple):
 def test_history_memo_equals_fresh_computation(name: str) -> None:
     tr = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)
     fresh = GroupTracker(load_params("vo2017"), GROUP_PRESETS[name], name)
-    hists = [(None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size)),
-             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size)),
-             (None, np.array([4, 1], dtype=np.int64), 2, 5, np.full(tr.d_grid.size, -0.5)),
-             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.d_grid.size))]
+    hists = [(None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.hyper.d_grid.size)),
+             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.hyper.d_grid.size)),
+             (None, np.array([4, 1], dtype=np.int64), 2, 5, np.full(tr.hyper.d_grid.size, -0.5)),
+             (None, np.array([3, 1], dtype=np.int64), 0, 0, np.zeros(tr.hyper.d_grid.size))]
     for hist in hists:
-        alpha, d, hyper = tr._history_hyper(hist)
+        alpha, d, hyper = tr.hyper._history_hyper(hist)
         r_alpha, r_d, r_hyper = _hyper_reference(fresh, hist)
         assert (alpha, d) == (r_alpha, r_d)
         _same(hyper, r_hyper)
-    assert tr._history_memo["last"][0][0] == np.array([3, 1], dtype=np.int64).tobytes()
+    assert tr.hyper._history_memo["last"][0][0] == np.array([3, 1], dtype=np.int64).tobytes()

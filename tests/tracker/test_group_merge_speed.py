@@ -1,6 +1,6 @@
 """The compiled exact test and exclusion of the two-level tracker's merge
 (group_merge.py's ``exact_status``, ``distinct_pairs``, ``exclusive_pairs``) and the remembered field-of-view
-moments (groups.py's ``fov_moments``): the same decisions and numbers as the numpy code."""
+moments (group_theta.py's ``fov_moments``): the same decisions and numbers as the numpy code."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from bnptrack.tracker.bnp.group_merge import (_distinct, _label_arrays, distinct_pairs, exact_status,
                                               exclusive_candidates, exclusive_pairs, pair_differences)
-from bnptrack.tracker.bnp.groups import _fov_moments, fov_moments
+from bnptrack.tracker.bnp.group_theta import _fov_moments, fov_moments
 from bnptrack.tracker.models.params import load_params
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bnptrack.tracker.bnp.group_partition import MARGIN, _heap_pop, _heap_push, lmax2
-from bnptrack.tracker.bnp.groups import PARTITION_KERNELS, Block, sample_partition
+from bnptrack.tracker.bnp.group_sample import PARTITION_KERNELS, Block, sample_partition
 
 
 def _blocks(seed: int, L: int, G: int, spread: float, centroid: bool = True, wide: bool = False):

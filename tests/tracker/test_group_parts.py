@@ -9,7 +9,8 @@ import pytest
 from bnptrack.tracker.bnp.clusters import _Clusters, merge_duplicates
 from bnptrack.tracker.bnp.group_hyper import arrivals_loglik_grid
 from bnptrack.tracker.bnp.group_merge import merge_exclusive, taken_measurements
-from bnptrack.tracker.bnp.groups import Block, sample_partition, share_turn, share_velocity
+from bnptrack.tracker.bnp.group_sample import Block, sample_partition
+from bnptrack.tracker.bnp.group_share import share_turn, share_velocity
 
 
 def _clusters(labels, existence, dx=5.0) -> _Clusters:

@@ -6,7 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupTracker, _option_logw, fov_moments, urn_log_weights
+from bnptrack.tracker.bnp.group_sample import urn_log_weights
+from bnptrack.tracker.bnp.group_scan import _option_logw
+from bnptrack.tracker.bnp.group_theta import fov_moments
+from bnptrack.tracker.bnp.groups import GROUP_PRESETS, GroupTracker
 from bnptrack.tracker.models.params import load_params
 
 

@@ -10,15 +10,10 @@ from bnptrack.sources.scenarios import get_scenario
 from bnptrack.sources.synthetic import simulate_all
 from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpTracker
 from bnptrack.tracker.config import apply_overrides
-from bnptrack.tracker.bnp.groups import (
-    Block,
-    GroupState,
-    GroupTracker,
-    sample_partition,
-    share_velocity,
-    theta_posterior,
-    urn_log_weights,
-)
+from bnptrack.tracker.bnp.group_sample import Block, sample_partition, urn_log_weights
+from bnptrack.tracker.bnp.group_share import share_velocity
+from bnptrack.tracker.bnp.group_theta import theta_posterior
+from bnptrack.tracker.bnp.groups import GroupState, GroupTracker
 from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.registry import build
 from bnptrack.tracker.state import restore, run, snapshot
@@ -82,7 +77,7 @@ def test_gibbs_groups_by_velocity():
 def test_share_velocity_single_option_is_a_kalman_update():
     # state velocity N((4, 0), 4 I), no position-velocity correlation; option theta N((0, 0), I)
     # with S_w = I: pseudo-measurement covariance 2 I, gain 4 / 6 -> velocity (4/3, 0), var 4/3
-    from bnptrack.tracker.bnp.groups import Shares
+    from bnptrack.tracker.bnp.group_sample import Shares
 
     mean = np.array([[0.0, 4.0, 0.0, 0.0, 0.0]])
     cov = np.diag([1.0, 4.0, 1.0, 4.0, 0.01])[None]

@@ -27,7 +27,7 @@ _PROBE = textwrap.dedent("""
     import json
     import numpy as np
     from numba.core import event
-    from bnptrack.tracker.bnp import _kernels, gibbs, groups, swap_moves
+    from bnptrack.tracker.bnp import _kernels, gibbs, group_theta, swap_moves
 
     compiled = []
 
@@ -49,10 +49,10 @@ _PROBE = textwrap.dedent("""
     gibbs.run_gibbs(prob, np.random.default_rng(1), 30, 5, chains=2)
     z, ids = np.array([0, 2, 0, 1]), np.arange(3)
     v, R = rng.normal(size=(4, 2)), np.tile(np.eye(2), (4, 1, 1))
-    g_ids, count, *moments = groups._transition_kernel(z, ids, v, R, np.eye(2), np.zeros(2), v, R, np.eye(2),
-                                                       np.zeros(2), 1)
+    g_ids, count, *moments = group_theta._transition_kernel(z, ids, v, R, np.eye(2), np.zeros(2), v, R, np.eye(2),
+                                                            np.zeros(2), 1)
     kernels = {"_greedy": gibbs._greedy, "exchange_pairs": swap_moves.exchange_pairs, "np_sum": _kernels.np_sum,
-               "_pairwise_block": _kernels._pairwise_block, "theta_sums": groups.theta_sums}
+               "_pairwise_block": _kernels._pairwise_block, "theta_sums": group_theta.theta_sums}
     print(json.dumps({"compiled": compiled, "signatures": {k: [str(s) for s in f.signatures]
                                                            for k, f in kernels.items()},
                       "count": count.tolist()}))

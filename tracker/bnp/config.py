@@ -117,7 +117,7 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 #: The single-level trackers' presets (``--tracker ddp-mb`` / ``dpyp-mb``; the names ``ddp``,
 #: ``dpyp``, ``ddp-proximity``, ``ddp-snr`` select the two-level tracker's presets,
-#: :data:`tracker.bnp.groups.GROUP_PRESETS`).
+#: :data:`tracker.bnp.group_config.GROUP_PRESETS`).
 TRACKER_PRESETS: dict[str, BnpConfig] = {
     # Experiment 1 (DDP-EMM vs GLMB): alpha ~ Gamma(1, 0.1).
     "ddp-mb": BnpConfig(),

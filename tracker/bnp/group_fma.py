@@ -1,6 +1,6 @@
 r"""The 2x2 products of the two-level tracker's partition kernel, in one fixed rounding on every CPU.
 
-The collapsed Gibbs kernel of :mod:`tracker.bnp.groups` (``_partition_kernel``) computed its
+The collapsed Gibbs kernel of :mod:`tracker.bnp.group_scan` (``_partition_kernel``) computed its
 2x2 matrix-vector and 2-vector products with numba's ``np.dot`` / ``@``, i.e. calls of
 OpenBLAS's ``dgemv`` and ``ddot`` (through ``scipy.linalg.cython_blas``): some 100-200 ns per
 call on two numbers, most of the kernel's time.  OpenBLAS (0.3.31, Haswell kernels, on session
@@ -10,7 +10,7 @@ call on two numbers, most of the kernel's time.  OpenBLAS (0.3.31, Haswell kerne
   ``+ 0`` turns an exact ``-0.0`` into ``+0.0``, as BLAS's accumulator does);
 * ``a . b`` (dot): :math:`\mathrm{fma}(a_1, b_1, \mathrm{fma}(a_0, b_0, 0))`;
 * numpy's stacked ``matmul`` with an inner dimension of 2 (``dgemm``; the sharing's gains in
-  :func:`tracker.bnp.groups.share_velocity`): each entry as the dot above (:func:`sum2`).
+  :func:`tracker.bnp.group_share.share_velocity`): each entry as the dot above (:func:`sum2`).
 
 :func:`gemv2` and :func:`dot2` compute exactly these with ``llvm.fma.f64`` (:func:`fma`, a numba
 intrinsic: one instruction on a CPU with FMA, a correctly rounded libm call otherwise): the

@@ -21,7 +21,14 @@ factor :math:`(v^*_c + i - d)` for each of ~50 re-seats of every object, each fa
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
+
 import numpy as np
+
+from bnptrack.tracker.bnp.group_config import GroupConfig
+from bnptrack.tracker.bnp.group_state import GroupState, _rows_of, previous_rows
+from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior
 
 
 def arrivals_loglik_grid(alpha: np.ndarray, d: np.ndarray, z: np.ndarray, arrived: np.ndarray) -> np.ndarray:
@@ -98,3 +105,116 @@ def update_history(counted: np.ndarray, members: np.ndarray, member_ids: np.ndar
         totals[c] = totals.get(c, 0) + 1
         counted[i] = c
     return counted
+
+
+@dataclass(frozen=True)
+class GroupHyper:
+    """The two-level tracker's :math:`(\\alpha_2, d)`: their grid and priors (a
+    :class:`~tracker.bnp.group_config.GroupConfig`'s), the partition's history kept in the state
+    (:meth:`history`) and the posterior means given it (:meth:`posterior`)."""
+
+    config: GroupConfig
+
+    @cached_property
+    def alpha_grid(self) -> np.ndarray:
+        return ALPHA_GRID if self.config.infer_alpha else np.array([self.config.alpha])
+
+    @cached_property
+    def d_grid(self) -> np.ndarray:
+        return D_GRID if self.config.infer_d else np.array([self.config.d])
+
+    def history(self, state: GroupState, labels: tuple[str, ...], members: np.ndarray, member_ids: np.ndarray,
+                g_ids: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+        """The partition of every object ever in it (:func:`update_history`): the members' counts
+        moved to their clusters; clusters that no longer transition folded into the dead clusters'
+        sufficient statistics.  ``rows``: each label's row in ``state``
+        (:func:`tracker.bnp.group_state.previous_rows`, computed when not given).  Returns the
+        state's history fields."""
+        if rows is None:
+            rows = previous_rows(state, labels)
+        counted = _rows_of(state.counted, rows)
+        totals = dict(zip(state.group_ids.tolist(), state.hist_total.tolist()))
+        counted = update_history(counted, members, member_ids, totals)
+        live = set(g_ids.tolist())
+        dead = np.array([t for c, t in totals.items() if c not in live and t > 0], dtype=np.int64)
+        factor = state.dead_factor if state.dead_factor.size else np.zeros(self.d_grid.size)
+        if dead.size:
+            factor = factor + size_factor(self.d_grid, dead)
+        hist_total = np.array([totals[g] for g in g_ids.tolist()], dtype=np.int64)
+        return counted, hist_total, state.dead_k + dead.size, state.dead_n + int(dead.sum()), factor
+
+    def history_loglik(self, hist: tuple) -> np.ndarray:
+        """The Pitman-Yor EPPF (:func:`eppf_grid`) of the history on the grid."""
+        _, total, dead_k, dead_n, dead_factor = hist
+        factor = dead_factor + size_factor(self.d_grid, total)
+        return eppf_grid(self.alpha_grid[:, None], self.d_grid[None, :], int(total.size + dead_k),
+                         int(total.sum() + dead_n), factor)
+
+    def posterior(self, state: GroupState, z: np.ndarray, arrived: np.ndarray, hist: tuple
+                  ) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d) on the grid given the object partition: the EPPF of its whole history
+        (:meth:`history_loglik`), the arrivals' Pitman-Yor predictive (:func:`arrivals_loglik_grid`)
+        or the re-seating (:func:`tracker.bnp.urn.frame_loglik_grid`); ``arrived``: members new to
+        the partition."""
+        cfg = self.config
+        if not cfg.infer_alpha and not cfg.infer_d:
+            return state.alpha2, state.d2, state.hyper2_loglik
+        if cfg.hyper_likelihood == "history":
+            return self._history_hyper(hist)
+        if cfg.hyper_likelihood == "arrivals":
+            hyper = cfg.hyper_forgetting * state.hyper2_loglik + arrivals_loglik_grid(
+                self.alpha_grid[:, None], self.d_grid[None, :], z, arrived)
+        else:
+            hyper = cfg.hyper_forgetting * state.hyper2_loglik + self._reseat_loglik(state, z)
+        return self._grid_posterior(hyper)
+
+    def _grid_posterior(self, hyper: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """Posterior means of (alpha_2, d) on the grid given the log-likelihood ``hyper`` and the priors."""
+        log_post = hyper + self._alpha_log_prior[:, None]
+        if self._d_log_prior is not None:
+            log_post = log_post + self._d_log_prior[None, :]
+        alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
+        return alpha, d, hyper
+
+    @cached_property
+    def _alpha_log_prior(self) -> np.ndarray:
+        """alpha_2's Gamma prior on the grid plus log alpha (the grid is uniform in log alpha)."""
+        cfg = self.config
+        return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
+
+    @cached_property
+    def _d_log_prior(self) -> np.ndarray | None:
+        cfg = self.config
+        if cfg.infer_d and cfg.d_prior == "gamma":
+            return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)
+        return None
+
+    @cached_property
+    def _history_memo(self) -> dict:
+        """The last history's key and result (:meth:`_history_hyper`)."""
+        return {}
+
+    def _history_hyper(self, hist: tuple) -> tuple[float, float, np.ndarray]:
+        """(alpha_2, d, log-likelihood) from the history's EPPF (:meth:`history_loglik`).  The
+        history changes only when an object joins or leaves a cluster: a frame whose history
+        equals the last one's (live cluster totals, dead clusters' statistics) reuses its result,
+        which is a pure function of them."""
+        _, total, dead_k, dead_n, dead_factor = hist
+        key = (total.tobytes(), int(dead_k), int(dead_n), np.asarray(dead_factor).tobytes())
+        memo = self._history_memo
+        hit = memo.get("last")
+        if hit is not None and hit[0] == key:
+            alpha, d, hyper = hit[1]
+            return alpha, d, hyper.copy()
+        alpha, d, hyper = self._grid_posterior(self.history_loglik(hist))
+        memo["last"] = (key, (alpha, d, hyper.copy()))
+        return alpha, d, hyper
+
+    def _reseat_loglik(self, state: GroupState, z: np.ndarray) -> np.ndarray:
+        """Every member's seat of this frame counted (objects as customers, clusters as tables)."""
+        G = state.group_ids.size
+        counts = np.bincount(z[z < G], minlength=G) if G else np.zeros(0, dtype=int)
+        n_new = int(np.unique(z[z >= G]).size)
+        return frame_loglik_grid(self.alpha_grid[:, None], self.d_grid[None, :],
+                                 mass=float(state.group_count.sum()), d_bar=float(G), n_object=float(z.size),
+                                 n_new=n_new, seated_popularity=state.group_count, seated_counts=counts)

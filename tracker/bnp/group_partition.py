@@ -1,8 +1,8 @@
 r"""The object -> cluster Gibbs kernel of the two-level tracker with O(candidate tables) moves
 (:func:`gated_kernel`).
 
-It draws exactly what the full scan (:func:`tracker.bnp.groups._partition_kernel` followed by
-:func:`tracker.bnp.groups._collect_shares`) draws, bit for bit, with three changes to the work
+It draws exactly what the full scan (:func:`tracker.bnp.group_scan._partition_kernel` followed by
+:func:`tracker.bnp.group_scan._collect_shares`) draws, bit for bit, with three changes to the work
 per move (object :math:`\ell` leaves its table, then joins one drawn from its conditional, eq.
 (14) [Gibbs]):
 
@@ -37,7 +37,7 @@ per move (object :math:`\ell` leaves its table, then joins one drawn from its co
   one division, no logarithm) against the best option scored so far (a third of
   the tables the grid returns at 1,000 objects, whose full score costs two logarithms).
 * **Sparse records.**  The last sweep keeps only the options with conditional above ``min_p``
-  (what :func:`~tracker.bnp.groups._collect_shares` keeps of the dense (L, T) arrays), in the
+  (what :func:`~tracker.bnp.group_scan._collect_shares` keeps of the dense (L, T) arrays), in the
   same order, normalised the same way: O(L x few) memory instead of O(L x T).
 
 The candidates are scored and summed in table order, as the full scan sums them.  ``gate``
@@ -203,7 +203,7 @@ def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
 
 
 def _urn_of(t, n, v_star, d, occupied) -> float:
-    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.groups.urn_log_weights`); it
+    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.group_sample.urn_log_weights`); it
     changes only when ``n[t]`` does."""
     return np.log(v_star[t]) if occupied and n[t] == 0 else np.log(n[t] + v_star[t] - d)
 
@@ -260,7 +260,7 @@ def _insertion_sort(a, m) -> None:
 
 
 def _draw_list(cand, m, logw, w, u) -> int:
-    """:func:`~tracker.bnp.groups._draw` over the tables ``cand[:m]`` (increasing): the position in
+    """:func:`~tracker.bnp.group_scan._draw` over the tables ``cand[:m]`` (increasing): the position in
     ``cand`` of the option of uniform ``u``; ``w[t]`` receives the normalised weights.  The other
     tables' weights are exactly 0.0 and add nothing to the sums."""
     top = logw[cand[0]]
@@ -409,8 +409,8 @@ def _cap_of(t_cov, live, rho, q, T):
 
 def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
     """Collapsed Gibbs sweeps over ``z`` in place (module docstring); the arguments as
-    :func:`~tracker.bnp.groups._partition_kernel`'s.  Returns the last sweep's options with
-    conditional above ``min_p`` as :func:`~tracker.bnp.groups._collect_shares` does: (obj, w, mu, cov).
+    :func:`~tracker.bnp.group_scan._partition_kernel`'s.  Returns the last sweep's options with
+    conditional above ``min_p`` as :func:`~tracker.bnp.group_scan._collect_shares` does: (obj, w, mu, cov).
     ``stats[0]``, ``stats[1]`` count the moves and the tables scored (added to)."""
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     if L == 0:

@@ -1,6 +1,6 @@
 r"""Which members receive the velocity sharing (``GroupConfig.share_min_info``).
 
-The sharing (:func:`tracker.bnp.groups.share_velocity`) gives member :math:`\ell` a Kalman
+The sharing (:func:`tracker.bnp.group_share.share_velocity`) gives member :math:`\ell` a Kalman
 pseudo-measurement of its cluster's leave-one-out :math:`\theta`, with gain
 :math:`K = P_{v,\ell} (P_{v,\ell} + S + \mathrm{Cov}(\theta^{-\ell}))^{-1}`: the less the object knows
 of its own velocity, the more it takes its cluster's.  Its membership, though, was scored by
@@ -29,8 +29,10 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.bnp.group_fma import sum2
+from bnptrack.tracker.bnp.group_sample import Shares
 
-__all__ = ["informed", "own_update", "restrict"]
+__all__ = ["informed", "own_update", "restrict", "share_turn", "share_velocity"]
 
 
 def informed(cov: np.ndarray, prior_var: float, factor: float) -> np.ndarray:
@@ -45,7 +47,7 @@ def informed(cov: np.ndarray, prior_var: float, factor: float) -> np.ndarray:
 
 
 def restrict(obj: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of a :class:`tracker.bnp.groups.Shares` (object index ``obj``, (P,)) whose object
+    """The rows of a :class:`tracker.bnp.group_sample.Shares` (object index ``obj``, (P,)) whose object
     is kept (``keep`` (L,) mask) and their objects renumbered among the kept ones: ``(rows, obj)``."""
     new = np.cumsum(keep) - 1
     rows = np.flatnonzero(keep[obj])
@@ -97,3 +99,139 @@ def _own_update_kernel(m_s, P_s, m, P, m_o, P_o):  # pragma: no cover - compiled
 
 
 _own_update_kernel = jit(_own_update_kernel)
+
+
+def share_velocity(mean: np.ndarray, cov: np.ndarray, shares: Shares, S_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each member's state given the others' assignments: a Kalman pseudo-measurement of its velocity
+    per option, moment-matched over the options.
+
+    Option :math:`o` of object :math:`\ell` (weight :math:`w_o`, the Gibbs conditional of eq.
+    (Gibbs)): the pseudo-measurement :math:`y = \hat\theta_o^{-\ell}` of :math:`H x = (v_x, v_y)`
+    with covariance :math:`S_w + \mathrm{Cov}(\theta_o^{-\ell})`.  Since the weight already
+    carries :math:`\mathcal N(\hat v_\ell; \hat\theta_o^{-\ell}, \mathrm{Cov}(\theta_o^{-\ell}) + P_{v,\ell} + S_w)`,
+    the mixture is the exact conditional :math:`p(x_\ell \mid \text{others})`.  A new
+    cluster's option (prior :math:`H_2`, vague) barely moves the state.  ``mean`` (L, 5), ``cov`` (L, 5, 5).
+    """
+    if shares.obj.size == 0:
+        return mean, cov
+    return _share_velocity_kernel(mean, cov, shares.obj, S_w, shares.mu, shares.cov, shares.w)
+
+
+def _share_velocity_kernel(mean, cov, o, S_w, s_mu, s_cov, w):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s gains compiled, as its numpy code computed them: ``P = cov[o]``,
+    ``PHt = P[:, :, _VEL]``, ``Si = inv2(P_vv + S_w + s_cov)``
+    (:func:`tracker.bnp.group_theta.inv2`: entries over the determinant), ``K = PHt @ Si`` and ``KHP = K @ PHt'`` (numpy's stacked matmul: each entry
+    :func:`tracker.bnp.group_fma.sum2`); then :func:`_share_moments`."""
+    Q = o.size
+    m, P = np.empty((Q, 5)), np.empty((Q, 5, 5))
+    K, KHP = np.empty((Q, 5, 2)), np.empty((Q, 5, 5))
+    A, Si = np.empty((2, 2)), np.empty((2, 2))
+    vel = (1, 3)
+    for q in range(Q):
+        for i in range(5):  # not m[q] = mean[o[q]]: a slice assignment compiles numba's string code
+            m[q, i] = mean[o[q], i]
+            for j in range(5):
+                P[q, i, j] = cov[o[q], i, j]
+        for i in range(2):
+            for j in range(2):
+                A[i, j] = (P[q, vel[i], vel[j]] + S_w[i, j]) + s_cov[q, i, j]
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        Si[0, 0], Si[1, 1] = A[1, 1] / det, A[0, 0] / det
+        Si[0, 1], Si[1, 0] = -A[0, 1] / det, -A[1, 0] / det
+        for i in range(5):
+            for j in range(2):
+                K[q, i, j] = sum2(P[q, i, 1], Si[0, j], P[q, i, 3], Si[1, j])
+        for i in range(5):
+            for j in range(5):
+                KHP[q, i, j] = sum2(K[q, i, 0], P[q, j, 1], K[q, i, 1], P[q, j, 3])
+    return _share_moments(mean.shape[0], m, P, K, KHP, s_mu, w, o)
+
+
+def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
+    """:func:`share_velocity`'s update and moment match after its gains ``K`` (Q, 5, 2) and
+    ``KHP`` = K (P H')' (Q, 5, 5): ``mu = m + K (s_mu - H m)`` (the product as ``np.einsum``:
+    from 0.0 in index order), ``Pu = P - KHP``; the mixture's mean and covariance per object,
+    added in option order (``np.add.at``), then symmetrised.  Returns ``(N, 5)``, ``(N, 5, 5)``."""
+    Q = o.size
+    mu = np.empty((Q, 5))
+    for q in range(Q):
+        d0, d1 = s_mu[q, 0] - m[q, 1], s_mu[q, 1] - m[q, 3]
+        for i in range(5):
+            mu[q, i] = m[q, i] + (0.0 + K[q, i, 0] * d0 + K[q, i, 1] * d1)
+    new_mean = np.zeros((N, 5))
+    for q in range(Q):
+        for i in range(5):
+            new_mean[o[q], i] += w[q] * mu[q, i]
+    new_cov = np.zeros((N, 5, 5))
+    dev = np.empty(5)
+    for q in range(Q):
+        for i in range(5):
+            dev[i] = mu[q, i] - new_mean[o[q], i]
+        for i in range(5):
+            for j in range(5):
+                new_cov[o[q], i, j] += w[q] * ((P[q, i, j] - KHP[q, i, j]) + dev[i] * dev[j])
+    sym = np.empty((N, 5, 5))
+    for n in range(N):
+        for i in range(5):
+            for j in range(5):
+                sym[n, i, j] = 0.5 * (new_cov[n, i, j] + new_cov[n, j, i])
+    return new_mean, sym
+
+
+_share_moments = jit(_share_moments)
+_share_velocity_kernel = jit(_share_velocity_kernel)
+
+
+def share_turn(mean: np.ndarray, cov: np.ndarray, omega: np.ndarray, var: np.ndarray, z: np.ndarray,
+               within_var: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Each member's turn rate takes its cluster's leave-one-out turn rate as a pseudo-measurement.
+
+    The members of a cluster share one turn rate (``groups`` scene; part of theta in eq. (2)
+    [state1]); given the sample ``z``, member :math:`\ell`'s pseudo-measurement of :math:`x_4` is the
+    information-weighted mean of the *other* members' turn rates ``omega`` (variances ``var``,
+    flat prior), variance :math:`1/\sum_{j \ne \ell} \mathrm{var}_j^{-1}` + ``within_var``.
+    A member alone takes none.  ``mean`` (L, 5), ``cov`` (L, 5, 5)."""
+    if z.size < 2:
+        return mean, cov
+    new_mean, new_cov, shared = _share_turn_kernel(mean, cov, omega, var, z, float(within_var))
+    return (new_mean, new_cov) if shared else (mean, cov)
+
+
+def _share_turn_kernel(mean, cov, omega, var, z, within_var):  # pragma: no cover - compiled
+    """:func:`share_turn` compiled: the information sums per cluster added in member order from
+    0.0 (``np.bincount``), then each member with other members' information (> 0) updated as a
+    scalar Kalman step on ``x_4``, its covariance symmetrised.  The third output: any updated."""
+    L = z.size
+    info, im = np.empty(L), np.empty(L)
+    n_tables = 0
+    for l in range(L):
+        info[l] = 1.0 / var[l]
+        im[l] = info[l] * omega[l]
+        n_tables = max(n_tables, z[l] + 1)
+    s_i, s_m = np.zeros(n_tables), np.zeros(n_tables)
+    for l in range(L):
+        s_i[z[l]] += info[l]
+        s_m[z[l]] += im[l]
+    out_mean, out_cov = mean.copy(), cov.copy()
+    K, Pu = np.empty(5), np.empty((5, 5))
+    shared = False
+    for l in range(L):
+        tot_i = s_i[z[l]] - info[l]
+        if not tot_i > 0:
+            continue
+        shared = True
+        y = (s_m[z[l]] - im[l]) / tot_i
+        r = 1.0 / tot_i + within_var
+        for i in range(5):
+            K[i] = cov[l, i, 4] / (cov[l, 4, 4] + r)
+            out_mean[l, i] = mean[l, i] + K[i] * (y - mean[l, 4])
+        for i in range(5):
+            for j in range(5):
+                Pu[i, j] = cov[l, i, j] - K[i] * cov[l, 4, j]
+        for i in range(5):
+            for j in range(5):
+                out_cov[l, i, j] = 0.5 * (Pu[i, j] + Pu[j, i])
+    return out_mean, out_cov, shared
+
+
+_share_turn_kernel = jit(_share_turn_kernel)
