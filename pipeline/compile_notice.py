@@ -2,7 +2,7 @@
 
 :func:`compile_progress` (``track``, ``launch``, ``replay``) prints one line when tracker
 ``NAME``'s kernels have not been compiled into this version's kernel cache folder yet
-(:func:`tracker._numerics.kernel_cache_dir`; a file ``compiled-NAME`` there marks a run of
+(:func:`tracker.numerics.kernel_cache_dir`; a file ``compiled-NAME`` there marks a run of
 ``NAME`` that finished), then, at most once a second while the count changes, how many of the
 kernels not cached yet are compiled (numba writes one index file ``*.nbi`` per compiled
 kernel, from whichever process compiles it: the command's own or a pipeline's tracker stage),
@@ -103,12 +103,12 @@ def _index_files(folder: Path) -> set[str]:
 def _uncached_kernels(tracker: str, folder: Path) -> int:
     """How many of the kernels defined once tracker ``tracker``'s modules are imported have no
     index file in ``folder`` yet (an upper bound of what the run compiles)."""
-    from bnptrack.tracker import _numerics, registry
+    from bnptrack.tracker import numerics, registry
 
     with contextlib.suppress(ValueError):  # an unknown name is reported by the build
         registry.kind(tracker)
     names = {os.path.basename(p) for p in _index_files(folder)}
-    return sum(1 for prefix in _numerics.kernel_file_prefixes()
+    return sum(1 for prefix in numerics.kernel_file_prefixes()
                if not any(n.startswith(prefix + ".py") for n in names))
 
 
@@ -124,7 +124,7 @@ class FirstCompile:
 
     def begin(self) -> None:
         from bnptrack.tracker import registry
-        from bnptrack.tracker._numerics import JIT, kernel_cache_dir
+        from bnptrack.tracker.numerics import JIT, kernel_cache_dir
 
         if self._begun:
             return

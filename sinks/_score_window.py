@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 
 def _window_terms_kernel(ge, cnt_e, gt, cnt_t, terms, n_ids_e, n_ids_t, cq):  # pragma: no cover - compiled

@@ -120,6 +120,6 @@ def optimal_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (docs/performance.md, measured), which a process that only unpickles :class:`sinks.metrics.OspaResult` (the Rerun recording process, see
     ``sinks.rerun_process``) should not pay.
     """
-    from bnptrack.tracker._numerics import scipy_extension  # scipy's solver without scipy.optimize's import
+    from bnptrack.tracker.numerics import scipy_extension  # scipy's solver without scipy.optimize's import
 
     return scipy_extension("optimize", "_lsap").linear_sum_assignment(cost)

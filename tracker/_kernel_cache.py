@@ -2,7 +2,7 @@
 
 A warm ``bnptrack track`` with the two-level tracker loads 27 compiled kernels from numba's
 cache.  :func:`lean_cache_loads` (applied for the command line by
-:func:`tracker._numerics.import_numba`, ``LEAN_NUMBA``, when numba is a version it was checked
+:func:`tracker.numerics.import_numba`, ``LEAN_NUMBA``, when numba is a version it was checked
 with, :data:`LEAN_LOADS_VERSIONS`) leaves out three costs of numba's own load that a process
 which only runs cached kernels does not need:
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 
 def lsap_into(cost, col4row, u, v, spc, path, row4col, SR, SC, remaining):  # pragma: no cover - compiled

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from bnptrack.tracker import _numerics
+from bnptrack.tracker import numerics
 from bnptrack.tracker.models import _kernels
 from bnptrack.tracker.models.measurement import BearingRange, Cartesian, RangeOnly
 from bnptrack.tracker.models.motion import CoordinatedTurn
@@ -268,7 +268,7 @@ def ukf_predict(motion, m: np.ndarray, P: np.ndarray,
     kernel (:func:`tracker.models._kernels.ct_ukf_predict`, same values to rounding); other
     models, and covariances that are not positive definite, in numpy (:func:`_ukf_predict_numpy`).
     """
-    if _numerics.JIT and type(motion) is CoordinatedTurn and m.shape[-1] == 5 and len(m):
+    if numerics.JIT and type(motion) is CoordinatedTurn and m.shape[-1] == 5 and len(m):
         Wm, Wc, c = unscented_weights(params, 5)
         m_pred, P_pred, ok = _kernels.ct_ukf_predict(_c(m), _c(P), float(motion.T),
                                                      Wm, Wc, math.sqrt(c), motion.Q)
@@ -408,7 +408,7 @@ def ukf_innovation(meas, m_pred: np.ndarray, P_pred: np.ndarray,
     to rounding); other models, and covariances that are not positive definite, in numpy
     (:func:`_ukf_innovation_numpy`).
     """
-    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    kind = _KERNEL_KINDS.get(type(meas)) if numerics.JIT else None
     if kind is not None and len(m_pred) and m_pred.shape[-1] == 5:
         Wm, Wc, c = unscented_weights(params, 5)
         R = meas.R
@@ -503,7 +503,7 @@ def log_likelihood_matrix(meas, innov: Innovation, Z: np.ndarray,
     gate.  (No gate-probability renormalisation is applied; that is the caller's model.)
     """
     d = innov.z_pred.shape[-1]
-    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    kind = _KERNEL_KINDS.get(type(meas)) if numerics.JIT else None
     if kind is not None and len(innov) and Z.shape[0]:  # compiled: the same arithmetic, value by value
         g = math.inf if gate_prob is None else gate_threshold(gate_prob, d)
         return _kernels.loglik_dense(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
@@ -536,7 +536,7 @@ def update_pairs(meas, innov: Innovation, m_pred: np.ndarray, Z: np.ndarray,
     ``track_idx``, ``meas_idx``: integer arrays of length ``L``.  Covariances are
     ``innov.P_upd[track_idx]``.
     """
-    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    kind = _KERNEL_KINDS.get(type(meas)) if numerics.JIT else None
     if kind is not None and m_pred.shape[0] and Z.shape[0]:
         return _kernels.update_pairs_kernel(_c(m_pred), innov.gain, innov.z_pred, _c(Z),
                                             np.asarray(track_idx, np.int64), np.asarray(meas_idx, np.int64),
@@ -615,7 +615,7 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     same test as the dense matrix.  Cost ~ (N + M) log M + pairs in gates.
     """
     N, d = innov.z_pred.shape
-    kind = _KERNEL_KINDS.get(type(meas)) if _numerics.JIT else None
+    kind = _KERNEL_KINDS.get(type(meas)) if numerics.JIT else None
     if kind is not None and N * Z.shape[0] <= SCIPY_PAIRS:  # small frames: every pair, compiled
         return _kernels.loglik_gated(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
                                      kind == _kernels.KIND_BEARING_RANGE, gate_threshold(gate_prob, d), _LOG_2PI)
@@ -626,7 +626,7 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     g = gate_threshold(gate_prob, d)
     ti, mi = _gate_candidates(meas, innov, Z, g)
     if ti.size:
-        key = _numerics.unique_ints(mi * N + ti)  # sorted by measurement, then track; images deduplicated
+        key = numerics.unique_ints(mi * N + ti)  # sorted by measurement, then track; images deduplicated
         mi, ti = key // N, key % N
     r = meas.residual(Z[mi], innov.z_pred[ti])
     D2 = np.sum((r[:, None, :] @ innov.S_inv[ti])[:, 0, :] * r, axis=-1)

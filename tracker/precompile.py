@@ -47,13 +47,13 @@ def load_manifest(path: Path = MANIFEST) -> dict[str, list[tuple[str, str, Any]]
 def _dispatcher(module: str, qualname: str) -> Any:
     """The numba dispatcher of the kernel whose Python function is ``module.qualname`` (it may
     be bound under another name: ``_sweeps = jit(_sweep_kernel)``), or None."""
-    from bnptrack.tracker import _numerics
+    from bnptrack.tracker import numerics
 
     importlib.import_module(module)
-    for kernel in list(_numerics._defined):
+    for kernel in list(numerics._defined):
         fn = kernel.py_func
         if fn.__module__ == module and fn.__qualname__ == qualname:
-            return kernel.dispatcher or _numerics._compile_pending(kernel)
+            return kernel.dispatcher or numerics._compile_pending(kernel)
     return None
 
 
@@ -61,13 +61,13 @@ def precompile(tracker: str, manifest: Path = MANIFEST) -> int:
     """Compile tracker ``tracker``'s kernels of the manifest from the last to the first,
     stopping at the first one the run has cached meanwhile (one cached before, or by this
     process as the callee of another, is skipped); return how many it compiled."""
-    from bnptrack.tracker import _numerics, registry
+    from bnptrack.tracker import numerics, registry
 
     entries = load_manifest(manifest).get(tracker, [])
     if not entries:
         return 0
     registry.kind(tracker)
-    mine = {str(p) for p in Path(_numerics.kernel_cache_dir()).rglob("*.nbi")}  # cached before
+    mine = {str(p) for p in Path(numerics.kernel_cache_dir()).rglob("*.nbi")}  # cached before
     _note_compiles(mine)
     done = 0
     for module, qualname, sig in reversed(entries):
@@ -104,6 +104,6 @@ def _note_compiles(paths: set[str]) -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover - run as a process by pipeline.compile_notice
-    _numerics_mod = importlib.import_module("bnptrack.tracker._numerics")
-    _numerics_mod.import_numba()
+    numerics_mod = importlib.import_module("bnptrack.tracker.numerics")
+    numerics_mod.import_numba()
     precompile(sys.argv[1])

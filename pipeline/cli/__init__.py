@@ -116,16 +116,16 @@ class _LazyGroup(click.Group):
     that it imports no command module; every other use loads the command itself.  Run as the
     process's command line (no ``args`` given: not a test's ``CliRunner``), a command of
     :data:`FAST_EXIT` ends the process with :func:`exit_now`, and its numba leaves out the
-    optional yaml and cffi support (``tracker._numerics.LEAN_NUMBA``: the process runs no
+    optional yaml and cffi support (``tracker.numerics.LEAN_NUMBA``: the process runs no
     numba code but the project's kernels)."""
 
     def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
              standalone_mode: bool = True, **extra: Any) -> Any:
         if args is not None or not standalone_mode or _command_name(sys.argv[1:]) not in FAST_EXIT:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
-        from bnptrack.tracker import _numerics
+        from bnptrack.tracker import numerics
 
-        _numerics.LEAN_NUMBA = True
+        numerics.LEAN_NUMBA = True
         try:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
         except SystemExit as exc:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bnptrack.tracker._numerics import preload
+from bnptrack.tracker.numerics import preload
 
 __all__ = ["compiled_kernels", "contest_frames", "preload_tracker", "warm_up_contests", "warm_up_tracker",
            "warm_tracker_imports"]
@@ -31,7 +31,7 @@ def warm_tracker_imports(name: str) -> None:
 
 
 def preload_tracker() -> None:
-    """numba's import and set-up (:func:`tracker._numerics.preload`): what the first frames
+    """numba's import and set-up (:func:`tracker.numerics.preload`): what the first frames
     would otherwise pay in the loop (the large frames' :data:`LAZY_IMPORTS` come later, in the
     background, when a frame is large: :meth:`TrackerStage._lazy_imports_due`)."""
     preload()

@@ -105,7 +105,7 @@ _KERNEL_PROBE = """
 import sys
 import numpy as np
 import bnptrack.tracker.bnp.gibbs as g
-from bnptrack.tracker._numerics import JIT
+from bnptrack.tracker.numerics import JIT
 before = "numba" in sys.modules
 keys = g._group_pairs(np.array([4, 7, 9], dtype=np.int64), np.array([0], dtype=np.int64),
                       np.array([3], dtype=np.int64), 10, 3)

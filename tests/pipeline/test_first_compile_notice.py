@@ -12,7 +12,7 @@ import pytest
 
 from bnptrack.pipeline import compile_notice
 from bnptrack.pipeline.compile_notice import compile_progress
-from bnptrack.tracker._numerics import JIT, kernel_cache_dir, kernel_file_prefixes
+from bnptrack.tracker.numerics import JIT, kernel_cache_dir, kernel_file_prefixes
 
 pytestmark = pytest.mark.skipif(not JIT, reason="nothing compiles without numba")
 

@@ -1,6 +1,6 @@
 """What ``bnptrack track`` imports of scipy: none of ``scipy.linalg``,
 ``scipy.special``, ``scipy.optimize`` or ``scipy.spatial`` (0.6-1 s of imports between them)
-with the kernels compiled; numba still finds BLAS (``tracker._numerics.import_numba`` loads
+with the kernels compiled; numba still finds BLAS (``tracker.numerics.import_numba`` loads
 scipy's ``cython_blas`` alone), and a later ``import scipy.linalg`` is whole.  Checks of
 ``sys.modules`` in a fresh interpreter; docs/performance.md has the timings."""
 
@@ -64,14 +64,14 @@ def test_track_summary_median_is_numpys() -> None:
 
 _LEAN_PROBE = """
 import json, sys
-from bnptrack.tracker import _numerics
-_numerics.LEAN_NUMBA = True
-_numerics.preload()
+from bnptrack.tracker import numerics
+numerics.LEAN_NUMBA = True
+numerics.preload()
 from numba.core.typing import cffi_utils
 from numba.core import config
 left_out = [m in sys.modules for m in ("yaml", "cffi")]
 import yaml, cffi
-print(json.dumps([left_out, cffi_utils.SUPPORTED, config._HAVE_YAML, _numerics._preload_kernel(1.5),
+print(json.dumps([left_out, cffi_utils.SUPPORTED, config._HAVE_YAML, numerics._preload_kernel(1.5),
                   yaml.safe_load("a: 1")]), file=sys.stderr)
 """
 
@@ -85,7 +85,7 @@ def test_lean_numba_leaves_yaml_and_cffi_importable(tmp_path: Path) -> None:
 _BLAS_PROBE = """
 import json, sys
 import numpy as np
-from bnptrack.tracker._numerics import import_numba
+from bnptrack.tracker.numerics import import_numba
 import_numba()
 import numba
 from numba.np import arraymath

@@ -25,7 +25,7 @@ from bnptrack.pipeline.stages.tracker import build_stage_tracker
 from bnptrack.pipeline.stages.tracker_warmup import warm_up_tracker
 from bnptrack.sources.scenarios import get_scenario, scenario_params
 from bnptrack.sources.synthetic import simulate
-from bnptrack.tracker._numerics import JIT
+from bnptrack.tracker.numerics import JIT
 from bnptrack.tracker.state import tracker_frame_rng
 assert JIT, "numba must be on: the check counts compiled kernels"
 if not {contests}:

@@ -1,7 +1,7 @@
 """The scorer's distance matrix (``sinks.metrics._euclidean``) is scipy's ``cdist``, bit for
 bit, and its assignment (``sinks.metric_checks.optimal_assignment``) is scipy's own
 ``linear_sum_assignment``, loaded without importing ``scipy.optimize``
-(``tracker._numerics.scipy_extension``; docs/performance.md, start-up)."""
+(``tracker.numerics.scipy_extension``; docs/performance.md, start-up)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The compiled filter kernels (tracker/models/_kernels.py) against the numpy reference of
 tracker/filtering.py on random batches, plus hand-computed values.
 
-``tracker._numerics.JIT`` selects the path at each call: ``True`` runs the kernels (compiled,
+``tracker.numerics.JIT`` selects the path at each call: ``True`` runs the kernels (compiled,
 or interpreted when numba is missing: the same code), ``False`` the numpy reference.
 """
 
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from bnptrack.tracker import _numerics
+from bnptrack.tracker import numerics
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.models import _kernels
 from bnptrack.tracker.models.measurement import BearingRange, Cartesian, RangeOnly, wrap_angle
@@ -35,11 +35,11 @@ def _batch(rng: np.random.Generator, N: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _both(monkeypatch, fn, *args):
-    monkeypatch.setattr(_numerics, "JIT", True)
+    monkeypatch.setattr(numerics, "JIT", True)
     new = fn(*args)
-    monkeypatch.setattr(_numerics, "JIT", False)
+    monkeypatch.setattr(numerics, "JIT", False)
     ref = fn(*args)
-    monkeypatch.setattr(_numerics, "JIT", True)
+    monkeypatch.setattr(numerics, "JIT", True)
     return new, ref
 
 
@@ -200,7 +200,7 @@ def test_pair_updates_match_the_numpy_reference(monkeypatch, meas):
 
 def test_unique_ints_equals_numpy_unique():
     """The sort-based unique gives numpy's values, order and dtype (hand case, then random)."""
-    from bnptrack.tracker._numerics import unique_ints
+    from bnptrack.tracker.numerics import unique_ints
 
     assert unique_ints(np.array([7, 3, 7, -1, 3], dtype=np.int64)).tolist() == [-1, 3, 7]
     rng = np.random.default_rng(4)

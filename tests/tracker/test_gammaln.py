@@ -1,4 +1,4 @@
-"""``tracker._numerics.gammaln`` against ``scipy.special.gammaln``: the same doubles (compared
+"""``tracker.numerics.gammaln`` against ``scipy.special.gammaln``: the same doubles (compared
 bit for bit) over the whole positive range, the same shapes, and scipy's own values where it
 falls back (``x <= 0``, NaN, infinities, beyond Cephes' MAXLGM)."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.special import gammaln as scipy_gammaln
 
-from bnptrack.tracker import _numerics
-from bnptrack.tracker._numerics import gammaln
+from bnptrack.tracker import numerics
+from bnptrack.tracker.numerics import gammaln
 
 
 def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
@@ -51,6 +51,6 @@ def test_other_arguments_are_scipys() -> None:
 
 
 def test_interpreted_mode_uses_scipy(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(_numerics, "JIT", False)
+    monkeypatch.setattr(numerics, "JIT", False)
     x = np.array([0.3, 7.5, 42.0])
     assert _same_bits(gammaln(x), scipy_gammaln(x))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.numerics import logsumexp
 from bnptrack.tracker.glmb.hypotheses import prune_and_cap
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bnptrack.tracker._numerics import JIT, jit
+from bnptrack.tracker.numerics import JIT, jit
 from bnptrack.tracker.bnp.group_fma import dot2, exact_fma, gemv2, sum2
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,7 +10,7 @@ import pytest
 from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups
 from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth_frame, exclusive_candidates,
                                               merge_exclusive)
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_partition import _inv_into, _move
 from bnptrack.tracker.bnp.group_sample import Block, Shares, _compact, _table_priors
 from bnptrack.tracker.bnp.group_scan import _collect_shares, _option_logw, _partition_kernel

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.tracker.bnp.group_partition import MARGIN, _heap_pop, _heap_push, lmax2
+from bnptrack.tracker.bnp.group_grid import MARGIN, _heap_pop, _heap_push
+from bnptrack.tracker.bnp.group_partition import lmax2
 from bnptrack.tracker.bnp.group_sample import PARTITION_KERNELS, Block, sample_partition
 
 

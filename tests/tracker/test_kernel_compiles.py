@@ -20,7 +20,7 @@ import pytest
 #: compile machinery: fresh interpreters compiling and loading kernels (docs/testing.md, markers)
 pytestmark = pytest.mark.slow
 
-from bnptrack.tracker import _numerics
+from bnptrack.tracker import numerics
 from tests.testkit import REPO_ROOT, bnptrack_env
 
 _PROBE = textwrap.dedent("""
@@ -61,7 +61,7 @@ _PROBE = textwrap.dedent("""
 
 @pytest.fixture(scope="module")
 def cold_run(tmp_path_factory) -> dict:
-    if not _numerics.JIT:
+    if not numerics.JIT:
         pytest.fail("numba is a core dependency: the kernels must compile here")
     env = bnptrack_env({"NUMBA_CACHE_DIR": str(tmp_path_factory.mktemp("numba"))})
     out = subprocess.run([sys.executable, "-c", _PROBE], cwd=REPO_ROOT, env=env, capture_output=True, text=True,

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from bnptrack.tracker._numerics import JIT
+from bnptrack.tracker.numerics import JIT
 from testkit import REPO_ROOT, bnptrack_env
 
 pytestmark = pytest.mark.skipif(not JIT, reason="nothing compiles without numba")
@@ -21,8 +21,8 @@ def test_precompile_caches_from_the_end_and_skips_what_was_cached(tmp_path):
     from numba import types
 
     manifest = tmp_path / "manifest.pkl"
-    rows = [("bnptrack.tracker._numerics", "_preload_kernel", (types.float64,)),
-            ("bnptrack.tracker._numerics", "_lgam_array", (types.float64[::1], types.float64[::1]))]
+    rows = [("bnptrack.tracker.numerics", "_preload_kernel", (types.float64,)),
+            ("bnptrack.tracker.numerics", "_lgam_array", (types.float64[::1], types.float64[::1]))]
     manifest.write_bytes(pickle.dumps({"numba": numba.__version__, "trackers": {"ddp": rows}}))
     code = ("import sys; from pathlib import Path; from bnptrack.tracker.precompile import precompile; "
             "print(precompile('ddp', Path(sys.argv[1])))")
@@ -31,17 +31,17 @@ def test_precompile_caches_from_the_end_and_skips_what_was_cached(tmp_path):
                            capture_output=True, text=True, timeout=300) for _ in range(2)]
     assert [r.stdout.strip() for r in runs] == ["2", "0"], [r.stderr for r in runs]
     names = sorted(os.path.basename(p) for p in (tmp_path / "cache").rglob("*.nbi"))
-    assert [n.split("-")[0] for n in names] == ["_numerics._lgam_array", "_numerics._preload_kernel"]
+    assert [n.split("-")[0] for n in names] == ["numerics._lgam_array", "numerics._preload_kernel"]
 
 
 _RESOLVE = """
 import importlib, json, sys
-from bnptrack.tracker import _numerics, registry
+from bnptrack.tracker import numerics, registry
 registry.kind(sys.argv[1])
 rows = json.loads(sys.argv[2])
 for module, _, _ in rows:
     importlib.import_module(module)
-defined = {(k.py_func.__module__, k.py_func.__qualname__): k.py_func.__code__.co_argcount for k in _numerics._defined}
+defined = {(k.py_func.__module__, k.py_func.__qualname__): k.py_func.__code__.co_argcount for k in numerics._defined}
 print(json.dumps([defined.get((m, q)) for m, q, _ in rows]))
 """
 

@@ -126,18 +126,18 @@ def test_a_symbol_that_does_not_resolve_gets_numbas_set_up_first(tmp_path: Path)
 
 def test_other_numba_versions_get_numbas_own_loads(tmp_path: Path) -> None:
     """``lean_cache_loads`` applies to the numba versions it mirrors only: for any other it
-    changes nothing and says so, and :func:`tracker._numerics.import_numba` then sets numba's
+    changes nothing and says so, and :func:`tracker.numerics.import_numba` then sets numba's
     CPU target up itself (``refresh``) before the kernels load the ordinary way."""
     code = """
 import json, sys
-from bnptrack.tracker import _kernel_cache, _numerics
+from bnptrack.tracker import _kernel_cache, numerics
 _kernel_cache.LEAN_LOADS_VERSIONS = ("0.0.",)
-_numerics.LEAN_NUMBA = True
-_numerics.preload()
+numerics.LEAN_NUMBA = True
+numerics.preload()
 from numba.core import codegen, typing
 from numba.core.registry import cpu_target
 lean = getattr(codegen.JITCodeLibrary, "_bnptrack_lean", False)
-print(json.dumps([lean, _numerics._preload_kernel(2.5), "numba.np.linalg" in sys.modules,
+print(json.dumps([lean, numerics._preload_kernel(2.5), "numba.np.linalg" in sys.modules,
                   "cffi" in sys.modules, _kernel_cache.lean_cache_loads("unused", ("0.0.",))]))
 """
     lean, value, registries, cffi, applies = json.loads(_python(code).stdout.strip().splitlines()[-1])

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker._lsap import lsap
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 
 def np_sum(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cover - compiled

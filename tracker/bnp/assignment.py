@@ -52,7 +52,7 @@ def best_permutation_pairs(n: int, ti: np.ndarray, mi: np.ndarray, p: np.ndarray
 def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
     """Per connected component with two clusters preferring one measurement, the JPDA*
     assignment (updates ``choice``, aligned with the sorted ``clusters``)."""
-    from bnptrack.tracker._numerics import scipy_extension  # scipy.optimize's solver, not its slow import
+    from bnptrack.tracker.numerics import scipy_extension  # scipy.optimize's solver, not its slow import
     linear_sum_assignment = scipy_extension("optimize", "_lsap").linear_sum_assignment
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components

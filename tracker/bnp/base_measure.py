@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
-from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.numerics import logsumexp
 from bnptrack.tracker.bnp import _kernels as _k
 from bnptrack.tracker.models.params import ModelParams
 

@@ -57,7 +57,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
-from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.numerics import logsumexp
 from bnptrack.tracker.bnp.base_measure import BaseDistribution
 
 #: Grid of the DP concentration alpha_H (in births); its prior is log-uniform on the grid.

@@ -8,7 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit, unique_ints
+from bnptrack.tracker.numerics import jit, unique_ints
 from bnptrack.tracker.bnp import _kernels as _k
 
 

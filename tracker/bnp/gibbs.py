@@ -50,7 +50,7 @@ from functools import cached_property
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp._kernels import np_sum
 from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, PAIR_MEMBERS, gate_bits
 from bnptrack.tracker.bnp.swap_moves import exchange_pairs as _exchange_pairs

@@ -22,9 +22,9 @@ against the formula in exact arithmetic, and BLAS's within a dot product's error
 Interpreted (``BNPTRACK_NO_JIT=1``), :func:`fma` is the correctly rounded ``a b + c`` in exact
 rational arithmetic.
 
-numba is imported only when a kernel first runs (:mod:`tracker._numerics`): the intrinsic is
+numba is imported only when a kernel first runs (:mod:`tracker.numerics`): the intrinsic is
 built then (:class:`_LazyIntrinsic`), and every module name bound to it is rebound, as
-:mod:`tracker._numerics` rebinds its lazy kernels.
+:mod:`tracker.numerics` rebinds its lazy kernels.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ import sys
 from fractions import Fraction
 from typing import Any
 
-from bnptrack.tracker import _numerics
-from bnptrack.tracker._numerics import JIT, jit
+from bnptrack.tracker import numerics
+from bnptrack.tracker.numerics import JIT, jit
 
 
 def exact_fma(a: float, b: float, c: float) -> float:
@@ -78,9 +78,9 @@ def _build_intrinsic() -> Any:
     return fma
 
 
-class _LazyIntrinsic(_numerics._LazyKernel):
+class _LazyIntrinsic(numerics._LazyKernel):
     """:func:`exact_fma` in Python; in compiled code the intrinsic of :func:`_build_intrinsic`,
-    built when :mod:`tracker._numerics` compiles its pending kernels (numba is imported by then):
+    built when :mod:`tracker.numerics` compiles its pending kernels (numba is imported by then):
     it sees a "dispatcher" already there, so it compiles nothing and rebinds the names."""
 
     def __init__(self) -> None:
@@ -103,8 +103,8 @@ class _LazyIntrinsic(_numerics._LazyKernel):
 
 if JIT:
     fma = _LazyIntrinsic()
-    with _numerics._lock:
-        _numerics._pending.append(fma)
+    with numerics._lock:
+        numerics._pending.append(fma)
 else:
     fma = exact_fma
 

@@ -53,7 +53,7 @@ def arrivals_loglik_grid(alpha: np.ndarray, d: np.ndarray, z: np.ndarray, arrive
 # -- the whole history of the object partition (hyper_likelihood = "history") ----------------
 def log_rising_grid(x: np.ndarray, n: np.ndarray | float) -> np.ndarray:
     r""":math:`\log x^{\overline n} = \log\Gamma(x+n) - \log\Gamma(x)` (``x > 0``, ``n >= 0``)."""
-    from bnptrack.tracker._numerics import gammaln  # as tracker.bnp.urn
+    from bnptrack.tracker.numerics import gammaln  # as tracker.bnp.urn
 
     return gammaln(x + n) - gammaln(x)
 

@@ -32,7 +32,7 @@ from operator import itemgetter
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.

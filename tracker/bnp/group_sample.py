@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_partition import gated_kernel
 from bnptrack.tracker.bnp.group_scan import _collect_shares, _partition_kernel
 from bnptrack.tracker.bnp.group_theta import prior_information

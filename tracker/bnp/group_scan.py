@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.group_partition import _inv_into, _move
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_fma import sum2
 from bnptrack.tracker.bnp.group_sample import Shares
 

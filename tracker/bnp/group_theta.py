@@ -9,7 +9,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 __all__ = ["fov_moments", "inv2", "inv2_const", "prior_information", "theta_posterior", "theta_sums"]
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 #: The sampler's assignment codes besides a cluster's index (:mod:`tracker.bnp.gibbs` exports them).
 CLUTTER = -1

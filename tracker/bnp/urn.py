@@ -40,7 +40,7 @@ import numpy as np
 def log_rising(x: float | np.ndarray, n: int | np.ndarray) -> np.ndarray:
     """:math:`\\log x^{\\overline{n}} = \\log\\Gamma(x+n) - \\log\\Gamma(x)` (``n >= 0``, ``x > 0``)."""
     x = np.asarray(x, dtype=float)
-    from bnptrack.tracker._numerics import gammaln  # scipy.special's, without importing it (docs/performance.md)
+    from bnptrack.tracker.numerics import gammaln  # scipy.special's, without importing it (docs/performance.md)
 
     return gammaln(x + n) - gammaln(x)
 

@@ -28,7 +28,7 @@ One frame (:meth:`GlmbTracker.step`):
    the Gaussian update computed once per pair.
 
 The Gibbs sweeps and the linear assignments run in numba-compiled kernels on plain arrays
-(``BNPTRACK_NO_JIT=1`` runs the same functions interpreted, :mod:`tracker._numerics`); the
+(``BNPTRACK_NO_JIT=1`` runs the same functions interpreted, :mod:`tracker.numerics`); the
 sweeps consume uniforms drawn up front from ``rng`` in the order of the vectorised reference
 :func:`gibbs_chains_numpy`, so the output is identical to it.
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker._lsap import lsap_into
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.glmb.assignment import _lsap_batch
 from bnptrack.tracker.glmb.gibbs import _gibbs_sweeps
 from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS, _Children

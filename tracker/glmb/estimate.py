@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.glmb.state import GlmbState
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
 

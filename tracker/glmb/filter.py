@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
-from bnptrack.tracker._numerics import logsumexp
+from bnptrack.tracker.numerics import logsumexp
 from bnptrack.tracker.cardinality import truncate_tail
 from bnptrack.tracker.glmb.births import _Births, adaptive_birth_existence, measurement_state_prior
 from bnptrack.tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.glmb.assignment import _assign
 from bnptrack.tracker.glmb.hypotheses import _DET, _DIE, _MISS
 

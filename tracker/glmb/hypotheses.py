@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit, logsumexp
+from bnptrack.tracker.numerics import jit, logsumexp
 from bnptrack.tracker.glmb.state import GlmbState
 
 

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from bnptrack.tracker._numerics import jit
+from bnptrack.tracker.numerics import jit
 
 #: Measurement kinds of :func:`ukf_innovation_kernel` (``h`` and which residual is wrapped).
 KIND_BEARING_RANGE, KIND_RANGE, KIND_XY = 0, 1, 2
