@@ -26,10 +26,13 @@ LONG_MODULES = {
     "tracker/bnp/_kernels.py": 636,
     "tracker/filtering.py": 636,
     "tracker/glmb/children.py": 614,
+    "tracker/messages.py": 524,
 }
 
 #: Classes still over MAX_CLASS_LINES, each with its current length as its ceiling.
-LONG_CLASSES: dict[str, int] = {}
+LONG_CLASSES = {
+    "pipeline/stages/tracker.py:TrackerStage": 303,
+}
 
 
 def _modules() -> dict[str, Path]:
