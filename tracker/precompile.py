@@ -10,7 +10,7 @@ tracker's warm-up).  A kernel it has cached is loaded, not compiled, by the run 
 there; it stops at the first kernel it finds already cached (the run has got there), so the
 two processes meet in the middle.  The machine code is what the run would have compiled itself
 (numba's cache, keyed by signature and options); a manifest that no longer matches the kernels
-(another numba version, a changed kernel) only costs the helper's work: the run compiles what
+(another numba version, a changed kernel) only costs the second process's work: the run compiles what
 it needs.
 """
 
