@@ -129,7 +129,7 @@ def test_sink_decodes_frames_only_for_a_consumer(tmp_path, monkeypatch):
     sink.json's scores and counters) equal those of a run that decodes every frame."""
     import dataclasses
 
-    import bnptrack.pipeline.stages.sink as sink_stage
+    import bnptrack.pipeline.stages.sink_write as sink_stage
     from bnptrack.sinks.sink import SINKS
 
     calls = []
