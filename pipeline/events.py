@@ -6,7 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Event"]
+__all__ = ["Event", "FETCH_MAX"]
+
+#: Most samples one answer of the explicit-history queryable holds (``fetch/<topic>``).
+FETCH_MAX = 2000
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ import zenoh.ext as zext
 
 from bnptrack.pipeline.acl import KEY_ROOT
 from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
-from bnptrack.pipeline.events import Event
+from bnptrack.pipeline.events import FETCH_MAX, Event
 from bnptrack.pipeline.transport_liveliness import Liveliness
 from bnptrack.pipeline.transport_session import (SHM_OFF, NoRouterError, Router, TransportError, open_session,
                                                  session_config)
@@ -76,8 +76,6 @@ log = logging.getLogger("bnptrack.transport")
 DATA_TOPICS = frozenset({"measurements", "truth", "tracks"})
 #: Cache size of control topics (``info/<stage>``, ``eos/<stage>``).
 CONTROL_CACHE = 16
-#: Most samples one fetch reply set carries (a consumer asks again for the rest).
-FETCH_MAX = 2000
 
 _META_ENC = msgspec.json.Encoder()
 _FETCH_DEC = msgspec.json.Decoder(tuple[int, int])

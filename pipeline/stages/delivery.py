@@ -18,10 +18,13 @@ from typing import Any
 
 from bnptrack.tracker.messages import TOPIC_MEASUREMENTS, TOPIC_TRACKS, TOPIC_TRUTH, CodecError, decode
 from bnptrack.pipeline.config import DeliveryConfig
+from bnptrack.pipeline.events import FETCH_MAX
 from bnptrack.pipeline.stages.health import _JSON, Counters
 
-__all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "GAP", "NO_TRUTH",
-           "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY"]
+__all__ = ["Accepted", "Intake", "Sequencer", "HoleWatch", "fetch_holes", "settle_holes", "resolve_conflict",
+           "HeadAsk", "end_gaps_due", "publisher_copy",
+           "GAP", "NO_TRUTH", "FETCH_AFTER_S", "BUS_TOPIC", "CODEC_TOPIC", "MAX_SEQ", "DEADLETTER_COPY",
+           "RepeatLog"]
 
 log = logging.getLogger("bnptrack.stage")
 
@@ -71,10 +74,21 @@ class Sequencer:
     restarts receives the publishers' history (the frames from ``start`` on) and live frames
     at the same time, in no guaranteed order, and the live frames must not push the history
     out as gaps.  Consumers use the cache size: no history holds more.
+
+    ``confirm`` (the pipeline's consumers): a frame missing while later ones arrive is not
+    declared a gap by the window alone; it is declared by :meth:`confirm_through`, once the
+    live publishers were asked for it (:func:`settle_holes`) and did not return it, or when
+    ``catch_up`` later frames have arrived (no cache holds it any more).  ``ask_head``
+    (``() -> int | None``: the publishers' live head, ``None`` when nobody answers) bounds the
+    look-ahead: a sample ``window`` or more past the next expected one whose seq is beyond
+    the live head is answered ``"ahead"`` (not accepted, nothing declared).  A sample whose
+    seq is buffered with another payload is answered ``"conflict"`` (the earlier one stays;
+    :func:`resolve_conflict` asks the publisher which is its own).
     """
 
     def __init__(self, window: int, start: int = 0, name: str = "", catch_up: int | None = None,
-                 max_ahead: int | None = None) -> None:
+                 max_ahead: int | None = None, confirm: bool = False,
+                 ask_head: Callable[[], int | None] | None = None) -> None:
         if window < 1 or (catch_up is not None and catch_up < window):
             raise ValueError("window must be >= 1 and catch_up >= window")
         self.window = int(window)
@@ -92,12 +106,19 @@ class Sequencer:
         self.late = 0
         self.max_seen = int(start) - 1
         self.catch_up_through = -1
+        self.confirm = bool(confirm)
+        self.ask_head = ask_head
+        self.known_head = -1
+        self.ahead = 0
+        self.conflicts = 0
 
     @classmethod
-    def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str) -> Sequencer:
+    def for_delivery(cls, delivery: DeliveryConfig, start: int, name: str,
+                     ask_head: Callable[[], int | None] | None = None) -> Sequencer:
         """A consumer's sequencer with the pipeline's ``window``, ``catch_up`` and
-        ``max_seq_ahead``."""
-        return cls(delivery.window, start, name, delivery.catch_up, delivery.max_seq_ahead)
+        ``max_seq_ahead``; gaps are confirmed with the publishers (``confirm``)."""
+        return cls(delivery.window, start, name, delivery.catch_up, delivery.max_seq_ahead, confirm=True,
+                   ask_head=ask_head)
 
     def push(self, seq: int, item: Any) -> tuple[str, list[tuple[int, Any]]]:
         seq = int(seq)
@@ -112,18 +133,49 @@ class Sequencer:
             self.duplicates += 1
             return "duplicate", []
         if seq in self.buf:
+            if _differs(self.buf[seq], item):
+                self.conflicts += 1
+                return "conflict", []
             self.duplicates += 1
             return "duplicate", []
+        if seq >= self.next + self.window and not self._within_head(seq):
+            self.ahead += 1
+            return "ahead", []
         self.accepted += 1
         self.max_seen = max(self.max_seen, seq)
         out: list[tuple[int, Any]] = []
-        window = self.window if self.caught_up else self.catch_up
+        window = self.window if self.caught_up and not self.confirm else self.catch_up
         if seq >= self.next + window:
             out += self._advance_to(seq - window + 1)
         self.buf[seq] = item
         out += self._release()
         self.caught_up = self.caught_up or (not self.buf and self.next > self.catch_up_through)
         return "accepted", out
+
+    def _within_head(self, seq: int) -> bool:
+        """Whether ``seq`` can have been published: at most the live head (asked again when
+        ``seq`` is past the head known so far; ``True`` when nobody answers)."""
+        if seq <= self.known_head or self.ask_head is None:
+            return True
+        head = self.ask_head()
+        if head is None:
+            return True
+        self.known_head = max(self.known_head, int(head))
+        return seq <= self.known_head
+
+    def replace(self, seq: int, item: Any) -> None:
+        """Put ``item`` (the publisher's own copy) in the buffered slot ``seq``."""
+        if seq in self.buf:
+            self.buf[seq] = item
+
+    def confirm_through(self, hi: int) -> list[tuple[int, Any]]:
+        """The live publishers were asked for the missing frames up to ``hi`` and did not
+        return them: declare those the window has passed (``window`` or more behind the
+        newest frame received) gaps; returns what is released."""
+        target = min(int(hi) + 1, self.max_seen - self.window + 1)
+        if target <= self.next:
+            return []
+        return self._advance_to(target) + self._release()
 
     def hold_catch_up_through(self, head: int | None) -> None:
         """The publisher's announced live head: the history a (re)joining consumer receives
@@ -132,6 +184,7 @@ class Sequencer:
         if head is None:
             return
         self.catch_up_through = max(self.catch_up_through, int(head))
+        self.known_head = max(self.known_head, int(head))
         if self.next <= self.catch_up_through:
             self.caught_up = False
 
@@ -162,7 +215,10 @@ class Sequencer:
         self._gapset = set(self.gaps)
 
     def far_reason(self, seq: int) -> str:
-        """Why ``push(seq, ...)`` answered ``"far"`` (for the rejection)."""
+        """Why ``push(seq, ...)`` answered ``"far"`` or ``"ahead"`` (for the rejection)."""
+        if self.max_ahead is None or seq - self.next < self.max_ahead:
+            return (f"seq {seq} is past the publisher's live head {self.known_head} (no publisher "
+                    f"has published it)")
         return (f"seq {seq} is {seq - self.next} past the next expected {self.next} (the limit is "
                 f"delivery.max_seq_ahead = {self.max_ahead})")
 
@@ -209,23 +265,114 @@ class HoleWatch:
         return False
 
 
-def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int, on_event: Callable[[Any], None]) -> int:
+def _differs(a: Any, b: Any) -> bool:
+    """Two received copies of one seq with different payloads (markers never differ)."""
+    pa, pb = getattr(a, "payload", None), getattr(b, "payload", None)
+    return pa is not None and pb is not None and bytes(pa) != bytes(pb)
+
+
+def fetch_holes(bus: Any, topic: str, seqr: Sequencer, upto: int,
+                on_event: Callable[[Any], None]) -> int | None:
     """Fetch explicitly from the publisher's cache (:meth:`pipeline.transport.Bus.fetch`) the
-    frames of ``topic`` that ``seqr`` still misses up to ``upto``, and hand each to
-    ``on_event`` (validated like any sample).  Returns how many came back (0
-    when nothing is missing)."""
+    frames of ``topic`` that ``seqr`` still misses up to ``upto`` (at most ``FETCH_MAX``
+    from the first), and hand each to ``on_event`` (validated like any sample).  Returns how
+    many came back (0 when nothing is missing or the publisher holds none of them), ``None``
+    when no live publisher answered (e.g. while the router is away)."""
     if upto < seqr.next:
         return 0
     hi = next((s for s in range(upto, seqr.next - 1, -1) if s not in seqr.buf), None)
     if hi is None:
         return 0
-    events = bus.fetch(topic, seqr.next, hi)
+    lo, hi = seqr.next, min(hi, seqr.next + FETCH_MAX - 1)
+    events = bus.fetch(topic, lo, hi)
     for ev in events:
         on_event(ev)
     if events:
         log.info("%s: fetched %d %s sample(s) in %d-%d from the publisher's cache", bus.stage, len(events),
-                 topic, seqr.next, hi)
+                 topic, lo, hi)
+    elif bus.head(topic) is None:
+        return None
     return len(events)
+
+
+def settle_holes(bus: Any, topic: str, seqr: Sequencer, on_event: Callable[[Any], None]) -> list[tuple[int, Any]]:
+    """Ask the live publishers for what ``seqr`` misses below the newest frame received, then
+    declare what they did not return (and the window has passed) gaps; returns what is
+    released.  Nothing is declared when no publisher answered: the frames may still come."""
+    lo, top = seqr.next, seqr.max_seen
+    got = fetch_holes(bus, topic, seqr, top, on_event)
+    if got is None:
+        log.info("%s: no publisher of %s answered for seq %d-%d: asking again later", bus.stage, topic, lo, top)
+        return []
+    return seqr.confirm_through(min(top, lo + FETCH_MAX - 1))
+
+
+def resolve_conflict(bus: Any, topic: str, seqr: Sequencer, seq: int, check: Callable[[Any], Any]) -> bool:
+    """Two copies of ``seq`` with different payloads (one is not the publisher's: in open mode
+    anybody can put): ask the publisher for its copy (validated by ``check``) and keep it.
+    False when the publisher does not answer (the earlier copy stays)."""
+    for ev in bus.fetch(topic, seq, seq):
+        acc = check(ev)
+        if acc is not None and acc.seq == seq:
+            seqr.replace(seq, acc)
+            return True
+    return False
+
+
+def publisher_copy(bus: Any, topic: str, acc: Any, check: Callable[[Any], Any]) -> Any:
+    """The publisher's own copy of ``acc``'s seq when it differs from ``acc`` (a copy another
+    process put under that seq: in open mode anybody can), else ``acc``.  Asked only for a
+    frame out of order with its stream."""
+    for ev in bus.fetch(topic, acc.seq, acc.seq):
+        own = check(ev)
+        if own is not None and own.seq == acc.seq and own.payload != acc.payload:
+            log.warning("%s: %s seq %d: the publisher's copy replaces a different one", bus.stage, topic, acc.seq)
+            return own
+    return acc
+
+
+class HeadAsk:
+    """``ask_head`` of a :class:`Sequencer`: the live head of ``topic`` (:meth:`Bus.head`);
+    after nobody answered, not asked again for ``quiet`` seconds (answers ``None``)."""
+
+    def __init__(self, bus: Any, topic: str, monotonic: Callable[[], float] = time.monotonic,
+                 quiet: float = 1.0) -> None:
+        self.bus, self.topic, self.quiet = bus, topic, quiet
+        self._monotonic = monotonic
+        self.quiet_until = -float("inf")
+
+    def __call__(self) -> int | None:
+        now = self._monotonic()
+        if now < self.quiet_until:
+            return None
+        head = self.bus.head(self.topic)
+        if head is None:
+            self.quiet_until = now + self.quiet
+        return head
+
+
+def end_gaps_due(got: int | None, idle: float, delivery: DeliveryConfig) -> bool:
+    """After the end of stream and ``idle`` seconds without progress, with the fetch of the
+    missing frames answered by ``got`` (:func:`fetch_holes`): are they gaps?  Yes once the
+    grace has passed and the live publishers hold none of them; when no publisher answers,
+    only after ``upstream_gone_s`` more (they may be away with the router)."""
+    if idle < delivery.eos_grace_s or got:
+        return False
+    return got == 0 or idle >= delivery.eos_grace_s + delivery.upstream_gone_s
+
+
+class RepeatLog:
+    """A warning repeated per frame, rate-limited: the first ``first`` occurrences, then every
+    ``every``-th with the count so far (a burst of thousands writes a few lines)."""
+
+    def __init__(self, first: int = 20, every: int = 1000) -> None:
+        self.first, self.every, self.n = first, every, 0
+
+    def warning(self, msg: str, *args: Any) -> None:
+        self.n += 1
+        if self.n <= self.first or self.n % self.every == 0:
+            log.warning(msg + " [%d so far%s]", *args, self.n,
+                        "" if self.n < self.first else f"; logging 1 in {self.every}")
 
 
 #: Seconds a stream's next frame may be missing, with later ones waiting, before it is fetched.

@@ -7,12 +7,14 @@ import logging
 from typing import Any
 
 from bnptrack.pipeline.stages.base import (EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, warm_imports)
-from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, NO_TRUTH, HoleWatch, Intake, Sequencer, fetch_holes
+from bnptrack.pipeline.stages.delivery import (FETCH_AFTER_S, NO_TRUTH, HeadAsk, HoleWatch, Intake, RepeatLog,
+                                              Sequencer, end_gaps_due, fetch_holes, publisher_copy, resolve_conflict,
+                                              settle_holes)
 from bnptrack.pipeline.stages.health import EndOfStream
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME
 from bnptrack.pipeline.stages.salvage import UpstreamGone, UpstreamWatch
 from bnptrack.pipeline.stages.summary import RunSummary, read_summary
-from bnptrack.pipeline.stages.sink_align import FrameAligner, Reject, Write
+from bnptrack.pipeline.stages.sink_align import FrameAligner, Reject, Verify, Write
 from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
 from bnptrack.pipeline.stages.sink_finish import SinkFinish
 from bnptrack.pipeline.stages.sink_restart import SinkRestart
@@ -42,12 +44,13 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
         d = self.delivery
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, d.max_payload_bytes,
                              time_ns=self.clock.time_ns)
-        self.streams: dict[str, Sequencer] = {
-            "measurements": Sequencer.for_delivery(d, 0, "measurements"),
-            "truth": Sequencer.for_delivery(d, 0, "truth"),
-        }
-        if self.sink_cfg.tracks:
-            self.streams["tracks"] = Sequencer.for_delivery(d, 0, "tracks")
+        # the truth shares the measurements' seq (a frame without truth has none): their head
+        source_head = HeadAsk(self.bus, "measurements", self.clock.monotonic)
+        self.heads = {"measurements": source_head, "truth": source_head,
+                      "tracks": HeadAsk(self.bus, "tracks", self.clock.monotonic)}
+        self.gap_log = RepeatLog()
+        self.streams: dict[str, Sequencer] = self._sequencers(0, ["measurements", "truth"]
+                                                              + (["tracks"] if self.sink_cfg.tracks else []))
         self.holes = {k: HoleWatch(FETCH_AFTER_S, self.clock.monotonic) for k in self.streams}
         self.progress: dict[str, float] = {k: self.clock.monotonic() for k in self.streams}
         self.sinks: SinkSet | None = None
@@ -85,7 +88,16 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
         """Write every frame for which each stream has released its item (or a gap)."""
         if not self._open():
             return
-        for act in self.align.drain():
+        acts = self.align.drain()
+        while acts and isinstance(acts[-1], Verify):  # open mode: the publisher's own copy of the seq
+            v = acts.pop()
+            self._carry_out(acts)
+            self.align.verified(v.seq, publisher_copy(self.bus, "measurements", v.meas, self.intake.check))
+            acts = self.align.drain()
+        self._carry_out(acts)
+
+    def _carry_out(self, acts: list) -> None:
+        for act in acts:
             if isinstance(act, Write):
                 self._write(act.seq, act.meas, act.truth, act.tracks)
             elif isinstance(act, Reject):
@@ -99,7 +111,7 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
     def _release(self, stream: str, released: list[tuple[int, Any]]) -> None:
         for s in self.align.release(stream, released):
             self.counters.gaps += 1
-            log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
+            self.gap_log.warning("%s: %s of frame seq %d is missing: recorded as a gap", self.name, stream, s)
 
     def _push(self, stream: str, seq: int, item: Any) -> None:
         status, released = self.streams[stream].push(seq, item)
@@ -110,12 +122,15 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
         elif status == "duplicate":
             if item is not NO_TRUTH:
                 self.counters.duplicates += 1
-        elif status == "far":
+        elif status in ("far", "ahead"):
             if item is not NO_TRUTH:
                 self.intake.reject_sample(stream, item.payload, seq, self.streams[stream].far_reason(seq))
+        elif status == "conflict":
+            self.counters.duplicates += 1
+            resolve_conflict(self.bus, stream, self.streams[stream], seq, self.intake.check)
         else:
             self.counters.late += 1
-            log.warning("%s: %s seq %d arrived after its gap was declared: rejected", self.name, stream, seq)
+            self.gap_log.warning("%s: %s seq %d arrived after its gap was declared: rejected", self.name, stream, seq)
         self._release(stream, released)
 
     def _on_data(self, ev: Any) -> None:
@@ -158,7 +173,8 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
             if not seq.complete_through(end):
                 # grace counts from the later of the last progress and the end of stream
                 idle = now - max(self.progress[name], self.eos_time[upstream])
-                if idle >= grace and self.bus.backlog == 0 and not self._fetch(name, end):
+                if idle >= grace and self.bus.backlog == 0 and end_gaps_due(self._fetch(name, end), idle,
+                                                                            self.delivery):
                     log.warning("%s: end of stream: %s still missing after %.1f s without progress "
                                 "are gaps", self.name, name, idle)
                     self._release(name, seq.flush_through(end))
@@ -167,7 +183,7 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
         self._drain_ready()
         return done and self.align.next_write > last
 
-    def _fetch(self, stream: str, upto: int) -> int:
+    def _fetch(self, stream: str, upto: int) -> int | None:
         """Fetch what ``stream`` misses up to ``upto`` from its publisher's cache.  The truth
         of a frame sent without truth is not in any cache: its /measurements says so."""
         return fetch_holes(self.bus, stream, self.streams[stream], upto, self._on_data)
@@ -175,7 +191,10 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
     def _fetch_due(self) -> None:
         for name, seq in self.streams.items():
             if self.holes[name].due(seq):
-                self._fetch(name, max(seq.buf))
+                self._release(name, settle_holes(self.bus, name, seq, self._on_data))
+
+    def _sequencers(self, start: int, names: list[str]) -> dict[str, Sequencer]:
+        return {k: Sequencer.for_delivery(self.delivery, start, k, self.heads[k]) for k in names}
 
     def run(self) -> int:
         # an earlier sink process of this run finished: a complete run is never reopened

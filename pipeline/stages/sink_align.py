@@ -5,7 +5,10 @@ stream (``measurements``, ``truth``, ``tracks``) has released.
 released (a message, :data:`~pipeline.stages.delivery.GAP` or
 :data:`~pipeline.stages.delivery.NO_TRUTH`) and returns what to do as data: :class:`Write`
 a frame, :class:`Reject` one whose frame number or stamp breaks the frame bounds,
-:class:`Mismatch` a message that names another frame than its ``/measurements``.  It holds no
+:class:`Mismatch` a message that names another frame than its ``/measurements``,
+:class:`Verify` a ``/measurements`` that does not follow the last frame (the stage asks its
+publisher for its own copy of the seq, :meth:`FrameAligner.verified`, and drains again: in
+open mode another process may have put a copy under that seq).  It holds no
 bus, no clock and no file; :class:`~pipeline.stages.sink.SinkStage` carries the actions out.
 """
 
@@ -18,7 +21,7 @@ from typing import Any
 from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH
 from bnptrack.tracker.types import FrameBounds
 
-__all__ = ["FrameAligner", "Mismatch", "Reject", "Write"]
+__all__ = ["FrameAligner", "Mismatch", "Reject", "Verify", "Write"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,15 @@ class Mismatch:
     meas_frame: int
 
 
+@dataclass(frozen=True)
+class Verify:
+    """The ``/measurements`` of ``seq`` (``meas``) does not follow the last frame: drain
+    stops there until the stage hands the publisher's own copy to :meth:`FrameAligner.verified`."""
+
+    seq: int
+    meas: Any
+
+
 class FrameAligner:
     """Frames in sequence order from the released items of ``streams``.
 
@@ -69,6 +81,12 @@ class FrameAligner:
         self.last_stamp_ns: int | None = None
         self.rejected_seqs: list[int] = []
         self.mismatched: dict[str, list[int]] = {}
+        self.checked = -1  # the seq whose /measurements is the publisher's own copy
+
+    def verified(self, s: int, meas: Any) -> None:
+        """``meas`` is the publisher's own copy of seq ``s`` (after :class:`Verify`)."""
+        self.ready["measurements"][s] = meas
+        self.checked = s
 
     def release(self, stream: str, released: Iterable[tuple[int, Any]]) -> list[int]:
         """File ``stream``'s released items; the seqs among them that are gaps."""
@@ -84,16 +102,19 @@ class FrameAligner:
         """Continue after frames recorded elsewhere (recovered from a ``.part`` file)."""
         self.next_write, self.last_frame, self.last_stamp_ns = next_write, last_frame, last_stamp_ns
 
-    def drain(self) -> list[Write | Reject | Mismatch]:
+    def drain(self) -> list[Write | Reject | Mismatch | Verify]:
         """The actions of every frame ready from :attr:`next_write` on, in order."""
         ready = self.ready
         has_tracks = "tracks" in ready
-        out: list[Write | Reject | Mismatch] = []
+        out: list[Write | Reject | Mismatch | Verify] = []
         while True:
             s = self.next_write
             if s not in ready["measurements"] or s not in ready["truth"]:
                 return out
             if has_tracks and s not in ready["tracks"]:
+                return out
+            if self._unchecked(s, ready["measurements"][s]):
+                out.append(Verify(s, ready["measurements"][s]))
                 return out
             meas = ready["measurements"].pop(s)
             truth = self._same_frame(s, "truth", ready["truth"].pop(s), meas, out)
@@ -105,6 +126,13 @@ class FrameAligner:
                 self.rejected_seqs.append(s)
                 out.append(Reject(s, meas.payload, why))
             self.next_write += 1
+
+    def _unchecked(self, s: int, meas: Any) -> bool:
+        """Whether ``meas`` (seq ``s``) breaks the bounds and is not yet the publisher's copy."""
+        if meas is GAP or s == self.checked:
+            return False
+        m = meas.msg
+        return self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns) is not None
 
     def _out_of_bounds(self, meas: Any) -> str | None:
         """Why the frame of ``meas`` may not be recorded (its frame number and stamp must

@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 
 from bnptrack.pipeline.stages.base import EXIT_OK
-from bnptrack.pipeline.stages.delivery import Sequencer
 from bnptrack.pipeline.stages.health import EndOfStream
 from bnptrack.pipeline.stages.recovery import SUMMARY_NAME, commit_parts, part_path
 from bnptrack.pipeline.stages.salvage import UpstreamGone, salvage_part
@@ -67,7 +66,7 @@ class SinkRestart:
         self.recovered = len(found.frames)
         last = found.frames[-1]
         self.align.restart_at(self.recovered, last.frame, last.stamp_ns)
-        self.streams = {k: Sequencer.for_delivery(self.delivery, self.align.next_write, k) for k in self.streams}
+        self.streams = self._sequencers(self.align.next_write, list(self.streams))
         log.info("%s: recovered %d frame(s) (up to frame %d) from the killed sink's .part file", self.name,
                  self.recovered, self.align.last_frame)
         return outcome

@@ -17,13 +17,15 @@ from bnptrack.tracker.messages import encode
 from bnptrack.pipeline.config import TrackerStageConfig
 from bnptrack.pipeline.journal import JOURNAL_NAME, TracksJournal
 from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
-from bnptrack.pipeline.stages.delivery import FETCH_AFTER_S, Accepted, HoleWatch, Intake, Sequencer, fetch_holes
+from bnptrack.pipeline.stages.delivery import (FETCH_AFTER_S, Accepted, HeadAsk, HoleWatch, Intake, RepeatLog,
+                                              Sequencer, end_gaps_due, fetch_holes, publisher_copy, resolve_conflict,
+                                              settle_holes)
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.recovery import SNAPSHOT_NAME, BackgroundWriter, Snapshot, keep_prior, read_snapshot
 from bnptrack.pipeline.stages.salvage import UpstreamWatch
 from bnptrack.pipeline.stages.tracker_output import StageOutput
 from bnptrack.pipeline.stages.tracker_snapshots import TrackerSnapshots
-from bnptrack.pipeline.stages.tracker_core import Skip, Step, TrackerCore
+from bnptrack.pipeline.stages.tracker_core import Skip, Step, TrackerCore, Verify
 from bnptrack.pipeline.stages.tracker_warmup import preload_tracker, warm_tracker_imports, warm_up_tracker
 from bnptrack.tracker.filtering import SCIPY_PAIRS
 from bnptrack.tracker.types import Frame, FrameBounds
@@ -79,7 +81,9 @@ class TrackerStage(TrackerSnapshots, StageBase):
         self.intake = Intake(self.name, self.run_id, self.bus, self.counters, self.delivery.max_payload_bytes,
                              time_ns=self.clock.time_ns)
         #: the pure core: which frames to track, in order (:mod:`pipeline.stages.tracker_core`)
-        self.core = TrackerCore(Sequencer.for_delivery(self.delivery, 0, "measurements"),
+        self.ask_head = HeadAsk(self.bus, "measurements", self.clock.monotonic)
+        self.gap_log = RepeatLog()
+        self.core = TrackerCore(Sequencer.for_delivery(self.delivery, 0, "measurements", self.ask_head),
                                 FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s))
         self.tracker = None
         self.state = None
@@ -132,11 +136,14 @@ class TrackerStage(TrackerSnapshots, StageBase):
     def _process(self, released: list[tuple[int, Any]]) -> None:
         for s, item in released:
             act = self.core.decide(s, item)
+            if isinstance(act, Verify):  # open mode: the publisher's own copy of the seq
+                act = self.core.decide(s, publisher_copy(self.bus, "measurements", act.item, self.intake.check),
+                                       own=True)
             if isinstance(act, Step):
                 self._step(s, act.item, act.frame)
             elif isinstance(act, Skip):
                 self.counters.gaps += 1
-                log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
+                self.gap_log.warning("%s: frame seq %d is missing (gap); predicting through it", self.name, s)
             else:
                 self.intake.reject_sample("measurements", act.payload, s, act.why)
 
@@ -244,11 +251,14 @@ class TrackerStage(TrackerSnapshots, StageBase):
             self.last_progress = self.clock.monotonic()
         elif status == "duplicate":
             self.counters.duplicates += 1
-        elif status == "far":
+        elif status in ("far", "ahead"):
             self.intake.reject_sample("measurements", acc.payload, acc.seq, self.core.seq.far_reason(acc.seq))
+        elif status == "conflict":
+            self.counters.duplicates += 1
+            resolve_conflict(self.bus, "measurements", self.core.seq, acc.seq, self.intake.check)
         else:
             self.counters.late += 1
-            log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
+            self.gap_log.warning("%s: frame seq %d arrived after its gap was declared: rejected", self.name, acc.seq)
         if released:
             self._process(released)
 
@@ -305,7 +315,7 @@ class TrackerStage(TrackerSnapshots, StageBase):
             self.health(extra=self._extra_health)
             seq = self.core.seq
             if self.tracker is not None and self.holes.due(seq):
-                fetch_holes(self.bus, "measurements", seq, max(seq.buf), self._on_data)
+                self._process(settle_holes(self.bus, "measurements", seq, self._on_data))
             if not finished and self.tracker is not None and self.upstream in self.eos_seen:
                 finished = self._check_end(self.eos_seen[self.upstream])
             if finished and set(self.tc.done_by) <= set(self.eos_seen):
@@ -344,8 +354,8 @@ class TrackerStage(TrackerSnapshots, StageBase):
         if not seq.complete_through(eos.last_seq):
             # grace counts from the later of the last progress and the end of stream
             idle = self.clock.monotonic() - max(self.last_progress, self.eos_time[self.upstream])
-            if idle >= self.delivery.eos_grace_s and self.bus.backlog == 0 and \
-                    not fetch_holes(self.bus, "measurements", seq, eos.last_seq, self._on_data):
+            if idle >= self.delivery.eos_grace_s and self.bus.backlog == 0 and end_gaps_due(
+                    fetch_holes(self.bus, "measurements", seq, eos.last_seq, self._on_data), idle, self.delivery):
                 log.warning("%s: end of stream: frames still missing after %.1f s without "
                             "progress are gaps", self.name, idle)
                 self._process(seq.flush_through(eos.last_seq))

@@ -4,7 +4,9 @@
 position of the run (last seq, frame and stamp; the frames rejected).  For each frame the
 sequencer releases, :meth:`TrackerCore.decide` returns what to do as data: :class:`Step`
 (track it), :class:`Skip` (a gap: predict through it), :class:`Reject` (its frame number or
-stamp breaks the frame bounds).  The position advances past a tracked frame only when the
+stamp breaks the frame bounds), :class:`Verify` (it does not follow the last frame: ask its
+publisher for its own copy of that seq first, then decide again with ``own=True``; in open
+mode another process may have put a copy under that seq).  The position advances past a tracked frame only when the
 stage says its tracks are out (:meth:`TrackerCore.stepped`), so a snapshot taken at any
 point is consistent.  No bus, no clock, no file: :class:`~pipeline.stages.tracker.TrackerStage`
 carries the actions out.
@@ -19,7 +21,7 @@ from bnptrack.pipeline.stages.delivery import GAP, Sequencer
 from bnptrack.tracker.messages import to_frame
 from bnptrack.tracker.types import Frame, FrameBounds
 
-__all__ = ["Reject", "Skip", "Step", "TrackerCore"]
+__all__ = ["Reject", "Skip", "Step", "TrackerCore", "Verify"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,16 @@ class Reject:
     why: str
 
 
+@dataclass(frozen=True)
+class Verify:
+    """Frame ``seq`` (``item``) does not follow the last frame: the stage fetches the
+    publisher's own copy of the seq (:func:`~pipeline.stages.delivery.publisher_copy`) and
+    decides again on that copy (``decide(seq, copy, own=True)``)."""
+
+    seq: int
+    item: Any
+
+
 class TrackerCore:
     """The order of a run's ``/measurements`` and the position reached in it."""
 
@@ -70,14 +82,18 @@ class TrackerCore:
         """:meth:`Sequencer.push`: the status of ``item`` and the frames it releases."""
         return self.seq.push(seq, item)
 
-    def decide(self, s: int, item: Any) -> Step | Skip | Reject:
+    def decide(self, s: int, item: Any, own: bool = False) -> Step | Skip | Reject | Verify:
         """What to do with released frame ``s`` (a gap or a rejected frame moves the position
-        past it at once; a frame to track, once :meth:`stepped`)."""
+        past it at once; a frame to track, once :meth:`stepped`).  ``own``: ``item`` is the
+        publisher's copy (no :class:`Verify` again)."""
         if item is GAP:
             self.last_seq = s
             return Skip(s)
-        frame = to_frame(item.msg)
-        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame.frame, frame.stamp_ns)
+        m = item.msg
+        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
+        if why is not None and not own:
+            return Verify(s, item)
+        frame = to_frame(m)
         if why is not None:
             self.rejected_seqs.append(s)
             self.last_seq = s

@@ -49,7 +49,7 @@ class TrackerSnapshots:
                 f"{tc.tracker!r}, seed {tc.seed}, lag {tc.lag}); delete it or set tracker.resume = false"
             )
         self.restored = snap
-        seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements")
+        seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements", self.ask_head)
         seq.restore_gaps(snap.gaps)
         self.core.resume(seq, snap.last_seq, snap.last_frame, snap.last_stamp_ns, snap.rejected)
         self.counters.gaps = len(snap.gaps)

@@ -1,11 +1,12 @@
 """The sink stage's pure core (:class:`pipeline.stages.sink_align.FrameAligner`): frames come
 out in sequence order once every stream has released its item, out-of-bounds frames and
-messages of another frame come out as data.  No bus, no clock, no file."""
+messages of another frame come out as data; a frame that does not follow the last one waits
+for the publisher's copy (Verify).  No bus, no clock, no file."""
 
 from types import SimpleNamespace
 
 from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH
-from bnptrack.pipeline.stages.sink_align import FrameAligner, Mismatch, Reject, Write
+from bnptrack.pipeline.stages.sink_align import FrameAligner, Mismatch, Reject, Verify, Write
 from bnptrack.tracker.types import FrameBounds
 
 S = 10**9
@@ -65,6 +66,11 @@ def test_a_frame_out_of_bounds_is_rejected_and_kept_out():
         for stream in ("measurements", "truth", "tracks"):
             a.release(stream, [(s, m)])
     acts = a.drain()
+    assert acts == [Write(0, frames[0], frames[0], frames[0]), Write(1, frames[1], frames[1], frames[1]),
+                    Verify(2, frames[2])]
+    assert a.drain() == [Verify(2, frames[2])]  # it waits for the publisher's copy
+    a.verified(2, frames[2])  # the publisher's copy is the same
+    acts = acts[:2] + a.drain()
     assert acts[2] == Reject(2, b"jump", "frame 13 jumps 11 frames after frame 2 (more than max_frame_gap = 10)")
     assert [type(x) for x in acts] == [Write, Write, Reject, Write]
     assert a.rejected_seqs == [2] and (a.last_frame, a.next_write) == (4, 4)
@@ -86,4 +92,18 @@ def test_restart_at_continues_after_recovered_frames():
     m = item(29)  # not after the recovered frame 30
     for stream in ("measurements", "truth", "tracks"):
         a.release(stream, [(3, m)])
+    assert a.drain() == [Verify(3, m)]
+    a.verified(3, m)
     assert a.drain() == [Reject(3, m.payload, "frame 29 is not after the last processed frame 30")]
+
+
+def test_the_publishers_copy_replaces_a_foreign_one_before_it_is_recorded():
+    a = aligner(tracks=False)
+    first, foreign, own = item(1), item(90, payload=b"foreign"), item(2)
+    a.release("measurements", [(0, first), (1, foreign)])
+    a.release("truth", [(0, NO_TRUTH), (1, NO_TRUTH)])
+    assert a.drain() == [Write(0, first, NO_TRUTH, None), Verify(1, foreign)]
+    a.verified(1, own)
+    assert a.drain() == [Write(1, own, NO_TRUTH, None)]
+    assert a.rejected_seqs == [] and a.last_frame == 2
+

@@ -1,6 +1,7 @@
 """The tracker stage's pure core (:class:`pipeline.stages.tracker_core.TrackerCore`): frames
 released in sequence order become Step / Skip / Reject actions, and the position of the run
-moves past a tracked frame only when the stage says its tracks are out.  No bus, no clock,
+moves past a tracked frame only when the stage says its tracks are out; a frame that does not
+follow the last one is first checked against the publisher's copy (Verify).  No bus, no clock,
 no tracker."""
 
 from types import SimpleNamespace
@@ -8,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from bnptrack.pipeline.stages.delivery import GAP, Sequencer
-from bnptrack.pipeline.stages.tracker_core import Reject, Skip, Step, TrackerCore
+from bnptrack.pipeline.stages.tracker_core import Reject, Skip, Step, TrackerCore, Verify
 from bnptrack.tracker.messages import from_frame
 from bnptrack.tracker.types import Frame, FrameBounds
 
@@ -58,9 +59,12 @@ def test_a_frame_out_of_bounds_is_rejected_before_the_tracker_sees_it():
     c = core()
     c.stepped(0, c.decide(0, acc(1)).frame)
     jump = acc(1 + 6)
-    assert c.decide(1, jump) == Reject(1, b"p7", "frame 7 jumps 6 frames after frame 1 (more than max_frame_gap = 5)")
+    assert c.decide(1, jump) == Verify(1, jump)  # first: is it the publisher's copy?
+    assert c.rejected_seqs == [] and c.last_seq == 0
+    assert c.decide(1, jump, own=True) == Reject(1, b"p7", "frame 7 jumps 6 frames after frame 1 "
+                                                         "(more than max_frame_gap = 5)")
     back = acc(3, stamp_s=0.5)
-    assert c.decide(2, back).why == f"frame 3: time stamp {S // 2} ns is before that of frame 1 ({S} ns)"
+    assert c.decide(2, back, own=True).why == f"frame 3: time stamp {S // 2} ns is before that of frame 1 ({S} ns)"
     assert c.rejected_seqs == [1, 2] and (c.last_seq, c.last_frame) == (2, 1)
     assert isinstance(c.decide(3, acc(4)), Step)  # the bounds still count from frame 1
 
@@ -73,4 +77,14 @@ def test_resume_continues_from_a_snapshot_position():
     assert (c.last_seq, c.last_frame, c.last_stamp_ns, c.rejected_seqs) == (7, 9, 9 * S, [6])
     assert c.push(5, acc(6))[0] == "late"  # its gap was declared before the snapshot
     assert isinstance(c.decide(8, acc(10)), Step)
-    assert isinstance(c.decide(8, acc(9)), Reject)  # not after frame 9
+    assert isinstance(c.decide(8, acc(9), own=True), Reject)  # not after the last frame
+
+
+def test_a_copy_under_the_seq_that_follows_replaces_a_foreign_one():
+    c = core()
+    c.stepped(0, c.decide(0, acc(1)).frame)
+    foreign, own = acc(40), acc(2)
+    assert c.decide(1, foreign) == Verify(1, foreign)
+    act = c.decide(1, own, own=True)  # the publisher's copy of seq 1
+    assert isinstance(act, Step) and act.item is own and c.rejected_seqs == []
+
