@@ -315,7 +315,9 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     rejected and counted (no frame of a cache can be that far ahead); a frame more than
     ``max_frame_gap`` frame numbers, or ``max_gap_s`` seconds of time stamp, after the previous
     processed frame (or not after it) is rejected and counted by the tracker and the sink
-    (:class:`tracker.types.FrameBounds`; ``bnptrack track --max-frame-gap / --max-gap-s``).
+    (:class:`tracker.types.FrameBounds`; ``bnptrack track --max-frame-gap / --max-gap-s``);
+    after ``resync_frames`` such frames in a row that agree with each other, the stream
+    resynchronises (:class:`tracker.types.FrameGate`, the rule of ``track --resync-frames``).
 
     ``upstream_gone_s``: a *restarted* sink or tracker (one that finds its earlier process's
     ``.part`` files or snapshot) that sees no live upstream stage for that many seconds, and no
@@ -333,6 +335,7 @@ class DeliveryConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     max_seq_ahead: PosInt = 100_000
     max_frame_gap: PosInt = 1000
     max_gap_s: Positive = 3600.0
+    resync_frames: NonNegInt = 10
     upstream_gone_s: Positive = 5.0
 
     @property

@@ -38,7 +38,7 @@ from bnptrack.tracker.models.measurement import measurement_kind
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.lag import FixedLag, run_lagged
 from bnptrack.tracker.state import run
-from bnptrack.tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, bounded_frames
+from bnptrack.tracker.types import Estimate, Frame, FrameBoundError, FrameBounds, FrameGate, gated_segments
 
 if TYPE_CHECKING:
     from bnptrack.tracker.registry import Tracker
@@ -143,6 +143,8 @@ class TrackResult:
     """Why the run probably cannot work (:class:`RunHealth`): printed by ``track``."""
     final_names: tuple[str, ...] = ()
     """Display names (:func:`tracker.types.display_name`) of the last frame's tracks."""
+    skipped: tuple[tuple[int, str], ...] = ()
+    """Frames beyond the bounds, skipped (:class:`tracker.types.FrameGate`): (frame, why)."""
 
     @property
     def n_frames(self) -> int:
@@ -227,10 +229,12 @@ def track_frames(
 
     ``on_estimate(frame, estimate, metrics)`` is called after each frame is scored (e.g. to
     write it; a recording reuses ``metrics``' OSPA instead of computing it again).  If the
-    frame source raises :class:`McapLogError` (a damaged log), or a frame breaks ``bounds``
-    (default :class:`FrameBounds`: at most 1000 frames and 3600 s after the previous one;
-    checked before the frame reaches the tracker), the frames before it are kept and the
-    error is returned in :attr:`TrackResult.error` instead of being raised.
+    frame source raises :class:`McapLogError` (a damaged log), the frames before it are kept
+    and the error is returned in :attr:`TrackResult.error` instead of being raised.  A frame
+    beyond ``bounds`` (default :class:`FrameBounds`: at most 1000 frames and 3600 s after the
+    previous one) is skipped before it reaches the tracker, by the rule of
+    :class:`tracker.types.FrameGate` that the pipeline's stages follow, and listed in
+    :attr:`TrackResult.skipped`.
     ``crossings`` (``(id_a, id_b, scan)``, e.g. a ``random`` log's record) are scored with
     :func:`sinks.metrics.crossing_label_keeping` into :attr:`TrackResult.crossings`.
     """
@@ -240,9 +244,10 @@ def track_frames(
     seen: list[tuple[Frame, Estimate]] = []
     health = RunHealth(getattr(tracker, "params", None))
     scorer = RunScorer()
+    skipped: list[tuple[int, str]] = []
+    segments = gated_segments(frames, FrameGate(bounds or FrameBounds()), skipped)
     try:
-        for frame, est, _state in _estimates(tracker, bounded_frames(frames, bounds or FrameBounds()), seed,
-                                             lag, on_online):
+        for frame, est, _state in (x for seg in segments for x in _estimates(tracker, seg, seed, lag, on_online)):
             health.add(frame)
             row = frame_metrics(frame, est, scorer=scorer)
             if on_estimate is not None:
@@ -256,7 +261,8 @@ def track_frames(
     notes = health.warnings(final)
     for note in notes:
         warn(note)
-    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings), notes, names)
+    return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings), notes, names,
+                       tuple(skipped))
 
 
 def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,

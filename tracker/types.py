@@ -244,10 +244,13 @@ class FrameBounds:
 
     max_frame_gap: int = 1000
     max_gap_s: float = 3600.0
+    #: skipped frames that agree with each other after which the stream resynchronises
+    #: (:class:`FrameGate`); 0: never
+    resync_frames: int = 10
 
     def __post_init__(self) -> None:
-        if self.max_frame_gap < 1 or not self.max_gap_s > 0:
-            raise ValueError("max_frame_gap must be >= 1 and max_gap_s > 0")
+        if self.max_frame_gap < 1 or not self.max_gap_s > 0 or self.resync_frames < 0:
+            raise ValueError("max_frame_gap must be >= 1, max_gap_s > 0 and resync_frames >= 0")
 
     def violation(self, prev_frame: int, prev_stamp_ns: int | None, frame: int, stamp_ns: int) -> str | None:
         """Why ``(frame, stamp_ns)`` may not follow ``(prev_frame, prev_stamp_ns)``, or ``None``.
@@ -268,6 +271,80 @@ class FrameBounds:
             return (f"frame {frame}: time stamp {dt:.6g} s after frame {prev_frame} "
                     f"(more than max_gap_s = {self.max_gap_s:g})")
         return None
+
+
+@dataclass
+class FrameGate:
+    """The one rule of ``track`` and the pipeline's tracker and sink for frames beyond the
+    :class:`FrameBounds` (a number that does not advance or jumps, a stamp that goes back or
+    jumps): such a frame is skipped (not tracked, not recorded) and the stream goes on with
+    the frames after it, compared with the last admitted frame.  A genuine jump (a log that
+    resumes after a long pause, a renumbering) makes every later frame break the bounds:
+    after ``resync_frames`` skipped frames each within the bounds of the one before it, the
+    next such frame is admitted and the bounds count from it; the tracker starts again from
+    its initial state there (``resynced``: no prediction over the jump).  Plain state
+    (snapshot-able): the last admitted frame and the run of skipped frames."""
+
+    bounds: FrameBounds = FrameBounds()
+    last_frame: int = -1
+    last_stamp_ns: int | None = None
+    chain: int = 0
+    chain_frame: int = -1
+    chain_stamp_ns: int | None = None
+    resynced: bool = False  # whether the last admitted frame resynchronised the stream
+
+    def admit(self, frame: int, stamp_ns: int) -> str | None:
+        """``None`` when the frame is admitted (it becomes the last frame), else why it is
+        skipped."""
+        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, frame, stamp_ns)
+        self.resynced = why is not None
+        if why is not None:
+            follows = self.chain > 0 and self.bounds.violation(self.chain_frame, self.chain_stamp_ns,
+                                                               frame, stamp_ns) is None
+            if not (follows and 0 < self.bounds.resync_frames <= self.chain):
+                self.chain = self.chain + 1 if follows else 1
+                self.chain_frame, self.chain_stamp_ns = frame, stamp_ns
+                self.resynced = False
+                return why
+        self.last_frame, self.last_stamp_ns, self.chain = frame, stamp_ns, 0
+        return None
+
+    def state(self) -> tuple[int, int, int | None]:
+        """The run of skipped frames (for a snapshot; :meth:`restore`)."""
+        return self.chain, self.chain_frame, self.chain_stamp_ns
+
+    def restore(self, last_frame: int, last_stamp_ns: int | None, chain: tuple = (0, -1, None)) -> None:
+        self.last_frame, self.last_stamp_ns = last_frame, last_stamp_ns
+        self.chain, self.chain_frame, self.chain_stamp_ns = int(chain[0]), int(chain[1]), chain[2]
+
+
+def gated_segments(frames: Iterable[Frame], gate: FrameGate,
+                   skipped: list[tuple[int, str]]) -> Iterator[Iterator[Frame]]:
+    """The frames that ``gate`` admits, as segments that each start a tracker afresh (a new
+    segment at each resynchronisation); each skipped frame is appended to ``skipped`` as
+    ``(frame number, why)``.  Consume each segment before the next."""
+    it = iter(frames)
+    pending: list[Frame] = []
+
+    def segment(first: Frame | None) -> Iterator[Frame]:
+        if first is not None:
+            yield first
+        for f in it:
+            why = gate.admit(f.frame, f.stamp_ns)
+            if why is not None:
+                skipped.append((f.frame, why))
+            elif gate.resynced:
+                pending.append(f)
+                return
+            else:
+                yield f
+
+    first = None
+    while True:
+        yield segment(first)
+        if not pending:
+            return
+        first = pending.pop()
 
 
 def bounded_frames(frames: Iterable[Frame], bounds: FrameBounds = FrameBounds()) -> Iterator[Frame]:

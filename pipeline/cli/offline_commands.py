@@ -18,6 +18,7 @@ from bnptrack.pipeline.cli.common import (
     START_HELP,
     VIEW_HELP,
     CliError,
+    IncompleteError,
     LazyHelpOption,
     clean_errors,
     config_help,
@@ -218,13 +219,19 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 )
 @click.option(
     "--max-frame-gap", type=click.IntRange(min=1), default=1000, show_default=True, metavar="N",
-    help="A frame more than N frame numbers after the previous one ends the run with an error "
-    "(a corrupt frame number; the tracker predicts once over the time between stamps).",
+    help="A frame more than N frame numbers after the previous one is skipped, as is one that does "
+    "not come after it (a corrupt frame number; the tracker predicts once over the time between "
+    "stamps); the run goes on and exits 3 naming the skipped frames (docs/pipeline.md, \"Bad input\").",
 )
 @click.option(
     "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
-    "frame's (a time stamp that goes back is always an error).",
+    "frame's, or before it.",
+)
+@click.option(
+    "--resync-frames", type=click.IntRange(min=0), default=10, show_default=True, metavar="N",
+    help="After N skipped frames in a row that are within the bounds of each other (a log that "
+    "resumes after a long pause), accept the next such frame and go on from it. 0: never.",
 )
 @click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
               help=TOPIC_HELP)
@@ -256,6 +263,7 @@ def track(
     rrd: Path | None,
     max_frame_gap: int,
     max_gap_s: float,
+    resync_frames: int,
     topics: tuple[str, ...],
     start: str | None,
     end: str | None,
@@ -275,8 +283,9 @@ def track(
     error when the log has truth, the final number of tracks and the time per frame.
 
     A truncated or corrupt LOG is processed up to its last readable frame; that prefix is
-    written, then the error is reported and the exit code is 2. So is a frame that jumps
-    beyond --max-frame-gap / --max-gap-s, or that does not come after the previous one.
+    written, then the error is reported and the exit code is 2. A frame that jumps beyond
+    --max-frame-gap / --max-gap-s, or that does not come after the previous one, is skipped:
+    the run goes on, the skipped frames are named and the exit code is 3 (as in `replay`).
 
     \b
     Examples:
@@ -297,11 +306,20 @@ def track(
     check_output_path(log, io.out)
     _header(log, setup, quiet)
     with compile_progress(tracker_name, quiet):
-        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s), window, lag)
+        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
     if res.error is not None:
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
+    if res.skipped:
+        raise IncompleteError(skipped_line(res.skipped, res.n_frames, io.out))
+
+
+def skipped_line(skipped: tuple[tuple[int, str], ...], written: int, out: Path) -> str:
+    """``track``'s error for frames beyond the bounds (exit 3): how many, the first reasons."""
+    first = "; ".join(why for _, why in skipped[:3]) + ("; ..." if len(skipped) > 3 else "")
+    return (f"output incomplete: {len(skipped)} frame(s) beyond the frame bounds skipped ({first}) -- "
+            f"wrote the other {written} frame(s) to {out}")
 
 
 def _header(log: Path, setup: TrackerSetup, quiet: bool) -> None:

@@ -145,6 +145,7 @@ class Snapshot(msgspec.Struct, kw_only=True):
     last_stamp_ns: int | None = None
     rejected: list[int] = []
     eos: EndOfStream | None = None  # set once the tracker has finished the run
+    frame_gate: tuple[int, int, int | None] = (0, -1, None)  # FrameGate.state(): skipped frames in a row
     lag: int = 0
     """The stage's ``tracker.lag``: ``state`` holds the fixed-lag window too
     (:mod:`pipeline.stages.tracker_output`)."""

@@ -67,7 +67,7 @@ class SinkStage(SinkWriting, SinkFinish, SinkRestart, StageBase):
         self.files: list[str] = []
         self.held: list[tuple[int, Any, Any, Any]] = []
         #: the pure core: which frames to record, in order (:mod:`pipeline.stages.sink_align`)
-        self.align = FrameAligner(self.streams, FrameBounds(d.max_frame_gap, d.max_gap_s))
+        self.align = FrameAligner(self.streams, FrameBounds(d.max_frame_gap, d.max_gap_s, d.resync_frames))
         self.upstream_marked: set[str] = set()  # streams given the gaps their upstream stage reported
         self.t_first_ns: int | None = None
         self.alone: UpstreamWatch | None = None  # set when restarted: the rule for an upstream gone

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH
-from bnptrack.tracker.types import FrameBounds
+from bnptrack.tracker.types import FrameBounds, FrameGate
 
 __all__ = ["FrameAligner", "Mismatch", "Reject", "Verify", "Write"]
 
@@ -76,9 +76,9 @@ class FrameAligner:
     def __init__(self, streams: Iterable[str], bounds: FrameBounds, next_write: int = 0) -> None:
         self.ready: dict[str, dict[int, Any]] = {k: {} for k in streams}
         self.bounds = bounds
+        #: the frame bounds as ``track`` applies them (:class:`~tracker.types.FrameGate`)
+        self.gate = FrameGate(bounds)
         self.next_write = next_write
-        self.last_frame = -1
-        self.last_stamp_ns: int | None = None
         self.rejected_seqs: list[int] = []
         self.mismatched: dict[str, list[int]] = {}
         self.checked = -1  # the seq whose /measurements is the publisher's own copy
@@ -100,7 +100,18 @@ class FrameAligner:
 
     def restart_at(self, next_write: int, last_frame: int, last_stamp_ns: int | None) -> None:
         """Continue after frames recorded elsewhere (recovered from a ``.part`` file)."""
-        self.next_write, self.last_frame, self.last_stamp_ns = next_write, last_frame, last_stamp_ns
+        self.next_write = next_write
+        self.gate.restore(last_frame, last_stamp_ns)
+
+    @property
+    def last_frame(self) -> int:
+        """The frame number of the last frame recorded."""
+        return self.gate.last_frame
+
+    @property
+    def last_stamp_ns(self) -> int | None:
+        """The time stamp of the last frame recorded."""
+        return self.gate.last_stamp_ns
 
     def drain(self) -> list[Write | Reject | Mismatch | Verify]:
         """The actions of every frame ready from :attr:`next_write` on, in order."""
@@ -131,19 +142,15 @@ class FrameAligner:
         """Whether ``meas`` (seq ``s``) breaks the bounds and is not yet the publisher's copy."""
         if meas is GAP or s == self.checked:
             return False
-        m = meas.msg
-        return self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns) is not None
+        m, g = meas.msg, self.gate
+        return self.bounds.violation(g.last_frame, g.last_stamp_ns, m.frame, m.stamp_ns) is not None
 
     def _out_of_bounds(self, meas: Any) -> str | None:
         """Why the frame of ``meas`` may not be recorded (its frame number and stamp must
         advance within the frame bounds, as the tracker checks them); ``None``: it may."""
         if meas is GAP:
             return None
-        m = meas.msg
-        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
-        if why is None:
-            self.last_frame, self.last_stamp_ns = m.frame, m.stamp_ns
-        return why
+        return self.gate.admit(meas.msg.frame, meas.msg.stamp_ns)
 
     def _same_frame(self, s: int, stream: str, item: Any, meas: Any, out: list) -> Any:
         """``item`` (of ``stream``, seq ``s``) if it is for the frame of ``meas``, or if

@@ -84,7 +84,8 @@ class TrackerStage(TrackerSnapshots, StageBase):
         self.ask_head = HeadAsk(self.bus, "measurements", self.clock.monotonic)
         self.gap_log = RepeatLog()
         self.core = TrackerCore(Sequencer.for_delivery(self.delivery, 0, "measurements", self.ask_head),
-                                FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s))
+                                FrameBounds(self.delivery.max_frame_gap, self.delivery.max_gap_s,
+                                            self.delivery.resync_frames))
         self.tracker = None
         self.state = None
         #: when the main thread took the sample being processed off the bus (``t_deq``)
@@ -140,6 +141,8 @@ class TrackerStage(TrackerSnapshots, StageBase):
                 act = self.core.decide(s, publisher_copy(self.bus, "measurements", act.item, self.intake.check),
                                        own=True)
             if isinstance(act, Step):
+                if act.fresh:  # a new segment of the stream: no prediction over the jump
+                    self._new_segment()
                 self._step(s, act.item, act.frame)
             elif isinstance(act, Skip):
                 self.counters.gaps += 1
@@ -211,6 +214,12 @@ class TrackerStage(TrackerSnapshots, StageBase):
             records = [self._publish(e, est, now, now) for e, est in out]
             self.state = state
             self._journal(records)
+
+    def _new_segment(self) -> None:
+        """The stream resynchronised after a jump (:class:`~tracker.types.FrameGate`): publish
+        the frames still in the fixed-lag window, then start the tracker afresh."""
+        self._flush_window()
+        self.state = self.output.initial_state(self.tracker.initial_state())
 
     def _lazy_imports_due(self, frame: Frame) -> bool:
         """Whether ``frame`` is large enough (:data:`LAZY_PAIRS`) for the large frames'

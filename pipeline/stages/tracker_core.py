@@ -4,7 +4,8 @@
 position of the run (last seq, frame and stamp; the frames rejected).  For each frame the
 sequencer releases, :meth:`TrackerCore.decide` returns what to do as data: :class:`Step`
 (track it), :class:`Skip` (a gap: predict through it), :class:`Reject` (its frame number or
-stamp breaks the frame bounds), :class:`Verify` (it does not follow the last frame: ask its
+stamp breaks the frame bounds of :class:`~tracker.types.FrameGate`, the one rule of ``track``
+and the pipeline, with its resynchronisation after a genuine jump), :class:`Verify` (it does not follow the last frame: ask its
 publisher for its own copy of that seq first, then decide again with ``own=True``; in open
 mode another process may have put a copy under that seq).  The position advances past a tracked frame only when the
 stage says its tracks are out (:meth:`TrackerCore.stepped`), so a snapshot taken at any
@@ -19,18 +20,20 @@ from typing import Any
 
 from bnptrack.pipeline.stages.delivery import GAP, Sequencer
 from bnptrack.tracker.messages import to_frame
-from bnptrack.tracker.types import Frame, FrameBounds
+from bnptrack.tracker.types import Frame, FrameBounds, FrameGate
 
 __all__ = ["Reject", "Skip", "Step", "TrackerCore", "Verify"]
 
 
 @dataclass(frozen=True)
 class Step:
-    """Track frame ``seq``: ``item`` as received, ``frame`` decoded."""
+    """Track frame ``seq``: ``item`` as received, ``frame`` decoded; ``fresh``: the frame
+    resynchronises the stream (the tracker starts again from its initial state)."""
 
     seq: int
     item: Any
     frame: Frame
+    fresh: bool = False
 
 
 @dataclass(frozen=True)
@@ -66,14 +69,19 @@ class TrackerCore:
     def __init__(self, seq: Sequencer, bounds: FrameBounds) -> None:
         self.seq = seq
         self.bounds = bounds
+        self.gate = FrameGate(bounds)
+        #: the gate's run of skipped frames before the frame decided but not yet stepped
+        self.gate_before: tuple[int, int, int | None] | None = None
         self.last_seq = -1
         self.last_frame = -1
         self.last_stamp_ns: int | None = None
         self.rejected_seqs: list[int] = []
 
     def resume(self, seq: Sequencer, last_seq: int, last_frame: int, last_stamp_ns: int | None,
-               rejected: list[int]) -> None:
-        """Continue from a snapshot's position (``seq``: its sequencer, gaps restored)."""
+               rejected: list[int], gate: tuple[int, int, int | None] = (0, -1, None)) -> None:
+        """Continue from a snapshot's position (``seq``: its sequencer, gaps restored;
+        ``gate``: :meth:`gate_state`)."""
+        self.gate.restore(last_frame, last_stamp_ns, gate)
         self.seq = seq
         self.last_seq, self.last_frame, self.last_stamp_ns = last_seq, last_frame, last_stamp_ns
         self.rejected_seqs = list(rejected)
@@ -89,17 +97,23 @@ class TrackerCore:
         if item is GAP:
             self.last_seq = s
             return Skip(s)
-        m = item.msg
-        why = self.bounds.violation(self.last_frame, self.last_stamp_ns, m.frame, m.stamp_ns)
-        if why is not None and not own:
+        m, g = item.msg, self.gate
+        if not own and self.bounds.violation(g.last_frame, g.last_stamp_ns, m.frame, m.stamp_ns) is not None:
             return Verify(s, item)
-        frame = to_frame(m)
+        before = g.state()
+        why = g.admit(m.frame, m.stamp_ns)
         if why is not None:
             self.rejected_seqs.append(s)
             self.last_seq = s
             return Reject(s, item.payload, why)
-        return Step(s, item, frame)
+        self.gate_before = before
+        return Step(s, item, to_frame(m), g.resynced)
+
+    def gate_state(self) -> tuple[int, int, int | None]:
+        """The frame gate's run of skipped frames at the position (for a snapshot)."""
+        return self.gate.state() if self.gate_before is None else self.gate_before
 
     def stepped(self, s: int, frame: Frame) -> None:
         """Frame ``s`` is tracked and its tracks are out: the position moves past it."""
+        self.gate_before = None
         self.last_seq, self.last_frame, self.last_stamp_ns = s, frame.frame, frame.stamp_ns

@@ -51,7 +51,7 @@ class TrackerSnapshots:
         self.restored = snap
         seq = Sequencer.for_delivery(self.delivery, snap.last_seq + 1, "measurements", self.ask_head)
         seq.restore_gaps(snap.gaps)
-        self.core.resume(seq, snap.last_seq, snap.last_frame, snap.last_stamp_ns, snap.rejected)
+        self.core.resume(seq, snap.last_seq, snap.last_frame, snap.last_stamp_ns, snap.rejected, snap.frame_gate)
         self.counters.gaps = len(snap.gaps)
         self.counters.processed = snap.counters.get("processed", 0)
         self.counters.restarts_resumed = snap.counters.get("restarts_resumed", 0) + 1
@@ -69,7 +69,7 @@ class TrackerSnapshots:
             run=self.run_id, tracker=self.tc.tracker, seed=self.tc.seed, last_seq=core.last_seq,
             last_frame=core.last_frame, state=self.output.snapshot(self.state), gaps=list(core.seq.gaps),
             lag=self.tc.lag, published_seq=published_through(core.last_seq, entries),
-            last_stamp_ns=core.last_stamp_ns, rejected=list(core.rejected_seqs),
+            last_stamp_ns=core.last_stamp_ns, rejected=list(core.rejected_seqs), frame_gate=core.gate_state(),
             counters={"processed": self.counters.processed,
                       "restarts_resumed": self.counters.restarts_resumed},
             time_ns=self.clock.time_ns(), eos=self.finished_eos,

@@ -70,7 +70,7 @@ def test_bounded_frames_stops_before_the_jump():
 # --------------------------------------------------------------------------- offline
 
 
-def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
+def test_track_skips_frames_jumping_10_9_and_exits_3_naming_them(tmp_path):
     frames = _frames(15)
     log = tmp_path / "jump.mcap"
     with McapLogWriter(log, {"scenario": "vo2017", "params": "vo2017", "seed": "1"}) as w:
@@ -83,10 +83,12 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
     res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
                           "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"],
                          capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 2
+    assert res.returncode == 3  # five frames skipped (fewer than --resync-frames 10 in a row)
     assert res.stderr.splitlines() == [
-        "Error: frame 1000000011 jumps 1000000001 frames after frame 10 (more than max_frame_gap = 1000)"
-        f" -- processed and wrote the 10 readable frame(s) to {out}"]
+        "Error: output incomplete: 5 frame(s) beyond the frame bounds skipped (frame 1000000011 jumps "
+        "1000000001 frames after frame 10 (more than max_frame_gap = 1000); frame 1000000012 jumps 1000000002 "
+        "frames after frame 10 (more than max_frame_gap = 1000); frame 1000000013 jumps 1000000003 frames after "
+        f"frame 10 (more than max_frame_gap = 1000); ...) -- wrote the other 10 frame(s) to {out}"]
     written = read_log(out)
     assert [f.frame for f in written.frames] == list(range(1, 11)) and len(written.tracks) == 10
     # a jump of 1,501 frames: over the default bound, within --max-frame-gap 1501
@@ -96,7 +98,7 @@ def test_track_rejects_a_frame_jump_of_10_9_and_keeps_the_prefix(tmp_path):
     args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q", "--overwrite",
             "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"]
     res = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 2 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
+    assert res.returncode == 3 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
     res = subprocess.run(args + ["--max-frame-gap", "1491"], capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 0, res.stderr
     assert [f.frame for f in read_log(out).frames] == [*range(1, 11), 1501, 1502]

@@ -107,3 +107,19 @@ def test_the_publishers_copy_replaces_a_foreign_one_before_it_is_recorded():
     assert a.drain() == [Write(1, own, NO_TRUTH, None)]
     assert a.rejected_seqs == [] and a.last_frame == 2
 
+
+def test_frames_that_agree_after_a_jump_are_recorded_from_the_resync_on():
+    a = FrameAligner(["measurements", "truth"], FrameBounds(10, 60.0, resync_frames=2))
+    frames = [item(1), item(500), item(501), item(502), item(503)]
+    for s, m in enumerate(frames):
+        a.release("measurements", [(s, m)])
+        a.release("truth", [(s, NO_TRUTH)])
+    acts = []
+    while True:
+        out = a.drain()
+        acts += [x for x in out if not isinstance(x, Verify)]
+        if not out or not isinstance(out[-1], Verify):
+            break
+        a.verified(out[-1].seq, out[-1].meas)
+    assert [type(x) for x in acts] == [Write, Reject, Reject, Write, Write]
+    assert a.rejected_seqs == [1, 2] and a.last_frame == 503

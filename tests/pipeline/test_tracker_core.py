@@ -1,7 +1,8 @@
 """The tracker stage's pure core (:class:`pipeline.stages.tracker_core.TrackerCore`): frames
 released in sequence order become Step / Skip / Reject actions, and the position of the run
 moves past a tracked frame only when the stage says its tracks are out; a frame that does not
-follow the last one is first checked against the publisher's copy (Verify).  No bus, no clock,
+follow the last one is first checked against the publisher's copy (Verify), and a run of
+frames that agree with each other resynchronises the stream.  No bus, no clock,
 no tracker."""
 
 from types import SimpleNamespace
@@ -23,8 +24,8 @@ def acc(frame: int, stamp_s: float | None = None) -> SimpleNamespace:
     return SimpleNamespace(msg=from_frame(Frame(frame, stamp, "radar", "bearing_range", z)), payload=f"p{frame}".encode())
 
 
-def core(window: int = 3) -> TrackerCore:
-    return TrackerCore(Sequencer(window, 0, "measurements"), FrameBounds(max_frame_gap=5, max_gap_s=30.0))
+def core(window: int = 3, resync: int = 10) -> TrackerCore:
+    return TrackerCore(Sequencer(window, 0, "measurements"), FrameBounds(5, 30.0, resync))
 
 
 def test_frames_released_in_order_are_steps_and_the_position_waits_for_their_tracks():
@@ -86,5 +87,26 @@ def test_a_copy_under_the_seq_that_follows_replaces_a_foreign_one():
     foreign, own = acc(40), acc(2)
     assert c.decide(1, foreign) == Verify(1, foreign)
     act = c.decide(1, own, own=True)  # the publisher's copy of seq 1
-    assert isinstance(act, Step) and act.item is own and c.rejected_seqs == []
+    assert isinstance(act, Step) and act.item is own and not act.fresh and c.rejected_seqs == []
 
+
+def test_frames_that_agree_after_a_jump_resynchronise_the_stream():
+    c = core(resync=2)
+    c.stepped(0, c.decide(0, acc(1)).frame)
+    acts = [c.decide(s, acc(100 + s), own=True) for s in (1, 2)]
+    assert [type(a) for a in acts] == [Reject, Reject]
+    assert c.gate_state() == (2, 102, 102 * S)
+    act = c.decide(3, acc(103), own=True)  # the third in a row that agree: a new segment
+    assert isinstance(act, Step) and act.fresh and act.frame.frame == 103
+    assert c.gate_state() == (2, 102, 102 * S)  # not tracked yet: a snapshot keeps the run
+    c.stepped(3, act.frame)
+    assert c.gate_state() == (0, 102, 102 * S) and (c.last_seq, c.last_frame) == (3, 103)
+    nxt = c.decide(4, acc(104))
+    assert isinstance(nxt, Step) and not nxt.fresh
+
+
+def test_resume_restores_the_run_of_skipped_frames():
+    c = core(resync=2)
+    c.resume(Sequencer(3, 5, "measurements"), 4, 1, S, [3, 4], gate=(2, 51, 51 * S))
+    act = c.decide(5, acc(52), own=True)
+    assert isinstance(act, Step) and act.fresh
