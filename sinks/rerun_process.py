@@ -46,6 +46,7 @@ from __future__ import annotations
 import fcntl
 import os
 import pickle
+import re
 import select
 import signal
 import subprocess
@@ -78,6 +79,10 @@ _DONE = b"done\n"
 _REAPER = "rerun-recording-reaper"
 _PIPE_SIZE = 1 << 20
 _STDERR_TAIL = 4000
+#: A log line of the Rust SDK (``2026-01-01T00:00:00.000Z ERROR target: text``).
+_RUST_LOG_LINE = re.compile(r"^\d{4}-\d\d-\d\dT\S+Z\s+(ERROR|WARN|INFO|DEBUG|TRACE)\b")
+#: The OS error its file writer reports (``Failed to write: No space left on device (os error 28)``).
+_RUST_OS_ERROR = re.compile(r"Failed to write: ([^()\n]+?) \(os error (\d+)\)")
 #: What a Ctrl-C (or Ctrl-\) at the terminal sends to the foreground process group.
 _GROUP_SIGNALS = frozenset({signal.SIGINT, signal.SIGQUIT})
 
@@ -287,10 +292,10 @@ class RecordingProcess:
             self._proc.kill()
             self._proc.wait()
             self._proc.stdout.close()  # type: ignore[union-attr]
-            raise RecordingError(self._failure(f"did not finish within {self.timeout:g} s"))
+            raise self._failure(f"did not finish within {self.timeout:g} s")
         self._proc.stdout.close()  # type: ignore[union-attr]
         if self._proc.returncode is not None:  # ended without reporting the file complete
-            raise RecordingError(self._failure(f"exited with code {self._proc.returncode}"))
+            raise self._failure(f"exited with code {self._proc.returncode}")
         self._stderr.close()
         # the file is complete; the child exits on its own shortly after.  A
         # (non-daemon) thread reaps it, so that this process's exit waits for it too
@@ -337,12 +342,25 @@ class RecordingProcess:
             said += chunk
         return True
 
-    def _failure(self, what: str) -> str:
+    def _failure(self, what: str) -> Exception:
+        """The child's failure as one line: an OSError naming the file when its file writer
+        reported one (disk full, I/O error), else a :class:`RecordingError` with its last
+        Python error line; the Rust SDK's log lines are not repeated."""
         self._stderr.seek(0)
-        tail = self._stderr.read().decode("utf-8", "replace")[-_STDERR_TAIL:].strip()
+        tail = self._stderr.read().decode("utf-8", "replace")[-_STDERR_TAIL:]
         self._stderr.close()
-        target = f" writing {self.path}" if self.path is not None else ""
-        return f"the Rerun recording process{target} {what}" + (f": {tail}" if tail else "")
+        return child_failure(tail, self.path, what)
+
+
+def child_failure(stderr: str, path: Path | None, what: str) -> Exception:
+    """The recording child's failure from its ``stderr``, as one line (see
+    :meth:`RecordingProcess._failure`)."""
+    os_error = _RUST_OS_ERROR.search(stderr)
+    if os_error is not None and path is not None:
+        return OSError(int(os_error.group(2)), os_error.group(1), str(path))
+    lines = [ln.strip() for ln in stderr.splitlines() if ln.strip() and not _RUST_LOG_LINE.match(ln.strip())]
+    target = f" writing {path}" if path is not None else ""
+    return RecordingError(f"the Rerun recording process{target} {what}" + (f": {lines[-1]}" if lines else ""))
 
 
 class ProcessRecordSink:

@@ -15,9 +15,10 @@ This module imports neither rerun nor mcap.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 from dataclasses import dataclass, field
 
@@ -107,6 +108,19 @@ def make_sink(name: str, options: SinkOptions, table: Mapping[str, SinkEntry] | 
     return entry.load()(options)
 
 
+@contextlib.contextmanager
+def _naming(sink: Any) -> Iterator[None]:
+    """An OSError of ``sink`` without a file name (a write to an open file: disk full, I/O
+    error) gets the sink's file (``options.path``), so that the error names it."""
+    try:
+        yield
+    except OSError as exc:
+        path = getattr(getattr(sink, "options", None), "path", None)
+        if exc.filename is not None or path is None or exc.errno is None:
+            raise
+        raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
 class SinkSet:
     """Several sinks fed in order: ``open`` opens them in order (one that fails closes those
     already open, in reverse order, and the error propagates), ``write`` gives each record to
@@ -124,7 +138,8 @@ class SinkSet:
         self._opening = True
         for sink in self.sinks:
             try:
-                sink.open(metadata)
+                with _naming(sink):
+                    sink.open(metadata)
             except BaseException:
                 self.close()
                 raise
@@ -132,7 +147,8 @@ class SinkSet:
 
     def write(self, record: SinkRecord) -> None:
         for sink in self._opened:
-            sink.write(record)
+            with _naming(sink):
+                sink.write(record)
 
     def close(self) -> None:
         if self._closed:
@@ -143,7 +159,8 @@ class SinkSet:
         # e.g. a started child process, is released)
         for sink in reversed(self._opened if self._opening else self.sinks):
             try:
-                sink.close()
+                with _naming(sink):
+                    sink.close()
             except BaseException as exc:  # close the others all the same
                 first = first or exc
         if first is not None:
