@@ -30,6 +30,9 @@ Families (``--only`` picks some):
   run's files unchanged;
 * ``stolen-key``, ``exit-truth``: stage keys taken from another process's view and forged ends
   of stream; exit codes that follow the output (``benchmarks/faults_eos.py``);
+* ``router``, ``open``, ``viewer``, ``hostile``: see :mod:`fault_cases` (a router killed and
+  restarted, open-mode samples far ahead or copied, a frozen live viewer, hostile logs through
+  ``track`` and ``replay``);
 * ``restart-alone``: a stage started by hand (``bnptrack stage``, on a router of its own) after
   the others have left: ``--points`` runs (100 frames at 25 frames/s, ``max_restarts = 0``)
   whose sink is SIGKILLed at a seeded frame, then a sink started by hand must end within 90 s
@@ -61,6 +64,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 VO2017 = ROOT / "recordings" / "vo2017-s1.mcap"
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import fault_cases  # noqa: E402  (more families, same helpers)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -540,7 +546,32 @@ def family_restart_alone(work: Path, points: int, seed: int) -> list[dict]:
 
 
 FAMILIES = ("kill", "stop", "forged", "malformed", "mcap", "full", "taken", "restart-alone", "stolen-key",
-            "exit-truth")
+            "exit-truth", "router", "open", "viewer", "hostile")
+
+
+def print_table(cases: list[dict]) -> dict:
+    """The table of docs/pipeline.md: case, runs, identical (exit 0, output equal to offline),
+    lost (runs that lost something or hung), exit codes."""
+    from collections import Counter
+
+    table: dict[str, dict] = {}
+    for c in cases:
+        key = c["family"] + (f"/{c['role']}/{c['run']}" if c["family"] == "kill" else
+                             f"/{c['role']}" if c["family"] in ("restart-alone", "stolen-key", "exit-truth") else
+                             f"/{c['kind']}" if "kind" in c else "")
+        if c["ok"] is None:
+            continue
+        t = table.setdefault(key, {"runs": 0, "identical": 0, "lost": 0, "exits": Counter()})
+        t["runs"] += 1
+        t["identical"] += bool(c.get("identical", c["ok"] and c.get("exit") == 0))
+        t["lost"] += not c["ok"]
+        t["exits"][str(c.get("exit"))] += 1
+    print("\n| Case | Runs | Identical | Lost | Exit codes |\n|---|---|---|---|---|")
+    for k, t in table.items():
+        exits = ", ".join(f"{code} x{n}" for code, n in sorted(t["exits"].items()))
+        print(f"| {k} | {t['runs']} | {t['identical']} | {t['lost']} | {exits} |")
+        t["exits"] = dict(t["exits"])
+    return table
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -550,6 +581,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--long", type=int, default=0, help="kills per stage in 2,000-frame runs at 50 frames/s")
     ap.add_argument("--malformed", type=int, default=10_000)
     ap.add_argument("--runs", type=int, default=3, help="stolen-key: runs of each of its two cases")
+    ap.add_argument("--router", type=int, default=10, help="router kill-and-restart runs")
+    ap.add_argument("--open", type=int, default=3, help="open-mode runs per kind")
+    ap.add_argument("--viewer", type=int, default=3, help="frozen-viewer runs")
     ap.add_argument("--seed", type=int, default=17)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -577,18 +611,15 @@ def main(argv: list[str] | None = None) -> int:
                 from faults_eos import family_exit_truth, family_stolen_key
 
                 cases += family_stolen_key(work, args.runs) if fam == "stolen-key" else family_exit_truth(work)
-    print("\nfamily      tried  nothing lost")
-    table = {}
-    for c in cases:
-        key = c["family"] + (f"/{c['role']}/{c['run']}" if c["family"] == "kill" else
-                             f"/{c['role']}" if c["family"] in ("restart-alone", "stolen-key", "exit-truth") else "")
-        t = table.setdefault(key, [0, 0])
-        if c["ok"] is None:
-            continue
-        t[0] += 1
-        t[1] += bool(c["ok"])
-    for k, (n, ok) in table.items():
-        print(f"{k:<20} {n:>5}  {ok:>5}")
+            elif fam == "router":
+                cases += fault_cases.family_router(work, args.router, args.seed, sys.modules[__name__])
+            elif fam == "open":
+                cases += fault_cases.family_open(work, args.open)
+            elif fam == "viewer":
+                cases += fault_cases.family_viewer(work, args.viewer, sys.modules[__name__])
+            elif fam == "hostile":
+                cases += fault_cases.family_hostile(work, sys.modules[__name__])
+    table = print_table(cases)
     if args.json:
         args.json.write_text(json.dumps({"cases": cases, "table": table}, indent=1))
     return 0 if all(c["ok"] is not False for c in cases) else 1
