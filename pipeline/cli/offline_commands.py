@@ -309,17 +309,18 @@ def track(
         res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
+    _track_outcome(res, io.out)
+
+
+def _track_outcome(res: TrackResult, out: Path) -> None:
+    """``track``'s error after the summary: a damaged log (exit 2), or frames beyond the
+    bounds skipped (exit 3: how many, the first reasons)."""
     if res.error is not None:
-        raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {io.out}")
+        raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}")
     if res.skipped:
-        raise IncompleteError(skipped_line(res.skipped, res.n_frames, io.out))
-
-
-def skipped_line(skipped: tuple[tuple[int, str], ...], written: int, out: Path) -> str:
-    """``track``'s error for frames beyond the bounds (exit 3): how many, the first reasons."""
-    first = "; ".join(why for _, why in skipped[:3]) + ("; ..." if len(skipped) > 3 else "")
-    return (f"output incomplete: {len(skipped)} frame(s) beyond the frame bounds skipped ({first}) -- "
-            f"wrote the other {written} frame(s) to {out}")
+        first = "; ".join(why for _, why in res.skipped[:3]) + ("; ..." if len(res.skipped) > 3 else "")
+        raise IncompleteError(f"output incomplete: {len(res.skipped)} frame(s) beyond the frame bounds skipped "
+                              f"({first}) -- wrote the other {res.n_frames} frame(s) to {out}")
 
 
 def _header(log: Path, setup: TrackerSetup, quiet: bool) -> None:
