@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -383,7 +384,22 @@ def stage(role: str, pipeline_file: Path | None, run_id: str | None, connect: tu
     finally:
         if parent_pid:  # the launcher may be gone: stages.json must not say this one still runs
             record_exit(Path(cfg.out), role, code)
-    raise SystemExit(code)
+    end_process(code)
+
+
+def end_process(code: int) -> None:
+    """End a stage process once its stage is done (files closed and synced, bus closed): flush
+    the logs and the standard streams, then exit at once, so that no library's exit handler
+    (the Rerun SDK flushing to a frozen live viewer) can hold the process and the run."""
+    import logging
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 @click.command()
