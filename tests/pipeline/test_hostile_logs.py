@@ -85,3 +85,16 @@ def test_track_and_the_pipeline_give_the_same_output_on_a_hostile_log(tmp_path, 
     summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
     assert not summary["output_complete"]  # the launcher's exit 3, as track's
     assert sorted({s for m in summary["missing"] for s in m["seqs"]}) == skipped
+
+
+def test_a_resynchronised_stream_with_a_lag_keeps_the_tracks_of_the_frames_before_the_jump(tmp_path):
+    # the fixed-lag window is published when the stream resynchronises, then the tracker starts afresh
+    log = _hostile(tmp_path, "long-gap")
+    cfg = mem_cfg(tmp_path, frames=0, **{"source.kind": "'mcap'", "source.log": f"'{log}'", "tracker.lag": "2"})
+    run_memory_pipeline(cfg, MemoryNetwork())
+    piped = read_log(Path(cfg.out) / "tracks.mcap")
+    assert len(piped.frames) == 30 and len(piped.tracks) == 30
+    assert [e.frame for e in piped.tracks] == [f.frame for f in piped.frames]
+    assert (piped.frames[14].frame, piped.frames[15].frame) == (15, 2026)  # log frames 16-25 skipped
+    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
+    assert sorted({s for m in summary["missing"] for s in m["seqs"]}) == list(range(15, 25))
