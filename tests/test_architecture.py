@@ -30,9 +30,7 @@ LONG_MODULES = {
 }
 
 #: Classes still over MAX_CLASS_LINES, each with its current length as its ceiling.
-LONG_CLASSES = {
-    "pipeline/stages/tracker.py:TrackerStage": 303,
-}
+LONG_CLASSES: dict[str, int] = {}
 
 
 def _modules() -> dict[str, Path]:

@@ -16,7 +16,7 @@ import numpy as np
 from bnptrack.tracker.messages import encode
 from bnptrack.pipeline.config import TrackerStageConfig
 from bnptrack.pipeline.journal import JOURNAL_NAME, TracksJournal
-from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, StageIOError, settle_heap, warm_imports
+from bnptrack.pipeline.stages.base import EXIT_DATA, EXIT_OK, EXIT_STOPPED, StageBase, StageContext, settle_heap, warm_imports
 from bnptrack.pipeline.stages.delivery import (FETCH_AFTER_S, Accepted, HeadAsk, HoleWatch, Intake, RepeatLog,
                                               Sequencer, end_gaps_due, fetch_holes, publisher_copy, resolve_conflict,
                                               settle_holes)
@@ -194,32 +194,6 @@ class TrackerStage(TrackerSnapshots, StageBase):
         self.bus.publish("tracks", payload, meta)
         self.last_tracks = len(est.tracks)
         return s, payload, meta
-
-    def _journal(self, records: list[tuple[int, bytes, dict]]) -> None:
-        """Append published samples to the journal (after the state advanced)."""
-        for s, payload, meta in records:
-            try:
-                self.journal.append(s, payload, meta)
-            except OSError as exc:
-                raise StageIOError(self.name, self.journal.path, exc) from None
-            self.counters.published += 1
-
-    def _flush_window(self) -> None:
-        """At the end of the stream: publish the frames still in the fixed-lag window."""
-        if self.output is None:
-            return
-        state, out = self.output.flush(self.state)
-        if out:
-            now = self.clock.time_ns()
-            records = [self._publish(e, est, now, now) for e, est in out]
-            self.state = state
-            self._journal(records)
-
-    def _new_segment(self) -> None:
-        """The stream resynchronised after a jump (:class:`~tracker.types.FrameGate`): publish
-        the frames still in the fixed-lag window, then start the tracker afresh."""
-        self._flush_window()
-        self.state = self.output.initial_state(self.tracker.initial_state())
 
     def _lazy_imports_due(self, frame: Frame) -> bool:
         """Whether ``frame`` is large enough (:data:`LAZY_PAIRS`) for the large frames'

@@ -1,10 +1,13 @@
 """The tracker stage's snapshots: its state, position and end of stream written atomically
-(with its journal of ``/tracks``), read back when the stage is restarted, and a restarted
-stage that had finished the run announcing its end again.
+(with its journal of ``/tracks``, to which each published sample is appended), read back when
+the stage is restarted, and a restarted stage that had finished the run announcing its end
+again; the fixed-lag window published at the end of the stream or when the stream
+resynchronises after a jump (the tracker then starts afresh).
 
 :class:`TrackerSnapshots` is a base class of :class:`~pipeline.stages.tracker.TrackerStage`
 and works on its state: ``tc``, ``snap_path``, ``core``, ``tracker``, ``output``, ``state``, ``journal``,
-``writer``, ``counters``, ``restored``, ``finished_eos``, ``since_snapshot``.
+``writer``, ``counters``, ``restored``, ``finished_eos``, ``since_snapshot``, ``clock`` and its
+``_publish``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,32 @@ log = logging.getLogger("bnptrack.stage")
 
 class TrackerSnapshots:
     """Snapshot and resume a tracker stage (see the module docstring)."""
+
+    def _journal(self, records: list[tuple[int, bytes, dict]]) -> None:
+        """Append published samples to the journal (after the state advanced)."""
+        for s, payload, meta in records:
+            try:
+                self.journal.append(s, payload, meta)
+            except OSError as exc:
+                raise StageIOError(self.name, self.journal.path, exc) from None
+            self.counters.published += 1
+
+    def _flush_window(self) -> None:
+        """At the end of the stream: publish the frames still in the fixed-lag window."""
+        if self.output is None:
+            return
+        state, out = self.output.flush(self.state)
+        if out:
+            now = self.clock.time_ns()
+            records = [self._publish(e, est, now, now) for e, est in out]
+            self.state = state
+            self._journal(records)
+
+    def _new_segment(self) -> None:
+        """The stream resynchronised after a jump (:class:`~tracker.types.FrameGate`): publish
+        the frames still in the fixed-lag window, then start the tracker afresh."""
+        self._flush_window()
+        self.state = self.output.initial_state(self.tracker.initial_state())
 
     def _restore(self) -> list[tuple[int, bytes, dict]]:
         """Resume from the snapshot when there is one (and ``resume``), and open the journal
