@@ -170,20 +170,20 @@ class GroupHyper:
 
     def _grid_posterior(self, hyper: np.ndarray) -> tuple[float, float, np.ndarray]:
         """Posterior means of (alpha_2, d) on the grid given the log-likelihood ``hyper`` and the priors."""
-        log_post = hyper + self._alpha_log_prior[:, None]
-        if self._d_log_prior is not None:
-            log_post = log_post + self._d_log_prior[None, :]
+        log_post = hyper + self.alpha_log_prior[:, None]
+        if self.d_log_prior is not None:
+            log_post = log_post + self.d_log_prior[None, :]
         alpha, d = grid_mean(log_post, self.alpha_grid, self.d_grid)
         return alpha, d, hyper
 
     @cached_property
-    def _alpha_log_prior(self) -> np.ndarray:
+    def alpha_log_prior(self) -> np.ndarray:
         """alpha_2's Gamma prior on the grid plus log alpha (the grid is uniform in log alpha)."""
         cfg = self.config
         return log_gamma_prior(self.alpha_grid, cfg.alpha_shape, cfg.alpha_scale) + np.log(self.alpha_grid)
 
     @cached_property
-    def _d_log_prior(self) -> np.ndarray | None:
+    def d_log_prior(self) -> np.ndarray | None:
         cfg = self.config
         if cfg.infer_d and cfg.d_prior == "gamma":
             return log_gamma_prior(np.maximum(self.d_grid, 1e-12), cfg.d_shape, cfg.d_scale)

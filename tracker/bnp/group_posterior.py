@@ -49,13 +49,13 @@ def d_posterior(tracker: GroupTracker, state: GroupState) -> tuple[np.ndarray, n
     """The posterior of d on the tracker's grid at ``state``: its (alpha_2, d) log-likelihood plus
     the priors the tracker uses, normalised, summed over alpha_2.  A tracker that does not infer
     d has the one-point grid of its fixed d."""
-    log_post = state.hyper2_loglik if state.hyper2_loglik.size else np.zeros((tracker.alpha_grid.size, tracker.d_grid.size))
-    log_post = log_post + tracker._alpha_log_prior[:, None]
-    if tracker._d_log_prior is not None:
-        log_post = log_post + tracker._d_log_prior[None, :]
+    log_post = state.hyper2_loglik if state.hyper2_loglik.size else np.zeros((tracker.hyper.alpha_grid.size, tracker.hyper.d_grid.size))
+    log_post = log_post + tracker.hyper.alpha_log_prior[:, None]
+    if tracker.hyper.d_log_prior is not None:
+        log_post = log_post + tracker.hyper.d_log_prior[None, :]
     p = np.exp(log_post - log_post.max())
     p = p.sum(axis=0)
-    return tracker.d_grid.copy(), p / p.sum()
+    return tracker.hyper.d_grid.copy(), p / p.sum()
 
 
 def grid_interval(grid: np.ndarray, prob: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
