@@ -57,10 +57,12 @@ def setup(tracker_name: str, params_name: str, scenario: str, seed: int, overrid
     """The scene of ``seed`` (a generated family draws its own), the tracker and the frames.
 
     ``overrides``: ``params.KEY=V`` go to the model parameters (after the scenario's
-    defaults), ``[tracker.]KEY=V`` to the tracker's preset."""
+    defaults), ``scene.KEY=V`` to a generated family's scene, ``[tracker.]KEY=V`` to the
+    tracker's preset."""
     p_over = [o.partition(".")[2] for o in overrides if o.startswith("params.")]
-    t_over = [o.removeprefix("tracker.") for o in overrides if not o.startswith("params.")]
-    sc = get_scenario(scenario, seed=seed)
+    s_over = tuple(o.partition(".")[2] for o in overrides if o.startswith("scene."))
+    t_over = [o.removeprefix("tracker.") for o in overrides if not o.startswith(("params.", "scene."))]
+    sc = get_scenario(scenario, seed=seed, scene=s_over)
     params = apply_overrides(sc.adapt_params(load_params(params_name)), p_over)
     tracker = build(tracker_name, params, apply_overrides(kind(tracker_name).presets[tracker_name], t_over))
     return sc, tracker, simulate_all(sc, params, seed)
@@ -108,7 +110,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20, help="number of seeds")
     ap.add_argument("--first-seed", type=int, default=1, help="seeds run from this one")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--set", dest="overrides", action="append", default=[], help="override: params.KEY=V (model parameters) or [tracker.]KEY=V (tracker settings)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="override: params.KEY=V (model parameters), scene.KEY=V (generated scene) or [tracker.]KEY=V (tracker settings)")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"scenario {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides {args.overrides or 'none'}")

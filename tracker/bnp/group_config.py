@@ -7,7 +7,7 @@ from typing import Literal
 import msgspec
 
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from bnptrack.tracker.config import Fraction, NonNeg, PosInt, Positive, PositiveProb, Prob
+from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, PosInt, Positive, PositiveProb, Prob
 
 __all__ = ["GROUP_PRESETS", "GroupConfig"]
 
@@ -41,6 +41,11 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """A member receives the velocity sharing only when its own velocity information is at least
     this factor times H's (largest velocity variance <= objects.birth_velocity_std^2 / factor;
     :mod:`tracker.bnp.group_share`: crossing pairs); 0: every member."""
+    share_after: NonNegInt = 0
+    """A member receives the velocity sharing only once it has sat in one cluster with at least one
+    other object for this many consecutive scans
+    (:func:`tracker.bnp.group_share.together_scans`: objects that have moved together, not two
+    that meet at a crossing); 0: every member (off)."""
     turn_within_std_deg: NonNeg = 0.5
     """Spread (deg/s) of members' turn rates about their cluster's; > 0 shares the turn rate too
     (:func:`tracker.bnp.group_share.share_turn`), 0 does not."""
@@ -101,6 +106,13 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     D^(l-1)); identical when d = 0."""
     hyper_forgetting: PositiveProb = 0.98
     """Per-frame forgetting of the "arrivals" and "reseat" likelihoods ("history" has none)."""
+    crossing_scans: NonNegInt = 0
+    """Multi-scan check of crossing tracks' labels (:mod:`tracker.bnp.identity`): the scans after
+    two tracks' closest approach at which their labels are checked (0: off)."""
+    crossing_before: PosInt = 2
+    """Scans before the closest approach the check filters from (each track's own posterior)."""
+    crossing_margin: float = 0.0
+    """Nats by which the best swap must beat keeping the labels."""
     hyper_likelihood: Literal["history", "arrivals", "reseat"] = "history"
     """What (alpha_2, d) are inferred from: "history", the Pitman-Yor EPPF of the partition of
     every object that ever entered it, each counted once in its latest cluster (dead clusters

@@ -32,7 +32,7 @@ from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_fma import sum2
 from bnptrack.tracker.bnp.group_sample import Shares
 
-__all__ = ["informed", "own_update", "restrict", "share_turn", "share_velocity"]
+__all__ = ["informed", "own_update", "restrict", "share_turn", "share_velocity", "together_scans"]
 
 
 def informed(cov: np.ndarray, prior_var: float, factor: float) -> np.ndarray:
@@ -235,3 +235,17 @@ def _share_turn_kernel(mean, cov, omega, var, z, within_var):  # pragma: no cove
 
 
 _share_turn_kernel = jit(_share_turn_kernel)
+
+
+def together_scans(cluster: np.ndarray, previous_cluster: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+    """(L,) consecutive scans each member has sat in its cluster with at least one other member
+    (``share_after``): ``previous + 1`` when its cluster id ``cluster`` is last scan's
+    (``previous_cluster``) and holds another member, 1 when it holds another member but is not
+    last scan's, else 0 (``previous``: last scan's counts, -1 or None: none)."""
+    if cluster.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, inverse, counts = np.unique(cluster, return_inverse=True, return_counts=True)
+    shared = counts[inverse] >= 2
+    before = np.zeros(cluster.size, dtype=np.int64) if previous is None else np.maximum(previous, 0)
+    stay = shared & (cluster == previous_cluster)
+    return np.where(stay, before + 1, np.where(shared, 1, 0)).astype(np.int64)

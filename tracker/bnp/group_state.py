@@ -65,6 +65,19 @@ class GroupState:
     otherwise, and in snapshots that lack it: then every object starts from its state)."""
     own_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
     """(N, 5, 5) its covariance."""
+    together: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(N,) consecutive scans each object has sat in its cluster with another object (``share_after``;
+    empty when off)."""
+    id_frames: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """The crossing check's ring (:class:`tracker.bnp.identity.Ring`; empty when off): its scans,
+    and below its stamps, own posteriors, measurement information, last exchanges and clusters."""
+    id_stamps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    id_mean: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5)))
+    id_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5, 5)))
+    id_lam: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5, 5)))
+    id_eta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5)))
+    id_swapped: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])

@@ -60,8 +60,10 @@ from bnptrack.tracker.bnp.group_config import GROUP_PRESETS, GroupConfig
 from bnptrack.tracker.bnp.group_hyper import GroupHyper
 from bnptrack.tracker.bnp.group_merge import label_arrays, merge_exclusive
 from bnptrack.tracker.bnp.group_sample import Block, Shares, sample_partition
-from bnptrack.tracker.bnp.group_share import informed, own_update, restrict, share_turn, share_velocity
+from bnptrack.tracker.bnp.group_share import (informed, own_update, restrict, share_turn, share_velocity,
+                                               together_scans)
 from bnptrack.tracker.bnp.group_state import _BIRTH_FIELDS, GroupState, _rows_of, previous_rows
+from bnptrack.tracker.bnp import identity
 from bnptrack.tracker.bnp.group_theta import _ZERO2, _transition_kernel, fov_moments, prior_information
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
@@ -146,14 +148,18 @@ class GroupTracker:
         read = None if own is None else (own if self.config.membership == "own" else (inner.mean, inner.cov))
         blocks = self._blocks(state, steps, *((m_mean, m_cov) if read is None else (read[0][members], read[1][members])))
         z, shares = self._partition(rng, state, blocks, init_ids)
+        ids, next_group = self._ids(state, z)
+        together = None
+        if self.config.share_after > 0 or self.config.crossing_scans > 0:
+            previous = _rows_of(state.together, src[members]) if state.together.size == len(state.labels) else None
+            together = together_scans(ids[z], init_ids, previous)
         if self.config.sharing and members.size:
-            m_mean, m_cov = self._share(m_mean, m_cov, shares)
+            m_mean, m_cov = self._share(m_mean, m_cov, shares, together)
         if self.config.turn_within_std_deg > 0 and members.size:
             m_mean, m_cov = share_turn(m_mean, m_cov, base[0][members, 4], base[1][members, 4, 4], z,
                                        self._turn_within_var)
         if members.size:
             mean[members], cov[members] = m_mean, m_cov
-        ids, next_group = self._ids(state, z)
         cluster = np.full(len(inner.labels), -1, dtype=np.int64)
         cluster[members] = ids[z]
         g_ids, g_count, (g_mean, g_cov), (p_mean, p_cov) = self._transition_out(blocks, z, ids)
@@ -164,6 +170,14 @@ class GroupTracker:
                                g_mean, g_cov, g_count, p_mean, p_cov, alpha2, d2, hyper2, next_group, *hist,
                                *(getattr(inner, n) for n in _BIRTH_FIELDS if self.learns_births),
                                **({} if own is None else {"own_mean": own[0], "own_cov": own[1]}))
+        if together is not None:
+            full = np.zeros(len(inner.labels), dtype=np.int64)
+            full[members] = together
+            new_state = replace(new_state, together=full)
+        if self.config.crossing_scans > 0:
+            info = self._information(state, inner, steps, src)
+            new_state, est, kept = identity.check_labels(state, new_state, src, own, info, est, kept, self.config,
+                                                         self._predict)
         return new_state, self._estimate(new_state, est, t0, kept)
 
     # -- pieces ---------------------------------------------------------------------------
@@ -187,10 +201,28 @@ class GroupTracker:
         return inner, Estimate(est.frame, est.stamp_ns, (), assignments, est.assignment_prob, diag,
                                _cardinality(inner.existence)), kept
 
+    def _information(self, state: GroupState, inner: BnpState, steps: float, src: np.ndarray) -> tuple:
+        """The measurement information (:func:`tracker.bnp.identity.measurement_information`) the
+        object level's update gave each row of ``inner`` (zeros for a new object)."""
+        have = np.flatnonzero(src >= 0)
+        lam, eta = np.zeros_like(inner.cov), np.zeros_like(inner.mean)
+        if have.size:
+            m_s, P_s = self._predict(state.mean[src[have]], state.cov[src[have]], steps * self.params.T)
+            lam[have], eta[have] = identity.measurement_information(m_s, P_s, inner.mean[have], inner.cov[have])
+        return lam, eta
+
+    def _predict(self, m: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The object level's prediction of the rows ``(m, P)`` over ``dt`` seconds."""
+        motion = self.objects.motion if dt == self.params.T else self.params.motion(dt)
+        predict = kf.ukf_predict if self.config.objects.filter == "ukf" else kf.ekf_predict
+        return predict(motion, m, P)
+
     @cached_property
     def _keeps_own(self) -> bool:
-        """Whether each object's own estimate is kept (``membership`` or ``share_base`` "own")."""
-        return self.config.membership == "own" or self.config.share_base == "own"
+        """Whether each object's own estimate is kept (``membership`` or ``share_base`` "own", or
+        the crossing check)."""
+        cfg = self.config
+        return cfg.membership == "own" or cfg.share_base == "own" or cfg.crossing_scans > 0
 
     def _own(self, state: GroupState, inner: BnpState, steps: float, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r"""Each object's own estimate (``membership = "own"``), rows of ``inner``: the object level's
@@ -208,11 +240,9 @@ class GroupTracker:
         if not apart.any():
             return own_mean, own_cov
         have, rows = have[apart], rows[apart]
-        dt = steps * self.params.T
-        motion = self.objects.motion if dt == self.params.T else self.params.motion(dt)
-        predict = kf.ukf_predict if self.config.objects.filter == "ukf" else kf.ekf_predict
-        m, P = predict(motion, np.concatenate([state.mean[rows], state.own_mean[rows]]),
-                       np.concatenate([state.cov[rows], state.own_cov[rows]]))  # shared rows, then own
+        # shared rows, then own
+        m, P = self._predict(np.concatenate([state.mean[rows], state.own_mean[rows]]),
+                             np.concatenate([state.cov[rows], state.own_cov[rows]]), steps * self.params.T)
         K = rows.size
         own_mean[have], own_cov[have] = own_update((m[:K], P[:K]), (inner.mean[have], inner.cov[have]),
                                                    (m[K:], P[K:]))
@@ -262,9 +292,13 @@ class GroupTracker:
                 self._phi_memo[steps] = hit
         return hit
 
-    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)."""
+    def _share(self, mean: np.ndarray, cov: np.ndarray, shares: Shares, together: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`share_velocity` to the members with enough velocity information (``share_min_info``)
+        and, with ``share_after``, that have sat with another object for that many scans (``together``)."""
         keep = informed(cov, self.config.objects.birth_velocity_std**2, self.config.share_min_info)
+        if together is not None:
+            keep &= together >= self.config.share_after
         if keep.all():
             return share_velocity(mean, cov, shares, self.S_share)
         rows, obj = restrict(shares.obj, keep)
