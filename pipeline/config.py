@@ -27,6 +27,7 @@ from typing import Literal
 
 import msgspec
 
+from bnptrack.sinks.sink import RRD_NAME, TRACKS_NAME
 from bnptrack.tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
 
 __all__ = [
@@ -261,8 +262,8 @@ class SinkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mcap: bool = True
     rerun: bool = True
     tracks: bool = True
-    mcap_name: str = "tracks.mcap"
-    rrd_name: str = "run.rrd"
+    mcap_name: str = TRACKS_NAME
+    rrd_name: str = RRD_NAME
     view_url: str = ""
     score: bool = True
     outputs: list[str] = msgspec.field(default_factory=list)

@@ -46,6 +46,15 @@ from bnptrack.sinks.metric_checks import (LabelledScan, as_scans, check_alpha, c
 __all__ = ["GospaResult", "OspaResult", "cardinality_error", "gospa", "ospa", "ospa2", "ospa2_series",
            "track_distance", "OSPA_C", "OSPA_P", "OSPA2_WINDOW"]
 
+# --------------------------------------------------------------------------- the runs' settings
+
+#: OSPA cut-off (m) and order of the paper's experiments: ``bnptrack track``, the experiments
+#: and the recordings all use these.
+OSPA_C = 100.0
+OSPA_P = 1.0
+#: OSPA(2) sliding window in scans (and its inner order q = 1).
+OSPA2_WINDOW = 10
+
 
 # --------------------------------------------------------------------------- results
 
@@ -189,7 +198,7 @@ def _window_tracks(run: Sequence[tuple[tuple[Hashable, ...], np.ndarray]], dim: 
 # --------------------------------------------------------------------------- public API
 
 
-def ospa(X: ArrayLike, Y: ArrayLike, c: float = 100.0, p: float = 1.0) -> OspaResult:
+def ospa(X: ArrayLike, Y: ArrayLike, c: float = OSPA_C, p: float = 1.0) -> OspaResult:
     r"""OSPA distance between two finite point sets (Schuhmacher, Vo & Vo 2008).
 
     With :math:`X = \{x_1..x_m\}`, :math:`Y = \{y_1..y_n\}`, :math:`m \le n` (otherwise swap),
@@ -222,7 +231,7 @@ def ospa(X: ArrayLike, Y: ArrayLike, c: float = 100.0, p: float = 1.0) -> OspaRe
 
 
 def gospa(
-    X: ArrayLike, Y: ArrayLike, c: float = 100.0, p: float = 1.0, alpha: float = 2.0
+    X: ArrayLike, Y: ArrayLike, c: float = OSPA_C, p: float = 1.0, alpha: float = 2.0
 ) -> GospaResult:
     r"""GOSPA distance (Rahmathullah, Garcia-Fernandez & Svensson 2017); not size-normalised.
 
@@ -265,7 +274,7 @@ def gospa(
     return _gospa_unchecked(_cutoff_distances(X, Y, c), c, p, alpha)
 
 
-def track_distance(x: ArrayLike, y: ArrayLike, c: float = 100.0, q: float = 1.0) -> float:
+def track_distance(x: ArrayLike, y: ArrayLike, c: float = OSPA_C, q: float = 1.0) -> float:
     r"""OSPA(2) base distance between two tracks (Beard, Vo & Vo 2017/2020).
 
     ``x`` and ``y`` are ``(W, d)`` arrays over the same window, ``NaN`` where the track does not
@@ -294,7 +303,7 @@ def track_distance(x: ArrayLike, y: ArrayLike, c: float = 100.0, q: float = 1.0)
 
 
 def ospa2(
-    tracks_X: ArrayLike, tracks_Y: ArrayLike, c: float = 100.0, p: float = 1.0, q: float = 1.0
+    tracks_X: ArrayLike, tracks_Y: ArrayLike, c: float = OSPA_C, p: float = 1.0, q: float = 1.0
 ) -> OspaResult:
     r"""OSPA(2) distance between two sets of tracks over a window (Beard, Vo & Vo 2017/2020).
 
@@ -326,7 +335,7 @@ def ospa2_series(
     est_tracks: Sequence[LabelledScan],
     true_tracks: Sequence[LabelledScan],
     window: int = 10,
-    c: float = 100.0,
+    c: float = OSPA_C,
     p: float = 1.0,
     q: float = 1.0,
 ) -> np.ndarray:
@@ -388,13 +397,4 @@ def cardinality_error(n_est: float, n_true: float) -> float:
         vals.append(f)
     return abs(vals[0] - vals[1])
 
-
-# --------------------------------------------------------------------------- the runs' settings
-
-#: OSPA cut-off (m) and order of the paper's experiments: ``bnptrack track``, the experiments
-#: and the recordings all use these.
-OSPA_C = 100.0
-OSPA_P = 1.0
-#: OSPA(2) sliding window in scans (and its inner order q = 1).
-OSPA2_WINDOW = 10
 

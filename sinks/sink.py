@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
 
-__all__ = ["SinkEntry", "SINKS", "make_sink", "SinkSet", "OptionalSink", "UnknownSink", "check_sink_names"]
+__all__ = ["SinkEntry", "SINKS", "TRACKS_NAME", "RRD_NAME", "make_sink", "SinkSet", "OptionalSink", "UnknownSink", "check_sink_names"]
 
 log = logging.getLogger("bnptrack.sink")
 
@@ -67,17 +67,21 @@ class UnknownSink(KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+#: The output files of the MCAP and Rerun sinks.
+TRACKS_NAME = "tracks.mcap"
+RRD_NAME = "run.rrd"
+
 #: The sinks by name.
 SINKS: dict[str, SinkEntry] = {
     "mcap": SinkEntry("bnptrack.sinks.mcap_sink:McapSink", "the frames, truth and tracks as an MCAP log (tracks.mcap)",
-                      "tracks.mcap", decoded=False, imports=("bnptrack.sinks.mcap_writer",)),
+                      TRACKS_NAME, decoded=False, imports=("bnptrack.sinks.mcap_writer",)),
     "rerun": SinkEntry("bnptrack.sinks.rerun_adapter:rerun_sink", "a Rerun recording (run.rrd; needs rerun-sdk)",
-                       "run.rrd", required=False,
+                       RRD_NAME, required=False,
                        imports=("bnptrack.sinks.rerun_adapter", "bnptrack.sinks.rerun_sink", "pyarrow.compute", "numpy.ma",
                                 "dateutil.relativedelta")),
     "foxglove": SinkEntry("bnptrack.sinks.foxglove_sink:FoxgloveSceneSink",
                           "the tracks as foxglove.SceneUpdate messages (/tracks/scene) in the MCAP log",
-                          "tracks.mcap", required=False, beside="mcap"),
+                          TRACKS_NAME, required=False, beside="mcap"),
 }
 # ``imports`` include what a sink's first ``open`` imports (mcap.writer's importlib.metadata;
 # pyarrow.compute, numpy.ma and dateutil, which the Rerun SDK imports on its first annotation
