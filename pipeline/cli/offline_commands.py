@@ -129,8 +129,9 @@ def simulate(
       bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
       bnptrack simulate --params two_sensors.toml --seed 1   # one frame per [sensors.NAME] per scan
 
-    The generated scenarios (random, random-cv) draw their scene from --seed too (the
-    record then also holds scene_seed, the scene.* settings and the crossing pairs).
+    The generated scenarios (random, random-cv, groups, groups-pl, groups-py) draw their scene
+    from --seed too (the record then also holds scene_seed, the scene.* settings and the
+    crossing pairs).
     """
     from bnptrack.pipeline.offline import simulate_to_log
 
