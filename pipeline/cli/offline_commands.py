@@ -52,7 +52,7 @@ _BUILTIN = " or ".join(BUILTIN_PARAMS)
 _SET_HELP_SIM = (
     "Override one model parameter, KEY=VALUE (VALUE is a TOML literal), e.g. "
     "--set p_detect=0.9 --set clutter_rate=30; scene.KEY=VALUE sets a parameter of a "
-    "generated scenario (random, random-cv), e.g. --set scene.n_objects=25 "
+    "generated scenario (random, random-cv, groups, groups-pl, groups-py), e.g. --set scene.n_objects=25 "
     "--set scene.crossing_pairs=3 (docs/models.md). Repeatable."
 )
 
