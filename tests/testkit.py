@@ -234,6 +234,29 @@ def strip(est):
             [(t.state.tolist(), t.covariance.tolist(), t.existence) for t in est.tracks])
 
 
+def log_tracks(path):
+    """The /tracks of the MCAP log at ``path`` as comparable data (frame, labels, assignments,
+    diagnostics without the timing, states and existences)."""
+    from bnptrack import read_log
+
+    def row(e):
+        d = {k: v for k, v in e.diagnostics.items() if k != "ms"}
+        return (e.frame, e.labels, e.assignments, d, [(t.state.tolist(), t.existence) for t in e.tracks])
+
+    return [row(e) for e in read_log(path).tracks]
+
+
+def offline_log_tracks(log, out):
+    """Track the log at ``log`` offline with ``ddp`` (seed 0) into ``out``: its :func:`log_tracks`."""
+    from bnptrack.pipeline.offline import track_log
+    from bnptrack.pipeline.resolve import tracker_setup
+    from bnptrack.sources.mcap_log import read_metadata
+
+    meta = read_metadata(log)
+    track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
+    return log_tracks(out)
+
+
 # --------------------------------------------------------------------------- logs
 
 

@@ -15,9 +15,8 @@ from pathlib import Path
 import pytest
 
 from bnptrack.pipeline.stages import SUMMARY_NAME
-from bnptrack.sources.mcap_log import read_log
 
-from testkit import finish, popen_bnptrack, wait_until
+from testkit import finish, log_tracks, offline_log_tracks, popen_bnptrack, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -37,24 +36,6 @@ def _running(pid: int) -> bool:
     except OSError:
         return False
     return "\nState:\tZ" not in status
-
-
-def _offline(log: Path, out: Path) -> list:
-    from bnptrack.pipeline.offline import track_log
-    from bnptrack.pipeline.resolve import tracker_setup
-    from bnptrack.sources.mcap_log import read_metadata
-
-    meta = read_metadata(log)
-    track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
-    return _tracks(out)
-
-
-def _tracks(path: Path) -> list:
-    def strip(e):
-        d = {k: v for k, v in e.diagnostics.items() if k != "ms"}
-        return (e.frame, e.labels, e.assignments, d, [(t.state.tolist(), t.existence) for t in e.tracks])
-
-    return [strip(e) for e in read_log(path).tracks]
 
 
 def test_a_tracker_killed_after_its_last_frame_with_no_restart_left_ends_a_complete_run_with_exit_0(tmp_path):
@@ -86,7 +67,7 @@ def test_a_tracker_killed_after_its_last_frame_with_no_restart_left_ends_a_compl
     assert code == 0, text
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["output_complete"] is True and s["frames_written"] == 30 and s["missing"] == []
-    assert _tracks(out / "tracks.mcap") == _offline(out / "tracks.mcap", tmp_path / "off.mcap")
+    assert log_tracks(out / "tracks.mcap") == offline_log_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
 
 
 def test_after_the_launcher_is_killed_sink_json_names_what_is_missing_and_no_stage_shows_running(tmp_path):

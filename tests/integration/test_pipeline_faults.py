@@ -13,14 +13,13 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from bnptrack.pipeline.stages import SUMMARY_NAME, read_snapshot
 from bnptrack.sources.mcap_log import read_log
 
-from testkit import REPO_ROOT, bnptrack_env, finish, popen_bnptrack, wait_until
+from testkit import REPO_ROOT, bnptrack_env, finish, log_tracks, offline_log_tracks, popen_bnptrack, wait_until
 
 ROOT = REPO_ROOT
 
@@ -33,24 +32,6 @@ _env, _popen, _wait = bnptrack_env, popen_bnptrack, finish
 
 def _wait_for(what: str, cond, p: subprocess.Popen, timeout: float = 90) -> None:
     wait_until(cond, timeout, what, interval=0.01, abort=lambda: p.poll() is not None)
-
-
-def _offline_tracks(log: Path, out: Path) -> list:
-    from bnptrack.pipeline.offline import track_log
-    from bnptrack.pipeline.resolve import tracker_setup
-    from bnptrack.sources.mcap_log import read_metadata
-
-    meta = read_metadata(log)
-    track_log(log, out, tracker_setup("ddp", metadata=meta).tracker, 0, meta)
-    return _tracks(out)
-
-
-def _tracks(path: Path) -> list:
-    def strip(e):
-        d = {k: v for k, v in e.diagnostics.items() if k != "ms"}
-        return (e.frame, e.labels, e.assignments, d, [(t.state.tolist(), t.existence) for t in e.tracks])
-
-    return [strip(e) for e in read_log(path).tracks]
 
 
 @pytest.mark.parametrize("role", ["sink", "tracker"])
@@ -72,7 +53,7 @@ def test_a_stage_killed_just_after_the_run_was_recorded_leaves_it_complete(tmp_p
         code, text = _wait(p, 150)
     assert code == 0, text
     assert len(read_log(out / "tracks.mcap").tracks) == 30
-    assert _tracks(out / "tracks.mcap") == _offline_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
+    assert log_tracks(out / "tracks.mcap") == offline_log_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["complete"] and s["frames_written"] == 30 and not s["missing"]
     assert not list(out.glob(".*.part"))
@@ -133,7 +114,7 @@ def test_a_default_launch_refuses_forged_samples_from_other_local_processes(tmp_
     assert code == 0, text
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["complete"] and s["frames_written"] == 40 and s["counters"]["rejected"] == 0
-    assert _tracks(out / "tracks.mcap") == _offline_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
+    assert log_tracks(out / "tracks.mcap") == offline_log_tracks(out / "tracks.mcap", tmp_path / "off.mcap")
 
 
 def test_with_the_acl_a_stage_cannot_put_on_another_stages_keys_or_declare_its_tokens(tmp_path):
@@ -223,7 +204,7 @@ def long_log(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("long")
     log = make_log(d / "vo2000.mcap", 2000)
-    return log, _offline_tracks(log, d / "offline.mcap")
+    return log, offline_log_tracks(log, d / "offline.mcap")
 
 
 @pytest.mark.slow
@@ -266,4 +247,4 @@ def test_long_run_tracker_then_sink_killed_at_seeded_points_equals_offline(tmp_p
     assert stages["tracker"]["restarts"] == 1 and stages["sink"]["restarts"] == 1
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["complete"] and s["gaps"] == {"measurements": [], "truth": [], "tracks": []} and not s["missing"]
-    assert _tracks(out / "tracks.mcap") == expected
+    assert log_tracks(out / "tracks.mcap") == expected
