@@ -28,7 +28,7 @@ import os
 import sys
 import threading
 from pathlib import Path
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import numpy as np
@@ -257,6 +257,16 @@ def jit(fn: F, inline: bool = False) -> F:
         _pending.append(kernel)
         _defined.append(kernel)
     return kernel  # type: ignore[return-value]
+
+
+def kernel_bindings(modules: Iterable[Any]) -> list[tuple[Any, str, Callable]]:
+    """Every ``(module, name, python function)`` where a module of ``modules`` binds ``name``
+    to a kernel (lazy or compiled, also one imported from another module).  Rebinding each name
+    to its function runs the code of those modules interpreted, e.g. to compare it with the
+    compiled code; empty without :data:`JIT`."""
+    return [(module, name, value.py_func) for module in modules for name, value in sorted(vars(module).items())
+            if isinstance(value, _LazyKernel) or (type(value).__module__.startswith("numba.")
+                                                  and callable(getattr(value, "py_func", None)))]
 
 
 def kernel_file_prefixes() -> list[str]:

@@ -104,12 +104,13 @@ def test_cli_error_names_resolve_lazily():
 _KERNEL_PROBE = """
 import sys
 import numpy as np
-import bnptrack.tracker.bnp.gibbs as g
+import bnptrack.tracker.bnp.gibbs_setup as g
+import bnptrack.tracker.bnp.gibbs_sweeps as s
 from bnptrack.tracker.numerics import JIT
 before = "numba" in sys.modules
 keys = g._group_pairs(np.array([4, 7, 9], dtype=np.int64), np.array([0], dtype=np.int64),
                       np.array([3], dtype=np.int64), 10, 3)
-print(JIT, before, "numba" in sys.modules, type(g._sweeps).__module__.split(".")[0], keys.tolist())
+print(JIT, before, "numba" in sys.modules, type(s._sweeps).__module__.split(".")[0], keys.tolist())
 """
 
 

@@ -12,6 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from bnptrack.tracker.bnp import _kernels as k
 from bnptrack.tracker.bnp import gibbs as g
+from bnptrack.tracker.bnp import gibbs_setup, gibbs_sweeps
 from bnptrack.tracker.bnp.assignment import best_permutation_pairs
 from bnptrack.tracker.bnp.clusters import _POS_VEL, _birth_frame, _Clusters, merge_duplicates
 from bnptrack.tracker.cardinality import existence_cardinality
@@ -79,7 +80,7 @@ def _merge_reference(c: _Clusters, max_d2: float) -> _Clusters:
 
 def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
     N, M = problem.shape
-    cand = g._candidates(problem)
+    cand = gibbs_setup._candidates(problem)
     pair_a, pair_b = g.swap_pairs(problem) if swaps and N else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     K = cand.idx.size + 2 * M
     tally_pair, tally_cn = np.zeros(cand.idx.size), np.zeros((2, M))
@@ -93,10 +94,11 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
         cnt = np.bincount(c[c >= 0], minlength=N).astype(np.int64)
         st = np.array([np.sum(c == g.NEW), np.sum(c != g.CLUTTER)], dtype=np.int64)
         u = rng.random((sweeps, M))  # then each exchange pass draws one uniform per pair from rng
-        accepted += g._sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new, cand.ptr,
-                              cand.idx, cand.w_first, cand.w_lik, np.asarray(problem.popularity, float), u, rng,
-                              pair_a, pair_b, burn_in, 2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
-                              g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
+        accepted += gibbs_sweeps._sweeps(c, cnt, st, par, bool(problem.extended), cand.w_clutter, cand.w_new,
+                                         cand.ptr, cand.idx, cand.w_first, cand.w_lik,
+                                         np.asarray(problem.popularity, float), u, rng, pair_a, pair_b, burn_in,
+                                         2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
+                                         g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
         first = c if first is None else first
     kept = max(sweeps - burn_in, 1) * chains
     return (tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first, g.log_joint(problem, first),

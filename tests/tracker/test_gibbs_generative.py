@@ -3,7 +3,7 @@ r"""The tracker's Gibbs weights against a forward simulation of the stated gener
 ``tests/tracker/test_urn_gibbs.py`` checks the sampler against ``log_joint`` (enumeration, Geweke), so
 it cannot see a wrong weight in ``BnpTracker._problem``, which turns a tracker state into the
 ``GibbsProblem``.  Here the reference is a simulator of ``docs/trackers.md`` "One frame",
-step 2, written from the model statement and sharing no code with ``tracker/bnp/gibbs.py``:
+step 2, written from the model statement and sharing no code with the sampler (``tracker/bnp/gibbs*.py``):
 
 * each cluster ``l`` exists (``q_l``) and, if it does, is detected (``P_D``);
 * ``M_o ~ Poisson(alpha + V)`` object-originated measurements, ``V = sum_l q_l v_l``, are

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.tracker.bnp import gibbs as g
+from bnptrack.tracker.bnp import swap_moves as g
 from bnptrack.tracker.bnp.swap_moves import gate_bits, gated
 
 
@@ -47,15 +47,15 @@ def test_swap_pass_with_the_table_equals_the_scan(seed, extended):
     c, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first = _random_pass_inputs(rng, M, N, extended)
     bits, none = gate_bits(ptr, idx, N, 1 << 20), np.zeros((0, 0), dtype=np.uint8)
     c1, c2 = c.copy(), c.copy()
-    own1, own2 = (np.array([g._own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in "12")
+    own1, own2 = (np.array([g.own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in "12")
     total = 0
     for _ in range(5):
         u = rng.random(pa.size)
-        n1 = g._swap_pass(c1, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, own1)
-        n2 = g._swap_pass(c2, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, own2)
+        n1 = g.swap_pass(c1, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, own1)
+        n2 = g.swap_pass(c2, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, own2)
         assert n1 == n2
         np.testing.assert_array_equal(c1, c2)
-        want = [g._own_weight(m, c1[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]
+        want = [g.own_weight(m, c1[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]
         np.testing.assert_array_equal(own1, want)  # the kept factors are the scanned ones
         total += n1
     assert total > 0  # exchanges happened, so the comparison saw moves

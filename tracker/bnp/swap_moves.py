@@ -186,8 +186,6 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     return accepted
 
 
-KERNELS_PY = {"gate_bits": gate_bits, "gated": gated, "own_weight": own_weight, "swap_pass": swap_pass,
-              "exchange_pairs": exchange_pairs, "_members": _members}
 _members = jit(_members)
 exchange_pairs = jit(exchange_pairs)  # noqa: F811
 gate_bits = jit(gate_bits)  # noqa: F811
