@@ -4,7 +4,7 @@
 rectangular assignment algorithms") exactly as ``scipy.optimize.linear_sum_assignment``
 implements it, ties included, on caller-provided work arrays, so a batch of problems
 (the GLMB's hypotheses, :mod:`tracker.glmb.assignment`) allocates them once.  :func:`lsap`
-solves one problem (DDP-EMM's JPDA* choice, :mod:`tracker.bnp._kernels`).
+solves one problem (DDP-EMM's JPDA* choice, :mod:`tracker.bnp._update_kernels`).
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ def preload_tracker() -> None:
 # A numba kernel is compiled (cold cache: 2-4 s) or loaded from the kernel cache (warm: 20-40 ms)
 # at its first call.  tracker.registry.warm_up (a few frames of each measurement kind's example
 # rows) reaches births, updates and deaths but never two clusters that prefer one measurement:
-# the JPDA* assignment's contested path (bnp._kernels.jpda_solve, tracker._lsap), first hit at
+# the JPDA* assignment's contested path (bnp._update_kernels.jpda_solve, tracker._lsap), first hit at
 # vo2017's frame 4 inside a paced run, nor the two-level trackers' group kernels (frames 2-23).
 # The contests below add, per kind, two objects born apart that close in, then one measurement
 # between them (both clusters prefer it), then empty frames (deaths).  The trackers are pure:

@@ -1,4 +1,4 @@
-"""The compiled passes of the DDP-EMM / DPY-STP step (tracker/bnp/_kernels.py, gibbs.py's drivers)
+"""The compiled passes of the DDP-EMM / DPY-STP step (tracker/bnp/_*kernels.py, gibbs*.py's drivers)
 against the numpy code they replaced (kept here as the reference), bit for bit, on seed-pinned
 random inputs."""
 
@@ -10,6 +10,11 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
+from bnptrack.tracker._lsap import lsap
+from bnptrack.tracker.bnp import _birth_kernels as kb
+from bnptrack.tracker.bnp import _estimate_kernels as ke
+from bnptrack.tracker.bnp import _merge_kernels as km
+from bnptrack.tracker.bnp import _update_kernels as ku
 from bnptrack.tracker.bnp import _kernels as k
 from bnptrack.tracker.bnp import gibbs as g
 from bnptrack.tracker.bnp import gibbs_setup, gibbs_sweeps
@@ -172,7 +177,7 @@ def test_merge_duplicates_equals_the_reference_with_undecided_pairs(n):
     c.cov[:2] = np.diag([50.0, 50.0, 50.0, 50.0, 1e-4])
     c.existence[:2] = 0.3, 0.4  # d^2 = 30^2 / 100 = 9: at the threshold
     if n <= 200:
-        assert k.merge_pass(c.mean, c.cov, c.existence, 9.0, 1e-3)[-1] is False
+        assert km.merge_pass(c.mean, c.cov, c.existence, 9.0, 1e-3)[-1] is False
     got, want = merge_duplicates(c, 9.0), _merge_reference(c, 9.0)
     assert got.labels == want.labels and len(got.labels) < n
     for a in ("mean", "cov", "existence", "popularity"):
@@ -190,7 +195,7 @@ def test_merge_candidates_decide_as_the_exact_test():
     d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
     ok = (d2 <= 9.0) & (c.existence[ii] + c.existence[jj] <= 1.0)
     need = set(zip(ii[ok].tolist(), jj[ok].tolist()))
-    a, b, undecided = k.merge_candidates(c.mean, c.cov, c.existence, 9.0, 1e-3)
+    a, b, undecided = km.merge_candidates(c.mean, c.cov, c.existence, 9.0, 1e-3)
     got = set(zip(a.tolist(), b.tolist()))
     decided = set(zip(a[~undecided].tolist(), b[~undecided].tolist()))
     assert need and need <= got and decided <= need and undecided.sum() < 0.2 * len(got)
@@ -204,7 +209,7 @@ def test_merge_candidates_leave_close_calls_to_the_exact_test():
         cov[0, 0, 2] += skew
         mean = np.zeros((2, 5))
         mean[1, 0] = dx
-        return k.merge_candidates(mean, cov, np.array([0.3, 0.4]), 9.0, 1e-3)[2].tolist()
+        return km.merge_candidates(mean, cov, np.array([0.3, 0.4]), 9.0, 1e-3)[2].tolist()
 
     assert pair(30.0) == [True]  # 30^2 / 100 = 9
     assert pair(math.sqrt(450.0)) == [False]
@@ -255,7 +260,7 @@ def test_lsap_equals_scipy_with_ties(seed):
     rng = np.random.default_rng(seed)
     nr = int(rng.integers(1, 8))
     cost = rng.integers(0, 4, (nr, nr + int(rng.integers(0, 5)))).astype(float)
-    _same(k.lsap(cost), linear_sum_assignment(cost)[1])
+    _same(lsap(cost), linear_sum_assignment(cost)[1])
 
 
 def test_existence_update_and_moment_match_equal_numpy():
@@ -264,7 +269,7 @@ def test_existence_update_and_moment_match_equal_numpy():
     prob = _random_problem(rng, N, M)
     res = g.run_gibbs(prob, np.random.default_rng(1), 30, 5, chains=2)
     pd, q, pop = rng.uniform(0.5, 0.99, N), rng.uniform(0, 1, N), rng.uniform(1, 2, N)
-    ti, mi, p, w_miss, r, pop_new = k.existence_update(res.pairs.ptr, res.pairs.idx, res.p_pairs, N, pd, q, pop,
+    ti, mi, p, w_miss, r, pop_new = ku.existence_update(res.pairs.ptr, res.pairs.idx, res.p_pairs, N, pd, q, pop,
                                                        0.3, _EPS)
     order = np.lexsort((res.pairs.rows, res.pairs.idx))
     _same(ti, res.pairs.idx[order]), _same(mi, res.pairs.rows[order]), _same(p, res.p_pairs[order])
@@ -280,7 +285,7 @@ def test_existence_update_and_moment_match_equal_numpy():
     m_pred, A = rng.normal(0, 100, (N, 5)), rng.normal(size=(N, 5, 5))
     P_pred, P_upd = A @ A.transpose(0, 2, 1), 0.5 * A @ A.transpose(0, 2, 1)
     mu = rng.normal(0, 100, (t.size, 5))
-    mean, cov = k.moment_match(w_miss, r, t, pc, m_pred, P_pred, mu, P_upd, _EPS)
+    mean, cov = ku.moment_match(w_miss, r, t, pc, m_pred, P_pred, mu, P_upd, _EPS)
     inv_r = 1.0 / np.maximum(r, _EPS)
     w0, wp = w_miss * inv_r, pc * inv_r[t]
     ref = w0[:, None] * m_pred
@@ -300,7 +305,7 @@ def test_birth_moments_equal_einsum(B, M):
     P_upd = A @ A.transpose(0, 2, 1)
     pos, C = rng.normal(0, 1000, (M, 2)), rng.normal(size=(M, 2, 2))
     pcov = C @ C.transpose(0, 2, 1) * 100
-    mean, cov = k.birth_moments(w, mu_b, P_upd, pos, pcov, 400.0, 0.003)
+    mean, cov = kb.birth_moments(w, mu_b, P_upd, pos, pcov, 400.0, 0.003)
     mean_u, cov_u = np.zeros((M, 5)), np.zeros((M, 5, 5))
     mean_u[:, 0], mean_u[:, 2] = pos[:, 0], pos[:, 1]
     cov_u[:, 0, 0], cov_u[:, 0, 2], cov_u[:, 2, 0], cov_u[:, 2, 2] = pcov[:, 0, 0], pcov[:, 0, 1], pcov[:, 1, 0], pcov[:, 1, 1]
@@ -322,10 +327,10 @@ def test_cardinality_pmf_equals_existence_cardinality(seed):
     rng = np.random.default_rng(seed)
     r = np.r_[rng.random(int(rng.integers(0, 60))) ** 3, np.ones(seed % 3), np.zeros(seed % 2), np.full(seed * 20, 1e-9)]
     rng.shuffle(r)
-    pmf, ok = k.cardinality_pmf(r, 1e-9)
+    pmf, ok = ke.cardinality_pmf(r, 1e-9)
     assert ok
     _same(pmf, existence_cardinality(r))
-    assert not k.cardinality_pmf(np.array([0.5, np.nan]), 1e-9)[1]
+    assert not ke.cardinality_pmf(np.array([0.5, np.nan]), 1e-9)[1]
 
 
 def test_estimate_assignments_hand_values():
@@ -335,7 +340,7 @@ def test_estimate_assignments_hand_values():
     ptr = np.array([0, 2, 3, 5])
     idx = np.array([0, 1, 0, 0, 1])
     p = np.array([0.6, 0.3, 0.3, 0.2, 0.7])
-    choice, prob = k.estimate_assignments(ptr, idx, p, np.array([True, False]), np.array([0.0, 0.5, 0.1]),
+    choice, prob = ke.estimate_assignments(ptr, idx, p, np.array([True, False]), np.array([0.0, 0.5, 0.1]),
                                           np.array([1]))
     assert choice.tolist() == [0, -2, -1]
     assert prob.tolist() == [0.6, 0.5, 1.0 - 0.2]
@@ -345,11 +350,11 @@ def test_problem_pairs_equal_numpy():
     rng = np.random.default_rng(3)
     N, M = 7, 9
     pd, q, pop = rng.uniform(0.2, 1.0, N), np.r_[0.0, rng.uniform(0, 1.2, N - 1)], rng.uniform(1, 2, N)
-    args, qc, zero = k.problem_log_args(pd, q, pop, 0.1, _EPS)
+    args, qc, zero = ku.problem_log_args(pd, q, pop, 0.1, _EPS)
     assert zero.tolist() == [True] + [False] * (4 * N - 1)  # q[0] = 0
     mi, ti = np.nonzero(rng.random((M, N)) < 0.4)
     ll = rng.normal(-5, 2, ti.size)
-    ptr, idx, lf, llk, mass, d_bar = k.problem_pairs(np.log(args), zero, qc, pop, ti, mi, ll, M)
+    ptr, idx, lf, llk, mass, d_bar = ku.problem_pairs(np.log(args), zero, qc, pop, ti, mi, ll, M)
     pdc, qr = np.clip(pd, 0.0, 1.0 - 1e-9), np.clip(q, 0.0, 1.0)
     miss = np.maximum(qr * (1.0 - pdc) + 1.0 - qr, _EPS)
     with np.errstate(divide="ignore"):

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.bnp import _kernels as _k
+from bnptrack.tracker.bnp import _update_kernels as _k
 from bnptrack.tracker.filtering import SCIPY_PAIRS
 
 _FORBIDDEN = 1e6  # assignment cost of an impossible pair

@@ -36,7 +36,7 @@ import numpy as np
 
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.numerics import logsumexp
-from bnptrack.tracker.bnp import _kernels as _k
+from bnptrack.tracker.bnp import _birth_kernels as _k
 from bnptrack.tracker.models.params import ModelParams
 
 
@@ -107,7 +107,7 @@ class BaseDistribution:
                   log_u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Moment-matched :math:`H` conditioned on each measurement: ``(M, 5)``, ``(M, 5, 5)``
         (``log_w``, ``log_u``: the measurements' :meth:`log_weights` and :meth:`log_predictive`,
-        if already computed).  The mixture's moments: :func:`tracker.bnp._kernels.birth_moments`."""
+        if already computed).  The mixture's moments: :func:`tracker.bnp._birth_kernels.birth_moments`."""
         if self.weights.size == 0:
             return self._uniform_posterior(meas, Z, kind)
         if log_w is None:

@@ -9,7 +9,7 @@ from functools import lru_cache
 import numpy as np
 
 from bnptrack.tracker.numerics import jit, unique_ints
-from bnptrack.tracker.bnp import _kernels as _k
+from bnptrack.tracker.bnp import _merge_kernels as _k
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,7 @@ def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
 
 def _apply_groups(c: _Clusters, ptr: np.ndarray, members: np.ndarray) -> _Clusters:
     """:func:`_merge_groups` of the groups in CSR form (``members[ptr[g]:ptr[g + 1]]``, leader
-    first), the arithmetic in :func:`tracker.bnp._kernels.merge_moments`."""
+    first), the arithmetic in :func:`tracker.bnp._merge_kernels.merge_moments`."""
     return _relabel(c, ptr, members, *_k.merge_moments(c.mean, c.cov, c.existence, ptr, members))
 
 

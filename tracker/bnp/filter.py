@@ -11,7 +11,8 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from bnptrack.tracker import filtering as kf
-from bnptrack.tracker.bnp import _kernels as _k
+from bnptrack.tracker.bnp import _estimate_kernels as _est
+from bnptrack.tracker.bnp import _update_kernels as _upd
 from bnptrack.tracker.bnp.assignment import best_permutation_pairs
 from bnptrack.tracker.bnp.base_measure import BaseDistribution
 from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
@@ -199,9 +200,9 @@ class BnpTracker:
             ti, mi, log_lik = kf.gated_log_likelihood(meas, innov, Z, cfg.gate_prob)
         else:
             ti, mi, log_lik = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        args, q, zero = _k.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
+        args, q, zero = _upd.problem_log_args(pred.p_detect, pred.q, state.popularity, float(state.d), _EPS)
         logs = np.log(args)  # log q, log P_D, log miss, log(v - d) (-inf where zero)
-        ptr, idx, lf, ll, mass, d_bar = _k.problem_pairs(logs, zero, q, state.popularity, ti, mi, log_lik, M)
+        ptr, idx, lf, ll, mass, d_bar = _upd.problem_pairs(logs, zero, q, state.popularity, ti, mi, log_lik, M)
         return GibbsProblem(
             mass=float(mass),
             log_first=None,
@@ -222,7 +223,7 @@ class BnpTracker:
         if N == 0:
             return _Clusters.empty()
         pr = result.pairs
-        ti, mi, p, w_miss, r, pop = _k.existence_update(pr.ptr, pr.idx, result.p_pairs, N, pred.p_detect, pred.q,
+        ti, mi, p, w_miss, r, pop = _upd.existence_update(pr.ptr, pr.idx, result.p_pairs, N, pred.p_detect, pred.q,
                                                         state.popularity, float(self.config.popularity_decay), _EPS)
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p.size:
@@ -301,7 +302,7 @@ class BnpTracker:
         ex_rep = np.array([lab in reported for lab in existing.labels], dtype=bool)
         born_of = {int(lab.split(".")[1]): lab for lab in born.labels if lab in reported}
         pr = result.pairs
-        choice, prob = _k.estimate_assignments(pr.ptr, pr.idx, result.p_pairs, ex_rep, result.p_new,
+        choice, prob = _est.estimate_assignments(pr.ptr, pr.idx, result.p_pairs, ex_rep, result.p_new,
                                                np.fromiter(born_of, dtype=np.int64, count=len(born_of)))
         labels = existing.labels
         assignments = [None if c == -1 else (born_of[m] if c == -2 else labels[c])
@@ -312,8 +313,8 @@ class BnpTracker:
 
 def _cardinality(existence: np.ndarray) -> np.ndarray:
     """:func:`tracker.cardinality.existence_cardinality`, compiled
-    (:func:`tracker.bnp._kernels.cardinality_pmf`, the same numbers)."""
-    pmf, ok = _k.cardinality_pmf(np.asarray(existence, dtype=float), TAIL)
+    (:func:`tracker.bnp._estimate_kernels.cardinality_pmf`, the same numbers)."""
+    pmf, ok = _est.cardinality_pmf(np.asarray(existence, dtype=float), TAIL)
     if not ok:
         raise ValueError("poisson_binomial: existence probabilities must be finite")
     return pmf
@@ -351,7 +352,7 @@ def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndar
     carry = p > 0.0
     ti, mi, p = ti[carry], mi[carry], p[carry]
     mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
-    return _k.moment_match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
+    return _upd.moment_match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
 
 
 def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:
