@@ -35,7 +35,7 @@ __all__ = ["LAZY_IMPORTS", "LAZY_PAIRS", "TrackerStage", "build_stage_tracker"]
 log = logging.getLogger("bnptrack.stage")
 
 #: Modules the trackers import on first need, inside a step, on large frames only: the KD-tree
-#: gating (``scipy.spatial``, tracker/filtering.py) and the per-component JPDA* assignment
+#: gating (``scipy.spatial``, tracker/gating.py) and the per-component JPDA* assignment
 #: (``scipy.sparse.csgraph``, tracker/bnp/assignment.py) take over from
 #: :data:`~tracker.filtering.SCIPY_PAIRS` track x measurement pairs.  A first import in the frame loop stalls that frame and queues the frames
 #: behind it (docs/pipeline.md, Performance), so the stage imports them in the background as

@@ -123,7 +123,7 @@ def test_other_models_use_the_numpy_path(monkeypatch):
     def no_kernel(*args):
         raise AssertionError("the CT kernel was called for a constant-velocity model")
 
-    monkeypatch.setattr(kf._kernels, "ct_ukf_predict", no_kernel)
+    monkeypatch.setattr(_kernels, "ct_ukf_predict", no_kernel)
     m2, P2 = kf.ukf_predict(ConstantVelocity(), m, P)
     np.testing.assert_array_equal(m2, m0)
     with pytest.raises(AssertionError, match="CT kernel was called"):
