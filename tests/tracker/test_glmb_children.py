@@ -1,4 +1,4 @@
-"""The GLMB's compiled children (tracker/glmb/children.py) against the numpy
+"""The GLMB's compiled starts and children (tracker/glmb/starts.py, children.py) against the numpy
 reference: candidate sets, optimal starts by connected groups, distinct children and their
 weights, bit for bit; and brute force on small problems."""
 
@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 from bnptrack.tracker.glmb import candidate_sets, gibbs_chains, split_chains, start_optimal
-from bnptrack.tracker.glmb.children import _np_sum, _sort_rows, children, distinct_children, starts
+from bnptrack.tracker.glmb.children import _np_sum, children, distinct_children
 from bnptrack.tracker.glmb.gibbs import allocate_samples, sample_chains
 from bnptrack.tracker.glmb.hypotheses import _DET, assignment_log_eta, merge_children, unique_rows
+from bnptrack.tracker.glmb.row_sort import _sort_rows
+from bnptrack.tracker.glmb.starts import starts
 
 
 def _problem(rng: np.random.Generator, n_rows: int, M: int, p_gate: float, H: int, width: int):

@@ -37,8 +37,10 @@ Everything random comes from the caller's ``rng``; ``step`` is a pure function.
 Modules: :mod:`~tracker.glmb.config` (settings, model protocol), :mod:`~tracker.glmb.state`
 (the density), :mod:`~tracker.glmb.hypotheses` (candidates, :math:`\eta`, children),
 :mod:`~tracker.glmb.gibbs` (the sampler), :mod:`~tracker.glmb.assignment` (the batched
-linear assignment solver), :mod:`~tracker.glmb.births`, :mod:`~tracker.glmb.estimate`
-(marginals, estimators) and :mod:`~tracker.glmb.filter` (the tracker and its step).
+linear assignment solver), :mod:`~tracker.glmb.starts`, :mod:`~tracker.glmb.children` and
+:mod:`~tracker.glmb.row_sort` (the compiled starts and children of a frame),
+:mod:`~tracker.glmb.births`, :mod:`~tracker.glmb.estimate` (marginals, estimators) and
+:mod:`~tracker.glmb.filter` (the tracker and its step).
 """
 
 from bnptrack.tracker.glmb.births import adaptive_birth_existence, measurement_state_prior

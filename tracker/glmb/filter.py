@@ -18,10 +18,11 @@ from bnptrack.tracker.glmb.births import _Births, adaptive_birth_existence, meas
 from bnptrack.tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
 from bnptrack.tracker.glmb.estimate import (_Marginals, continuity_rows, estimate_from_rows, map_cardinality_rows,
                                    marginal_label_rows, marginals)
-from bnptrack.tracker.glmb.children import children, pair_table, starts
+from bnptrack.tracker.glmb.children import children, pair_table
 from bnptrack.tracker.glmb.gibbs import start_missed
 from bnptrack.tracker.glmb.hypotheses import (_Candidates, _Children, _Update, _log, candidate_sets, eta_matrix,
                                      prune_and_cap)
+from bnptrack.tracker.glmb.starts import starts
 from bnptrack.tracker.glmb.state import GlmbState
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import STATE_DIM, Estimate, Frame, frame_dt
