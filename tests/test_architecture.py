@@ -415,6 +415,7 @@ def test_the_text_check_sees_a_bare_import(tmp_path):
     assert _bare_in_text(path) == ["probe.md:2 from pipeline.view import", "probe.md:3 -m pipeline"]
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_a_checkout_on_the_path_imports_its_own_folders(tmp_path):
     """``bnptrack/__init__.py`` of a source checkout puts that checkout's folders under
     ``bnptrack.``, so a second work tree on PYTHONPATH (an A/B baseline) runs its own code,

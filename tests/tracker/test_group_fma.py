@@ -154,6 +154,7 @@ def test_the_formula_in_exact_arithmetic_is_within_blas_error_bound() -> None:
         assert _within_dot_bound(d, x @ y, x[0] * y[0], x[1] * y[1])
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_interpreted_kernel_runs_the_same_formula() -> None:
     """Without numba the helpers are plain functions calling :func:`exact_fma`."""
     code = ("import numpy as np\n"
