@@ -527,6 +527,7 @@ def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
     return track_to_sinks(log, open_sinks(outputs, options), tracker, seed, metadata)
 
 
+@pytest.mark.slow  # the recording in a child interpreter
 def test_track_log_with_rrd(tmp_path):
     from bnptrack.pipeline.resolve import tracker_setup
 
@@ -546,6 +547,7 @@ def test_track_log_with_rrd(tmp_path):
         track_log_with_rrd(log, out, out, tracker, 0, None)
 
 
+@pytest.mark.slow  # the recording in a child interpreter
 def test_track_topic_with_rrd_records_what_the_plain_log_records(tmp_path):
     """``track --topic SRC=/measurements --rrd``: the Rerun sink draws the frames the mapped
     channels were read into, so the recording of a log with renamed channels holds the rows
