@@ -7,6 +7,7 @@ and line that breaks it.
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -42,6 +43,16 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+@functools.lru_cache(maxsize=None)
+def _parse(text: str, filename: str) -> ast.Module:
+    """One parse per file text: the rules below walk the same modules many times."""
+    return ast.parse(text, filename=filename)
+
+
+def _tree(path: Path) -> ast.Module:
+    return _parse(path.read_text(), str(path))
+
+
 _STRING_IMPORTERS = ("warm_imports", "import_module", "__import__")
 
 
@@ -62,10 +73,12 @@ def _local(name: str) -> str:
     return name[len(NAMESPACE):] if name.startswith(NAMESPACE) else name
 
 
-def _imports(path: Path) -> list[tuple[str, int]]:
+@functools.lru_cache(maxsize=None)
+def _imports(path: Path) -> tuple[tuple[str, int], ...]:
     """Every absolute module name imported anywhere in ``path`` (also inside functions, and
-    named in strings that are imported later: see :func:`_string_imports`)."""
-    tree = ast.parse(path.read_text(), filename=str(path))
+    named in strings that are imported later: see :func:`_string_imports`). Read once per run:
+    the rules that use it read only the project's modules, which do not change while it runs."""
+    tree = _tree(path)
     mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
     found = []
     for node in ast.walk(tree):
@@ -80,7 +93,7 @@ def _imports(path: Path) -> list[tuple[str, int]]:
             found.append((name, node.lineno))
             found += [(f"{name}.{a.name}", node.lineno) for a in node.names]
         found += [(name, getattr(node, "lineno", 0)) for name in _string_imports(node)]
-    return [(_local(name), line) for name, line in found]
+    return tuple((_local(name), line) for name, line in found)
 
 
 def _top(name: str) -> str:
@@ -192,7 +205,7 @@ def _module_lengths(pkg: str) -> dict[str, int]:
 
 
 def _class_lengths(path: Path) -> dict[str, int]:
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     return {f"{_rel(path)}:{n.name}": n.end_lineno - n.lineno + 1 for n in ast.walk(tree) if isinstance(n, ast.ClassDef)}
 
 
@@ -225,7 +238,7 @@ def _private_imports(path: Path, root: Path = ROOT) -> list[str]:
     """Private names (``_x``, or a module ``_x`` on the path) imported from another package."""
     rel = path.relative_to(root)
     mine = rel.parts[0]
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     out = []
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and not node.level:
@@ -272,7 +285,7 @@ def _rel(path: Path) -> str:
 
 
 def _long_functions(path: Path) -> list[str]:
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     kernels = _jitted_names(tree)
     out = []
     for node in ast.walk(tree):
@@ -342,7 +355,7 @@ def test_the_module_map_names_every_module(pkg):
 
 def _bare_imports(path: Path) -> list[str]:
     """Imports of a project package by its bare folder name (``from tracker.x import y``)."""
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     names = [(a.name, n.lineno) for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     names += [(n.module or "", n.lineno) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level]
     return [f"{_rel(path)}:{line} {name}" for name, line in names if name.split(".")[0] in PACKAGES]
@@ -398,6 +411,7 @@ def test_the_text_check_sees_a_bare_import(tmp_path):
     assert _bare_in_text(path) == ["probe.md:2 from pipeline.view import", "probe.md:3 -m pipeline"]
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_a_checkout_on_the_path_imports_its_own_folders(tmp_path):
     """``bnptrack/__init__.py`` of a source checkout puts that checkout's folders under
     ``bnptrack.``, so a second work tree on PYTHONPATH (an A/B baseline) runs its own code,

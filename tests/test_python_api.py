@@ -39,12 +39,16 @@ def test_the_worked_example_in_docs_runs(tmp_path, capsys):
 
 def test_track_gives_what_the_cli_gives(tmp_path):
     """The facade and ``bnptrack track`` run the same tracker on the same frames."""
+    from click.testing import CliRunner
+
+    from bnptrack.pipeline.cli import main
+
     log = tmp_path / "s3.mcap"
-    subprocess.run([sys.executable, "-m", "bnptrack", "simulate", "--scenario", "vo2017", "--seed", "3",
-                    "--out", str(log)], check=True, capture_output=True)
+    res = CliRunner().invoke(main, ["simulate", "--scenario", "vo2017", "--seed", "3", "--out", str(log)])
+    assert res.exit_code == 0, res.output
     out = tmp_path / "tracks.mcap"
-    subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--tracker", "ddp", "--seed", "2",
-                    "--out", str(out), "-q"], check=True, capture_output=True)
+    res = CliRunner().invoke(main, ["track", str(log), "--tracker", "ddp", "--seed", "2", "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
     cli_tracks = bnptrack.read_log(out).tracks
     api = bnptrack.track(log, tracker="ddp", seed=2)
     assert len(api.estimates) == len(cli_tracks) == 100

@@ -23,6 +23,7 @@ def test_the_two_logs_hold_the_same_frames(tmp_path):
     assert all(np.array_equal(x.z, y.z) for x, y in zip(a, b))
 
 
+@pytest.mark.slow  # a benchmark script in a process of its own
 def test_a_small_run_reports_its_ratios():
     out = subprocess.run([sys.executable, "benchmarks/robot_log_read.py", "--messages", "40", "--repeats", "2"],
                          cwd=REPO_ROOT, env=bnptrack_env(), capture_output=True, text=True, check=True).stdout

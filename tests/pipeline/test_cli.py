@@ -68,6 +68,7 @@ def test_help_mentions_options(args, expected):
         assert word in res.output, word
 
 
+@pytest.mark.slow  # the command line in a process of its own
 def test_python_dash_m_pipeline():
     res = subprocess.run(
         [sys.executable, "-m", "bnptrack", "--help"], capture_output=True, text=True, timeout=60
@@ -76,6 +77,7 @@ def test_python_dash_m_pipeline():
     assert "simulate" in res.stdout and "track" in res.stdout
 
 
+@pytest.mark.slow  # the command line in a process of its own
 def test_error_is_one_line_on_stderr(tmp_path):
     res = subprocess.run(
         [sys.executable, "-m", "bnptrack", "simulate", "--set", "p_detect=2", "--out", str(tmp_path / "x.mcap")],

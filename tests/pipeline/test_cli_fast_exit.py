@@ -53,6 +53,7 @@ def test_track_exits_fast_with_its_code_output_and_exit_handlers(tmp_path):
     assert len(log.frames) == 100 and len(log.tracks) == 100
 
 
+@pytest.mark.slow  # the command line in a process of its own
 def test_a_failing_command_keeps_its_exit_code_2():
     r = _run("track", str(REPO_ROOT / "no-such.mcap"), "--out", "/dev/null")
     assert r.returncode == 2

@@ -11,6 +11,7 @@ import subprocess
 import sys
 
 import click
+import pytest
 from click.testing import CliRunner
 
 from testkit import REPO_ROOT
@@ -44,6 +45,7 @@ def top_level(modules: set[str]) -> set[str]:
     return {m.split(".")[0] for m in modules}
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_help_imports_no_heavy_module():
     code, modules, out = imported_by("--help")
     assert code == 0
@@ -51,6 +53,7 @@ def test_help_imports_no_heavy_module():
     assert sorted(top_level(modules) & set(HEAVY)) == []
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_track_help_loads_only_the_offline_commands():
     """``track --help`` loads the offline commands only: no Zenoh, no Rerun SDK, no numba or
     scipy (its help lists the trackers' settings classes, so it imports the trackers, whose
@@ -114,6 +117,7 @@ print(JIT, before, "numba" in sys.modules, type(s._sweeps).__module__.split(".")
 """
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_kernels_import_numba_at_their_first_call():
     """Importing a tracker's kernels does not import numba; the first call does, and then the
     module's kernel names are numba dispatchers (the compiled driver calls compiled helpers).

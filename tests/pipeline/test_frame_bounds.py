@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 import tracemalloc
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 
+from bnptrack.pipeline.cli import main
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, Sequencer
 from bnptrack.sinks.mcap_writer import McapLogWriter
@@ -24,14 +23,13 @@ from bnptrack.sources.synthetic import simulate_all
 from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.types import FrameBoundError, FrameBounds, bounded_frames
 
-from testkit import REPO_ROOT, ListSink
+from testkit import ListSink
 from testkit import forge_seq as _forge_seq
 from testkit import mem_cfg as _mem_cfg
 from testkit import offline as _offline
 from testkit import run_memory_pipeline as _run_memory_pipeline
 from testkit import strip as _strip
 
-ROOT = REPO_ROOT
 
 
 # --------------------------------------------------------------------------- FrameBounds
@@ -79,11 +77,10 @@ def test_track_skips_frames_jumping_10_9_and_exits_3_naming_them(tmp_path):
         for f in frames[10:]:
             w.write_frame(dataclasses.replace(f, frame=10**9 + f.frame))
     out = tmp_path / "out.mcap"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
-                          "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"],
-                         capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 3  # five frames skipped (fewer than --resync-frames 10 in a row)
+    track = ["track", str(log), "--out", str(out), "-q", "--tracker", "ddp-mb", "--set", "sweeps=8",
+             "--set", "burn_in=2"]
+    res = CliRunner().invoke(main, track)
+    assert res.exit_code == 3  # five frames skipped (fewer than --resync-frames 10 in a row)
     assert res.stderr.splitlines() == [
         "Error: output incomplete: 5 frame(s) beyond the frame bounds skipped (frame 1000000011 jumps "
         "1000000001 frames after frame 10 (more than max_frame_gap = 1000); frame 1000000012 jumps 1000000002 "
@@ -95,12 +92,10 @@ def test_track_skips_frames_jumping_10_9_and_exits_3_naming_them(tmp_path):
     with McapLogWriter(log, {"scenario": "vo2017", "params": "vo2017", "seed": "1"}) as w:
         for f in frames[:12]:
             w.write_frame(f if f.frame <= 10 else dataclasses.replace(f, frame=f.frame + 1490))
-    args = [sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q", "--overwrite",
-            "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"]
-    res = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 3 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
-    res = subprocess.run(args + ["--max-frame-gap", "1491"], capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 0, res.stderr
+    res = CliRunner().invoke(main, [*track, "--overwrite"])
+    assert res.exit_code == 3 and "frame 1501 jumps 1491 frames after frame 10" in res.stderr
+    res = CliRunner().invoke(main, [*track, "--overwrite", "--max-frame-gap", "1491"])
+    assert res.exit_code == 0, res.stderr
     assert [f.frame for f in read_log(out).frames] == [*range(1, 11), 1501, 1502]
 
 

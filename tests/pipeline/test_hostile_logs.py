@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 
+from bnptrack.pipeline.cli import main
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import SUMMARY_NAME
 from bnptrack.sinks.mcap_writer import McapLogWriter
@@ -22,7 +21,7 @@ from bnptrack.sources.synthetic import simulate_all
 from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.types import FrameBounds, FrameGate
 
-from testkit import REPO_ROOT, mem_cfg, run_memory_pipeline, strip
+from testkit import mem_cfg, run_memory_pipeline, strip
 
 S = 10**9
 
@@ -69,11 +68,9 @@ def _hostile(tmp_path: Path, kind: str) -> Path:
 def test_track_and_the_pipeline_give_the_same_output_on_a_hostile_log(tmp_path, kind, skipped):
     log = _hostile(tmp_path, kind)
     out = tmp_path / "track.mcap"
-    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
-    res = subprocess.run([sys.executable, "-m", "bnptrack", "track", str(log), "--out", str(out), "-q",
-                          "--tracker", "ddp-mb", "--set", "sweeps=8", "--set", "burn_in=2"],
-                         capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 3, res.stderr
+    res = CliRunner().invoke(main, ["track", str(log), "--out", str(out), "-q", "--tracker", "ddp-mb",
+                                    "--set", "sweeps=8", "--set", "burn_in=2"])
+    assert res.exit_code == 3, res.stderr
     assert res.stderr.startswith(f"Error: output incomplete: {len(skipped)} frame(s) beyond the frame bounds skipped")
     offline = read_log(out)
     assert len(offline.frames) == 40 - len(skipped)

@@ -10,9 +10,11 @@ import json
 import os
 import sys
 
+import pytest
 from bnptrack.pipeline.supervisor import StageProcess
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_a_stage_runs_in_its_own_process_group_and_the_launchers_session(tmp_path):
     probe = "import json, os; print(json.dumps([os.getpid(), os.getpgid(0), os.getsid(0)]))"
     sp = StageProcess("tracker", [sys.executable, "-c", probe], tmp_path / "tracker.log")

@@ -25,6 +25,13 @@ def bnptrack(*args, timeout: float = 120) -> subprocess.CompletedProcess:
                           text=True, timeout=timeout, env=env, cwd=ROOT)
 
 
+def cli(*args) -> subprocess.CompletedProcess:
+    """``bnptrack ARGS`` run in this process (click's runner): the exit code, stdout and
+    stderr the command line gives (the refusals below need no process of their own)."""
+    res = CliRunner().invoke(main, [str(a) for a in args])
+    return subprocess.CompletedProcess(args, res.exit_code, res.stdout, res.stderr)
+
+
 @pytest.fixture(scope="module")
 def vo_log(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("logs") / "vo2017-s1.mcap"
@@ -46,7 +53,7 @@ def assert_refused(res: subprocess.CompletedProcess, out: Path, needle: str) -> 
 
 def test_replay_unknown_tracker_fails_before_starting(vo_log, tmp_path):
     out = tmp_path / "r"
-    res = bnptrack("replay", vo_log, "--tracker", "foo", "--out", out)
+    res = cli("replay", vo_log, "--tracker", "foo", "--out", out)
     assert_refused(res, out, "unknown tracker 'foo'; valid trackers: ddp, dpyp, glmb")
 
 
@@ -67,7 +74,7 @@ def test_launch_pipeline_file_errors_fail_before_starting(tmp_path, toml, needle
     pipe = tmp_path / "p.toml"
     pipe.write_text(toml)
     out = tmp_path / "out"
-    res = bnptrack("launch", pipe, "--out", out)
+    res = cli("launch", pipe, "--out", out)
     assert_refused(res, out, needle)
     assert res.stderr.startswith(f"Error: {pipe}: "), res.stderr  # the file is named
 
@@ -77,7 +84,7 @@ def test_launch_out_that_is_a_file_is_refused(tmp_path):
     out.write_text("x")
     pipe = tmp_path / "p.toml"
     pipe.write_text(f'out = "{out}"\n')
-    res = bnptrack("launch", pipe)
+    res = cli("launch", pipe)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert f"--out {out}: exists and is not a directory" in res.stderr
     assert out.read_text() == "x"
@@ -120,9 +127,9 @@ def test_set_keys_route_like_track_plus_the_pipeline_tables():
 
 def test_unknown_bare_set_key_gives_tracks_error(vo_log, tmp_path):
     out = tmp_path / "r"
-    res = bnptrack("replay", vo_log, "--set", "foo=1", "--out", out)
+    res = cli("replay", vo_log, "--set", "foo=1", "--out", out)
     assert_refused(res, out, "--set 'foo=1': unknown key 'foo': not a model parameter")
-    res = bnptrack("launch", "--set", "source.foo=1", "--out", out)
+    res = cli("launch", "--set", "source.foo=1", "--out", out)
     assert_refused(res, out, "unknown key 'source.foo'")
 
 
@@ -159,6 +166,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow  # bnptrack processes that try a real connection
 def test_monitor_without_a_router_is_one_line_exit_2_without_the_10_s_wait():
     import time
 
@@ -173,6 +181,7 @@ def test_monitor_without_a_router_is_one_line_exit_2_without_the_10_s_wait():
     assert elapsed < 9.0  # the connect timeout is 1 s, not the stages' 10 s (generous bound)
 
 
+@pytest.mark.slow  # bnptrack processes that try a real connection
 def test_stage_and_launch_without_a_router_are_one_line_exit_2(tmp_path):
     ep = f"tcp/127.0.0.1:{_free_port()}"
     out = tmp_path / "s"
@@ -217,9 +226,9 @@ def test_replay_and_launch_with_a_window_past_the_end_fail_before_starting(vo_lo
     """A window that holds no frame is an error before any process starts (not a
     pipeline of 0 frames that runs for about 10 s and writes empty outputs)."""
     out = tmp_path / "r"
-    res = bnptrack("replay", vo_log, "--start", "500f", "--out", out)
+    res = cli("replay", vo_log, "--start", "500f", "--out", out)
     assert_refused(res, out, f"{vo_log}: no frame in the window source.start_frame = 500; `bnptrack info LOG`")
-    res = bnptrack("launch", "--set", "source.end_s=10", "--set", "source.start_s=200", "--out", out)
+    res = cli("launch", "--set", "source.end_s=10", "--set", "source.start_s=200", "--out", out)
     assert_refused(res, out, "source.end_s = 10 is before source.start_s = 200")
-    res = bnptrack("launch", "--set", "source.start_frame=101", "--out", out)
+    res = cli("launch", "--set", "source.start_frame=101", "--out", out)
     assert_refused(res, out, "source.scenario 'vo2017' (seed 1): no frame in the window source.start_frame = 101")

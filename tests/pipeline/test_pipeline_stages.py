@@ -827,6 +827,7 @@ def test_source_paces_its_frames_on_the_injected_clock(tmp_path):
     assert sent == [10**18 + round((s - stamps[0]) / 2.0) for s in stamps]
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_warm_up_imports_only_the_configured_tracker_through_the_registry():
     """The tracker stage warms up the tracker it runs (its registry entry), not a fixed one:
     warming glmb does not import the BNP tracker, warming ddp does."""

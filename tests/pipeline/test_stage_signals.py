@@ -88,6 +88,7 @@ def _until_ready(p: subprocess.Popen) -> list[str]:
     raise AssertionError(f"the child ended before it was ready: {lines}")
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_sigterm_is_taken_off_the_main_thread_and_stops_the_loop():
     p = _child(_CURED)
     try:
@@ -102,6 +103,7 @@ def test_sigterm_is_taken_off_the_main_thread_and_stops_the_loop():
     assert "stopped stop-signals" in out  # the handler ran in the signal thread, not in the wait
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_a_second_signal_exits_at_once_with_130():
     # after the first signal the child "flushes" for ever (an untimed wait): the second exits
     p = _child(_CURED, after="q.get()")
@@ -117,6 +119,7 @@ def test_a_second_signal_exits_at_once_with_130():
     assert p.returncode == 130, out  # os._exit(EXIT_STOPPED)
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_restore_unblocks_the_signals_and_puts_handlers_back_when_asked():
     code = textwrap.dedent("""
         import signal, threading

@@ -12,6 +12,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 from testkit import REPO_ROOT, bnptrack_env
 
 _SCRIPT = r"""
@@ -34,6 +35,7 @@ print(json.dumps({"files": [Path(f).name for f in stage.files], "new": new}))
 """
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_after_the_warm_up_opening_the_sinks_imports_only_their_factories(tmp_path):
     out = subprocess.run([sys.executable, "-c", _SCRIPT, str(tmp_path), str(REPO_ROOT / "tests")],
                          env=bnptrack_env(), cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)

@@ -36,6 +36,7 @@ def _run(code: str, tmp: Path) -> str:
     return proc.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_track_imports_no_scipy_package(tmp_path: Path) -> None:
     """Neither scipy's packages nor numba's optional yaml and cffi (``LEAN_NUMBA``)."""
     argv = ["track", "recordings/vo2017-s1.mcap", "--out", str(tmp_path / "t.mcap"), "-q"]
@@ -76,6 +77,7 @@ print(json.dumps([left_out, cffi_utils.SUPPORTED, config._HAVE_YAML, numerics._p
 """
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_lean_numba_leaves_yaml_and_cffi_importable(tmp_path: Path) -> None:
     left_out, cffi_supported, have_yaml, kernel, parsed = json.loads(_run(_LEAN_PROBE, tmp_path))
     assert left_out == [False, False] and not cffi_supported and not have_yaml

@@ -29,6 +29,7 @@ def _dead_display() -> str:
 
 @linux_only
 @pytest.mark.parametrize("command", [("track", str(VO2017)), ("launch",)], ids=["track", "launch"])
+@pytest.mark.slow  # the command line in a process of its own
 def test_view_on_a_display_without_server_fails_at_once_on_one_line(tmp_path, command):
     env = bnptrack_env()
     env.pop("WAYLAND_DISPLAY", None)

@@ -34,6 +34,7 @@ def _refused(r: subprocess.CompletedProcess) -> None:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the display test is Linux's")
+@pytest.mark.slow  # the command line in a process of its own
 def test_track_view_without_a_display_keeps_an_existing_out_file(tmp_path):
     out = tmp_path / "tracks.mcap"
     out.write_bytes(KEPT)
@@ -46,6 +47,7 @@ def test_track_view_without_a_display_keeps_an_existing_out_file(tmp_path):
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the display test is Linux's")
 @pytest.mark.parametrize("command", [("launch",), ("replay", str(VO2017))], ids=["launch", "replay"])
+@pytest.mark.slow  # the command line in a process of its own
 def test_pipeline_view_without_a_display_starts_nothing(tmp_path, command):
     out = tmp_path / "run"
     _refused(_bnptrack(*command, "--view", "--out", str(out)))
@@ -54,6 +56,7 @@ def test_pipeline_view_without_a_display_starts_nothing(tmp_path, command):
 
 @pytest.mark.parametrize("command", [("launch",), ("replay", str(VO2017)), ("replay", str(VO2017), "--loop", "2"),
                                      ("track", str(VO2017))], ids=["launch", "replay", "replay-loop", "track"])
+@pytest.mark.slow  # the command line in a process of its own
 def test_view_and_connect_together_are_a_usage_error(tmp_path, command):
     """One rule (``cli.common.one_viewer``) for every command that streams to a viewer."""
     out = tmp_path / "run"

