@@ -22,9 +22,7 @@ MAX_FUNCTION_LINES = 60  # everywhere except numba kernels
 
 #: Modules still over MAX_MODULE_LINES, each with its current length as its ceiling: an entry
 #: goes when its module is split (a module below the limit must leave the list).
-LONG_MODULES = {
-    "tracker/messages.py": 524,
-}
+LONG_MODULES: dict[str, int] = {}
 
 #: Classes still over MAX_CLASS_LINES, each with its current length as its ceiling.
 LONG_CLASSES: dict[str, int] = {}

@@ -131,7 +131,7 @@ def test_codec_round_trip_writes_version_3_only_with_a_pmf():
     back = to_estimate(decode(TOPIC_TRACKS, data))
     np.testing.assert_array_equal(back.cardinality_pmf, [0.04, 0.41, 0.46, 0.09])
     assert encode(back) == data  # and the message path writes the same bytes
-    from bnptrack.tracker.messages import _encode_msg
+    from bnptrack.tracker.message_encode import _encode_msg
 
     assert _encode_msg(from_estimate(back)) == data
     # without a pmf: no field, and the version of the fields used (1, or 2 with a cluster)

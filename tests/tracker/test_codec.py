@@ -487,7 +487,7 @@ def test_encode_tracks_fast_path_gives_the_reference_bytes():
     (``_plain_tracks_msg``); its bytes are those of the reference path (from_estimate +
     validation + encode), and whatever it refuses takes the reference path, which raises the
     precise error."""
-    from bnptrack.tracker.messages import _plain_tracks_msg, from_estimate
+    from bnptrack.tracker.message_encode import _plain_tracks_msg, from_estimate
 
     rng = np.random.default_rng(11)
     cases = [make_estimate(rng, k=k) for k in range(20)]

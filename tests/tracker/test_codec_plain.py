@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from bnptrack.tracker._message_checks import check_measurements, check_tracks, check_truth, pmf_list_ok
+from bnptrack.tracker.message_encode import _plain_tracks_msg
 from bnptrack.tracker.messages import (
     TOPIC_MEASUREMENTS,
     TOPIC_TRACKS,
@@ -24,7 +25,6 @@ from bnptrack.tracker.messages import (
     TracksMsg,
     TruthMsg,
     TruthObject,
-    _plain_tracks_msg,
     decode,
     encode,
     from_estimate,

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from bnptrack.tracker.messages import TOPIC_TRACKS, CodecError, _encode_msg, decode, encode, from_estimate, to_estimate
+from bnptrack.tracker.message_encode import _encode_msg
+from bnptrack.tracker.messages import TOPIC_TRACKS, CodecError, decode, encode, from_estimate, to_estimate
 from bnptrack.tracker.types import Estimate, TrackEstimate
 
 
