@@ -28,7 +28,6 @@ Health messages of every stage are appended to ``<out>/health.jsonl``.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -47,6 +46,7 @@ from bnptrack.pipeline.progress import Status
 from bnptrack.pipeline.preflight import check_pipeline, lock_out, refuse_other_run
 from bnptrack.pipeline.supervisor import (HealthMonitor, LaunchResult, StageProcess, recorded_complete, sink_left_output, stop_stages, write_stages)
 from bnptrack.pipeline.stages import EXIT_CONFIG, EXIT_DATA, EXIT_IO, EXIT_OK, SUMMARY_NAME
+from bnptrack.pipeline.stages.summary import SummaryError, load_summary
 
 __all__ = ["Launcher", "launch"]
 
@@ -162,25 +162,25 @@ class Launcher(LaunchSetup):
         """Complete ``result`` from the sink's ``sink.json``: files, a source's data error,
         what the output lacks."""
         summary_path = self.out / SUMMARY_NAME
-        if summary_path.exists():
-            try:
-                result.summary = json.loads(summary_path.read_text())
-            except (OSError, json.JSONDecodeError):
-                result.summary = None
-        if result.summary:
-            result.files = [f for f in result.summary.get("files", []) if Path(f).exists()]
+        unreadable = ""
+        try:
+            result.summary = load_summary(summary_path)
+        except SummaryError as exc:
+            result.summary, unreadable = None, str(exc)
+        if result.summary is not None:
+            result.files = [f for f in result.summary.files if Path(f).exists()]
             result.files.append(str(summary_path))
-            src_err = result.summary.get("source_error")
+            src_err = result.summary.source_error
             if src_err and (result.ok or result.error == _DATA_ERROR):
                 result.error = (f"{src_err} -- the pipeline processed the "
-                                f"{result.summary.get('frames_written', 0)} readable frame(s)")
+                                f"{result.summary.frames_written} readable frame(s)")
                 result.ok = False
         conflict = ""
         if not result.interrupted:  # the end of stream the sink ended on must be the source's own
             conflict, result.summary = check_eos(self.out, result.summary, self.stages)
             conflict = conflict or self._conflict
-        missing = describe_missing(result.summary)
-        if result.gave_up and result.summary and not (missing or conflict):  # the exit code follows the output
+        missing = unreadable or describe_missing(result.summary)
+        if result.gave_up and result.summary is not None and not (missing or conflict):  # the exit code follows the output
             self.echo(f"{result.error}; the output is complete all the same")
             result.ok, result.error = True, ""
         elif result.gave_up or result.ok:

@@ -5,7 +5,6 @@ go on once a stage was given up (:class:`SinkWait`: the exit code follows the ou
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,6 +14,7 @@ import msgspec
 
 from bnptrack.pipeline.stage_link import eos_conflict
 from bnptrack.pipeline.stages import SUMMARY_NAME, write_atomic
+from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.supervisor import StageProcess
 
 __all__ = ["source_reports", "foreign_eos", "unsent_eos", "check_eos", "describe_missing", "SinkWait"]
@@ -56,28 +56,29 @@ def unsent_eos(stages: Sequence[StageProcess]) -> bool:
             and all(sp.state == "done" for sp in stages if sp.role == "sink"))
 
 
-def check_eos(out: Path, summary: dict | None, stages: Sequence[StageProcess]) -> tuple[str, dict | None]:
+def check_eos(out: Path, summary: RunSummary | None,
+              stages: Sequence[StageProcess]) -> tuple[str, RunSummary | None]:
     """The conflict between the source's end of stream the sink recorded (``sink.json``'s
     ``source_eos``) and the source process's own reports (``""``: none, or no source here),
     and the summary; on a conflict ``sink.json`` is rewritten to say so (``eos_conflict``,
     ``output_complete`` false, the frames the source published after it as ``missing``)."""
     reports = source_reports(stages)
-    if reports is None or not summary:
+    if reports is None or summary is None:
         return "", summary
     eos, stopped = reports
-    recorded = summary.get("source_eos")
+    recorded = summary.source_eos
     conflict = eos_conflict(eos, stopped, recorded)
     if not conflict:
         return "", summary
     own = eos or stopped or {}
-    first = max(int(recorded["last_seq"]), int(summary.get("last_seq", -1))) + 1  # the sink may have written more
+    first = max(int(recorded["last_seq"]), summary.last_seq) + 1  # the sink may have written more
     seqs = list(range(first, int(own.get("last_seq", -1)) + 1))
     why = "published by the source after the end of stream the sink ended on (end of stream conflict)"
-    extra = [{"topic": f"/{t}", "seqs": seqs, "why": why} for t in (summary.get("gaps") or {}) if seqs]
-    summary = {**summary, "eos_conflict": conflict, "output_complete": False,
-               "missing": [*(summary.get("missing") or []), *extra]}
+    extra = [{"topic": f"/{t}", "seqs": seqs, "why": why} for t in summary.gaps if seqs]
+    summary = msgspec.structs.replace(summary, eos_conflict=conflict, output_complete=False,
+                                      missing=[*summary.missing, *extra])
     try:
-        write_atomic(out / SUMMARY_NAME, msgspec.json.format(json.dumps(summary).encode(), indent=1))
+        write_atomic(out / SUMMARY_NAME, summary.encode())
     except OSError:  # the exit code and the error line say it all the same
         pass
     return conflict, summary
@@ -119,18 +120,18 @@ def _ranges(seqs: Sequence[int], limit: int = 8) -> str:
     return ", ".join(parts[:limit]) + (f", ... ({len(seqs)} in all)" if more else "")
 
 
-def describe_missing(summary: dict | None) -> str:
+def describe_missing(summary: RunSummary | None) -> str:
     """One line saying what a run's output lacks (``""``: it is complete), from the sink's
     ``sink.json``: no summary, a sink that stopped before the end of stream, and each
     ``missing`` entry (topic, sequence numbers, why)."""
-    if not summary:
+    if summary is None:
         return f"the sink wrote no {SUMMARY_NAME}"
-    if summary.get("output_complete") is True and not summary.get("missing"):
+    if summary.output_complete and not summary.missing:
         return ""  # a sink stopped after it had everything (a stage given up after its end of stream)
     parts = []
-    if not summary.get("complete", False):
-        parts.append(f"the sink stopped before the end of stream (after seq {summary.get('last_seq')})")
-    for m in summary.get("missing") or []:
+    if not summary.complete:
+        parts.append(f"the sink stopped before the end of stream (after seq {summary.last_seq})")
+    for m in summary.missing:
         seqs = m.get("seqs") or []  # none, with from_seq: the rest of a run of unknown length
         where = f"from seq {m['from_seq']} on" if not seqs and m.get("from_seq") is not None else \
             f"of {len(seqs)} frame(s), seq {_ranges(seqs)}"

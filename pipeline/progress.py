@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bnptrack.pipeline.stages.summary import RunSummary
 
 __all__ = ["Status", "Progress", "progress_line", "describe_latency", "describe_rejected"]
 
@@ -143,16 +146,16 @@ class Progress:
             self._open = self._transient = False
 
 
-def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
+def describe_latency(summary: RunSummary | None, paced: bool = True) -> str:
     """The summary's latency line from ``sink.json`` (``""``: nothing to say): p50 and p99 of
     the frames timed on their first delivery and, when some were not timed, how many and why
     -- received from the publishers' caches by a restarted (or late) sink, published before it
     subscribed (re-deliveries; their age measures the outage, not the pipeline), recovered from a
     killed sink's ``.part`` file (:mod:`pipeline.stages.sink_latency`)."""
-    if not summary:
+    if summary is None:
         return ""
-    lat = (summary.get("counters") or {}).get("latency_ms") or {}
-    book = summary.get("latency") or {}
+    lat = summary.counters.get("latency_ms") or {}
+    book = summary.latency
     excluded = book.get("excluded") or {}
     why = [f"{n} {what}" for n, what in (
         (int(excluded.get("from_caches") or 0), "from the caches, published before the restarted sink subscribed"),
@@ -171,13 +174,13 @@ def describe_latency(summary: dict[str, Any] | None, paced: bool = True) -> str:
     return text
 
 
-def describe_rejected(summary: dict[str, Any]) -> str:
+def describe_rejected(summary: RunSummary) -> str:
     """The summary's ``rejected`` row from ``sink.json``: the samples the sink rejected and the
     duplicates it dropped -- counted by the sink process that finished the run, which says so
     when it was restarted (its predecessor's counts died with it; its dead letters are in
     ``health.jsonl``)."""
-    c = summary.get("counters") or {}
+    c = summary.counters
     text = f"{c.get('rejected', 0)} (duplicates dropped: {c.get('duplicates', 0)})"
-    if summary.get("restarted"):
+    if summary.restarted:
         text += "; counted by the restarted sink since its restart"
     return text

@@ -25,7 +25,7 @@ from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.stage_link import LauncherLink
 from bnptrack.pipeline.stages import EXIT_STOPPED
 from bnptrack.pipeline.stages.base import set_stop
-from bnptrack.pipeline.stages.summary import read_summary
+from bnptrack.pipeline.stages.summary import RunSummary, read_summary
 
 __all__ = ["StageProcess", "LaunchResult", "HealthMonitor", "open_embedded_router", "recorded_complete",
            "sink_left_output", "write_stages", "record_exit", "stop_stages", "StopSignals", "stop_on_signals"]
@@ -142,7 +142,7 @@ class LaunchResult:
     incomplete: str = ""
     gave_up: str = ""
     files: list[str] = field(default_factory=list)
-    summary: dict | None = None
+    summary: RunSummary | None = None
     restarts: dict[str, int] = field(default_factory=dict)
     elapsed_s: float = 0.0
     endpoints: list[str] = field(default_factory=list)

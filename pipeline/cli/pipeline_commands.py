@@ -40,15 +40,14 @@ __all__ = ["launch", "replay", "stage", "router"]
 
 def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
     """Print a launch/replay result; raise CliError on failure."""
-    summary = res.summary or {}
+    summary = res.summary
     if not quiet:
-        gaps = summary.get("gaps") or {}
-        gap_text = ", ".join(f"{k} {v}" for k, v in gaps.items() if v) or "none"
         restarts = ", ".join(f"{k} {v}" for k, v in res.restarts.items() if v) or "none"
         rows = [("run", res.run), ("out", f"{res.out}/")]
-        if summary:
-            rows.append(("frames", f"{summary.get('frames_written', 0)} "
-                                   f"({summary.get('tracks_written', 0)} /tracks; gaps: {gap_text})"))
+        if summary is not None:
+            gap_text = ", ".join(f"{k} {v}" for k, v in summary.gaps.items() if v) or "none"
+            rows.append(("frames", f"{summary.frames_written} "
+                                   f"({summary.tracks_written} /tracks; gaps: {gap_text})"))
             from bnptrack.pipeline.outcome import describe_missing
             from bnptrack.pipeline.progress import describe_latency, describe_rejected
 
@@ -56,15 +55,15 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             if lat_text := describe_latency(summary, paced):
                 rows.append(("latency", lat_text))
-        rows += _score_rows(summary.get("scores"))
+            rows += _score_rows(summary.scores)
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:
             try:
                 rows.append(("wrote", f"{f} ({Path(f).stat().st_size} bytes)"))
             except OSError:
                 pass
-        if summary.get("view"):
-            rows.append(("open with", summary["view"]))
+        if summary is not None and summary.view:
+            rows.append(("open with", summary.view))
         echo_rows(rows)
     if res.interrupted:
         click.echo(f"Interrupted: partial files are in {res.out}/", err=True)

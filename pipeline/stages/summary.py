@@ -3,7 +3,10 @@ written by the sink stage and read back by a restarted sink and the supervisor.
 
 The file's bytes are :meth:`RunSummary.encode`: the fields in their declared order, one per
 line (``msgspec.json.format(..., indent=1)``), the keys docs/pipeline.md lists.  Every field
-has a default, so a file that lacks one (or has one more) still reads.
+has a default, so a file that lacks one (or has one more) still reads.  Every reader decodes it
+with the one decoder here: :func:`read_summary` (``None`` for anything but this run's summary:
+a restarted sink, the supervisor) and :func:`load_summary` (the launcher: a malformed file is a
+:class:`SummaryError` with one line naming the file and the field).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Any
 
 import msgspec
 
-__all__ = ["RunSummary", "read_summary"]
+__all__ = ["RunSummary", "SummaryError", "read_summary", "load_summary"]
 
 
 class RunSummary(msgspec.Struct, frozen=True, kw_only=True):
@@ -51,6 +54,9 @@ class RunSummary(msgspec.Struct, frozen=True, kw_only=True):
     t_first_pub_ns: int | None = None
     t_last_recv_ns: int | None = None
     latency: dict[str, Any] = {}
+    #: the launcher's, when the end of stream the sink ended on is not the source's own (not
+    #: written otherwise)
+    eos_conflict: str | msgspec.UnsetType = msgspec.UNSET
 
     @classmethod
     def of(cls, doc: Mapping[str, Any]) -> RunSummary:
@@ -71,10 +77,29 @@ _ENC = msgspec.json.Encoder()
 _DEC = msgspec.json.Decoder(RunSummary)
 
 
+class SummaryError(ValueError):
+    """A ``sink.json`` that is there but is not a run summary (one line: the file and why)."""
+
+
+def load_summary(path: str | Path) -> RunSummary | None:
+    """The ``sink.json`` at ``path``; ``None`` when there is none.  A file that cannot be read,
+    is not JSON or holds a field of the wrong type raises :class:`SummaryError`."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise SummaryError(f"{path}: cannot read the run summary: {exc.strerror or exc}") from None
+    try:
+        return _DEC.decode(data)
+    except msgspec.DecodeError as exc:  # ValidationError is a DecodeError
+        raise SummaryError(f"{path}: not a run summary: {exc}") from None
+
+
 def read_summary(path: str | Path, run: str | None = None) -> RunSummary | None:
     """The ``sink.json`` at ``path`` (``None``: none, unreadable, or, with ``run``, another run's)."""
     try:
-        summary = _DEC.decode(Path(path).read_bytes())
-    except (OSError, msgspec.DecodeError):  # ValidationError is a DecodeError
+        summary = load_summary(path)
+    except SummaryError:
         return None
-    return summary if run is None or summary.run == run else None
+    return summary if summary is not None and (run is None or summary.run == run) else None

@@ -18,6 +18,7 @@ from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.outcome import check_eos, describe_missing, foreign_eos
 from bnptrack.pipeline.stage_link import LauncherLink, StageLink, eos_conflict
 from bnptrack.pipeline.stages import EXIT_OK, STAGES, SUMMARY_NAME, ManualClock, StageContext
+from bnptrack.pipeline.stages.summary import RunSummary, read_summary
 from bnptrack.pipeline.supervisor import StageProcess
 
 from testkit import mem_cfg
@@ -72,8 +73,8 @@ def test_the_source_reports_its_end_of_stream_and_a_genuine_run_has_no_conflict(
     reports: list = []
     assert _run(cfg, MemoryNetwork(), reports) == {"sink": EXIT_OK, "source": EXIT_OK}
     assert reports == [{"eos": {"last_seq": 11, "frames": 12}}]
-    summary = json.loads((Path(cfg.out) / SUMMARY_NAME).read_text())
-    assert summary["source_eos"] == {"last_seq": 11, "frames": 12}
+    summary = read_summary(Path(cfg.out) / SUMMARY_NAME)
+    assert summary.source_eos == {"last_seq": 11, "frames": 12}
     assert check_eos(Path(cfg.out), summary, [_source_process(tmp_path, reports)]) == ("", summary)
 
 
@@ -103,15 +104,16 @@ def test_a_forged_end_of_stream_the_sink_ended_on_is_a_conflict_named_in_sink_js
         "end of stream conflict: an end of stream of the source at seq 4 (5 frame(s)) that the source process "
         "never sent was put on the bus (a forged end of stream)")
     out = Path(cfg.out)
-    summary = json.loads((out / SUMMARY_NAME).read_text())
-    assert summary["source_eos"] == {"last_seq": 4, "frames": 5} and summary["output_complete"] is True
+    summary = read_summary(out / SUMMARY_NAME)
+    assert summary.source_eos == {"last_seq": 4, "frames": 5} and summary.output_complete is True
     conflict, marked = check_eos(out, summary, [_source_process(tmp_path, reports)])
     assert conflict == ("end of stream conflict: the sink ended the run on an end of stream of the source at "
                         "seq 4 (5 frame(s)); the source process's own end of stream is at seq 11 (12 frame(s))")
-    on_disk = json.loads((out / SUMMARY_NAME).read_text())
-    assert on_disk == marked and on_disk["eos_conflict"] == conflict and on_disk["output_complete"] is False
+    on_disk = read_summary(out / SUMMARY_NAME)
+    assert on_disk == marked and on_disk.eos_conflict == conflict and on_disk.output_complete is False
+    assert list(json.loads((out / SUMMARY_NAME).read_text()))[-1] == "eos_conflict"  # after the sink's keys
     why = "published by the source after the end of stream the sink ended on (end of stream conflict)"
-    assert on_disk["missing"] == [{"topic": "/measurements", "seqs": [5, 6, 7, 8, 9, 10, 11], "why": why},
+    assert on_disk.missing == [{"topic": "/measurements", "seqs": [5, 6, 7, 8, 9, 10, 11], "why": why},
                                   {"topic": "/truth", "seqs": [5, 6, 7, 8, 9, 10, 11], "why": why}]
     assert describe_missing(on_disk).startswith(f"/measurements of 7 frame(s), seq 5-11: {why}")
 
@@ -135,7 +137,7 @@ def test_a_restarted_source_that_receives_its_predecessors_end_of_stream_is_no_c
 
 
 def test_check_eos_is_silent_without_a_source_here(tmp_path):
-    summary = {"source_eos": {"last_seq": 3, "frames": 4}, "missing": []}
+    summary = RunSummary(source_eos={"last_seq": 3, "frames": 4})
     sink = StageProcess("sink", [], tmp_path / "sink.log")
     assert check_eos(tmp_path, summary, [sink]) == ("", summary)
     assert not (tmp_path / SUMMARY_NAME).exists()

@@ -11,8 +11,11 @@ import os
 import threading
 from pathlib import Path
 
+import msgspec
+
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.outcome import SinkWait, describe_missing
+from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.stages import EXIT_STOPPED, SUMMARY_NAME, ManualClock, SinkStage, SourceStage, StageContext
 from bnptrack.pipeline.stages.base import StopFlag
 from bnptrack.pipeline.supervisor import StageProcess, record_exit, write_stages
@@ -54,7 +57,7 @@ def test_a_sink_stopped_before_an_end_of_stream_it_never_saw_names_the_rest_as_m
     assert s["complete"] is False and s["output_complete"] is False and s["frames_written"] == 6
     assert s["missing"] == [{"topic": "/measurements", "seqs": [], "from_seq": 6, "why": why},
                             {"topic": "/truth", "seqs": [], "from_seq": 6, "why": why}]
-    assert describe_missing(s) == (f"the sink stopped before the end of stream (after seq 5); "
+    assert describe_missing(RunSummary.of(s)) == (f"the sink stopped before the end of stream (after seq 5); "
                                    f"/measurements from seq 6 on: {why}; /truth from seq 6 on: {why}")
 
 
@@ -75,9 +78,9 @@ def test_a_stopped_sink_that_knows_the_end_of_stream_lists_the_missing_frames(tm
 def test_a_summary_with_nothing_missing_is_complete_even_if_the_sink_was_stopped():
     """A sink stopped after it had every frame up to the source's end of stream (waiting for
     the tracker's end of stream, say) writes ``output_complete`` true: nothing is missing."""
-    s = {"complete": False, "last_seq": 5, "missing": [], "output_complete": True}
+    s = RunSummary(complete=False, last_seq=5, output_complete=True)
     assert describe_missing(s) == ""
-    assert describe_missing({**s, "output_complete": False}) == "the sink stopped before the end of stream (after seq 5)"
+    assert describe_missing(msgspec.structs.replace(s, output_complete=False)) == "the sink stopped before the end of stream (after seq 5)"
 
 
 def test_a_stage_records_its_own_exit_and_the_launcher_keeps_that_record(tmp_path):

@@ -17,6 +17,7 @@ from bnptrack.pipeline.cli import EXIT_INCOMPLETE, IncompleteError
 from bnptrack.pipeline.cli.pipeline_commands import _report_launch
 from bnptrack.pipeline.launch import Launcher
 from bnptrack.pipeline.outcome import _ranges, describe_missing
+from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.supervisor import LaunchResult
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME
@@ -40,10 +41,10 @@ def _summary(cfg) -> dict:
 def test_ranges_and_describe_missing_reference_text():
     assert _ranges([1, 2, 3, 7, 9, 10]) == "1-3, 7, 9-10"
     assert _ranges(list(range(0, 40, 2)), limit=3) == "0, 2, 4, ... (20 in all)"
-    assert describe_missing({"complete": True, "missing": []}) == ""
+    assert describe_missing(RunSummary(complete=True)) == ""
     assert describe_missing(None) == "the sink wrote no sink.json"
-    text = describe_missing({"complete": False, "last_seq": 8, "missing": [
-        {"topic": "/tracks", "seqs": [5, 6], "why": "no /tracks from the tracker (gap)"}]})
+    text = describe_missing(RunSummary(complete=False, last_seq=8, missing=[
+        {"topic": "/tracks", "seqs": [5, 6], "why": "no /tracks from the tracker (gap)"}]))
     assert text == ("the sink stopped before the end of stream (after seq 8); "
                     "/tracks of 2 frame(s), seq 5-6: no /tracks from the tracker (gap)")
 
@@ -52,7 +53,7 @@ def test_complete_memory_run_has_nothing_missing(tmp_path):
     cfg = _mem_cfg(tmp_path, frames=6)
     assert _run_memory_pipeline(cfg, MemoryNetwork())["sink"] == EXIT_OK
     s = _summary(cfg)
-    assert s["output_complete"] is True and s["missing"] == [] and describe_missing(s) == ""
+    assert s["output_complete"] is True and s["missing"] == [] and describe_missing(RunSummary.of(s)) == ""
 
 
 def test_a_lost_frame_is_named_missing_in_every_stream(tmp_path):
@@ -67,7 +68,7 @@ def test_a_lost_frame_is_named_missing_in_every_stream(tmp_path):
         {"topic": "/truth", "seqs": [5], "why": "never received (gap)"},
         {"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"},
     ]
-    assert describe_missing(s).startswith("/measurements of 1 frame(s), seq 5: never received (gap)")
+    assert describe_missing(RunSummary.of(s)).startswith("/measurements of 1 frame(s), seq 5: never received (gap)")
 
 
 def test_a_rejected_frame_is_named_missing(tmp_path):
@@ -84,8 +85,8 @@ def test_a_rejected_frame_is_named_missing(tmp_path):
 
 
 def test_report_launch_exits_3_naming_what_is_missing(tmp_path, capsys):
-    summary = {"complete": True, "frames_written": 9, "tracks_written": 9, "gaps": {}, "counters": {},
-               "missing": [{"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"}]}
+    summary = RunSummary(complete=True, frames_written=9, tracks_written=9,
+                         missing=[{"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"}])
     res = LaunchResult(run="r", out=tmp_path, ok=False, summary=summary,
                        incomplete=describe_missing(summary))
     with pytest.raises(IncompleteError) as exc:
@@ -177,3 +178,29 @@ def test_a_second_launch_on_a_taken_out_is_refused_unless_overwrite(tmp_path):
         live.send_signal(signal.SIGINT)
         live.wait(60)
     assert live.returncode == 130
+
+
+@pytest.mark.parametrize("text, summary_line", [
+    ('{"run": "mem", "complete": true, "output_complete": true, "frames_written": 6, "files": []}', None),
+    ('{"run": "mem", "complete": true, "frames_written": "six"}',
+     "not a run summary: Expected `int`, got `str` - at `$.frames_written`"),
+])
+def test_the_launcher_reads_sink_json_typed_and_names_a_malformed_one(tmp_path, capsys, text, summary_line):
+    """The launcher's end of a run over a hand-written ``sink.json``: a good one completes the
+    run (the frames row comes from it); a malformed one is named on one line and exits 3."""
+    launcher = Launcher(_mem_cfg(tmp_path))
+    launcher.out.mkdir(parents=True)
+    (launcher.out / SUMMARY_NAME).write_text(text)
+    res = LaunchResult(run="mem", out=launcher.out, ok=True)
+    launcher._conclude(res)
+    if summary_line is None:
+        assert res.ok and res.incomplete == "" and res.summary.frames_written == 6
+        assert res.files == [str(launcher.out / SUMMARY_NAME)]
+        _report_launch(res, quiet=False)
+        assert "6 (0 /tracks; gaps: none)" in capsys.readouterr().out
+        return
+    assert res.summary is None and not res.ok
+    assert res.incomplete == f"{launcher.out / SUMMARY_NAME}: {summary_line}"
+    with pytest.raises(IncompleteError) as exc:
+        _report_launch(res, quiet=True)
+    assert exc.value.exit_code == 3 and "\n" not in exc.value.message

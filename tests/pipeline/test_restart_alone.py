@@ -13,6 +13,7 @@ import msgspec
 import pytest
 
 from bnptrack.pipeline.outcome import describe_missing
+from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.stages import (
     EXIT_DATA,
@@ -141,7 +142,7 @@ def test_a_sink_restarted_alone_finalizes_the_killed_sinks_frames_and_exits_3(tm
         assert m["seqs"] == [] and m["from_seq"] == 7
         assert m["why"].startswith("upstream gone before the end of stream: no live source or tracker for 5 s")
         assert "recovered 7 frame(s), up to frame 7" in m["why"]
-    line = describe_missing(s)
+    line = describe_missing(RunSummary.of(s))
     assert line.startswith("the sink stopped before the end of stream (after seq 6); /measurements from seq 7 on: "
                            "upstream gone before the end of stream")
 

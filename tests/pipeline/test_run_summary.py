@@ -8,7 +8,9 @@ import json
 import msgspec
 import pytest
 
-from bnptrack.pipeline.stages.summary import RunSummary, read_summary
+from bnptrack.pipeline.outcome import describe_missing
+from bnptrack.pipeline.progress import describe_latency, describe_rejected
+from bnptrack.pipeline.stages.summary import RunSummary, SummaryError, load_summary, read_summary
 
 #: A sink.json document as the sink stage writes it: every key, in the order written.
 DOC = {
@@ -26,7 +28,10 @@ DOC = {
 def test_the_bytes_are_those_of_the_document():
     s = RunSummary(**DOC)
     assert s.encode() == msgspec.json.format(msgspec.json.encode(DOC), indent=1)
-    assert list(json.loads(s.encode())) == list(DOC) == list(RunSummary.__struct_fields__)
+    # every field in its declared order; the launcher's eos_conflict (last) only when it is set
+    assert list(json.loads(s.encode())) == list(DOC) == list(RunSummary.__struct_fields__)[:-1]
+    marked = msgspec.structs.replace(s, eos_conflict="a forged end of stream")
+    assert list(json.loads(marked.encode())) == [*DOC, "eos_conflict"]
 
 
 def test_it_reads_back(tmp_path):
@@ -51,3 +56,46 @@ def test_a_short_or_broken_file(tmp_path):
     assert read_summary(bad) is None
     with pytest.raises(msgspec.ValidationError, match="frames_written"):
         RunSummary.of({"frames_written": "nine"})
+
+
+#: A sink.json as a person would write it by hand: some keys, in another order, one unknown.
+HAND = """{
+  "missing": [{"topic": "/truth", "seqs": [3, 4, 5], "why": "never received (gap)"}],
+  "last_seq": 7,
+  "run": "hand",
+  "complete": true,
+  "frames_written": 8,
+  "counters": {"rejected": 2, "duplicates": 1, "latency_ms": {"n": 8, "p50": 1.5, "p99": 4.25}},
+  "restarted": true,
+  "eos_conflict": "a forged end of stream",
+  "note": "a key no reader knows"
+}"""
+
+
+def test_a_hand_written_file_reads_typed_and_every_reader_agrees(tmp_path):
+    path = tmp_path / "sink.json"
+    path.write_text(HAND)
+    s = load_summary(path)
+    assert (s.run, s.complete, s.frames_written, s.last_seq, s.tracks_written) == ("hand", True, 8, 7, 0)
+    assert s.eos_conflict == "a forged end of stream" and s.output_complete is False and s.files == []
+    assert read_summary(path, "hand") == s
+    assert describe_missing(s) == "/truth of 3 frame(s), seq 3-5: never received (gap)"
+    assert describe_rejected(s) == "2 (duplicates dropped: 1); counted by the restarted sink since its restart"
+    assert describe_latency(s) == "source -> sink p50 1.50 ms, p99 4.25 ms"
+    assert load_summary(tmp_path / "absent.json") is None
+
+
+@pytest.mark.parametrize("text, why", [
+    ('{"run": "r1", "frames_written": "nine"}', "Expected `int`, got `str` - at `$.frames_written`"),
+    ('{"run": "r1", "missing": {"topic": "/truth"}}', "Expected `array`, got `object` - at `$.missing`"),
+    ('{"run": "r1", "complete": tru', "malformed"),
+    ("", "Input data was truncated"),
+])
+def test_a_malformed_file_is_one_line_naming_the_file_and_the_field(tmp_path, text, why):
+    path = tmp_path / "sink.json"
+    path.write_text(text)
+    with pytest.raises(SummaryError) as exc:
+        load_summary(path)
+    line = str(exc.value)
+    assert line.startswith(f"{path}: not a run summary: ") and why in line and "\n" not in line
+    assert read_summary(path) is None  # the sink and the supervisor: not this run's summary

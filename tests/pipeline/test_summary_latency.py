@@ -17,6 +17,7 @@ import pytest
 
 from bnptrack.pipeline.membus import MemoryNetwork
 from bnptrack.pipeline.progress import describe_latency, describe_rejected
+from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.stages import EXIT_OK, SUMMARY_NAME, ManualClock, part_path, source_frames
 from bnptrack.pipeline.stages.health import EndOfStream, StageInfo
 from bnptrack.pipeline.stages.sink_latency import LATENCY_PART, LatencyBook
@@ -86,7 +87,7 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
     n, k = 12, 8  # most of the run is history, as after a sink killed late in a run
     s, now = _run_late_sink(tmp_path, n, k, killed=True)
     assert s["complete"] and s["frames_written"] == n and s["tracks_written"] == n  # every frame recorded
-    assert s["restarted"] and describe_rejected(s) == (
+    assert s["restarted"] and describe_rejected(RunSummary.of(s)) == (
         "0 (duplicates dropped: 0); counted by the restarted sink since its restart")
     lat = s["latency"]
     assert lat["seq"] == list(range(k, n)) and lat["timed_frames"] == n - k
@@ -102,7 +103,7 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
     # the throughput spans the run, from frame 0's publication (ten minutes ago) to the end
     span_s = (s["t_last_recv_ns"] - (now - AGO_NS)) / 1e9
     assert s["t_first_pub_ns"] == now - AGO_NS and s["throughput_fps"] == pytest.approx(n / span_s)
-    text = describe_latency(s)
+    text = describe_latency(RunSummary.of(s))
     p50, p99 = s["counters"]["latency_ms"]["p50"], s["counters"]["latency_ms"]["p99"]
     assert text == (f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms over {n - k} frame(s) "
                     f"(not timed: {k} from the caches, published before the restarted sink subscribed)")
@@ -110,13 +111,13 @@ def test_a_restarted_sink_times_only_the_frames_delivered_live(tmp_path):
 
 def test_a_sink_there_from_the_start_times_every_frame(tmp_path):
     s, _ = _run_late_sink(tmp_path, 6, 0)
-    assert not s["restarted"] and describe_rejected(s) == "0 (duplicates dropped: 0)"
+    assert not s["restarted"] and describe_rejected(RunSummary.of(s)) == "0 (duplicates dropped: 0)"
     lat = s["latency"]
     assert lat["seq"] == list(range(6)) and lat["excluded"] == {"from_caches": 0, "recovered": 0}
     assert lat["from_caches_seq"] == []
     p50, p99 = s["counters"]["latency_ms"]["p50"], s["counters"]["latency_ms"]["p99"]
-    assert describe_latency(s) == f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms"
-    assert describe_latency(s, paced=False).endswith("(frames published as fast as possible: includes queueing)")
+    assert describe_latency(RunSummary.of(s)) == f"source -> sink p50 {p50:.2f} ms, p99 {p99:.2f} ms"
+    assert describe_latency(RunSummary.of(s), paced=False).endswith("(frames published as fast as possible: includes queueing)")
 
 
 def _save_as_killed(path: Path, run: str, saved) -> None:
@@ -145,7 +146,7 @@ def test_a_restarted_sink_keeps_the_latencies_its_killed_predecessor_timed(tmp_p
     assert lat["from_caches_seq"] == [[6, 7]] and s["counters"]["latency_ms"]["n"] == 10
     assert lat["tracker_to_sink_ms"][:6] == [2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
     assert not (tmp_path / "out" / LATENCY_PART).exists()
-    assert "over 10 frame(s) (not timed: 2 from the caches, published before the restarted sink subscribed)" in describe_latency(s)
+    assert "over 10 frame(s) (not timed: 2 from the caches, published before the restarted sink subscribed)" in describe_latency(RunSummary.of(s))
 
 
 def test_a_saved_latency_file_of_another_run_is_ignored_and_replaced(tmp_path):
@@ -207,9 +208,10 @@ def test_the_latency_book_cuts_at_the_subscription_on_the_trackers_stamp():
     assert d["excluded"] == {"from_caches": 1, "recovered": 1} and d["from_caches_seq"] == [[0, 0]]
     # three stamped frames from 990 ms to 2520 ms
     assert book.throughput_fps() == pytest.approx(3 / 1.53)
-    assert describe_latency({"counters": {"latency_ms": {"n": 2, "p50": 760.0, "p99": 1485.2}}, "latency": d}) == (
+    summary = RunSummary.of({"counters": {"latency_ms": {"n": 2, "p50": 760.0, "p99": 1485.2}}, "latency": d})
+    assert describe_latency(summary) == (
         "source -> sink p50 760.00 ms, p99 1485.20 ms over 2 frame(s) (not timed: 1 from the caches, "
         "published before the restarted sink subscribed, 1 recovered from the killed sink's .part file)")
-    assert describe_latency({"counters": {"latency_ms": {"n": 0, "p50": None}},
-                             "latency": {"excluded": {"from_caches": 0, "recovered": 4}}}) == (
+    assert describe_latency(RunSummary.of({"counters": {"latency_ms": {"n": 0, "p50": None}},
+                                           "latency": {"excluded": {"from_caches": 0, "recovered": 4}}})) == (
         "no frame timed (not timed: 4 recovered from the killed sink's .part file)")
