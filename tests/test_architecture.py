@@ -351,8 +351,16 @@ def test_the_module_map_names_every_module(pkg):
     assert sorted(named - present) == [], f"{pkg}/: the module map names what does not exist"
 
 
+#: A line (with its backslash continuations) that could import a package by its bare name: a
+#: package name after ``import`` or ``from``, not after a dot (``bnptrack.tracker``).  Files
+#: without one hold no bare import and are not parsed.
+_MAYBE_BARE = re.compile(r"\b(?:import|from)\b(?:[^\n]|\\\n)*?(?<![\w.])(?:tracker|pipeline|sources|sinks)\b")
+
+
 def _bare_imports(path: Path) -> list[str]:
     """Imports of a project package by its bare folder name (``from tracker.x import y``)."""
+    if not _MAYBE_BARE.search(path.read_text()):
+        return []
     tree = _tree(path)
     names = [(a.name, n.lineno) for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     names += [(n.module or "", n.lineno) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level]

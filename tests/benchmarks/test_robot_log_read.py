@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import benchmarks.robot_log_read as rlr
 from bnptrack.sources.mcap_log import iter_frames

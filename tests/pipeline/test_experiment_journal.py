@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bnptrack.pipeline import experiment_journal
 from bnptrack.pipeline.experiment_journal import JOURNAL_NAME, RunJournal, code_fingerprint
 from bnptrack.pipeline.experiment_summary import RunScores, TrackerScores, ci_halfwidth, summarise
 from bnptrack.pipeline.experiments import run_experiment
@@ -86,10 +87,16 @@ def test_a_corrupt_middle_line_names_its_line(tmp_path):
         RunJournal.open(tmp_path, SETUP)
 
 
-def test_fingerprint_ignores_prose_but_not_code(tmp_path):
+def test_fingerprint_ignores_prose_but_not_code(tmp_path, monkeypatch):
     src = Path(__file__).resolve().parents[2]
-    for rel in ("tracker", "sources", "sinks", "pipeline"):
-        shutil.copytree(src / rel, tmp_path / rel, ignore=shutil.ignore_patterns("__pycache__"))
+    # every folder and module the fingerprint reads is in the tree (a moved one raises)
+    assert len(code_fingerprint(src)) == 16
+    # the rules, on a folder and a module of those it reads (each file is read the same way)
+    monkeypatch.setattr(experiment_journal, "_CODE", ("tracker/models", "pipeline/resolve.py"))
+    shutil.copytree(src / "tracker" / "models", tmp_path / "tracker" / "models",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "pipeline").mkdir()
+    shutil.copy(src / "pipeline" / "resolve.py", tmp_path / "pipeline" / "resolve.py")
     base = code_fingerprint(tmp_path)
     assert base == code_fingerprint(src)
     motion = tmp_path / "tracker" / "models" / "motion.py"

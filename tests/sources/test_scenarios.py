@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -344,10 +346,18 @@ def _residuals(scenario: Scenario, params, seeds) -> np.ndarray:
     return np.concatenate(out)
 
 
+@functools.lru_cache(maxsize=None)
+def _clean_residuals(kind: str, *overrides: str) -> np.ndarray:
+    """The residuals of 30 seeds of :func:`_single_target` under the CLEAN parameters (and
+    ``overrides``): computed once for the tests that read them (read-only)."""
+    res = _residuals(_single_target(kind), load_params("vo2017", CLEAN + list(overrides)), range(30))
+    res.flags.writeable = False
+    return res
+
+
 @pytest.mark.parametrize("kind", ["bearing_range", "range"])
 def test_detection_noise_std(kind):
-    params = load_params("vo2017", CLEAN)
-    res = _residuals(_single_target(kind), params, range(30))  # 3000 samples: 1.3% s.e.
+    res = _clean_residuals(kind)  # 3000 samples: 1.3% s.e.
     sig = [np.deg2rad(2.0), 10.0] if kind == "bearing_range" else [10.0]
     np.testing.assert_allclose(res.std(axis=0), sig, rtol=0.05)
     assert np.all(np.abs(res.mean(axis=0)) < 4 * np.array(sig) / np.sqrt(len(res)))
@@ -355,9 +365,8 @@ def test_detection_noise_std(kind):
 
 @pytest.mark.parametrize("kind", ["bearing_range", "range"])
 def test_snr_scales_noise_variance(kind):
-    sc = _single_target(kind)
-    nominal = _residuals(sc, load_params("vo2017", CLEAN), range(30)).std(axis=0)
-    low = _residuals(sc, load_params("vo2017", CLEAN + ["snr_db=-10"]), range(30)).std(axis=0)
+    nominal = _clean_residuals(kind).std(axis=0)
+    low = _clean_residuals(kind, "snr_db=-10").std(axis=0)
     # variance x 10**(10/10) = 10, std x sqrt(10)
     np.testing.assert_allclose(low / nominal, np.sqrt(10.0), rtol=0.08)
 
