@@ -83,6 +83,7 @@ def family_router(work: Path, runs: int, seed: int, h) -> list[dict]:
 
 
 def _open_case(tmp: Path, kind: str, n: int) -> dict:
+    from bnptrack.pipeline.stages.summary import load_summary
     from bnptrack.pipeline.config import PipelineConfig, resolve_run
     from bnptrack.pipeline.membus import MemoryNetwork
     from bnptrack.tracker.config import apply_overrides
@@ -114,10 +115,10 @@ def _open_case(tmp: Path, kind: str, n: int) -> dict:
 
     rec = read_log(Path(cfg.out) / "tracks.mcap")
     _, ests = offline(cfg)
-    summary = json.loads((Path(cfg.out) / "sink.json").read_text())
+    summary = load_summary(Path(cfg.out) / "sink.json")
     same = [strip(e) for e in rec.tracks] == [strip(e) for e in ests]
     lost = n - len(rec.tracks)
-    ok = same and codes.get("sink") == 0 and summary["output_complete"]
+    ok = same and codes.get("sink") == 0 and summary.output_complete
     return {"family": "open", "kind": kind, "frames": n, "exit": codes.get("sink"), "lost": lost, "ok": ok,
             "identical": same, "why": "identical" if same else f"{lost} frame(s) lost or differing"}
 

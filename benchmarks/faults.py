@@ -293,6 +293,8 @@ def family_malformed(work: Path, n: int, seed: int) -> list[dict]:
     ``tracks`` of a running 100-frame replay at 25 frames/s.  The defence in depth is what is
     measured, so authentication is off for this run (``zenoh.auth=false``: the outsider gets
     in).  The peak RSS of each stage process is sampled from /proc while it runs."""
+    from bnptrack.pipeline.stages.summary import load_summary
+
     import zenoh
 
     log = make_log(work / "vo100x.mcap", 100)
@@ -332,8 +334,8 @@ def family_malformed(work: Path, n: int, seed: int) -> list[dict]:
     code, text = finish(p, 250)
     ok, why = judge(code, text, out, expected)
     try:
-        rejected = json.loads((out / "sink.json").read_text())["counters"]["rejected"]
-    except (OSError, ValueError, KeyError):
+        rejected = load_summary(out / "sink.json").counters["rejected"]
+    except (AttributeError, ValueError, KeyError):  # no sink.json (None), a malformed one, no count
         rejected = None
     ok = ok and sent == n and bool(peak) and max(peak.values()) < 500
     case = {"family": "malformed", "samples": sent, "rejected_by_sink": rejected, "exit": code,
@@ -473,6 +475,7 @@ def _judge_alone_sink(out: Path, code: int | None, written: list, expected: list
     """A hand-started sink after its predecessor was killed: exit 3 with the killed sink's
     frames intact (= offline) and the rest named missing; or exit 2, nothing touched, when
     the predecessor had written no frame."""
+    from bnptrack.pipeline.stages.summary import load_summary
     from bnptrack.pipeline.stages import salvage_part
 
     if code is None:
@@ -481,12 +484,11 @@ def _judge_alone_sink(out: Path, code: int | None, written: list, expected: list
         return code == 2 and _digests(out, list(before)) == before, f"exit {code} with nothing to recover"
     if code != 3:
         return False, f"exit {code}"
-    s = json.loads((out / "sink.json").read_text())
-    run = s["run"]
-    same = [f.payloads for f in salvage_part(out / "tracks.mcap", run).frames] == [f.payloads for f in written]
+    s = load_summary(out / "sink.json")
+    same = [f.payloads for f in salvage_part(out / "tracks.mcap", s.run).frames] == [f.payloads for f in written]
     offline_prefix = tracks_of(out / "tracks.mcap") == expected[: len(written)]
-    named = bool(s["missing"]) and all(m["why"].startswith("upstream gone") for m in s["missing"])
-    ok = same and offline_prefix and named and not s["output_complete"] and not (out / ".tracks.mcap.part").exists()
+    named = bool(s.missing) and all(m["why"].startswith("upstream gone") for m in s.missing)
+    ok = same and offline_prefix and named and not s.output_complete and not (out / ".tracks.mcap.part").exists()
     return ok, f"exit 3, {len(written)} frame(s) kept" + ("" if ok else f" (same {same}, offline {offline_prefix}, named {named})")
 
 

@@ -105,6 +105,8 @@ def _alive(pid: int) -> bool:
 
 
 def _launcher_killed(work: Path, log: Path) -> dict:
+    from bnptrack.pipeline.stages.summary import load_summary
+
     out = work / "orphans"
     p = replay(log, out, 20, 150)
     pids: list[int] = []
@@ -114,14 +116,14 @@ def _launcher_killed(work: Path, log: Path) -> dict:
     finish(p, 60)
     stopped = _wait_gone(pids, 60)
     try:
-        s = json.loads((out / "sink.json").read_text())
+        s = load_summary(out / "sink.json")
         st = json.loads((out / "stages.json").read_text())
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError) as exc:  # a malformed sink.json is a ValueError (SummaryError)
         return {"family": "exit-truth", "role": "launcher killed", "exit": None, "ok": False, "why": str(exc)}
-    named = not s["output_complete"] and bool(s["missing"])
+    named = s is not None and not s.output_complete and bool(s.missing)
     shown = all(v["state"] != "running" for v in st.values())
     ok = bool(pids) and stopped and named and shown
-    why = f"sink.json names {len(s['missing'])} missing range(s); stages.json: " + \
+    why = f"sink.json names {len(s.missing) if s else 'no'} missing range(s); stages.json: " + \
         ", ".join(f"{k} {v['state']}" for k, v in st.items())
     return {"family": "exit-truth", "role": "launcher killed", "exit": None, "ok": ok, "why": why}
 

@@ -80,6 +80,7 @@ from bnptrack.pipeline.offline import open_sinks, track_to_sinks
 from bnptrack.pipeline.resolve import tracker_setup
 from bnptrack.sources.scenarios import scenario_params
 from bnptrack.pipeline.config import load_pipeline  # noqa: E402
+from bnptrack.pipeline.stages.summary import load_summary  # noqa: E402
 from bnptrack.sinks.mcap_writer import McapLogWriter  # noqa: E402
 from bnptrack.sinks.records import SinkOptions  # noqa: E402
 from bnptrack.sources.mcap_log import iter_frames, read_metadata  # noqa: E402
@@ -251,17 +252,17 @@ def pipeline(log: Path, tracker_name: str, seed: int, out: Path, rate: float, re
         res = launch(cfg, timeout=1800, handle_signals=True)
     if not res.ok:
         raise SystemExit(f"pipeline failed: {res.error or res.incomplete}")
-    s = json.loads((out / "sink.json").read_text())
-    lat = s["latency"]
+    s = load_summary(out / "sink.json")
+    lat = s.latency
     e2e, step = np.array(lat["e2e_ms"], float), np.array(lat["tracker_ms"], float)
-    window = (s["t_first_pub_ns"] / 1e9, s["t_last_recv_ns"] / 1e9)
+    window = (s.t_first_pub_ns / 1e9, s.t_last_recv_ns / 1e9)
     used = cpu.used(*window) if sample_cpu else {}
-    n = s["tracks_written"]
+    n = s.tracks_written
     return {
         "segments_ms": frame_segments(out, lat),
         "frames": n,
-        "gaps": sum(len(v) for v in s["gaps"].values()),
-        "fps": s["throughput_fps"],
+        "gaps": sum(len(v) for v in s.gaps.values()),
+        "fps": s.throughput_fps,
         "e2e_ms": e2e.tolist(),
         "added_ms": (e2e - step).tolist(),
         "step_ms": step.tolist(),
