@@ -688,8 +688,9 @@ def first_puts(size: int, warm: str | None, n: int = 30, period: float = 0.025) 
     topic first (the subscriber subscribes to it too); ``warm == "shm"`` instead turns Zenoh's
     shared-memory transport back on in the three sessions.  With it, one of the first puts of a
     sample of several KB on a fresh session can block for 5 to 120 ms, because Zenoh's shared
-    memory (on by default) sends samples above 3 KB through a pool that the first such put creates (``pipeline.transport.SHM_OFF``).  Without it no put of
-    5.8 KB took over 0.6 ms in three runs (docs/pipeline.md, Performance)."""
+    memory (on by default) sends samples above 3 KB through a pool that the first such put
+    creates (``pipeline.transport.SHM_OFF``).  Without it no put of 5.8 KB took over 0.6 ms in
+    three runs (docs/pipeline.md, Performance)."""
     from bnptrack.pipeline.config import DeliveryConfig, ZenohConfig
     from bnptrack.pipeline.transport import Bus, Router
 
