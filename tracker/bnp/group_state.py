@@ -9,6 +9,7 @@ import numpy as np
 
 from bnptrack.tracker.bnp.birth_tracker import LearnedBirthState
 from bnptrack.tracker.bnp.filter import BnpState
+from bnptrack.tracker.calibration import CalibrationState
 
 __all__ = ["GroupState", "previous_rows"]
 
@@ -78,6 +79,18 @@ class GroupState:
     id_eta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5)))
     id_swapped: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    cal_counts: np.ndarray = field(default_factory=lambda: CalibrationState().counts)
+    """The existence calibration's state (:class:`tracker.calibration.CalibrationState`, fields
+    ``counts``, ``hazard``, ``labels``, ``rows``, ``mean``, ``cov``; empty when off)."""
+    cal_hazard: np.ndarray = field(default_factory=lambda: CalibrationState().hazard)
+    cal_labels: tuple[str, ...] = ()
+    cal_rows: np.ndarray = field(default_factory=lambda: CalibrationState().rows)
+    cal_mean: np.ndarray = field(default_factory=lambda: CalibrationState().mean)
+    cal_cov: np.ndarray = field(default_factory=lambda: CalibrationState().cov)
+
+    def calibration(self) -> CalibrationState:
+        """The existence calibration's state."""
+        return CalibrationState(*(getattr(self, "cal_" + f.name) for f in fields(CalibrationState)))
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])

@@ -1,0 +1,136 @@
+"""The calibrated existence (tracker/calibration.py) and the two-level tracker that publishes it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bnptrack.sources.scenarios import get_scenario
+from bnptrack.sources.synthetic import simulate_all
+from bnptrack.tracker.bnp.groups import GroupState
+from bnptrack.tracker.calibration import CalibrationState, ExistenceCalibration, track_class
+from bnptrack.tracker.models.params import load_params
+from bnptrack.tracker.registry import build
+from bnptrack.tracker.state import restore, run, snapshot
+from bnptrack.tracker.types import Estimate, TrackEstimate
+
+
+def _track(label: str, x: float = 0.0, r: float = 0.9) -> TrackEstimate:
+    return TrackEstimate(label, np.array([x, 0.0, 0.0, 0.0, 0.0]), np.eye(5), r)
+
+
+def _feed(cal: ExistenceCalibration, frames: list[tuple[list[TrackEstimate], tuple]], state=None):
+    """Run ``cal`` over (tracks, assignments) per frame (frame k at k seconds); the published
+    existences per frame and the last state."""
+    state = CalibrationState() if state is None else state
+    out = []
+    for k, (tracks, assigned) in enumerate(frames, start=1):
+        state, est = cal.step(state, Estimate(k, k * 10**9, tuple(tracks), assigned, (1.0,) * len(assigned)))
+        out.append([t.existence for t in est.tracks])
+    return out, state
+
+
+def test_learned_hazard_and_miss_rate_hand_computed():
+    cal = ExistenceCalibration(0.99, 0.98, weight=20.0, hazard_weight=200.0)
+    # 300 established track-scans, 4 deaths, 5 missed scans of live objects:
+    # h = (200 * 0.01 + 4) / 500 = 0.012, miss rate = (200 * 0.02 + 5) / 500 = 0.018
+    hazard = np.array([300.0, 4.0, 5.0])
+    h, mu = cal.rates(hazard)
+    assert h == pytest.approx(0.012) and mu == pytest.approx(0.018)
+    a = (1 - 0.012) * 0.018  # alive and missed, per scan
+    assert cal.missed(hazard, 1) == pytest.approx(a / (a + 0.012))  # 0.5971
+    assert cal.missed(hazard, 1) == pytest.approx(0.5970991136)
+    assert cal.missed(hazard, 2) == pytest.approx(a * a / (a * a + 0.012 * (1 + a)))  # 0.0252
+    # without a run's evidence: the model's odds, 0.99 x 0.02 against 0.01
+    assert cal.missed(np.zeros(3), 1) == pytest.approx(0.99 * 0.02 / (0.99 * 0.02 + 0.01))
+
+
+def test_classes():
+    assert [track_class(n, 0) for n in (1, 2, 6, 9)] == [0, 1, 5, 5]
+    assert [track_class(n, 1) for n in (0, 2, 3, 10)] == [6, 6, 9, 9]
+    assert [track_class(3, m) for m in (1, 2, 3, 7)] == [9, 10, 11, 11]
+
+
+def test_a_death_is_learned_and_used_hand_computed():
+    cal = ExistenceCalibration(0.99, 0.98, weight=2.0, hazard_weight=100.0)
+    a = _track("A")
+    frames = [([a], ("A",))] * 3 + [([_track("A", r=0.66)], ())] + [([], ())] * 4
+    out, state = _feed(cal, frames)
+    # frames 1-3 detected: no outcome of their classes yet, the prior (the tracker's 0.9) alone
+    assert out[:3] == [[pytest.approx(0.9)]] * 3
+    # frame 4, first miss of an established track (exposure 2 scans): h = 1/102, miss rate
+    # 2/102, alive (101/102)(2/102) against 1/102: 202/304, replacing the tracker's 0.66
+    assert out[3] == [pytest.approx(202 / 304)]
+    # the label ended after frame 4; 4 scans later, with no track re-born in its gate: its
+    # detected frame 3 (class 2) and its miss (class 9) are counted not real, and one death
+    np.testing.assert_array_equal(state.hazard, [2.0, 1.0, 0.0])
+    assert state.counts[0].tolist() == [1, 1] + [0] * 10  # frames 1, 2: detected again
+    assert np.flatnonzero(state.counts[1]).tolist() == [2, 9] and state.labels == ()
+    # a second track: at its third detection class 2 holds one "not real": (2 x 0.9 + 0) / 3;
+    # at its first miss h = 2/104, miss rate 2/104, prior 204/412, class 9 one "not real"
+    b = _track("B")
+    out, _ = _feed(cal, [([b], ("B",))] * 3 + [([_track("B", r=0.66)], ())], state)
+    assert out[2] == [pytest.approx(0.6)]
+    assert out[3] == [pytest.approx((2 * 204 / 412) / 3)]
+
+
+def test_a_track_reborn_in_the_gate_counts_real():
+    cal = ExistenceCalibration(0.99, 0.98, weight=2.0, hazard_weight=100.0)
+    frames = [([_track("A")], ("A",))] * 3 + [([_track("A", r=0.66)], ())]
+    _, state = _feed(cal, frames)
+    # frame 5: A is gone and C appears 1 m away (gate: covariance 1 + 1 s^2 x 1 + 1 = 3 per axis)
+    _, far = _feed(cal, [([_track("C", x=100.0)], ("C",))], state)  # 100 m: outside the gate
+    assert far.counts[0, 9] == 0 and "A" in far.labels
+    _, state = _feed(cal, [([_track("C", x=1.0)], ("C",))], state)
+    assert state.counts[0, 2] == 1 and state.counts[0, 9] == 1 and state.counts[1].sum() == 0
+    np.testing.assert_array_equal(state.hazard, [2.0, 0.0, 1.0])  # a live object's missed scan
+    assert state.labels == ("C",)
+
+
+def test_the_calibration_moves_only_the_existence():
+    cal = ExistenceCalibration()
+    t = _track("A")
+    state, est = cal.step(CalibrationState(), Estimate(1, 10**9, (t,), ("A", None), (0.8, 0.1)))
+    (u,) = est.tracks
+    assert u.label == "A" and u.state is t.state and u.covariance is t.covariance
+    assert est.assignments == ("A", None) and est.assignment_prob == (0.8, 0.1)
+    with pytest.raises(ValueError, match="weight"):
+        ExistenceCalibration(weight=0.0)
+
+
+def _scene():
+    sc = get_scenario("random", 3, scene=("K=40",))
+    params = sc.adapt_params(load_params("vo2017"))
+    return params, simulate_all(sc, params, 3)
+
+
+@pytest.mark.parametrize("name", ["ddp", "dpyp"])
+def test_published_tracks_unchanged_and_snapshot_resume_identical(name):
+    import msgspec
+
+    params, frames = _scene()
+    tr = build(name, params)
+    off = build(name, params, msgspec.structs.replace(tr.config, calibration_weight=0.0))
+    states, ests = [], []
+    for _, e, s in run(tr, frames, seed=7):
+        states.append(s)
+        ests.append(e)
+    raw = [e for _, e, _ in run(off, frames, seed=7)]
+    moved = 0
+    for a, b in zip(ests, raw):
+        assert a.labels == b.labels and a.assignments == b.assignments
+        for x, y in zip(a.tracks, b.tracks):
+            np.testing.assert_array_equal(x.state, y.state)
+            np.testing.assert_array_equal(x.covariance, y.covariance)
+            assert 0.0 <= x.existence <= 1.0
+            moved += x.existence != y.existence
+    assert moved > 0
+    assert states[-1].cal_hazard[0] > 0 and states[-1].cal_counts.sum() > 0
+    back = restore(snapshot(states[19]), GroupState)
+    for f in ("cal_counts", "cal_hazard", "cal_rows", "cal_mean", "cal_cov"):
+        np.testing.assert_array_equal(getattr(back, f), getattr(states[19], f))
+    assert back.cal_labels == states[19].cal_labels
+    resumed = [e for _, e, _ in run(tr, frames[20:], seed=7, state=back)]
+    for a, b in zip(ests[20:], resumed):
+        assert a.labels == b.labels
+        assert [t.existence for t in a.tracks] == [t.existence for t in b.tracks]
