@@ -22,7 +22,7 @@ from scipy.optimize import linear_sum_assignment
 sys.path.insert(0, os.path.dirname(__file__))
 
 from lag import online_run  # noqa: E402
-from bnptrack.tracker.calibration import HAZARD_WEIGHT, CalibrationState, ExistenceCalibration  # noqa: E402
+from bnptrack.tracker.calibration import HAZARD_WEIGHT, ODDS_WEIGHT, CalibrationState, ExistenceCalibration  # noqa: E402
 
 def real_flags(frame, est, gate: float) -> np.ndarray:
     """Whether each track of ``est`` is matched to a true object within ``gate`` metres."""
@@ -34,11 +34,11 @@ def real_flags(frame, est, gate: float) -> np.ndarray:
     return real
 
 
-def calibrated(online, params, weight: float, hazard_weight: float):
+def calibrated(online, params, weight: float, hazard_weight: float, odds_weight: float = ODDS_WEIGHT):
     """The estimates with the calibrated existence of prior weight ``weight`` (0: as they are)."""
     if not weight:
         return online
-    cal = ExistenceCalibration(params.p_survival, params.p_detect, weight, hazard_weight)
+    cal = ExistenceCalibration(params.p_survival, params.p_detect, weight, hazard_weight, odds_weight)
     state, out = CalibrationState(), []
     for e in online:
         state, e = cal.step(state, e)
@@ -47,10 +47,10 @@ def calibrated(online, params, weight: float, hazard_weight: float):
 
 
 def one_seed(job):
-    tracker, params, scenario, seed, overrides, gate, weights, hw = job
+    tracker, params, scenario, seed, overrides, gate, weights, hw, ow = job
     _sc, tr, frames, online, _ms = online_run(tracker, params, scenario, seed, overrides)
     real = np.array([r for f, e in zip(frames, online) for r in real_flags(f, e, gate)], bool)
-    ex = {w: np.array([t.existence for e in calibrated(online, tr.params, w, hw) for t in e.tracks], float) for w in weights}
+    ex = {w: np.array([t.existence for e in calibrated(online, tr.params, w, hw, ow) for t in e.tracks], float) for w in weights}
     return ex, real
 
 
@@ -77,11 +77,12 @@ def main() -> None:
     ap.add_argument("--weights", type=float, nargs="+", default=[0.0],
                     help="prior weights of a calibration applied here (0: the existence as published)")
     ap.add_argument("--hazard-weight", type=float, default=HAZARD_WEIGHT)
+    ap.add_argument("--odds-weight", type=float, default=ODDS_WEIGHT)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    jobs = [(args.tracker, args.params, args.scenario, s, args.overrides, args.gate, args.weights, args.hazard_weight) for s in seeds]
+    jobs = [(args.tracker, args.params, args.scenario, s, args.overrides, args.gate, args.weights, args.hazard_weight, args.odds_weight) for s in seeds]
     with ProcessPoolExecutor(args.workers) as pool:
         res = list(pool.map(one_seed, jobs))
     real = np.concatenate([r[1] for r in res])

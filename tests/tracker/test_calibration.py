@@ -19,30 +19,34 @@ def _track(label: str, x: float = 0.0, r: float = 0.9) -> TrackEstimate:
     return TrackEstimate(label, np.array([x, 0.0, 0.0, 0.0, 0.0]), np.eye(5), r)
 
 
-def _feed(cal: ExistenceCalibration, frames: list[tuple[list[TrackEstimate], tuple]], state=None):
-    """Run ``cal`` over (tracks, assignments) per frame (frame k at k seconds); the published
-    existences per frame and the last state."""
+def _feed(cal: ExistenceCalibration, frames: list[tuple[list[TrackEstimate], tuple]], state=None, start: int = 1):
+    """Run ``cal`` over (tracks, assignments) per frame (frames ``start``, ``start + 1``, ... at
+    their number in seconds); the published existences per frame and the last state."""
     state = CalibrationState() if state is None else state
     out = []
-    for k, (tracks, assigned) in enumerate(frames, start=1):
+    for k, (tracks, assigned) in enumerate(frames, start=start):
         state, est = cal.step(state, Estimate(k, k * 10**9, tuple(tracks), assigned, (1.0,) * len(assigned)))
         out.append([t.existence for t in est.tracks])
     return out, state
 
 
-def test_learned_hazard_and_miss_rate_hand_computed():
-    cal = ExistenceCalibration(0.99, 0.98, weight=20.0, hazard_weight=200.0)
+def test_learned_hazard_miss_rate_and_young_odds_hand_computed():
+    cal = ExistenceCalibration(0.99, 0.98, weight=20.0, hazard_weight=200.0, odds_weight=5.0)
     # 300 established track-scans, 4 deaths, 5 missed scans of live objects:
     # h = (200 * 0.01 + 4) / 500 = 0.012, miss rate = (200 * 0.02 + 5) / 500 = 0.018
-    hazard = np.array([300.0, 4.0, 5.0])
-    h, mu = cal.rates(hazard)
+    learned = np.array([300.0, 4.0, 5.0, 10.0, 1.0])
+    h, mu = cal.rates(learned)
     assert h == pytest.approx(0.012) and mu == pytest.approx(0.018)
     a = (1 - 0.012) * 0.018  # alive and missed, per scan
-    assert cal.missed(hazard, 1) == pytest.approx(a / (a + 0.012))  # 0.5971
-    assert cal.missed(hazard, 1) == pytest.approx(0.5970991136)
-    assert cal.missed(hazard, 2) == pytest.approx(a * a / (a * a + 0.012 * (1 + a)))  # 0.0252
+    assert cal.missed(learned, 1) == pytest.approx(a / (a + 0.012))  # 0.5971
+    assert cal.missed(learned, 1) == pytest.approx(0.5970991136)
+    assert cal.missed(learned, 2) == pytest.approx(a * a / (a * a + 0.012 * (1 + a)))  # 0.0252
     # without a run's evidence: the model's odds, 0.99 x 0.02 against 0.01
-    assert cal.missed(np.zeros(3), 1) == pytest.approx(0.99 * 0.02 / (0.99 * 0.02 + 0.01))
+    assert cal.missed(np.zeros(5), 1) == pytest.approx(0.99 * 0.02 / (0.99 * 0.02 + 0.01))
+    # young: odds ratio (5 + 10) / (5 + 1) = 2.5, so 0.5 -> 2.5 x 0.5 / (2.5 x 0.5 + 0.5) = 5 / 7
+    assert cal.young(learned, 0.5) == pytest.approx(5 / 7)
+    assert cal.young(np.zeros(5), 0.5) == pytest.approx(0.5)
+    assert cal.prior(learned, 3, 0, 0.97) == 0.97 and cal.prior(learned, 1, 1, 0.5) == pytest.approx(5 / 7)
 
 
 def test_classes():
@@ -51,39 +55,53 @@ def test_classes():
     assert [track_class(3, m) for m in (1, 2, 3, 7)] == [9, 10, 11, 11]
 
 
+_CAL = ExistenceCalibration(0.99, 0.98, weight=2.0, hazard_weight=100.0, odds_weight=1.0)
+_ESTABLISHED_THEN_MISSED = [([_track("A")], ("A",))] * 3 + [([_track("A", r=0.66)], ())]
+
+
 def test_a_death_is_learned_and_used_hand_computed():
-    cal = ExistenceCalibration(0.99, 0.98, weight=2.0, hazard_weight=100.0)
-    a = _track("A")
-    frames = [([a], ("A",))] * 3 + [([_track("A", r=0.66)], ())] + [([], ())] * 4
-    out, state = _feed(cal, frames)
-    # frames 1-3 detected: no outcome of their classes yet, the prior (the tracker's 0.9) alone
-    assert out[:3] == [[pytest.approx(0.9)]] * 3
+    frames = _ESTABLISHED_THEN_MISSED + [([], ())] * 4
+    out, state = _feed(_CAL, frames)
+    # frame 1: no outcome yet, the tracker's 0.9; frame 2: frame 1 (young, 1 - r = 0.1) was
+    # real, odds ratio (1 + 0.1) / 1: 1.1 x 0.9 / (1.1 x 0.9 + 0.1); frame 3 established: 0.9
+    assert out[:3] == [[pytest.approx(0.9)], [pytest.approx(0.99 / 1.09)], [pytest.approx(0.9)]]
     # frame 4, first miss of an established track (exposure 2 scans): h = 1/102, miss rate
     # 2/102, alive (101/102)(2/102) against 1/102: 202/304, replacing the tracker's 0.66
     assert out[3] == [pytest.approx(202 / 304)]
     # the label ended after frame 4; 4 scans later, with no track re-born in its gate: its
     # detected frame 3 (class 2) and its miss (class 9) are counted not real, and one death
-    np.testing.assert_array_equal(state.hazard, [2.0, 1.0, 0.0])
+    np.testing.assert_allclose(state.learned, [2.0, 1.0, 0.0, 0.2, 0.0])
     assert state.counts[0].tolist() == [1, 1] + [0] * 10  # frames 1, 2: detected again
     assert np.flatnonzero(state.counts[1]).tolist() == [2, 9] and state.labels == ()
-    # a second track: at its third detection class 2 holds one "not real": (2 x 0.9 + 0) / 3;
-    # at its first miss h = 2/104, miss rate 2/104, prior 204/412, class 9 one "not real"
+    # a second track: first detection, odds ratio 1.2 and class 0 one real:
+    # (2 x 1.08 / 1.18 + 1) / 3; third detection, class 2 one not real: (2 x 0.9 + 0) / 3;
+    # first miss, h = 2/104, miss rate 2/104, prior 204/412, class 9 one not real
     b = _track("B")
-    out, _ = _feed(cal, [([b], ("B",))] * 3 + [([_track("B", r=0.66)], ())], state)
+    out, _ = _feed(_CAL, [([b], ("B",))] * 3 + [([_track("B", r=0.66)], ())], state, start=9)
+    assert out[0] == [pytest.approx((2 * 1.08 / 1.18 + 1) / 3)]
     assert out[2] == [pytest.approx(0.6)]
     assert out[3] == [pytest.approx((2 * 204 / 412) / 3)]
 
 
+def test_one_detection_after_a_miss_holds_the_outcome():
+    again = [([_track("A")], ("A",))]
+    _, held = _feed(_CAL, _ESTABLISHED_THEN_MISSED + again)
+    assert held.counts.sum() == 2 and held.learned[2] == 0  # frames 1, 2 only; the miss is held
+    _, real = _feed(_CAL, again, held, start=6)  # a second detection in a row: the miss was a live object's
+    assert real.counts[0, 9] == 1 and real.counts[0, 2] == 1 and real.counts[0, 3] == 1
+    assert real.learned[2] == 1 and real.learned[1] == 0
+    _, dead = _feed(_CAL, [([], ())] * 4, held, start=6)  # the label ends: held and pending not real
+    assert np.flatnonzero(dead.counts[1]).tolist() == [2, 3, 9] and dead.learned[1] == 1
+
+
 def test_a_track_reborn_in_the_gate_counts_real():
-    cal = ExistenceCalibration(0.99, 0.98, weight=2.0, hazard_weight=100.0)
-    frames = [([_track("A")], ("A",))] * 3 + [([_track("A", r=0.66)], ())]
-    _, state = _feed(cal, frames)
+    _, state = _feed(_CAL, _ESTABLISHED_THEN_MISSED)
     # frame 5: A is gone and C appears 1 m away (gate: covariance 1 + 1 s^2 x 1 + 1 = 3 per axis)
-    _, far = _feed(cal, [([_track("C", x=100.0)], ("C",))], state)  # 100 m: outside the gate
+    _, far = _feed(_CAL, [([_track("C", x=100.0)], ("C",))], state, start=5)  # 100 m: outside the gate
     assert far.counts[0, 9] == 0 and "A" in far.labels
-    _, state = _feed(cal, [([_track("C", x=1.0)], ("C",))], state)
+    _, state = _feed(_CAL, [([_track("C", x=1.0)], ("C",))], state, start=5)
     assert state.counts[0, 2] == 1 and state.counts[0, 9] == 1 and state.counts[1].sum() == 0
-    np.testing.assert_array_equal(state.hazard, [2.0, 0.0, 1.0])  # a live object's missed scan
+    np.testing.assert_allclose(state.learned, [2.0, 0.0, 1.0, 0.2, 0.0])  # a live object's missed scan
     assert state.labels == ("C",)
 
 
@@ -125,9 +143,9 @@ def test_published_tracks_unchanged_and_snapshot_resume_identical(name):
             assert 0.0 <= x.existence <= 1.0
             moved += x.existence != y.existence
     assert moved > 0
-    assert states[-1].cal_hazard[0] > 0 and states[-1].cal_counts.sum() > 0
+    assert states[-1].cal_learned[0] > 0 and states[-1].cal_counts.sum() > 0
     back = restore(snapshot(states[19]), GroupState)
-    for f in ("cal_counts", "cal_hazard", "cal_rows", "cal_mean", "cal_cov"):
+    for f in ("cal_counts", "cal_learned", "cal_rows", "cal_pending", "cal_mean", "cal_cov"):
         np.testing.assert_array_equal(getattr(back, f), getattr(states[19], f))
     assert back.cal_labels == states[19].cal_labels
     resumed = [e for _, e, _ in run(tr, frames[20:], seed=7, state=back)]

@@ -81,10 +81,11 @@ class GroupState:
     id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     cal_counts: np.ndarray = field(default_factory=lambda: CalibrationState().counts)
     """The existence calibration's state (:class:`tracker.calibration.CalibrationState`, fields
-    ``counts``, ``hazard``, ``labels``, ``rows``, ``mean``, ``cov``; empty when off)."""
-    cal_hazard: np.ndarray = field(default_factory=lambda: CalibrationState().hazard)
+    ``counts``, ``learned``, ``labels``, ``rows``, ``pending``, ``mean``, ``cov``; empty when off)."""
+    cal_learned: np.ndarray = field(default_factory=lambda: CalibrationState().learned)
     cal_labels: tuple[str, ...] = ()
     cal_rows: np.ndarray = field(default_factory=lambda: CalibrationState().rows)
+    cal_pending: np.ndarray = field(default_factory=lambda: CalibrationState().pending)
     cal_mean: np.ndarray = field(default_factory=lambda: CalibrationState().mean)
     cal_cov: np.ndarray = field(default_factory=lambda: CalibrationState().cov)
 

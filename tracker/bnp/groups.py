@@ -188,7 +188,7 @@ class GroupTracker:
         if cfg.calibration_weight == 0:
             return None
         return ExistenceCalibration(self.params.p_survival, self.params.p_detect, cfg.calibration_weight,
-                                    cfg.calibration_hazard_weight)
+                                    cfg.calibration_hazard_weight, cfg.calibration_odds_weight)
 
     def _calibrate(self, state: GroupState, new_state: GroupState, est: Estimate) -> tuple[GroupState, Estimate]:
         """The estimate with each track's calibrated existence; the calibration's state carried over."""
