@@ -4,7 +4,8 @@ OSPA cut-off of 100 m, by the optimal assignment of the frame's tracks to its tr
 ``--weights 0`` scores the existence as published; a positive weight applies
 :class:`tracker.calibration.ExistenceCalibration` with that prior weight (and
 ``--hazard-weight``) to the published estimates (meaningful on a tracker run with
-``--set calibration_weight=0``, whose published existence is the model's).
+``--set objects.calibration_weight=0`` for ``ddp``/``dpyp``, ``--set calibration_weight=0`` for
+``ddp-mb``/``dpyp-mb``: their published existence is then the model's).
 
     python benchmarks/existence_calibration.py --scenario random --seeds 20 --weights 0
     python benchmarks/existence_calibration.py --scenario vo2017 --set 'params.birth=[]' --seeds 20 --weights 0

@@ -40,7 +40,7 @@ store.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -188,7 +188,7 @@ class ExistenceCalibration:
                 pend[0, _MISSES] += 1.0
             learned[0] += n >= ESTABLISHED
             p = (self.weight * self.prior(learned, n, m, r) + counts[0, c]) / (self.weight + counts[:, c].sum())
-            tracks.append(replace(t, existence=min(max(p, 0.0), 1.0)))
+            tracks.append(replace(t, existence=float(min(max(p, 0.0), 1.0))))
             kept[t.label] = [[n, m, est.frame, est.stamp_ns], pend, t.state, t.covariance]
         kept.update(book)  # ended, still waiting for a re-birth
         return _state(counts, learned, kept), replace(est, tracks=tuple(tracks))
@@ -224,6 +224,27 @@ class ExistenceCalibration:
         for lab in [lab for lab, entry in book.items() if entry[0][_LAST] < frame - REBIRTH_SCANS]:
             row, pend = book.pop(lab)[:2]
             settle(counts, learned, pend, False, row[_N] >= ESTABLISHED)
+
+
+def from_config(params, config) -> ExistenceCalibration | None:
+    """The calibration a tracker's settings ask for (``calibration_weight``,
+    ``calibration_hazard_weight``, ``calibration_odds_weight``) with the model's ``p_survival``
+    and ``p_detect``; None when ``calibration_weight`` is 0."""
+    if config.calibration_weight == 0:
+        return None
+    return ExistenceCalibration(params.p_survival, params.p_detect, config.calibration_weight,
+                                config.calibration_hazard_weight, config.calibration_odds_weight)
+
+
+def calibrate(calibration: ExistenceCalibration | None, state, new_state, est: Estimate):
+    """A tracker's step output ``(new_state, est)`` with ``est``'s calibrated existence and the
+    calibration's state carried from ``state`` to ``new_state`` (their fields ``cal_<name>`` for
+    each field of :class:`CalibrationState`); unchanged when ``calibration`` is None."""
+    if calibration is None:
+        return new_state, est
+    old = CalibrationState(*(getattr(state, "cal_" + f.name) for f in fields(CalibrationState)))
+    cal, est = calibration.step(old, est)
+    return replace(new_state, **{"cal_" + f.name: getattr(cal, f.name) for f in fields(cal)}), est
 
 
 def _state(counts: np.ndarray, learned: np.ndarray, book: dict) -> CalibrationState:

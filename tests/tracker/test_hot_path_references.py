@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 
 from bnptrack.sinks.run_scorer import RunScorer, _positions
-from bnptrack.tracker.bnp import make_tracker
+from bnptrack.tracker.bnp import TRACKER_PRESETS, make_tracker
 from bnptrack.tracker.bnp.clusters import _birth_frame, _Clusters
 from bnptrack.tracker.bnp.filter import BnpTracker, _born_between
 from bnptrack.tracker.glmb import estimate as glmb_estimate
@@ -77,7 +78,8 @@ def test_born_between_and_birth_frame_as_before():
 
 
 def test_bnp_estimate_rows_are_copies(vo_params, vo_frames):
-    tr = make_tracker("ddp-mb", vo_params)
+    # the model's existence published unchanged (calibration off), to compare with the state's
+    tr = make_tracker("ddp-mb", vo_params, msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], calibration_weight=0.0))
     for _, est, state in run(tr, vo_frames[:15], 2):
         idx = {lab: i for i, lab in enumerate(state.labels)}
         for t in est.tracks:

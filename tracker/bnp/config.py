@@ -26,6 +26,17 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Chi-square gate on the predictive density; pairs outside are impossible."""
     existence_threshold: Prob = 0.35
     """Clusters with existence above this are reported as tracks."""
+    calibration_weight: NonNeg = 20.0
+    """Prior weight (track-frames) of the learned model in the published, calibrated existence
+    (:mod:`tracker.calibration`); 0 publishes the model's existence (the one
+    ``existence_threshold`` reads) unchanged."""
+    calibration_hazard_weight: Positive = 100.0
+    """Prior weight (scans) of ``p_survival`` and ``p_detect`` in the calibration's learned death
+    hazard and miss rate of established tracks."""
+    calibration_odds_weight: Positive = 5.0
+    """Pseudo-counts on each side of the calibration's learned odds ratio of young tracks.  The
+    three weights were chosen on ``random`` and ``vo2017`` without regions, seeds 101-120
+    (``weight`` among 2 / 5 / 20, ``hazard`` among 50 / 100 / 200, ``odds`` among 1 / 2 / 5)."""
     prune_threshold: Prob = 1e-3
     """Clusters whose existence is below ``min(prune_threshold, birth_prune_fraction * p_birth)``
     are dropped; ``p_birth`` is the probability that a measurement far from every cluster

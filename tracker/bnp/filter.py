@@ -19,6 +19,7 @@ from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
+from bnptrack.tracker.calibration import CalibrationState, calibrate, from_config
 from bnptrack.tracker.cardinality import TAIL
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
@@ -47,6 +48,15 @@ class BnpState:
     d: float = 0.0
     hyper_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     """Accumulated (forgetting-weighted) log-likelihood of (alpha, d) on the tracker's grid."""
+    cal_counts: np.ndarray = field(default_factory=lambda: CalibrationState().counts)
+    """The existence calibration's state (:class:`tracker.calibration.CalibrationState`, fields
+    ``counts``, ``learned``, ``labels``, ``rows``, ``pending``, ``mean``, ``cov``)."""
+    cal_learned: np.ndarray = field(default_factory=lambda: CalibrationState().learned)
+    cal_labels: tuple[str, ...] = ()
+    cal_rows: np.ndarray = field(default_factory=lambda: CalibrationState().rows)
+    cal_pending: np.ndarray = field(default_factory=lambda: CalibrationState().pending)
+    cal_mean: np.ndarray = field(default_factory=lambda: CalibrationState().mean)
+    cal_cov: np.ndarray = field(default_factory=lambda: CalibrationState().cov)
 
     @property
     def n_clusters(self) -> int:
@@ -147,8 +157,14 @@ class BnpTracker:
             "clusters_capped": float(capped),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
-        return new_state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                                   est.assignment_prob, diagnostics, _cardinality(new_state.existence))
+        est = Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments, est.assignment_prob, diagnostics,
+                       _cardinality(new_state.existence))
+        return calibrate(self.calibration, state, new_state, est)
+
+    @cached_property
+    def calibration(self):
+        """The published existence's calibration (:mod:`tracker.calibration`; None: off)."""
+        return from_config(self.params, self.config)
 
     # -- pieces ---------------------------------------------------------------------------
     @cached_property

@@ -113,16 +113,6 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Scans before the closest approach the check filters from (each track's own posterior)."""
     crossing_margin: float = 0.0
     """Nats by which the best swap must beat keeping the labels."""
-    calibration_weight: NonNeg = 20.0
-    """Prior weight (track-frames) of the learned model in the published, calibrated existence
-    (:mod:`tracker.calibration`); 0 publishes the object level's existence unchanged."""
-    calibration_hazard_weight: Positive = 100.0
-    """Prior weight (scans) of ``p_survival`` and ``p_detect`` in the calibration's learned death
-    hazard and miss rate of established tracks."""
-    calibration_odds_weight: Positive = 5.0
-    """Pseudo-counts on each side of the calibration's learned odds ratio of young tracks.  The
-    three weights were chosen on ``random`` and ``vo2017`` without regions, seeds 101-120
-    (``weight`` among 2 / 5 / 20, ``hazard`` among 50 / 100 / 200, ``odds`` among 1 / 2 / 5)."""
     hyper_likelihood: Literal["history", "arrivals", "reseat"] = "history"
     """What (alpha_2, d) are inferred from: "history", the Pitman-Yor EPPF of the partition of
     every object that ever entered it, each counted once in its latest cluster (dead clusters

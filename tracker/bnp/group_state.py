@@ -80,18 +80,13 @@ class GroupState:
     id_swapped: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     cal_counts: np.ndarray = field(default_factory=lambda: CalibrationState().counts)
-    """The existence calibration's state (:class:`tracker.calibration.CalibrationState`, fields
-    ``counts``, ``learned``, ``labels``, ``rows``, ``pending``, ``mean``, ``cov``; empty when off)."""
+    """The existence calibration's state (as :class:`BnpState`'s ``cal_*``)."""
     cal_learned: np.ndarray = field(default_factory=lambda: CalibrationState().learned)
     cal_labels: tuple[str, ...] = ()
     cal_rows: np.ndarray = field(default_factory=lambda: CalibrationState().rows)
     cal_pending: np.ndarray = field(default_factory=lambda: CalibrationState().pending)
     cal_mean: np.ndarray = field(default_factory=lambda: CalibrationState().mean)
     cal_cov: np.ndarray = field(default_factory=lambda: CalibrationState().cov)
-
-    def calibration(self) -> CalibrationState:
-        """The existence calibration's state."""
-        return CalibrationState(*(getattr(self, "cal_" + f.name) for f in fields(CalibrationState)))
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
@@ -101,7 +96,7 @@ class GroupState:
         return LearnedBirthState(*[getattr(self, n) for n in _LEARNED_FIELDS])
 
 
-#: :class:`BnpState`'s fields in order (the first fields of :class:`GroupState`).
+#: :class:`BnpState`'s fields in order (each a field of :class:`GroupState` of the same name).
 _INNER_FIELDS = tuple(f.name for f in fields(BnpState))
 #: :class:`LearnedBirthState`'s fields in order: the above, then the ``birth_*`` memory.
 _LEARNED_FIELDS = tuple(f.name for f in fields(LearnedBirthState))

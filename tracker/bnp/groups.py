@@ -64,7 +64,7 @@ from bnptrack.tracker.bnp.group_share import (informed, own_update, restrict, sh
                                                together_scans)
 from bnptrack.tracker.bnp.group_state import _BIRTH_FIELDS, GroupState, _rows_of, previous_rows
 from bnptrack.tracker.bnp import identity
-from bnptrack.tracker.calibration import ExistenceCalibration
+from bnptrack.tracker.calibration import ExistenceCalibration, calibrate, from_config
 from bnptrack.tracker.bnp.group_theta import _ZERO2, _transition_kernel, fov_moments, prior_information
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, frame_dt
@@ -88,7 +88,8 @@ class GroupTracker:
     def objects(self) -> BnpTracker:
         """The object level; with ``merge == "exclusive"`` its own merge is off (done in :meth:`_merge`)."""
         cfg = self.config
-        objects = msgspec.structs.replace(cfg.objects, merge_distance=0.0) if cfg.merge == "exclusive" else cfg.objects
+        objects = msgspec.structs.replace(cfg.objects, calibration_weight=0.0)
+        objects = msgspec.structs.replace(objects, merge_distance=0.0) if cfg.merge == "exclusive" else objects
         learned = objects.learn_births or objects.learn_birth_velocity
         return (LearnedBirthTracker if learned else BnpTracker)(self.params, objects, self.name)
 
@@ -179,23 +180,13 @@ class GroupTracker:
             info = self._information(state, inner, steps, src)
             new_state, est, kept = identity.check_labels(state, new_state, src, own, info, est, kept, self.config,
                                                          self._predict)
-        return self._calibrate(state, new_state, self._estimate(new_state, est, t0, kept))
+        return calibrate(self.calibration, state, new_state, self._estimate(new_state, est, t0, kept))
 
     @cached_property
     def calibration(self) -> ExistenceCalibration | None:
-        """The published existence's calibration (:mod:`tracker.calibration`; None: off)."""
-        cfg = self.config
-        if cfg.calibration_weight == 0:
-            return None
-        return ExistenceCalibration(self.params.p_survival, self.params.p_detect, cfg.calibration_weight,
-                                    cfg.calibration_hazard_weight, cfg.calibration_odds_weight)
-
-    def _calibrate(self, state: GroupState, new_state: GroupState, est: Estimate) -> tuple[GroupState, Estimate]:
-        """The estimate with each track's calibrated existence; the calibration's state carried over."""
-        if self.calibration is None:
-            return new_state, est
-        cal, est = self.calibration.step(state.calibration(), est)
-        return replace(new_state, **{"cal_" + f.name: getattr(cal, f.name) for f in fields(cal)}), est
+        """The published existence's calibration (``objects.calibration_*``, :mod:`tracker.calibration`;
+        None: off).  The object level's own is off: the tracks are published here."""
+        return from_config(self.params, self.config.objects)
 
     # -- pieces ---------------------------------------------------------------------------
     def _merge(self, inner: BnpState, est: Estimate) -> tuple[BnpState, Estimate, list | None]:
