@@ -14,6 +14,7 @@ OSPA cut-off of 100 m, by the optimal assignment of the frame's tracks to its tr
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -23,7 +24,12 @@ from scipy.optimize import linear_sum_assignment
 sys.path.insert(0, os.path.dirname(__file__))
 
 from lag import online_run  # noqa: E402
-from bnptrack.tracker.calibration import HAZARD_WEIGHT, ODDS_WEIGHT, CalibrationState, ExistenceCalibration  # noqa: E402
+
+try:  # absent from versions without the calibration: the tables and the fingerprint still work
+    from bnptrack.tracker.calibration import HAZARD_WEIGHT, ODDS_WEIGHT, CalibrationState, ExistenceCalibration
+except ImportError:  # pragma: no cover - older versions
+    HAZARD_WEIGHT = ODDS_WEIGHT = CalibrationState = ExistenceCalibration = None
+
 
 def real_flags(frame, est, gate: float) -> np.ndarray:
     """Whether each track of ``est`` is matched to a true object within ``gate`` metres."""
@@ -47,12 +53,25 @@ def calibrated(online, params, weight: float, hazard_weight: float, odds_weight:
     return out
 
 
+def fingerprint(online) -> str:
+    """A digest of the published tracks without their existence: labels, states, covariances,
+    clusters and assignments of every frame (equal digests: the same tracks were published)."""
+    h = hashlib.sha256()
+    for e in online:
+        for t in e.tracks:
+            h.update(f"{t.label}/{t.cluster}".encode())
+            h.update(np.asarray(t.state, float).tobytes())
+            h.update(np.asarray(t.covariance, float).tobytes())
+        h.update(repr(e.assignments).encode())
+    return h.hexdigest()
+
+
 def one_seed(job):
     tracker, params, scenario, seed, overrides, gate, weights, hw, ow = job
     _sc, tr, frames, online, _ms = online_run(tracker, params, scenario, seed, overrides)
     real = np.array([r for f, e in zip(frames, online) for r in real_flags(f, e, gate)], bool)
     ex = {w: np.array([t.existence for e in calibrated(online, tr.params, w, hw, ow) for t in e.tracks], float) for w in weights}
-    return ex, real
+    return ex, real, fingerprint(online)
 
 
 def table(ex: np.ndarray, real: np.ndarray) -> None:
@@ -90,6 +109,9 @@ def main() -> None:
     print(f"{args.tracker} on {args.scenario}, seeds {seeds.start}..{seeds.stop - 1}, overrides "
           f"{args.overrides or 'none'}, gate {args.gate:g} m: {len(real)} published track-frames "
           f"(** : 200 or more track-frames and outside +-0.07)")
+    digest = hashlib.sha256("".join(r[2] for r in res).encode()).hexdigest()[:16]
+    print(f"published tracks without their existence (labels, states, covariances, clusters, assignments): "
+          f"fingerprint {digest}")
     for w in args.weights:
         print(f"\n{'published existence' if not w else f'calibrated here, prior weight {w:g}'}:")
         table(np.concatenate([r[0][w] for r in res]), real)
