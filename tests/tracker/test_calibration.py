@@ -153,3 +153,15 @@ def test_published_tracks_unchanged_and_snapshot_resume_identical(name):
     for a, b in zip(ests[20:], resumed):
         assert a.labels == b.labels
         assert [t.existence for t in a.tracks] == [t.existence for t in b.tracks]
+
+
+def test_a_snapshot_without_the_calibration_loads_and_starts_it_afresh():
+    params, frames = _scene()
+    tr = build("ddp", params)
+    states = [s for _, _, s in run(tr, frames[:12], seed=7)]
+    doc = msgspec.msgpack.decode(snapshot(states[-1]))
+    doc["fields"] = {k: v for k, v in doc["fields"].items() if not k.startswith("cal_")}
+    old = restore(msgspec.msgpack.encode(doc), type(states[-1]))
+    assert old.cal_labels == () and not old.cal_counts.any() and old.labels == states[-1].labels
+    (_, est, new), = run(tr, frames[12:13], seed=7, state=old)
+    assert new.cal_labels == est.labels and not new.cal_counts.any()
