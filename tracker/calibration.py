@@ -40,11 +40,12 @@ store.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from bnptrack.tracker.types import Estimate
+from bnptrack.tracker.types import Estimate, TrackEstimate
 
 #: Detected classes: after 1, 2, ..., this many or more detections.
 DETECTED_CLASSES = 6
@@ -93,33 +94,51 @@ class CalibrationState:
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
 
 
-def track_class(n: int, m: int) -> int:
-    """The class of a track-frame after ``n`` detections with ``m`` misses in a row."""
-    if m == 0:
-        return min(n, DETECTED_CLASSES) - 1
-    return DETECTED_CLASSES + (MISSED_CLASSES if n >= ESTABLISHED else 0) + min(m, MISSED_CLASSES) - 1
+def empty(name: str) -> np.ndarray:
+    """The empty value of :class:`CalibrationState`'s array field ``name`` (the default of the
+    trackers' ``cal_<name>`` state fields): one read-only array per field, shared (the
+    calibration never writes into a state's arrays)."""
+    return _EMPTY[name]
 
 
-def gated(mean: np.ndarray, cov: np.ndarray, dt: float, pos: np.ndarray, pos_cov: np.ndarray) -> bool:
-    """Whether position ``pos`` (covariance ``pos_cov``) lies in the chi-square :data:`GATE` of the
-    state ``(mean, cov)`` (``[x, vx, y, vy, turn]``) run ``dt`` seconds forward at constant velocity."""
+def _read_only(shape: tuple, dtype=float) -> np.ndarray:
+    a = np.zeros(shape, dtype=dtype)
+    a.flags.writeable = False
+    return a
+
+
+_EMPTY = {"counts": _read_only((2, CLASSES)), "learned": _read_only((5,)), "rows": _read_only((0, 4), np.int64),
+          "pending": _read_only((0, 2, _WIDTH)), "mean": _read_only((0, 5)), "cov": _read_only((0, 5, 5))}
+
+
+def track_class(n, m):
+    """The class of a track-frame after ``n`` detections with ``m`` misses in a row (integers or
+    arrays of them)."""
+    n, m = np.asarray(n), np.asarray(m)
+    missed = DETECTED_CLASSES + np.where(n >= ESTABLISHED, MISSED_CLASSES, 0) + np.minimum(m, MISSED_CLASSES) - 1
+    return np.where(m == 0, np.minimum(n, DETECTED_CLASSES) - 1, missed)
+
+
+def gated(mean: np.ndarray, cov: np.ndarray, dt: float, pos: np.ndarray, pos_cov: np.ndarray) -> np.ndarray:
+    """Whether each position ``pos`` (K, 2) (covariances ``pos_cov`` (K, 2, 2)) lies in the
+    chi-square :data:`GATE` of the state ``(mean, cov)`` (``[x, vx, y, vy, turn]``) run ``dt``
+    seconds forward at constant velocity."""
     F = np.array([[1.0, dt, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, dt, 0.0]])
     S = F @ cov @ F.T + pos_cov
     d = pos - F @ mean
-    return bool(d @ np.linalg.solve(S, d) <= GATE)
+    return np.einsum("ki,ki->k", d, np.linalg.solve(S, d[..., None])[..., 0]) <= GATE
 
 
-def settle(counts: np.ndarray, learned: np.ndarray, pend: np.ndarray, real: bool, established: bool) -> None:
-    """Count the outcome of pending track-frames ``pend`` (a pending vector, or both rows of a
-    label's): per class; the young ones' odds sums; an established label's missed scans as a
-    live object's (``real``), or its death."""
+def settle(counts: np.ndarray, learned: np.ndarray, pend: np.ndarray, real: bool, deaths: int = 0) -> None:
+    """Count the outcome of pending track-frames ``pend`` (pending vectors, any leading shape):
+    per class; the young ones' odds sums; the established ones' missed scans as a live object's
+    (``real``); and ``deaths`` established labels that ended."""
     pend = pend.reshape(-1, _WIDTH).sum(axis=0)
     counts[0 if real else 1] += pend[:CLASSES]
     learned[3 if real else 4] += pend[_ODDS if real else _ODDS + 1]
     if real:
         learned[2] += pend[_MISSES]
-    elif established:
-        learned[1] += 1.0
+    learned[1] += deaths
 
 
 @dataclass(frozen=True)
@@ -143,13 +162,14 @@ class ExistenceCalibration:
         return ((w * (1.0 - self.p_survival) + deaths) / (w + exposure),
                 (w * (1.0 - self.p_detect) + misses) / (w + exposure))
 
-    def missed(self, learned: np.ndarray, m: int) -> float:
-        """Probability that an established track missed ``m`` scans in a row is alive."""
+    def missed(self, learned: np.ndarray, m):
+        """Probability that an established track missed ``m`` (>= 1) scans in a row is alive."""
         h, mu = self.rates(learned)
         a = (1.0 - h) * mu
-        return a**m / (a**m + h * sum(a**j for j in range(m)))
+        am = a ** np.asarray(m, dtype=float)
+        return am / (am + h * (1.0 - am) / (1.0 - a))  # sum_{j<m} a^j = (1 - a^m) / (1 - a)
 
-    def young(self, learned: np.ndarray, r: float) -> float:
+    def young(self, learned: np.ndarray, r):
         r"""The existence ``r`` of a young track with its odds multiplied by the run's
         Mantel-Haenszel odds ratio of young outcomes against their existence,
         :math:`\kappa = (w + \sum_\text{real} (1 - r_i)) / (w + \sum_\text{not} r_i)` (``odds_weight``
@@ -157,73 +177,66 @@ class ExistenceCalibration:
         kappa = (self.odds_weight + learned[3]) / (self.odds_weight + learned[4])
         return kappa * r / (kappa * r + 1.0 - r)
 
-    def prior(self, learned: np.ndarray, n: int, m: int, r: float) -> float:
-        """The learned model's probability for a track-frame (the centre of its class's prior)."""
-        if n >= ESTABLISHED:
-            return self.missed(learned, m) if m else r
-        return self.young(learned, r)
+    def prior(self, learned: np.ndarray, n, m, r):
+        """The learned model's probability for track-frames (the centre of their class's prior)."""
+        n, m, r = np.asarray(n), np.asarray(m), np.asarray(r, dtype=float)
+        established = np.where(m > 0, self.missed(learned, np.maximum(m, 1)), r)
+        return np.where(n >= ESTABLISHED, established, self.young(learned, r))
 
     def step(self, state: CalibrationState, est: Estimate) -> tuple[CalibrationState, Estimate]:
         """Settle the outcomes ``est`` decides, then publish its tracks' calibrated existence."""
         counts, learned = state.counts.copy(), state.learned.copy()
-        book = {lab: [state.rows[i].tolist(), state.pending[i].copy(), state.mean[i], state.cov[i]]
-                for i, lab in enumerate(state.labels)}
-        live = {t.label for t in est.tracks}
-        self._rebirths(book, live, counts, learned, est)
-        self._expire(book, counts, learned, est.frame)
+        where = {lab: i for i, lab in enumerate(state.labels)}
+        src = np.array([where.get(t.label, -1) for t in est.tracks], dtype=np.int64)
+        waiting = _ended(self, state, src, counts, learned, est)
         detected = {a for a in est.assignments if a is not None}
-        tracks, kept = [], {}
-        for t in est.tracks:
-            row, pend = book.pop(t.label, [[0, 0, -1, 0], np.zeros((2, _WIDTH))])[:2]
-            n, m, r = row[_N], row[_M], float(t.existence)
-            if t.label in detected:
-                n, m = self._detected(counts, learned, pend, n, m)
-            else:
-                m += 1
-            c = track_class(n, m)
-            pend[0, c] += 1.0
-            if n < ESTABLISHED:
-                pend[0, _ODDS:_ODDS + 2] += (1.0 - r, r)
-            elif m:
-                pend[0, _MISSES] += 1.0
-            learned[0] += n >= ESTABLISHED
-            p = (self.weight * self.prior(learned, n, m, r) + counts[0, c]) / (self.weight + counts[:, c].sum())
-            tracks.append(replace(t, existence=float(min(max(p, 0.0), 1.0))))
-            kept[t.label] = [[n, m, est.frame, est.stamp_ns], pend, t.state, t.covariance]
-        kept.update(book)  # ended, still waiting for a re-birth
-        return _state(counts, learned, kept), replace(est, tracks=tuple(tracks))
+        det = np.array([t.label in detected for t in est.tracks], dtype=bool)
+        r = np.array([t.existence for t in est.tracks], dtype=float)
+        have = src >= 0
+        n, m = np.zeros(src.size, np.int64), np.zeros(src.size, np.int64)
+        n[have], m[have] = state.rows[src[have], _N], state.rows[src[have], _M]
+        pend = np.zeros((src.size, 2, _WIDTH))
+        pend[have] = state.pending[src[have]]
+        again = det & (m == 0)  # detected twice in a row: the held and pending frames were real
+        settle(counts, learned, pend[again], True)
+        pend[again] = 0.0
+        hold = det & (m > 0)  # one detection after a miss: hold the pending frames a scan
+        pend[hold, 1] += pend[hold, 0]
+        pend[hold, 0] = 0.0
+        n, m = n + det, np.where(det, 0, m + 1)
+        c = track_class(n, m)
+        pend[np.arange(src.size), 0, c] += 1.0
+        young = n < ESTABLISHED
+        pend[young, 0, _ODDS] += 1.0 - r[young]
+        pend[young, 0, _ODDS + 1] += r[young]
+        pend[~young & (m > 0), 0, _MISSES] += 1.0
+        learned[0] += np.count_nonzero(~young)
+        p = (self.weight * self.prior(learned, n, m, r) + counts[0, c]) / (self.weight + counts[0, c] + counts[1, c])
+        tracks = tuple(TrackEstimate(t.label, t.state, t.covariance, x, t.cluster)  # every field but existence kept
+                       for t, x in zip(est.tracks, np.clip(p, 0.0, 1.0).tolist()))
+        return _state(state, est, (n, m, pend), counts, learned, waiting), replace(est, tracks=tracks)
 
-    @staticmethod
-    def _detected(counts, learned, pend: np.ndarray, n: int, m: int) -> tuple[int, int]:
-        """A detection: after a detection it settles the held and pending track-frames as real;
-        after a miss it holds the pending ones until the next scan."""
-        if m == 0:
-            settle(counts, learned, pend, True, n >= ESTABLISHED)
-            pend[:] = 0.0
-        else:
-            pend[1] += pend[0]
-            pend[0] = 0.0
-        return n + 1, 0
 
-    @staticmethod
-    def _rebirths(book: dict, live: set, counts: np.ndarray, learned: np.ndarray, est: Estimate) -> None:
-        """A new label inside an ended track's gate makes the ended track's outcomes real."""
-        new = [t for t in est.tracks if t.label not in book]
-        if not new:
-            return
-        for lab in [lab for lab in book if lab not in live]:
-            row, pend, mu, P = book[lab]
-            dt = (est.stamp_ns - row[_STAMP]) * 1e-9
-            if any(gated(mu, P, dt, t.state[[0, 2]], t.covariance[np.ix_([0, 2], [0, 2])]) for t in new):
-                settle(counts, learned, pend, True, row[_N] >= ESTABLISHED)
-                del book[lab]
-
-    @staticmethod
-    def _expire(book: dict, counts: np.ndarray, learned: np.ndarray, frame: int) -> None:
-        """Labels ended more than :data:`REBIRTH_SCANS` scans ago without a re-birth: not real."""
-        for lab in [lab for lab, entry in book.items() if entry[0][_LAST] < frame - REBIRTH_SCANS]:
-            row, pend = book.pop(lab)[:2]
-            settle(counts, learned, pend, False, row[_N] >= ESTABLISHED)
+def _ended(cal: ExistenceCalibration, state: CalibrationState, src: np.ndarray, counts: np.ndarray,
+           learned: np.ndarray, est: Estimate) -> np.ndarray:
+    """Settle the rows of ``state`` whose label is not published in ``est``: real when a new label
+    (``src`` -1) lies in the row's gate, not real once it ended more than :data:`REBIRTH_SCANS`
+    scans ago; the rows still waiting."""
+    gone = np.ones(len(state.labels), dtype=bool)
+    gone[src[src >= 0]] = False
+    gone = np.flatnonzero(gone)
+    if not gone.size:
+        return gone
+    new = [t for t, i in zip(est.tracks, src.tolist()) if i < 0]
+    pos = np.array([t.state[[0, 2]] for t in new]).reshape(-1, 2)
+    pos_cov = np.array([t.covariance[np.ix_([0, 2], [0, 2])] for t in new]).reshape(-1, 2, 2)
+    reborn = np.array([bool(new) and gated(state.mean[i], state.cov[i], (est.stamp_ns - int(state.rows[i, _STAMP])) * 1e-9,
+                                           pos, pos_cov).any() for i in gone.tolist()], dtype=bool)
+    settle(counts, learned, state.pending[gone[reborn]], True)
+    expired = ~reborn & (state.rows[gone, _LAST] < est.frame - REBIRTH_SCANS)
+    dead = gone[expired]
+    settle(counts, learned, state.pending[dead], False, int(np.count_nonzero(state.rows[dead, _N] >= ESTABLISHED)))
+    return gone[~reborn & ~expired]
 
 
 def from_config(params, config) -> ExistenceCalibration | None:
@@ -242,15 +255,25 @@ def calibrate(calibration: ExistenceCalibration | None, state, new_state, est: E
     each field of :class:`CalibrationState`); unchanged when ``calibration`` is None."""
     if calibration is None:
         return new_state, est
-    old = CalibrationState(*(getattr(state, "cal_" + f.name) for f in fields(CalibrationState)))
-    cal, est = calibration.step(old, est)
-    return replace(new_state, **{"cal_" + f.name: getattr(cal, f.name) for f in fields(cal)}), est
+    cal, est = calibration.step(CalibrationState(*(getattr(state, "cal_" + n) for n in _FIELDS)), est)
+    out = copy.copy(new_state)  # a fresh copy nobody holds yet: its calibration fields set in place
+    for n in _FIELDS:
+        object.__setattr__(out, "cal_" + n, getattr(cal, n))
+    return out, est
 
 
-def _state(counts: np.ndarray, learned: np.ndarray, book: dict) -> CalibrationState:
-    if not book:
-        return CalibrationState(counts, learned)
-    rows, pend, mean, cov = zip(*book.values())
-    return CalibrationState(counts, learned, tuple(book), np.array(rows, dtype=np.int64).reshape(-1, 4),
-                            np.array(pend, dtype=float).reshape(-1, 2, _WIDTH),
-                            np.array(mean, dtype=float).reshape(-1, 5), np.array(cov, dtype=float).reshape(-1, 5, 5))
+_FIELDS = tuple(f.name for f in fields(CalibrationState))
+
+
+def _state(state: CalibrationState, est: Estimate, tracked: tuple, counts: np.ndarray, learned: np.ndarray,
+           waiting: np.ndarray) -> CalibrationState:
+    """The calibration's next state: a row per published track, then the ended rows still waiting."""
+    n, m, pend = tracked
+    K = len(est.tracks)
+    rows = np.empty((K, 4), dtype=np.int64)
+    rows[:, _N], rows[:, _M], rows[:, _LAST], rows[:, _STAMP] = n, m, est.frame, est.stamp_ns
+    mean = np.array([t.state for t in est.tracks], dtype=float).reshape(K, 5)
+    cov = np.array([t.covariance for t in est.tracks], dtype=float).reshape(K, 5, 5)
+    return CalibrationState(counts, learned, est.labels + tuple(state.labels[i] for i in waiting.tolist()),
+                            np.concatenate([rows, state.rows[waiting]]), np.concatenate([pend, state.pending[waiting]]),
+                            np.concatenate([mean, state.mean[waiting]]), np.concatenate([cov, state.cov[waiting]]))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import fields, replace
+
 import msgspec
 import numpy as np
 import pytest
@@ -107,10 +109,11 @@ def test_a_track_reborn_in_the_gate_counts_real():
 
 def test_the_calibration_moves_only_the_existence():
     cal = ExistenceCalibration()
-    t = _track("A")
+    t = replace(_track("A"), cluster=4)
     state, est = cal.step(CalibrationState(), Estimate(1, 10**9, (t,), ("A", None), (0.8, 0.1)))
     (u,) = est.tracks
-    assert u.label == "A" and u.state is t.state and u.covariance is t.covariance
+    assert u.label == "A" and u.state is t.state and u.covariance is t.covariance and u.cluster == 4
+    assert [f.name for f in fields(TrackEstimate)] == ["label", "state", "covariance", "existence", "cluster"]
     assert est.assignments == ("A", None) and est.assignment_prob == (0.8, 0.1)
     with pytest.raises(ValueError, match="weight"):
         ExistenceCalibration(weight=0.0)

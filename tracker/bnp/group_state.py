@@ -9,7 +9,7 @@ import numpy as np
 
 from bnptrack.tracker.bnp.birth_tracker import LearnedBirthState
 from bnptrack.tracker.bnp.filter import BnpState
-from bnptrack.tracker.calibration import CalibrationState
+from bnptrack.tracker.calibration import empty
 
 __all__ = ["GroupState", "previous_rows"]
 
@@ -79,14 +79,14 @@ class GroupState:
     id_eta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5)))
     id_swapped: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
-    cal_counts: np.ndarray = field(default_factory=lambda: CalibrationState().counts)
+    cal_counts: np.ndarray = field(default_factory=lambda: empty("counts"))
     """The existence calibration's state (as :class:`BnpState`'s ``cal_*``)."""
-    cal_learned: np.ndarray = field(default_factory=lambda: CalibrationState().learned)
+    cal_learned: np.ndarray = field(default_factory=lambda: empty("learned"))
     cal_labels: tuple[str, ...] = ()
-    cal_rows: np.ndarray = field(default_factory=lambda: CalibrationState().rows)
-    cal_pending: np.ndarray = field(default_factory=lambda: CalibrationState().pending)
-    cal_mean: np.ndarray = field(default_factory=lambda: CalibrationState().mean)
-    cal_cov: np.ndarray = field(default_factory=lambda: CalibrationState().cov)
+    cal_rows: np.ndarray = field(default_factory=lambda: empty("rows"))
+    cal_pending: np.ndarray = field(default_factory=lambda: empty("pending"))
+    cal_mean: np.ndarray = field(default_factory=lambda: empty("mean"))
+    cal_cov: np.ndarray = field(default_factory=lambda: empty("cov"))
 
     def inner(self) -> BnpState:
         return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
