@@ -133,12 +133,14 @@ def settle(counts: np.ndarray, learned: np.ndarray, pend: np.ndarray, real: bool
     """Count the outcome of pending track-frames ``pend`` (pending vectors, any leading shape):
     per class; the young ones' odds sums; the established ones' missed scans as a live object's
     (``real``); and ``deaths`` established labels that ended."""
+    learned[1] += deaths
+    if not pend.size:
+        return
     pend = pend.reshape(-1, _WIDTH).sum(axis=0)
     counts[0 if real else 1] += pend[:CLASSES]
     learned[3 if real else 4] += pend[_ODDS if real else _ODDS + 1]
     if real:
         learned[2] += pend[_MISSES]
-    learned[1] += deaths
 
 
 @dataclass(frozen=True)
@@ -201,8 +203,9 @@ class ExistenceCalibration:
         settle(counts, learned, pend[again], True)
         pend[again] = 0.0
         hold = det & (m > 0)  # one detection after a miss: hold the pending frames a scan
-        pend[hold, 1] += pend[hold, 0]
-        pend[hold, 0] = 0.0
+        if hold.any():
+            pend[hold, 1] += pend[hold, 0]
+            pend[hold, 0] = 0.0
         n, m = n + det, np.where(det, 0, m + 1)
         c = track_class(n, m)
         pend[np.arange(src.size), 0, c] += 1.0
