@@ -202,3 +202,27 @@ def test_ball_hits_hold_every_point_of_each_ball():
     d2 = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2)
     want = {(i, j) for i, j in zip(*np.nonzero(d2 <= radius[:, None] ** 2)) if i != j}
     assert len(want) > 300 and got == want
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jpda_block_on_its_edges_equals_the_dense_matrix(seed, monkeypatch):
+    """A JPDA* block solved on its edges (above ``SPARSE_ENTRIES``) chooses what the dense cost
+    matrix chooses: random blocks of 60 clusters x 80 measurements, 6 edges per cluster, some
+    clusters whose missed column beats every edge."""
+    from bnptrack.tracker.bnp import assignment
+
+    rng = np.random.default_rng(seed)
+    L, C = 60, 80
+    r_idx = np.repeat(np.arange(L), 6)
+    c_idx = np.concatenate([rng.choice(C, 6, replace=False) for _ in range(L)])
+    p = rng.uniform(0.02, 0.6, r_idx.size)
+    p_det = rng.uniform(0.3, 0.99, L)[r_idx]
+    pos, meas = r_idx.copy(), c_idx + 1000
+    start = np.full(L, -1, dtype=np.int64)
+    got, want = start.copy(), start.copy()
+    monkeypatch.setattr(assignment, "SPARSE_ENTRIES", 0)
+    assignment._solve_block(r_idx, c_idx, pos, meas, p, p_det, got, linear_sum_assignment)
+    monkeypatch.setattr(assignment, "SPARSE_ENTRIES", 1 << 30)
+    assignment._solve_block(r_idx, c_idx, pos, meas, p, p_det, want, linear_sum_assignment)
+    assert 10 < (want >= 0).sum() < L  # some clusters take a measurement, some are missed
+    np.testing.assert_array_equal(got, want)

@@ -1,5 +1,6 @@
-"""The gate table of the sampler's exchange moves (tracker/bnp/swap_moves.py): hand-computed bits,
-and exchange passes with the table equal to those without it, move for move."""
+"""The gate table and the exchange lists of the sampler's exchange moves (tracker/bnp/swap_moves.py):
+hand-computed bits and lists, and exchange passes through the lists, through the table and
+scanning every pair all equal, move for move."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import numpy as np
 import pytest
 
 from bnptrack.tracker.bnp import swap_moves as g
-from bnptrack.tracker.bnp.swap_moves import gate_bits, gated
+from bnptrack.tracker.bnp.swap_moves import PREDRAWN_PAIRS, exchange_lists, exchange_tables, gate_bits, gated
+from bnptrack.tracker.bnp.swap_moves import pass_uniforms, swap_scan
 
 
 def test_gate_bits_hand_values():
@@ -26,6 +28,31 @@ def test_gate_bits_not_built_above_the_limit_or_without_clusters():
     assert gate_bits(np.zeros(4, dtype=np.int64), np.zeros(0, dtype=np.int64), 0, 1 << 20).shape == (0, 0)
 
 
+def test_exchange_lists_hand_values():
+    """Gates m0 {0, 1}, m1 {0}, m2 {1}: pairs (0, 1) through cluster 0 and (0, 2) through cluster
+    1.  m0's entry for cluster 0 lists pair 0 (b = 1, whose entry for cluster 0 is CSR place 2),
+    its entry for cluster 1 pair 1 (b = 2, place 3); m1 and m2 have no later partner."""
+    ptr, idx = np.array([0, 2, 3, 4], dtype=np.int64), np.array([0, 1, 0, 1], dtype=np.int64)
+    pa, pb = np.array([0, 0], dtype=np.int64), np.array([1, 2], dtype=np.int64)
+    row, lptr, ent = exchange_lists(ptr, idx, 2, pa, pb, 1 << 20)
+    np.testing.assert_array_equal(row, [0, 2, 2, 2])
+    np.testing.assert_array_equal(lptr, [0, 1, 2, 2, 2])
+    np.testing.assert_array_equal(ent, [[0, 1, 2], [1, 2, 3]])
+
+
+def test_exchange_lists_keep_only_listed_pairs_and_respect_the_limit():
+    """Three measurements gating cluster 0, but only pair (0, 2) in the exchange list (as when a
+    crowded gate pairs only its likeliest members): m0's entry lists b = 2 alone; above the
+    limit no list is built."""
+    ptr, idx = np.array([0, 1, 2, 3], dtype=np.int64), np.zeros(3, dtype=np.int64)
+    pa, pb = np.array([0], dtype=np.int64), np.array([2], dtype=np.int64)
+    row, lptr, ent = exchange_lists(ptr, idx, 1, pa, pb, 1 << 20)
+    np.testing.assert_array_equal(row, [0, 1, 1, 1])
+    np.testing.assert_array_equal(lptr, [0, 1, 1, 1])
+    np.testing.assert_array_equal(ent, [[0, 2, 2]])
+    assert exchange_lists(ptr, idx, 1, pa, pb, 0)[1].size == 0
+
+
 def _random_pass_inputs(rng, M, N, extended):
     """CSR gates of 0-5 clusters per measurement (ascending), weights with some exact zeros, a
     state mixing clutter, new, gated and (impossible) ungated clusters, every pair ``a < b``."""
@@ -40,22 +67,49 @@ def _random_pass_inputs(rng, M, N, extended):
             rng.exponential(1.0, M), ptr, idx, w_first)
 
 
-@pytest.mark.parametrize("seed,extended", [(0, False), (1, False), (2, True), (3, False)])
-def test_swap_pass_with_the_table_equals_the_scan(seed, extended):
+@pytest.mark.parametrize("seed,extended,subset,predrawn", [(0, False, False, True), (1, False, True, True),
+                                                           (2, True, False, True), (3, False, False, True),
+                                                           (5, True, True, True), (0, False, False, False),
+                                                           (5, True, True, False)])
+def test_swap_pass_equals_the_scan(seed, extended, subset, predrawn):
+    """The pass through the exchange lists, the scan with the gate table and the scan without it
+    make the same moves (``subset``: a random half of the pairs listed).  Not ``predrawn``: each
+    draws a uniform per scored proposal from its own copy of one generator, so equal moves
+    also mean that they score the same proposals in the same order."""
     rng = np.random.default_rng(seed)
     M, N = 40, 25
     c, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first = _random_pass_inputs(rng, M, N, extended)
+    if subset:
+        keep = rng.random(pa.size) < 0.5
+        pa, pb = pa[keep], pb[keep]
+    tables = exchange_tables(ptr, idx, N, pa, pb, w_first, 1 << 20)
+    assert tables[2].size == idx.size + 1  # the lists were built
     bits, none = gate_bits(ptr, idx, N, 1 << 20), np.zeros((0, 0), dtype=np.uint8)
-    c1, c2 = c.copy(), c.copy()
-    own1, own2 = (np.array([g.own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in "12")
+    cs = [c.copy() for _ in range(3)]
+    owns = [np.array([g.own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in range(3)]
     total = 0
-    for _ in range(5):
-        u = rng.random(pa.size)
-        n1 = g.swap_pass(c1, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, own1)
-        n2 = g.swap_pass(c2, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, own2)
-        assert n1 == n2
-        np.testing.assert_array_equal(c1, c2)
-        want = [g.own_weight(m, c1[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]
-        np.testing.assert_array_equal(own1, want)  # the kept factors are the scanned ones
-        total += n1
+    for k in range(5):
+        u = rng.random(pa.size) if predrawn else np.zeros(0)
+        r0, r1, r2 = (np.random.default_rng([seed, k]) for _ in range(3))
+        n0 = g.swap_pass(cs[0], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, tables, owns[0], r0)
+        n1 = swap_scan(cs[1], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, owns[1], r1)
+        n2 = swap_scan(cs[2], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, owns[2], r2)
+        assert n0 == n1 == n2
+        np.testing.assert_array_equal(cs[0], cs[1])
+        np.testing.assert_array_equal(cs[0], cs[2])
+        assert r0.random() == r1.random() == r2.random()  # as many uniforms drawn
+        want = [g.own_weight(m, cs[0][m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]
+        np.testing.assert_array_equal(owns[0], want)  # the kept factors are the scanned ones
+        total += n0
     assert total > 0  # exchanges happened, so the comparison saw moves
+
+
+def test_pass_uniforms_one_per_pair_up_to_the_limit():
+    """Up to ``PREDRAWN_PAIRS`` pairs the pass's uniforms are the generator's next ones; above,
+    none are drawn."""
+    u = pass_uniforms(np.random.default_rng(7), 5)
+    np.testing.assert_array_equal(u, np.random.default_rng(7).random(5))
+    assert pass_uniforms(np.random.default_rng(7), PREDRAWN_PAIRS).size == PREDRAWN_PAIRS
+    rng = np.random.default_rng(7)
+    assert pass_uniforms(rng, PREDRAWN_PAIRS + 1).size == 0
+    assert rng.random() == np.random.default_rng(7).random()  # nothing drawn

@@ -181,6 +181,29 @@ def test_gibbs_marginals_match_exact_enumeration(d, extended):
         assert np.all(res.p_cluster.sum(axis=1) <= 1.0 + 1e-9)
 
 
+def test_exchange_uniforms_drawn_per_proposal_keep_the_exact_marginals(monkeypatch):
+    """Exchange passes drawing one uniform per scored proposal (lists above
+    ``swap_moves.PREDRAWN_PAIRS``, here every list: the limit set to 0, the kernels
+    interpreted so that it is read) give the enumerated marginals."""
+    import bnptrack.tracker.bnp.gibbs as g
+    from bnptrack.tracker.bnp import swap_moves
+
+    prob = toy_problem([0.30, 0.34, 0.62, 0.9], prior_first=[3.0, 0.8], mu=[0.31, 0.6], sigma=0.05, alpha=0.6,
+                       d=0.35, lam_c=2.0, pop=[1.0, 2.0])
+    configs, p = enumerate_posterior(prob)
+    exact_cluster = np.zeros(prob.shape)
+    for c, pc in zip(configs, p):
+        for m, ch in enumerate(c):
+            if ch >= 0:
+                exact_cluster[ch, m] += pc
+    for module, name, fn in g.interpreted_kernels():
+        monkeypatch.setattr(module, name, fn)
+    monkeypatch.setattr(swap_moves, "PREDRAWN_PAIRS", 0)
+    res = run_gibbs(prob, np.random.default_rng(3), sweeps=4000, burn_in=100, chains=2)
+    assert res.swaps_accepted > 100
+    np.testing.assert_allclose(res.p_cluster, exact_cluster, atol=0.02)
+
+
 @pytest.mark.slow
 def test_geweke_getting_it_right():
     """Marginal-conditional vs successive-conditional simulation of (c, z) agree (Geweke 2004)."""

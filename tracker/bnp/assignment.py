@@ -11,6 +11,11 @@ from bnptrack.tracker.filtering import SCIPY_PAIRS
 
 _FORBIDDEN = 1e6  # assignment cost of an impossible pair
 
+#: Cost-matrix entries (clusters x (measurements + missed)) above which a block is solved on its
+#: edges alone (:func:`_sparse_assignment`) rather than as a dense matrix: the dense scenes of
+#: ``benchmarks/scale.py --mode dense`` reach one block of 2,741 x 5,626 entries, 123 MB.
+SPARSE_ENTRIES = 1 << 20
+
 
 def best_permutation(p_lm: np.ndarray) -> np.ndarray:
     r"""Dense form of :func:`best_permutation_pairs`: ``(N, M)`` marginals in, ``(N, M)`` out."""
@@ -91,7 +96,9 @@ def _solve_components(n, ti, mi, p, p_det, clusters, choice) -> None:
 def _solve_block(r_idx, c_idx, pos, meas, p, p_det, choice, lsa) -> None:
     """One JPDA* assignment over a block of edges (local row/column indices ``r_idx``,
     ``c_idx``; ``pos`` the edge's place in ``choice``, ``meas`` its measurement, ``p_det`` its
-    cluster's detection probability): "missed" is each cluster's private column."""
+    cluster's detection probability): "missed" is each cluster's private column.  A block of
+    more than :data:`SPARSE_ENTRIES` matrix entries is solved on its edges
+    (:func:`_sparse_assignment`)."""
     L, C = int(r_idx.max()) + 1, int(c_idx.max()) + 1
     rows = np.zeros(L, dtype=np.int64)
     rows[r_idx] = pos
@@ -99,12 +106,32 @@ def _solve_block(r_idx, c_idx, pos, meas, p, p_det, choice, lsa) -> None:
     cols[c_idx] = meas
     miss = np.zeros(L)
     miss[r_idx] = -np.log(np.maximum(1.0 - p_det, 1e-300))
-    cost = np.full((L, C + L), _FORBIDDEN)
-    cost[r_idx, c_idx] = np.minimum(-np.log(p), _FORBIDDEN)
-    cost[np.arange(L), C + np.arange(L)] = miss
-    rr, cc = lsa(cost)
+    edge = np.minimum(-np.log(p), _FORBIDDEN)
+    if L * (C + L) > SPARSE_ENTRIES:
+        rr, cc = _sparse_assignment(r_idx, c_idx, edge, miss, C)
+    else:
+        cost = np.full((L, C + L), _FORBIDDEN)
+        cost[r_idx, c_idx] = edge
+        cost[np.arange(L), C + np.arange(L)] = miss
+        rr, cc = lsa(cost)
     hit = cc < C  # missed: keeps its most likely measurement (already in choice)
     choice[rows[rr[hit]]] = cols[cc[hit]]
+
+
+def _sparse_assignment(r_idx, c_idx, edge, miss, C) -> tuple[np.ndarray, np.ndarray]:
+    """The assignment :func:`_solve_block`'s dense matrix gives, on the edges alone (scipy's
+    ``min_weight_full_bipartite_matching``, LAPJVsp): the block's edges plus each cluster's
+    "missed" column ``C + row``.  An absent entry of the dense matrix costs ``_FORBIDDEN``,
+    more than any missed column (at most ``-log 1e-300``), so no optimum uses one; every cost
+    is raised by 1 (the solver drops zero-weight edges), which adds ``L`` to every full
+    matching and leaves the optimum where it is.  Returns ``(rows, columns)`` matched."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+    L = miss.size
+    own = np.arange(L)
+    graph = csr_matrix((np.r_[edge, miss] + 1.0, (np.r_[r_idx, own], np.r_[c_idx, C + own])), shape=(L, C + L))
+    return min_weight_full_bipartite_matching(graph)
 
 
 def _local_rank(key: np.ndarray, starts: np.ndarray, base: np.ndarray) -> np.ndarray:

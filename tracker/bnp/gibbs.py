@@ -57,7 +57,7 @@ from bnptrack.tracker.bnp.gibbs_diagnostics import _log_joint_kernel, _split_rha
 from bnptrack.tracker.bnp.gibbs_problem import GibbsProblem, GibbsResult, SparsePairs
 from bnptrack.tracker.bnp.gibbs_setup import _setup_kernel, initial_assignment, swap_pairs
 from bnptrack.tracker.bnp.gibbs_sweeps import _sweeps
-from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, PAIR_MEMBERS, gate_bits
+from bnptrack.tracker.bnp.swap_moves import CLUTTER, MAX_BYTES, NEW, PAIR_MEMBERS, exchange_tables
 
 __all__ = ["CLUTTER", "NEW", "PAIR_MEMBERS", "SparsePairs", "GibbsProblem", "GibbsResult", "initial_assignment",
            "swap_pairs", "run_gibbs", "split_rhat", "log_joint", "interpreted_kernels", "KERNEL_MODULES"]
@@ -67,18 +67,18 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
                    log_first, log_clutter, log_new, pop, par, extended, N, sweeps, burn_in, chains):
     """The second compiled pass of :func:`run_gibbs`: every chain's sweeps on uniforms drawn
     from ``rng`` in one stream (chain ``k``: ``sweeps x M`` for the sites, then ``P`` for each
-    sweep's exchanges, drawn as each exchange pass starts), the averaged tallies, :func:`split_rhat` and (point objects) :func:`log_joint` of chain
-    0's last state.  ``init`` is chain 0's start when ``has_init``."""
+    sweep's exchanges, drawn as each exchange pass starts, or one per scored proposal above
+    :data:`tracker.bnp.swap_moves.PREDRAWN_PAIRS` pairs), the averaged tallies,
+    :func:`split_rhat` and (point objects) :func:`log_joint` of chain 0's last state.  ``init`` is chain 0's start when ``has_init``."""
     M = ptr.shape[0] - 1
     nnz = idx.shape[0]
     K = nnz + 2 * M
-    P = pair_a.shape[0]
     tally_pair, tally_cn = np.zeros(nnz), np.zeros((2, M))
     hs, hss = np.zeros((2 * chains, K)), np.zeros((2 * chains, K))
     opt = max(N, 1)
     opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
     first = np.empty(M, dtype=np.int64)
-    bits = gate_bits(ptr, idx, N, MAX_BYTES) if P > 0 else np.zeros((0, 0), dtype=np.uint8)
+    tables = exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, MAX_BYTES)
     accepted = 0
     for k in range(chains):
         c = init.copy() if k == 0 and has_init else starts[k % 2].copy()
@@ -93,7 +93,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
                 st[1] += 1
         u = rng.random((sweeps, M))
         accepted += _sweeps(c, cnt, st, par, extended, w_clutter, w_new, ptr, idx, w_first, w_lik, pop, u, rng,
-                            pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits)
+                            pair_a, pair_b, burn_in, 2 * k, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, tables)
         if k == 0:
             for m in range(M):
                 first[m] = c[m]

@@ -10,6 +10,7 @@ import numpy as np
 from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.swap_moves import CLUTTER, NEW
 from bnptrack.tracker.bnp.swap_moves import own_weight as _own_weight
+from bnptrack.tracker.bnp.swap_moves import pass_uniforms as _pass_uniforms
 from bnptrack.tracker.bnp.swap_moves import swap_pass as _swap_pass
 
 
@@ -99,7 +100,7 @@ def _half_add(hs, hss, h, k, v):
 
 
 def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_first, w_lik, pop, u, rng,
-                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, bits):
+                  pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, tables):
     """All sweeps of one chain: a single-site pass on ``u[s]``, then the exchange pass (when
     pairs are given) on one uniform per pair drawn from ``rng`` as the pass starts (so the
     uniforms of one pass are in memory at a time, not those of every sweep).
@@ -121,7 +122,7 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
                    i >= 0, half, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, own)
         if pair_a.shape[0] > 0:
             accepted += _swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
-                                   rng.random(pair_a.shape[0]), bits, own)
+                                   _pass_uniforms(rng, pair_a.shape[0]), tables, own, rng)
     return accepted
 
 

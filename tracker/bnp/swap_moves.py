@@ -1,15 +1,27 @@
 """The Gibbs sampler's exchange moves (:func:`tracker.bnp.gibbs.run_gibbs`): the pass
-(:func:`swap_pass`), each measurement's own factor of the joint (:func:`own_weight`), and which
-clusters each measurement's gate holds, one bit per (measurement, cluster) (:func:`gate_bits`).
+(:func:`swap_pass`, and :func:`swap_scan`, the same pass visiting every pair), each
+measurement's own factor of the joint (:func:`own_weight`), the exchange list
+(:func:`exchange_pairs`) and what the pass reads to skip the proposals it would reject
+(:func:`exchange_lists`, :func:`gate_bits`).
 
 An exchange of the assignments of measurements ``a`` and ``b`` (``c_a``, ``c_b``) is possible
 only when ``c_b`` is in ``a``'s gate and ``c_a`` in ``b``'s (or is clutter / new).  In a dense
 scene most proposed exchanges are not: the exchange list holds every pair of measurements that
-share a gated cluster (about 20 per measurement at 1,000 objects in vo2017's field), while
-each measurement's own assignment is in few of its partners' gates.  Testing one bit rejects
-such a proposal without scanning the two measurements' gated pairs; the proposals that pass
-are scored as before, with the current assignments' factors kept per measurement (``own``)
-instead of looked up again, so every draw, acceptance and tally is the same.
+share a gated cluster (about 20 per measurement at 1,000 objects in vo2017's field, 116 at
+3,000), while each measurement's own assignment is in few of its partners' gates.  While
+``a`` holds cluster ``l``, only the partners ``b`` whose gate holds ``l`` can take it: the pass
+walks those alone, from a list per gated pair ``(a, l)`` (:func:`exchange_lists`; at 3,000
+objects about 42,000 of the 340,000 pairs a pass), and finds ``a``'s factor for ``c_b`` in a
+cluster-indexed copy of ``a``'s gate.  Every proposal the full scan scores is scored, in the
+same order, with the current assignments' factors kept per measurement (``own``), so every
+draw, acceptance and tally is the same.  Where no list is built (above :data:`MAX_BYTES`) the
+pass scans every pair, rejecting with one bit of :func:`gate_bits`' table per side what the
+lists would skip.
+
+A pass draws one uniform per pair of the list as it starts; above :data:`PREDRAWN_PAIRS` pairs
+(three orders of magnitude above the paper's scenes) it draws one per scored proposal instead
+(:func:`pass_uniforms`): the same Markov kernel on another random stream, which saves drawing
+about ten uniforms per scored proposal at 3,000 objects in one radar's field.
 
 The exchange list (:func:`exchange_pairs`) pairs the measurements of each cluster's gate.  A
 gate that holds a large share of the frame (a track lost near the sensor, a new cluster's
@@ -17,9 +29,6 @@ broad prior) would give O(M^2) pairs alone (one gate of 2,920 measurements gave 
 at 3,000 objects in vo2017's field), so a cluster pairs at most :data:`PAIR_MEMBERS` of its measurements, those
 of highest ``log_first`` (the likeliest to take it); the others still reach it by single-site
 moves.  Below the bound the list is every pair sharing a cluster, unchanged.
-
-The table has ``M x ceil(N / 8)`` bytes; above :data:`MAX_BYTES` (a scene of tens of thousands
-of measurements and objects) none is built and every proposal is scored by the scan.
 """
 
 from __future__ import annotations
@@ -37,6 +46,21 @@ MAX_BYTES = 64 << 20
 
 #: Most measurements of one cluster's gate that pair up through it (its most likely ones).
 PAIR_MEMBERS = 256
+
+#: Exchange lists up to this many pairs draw one uniform per pair as each pass starts; longer
+#: ones draw one per scored proposal (:func:`pass_uniforms`).
+PREDRAWN_PAIRS = 1 << 17
+
+
+def pass_uniforms(rng, n_pairs):
+    """The uniforms of one exchange pass: one per pair (``n_pairs <= PREDRAWN_PAIRS``), or none,
+    and the pass draws one from ``rng`` for each proposal it scores.  Either way each scored
+    proposal meets a fresh uniform, so the pass is the same Markov kernel; only the stream
+    differs.  A list of 340,000 pairs (3,000 objects in one radar's field) scores about one
+    proposal in ten."""
+    if n_pairs <= PREDRAWN_PAIRS:
+        return rng.random(n_pairs)
+    return np.zeros(0)
 
 
 def _members(ptr, idx, log_first, N, max_members):
@@ -148,7 +172,99 @@ def own_weight(m, ch, w_clutter, w_newbase, ptr, idx, w_first):
     return 0.0
 
 
-def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, bits, own):
+def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
+    """Each gated pair's exchange partners, for :func:`swap_pass`: for pair ``j`` of the CSR
+    gates (measurement ``a``, cluster ``l``), the rows ``ent[lptr[j]:lptr[j + 1]]`` are the
+    pairs ``(a, b)`` of the exchange list whose ``b > a`` holds ``l`` in its gate, ``b``
+    ascending: ``[place in the exchange list, b, place of (b, l) in the CSR gates]`` (int32:
+    the lists are read once per pass and proposal, so their size is their cost); ``row`` is
+    where each measurement's pairs begin in the list (``(M + 1,)``).  ``lptr`` is empty when
+    the lists would hold more than ``max_entries`` rows (the pass then scans every pair)."""
+    M = ptr.shape[0] - 1
+    row = np.zeros(M + 1, dtype=np.int64)
+    for p in range(pair_a.shape[0]):
+        row[pair_a[p] + 1] += 1
+    for m in range(M):
+        row[m + 1] += row[m]
+    # every cluster's full gate, CSR by cluster, measurements ascending, with their CSR places
+    first = np.zeros(N + 1, dtype=np.int64)
+    for j in range(idx.shape[0]):
+        first[idx[j] + 1] += 1
+    for l in range(N):
+        first[l + 1] += first[l]
+    meas_of = np.empty(idx.shape[0], dtype=np.int64)
+    pos_of = np.empty(idx.shape[0], dtype=np.int64)
+    end = first[:N].copy()
+    for m in range(M):
+        for j in range(ptr[m], ptr[m + 1]):
+            meas_of[end[idx[j]]] = m
+            pos_of[end[idx[j]]] = j
+            end[idx[j]] += 1
+    stamp = np.full(M, -1, dtype=np.int64)
+    place = np.zeros(M, dtype=np.int64)
+    lptr = np.zeros(idx.shape[0] + 1, dtype=np.int64)
+    ent = np.empty((0, 3), dtype=np.int32)
+    for fill_pass in range(2):
+        cursor = first[:N].copy()
+        out = np.int64(0)
+        for a in range(M):
+            for p in range(row[a], row[a + 1]):
+                stamp[pair_b[p]] = a
+                place[pair_b[p]] = p
+            for j in range(ptr[a], ptr[a + 1]):
+                l = idx[j]
+                cursor[l] += 1  # now past a
+                for q in range(cursor[l], first[l + 1]):
+                    b = meas_of[q]
+                    if stamp[b] == a:
+                        if fill_pass == 1:
+                            ent[out, 0] = place[b]
+                            ent[out, 1] = b
+                            ent[out, 2] = pos_of[q]
+                        out += 1
+                if fill_pass == 0:
+                    lptr[j + 1] = out
+            if fill_pass == 0 and out > max_entries:
+                return row, np.zeros(0, dtype=np.int64), ent
+        if fill_pass == 0:
+            ent = np.empty((out, 3), dtype=np.int32)
+    return row, lptr, ent
+
+
+def exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, max_bytes):
+    """What :func:`swap_pass` reads besides the weights: :func:`exchange_lists` (at most
+    ``max_bytes``) with each row's ``w_first`` of ``(b, l)`` (``lw``), else :func:`gate_bits`
+    for the scan; all empty without pairs."""
+    none = np.zeros(0, dtype=np.int64)
+    if pair_a.shape[0] == 0:
+        return np.zeros((0, 0), dtype=np.uint8), none, none, np.zeros((0, 3), dtype=np.int32), np.zeros(0)
+    row, lptr, ent = exchange_lists(ptr, idx, N, pair_a, pair_b, max_bytes // 20)
+    if lptr.shape[0] == 0:
+        return gate_bits(ptr, idx, N, max_bytes), row, lptr, ent, np.zeros(0)
+    lw = np.empty(ent.shape[0])
+    for q in range(ent.shape[0]):
+        lw[q] = w_first[ent[q, 2]]
+    return np.zeros((0, 0), dtype=np.uint8), row, lptr, ent, lw
+
+
+def _exchange(p, a, b, ca, cb, wa, wb, c, own, u_row, rng):
+    """Proposal ``p``: exchange ``c[a] = ca`` and ``c[b] = cb`` when ``u_row[p]`` (or, when
+    ``u_row`` is empty, a uniform drawn from ``rng``) accepts it (``wa``, ``wb``: the two
+    measurements' factors after it; 0 rejects).  Whether accepted."""
+    new = wa * wb
+    if new <= 0.0:
+        return False
+    u = u_row[p] if u_row.shape[0] > 0 else rng.random()
+    if u * (own[a] * own[b]) < new:
+        c[a] = cb
+        c[b] = ca
+        own[a] = wa
+        own[b] = wb
+        return True
+    return False
+
+
+def swap_scan(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, bits, own, rng):
     r"""Metropolis-Hastings exchange of two measurements' assignments, for every pair that
     shares a candidate cluster (a fixed list; each exchange is its own inverse, so the
     proposal is symmetric).  An exchange keeps every count (:math:`M_o`, :math:`K_\text{new}`,
@@ -157,7 +273,9 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     (:func:`gate_bits`, or empty) rejects an exchange that would put a
     measurement on a cluster outside its gate before it is scored; ``own`` holds each
     measurement's factor at its current value (kept up to date).  Returns the number of
-    accepted exchanges."""
+    accepted exchanges.  ``u_row``: one uniform per pair, or empty (:func:`pass_uniforms`:
+    ``rng`` gives each scored proposal one).  Every pair is visited: :func:`swap_pass` is the
+    same pass visiting fewer."""
     use_bits = bits.shape[0] == c.shape[0]
     accepted = 0
     for p in range(pair_a.shape[0]):
@@ -173,16 +291,88 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
             continue  # new would be 0: rejected as the scan would
         wa = own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
         wb = own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first)
-        new = wa * wb
-        if new <= 0.0:
-            continue
-        old = own[a] * own[b]
-        if u_row[p] * old < new:
-            c[a] = cb
-            c[b] = ca
-            own[a] = wa
-            own[b] = wb
+        if _exchange(p, a, b, ca, cb, wa, wb, c, own, u_row, rng):
             accepted += 1
+    return accepted
+
+
+def _own_place(a, ca, ptr, idx):
+    """The place of pair ``(a, ca)`` in the CSR gates, or -1."""
+    for j in range(ptr[a], ptr[a + 1]):
+        if idx[j] == ca:
+            return j
+    return -1
+
+
+def _first_at(ent, lo, hi, cursor):
+    """The first ``q`` in ``[lo, hi)`` with ``ent[q, 0] >= cursor`` (ascending there), or ``hi``."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if ent[mid, 0] < cursor:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def _row_visit(a, ca, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
+               lptr, ent, lw, own, wmap, rng):
+    """The pairs of row ``a`` from place ``cursor`` on while ``c[a] = ca``, up to the first
+    accepted exchange: the place after it, or -1 (none).  ``wmap[l]``: ``a``'s weight
+    for cluster ``l`` (0 outside its gate)."""
+    j = _own_place(a, ca, ptr, idx) if ca >= 0 else -1
+    if j < 0:  # clutter, new (or a value off the gate): every pair, as the scan visits it
+        for p in range(cursor, stop):
+            b = pair_b[p]
+            cb = c[b]
+            if cb == ca or (extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1))):
+                continue
+            wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
+            if wa > 0.0 and _exchange(p, a, b, ca, cb, wa, own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first),
+                                      c, own, u_row, rng):
+                return p + 1
+        return -1
+    for q in range(_first_at(ent, lptr[j], lptr[j + 1], cursor), lptr[j + 1]):
+        b = ent[q, 1]
+        cb = c[b]
+        if cb == ca or (extended and (cnt[ca] > 1 or (cb >= 0 and cnt[cb] > 1))):
+            continue
+        wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
+        if wa > 0.0 and _exchange(ent[q, 0], a, b, ca, cb, wa, lw[q], c, own, u_row, rng):
+            return ent[q, 0] + 1
+    return -1
+
+
+def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, tables, own, rng):
+    """:func:`swap_scan`'s pass, move for move, visiting only the proposals that can be accepted
+    (``tables``: :func:`exchange_tables`).  The exchange list is sorted by ``(a, b)``; while
+    ``a`` holds a cluster ``l``, an exchange with ``b`` needs ``l`` in ``b``'s gate, so only the
+    pairs of ``a``'s list entry for ``l`` (:func:`exchange_lists`) are visited, in list order;
+    after an accepted exchange ``a``'s value changed and the rest of its pairs are visited
+    anew.  While ``a`` is clutter or new, each of its pairs is visited.  ``a``'s weights sit in
+    a cluster-indexed table while its pairs are visited (the gate test and the weight in one
+    load)."""
+    bits, row, lptr, ent, lw = tables
+    if lptr.shape[0] == 0:
+        return swap_scan(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, bits, own,
+                         rng)
+    wmap = np.zeros(cnt.shape[0])
+    accepted = 0
+    for a in range(c.shape[0]):
+        cursor, stop = row[a], row[a + 1]
+        if cursor == stop:
+            continue
+        for j in range(ptr[a + 1] - 1, ptr[a] - 1, -1):  # backwards: the first of a repeated cluster wins
+            wmap[idx[j]] = w_first[j]
+        while cursor < stop:
+            nxt = _row_visit(a, c[a], cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
+                             u_row, lptr, ent, lw, own, wmap, rng)
+            if nxt < 0:
+                break
+            accepted += 1
+            cursor = nxt
+        for j in range(ptr[a], ptr[a + 1]):
+            wmap[idx[j]] = 0.0
     return accepted
 
 
@@ -191,4 +381,12 @@ exchange_pairs = jit(exchange_pairs)  # noqa: F811
 gate_bits = jit(gate_bits)  # noqa: F811
 gated = jit(gated, inline=True)  # noqa: F811
 own_weight = jit(own_weight)  # noqa: F811
+_exchange = jit(_exchange, inline=True)
+_own_place = jit(_own_place, inline=True)
+pass_uniforms = jit(pass_uniforms)  # noqa: F811
+_first_at = jit(_first_at, inline=True)
+_row_visit = jit(_row_visit)
+swap_scan = jit(swap_scan)  # noqa: F811
+exchange_lists = jit(exchange_lists)  # noqa: F811
+exchange_tables = jit(exchange_tables)  # noqa: F811
 swap_pass = jit(swap_pass)  # noqa: F811
