@@ -103,7 +103,10 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
                   pair_a, pair_b, burn_in, h0, tally_pair, tally_cn, hs, hss, opt_l, opt_w, opt_j, tables):
     """All sweeps of one chain: a single-site pass on ``u[s]``, then the exchange pass (when
     pairs are given) on one uniform per pair drawn from ``rng`` as the pass starts (so the
-    uniforms of one pass are in memory at a time, not those of every sweep).
+    uniforms of one pass are in memory at a time, not those of every sweep; above
+    :data:`tracker.bnp.swap_moves.PREDRAWN_PAIRS` pairs one per scored proposal,
+    :func:`tracker.bnp.swap_moves.pass_uniforms`).  ``tables``:
+    :func:`tracker.bnp.swap_moves.exchange_tables`.
 
     Sweep ``s >= burn_in`` is kept; the kept sweeps' first and last ``n // 2`` are the
     split-chain halves ``h0`` and ``h0 + 1`` of the R-hat sums (the middle one is dropped when
