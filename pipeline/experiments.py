@@ -78,11 +78,16 @@ DEFAULT_EXPERIMENT_PARAMS = "paper"
 PAPER_SNR = (Variant("-3 dB", ("snr_db=-3",)),)
 
 
-def _pair(name: str, preset: str, label: str) -> tuple[TrackerSpec, TrackerSpec]:
+def _pair(name: str, preset: str, label: str, mb: str | None = None) -> tuple[TrackerSpec, TrackerSpec]:
     """The two-level tracker (``NAME``, preset ``preset``, label ``LABEL``) and its single-level
-    ablation (``NAME-mb``, the matching preset ``NAME-mb...``, label ``LABEL (mb)``)."""
-    mb = f"{name}-mb{preset[len(name):]}"
+    ablation (``NAME-mb``, preset ``mb``, by default the matching ``NAME-mb...``, label ``LABEL (mb)``)."""
+    mb = f"{name}-mb{preset[len(name):]}" if mb is None else mb
     return (TrackerSpec(name, preset, label), TrackerSpec(f"{name}-mb", mb, f"{label} (mb)"))
+
+
+#: The paper's DDP-EMM (``ddp-paper``: the product default's identity guard ``share_after`` off):
+#: the experiments test the paper's claims on its algorithm.
+_PAPER_DDP = _pair("ddp", "ddp-paper", "DDP-EMM", mb="ddp-mb")
 
 
 _GLMB = TrackerSpec("glmb", "glmb", "GLMB")
@@ -99,7 +104,7 @@ EXPERIMENTS: dict[str, Experiment] = {
     e.name: e
     for e in (
         Experiment("ddp-vs-glmb", "DDP-EMM vs GLMB, 10 targets, SNR -3 dB (paper experiment 1)", "vo2017",
-                   (*_pair("ddp", "ddp", "DDP-EMM"), _GLMB), PAPER_SNR),
+                   (*_PAPER_DDP, _GLMB), PAPER_SNR),
         Experiment("proximity", "Close proximity: 5 targets on one path, SNR -3 dB (experiment 2)", "proximity",
                    (*_pair("ddp", "ddp-proximity", "DDP-EMM"), _GLMB), PAPER_SNR),
         Experiment("snr", "Varying SNR, range-only, 11 targets (experiment 3)", "snr",
@@ -109,7 +114,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         Experiment("dpy-vs-glmb", "DPY-STP vs GLMB, at most 5 targets, SNR -3 dB (experiment 4)", "dpy5",
                    (*_pair("dpyp", "dpyp", "DPY-STP"), _GLMB), PAPER_SNR),
         Experiment("dpy-vs-ddp", "DPY-STP vs DDP-EMM, 10 targets, SNR -3 dB (experiment 5)", "vo2017",
-                   (*_pair("dpyp", "dpyp", "DPY-STP"), *_pair("ddp", "ddp", "DDP-EMM")), PAPER_SNR),
+                   (*_pair("dpyp", "dpyp", "DPY-STP"), *_PAPER_DDP), PAPER_SNR),
         Experiment("random", "Objects born anywhere: 20-30 objects, 3 crossing pairs, no birth "
                    "regions (generated random family; each run draws its own scene)", "random",
                    (TrackerSpec("ddp-mb", "ddp-mb", "DDP-EMM (mb)"), TrackerSpec("dpyp-mb", "dpyp-mb", "DPY-STP (mb)"),

@@ -44,6 +44,18 @@ def test_two_level_trackers_beside_the_single_level_ones_and_the_glmb():
     assert [m.key for m in EXPERIMENTS["snr"].metrics] == ["within100", "range_ospa"]
 
 
+def test_the_paper_experiments_score_the_papers_ddp_emm_not_the_product_default():
+    from bnptrack.tracker.bnp.config import TRACKER_PRESETS
+    from bnptrack.tracker.bnp.group_config import GroupConfig
+
+    for name in ("ddp-vs-glmb", "dpy-vs-ddp"):
+        specs = {t.label: (t.name, t.preset) for t in EXPERIMENTS[name].trackers}
+        assert specs["DDP-EMM"] == ("ddp", "ddp-paper") and specs["DDP-EMM (mb)"] == ("ddp-mb", "ddp-mb"), name
+    paper = kind("ddp").presets["ddp-paper"]
+    assert paper == GroupConfig(objects=TRACKER_PRESETS["ddp-mb"]) and paper.share_after == 0
+    assert kind("ddp").presets["ddp"].share_after > 0  # the product default guards identities
+
+
 def _run(label: str, num: list[float], den: list[float]) -> RunResult:
     K = len(num)
     z = np.zeros(K)

@@ -122,7 +122,10 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 _PRESETS: dict[str, GroupConfig] = {
-    "ddp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"]),
+    # the product default: velocity sharing only among objects that have moved together
+    # (docs/trackers.md, "Identities through crossings"); "ddp-paper" is the paper's algorithm
+    "ddp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"], share_after=6),
+    "ddp-paper": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"]),
     "dpyp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"], d=0.1, infer_d=True),
     # the experiments' object levels (pipeline/experiments.py): experiment 2's and 3's presets
     "ddp-proximity": GroupConfig(objects=TRACKER_PRESETS["ddp-mb-proximity"]),
@@ -134,6 +137,7 @@ _PRESETS: dict[str, GroupConfig] = {
 GROUP_PRESETS: dict[str, GroupConfig] = {
     **_PRESETS,
     "ddp-groups": _PRESETS["ddp"],
+    "ddp-groups-paper": _PRESETS["ddp-paper"],
     "dpyp-groups": _PRESETS["dpyp"],
     "ddp-groups-proximity": _PRESETS["ddp-proximity"],
     "ddp-groups-snr": _PRESETS["ddp-snr"],
