@@ -39,10 +39,12 @@ GATE_CHI2 = 13.8
 #: A crossing is resolved as a label swap when swapping the two tracks' measurements after it
 #: lowers the pair's summed squared innovations (each filtered on from its state at the oldest
 #: frame of the window) by more than this; ``None``: crossings are left as the tracker decided
-#: them.  0 was chosen on ``random`` seeds 101-110 (crossing pairs kept with ``--lag 3``: 25/30
-#: against 21/30 without; margins 1, 2, 4, 9 kept 21-22: docs/results.md, "Fixed-lag output").
+#: them (the default).  Over the default ``ddp`` (velocity shared only among objects that have
+#: moved together) the check swaps more pairs wrongly than it repairs (``random`` seeds 101-120,
+#: ``--lag 3``: 50/60 crossing pairs kept with margin 0, 53 with 2, 55 with 5 and without;
+#: docs/results.md, "Fixed-lag output"); over ``ddp-paper`` 0 kept the most.
 #: It needs a window of at least 3 frames (``lag >= 2``).
-SWAP_MARGIN: float | None = 0.0
+SWAP_MARGIN: float | None = None
 
 
 @dataclass(frozen=True)
