@@ -104,8 +104,9 @@ def warm_up(tracker: Any, frames: int = 3) -> None:
     has example rows (:attr:`~tracker.models.measurement.MeasurementKind.examples`), each kind
     from ``initial_state()``, so lazily compiled kernels and caches are ready.  Frame ``k``'s
     rows are the examples drifted by ``k`` times 0.001 in each column but the last and 5 in
-    the last (e.g. 5 m of range).  Raises whatever a step raises (a tracker without the
-    kind's model, say)."""
+    the last (e.g. 5 m of range); then the tracker's ``warm_up_kernels()`` when it has one
+    (kernels that a few frames do not reach).  Raises whatever a step raises (a tracker
+    without the kind's model, say)."""
     from bnptrack.tracker.models.measurement import KINDS
     from bnptrack.tracker.types import Frame
 
@@ -118,3 +119,6 @@ def warm_up(tracker: Any, frames: int = 3) -> None:
         state = tracker.initial_state()
         for k in range(1, frames + 1):
             state, _ = tracker.step(state, Frame(k, k * 10**9, "warm-up", name, base + k * drift), rng)
+    kernels = getattr(tracker, "warm_up_kernels", None)  # the kernels a few frames do not reach
+    if kernels is not None:
+        kernels()

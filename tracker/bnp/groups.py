@@ -124,6 +124,13 @@ class GroupTracker:
             return fov_moments(self.params.detection())
         return np.zeros(2), self.config.centroid_std**2 * np.eye(2)
 
+    def warm_up_kernels(self) -> None:
+        """Compile the velocity sharing's kernel on a one-member dummy (:func:`tracker.registry.warm_up`):
+        with ``share_after`` a few warm-up frames never seat two objects together that long."""
+        if self.config.sharing and self.config.share_after > 0:
+            shares = Shares(np.zeros(1, dtype=np.int64), np.ones(1), np.zeros((1, 2)), np.eye(2)[None].copy())
+            share_velocity(np.zeros((1, 5)), np.eye(5)[None].copy(), shares, self.S_share)
+
     def initial_state(self) -> GroupState:
         inner = self.objects.initial_state()
         grid = np.zeros((self.hyper.alpha_grid.size, self.hyper.d_grid.size))
