@@ -73,7 +73,7 @@ def _compile_pending(kernel: _LazyKernel) -> Any:
             for k in _pending:
                 if k.dispatcher is None:
                     opts = {"inline": "always"} if k.inline else {}
-                    k.dispatcher = njit(cache=True, nogil=True, **opts)(k.py_func)
+                    k.dispatcher = njit(cache=True, nogil=True, no_cfunc_wrapper=True, **opts)(k.py_func)
                 _namespaces[id(k.py_func.__globals__)] = k.py_func.__globals__
         finally:
             config.CACHE_DIR = before
@@ -118,7 +118,7 @@ LEAN_NUMBA = False
 
 
 def _import_numba_lean(lean_loads: Callable[[], bool]) -> None:
-    """Import numba with ``yaml`` and ``cffi`` unimportable meanwhile, then apply
+    """Import numba with ``yaml``, ``cffi`` and ``colorama`` unimportable meanwhile, then apply
     ``lean_loads`` (:func:`tracker._kernel_cache.lean_cache_loads`); if that does not apply
     (a numba version it was not checked with), set numba's CPU target up as its first cache
     load would (``refresh()`` of the typing and target contexts), still without them.  numba
@@ -126,8 +126,11 @@ def _import_numba_lean(lean_loads: Callable[[], bool]) -> None:
     importable) and ``cffi`` to compile calls of cffi functions, which no kernel makes
     (``numba.core.typing.cffi_utils`` is imported meanwhile, so numba's cffi support stays off
     in this process); they cost about 50 ms of CPU (pycparser compiles its lexer's regular
-    expressions).  Both are importable again afterwards."""
-    blocked = [m for m in ("yaml", "cffi") if m not in sys.modules]
+    expressions).  With ``colorama``, numba colours the text of every error it raises, and a
+    first compile raises (and catches) thousands while it resolves overloads: 2-3 % of a
+    compile's CPU, for messages no one reads (an uncaught one still says the same, uncoloured).
+    All three are importable again afterwards."""
+    blocked = [m for m in ("yaml", "cffi", "colorama") if m not in sys.modules]
     if os.path.isfile(".numba_config.yaml") and "yaml" in blocked:
         blocked.remove("yaml")
     for m in blocked:

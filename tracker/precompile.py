@@ -105,5 +105,6 @@ def _note_compiles(paths: set[str]) -> None:
 
 if __name__ == "__main__":  # pragma: no cover - run as a process by pipeline.compile_notice
     numerics_mod = importlib.import_module("bnptrack.tracker.numerics")
+    numerics_mod.LEAN_NUMBA = True  # a process that runs the project's kernels only, as the command line
     numerics_mod.import_numba()
     precompile(sys.argv[1])

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bnptrack.tracker.bnp.group_grid import MARGIN, _heap_pop, _heap_push
+from bnptrack.tracker.bnp.group_grid import MARGIN, _heap_pop, _heap_push, median
 from bnptrack.tracker.bnp.group_partition import lmax2
 from bnptrack.tracker.bnp.group_sample import PARTITION_KERNELS, Block, sample_partition
+from bnptrack.tracker.numerics import JIT
 
 
 def _blocks(seed: int, L: int, G: int, spread: float, centroid: bool = True, wide: bool = False):
@@ -104,6 +105,28 @@ def test_heap_returns_the_lowest_slot_first() -> None:
         out.append(int(heap[0]))
         size = _heap_pop(heap, size)
     assert out == sorted(xs.tolist())
+
+
+@pytest.mark.skipif(not JIT, reason="compares with numba's own np.median")
+def test_median_is_numbas_np_median_bit_for_bit() -> None:
+    """The grid's median kernel against numba's compiled ``np.median`` (the same quickselect):
+    odd and even counts, ties, infinities and NaNs (whose result depends on the steps taken)."""
+    from numba import njit
+
+    numba_median = njit(lambda a: np.median(a))
+    rng = np.random.default_rng(7)
+    cases = [np.zeros(0), np.array([3.0]), np.array([2.0, 1.0]), np.array([1.0, 1.0, 1.0, 1.0])]
+    for n in (3, 4, 9, 10, 57, 200):
+        cases.append(rng.normal(size=n))
+        cases.append(rng.integers(0, 4, n).astype(float))  # ties
+        x = rng.normal(size=n)
+        x[rng.integers(0, n, 2)] = [np.inf, np.nan]
+        cases.append(x)
+        cases.append(np.sort(rng.normal(size=n))[::-1].copy())
+    for x in cases:
+        got, want = median(x), numba_median(x)
+        assert np.isnan(got) and np.isnan(want) or got == want, (x, got, want)
+    assert median(np.array([5.0, 1.0, 3.0, 2.0])) == 2.5  # hand-computed: (2 + 3) / 2
 
 
 def test_lmax2_is_the_largest_eigenvalue() -> None:

@@ -8,7 +8,7 @@ import numpy as np
 
 from bnptrack.tracker.numerics import jit
 
-__all__ = ["CAP_FACTOR", "CELLS", "MARGIN"]
+__all__ = ["CAP_FACTOR", "CELLS", "MARGIN", "median"]
 
 #: Nats below an option's log weight beyond which a table is not scored: its weight is below
 #: e^-50 (2e-22) of that option's (module docstring).
@@ -49,6 +49,77 @@ def _heap_pop(heap, size) -> int:
             return size
         heap[k], heap[i] = heap[i], heap[k]
         i = k
+
+
+# -- the median: numba's np.median, as kernels of this package ---------------------------------
+# numba compiles np.median (a quickselect, numba.np.arraymath: _partition, _select, _select_two,
+# _median_inner) afresh for every process and every kernel that calls it, 2-2.5 s of CPU on a first
+# run; these are the same steps in the same order (the same value, NaNs included), compiled once
+# into the kernel cache.
+def _qs_partition(A, low, high) -> int:
+    """numba's ``_partition`` (``less_than``: ``a < b``) of ``A[low:high + 1]``: the pivot's index."""
+    mid = (low + high) >> 1
+    if A[mid] < A[low]:
+        A[low], A[mid] = A[mid], A[low]
+    if A[high] < A[mid]:
+        A[high], A[mid] = A[mid], A[high]
+    if A[mid] < A[low]:
+        A[low], A[mid] = A[mid], A[low]
+    pivot = A[mid]
+    A[high], A[mid] = A[mid], A[high]
+    i = low
+    j = high - 1
+    while True:
+        while i < high and A[i] < pivot:
+            i += 1
+        while j >= low and pivot < A[j]:
+            j -= 1
+        if i >= j:
+            break
+        A[i], A[j] = A[j], A[i]
+        i += 1
+        j -= 1
+    A[i], A[high] = A[high], A[i]
+    return i
+
+
+def _qs_select(A, k, low, high) -> float:
+    """numba's ``_select``: the k'th smallest of ``A[low:high + 1]`` (``A`` partly reordered)."""
+    i = _qs_partition(A, low, high)
+    while i != k:
+        if i < k:
+            low = i + 1
+            i = _qs_partition(A, low, high)
+        else:
+            high = i - 1
+            i = _qs_partition(A, low, high)
+    return A[k]
+
+
+def median(a) -> float:
+    """``np.median`` of the 1-d ``a`` as numba computes it (NaN when empty; ``_median_inner``, with
+    ``_select_two`` for an even count)."""
+    A = a.copy()
+    n = A.shape[0]
+    if n == 0:
+        return np.nan
+    low, high, half = 0, n - 1, n >> 1
+    if n & 1 == 1:
+        return _qs_select(A, half, low, high)
+    k = half - 1
+    while True:
+        i = _qs_partition(A, low, high)
+        if i < k:
+            low = i + 1
+        elif i > k + 1:
+            high = i - 1
+        elif i == k:
+            _qs_select(A, k + 1, i + 1, high)
+            break
+        else:
+            _qs_select(A, k, low, i - 1)
+            break
+    return (A[k] + A[k + 1]) / 2
 
 
 # -- the grid of the tables' indexed block ---------------------------------------------------------
@@ -108,7 +179,7 @@ def _grid_geometry(v, t_mu, live, rho, cap, T):
             for i in range(2):
                 if np.isfinite(t_mu[t, i]):
                     lo[i], hi[i] = min(lo[i], t_mu[t, i]), max(hi[i], t_mu[t, i])
-    h = np.sqrt(2.0 * (MARGIN + 20.0) * (cap + np.median(rho))) / CELLS
+    h = np.sqrt(2.0 * (MARGIN + 20.0) * (cap + median(rho))) / CELLS
     if not (np.isfinite(hi[0] - lo[0]) and np.isfinite(hi[1] - lo[1]) and h > 0.0 and np.isfinite(h)):
         return np.array([0.0, 0.0, 1.0, 1.0, 1.0])  # one cell: every table in it
     while True:
@@ -123,6 +194,9 @@ def _grid_geometry(v, t_mu, live, rho, cap, T):
 _heap_push = jit(_heap_push)
 _heap_pop = jit(_heap_pop)
 _cell_ij = jit(_cell_ij, inline=True)
-_unplace = jit(_unplace, inline=True)
-_place = jit(_place, inline=True)
+_unplace = jit(_unplace)
+_place = jit(_place)
+_qs_partition = jit(_qs_partition)
+_qs_select = jit(_qs_select)
+median = jit(median)
 _grid_geometry = jit(_grid_geometry)

@@ -51,7 +51,7 @@ import numpy as np
 from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.group_grid import (CAP_FACTOR, MARGIN, _cell_ij, _grid_geometry, _heap_pop, _heap_push,
-                                           _place, _unplace)
+                                           _place, _unplace, median)
 
 
 def _inv_into(A, out) -> float:
@@ -299,7 +299,7 @@ def _cap_of(t_cov, live, rho, q, T):
             arr[k] = lmax2(t_cov[q, t])
             k += 1
     arr = arr[:k]
-    return min(arr.max(), CAP_FACTOR * np.median(arr)) * (1.0 + 1e-9)
+    return min(arr.max(), CAP_FACTOR * median(arr)) * (1.0 + 1e-9)
 
 
 def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
@@ -408,7 +408,7 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
 _inv_into = jit(_inv_into)
 _move = jit(_move)
 lmax2 = jit(lmax2, inline=True)
-_refresh = jit(_refresh, inline=True)
+_refresh = jit(_refresh)
 _score = jit(_score, inline=True)
 _urn_of = jit(_urn_of, inline=True)
 _insertion_sort = jit(_insertion_sort, inline=True)
