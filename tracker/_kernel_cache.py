@@ -4,7 +4,7 @@ A warm ``bnptrack track`` with the two-level tracker loads 27 compiled kernels f
 cache.  :func:`lean_cache_loads` (applied for the command line by
 :func:`tracker.numerics.import_numba`, ``LEAN_NUMBA``, when numba is a version it was checked
 with, :data:`LEAN_LOADS_VERSIONS`) leaves out three costs of numba's own load that a process
-which only runs cached kernels does not need:
+which only runs cached kernels does not need, and one cost of every compile:
 
 * **The parse of each kernel's linking bitcode**.  numba keeps, beside each
   kernel's object code, the LLVM bitcode of its module, to link it into a kernel compiled
@@ -23,6 +23,10 @@ which only runs cached kernels does not need:
   numba registers while it sets a registry up), it runs the whole refresh first, as numba
   would have.  A kernel that is compiled (a cache miss) gets the whole set-up from numba's
   compiler, which refreshes the contexts itself.
+* **The options of every compile, hashed and compared afresh**: numba's typing keys its cache
+  of overload implementations by the compile's ``Flags`` (a ``TargetConfig``), whose hash and
+  equality build a dict of all its options each time (:func:`_fast_target_configs`: the same
+  results without the dict; this one speeds up a compile, not a load).
 * **``numpy.ma``**: numba's ``typeof`` of an ndarray asks
   ``isinstance(val, np.ma.MaskedArray)``, and numpy 2 imports ``numpy.ma`` (0.05-0.12 s) at
   that first attribute access.  An array whose type is exactly ``np.ndarray`` is no masked
@@ -63,6 +67,7 @@ def lean_cache_loads(cache_dir: str, versions: tuple[str, ...] | None = None) ->
     _lean_unserialize(library, os.path.join(cache_dir, "links"))
     _load_without_refresh(caching.Cache)
     _typeof_without_numpy_ma()
+    _fast_target_configs()
     library._bnptrack_lean = True
     return True
 
@@ -196,6 +201,36 @@ def _write_links(path: str, defined: list[str], external: list[str]) -> None:
         os.replace(tmp, path)
     except OSError:
         pass
+
+
+def _fast_target_configs() -> None:
+    """numba's ``TargetConfig`` (a compile's ``Flags``) hashed and compared without building the
+    dict of its 20-odd options each time: numba's typing keys its cache of overload
+    implementations by them and hashes and compares them for every call it types (3-4 % of a
+    first compile's CPU).  The same results: numba's hash is that of the sorted option names (the
+    class's, whatever the values), its equality that of every option's value, defaults included,
+    and two configs of one class whose set values are equal are equal."""
+    from numba.core.targetconfig import TargetConfig
+
+    values = TargetConfig.values
+    hashes: dict[type, int] = {}
+
+    def __hash__(self: Any) -> int:
+        cls = type(self)
+        h = hashes.get(cls)
+        if h is None:
+            h = hashes[cls] = hash(tuple(sorted(cls.options)))
+        return h
+
+    def __eq__(self: Any, other: Any) -> Any:
+        if not isinstance(other, TargetConfig):
+            return NotImplemented
+        if type(self) is type(other) and self._values == other._values:
+            return True
+        return values(self) == values(other)
+
+    TargetConfig.__hash__ = __hash__
+    TargetConfig.__eq__ = __eq__
 
 
 def _typeof_without_numpy_ma() -> None:

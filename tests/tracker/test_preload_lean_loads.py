@@ -196,6 +196,29 @@ print(json.dumps([no_ma, ours == numbas, ours[:3], errors]))
 
 
 
+def test_target_configs_hash_and_compare_as_numbas() -> None:
+    """With the lean loads applied, numba's compile options (``Flags``) hash and compare as
+    numba's own ``TargetConfig`` methods do: equal for equal values set or left at their
+    default, unequal when one value differs (checked in a fresh interpreter)."""
+    code = """
+import json, os, tempfile
+from numba.core.compiler import Flags
+from numba.core.targetconfig import TargetConfig
+h, eq = TargetConfig.__hash__, TargetConfig.__eq__
+from bnptrack.tracker._kernel_cache import lean_cache_loads
+assert lean_cache_loads(tempfile.mkdtemp())
+a, b, c, d = Flags(), Flags(), Flags(), Flags()
+a.nrt = True; b.nrt = True; c.nrt = False; d.nrt = True
+d.no_cfunc_wrapper = True
+b.boundscheck = Flags.options["boundscheck"].default  # set to its default: still equal to a
+pairs = [(x, y) for x in (a, b, c, d) for y in (a, b, c, d)]
+same = [(hash(x) == h(x), (x == y) == eq(x, y)) for x, y in pairs]
+replaced = TargetConfig.__hash__ is not h and TargetConfig.__eq__ is not eq
+print(json.dumps([replaced, all(s for pair in same for s in pair), a == b, a == c, a == d, hash(a) == hash(d)]))
+"""
+    assert json.loads(_python(code).stdout.strip().splitlines()[-1]) == [True, True, True, False, False, True]
+
+
 _TRACK_PROBE = """
 import atexit, json, sys
 from bnptrack.pipeline.cli import main
