@@ -17,7 +17,7 @@ from bnptrack.tracker.bnp import _merge_kernels as km
 from bnptrack.tracker.bnp import _update_kernels as ku
 from bnptrack.tracker.bnp import _kernels as k
 from bnptrack.tracker.bnp import gibbs as g
-from bnptrack.tracker.bnp import gibbs_setup, gibbs_sweeps
+from bnptrack.tracker.bnp import gibbs_setup, gibbs_sweeps, swap_moves
 from bnptrack.tracker.bnp.assignment import best_permutation_pairs
 from bnptrack.tracker.bnp.clusters import _POS_VEL, _birth_frame, _Clusters, merge_duplicates
 from bnptrack.tracker.cardinality import existence_cardinality
@@ -103,7 +103,8 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
                                          cand.ptr, cand.idx, cand.w_first, cand.w_lik,
                                          np.asarray(problem.popularity, float), u, rng, pair_a, pair_b, burn_in,
                                          2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
-                                         g.gate_bits(cand.ptr, cand.idx, N, g.MAX_BYTES))
+                                         swap_moves.exchange_tables(cand.ptr, cand.idx, N, pair_a, pair_b,
+                                                                    cand.w_first, swap_moves.MAX_BYTES))
         first = c if first is None else first
     kept = max(sweeps - burn_in, 1) * chains
     return (tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first, g.log_joint(problem, first),
