@@ -83,6 +83,7 @@ def online_run(tracker_name, params_name, scenario, seed, overrides):
             online.append(e)
         online_ms = (time.process_time() - t0) * 1e3 / len(frames)
         if path:
+            os.makedirs(cache, exist_ok=True)
             with open(path, "wb") as fh:
                 pickle.dump((online, online_ms), fh)
     return sc, tracker, frames, online, online_ms
