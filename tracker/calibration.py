@@ -94,9 +94,24 @@ class CalibrationState:
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 5, 5)))
 
 
+@dataclass(frozen=True, kw_only=True)
+class CalibrationFields:
+    """The existence calibration's state inside a tracker's state: one field ``cal_<name>`` per
+    field of :class:`CalibrationState` (a tracker state inherits them, so that
+    :mod:`tracker.state` snapshots them with the rest; :func:`calibrate` carries them)."""
+
+    cal_counts: np.ndarray = field(default_factory=lambda: empty("counts"))
+    cal_learned: np.ndarray = field(default_factory=lambda: empty("learned"))
+    cal_labels: tuple[str, ...] = ()
+    cal_rows: np.ndarray = field(default_factory=lambda: empty("rows"))
+    cal_pending: np.ndarray = field(default_factory=lambda: empty("pending"))
+    cal_mean: np.ndarray = field(default_factory=lambda: empty("mean"))
+    cal_cov: np.ndarray = field(default_factory=lambda: empty("cov"))
+
+
 def empty(name: str) -> np.ndarray:
-    """The empty value of :class:`CalibrationState`'s array field ``name`` (the default of the
-    trackers' ``cal_<name>`` state fields): one read-only array per field, shared (the
+    """The empty value of :class:`CalibrationState`'s array field ``name`` (the default of
+    :class:`CalibrationFields`' ``cal_<name>``): one read-only array per field, shared (the
     calibration never writes into a state's arrays)."""
     return _EMPTY[name]
 
@@ -169,7 +184,9 @@ class ExistenceCalibration:
         h, mu = self.rates(learned)
         a = (1.0 - h) * mu
         am = a ** np.asarray(m, dtype=float)
-        return am / (am + h * (1.0 - am) / (1.0 - a))  # sum_{j<m} a^j = (1 - a^m) / (1 - a)
+        den = am + h * (1.0 - am) / (1.0 - a)  # sum_{j<m} a^j = (1 - a^m) / (1 - a)
+        # den is 0 only without a death hazard (h = 0) and without misses (mu = 0): certainly alive
+        return np.divide(am, den, out=np.ones_like(am), where=den > 0)
 
     def young(self, learned: np.ndarray, r):
         r"""The existence ``r`` of a young track with its odds multiplied by the run's

@@ -51,6 +51,17 @@ def test_learned_hazard_miss_rate_and_young_odds_hand_computed():
     assert cal.prior(learned, 3, 0, 0.97) == 0.97 and cal.prior(learned, 1, 1, 0.5) == pytest.approx(5 / 7)
 
 
+def test_a_model_without_death_or_misses_keeps_a_missed_track_alive():
+    # p_survival = p_detect = 1 and no evidence: no hazard (h = 0) and no misses (mu = 0), so the
+    # odds of a missed track are 0 against 0; it cannot have died, so it is alive
+    cal = ExistenceCalibration(1.0, 1.0)
+    with np.errstate(all="raise"):
+        assert cal.missed(np.zeros(5), 1) == 1.0
+        np.testing.assert_allclose(cal.prior(np.zeros(5), [3, 3, 1], [0, 2, 0], [0.9, 0.9, 0.4]), [0.9, 1.0, 0.4], rtol=1e-12)
+    # with a death hazard and no misses, a missed track is dead
+    assert ExistenceCalibration(0.99, 1.0).missed(np.zeros(5), 2) == 0.0
+
+
 def test_classes():
     assert [track_class(n, 0) for n in (1, 2, 6, 9)] == [0, 1, 5, 5]
     assert [track_class(n, 1) for n in (0, 2, 3, 10)] == [6, 6, 9, 9]
@@ -125,14 +136,14 @@ def _scene():
     return params, simulate_all(sc, params, 3)
 
 
-@pytest.mark.parametrize("name", ["ddp", "dpyp", "ddp-mb"])
+@pytest.mark.parametrize("name", ["ddp", "dpyp", "ddp-mb", "glmb"])
 def test_published_tracks_unchanged_and_snapshot_resume_identical(name):
     params, frames = _scene()
     tr = build(name, params)
     cfg = tr.config
-    off = cfg.objects if name != "ddp-mb" else cfg
-    off = msgspec.structs.replace(off, calibration_weight=0.0)
-    off = build(name, params, off if name == "ddp-mb" else msgspec.structs.replace(cfg, objects=off))
+    two_level = name in ("ddp", "dpyp")
+    off = msgspec.structs.replace(cfg.objects if two_level else cfg, calibration_weight=0.0)
+    off = build(name, params, msgspec.structs.replace(cfg, objects=off) if two_level else off)
     states, ests = [], []
     for _, e, s in run(tr, frames, seed=7):
         states.append(s)

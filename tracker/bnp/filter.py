@@ -19,7 +19,7 @@ from bnptrack.tracker.bnp.clusters import _Clusters, _concat, merge_duplicates
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, SparsePairs, run_gibbs
 from bnptrack.tracker.bnp.urn import ALPHA_GRID, D_GRID, frame_loglik_grid, grid_mean, log_gamma_prior, sample_grid
-from bnptrack.tracker.calibration import calibrate, empty, from_config
+from bnptrack.tracker.calibration import CalibrationFields, calibrate, from_config
 from bnptrack.tracker.cardinality import TAIL
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.types import Estimate, Frame, TrackEstimate, check_finite_rows, frame_dt
@@ -29,12 +29,13 @@ _log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class BnpState:
+class BnpState(CalibrationFields):
     """Everything the next frame needs, as plain arrays (snapshot with :mod:`tracker.state`).
 
     One row per cluster: ``labels`` (N,), ``mean`` (N, 5), ``cov`` (N, 5, 5),
     ``existence`` (N,) = Pr(object exists), ``popularity`` (N,) = decayed customer count
-    :math:`v_l` (>= 1).  ``frame`` is the last frame processed (-1 before the first).
+    :math:`v_l` (>= 1).  ``frame`` is the last frame processed (-1 before the first).  The
+    published existence's calibration state: the inherited ``cal_*`` fields.
     """
 
     frame: int = -1
@@ -48,15 +49,6 @@ class BnpState:
     d: float = 0.0
     hyper_loglik: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     """Accumulated (forgetting-weighted) log-likelihood of (alpha, d) on the tracker's grid."""
-    cal_counts: np.ndarray = field(default_factory=lambda: empty("counts"))
-    """The existence calibration's state (:class:`tracker.calibration.CalibrationState`, fields
-    ``counts``, ``learned``, ``labels``, ``rows``, ``pending``, ``mean``, ``cov``)."""
-    cal_learned: np.ndarray = field(default_factory=lambda: empty("learned"))
-    cal_labels: tuple[str, ...] = ()
-    cal_rows: np.ndarray = field(default_factory=lambda: empty("rows"))
-    cal_pending: np.ndarray = field(default_factory=lambda: empty("pending"))
-    cal_mean: np.ndarray = field(default_factory=lambda: empty("mean"))
-    cal_cov: np.ndarray = field(default_factory=lambda: empty("cov"))
 
     @property
     def n_clusters(self) -> int:

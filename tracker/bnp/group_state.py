@@ -9,13 +9,13 @@ import numpy as np
 
 from bnptrack.tracker.bnp.birth_tracker import LearnedBirthState
 from bnptrack.tracker.bnp.filter import BnpState
-from bnptrack.tracker.calibration import empty
+from bnptrack.tracker.calibration import CalibrationFields
 
 __all__ = ["GroupState", "previous_rows"]
 
 
 @dataclass(frozen=True)
-class GroupState:
+class GroupState(CalibrationFields):
     """The inner :class:`BnpState`'s fields (one row per object) plus the cluster level.
 
     ``cluster`` (N,) is each object's cluster id (-1: not in the partition); ``group_ids``
@@ -79,21 +79,13 @@ class GroupState:
     id_eta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 5)))
     id_swapped: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     id_cluster: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
-    cal_counts: np.ndarray = field(default_factory=lambda: empty("counts"))
-    """The existence calibration's state (as :class:`BnpState`'s ``cal_*``)."""
-    cal_learned: np.ndarray = field(default_factory=lambda: empty("learned"))
-    cal_labels: tuple[str, ...] = ()
-    cal_rows: np.ndarray = field(default_factory=lambda: empty("rows"))
-    cal_pending: np.ndarray = field(default_factory=lambda: empty("pending"))
-    cal_mean: np.ndarray = field(default_factory=lambda: empty("mean"))
-    cal_cov: np.ndarray = field(default_factory=lambda: empty("cov"))
 
     def inner(self) -> BnpState:
-        return BnpState(*[getattr(self, n) for n in _INNER_FIELDS])
+        return BnpState(**{n: getattr(self, n) for n in _INNER_FIELDS})
 
     def inner_learned(self) -> LearnedBirthState:
         """The object level's state with its recorded births (``objects.learn_births``)."""
-        return LearnedBirthState(*[getattr(self, n) for n in _LEARNED_FIELDS])
+        return LearnedBirthState(**{n: getattr(self, n) for n in _LEARNED_FIELDS})
 
 
 #: :class:`BnpState`'s fields in order (each a field of :class:`GroupState` of the same name).

@@ -7,7 +7,7 @@ from typing import Any, Literal, Protocol
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.config import Fraction, OpenProb, PosInt, Positive, PositiveProb
+from bnptrack.tracker.config import Fraction, NonNeg, OpenProb, PosInt, Positive, PositiveProb
 from bnptrack.tracker.models.params import BirthComponent
 from bnptrack.tracker.types import Frame
 
@@ -71,6 +71,15 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     continuity_ratio: PositiveProb = 0.5
     """``continuity`` / ``marginal-labels``: an estimate that continues the previous one is
     kept while its weight is at least this fraction of the best alternative's."""
+    calibration_weight: NonNeg = 20.0
+    """Prior weight (track-frames) of the learned model in the published, calibrated existence
+    (:mod:`tracker.calibration`, the same layer and defaults as ``ddp``'s); 0 publishes the
+    GLMB's marginal existence of each label unchanged."""
+    calibration_hazard_weight: Positive = 100.0
+    """Prior weight (scans) of ``p_survival`` and ``p_detect`` in the calibration's learned death
+    hazard and miss rate of established tracks."""
+    calibration_odds_weight: Positive = 5.0
+    """Pseudo-counts on each side of the calibration's learned odds ratio of young tracks."""
 
 
 GLMB_PRESETS: dict[str, GlmbConfig] = {"glmb": GlmbConfig()}

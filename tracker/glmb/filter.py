@@ -13,6 +13,7 @@ import numpy as np
 
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.numerics import logsumexp
+from bnptrack.tracker.calibration import ExistenceCalibration, calibrate, from_config
 from bnptrack.tracker.cardinality import truncate_tail
 from bnptrack.tracker.glmb.births import _Births, adaptive_birth_existence, measurement_state_prior
 from bnptrack.tracker.glmb.config import GLMB_PRESETS, GlmbConfig, GlmbModel
@@ -102,8 +103,14 @@ class GlmbTracker:
             "n_adaptive_births": float(cands.n_adaptive),
             "ms": (time.perf_counter() - t0) * 1e3,
         }
-        return new, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
-                             est.assignment_prob, diagnostics, truncate_tail(card))
+        return calibrate(self.calibration, state, new, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments,
+                                                                est.assignment_prob, diagnostics, truncate_tail(card)))
+
+    @cached_property
+    def calibration(self) -> ExistenceCalibration | None:
+        """The published existence's calibration (``calibration_*``, :mod:`tracker.calibration`;
+        None: off)."""
+        return from_config(self.params, self.config)
 
     # -- pieces ---------------------------------------------------------------------------
     def _predict_fn(self):

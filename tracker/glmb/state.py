@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bnptrack.tracker.calibration import CalibrationFields
 from bnptrack.tracker.models.measurement import DEFAULT_KIND
 from bnptrack.tracker.types import STATE_DIM
 
@@ -15,14 +16,15 @@ def _empty_hyps() -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class GlmbState:
+class GlmbState(CalibrationFields):
     """The GLMB density after ``frame`` (snapshot with :mod:`tracker.state`).
 
     Track table: ``labels`` (T,), ``mean`` (T, 5), ``cov`` (T, 5, 5).  Hypotheses:
     ``hyp_tracks`` (H, maxN) int64 sorted table rows padded with ``-1``; ``log_w`` (H,)
     normalised log weights.  The initial state is the single empty hypothesis of weight 1.
     ``birth_*``: the last frame's measurements and their assignment probabilities, from
-    which the next frame's adaptive births are built.
+    which the next frame's adaptive births are built.  The published existence's calibration
+    state: the inherited ``cal_*`` fields.
     """
 
     frame: int = -1
