@@ -12,6 +12,8 @@ frames), so every row of a seed scores the same tracker run.  Prints mean OSPA, 
 from __future__ import annotations
 
 import argparse
+import functools
+import hashlib
 import os
 import pickle
 import sys
@@ -67,13 +69,30 @@ def lagged(tracker_params, frames, online, lag, smooth, margin):
     return out, (time.process_time() - t0) * 1e3 / len(frames)
 
 
+@functools.cache
+def code_version() -> str:
+    """A digest of the tracker's and the simulator's source and built-in parameter files: a
+    cached run is reused only by the code that made it."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    h = hashlib.sha256()
+    for top in ("tracker", "sources"):
+        for folder, dirs, files in sorted(os.walk(os.path.join(root, top))):
+            dirs.sort()
+            for name in sorted(files):
+                if name.endswith((".py", ".toml")):
+                    with open(os.path.join(folder, name), "rb") as fh:
+                        h.update(name.encode() + fh.read())
+    return h.hexdigest()[:12]
+
+
 def online_run(tracker_name, params_name, scenario, seed, overrides):
     """The scene, tracker, frames, online estimates and tracker ms per frame of one seed (kept
-    in the folder ``$LAG_CACHE`` when set, so another lag or a calibration table reuses them)."""
+    in the folder ``$LAG_CACHE`` when set, so another lag or a calibration table reuses them;
+    the file name holds :func:`code_version`)."""
     sc, tracker, frames = setup(tracker_name, params_name, scenario, seed, overrides)
     cache = os.environ.get("LAG_CACHE")
     key = "_".join(overrides).replace("/", "-").replace(" ", "")
-    path = cache and os.path.join(cache, f"{tracker_name}-{params_name}-{scenario}-{seed}-{key}.pkl")
+    path = cache and os.path.join(cache, f"{tracker_name}-{params_name}-{scenario}-{seed}-{key}-{code_version()}.pkl")
     if path and os.path.exists(path):
         with open(path, "rb") as fh:
             online, online_ms = pickle.load(fh)
