@@ -18,8 +18,12 @@ Randomness: frame ``k`` uses its own stream
 ``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k,)))``, drawn in the order
 detection, target noise, clutter, permutation.  Frame ``k`` is therefore reproducible on its
 own (a live source may start at any frame, see ``start_frame`` and :func:`simulate_frame`),
-and the same seed gives the same frames on every machine (numpy's PCG64 and SeedSequence
-are platform independent).
+and the same seed gives the same draws on every machine (numpy's PCG64 and SeedSequence
+are platform independent): the same frames, each with the same number of measurements in the
+same order.  The values computed from the draws go through numpy's transcendental functions
+(``arctan2``, ``sin``, ``cos``), whose vectorised versions depend on the CPU (``arctan2`` on
+AVX-512 machines is not correctly rounded), so a value can differ in its last binary digit
+between machines.
 """
 
 from __future__ import annotations

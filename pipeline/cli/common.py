@@ -171,6 +171,11 @@ SET_HELP_PIPE = (
     "settings), e.g. --set source.frames=20 --set tracker.seed=3 --set tracker.sweeps=10 "
     "--set p_detect=0.9. Repeatable."
 )
+SET_HELP_ZENOH = (
+    "Override a key of the pipeline file, KEY=VALUE (VALUE is a TOML literal). Only its "
+    "zenoh.KEY settings (tls.*, user, password, users_file, acl, ...) act "
+    "on this command, e.g. --set zenoh.acl=true --set zenoh.users_file=users.txt. Repeatable."
+)
 
 
 # --------------------------------------------------------------------------- registry-derived

@@ -119,7 +119,8 @@ def simulate(
     Writes one frame per scan (100 scans) on /measurements and /truth, and a
     bnptrack.scenario metadata record (scenario, params, seed, plus snr_db and overrides
     when used) so that `bnptrack track` can pick the same model parameters. The same
-    seed gives the same messages on every machine.
+    seed gives the same frames and measurement counts on every machine; a bearing can
+    differ in its last binary digit between CPUs (numpy's vectorised arctan2).
 
     \b
     Examples:
@@ -127,7 +128,7 @@ def simulate(
       bnptrack simulate --scenario snr --snr -10 --seed 3
       bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
       bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
-      bnptrack simulate --params two_sensors.toml --seed 1   # one frame per [sensors.NAME] per scan
+      bnptrack simulate --params examples/two_sensors.toml --seed 1 --out /tmp/two.mcap   # one frame per sensor per scan
 
     The generated scenarios (random, random-cv, groups, groups-pl, groups-py) draw their scene
     from --seed too (the record then also holds scene_seed, the scene.* settings and the

@@ -17,6 +17,7 @@ from bnptrack.pipeline.cli.common import (
     CONNECT_VIEW_HELP,
     END_HELP,
     SET_HELP_PIPE,
+    SET_HELP_ZENOH,
     START_HELP,
     TOPIC_HELP,
     VIEW_HELP,
@@ -407,7 +408,7 @@ def end_process(code: int) -> None:
 @click.option("--listen", multiple=True, metavar="ENDPOINT",
               help="Endpoint(s) to listen on. Default: tcp/127.0.0.1:7447 (this host only; "
                    "give e.g. tcp/0.0.0.0:7447 for other hosts, with TLS and --set zenoh.acl=true).")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_ZENOH)
 @clean_errors
 def router(pipeline_file: Path | None, listen: tuple[str, ...], overrides: tuple[str, ...]) -> None:
     """Run a Zenoh router for pipeline stages on several hosts (until Ctrl-C).

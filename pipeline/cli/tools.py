@@ -305,7 +305,7 @@ Examples:
   bnptrack experiment ddp-vs-glmb --runs 100
   bnptrack experiment snr --runs 20 --params vo2017 --out out/snr
   bnptrack experiment dpy-vs-ddp --runs 1000 --cluster tcp://scheduler:8786
-  bnptrack experiment ddp-vs-glmb --runs 10000 --no-rrd   (stop and rerun at will)
+  bnptrack experiment ddp-vs-glmb --runs 10000 --no-rrd   # stop and rerun at will
 """
 
 
