@@ -1,0 +1,92 @@
+"""The examples of docs/formats.md that are a command's output are what the command gives now:
+the messages of recordings/vo2017-s1.mcap and recordings/snr-s1.mcap, the frame-12 `/tracks`
+message of `bnptrack track recordings/vo2017-s1.mcap --tracker ddp`, and the truncated-file
+session.  A failure prints the lines the docs should show."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from mcap.reader import make_reader
+
+from bnptrack.pipeline.cli import main
+from bnptrack.sources.mcap_log import read_metadata
+
+ROOT = Path(__file__).resolve().parents[2]
+FORMATS = (ROOT / "docs" / "formats.md").read_text()
+VO = ROOT / "recordings" / "vo2017-s1.mcap"
+
+
+def _block_after(heading: str, lang: str = "json") -> str:
+    """The first ```lang block after the paragraph that starts with ``heading``."""
+    at = FORMATS.index(heading)
+    return re.search(rf"```{lang}\n(.*?)```", FORMATS[at:], re.S).group(1)
+
+
+def _message(path: Path, topic: str, frame: int) -> dict:
+    with open(path, "rb") as f:
+        for _, ch, msg in make_reader(f).iter_messages(log_time_order=False):
+            if ch.topic == topic:
+                data = json.loads(msg.data)
+                if data["frame"] == frame:
+                    return data
+    raise AssertionError(f"{path}: no {topic} message of frame {frame}")
+
+
+def test_frame_1_messages_of_the_recordings():
+    meas = _message(VO, "/measurements", 1)
+    assert "(12 measurements; trimmed to 3)" in FORMATS and len(meas["z"]) == 12
+    assert json.loads(_block_after("Example: frame 1 of `recordings/vo2017-s1.mcap` (12")) == \
+        dict(meas, z=meas["z"][:3])
+    assert json.loads(_block_after("Example: frame 1 of `recordings/vo2017-s1.mcap` (complete)")) == \
+        _message(VO, "/truth", 1)
+    snr = _message(ROOT / "recordings" / "snr-s1.mcap", "/measurements", 1)
+    assert f"`recordings/snr-s1.mcap`, {len(snr['z'])} measurements; trimmed to 3)" in FORMATS
+    assert json.loads(_block_after("A range-only scan (frame 1")) == dict(snr, z=snr["z"][:3])
+    assert json.loads(_block_after("Example (`recordings/vo2017-s1.mcap`)")) == read_metadata(VO)
+
+
+def test_frame_12_tracks_example(tmp_path):
+    heading = "Example: frame 12 of a `bnptrack track recordings/vo2017-s1.mcap --tracker ddp` run"
+    assert heading in FORMATS
+    out = tmp_path / "ddp.mcap"
+    res = CliRunner().invoke(main, ["track", str(VO), "--tracker", "ddp", "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    got = _message(out, "/tracks", 12)
+    n_z = len(_message(out, "/measurements", 12)["z"])
+    shown = dict(got, tracks=got["tracks"][:1], assignments=got["assignments"][:12],
+                 assignment_prob=got["assignment_prob"][:12])
+    doc = json.loads(_block_after(heading))
+    doc["diagnostics"]["ms"] = shown["diagnostics"]["ms"]  # a wall-clock time
+    assert doc == shown, "docs/formats.md should show:\n" + json.dumps(shown)
+    prose = " ".join(FORMATS[FORMATS.index(heading):].split())
+    assert f"run ({len(got['tracks'])} tracks and {n_z} measurements in the file;" in prose
+    pmf = got["cardinality_pmf"]
+    mean = sum(n * p for n, p in enumerate(pmf))
+    assert f"has mean {mean:.2f} and its most probable value (MAP) is {pmf.index(max(pmf))}." in prose
+    assert (f"the state holds {got['diagnostics']['n_clusters']:.0f} clusters (`n_clusters`) and the pmf "
+            f"has {len(pmf)} entries") in " ".join(FORMATS.split())
+
+
+def test_truncated_file_session(tmp_path, monkeypatch):
+    lines = _block_after("It prints the summary, then reports the error", "console").splitlines()
+    head = shlex.split(lines[0].strip().removeprefix("$ "))
+    track = shlex.split(lines[1].strip().removeprefix("$ "))
+    assert head[:2] == ["head", "-c"] and head[4:] == [">", "/tmp/cut.mcap"] and track[:2] == ["bnptrack", "track"]
+    monkeypatch.chdir(ROOT)
+    cut, cut_out = tmp_path / "cut.mcap", tmp_path / "cut-out.mcap"
+    cut.write_bytes((ROOT / head[3]).read_bytes()[: int(head[2])])
+    args = [str(cut) if a == "/tmp/cut.mcap" else str(cut_out) if a == "/tmp/cut-out.mcap" else a
+            for a in track[1:]]
+    res = CliRunner().invoke(main, args)
+    shown = [line.strip() for line in lines[2:] if line.strip() not in ("...", "")]
+    output = res.output.replace(str(cut_out), "/tmp/cut-out.mcap").replace(str(cut), "/tmp/cut.mcap")
+    summary = [" ".join(line.split()) for line in output.splitlines()]
+    assert " ".join(shown[0].split()) in summary, output  # the frames line
+    assert shown[1] in output.splitlines(), output  # the error line
+    assert shown[2:] == ["$ echo $?", str(res.exit_code)]
