@@ -90,3 +90,62 @@ def test_truncated_file_session(tmp_path, monkeypatch):
     assert " ".join(shown[0].split()) in summary, output  # the frames line
     assert shown[1] in output.splitlines(), output  # the error line
     assert shown[2:] == ["$ echo $?", str(res.exit_code)]
+
+
+def _diagnostics_table() -> dict[str, tuple[set[str], str]]:
+    """docs/formats.md's diagnostics table: key -> (trackers, "when")."""
+    section = FORMATS[FORMATS.index("### Diagnostics"):FORMATS.index("### The cardinality distribution")]
+    rows = re.findall(r"^\| `(\w+)` \| ([^|]+) \| ([^|]+) \|", section, re.M)
+    return {key: (set(re.findall(r"`([\w-]+)`", who)) or {"every tracker"}, when.strip())
+            for key, who, when in rows}
+
+
+# the runs that make every documented key appear: tracker -> (settings -> the "when" they stand for)
+_OPTIONS = {
+    "ddp": {("tracker.objects.learn_births=true",): "`learn_births` or `learn_birth_velocity` on",
+            ("tracker.crossing_scans=3",): "`crossing_scans` > 0"},
+    "dpyp": {("tracker.objects.learn_birth_velocity=true",): "`learn_births` or `learn_birth_velocity` on",
+             ("tracker.crossing_scans=3",): "`crossing_scans` > 0"},
+    "ddp-mb": {("tracker.learn_births=true",): "`learn_births` or `learn_birth_velocity` on"},
+    "dpyp-mb": {("tracker.learn_birth_velocity=true",): "`learn_births` or `learn_birth_velocity` on"},
+    "glmb": {},
+}
+
+
+@pytest.fixture(scope="module")
+def short_frames():
+    import bnptrack
+
+    return bnptrack.simulate("vo2017", 1)[:4]
+
+
+def _keys(frames, tracker: str, overrides: tuple[str, ...] = ()) -> set[str]:
+    import bnptrack
+
+    run = bnptrack.track(frames, tracker, scenario="vo2017", overrides=overrides)
+    keys = {frozenset(e.diagnostics) for e in run.estimates}
+    assert len(keys) == 1, f"{tracker}: the keys change from frame to frame"
+    return set(next(iter(keys)))
+
+
+@pytest.mark.parametrize("tracker", list(_OPTIONS))
+def test_diagnostics_table_lists_the_keys_each_tracker_writes(short_frames, tracker):
+    table = _diagnostics_table()
+    mine = {k: when for k, (who, when) in table.items() if tracker in who or "every tracker" in who}
+    assert _keys(short_frames, tracker) == {k for k, when in mine.items() if when == "always"}
+    for overrides, when in _OPTIONS[tracker].items():
+        assert _keys(short_frames, tracker, overrides) == \
+            {k for k, w in mine.items() if w in ("always", when)}, overrides
+    assert {w for w in mine.values()} <= {"always", *_OPTIONS[tracker].values()}
+
+
+def test_diagnostics_table_covers_every_tracker(short_frames):
+    from bnptrack.tracker.registry import TRACKERS
+
+    aliases = {"ddp-groups": "ddp", "dpyp-groups": "dpyp"}
+    assert set(TRACKERS) == set(_OPTIONS) | set(aliases)
+    for alias, name in aliases.items():
+        assert _keys(short_frames, alias) == _keys(short_frames, name)
+    assert "aliases `ddp-groups` and `dpyp-groups` write what `ddp` and `dpyp` write" in " ".join(FORMATS.split())
+    table = _diagnostics_table()
+    assert {t for who, _ in table.values() for t in who} == set(_OPTIONS) | {"every tracker"}
