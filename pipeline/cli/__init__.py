@@ -156,7 +156,7 @@ def main() -> None:
     \b
     Example:
       bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap
-      bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-ddp.mcap
+      bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-ddp.mcap --rrd recordings/vo2017-ddp.rrd
       bnptrack schema /tracks
 
     Errors are reported on one line with exit code 2 (BNPTRACK_DEBUG=1 shows the traceback).

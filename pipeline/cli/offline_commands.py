@@ -291,7 +291,7 @@ def track(
 
     \b
     Examples:
-      bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-ddp.mcap
+      bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-ddp.mcap --rrd recordings/vo2017-ddp.rrd
       bnptrack track recordings/dpy5-s1.mcap --tracker dpyp --set tracker.sweeps=50
       bnptrack track recordings/snr-s1.mcap --config ddp-snr --params vo2017 --set snr_db=-5
       bnptrack track recordings/vo2017-s1.mcap --start 20s --end 40f   # as replay --start/--end

@@ -191,7 +191,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     Examples:
       bnptrack launch
       bnptrack launch --set source.frames=20 --set tracker.tracker=dpyp --out /tmp/r1
-      bnptrack launch my_pipeline.toml --run test-1
+      bnptrack launch examples/pipeline.toml --run test-1   # a pipeline file (docs/pipeline.md)
     """
     import msgspec as _ms
 
@@ -266,7 +266,7 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
       bnptrack replay recordings/vo2017-s1.mcap --as-fast-as-possible
       bnptrack replay recordings/dpy5-s1.mcap --rate 10 --tracker dpyp --seed 3 --out /tmp/dpy5
       bnptrack replay recordings/vo2017-s1.mcap --rate 5 --start 20s --end 40f --loop 0 --view
-      bnptrack replay ros.mcap --topic /radar/detections=/measurements
+      bnptrack replay ros.mcap --topic /radar/detections=/measurements   # your log: a JSON channel as /measurements
     """
     import msgspec as _ms
 

@@ -39,7 +39,7 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
     \b
     Examples:
       bnptrack info recordings/vo2017-s1.mcap
-      bnptrack info robot.mcap --topic /radar/scan   # frames and sensors of a ROS 2 channel
+      bnptrack info robot.mcap --topic /radar/scan   # your ROS 2 log: the frames and sensors of one channel
     """
     from bnptrack.sources.mcap_log import log_channels
     from bnptrack.sources.robot_log import robot_topics
@@ -255,7 +255,7 @@ def view(
     Examples:
       bnptrack view recordings/vo2017-ddp.rrd
       bnptrack view recordings/vo2017-ddp.rrd --screenshot shot.png --frame 60
-      bnptrack view broken.rrd --repair fixed.rrd
+      bnptrack view broken.rrd --repair fixed.rrd   # a recording cut short by a crash
     """
     from bnptrack.pipeline.view import ViewerUnavailable, open_viewer, screenshot
     from bnptrack.sinks.rerun_tools import RerunToolError, repair
