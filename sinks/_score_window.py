@@ -6,8 +6,8 @@ trackers anyway).
 ``sinks.metrics._TrackWindow.distances`` builds with some twenty small numpy calls per frame:
 the ``(m, n, W)`` per-scan terms (``c ** q`` where one of the two tracks exists, the scan's
 cut-off distance term where both do, 0 where neither does) and the ``(m, n)`` number of scans
-where either exists.  The caller sums and divides them with numpy as before, so OSPA(2) is the
-same bit for bit (tests/sinks/test_score_window.py).
+where either exists.  The caller sums and divides them with numpy, so OSPA(2) is the same bit
+for bit as the direct computation (tests/sinks/test_score_window.py).
 """
 
 from __future__ import annotations

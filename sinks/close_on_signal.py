@@ -53,4 +53,4 @@ class CloseOnSignal:
             elif old == signal.SIG_DFL:
                 signal.signal(signum, signal.SIG_DFL)
                 os.kill(os.getpid(), signum)  # die by the signal, as without the sink
-            # SIG_IGN: ignored as before (the sink is closed all the same)
+            # SIG_IGN: stays ignored (the sink is closed all the same)

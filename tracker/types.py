@@ -369,7 +369,7 @@ def frame_dt(prev_frame: int, prev_stamp_ns: int, frame: int, stamp_ns: int, T: 
       / 10^9`, so irregular intervals and dropped frames are handled.  A stamp difference
       equal, to the nanosecond, to ``(frame - prev_frame) * T`` gives exactly
       ``(frame - prev_frame) * T`` (the simulator's stamps are ``round(k T 10^9)``, so its
-      logs predict with the same floats as before stamps were used).
+      logs predict with the same floats as over frame numbers).
     * Stamps are "absent" when both are 0 (logs that carry none): then
       :math:`\Delta t = (\text{frame} - \text{frame}_{prev})\, T`.
     * Before the first frame (``prev_frame < 0``) the interval is ``T`` (nothing to predict).

@@ -65,7 +65,7 @@ def test_plain_encode_gives_the_reference_bytes_and_golden_digest():
         data = encode(est, "r")
         assert data == msgspec.json.encode(from_estimate(est, "r"))
         digest.update(data)
-    # the bytes of these 31 estimates as the base tree (fdd6353, before the plain path) wrote them
+    # the golden digest of these 31 estimates' bytes, as msgspec encodes from_estimate's messages
     assert digest.hexdigest()[:16] == "28d87f71011e9cf0"
 
 

@@ -21,7 +21,7 @@ from bnptrack.tracker.types import Estimate, Frame, TrackEstimate
 
 
 class _Uncached(BnpTracker):
-    """The step as before: the sensor and its models built afresh every frame."""
+    """The reference step: the sensor and its models built afresh every frame."""
 
     def _sensor_models(self, frame):
         sensor = self.params.frame_sensor(frame)

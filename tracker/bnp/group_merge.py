@@ -17,7 +17,7 @@ pairs kept apart:
 * two clusters that this scan took different measurements (the estimate's MAP assignment with
   probability at least ``min_prob``, or the measurement a cluster born this scan was born from).
 
-Every other pair merges as before (squared Mahalanobis distance at most ``max_d2`` on position
+Every other pair merges by the usual rule (squared Mahalanobis distance at most ``max_d2`` on position
 and velocity, summed covariances; existences summing to at most 1).  The pairs that may pass
 are found by one compiled pass (:func:`exclusive_pairs`: :func:`exclusive_candidates`' bound, a
 necessary condition; the exclusion; the exact test by :func:`pair_status` wherever its outcome
@@ -164,7 +164,7 @@ def pair_differences(mean: np.ndarray, cov: np.ndarray, ii: np.ndarray, jj: np.n
 
 
 #: Relative margin of :func:`exact_status`' decision: a pair nearer the threshold than this (or
-#: whose covariance is ill-conditioned) is decided by numpy's batched solve, as before.
+#: whose covariance is ill-conditioned) is decided by numpy's batched solve.
 _DECIDE_MARGIN = 1e-6
 #: Largest bound on cond(S) for which the compiled distance decides (its relative error and
 #: numpy's, about 4 cond(S) 1e-16 each, stay far inside :data:`_DECIDE_MARGIN`).
@@ -297,7 +297,7 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
     compiled pass (:func:`exclusive_pairs`) applies :func:`exclusive_candidates`' bound, the
     exclusion (:func:`distinct_pairs`) and the exact test (:func:`pair_status`); with many, the
     KD-tree's pairs go through the same tests.  Pairs the compiled test leaves undecided take
-    numpy's (a batched solve, each pair on its own), as before.  ``arrays``: the labels'
+    numpy's (a batched solve, each pair on its own).  ``arrays``: the labels'
     :func:`label_arrays` (then ``taken`` is not read)."""
     r = c.existence
     birth, dotted, took = _label_arrays(c.labels, taken) if arrays is None else arrays
@@ -311,7 +311,7 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
         ii, jj = ii[keep], jj[keep]
         status = exact_status(c.mean, c.cov, ii, jj, float(max_d2))
     unsure = np.flatnonzero(status == 2)
-    if unsure.size:  # near the threshold or ill-conditioned: numpy's test, as before
+    if unsure.size:  # near the threshold or ill-conditioned: numpy's test
         diff, S = pair_differences(c.mean, c.cov, ii[unsure], jj[unsure])  # _POS_VEL = [0, 1, 2, 3]
         d2 = np.einsum("pk,pk->p", diff, np.linalg.solve(S, diff[..., None])[..., 0])
         status[unsure] = d2 <= max_d2

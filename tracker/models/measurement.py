@@ -85,7 +85,7 @@ class BearingRange:
                                \sqrt{(p_x - s_x)^2 + (p_y - s_y)^2} \end{bmatrix},
         \qquad w \sim \mathcal N\!\left(0, \operatorname{diag}(\sigma_\phi^2, \sigma_r^2)\right)
 
-    with :math:`\psi` the heading (``0``: the angle is not wrapped, as before poses existed).
+    with :math:`\psi` the heading (``0``: the angle is not wrapped).
     Bearing residuals are wrapped to :math:`[-\pi, \pi)`.
     """
 
