@@ -88,7 +88,7 @@ def label_arrays(labels: tuple[str, ...], assignments, probs, min_prob: float, f
     for k in [k for k, m in enumerate(took) if m is None]:
         _, dot, head, number = parts[k]
         if dot and head == head_now:
-            took[k] = number if number is not None else int(labels[k].partition(".")[2])  # raises as before
+            took[k] = number if number is not None else int(labels[k].partition(".")[2])  # a non-numeric index raises
         else:
             took[k] = -1
     return birth, dotted, np.array(took, dtype=np.int64).reshape(n)
