@@ -1,7 +1,8 @@
 """The examples of docs/formats.md that are a command's output are what the command gives now:
 the messages of recordings/vo2017-s1.mcap and recordings/snr-s1.mcap, the frame-12 `/tracks`
-message of `bnptrack track recordings/vo2017-s1.mcap --tracker ddp`, and the truncated-file
-session.  A failure prints the lines the docs should show."""
+message of `bnptrack track recordings/vo2017-s1.mcap --tracker ddp`, the truncated-file
+session, the diagnostics table, and the scores of the README's `bnptrack launch` summary.  A
+failure shows the values the docs should show."""
 
 from __future__ import annotations
 
@@ -149,3 +150,26 @@ def test_diagnostics_table_covers_every_tracker(short_frames):
     assert "aliases `ddp-groups` and `dpyp-groups` write what `ddp` and `dpyp` write" in " ".join(FORMATS.split())
     table = _diagnostics_table()
     assert {t for who, _ in table.values() for t in who} == set(_OPTIONS) | {"every tracker"}
+
+
+def test_readme_launch_summary_scores():
+    """The README's `bnptrack launch` summary: its default run (synthetic vo2017 seed 1 -> `ddp`
+    seed 0) gives these scores; the same run through the Python API."""
+    import numpy as np
+
+    import bnptrack
+    from bnptrack.sinks.metrics import ospa2_series
+
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"`bnptrack launch --out [^`]+`.*?```console\n(.*?)```", readme, re.S).group(1)
+    shown = dict(re.match(r"(\S.*?)\s{2,}(.*)$", line).groups() for line in block.splitlines())
+    frames = bnptrack.simulate("vo2017", 1)
+    run = bnptrack.track(frames, "ddp", scenario="vo2017")
+    est = [{t.label: np.asarray(t.state)[[0, 2]] for t in e.tracks} for e in run.estimates]
+    truth = [{i: s[[0, 2]] for i, s in zip(f.truth.ids, f.truth.states)} for f in frames]
+    labels = {t.label for e in run.estimates for t in e.tracks}
+    assert shown["frames"] == "100 (100 /tracks; gaps: none)"
+    assert shown["mean OSPA"] == f"{run.mean_ospa:.2f} m (c=100, p=1, position; 100 frames)"
+    assert shown["mean OSPA(2)"] == f"{np.mean(ospa2_series(est, truth, 10)):.2f} m (window 10 frames)"
+    assert shown["mean card. error"] == f"{run.mean_cardinality_error:.2f}"
+    assert shown["tracks"] == f"{len(run.estimates[-1].tracks)} at the last frame ({len(labels)} labels in all)"
