@@ -5,7 +5,7 @@ latest health messages of the source and the sink (the sink's carries the frames
 the last frame's latency and the running scores, see ``SinkStage._sink_health``) and how
 long the run has been going.  :func:`progress_line` turns that into one line::
 
-    [  4.0 s] frames 31 (10.0/s), lag 0 frames / 2.3 ms, tracks 9, OSPA 24.1 m (mean 26.8)
+    [  4.0 s] frames 31 (10.0/s), behind 0 frames / 2.3 ms, tracks 9, OSPA 24.1 m (mean 26.8)
 
 On a terminal the line is rewritten in place (carriage return); otherwise (a pipe, a file,
 CI logs) every update is a plain line.  :meth:`Progress.echo` prints other messages without
@@ -44,8 +44,9 @@ def _published(source: dict[str, Any] | None) -> int | None:
 
 
 def progress_line(st: Status, fps: float | None) -> str:
-    """One progress line (no newline): frames done and their rate, the lag behind the source
-    (frames published but not yet recorded, and the latency of the last recorded frame), the
+    """One progress line (no newline): frames done and their rate, how far the sink is behind
+    the source (frames published but not yet recorded, and the latency of the last recorded
+    frame; not the fixed lag of ``--lag``), the
     tracks of the last frame and, when the frames carry truth, the last and mean OSPA."""
     head = f"[{st.elapsed_s:6.1f} s]"
     if st.phase == "checking":
@@ -59,15 +60,15 @@ def progress_line(st: Status, fps: float | None) -> str:
     if not done and not pub:
         return f"{head} frames 0: the sink is ready, waiting for the first frame"
     parts = [f"frames {done}" + (f" ({fps:.1f}/s)" if fps is not None else "")]
-    lag = []
+    behind = []
     if pub is not None:
-        behind = max(pub - done, 0)
-        lag.append(f"{behind} frame{'' if behind == 1 else 's'}")
+        n = max(pub - done, 0)
+        behind.append(f"{n} frame{'' if n == 1 else 's'}")
     lat = sink.get("last_latency_ms")
     if lat is not None:
-        lag.append(f"{lat:.1f} ms")
-    if lag:
-        parts.append("lag " + " / ".join(lag))
+        behind.append(f"{lat:.1f} ms")
+    if behind:
+        parts.append("behind " + " / ".join(behind))
     scores = sink.get("scores") or {}
     parts.append(f"tracks {scores.get('tracks', 0)}")
     if scores.get("ospa") is not None:

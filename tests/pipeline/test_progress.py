@@ -26,10 +26,10 @@ def _source(published: int) -> dict:
 def test_progress_line_reference_text():
     st = Status(4.0, source=_source(33), sink=_sink(31, 10.0, ospa=26.84, last=24.12, tracks=9))
     assert progress_line(st, 10.0) == (
-        "[   4.0 s] frames 31 (10.0/s), lag 2 frames / 2.5 ms, tracks 9, OSPA 24.1 m (mean 26.8)")
+        "[   4.0 s] frames 31 (10.0/s), behind 2 frames / 2.5 ms, tracks 9, OSPA 24.1 m (mean 26.8)")
     # no truth: no OSPA; one frame behind: singular
     st = Status(12.25, source=_source(8), sink=_sink(7, 1.0, tracks=0, latency=None))
-    assert progress_line(st, None) == "[  12.2 s] frames 7, lag 1 frame, tracks 0"
+    assert progress_line(st, None) == "[  12.2 s] frames 7, behind 1 frame, tracks 0"
 
 
 def test_progress_line_before_the_first_frame():
@@ -54,8 +54,8 @@ def test_progress_non_tty_plain_lines_once_a_second_with_rate():
     text = buf.getvalue()
     assert "\r" not in text and "\x1b" not in text
     lines = text.splitlines()
-    assert lines[1].startswith("[   1.2 s] frames 10 (10.0/s), lag 2 frames")
-    assert lines[2].startswith("[   2.3 s] frames 30 (20.0/s), lag 0 frames")
+    assert lines[1].startswith("[   1.2 s] frames 10 (10.0/s), behind 2 frames")
+    assert lines[2].startswith("[   2.3 s] frames 30 (20.0/s), behind 0 frames")
     assert lines[3].startswith("[   2.4 s] frames 30 (20.0/s)")
     assert lines[4] == "stage tracker restarted (pid 1)" and len(lines) == 5
 
@@ -69,8 +69,8 @@ def test_progress_final_line_equal_to_the_last_is_not_repeated():
     assert not pr.update(Status(1.14, source=_source(30), sink=_sink(30, 50.0), phase="final"))
     assert pr.update(Status(1.3, source=_source(30), sink=_sink(30, 50.0), phase="final"))  # a new time
     lines = buf.getvalue().splitlines()
-    assert lines == ["[   1.1 s] frames 30, lag 0 frames / 2.5 ms, tracks 3",
-                     "[   1.3 s] frames 30, lag 0 frames / 2.5 ms, tracks 3"]
+    assert lines == ["[   1.1 s] frames 30, behind 0 frames / 2.5 ms, tracks 3",
+                     "[   1.3 s] frames 30, behind 0 frames / 2.5 ms, tracks 3"]
 
 
 def test_progress_checking_line_on_a_terminal_only_and_erased_if_nothing_follows():
@@ -95,7 +95,7 @@ def test_progress_tty_rewrites_one_line_and_ends_it():
     text = buf.getvalue()
     assert text.count("\r\x1b[2K") == 3
     # the line in place is ended before the message, the message, and the end at close
-    assert text.count("\n") == 3 and "tracks 3\nnote\n\r" in text and text.endswith("frames 3 (1.0/s), lag 2.5 ms, tracks 3\n")
+    assert text.count("\n") == 3 and "tracks 3\nnote\n\r" in text and text.endswith("frames 3 (1.0/s), behind 2.5 ms, tracks 3\n")
 
 
 def _track(label: str, x: float, y: float) -> TrackEstimate:
