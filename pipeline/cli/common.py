@@ -129,11 +129,17 @@ def _describe(exc: BaseException) -> str:
 _KEY_WIDTH = 16
 
 
+def rows_text(rows: list[tuple[str, str]]) -> str:
+    """``key  value`` summary rows, one a line, keys left-aligned in one column (as wide as
+    the longest key, at least 16 characters) so the values line up."""
+    width = max([_KEY_WIDTH, *(len(key) for key, _ in rows)])
+    return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)
+
+
 def echo_rows(rows: list[tuple[str, str]]) -> None:
-    """Print ``key  value`` summary rows, keys left-aligned."""
-    for key, value in rows:
-        width = max(_KEY_WIDTH, len(key))
-        click.echo(f"{key:<{width}}  {value}")
+    """Print :func:`rows_text`."""
+    if rows:
+        click.echo(rows_text(rows))
 
 
 def fmt(value: float | None, spec: str = ".2f") -> str:
