@@ -7,7 +7,8 @@
 kernels not cached yet are compiled (numba writes one index file ``*.nbi`` per compiled
 kernel, from whichever process compiles it: the command's own or a pipeline's tracker stage),
 and at the end how many it compiled in how long.  Each tracker's first run says it (a run of
-``ddp`` compiles no GLMB kernel), and a warm cache prints nothing.
+``ddp`` compiles no GLMB kernel), but a tracker whose kernels are all cached already (``dpyp``
+after ``ddp``: they share them) and a warm cache print nothing.
 """
 
 from __future__ import annotations
@@ -67,15 +68,23 @@ class CompileProgress:
             self.helper.wait()
         if not ok:
             return
-        n = self._count()
-        self._say(f"compiled {n} kernels in {time.monotonic() - self.t0:.0f} s (cached in {self.folder})")
-        with contextlib.suppress(OSError):
-            self.folder.mkdir(parents=True, exist_ok=True)
-            (self.folder / f"compiled-{self.tracker}").write_text("")
+        n, took = self._count(), time.monotonic() - self.t0
+        if n:
+            self._say(f"compiled {n} kernels in {took:.0f} s (cached in {self.folder})")
+        else:  # a run that called none of them (no frame, or none of that kind)
+            self._say(f"compiled no kernel: the run called none of the {self.total} not cached yet ({took:.0f} s)")
+        mark_compiled(self.folder, self.tracker)
 
     def _say(self, text: str) -> None:
         if self.out is not None:
             print(f"bnptrack: {text}", file=self.out, flush=True)
+
+
+def mark_compiled(folder: Path, tracker: str) -> None:
+    """Mark tracker ``tracker``'s kernels as compiled in ``folder`` (no message on later runs)."""
+    with contextlib.suppress(OSError):
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"compiled-{tracker}").write_text("")
 
 
 def _start_helper(tracker: str) -> subprocess.Popen | None:
@@ -132,8 +141,11 @@ class FirstCompile:
         folder = Path(kernel_cache_dir())
         if not JIT or self.tracker not in registry.TRACKERS or (folder / f"compiled-{self.tracker}").exists():
             return
-        self.progress = CompileProgress(self.tracker, folder, _uncached_kernels(self.tracker, folder),
-                                        None if self.quiet else self.out or sys.stderr)
+        total = _uncached_kernels(self.tracker, folder)
+        if total == 0:  # every kernel is cached already (another tracker's run compiled the ones it shares)
+            mark_compiled(folder, self.tracker)
+            return
+        self.progress = CompileProgress(self.tracker, folder, total, None if self.quiet else self.out or sys.stderr)
         self.progress.start(self.helper)
 
     def end(self, ok: bool) -> None:

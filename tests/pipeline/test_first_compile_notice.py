@@ -62,3 +62,33 @@ def test_quiet_prints_nothing_and_a_failed_run_leaves_no_mark(tmp_path, monkeypa
             raise RuntimeError("the run failed")
     assert out.getvalue().count("\n") == 1  # the first line only
     assert not (Path(kernel_cache_dir()) / "compiled-glmb").exists()
+
+
+def _cache_every_kernel(folder: Path) -> None:
+    """An index file for every kernel defined so far, as a finished run of another tracker leaves."""
+    (folder / "sub").mkdir(parents=True, exist_ok=True)
+    for prefix in kernel_file_prefixes():
+        (folder / "sub" / f"{prefix}.py311.nbi").write_bytes(b"")
+
+
+def test_a_tracker_whose_kernels_are_all_cached_says_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    folder = Path(kernel_cache_dir())
+    with compile_progress("ddp", quiet=True, out=io.StringIO(), helper=False):
+        pass
+    _cache_every_kernel(folder)  # ddp's run compiled them; dpyp shares every one of them
+    out = io.StringIO()
+    with compile_progress("dpyp", quiet=False, out=out, helper=False):
+        pass
+    assert out.getvalue() == ""  # no "compiled 0 kernels"
+    assert (folder / "compiled-dpyp").exists()
+
+
+def test_a_run_that_compiles_nothing_says_so(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    out = io.StringIO()
+    with compile_progress("ddp", quiet=False, out=out, helper=False):
+        total = int(out.getvalue().split("(up to ")[1].split(")")[0])
+    last = out.getvalue().splitlines()[-1]
+    assert last.startswith(f"bnptrack: compiled no kernel: the run called none of the {total} not cached yet (")
+    assert total == len(kernel_file_prefixes())
