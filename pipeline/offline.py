@@ -145,6 +145,8 @@ class TrackResult:
     """Display names (:func:`tracker.types.display_name`) of the last frame's tracks."""
     skipped: tuple[tuple[int, str], ...] = ()
     """Frames beyond the bounds, skipped (:class:`tracker.types.FrameGate`): (frame, why)."""
+    labels: int | None = None
+    """How many distinct labels the run reported in all."""
 
     @property
     def n_frames(self) -> int:
@@ -160,6 +162,12 @@ class TrackResult:
     @property
     def mean_ospa(self) -> float | None:
         v = self._truth_values("ospa")
+        return float(v.mean()) if v.size else None
+
+    @property
+    def mean_ospa2(self) -> float | None:
+        """The mean of the frames' OSPA(2) (each over the window ending at the frame)."""
+        v = self._truth_values("ospa2")
         return float(v.mean()) if v.size else None
 
     @property
@@ -245,6 +253,7 @@ def track_frames(
     health = RunHealth(getattr(tracker, "params", None))
     scorer = RunScorer()
     skipped: list[tuple[int, str]] = []
+    labels: set[str] = set()
     segments = gated_segments(frames, FrameGate(bounds or FrameBounds()), skipped)
     try:
         for frame, est, _state in (x for seg in segments for x in _estimates(tracker, seg, seed, lag, on_online)):
@@ -254,6 +263,7 @@ def track_frames(
                 on_estimate(frame, est, row)
             rows.append(row)
             final, names = len(est.tracks), tuple(t.name for t in est.tracks)
+            labels.update(est.labels)
             if crossings:
                 seen.append((frame, est))
     except (McapLogError, FrameBoundError) as exc:
@@ -262,7 +272,7 @@ def track_frames(
     for note in notes:
         warn(note)
     return TrackResult(tracker.name, tuple(rows), final, error, score_crossings(seen, crossings), notes, names,
-                       tuple(skipped))
+                       tuple(skipped), len(labels))
 
 
 def _estimates(tracker: Tracker, frames: Iterable[Frame], seed: int, lag: int,

@@ -17,7 +17,7 @@ import numpy as np
 from bnptrack.sinks.metric_checks import check_alpha, optimal_assignment
 from bnptrack.sinks.metrics import (OSPA2_WINDOW, OSPA_C, OSPA_P, GospaResult, OspaResult, _cutoff_distances,
                                     _gospa_from_pairs, _gospa_unchecked, _ospa_unchecked, _root, ospa)
-from bnptrack.tracker.types import POSITION_INDEX, Estimate, Frame
+from bnptrack.tracker.types import POSITION_INDEX, Estimate, Frame, display_name
 
 __all__ = ["RunScorer", "ScoreTally"]
 
@@ -173,17 +173,19 @@ class ScoreTally:
     ``add(frame, estimate, scores)`` takes one frame and its :meth:`RunScorer.update`
     result.  Means are over the frames with truth (as ``bnptrack track``'s mean OSPA and
     mean cardinality error: :func:`cardinality_error` = ``|n_est - n_true|``);
-    ``tracks`` is the number of tracks of the last frame, ``labels`` the number of distinct
-    labels reported so far.
+    ``tracks`` is the number of tracks of the last frame, ``names`` their display names
+    (:func:`tracker.types.display_name`), ``labels`` the number of distinct labels reported so
+    far.
     """
 
-    __slots__ = ("frames", "scored", "_ospa", "_ospa2", "_card", "tracks", "labels", "_seen", "last_ospa")
+    __slots__ = ("frames", "scored", "_ospa", "_ospa2", "_card", "tracks", "names", "labels", "_seen", "last_ospa")
 
     def __init__(self) -> None:
         self.frames = 0
         self.scored = 0
         self._ospa = self._ospa2 = self._card = 0.0
         self.tracks = 0
+        self.names: tuple[str, ...] = ()
         self.labels = 0
         self._seen: set[str] = set()
         self.last_ospa: float | None = None
@@ -205,6 +207,7 @@ class ScoreTally:
         frame whose scores are ``None``)."""
         self.frames += 1
         self.tracks = len(labels)
+        self.names = tuple(display_name(x) for x in labels)
         self._seen.update(labels)
         self.labels = len(self._seen)
 
@@ -213,8 +216,8 @@ class ScoreTally:
 
     def as_dict(self) -> dict[str, Any]:
         """``{"frames", "frames_scored", "ospa", "ospa2", "cardinality_error", "tracks",
-        "labels", "last_ospa"}`` (means; ``None`` without truth)."""
+        "names", "labels", "last_ospa", "c", "p", "ospa2_window"}`` (means; ``None`` without truth)."""
         return {"frames": self.frames, "frames_scored": self.scored, "ospa": self._mean(self._ospa),
                 "ospa2": self._mean(self._ospa2), "cardinality_error": self._mean(self._card),
-                "tracks": self.tracks, "labels": self.labels, "last_ospa": self.last_ospa,
+                "tracks": self.tracks, "names": list(self.names), "labels": self.labels, "last_ospa": self.last_ospa,
                 "c": OSPA_C, "p": OSPA_P, "ospa2_window": OSPA2_WINDOW}

@@ -23,7 +23,6 @@ from bnptrack.pipeline.cli.common import (
     clean_errors,
     config_help,
     echo_rows,
-    fmt,
     live_view,
     open_live,
     parse_offset,
@@ -34,7 +33,8 @@ from bnptrack.pipeline.cli.common import (
 )
 from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
-from bnptrack.pipeline.offline import (OSPA_C, OSPA_P, TrackResult, check_output_path, check_outputs, default_tracks_path,
+from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
+from bnptrack.pipeline.offline import (TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, read_log_start, refuse_existing, track_to_sinks)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
@@ -414,36 +414,18 @@ def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> t
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
                 rrd: Path | None, lag: int = 0) -> list[tuple[str, str]]:
-    """The summary rows of ``track``: scores (with truth), tracks (with their display names),
-    time, files."""
+    """The summary rows of ``track``: the run, the figures every run's summary prints
+    (:func:`pipeline.cli.run_figures.figure_rows`), crossings kept (a log with crossings),
+    files."""
     rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
     if lag:
         rows.append(("lag", f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"))
-    if res.has_truth:
-        rows.append(
-            ("mean OSPA", f"{fmt(res.mean_ospa)} m (c={OSPA_C:g}, p={OSPA_P:g}, position)")
-        )
-        rows.append(("mean card. error", fmt(res.mean_cardinality_error)))
-        if res.crossings is not None:
-            kept = sum(p.kept for p in res.crossings.pairs)
-            rows.append(("crossings kept", f"{kept}/{len(res.crossings.pairs)} pairs keep both "
-                         "labels (scan c-5 vs c+5, gate 100 m)"))
-    else:
-        rows.append(("mean OSPA", "n/a (the log has no /truth)"))
-    rows += [
-        ("final tracks", final_tracks_text(res.final_tracks, res.final_names)),
-        ("ms per frame", f"median {fmt(res.ms_median)}, p95 {fmt(res.ms_p95)}"),
-        ("wrote", f"{out} ({out.stat().st_size} bytes)"),
-    ]
+    rows += figure_rows(RunFigures.of_track(res, lag))
+    if res.crossings is not None:
+        kept = sum(p.kept for p in res.crossings.pairs)
+        rows.append(("crossings kept", f"{kept}/{len(res.crossings.pairs)} pairs keep both "
+                     "labels (scan c-5 vs c+5, gate 100 m)"))
+    rows.append(("wrote", f"{out} ({out.stat().st_size} bytes)"))
     if rrd is not None:
         rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; bnptrack view {rrd})"))
     return rows
-
-
-def final_tracks_text(n: int, names: tuple[str, ...], most: int = 12) -> str:
-    """``8: T1.4 T9.4 ...``: the number of final tracks and their display names (the names
-    the recording, the export and the Foxglove scene show), the first ``most`` of them."""
-    if not names:
-        return str(n)
-    shown = " ".join(names[:most])
-    return f"{n}: {shown}" + (f" (+{len(names) - most} more)" if len(names) > most else "")

@@ -32,6 +32,7 @@ from bnptrack.pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
+from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.compile_notice import FirstCompile
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig
 from bnptrack.pipeline.resolve import TRACKERS
@@ -39,8 +40,10 @@ from bnptrack.pipeline.resolve import TRACKERS
 __all__ = ["launch", "replay", "stage", "router"]
 
 
-def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
-    """Print a launch/replay result; raise CliError on failure."""
+def _report_launch(res: Any, quiet: bool, paced: bool = True, lag: int = 0) -> None:
+    """Print a launch/replay result (the figures every run's summary prints:
+    :func:`pipeline.cli.run_figures.figure_rows`; ``lag``: the tracker's ``--lag``); raise
+    CliError on failure."""
     summary = res.summary
     if not quiet:
         restarts = ", ".join(f"{k} {v}" for k, v in res.restarts.items() if v) or "none"
@@ -56,7 +59,8 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             if lat_text := describe_latency(summary, paced):
                 rows.append(("latency", lat_text))
-            rows += _score_rows(summary.scores)
+            if summary.scores or summary.latency.get("tracker_ms"):
+                rows += figure_rows(RunFigures.of_summary(summary, lag))
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:
             try:
@@ -73,28 +77,6 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True) -> None:
         raise IncompleteError(f"output incomplete: {res.incomplete} -- files are in {res.out}/")
     if not res.ok:
         raise CliError(f"{res.error} -- files (if any) are in {res.out}/")
-
-
-def _score_rows(scores: dict | None) -> list[tuple[str, str]]:
-    """Summary rows of the sink's ``scores`` (``sink.json``): the means of OSPA, OSPA(2)
-    and the cardinality error over the frames with truth, and the tracks."""
-    if not scores:
-        return []
-    from bnptrack.pipeline.offline import OSPA_C, OSPA_P  # here: each stage process imports this module
-
-    rows = []
-    if scores.get("ospa") is not None:
-        rows += [
-            ("mean OSPA", f"{scores['ospa']:.2f} m (c={scores.get('c', OSPA_C):g}, "
-                          f"p={scores.get('p', OSPA_P):g}, position; {scores['frames_scored']} frames)"),
-            ("mean OSPA(2)", f"{scores['ospa2']:.2f} m (window {scores.get('ospa2_window')} frames)"),
-            ("mean card. error", f"{scores['cardinality_error']:.2f}"),
-        ]
-    elif scores.get("frames"):
-        rows.append(("mean OSPA", "n/a (the frames carry no truth)"))
-    rows.append(("tracks", f"{scores.get('tracks', 0)} at the last frame "
-                           f"({scores.get('labels', 0)} labels in all)"))
-    return rows
 
 
 def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool = False,
@@ -135,7 +117,8 @@ def _run_pipeline(cfg: Any, timeout: float | None, quiet: bool, overwrite: bool 
             first.end(ok)
         if progress is not None:
             progress.close()
-    _report_launch(res, quiet, paced=cfg.source.rate > 0)
+    _report_launch(res, quiet, paced=cfg.source.rate > 0,
+                   lag=cfg.tracker.lag if "tracker" in cfg.stages else 0)
 
 
 _OVERWRITE_OPT = click.option(

@@ -26,6 +26,10 @@ def test_api_lag_publishes_every_frame_and_keeps_the_online_estimates():
         np.testing.assert_array_equal(a.positions, b.positions)
     assert [e.frame for e in lagged.estimates] == [f.frame for f in frames]
     assert all(e.lag == 2 and "lag" not in e.diagnostics for e in lagged.estimates)
+    for a, b in zip(lagged.online, lagged.estimates):  # a frame's ms: its online step plus the layer's
+        assert b.diagnostics["ms"] > a.diagnostics["ms"]
+        assert {k: v for k, v in b.diagnostics.items() if k != "ms"} == {
+            k: v for k, v in a.diagnostics.items() if k != "ms"}
     # what the API returns is the layer over the tracker, frame for frame
     tracker = bnptrack.make_tracker("ddp-mb")
     direct = [e for _f, e, _s in run_lagged(FixedLag(tracker, tracker.params, 2), frames, 1)]

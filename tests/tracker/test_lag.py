@@ -168,3 +168,33 @@ def test_a_swapped_crossing_is_undone_when_crossing_resolution_is_on():
 
     assert labels_of_object_1(None) == ["p"] * 4 + ["q"] * 4   # as the tracker decided
     assert labels_of_object_1(4.0) == ["p"] * 8                  # resolved by the scans after it
+
+
+class Timed(Scripted):
+    """:class:`Scripted` whose estimates carry diagnostics: ``ms`` 10 + frame, ``n_tracks``."""
+
+    def step(self, state, frame, rng):
+        state, est = super().step(state, frame, rng)
+        return state, Estimate(est.frame, est.stamp_ns, est.tracks, est.assignments, est.assignment_prob,
+                               {"ms": 10.0 + frame.frame, "n_tracks": float(len(est.tracks))})
+
+
+def test_a_lagged_frame_costs_its_online_step_plus_the_layer(monkeypatch):
+    import bnptrack.tracker.lag as lag_module
+
+    class Clock:  # every reading 2.5 ms after the previous one: the layer's publication reads it twice
+        t = 0.0
+
+        def __call__(self):
+            self.t += 0.0025
+            return self.t
+
+    monkeypatch.setattr(lag_module.time, "perf_counter", Clock())
+    script = {k: [("a", _line(k), 0)] for k in range(5)}
+    frames = [_xy(k, [_line(k)[0], 50.0]) for k in range(5)]
+    layer = FixedLag(Timed(script), PARAMS, 2, smooth=False)
+    out = [(f.frame, e) for f, e, _ in run_lagged(layer, frames, seed=0)]
+    # frame k: its online step (10 + k ms) plus one publication of 2.5 ms, flushed frames too
+    assert [k for k, _ in out] == list(range(5))
+    assert [e.diagnostics["ms"] for _, e in out] == pytest.approx([12.5 + k for k in range(5)], abs=1e-9)
+    assert all(e.diagnostics["n_tracks"] == 1.0 for _, e in out)  # the other diagnostics as online
