@@ -17,7 +17,8 @@ def default_blueprint(*, diagnostics: Iterable[str] = tuple(DIAG_NAMES), health:
                       scene_bounds: tuple[float, float, float, float] | None = None,
                       truth: bool = True) -> rrb.Blueprint:
     """The layout a recording opens with: the 2-D scene (3/5 of the width) and, beside it,
-    cardinality, the structure (clusters and the posterior cardinality's mean and MAP), OSPA /
+    cardinality, the structure (motion clusters of the reported tracks and the posterior
+    cardinality's mean and MAP), OSPA /
     OSPA(2) and a tab group (tracker diagnostics, pipeline health, events,
     run metadata).  ``scene_bounds`` = ``(x_min, x_max, y_min, y_max)`` in metres.  Without
     ``truth`` (a log without ground truth) there is no OSPA panel (it would stay empty) and the
@@ -55,7 +56,7 @@ def _metric_views(truth: bool) -> list[Any]:
     low (top left), OSPA starts at its cut-off until the first tracks are confirmed and falls
     (top right), so that no legend hides the first frames."""
     low_start = rrb.PlotLegend(rrb.Corner2D.LeftTop)
-    structure = rrb.TimeSeriesView(origin=STRUCTURE, name="clusters; posterior cardinality mean and MAP",
+    structure = rrb.TimeSeriesView(origin=STRUCTURE, name="motion clusters of the tracks; posterior cardinality mean and MAP",
                                    plot_legend=low_start)
     if not truth:
         return [rrb.TimeSeriesView(origin=CARDINALITY, name="tracks (the log has no truth: no OSPA)",

@@ -23,10 +23,11 @@ Entity tree (``world`` is drawn with +y up; positions in metres, world frame)::
     metrics/cardinality        Scalars [estimated, true]
     metrics/ospa               Scalars [total, localisation, cardinality]
     metrics/ospa2              Scalars [total]
-    metrics/structure/clusters     Scalars [distinct clusters of the reported tracks] (from the
-                                   first frame with a cluster on)
+    metrics/structure/clusters     Scalars ["motion clusters": distinct motion clusters of the
+                                   reported tracks] (from the first frame with a cluster on)
     metrics/structure/cardinality  Scalars [mean, MAP] of the frame's cardinality_pmf
-    diagnostics/<key>          Scalars, one per tracker diagnostic (alpha, d, n_clusters, ...)
+    diagnostics/<key>          Scalars, one per tracker diagnostic (alpha, d, n_clusters: the
+                               "hypothesised objects" of the state, reported or not, ...)
     health/<key>               Scalars, pipeline health counters when given
     events                     TextLog: track and truth births and ends
     metadata                   TextDocument: scenario, parameters, tracker, seed, versions
@@ -97,13 +98,13 @@ SERIES: dict[str, tuple[list[str], list[tuple[int, int, int]]]] = {
     CARDINALITY: (["estimated", "true"], [(80, 170, 255), (190, 190, 190)]),
     OSPA: (["total", "localisation", "cardinality"], [(255, 120, 80), (120, 200, 120), (200, 140, 255)]),
     OSPA2: (["OSPA(2)"], [(255, 200, 60)]),
-    CLUSTER_COUNT: (["clusters"], [(240, 50, 230)]),
+    CLUSTER_COUNT: (["motion clusters"], [(240, 50, 230)]),
     CARD_POSTERIOR: (["posterior mean", "posterior MAP"], [(80, 170, 255), (120, 220, 60)]),
 }
 DIAG_NAMES = {
     "alpha": "alpha (concentration)",
     "d": "d (discount)",
-    "n_clusters": "clusters",
+    "n_clusters": "hypothesised objects (n_clusters)",
     "n_tracks": "reported tracks",
     "log_joint": "Gibbs log joint",
     "ms": "tracker ms / frame",

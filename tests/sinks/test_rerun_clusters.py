@@ -123,7 +123,13 @@ def test_groups_recording_draws_cluster_links_and_the_structure_series(groups_ru
             members = [t.position for t in e.tracks if t.cluster == c]
             np.testing.assert_allclose(xy, np.mean(members, axis=0), rtol=1e-6, atol=1e-2)
         assert len(links.get(f.frame, [])) == sum(sum(t.cluster == c for t in e.tracks) for c in big)
-    assert "clusters; posterior cardinality mean and MAP" in _blueprint_view_names(path)[0]
+    views = _blueprint_view_names(path)[0]
+    # the motion clusters of the reported tracks and the state's objects (n_clusters) apart
+    assert {"motion clusters of the tracks; posterior cardinality mean and MAP",
+            "hypothesised objects (n_clusters)"} <= views and "clusters" not in views
+    series = [b.column("SeriesLines:names").to_pylist() for b in contents["/metrics/structure/clusters"]
+              if "SeriesLines:names" in b.schema.names]
+    assert series == [[["motion clusters"]]]
 
 
 def test_a_single_level_recording_has_label_colours_and_no_clusters(tmp_path):
