@@ -43,3 +43,27 @@ def test_thinning_equals_the_pairwise_rule():
             d = np.abs(pos[want] - pos[i])
             want[i] = not ((d[:, 0] < box[0]) & (d[:, 1] < box[1])).any()
         np.testing.assert_array_equal(labels_shown(pos, order, box), want)
+
+
+def test_glmb_labels_have_the_documented_forms():
+    """docs/glmb.md: ``<birth frame>.<birth region>`` (static birth) or ``<birth frame>.z<j>``
+    (adaptive birth from measurement j of the previous processed frame), shown as ``T`` + label."""
+    import re
+
+    import bnptrack
+
+    frames = bnptrack.simulate("vo2017", seed=2)[:20]
+    run = bnptrack.track(frames, tracker="glmb", seed=0)
+    n_regions = len(bnptrack.load_params("vo2017").birth)
+    labels = {t.label: t.name for e in run.estimates for t in e.tracks}
+    n_meas = {f.frame: f.n_measurements for f in frames}
+    assert any(".z" in x for x in labels)
+    for label, name in labels.items():
+        m = re.fullmatch(r"(\d+)\.(z?)(\d+)", label)
+        assert m is not None, label
+        born, adaptive, index = int(m[1]), m[2] == "z", int(m[3])
+        assert born in n_meas and name == f"T{label}"
+        if adaptive:  # a measurement of the frame before the birth frame
+            assert index < n_meas[born - 1]
+        else:
+            assert index < n_regions
