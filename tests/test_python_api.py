@@ -37,6 +37,19 @@ def test_the_worked_example_in_docs_runs(tmp_path, capsys):
     assert out[6] == "20.0 0.98"
 
 
+def test_the_readme_snippet_prints_names_and_positions(capsys):
+    """README's "From Python" snippet: the mean OSPA, then one line per final track with its
+    display name and position (vo2017 seed 1, tracker seed 0: the 5 tracks `track` names)."""
+    text = (ROOT / "README.md").read_text()
+    code = text.split("**From Python**")[1].split("```python\n")[1].split("```")[0]
+    exec(compile(code, "README.md", "exec"), {})
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "mean OSPA 24.87 m"
+    assert [line.split()[0] for line in out[1:]] == ["T1.4", "T10.0", "T10.13", "T40.13", "T37.11"]
+    for line in out[1:]:
+        assert re.fullmatch(r"T\S+ -?\d+\.\d -?\d+\.\d", line), line  # no TrackEstimate repr
+
+
 def test_track_gives_what_the_cli_gives(tmp_path):
     """The facade and ``bnptrack track`` run the same tracker on the same frames."""
     from click.testing import CliRunner
