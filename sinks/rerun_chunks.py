@@ -18,10 +18,10 @@ import pyarrow as pa
 import rerun as rr
 
 from bnptrack.sinks.rerun_clusters import cluster_columns, from_first_cluster
-from bnptrack.sinks.rerun_columns import cluster_style, scalar_columns, send, track_colours
+from bnptrack.sinks.rerun_columns import cluster_label_style, cluster_style, scalar_columns, send, track_colours
 from bnptrack.sinks.rerun_geometry import EMPTY2, track_strips, truth_crosses, truth_trails
 from bnptrack.sinks.rerun_measurements import measurement_chunks
-from bnptrack.sinks.rerun_style import CLUSTERS, R_RING, RINGS, TRUTH, TRUTH_TRAILS
+from bnptrack.sinks.rerun_style import CLUSTER_LABEL_LIFT, CLUSTER_LABELS, CLUSTERS, R_RING, RINGS, TRUTH, TRUTH_TRAILS
 
 
 __all__ = ["ChunkSender", "KeptFrame"]
@@ -111,10 +111,12 @@ class ChunkSender:
             if not (frames := from_first_cluster(frames)):
                 return
             self._log_arrays(CLUSTERS, cluster_style(), static=True)
+            self._log_arrays(CLUSTER_LABELS, cluster_label_style(), static=True)
             self._styled.add(CLUSTERS)
         ks, ts = np.array([(r.k, r.t) for r in frames], dtype=np.int64).T
-        for comps in cluster_columns(self._s, frames):
-            self._send(CLUSTERS, ks, ts, comps)
+        points, strips, names = cluster_columns(self._s, frames, CLUSTER_LABEL_LIFT * self._geo.cross)
+        for entity, comps in ((CLUSTERS, points), (CLUSTERS, strips), (CLUSTER_LABELS, names)):
+            self._send(entity, ks, ts, comps)
 
     def _send_measurements(self, frames: list[KeptFrame]) -> None:
         """Measurements, measurement->track lines and (range-only) rings of all kept frames,

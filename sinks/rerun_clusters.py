@@ -1,5 +1,5 @@
 """The cluster structure in a Rerun recording: track colours by motion cluster, the
-``world/clusters`` links and the ``metrics/structure`` series (clusters, posterior cardinality).
+``world/clusters`` links (their names in ``world/clusters/labels``) and the ``metrics/structure`` series (clusters, posterior cardinality).
 
 Automatic, not an option: a track whose estimate carries a ``cluster`` (the two-level trackers
 ``ddp`` / ``dpyp``) is drawn, from that frame on, in its cluster's colour (its
@@ -60,18 +60,21 @@ class ClusterColours:
 
 def _frame_links(pos: np.ndarray, cl: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, ...]:
     """One frame's clusters with two or more members: centroids ``(c, 2)``, their ids, sizes and
-    colours, and the links ``(l, 2, 2)`` centroid -> member with their colours."""
+    colours, the links ``(l, 2, 2)`` centroid -> member with their colours, and the highest
+    member's y of each cluster."""
     m = cl >= 0
     ids, inv, cnt = np.unique(cl[m], return_inverse=True, return_counts=True)
     cent = np.zeros((ids.size, 2))
     np.add.at(cent, inv, pos[m])
     cent /= np.maximum(cnt, 1)[:, None]
+    top = np.full(ids.size, -np.inf)
+    np.maximum.at(top, inv, pos[m][:, 1])
     ccol = np.zeros(ids.size, dtype=np.uint32)
     ccol[inv] = col[m]
     big = cnt >= 2
     keep = big[inv]
     links = np.stack([cent[inv[keep]], pos[m][keep]], axis=1) if keep.any() else np.zeros((0, 2, 2))
-    return cent[big], ids[big], cnt[big], ccol[big], links, col[m][keep]
+    return cent[big], ids[big], cnt[big], ccol[big], links, col[m][keep], top[big]
 
 
 def from_first_cluster(rows: Sequence[Any]) -> list:
@@ -81,24 +84,29 @@ def from_first_cluster(rows: Sequence[Any]) -> list:
     return list(rows[first:])
 
 
-def cluster_columns(schema: Any, rows: Sequence[Any]) -> tuple[list, list]:
+def cluster_columns(schema: Any, rows: Sequence[Any], lift: float) -> tuple[list, list, list]:
     """The ``world/clusters`` columns of the kept frames ``rows`` (each with ``pos``, ``ccl``
-    and ``tcol``): Points2D (centroid, label ``C<id> (n)``, colour) and LineStrips2D (links);
-    a frame without such a cluster gets an empty row (the previous frame's do not linger)."""
+    and ``tcol``): Points2D (centroid, colour) and LineStrips2D (links); and the
+    ``world/clusters/labels`` Points2D: each cluster's name ``C<id> (n)`` on a point ``lift``
+    metres above its highest member, over the centroid (a label is drawn under its point, so
+    it sits above the members, clear of their own names, which are drawn under them).  A frame
+    without such a cluster gets empty rows (the previous frame's do not linger)."""
     parts = [_frame_links(r.pos, r.ccl, r.tcol) for r in rows]
     n_c = np.array([p[0].shape[0] for p in parts], dtype=np.int64)
     n_l = np.array([p[4].shape[0] for p in parts], dtype=np.int64)
     cent = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 2))
+    top = np.concatenate([p[6] for p in parts]) if parts else np.zeros(0)
     labels = [f"C{i} ({n})" for p in parts for i, n in zip(p[1].tolist(), p[2].tolist())]
     links = np.concatenate([p[4] for p in parts]).reshape(-1, 2)
     lcol = np.concatenate([p[5] for p in parts]).astype(np.uint32)
-    points = [("Points2D:positions", schema.positions(cent), n_c),
-              ("Points2D:labels", pa.array(labels, type=pa.string()), n_c),
-              ("Points2D:colors", pa.array(np.concatenate([p[3] for p in parts]), type=pa.uint32()), n_c)]
+    ccol = pa.array(np.concatenate([p[3] for p in parts]) if parts else np.zeros(0, np.uint32), type=pa.uint32())
+    points = [("Points2D:positions", schema.positions(cent), n_c), ("Points2D:colors", ccol, n_c)]
     strips = [("LineStrips2D:strips", schema.strip_array(links, np.full(int(n_l.sum()), 2)), n_l),
               ("LineStrips2D:colors", pa.array((lcol & np.uint32(0xFFFFFF00)) | np.uint32(200), type=pa.uint32()),
                n_l)]
-    return points, strips
+    names = [("Points2D:positions", schema.positions(np.stack([cent[:, 0], top + lift], axis=-1)), n_c),
+             ("Points2D:labels", pa.array(labels, type=pa.string()), n_c), ("Points2D:colors", ccol, n_c)]
+    return points, strips, names
 
 
 def structure_rows(estimate: Any, clusters: np.ndarray, seen: bool) -> list[tuple[str, list[float]]]:

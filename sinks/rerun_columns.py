@@ -10,9 +10,9 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from bnptrack.sinks.rerun_style import R_CLUSTER_CENTRE, R_CLUSTER_LINK, R_ELLIPSE, R_TRACK, R_TRAIL
+from bnptrack.sinks.rerun_style import R_CLUSTER_CENTRE, R_CLUSTER_LABEL, R_CLUSTER_LINK, R_ELLIPSE, R_TRACK, R_TRAIL
 
-__all__ = ["Batch", "Schema", "send", "log_arrays", "entity_part", "track_style", "track_colours", "cluster_style",
+__all__ = ["Batch", "Schema", "send", "log_arrays", "entity_part", "track_style", "track_colours", "cluster_style", "cluster_label_style",
            "annotation_context", "scalar_columns"]
 
 
@@ -141,15 +141,24 @@ def track_colours(packed: np.ndarray) -> list[tuple[str, pa.Array, np.ndarray]]:
 
 
 def cluster_style() -> dict[str, pa.Array]:
-    """The static style of ``world/clusters``: centroid size and labels shown, thin links, drawn
-    under the tracks."""
+    """The static style of ``world/clusters``: centroid size (no label: the names are
+    ``world/clusters/labels``), thin links, drawn under the tracks."""
     return {
         "Points2D:radii": pa.array([R_CLUSTER_CENTRE], type=pa.float32()),
-        "Points2D:show_labels": pa.array([True], type=pa.bool_()),
+        "Points2D:show_labels": pa.array([False], type=pa.bool_()),
         "Points2D:draw_order": pa.array([3.0], type=pa.float32()),
         "LineStrips2D:radii": pa.array([R_CLUSTER_LINK], type=pa.float32()),
         "LineStrips2D:show_labels": pa.array([False], type=pa.bool_()),
         "LineStrips2D:draw_order": pa.array([3.0], type=pa.float32()),
+    }
+
+
+def cluster_label_style() -> dict[str, pa.Array]:
+    """The static style of ``world/clusters/labels``: a small point, its label shown."""
+    return {
+        "Points2D:radii": pa.array([R_CLUSTER_LABEL], type=pa.float32()),
+        "Points2D:show_labels": pa.array([True], type=pa.bool_()),
+        "Points2D:draw_order": pa.array([3.0], type=pa.float32()),
     }
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
@@ -20,7 +21,7 @@ from bnptrack.sinks.rerun_style import (ASSIGNMENTS, AXES, ELLIPSE_SIGMA, GREY_C
                                SENSORS, TRUTH, TRUTH_TRAILS, WHITE_UNASSIGNED, WORLD)
 from bnptrack.tracker.models.sensors import Sensor
 
-__all__ = ["write_static", "log_grid", "log_legend", "log_sensor", "view_bounds"]
+__all__ = ["write_static", "log_grid", "log_legend", "log_sensor", "view_bounds", "SceneLayout"]
 
 
 def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[str, str], trail: int) -> None:
@@ -61,24 +62,24 @@ def write_static(rec: rr.RecordingStream, scene: SceneGeometry, metadata: dict[s
 
 
 def log_grid(rec: rr.RecordingStream, bounds: tuple[float, float, float, float]) -> None:
-    """Static metric grid (round steps, about 8 across the field of view), the x and y axes
-    through the sensor, and tick labels in metres along the bottom and left edges."""
-    x0, x1, y0, y1 = bounds
+    """Static metric grid over the :class:`SceneLayout` of ``bounds`` (round steps, about 8
+    across), the x and y axes through the origin where it lies on the grid, and in the margins
+    of the view the tick labels in metres (along the bottom and left edges) and the axis titles
+    ("x east (m)" bottom right, "y north (m)" top left)."""
+    lay = SceneLayout.of(bounds)
+    x0, x1, y0, y1 = lay.grid
     step = nice_step((x1 - x0) / 8)
     xs = np.arange(math.ceil(x0 / step), math.floor(x1 / step) + 1) * step
     ys = np.arange(math.ceil(y0 / step), math.floor(y1 / step) + 1) * step
     lines = [[[x, y0], [x, y1]] for x in xs] + [[[x0, y], [x1, y]] for y in ys]
     rec.log(GRID, rr.LineStrips2D(lines, radii=-0.5, colors=[(70, 70, 70, 110)], draw_order=0.0),
             static=True)
-    rec.log(AXES, rr.LineStrips2D([[[x0, 0.0], [x1, 0.0]], [[0.0, y0], [0.0, y1]]], radii=-0.8,
-                                  colors=[(135, 135, 135, 200)], show_labels=False, draw_order=0.05),
-            rr.Points2D([[x1 - 0.07 * (x1 - x0), y0 - 0.1 * (y1 - y0)], [0.0, y1 + 0.02 * (y1 - y0)]],
-                        radii=-1.0,
-                        colors=[(135, 135, 135, 255)], labels=["x east (m)", "y north (m)"],
+    axes = ([[[x0, 0.0], [x1, 0.0]]] if y0 <= 0.0 <= y1 else []) + ([[[0.0, y0], [0.0, y1]]] if x0 <= 0.0 <= x1 else [])
+    rec.log(AXES, rr.LineStrips2D(axes, radii=-0.8, colors=[(135, 135, 135, 200)], show_labels=False,
+                                  draw_order=0.05),
+            rr.Points2D(lay.titles(), radii=-1.0, colors=[(135, 135, 135, 255)], labels=["x east (m)", "y north (m)"],
                         show_labels=True, draw_order=0.05), static=True)
-    inset = 0.025 * (x1 - x0)  # tick labels are centred on their point: keep them in view
-    ticks = [[x, y0] for x in xs] + [[x0 + inset, y] for y in ys if y > y0 + 0.5 * step]
-    labels = [f"{x:g}" for x in xs] + [f"{y:g}" for y in ys if y > y0 + 0.5 * step]
+    ticks, labels = lay.ticks(xs, ys)
     rec.log(GRID_TICKS, rr.Points2D(ticks, radii=-1.0, colors=[(135, 135, 135, 255)], labels=labels,
                                     show_labels=True, draw_order=0.05), static=True)
 
@@ -93,27 +94,76 @@ def log_sensor(rec: rr.RecordingStream, sensor: Sensor, colour: tuple[int, int, 
 
 
 _LEGEND_ROWS = 3
-_ROW = 0.07  # legend row height, a fraction of the scene's height
+
+
+@dataclass(frozen=True)
+class SceneLayout:
+    """Where the scene's parts go in its view: ``view``, the box the view opens on, is about
+    as wide for its height as the scene panel of the default layout (:data:`ASPECT`), so that
+    its edges are the panel's whatever the scene's own shape; ``grid``, the scene's box widened
+    or heightened about its centre to fill the view but for the margins: at the left the y tick
+    labels, at the bottom the x tick labels and the x title, at the top the legend's band (the
+    y title at its left).  A panel of another shape shows the whole box, margins included."""
+
+    view: tuple[float, float, float, float]
+    grid: tuple[float, float, float, float]
+
+    #: width / height of the scene panel in the default layout (3/5 of a 16:9 window)
+    ASPECT = 1.2
+    LEFT, RIGHT, BOTTOM, TOP = 0.085, 0.025, 0.1, 0.2  # fractions of the view's width / height
+
+    @classmethod
+    def of(cls, bounds: tuple[float, float, float, float]) -> SceneLayout:
+        x0, x1, y0, y1 = (float(b) for b in bounds)
+        w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
+        ratio = cls.ASPECT * (1 - cls.LEFT - cls.RIGHT) / (1 - cls.BOTTOM - cls.TOP)  # the grid's w / h
+        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        w, h = max(w, ratio * h), max(h, w / ratio)
+        gx0, gx1, gy0, gy1 = cx - 0.5 * w, cx + 0.5 * w, cy - 0.5 * h, cy + 0.5 * h
+        vw, vh = w / (1 - cls.LEFT - cls.RIGHT), h / (1 - cls.BOTTOM - cls.TOP)
+        return cls((gx0 - cls.LEFT * vw, gx1 + cls.RIGHT * vw, gy0 - cls.BOTTOM * vh, gy1 + cls.TOP * vh),
+                   (gx0, gx1, gy0, gy1))
+
+    @property
+    def row(self) -> float:
+        """The height of a legend row (m): the band holds :data:`_LEGEND_ROWS` and a half."""
+        return (self.view[3] - self.grid[3]) / (_LEGEND_ROWS + 0.5)
+
+    def titles(self) -> np.ndarray:
+        """Where the axis titles go (a label is drawn under its point): "x east (m)" in the
+        bottom margin, under the x tick labels at the grid's right end; "y north (m)" at the
+        top of the left margin, above the y tick labels."""
+        (_vx0, _vx1, vy0, _vy1), (gx0, gx1, gy0, gy1) = self.view, self.grid
+        return np.array([[gx1 - 0.06 * (gx1 - gx0), gy0 - 0.5 * (gy0 - vy0)], [gx0, gy1 + 0.35 * self.row]])
+
+    def ticks(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, list[str]]:
+        """The tick labels' points and texts: the x ticks in the bottom margin just under the
+        grid, the y ticks centred in the left margin, each label's middle on its line."""
+        (vx0, _vx1, vy0, _vy1), (gx0, _gx1, gy0, gy1) = self.view, self.grid
+        bottom = gy0 - 0.12 * (gy0 - vy0)
+        left = 0.5 * (vx0 + gx0)
+        lift = 0.012 * (gy1 - gy0)  # a label is drawn under its point
+        pts = [[x, bottom] for x in xs] + [[left, y + lift] for y in ys]
+        return np.array(pts, dtype=float).reshape(-1, 2), [f"{x:g}" for x in xs] + [f"{y:g}" for y in ys]
 
 
 def view_bounds(bounds: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
-    """The box the view opens on: the scene ``bounds`` and, above them, the legend's band."""
-    x0, x1, y0, y1 = bounds
-    return x0, x1, y0, y1 + (_LEGEND_ROWS + 0.5) * _ROW * (y1 - y0)
+    """The box the view opens on (:attr:`SceneLayout.view`): the scene, its margins and the legend's band."""
+    return SceneLayout.of(bounds).view
 
 
 def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                sensors: Sequence[tuple[Sensor, tuple[int, int, int, int]]],
                track: tuple[tuple[int, int, int], str] | None = None) -> None:
-    """Static legend in a band above the scene (:func:`view_bounds`), one entity per symbol:
+    """Static legend in the band above the grid (:class:`SceneLayout`), one entity per symbol:
     ``world/legend/<what>``, the symbol drawn as in the scene with its meaning as label; in
     the middle column ``world/legend/sensors``, one dot per sensor in its colour.  ``track``:
     the colour and name of the first track, drawn as the track symbols' example (before it, a
     palette colour and no name)."""
-    x0, x1, y0, y1 = scene.bounds
-    w, h = x1 - x0, y1 - y0
-    dy = _ROW * h
-    left, mid, right = x0 + 0.15 * w, x0 + 0.5 * w, x1 - 0.15 * w
+    lay = SceneLayout.of(scene.bounds)
+    x0, x1, y0, y1 = lay.grid
+    w, dy = x1 - x0, lay.row
+    left, mid, right = x0 + 0.17 * w, x0 + 0.5 * w, x1 - 0.15 * w
     top = y1 + _LEGEND_ROWS * dy
     track_rgb, name = track if track is not None else (PALETTE[2], "")
 
@@ -138,7 +188,7 @@ def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                                            labels=[f"track {name} + trail".replace("  ", " ")], show_labels=True),
             rr.LineStrips2D([trail], radii=R_TRAIL, colors=[track_rgb]), static=True)
     c = at(right, 2)
-    ell = c + scene.circle * (0.03 * w, 0.012 * h)
+    ell = c + scene.circle * (0.03 * w, 0.17 * dy)
     rec.log(f"{LEGEND}/ellipse", rr.LineStrips2D([ell], radii=R_ELLIPSE, colors=[(*track_rgb, 170)],
                                                  labels=[f"{ELLIPSE_SIGMA:g}-sigma ellipse"], show_labels=True),
             static=True)

@@ -17,7 +17,8 @@ Entity tree (``world`` is drawn with +y up; positions in metres, world frame)::
                                ellipse); cleared (rr.Clear) when the label ends.  Colour per
                                frame: the track's motion cluster's when it has one, else its label's
     world/clusters             motion clusters with two or more reported members: Points2D at the
-                               members' centroid ("C<id> (n)") + LineStrips2D centroid -> member
+                               members' centroid + LineStrips2D centroid -> member
+    world/clusters/labels      Points2D "C<id> (n)" above each such cluster's highest member
     world/truth                LineStrips2D grey crosses (when the source has truth)
     world/truth/trails         LineStrips2D thin grey trails of the true objects
     metrics/cardinality        Scalars [estimated, true]
@@ -58,6 +59,7 @@ STRUCTURE = "metrics/structure"
 CLUSTER_COUNT = "metrics/structure/clusters"
 CARD_POSTERIOR = "metrics/structure/cardinality"
 CLUSTERS = "world/clusters"
+CLUSTER_LABELS = "world/clusters/labels"
 DIAGNOSTICS = "diagnostics"
 HEALTH = "health"
 EVENTS = "events"
@@ -90,6 +92,10 @@ R_TRUTH_TRAIL = -0.6
 R_RING = -0.6
 R_CLUSTER_CENTRE = -2.5
 R_CLUSTER_LINK = -0.9
+R_CLUSTER_LABEL = -1.0
+#: A cluster's name sits this many truth-cross half-widths (0.0075 of the scene's span each)
+#: above its highest member: clear of the members' own names, drawn under them.
+CLUSTER_LABEL_LIFT = 4.0
 ELLIPSE_SIGMA = 2.0
 ELLIPSE_POINTS = 36
 

@@ -105,12 +105,15 @@ def test_groups_recording_colours_tracks_and_measurements_by_cluster(groups_run)
 def test_groups_recording_draws_cluster_links_and_the_structure_series(groups_run):
     frames, estimates, path, contents = groups_run
     centre = by_frame(contents["/world/clusters"], "Points2D:positions")
-    names = by_frame(contents["/world/clusters"], "Points2D:labels")
+    names = by_frame(contents["/world/clusters/labels"], "Points2D:labels")
+    name_at = by_frame(contents["/world/clusters/labels"], "Points2D:positions")
+    assert by_frame(contents["/world/clusters"], "Points2D:labels") == {}  # the centroids carry no name
     links = by_frame(contents["/world/clusters"], "LineStrips2D:strips")
     count = by_frame(contents["/metrics/structure/clusters"], "Scalars:scalars")
     card = by_frame(contents["/metrics/structure/cardinality"], "Scalars:scalars")
     first = min(f.frame for f, e in zip(frames, estimates) if any(t.cluster is not None for t in e.tracks))
     assert min(count) == first
+    lifts = []
     for f, e in zip(frames, estimates):
         p = e.cardinality_pmf
         assert card[f.frame] == [pmf_mean(p), float(pmf_map(p))]  # exact
@@ -119,10 +122,15 @@ def test_groups_recording_draws_cluster_links_and_the_structure_series(groups_ru
             assert count[f.frame] == [float(len(ids))]
         big = [c for c in ids if sum(t.cluster == c for t in e.tracks) >= 2]
         assert names.get(f.frame, []) == [f"C{c} ({sum(t.cluster == c for t in e.tracks)})" for c in big]
-        for c, xy in zip(big, centre.get(f.frame, [])):
+        for c, xy, at in zip(big, centre.get(f.frame, []), name_at.get(f.frame, [])):
             members = [t.position for t in e.tracks if t.cluster == c]
             np.testing.assert_allclose(xy, np.mean(members, axis=0), rtol=1e-6, atol=1e-2)
+            # the name over the centroid, a fixed height above the highest member (its name is under it)
+            lifts.append(at[1] - max(m[1] for m in members))
+            np.testing.assert_allclose(at[0], xy[0], rtol=1e-6, atol=1e-2)
         assert len(links.get(f.frame, [])) == sum(sum(t.cluster == c for t in e.tracks) for c in big)
+    # 4 truth-cross half-widths of 0.0075 x the scene's 4400 m (the 4000 m field of view, 5 % margins)
+    np.testing.assert_allclose(lifts, 132.0, atol=1e-3)
     views = _blueprint_view_names(path)[0]
     # the motion clusters of the reported tracks and the state's objects (n_clusters) apart
     assert {"motion clusters of the tracks; posterior cardinality mean and MAP",
@@ -177,7 +185,8 @@ def test_cluster_rows_do_not_depend_on_how_frames_were_batched(groups_run, tmp_p
     write_recording(path, frames, estimates, META, params=None, flush_interval=0.0)
     single = read_rrd(path)
     first = min(f.frame for f, e in zip(frames, estimates) if any(t.cluster is not None for t in e.tracks))
-    for comp in ("Points2D:positions", "Points2D:labels", "LineStrips2D:strips"):
-        a = by_frame(batched["/world/clusters"], comp)
-        b = by_frame(single["/world/clusters"], comp)
+    for entity, comp in (("/world/clusters", "Points2D:positions"), ("/world/clusters", "LineStrips2D:strips"),
+                         ("/world/clusters/labels", "Points2D:positions"), ("/world/clusters/labels", "Points2D:labels")):
+        a = by_frame(batched[entity], comp)
+        b = by_frame(single[entity], comp)
         assert a == b and min(a) == first
