@@ -172,4 +172,5 @@ def test_readme_launch_summary_scores():
     assert shown["mean OSPA"] == f"{run.mean_ospa:.2f} m (c=100, p=1, position; 100 frames)"
     assert shown["mean OSPA(2)"] == f"{np.mean(ospa2_series(est, truth, 10)):.2f} m (window 10 frames)"
     assert shown["mean card. error"] == f"{run.mean_cardinality_error:.2f}"
-    assert shown["tracks"] == f"{len(run.estimates[-1].tracks)} at the last frame ({len(labels)} labels in all)"
+    last = run.estimates[-1].tracks
+    assert shown["final tracks"] == f"{len(last)}: {' '.join(t.name for t in last)} ({len(labels)} labels in all)"
