@@ -104,7 +104,8 @@ def _run_gibbs_reference(problem, rng, sweeps, burn_in, swaps=True, chains=1):
                                          np.asarray(problem.popularity, float), u, rng, pair_a, pair_b, burn_in,
                                          2 * ch, tally_pair, tally_cn, hs, hss, *scratch,
                                          swap_moves.exchange_tables(cand.ptr, cand.idx, N, pair_a, pair_b,
-                                                                    cand.w_first, swap_moves.MAX_BYTES))
+                                                                    cand.w_first, swap_moves.MAX_BYTES,
+                                                                    swap_moves.PAIR_MEMBERS))
         first = c if first is None else first
     kept = max(sweeps - burn_in, 1) * chains
     return (tally_pair / kept, tally_cn[0] / kept, tally_cn[1] / kept, first, g.log_joint(problem, first),

@@ -1,6 +1,6 @@
-"""The gate table and the exchange lists of the sampler's exchange moves (tracker/bnp/swap_moves.py):
-hand-computed bits and lists, and exchange passes through the lists, through the table and
-scanning every pair all equal, move for move."""
+"""The gate table, the gates by cluster and the exchange lists of the sampler's exchange moves
+(tracker/bnp/swap_moves.py): hand-computed bits and lists, and exchange passes through the lists,
+walking the gates, through the table and scanning every pair all equal, move for move."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import pytest
 
 from bnptrack.tracker.bnp import swap_moves as g
 from bnptrack.tracker.bnp.swap_moves import PREDRAWN_PAIRS, exchange_lists, exchange_tables, gate_bits, gated
+from bnptrack.tracker.bnp.swap_moves import gates_by_cluster
 from bnptrack.tracker.bnp.swap_moves import pass_uniforms, swap_scan
 
 
@@ -70,38 +71,70 @@ def _random_pass_inputs(rng, M, N, extended):
 @pytest.mark.parametrize("seed,extended,subset,predrawn", [(0, False, False, True), (1, False, True, True),
                                                            (2, True, False, True), (3, False, False, True),
                                                            (5, True, True, True), (0, False, False, False),
-                                                           (5, True, True, False)])
+                                                           (5, True, True, False), (6, False, True, False)])
 def test_swap_pass_equals_the_scan(seed, extended, subset, predrawn):
-    """The pass through the exchange lists, the scan with the gate table and the scan without it
-    make the same moves (``subset``: a random half of the pairs listed).  Not ``predrawn``: each
-    draws a uniform per scored proposal from its own copy of one generator, so equal moves
-    also mean that they score the same proposals in the same order."""
+    """The pass through the exchange lists, the pass walking the gates by cluster, the scan with
+    the gate table and the scan without it make the same moves (``subset``: a random half of
+    the pairs listed, so no gate is known to pair all its measurements: ``max_members`` 0).
+    Not ``predrawn``: each draws a uniform per scored proposal from its own copy of one
+    generator, so equal moves also mean that they score the same proposals in the same order."""
     rng = np.random.default_rng(seed)
     M, N = 40, 25
     c, cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first = _random_pass_inputs(rng, M, N, extended)
     if subset:
         keep = rng.random(pa.size) < 0.5
         pa, pb = pa[keep], pb[keep]
-    tables = exchange_tables(ptr, idx, N, pa, pb, w_first, 1 << 20)
-    assert tables[2].size == idx.size + 1  # the lists were built
+    members = 0 if subset else M
+    tables = exchange_tables(ptr, idx, N, pa, pb, w_first, 1 << 20, members)
+    assert tables[1].size == idx.size + 1  # the lists were built
+    walk = exchange_tables(ptr, idx, N, pa, pb, w_first, 0, members)
+    assert walk[1].size == 0  # no lists: the gates are walked
     bits, none = gate_bits(ptr, idx, N, 1 << 20), np.zeros((0, 0), dtype=np.uint8)
-    cs = [c.copy() for _ in range(3)]
-    owns = [np.array([g.own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in range(3)]
+    cs = [c.copy() for _ in range(4)]
+    owns = [np.array([g.own_weight(m, c[m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]) for _ in range(4)]
     total = 0
     for k in range(5):
         u = rng.random(pa.size) if predrawn else np.zeros(0)
-        r0, r1, r2 = (np.random.default_rng([seed, k]) for _ in range(3))
-        n0 = g.swap_pass(cs[0], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, tables, owns[0], r0)
-        n1 = swap_scan(cs[1], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, owns[1], r1)
-        n2 = swap_scan(cs[2], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, owns[2], r2)
-        assert n0 == n1 == n2
-        np.testing.assert_array_equal(cs[0], cs[1])
-        np.testing.assert_array_equal(cs[0], cs[2])
-        assert r0.random() == r1.random() == r2.random()  # as many uniforms drawn
+        rs = [np.random.default_rng([seed, k]) for _ in range(4)]
+        n = [g.swap_pass(cs[0], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, tables, owns[0], rs[0]),
+             g.swap_pass(cs[1], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, walk, owns[1], rs[1]),
+             swap_scan(cs[2], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, bits, owns[2], rs[2]),
+             swap_scan(cs[3], cnt, ext, pa, pb, w_cl, w_new, ptr, idx, w_first, u, none, owns[3], rs[3])]
+        assert n[0] == n[1] == n[2] == n[3]
+        for i in (1, 2, 3):
+            np.testing.assert_array_equal(cs[0], cs[i])
+        assert len({r.random() for r in rs}) == 1  # as many uniforms drawn
         want = [g.own_weight(m, cs[0][m], w_cl, w_new, ptr, idx, w_first) for m in range(M)]
         np.testing.assert_array_equal(owns[0], want)  # the kept factors are the scanned ones
-        total += n0
+        total += n[0]
     assert total > 0  # exchanges happened, so the comparison saw moves
+
+
+def test_gates_by_cluster_hand_values():
+    """Gates m0 {0, 1}, m1 {0}, m2 {1}: cluster 0 is gated by m0 (CSR place 0) and m1 (place 2),
+    cluster 1 by m0 (place 1) and m2 (place 3)."""
+    ptr, idx = np.array([0, 2, 3, 4], dtype=np.int64), np.array([0, 1, 0, 1], dtype=np.int64)
+    first, meas_of, pos_of = gates_by_cluster(ptr, idx, 2)
+    np.testing.assert_array_equal(first, [0, 2, 4])
+    np.testing.assert_array_equal(meas_of, [0, 1, 0, 2])
+    np.testing.assert_array_equal(pos_of, [0, 2, 1, 3])
+
+
+def test_exchange_tables_walk_above_the_predrawn_limit():
+    """Above ``PREDRAWN_PAIRS`` pairs no list is built (the pass walks the gates); ``capped``
+    marks the gates of more than ``max_members`` measurements."""
+    ptr, idx = np.array([0, 2, 3, 4], dtype=np.int64), np.array([0, 1, 0, 0], dtype=np.int64)
+    pa, pb = np.array([0, 0, 1], dtype=np.int64), np.array([1, 2, 2], dtype=np.int64)
+    w = np.ones(4)
+    row, lptr, ent, lw, first, meas_of, gw, capped = exchange_tables(ptr, idx, 2, pa, pb, w, 1 << 20, 2)
+    assert lptr.size == idx.size + 1
+    np.testing.assert_array_equal(capped, [True, False])  # cluster 0 is gated by three
+    np.testing.assert_array_equal(row, [0, 2, 3, 3])
+    big = PREDRAWN_PAIRS + 1
+    pa2, pb2 = np.zeros(big, dtype=np.int64), np.ones(big, dtype=np.int64)
+    tables = exchange_tables(ptr, idx, 2, pa2, pb2, w, 1 << 20, 2)
+    assert tables[1].size == 0 and tables[2].shape == (0, 3)
+    np.testing.assert_array_equal(tables[0], [0, big, big, big])
 
 
 def test_pass_uniforms_one_per_pair_up_to_the_limit():

@@ -78,7 +78,7 @@ def _chains_kernel(w_first, w_lik, w_clutter, w_new, log_lg, starts, init, has_i
     opt = max(N, 1)
     opt_l, opt_w, opt_j = np.zeros(opt, np.int64), np.zeros(opt), np.zeros(opt, np.int64)
     first = np.empty(M, dtype=np.int64)
-    tables = exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, MAX_BYTES)
+    tables = exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, MAX_BYTES, np.int64(PAIR_MEMBERS))
     accepted = 0
     for k in range(chains):
         c = init.copy() if k == 0 and has_init else starts[k % 2].copy()

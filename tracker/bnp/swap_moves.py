@@ -2,7 +2,8 @@
 (:func:`swap_pass`, and :func:`swap_scan`, the same pass visiting every pair), each
 measurement's own factor of the joint (:func:`own_weight`), the exchange list
 (:func:`exchange_pairs`) and what the pass reads to skip the proposals it would reject
-(:func:`exchange_lists`, :func:`gate_bits`).
+(:func:`exchange_tables`: :func:`exchange_lists`, :func:`gates_by_cluster`; :func:`gate_bits`
+for the scan).
 
 An exchange of the assignments of measurements ``a`` and ``b`` (``c_a``, ``c_b``) is possible
 only when ``c_b`` is in ``a``'s gate and ``c_a`` in ``b``'s (or is clutter / new).  In a dense
@@ -14,9 +15,12 @@ walks those alone, from a list per gated pair ``(a, l)`` (:func:`exchange_lists`
 objects about 42,000 of the 340,000 pairs a pass), and finds ``a``'s factor for ``c_b`` in a
 cluster-indexed copy of ``a``'s gate.  Every proposal the full scan scores is scored, in the
 same order, with the current assignments' factors kept per measurement (``own``), so every
-draw, acceptance and tally is the same.  Where no list is built (above :data:`MAX_BYTES`) the
-pass scans every pair, rejecting with one bit of :func:`gate_bits`' table per side what the
-lists would skip.
+draw, acceptance and tally is the same.  Above :data:`PREDRAWN_PAIRS` pairs (or
+:data:`MAX_BYTES` of lists) no list is built: the pass walks cluster ``l``'s gate itself, its
+measurements ascending, which are the same partners in the same order (a gate of at most
+:data:`PAIR_MEMBERS` pairs all its measurements; in a larger one each partner is looked up in
+``a``'s pairs).  At 3,000 objects the lists would hold 3.4 million rows (40 MB, 65 ms to build
+a frame) and the walk reads the gates, about 100,000 entries.
 
 A pass draws one uniform per pair of the list as it starts; above :data:`PREDRAWN_PAIRS` pairs
 (three orders of magnitude above the paper's scenes) it draws one per scored proposal instead
@@ -41,7 +45,8 @@ from bnptrack.tracker.numerics import jit
 CLUTTER = -1
 NEW = -2
 
-#: Largest bit table built (bytes); larger problems score every proposal (the same result).
+#: Largest exchange lists built (bytes); larger ones are not built and the pass walks the gates
+#: (the same moves).
 MAX_BYTES = 64 << 20
 
 #: Most measurements of one cluster's gate that pair up through it (its most likely ones).
@@ -172,21 +177,11 @@ def own_weight(m, ch, w_clutter, w_newbase, ptr, idx, w_first):
     return 0.0
 
 
-def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
-    """Each gated pair's exchange partners, for :func:`swap_pass`: for pair ``j`` of the CSR
-    gates (measurement ``a``, cluster ``l``), the rows ``ent[lptr[j]:lptr[j + 1]]`` are the
-    pairs ``(a, b)`` of the exchange list whose ``b > a`` holds ``l`` in its gate, ``b``
-    ascending: ``[place in the exchange list, b, place of (b, l) in the CSR gates]`` (int32:
-    the lists are read once per pass and proposal, so their size is their cost); ``row`` is
-    where each measurement's pairs begin in the list (``(M + 1,)``).  ``lptr`` is empty when
-    the lists would hold more than ``max_entries`` rows (the pass then scans every pair)."""
+def gates_by_cluster(ptr, idx, N):
+    """Every cluster's full gate, CSR by cluster: the measurements ``meas_of[first[l]:first[l +
+    1]]`` (ascending) that gate cluster ``l``, with the places ``pos_of`` of those pairs in the
+    CSR gates ``ptr``, ``idx``."""
     M = ptr.shape[0] - 1
-    row = np.zeros(M + 1, dtype=np.int64)
-    for p in range(pair_a.shape[0]):
-        row[pair_a[p] + 1] += 1
-    for m in range(M):
-        row[m + 1] += row[m]
-    # every cluster's full gate, CSR by cluster, measurements ascending, with their CSR places
     first = np.zeros(N + 1, dtype=np.int64)
     for j in range(idx.shape[0]):
         first[idx[j] + 1] += 1
@@ -200,6 +195,30 @@ def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
             meas_of[end[idx[j]]] = m
             pos_of[end[idx[j]]] = j
             end[idx[j]] += 1
+    return first, meas_of, pos_of
+
+
+def _pair_rows(M, pair_a):
+    """Where each measurement's pairs begin in the exchange list (``(M + 1,)``)."""
+    row = np.zeros(M + 1, dtype=np.int64)
+    for p in range(pair_a.shape[0]):
+        row[pair_a[p] + 1] += 1
+    for m in range(M):
+        row[m + 1] += row[m]
+    return row
+
+
+def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
+    """Each gated pair's exchange partners, for :func:`swap_pass`: for pair ``j`` of the CSR
+    gates (measurement ``a``, cluster ``l``), the rows ``ent[lptr[j]:lptr[j + 1]]`` are the
+    pairs ``(a, b)`` of the exchange list whose ``b > a`` holds ``l`` in its gate, ``b``
+    ascending: ``[place in the exchange list, b, place of (b, l) in the CSR gates]`` (int32:
+    the lists are read once per pass and proposal, so their size is their cost); ``row`` is
+    where each measurement's pairs begin in the list (``(M + 1,)``).  ``lptr`` is empty when
+    the lists would hold more than ``max_entries`` rows."""
+    M = ptr.shape[0] - 1
+    row = _pair_rows(M, pair_a)
+    first, meas_of, pos_of = gates_by_cluster(ptr, idx, N)
     stamp = np.full(M, -1, dtype=np.int64)
     place = np.zeros(M, dtype=np.int64)
     lptr = np.zeros(idx.shape[0] + 1, dtype=np.int64)
@@ -231,20 +250,32 @@ def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
     return row, lptr, ent
 
 
-def exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, max_bytes):
-    """What :func:`swap_pass` reads besides the weights: :func:`exchange_lists` (at most
-    ``max_bytes``) with each row's ``w_first`` of ``(b, l)`` (``lw``), else :func:`gate_bits`
-    for the scan; all empty without pairs."""
-    none = np.zeros(0, dtype=np.int64)
-    if pair_a.shape[0] == 0:
-        return np.zeros((0, 0), dtype=np.uint8), none, none, np.zeros((0, 3), dtype=np.int32), np.zeros(0)
+def exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, max_bytes, max_members):
+    """What :func:`swap_pass` reads besides the weights: ``(row, lptr, ent, lw, first, meas_of,
+    gw, capped)``.  Up to :data:`PREDRAWN_PAIRS` pairs, :func:`exchange_lists` (at most
+    ``max_bytes``) with each row's ``w_first`` of ``(b, l)`` (``lw``); else (or above
+    ``max_bytes``) ``lptr`` is empty and the pass walks the gates by cluster
+    (:func:`gates_by_cluster`; ``gw``: each gated pair's ``w_first`` in that order, read
+    in sequence by the walk) instead.  ``capped[l]``: cluster ``l``'s gate holds more than
+    ``max_members`` measurements, so two of them may be no pair of the list (``pair_a``,
+    ``pair_b`` must hold every pair ``a < b`` that gates a cluster of ``max_members`` or fewer:
+    :func:`exchange_pairs` with the same bound; 0 makes no such assumption)."""
+    M = ptr.shape[0] - 1
+    none, nil = np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int32)
+    first, meas_of, pos_of = gates_by_cluster(ptr, idx, N)
+    capped = np.empty(N, dtype=np.bool_)
+    for l in range(N):
+        capped[l] = first[l + 1] - first[l] > max_members
+    gw = np.empty(idx.shape[0])
+    for q in range(idx.shape[0]):
+        gw[q] = w_first[pos_of[q]]
+    if pair_a.shape[0] == 0 or pair_a.shape[0] > PREDRAWN_PAIRS:
+        return _pair_rows(M, pair_a), none, nil, np.zeros(0), first, meas_of, gw, capped
     row, lptr, ent = exchange_lists(ptr, idx, N, pair_a, pair_b, max_bytes // 20)
-    if lptr.shape[0] == 0:
-        return gate_bits(ptr, idx, N, max_bytes), row, lptr, ent, np.zeros(0)
     lw = np.empty(ent.shape[0])
     for q in range(ent.shape[0]):
         lw[q] = w_first[ent[q, 2]]
-    return np.zeros((0, 0), dtype=np.uint8), row, lptr, ent, lw
+    return row, lptr, ent, lw, first, meas_of, gw, capped
 
 
 def _exchange(p, a, b, ca, cb, wa, wb, c, own, u_row, rng):
@@ -315,11 +346,52 @@ def _first_at(ent, lo, hi, cursor):
     return lo
 
 
-def _row_visit(a, ca, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
-               lptr, ent, lw, own, wmap, rng):
-    """The pairs of row ``a`` from place ``cursor`` on while ``c[a] = ca``, up to the first
-    accepted exchange: the place after it, or -1 (none).  ``wmap[l]``: ``a``'s weight
-    for cluster ``l`` (0 outside its gate)."""
+def _first_above(v, lo, hi, x):
+    """The first ``i`` in ``[lo, hi)`` with ``v[i] > x`` (``v`` ascending there), or ``hi``."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if v[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def _gate_walk(a, ca, after, lo_p, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
+               gates, own, wmap, rng):
+    """:func:`_row_visit` without the lists: the measurements ``b > after`` of cluster
+    ``ca``'s gate (``gates``: :func:`exchange_tables`' ``first``, ``meas_of``, ``gw``, ``capped``), ascending, that can take
+    ``ca``; pair ``(a, b)``'s place in the exchange list (``[lo_p, stop)``: ``a``'s row) is
+    looked up where a uniform is read at it or the gate is capped (there ``(a, b)`` may be no
+    pair).  The ``b`` of the first accepted exchange, or -1."""
+    first, meas_of, gw, capped = gates
+    need_p = capped[ca] or u_row.shape[0] > 0
+    hi = first[ca + 1]
+    for q in range(_first_above(meas_of, first[ca], hi, after), hi):
+        b = meas_of[q]
+        cb = c[b]
+        if cb == ca or (extended and (cnt[ca] > 1 or (cb >= 0 and cnt[cb] > 1))):
+            continue
+        wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
+        if wa <= 0.0:
+            continue
+        p = -1
+        if need_p:
+            lo_p = _first_above(pair_b, lo_p, stop, b - 1)
+            if lo_p == stop or pair_b[lo_p] != b:
+                continue
+            p = lo_p
+        if _exchange(p, a, b, ca, cb, wa, gw[q], c, own, u_row, rng):
+            return b
+    return -1
+
+
+def _row_visit(a, ca, after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
+               tables, own, wmap, rng):
+    """The pairs ``(a, b)`` of row ``a`` with ``b > after`` (from place ``cursor`` on) while
+    ``c[a] = ca``, up to the first accepted exchange: its ``b``, or -1 (none).  ``wmap[l]``:
+    ``a``'s weight for cluster ``l`` (0 outside its gate)."""
+    row, lptr, ent, lw, first, meas_of, gw, capped = tables
     j = _own_place(a, ca, ptr, idx) if ca >= 0 else -1
     if j < 0:  # clutter, new (or a value off the gate): every pair, as the scan visits it
         for p in range(cursor, stop):
@@ -330,8 +402,11 @@ def _row_visit(a, ca, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newba
             wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
             if wa > 0.0 and _exchange(p, a, b, ca, cb, wa, own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first),
                                       c, own, u_row, rng):
-                return p + 1
+                return b
         return -1
+    if lptr.shape[0] == 0:
+        return _gate_walk(a, ca, after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx,
+                          w_first, u_row, (first, meas_of, gw, capped), own, wmap, rng)
     for q in range(_first_at(ent, lptr[j], lptr[j + 1], cursor), lptr[j + 1]):
         b = ent[q, 1]
         cb = c[b]
@@ -339,7 +414,7 @@ def _row_visit(a, ca, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newba
             continue
         wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
         if wa > 0.0 and _exchange(ent[q, 0], a, b, ca, cb, wa, lw[q], c, own, u_row, rng):
-            return ent[q, 0] + 1
+            return b
     return -1
 
 
@@ -347,30 +422,30 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     """:func:`swap_scan`'s pass, move for move, visiting only the proposals that can be accepted
     (``tables``: :func:`exchange_tables`).  The exchange list is sorted by ``(a, b)``; while
     ``a`` holds a cluster ``l``, an exchange with ``b`` needs ``l`` in ``b``'s gate, so only the
-    pairs of ``a``'s list entry for ``l`` (:func:`exchange_lists`) are visited, in list order;
-    after an accepted exchange ``a``'s value changed and the rest of its pairs are visited
-    anew.  While ``a`` is clutter or new, each of its pairs is visited.  ``a``'s weights sit in
-    a cluster-indexed table while its pairs are visited (the gate test and the weight in one
+    partners ``b`` of ``a`` that gate ``l`` are visited, ascending: from ``a``'s list entry for
+    ``l`` (:func:`exchange_lists`), or, without lists, from cluster ``l``'s gate; after an
+    accepted exchange ``a``'s value changed and its partners after that ``b`` are visited anew.
+    While ``a`` is clutter or new, each of its pairs is visited.  ``a``'s weights sit in a
+    cluster-indexed table while its pairs are visited (the gate test and the weight in one
     load)."""
-    bits, row, lptr, ent, lw = tables
-    if lptr.shape[0] == 0:
-        return swap_scan(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, bits, own,
-                         rng)
+    row = tables[0]
     wmap = np.zeros(cnt.shape[0])
     accepted = 0
     for a in range(c.shape[0]):
-        cursor, stop = row[a], row[a + 1]
-        if cursor == stop:
+        lo, stop = row[a], row[a + 1]
+        if lo == stop:
             continue
         for j in range(ptr[a + 1] - 1, ptr[a] - 1, -1):  # backwards: the first of a repeated cluster wins
             wmap[idx[j]] = w_first[j]
-        while cursor < stop:
-            nxt = _row_visit(a, c[a], cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first,
-                             u_row, lptr, ent, lw, own, wmap, rng)
-            if nxt < 0:
+        after = a
+        while True:
+            cursor = lo if after == a else _first_above(pair_b, lo, stop, after)
+            b = _row_visit(a, c[a], after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx,
+                           w_first, u_row, tables, own, wmap, rng)
+            if b < 0:
                 break
             accepted += 1
-            cursor = nxt
+            after = b
         for j in range(ptr[a], ptr[a + 1]):
             wmap[idx[j]] = 0.0
     return accepted
@@ -385,8 +460,12 @@ _exchange = jit(_exchange, inline=True)
 _own_place = jit(_own_place, inline=True)
 pass_uniforms = jit(pass_uniforms)  # noqa: F811
 _first_at = jit(_first_at, inline=True)
-_row_visit = jit(_row_visit)
+_first_above = jit(_first_above, inline=True)
+_gate_walk = jit(_gate_walk, inline=True)
+_row_visit = jit(_row_visit, inline=True)
 swap_scan = jit(swap_scan)  # noqa: F811
+gates_by_cluster = jit(gates_by_cluster)  # noqa: F811
+_pair_rows = jit(_pair_rows)
 exchange_lists = jit(exchange_lists)  # noqa: F811
 exchange_tables = jit(exchange_tables)  # noqa: F811
 swap_pass = jit(swap_pass)  # noqa: F811
