@@ -141,18 +141,18 @@ def _angle_dims(meas, d: int) -> np.ndarray:
     return np.flatnonzero(np.abs(r) < 1e-9)
 
 
-def _gate_candidates(meas, innov: Innovation, Z: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate (track, measurement) pairs, a superset of the gate: a KD-tree over the
-    measurements scaled per component, queried with each track's ball
-    :math:`\\sqrt{g\\,\\lambda_{max}(D^{-1} S_n D^{-1})}` around :math:`\\hat z_n`; wrapped
-    components are queried at :math:`\\hat z_n \\pm 2\\pi` too when the ball crosses :math:`\\pm\\pi`."""
-    from scipy.spatial import cKDTree  # lazy: only the trackers' hot path needs it
-
+def _gate_balls(meas, innov: Innovation, Z: np.ndarray, g: float):
+    """Balls holding every gate, in the measurements' coordinates scaled per component
+    (``scale``): ``(scale, ok_z, centres, owner, radii)``, ball ``k`` of radius
+    :math:`\sqrt{g\,\lambda_{max}(D^{-1} S_n D^{-1})}` around :math:`\hat z_n` for track
+    ``owner[k]``; wrapped components get balls at :math:`\hat z_n \pm 2\pi` too when the ball
+    crosses :math:`\pm\pi`.  ``ok_z``: the finite measurements; ``None`` without a finite
+    measurement or track."""
     N, d = innov.z_pred.shape
     ok_z = np.flatnonzero(np.isfinite(Z).all(axis=1))
     ok_t = np.flatnonzero(np.isfinite(innov.z_pred).all(axis=1) & np.isfinite(innov.S).all(axis=(1, 2)))
     if ok_z.size == 0 or ok_t.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return None
     scale = np.sqrt(np.maximum(np.median(np.diagonal(innov.S[ok_t], axis1=1, axis2=2), axis=0), 1e-300))
     Sn = innov.S[ok_t] / (scale[:, None] * scale[None, :])
     radius = np.sqrt(g * np.linalg.eigvalsh(Sn)[:, -1]) * (1.0 + 1e-9) + 1e-12
@@ -163,10 +163,22 @@ def _gate_candidates(meas, innov: Innovation, Z: np.ndarray, g: float) -> tuple[
             c[:, i] += shift
             near = np.abs(c[:, i]) - radius * scale[i] <= np.pi
             centres.append(c[near]), owner.append(ok_t[near]), radii.append(radius[near])
+    return scale, ok_z, np.concatenate(centres) / scale, np.concatenate(owner), np.concatenate(radii)
+
+
+def _gate_candidates(meas, innov: Innovation, Z: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate (track, measurement) pairs, a superset of the gate: the measurements in
+    :func:`_gate_balls`' balls, found with a KD-tree over the scaled measurements."""
+    from scipy.spatial import cKDTree  # lazy: only the trackers' hot path needs it
+
+    balls = _gate_balls(meas, innov, Z, g)
+    if balls is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    scale, ok_z, centres, owner, radii = balls
     tree = cKDTree(Z[ok_z] / scale)
-    hits = tree.query_ball_point(np.concatenate(centres) / scale, np.concatenate(radii), return_sorted=False)
+    hits = tree.query_ball_point(centres, radii, return_sorted=False)
     lens = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
-    ti = np.repeat(np.concatenate(owner), lens)
+    ti = np.repeat(owner, lens)
     mi = ok_z[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))]
     return ti, mi
 
@@ -191,6 +203,14 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
         mi, ti = np.nonzero(np.isfinite(dense.T))
         return ti.astype(np.int64), mi.astype(np.int64), dense[ti, mi]
     g = gate_threshold(gate_prob, d)
+    if kind is not None:  # compiled: the balls' measurements through a grid, the same pairs and values
+        balls = _gate_balls(meas, innov, Z, g)
+        if balls is None:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        scale, ok_z, centres, owner, radii = balls
+        return _kernels.loglik_balls(innov.z_pred, innov.S_inv, innov.log_det_S, _c(Z),
+                                     kind == _kernels.KIND_BEARING_RANGE, g, _LOG_2PI, _c(Z[ok_z] / scale), ok_z,
+                                     _c(centres), owner.astype(np.int64), radii)
     ti, mi = _gate_candidates(meas, innov, Z, g)
     if ti.size:
         key = numerics.unique_ints(mi * N + ti)  # sorted by measurement, then track; images deduplicated

@@ -98,6 +98,27 @@ def test_likelihoods_and_gate_match_the_numpy_reference(monkeypatch, meas, gate)
         assert t1.dtype == j1.dtype == np.int64
 
 
+@pytest.mark.parametrize("meas", [BearingRange(), RangeOnly(), Cartesian()])
+def test_large_frame_gate_through_the_grid_equals_the_kd_tree_bit_for_bit(monkeypatch, meas):
+    """Above ``SCIPY_PAIRS`` pairs the compiled gate (:func:`_kernels.loglik_balls`, a grid over
+    the measurements) gives the KD-tree reference's pairs and log-likelihoods exactly, across
+    the bearing cut too (a fifth of the tracks straight behind the sensor)."""
+    rng = np.random.default_rng(11)
+    m, P = _batch(rng, 300)
+    innov = kf.ukf_innovation(meas, m, P)
+    Z = np.concatenate([meas.sample(rng, m[rng.integers(0, 300, 250)]), meas.sample(rng, m[:40])])
+    Z[7] = np.nan  # a non-finite measurement is never a candidate
+    assert len(innov) * Z.shape[0] > kf.SCIPY_PAIRS
+    (t1, j1, l1), (t0, j0, l0) = _both(monkeypatch, kf.gated_log_likelihood, meas, innov, Z, 0.9999)
+    assert t0.size > 300 and not np.any(j1 == 7)
+    np.testing.assert_array_equal(t1, t0)
+    np.testing.assert_array_equal(j1, j0)
+    np.testing.assert_array_equal(l1, l0)
+    assert t1.dtype == j1.dtype == np.int64
+    if isinstance(meas, BearingRange):  # some gated pairs really are across the cut
+        assert np.any(np.abs(innov.z_pred[t1, 0] - Z[j1, 0]) > np.pi)
+
+
 def test_not_positive_definite_falls_back_to_the_reference(monkeypatch):
     """A covariance without a Cholesky factor: the kernel declines and the numpy reference
     (eigen-factor) answers, so the results are the reference's exactly."""

@@ -15,7 +15,8 @@ Three general kernels (not one per model and kind, to keep numba's first compile
   below (code ``kind``), wrapped residuals, :math:`\hat z, S, C`, the Cholesky factor of :math:`S`,
   :math:`S^{-1}`, :math:`\log\det S`, :math:`K = C S^{-1}` and :math:`P - K S K^T`;
 * :func:`loglik_dense` / :func:`loglik_gated`: Mahalanobis distances, Gaussian log-likelihoods and
-  the chi-square gate of every track/measurement pair.
+  the chi-square gate of every track/measurement pair; :func:`loglik_balls` the same gate of
+  large frames, evaluated only where each track's ball reaches (a grid over the measurements).
 
 A kernel returns ``ok = False`` when a covariance it factors is not positive definite (Cholesky
 pivot :math:`\le 0` or NaN); the caller then runs the numpy reference, which has the eigen-factor
@@ -384,6 +385,96 @@ def loglik_gated(z_pred: np.ndarray, S_inv: np.ndarray, log_det: np.ndarray, Z: 
 
 
 loglik_gated = jit(loglik_gated)
+
+
+def _ball_cells(c, r, lo, h, n):
+    """The cells ``[first, last]`` of a grid (cells of side ``h`` from ``lo``, ``n`` of them)
+    that hold the points within ``r`` of ``c`` along one axis; ``first > last``: none."""
+    a = (c - r - lo) / h
+    b = (c + r - lo) / h
+    if not (b >= 0.0 and a < n):  # every point is below n (the grid's last cell ends past them)
+        return 1, 0
+    return int(max(a, 0.0)), int(min(b, n - 1.0))
+
+
+def loglik_balls(z_pred: np.ndarray, S_inv: np.ndarray, log_det: np.ndarray, Z: np.ndarray, wrap0: bool, g: float,
+                 log_2pi: float, Zs: np.ndarray, ok_z: np.ndarray, centres: np.ndarray, owner: np.ndarray,
+                 radii: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""The gated pairs of :func:`loglik_gated` found through balls instead of every pair:
+    ``Zs`` are the finite measurements ``Z[ok_z]`` in scaled coordinates, and ball ``k``
+    (``centres[k]``, ``radii[k]``, same coordinates) holds every measurement in track
+    ``owner[k]``'s gate that it can reach (:func:`tracker.gating.gated_log_likelihood` builds
+    them: a superset of the gate, with images across the wrapped cut).  The measurements are
+    bucketed in a grid of about one ball per cell; each ball's distances
+    (:func:`_d2`, the same arithmetic) are computed for the measurements of the cells its box
+    covers.  ``(track, measurement, log-likelihood)`` of :math:`D^2 \le g`, sorted by
+    measurement then track, each pair once."""
+    N, d = z_pred.shape
+    M, K = Zs.shape[0], centres.shape[0]
+    lo, hi = np.zeros(2), np.zeros(2)
+    for a in range(d):
+        lo[a], hi[a] = Zs[:, a].min(), Zs[:, a].max()
+    h = max(np.median(radii), 1e-12)
+    n0, n1 = 1, 1
+    while True:
+        n0 = int((hi[0] - lo[0]) / h) + 1
+        n1 = int((hi[1] - lo[1]) / h) + 1 if d == 2 else 1
+        if n0 * n1 <= 4 * M + 64:
+            break
+        h *= 1.5
+    start = np.zeros(n0 * n1 + 1, np.int64)
+    cell = np.empty(M, np.int64)
+    for p in range(M):
+        i0 = min(int((Zs[p, 0] - lo[0]) / h), n0 - 1)
+        i1 = min(int((Zs[p, 1] - lo[1]) / h), n1 - 1) if d == 2 else 0
+        cell[p] = i0 * n1 + i1
+        start[cell[p] + 1] += 1
+    for q in range(n0 * n1):
+        start[q + 1] += start[q]
+    pts, fill = np.empty(M, np.int64), start[:-1].copy()
+    for p in range(M):
+        pts[fill[cell[p]]] = ok_z[p]
+        fill[cell[p]] += 1
+    keys, dist = np.empty(4 * (M + K), np.int64), np.empty(4 * (M + K))
+    L = 0
+    for k in range(K):
+        a0, b0 = _ball_cells(centres[k, 0], radii[k], lo[0], h, n0)
+        a1, b1 = 0, 0
+        if d == 2:
+            a1, b1 = _ball_cells(centres[k, 1], radii[k], lo[1], h, n1)
+        n = owner[k]
+        for i0 in range(a0, b0 + 1):
+            for i1 in range(a1, b1 + 1):
+                for q in range(start[i0 * n1 + i1], start[i0 * n1 + i1 + 1]):
+                    D2 = _d2(Z, pts[q], z_pred, S_inv, n, wrap0)
+                    if D2 <= g:
+                        if L == keys.shape[0]:
+                            keys, dist = _grown(keys, L), _grown(dist, L)
+                        keys[L], dist[L] = pts[q] * N + n, D2
+                        L += 1
+    order = np.argsort(keys[:L], kind="mergesort")
+    ti, mi, ll = np.empty(L, np.int64), np.empty(L, np.int64), np.empty(L)
+    out = 0
+    for i in range(L):
+        key = keys[order[i]]
+        if out > 0 and key == mi[out - 1] * N + ti[out - 1]:
+            continue  # the same pair through another image of the ball
+        ti[out], mi[out] = key % N, key // N
+        ll[out] = -0.5 * (dist[order[i]] + (d * log_2pi + log_det[ti[out]]))
+        out += 1
+    return ti[:out].copy(), mi[:out].copy(), ll[:out].copy()
+
+
+def _grown(v, n):
+    """``v`` in an array twice its size (its first ``n`` entries kept)."""
+    out = np.empty(2 * v.shape[0], v.dtype)
+    out[:n] = v[:n]
+    return out
+
+
+_ball_cells = jit(_ball_cells, inline=True)
+_grown = jit(_grown)
+loglik_balls = jit(loglik_balls)
 
 
 def update_pairs_kernel(m: np.ndarray, gain: np.ndarray, z_pred: np.ndarray, Z: np.ndarray, ti: np.ndarray,
