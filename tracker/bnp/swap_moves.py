@@ -23,9 +23,10 @@ measurements ascending, which are the same partners in the same order (a gate of
 a frame) and the walk reads the gates, about 100,000 entries.
 
 A pass draws one uniform per pair of the list as it starts; above :data:`PREDRAWN_PAIRS` pairs
-(three orders of magnitude above the paper's scenes) it draws one per scored proposal instead
-(:func:`pass_uniforms`): the same Markov kernel on another random stream, which saves drawing
-about ten uniforms per scored proposal at 3,000 objects in one radar's field.
+(8,192: more than ten times the paper's scenes, hundreds; a few hundred objects in one radar's
+field) it draws one per scored proposal instead (:func:`pass_uniforms`): the same Markov kernel
+on another random stream, which saves drawing about ten uniforms per scored proposal at 1,000
+and 3,000 objects in one radar's field.
 
 The exchange list (:func:`exchange_pairs`) pairs the measurements of each cluster's gate.  A
 gate that holds a large share of the frame (a track lost near the sensor, a new cluster's
@@ -54,7 +55,7 @@ PAIR_MEMBERS = 256
 
 #: Exchange lists up to this many pairs draw one uniform per pair as each pass starts; longer
 #: ones draw one per scored proposal (:func:`pass_uniforms`).
-PREDRAWN_PAIRS = 1 << 17
+PREDRAWN_PAIRS = 1 << 13
 
 
 def pass_uniforms(rng, n_pairs):
