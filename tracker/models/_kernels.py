@@ -414,14 +414,10 @@ def loglik_balls(z_pred: np.ndarray, S_inv: np.ndarray, log_det: np.ndarray, Z: 
     lo, hi = np.zeros(2), np.zeros(2)
     for a in range(d):
         lo[a], hi[a] = Zs[:, a].min(), Zs[:, a].max()
-    h = max(np.median(radii), 1e-12)
-    n0, n1 = 1, 1
-    while True:
-        n0 = int((hi[0] - lo[0]) / h) + 1
-        n1 = int((hi[1] - lo[1]) / h) + 1 if d == 2 else 1
-        if n0 * n1 <= 4 * M + 64:
-            break
-        h *= 1.5
+    h = max(np.median(radii), 1e-9 * max(hi[0] - lo[0], hi[1] - lo[1], 1.0))
+    while (np.floor((hi[0] - lo[0]) / h) + 1.0) * (np.floor((hi[1] - lo[1]) / h) + 1.0) > 4.0 * M + 64.0:
+        h *= 1.5  # at most 4 M + 64 cells (counted in floats: no integer overflow)
+    n0, n1 = int((hi[0] - lo[0]) / h) + 1, int((hi[1] - lo[1]) / h) + 1
     start = np.zeros(n0 * n1 + 1, np.int64)
     cell = np.empty(M, np.int64)
     for p in range(M):
