@@ -1,7 +1,7 @@
 """Likelihoods, gates and updates of every track/measurement pair (:mod:`tracker.filtering`):
 the gate (:func:`gate_threshold`), the squared Mahalanobis distances and log likelihoods of all
 pairs (:func:`mahalanobis_matrix`, :func:`log_likelihood_matrix`) or of the gated ones only,
-found with a KD-tree on large frames (:func:`gated_log_likelihood`), and the updated means
+found through each track's gate ball on large frames (:func:`gated_log_likelihood`), and the updated means
 (:func:`update_means`, :func:`update_pairs`, :func:`kalman_update`)."""
 
 from __future__ import annotations
@@ -130,8 +130,8 @@ def kalman_update(meas, innov: Innovation, m_pred: np.ndarray, z: np.ndarray
 
 SCIPY_PAIRS = 20_000
 """Track x measurement pairs of a frame from which the trackers use scipy: above it the gate
-is found with a KD-tree (``scipy.spatial``, :func:`gated_log_likelihood`; below, every pair is
-evaluated densely: the same values) and the JPDA* assignment is solved per connected component
+is found through balls (:func:`gated_log_likelihood`: a compiled grid, or ``scipy.spatial``'s
+KD-tree when the kernels are off; below, every pair is evaluated densely: the same values) and the JPDA* assignment is solved per connected component
 (``scipy.sparse.csgraph``, :func:`tracker.bnp.assignment.best_permutation_pairs`)."""
 
 
@@ -189,8 +189,10 @@ def gated_log_likelihood(meas, innov: Innovation, Z: np.ndarray, gate_prob: floa
     forming the ``(N, M)`` matrix: ``(track_idx, meas_idx, log_lik)`` sorted by measurement,
     then track (the order of ``np.nonzero`` on the transposed matrix).
 
-    Candidates come from a KD-tree over the measurements (:func:`_gate_candidates`, a
-    superset of every gate); each is kept when :math:`D^2_{nm} \le \chi^2_d{}^{-1}(p_G)`, the
+    Candidates are the measurements in each track's ball (:func:`_gate_balls`, a superset of
+    its gate): compiled, through a grid over the measurements
+    (:func:`tracker.models._kernels.loglik_balls`, which also computes the distances); else
+    from a KD-tree (:func:`_gate_candidates`); each is kept when :math:`D^2_{nm} \le \chi^2_d{}^{-1}(p_G)`, the
     same test as the dense matrix.  Cost ~ (N + M) log M + pairs in gates.
     """
     N, d = innov.z_pred.shape
