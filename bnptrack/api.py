@@ -85,6 +85,8 @@ class TrackRun:
     result: TrackResult = field(repr=False)
     online: list[Estimate] = field(default_factory=list, repr=False)
     """With ``lag`` > 0: the online estimates the lagged ones were re-decided from (else empty)."""
+    input_warnings: tuple[str, ...] = ()
+    """The warnings about the inputs raised before tracking (:func:`tracker.input_checks.check_frames`)."""
 
     @property
     def mean_ospa(self) -> float | None:
@@ -97,10 +99,11 @@ class TrackRun:
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """Why the run probably could not work (e.g. measurements outside the field of view);
-        each was also raised with ``warnings.warn``
+        """Why the run probably gives a wrong result: the inputs' warnings raised before
+        tracking (stamps in another unit, a sensor with no pose), then the run's own (e.g.
+        measurements outside the field of view); each was also raised with ``warnings.warn``
         (:class:`bnptrack.tracker.input_checks.InputWarning`)."""
-        return self.result.warnings
+        return self.input_warnings + self.result.warnings
 
 
 def track(
@@ -134,8 +137,9 @@ def track(
     if topics and not is_log:
         raise ConfigError("track(frames, topics=...): topics choose the channels of a log; frames have none")
     mapping = _topic_map(Path(frames), topics) if is_log else None
-    check_frames(setup.params, read_log_start(frames, mapping) if is_log else
-                 list(frames[:SCAN_FRAMES]) if isinstance(frames, Sequence) else [])
+    noted = check_frames(setup.params, read_log_start(frames, mapping) if is_log else
+                         list(frames[:SCAN_FRAMES]) if isinstance(frames, Sequence) else [],
+                         None if isinstance(params, ModelParams) else setup.choice.source)
     source = iter_frames(Path(frames), mapping) if is_log else frames
     estimates: list[Estimate] = []
     online: list[Estimate] = []
@@ -143,7 +147,7 @@ def track(
                           on_online=lambda _f, est: online.append(est))
     if result.error is not None:
         raise result.error
-    return TrackRun(estimates, result, online)
+    return TrackRun(estimates, result, online, noted)
 
 
 def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:

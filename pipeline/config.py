@@ -29,6 +29,7 @@ import msgspec
 
 from bnptrack.sinks.sink import RRD_NAME, TRACKS_NAME
 from bnptrack.tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
+from bnptrack.tracker.input_checks import SIM_SENSOR
 
 __all__ = [
     "RUN_RE",
@@ -209,7 +210,7 @@ class SourceConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     start_frame: NonNegInt | None = None
     end_frame: NonNegInt | None = None
     rate: NonNeg = 0.0
-    sensor: str = "sim0"
+    sensor: str = SIM_SENSOR
     wait_for: list[str] = msgspec.field(default_factory=lambda: ["tracker", "sink"])
     ready_timeout_s: NonNeg = 60.0
     done_by: list[str] = msgspec.field(default_factory=lambda: ["sink"])

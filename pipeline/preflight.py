@@ -42,7 +42,8 @@ def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
     if "tracker" in cfg.stages:  # last: it imports the tracker (about a second)
         from bnptrack.pipeline.stages import build_stage_tracker
 
-        check_frames(build_stage_tracker(cfg.tracker, metadata).params, head)
+        setup = build_stage_tracker(cfg.tracker, metadata)
+        check_frames(setup.params, head, setup.choice.source)
     else:
         check_frames(None, head)
 

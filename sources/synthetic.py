@@ -35,6 +35,7 @@ from typing import Protocol
 import numpy as np
 
 from bnptrack.sources.scenarios import Scenario
+from bnptrack.tracker.input_checks import SIM_SENSOR
 from bnptrack.tracker.models.clutter import Detection, SectorClutter, UniformClutter
 from bnptrack.tracker.models.measurement import measurement_kind, wrap_angle
 from bnptrack.tracker.models.params import ModelParams
@@ -133,7 +134,7 @@ def simulate(
     params: ModelParams,
     seed: int,
     *,
-    sensor: str = "sim0",
+    sensor: str = SIM_SENSOR,
     start_frame: int = 1,
 ) -> Iterator[Frame]:
     """Yield frames ``start_frame..K`` of ``scenario`` one at a time.
@@ -152,7 +153,7 @@ def simulate(
 
 
 def simulate_frame(
-    scenario: Scenario, params: ModelParams, seed: int, k: int, *, sensor: str = "sim0"
+    scenario: Scenario, params: ModelParams, seed: int, k: int, *, sensor: str = SIM_SENSOR
 ) -> Frame:
     """Frame ``k`` alone (identical to frame ``k`` of :func:`simulate`)."""
     if not 1 <= k <= scenario.K:
@@ -168,7 +169,7 @@ def simulate_all(
     params: ModelParams,
     seed: int,
     *,
-    sensor: str = "sim0",
+    sensor: str = SIM_SENSOR,
     start_frame: int = 1,
 ) -> list[Frame]:
     """All frames of :func:`simulate` as a list."""

@@ -7,7 +7,8 @@ Each check sits at an edge where the input arrives and is run once there:
 * :func:`check_frames` (on the first frames of a log, before tracking: ``bnptrack track``,
   the launcher's checks of ``launch`` / ``replay``, :func:`bnptrack.track`): a frame's sensor
   with neither a ``[sensors.NAME]`` table nor a pose while the parameters declare other
-  sensors (an error: a misspelt name), time stamps whose spacing implies another unit, a pose
+  sensors (an error: a misspelt name, naming the side to fix), a frame's sensor with no pose
+  anywhere and a name other than the default sensor's (a warning), time stamps whose spacing implies another unit, a pose
   heading outside :math:`[-2\\pi, 2\\pi]` (degrees where radians are expected).
 
 A warning is raised with :func:`warn` (``warnings.warn`` with :class:`InputWarning`): Python
@@ -20,13 +21,19 @@ from __future__ import annotations
 import math
 import statistics
 import warnings
+from difflib import get_close_matches
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from bnptrack.tracker.config import ConfigError, did_you_mean
+from bnptrack.tracker.config import ConfigError
 
-__all__ = ["InputWarning", "warn", "check_sensor_spec", "check_frames", "SCAN_FRAMES",
-           "MIN_SPACING_NS", "MAX_SPACING_NS"]
+__all__ = ["InputWarning", "warn", "check_sensor_spec", "check_frames", "check_spacing", "SCAN_FRAMES",
+           "MIN_SPACING_NS", "MAX_SPACING_NS", "DEFAULT_SENSOR_NAMES", "SIM_SENSOR"]
+
+#: The sensor name of simulated frames (``bnptrack simulate``, the synthetic source).
+SIM_SENSOR = "sim0"
+#: Sensor names that mean the parameter set's default sensor: frames so named need no pose.
+DEFAULT_SENSOR_NAMES = ("", SIM_SENSOR)
 
 #: How many of a log's first frames :func:`check_frames` is given before tracking.
 SCAN_FRAMES = 200
@@ -46,9 +53,10 @@ class InputWarning(UserWarning):
     """An input that is accepted but probably gives a wrong result (the message names the fix)."""
 
 
-def warn(message: str) -> None:
-    """Raise ``message`` as an :class:`InputWarning` (``warnings.warn``)."""
+def warn(message: str) -> str:
+    """Raise ``message`` as an :class:`InputWarning` (``warnings.warn``); returns it."""
     warnings.warn(message, InputWarning, stacklevel=3)
+    return message
 
 
 def check_sensor_spec(name: str, heading_deg: float) -> None:
@@ -60,47 +68,77 @@ def check_sensor_spec(name: str, heading_deg: float) -> None:
              f"heading_deg is in degrees: write heading_deg = {math.degrees(h):.4g} if that is meant")
 
 
-def check_frames(params: Any, frames: Iterable[Any]) -> None:
+def check_frames(params: Any, frames: Iterable[Any], source: str | None = None) -> tuple[str, ...]:
     """Check the first frames of a run against ``params`` (a
     :class:`~tracker.models.params.ModelParams`, or None: only the stamps and poses are
-    checked): raise :class:`ConfigError` for a misspelt sensor name, warn (:func:`warn`) for
-    stamps in another unit and for pose headings in degrees."""
+    checked), read from ``source`` (the params file or set, named in messages): raise
+    :class:`ConfigError` for a misspelt sensor name, warn (:func:`warn`) for a sensor with no
+    pose anywhere, stamps in another unit and pose headings in degrees.  Returns the messages
+    of the warnings raised."""
+    frames = list(frames)
     declared: Mapping[str, Any] = getattr(params, "sensors", None) or {}
     stamps: dict[str, list[int]] = {}
-    degrees_seen = False
+    raised: list[str] = []
     for f in frames:
         if declared and f.sensor not in declared and f.pose is None:
-            raise ConfigError(
-                f"frame {f.frame}: sensor {f.sensor!r} has no [sensors.{f.sensor}] table in the parameters "
-                f"and no pose in its frames, while the parameters declare "
-                f"{', '.join(repr(n) for n in declared)}{did_you_mean(f.sensor, list(declared))}; "
-                f"fix the name, or add a [sensors.{f.sensor}] table with its pose")
+            raise ConfigError(_misspelt(f.sensor, f.frame, declared, source))
         stamps.setdefault(f.sensor, []).append(int(f.stamp_ns))
-        if not degrees_seen and f.pose is not None and abs(float(f.pose[2])) > 2 * math.pi:
-            degrees_seen, h = True, float(f.pose[2])
-            warn(f"sensor {f.sensor!r}: frame {f.frame} has pose heading {h:g}, outside [-2pi, 2pi]: "
-                 f"a pose heading is in radians (from +y towards +x); if {h:g} is degrees, send "
-                 f"{math.radians(h):.6g}")
-    for sensor, times in stamps.items():
-        _check_spacing(sensor, times)
+    degrees = next((f for f in frames if f.pose is not None and abs(float(f.pose[2])) > 2 * math.pi), None)
+    if degrees is not None:
+        h = float(degrees.pose[2])
+        raised.append(f"sensor {degrees.sensor!r}: frame {degrees.frame} has pose heading {h:g}, outside "
+                      f"[-2pi, 2pi]: a pose heading is in radians (from +y towards +x); if {h:g} is "
+                      f"degrees, send {math.radians(h):.6g}")
+    if params is not None:
+        raised += _unposed(frames, declared)
+    raised += [note for note in (check_spacing(s, t) for s, t in stamps.items()) if note]
+    for note in raised:
+        warn(note)
+    return tuple(raised)
 
 
-def _check_spacing(sensor: str, stamps: list[int]) -> None:
-    """Warn when the median spacing of a sensor's scans is under 1 ms or over 1 h, naming the
-    unit that gives the spacing closest to a second."""
+def _unposed(frames: list[Any], declared: Mapping[str, Any]) -> list[str]:
+    """A warning for each sensor with neither a ``[sensors.NAME]`` table nor a pose in any of
+    ``frames`` whose name is not the default sensor's: it is tracked at the default pose."""
+    posed = {f.sensor for f in frames if f.pose is not None}
+    names = dict.fromkeys(f.sensor for f in frames)
+    return [f"sensor {s!r} has no pose: tracked as if at (0, 0) facing +y (the default sensor); add a "
+            f"[sensors.{s}] table with x, y, heading_deg to your params file (docs/models.md, "
+            f"'Sensors'), or send a per-frame 'pose'"
+            for s in names if s not in declared and s not in posed and s not in DEFAULT_SENSOR_NAMES]
+
+
+def _misspelt(sensor: str, frame: int, declared: Mapping[str, Any], source: str | None) -> str:
+    """The error for a log's sensor with neither a ``[sensors.NAME]`` table nor a pose while
+    the parameters (from ``source``) declare other sensors: which side to fix."""
+    where = source or "the parameters"
+    tables = ", ".join(f"[sensors.{n}]" for n in declared)
+    close = get_close_matches(sensor, list(declared), n=1, cutoff=0.6)
+    if close:
+        fix = (f"rename that table to [sensors.{sensor}] if it is this sensor, or, if the log misspells "
+               f"{close[0]!r}, fix the name in the log")
+    else:
+        fix = f"add a [sensors.{sensor}] table with x, y, heading_deg to {where}, or send a per-frame 'pose'"
+    return (f"the log's sensor {sensor!r} (frame {frame}) has no [sensors.{sensor}] table in {where}, "
+            f"which declares {tables}, and no pose in its frames: {fix}")
+
+
+def check_spacing(sensor: str, stamps: list[int]) -> str | None:
+    """The warning when the median spacing of a sensor's scans is under 1 ms or over 1 h,
+    naming the unit that gives the spacing closest to a second (None when it is plausible)."""
     gaps = [b - a for a, b in zip(stamps, stamps[1:]) if b > a]
     if len(gaps) < 2:
-        return
+        return None
     gap = statistics.median(gaps)
     if MIN_SPACING_NS <= gap <= MAX_SPACING_NS:
-        return
+        return None
     small = gap < MIN_SPACING_NS
     factors = _SMALL if small else _LARGE
     unit, factor = min(factors, key=lambda uf: abs(math.log10(gap * uf[1] / 1e9)))
     fix = (f"they look like {unit} (the spacing would be {gap * factor / 1e9:g} s): "
            + (f"multiply them by {factor:g}" if small else f"divide them by {1 / factor:g}"))
-    warn(f"sensor {sensor!r}: the median spacing of its time stamps is {_duration(gap)} between scans; "
-         f"stamp_ns must be nanoseconds -- {fix}")
+    return (f"sensor {sensor!r}: the median spacing of its time stamps is {_duration(gap)} between scans; "
+            f"stamp_ns must be nanoseconds -- {fix}")
 
 
 def _duration(ns: float) -> str:

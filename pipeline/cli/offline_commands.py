@@ -394,7 +394,7 @@ class _TrackIO:
 
     def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
-        check_frames(setup.params, self.head)  # a misspelt sensor: an error before tracking
+        check_frames(setup.params, self.head, setup.choice.source)  # a misspelt sensor: an error before tracking
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,

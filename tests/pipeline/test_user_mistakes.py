@@ -51,12 +51,35 @@ def _one_line(output, needle):
 # --------------------------------------------------------------------------- errors before tracking
 
 
-def test_misspelt_sensor_is_an_error_with_did_you_mean(tmp_path):
+def test_misspelt_sensor_in_the_log_is_an_error_naming_the_declared_name(tmp_path):
     log = _log(tmp_path / "typo.mcap", sensor="radarl")
-    res = _run("track", log, "--params", _params(tmp_path), "--out", tmp_path / "t.mcap", "-q")
+    params = _params(tmp_path)
+    res = _run("track", log, "--params", params, "--out", tmp_path / "t.mcap", "-q")
     assert res.exit_code == 2, res.output
     line = _one_line(res.output, "Error:")
-    assert "sensor 'radarl' has no [sensors.radarl] table" in line and "(did you mean 'radar1'?)" in line
+    assert line.startswith(f"Error: the log's sensor 'radarl' (frame 1) has no [sensors.radarl] table in {params}, "
+                           "which declares [sensors.radar1]"), line
+    assert "if the log misspells 'radar1', fix the name in the log" in line
+
+
+def test_misspelt_table_in_the_params_file_names_the_file_and_the_table_to_rename(tmp_path):
+    log = _log(tmp_path / "radar.mcap", sensor="radar0")
+    params = tmp_path / "typo.toml"
+    params.write_text('extends = "vo2017"\n[sensors.rader0]\nx = 0.0\ny = 0.0\nheading_deg = 0\n')
+    res = _run("track", log, "--params", params, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert line.startswith(f"Error: the log's sensor 'radar0' (frame 1) has no [sensors.radar0] table in {params}, "
+                           "which declares [sensors.rader0]"), line
+    assert "rename that table to [sensors.radar0] if it is this sensor" in line
+    assert "did you mean 'rader0'" not in line
+
+
+def test_unrelated_sensor_name_says_to_add_its_table(tmp_path):
+    log = _log(tmp_path / "radar.mcap", sensor="lidar_front")
+    res = _run("track", log, "--params", _params(tmp_path), "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 2, res.output
+    assert "add a [sensors.lidar_front] table with x, y, heading_deg" in _one_line(res.output, "Error:")
 
 
 def test_misspelt_sensor_is_refused_by_replay_before_any_process(tmp_path):
@@ -64,7 +87,7 @@ def test_misspelt_sensor_is_refused_by_replay_before_any_process(tmp_path):
     out = tmp_path / "r"
     res = _run("replay", log, "--params", _params(tmp_path), "--out", out, "--as-fast-as-possible", "-q")
     assert res.exit_code == 2, res.output
-    assert "(did you mean 'radar1'?)" in res.output
+    assert "if the log misspells 'radar1', fix the name in the log" in _one_line(res.output, "Error:")
     assert not out.exists()
 
 
@@ -162,6 +185,30 @@ def test_heading_deg_in_radians_warns(tmp_path):
     assert "write heading_deg = 39.99" in line
 
 
+def test_a_sensor_with_no_pose_anywhere_warns_once_naming_the_table(tmp_path):
+    log = _log(tmp_path / "own.mcap", sensor="radar0")  # bearing-range: the field of view cannot tell
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0, res.output
+    line = _one_line(res.output, "warning: sensor 'radar0' has no pose")
+    assert "tracked as if at (0, 0) facing +y (the default sensor)" in line
+    assert "add a [sensors.radar0] table with x, y, heading_deg to your params file" in line
+    assert res.output.count("has no pose") == 1
+
+
+@pytest.mark.parametrize("sensor", ["sim0", ""])
+def test_the_default_sensor_name_needs_no_pose(tmp_path, sensor):
+    log = _log(tmp_path / "sim.mcap", sensor=sensor)
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
+
+
+def test_a_simulated_log_gives_no_warning(tmp_path):
+    log = tmp_path / "sim.mcap"
+    assert _run("simulate", "--scenario", "proximity", "--seed", "3", "--out", log, "-q").exit_code == 0
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
+
+
 def test_whole_degrees_and_nanosecond_stamps_give_no_warning(tmp_path):
     log = _log(tmp_path / "a.mcap", relative_heading=-np.deg2rad(5.0))
     res = _run("track", log, "--params", _params(tmp_path, "5"), "--out", tmp_path / "t.mcap", "-q")
@@ -197,10 +244,23 @@ def test_python_raises_the_warnings_through_warnings_warn(tmp_path):
     assert all(w in texts for w in run.warnings)
 
 
+def test_python_run_lists_the_input_warnings_it_raised(tmp_path):
+    import bnptrack
+    from bnptrack.tracker.input_checks import InputWarning
+
+    log = _log(tmp_path / "ms.mcap", sensor="radar1", dt_ns=500)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
+    texts = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    assert any("they look like milliseconds" in t for t in texts), texts
+    assert run.warnings == tuple(texts)
+
+
 def test_python_misspelt_sensor_raises_config_error(tmp_path):
     import bnptrack
     from bnptrack.tracker.config import ConfigError
 
     log = _log(tmp_path / "typo.mcap", sensor="radarl")
-    with pytest.raises(ConfigError, match="did you mean 'radar1'"):
+    with pytest.raises(ConfigError, match="if the log misspells 'radar1'"):
         bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
