@@ -16,6 +16,7 @@ from mcap.stream_reader import StreamReader
 
 from bnptrack.sources.log_errors import McapLogError
 from bnptrack.sources.readers import ReaderEntry, reader_entry
+from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
 __all__ = ["ChannelInfo", "log_channels", "channel_list", "trackable", "trackable_listing", "record_limit"]
 
@@ -115,7 +116,12 @@ def trackable(channel: ChannelInfo) -> ReaderEntry | None:
 
 
 def trackable_listing(channels: Iterable[ChannelInfo]) -> str:
-    """``/radar/scan (radar_msgs/msg/RadarScan -> bearing_range: --topic /radar/scan); ...``."""
-    items = [f"{c.topic} ({c.schema} -> {e.kind}: --topic {c.topic})"
-             for c in channels if (e := trackable(c)) is not None]
+    """Every channel ``bnptrack info`` calls trackable, with its ``--topic``:
+    ``/radar/scan (radar_msgs/msg/RadarScan -> bearing_range: --topic /radar/scan); ...``."""
+    items = []
+    for c in channels:
+        if (e := trackable(c)) is not None:
+            items.append(f"{c.topic} ({c.schema} -> {e.kind}: --topic {c.topic})")
+        elif c.topic == TOPIC_MEASUREMENTS:
+            items.append(f"{c.topic} (bnptrack measurements, read by default: --topic {c.topic} or no --topic)")
     return "; ".join(items) or "none"

@@ -264,3 +264,18 @@ def test_python_misspelt_sensor_raises_config_error(tmp_path):
     log = _log(tmp_path / "typo.mcap", sensor="radarl")
     with pytest.raises(ConfigError, match="if the log misspells 'radar1'"):
         bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
+
+
+# --------------------------------------------------------------------------- --topic
+
+
+@pytest.mark.parametrize("cmd", ["track", "replay", "info"])
+def test_a_missing_topic_lists_the_log_s_own_measurements_with_their_topic(tmp_path, cmd):
+    log = _log(tmp_path / "own.mcap", sensor="sim0", n=5)
+    out = tmp_path / "out"
+    args = [cmd, log, "--topic", "/radar/scan"] + (["--out", out, "-q"] if cmd != "info" else [])
+    res = _run(*args + (["--as-fast-as-possible"] if cmd == "replay" else []))
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert line.startswith(f"Error: {log} has no channel /radar/scan; trackable channels: /measurements "
+                           "(bnptrack measurements, read by default: --topic /measurements or no --topic)"), line
