@@ -21,7 +21,7 @@ from bnptrack.sources.mcap_log import LogContents, iter_frames, read_log, read_m
 from bnptrack.sources.scenarios import open_scenario
 from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
-from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.config import PYTHON_NAMES, ConfigError
 from bnptrack.tracker.input_checks import SCAN_FRAMES, check_frames
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import Tracker
@@ -74,7 +74,8 @@ def make_tracker(
     field of view.  Run it with ``state = tracker.initial_state()`` and
     ``state, estimate = tracker.step(state, frame, rng)``, or with :func:`track`."""
     meta = {"scenario": scenario} if scenario else None
-    return tracker_setup(name, params=params, config=config, overrides=tuple(overrides), metadata=meta).tracker
+    return tracker_setup(name, params=params, config=config, overrides=tuple(overrides), metadata=meta,
+                         names=PYTHON_NAMES).tracker
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ def track(
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
     if params is None and not is_log:
         params = "vo2017"
-    setup = tracker_setup(tracker, params=params, config=config, overrides=tuple(overrides),
+    setup = tracker_setup(tracker, params=params, config=config, overrides=tuple(overrides), names=PYTHON_NAMES,
                           metadata=metadata, seed=seed)
     if topics and not is_log:
         raise ConfigError("track(frames, topics=...): topics choose the channels of a log; frames have none")

@@ -18,7 +18,7 @@ import msgspec
 
 from bnptrack.sources.frame_window import WINDOW_KEYS, FrameWindow
 from bnptrack.sources.scenarios import adapting_scenario, format_overrides, parse_overrides, with_snr
-from bnptrack.tracker.config import ConfigError, apply_overrides, did_you_mean, load_toml, split_item
+from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError, apply_overrides, did_you_mean, load_toml, split_item
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import TRACKERS
 
@@ -57,20 +57,21 @@ def tracker_settings_fields(config_cls: type[msgspec.Struct] | None = None) -> t
 
 
 def split_overrides(
-    overrides: Sequence[str], config_cls: type[msgspec.Struct] | None = None
+    overrides: Sequence[str], config_cls: type[msgspec.Struct] | None = None, names: ArgNames = CLI_NAMES
 ) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Route ``--set`` items to (model parameters, tracker settings).
 
     ``params.KEY=V`` goes to :class:`ModelParams`, ``tracker.KEY=V`` to the tracker's settings
     (``config_cls``; ``None``: a field of any registered tracker's settings); a bare ``KEY=V``
     goes to whichever has the field (``ModelParams`` first).  Raises :class:`ConfigError`
-    naming the key when neither has it.
+    naming the key (and the item, as ``names`` say) when neither has it: the closest keys and
+    where the full list is.
     """
     p_fields, t_fields = tuple(ModelParams.__struct_fields__), tracker_settings_fields(config_cls)
     to_params: list[str] = []
     to_tracker: list[str] = []
     for item in overrides:
-        key, value = split_item(item)
+        key, value = split_item(item, names)
         head, dot, rest = key.partition(".")
         if dot and head == "params":
             to_params.append(f"{rest}={value}")
@@ -82,9 +83,9 @@ def split_overrides(
             to_tracker.append(f"{key}={value}")
         else:
             raise ConfigError(
-                f"--set {item!r}: unknown key '{key}'{did_you_mean(head, p_fields + t_fields)}: not a model "
-                f"parameter ({', '.join(p_fields)}) nor a tracker setting ({', '.join(t_fields)}); "
-                "use params.KEY or tracker.KEY to be explicit"
+                f"{names.set_item.format(item)}: unknown key '{key}'{did_you_mean(head, p_fields + t_fields, 3)}: "
+                "not a model parameter nor a tracker setting (docs/models.md lists the model parameters, "
+                "docs/trackers.md the tracker settings); use params.KEY or tracker.KEY to be explicit"
             )
     return tuple(to_params), tuple(to_tracker)
 
@@ -119,17 +120,18 @@ def window_overrides(overrides: Sequence[str], window: FrameWindow) -> tuple[Fra
 
 
 def apply_split_overrides(
-    params: ModelParams, config: msgspec.Struct, overrides: Sequence[str]
+    params: ModelParams, config: msgspec.Struct, overrides: Sequence[str], names: ArgNames = CLI_NAMES
 ) -> tuple[ModelParams, msgspec.Struct]:
-    """Apply ``--set`` overrides to both structs (see :func:`split_overrides`)."""
-    p_over, t_over = split_overrides(overrides, type(config))
+    """Apply ``--set`` overrides to both structs (see :func:`split_overrides`); errors name
+    the items as ``names`` say."""
+    p_over, t_over = split_overrides(overrides, type(config), names)
     typed = {"params": [], "tracker": []}  # each item as the user typed it, for the errors
     for item in overrides:
-        head, dot, _ = split_item(item)[0].partition(".")
+        head, dot, _ = split_item(item, names)[0].partition(".")
         dest = head if dot and head in typed else ("params" if head in ModelParams.__struct_fields__ else "tracker")
         typed[dest].append(item)
-    return (apply_overrides(params, p_over, typed["params"]),
-            apply_overrides(config, t_over, typed["tracker"]))
+    return (apply_overrides(params, p_over, typed["params"], names),
+            apply_overrides(config, t_over, typed["tracker"], names))
 
 
 # --------------------------------------------------------------------------- params
@@ -167,7 +169,7 @@ class ParamsChoice:
 
 
 def resolve_params(
-    params_arg: str | None, metadata: Mapping[str, str] | None
+    params_arg: str | None, metadata: Mapping[str, str] | None, names: ArgNames = CLI_NAMES
 ) -> ParamsChoice:
     """Model parameters for tracking a log.
 
@@ -182,7 +184,8 @@ def resolve_params(
     """
     meta = dict(metadata or {})
     if params_arg:
-        choice = ParamsChoice(load_params(params_arg), params_arg, "from --params")
+        choice = ParamsChoice(load_params(params_arg, names=names), params_arg,
+                              f"from {names.params.format(params_arg)}")
     elif meta.get("params"):
         choice = _params_from_record(meta)
     else:
@@ -302,6 +305,7 @@ def tracker_setup(
     overrides: Sequence[str] = (),
     metadata: Mapping[str, str] | None = None,
     seed: int = 0,
+    names: ArgNames = CLI_NAMES,
 ) -> TrackerSetup:
     """Resolve and build tracker ``tracker`` (a :mod:`tracker.registry` name).
 
@@ -312,14 +316,15 @@ def tracker_setup(
     4. the tracker (:func:`build_tracker`) and the output record (input ``metadata`` plus the
        tracker's name, ``seed``, params source, config and overrides).
 
-    Raises :class:`ConfigError` for anything that does not resolve.
+    Raises :class:`ConfigError` for anything that does not resolve, naming ``params`` and
+    ``overrides`` as ``names`` say (the command line's options, or a Python call's arguments).
     """
     if isinstance(params, ModelParams):
         choice = ParamsChoice(params, "given", "given by the caller")
     else:
-        choice = resolve_params(params or None, metadata)
+        choice = resolve_params(params or None, metadata, names)
     settings, config_desc = resolve_config(tracker, config or None)
-    final_params, settings = apply_split_overrides(choice.params, settings, overrides)
+    final_params, settings = apply_split_overrides(choice.params, settings, overrides, names)
     built = build_tracker(tracker, final_params, settings)
     out_meta = dict(metadata or {})
     out_meta.update(tracker=tracker, tracker_seed=str(seed), tracker_params=choice.source,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import difflib
 import tomllib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -38,6 +39,29 @@ HalfFovDeg = Annotated[float, msgspec.Meta(gt=0.0, le=180.0)]
 """Half-width of a field of view in degrees, ``(0, 180]``."""
 
 
+@dataclass(frozen=True)
+class ArgNames:
+    """How an error names the user's inputs: the command line's options (:data:`CLI_NAMES`)
+    or a Python call's arguments (:data:`PYTHON_NAMES`).  Each is a ``str.format`` template of
+    the value as typed."""
+
+    set_item: str = "--set {!r}"
+    """One ``--set`` item."""
+    set_all: str = "--set overrides"
+    """All of them."""
+    params: str = "--params {!r}"
+    """The parameter set named."""
+
+
+CLI_NAMES = ArgNames()
+PYTHON_NAMES = ArgNames("overrides item {!r}", "overrides", "params={!r}")
+
+
+#: An unknown key's error lists the known ones when there are at most this many (else the
+#: closest and where the list is).
+KNOWN_LISTED = 12
+
+
 class ConfigError(ValueError):
     """A configuration file, name or override is invalid."""
 
@@ -50,10 +74,13 @@ def parse_value(text: str) -> Any:
         return text
 
 
-def did_you_mean(key: str, known: Sequence[str]) -> str:
-    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib), else ``""``."""
-    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
+def did_you_mean(key: str, known: Sequence[str], n: int = 1) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib; up to ``n``
+    of them, closest first: `` (did you mean 'x', 'y' or 'z'?)``), else ``""``."""
+    close = [f"'{c}'" for c in difflib.get_close_matches(key, list(known), n=n, cutoff=0.6)]
+    if not close:
+        return ""
+    return f" (did you mean {', '.join(close[:-1])} or {close[-1]}?)" if len(close) > 1 else f" (did you mean {close[0]}?)"
 
 
 def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: str | None = None) -> None:
@@ -75,8 +102,9 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: 
         node = child
     if parts[-1] not in node and not created:
         known = ", ".join(sorted(node)) or "(none)"
-        raise ConfigError(f"{origin}: unknown key '{shown or key}'{did_you_mean(parts[-1], list(node))} "
-                          f"(known here: {known})")
+        where = f"known here: {known}" if len(node) <= KNOWN_LISTED else "docs/models.md and docs/trackers.md list the keys"
+        raise ConfigError(f"{origin}: unknown key '{shown or key}'{did_you_mean(parts[-1], list(node), 3)} "
+                          f"({where})")
     node[parts[-1]] = value
 
 
@@ -85,27 +113,28 @@ def _named_tables(node: dict[str, Any]) -> bool:
     return all(isinstance(v, dict) for v in node.values())
 
 
-def split_item(item: str) -> tuple[str, str]:
+def split_item(item: str, names: ArgNames = CLI_NAMES) -> tuple[str, str]:
     """``KEY=VALUE`` -> ``(KEY, VALUE)``, both stripped; :class:`ConfigError` names the item
-    when it has no ``=`` or no key (the one parser of every ``--set`` item)."""
+    (as ``names`` say) when it has no ``=`` or no key (the one parser of every ``--set`` item)."""
     key, sep, value = item.partition("=")
     if not sep or not key.strip():
-        raise ConfigError(f"--set {item!r}: expected key=value")
+        raise ConfigError(f"{names.set_item.format(item)}: expected key=value")
     return key.strip(), value.strip()
 
 
-def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = ()) -> S:
+def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
+                    names: ArgNames = CLI_NAMES) -> S:
     """Return a copy of ``obj`` with ``key=value`` overrides applied and re-validated.
     ``typed``: the same items as the user typed them (e.g. ``tracker.sweeps=10`` for
-    ``sweeps=10``), named in the errors instead."""
+    ``sweeps=10``), named in the errors instead; ``names``: how the errors name the items."""
     if not overrides:
         return obj
     data = msgspec.to_builtins(obj)
     shown = list(typed) if len(typed) == len(overrides) else list(overrides)
     for item, as_typed in zip(overrides, shown):
-        key, text = split_item(item)
-        _set_dotted(data, key, parse_value(text), f"--set {as_typed!r}", split_item(as_typed)[0])
-    return convert(data, type(obj), "--set overrides")
+        key, text = split_item(item, names)
+        _set_dotted(data, key, parse_value(text), names.set_item.format(as_typed), split_item(as_typed, names)[0])
+    return convert(data, type(obj), names.set_all)
 
 
 def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:

@@ -106,6 +106,15 @@ def exit_now(code: object) -> None:
     os._exit(code or 0)
 
 
+def one_line_usage_error(exc: click.UsageError) -> click.UsageError:
+    """``exc`` printed as one line ``Error: ...`` (exit code 2), without click's usage and
+    ``Try ... --help`` lines: the help command is named at the line's end."""
+    text = " ".join(exc.format_message().split())
+    if exc.ctx is not None:
+        text = f"{text} (see '{exc.ctx.command_path} --help')"
+    return click.UsageError(text)
+
+
 def _command_name(argv: list[str]) -> str:
     """The command of a ``bnptrack`` command line (its first word that is no option)."""
     return next((a for a in argv if not a.startswith("-")), "")
@@ -130,6 +139,19 @@ class _LazyGroup(click.Group):
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
         except SystemExit as exc:
             exit_now(exc.code)
+
+    def make_context(self, info_name: str | None, args: list[str], parent: click.Context | None = None,
+                     **extra: Any) -> click.Context:
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except click.UsageError as exc:
+            raise one_line_usage_error(exc) from None
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            raise one_line_usage_error(exc) from None
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         names = self.list_commands(ctx)

@@ -8,6 +8,7 @@ traceback instead.
 
 from __future__ import annotations
 
+import difflib
 import contextlib
 import functools
 import os
@@ -28,6 +29,7 @@ __all__ = [
     "EXIT_ERROR",
     "EXIT_INCOMPLETE",
     "CliError",
+    "Choice",
     "IncompleteError",
     "clean_errors",
     "echo_rows",
@@ -50,6 +52,16 @@ EXIT_ERROR = 2
 #: Exit code of a pipeline run that ended with an incomplete output (gaps, rejected frames,
 #: a stage that gave up); see docs/pipeline.md.
 EXIT_INCOMPLETE = 3
+
+
+class Choice(click.Choice):
+    """:class:`click.Choice` whose error for a value not among the choices adds the closest
+    one (``'ddpp' is not one of ... (did you mean 'ddp'?)``)."""
+
+    def get_invalid_choice_message(self, value: Any, ctx: click.Context | None) -> str:
+        message = super().get_invalid_choice_message(value, ctx)
+        close = difflib.get_close_matches(str(value), [str(c) for c in self.choices], n=1, cutoff=0.5)
+        return f"{message.rstrip('.')} (did you mean {close[0]!r}?)" if close else message
 
 
 class CliError(click.ClickException):

@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from bnptrack.pipeline.cli.common import (
+    Choice,
     CONNECT_VIEW_HELP,
     END_HELP,
     SET_HELP_TRACK,
@@ -71,7 +72,7 @@ def _check_sinks(ctx: click.Context, param: click.Parameter, names: tuple[str, .
 @click.command()
 @click.option(
     "--scenario",
-    type=click.Choice(scenario_names()),
+    type=Choice(scenario_names()),
     default="vo2017",
     show_default=True,
     help="Ground-truth scenario (100 scans; see docs/models.md).",
@@ -174,7 +175,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 @click.option(
     "--tracker",
     "tracker_name",
-    type=click.Choice(TRACKERS),
+    type=Choice(TRACKERS),
     default="ddp",
     show_default=True,
     cls=LazyHelpOption,

@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from bnptrack.pipeline.cli.common import (
+    Choice,
     CONNECT_VIEW_HELP,
     END_HELP,
     SET_HELP_PIPE,
@@ -315,13 +316,13 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 
 
 @click.command()
-@click.argument("role", type=click.Choice(literal_choices(PipelineConfig, "stages", element=True)))
+@click.argument("role", type=Choice(literal_choices(PipelineConfig, "stages", element=True)))
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
 @click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.")
 @click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).")
-@click.option("--mode", type=click.Choice(literal_choices(ZenohConfig, "mode")), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
+@click.option("--mode", type=Choice(literal_choices(ZenohConfig, "mode")), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)

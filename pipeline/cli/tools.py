@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from bnptrack.pipeline.cli.common import CliError, clean_errors, echo_rows, topic_map
+from bnptrack.pipeline.cli.common import Choice, CliError, clean_errors, echo_rows, topic_map
 from bnptrack.tracker.message_units import described_schema
 from bnptrack.tracker.messages import MSG_TYPES
 from bnptrack.pipeline.experiments import DEFAULT_EXPERIMENT_PARAMS, EXPERIMENTS
@@ -310,11 +310,11 @@ Examples:
 
 
 @click.command(help=_EXPERIMENT_HELP)
-@click.argument("name", type=click.Choice(list(EXPERIMENTS)))
+@click.argument("name", type=Choice(list(EXPERIMENTS)))
 @click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Monte Carlo runs.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
               help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
-@click.option("--params", "params_name", type=click.Choice(BUILTIN_PARAMS), default=DEFAULT_EXPERIMENT_PARAMS,
+@click.option("--params", "params_name", type=Choice(BUILTIN_PARAMS), default=DEFAULT_EXPERIMENT_PARAMS,
               show_default=True, help="Model parameter set.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/experiments/NAME-PARAMS-sSEED.")

@@ -279,3 +279,52 @@ def test_a_missing_topic_lists_the_log_s_own_measurements_with_their_topic(tmp_p
     line = _one_line(res.output, "Error:")
     assert line.startswith(f"Error: {log} has no channel /radar/scan; trackable channels: /measurements "
                            "(bnptrack measurements, read by default: --topic /measurements or no --topic)"), line
+
+
+# --------------------------------------------------------------------------- usage errors
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["track", "LOG", "--tracker", "ddpp"], "Error: Invalid value for '--tracker': 'ddpp' is not one of"),
+    (["track", "LOG", "--lag", "-1"], "Error: Invalid value for '--lag': -1 is not in the range x>=0."),
+    (["track"], "Error: Missing argument 'LOG'."),
+])
+def test_a_usage_error_is_one_line(tmp_path, args, expected):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run(*[log if a == "LOG" else a for a in args])
+    assert res.exit_code == 2
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(expected), res.output
+    assert lines[0].endswith("(see 'main track --help')")
+
+
+def test_a_choice_typo_gets_the_closest_choice(tmp_path):
+    res = _run("track", _log(tmp_path / "a.mcap", sensor="sim0", n=3), "--tracker", "ddpp")
+    assert "(did you mean 'ddp'?)" in res.output
+
+
+def test_an_unknown_set_key_lists_the_close_keys_only(tmp_path):
+    res = _run("track", _log(tmp_path / "a.mcap", sensor="sim0", n=3), "--set", "p_detcet=0.9", "--out",
+               tmp_path / "t.mcap")
+    line = _one_line(res.output, "Error:")
+    assert "(did you mean 'p_detect'" in line and "docs/models.md" in line
+    assert "sigma_turn_deg" not in line and len(line) < 300, line
+
+
+# --------------------------------------------------------------------------- Python names its arguments
+
+
+def test_python_errors_name_the_arguments_not_the_flags(tmp_path):
+    import bnptrack
+    from bnptrack.tracker.config import ConfigError
+
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    with pytest.raises(ConfigError, match=r"^overrides item 'p_detcet=0.9': unknown key 'p_detcet'") as e:
+        bnptrack.track(log, overrides=["p_detcet=0.9"])
+    assert "--set" not in str(e.value)
+    with pytest.raises(ConfigError, match=r"^overrides item 'sweeps': expected key=value"):
+        bnptrack.make_tracker("ddp", overrides=["sweeps"])
+    with pytest.raises(ConfigError, match=r"^params='nope': not a built-in set"):
+        bnptrack.track(log, params="nope")
+    with pytest.raises(ConfigError, match=r"^overrides: "):
+        bnptrack.track(log, overrides=["p_detect=2.0"])

@@ -17,7 +17,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.config import (ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
+from bnptrack.tracker.config import (CLI_NAMES, ArgNames, ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
 from bnptrack.tracker.input_checks import check_sensor_spec
 from bnptrack.tracker.models.clutter import ClutterModel, Detection
@@ -241,7 +241,8 @@ def builtin_params_path(name: str) -> Path:
     return Path(str(resources.files("bnptrack.tracker") / "params" / f"{name}.toml"))
 
 
-def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:
+def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = (),
+                names: ArgNames = CLI_NAMES) -> ModelParams:
     """Load a parameter set by built-in name or TOML path, then apply ``key=value`` overrides.
 
     A file names only what it changes: ``extends = "vo2017"`` (a built-in name or another
@@ -249,7 +250,8 @@ def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) ->
     defaults of :class:`ModelParams`; ``name`` defaults to the file's stem.  Top-level keys
     replace the base's (``birth`` regions are inherited unless the file gives ``birth``), and
     ``[sensors.NAME]`` tables are merged per sensor.  An unknown key fails with a
-    "did you mean".
+    "did you mean".  Errors name ``source`` and the overrides as ``names`` say (the command
+    line's ``--params`` / ``--set``, or a Python call's arguments).
     """
     text = str(source)
     if text in BUILTIN_PARAMS:
@@ -258,9 +260,9 @@ def load_params(source: str | Path = "vo2017", overrides: Sequence[str] = ()) ->
         params = convert(_file_data(Path(text), ()), ModelParams, text)
     else:
         raise ConfigError(
-            f"--params {text!r}: not a built-in set ({', '.join(BUILTIN_PARAMS)}) nor a .toml file"
+            f"{names.params.format(text)}: not a built-in set ({', '.join(BUILTIN_PARAMS)}) nor a .toml file"
         )
-    return apply_overrides(params, overrides)
+    return apply_overrides(params, overrides, names=names)
 
 
 def _file_data(path: Path, seen: tuple[Path, ...]) -> dict:
