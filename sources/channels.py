@@ -18,7 +18,7 @@ from bnptrack.sources.log_errors import McapLogError
 from bnptrack.sources.readers import ReaderEntry, reader_entry
 from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
-__all__ = ["ChannelInfo", "log_channels", "channel_list", "trackable", "trackable_listing", "record_limit"]
+__all__ = ["MCAP_MAGIC", "check_magic", "ChannelInfo", "log_channels", "channel_list", "trackable", "trackable_listing", "record_limit"]
 
 
 def record_limit(size: int) -> int:
@@ -61,6 +61,8 @@ def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
         size = os.fstat(f.fileno()).st_size
         if size == 0:  # the reader would find no record, not a bad magic
             raise McapLogError(spath, "corrupt", 0, 0, None, "not an MCAP file: the file is empty (0 bytes)")
+        check_magic(f.read(len(MCAP_MAGIC)), spath)
+        f.seek(0)
         reader = StreamReader(f, validate_crcs=False, record_size_limit=record_limit(size))
         try:
             for rec in reader.records:
@@ -108,6 +110,19 @@ def channel_list(path: str | os.PathLike) -> list[ChannelInfo]:
         out.append(ChannelInfo(ch.topic, sc.name if sc else "", sc.encoding if sc else "", ch.message_encoding,
                                counts.get(cid, 0), None, None))
     return out
+
+
+#: The 8 bytes an MCAP file starts with.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def check_magic(head: bytes, spath: str) -> None:
+    """Raise :class:`McapLogError` ``not an MCAP file`` when ``head`` (the file's first bytes)
+    does not start as an MCAP file does; a file cut within the magic is left to the reader
+    (it reports it as truncated)."""
+    if head[:len(MCAP_MAGIC)] != MCAP_MAGIC[:len(head)]:
+        raise McapLogError(spath, "corrupt", 0, 0, None,
+                           f"not an MCAP file: it starts with {head[:8]!r}, not the MCAP magic {MCAP_MAGIC!r}")
 
 
 def trackable(channel: ChannelInfo) -> ReaderEntry | None:

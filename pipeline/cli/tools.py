@@ -262,6 +262,7 @@ def view(
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
+    _check_recording(rrd)
     try:
         if repair_out is not None:
             out = repair(rrd, repair_out)
@@ -277,6 +278,28 @@ def view(
         raise CliError(str(exc)) from exc
     if code:
         raise CliError(f"the Rerun viewer exited with code {code}")
+
+
+def _check_recording(path: Path) -> None:
+    """A file that is not a Rerun recording is an error naming what it is: an MCAP log (the
+    command that records one), or another file."""
+    from bnptrack.sources.channels import MCAP_MAGIC
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return  # the viewer's own error names it
+    if head.startswith(MCAP_MAGIC):
+        raise CliError(f"{path} is an MCAP log; view expects a Rerun .rrd recording: for the tracks of a log, "
+                       f"`bnptrack track LOG --rrd FILE.rrd` records one (a run of launch / replay writes run.rrd)")
+    if head and not head.startswith(RRD_MAGIC):
+        raise CliError(f"{path} is not a Rerun recording (it starts with {head!r}, not {RRD_MAGIC!r}); "
+                       f"view expects a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
+
+
+#: The bytes every Rerun recording (.rrd) starts with (then the format version).
+RRD_MAGIC = b"RRF"
 
 
 # --------------------------------------------------------------------------- experiment

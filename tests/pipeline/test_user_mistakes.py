@@ -328,3 +328,27 @@ def test_python_errors_name_the_arguments_not_the_flags(tmp_path):
         bnptrack.track(log, params="nope")
     with pytest.raises(ConfigError, match=r"^overrides: "):
         bnptrack.track(log, overrides=["p_detect=2.0"])
+
+
+# --------------------------------------------------------------------------- wrong file types
+
+
+@pytest.mark.parametrize("content", [b"hello\n", b"\x89PNG\r\n\x1a\n" + bytes(40)])
+@pytest.mark.parametrize("cmd", ["track", "info"])
+def test_a_file_without_the_mcap_magic_is_not_an_mcap_file(tmp_path, content, cmd):
+    f = tmp_path / "notes.txt"
+    f.write_bytes(content)
+    res = _run(cmd, f, *(["--out", tmp_path / "t.mcap"] if cmd == "track" else []))
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert "not an MCAP file: it starts with" in line and "truncated" not in line, line
+
+
+def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
+    log = _log(tmp_path / "run.mcap", sensor="sim0", n=3)
+    res = _run("view", log, "--screenshot", tmp_path / "s.png")
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert "is an MCAP log; view expects a Rerun .rrd recording" in line
+    assert "`bnptrack track LOG --rrd FILE.rrd`" in line
+    assert not (tmp_path / "s.png").exists()
