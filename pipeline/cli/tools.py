@@ -82,17 +82,20 @@ def _trackable_note(channel) -> str:
 
 
 def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
-    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements)."""
+    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements);
+    a sensor whose stamps look like another unit gets ``track``'s warning."""
     import numpy as np
 
     from bnptrack.sources.mcap_log import iter_frames
+    from bnptrack.tracker.input_checks import check_spacing, warn
 
     sensors: dict[tuple[str, str], list] = {}
     stamps, n_meas, truth, error = [], 0, 0, None
     try:
         for f in iter_frames(log, topic_map):
-            entry = sensors.setdefault((f.sensor, f.kind), [0, set()])
+            entry = sensors.setdefault((f.sensor, f.kind), [0, set(), []])
             entry[0] += 1
+            entry[2].append(f.stamp_ns)
             if f.pose is not None:
                 entry[1].add(f.pose)
             stamps.append(f.stamp_ns)
@@ -102,9 +105,11 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
         error = exc
     if not stamps:
         return [("frames", "0" + (f" ({error})" if error else " (no /measurements: give --topic with a trackable channel)"))]
+    for note in filter(None, (check_spacing(name, times) for name, times in _sensor_stamps(sensors).items())):
+        warn(note)
     rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
                        f"{truth} with truth)")]
-    for (name, kind), (n, poses) in sensors.items():
+    for (name, kind), (n, poses, _) in sensors.items():
         pose = ""
         if poses:
             p = sorted(poses)[0]
@@ -120,6 +125,14 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     if error is not None:
         rows.append(("error", str(error)))
     return rows
+
+
+def _sensor_stamps(sensors: dict[tuple[str, str], list]) -> dict[str, list[int]]:
+    """Each sensor's stamps in file order (from the ``(name, kind)`` entries of :func:`_frame_rows`)."""
+    out: dict[str, list[int]] = {}
+    for (name, _kind), (_n, _poses, stamps) in sensors.items():
+        out.setdefault(name, []).extend(stamps)
+    return out
 
 
 #: Stamps from this one on (2001-09-09) read as dates; smaller ones as seconds from the origin.

@@ -352,3 +352,16 @@ def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
     assert "is an MCAP log; view expects a Rerun .rrd recording" in line
     assert "`bnptrack track LOG --rrd FILE.rrd`" in line
     assert not (tmp_path / "s.png").exists()
+
+
+def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
+    log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)
+    res = _run("info", log)
+    assert res.exit_code == 0, res.output
+    line = _one_line(res.output, "warning: sensor 'radar0': the median spacing")
+    assert "they look like milliseconds (the spacing would be 0.5 s): multiply them by 1e+06" in line
+
+
+def test_info_of_nanosecond_stamps_gives_no_warning(tmp_path):
+    res = _run("info", _log(tmp_path / "ns.mcap", sensor="radar0"))
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
