@@ -403,15 +403,15 @@ def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
         raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
 
 
-def refuse_existing(outputs: Mapping[str, Path], overwrite: bool) -> None:
+def refuse_existing(outputs: Mapping[str, Path], overwrite: bool, option: str = "--out") -> None:
     """Refuse output files that exist already (a finished run would be replaced by this one,
-    complete or not) unless ``overwrite``."""
+    complete or not) unless ``overwrite``; the error suggests another ``option``."""
     if overwrite:
         return
     taken = sorted({str(p) for p in outputs.values() if Path(p).exists()})
     if taken:
         raise ConfigError(f"{taken[0]} exists{' (and ' + str(len(taken) - 1) + ' more)' if len(taken) > 1 else ''}: "
-                          "give --overwrite to replace it, or another --out")
+                          f"give --overwrite to replace it, or another {option}")
 
 
 def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:

@@ -177,7 +177,7 @@ def main() -> None:
 
     \b
     Example:
-      bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap
+      bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap --overwrite
       bnptrack track recordings/vo2017-s1.mcap --tracker ddp --out recordings/vo2017-ddp.mcap --rrd recordings/vo2017-ddp.rrd
       bnptrack schema /tracks
 

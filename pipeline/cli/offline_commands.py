@@ -104,6 +104,8 @@ def _check_sinks(ctx: click.Context, param: click.Parameter, names: tuple[str, .
     default=None,
     help="Output MCAP file. Default: recordings/<scenario>-s<seed>.mcap (directory created).",
 )
+@click.option("--overwrite", is_flag=True, help="Replace --out if it exists (without it, an existing file is "
+              "refused with exit code 2 before anything is simulated).")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the summary.")
 @clean_errors
 def simulate(
@@ -113,6 +115,7 @@ def simulate(
     snr_db: float | None,
     seed: int,
     out: Path | None,
+    overwrite: bool,
     quiet: bool,
 ) -> None:
     """Simulate a scenario and write its measurements and truth to an MCAP log.
@@ -125,11 +128,11 @@ def simulate(
 
     \b
     Examples:
-      bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap
+      bnptrack simulate --scenario vo2017 --params vo2017 --seed 1 --out recordings/vo2017-s1.mcap --overwrite
       bnptrack simulate --scenario snr --snr -10 --seed 3
       bnptrack simulate --scenario proximity --params paper --set clutter_rate=30 --seed 2
       bnptrack simulate --scenario random --seed 3 --set scene.n_objects=25
-      bnptrack simulate --params examples/two_sensors.toml --seed 1 --out /tmp/two.mcap   # one frame per sensor per scan
+      bnptrack simulate --params examples/two_sensors.toml --seed 1 --out recordings/two.mcap   # one frame per sensor per scan
 
     The generated scenarios (random, random-cv, groups, groups-pl, groups-py) draw their scene
     from --seed too (the record then also holds scene_seed, the scene.* settings and the
@@ -137,9 +140,10 @@ def simulate(
     """
     from bnptrack.pipeline.offline import simulate_to_log
 
-    opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
     if out is None:
         out = Path("recordings") / f"{scenario}-s{seed}.mcap"
+    refuse_existing({"mcap": out}, overwrite)
+    opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
     res = simulate_to_log(opened, seed, out)
     if not quiet:
         echo_rows(_simulate_rows(opened, params_arg, overrides, seed)

@@ -169,10 +169,12 @@ def duration_text(seconds: float) -> str:
 @click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="RUN.mcap")
 @click.option("--csv", "csv_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the track table as CSV (metrics beside it: OUT.metrics.csv).")
+@click.option("--overwrite", is_flag=True, help="Replace output files that exist (without it, an existing "
+              "output is refused with exit code 2 before anything is written).")
 @click.option("--parquet", "parquet_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the track table as Parquet (metrics: OUT.metrics.parquet).")
 @clean_errors
-def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
+def export(run: Path, csv_out: Path | None, parquet_out: Path | None, overwrite: bool) -> None:
     """Export a run's tracks (the output of `track`) as a table.
 
     One row per track per frame: frame, stamp_ns, label, name (the display name the viewer
@@ -183,11 +185,17 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None) -> None:
     \b
     Example:
       bnptrack export recordings/vo2017-ddp.mcap --csv tracks.csv
+      bnptrack export recordings/vo2017-ddp.mcap --csv tracks.csv --overwrite   # replace an earlier export
     """
     from bnptrack.pipeline.export import export as do_export
+    from bnptrack.pipeline.export import metrics_path
+    from bnptrack.pipeline.offline import refuse_existing
 
     if csv_out is None and parquet_out is None:
         raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
+    outs = [p for p in (csv_out, parquet_out) if p is not None]
+    refuse_existing({str(p): p for out in outs for p in (out, metrics_path(out))}, overwrite,
+                    "--csv / --parquet file")
     try:
         for fmt, out in (("csv", csv_out), ("parquet", parquet_out)):
             if out is not None:

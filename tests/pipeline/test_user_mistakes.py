@@ -365,3 +365,32 @@ def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
 def test_info_of_nanosecond_stamps_gives_no_warning(tmp_path):
     res = _run("info", _log(tmp_path / "ns.mcap", sensor="radar0"))
     assert res.exit_code == 0 and "warning" not in res.output, res.output
+
+
+# --------------------------------------------------------------------------- existing outputs
+
+
+def test_simulate_refuses_an_existing_out_without_overwrite(tmp_path):
+    out = tmp_path / "sim.mcap"
+    out.write_bytes(b"mine")
+    res = _run("simulate", "--seed", "2", "--out", out, "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: {out} exists: give --overwrite to replace it, or another --out"
+    assert out.read_bytes() == b"mine"
+    assert _run("simulate", "--seed", "2", "--out", out, "-q", "--overwrite").exit_code == 0
+    assert out.read_bytes()[:8] == b"\x89MCAP0\r\n"
+
+
+def test_export_refuses_an_existing_table_without_overwrite(tmp_path):
+    log = tmp_path / "sim.mcap"
+    assert _run("simulate", "--scenario", "dpy5", "--seed", "2", "--out", log, "-q").exit_code == 0
+    run = tmp_path / "run.mcap"
+    assert _run("track", log, "--tracker", "ddp-mb", "--out", run, "-q", "--set", "source.end_frame=5").exit_code == 0
+    csv = tmp_path / "t.csv"
+    assert _run("export", run, "--csv", csv).exit_code == 0
+    before = csv.read_bytes()
+    res = _run("export", run, "--csv", csv)
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:").startswith(f"Error: {csv} exists (and 1 more): give --overwrite")
+    assert csv.read_bytes() == before
+    assert _run("export", run, "--csv", csv, "--overwrite").exit_code == 0
