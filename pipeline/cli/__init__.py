@@ -108,11 +108,8 @@ def exit_now(code: object) -> None:
 
 def one_line_usage_error(exc: click.UsageError) -> click.UsageError:
     """``exc`` printed as one line ``Error: ...`` (exit code 2), without click's usage and
-    ``Try ... --help`` lines: the help command is named at the line's end."""
-    text = " ".join(exc.format_message().split())
-    if exc.ctx is not None:
-        text = f"{text} (see '{exc.ctx.command_path} --help')"
-    return click.UsageError(text)
+    ``Try ... --help`` lines."""
+    return click.UsageError(" ".join(exc.format_message().split()))
 
 
 def _command_name(argv: list[str]) -> str:

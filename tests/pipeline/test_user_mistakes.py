@@ -295,7 +295,6 @@ def test_a_usage_error_is_one_line(tmp_path, args, expected):
     assert res.exit_code == 2
     lines = res.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(expected), res.output
-    assert lines[0].endswith("(see 'main track --help')")
 
 
 def test_a_choice_typo_gets_the_closest_choice(tmp_path):
