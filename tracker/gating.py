@@ -142,7 +142,7 @@ def _angle_dims(meas, d: int) -> np.ndarray:
 
 
 def _gate_balls(meas, innov: Innovation, Z: np.ndarray, g: float):
-    """Balls holding every gate, in the measurements' coordinates scaled per component
+    r"""Balls holding every gate, in the measurements' coordinates scaled per component
     (``scale``): ``(scale, ok_z, centres, owner, radii)``, ball ``k`` of radius
     :math:`\sqrt{g\,\lambda_{max}(D^{-1} S_n D^{-1})}` around :math:`\hat z_n` for track
     ``owner[k]``; wrapped components get balls at :math:`\hat z_n \pm 2\pi` too when the ball
