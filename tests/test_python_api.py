@@ -44,8 +44,8 @@ def test_the_readme_snippet_prints_names_and_positions(capsys):
     code = text.split("**From Python**")[1].split("```python\n")[1].split("```")[0]
     exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == "mean OSPA 24.87 m"
-    assert [line.split()[0] for line in out[1:]] == ["T1.4", "T10.0", "T10.13", "T40.13", "T37.11"]
+    assert out[0] == "mean OSPA 24.57 m"
+    assert [line.split()[0] for line in out[1:]] == ["T1.4", "T8.7", "T9.4", "T40.13", "T37.11"]
     for line in out[1:]:
         assert re.fullmatch(r"T\S+ -?\d+\.\d -?\d+\.\d", line), line  # no TrackEstimate repr
 

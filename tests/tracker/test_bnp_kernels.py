@@ -423,3 +423,17 @@ def test_large_best_permutation_equals_scipy_on_the_whole_problem(seed):
     assert np.sum(got[1] != np.array([mi[ti == t][np.argmax(p[ti == t])] for t in got[0]])) > 0  # conflicts solved
     for a, b in zip(got, want):
         _same(a, b)
+
+
+def test_moment_match_combined_hand_values():
+    """One cluster, existence r = 1: "missed" 0.2 at the predicted mean 0, two updates at 10 and
+    20 with probabilities 0.6 and 0.2 (1-D, variances P_pred 100, P_upd 4).  Mean 0.6*10 + 0.2*20
+    = 10.  The detections as one component (weight 0.8, mean 12.5, variance 4): variance
+    0.2 (100 + 10^2) + 0.8 (4 + 2.5^2) = 48.2; the full mixture adds their spread about 12.5,
+    0.6 * 2.5^2 + 0.2 * 7.5^2 = 15: 63.2."""
+    args = (np.array([0.2]), np.array([1.0]), np.array([0, 0]), np.array([0.6, 0.2]), np.zeros((1, 1)),
+            np.full((1, 1, 1), 100.0), np.array([[10.0], [20.0]]), np.full((1, 1, 1), 4.0), _EPS)
+    mean, cov = ku.moment_match_combined(*args)
+    assert np.allclose(mean, [[10.0]]) and np.allclose(cov, [[[48.2]]])
+    mean, cov = ku.moment_match(*args)
+    assert np.allclose(mean, [[10.0]]) and np.allclose(cov, [[[63.2]]])

@@ -225,7 +225,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
     seed = 2
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)[:22]
     worst = {}
-    for update in ("best-permutation", "mixture"):
+    for update in ("best-permutation", "mixture", "combined"):
         tr = make_tracker("ddp-mb", vo_params, BnpConfig(state_update=update))
         st = tr.initial_state()
         for f in frames:
@@ -235,6 +235,7 @@ def test_best_permutation_keeps_co_born_objects_apart(vo_params):
         worst[update] = max(np.min(np.linalg.norm(confirmed - truth[t], axis=1)) for t in ("T3", "T4"))
     assert worst["best-permutation"] < 60.0, worst
     assert worst["mixture"] < 60.0, worst
+    assert worst["combined"] < 60.0, worst
 
 
 def _clusters(means, existences, std=10.0):

@@ -161,9 +161,10 @@ def test_the_paper_preset_has_the_checks_off_and_its_state_stays_empty():
 
     cfg = GROUP_PRESETS["ddp-paper"]
     assert cfg.crossing_scans == 0 and cfg.share_after == 0
-    # the product default differs from the paper's algorithm only by sharing after six scans together
-    assert GROUP_PRESETS["ddp"].share_after == 6 and GROUP_PRESETS["ddp"].crossing_scans == 0
-    assert msgspec.structs.replace(GROUP_PRESETS["ddp"], share_after=0) == cfg
+    # the product default differs from the paper's algorithm by the object level's combined update
+    # and sharing after twelve scans together
+    assert GROUP_PRESETS["ddp"].share_after == 12 and GROUP_PRESETS["ddp"].crossing_scans == 0
+    assert msgspec.structs.replace(GROUP_PRESETS["ddp"], share_after=0, objects=cfg.objects) == cfg
     _, _, out = _groups_run(cfg, k=12)
     state = out[-1][2]
     assert state.together.size == 0 and state.id_frames.size == 0 and state.id_mean.shape[0] == 0

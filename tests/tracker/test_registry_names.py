@@ -2,6 +2,7 @@
 trackers, ``ddp-mb`` / ``dpyp-mb`` the single-level one, and the two-level aliases
 ``ddp-groups`` / ``dpyp-groups`` still resolve to the same trackers and presets."""
 
+import msgspec
 import pytest
 
 from bnptrack.tracker.bnp import TRACKER_PRESETS, BnpConfig, BnpTracker
@@ -46,9 +47,13 @@ def test_the_old_two_level_names_still_resolve(params, old, new):
 
 
 def test_the_two_level_presets_wrap_the_single_level_presets():
-    """``ddp-proximity`` / ``ddp-snr`` (two level) have the object level of ``ddp-mb-proximity`` / ``ddp-mb-snr``."""
-    for suffix in ("", "-proximity", "-snr"):
+    """``ddp-proximity`` / ``ddp-snr`` / ``ddp-paper`` (two level) have the object level of
+    ``ddp-mb-proximity`` / ``ddp-mb-snr`` / ``ddp-mb``; the default ``ddp``, that of ``ddp-mb`` with the
+    combined update."""
+    for suffix in ("-proximity", "-snr"):
         assert GROUP_PRESETS["ddp" + suffix].objects == TRACKER_PRESETS["ddp-mb" + suffix]
+    assert GROUP_PRESETS["ddp-paper"].objects == TRACKER_PRESETS["ddp-mb"]
+    assert GROUP_PRESETS["ddp"].objects == msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], state_update="combined")
     assert "ddp" not in TRACKER_PRESETS and "dpyp" not in TRACKER_PRESETS
 
 

@@ -1,7 +1,7 @@
 """Compiled passes of the frame's update in :mod:`tracker.bnp.filter` and
 :mod:`tracker.bnp.assignment`: the sampler's inputs (:func:`problem_log_args`,
 :func:`problem_pairs`), the existing clusters' existence (:func:`existence_update`) and moments
-(:func:`moment_match`), and the JPDA* choice (:func:`jpda_select`, :func:`jpda_solve`), bit for
+(:func:`moment_match`, :func:`moment_match_combined`), and the JPDA* choice (:func:`jpda_select`, :func:`jpda_solve`), bit for
 bit the numpy code's (:mod:`tracker.bnp._kernels` says how)."""
 
 from __future__ import annotations
@@ -206,9 +206,47 @@ def moment_match(w_miss, r, ti, p, m_pred, P_pred, mu, P_upd, eps):  # pragma: n
     return mean, out
 
 
+def moment_match_combined(w_miss, r, ti, p, m_pred, P_pred, mu, P_upd, eps):  # pragma: no cover - compiled
+    """:func:`moment_match` with the detection branch as one component (``state_update =
+    "combined"``): its mean the probability-weighted mean of the updated means ``mu`` (the
+    combined innovation), its covariance ``P_upd``; the spread of the updated means about it
+    is left out.  The spread between "missed" and that component stays."""
+    N, d = m_pred.shape
+    inv_r = np.empty(N)
+    mean = np.empty((N, d))
+    det = np.zeros((N, d))
+    w_det = np.zeros(N)
+    for l in range(N):
+        inv_r[l] = 1.0 / npmax(r[l], eps)
+        w0 = w_miss[l] * inv_r[l]
+        for a in range(d):
+            mean[l, a] = w0 * m_pred[l, a]
+    for k in range(ti.shape[0]):
+        wp = p[k] * inv_r[ti[k]]
+        w_det[ti[k]] += wp
+        for a in range(d):
+            mean[ti[k], a] += wp * mu[k, a]
+            det[ti[k], a] += wp * mu[k, a]
+    out = np.empty((N, d, d))
+    dev0, dev1 = np.empty(d), np.empty(d)
+    for l in range(N):
+        w0 = w_miss[l] * inv_r[l]
+        for a in range(d):
+            dev0[a] = m_pred[l, a] - mean[l, a]
+            dev1[a] = det[l, a] / w_det[l] - mean[l, a] if w_det[l] > 0.0 else 0.0
+        for a in range(d):
+            for b in range(d):
+                out[l, a, b] = w0 * (P_pred[l, a, b] + dev0[a] * dev0[b]) + w_det[l] * (P_upd[l, a, b] + dev1[a] * dev1[b])
+        for a in range(d):
+            for b in range(a + 1, d):
+                out[l, a, b] = out[l, b, a] = 0.5 * (out[l, a, b] + out[l, b, a])
+    return mean, out
+
+
 existence_update = jit(existence_update)
 jpda_select = jit(jpda_select)
 jpda_solve = jit(jpda_solve)
 moment_match = jit(moment_match)
+moment_match_combined = jit(moment_match_combined)
 problem_log_args = jit(problem_log_args)
 problem_pairs = jit(problem_pairs)

@@ -53,11 +53,14 @@ class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     popularity_decay: Fraction = 0.0
     """rho: v <- max(1, rho * v + (1 - rho) * n_k).  0 carries the last frame's cardinality
     (the paper's v*_{l,k|k-1}); for point objects v = 1 whatever rho is."""
-    state_update: Literal["best-permutation", "mixture"] = "best-permutation"
+    state_update: Literal["best-permutation", "mixture", "combined"] = "best-permutation"
     """How a cluster's Gaussian takes its measurements: moment-matched over every measurement
     it may have taken ("mixture", JPDA-like), or over "missed" and the one measurement it takes
     in the most probable one-to-one assignment ("best-permutation", JPDA*), which keeps two
-    clusters that share a gate from coalescing."""
+    clusters that share a gate from coalescing; "combined": as "mixture", with the updates by
+    the measurements it may have taken as one component (their probability-weighted mean, the
+    updated covariance; no spread among them), so that a dense scene's many small assignment
+    probabilities do not widen every gate (docs/trackers.md, "Identities through crossings")."""
     merge_distance: NonNeg = 9.0
     """Clusters whose position-velocity states are within this squared Mahalanobis distance
     (summed covariances) and whose existences sum to at most 1 are one object split over

@@ -236,7 +236,7 @@ class BnpTracker:
         # moment-matched mixture (conditional on existence) of missed + each detection
         if self.config.state_update == "best-permutation" and p.size:
             ti, mi, p = best_permutation_pairs(N, ti, mi, p)
-        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r)
+        mean, cov = _moment_match(meas, innov, pred, Z, w_miss, ti, mi, p, r, self.config.state_update == "combined")
         return _Clusters(state.labels, mean, cov, r, pop)
 
     def _prune_floor(self, alpha: float, clutter) -> float:
@@ -351,16 +351,18 @@ def _warn_capped(limit: int, dropped: int) -> None:
 
 
 def _moment_match(meas, innov, pred: _Prediction, Z: np.ndarray, w_miss: np.ndarray, ti: np.ndarray,
-                  mi: np.ndarray, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  mi: np.ndarray, p: np.ndarray, r: np.ndarray, combined: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Each cluster's Gaussian moment-matched over "missed" (weight ``w_miss / r``) and
     "updated with ``z_m``" (weight ``p / r`` for the pairs ``(ti, mi)``, sorted by cluster then
     measurement), computed only for the pairs that carry
     weight: a pair the sampler never used (gated out, or a non-finite measurement) never
-    enters the arithmetic, so no ``0 * NaN`` can reach a state."""
+    enters the arithmetic, so no ``0 * NaN`` can reach a state.  ``combined``: the updates
+    with ``z_m`` as one component (``BnpConfig.state_update = "combined"``)."""
     carry = p > 0.0
     ti, mi, p = ti[carry], mi[carry], p[carry]
     mu = kf.update_pairs(meas, innov, pred.mean, Z, ti, mi) if ti.size else np.zeros((0, pred.mean.shape[1]))
-    return _upd.moment_match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
+    match = _upd.moment_match_combined if combined else _upd.moment_match
+    return match(w_miss, r, ti, p, pred.mean, pred.cov, mu, innov.P_upd, _EPS)
 
 
 def make_tracker(name: str, params: ModelParams, config: BnpConfig | None = None) -> BnpTracker:

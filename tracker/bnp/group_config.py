@@ -122,9 +122,13 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 _PRESETS: dict[str, GroupConfig] = {
-    # the product default: velocity sharing only among objects that have moved together
-    # (docs/trackers.md, "Identities through crossings"); "ddp-paper" is the paper's algorithm
-    "ddp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"], share_after=6),
+    # the product default: the object level's state update over every measurement an object may
+    # have taken, weighted by the Rao-Blackwellised assignment probabilities (eq. (11), the
+    # detections as one combined component), and velocity sharing only among objects that have
+    # moved together (docs/trackers.md, "Identities through crossings"); "ddp-paper" is the
+    # paper's algorithm as the single level ships it
+    "ddp": GroupConfig(objects=msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], state_update="combined"),
+                       share_after=12),
     "ddp-paper": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"]),
     "dpyp": GroupConfig(objects=TRACKER_PRESETS["ddp-mb"], d=0.1, infer_d=True),
     # the experiments' object levels (pipeline/experiments.py): experiment 2's and 3's presets
