@@ -12,7 +12,7 @@ from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth
                                               merge_exclusive)
 from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_bundles import Sweeps, Urn
-from bnptrack.tracker.bnp.group_partition import _inv_into
+from bnptrack.tracker.bnp.group_partition import _inv_into, _move
 from bnptrack.tracker.bnp.group_sample import Block, Shares, _compact, _table_priors
 from bnptrack.tracker.bnp.group_scan import _collect_shares, _option_logw, _partition_kernel
 from bnptrack.tracker.bnp.group_share import share_turn, share_velocity
@@ -104,24 +104,6 @@ def _theta_reference(b: Block, slot: np.ndarray, n_used: int):
     return np.einsum("gij,gj->gi", cov, eta), cov
 
 
-def _move_reference(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
-    """Object ``l`` into (``sign`` 1.0) or out of (-1.0) table ``t``'s information sums."""
-    n[t] += sign
-    for p in range(lam.shape[0]):
-        for i in range(2):
-            if n[t] == 0:  # exact reset: no round-off drift
-                eta[p, t, i] = eta0[p, t, i]
-                for j in range(2):
-                    lam[p, t, i, j] = lam0[p, t, i, j]
-            else:
-                eta[p, t, i] += sign * Riv[p, l, i]
-                for j in range(2):
-                    lam[p, t, i, j] += sign * Ri[p, l, i, j]
-
-
-_move_reference = jit(_move_reference)
-
-
 def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov) -> None:
     """The kernel before the per-table cache (main at the start of this work), with its 2x2
     products in group_fma's formula as the kernel's (tests/tracker/test_group_fma.py checks the
@@ -136,14 +118,14 @@ def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u,
             _inv_into(R[p, l], Ri[p, l])
             gemv2(Ri[p, l], v[p, l], Riv[p, l])
     for l in range(L):
-        _move_reference(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
     cov = np.empty((2, 2))
     Si = np.empty((2, 2))
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
-            _move_reference(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
             _option_logw(n, v_star, alpha, d, logw)
             for t in range(T):
                 if logw[t] == -np.inf:
@@ -169,7 +151,7 @@ def _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u,
             z[l] = k
             if s == S - 1:
                 rec_p[l] = w
-            _move_reference(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
 
 
 _partition_reference = jit(_partition_reference)

@@ -2,11 +2,17 @@
 :mod:`tracker.bnp.group_scan`, :mod:`tracker.bnp.group_partition`, :mod:`tracker.bnp.group_grid`),
 bundled by what they are: typed NamedTuples of arrays and scalars, which numba passes to a
 compiled kernel as one argument (a struct of the same fields; no copy of any array).  A bundle's
-arrays are read and written in place; a bundle itself is never rebuilt inside a move.
+arrays are read and written in place; a bundle is rebuilt only when an array of it is replaced
+(:class:`Records`, grown).
 
-:class:`Sweeps` and :class:`Urn` are built at the Python edge, once a frame
-(:func:`tracker.bnp.group_sample.sample_partition`); the gated kernel builds the others once
-per call, around its sweeps."""
+:class:`BlockArrays`, :class:`Sweeps` and :class:`Urn` are built at the Python edge, once a frame
+(:func:`tracker.bnp.group_sample.sample_partition`); the gated kernel builds the others once per
+call, around its sweeps.  Each helper kernel receives the bundles whose fields it mostly reads: a
+field passed and not read still costs a first run compile time (numba flattens a NamedTuple
+argument into its fields and counts the references to each array in it at every call; bundles
+of every table and object array, passed whole to each helper, cost the group kernels about 20 %
+more compile CPU).  The sums that seat and unseat an object (``_move``, ``_refresh``) keep their
+arrays one by one: ``_setup`` and the reference scan call them too."""
 
 from __future__ import annotations
 
@@ -14,8 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BlockArrays", "Candidates", "Gate", "Grid", "Members", "Records", "Scratch", "Sweeps", "Tables",
-           "Urn"]
+__all__ = ["BlockArrays", "Candidates", "Gate", "Grid", "Members", "Records", "Scratch", "Sums", "Sweeps",
+           "Tables", "Urn"]
 
 
 class BlockArrays(NamedTuple):
@@ -58,29 +64,32 @@ class Urn(NamedTuple):
 
 
 class Members(NamedTuple):
-    """The objects being seated: ``v``, ``R`` as :class:`Sweeps`'; ``Ri`` = R^-1 (P, L, 2, 2),
-    ``Riv`` = R^-1 v (P, L, 2); the gate's per-object terms ``c`` (L,) (sum over blocks of
-    -log det(R)/2 - log 2 pi) and ``rho`` (L,) (the largest eigenvalue of the indexed block's R)."""
+    """The objects being seated: ``v`` (P, L, 2), ``R`` (P, L, 2, 2) as :class:`Sweeps`'; the
+    gate's per-object terms ``c`` (L,) (sum over blocks of -log det(R)/2 - log 2 pi) and ``rho``
+    (L,) (the largest eigenvalue of the indexed block's R)."""
 
     v: np.ndarray
     R: np.ndarray
-    Ri: np.ndarray
-    Riv: np.ndarray
     c: np.ndarray
     rho: np.ndarray
 
 
-class Tables(NamedTuple):
-    """The tables' state: members seated ``n`` (T,); information sums ``lam`` (P, T, 2, 2), ``eta``
-    (P, T, 2) over the priors ``lam0``, ``eta0``; theta's posterior ``mu`` (P, T, 2), ``cov``
-    (P, T, 2, 2) and ``lm`` (T,), the largest eigenvalue of the indexed block's ``cov``; the log urn
-    weight ``urn`` (T,) and ``live`` (T,): seated or transitioned."""
+class Sums(NamedTuple):
+    """The tables' information sums: members seated ``n`` (T,); ``lam`` (P, T, 2, 2), ``eta``
+    (P, T, 2) over the priors ``lam0``, ``eta0`` (an empty table's sums are reset to them)."""
 
     n: np.ndarray
     lam: np.ndarray
     eta: np.ndarray
     lam0: np.ndarray
     eta0: np.ndarray
+
+
+class Tables(NamedTuple):
+    """What a move reads of each table: theta's posterior ``mu`` (P, T, 2), ``cov`` (P, T, 2, 2)
+    and ``lm`` (T,), the largest eigenvalue of the indexed block's ``cov``; the log urn weight
+    ``urn`` (T,); ``live`` (T,): seated or transitioned."""
+
     mu: np.ndarray
     cov: np.ndarray
     lm: np.ndarray
@@ -127,15 +136,13 @@ class Candidates(NamedTuple):
 
 
 class Scratch(NamedTuple):
-    """2x2 and 2-vector buffers of the moves' scores and records."""
+    """2x2 and 2-vector buffers of a score: ``A`` = C + R, ``Si`` its inverse, ``r`` the residual,
+    ``Sir`` = Si r."""
 
     A: np.ndarray
     Si: np.ndarray
-    cov: np.ndarray
-    B: np.ndarray
     r: np.ndarray
     Sir: np.ndarray
-    e: np.ndarray
 
 
 class Records(NamedTuple):

@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker.numerics import jit
-from bnptrack.tracker.bnp.group_bundles import Candidates, Gate, Grid, Members, Records, Scratch, Tables
+from bnptrack.tracker.bnp.group_bundles import Candidates, Gate, Grid, Members, Records, Scratch, Sums, Tables
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.group_grid import (CAP_FACTOR, MARGIN, _cell_ij, _grid_geometry, _heap_pop, _heap_push,
                                            _place, _unplace, median)
@@ -63,21 +63,18 @@ def _inv_into(A, out) -> float:
     return det
 
 
-def _move(tab, mem, t, l, sign) -> None:
-    """Object ``l`` (:class:`~tracker.bnp.group_bundles.Members`) into (``sign`` 1.0) or out of (-1.0)
-    table ``t``'s information sums (:class:`~tracker.bnp.group_bundles.Tables`)."""
-    n, lam, eta = tab.n, tab.lam, tab.eta
+def _move(lam, eta, n, lam0, eta0, Ri, Riv, t, l, sign) -> None:
     n[t] += sign
     for p in range(lam.shape[0]):  # entry by entry: array (slice) assignments compile numba's string code
         for i in range(2):
             if n[t] == 0:  # exact reset: no round-off drift
-                eta[p, t, i] = tab.eta0[p, t, i]
+                eta[p, t, i] = eta0[p, t, i]
                 for j in range(2):
-                    lam[p, t, i, j] = tab.lam0[p, t, i, j]
+                    lam[p, t, i, j] = lam0[p, t, i, j]
             else:
-                eta[p, t, i] += sign * mem.Riv[p, l, i]
+                eta[p, t, i] += sign * Riv[p, l, i]
                 for j in range(2):
-                    lam[p, t, i, j] += sign * mem.Ri[p, l, i, j]
+                    lam[p, t, i, j] += sign * Ri[p, l, i, j]
 
 
 def lmax2(A) -> float:
@@ -89,16 +86,16 @@ def lmax2(A) -> float:
 
 
 
-def _refresh(tab, t, cov) -> None:
+def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
     """Table ``t``'s theta posterior per block (``cov = lam^-1``, ``mu = cov eta``), as the full scan
-    computes it; ``tab.lm[t]``: the largest eigenvalue of the last block's covariance."""
-    for p in range(tab.lam.shape[0]):
-        _inv_into(tab.lam[p, t], cov)
-        gemv2(cov, tab.eta[p, t], tab.mu[p, t])  # = cov @ eta, into place
-        for i in range(2):  # not tab.cov[p, t] = cov: a slice assignment compiles numba's string code
+    computes it; ``t_lm[t]``: the largest eigenvalue of the last block's covariance."""
+    for p in range(lam.shape[0]):
+        _inv_into(lam[p, t], cov)
+        gemv2(cov, eta[p, t], t_mu[p, t])  # = cov @ eta, into place
+        for i in range(2):  # not t_cov[p, t] = cov: a slice assignment compiles numba's string code
             for j in range(2):
-                tab.cov[p, t, i, j] = cov[i, j]
-    tab.lm[t] = lmax2(cov)
+                t_cov[p, t, i, j] = cov[i, j]
+    t_lm[t] = lmax2(cov)
 
 
 def _urn_of(t, n, v_star, urn) -> float:
@@ -109,15 +106,16 @@ def _urn_of(t, n, v_star, urn) -> float:
 
 def _score(t, l, urn, mem, tab, buf, log2pi) -> float:
     """Log weight of object ``l`` at table ``t`` given its log urn weight ``urn``: plus each block's
-    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``; ``buf``:
+    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``; ``mem``, ``tab``,
+    ``buf``: :class:`~tracker.bnp.group_bundles.Members`, :class:`~tracker.bnp.group_bundles.Tables`,
     :class:`~tracker.bnp.group_bundles.Scratch`)."""
-    v, R, A, Si, r, Sir = mem.v, mem.R, buf.A, buf.Si, buf.r, buf.Sir
+    v, R, t_mu, t_cov, A, Si, r, Sir = mem.v, mem.R, tab.mu, tab.cov, buf.A, buf.Si, buf.r, buf.Sir
     out = urn
     for p in range(v.shape[0]):
         for i in range(2):  # t_cov + R and v - mu, into buffers
-            r[i] = v[p, l, i] - tab.mu[p, t, i]
+            r[i] = v[p, l, i] - t_mu[p, t, i]
             for j in range(2):
-                A[i, j] = tab.cov[p, t, i, j] + R[p, l, i, j]
+                A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
         det = _inv_into(A, Si)
         gemv2(Si, r, Sir)  # = Si @ r, into a buffer
         out += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - log2pi
@@ -133,7 +131,7 @@ def _score_candidates(l, m0, m, top, mem, tab, cands, buf, gate) -> int:
     exactly 0.0 after the draw's ``exp``, as for the grid's gate.  One division and no logarithm per
     test; a non-positive or non-finite determinant never excludes.  The scored tables are kept in
     ``cand[m0:]`` in order; returns their new end."""
-    q, v, R, t_mu, t_cov, urn, c = gate.q, mem.v, mem.R, tab.mu, tab.cov, tab.urn, mem.c[l]
+    q, v, R, c, t_mu, t_cov, urn = gate.q, mem.v, mem.R, mem.c[l], tab.mu, tab.cov, tab.urn
     cand, logw = cands.cand, cands.logw
     kept = m0
     for k in range(m0, m):
@@ -190,9 +188,9 @@ def _gather(l, top_lb, m, stamp, mem, tab, grid, cands, gate):
     cannot exclude: the wide tables and the tables in the grid cells within the gate radius of
     ``v[q, l]`` whose own bound (their covariance's largest eigenvalue ``tab.lm``) does not exclude
     them (all live tables when not ``gate.on`` or the point is not finite).  Returns the new count."""
-    q, v, rho, c_l, live, T = gate.q, mem.v, mem.rho[l], mem.c[l], tab.live, tab.n.size
+    q, v, rho, c_l, live, t_mu, t_lm, T = gate.q, mem.v, mem.rho[l], mem.c[l], tab.live, tab.mu, tab.lm, tab.live.size
     cap, geo, head, nxt, wide = grid.cap, grid.geo, grid.head, grid.nxt, grid.wide
-    cand, mark, t_mu, t_lm = cands.cand, cands.mark, tab.mu, tab.lm
+    cand, mark = cands.cand, cands.mark
     x, y = v[q, l, 0], v[q, l, 1]
     D = max(2.0 * (gate.U + c_l - top_lb + MARGIN), 0.0)
     rad = np.sqrt(D * (cap + rho))
@@ -225,10 +223,11 @@ def _gather(l, top_lb, m, stamp, mem, tab, grid, cands, gate):
     return m
 
 
-def _record(l, t, wt, tab, sw, recs, buf):
+def _record(l, t, wt, sums, h_lam, h_eta, recs, B, e):
     """The option (``l``, ``t``) of weight ``wt`` appended to the records ``recs`` (``recs.count[0]``
-    their count, arrays grown by doubling): part 0's theta given the table's other current members
-    and H_2 (``sw.h_lam``, ``sw.h_eta``).  Returns the records (new ones when grown)."""
+    their count, arrays grown by doubling; :class:`~tracker.bnp.group_bundles.Records`): part 0's
+    theta given the table's other current members (``sums``: :class:`~tracker.bnp.group_bundles.Sums`)
+    and H_2 (``h_lam``, ``h_eta``).  Returns the records (new ones when grown)."""
     k = recs.count[0]
     if k == recs.obj.size:
         cap = 2 * k + 16
@@ -240,11 +239,10 @@ def _record(l, t, wt, tab, sw, recs, buf):
                 for b in range(2):
                     c2[i, a, b] = recs.cov[i, a, b]
         recs = Records(recs.count, o2, w2, m2, c2)
-    B, e = buf.B, buf.e
     for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
-        e[i] = tab.eta[0, t, i] - tab.eta0[0, t, i] + sw.h_eta[i]
+        e[i] = sums.eta[0, t, i] - sums.eta0[0, t, i] + h_eta[i]
         for j in range(2):
-            B[i, j] = tab.lam[0, t, i, j] - tab.lam0[0, t, i, j] + sw.h_lam[i, j]
+            B[i, j] = sums.lam[0, t, i, j] - sums.lam0[0, t, i, j] + h_lam[i, j]
     _inv_into(B, recs.cov[k])
     gemv2(recs.cov[k], e, recs.mu[k])
     recs.obj[k], recs.w[k] = l, wt
@@ -265,33 +263,23 @@ def _normalise_records(rec_obj, rec_w, count) -> None:
         first = last
 
 
-def _setup(sw, urn, q):
-    """The objects (:class:`~tracker.bnp.group_bundles.Members`: each one's ``R^-1``, ``R^-1 v`` and
-    bound terms, :func:`_bound_terms` of block ``q``) and the tables
-    (:class:`~tracker.bnp.group_bundles.Tables`) with the start ``sw.z`` seated: information sums,
-    every table's theta posterior, log urn weights and ``live`` (seated or transitioned)."""
-    v, R, v_star = sw.v, sw.R, sw.v_star
-    P, L, T = v.shape[0], v.shape[1], sw.lam0.shape[1]
+def _setup(v, R, lam0, eta0, v_star, z):
+    """The tables' information sums with the start ``z`` seated, each member's ``R^-1`` and
+    ``R^-1 v``, and every table's theta posterior."""
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     n = np.zeros(T)
-    lam, eta = sw.lam0.copy(), sw.eta0.copy()
+    lam, eta = lam0.copy(), eta0.copy()
     Ri, Riv = np.empty((P, L, 2, 2)), np.empty((P, L, 2))
     for p in range(P):
         for l in range(L):
             _inv_into(R[p, l], Ri[p, l])
             gemv2(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (BLAS's rounding: group_fma)
-    c, rho = _bound_terms(v, R, q)
-    mem = Members(v, R, Ri, Riv, c, rho)
-    tab = Tables(n, lam, eta, sw.lam0, sw.eta0, np.empty((P, T, 2)), np.empty((P, T, 2, 2)), np.empty(T), np.zeros(T),
-                 np.zeros(T, dtype=np.bool_))
     for l in range(L):
-        _move(tab, mem, sw.z[l], l, 1.0)
-    cov = np.empty((2, 2))
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
+    t_cov, t_mu, cov, t_lm = np.empty((P, T, 2, 2)), np.empty((P, T, 2)), np.empty((2, 2)), np.empty(T)
     for t in range(T):
-        _refresh(tab, t, cov)
-        tab.live[t] = (n[t] + v_star[t]) > 0
-        if tab.live[t]:
-            tab.urn[t] = _urn_of(t, n, v_star, urn)
-    return mem, tab
+        _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm)
+    return n, lam, eta, Ri, Riv, t_cov, t_mu, t_lm
 
 
 def _bound_terms(v, R, q):
@@ -323,22 +311,6 @@ def _cap_of(t_cov, live, rho, q, T):
     return min(arr.max(), CAP_FACTOR * median(arr)) * (1.0 + 1e-9)
 
 
-def _new_grid(mem, tab, q):
-    """The grid (:class:`~tracker.bnp.group_bundles.Grid`) over the live tables' block ``q`` means:
-    its cap (:func:`_cap_of`), its geometry (:func:`~tracker.bnp.group_grid._grid_geometry`), every
-    live table placed."""
-    T = tab.n.size
-    cap = _cap_of(tab.cov, tab.live, mem.rho, q, T)
-    geo = _grid_geometry(mem.v[q], tab.mu[q], tab.live, mem.rho, cap, T)
-    grid = Grid(geo, cap, np.full(int(geo[3] * geo[4]), -1, dtype=np.int64), np.full(T, -1, dtype=np.int64),
-                np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64), np.empty(T, dtype=np.int64),
-                np.full(T, -1, dtype=np.int64), np.zeros(1, dtype=np.int64))
-    for t in range(T):
-        if tab.live[t]:
-            _place(t, tab.mu[q, t], tab.lm[t], grid)
-    return grid
-
-
 def gated_kernel(sw, urn, gate_on, min_p, stats):
     """Collapsed Gibbs sweeps over ``sw.z`` in place (module docstring); ``sw``, ``urn``
     (:class:`~tracker.bnp.group_bundles.Sweeps`, :class:`~tracker.bnp.group_bundles.Urn`) as
@@ -346,53 +318,72 @@ def gated_kernel(sw, urn, gate_on, min_p, stats):
     Returns the last sweep's options with conditional above ``min_p`` as
     :func:`~tracker.bnp.group_scan._collect_shares` does: (obj, w, mu, cov).
     ``stats[0]``, ``stats[1]`` count the moves and the tables scored (added to)."""
-    P, L, T = sw.v.shape[0], sw.v.shape[1], sw.lam0.shape[1]
+    v, R, lam0, eta0, h_lam, h_eta, v_star, z, u = sw
+    alpha, d, occupied = urn
+    P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     if L == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))
-    q, z, v_star = P - 1, sw.z, sw.v_star
-    mem, tab = _setup(sw, urn, q)
-    n, live = tab.n, tab.live
-    heap, K, size = np.empty(T, dtype=np.int64), 0, 0  # K: the urn's table count; the free slots' heap
+    q = P - 1
+    n, lam, eta, Ri, Riv, t_cov, t_mu, t_lm = _setup(v, R, lam0, eta0, v_star, z)
+    live = (n + v_star) > 0
+    heap, counts = np.empty(T, dtype=np.int64), np.zeros(2, dtype=np.int64)  # counts: K, the free slots' heap size
     for t in range(T):
         if live[t]:
-            K += 1 if (n[t] > 0 or not urn.occupied) else 0
+            counts[0] += 1 if (n[t] > 0 or not occupied) else 0
         else:
-            size = _heap_push(heap, size, t)
-    grid = _new_grid(mem, tab, q)
+            counts[1] = _heap_push(heap, counts[1], t)
+    c_l, rho = _bound_terms(v, R, q)
+    cap = _cap_of(t_cov, live, rho, q, T)
+    geo = _grid_geometry(v[q], t_mu[q], live, rho, cap, T)
+    head = np.full(int(geo[3] * geo[4]), -1, dtype=np.int64)
+    cell_of, nxt, prv = np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    wide, wide_pos = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    grid = Grid(geo, cap, head, cell_of, nxt, prv, wide, wide_pos, np.zeros(1, dtype=np.int64))
+    mem = Members(v, R, c_l, rho)
+    for t in range(T):
+        if live[t]:
+            _place(t, t_mu[q, t], t_lm[t], grid)
     vmax = 0.0
     for t in range(T):
         vmax = max(vmax, v_star[t])
-    gate = Gate(q, gate_on, np.log(L + vmax + urn.alpha + urn.d * T + 1.0), np.log(2.0 * np.pi))
-    cands = Candidates(np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64), np.empty(T), np.empty(T))
-    cand, mark, logw, w = cands.cand, cands.mark, cands.logw, cands.w
-    buf = Scratch(np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty(2),
-                  np.empty(2))
+    gate = Gate(q, gate_on, np.log(L + vmax + alpha + d * T + 1.0), np.log(2.0 * np.pi))
+    log_urn = np.zeros(T)
+    for t in range(T):
+        if live[t]:
+            log_urn[t] = _urn_of(t, n, v_star, urn)
+    tab = Tables(t_mu, t_cov, t_lm, log_urn, live)
+    sums = Sums(n, lam, eta, lam0, eta0)
+    cand, mark = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    logw, w = np.empty(T), np.empty(T)
+    cands = Candidates(cand, mark, logw, w)
+    buf = Scratch(np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty(2))
+    cov, B, e = np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
     recs = Records(np.zeros(1, dtype=np.int64), np.empty(4 * L + 16, dtype=np.int64), np.empty(4 * L + 16),
                    np.empty((4 * L + 16, 2)), np.empty((4 * L + 16, 2, 2)))
-    S = sw.u.shape[0]
+    S = u.shape[0]
     stamp = 0
     for s in range(S):
         for l in range(L):
             old = z[l]
-            _move(tab, mem, old, l, -1.0)
-            _refresh(tab, old, buf.cov)
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, old, l, -1.0)
+            _refresh(lam, eta, old, t_mu, t_cov, cov, t_lm)
             _unplace(old, grid)
             if n[old] + v_star[old] > 0:
-                if urn.occupied and n[old] == 0:
-                    K -= 1
-                tab.urn[old] = _urn_of(old, n, v_star, urn)
-                _place(old, tab.mu[q, old], tab.lm[old], grid)
+                if occupied and n[old] == 0:
+                    counts[0] -= 1
+                log_urn[old] = _urn_of(old, n, v_star, urn)
+                _place(old, t_mu[q, old], t_lm[old], grid)
             else:
                 live[old] = False
-                K -= 1
-                size = _heap_push(heap, size, old)
+                counts[0] -= 1
+                counts[1] = _heap_push(heap, counts[1], old)
             stamp += 1
             free = heap[0]
-            logw[free] = _score(free, l, np.log(urn.alpha + urn.d * K), mem, tab, buf, gate.log2pi)
+            logw[free] = _score(free, l, np.log(alpha + d * counts[0]), mem, tab, buf, gate.log2pi)
             mark[free], cand[0], m = stamp, free, 1
             top_lb = logw[free]
             if live[old]:
-                logw[old] = _score(old, l, tab.urn[old], mem, tab, buf, gate.log2pi)
+                logw[old] = _score(old, l, log_urn[old], mem, tab, buf, gate.log2pi)
                 mark[old], cand[1], m = stamp, old, 2
                 top_lb = max(top_lb, logw[old])
             m0 = m
@@ -401,26 +392,26 @@ def gated_kernel(sw, urn, gate_on, min_p, stats):
             stats[0] += 1
             stats[1] += m
             _insertion_sort(cand, m)
-            k = _draw_list(cand, m, logw, w, sw.u[s, l])
+            k = _draw_list(cand, m, logw, w, u[s, l])
             while w[cand[k]] == 0.0:  # never land on an impossible table through round-off
                 k -= 1
             new = cand[k]
             if s == S - 1:
                 for j in range(m):
                     if w[cand[j]] > min_p:
-                        recs = _record(l, cand[j], w[cand[j]], tab, sw, recs, buf)
+                        recs = _record(l, cand[j], w[cand[j]], sums, h_lam, h_eta, recs, B, e)
             z[l] = new
             if not live[new]:  # the lowest free slot: a new table
-                size = _heap_pop(heap, size)
+                counts[1] = _heap_pop(heap, counts[1])
                 live[new] = True
-                K += 1
-            elif urn.occupied and n[new] == 0:
-                K += 1
-            _move(tab, mem, new, l, 1.0)
-            tab.urn[new] = _urn_of(new, n, v_star, urn)
-            _refresh(tab, new, buf.cov)
+                counts[0] += 1
+            elif occupied and n[new] == 0:
+                counts[0] += 1
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, new, l, 1.0)
+            log_urn[new] = _urn_of(new, n, v_star, urn)
+            _refresh(lam, eta, new, t_mu, t_cov, cov, t_lm)
             _unplace(new, grid)
-            _place(new, tab.mu[q, new], tab.lm[new], grid)
+            _place(new, t_mu[q, new], t_lm[new], grid)
     _normalise_records(recs.obj, recs.w, recs.count[0])
     k = recs.count[0]
     return recs.obj[:k].copy(), recs.w[:k].copy(), recs.mu[:k].copy(), recs.cov[:k].copy()
@@ -436,7 +427,6 @@ _insertion_sort = jit(_insertion_sort, inline=True)
 _score_candidates = jit(_score_candidates)
 _draw_list = jit(_draw_list, inline=True)
 _gather = jit(_gather)
-_new_grid = jit(_new_grid)
 _record = jit(_record)
 _normalise_records = jit(_normalise_records)
 _setup = jit(_setup)

@@ -9,7 +9,7 @@ import numpy as np
 
 from bnptrack.tracker.numerics import jit
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
-from bnptrack.tracker.bnp.group_partition import _inv_into, _move, _setup
+from bnptrack.tracker.bnp.group_partition import _inv_into, _move
 
 
 def _option_logw(n, v_star, alpha, d, logw, occupied=False) -> None:
@@ -67,13 +67,21 @@ def _partition_kernel(sw, urn, rec_p, rec_mu, rec_cov) -> None:
     uniforms.  The last sweep's conditionals go to ``rec_p`` (L, T); part 0's theta given the
     table's *other current members* and H_2 (``sw.h_lam``, ``sw.h_eta``: information form), not
     the transitioned prior, which carries object l's own past, goes to ``rec_mu`` (L, T, 2),
-    ``rec_cov`` (L, T, 2, 2).  The set-up (members' information, the start seated) is the gated
-    kernel's (:func:`~tracker.bnp.group_partition._setup`).
+    ``rec_cov`` (L, T, 2, 2).
     """
     v, R, lam0, eta0, h_lam, h_eta, v_star, z, u = sw
+    alpha, d, occupied = urn
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
-    mem, tab = _setup(sw, urn, P - 1)
-    n, lam, eta = tab.n, tab.lam, tab.eta
+    n = np.zeros(T)
+    lam, eta = lam0.copy(), eta0.copy()
+    Ri = np.empty((P, L, 2, 2))
+    Riv = np.empty((P, L, 2))
+    for p in range(P):
+        for l in range(L):
+            _inv_into(R[p, l], Ri[p, l])
+            gemv2(Ri[p, l], v[p, l], Riv[p, l])  # = Ri @ v (BLAS's rounding: group_fma)
+    for l in range(L):
+        _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
     logw = np.empty(T)
     cov = np.empty((2, 2))
     Si = np.empty((2, 2))
@@ -91,9 +99,9 @@ def _partition_kernel(sw, urn, rec_p, rec_mu, rec_cov) -> None:
     S = u.shape[0]
     for s in range(S):
         for l in range(L):
-            _move(tab, mem, z[l], l, -1.0)
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, -1.0)
             fresh[z[l]] = False
-            _option_logw(n, v_star, urn.alpha, urn.d, logw, urn.occupied)
+            _option_logw(n, v_star, alpha, d, logw, occupied)
             for t in range(T):
                 if logw[t] == -np.inf:
                     continue
@@ -124,7 +132,7 @@ def _partition_kernel(sw, urn, rec_p, rec_mu, rec_cov) -> None:
             z[l] = k
             if s == S - 1:
                 rec_p[l] = w
-            _move(tab, mem, z[l], l, 1.0)
+            _move(lam, eta, n, lam0, eta0, Ri, Riv, z[l], l, 1.0)
             fresh[z[l]] = False
 
 
