@@ -36,6 +36,7 @@ WIDE_KERNELS: dict[str, int] = {
     "tracker/bnp/swap_moves.py:swap_scan": 14, "tracker/bnp/swap_moves.py:swap_pass": 14,
     "tracker/models/_kernels.py:_moments": 14, "tracker/bnp/gibbs_setup.py:_setup_kernel": 13,
     "tracker/bnp/swap_moves.py:_exchange": 11, "tracker/bnp/group_theta.py:_transition_kernel": 11,
+    "tracker/bnp/swap_moves.py:_gate_walk": 19, "tracker/models/_kernels.py:loglik_balls": 12,
 }
 
 
