@@ -11,6 +11,7 @@ from bnptrack.tracker.bnp.clusters import _POS_VEL, _Clusters, _merge_groups
 from bnptrack.tracker.bnp.group_merge import (_candidate_pairs, _distinct, birth_frame, exclusive_candidates,
                                               merge_exclusive)
 from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.bnp.group_bundles import Sweeps, Urn
 from bnptrack.tracker.bnp.group_partition import _inv_into, _move
 from bnptrack.tracker.bnp.group_sample import Block, Shares, _compact, _table_priors
 from bnptrack.tracker.bnp.group_scan import _collect_shares, _option_logw, _partition_kernel
@@ -179,7 +180,7 @@ def test_partition_kernel_equals_reference(seed: int, L: int, G: int, alpha: flo
     T = G + L
     out = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
     ref = [z.copy(), np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))]
-    _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, out[0], alpha, d, u, *out[1:])
+    _partition_kernel(Sweeps(v, R, lam0, eta0, h_lam, h_eta, v_star, out[0], u), Urn(alpha, d, False), *out[1:])
     _partition_reference(v, R, lam0, eta0, h_lam, h_eta, v_star, ref[0], alpha, d, u, *ref[1:])
     for a, b in zip(out, ref):
         _same(a, b)

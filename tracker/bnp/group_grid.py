@@ -130,39 +130,39 @@ def _cell_ij(x, y, geo):
     return int(fi), int(fj)
 
 
-def _unplace(t, cell_of, head, nxt, prv, wide, wide_pos, meta) -> None:
-    """Table ``t`` out of its grid cell's list or the wide list (``meta[0]`` its length)."""
-    c = cell_of[t]
+def _unplace(t, grid) -> None:
+    """Table ``t`` out of its cell's list or the wide list of ``grid`` (:class:`~tracker.bnp.group_bundles.Grid`)."""
+    c = grid.cell_of[t]
     if c >= 0:
-        if prv[t] >= 0:
-            nxt[prv[t]] = nxt[t]
+        if grid.prv[t] >= 0:
+            grid.nxt[grid.prv[t]] = grid.nxt[t]
         else:
-            head[c] = nxt[t]
-        if nxt[t] >= 0:
-            prv[nxt[t]] = prv[t]
-        cell_of[t] = -1
-    elif wide_pos[t] >= 0:
-        k, last = wide_pos[t], wide[meta[0] - 1]
-        wide[k], wide_pos[last] = last, k
-        wide_pos[t] = -1
-        meta[0] -= 1
+            grid.head[c] = grid.nxt[t]
+        if grid.nxt[t] >= 0:
+            grid.prv[grid.nxt[t]] = grid.prv[t]
+        grid.cell_of[t] = -1
+    elif grid.wide_pos[t] >= 0:
+        k, last = grid.wide_pos[t], grid.wide[grid.n_wide[0] - 1]
+        grid.wide[k], grid.wide_pos[last] = last, k
+        grid.wide_pos[t] = -1
+        grid.n_wide[0] -= 1
 
 
-def _place(t, mu, lm, geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta) -> None:
+def _place(t, mu, lm, grid) -> None:
     """Table ``t`` (not placed) into the cell of ``mu``, or the wide list when its covariance's
-    largest eigenvalue ``lm`` exceeds ``cap`` or ``mu`` is not finite."""
-    if lm <= cap and np.isfinite(mu[0]) and np.isfinite(mu[1]):
-        i, j = _cell_ij(mu[0], mu[1], geo)
-        c = i * int(geo[4]) + j
-        nxt[t], prv[t] = head[c], -1
-        if head[c] >= 0:
-            prv[head[c]] = t
-        head[c] = t
-        cell_of[t] = c
+    largest eigenvalue ``lm`` exceeds ``grid.cap`` or ``mu`` is not finite."""
+    if lm <= grid.cap and np.isfinite(mu[0]) and np.isfinite(mu[1]):
+        i, j = _cell_ij(mu[0], mu[1], grid.geo)
+        c = i * int(grid.geo[4]) + j
+        grid.nxt[t], grid.prv[t] = grid.head[c], -1
+        if grid.head[c] >= 0:
+            grid.prv[grid.head[c]] = t
+        grid.head[c] = t
+        grid.cell_of[t] = c
     else:
-        wide[meta[0]] = t
-        wide_pos[t] = meta[0]
-        meta[0] += 1
+        grid.wide[grid.n_wide[0]] = t
+        grid.wide_pos[t] = grid.n_wide[0]
+        grid.n_wide[0] += 1
 
 
 def _grid_geometry(v, t_mu, live, rho, cap, T):

@@ -49,6 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.bnp.group_bundles import Candidates, Gate, Grid, Members, Records, Scratch, Sums, Tables
 from bnptrack.tracker.bnp.group_fma import dot2, gemv2
 from bnptrack.tracker.bnp.group_grid import (CAP_FACTOR, MARGIN, _cell_ij, _grid_geometry, _heap_pop, _heap_push,
                                            _place, _unplace, median)
@@ -97,15 +98,18 @@ def _refresh(lam, eta, t, t_mu, t_cov, cov, t_lm) -> None:
     t_lm[t] = lmax2(cov)
 
 
-def _urn_of(t, n, v_star, d, occupied) -> float:
-    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.group_sample.urn_log_weights`); it
-    changes only when ``n[t]`` does."""
-    return np.log(v_star[t]) if occupied and n[t] == 0 else np.log(n[t] + v_star[t] - d)
+def _urn_of(t, n, v_star, urn) -> float:
+    """Log urn weight of the occupied table ``t`` (:func:`~tracker.bnp.group_sample.urn_log_weights`;
+    ``urn``: :class:`~tracker.bnp.group_bundles.Urn`); it changes only when ``n[t]`` does."""
+    return np.log(v_star[t]) if urn.occupied and n[t] == 0 else np.log(n[t] + v_star[t] - urn.d)
 
 
-def _score(t, l, v, R, urn, log2pi, t_mu, t_cov, A, Si, r, Sir) -> float:
+def _score(t, l, urn, mem, tab, buf, log2pi) -> float:
     """Log weight of object ``l`` at table ``t`` given its log urn weight ``urn``: plus each block's
-    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``)."""
+    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``; ``mem``, ``tab``,
+    ``buf``: :class:`~tracker.bnp.group_bundles.Members`, :class:`~tracker.bnp.group_bundles.Tables`,
+    :class:`~tracker.bnp.group_bundles.Scratch`)."""
+    v, R, t_mu, t_cov, A, Si, r, Sir = mem.v, mem.R, tab.mu, tab.cov, buf.A, buf.Si, buf.r, buf.Sir
     out = urn
     for p in range(v.shape[0]):
         for i in range(2):  # t_cov + R and v - mu, into buffers
@@ -118,26 +122,28 @@ def _score(t, l, v, R, urn, log2pi, t_mu, t_cov, A, Si, r, Sir) -> float:
     return out
 
 
-def _score_candidates(l, q, v, R, urn, c, log2pi, t_mu, t_cov, cand, m0, m, top, gate, logw, A, Si, r, Sir) -> int:
-    r"""Score the gathered tables ``cand[m0:m]`` in order (:func:`_score`), except (``gate``) those
-    excluded by the exact quadratic form of the indexed block ``q``: with the other terms bounded
+def _score_candidates(l, m0, m, top, mem, tab, cands, buf, gate) -> int:
+    r"""Score the gathered tables ``cands.cand[m0:m]`` in order (:func:`_score`), except (``gate.on``)
+    those excluded by the exact quadratic form of the indexed block ``q``: with the other terms bounded
     (module docstring: :math:`\det(C + R) \ge \det R`, the other blocks' quadratic forms >= 0),
     :math:`\log w_t \le u_t + c_\ell - \tfrac12 r'(C_{qt} + R_{q\ell})^{-1} r`; a table whose bound
     is more than :data:`MARGIN` below the best option scored so far (``top`` to start with) weighs
     exactly 0.0 after the draw's ``exp``, as for the grid's gate.  One division and no logarithm per
     test; a non-positive or non-finite determinant never excludes.  The scored tables are kept in
     ``cand[m0:]`` in order; returns their new end."""
+    q, v, R, c, t_mu, t_cov, urn = gate.q, mem.v, mem.R, mem.c[l], tab.mu, tab.cov, tab.urn
+    cand, logw = cands.cand, cands.logw
     kept = m0
     for k in range(m0, m):
         t = cand[k]
-        if gate:
+        if gate.on:
             r0, r1 = v[q, l, 0] - t_mu[q, t, 0], v[q, l, 1] - t_mu[q, t, 1]
             a, b = t_cov[q, t, 0, 0] + R[q, l, 0, 0], t_cov[q, t, 0, 1] + R[q, l, 0, 1]
             e, f = t_cov[q, t, 1, 0] + R[q, l, 1, 0], t_cov[q, t, 1, 1] + R[q, l, 1, 1]
             det = a * f - b * e
             if det > 0.0 and urn[t] + c - 0.5 * (f * r0 * r0 - (b + e) * r0 * r1 + a * r1 * r1) / det < top - MARGIN:
                 continue
-        logw[t] = _score(t, l, v, R, urn[t], log2pi, t_mu, t_cov, A, Si, r, Sir)
+        logw[t] = _score(t, l, urn[t], mem, tab, buf, gate.log2pi)
         top = max(top, logw[t])
         cand[kept] = t
         kept += 1
@@ -177,16 +183,18 @@ def _draw_list(cand, m, logw, w, u) -> int:
     return m - 1
 
 
-def _gather(l, q, v, rho, c_l, top_lb, U, cap, geo, head, nxt, wide, meta, live, T, gate, cand, m, mark, stamp,
-            t_mu, t_lm):
-    """Append to ``cand[:m]`` every table not yet marked (``mark[t] == stamp``) that the bound
+def _gather(l, top_lb, m, stamp, mem, tab, grid, cands, gate):
+    """Append to ``cands.cand[:m]`` every table not yet marked (``mark[t] == stamp``) that the bound
     cannot exclude: the wide tables and the tables in the grid cells within the gate radius of
-    ``v[q, l]`` whose own bound (their covariance's largest eigenvalue ``t_lm``) does not exclude
-    them (all live tables when not ``gate`` or the point is not finite).  Returns the new count."""
+    ``v[q, l]`` whose own bound (their covariance's largest eigenvalue ``tab.lm``) does not exclude
+    them (all live tables when not ``gate.on`` or the point is not finite).  Returns the new count."""
+    q, v, rho, c_l, live, t_mu, t_lm, T = gate.q, mem.v, mem.rho[l], mem.c[l], tab.live, tab.mu, tab.lm, tab.live.size
+    cap, geo, head, nxt, wide = grid.cap, grid.geo, grid.head, grid.nxt, grid.wide
+    cand, mark = cands.cand, cands.mark
     x, y = v[q, l, 0], v[q, l, 1]
-    D = max(2.0 * (U + c_l - top_lb + MARGIN), 0.0)
+    D = max(2.0 * (gate.U + c_l - top_lb + MARGIN), 0.0)
     rad = np.sqrt(D * (cap + rho))
-    if not gate or not (np.isfinite(x) and np.isfinite(y) and np.isfinite(rad)):
+    if not gate.on or not (np.isfinite(x) and np.isfinite(y) and np.isfinite(rad)):
         for t in range(T):
             if live[t] and mark[t] != stamp:
                 mark[t] = stamp
@@ -206,7 +214,7 @@ def _gather(l, q, v, rho, c_l, top_lb, U, cap, geo, head, nxt, wide, meta, live,
                     cand[m] = t
                     m += 1
                 t = nxt[t]
-    for k in range(meta[0]):
+    for k in range(grid.n_wide[0]):
         t = wide[k]
         if mark[t] != stamp:
             mark[t] = stamp
@@ -215,30 +223,31 @@ def _gather(l, q, v, rho, c_l, top_lb, U, cap, geo, head, nxt, wide, meta, live,
     return m
 
 
-def _record(l, t, wt, lam, eta, lam0, eta0, h_lam, h_eta, rec, rec_obj, rec_w, rec_mu, rec_cov, B, e):
-    """The option (``l``, ``t``) of weight ``wt`` appended to the records (``rec[0]`` their count,
-    arrays grown by doubling): part 0's theta given the table's other current members and H_2.
-    Returns the arrays (new ones when grown)."""
-    k = rec[0]
-    if k == rec_obj.size:
+def _record(l, t, wt, sums, h_lam, h_eta, recs, B, e):
+    """The option (``l``, ``t``) of weight ``wt`` appended to the records ``recs`` (``recs.count[0]``
+    their count, arrays grown by doubling; :class:`~tracker.bnp.group_bundles.Records`): part 0's
+    theta given the table's other current members (``sums``: :class:`~tracker.bnp.group_bundles.Sums`)
+    and H_2 (``h_lam``, ``h_eta``).  Returns the records (new ones when grown)."""
+    k = recs.count[0]
+    if k == recs.obj.size:
         cap = 2 * k + 16
         o2, w2, m2, c2 = np.empty(cap, dtype=np.int64), np.empty(cap), np.empty((cap, 2)), np.empty((cap, 2, 2))
         for i in range(k):  # entry by entry: a slice assignment compiles numba's string code
-            o2[i], w2[i] = rec_obj[i], rec_w[i]
+            o2[i], w2[i] = recs.obj[i], recs.w[i]
             for a in range(2):
-                m2[i, a] = rec_mu[i, a]
+                m2[i, a] = recs.mu[i, a]
                 for b in range(2):
-                    c2[i, a, b] = rec_cov[i, a, b]
-        rec_obj, rec_w, rec_mu, rec_cov = o2, w2, m2, c2
+                    c2[i, a, b] = recs.cov[i, a, b]
+        recs = Records(recs.count, o2, w2, m2, c2)
     for i in range(2):  # lam - lam0 + h_lam, eta - eta0 + h_eta entry by entry
-        e[i] = eta[0, t, i] - eta0[0, t, i] + h_eta[i]
+        e[i] = sums.eta[0, t, i] - sums.eta0[0, t, i] + h_eta[i]
         for j in range(2):
-            B[i, j] = lam[0, t, i, j] - lam0[0, t, i, j] + h_lam[i, j]
-    _inv_into(B, rec_cov[k])
-    gemv2(rec_cov[k], e, rec_mu[k])
-    rec_obj[k], rec_w[k] = l, wt
-    rec[0] = k + 1
-    return rec_obj, rec_w, rec_mu, rec_cov
+            B[i, j] = sums.lam[0, t, i, j] - sums.lam0[0, t, i, j] + h_lam[i, j]
+    _inv_into(B, recs.cov[k])
+    gemv2(recs.cov[k], e, recs.mu[k])
+    recs.obj[k], recs.w[k] = l, wt
+    recs.count[0] = k + 1
+    return recs
 
 
 def _normalise_records(rec_obj, rec_w, count) -> None:
@@ -302,48 +311,55 @@ def _cap_of(t_cov, live, rho, q, T):
     return min(arr.max(), CAP_FACTOR * median(arr)) * (1.0 + 1e-9)
 
 
-def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupied, gate, min_p, stats):
-    """Collapsed Gibbs sweeps over ``z`` in place (module docstring); the arguments as
-    :func:`~tracker.bnp.group_scan._partition_kernel`'s.  Returns the last sweep's options with
-    conditional above ``min_p`` as :func:`~tracker.bnp.group_scan._collect_shares` does: (obj, w, mu, cov).
+def gated_kernel(sw, urn, gate_on, min_p, stats):
+    """Collapsed Gibbs sweeps over ``sw.z`` in place (module docstring); ``sw``, ``urn``
+    (:class:`~tracker.bnp.group_bundles.Sweeps`, :class:`~tracker.bnp.group_bundles.Urn`) as
+    :func:`~tracker.bnp.group_scan._partition_kernel`'s; ``gate_on`` False scores every live table.
+    Returns the last sweep's options with conditional above ``min_p`` as
+    :func:`~tracker.bnp.group_scan._collect_shares` does: (obj, w, mu, cov).
     ``stats[0]``, ``stats[1]`` count the moves and the tables scored (added to)."""
+    v, R, lam0, eta0, h_lam, h_eta, v_star, z, u = sw
+    alpha, d, occupied = urn
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     if L == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))
     q = P - 1
     n, lam, eta, Ri, Riv, t_cov, t_mu, t_lm = _setup(v, R, lam0, eta0, v_star, z)
     live = (n + v_star) > 0
-    heap, meta = np.empty(T, dtype=np.int64), np.zeros(3, dtype=np.int64)  # meta: n_wide, K, heap size
+    heap, counts = np.empty(T, dtype=np.int64), np.zeros(2, dtype=np.int64)  # counts: K, the free slots' heap size
     for t in range(T):
         if live[t]:
-            meta[1] += 1 if (n[t] > 0 or not occupied) else 0
+            counts[0] += 1 if (n[t] > 0 or not occupied) else 0
         else:
-            meta[2] = _heap_push(heap, meta[2], t)
+            counts[1] = _heap_push(heap, counts[1], t)
     c_l, rho = _bound_terms(v, R, q)
     cap = _cap_of(t_cov, live, rho, q, T)
     geo = _grid_geometry(v[q], t_mu[q], live, rho, cap, T)
     head = np.full(int(geo[3] * geo[4]), -1, dtype=np.int64)
     cell_of, nxt, prv = np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64), np.full(T, -1, dtype=np.int64)
     wide, wide_pos = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
+    grid = Grid(geo, cap, head, cell_of, nxt, prv, wide, wide_pos, np.zeros(1, dtype=np.int64))
+    mem = Members(v, R, c_l, rho)
     for t in range(T):
         if live[t]:
-            _place(t, t_mu[q, t], t_lm[t], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
+            _place(t, t_mu[q, t], t_lm[t], grid)
     vmax = 0.0
     for t in range(T):
         vmax = max(vmax, v_star[t])
-    U = np.log(L + vmax + alpha + d * T + 1.0)
-    log2pi = np.log(2.0 * np.pi)
-    urn = np.zeros(T)
+    gate = Gate(q, gate_on, np.log(L + vmax + alpha + d * T + 1.0), np.log(2.0 * np.pi))
+    log_urn = np.zeros(T)
     for t in range(T):
         if live[t]:
-            urn[t] = _urn_of(t, n, v_star, d, occupied)
+            log_urn[t] = _urn_of(t, n, v_star, urn)
+    tab = Tables(t_mu, t_cov, t_lm, log_urn, live)
+    sums = Sums(n, lam, eta, lam0, eta0)
     cand, mark = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
     logw, w = np.empty(T), np.empty(T)
-    A, Si, cov, B = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2))
-    r, Sir, e = np.empty(2), np.empty(2), np.empty(2)
-    rec = np.zeros(1, dtype=np.int64)
-    rec_obj, rec_w = np.empty(4 * L + 16, dtype=np.int64), np.empty(4 * L + 16)
-    rec_mu, rec_cov = np.empty((4 * L + 16, 2)), np.empty((4 * L + 16, 2, 2))
+    cands = Candidates(cand, mark, logw, w)
+    buf = Scratch(np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty(2))
+    cov, B, e = np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
+    recs = Records(np.zeros(1, dtype=np.int64), np.empty(4 * L + 16, dtype=np.int64), np.empty(4 * L + 16),
+                   np.empty((4 * L + 16, 2)), np.empty((4 * L + 16, 2, 2)))
     S = u.shape[0]
     stamp = 0
     for s in range(S):
@@ -351,30 +367,28 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
             old = z[l]
             _move(lam, eta, n, lam0, eta0, Ri, Riv, old, l, -1.0)
             _refresh(lam, eta, old, t_mu, t_cov, cov, t_lm)
-            _unplace(old, cell_of, head, nxt, prv, wide, wide_pos, meta)
+            _unplace(old, grid)
             if n[old] + v_star[old] > 0:
                 if occupied and n[old] == 0:
-                    meta[1] -= 1
-                urn[old] = _urn_of(old, n, v_star, d, occupied)
-                _place(old, t_mu[q, old], t_lm[old], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
+                    counts[0] -= 1
+                log_urn[old] = _urn_of(old, n, v_star, urn)
+                _place(old, t_mu[q, old], t_lm[old], grid)
             else:
                 live[old] = False
-                meta[1] -= 1
-                meta[2] = _heap_push(heap, meta[2], old)
+                counts[0] -= 1
+                counts[1] = _heap_push(heap, counts[1], old)
             stamp += 1
             free = heap[0]
-            logw[free] = _score(free, l, v, R, np.log(alpha + d * meta[1]), log2pi, t_mu, t_cov, A, Si, r, Sir)
+            logw[free] = _score(free, l, np.log(alpha + d * counts[0]), mem, tab, buf, gate.log2pi)
             mark[free], cand[0], m = stamp, free, 1
             top_lb = logw[free]
             if live[old]:
-                logw[old] = _score(old, l, v, R, urn[old], log2pi, t_mu, t_cov, A, Si, r, Sir)
+                logw[old] = _score(old, l, log_urn[old], mem, tab, buf, gate.log2pi)
                 mark[old], cand[1], m = stamp, old, 2
                 top_lb = max(top_lb, logw[old])
             m0 = m
-            m = _gather(l, q, v, rho[l], c_l[l], top_lb, U, cap, geo, head, nxt, wide, meta, live, T, gate, cand, m,
-                        mark, stamp, t_mu, t_lm)
-            m = _score_candidates(l, q, v, R, urn, c_l[l], log2pi, t_mu, t_cov, cand, m0, m, top_lb, gate, logw, A,
-                                  Si, r, Sir)
+            m = _gather(l, top_lb, m, stamp, mem, tab, grid, cands, gate)
+            m = _score_candidates(l, m0, m, top_lb, mem, tab, cands, buf, gate)
             stats[0] += 1
             stats[1] += m
             _insertion_sort(cand, m)
@@ -385,24 +399,22 @@ def gated_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, occupie
             if s == S - 1:
                 for j in range(m):
                     if w[cand[j]] > min_p:
-                        rec_obj, rec_w, rec_mu, rec_cov = _record(l, cand[j], w[cand[j]], lam, eta, lam0, eta0,
-                                                                  h_lam, h_eta, rec, rec_obj, rec_w, rec_mu,
-                                                                  rec_cov, B, e)
+                        recs = _record(l, cand[j], w[cand[j]], sums, h_lam, h_eta, recs, B, e)
             z[l] = new
             if not live[new]:  # the lowest free slot: a new table
-                meta[2] = _heap_pop(heap, meta[2])
+                counts[1] = _heap_pop(heap, counts[1])
                 live[new] = True
-                meta[1] += 1
+                counts[0] += 1
             elif occupied and n[new] == 0:
-                meta[1] += 1
+                counts[0] += 1
             _move(lam, eta, n, lam0, eta0, Ri, Riv, new, l, 1.0)
-            urn[new] = _urn_of(new, n, v_star, d, occupied)
+            log_urn[new] = _urn_of(new, n, v_star, urn)
             _refresh(lam, eta, new, t_mu, t_cov, cov, t_lm)
-            _unplace(new, cell_of, head, nxt, prv, wide, wide_pos, meta)
-            _place(new, t_mu[q, new], t_lm[new], geo, cap, cell_of, head, nxt, prv, wide, wide_pos, meta)
-    _normalise_records(rec_obj, rec_w, rec[0])
-    k = rec[0]
-    return rec_obj[:k].copy(), rec_w[:k].copy(), rec_mu[:k].copy(), rec_cov[:k].copy()
+            _unplace(new, grid)
+            _place(new, t_mu[q, new], t_lm[new], grid)
+    _normalise_records(recs.obj, recs.w, recs.count[0])
+    k = recs.count[0]
+    return recs.obj[:k].copy(), recs.w[:k].copy(), recs.mu[:k].copy(), recs.cov[:k].copy()
 
 
 _inv_into = jit(_inv_into)

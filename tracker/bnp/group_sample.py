@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.bnp.group_bundles import BlockArrays, Sweeps, Urn
 from bnptrack.tracker.bnp.group_partition import gated_kernel
 from bnptrack.tracker.bnp.group_scan import _collect_shares, _partition_kernel
 from bnptrack.tracker.bnp.group_theta import prior_information
@@ -137,63 +138,59 @@ def sample_partition(rng: np.random.Generator, blocks: list[Block], v_star: np.n
     if kernel not in PARTITION_KERNELS:
         raise ValueError(f"sample_partition: unknown kernel {kernel!r} "
                          f"(expected one of {', '.join(PARTITION_KERNELS)})")
-    parts = []
-    for b in blocks:  # each block's arrays as they are (views allowed), H_2's part in information form
-        parts += [np.ascontiguousarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov, b.prior_mean,
-                  *prior_information(b.h_cov, b.h_mean)]
-    if len(blocks) == 1:
-        parts += parts  # the second block's slot, unused (n_blocks = 1)
+    arrays = [BlockArrays(np.ascontiguousarray(b.v, dtype=float), np.asarray(b.R, dtype=float), b.prior_cov,
+                          b.prior_mean, *prior_information(b.h_cov, b.h_mean)) for b in blocks]  # views allowed
     h_lam, h_eta = prior_information(None if flat_share else blocks[0].h_cov, blocks[0].h_mean)
     u = rng.random((sweeps, blocks[0].v.shape[0]))
     counts = np.zeros(2, dtype=np.int64) if stats is None else stats
-    z, *shares = _sample(PARTITION_KERNELS.index(kernel), parts[:12], len(blocks), h_lam, h_eta,
-                         np.asarray(v_star, dtype=float), np.asarray(init, dtype=np.int64), float(alpha), float(d),
-                         u, bool(occupied), counts)
-    return z, Shares(*shares)
+    v_star = np.asarray(v_star, dtype=float)
+    v, R, lam0, eta0, z, seated = _sample_setup(arrays[0], arrays[1] if len(blocks) > 1 else arrays[0], len(blocks),
+                                                v_star, np.asarray(init, dtype=np.int64))
+    sw = Sweeps(v, R, lam0, eta0, h_lam, h_eta, seated, z, u)
+    shares = _sweep(PARTITION_KERNELS.index(kernel), sw, Urn(float(alpha), float(d), bool(occupied)), counts)
+    return _compact(z, v_star.size, seated.size), Shares(*shares)
 
 
-def _sample(mode, parts, n_blocks, s_lam, s_eta, v_star, init, alpha, d, u, occupied, stats):
-    """:func:`sample_partition`'s compiled steps with the kernel ``mode`` (the index of
-    :data:`PARTITION_KERNELS`): the inputs (:func:`_sample_setup`; ``parts``: the two blocks'
-    six arrays), the sweeps, the sample compacted (:func:`_compact`).  The sweeps: ``mode`` 0,
-    the reference, :func:`_partition_kernel` then :func:`_collect_shares` (compiled only when
-    used); 1, 2: :func:`tracker.bnp.group_partition.gated_kernel` without, with the gate,
-    counting into ``stats``.  ``s_lam``/``s_eta``: the shared theta's prior.  Calls from
-    Python, not one kernel calling the others: numba optimises a kernel's callees again inside
-    each compiled caller, so a wrapper kernel costs a first run seconds of compilation for
-    microseconds per frame."""
-    v, R, lam0, eta0, z, seated = _sample_setup(*parts, n_blocks, v_star, init)
-    L, T = z.size, seated.size
+def _sweep(mode, sw, urn, stats):
+    """:func:`sample_partition`'s sweeps over ``sw.z`` with the kernel ``mode`` (the index of
+    :data:`PARTITION_KERNELS`; ``sw``, ``urn``: :class:`~tracker.bnp.group_bundles.Sweeps`,
+    :class:`~tracker.bnp.group_bundles.Urn`): ``mode`` 0, the reference, :func:`_partition_kernel`
+    then :func:`_collect_shares` (compiled only when used); 1, 2:
+    :func:`tracker.bnp.group_partition.gated_kernel` without, with the gate, counting into
+    ``stats``.  Returns the last sweep's shares (obj, w, mu, cov).  Calls from Python, not one
+    kernel calling the others: numba optimises a kernel's callees again inside each compiled
+    caller, so a wrapper kernel costs a first run seconds of compilation for microseconds per
+    frame."""
     if mode == 0:
+        L, T = sw.z.size, sw.v_star.size
         rec_p, rec_mu, rec_cov = np.zeros((L, T)), np.zeros((L, T, 2)), np.zeros((L, T, 2, 2))
-        _partition_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, rec_p, rec_mu, rec_cov, occupied)
-        obj, w, mu, cov = _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
-    else:
-        obj, w, mu, cov = gated_kernel(v, R, lam0, eta0, s_lam, s_eta, seated, z, alpha, d, u, occupied, mode == 2,
-                                       1e-4, stats)
-    return _compact(z, v_star.size, T), obj, w, mu, cov
+        _partition_kernel(sw, urn, rec_p, rec_mu, rec_cov)
+        return _collect_shares(rec_p, rec_mu, rec_cov, 1e-4)
+    return gated_kernel(sw, urn, mode == 2, 1e-4, stats)
 
 
-def _sample_setup(v0, R0, pc0, pm0, hl0, he0, v1, R1, pc1, pm1, hl1, he1, n_blocks, v_star, init):  # pragma: no cover
-    """The sweeps' inputs: the blocks' members stacked ``(P, L, 2)``, ``(P, L, 2, 2)``; the
-    tables' priors (:func:`_table_priors`); the start (``init``, -1: a new table of its own);
-    the tables' seated counts (``v_star``, then zeros)."""
-    L, G = v0.shape[0], v_star.size
+def _sample_setup(b0, b1, n_blocks, v_star, init):  # pragma: no cover - compiled
+    """The sweeps' inputs from the blocks' arrays ``b0``, ``b1``
+    (:class:`~tracker.bnp.group_bundles.BlockArrays`; ``b1`` unused when ``n_blocks`` is 1): the
+    blocks' members stacked ``(P, L, 2)``, ``(P, L, 2, 2)``; the tables' priors
+    (:func:`_table_priors`); the start (``init``, -1: a new table of its own); the tables' seated
+    counts (``v_star``, then zeros)."""
+    L, G = b0.v.shape[0], v_star.size
     T = G + L
     v = np.empty((n_blocks, L, 2))
     R = np.empty((n_blocks, L, 2, 2))
     lam0, eta0 = np.empty((n_blocks, T, 2, 2)), np.empty((n_blocks, T, 2))
     for p in range(n_blocks):
-        vb, Rb = (v0, R0) if p == 0 else (v1, R1)
+        vb, Rb = (b0.v, b0.R) if p == 0 else (b1.v, b1.R)
         for l in range(L):
             for i in range(2):
                 v[p, l, i] = vb[l, i]
                 for j in range(2):
                     R[p, l, i, j] = Rb[l, i, j]
         if p == 0:
-            _table_priors(pc0, pm0, hl0, he0, lam0[0], eta0[0])
+            _table_priors(b0.prior_cov, b0.prior_mean, b0.h_lam, b0.h_eta, lam0[0], eta0[0])
         else:
-            _table_priors(pc1, pm1, hl1, he1, lam0[1], eta0[1])
+            _table_priors(b1.prior_cov, b1.prior_mean, b1.h_lam, b1.h_eta, lam0[1], eta0[1])
     z = np.empty(L, dtype=np.int64)
     for l in range(L):
         z[l] = init[l] if init[l] >= 0 else G + l

@@ -57,17 +57,20 @@ def _draw(logw, w, u) -> int:
     return T - 1
 
 
-def _partition_kernel(v, R, lam0, eta0, h_lam, h_eta, v_star, z, alpha, d, u, rec_p, rec_mu, rec_cov,
-                      occupied=False) -> None:
-    """Collapsed Gibbs sweeps over ``z`` in place (numba-compiled when available); ``occupied``:
-    the urn's reading (:func:`tracker.bnp.group_sample.urn_log_weights`).
+def _partition_kernel(sw, urn, rec_p, rec_mu, rec_cov) -> None:
+    """Collapsed Gibbs sweeps over ``sw.z`` in place (numba-compiled when available); ``urn``: the
+    urn's parameters and reading (:class:`~tracker.bnp.group_bundles.Urn`,
+    :func:`tracker.bnp.group_sample.urn_log_weights`).
 
-    ``v`` (P, L, 2), ``R`` (P, L, 2, 2): the members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2):
-    the tables' priors; ``u`` (S, L) uniforms.  The last sweep's conditionals go to ``rec_p``
-    (L, T); part 0's theta given the table's *other current members* and H_2 (``h_lam``,
-    ``h_eta``: information form), not the transitioned prior, which carries object l's own past,
-    goes to ``rec_mu`` (L, T, 2), ``rec_cov`` (L, T, 2, 2).
+    ``sw`` (:class:`~tracker.bnp.group_bundles.Sweeps`): ``v`` (P, L, 2), ``R`` (P, L, 2, 2), the
+    members' parts; ``lam0``/``eta0`` (P, T, 2, 2)/(P, T, 2): the tables' priors; ``u`` (S, L)
+    uniforms.  The last sweep's conditionals go to ``rec_p`` (L, T); part 0's theta given the
+    table's *other current members* and H_2 (``sw.h_lam``, ``sw.h_eta``: information form), not
+    the transitioned prior, which carries object l's own past, goes to ``rec_mu`` (L, T, 2),
+    ``rec_cov`` (L, T, 2, 2).
     """
+    v, R, lam0, eta0, h_lam, h_eta, v_star, z, u = sw
+    alpha, d, occupied = urn
     P, L, T = v.shape[0], v.shape[1], lam0.shape[1]
     n = np.zeros(T)
     lam, eta = lam0.copy(), eta0.copy()
