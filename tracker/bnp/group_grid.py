@@ -103,7 +103,7 @@ def median(a) -> float:
     n = A.shape[0]
     if n == 0:
         return np.nan
-    low, high, half = 0, n - 1, n >> 1
+    low, high, half = np.int64(0), n - 1, n >> 1  # int64, not a literal 0: one signature per kernel
     if n & 1 == 1:
         return _qs_select(A, half, low, high)
     k = half - 1
