@@ -128,7 +128,9 @@ def test_tracker_weights_match_forward_simulation(d):
     assert np.allclose(pred.q, 1.0) and np.allclose(pred.p_detect, PD)  # the tested case: q = 1
     N, M = problem.shape
     rng = np.random.default_rng(20261201)
-    configs = forward_draws(rng, 4_000_000, PD, state.popularity, state.alpha, d, LAM_C, M)
+    # 4,000,000 prior draws in blocks of 500,000 (arrays that stay in cache; same law)
+    configs = np.concatenate([forward_draws(rng, 500_000, PD, state.popularity, state.alpha, d, LAM_C, M)
+                              for _ in range(8)])
     uniq, counts = np.unique(configs, axis=0, return_counts=True)
     w = counts * np.array([likelihood(c, dens, N) for c in uniq])
     ess = w.sum() ** 2 / np.sum(w**2 / counts)  # each draw of a pattern carries weight w / count
