@@ -53,14 +53,30 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _release_the_trees():
+    """The parsed trees are shared by this module's rules and dropped after them (hundreds of
+    thousands of nodes would otherwise slow every later garbage collection of the run)."""
+    yield
+    for cached in (_parse, _walk, _imports):
+        cached.cache_clear()
+
+
 @functools.lru_cache(maxsize=None)
 def _parse(text: str, filename: str) -> ast.Module:
     """One parse per file text: the rules below walk the same modules many times."""
     return ast.parse(text, filename=filename)
 
 
-def _tree(path: Path) -> ast.Module:
-    return _parse(path.read_text(), str(path))
+@functools.lru_cache(maxsize=None)
+def _walk(text: str, filename: str) -> tuple[ast.AST, ...]:
+    """Every node of one file text, in :func:`ast.walk`'s order: one walk per text, shared by
+    the rules below."""
+    return tuple(ast.walk(_parse(text, filename)))
+
+
+def _nodes(path: Path) -> tuple[ast.AST, ...]:
+    return _walk(path.read_text(), str(path))
 
 
 _STRING_IMPORTERS = ("warm_imports", "import_module", "__import__")
@@ -88,10 +104,9 @@ def _imports(path: Path) -> tuple[tuple[str, int], ...]:
     """Every absolute module name imported anywhere in ``path`` (also inside functions, and
     named in strings that are imported later: see :func:`_string_imports`). Read once per run:
     the rules that use it read only the project's modules, which do not change while it runs."""
-    tree = _tree(path)
     mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
     found = []
-    for node in ast.walk(tree):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             found += [(a.name, node.lineno) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -215,8 +230,7 @@ def _module_lengths(pkg: str) -> dict[str, int]:
 
 
 def _class_lengths(path: Path) -> dict[str, int]:
-    tree = _tree(path)
-    return {f"{_rel(path)}:{n.name}": n.end_lineno - n.lineno + 1 for n in ast.walk(tree) if isinstance(n, ast.ClassDef)}
+    return {f"{_rel(path)}:{n.name}": n.end_lineno - n.lineno + 1 for n in _nodes(path) if isinstance(n, ast.ClassDef)}
 
 
 @pytest.mark.parametrize("pkg", PACKAGES)
@@ -248,9 +262,8 @@ def _private_imports(path: Path, root: Path = ROOT) -> list[str]:
     """Private names (``_x``, or a module ``_x`` on the path) imported from another package."""
     rel = path.relative_to(root)
     mine = rel.parts[0]
-    tree = _tree(path)
     out = []
-    for node in ast.walk(tree):
+    for node in _nodes(path):
         if isinstance(node, ast.ImportFrom) and not node.level:
             names = [f"{node.module}.{a.name}" for a in node.names]
         elif isinstance(node, ast.Import):
@@ -279,10 +292,10 @@ def test_the_private_import_check_sees_one(tmp_path):
                                                 "sinks/probe.py:4 imports pipeline._y"]
 
 
-def _jitted_names(tree: ast.Module) -> set[str]:
+def _jitted_names(nodes: tuple[ast.AST, ...]) -> set[str]:
     """Functions compiled by numba: decorated with ``*jit``, or passed to a ``*jit(...)`` call."""
     names = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Call) and "jit" in ast.unparse(node.func).lower():
             names |= {a.id for a in node.args if isinstance(a, ast.Name)}
         if isinstance(node, ast.FunctionDef) and any("jit" in ast.unparse(d).lower() for d in node.decorator_list):
@@ -295,10 +308,10 @@ def _rel(path: Path) -> str:
 
 
 def _long_functions(path: Path) -> list[str]:
-    tree = _tree(path)
-    kernels = _jitted_names(tree)
+    nodes = _nodes(path)
+    kernels = _jitted_names(nodes)
     out = []
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name not in kernels:
             n = node.end_lineno - node.lineno + 1
             if n > MAX_FUNCTION_LINES:
@@ -398,9 +411,9 @@ def _bare_imports(path: Path) -> list[str]:
     """Imports of a project package by its bare folder name (``from tracker.x import y``)."""
     if not _MAYBE_BARE.search(path.read_text()):
         return []
-    tree = _tree(path)
-    names = [(a.name, n.lineno) for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
-    names += [(n.module or "", n.lineno) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level]
+    nodes = _nodes(path)
+    names = [(a.name, n.lineno) for n in nodes if isinstance(n, ast.Import) for a in n.names]
+    names += [(n.module or "", n.lineno) for n in nodes if isinstance(n, ast.ImportFrom) and not n.level]
     return [f"{_rel(path)}:{line} {name}" for name, line in names if name.split(".")[0] in PACKAGES]
 
 
