@@ -29,12 +29,7 @@ def in_field(states: np.ndarray, fam) -> np.ndarray:
 
 def _propagate(x: np.ndarray, steps: int, T: float) -> np.ndarray:
     """``(steps + 1, 5)``: ``x`` and ``steps`` noiseless transitions with period ``T``."""
-    ct = CoordinatedTurn(T=T)
-    out = np.empty((steps + 1, 5))
-    out[0] = x
-    for i in range(steps):
-        out[i + 1] = ct.f(out[i])
-    return out
+    return CoordinatedTurn(T=T).path(x, steps)
 
 
 def _inside_run(traj: np.ndarray, fam) -> int:

@@ -33,6 +33,20 @@ def test_ct_straight_line_limit_matches_constant_velocity():
     np.testing.assert_allclose(near[0, :4], out[0, :4], atol=1e-5)
 
 
+@pytest.mark.parametrize("T", [1.0, 2.5, -1.0])
+def test_ct_path_is_the_repeated_transition_bit_for_bit(T):
+    ct = CoordinatedTurn(T=T)
+    rng = np.random.default_rng(5)
+    for w in (0.0, 1e-12, -1e-11, 0.05, -0.3, np.pi / 2):
+        x = np.r_[rng.normal(0.0, 500.0, 4), w]
+        want = [x]
+        for _ in range(40):
+            want.append(ct.f(want[-1]))
+        got = ct.path(x, 40)
+        assert got.shape == (41, 5) and got.tobytes() == np.array(want).tobytes()
+    assert ct.path(x, 0).tobytes() == x[None].tobytes()
+
+
 def test_ct_process_noise_matches_spec_form():
     ct = CoordinatedTurn(T=1.0, sigma_accel=15.0, sigma_turn=np.pi / 180)
     s2 = 15.0**2

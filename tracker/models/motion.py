@@ -147,6 +147,20 @@ class CoordinatedTurn:
         out[..., 4] = w
         return out
 
+    def path(self, x: np.ndarray, steps: int) -> np.ndarray:
+        """``(steps + 1, 5)``: the state ``x`` (``(5,)``) and ``steps`` noise-free transitions
+        :meth:`f`, bit for bit.  The turn rate, and with it every coefficient of :math:`F`,
+        stays fixed along the path, so the coefficients are computed once and the recursion
+        runs on Python floats (the same IEEE operations in the same order as :meth:`f`)."""
+        x = np.asarray(x, dtype=float)
+        s, c, a, b = (float(t) for t in self._turn_terms(x[4])[:4])
+        px, vx, py, vy, w = (float(v) for v in x)
+        rows = [(px, vx, py, vy, w)]
+        for _ in range(steps):
+            px, vx, py, vy = px + a * vx - b * vy, c * vx - s * vy, b * vx + py + a * vy, s * vx + c * vy
+            rows.append((px, vx, py, vy, w))
+        return np.array(rows)
+
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         r"""Jacobian :math:`\partial F / \partial x` at each state, ``(N, 5, 5)``.
 
