@@ -36,6 +36,9 @@ from bnptrack.sources.mcap_log import read_log, read_metadata
 from testkit import mem_cfg, run_memory_pipeline, wait_until
 
 GONE_S = 5.0  # the default delivery.upstream_gone_s
+#: how long a stage that must not give up is watched, on its clock: four times upstream_gone_s,
+#: past every other grace period of its configuration (eos_grace_s 0.3, linger_s 0.5)
+NEVER_S = 4 * GONE_S
 
 
 def _digest(path: Path) -> str:
@@ -202,7 +205,7 @@ def test_a_silent_live_upstream_or_a_fresh_sink_never_gives_up(tmp_path, finishe
     source.declare_alive()
     result, clock, t = _run_alone(cfg, "sink", net)
     wait_until(lambda: "sink" in net.alive.get((cfg.run, "alive"), ()), 30, "the sink to declare itself alive")
-    _drive(clock, t, until=12 * GONE_S)
+    _drive(clock, t, until=NEVER_S)
     assert t.is_alive() and "code" not in result
     source.close()  # the source leaves: from now on the sink is alone
     t_left = clock.monotonic()
@@ -212,7 +215,7 @@ def test_a_silent_live_upstream_or_a_fresh_sink_never_gives_up(tmp_path, finishe
 
     fresh = _cfg_for(finished, tmp_path / "fresh")
     result, clock, t = _run_alone(fresh, "sink")
-    _drive(clock, t, until=12 * GONE_S)
+    _drive(clock, t, until=NEVER_S)
     assert t.is_alive() and "code" not in result
     result["ctx"].stop.set()
     _drive(clock, t)
