@@ -29,7 +29,10 @@ def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -
     sizes: list[int] = []
     for _ in range(n):
         w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
-        j = int(rng.choice(w.size, p=w / w.sum()))
+        # rng.choice(w.size, p=w / w.sum()) draw for draw, without its checks of p
+        cdf = (w / w.sum()).cumsum()
+        cdf /= cdf[-1]
+        j = int(cdf.searchsorted(rng.random(), side="right"))
         if j == len(sizes):
             sizes.append(1)
         else:

@@ -39,6 +39,25 @@ def test_groups_py_counts_and_overlapping_velocities(seed):
         assert 2.0 < vel[:, :2].std(axis=0, ddof=1).mean() < 9.0
 
 
+def test_pitman_yor_sizes_draw_as_the_generators_choice_draws():
+    """The urn's draws equal ``rng.choice(K + 1, p=w / w.sum())`` draw for draw, so the
+    generated scenes are those of numpy's own weighted choice."""
+    from bnptrack.sources.scene_families import pitman_yor_sizes
+
+    def by_choice(rng, n, alpha, d):
+        sizes: list[int] = []
+        for _ in range(n):
+            w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
+            j = int(rng.choice(w.size, p=w / w.sum()))
+            sizes[j:j + 1] = [sizes[j] + 1] if j < len(sizes) else [1]
+        return sizes
+
+    for seed, n, alpha, d in [(1, 300, 1.0, 0.6), (2, 300, 5.0, 0.0), (3, 40, 0.3, 0.9)]:
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        assert pitman_yor_sizes(a, n, alpha, d) == by_choice(b, n, alpha, d)
+        assert a.random() == b.random()  # the same draws consumed
+
+
 def test_groups_py_discount_zero_has_fewer_singletons():
     def singles(d):
         out = []

@@ -80,6 +80,20 @@ def exact_table_count_law(n, alpha, d):
     return law
 
 
+def test_sequential_urn_draws_as_the_generators_choice_draws():
+    """Each customer's table is ``rng.choice(K + 1, p=w / w.sum())``, draw for draw."""
+    rng, ref = np.random.default_rng(4), np.random.default_rng(4)
+    for _ in range(50):
+        labels = sample_crp_partition(rng, 8, 1.5, 0.4)
+        counts: list[float] = []
+        for i in range(8):
+            w = np.array([c - 0.4 for c in counts] + [1.5 + 0.4 * len(counts)])
+            j = int(ref.choice(w.size, p=w / w.sum()))
+            counts[j:j + 1] = [counts[j] + 1.0] if j < len(counts) else [1.0]
+            assert labels[i] == j
+    assert rng.random() == ref.random()
+
+
 @pytest.mark.parametrize("alpha,d", [(1.0, 0.0), (2.0, 0.5)])
 def test_sequential_urn_reproduces_eppf(alpha, d):
     """Draws of the sequential urn (D1-D3 / P1-P3 weights) follow the EPPF's table-count law."""

@@ -80,7 +80,10 @@ def sample_crp_partition(
     for i in range(n):
         k = len(counts)
         w = np.array([c - d for c in counts] + [alpha + d * k])
-        j = int(rng.choice(k + 1, p=w / w.sum()))
+        # rng.choice(k + 1, p=w / w.sum()) draw for draw, without its checks of p
+        cdf = (w / w.sum()).cumsum()
+        cdf /= cdf[-1]
+        j = int(cdf.searchsorted(rng.random(), side="right"))
         if j == k:
             counts.append(1.0)
         else:
