@@ -48,13 +48,16 @@ PD, LAM_C, RANGE_MAX = 0.8, 1.5, 2000.0
 
 def forward_draws(rng, n, pd, v, alpha, d, lam_c, m_obs):
     """Assignment vectors ``(K, m_obs)`` of the accepted draws among ``n`` prior simulations
-    (vectorised over simulations, sequential over the urn's customers)."""
+    (vectorised over simulations, sequential over the urn's customers).  Only the simulations
+    with ``M = M_c + M_o = m_obs`` are drawn: their number is Binomial(``n``, Pr(M = m_obs)),
+    ``M ~ Poisson(alpha + V + lambda_c)``, and given ``M`` the object-originated count is
+    ``M_o ~ Binomial(M, (alpha + V) / (alpha + V + lambda_c))`` (two independent Poisson counts
+    given their sum)."""
     N = len(v)
     V = float(np.sum(v))  # q = 1
-    n_c, n_o = rng.poisson(lam_c, n), rng.poisson(alpha + V, n)
-    keep = n_c + n_o == m_obs
-    n_o = n_o[keep]
-    n = n_o.size
+    rate = alpha + V + lam_c
+    n = rng.binomial(n, stats.poisson.pmf(m_obs, rate))
+    n_o = rng.binomial(m_obs, (alpha + V) / rate, n)
     detected = rng.random((n, N)) < pd
     taken = np.zeros((n, N))
     k_new = np.zeros(n)
