@@ -166,4 +166,5 @@ def test_sequencer_far_ahead_is_rejected_without_allocating():
     assert seq.gaps == list(range(1, 100_000 - 31)) and seq.next == 100_000 - 31
     # max_ahead is never below the catch-up window (history must not be rejected)
     assert Sequencer(32, 0, "m", catch_up=10_000, max_ahead=50).max_ahead == 10_000
-    assert Sequencer(32).push(10**6, 1)[0] == "accepted"  # default: unbounded, as before
+    # without max_ahead nothing is far: twice the pipeline's bound (delivery.max_seq_ahead) is accepted
+    assert Sequencer(32).push(200_000, 1)[0] == "accepted"
