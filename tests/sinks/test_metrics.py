@@ -428,7 +428,7 @@ point_sets = st.lists(st.tuples(coord, coord), max_size=5).map(
 )
 cutoffs = st.floats(1.0, 2000.0)
 orders = st.one_of(st.just(1.0), st.just(2.0), st.floats(1.0, 4.0))
-PROP = settings(max_examples=150, deadline=None)
+PROP = settings(max_examples=100, deadline=None)  # hypothesis's default number of examples
 
 
 def tol(*vals):
