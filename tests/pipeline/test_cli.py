@@ -209,11 +209,11 @@ def test_track_writes_tracks(vo_log, vo_tracks):
 def test_track_default_out_and_dpyp(tmp_path):
     log = tmp_path / "d.mcap"
     assert invoke("simulate", "--scenario", "dpy5", "--seed", 2, "--out", log, "-q").exit_code == 0
-    res = invoke("track", log, "--tracker", "dpyp-mb", *FAST_SET, "--seed", 5, "--quiet")
+    res = invoke("track", log, "--tracker", "dpyp-mb", *FAST_SET, "--seed", 5, "--end", "10f", "--quiet")
     assert res.exit_code == 0, res.output
     assert res.output == ""
     out = tmp_path / "d-dpyp-mb.tracks.mcap"
-    assert len(list(iter_tracks(out))) == 100
+    assert len(list(iter_tracks(out))) == 10
     assert read_metadata(out)["tracker_seed"] == "5"
 
 
@@ -229,12 +229,12 @@ def test_track_params_from_log_metadata(tmp_path):
     log = tmp_path / "paper.mcap"
     assert invoke("simulate", "--scenario", "dpy5", "--params", "paper", "--out", log, "-q").exit_code == 0
     assert read_metadata(log)["params"] == "paper"
-    res = invoke("track", log, *FAST, "--out", tmp_path / "t.mcap")
+    res = invoke("track", log, *FAST, "--end", "10f", "--out", tmp_path / "t.mcap")
     assert res.exit_code == 0, res.output
     line = next(l for l in res.output.splitlines() if l.startswith("params"))
     assert "paper" in line and "from the log" in line
     # an explicit --params wins
-    res = invoke("track", log, *FAST, "--params", "vo2017", "--out", tmp_path / "t2.mcap")
+    res = invoke("track", log, *FAST, "--end", "10f", "--params", "vo2017", "--out", tmp_path / "t2.mcap")
     line = next(l for l in res.output.splitlines() if l.startswith("params"))
     assert "vo2017" in line and "--params" in line
 
@@ -295,7 +295,7 @@ def test_track_bad_config_and_same_out(vo_log, tmp_path):
 def test_track_config_file(vo_log, tmp_path):
     cfg = tmp_path / "fast.toml"
     cfg.write_text("sweeps = 6\nburn_in = 1\n")
-    res = invoke("track", vo_log, "--tracker", "ddp-mb", "--config", cfg, "--out", tmp_path / "t.mcap")
+    res = invoke("track", vo_log, "--tracker", "ddp-mb", "--config", cfg, "--end", "10f", "--out", tmp_path / "t.mcap")
     assert res.exit_code == 0, res.output
     assert "fast.toml" in res.output
 
