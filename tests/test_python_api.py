@@ -81,6 +81,7 @@ def test_mistakes_raise_one_line_config_errors():
         bnptrack.nope  # noqa: B018
 
 
+@pytest.mark.slow  # a fresh interpreter: start-up and import machinery
 def test_importing_bnptrack_imports_no_library():
     """``import bnptrack`` (which the CLI's entry point also runs) loads none of the packages."""
     code = "import sys, bnptrack; print(sorted(m for m in sys.modules if m.startswith(('bnptrack.', 'numpy'))))"
