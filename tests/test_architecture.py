@@ -334,10 +334,10 @@ def test_the_size_rules_see_a_long_function(tmp_path):
 def _wide_kernels(path: Path) -> dict[str, int]:
     """Each numba kernel of ``path`` with more than :data:`MAX_KERNEL_ARGS` positional arguments:
     ``"file:name"`` -> its count."""
-    tree = _tree(path)
-    kernels = _jitted_names(tree)
+    nodes = _nodes(path)
+    kernels = _jitted_names(nodes)
     return {f"{_rel(path)}:{node.name}": len(node.args.posonlyargs) + len(node.args.args)
-            for node in ast.walk(tree) if isinstance(node, ast.FunctionDef) and node.name in kernels
+            for node in nodes if isinstance(node, ast.FunctionDef) and node.name in kernels
             and len(node.args.posonlyargs) + len(node.args.args) > MAX_KERNEL_ARGS}
 
 
