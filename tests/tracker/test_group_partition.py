@@ -152,7 +152,7 @@ def test_an_unknown_kernel_is_refused() -> None:
 # -- group_merge.greedy_groups: O(pairs) against the dense (n, n) version it replaced --------------
 
 def _greedy_groups_dense(ii, jj, r, order):
-    """The session-9 code (a dense (n, n) table of the pairs), kept as the reference."""
+    """A dense (n, n) table of the pairs: the simple reference the gated code is checked against."""
     n = r.size
     near = np.zeros((n, n), dtype=bool)
     near[ii, jj] = near[jj, ii] = True
