@@ -30,8 +30,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def child(argv: list[str]) -> dict:
-    """Run ``bnptrack ARGV`` here with the listener; the compilations and the process's CPU s."""
+def listen_to_compilations() -> list[dict]:
+    """Register a listener on numba's ``numba:compile`` events; the list it fills, one row per
+    compilation: ``name`` (module.qualname), ``args`` (the signature's repr) and ``self`` (thread
+    CPU seconds without the nested compilations)."""
     from numba.core import event
 
     rows: list[dict] = []
@@ -52,6 +54,12 @@ def child(argv: list[str]) -> dict:
             rows.append({"name": name, "args": repr(tuple(data.get("args", ()))), "self": total - nested})
 
     event.register("numba:compile", Listener())
+    return rows
+
+
+def child(argv: list[str]) -> dict:
+    """Run ``bnptrack ARGV`` here with the listener; the compilations and the process's CPU s."""
+    rows = listen_to_compilations()
     from bnptrack.pipeline.cli import main
 
     t0 = time.process_time()

@@ -27,32 +27,17 @@ HERE = str(Path(__file__).resolve().parents[1])
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _ab import last_json_line  # noqa: E402
+from compile_times import listen_to_compilations  # noqa: E402
 
 
 def child(kernel: str) -> dict:
     """One ``sample_partition`` call with the compilation listener; the compilations and the sample."""
     import numpy as np
-    from numba.core import event
 
     from bnptrack.tracker.numerics import import_numba
 
-    rows: list[tuple[str, float]] = []
-    stack: list[list[float]] = []  # [start, nested]
-
-    class Listener(event.Listener):
-        def on_start(self, ev: event.Event) -> None:
-            stack.append([time.thread_time(), 0.0])
-
-        def on_end(self, ev: event.Event) -> None:
-            t0, nested = stack.pop()
-            total = time.thread_time() - t0
-            if stack:
-                stack[-1][1] += total
-            py = getattr((ev.data or {}).get("dispatcher"), "py_func", None)
-            rows.append((f"{py.__module__}.{py.__qualname__}" if py is not None else "?", total - nested))
-
     import_numba()
-    event.register("numba:compile", Listener())
+    compiled = listen_to_compilations()
     from bnptrack.tracker.bnp.group_sample import Block, sample_partition
 
     rng = np.random.default_rng(1)
@@ -67,7 +52,7 @@ def child(kernel: str) -> dict:
               Block(rng.normal(0, 50, (L, 2)), spd(L, 20.0), rng.normal(0, 50, (G, 2)), spd(G, 30.0), np.zeros(2),
                     1e4 * np.eye(2))]
     z, shares = sample_partition(rng, blocks, np.ones(G), 1.0, 0.2, -np.ones(L, dtype=np.int64), 5, kernel=kernel)
-    return {"rows": rows, "sample": [z.tolist(), shares.w.tolist()]}
+    return {"rows": [(r["name"], r["self"]) for r in compiled], "sample": [z.tolist(), shares.w.tolist()]}
 
 
 def _run(root: str, kernel: str) -> dict:

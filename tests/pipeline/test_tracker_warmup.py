@@ -63,8 +63,10 @@ def test_no_kernel_is_compiled_after_the_stage_warm_up(tracker, scene):
 @pytest.mark.slow
 def test_without_the_contests_a_kernel_is_compiled_inside_a_frame():
     """The check above is not blind: with the registry's warm-up alone the scenes compile the
-    contested assignment (and the two-level tracker's group kernels) inside a frame."""
-    assert "bnptrack.tracker.bnp._update_kernels.jpda_solve" in _late_kernels("ddp", "vo2017", contests=False)["late"]
+    single level's contested assignment (JPDA*), the default's velocity and turn sharing and the
+    two-level tracker's group kernels inside a frame."""
+    assert "bnptrack.tracker.bnp._update_kernels.jpda_solve" in _late_kernels("ddp-mb", "vo2017", contests=False)["late"]
+    assert "bnptrack.tracker.bnp.group_share._share_turn_kernel" in _late_kernels("ddp", "vo2017", contests=False)["late"]
     late = _late_kernels("ddp-groups", "proximity", contests=False)["late"]
     assert "bnptrack.tracker.bnp.group_partition.gated_kernel" in late
 
