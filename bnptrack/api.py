@@ -44,7 +44,7 @@ def simulate(
     Frames do not carry their parameter set: pass the same ``params`` (and ``scenario``) to
     :func:`track`, or track the log written with ``out``, whose record names them.
     """
-    opened = open_scenario(scenario, params, seed, tuple(overrides))
+    opened = open_scenario(scenario, params, seed, tuple(overrides), names=PYTHON_NAMES)
     sc, p = opened.scenario, opened.params
     frames = list(simulate_sensors(sc, p, seed, list(p.sensors)) if p.sensors else _simulate_frames(sc, p, seed))
     if out is not None:

@@ -95,7 +95,7 @@ import msgspec
 import numpy as np
 
 from bnptrack.sources.scene import Scenario, TargetSpec
-from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError
 from bnptrack.tracker.models.motion import CoordinatedTurn
 from bnptrack.tracker.models.params import ModelParams
 
@@ -249,7 +249,8 @@ def is_generated(name: str) -> bool:
     return name in FAMILIES
 
 
-def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = ()) -> Scenario:
+def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = (),
+                 names: ArgNames = CLI_NAMES) -> Scenario:
     """Look a scenario up by name; raises :class:`ConfigError` listing the valid names.
 
     A generated family (``random``, ``random-cv``; :mod:`sources.scene_families`) is built
@@ -268,14 +269,14 @@ def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = ()) 
         )
     if seed is None:
         raise ConfigError(f"scenario {name!r} is generated: it needs a scene seed")
-    return _generated(name, int(seed), tuple(scene))
+    return _generated(name, int(seed), tuple(scene), names)
 
 
 @functools.lru_cache(maxsize=32)
-def _generated(name: str, seed: int, scene: tuple[str, ...]) -> Scenario:
+def _generated(name: str, seed: int, scene: tuple[str, ...], names: ArgNames) -> Scenario:
     from bnptrack.sources.scene_families import generate_scene
 
-    return generate_scene(name, seed, scene)
+    return generate_scene(name, seed, scene, names)
 
 
 # --------------------------------------------------------------------------- opening a scenario
@@ -352,25 +353,28 @@ class OpenScenario:
 
 
 def open_scenario(
-    name: str, params: str, seed: int, overrides: Sequence[str] = (), snr_db: float | None = None
+    name: str, params: str, seed: int, overrides: Sequence[str] = (), snr_db: float | None = None,
+    names: ArgNames = CLI_NAMES,
 ) -> OpenScenario:
     """Scenario ``name`` with model parameter set ``params`` (a built-in name or TOML file):
     the scene (:func:`scene_of`), the parameters (:func:`scenario_params`) and the record
-    (:func:`scenario_metadata`).  Raises :class:`ConfigError` for an unknown name or key."""
-    scenario = scene_of(name, seed, overrides)
-    p = scenario_params(name, params, overrides, snr_db)
+    (:func:`scenario_metadata`).  Raises :class:`ConfigError` for an unknown name or key,
+    naming ``params`` and ``overrides`` as ``names`` say."""
+    scenario = scene_of(name, seed, overrides, names)
+    p = scenario_params(name, params, overrides, snr_db, names)
     return OpenScenario(scenario, p, scenario_metadata(scenario, params, seed, p, overrides))
 
 
-def scene_of(name: str, seed: int, overrides: Sequence[str] = ()) -> Scenario:
+def scene_of(name: str, seed: int, overrides: Sequence[str] = (), names: ArgNames = CLI_NAMES) -> Scenario:
     """The scenario to simulate: a fixed table, or a generated family's scene for the scene
     seed ``seed`` and the ``scene.*`` items of ``overrides`` (other items are ignored here)."""
     scene, _ = split_scene_overrides(overrides)
-    return get_scenario(name, seed=seed, scene=scene)
+    return get_scenario(name, seed=seed, scene=scene, names=names)
 
 
 def scenario_params(
-    name: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None
+    name: str, params: str, overrides: Sequence[str] = (), snr_db: float | None = None,
+    names: ArgNames = CLI_NAMES,
 ) -> ModelParams:
     """Parameters for simulating scenario ``name``: the set ``params``, the ``--set`` items of
     ``overrides`` (``scene.*`` items are left to :func:`scene_of`), ``snr_db`` (``--snr``),
@@ -380,7 +384,7 @@ def scenario_params(
 
     _, model_over = split_scene_overrides(overrides)
     adapting = adapting_scenario(name)
-    return adapting.adapt_params(with_snr(load_params(params, model_over), snr_db))
+    return adapting.adapt_params(with_snr(load_params(params, model_over, names), snr_db))
 
 
 def scenario_metadata(

@@ -86,7 +86,7 @@ from bnptrack.sources.scene_geometry import (
     in_field,
 )
 from bnptrack.sources.scene_groups import _all_groups, pitman_yor_sizes
-from bnptrack.tracker.config import ConfigError, apply_overrides
+from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError, apply_overrides
 from bnptrack.tracker.models.motion import CoordinatedTurn
 
 __all__ = [
@@ -253,10 +253,10 @@ def scene_rng(name: str, seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=key))
 
 
-def scene_config(name: str, overrides: Sequence[str] = ()) -> SceneFamily:
+def scene_config(name: str, overrides: Sequence[str] = (), names: ArgNames = CLI_NAMES) -> SceneFamily:
     """The family's parameters with ``KEY=VALUE`` overrides (keys without ``scene.``).
 
-    Raises :class:`ConfigError` naming a bad key or value.
+    Raises :class:`ConfigError` naming a bad key or value (as ``names`` say).
     """
     try:
         base = FAMILIES[name]
@@ -265,7 +265,7 @@ def scene_config(name: str, overrides: Sequence[str] = ()) -> SceneFamily:
             f"scenario {name!r} is not generated; scene.* settings apply only to "
             f"{', '.join(FAMILIES)}"
         ) from None
-    wrapped = apply_overrides(_Wrapped(base), [f"scene.{o.strip()}" for o in overrides])
+    wrapped = apply_overrides(_Wrapped(base), [f"scene.{o.strip()}" for o in overrides], names=names)
     return wrapped.scene
 
 
@@ -327,11 +327,11 @@ def family_template(name: str):
     return Scenario(name, _DESCRIPTIONS[name], K=FAMILIES[name].K, birth=())
 
 
-def generate_scene(name: str, seed: int, overrides: Sequence[str] = ()):
+def generate_scene(name: str, seed: int, overrides: Sequence[str] = (), names: ArgNames = CLI_NAMES):
     """The scene of family ``name`` for ``seed`` and ``scene.*`` ``overrides`` (a :class:`Scenario`)."""
     from bnptrack.sources.scene import Scenario, TargetSpec
 
-    fam = scene_config(name, overrides)
+    fam = scene_config(name, overrides, names)
     rng = scene_rng(name, seed)
     n = fam.n_objects or int(rng.integers(fam.n_min, fam.n_max + 1))
     bursts = np.sort(rng.integers(1, fam.K - fam.life_min + 2, size=fam.bursts))

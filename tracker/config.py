@@ -74,10 +74,11 @@ def parse_value(text: str) -> Any:
         return text
 
 
-def did_you_mean(key: str, known: Sequence[str], n: int = 1) -> str:
+def did_you_mean(key: str, known: Sequence[str], n: int = 1, prefix: str = "") -> str:
     """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib; up to ``n``
-    of them, closest first: `` (did you mean 'x', 'y' or 'z'?)``), else ``""``."""
-    close = [f"'{c}'" for c in difflib.get_close_matches(key, list(known), n=n, cutoff=0.6)]
+    of them, closest first: `` (did you mean 'x', 'y' or 'z'?)``), else ``""``; each shown
+    after ``prefix`` (the dotted table of a nested key: ``'tracker.sweeps'``)."""
+    close = [f"'{prefix}{c}'" for c in difflib.get_close_matches(key, list(known), n=n, cutoff=0.6)]
     if not close:
         return ""
     return f" (did you mean {', '.join(close[:-1])} or {close[-1]}?)" if len(close) > 1 else f" (did you mean {close[0]}?)"
@@ -98,12 +99,15 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: 
         created = created or named
         if not isinstance(child, dict):
             raise ConfigError(f"{origin}: '{'.'.join(parts[: i + 1])}' is not a table"
-                              + (did_you_mean(part, list(node)) if part not in node else ""))
+                              + (did_you_mean(part, list(node), prefix="".join(f"{q}." for q in parts[:i]))
+                                 if part not in node else ""))
         node = child
     if parts[-1] not in node and not created:
         known = ", ".join(sorted(node)) or "(none)"
         where = f"known here: {known}" if len(node) <= KNOWN_LISTED else "docs/models.md and docs/trackers.md list the keys"
-        raise ConfigError(f"{origin}: unknown key '{shown or key}'{did_you_mean(parts[-1], list(node), 3)} "
+        typed = shown or key
+        table = typed.rsplit(".", 1)[0] + "." if "." in typed else ""
+        raise ConfigError(f"{origin}: unknown key '{typed}'{did_you_mean(parts[-1], list(node), 3, table)} "
                           f"({where})")
     node[parts[-1]] = value
 

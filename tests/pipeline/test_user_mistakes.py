@@ -147,7 +147,7 @@ def test_prefixed_set_key_typo_names_the_key_as_typed(tmp_path, cmd):
     res = _run(*args, "--set", "tracker.sweps=10", "--out", tmp_path / "o", "-q")
     assert res.exit_code == 2
     line = _one_line(res.output, "Error:")
-    assert line.startswith("Error: --set 'tracker.sweps=10': unknown key 'tracker.sweps' (did you mean 'sweeps'?)")
+    assert line.startswith("Error: --set 'tracker.sweps=10': unknown key 'tracker.sweps' (did you mean 'tracker.sweeps'?)")
 
 
 # --------------------------------------------------------------------------- warnings
@@ -327,6 +327,27 @@ def test_python_errors_name_the_arguments_not_the_flags(tmp_path):
         bnptrack.track(log, params="nope")
     with pytest.raises(ConfigError, match=r"^overrides: "):
         bnptrack.track(log, overrides=["p_detect=2.0"])
+
+
+def test_simulate_names_its_arguments_not_the_flags():
+    import bnptrack
+    from bnptrack.tracker.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^params='nope': not a built-in set"):
+        bnptrack.simulate(params="nope")
+    with pytest.raises(ConfigError, match=r"^overrides item 'p_detcet=0.9': unknown key 'p_detcet' \(did you mean 'p_detect'\?\)"):
+        bnptrack.simulate(overrides=["p_detcet=0.9"])
+    with pytest.raises(ConfigError, match=r"^overrides item 'scene.n_objectz=3': unknown key 'scene.n_objectz' "
+                                          r"\(did you mean 'scene.n_objects'"):
+        bnptrack.simulate("random", overrides=["scene.n_objectz=3"])
+
+
+def test_a_nested_key_is_suggested_in_full():
+    from bnptrack.tracker.config import ConfigError
+
+    import bnptrack
+    with pytest.raises(ConfigError, match=r"unknown key 'objects.sweps' \(did you mean 'objects.sweeps'\?\)"):
+        bnptrack.make_tracker("ddp", overrides=["objects.sweps=2"])
 
 
 # --------------------------------------------------------------------------- wrong file types
