@@ -91,6 +91,9 @@ class _Scanner:
         self.topics = frozenset(topics)
         self.topic_map = dict(topic_map or {})
         """Channel topic -> the topic it is read as (``--topic /radar/detections=/measurements``)."""
+        self.shadowed = frozenset(self.topic_map.values()) - frozenset(self.topic_map)
+        """The log's own channels a mapped channel stands in for (its ``/measurements`` under
+        ``--topic /radar/detections=/measurements``): not read."""
         self.want_metadata = want_metadata
         self.offset = 0
         self.n_messages = 0
@@ -122,7 +125,7 @@ class _Scanner:
                             "corrupt", f"message refers to unknown channel id {rec.channel_id}"
                         )
                     topic = self.topic_map.get(ch.topic, ch.topic)
-                    if topic not in topics:
+                    if topic not in topics or ch.topic in self.shadowed:
                         continue
                     if ch.message_encoding != "json":
                         raise CodecError(

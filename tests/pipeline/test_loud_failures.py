@@ -111,6 +111,38 @@ def test_topic_mapping_reads_a_renamed_channel(tmp_path):
     assert "frames            3" in res.output
 
 
+def _two_channel_log(path):
+    """``/measurements`` (sensor ``own``, frames 1-3) and ``/radar/detections`` (sensor
+    ``radar0``, frames 1-3, stamps a quarter-second later) in one log."""
+    from mcap.writer import Writer as W
+
+    from bnptrack.tracker.messages import encode
+
+    with open(path, "wb") as f:
+        w = W(f)
+        w.start()
+        sid = w.register_schema("bnptrack.Measurements", "jsonschema", b"{}")
+        own, radar = w.register_channel("/measurements", "json", sid), w.register_channel("/radar/detections", "json", sid)
+        for k in range(1, 4):
+            for cid, sensor, t in ((own, "own", k * 10**9), (radar, "radar0", k * 10**9 + 25 * 10**7)):
+                fr = Frame(k, t, sensor, "bearing_range", [[0.1 + 0.001 * k, 800.0 + 5 * k]])
+                w.add_message(cid, log_time=t, publish_time=t, data=encode(fr))
+        w.finish()
+    return path
+
+
+def test_a_channel_mapped_onto_measurements_stands_in_for_the_log_s_own(tmp_path):
+    from bnptrack.sources.mcap_log import iter_frames
+
+    log = _two_channel_log(tmp_path / "two.mcap")
+    mapped = list(iter_frames(log, topic_map={"/radar/detections": "/measurements"}))
+    assert [(f.frame, f.sensor) for f in mapped] == [(1, "radar0"), (2, "radar0"), (3, "radar0")]
+    assert [f.sensor for f in iter_frames(log)] == ["own"] * 3
+    res = _track(log, "--topic", "/radar/detections=/measurements")
+    assert res.exit_code == 0, res.output
+    assert "frames            3" in res.output
+
+
 def test_info_lists_channels_sensors_time_and_record(tmp_path):
     log = tmp_path / "east.mcap"
     _user_log(log, np.deg2rad(90.0), send_pose=True)
