@@ -153,11 +153,23 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     """The plain data of a TOML file; :class:`ConfigError` names a missing or malformed file."""
     path = Path(path)
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: a folder, not a TOML file") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a TOML file (binary data{_looks_like(path)})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+
+
+def _looks_like(path: Path) -> str:
+    """``"; it is an MCAP log"`` for a file starting with the MCAP magic, else ``""``."""
+    with open(path, "rb") as f:
+        return "; it is an MCAP log" if f.read(5) == b"\x89MCAP" else ""
 
 
 def load_toml(path: str | Path, cls: type[S]) -> S:

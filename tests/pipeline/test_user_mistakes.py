@@ -414,3 +414,33 @@ def test_export_refuses_an_existing_table_without_overwrite(tmp_path):
     assert _one_line(res.output, "Error:").startswith(f"Error: {csv} exists (and 1 more): give --overwrite")
     assert csv.read_bytes() == before
     assert _run("export", run, "--csv", csv, "--overwrite").exit_code == 0
+
+
+# --------------------------------------------------------------------------- a log given as a settings file
+
+
+@pytest.mark.parametrize("option", ["--params", "--config"])
+def test_a_log_given_as_a_settings_file_is_named(tmp_path, option):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run("track", log, option, log, "--out", tmp_path / "out", "-q")
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert line == f"Error: {log}: not a TOML file (binary data; it is an MCAP log)"
+
+
+def test_a_log_given_as_a_pipeline_file_is_named(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run("launch", log, "--out", tmp_path / "out", "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: {log}: not a TOML file (binary data; it is an MCAP log)"
+
+
+def test_binary_data_and_a_folder_as_a_params_file(tmp_path):
+    from bnptrack.tracker.config import ConfigError, read_toml
+
+    blob = tmp_path / "x.toml"
+    blob.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(40))
+    with pytest.raises(ConfigError, match=r"x.toml: not a TOML file \(binary data\)$"):
+        read_toml(blob)
+    with pytest.raises(ConfigError, match=r": a folder, not a TOML file$"):
+        read_toml(tmp_path)
