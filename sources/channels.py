@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.exceptions import InvalidMagic
 from mcap.reader import SeekingReader
@@ -18,7 +18,7 @@ from bnptrack.sources.log_errors import McapLogError
 from bnptrack.sources.readers import ReaderEntry, reader_entry
 from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
 
-__all__ = ["MCAP_MAGIC", "check_magic", "ChannelInfo", "log_channels", "channel_list", "trackable", "trackable_listing", "record_limit"]
+__all__ = ["MCAP_MAGIC", "check_magic", "check_start", "ChannelInfo", "log_channels", "channel_list", "trackable", "trackable_listing", "record_limit"]
 
 
 def record_limit(size: int) -> int:
@@ -59,10 +59,7 @@ def log_channels(path: str | os.PathLike) -> list[ChannelInfo]:
     counts: dict[int, list] = {}
     with f:
         size = os.fstat(f.fileno()).st_size
-        if size == 0:  # the reader would find no record, not a bad magic
-            raise McapLogError(spath, "corrupt", 0, 0, None, "not an MCAP file: the file is empty (0 bytes)")
-        check_magic(f.read(len(MCAP_MAGIC)), spath)
-        f.seek(0)
+        check_start(f, size, spath)
         reader = StreamReader(f, validate_crcs=False, record_size_limit=record_limit(size))
         try:
             for rec in reader.records:
@@ -116,13 +113,28 @@ def channel_list(path: str | os.PathLike) -> list[ChannelInfo]:
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
+#: What a file that is not MCAP probably is, by its first bytes.
+OTHER_FORMATS = ((b"RRF2", "a Rerun recording: `bnptrack view` opens it"),)
+
+
 def check_magic(head: bytes, spath: str) -> None:
-    """Raise :class:`McapLogError` ``not an MCAP file`` when ``head`` (the file's first bytes)
-    does not start as an MCAP file does; a file cut within the magic is left to the reader
-    (it reports it as truncated)."""
+    """Raise :class:`McapLogError` ``not an MCAP file`` (kind ``not_mcap``) when ``head`` (the
+    file's first bytes) does not start as an MCAP file does; a file cut within the magic is
+    left to the reader (it reports it as truncated)."""
     if head[:len(MCAP_MAGIC)] != MCAP_MAGIC[:len(head)]:
-        raise McapLogError(spath, "corrupt", 0, 0, None,
-                           f"not an MCAP file: it starts with {head[:8]!r}, not the MCAP magic {MCAP_MAGIC!r}")
+        known = [what for magic, what in OTHER_FORMATS if head.startswith(magic)]
+        raise McapLogError(spath, "not_mcap", 0, 0, None,
+                           f"it starts with {head[:8]!r}, not the MCAP magic {MCAP_MAGIC!r}"
+                           + (f" ({known[0]})" if known else ""))
+
+
+def check_start(f: BinaryIO, size: int, spath: str) -> None:
+    """:func:`check_magic` of an open file of ``size`` bytes (an empty file is not an MCAP
+    file either), leaving the file at its start."""
+    if size == 0:  # the reader would find no record, not a bad magic
+        raise McapLogError(spath, "not_mcap", 0, 0, None, "the file is empty (0 bytes)")
+    check_magic(f.read(len(MCAP_MAGIC)), spath)
+    f.seek(0)
 
 
 def trackable(channel: ChannelInfo) -> ReaderEntry | None:

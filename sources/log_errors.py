@@ -44,6 +44,9 @@ class McapLogError(Exception):
         self.reason = reason
         self.topic = topic
         self.frame = frame
+        if kind == "not_mcap":
+            super().__init__(f"{path}: not an MCAP file: {reason}")
+            return
         what = {"truncated": "truncated", "corrupt": "corrupt data", "invalid": "invalid message"}[kind]
         where = (
             f"after frame {last_frame}" if last_frame is not None else "before the first complete frame"

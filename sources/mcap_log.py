@@ -42,7 +42,7 @@ from bnptrack.tracker.messages import (
     to_truth,
 )
 from bnptrack.tracker.types import Estimate, Frame
-from bnptrack.sources.channels import ChannelInfo, log_channels, record_limit as _record_limit
+from bnptrack.sources.channels import ChannelInfo, check_start, log_channels, record_limit as _record_limit
 from bnptrack.sources.log_errors import McapLogError
 
 __all__ = [
@@ -105,6 +105,7 @@ class _Scanner:
             raise McapLogError(self.path, "corrupt", 0, 0, None, f"cannot open: {exc}") from exc
         with f:
             size = os.fstat(f.fileno()).st_size
+            check_start(f, size, self.path)
             reader = StreamReader(f, validate_crcs=True, record_size_limit=_record_limit(size))
             records = reader.records
             channels: dict[int, Channel] = {}

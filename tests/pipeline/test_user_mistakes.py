@@ -364,6 +364,17 @@ def test_a_file_without_the_mcap_magic_is_not_an_mcap_file(tmp_path, content, cm
     assert "not an MCAP file: it starts with" in line and "truncated" not in line, line
 
 
+def test_export_of_a_recording_is_not_an_mcap_file_and_says_what_it_is(tmp_path):
+    rrd = tmp_path / "run.rrd"
+    rrd.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64))
+    res = _run("export", rrd, "--csv", tmp_path / "t.csv")
+    assert res.exit_code == 2, res.output
+    line = _one_line(res.output, "Error:")
+    assert line.startswith(f"Error: {rrd}: not an MCAP file: it starts with b'RRF2"), line
+    assert line.endswith("(a Rerun recording: `bnptrack view` opens it)"), line
+    assert not (tmp_path / "t.csv").exists()
+
+
 def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
     log = _log(tmp_path / "run.mcap", sensor="sim0", n=3)
     res = _run("view", log, "--screenshot", tmp_path / "s.png")
