@@ -10,6 +10,7 @@ not a TOML literal is taken as a plain string).  Errors name the offending key a
 from __future__ import annotations
 
 import difflib
+import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -135,10 +136,32 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
         return obj
     data = msgspec.to_builtins(obj)
     shown = list(typed) if len(typed) == len(overrides) else list(overrides)
+    keys = {}
     for item, as_typed in zip(overrides, shown):
         key, text = split_item(item, names)
         _set_dotted(data, key, parse_value(text), names.set_item.format(as_typed), split_item(as_typed, names)[0])
-    return convert(data, type(obj), names.set_all)
+        keys[key] = as_typed
+    try:
+        return msgspec.convert(data, type(obj))
+    except msgspec.ValidationError as exc:
+        raise ConfigError(_blame(str(exc), keys, names)) from None
+
+
+_AT = re.compile(r"^(?P<what>.*) - at `\$\.(?P<path>[^`]*)`$")
+
+
+def _blame(message: str, keys: dict[str, str], names: ArgNames) -> str:
+    """A validation error of overridden data, naming the ``--set`` item (as typed) whose key
+    holds the bad value (``--set 'p_detect=1.5': expected `float` <= 1.0``); all items when
+    the value at fault is none of theirs."""
+    m = _AT.match(message)
+    if m is not None:
+        path = m["path"]
+        for key, as_typed in keys.items():
+            if path == key or path.startswith((f"{key}.", f"{key}[")):
+                what = m["what"]
+                return f"{names.set_item.format(as_typed)}: {what[:1].lower()}{what[1:]}"
+    return f"{names.set_all}: {message}"
 
 
 def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:

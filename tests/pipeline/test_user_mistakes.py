@@ -325,8 +325,22 @@ def test_python_errors_name_the_arguments_not_the_flags(tmp_path):
         bnptrack.make_tracker("ddp", overrides=["sweeps"])
     with pytest.raises(ConfigError, match=r"^params='nope': not a built-in set"):
         bnptrack.track(log, params="nope")
-    with pytest.raises(ConfigError, match=r"^overrides: "):
+    with pytest.raises(ConfigError, match=r"^overrides item 'p_detect=2.0': expected `float` <= 1.0$"):
         bnptrack.track(log, overrides=["p_detect=2.0"])
+
+
+@pytest.mark.parametrize("item, message", [
+    ("p_detect=1.5", "--set 'p_detect=1.5': expected `float` <= 1.0"),
+    ("p_detect=abc", "--set 'p_detect=abc': expected `float`, got `str`"),
+    ("tracker.sweeps=-1", "--set 'tracker.sweeps=-1': expected `int` >= 1"),
+    ("objects.sweeps=0", "--set 'objects.sweeps=0': expected `int` >= 1"),
+])
+def test_a_bad_set_value_names_its_item(tmp_path, item, message):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run("track", log, "--set", "sweeps=3", "--set", item,
+               "--out", tmp_path / "out", "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: {message}"
 
 
 def test_simulate_names_its_arguments_not_the_flags():
