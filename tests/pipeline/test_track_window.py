@@ -56,7 +56,7 @@ def test_source_keys_of_set_mean_what_they_mean_in_replay(log, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--start", "30f", "--end", "20f"], "Invalid value for --end: '20f' is before --start '30f'"),
     (["--start", "later"], "Invalid value for --start: 'later': expected seconds of log time"),
-    (["--set", "source.frames=-1"], "Error: --set 'source.frames=-1': Expected `int` >= 0"),
+    (["--set", "source.frames=-1"], "Error: --set 'source.frames=-1': expected `int` >= 0"),
     (["--set", "source.rate=2"], "Error: --set 'source.rate=2': an offline run reads its log's frames as fast as it "
                                  "can; its source keys are frames, start_s, end_s, start_frame, end_frame"),
     (["--set", "sink.rerun=false"], "Error: --set 'sink.rerun=false': an offline run chooses its outputs with --out"),
