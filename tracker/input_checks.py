@@ -19,10 +19,13 @@ callers see it as any warning, and the command line prints it on one line
 from __future__ import annotations
 
 import math
+import os
 import statistics
+import sys
 import warnings
 from difflib import get_close_matches
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 from bnptrack.tracker.config import ConfigError
@@ -37,9 +40,9 @@ DEFAULT_SENSOR_NAMES = ("", SIM_SENSOR)
 
 #: How many of a log's first frames :func:`check_frames` is given before tracking.
 SCAN_FRAMES = 200
-#: Median spacing between a sensor's scans below 1 ms or above 1 h: the stamps are probably
-#: not nanoseconds.
-MIN_SPACING_NS = 1_000_000
+#: Median spacing between a sensor's scans below 2 ms (over 500 scans a second) or above 1 h:
+#: the stamps are probably not nanoseconds (microsecond stamps of a 1 Hz sensor are 1 ms apart).
+MIN_SPACING_NS = 2_000_000
 MAX_SPACING_NS = 3600 * 10**9
 
 #: Stamps too close together: written in these units (factor to nanoseconds); too far apart:
@@ -53,9 +56,19 @@ class InputWarning(UserWarning):
     """An input that is accepted but probably gives a wrong result (the message names the fix)."""
 
 
+#: The folders of bnptrack's own code: a warning is attributed to the first caller outside them.
+_OWN_CODE = tuple(str(Path(__file__).resolve().parents[1] / pkg) + os.sep
+                  for pkg in ("tracker", "sources", "sinks", "pipeline", "bnptrack"))
+
+
 def warn(message: str) -> str:
-    """Raise ``message`` as an :class:`InputWarning` (``warnings.warn``); returns it."""
-    warnings.warn(message, InputWarning, stacklevel=3)
+    """Raise ``message`` as an :class:`InputWarning` (``warnings.warn``), attributed to the
+    caller's own line outside bnptrack (so Python's default filter shows it once per line of
+    the caller's code and message, not once per bnptrack line); returns it."""
+    level, frame = 2, sys._getframe(1)  # stacklevel 2: the caller of warn
+    while frame is not None and frame.f_code.co_filename.startswith(_OWN_CODE):
+        level, frame = level + 1, frame.f_back
+    warnings.warn(message, InputWarning, stacklevel=level)
     return message
 
 
@@ -124,7 +137,7 @@ def _misspelt(sensor: str, frame: int, declared: Mapping[str, Any], source: str 
 
 
 def check_spacing(sensor: str, stamps: list[int]) -> str | None:
-    """The warning when the median spacing of a sensor's scans is under 1 ms or over 1 h,
+    """The warning when the median spacing of a sensor's scans is under 2 ms or over 1 h,
     naming the unit that gives the spacing closest to a second (None when it is plausible)."""
     gaps = [b - a for a, b in zip(stamps, stamps[1:]) if b > a]
     if len(gaps) < 2:

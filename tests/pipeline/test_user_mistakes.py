@@ -162,6 +162,16 @@ def test_stamps_in_milliseconds_warn_naming_the_unit(tmp_path):
     assert "they look like milliseconds (the spacing would be 0.5 s): multiply them by 1e+06" in line
 
 
+@pytest.mark.parametrize("dt_ns, warned", [(1_000_000, True), (1_999_999, True), (2_000_000, False), (10_000_000, False)])
+def test_microsecond_stamps_of_a_1_hz_sensor_warn_at_the_boundary(tmp_path, dt_ns, warned):
+    log = _log(tmp_path / "us.mcap", sensor="radar0", dt_ns=dt_ns, n=5)
+    res = _run("info", log)
+    assert res.exit_code == 0, res.output
+    assert ("warning: sensor 'radar0': the median spacing" in res.output) is warned, res.output
+    if dt_ns == 1_000_000:
+        assert "they look like microseconds (the spacing would be 1 s): multiply them by 1000" in res.output
+
+
 def test_stamps_far_apart_warn_naming_the_unit(tmp_path):
     log = _log(tmp_path / "us.mcap", sensor="radar0", dt_ns=500_000 * 10**9)  # 0.5 s in us, times 1e9
     res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
@@ -255,6 +265,21 @@ def test_python_run_lists_the_input_warnings_it_raised(tmp_path):
     texts = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
     assert any("they look like milliseconds" in t for t in texts), texts
     assert run.warnings == tuple(texts)
+
+
+def test_python_warnings_point_at_the_caller_s_line(tmp_path):
+    """Attributed to the line that called bnptrack (not a line inside it), Python's default
+    filter shows a warning again for another call of the user's own code."""
+    import bnptrack
+    from bnptrack.tracker.input_checks import InputWarning
+
+    log = _log(tmp_path / "ms.mcap", sensor="radar1", dt_ns=500, n=5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
+        bnptrack.track(log, "ddp-mb", params=str(_params(tmp_path)))
+    ours = [w for w in caught if issubclass(w.category, InputWarning)]
+    assert len(ours) == 2 and {w.filename for w in ours} == {__file__}, [(w.filename, w.lineno) for w in ours]
 
 
 def test_python_misspelt_sensor_raises_config_error(tmp_path):
