@@ -211,10 +211,10 @@ def test_best_permutation_hand_values():
 
 def test_best_permutation_keeps_co_born_objects_apart(vo_params):
     """vo2017's T3 and T4 are born together 40 m apart with different velocities.  Seed-pinned
-    (seed 2, 22 frames): the JPDA* update follows both.  Before births anywhere, the
-    moment-matched mixture let one cluster coalesce onto the other's object and T4 was lost
-    (400 m from any track); with the uniform part of H weighing 0.5, T4 is re-born near its
-    measurements, and on seeds 1-30 neither update loses T3 or T4 (worst 55 m, measured)."""
+    (seed 2, 22 frames): the JPDA* update follows both.  With births confined to the birth
+    regions, the moment-matched mixture lets one cluster coalesce onto the other's object and
+    T4 is lost (400 m from any track); with the uniform part of H weighing 0.5, T4 is re-born
+    near its measurements, and on seeds 1-30 neither update loses T3 or T4 (worst 55 m, measured)."""
     from bnptrack.tracker.state import tracker_frame_rng
 
     seed = 2

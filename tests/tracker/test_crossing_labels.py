@@ -16,8 +16,8 @@ from bnptrack.tracker.models.params import load_params
 from bnptrack.tracker.registry import build
 from bnptrack.tracker.state import run
 
-#: The previous default: the JPDA* update (the whole detection on the best one-to-one
-#: assignment) and sharing after six scans together.
+#: The JPDA* update (the whole detection on the best one-to-one assignment) with sharing
+#: after six scans together: the comparison setting.
 JPDA_STAR_6 = msgspec.structs.replace(GROUP_PRESETS["ddp"], objects=TRACKER_PRESETS["ddp-mb"], share_after=6)
 
 
@@ -48,7 +48,7 @@ def _labels(config: GroupConfig, seed: int):
 @pytest.mark.parametrize(("seed", "before"), [(6, ("1.12", "1.0")), (21, ("1.3", "1.9")), (23, ("1.1", "1.4"))])
 def test_the_default_keeps_both_labels_where_the_jpda_star_update_swaps_them(seed, before):
     """Seed-pinned (measured on seeds 1-40 of this scene: the default keeps 40 of 40 pairs, the
-    previous default 29): scans 10 and 20 carry the same two labels under the default and
+    JPDA* update with sharing after six scans 29): scans 10 and 20 carry the same two labels under the default and
     exchanged ones under the JPDA* update with sharing after six scans."""
     assert _labels(GROUP_PRESETS["ddp"], seed) == (before, before)
     assert _labels(JPDA_STAR_6, seed) == (before, before[::-1])

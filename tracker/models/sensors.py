@@ -5,7 +5,7 @@ keyed by ``Frame.sensor``; a frame may also carry its own ``pose`` and ``R``.  R
 (:meth:`tracker.models.params.ModelParams.sensor`), later wins:
 
 1. the parameter set's defaults: the origin, boresight :math:`+y`, ``range_max``,
-   ``bearing_half_fov_deg``, the sigmas, ``p_detect``, ``clutter_rate`` (today's sensor);
+   ``bearing_half_fov_deg``, the sigmas, ``p_detect``, ``clutter_rate`` (the default sensor);
 2. the ``[sensors.NAME]`` table of the frame's sensor;
 3. the frame's ``pose = (x, y, heading)`` and ``R``.
 
