@@ -154,18 +154,20 @@ def view_bounds(bounds: tuple[float, float, float, float]) -> tuple[float, float
 
 def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                sensors: Sequence[tuple[Sensor, tuple[int, int, int, int]]],
-               track: tuple[tuple[int, int, int], str] | None = None) -> None:
+               track: tuple[tuple[int, int, int], str] | None = None, truth: bool = True) -> None:
     """Static legend in the band above the grid (:class:`SceneLayout`), one entity per symbol:
     ``world/legend/<what>``, the symbol drawn as in the scene with its meaning as label; in
     the middle column ``world/legend/sensors``, one dot per sensor in its colour.  ``track``:
-    the colour and name of the first track, drawn as the track symbols' example (before it, a
-    palette colour and no name)."""
+    the colour of the first track drawn, as the track symbols' example, and what a track's
+    colour stands for (``"its motion cluster"``, ``"its label"``; before the first track, a
+    palette colour and no meaning).  ``truth``: whether the run has truth (else the truth entry
+    is empty)."""
     lay = SceneLayout.of(scene.bounds)
     x0, x1, y0, y1 = lay.grid
     w, dy = x1 - x0, lay.row
     left, mid, right = x0 + 0.17 * w, x0 + 0.5 * w, x1 - 0.15 * w
     top = y1 + _LEGEND_ROWS * dy
-    track_rgb, name = track if track is not None else (PALETTE[2], "")
+    track_rgb, meaning = track if track is not None else (PALETTE[2], "")
 
     def at(col: float, row: float) -> np.ndarray:
         return np.array([col, top - row * dy])
@@ -179,13 +181,13 @@ def log_legend(rec: rr.RecordingStream, scene: SceneGeometry,
                                               labels=["assigned measurement (track colour)"], show_labels=True),
             rr.LineStrips2D([[p, q]], radii=R_ASSIGN_LINE, colors=[(*track_rgb, 150)]), static=True)
     c, hx = at(right, 0), scene.cross
-    rec.log(f"{LEGEND}/truth", rr.LineStrips2D(
-        [[c - (hx, hx), c + (hx, hx)], [c + (-hx, hx), c + (hx, -hx)]], radii=R_TRUTH_CROSS,
-        colors=[GREY_TRUTH], labels=["truth", ""], show_labels=True), static=True)
+    cross = [[c - (hx, hx), c + (hx, hx)], [c + (-hx, hx), c + (hx, -hx)]] if truth else []
+    rec.log(f"{LEGEND}/truth", rr.LineStrips2D(cross, radii=R_TRUTH_CROSS, colors=[GREY_TRUTH],
+                                               labels=["truth", ""] if truth else [], show_labels=True), static=True)
     c = at(right, 1)
     trail = c + np.stack([np.linspace(-0.06 * w, 0.0, 6), 0.01 * w * np.sin(np.linspace(0, 3, 6))], -1)
     rec.log(f"{LEGEND}/track", rr.Points2D([c], radii=R_TRACK, colors=[track_rgb],
-                                           labels=[f"track {name} + trail".replace("  ", " ")], show_labels=True),
+                                           labels=["track + trail" + (f" (colour: {meaning})" if meaning else "")], show_labels=True),
             rr.LineStrips2D([trail], radii=R_TRAIL, colors=[track_rgb]), static=True)
     c = at(right, 2)
     ell = c + scene.circle * (0.03 * w, 0.17 * dy)

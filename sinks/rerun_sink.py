@@ -59,7 +59,7 @@ from bnptrack.sinks.rerun_rows import RowLogger
 from bnptrack.sinks.rerun_scene import log_grid, log_legend, log_sensor, view_bounds, write_static
 from bnptrack.sinks.rerun_sensors import SensorBook, box_of, fov_outline, grown, scene_extent
 from bnptrack.sinks.rerun_style import DIAG_NAMES, DIAGNOSTICS, FIRST_LABEL_CLASS, SERIES, TRACKS, unpack_rgba
-from bnptrack.tracker.types import Estimate, Frame, display_name
+from bnptrack.tracker.types import Estimate, Frame
 
 if TYPE_CHECKING:
     from bnptrack.sinks.metrics import OspaResult
@@ -170,7 +170,7 @@ class RerunSink(RowLogger, ChunkSender):
         self._styled: set[str] = set()
         self._colors: dict[str, int] = {}
         self._truth_live: set[str] = set()
-        self._legend_track: tuple[tuple[int, int, int], str] | None = None  # the first track's colour, name
+        self._legend_track: tuple[tuple[int, int, int], str] | None = None  # an example colour, its meaning
         self._context_logged = False
         self._cc = ClusterColours()
 
@@ -202,6 +202,7 @@ class RerunSink(RowLogger, ChunkSender):
                 self._truth_layout = False  # a log without truth: no (empty) OSPA panel
                 self._rec.send_blueprint(default_blueprint(scene_bounds=view_bounds(self._geo.bounds), truth=False),
                                          make_active=True, make_default=True)
+                self._log_legend()
             sensor, model = self._sensors.resolve(frame)
             self._draw_sensors(k, t, sensor)
             tracks = estimate.tracks
@@ -214,8 +215,9 @@ class RerunSink(RowLogger, ChunkSender):
             pos, cov, tcls, tcol, ccl = self._track_arrays(tracks, labels)
             x0, x1, y0, y1 = self._geo.bounds  # a name (under its dot): about 1/10 of the width, 1/16 of the height
             shown = labels_shown(pos, np.argsort(tcls, kind="stable"), (0.1 * (x1 - x0), 0.06 * (y1 - y0)))
-            if self._legend_track is None and labels:  # the legend shows the first track as drawn
-                self._legend_track = (unpack_rgba(int(tcol[0]))[:3], display_name(labels[0]))
+            if self._legend_track is None and labels:  # the legend says what a track's colour means
+                meaning = "its motion cluster" if (ccl >= 0).any() else "its label"
+                self._legend_track = (unpack_rgba(int(tcol[0]))[:3], meaning)
                 self._log_legend()
             idx = assignment_index(frame.n_measurements, estimate.assignments, labels)
             truth = frame.truth
@@ -265,7 +267,7 @@ class RerunSink(RowLogger, ChunkSender):
 
     def _log_legend(self) -> None:
         log_legend(self._rec, self._geo, [(s, self._sensors.colour(s)) for s in self._sensors.drawn],
-                   self._legend_track)
+                   self._legend_track, truth=self._truth_layout)
 
     def _track_arrays(self, tracks: Any, labels: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         """Positions ``(n, 2)``, position covariances ``(n, 2, 2)``, class ids, packed colours

@@ -154,6 +154,16 @@ def test_a_single_level_recording_has_label_colours_and_no_clusters(tmp_path):
     for lab in {t.label for e in estimates for t in e.tracks}:
         mine = {c for (k, lb), c in colour.items() if lb == lab}
         assert len(mine) == 1 and unpack_rgba(mine.pop())[:3] in PALETTE  # one colour for the label's life
+    assert _legend_track_label(contents) == "track + trail (colour: its label)"
+
+
+def _legend_track_label(contents) -> str:
+    return contents["/world/legend/track"][-1].column("Points2D:labels").to_pylist()[-1][0]
+
+
+def test_the_legend_says_a_track_s_colour_is_its_motion_cluster(groups_run):
+    _frames, _estimates, _path, contents = groups_run
+    assert _legend_track_label(contents) == "track + trail (colour: its motion cluster)"
 
 
 def test_a_scene_that_starts_without_objects_records(groups_run, tmp_path):

@@ -319,7 +319,12 @@ def test_metric_panels_hidden_without_truth(vo_run, recording, tmp_path):
     last = next(names for names in layouts if "tracks (the log has no truth: no OSPA)" in names)
     assert not any("OSPA" in n for n in last - {"tracks (the log has no truth: no OSPA)"})
     assert "scene (x east, y north, m)" in last
-    assert by_frame(read_rrd(path)["/metrics/ospa"], "Scalars:scalars") == {}  # its style only
+    contents = read_rrd(path)
+    assert by_frame(contents["/metrics/ospa"], "Scalars:scalars") == {}  # its style only
+    truth_legend = contents["/world/legend/truth"][-1]  # the legend draws no truth cross either
+    assert truth_legend.column("LineStrips2D:strips").to_pylist()[-1] == []
+    crosses = read_rrd(recording)["/world/legend/truth"][-1].column("LineStrips2D:strips").to_pylist()[-1]
+    assert len(crosses) == 2
 
 
 def test_scorer_matches_frame_metrics(vo_run):
