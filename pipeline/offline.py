@@ -186,11 +186,6 @@ class TrackResult:
         v = self.ms
         return float(statistics.median(v.tolist())) if v.size else None
 
-    @property
-    def ms_p95(self) -> float | None:
-        v = self.ms
-        return float(np.percentile(v, 95)) if v.size else None
-
 
 def frame_metrics(frame: Frame, est: Estimate, c: float = OSPA_C, p: float = OSPA_P,
                   scorer: RunScorer | None = None) -> FrameMetrics:

@@ -14,6 +14,7 @@ import numpy as np
 
 import msgspec
 
+from bnptrack.tracker.config import did_you_mean
 from bnptrack.tracker.models.params import ModelParams
 
 
@@ -86,7 +87,8 @@ def kind(name: str) -> TrackerKind:
     try:
         return _KINDS[name]()
     except KeyError:
-        raise ValueError(f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}") from None
+        raise ValueError(f"unknown tracker {name!r}{did_you_mean(name, TRACKERS)}; valid trackers: "
+                         f"{', '.join(TRACKERS)}") from None
 
 
 def build(name: str, params: ModelParams, config: msgspec.Struct | None = None):

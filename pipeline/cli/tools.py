@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from bnptrack.pipeline.cli.common import Choice, CliError, clean_errors, echo_rows, topic_map
+from bnptrack.tracker.config import did_you_mean
 from bnptrack.tracker.message_units import described_schema
 from bnptrack.tracker.messages import MSG_TYPES
 from bnptrack.pipeline.experiments import DEFAULT_EXPERIMENT_PARAMS, EXPERIMENTS
@@ -409,6 +410,6 @@ def schema(topic: str) -> None:
     name = topic if topic.startswith("/") else "/" + topic
     if name not in MSG_TYPES:
         raise click.UsageError(
-            f"unknown topic {topic!r}; valid topics: {', '.join(MSG_TYPES)}"
+            f"unknown topic {topic!r}{did_you_mean(name, MSG_TYPES)}; valid topics: {', '.join(MSG_TYPES)}"
         )
     click.echo(json.dumps(described_schema(name), indent=2))

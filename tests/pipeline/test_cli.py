@@ -330,6 +330,15 @@ def test_schema_tracks_fields():
 def test_schema_unknown_topic():
     res = invoke("schema", "/nope")
     assert res.exit_code == 2 and "/nope" in res.output
+    res = invoke("schema", "/track")
+    assert res.exit_code == 2 and "unknown topic '/track' (did you mean '/tracks'?)" in res.output
+
+
+def test_an_unknown_tracker_name_gets_a_suggestion():
+    from bnptrack.tracker.registry import kind
+
+    with pytest.raises(ValueError, match=r"^unknown tracker 'ddpp' \(did you mean 'ddp'\?\); valid trackers: ddp, "):
+        kind("ddpp")
 
 
 def test_resolve_params_applies_the_logs_scenario_defaults():

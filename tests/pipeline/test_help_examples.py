@@ -79,7 +79,7 @@ def test_help_example_parses(workdir, where, line):
         assert rest and rest[0] in cmd.commands, f"{where} --help: {line!r} names no command"
         cmd, name, rest = cmd.commands[rest[0]], rest[0], rest[1:]
     with cmd.make_context(name, list(rest)) as ctx:  # raises click's usage error on a bad argument
-        assert ctx.params is not None
+        assert set(ctx.params) == {p.name for p in cmd.params}  # every option and argument resolved
     if name in QUICK and not set(argv) & set(USER_FILES):
         res = CliRunner().invoke(main, argv)
         assert res.exit_code == 0, f"{line}\n{res.output}"
