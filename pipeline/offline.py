@@ -405,8 +405,9 @@ def refuse_existing(outputs: Mapping[str, Path], overwrite: bool, option: str = 
         return
     taken = sorted({str(p) for p in outputs.values() if Path(p).exists()})
     if taken:
-        raise ConfigError(f"{taken[0]} exists{' (and ' + str(len(taken) - 1) + ' more)' if len(taken) > 1 else ''}: "
-                          f"give --overwrite to replace it, or another {option}")
+        which = taken[0] if len(taken) == 1 else f"{', '.join(taken[:-1])} and {taken[-1]}"
+        raise ConfigError(f"{which} exist{'s' if len(taken) == 1 else ''}: give --overwrite to replace "
+                          f"{'it' if len(taken) == 1 else 'them'}, or another {option}")
 
 
 def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:

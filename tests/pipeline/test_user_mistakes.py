@@ -461,7 +461,10 @@ def test_export_refuses_an_existing_table_without_overwrite(tmp_path):
     before = csv.read_bytes()
     res = _run("export", run, "--csv", csv)
     assert res.exit_code == 2, res.output
-    assert _one_line(res.output, "Error:").startswith(f"Error: {csv} exists (and 1 more): give --overwrite")
+    metrics = tmp_path / "t.metrics.csv"
+    assert metrics.exists()
+    assert _one_line(res.output, "Error:") == (f"Error: {csv} and {metrics} exist: give --overwrite to replace "
+                                               "them, or another --csv / --parquet file")
     assert csv.read_bytes() == before
     assert _run("export", run, "--csv", csv, "--overwrite").exit_code == 0
 
