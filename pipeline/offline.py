@@ -33,7 +33,7 @@ from bnptrack.sources.scenarios import OpenScenario, parse_crossings
 from bnptrack.sources.synthetic import simulate, simulate_sensors
 from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.input_checks import SCAN_FRAMES, warn
-from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
+from bnptrack.tracker.messages import MSG_TYPES, TOPIC_MEASUREMENTS
 from bnptrack.tracker.models.measurement import measurement_kind
 from bnptrack.tracker.models.params import ModelParams
 from bnptrack.tracker.lag import FixedLag, run_lagged
@@ -288,6 +288,9 @@ def read_log_start(log: str | os.PathLike, topics: Mapping[str, str] | None) -> 
     try:
         return first_frames(log, dict(topics or {}) or None, SCAN_FRAMES)
     except McapLogError as exc:
+        if mapped and mapped[0] in MSG_TYPES:  # another bnptrack channel: /tracks, /truth
+            raise ConfigError(f"{log}: channel {mapped[0]} holds bnptrack {mapped[0]} messages, not measurements: "
+                              f"--topic {mapped[0]}=/measurements cannot be tracked") from None
         what = f"channel {mapped[0]} (--topic {mapped[0]}=/measurements)" if mapped else "its /measurements"
         raise ConfigError(f"{log}: {what} does not decode as bnptrack measurements (`bnptrack schema "
                           f"/measurements` gives the contract): {exc.reason}") from None

@@ -130,6 +130,25 @@ def test_undecodable_topic_is_refused_while_options_are_checked(tmp_path, cmd):
     assert not out.exists()  # nothing started, nothing written
 
 
+def test_a_tracks_channel_mapped_onto_measurements_is_named_for_what_it_holds(tmp_path):
+    import bnptrack
+
+    log = bnptrack.simulate("vo2017", 1)[:4]
+    run = bnptrack.track(log, "ddp-mb")
+    tracks = tmp_path / "tracks.mcap"
+    from bnptrack.sinks.mcap_writer import McapLogWriter
+
+    with McapLogWriter(tracks, None) as w:
+        for f, e in zip(log, run.estimates):
+            w.write_frame(f)
+            w.write_tracks(e)
+    res = _run("track", tracks, "--topic", "/tracks=/measurements", "--out", tmp_path / "out.mcap", "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (f"Error: {tracks}: channel /tracks holds bnptrack /tracks messages, "
+                                               "not measurements: --topic /tracks=/measurements cannot be tracked")
+    assert not (tmp_path / "out.mcap").exists()
+
+
 # --------------------------------------------------------------------------- --set typos
 
 
