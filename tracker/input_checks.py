@@ -113,12 +113,24 @@ def check_frames(params: Any, frames: Iterable[Any], source: str | None = None) 
 def _unposed(frames: list[Any], declared: Mapping[str, Any]) -> list[str]:
     """A warning for each sensor with neither a ``[sensors.NAME]`` table nor a pose in any of
     ``frames`` whose name is not the default sensor's: it is tracked at the default pose."""
+    from bnptrack.tracker.models.measurement import KINDS
+
     posed = {f.sensor for f in frames if f.pose is not None}
-    names = dict.fromkeys(f.sensor for f in frames)
-    return [f"sensor {s!r} has no pose: tracked as if at (0, 0) facing +y (the default sensor); add a "
-            f"[sensors.{s}] table with x, y, heading_deg to your params file (docs/models.md, "
-            f"'Sensors'), or send a per-frame 'pose'"
-            for s in names if s not in declared and s not in posed and s not in DEFAULT_SENSOR_NAMES]
+    kinds = {f.sensor: f.kind for f in frames}
+    fix = ("add a [sensors.{s}] table with x, y, heading_deg to your params file (docs/models.md, 'Sensors'), "
+           "or send a per-frame 'pose'")
+    out = []
+    for s, kind in kinds.items():
+        if s in declared or s in posed or s in DEFAULT_SENSOR_NAMES:
+            continue
+        entry = KINDS.get(kind)
+        if entry is not None and entry.world_frame:
+            what = (f"its detections are world positions, but its field of view and clutter region are the "
+                    f"default sensor's (at (0, 0) facing +y)")
+        else:
+            what = "tracked as if at (0, 0) facing +y (the default sensor)"
+        out.append(f"sensor {s!r} has no pose: {what}; {fix.format(s=s)}")
+    return out
 
 
 def _misspelt(sensor: str, frame: int, declared: Mapping[str, Any], source: str | None) -> str:

@@ -224,6 +224,19 @@ def test_a_sensor_with_no_pose_anywhere_warns_once_naming_the_table(tmp_path):
     assert res.output.count("has no pose") == 1
 
 
+def test_an_xy_sensor_with_no_pose_is_told_its_points_stay_where_they_are(tmp_path):
+    log = tmp_path / "lidar.mcap"
+    with McapLogWriter(log, None) as w:
+        for k in range(1, 6):
+            w.write_frame(Frame(k, k * 500_000_000, "lidar", "xy", [[100.0 + 3 * k, 800.0], [-200.0, 1200.0 - 2 * k]]))
+    res = _run("track", log, "--out", tmp_path / "t.mcap", "-q")
+    assert res.exit_code == 0, res.output
+    line = _one_line(res.output, "warning: sensor 'lidar' has no pose")
+    assert ("its detections are world positions, but its field of view and clutter region are the default "
+            "sensor's (at (0, 0) facing +y); add a [sensors.lidar] table") in line
+    assert "tracked as if" not in line
+
+
 @pytest.mark.parametrize("sensor", ["sim0", ""])
 def test_the_default_sensor_name_needs_no_pose(tmp_path, sensor):
     log = _log(tmp_path / "sim.mcap", sensor=sensor)

@@ -410,6 +410,9 @@ class MeasurementKind:
     clutter: Callable[[Any], ClutterModel]
     range_only: bool = False
     clutter_rate_field: str | None = None
+    world_frame: bool = False
+    """Rows are world coordinates: the sensor's pose does not move them, it only bounds the
+    field of view and the clutter region."""
     examples: tuple[tuple[float, ...], ...] = ()
     """A few typical rows: the pipeline's warm-up (:func:`tracker.registry.warm_up`) steps a
     tracker on frames of them so its kernels compile before the first real frame (none: the
@@ -431,7 +434,8 @@ KINDS: dict[str, MeasurementKind] = {
     "range": MeasurementKind("range", RangeOnly, 1, (), (0.0,), (_BIG,), "[range_m]", _range_clutter,
                              range_only=True, clutter_rate_field="range_clutter_rate",
                              examples=((500.0,), (800.0,), (1200.0,))),
-    "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]", _sector_clutter),
+    "xy": MeasurementKind("xy", Cartesian, 2, (), (-_BIG, -_BIG), (_BIG, _BIG), "[x_m, y_m]", _sector_clutter,
+                         world_frame=True),
 }
 
 #: The kind of a frame or sensor that does not say (the paper's bearing-range radar).
