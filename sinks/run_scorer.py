@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from itertools import chain
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from bnptrack.sinks.metric_checks import check_alpha, optimal_assignment
@@ -19,7 +20,27 @@ from bnptrack.sinks.metrics import (OSPA2_WINDOW, OSPA_C, OSPA_P, GospaResult, O
                                     _gospa_from_pairs, _gospa_unchecked, _ospa_unchecked, _root, ospa)
 from bnptrack.tracker.types import POSITION_INDEX, Estimate, Frame, display_name
 
-__all__ = ["RunScorer", "ScoreTally"]
+__all__ = ["RunScorer", "ScoreTally", "RunScores"]
+
+
+class RunScores(msgspec.Struct, frozen=True, kw_only=True):
+    """A run's scores so far (:meth:`ScoreTally.totals`; ``sink.json``'s ``scores``): means
+    over the frames with truth (``None`` without truth)."""
+
+    frames: int = 0
+    frames_scored: int = 0
+    ospa: float | None = None
+    ospa2: float | None = None
+    cardinality_error: float | None = None
+    #: the number of tracks of the last frame, and their display names
+    tracks: int = 0
+    names: tuple[str, ...] = ()
+    #: distinct labels reported so far
+    labels: int | None = None
+    last_ospa: float | None = None
+    c: float = OSPA_C
+    p: float = OSPA_P
+    ospa2_window: int | None = OSPA2_WINDOW
 
 
 class RunScorer:
@@ -214,10 +235,12 @@ class ScoreTally:
     def _mean(self, total: float) -> float | None:
         return total / self.scored if self.scored else None
 
+    def totals(self) -> RunScores:
+        """The scores so far."""
+        return RunScores(frames=self.frames, frames_scored=self.scored, ospa=self._mean(self._ospa),
+                         ospa2=self._mean(self._ospa2), cardinality_error=self._mean(self._card),
+                         tracks=self.tracks, names=self.names, labels=self.labels, last_ospa=self.last_ospa)
+
     def as_dict(self) -> dict[str, Any]:
-        """``{"frames", "frames_scored", "ospa", "ospa2", "cardinality_error", "tracks",
-        "names", "labels", "last_ospa", "c", "p", "ospa2_window"}`` (means; ``None`` without truth)."""
-        return {"frames": self.frames, "frames_scored": self.scored, "ospa": self._mean(self._ospa),
-                "ospa2": self._mean(self._ospa2), "cardinality_error": self._mean(self._card),
-                "tracks": self.tracks, "names": list(self.names), "labels": self.labels, "last_ospa": self.last_ospa,
-                "c": OSPA_C, "p": OSPA_P, "ospa2_window": OSPA2_WINDOW}
+        """:meth:`totals` as plain data (a health message's ``scores``)."""
+        return msgspec.to_builtins(self.totals())

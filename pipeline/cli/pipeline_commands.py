@@ -60,7 +60,7 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True, lag: int = 0) -> N
             rows.append(("missing", describe_missing(summary) or "nothing (the output is complete)"))
             if lat_text := describe_latency(summary, paced):
                 rows.append(("latency", lat_text))
-            if summary.scores or summary.latency.get("tracker_ms"):
+            if summary.scores is not None or summary.latency.get("tracker_ms"):
                 rows += figure_rows(RunFigures.of_summary(summary, lag))
         rows += [("restarts", restarts), ("elapsed", f"{res.elapsed_s:.1f} s")]
         for f in res.files:

@@ -55,13 +55,13 @@ class RunFigures:
     def of_summary(cls, summary: RunSummary, lag: int = 0) -> RunFigures:
         """The figures of a pipeline run from its sink's ``sink.json`` (``scores``, and the
         tracker's ``ms`` of the timed frames in ``latency.tracker_ms``)."""
-        s = summary.scores
+        from bnptrack.sinks.run_scorer import RunScores
+
+        s = summary.scores if summary.scores is not None else RunScores()
         ms = tuple(float(v) for v in summary.latency.get("tracker_ms") or () if v is not None and math.isfinite(v))
-        return cls(frames=int(s.get("frames") or 0), frames_scored=int(s.get("frames_scored") or 0),
-                   ospa=s.get("ospa"), ospa2=s.get("ospa2"), ospa2_window=s.get("ospa2_window"),
-                   cardinality_error=s.get("cardinality_error"), c=float(s.get("c", 100.0)),
-                   p=float(s.get("p", 1.0)), tracks=int(s.get("tracks") or 0), names=tuple(s.get("names") or ()),
-                   labels=s.get("labels"), ms=ms, lag=lag)
+        return cls(frames=s.frames, frames_scored=s.frames_scored, ospa=s.ospa, ospa2=s.ospa2,
+                   ospa2_window=s.ospa2_window, cardinality_error=s.cardinality_error, c=s.c, p=s.p,
+                   tracks=s.tracks, names=s.names, labels=s.labels, ms=ms, lag=lag)
 
 
 def figure_rows(f: RunFigures) -> list[tuple[str, str]]:

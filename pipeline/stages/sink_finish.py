@@ -67,7 +67,7 @@ class SinkFinish:
             dropped=int(self.bus.dropped),
             zenoh_misses=int(self.bus.misses),
             files=self.files,
-            scores=self.tally.as_dict(),
+            scores=self.tally.totals(),
             view=self._view_command(),
             throughput_fps=self.latency.throughput_fps(),
             t_first_pub_ns=self.latency.t_first_pub_ns,

@@ -17,6 +17,8 @@ from typing import Any
 
 import msgspec
 
+from bnptrack.sinks.run_scorer import RunScores
+
 __all__ = ["RunSummary", "SummaryError", "read_summary", "load_summary"]
 
 
@@ -47,7 +49,8 @@ class RunSummary(msgspec.Struct, frozen=True, kw_only=True):
     dropped: int = 0
     zenoh_misses: int = 0
     files: list[str] = []
-    scores: dict[str, Any] = {}
+    #: the run's scores (``None``: the sink scored nothing)
+    scores: RunScores | None = None
     #: the command that opens the recording (``""``: no ``run.rrd``)
     view: str = ""
     throughput_fps: float | None = None

@@ -19,14 +19,16 @@ DOC = {
     "missing": [{"topic": "/tracks", "seqs": [5], "why": "no /tracks from the tracker (gap)"}],
     "recovered_frames": 0, "source_error": "", "source_eos": {"last_seq": 8, "frames": 9}, "counters": {"received": 27, "rejected": 1, "duplicates": 2},
     "restarted": False, "rejected_by_topic": {"measurements": 1}, "dropped": 0, "zenoh_misses": 0,
-    "files": ["/o/tracks.mcap", "/o/sink.json"], "scores": {"frames": 9, "ospa": 12.5, "ospa2": None},
+    "files": ["/o/tracks.mcap", "/o/sink.json"], "scores": {
+        "frames": 9, "frames_scored": 9, "ospa": 12.5, "ospa2": 20.25, "cardinality_error": 0.25, "tracks": 2,
+        "names": ["T1.4", "T3.0"], "labels": 3, "last_ospa": 11.0, "c": 100.0, "p": 1.0, "ospa2_window": 10},
     "view": "bnptrack view /o/run.rrd", "throughput_fps": 9.75, "t_first_pub_ns": 1_000, "t_last_recv_ns": 2_000,
     "latency": {"timed_frames": 8, "excluded": {"from_caches": 0, "recovered": 0}},
 }
 
 
 def test_the_bytes_are_those_of_the_document():
-    s = RunSummary(**DOC)
+    s = RunSummary.of(DOC)
     assert s.encode() == msgspec.json.format(msgspec.json.encode(DOC), indent=1)
     # every field in its declared order; the launcher's eos_conflict (last) only when it is set
     assert list(json.loads(s.encode())) == list(DOC) == list(RunSummary.__struct_fields__)[:-1]
@@ -36,10 +38,11 @@ def test_the_bytes_are_those_of_the_document():
 
 def test_it_reads_back(tmp_path):
     path = tmp_path / "sink.json"
-    path.write_bytes(RunSummary(**DOC).encode())
+    path.write_bytes(RunSummary.of(DOC).encode())
     s = read_summary(path, "r1")
-    assert s == RunSummary(**DOC)
+    assert s == RunSummary.of(DOC)
     assert s.all_gaps() == [5] and s.frames_written == 9 and s.files[0] == "/o/tracks.mcap"
+    assert s.scores.ospa2 == 20.25 and s.scores.names == ("T1.4", "T3.0")
     assert read_summary(path, "another-run") is None
     assert read_summary(tmp_path / "none.json") is None
 
