@@ -20,24 +20,16 @@ from bnptrack.sources.scene_geometry import (
     _state,
     _velocity,
 )
+from bnptrack.tracker.bnp.urn import sample_crp_partition
 from bnptrack.tracker.config import ConfigError
 
 
 def pitman_yor_sizes(rng: np.random.Generator, n: int, alpha: float, d: float) -> list[int]:
     """Table sizes, in order of opening, of ``n`` customers seated by the Pitman-Yor Chinese
-    restaurant: table ``j`` with weight ``n_j - d``, a new one with ``alpha + d K``."""
-    sizes: list[int] = []
-    for _ in range(n):
-        w = np.array([s - d for s in sizes] + [alpha + d * len(sizes)])
-        # rng.choice(w.size, p=w / w.sum()) draw for draw, without its checks of p
-        cdf = (w / w.sum()).cumsum()
-        cdf /= cdf[-1]
-        j = int(cdf.searchsorted(rng.random(), side="right"))
-        if j == len(sizes):
-            sizes.append(1)
-        else:
-            sizes[j] += 1
-    return sizes
+    restaurant: table ``j`` with weight ``n_j - d``, a new one with ``alpha + d K`` (the urn
+    of :func:`tracker.bnp.urn.sample_crp_partition`, whose labels number the tables in order
+    of opening)."""
+    return np.bincount(sample_crp_partition(rng, n, alpha, d)).tolist() if n else []
 
 
 def _group_sizes(rng: np.random.Generator, fam) -> list[int]:
