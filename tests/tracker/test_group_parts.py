@@ -42,6 +42,23 @@ def test_a_newborn_merges_into_an_older_cluster_unless_they_took_different_measu
     assert taken_measurements([None, None, "3.2"], [0.8, 0.7, 0.4], 0.5) == {}  # below min_prob
 
 
+def test_a_fading_older_hypothesis_does_not_rename_a_reported_track():
+    # 2.0 (existence 0.05: a track fading after its object was lost) lies on 7.3 (0.9, reported):
+    # leader 7.3 absorbs it (sum 0.95)
+    c = _clusters(["7.3", "2.0"], [0.9, 0.05])
+    merged, renamed = merge_exclusive(c, 9.0, {})
+    assert merged.labels == ("2.0",) and renamed == {"7.3": "2.0"}  # the oldest label
+    merged, renamed = merge_exclusive(c, 9.0, {}, reported=0.35)
+    assert merged.labels == ("7.3",) and renamed == {"2.0": "7.3"}  # the reported one's
+    np.testing.assert_allclose(merged.existence, [0.95])
+    np.testing.assert_allclose(merged.mean[0, 0], (0.9 * 0.0 + 0.05 * 5.0) / 0.95)
+    # every member below the threshold, or a newborn duplicate of a reported track: the oldest
+    merged, renamed = merge_exclusive(_clusters(["7.3", "2.0"], [0.3, 0.05]), 9.0, {}, reported=0.35)
+    assert merged.labels == ("2.0",) and renamed == {"7.3": "2.0"}
+    merged, renamed = merge_exclusive(_clusters(["9.1", "4.0"], [0.5, 0.4]), 9.0, {}, reported=0.35)
+    assert merged.labels == ("4.0",) and renamed == {"9.1": "4.0"}
+
+
 @pytest.mark.parametrize("alpha, d", [(0.7, 0.3), (2.0, 0.0), (0.1, 0.9)])
 def test_arrivals_likelihood_is_the_pitman_yor_eppf(alpha, d):
     # five objects arrive: tables sizes 2 and 3; EPPF = (a + d) / ((a+1)(a+2)(a+3)(a+4)) (1-d) (1-d)(2-d)

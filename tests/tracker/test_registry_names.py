@@ -54,6 +54,7 @@ def test_the_two_level_presets_wrap_the_single_level_presets():
         assert GROUP_PRESETS["ddp" + suffix].objects == TRACKER_PRESETS["ddp-mb" + suffix]
     assert GROUP_PRESETS["ddp-paper"].objects == TRACKER_PRESETS["ddp-mb"]
     assert GROUP_PRESETS["ddp"].objects == msgspec.structs.replace(TRACKER_PRESETS["ddp-mb"], state_update="combined")
+    assert GROUP_PRESETS["ddp"].merge_label == "oldest" and GROUP_PRESETS["ddp-paper"].merge_label == "oldest"
     assert "ddp" not in TRACKER_PRESETS and "dpyp" not in TRACKER_PRESETS
 
 

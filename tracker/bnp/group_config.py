@@ -21,6 +21,11 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """How duplicate objects merge (distance ``objects.merge_distance``): "exclusive" never merges
     two objects that explain different measurements of one scan (:mod:`tracker.bnp.group_merge`;
     members of a young convoy); "objects" is the object level's own merge (as ``ddp-mb``)."""
+    merge_label: Literal["oldest", "reported"] = "oldest"
+    """The label a merged group of duplicates keeps (``merge = "exclusive"``): "oldest", its
+    oldest member's; "reported", its oldest member's among those with existence above
+    ``objects.existence_threshold`` (else the oldest's): a hypothesis too weak to be reported
+    never renames a reported track (docs/trackers.md, "Identities through crossings")."""
     member_existence: Prob = 0.8
     """Objects with existence at least this take part in the object partition."""
     within_std: Positive = 3.0

@@ -27,6 +27,7 @@ The result is the all-pairs numpy code's, bit for bit (``tests/tracker/test_grou
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 from operator import itemgetter
 
@@ -320,12 +321,14 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
 
 
 def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
-                    arrays: tuple | None = None) -> tuple[_Clusters, dict[str, str]]:
+                    arrays: tuple | None = None, reported: float | None = None) -> tuple[_Clusters, dict[str, str]]:
     """Greedy merge (leaders in order of decreasing existence, as ``merge_duplicates``) of the
     candidate pairs; a cluster joins a leader's group only if it may be one object with every
     member already in it.  Returns the clusters and the label each absorbed label now goes by.
     The measurements the labels took: ``taken`` (:func:`taken_measurements`) or, given,
-    ``arrays`` (:func:`label_arrays` of ``c.labels``)."""
+    ``arrays`` (:func:`label_arrays` of ``c.labels``).  A merged group keeps its oldest member's
+    label; with ``reported`` (the reporting threshold), its oldest member's among those whose
+    existence is above it, when there are any (:func:`merged_label`)."""
     n = len(c.labels)
     if max_d2 <= 0.0 or n < 2:
         return c, {}
@@ -335,12 +338,27 @@ def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
     ptr, members = greedy_groups(ii, jj, c.existence, np.argsort(-c.existence, kind="stable"))
     if ptr.size == 1:
         return c, {}
-    renamed = {}
+    renamed, moved = {}, {}
     for g in range(ptr.size - 1):
         group = members[ptr[g]:ptr[g + 1]].tolist()
-        final = min((c.labels[k] for k in group), key=birth_frame)
+        oldest = min((c.labels[k] for k in group), key=birth_frame)
+        final = oldest if reported is None else merged_label(c.labels, c.existence, group, reported)
+        if final != oldest:
+            moved[oldest] = final
         renamed.update({c.labels[k]: final for k in group if c.labels[k] != final})
-    return _apply_groups(c, ptr, members), renamed
+    merged = _apply_groups(c, ptr, members)  # each group under its oldest member's label
+    if moved:
+        merged = replace(merged, labels=tuple(moved.get(lab, lab) for lab in merged.labels))
+    return merged, renamed
+
+
+def merged_label(labels: tuple[str, ...], existence: np.ndarray, group: list[int], reported: float) -> str:
+    """The label a merged ``group`` (rows of ``labels``) keeps: its oldest member's among those
+    with existence above ``reported``, else its oldest member's.  A hypothesis too weak to be
+    reported (a track fading after its object was lost, a stray cluster) does not rename a
+    reported track it is merged into; a newborn duplicate still never renames an older track."""
+    seen = [labels[k] for k in group if existence[k] > reported]
+    return min(seen or [labels[k] for k in group], key=birth_frame)
 
 
 def greedy_groups(ii: np.ndarray, jj: np.ndarray, r: np.ndarray, order: np.ndarray

@@ -203,7 +203,8 @@ class GroupTracker:
         obj = self.config.objects
         c = _Clusters(inner.labels, inner.mean, inner.cov, inner.existence, inner.popularity)
         arrays = label_arrays(inner.labels, est.assignments, est.assignment_prob, 0.5, inner.frame)
-        merged, renamed = merge_exclusive(c, obj.merge_distance, None, arrays)
+        reported = obj.existence_threshold if self.config.merge_label == "reported" else None
+        merged, renamed = merge_exclusive(c, obj.merge_distance, None, arrays, reported)
         if not renamed:
             return inner, est, None
         inner = replace(inner, labels=merged.labels, mean=merged.mean, cov=merged.cov,
