@@ -104,3 +104,29 @@ def test_a_member_alone_shares_nothing_under_the_flat_prior(flat, want_vx):
     cov = np.diag([100.0, 64.0, 100.0, 64.0, 1e-4])[None]
     m, _ = share_velocity(mean, cov, shares, 100.0 * np.eye(2))
     np.testing.assert_allclose(m[0, 1], want_vx, atol=1e-6)
+
+
+def test_the_tracker_passes_the_reporting_threshold_to_the_merge_only_with_merge_label_reported(monkeypatch):
+    import msgspec
+
+    from bnptrack.sources.scenarios import get_scenario
+    from bnptrack.sources.synthetic import simulate_all
+    from bnptrack.tracker.bnp import groups
+    from bnptrack.tracker.models.params import load_params
+    from bnptrack.tracker.state import run
+
+    seen = []
+
+    def spy(c, max_d2, taken, arrays=None, reported=None):
+        seen.append(reported)
+        return merge_exclusive(c, max_d2, taken, arrays, reported)
+
+    monkeypatch.setattr(groups, "merge_exclusive", spy)
+    sc = get_scenario("groups", 101, scene=("n_objects=2", "group_sizes=[3,3]", "passing_pairs=1", "K=40"))
+    params = sc.adapt_params(load_params("vo2017"))
+    frames = simulate_all(sc, params, 101)[:3]
+    base = groups.GROUP_PRESETS["ddp"]
+    for label, expected in (("oldest", None), ("reported", base.objects.existence_threshold)):
+        seen.clear()
+        list(run(groups.GroupTracker(params, msgspec.structs.replace(base, merge_label=label)), frames, seed=5))
+        assert seen and all(r == expected for r in seen)
