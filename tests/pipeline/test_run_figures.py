@@ -28,10 +28,10 @@ EXPECTED = [
 
 def _summary() -> RunSummary:
     """The same run as the sink's sink.json records it."""
-    return RunSummary(scores={"frames": 4, "frames_scored": 3, "ospa": 20.0, "ospa2": 20.0, "cardinality_error": 1.0,
-                              "tracks": 2, "names": ["T1.0", "T3.z2"], "labels": 3, "last_ospa": 30.0,
-                              "c": 100.0, "p": 1.0, "ospa2_window": 10},
-                      latency={"tracker_ms": [1.0, 2.0, 3.0, 4.0]})
+    return RunSummary.of({"scores": {"frames": 4, "frames_scored": 3, "ospa": 20.0, "ospa2": 20.0,
+                                     "cardinality_error": 1.0, "tracks": 2, "names": ["T1.0", "T3.z2"], "labels": 3,
+                                     "last_ospa": 30.0, "c": 100.0, "p": 1.0, "ospa2_window": 10},
+                          "latency": {"tracker_ms": [1.0, 2.0, 3.0, 4.0]}})
 
 
 def test_track_and_the_pipeline_print_the_same_figures():
