@@ -23,6 +23,7 @@ def _doc_example() -> str:
     return blocks[0]
 
 
+@pytest.mark.slow  # three 100-frame runs; the fast subset keeps the README snippet of the same API
 def test_the_worked_example_in_docs_runs(tmp_path, capsys):
     code = _doc_example().replace("/tmp/bnptrack-example.mcap", str(tmp_path / "example.mcap"))
     exec(compile(code, "docs/python.md", "exec"), {})

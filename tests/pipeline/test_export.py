@@ -16,7 +16,8 @@ def test_export_rows_match_the_run(tmp_path):
     log, run = tmp_path / "vo.mcap", tmp_path / "vo-ddp.mcap"
     r = CliRunner()
     assert r.invoke(main, ["simulate", "--seed", "1", "--out", str(log), "-q"]).exit_code == 0
-    res = res_track = r.invoke(main, ["track", str(log), "--tracker", "ddp", "--out", str(run)])
+    res = res_track = r.invoke(main, ["track", str(log), "--tracker", "ddp-mb", "--set", "tracker.sweeps=8",
+                                         "--set", "tracker.burn_in=2", "--out", str(run)])
     assert res.exit_code == 0, res.output
     printed_ospa = float(res.output.split("mean OSPA")[1].split()[0])
     res = r.invoke(main, ["export", str(run), "--csv", str(tmp_path / "t.csv"), "--parquet", str(tmp_path / "t.parquet")])

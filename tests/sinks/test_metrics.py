@@ -429,12 +429,15 @@ point_sets = st.lists(st.tuples(coord, coord), max_size=5).map(
 cutoffs = st.floats(1.0, 2000.0)
 orders = st.one_of(st.just(1.0), st.just(2.0), st.floats(1.0, 4.0))
 PROP = settings(max_examples=100, deadline=None)  # hypothesis's default number of examples
+# The property tests are marked slow (0.3-1 s each, most of it generating examples): the fast
+# subset keeps the hand cases and the brute-force comparisons of the same metrics above.
 
 
 def tol(*vals):
     return 1e-9 * max(1.0, *vals)
 
 
+@pytest.mark.slow
 @PROP
 @given(point_sets, point_sets, point_sets, cutoffs, orders)
 def test_ospa_metric_properties(X, Y, Z, c, p):
@@ -452,6 +455,7 @@ def test_ospa_metric_properties(X, Y, Z, c, p):
     assert dxz <= dxy.total + dyz + tol(c)
 
 
+@pytest.mark.slow
 @PROP
 @given(point_sets, point_sets, point_sets, cutoffs, orders, st.sampled_from([2.0, 1.0, 0.5]))
 def test_gospa_metric_properties(X, Y, Z, c, p, alpha):
@@ -486,6 +490,7 @@ def track_triples(draw, n_tracks=1, max_w=6):
                  for k in (draw(sizes), draw(sizes), draw(sizes)))
 
 
+@pytest.mark.slow
 @PROP
 @given(track_triples(), cutoffs, st.sampled_from([1.0, 2.0]))
 def test_track_distance_metric_properties(xyz, c, q):
@@ -497,6 +502,7 @@ def test_track_distance_metric_properties(xyz, c, q):
     assert track_distance(x, z, c, q) <= dxy + track_distance(y, z, c, q) + tol(c)
 
 
+@pytest.mark.slow
 @PROP
 @given(track_triples(n_tracks=3), cutoffs, orders)
 def test_ospa2_metric_properties(xyz, c, p):
@@ -510,6 +516,7 @@ def test_ospa2_metric_properties(xyz, c, p):
     assert ospa2(X, Z, c, p).total <= dxy.total + ospa2(Y, Z, c, p).total + tol(c)
 
 
+@pytest.mark.slow
 @PROP
 @given(point_sets, point_sets, cutoffs, orders)
 def test_ospa2_single_scan_equals_ospa(X, Y, c, p):

@@ -346,6 +346,11 @@ def _residuals(scenario: Scenario, params, seeds) -> np.ndarray:
     return np.concatenate(out)
 
 
+#: The measurement kinds of the statistical checks below (thousands of simulated scans each):
+#: the fast subset checks ``bearing_range`` (its last column is the range); ``range`` is marked slow.
+STAT_KINDS = ["bearing_range", pytest.param("range", marks=pytest.mark.slow)]
+
+
 @functools.lru_cache(maxsize=None)
 def _clean_residuals(kind: str, *overrides: str) -> np.ndarray:
     """The residuals of 30 seeds of :func:`_single_target` under the CLEAN parameters (and
@@ -355,7 +360,7 @@ def _clean_residuals(kind: str, *overrides: str) -> np.ndarray:
     return res
 
 
-@pytest.mark.parametrize("kind", ["bearing_range", "range"])
+@pytest.mark.parametrize("kind", STAT_KINDS)
 def test_detection_noise_std(kind):
     res = _clean_residuals(kind)  # 3000 samples: 1.3% s.e.
     sig = [np.deg2rad(2.0), 10.0] if kind == "bearing_range" else [10.0]
@@ -363,7 +368,7 @@ def test_detection_noise_std(kind):
     assert np.all(np.abs(res.mean(axis=0)) < 4 * np.array(sig) / np.sqrt(len(res)))
 
 
-@pytest.mark.parametrize("kind", ["bearing_range", "range"])
+@pytest.mark.parametrize("kind", STAT_KINDS)
 def test_snr_scales_noise_variance(kind):
     nominal = _clean_residuals(kind).std(axis=0)
     low = _clean_residuals(kind, "snr_db=-10").std(axis=0)
@@ -390,7 +395,7 @@ def test_snr_scenario_uses_default_snr():
     assert 0.85 < res.std() / meas.sigma_range < 1.15
 
 
-@pytest.mark.parametrize("kind", ["bearing_range", "range"])
+@pytest.mark.parametrize("kind", STAT_KINDS)
 def test_clutter_statistics(kind):
     params = load_params("vo2017", ["p_detect=0"])
     frames = [f for seed in range(20) for f in simulate(_single_target(kind), params, seed)]

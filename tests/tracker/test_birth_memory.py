@@ -179,6 +179,7 @@ def _delays(tr, frames, seed) -> list[int]:
     return [first.get(f"t{j}", 99) - (3 + 12 * j) for j in range(6)]
 
 
+@pytest.mark.slow  # six runs of the scene; the fast subset keeps the snapshot and predictive checks
 def test_recurring_entry_point_confirms_later_births_earlier(params):
     """With H learned, births 4-6 at the place are confirmed sooner than the first (seeds 1-3,
     mean delay); the plain tracker shows no such speed-up."""

@@ -314,12 +314,12 @@ N_MC = 200_000
         # observed S error ~5% (4th-order terms over-weighted by c/3), MC error ~0.5%.
         (UnscentedParams(), 100.0, 0.01, 0.08, 0.04),
         # Gaussian-kurtosis-matched c = 3 (kappa = 3 - n) at the stronger 20% spread.
-        (UnscentedParams(kappa=-2.0), 200.0, 0.02, 0.10, 0.06),
+        pytest.param(UnscentedParams(kappa=-2.0), 200.0, 0.02, 0.10, 0.06, marks=pytest.mark.slow),
         # Vo's defaults at 20% spread: the bearing variance is over-estimated by ~20%
         # (sigma points at sqrt(7) * 200 m = 530 m off a 1 km track); the mean stays good.
-        (UnscentedParams(), 200.0, 0.03, 0.25, 0.12),
+        pytest.param(UnscentedParams(), 200.0, 0.03, 0.25, 0.12, marks=pytest.mark.slow),
     ],
-    ids=["vo-100m", "c3-200m", "vo-200m"],
+    ids=["vo-100m", "c3-200m", "vo-200m"],  # 200,000 draws each: the fast subset runs the first
 )
 def test_ukf_innovation_vs_monte_carlo(params, pos_std, tol_mean, tol_S, tol_C):
     rng = np.random.default_rng(12345)

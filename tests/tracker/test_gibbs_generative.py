@@ -125,7 +125,9 @@ def exact(problem):
     return marginals(cfg, np.exp(lj - lj.max()), N, M)
 
 
-@pytest.mark.parametrize("d", [0.0, 0.3])
+# 4,000,000 forward draws per case: the fast subset checks the Dirichlet process (d = 0), the
+# Pitman-Yor case is marked slow
+@pytest.mark.parametrize("d", [0.0, pytest.param(0.3, marks=pytest.mark.slow)])
 def test_tracker_weights_match_forward_simulation(d):
     state, pred, problem, dens = setup(d)
     assert np.allclose(pred.q, 1.0) and np.allclose(pred.p_detect, PD)  # the tested case: q = 1

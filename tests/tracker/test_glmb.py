@@ -376,7 +376,8 @@ def test_exact_cardinality_without_clutter(seed):
             assert all(lab.split(".")[0] in (str(k + 1), str(k + 2)) for lab in fresh)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+# a 100-frame run per seed: the fast subset runs seed 1, seed 2 is marked slow
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_tracks_vo2017_well(vo_params, seed):
     frames = simulate_all(get_scenario("vo2017"), vo_params, seed)
     o, card = [], []
@@ -629,6 +630,7 @@ def test_continuity_estimator_keeps_labels_when_the_map_hypothesis_flips(vo_para
     assert labels_on_object_1("continuity", [0.55, 0.1, 0.55]) == ["a", "b", "b"]
 
 
+@pytest.mark.slow  # two 100-frame runs; the fast subset keeps the hand-made flips above
 def test_continuity_estimator_has_fewer_label_switches_on_vo2017(vo_params):
     """Seed-pinned (vo2017 simulation seed 2, tracker seed 1): at most half the label switches
     of map-cardinality (measured 13 vs 29), same cardinality every frame (the estimate is
@@ -669,6 +671,7 @@ def test_assignment_over_gated_candidates_equals_the_dense_one():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # two 100-frame runs; the fast subset keeps test_adaptive_birth_finds_an_object_far_from_the_birth_regions
 def test_cli_track_glmb_on_a_log_without_birth_regions(tmp_path):
     """`bnptrack track LOG --tracker glmb` with the defaults tracks a `random` log (objects
     born anywhere, no birth regions): measured mean OSPA 29.69 m; with static births only

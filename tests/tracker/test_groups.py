@@ -136,6 +136,7 @@ def _velocity_error(params, frames, config) -> float:
     return float(np.mean(err))
 
 
+@pytest.mark.slow  # four runs of the convoy; the fast subset keeps the cluster and own-estimate checks
 def test_sharing_reduces_velocity_error_on_a_clean_convoy():
     sc, params, frames = _convoy()
     params = apply_overrides(params, ["clutter_rate=2.0"])

@@ -212,6 +212,7 @@ def test_two_sensors_interleaved_share_one_state():
     assert np.mean(d[20:]) < 40.0
 
 
+@pytest.mark.slow  # 200 frames simulated and tracked; the fast subset keeps test_two_sensors_interleaved_share_one_state
 def test_cli_simulates_and_tracks_two_sensors(tmp_path):
     """A parameter file with two [sensors.*] tables: `simulate` writes both sensors' frames
     interleaved (poses in the frames), `track` reads them back with the shared state."""

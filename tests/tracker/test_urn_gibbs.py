@@ -94,7 +94,8 @@ def test_sequential_urn_draws_as_the_generators_choice_draws():
     assert rng.random() == ref.random()
 
 
-@pytest.mark.parametrize("alpha,d", [(1.0, 0.0), (2.0, 0.5)])
+# 6,000 draws per case: the fast subset checks the Dirichlet process; the Pitman-Yor case is slow
+@pytest.mark.parametrize("alpha,d", [(1.0, 0.0), pytest.param(2.0, 0.5, marks=pytest.mark.slow)])
 def test_sequential_urn_reproduces_eppf(alpha, d):
     """Draws of the sequential urn (D1-D3 / P1-P3 weights) follow the EPPF's table-count law."""
     n, draws = 6, 6000
@@ -195,6 +196,7 @@ def test_gibbs_marginals_match_exact_enumeration(d, extended):
         assert np.all(res.p_cluster.sum(axis=1) <= 1.0 + 1e-9)
 
 
+@pytest.mark.slow  # 4,000 sweeps of the interpreted kernels; the fast subset keeps the compiled ones' (above)
 def test_exchange_uniforms_drawn_per_proposal_keep_the_exact_marginals(monkeypatch):
     """Exchange passes drawing one uniform per scored proposal (lists above
     ``swap_moves.PREDRAWN_PAIRS``, here every list: the limit set to 0, the kernels
