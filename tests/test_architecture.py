@@ -32,11 +32,11 @@ LONG_CLASSES: dict[str, int] = {}
 #: its ceiling: an entry goes when its arguments are bundled.
 WIDE_KERNELS: dict[str, int] = {
     "tracker/bnp/gibbs_sweeps.py:_sweep_kernel": 26, "tracker/bnp/gibbs_sweeps.py:_site_pass": 23,
-    "tracker/bnp/gibbs.py:_chains_kernel": 23, "tracker/bnp/swap_moves.py:_row_visit": 20,
+    "tracker/bnp/gibbs.py:_chains_kernel": 23,
     "tracker/bnp/swap_moves.py:swap_scan": 14, "tracker/bnp/swap_moves.py:swap_pass": 14,
     "tracker/models/_kernels.py:_moments": 14, "tracker/bnp/gibbs_setup.py:_setup_kernel": 13,
     "tracker/bnp/swap_moves.py:_exchange": 11, "tracker/bnp/group_theta.py:_transition_kernel": 11,
-    "tracker/bnp/swap_moves.py:_gate_walk": 19, "tracker/models/_kernels.py:loglik_balls": 12,
+    "tracker/models/_kernels.py:loglik_balls": 12,
 }
 
 

@@ -126,9 +126,11 @@ def test_exchange_tables_walk_above_the_predrawn_limit():
     ptr, idx = np.array([0, 2, 3, 4], dtype=np.int64), np.array([0, 1, 0, 0], dtype=np.int64)
     pa, pb = np.array([0, 0, 1], dtype=np.int64), np.array([1, 2, 2], dtype=np.int64)
     w = np.ones(4)
-    row, lptr, ent, lw, first, meas_of, gw, capped = exchange_tables(ptr, idx, 2, pa, pb, w, 1 << 20, 2)
+    row, lptr, ent, lw, first, meas_of, gw, capped, gpos, pos_of = exchange_tables(ptr, idx, 2, pa, pb, w, 1 << 20, 2)
     assert lptr.size == idx.size + 1
     np.testing.assert_array_equal(capped, [True, False])  # cluster 0 is gated by three
+    np.testing.assert_array_equal(pos_of, [0, 2, 3, 1])  # cluster 0: m0, m1, m2; cluster 1: m0
+    np.testing.assert_array_equal(gpos, [0, 3, 1, 2])  # each CSR pair's place in its cluster's gate
     np.testing.assert_array_equal(row, [0, 2, 3, 3])
     big = PREDRAWN_PAIRS + 1
     pa2, pb2 = np.zeros(big, dtype=np.int64), np.ones(big, dtype=np.int64)

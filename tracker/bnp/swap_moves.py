@@ -253,14 +253,16 @@ def exchange_lists(ptr, idx, N, pair_a, pair_b, max_entries):
 
 def exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, max_bytes, max_members):
     """What :func:`swap_pass` reads besides the weights: ``(row, lptr, ent, lw, first, meas_of,
-    gw, capped)``.  Up to :data:`PREDRAWN_PAIRS` pairs, :func:`exchange_lists` (at most
+    gw, capped, gpos, pos_of)``.  Up to :data:`PREDRAWN_PAIRS` pairs, :func:`exchange_lists` (at most
     ``max_bytes``) with each row's ``w_first`` of ``(b, l)`` (``lw``); else (or above
     ``max_bytes``) ``lptr`` is empty and the pass walks the gates by cluster
     (:func:`gates_by_cluster`; ``gw``: each gated pair's ``w_first`` in that order, read
     in sequence by the walk) instead.  ``capped[l]``: cluster ``l``'s gate holds more than
     ``max_members`` measurements, so two of them may be no pair of the list (``pair_a``,
     ``pair_b`` must hold every pair ``a < b`` that gates a cluster of ``max_members`` or fewer:
-    :func:`exchange_pairs` with the same bound; 0 makes no such assumption)."""
+    :func:`exchange_pairs` with the same bound; 0 makes no such assumption).  ``pos_of[q]``:
+    the CSR place of the gates by cluster's entry ``q``, ``gpos`` its inverse (where each
+    gated pair sits in its cluster's gate)."""
     M = ptr.shape[0] - 1
     none, nil = np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int32)
     first, meas_of, pos_of = gates_by_cluster(ptr, idx, N)
@@ -268,15 +270,17 @@ def exchange_tables(ptr, idx, N, pair_a, pair_b, w_first, max_bytes, max_members
     for l in range(N):
         capped[l] = first[l + 1] - first[l] > max_members
     gw = np.empty(idx.shape[0])
+    gpos = np.empty(idx.shape[0], dtype=np.int64)
     for q in range(idx.shape[0]):
         gw[q] = w_first[pos_of[q]]
+        gpos[pos_of[q]] = q
     if pair_a.shape[0] == 0 or pair_a.shape[0] > PREDRAWN_PAIRS:
-        return _pair_rows(M, pair_a), none, nil, np.zeros(0), first, meas_of, gw, capped
+        return _pair_rows(M, pair_a), none, nil, np.zeros(0), first, meas_of, gw, capped, gpos, pos_of
     row, lptr, ent = exchange_lists(ptr, idx, N, pair_a, pair_b, max_bytes // 20)
     lw = np.empty(ent.shape[0])
     for q in range(ent.shape[0]):
         lw[q] = w_first[ent[q, 2]]
-    return row, lptr, ent, lw, first, meas_of, gw, capped
+    return row, lptr, ent, lw, first, meas_of, gw, capped, gpos, pos_of
 
 
 def _exchange(p, a, b, ca, cb, wa, wb, c, own, u_row, rng):
@@ -358,67 +362,6 @@ def _first_above(v, lo, hi, x):
     return lo
 
 
-def _gate_walk(a, ca, after, lo_p, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
-               gates, own, wmap, rng):
-    """:func:`_row_visit` without the lists: the measurements ``b > after`` of cluster
-    ``ca``'s gate (``gates``: :func:`exchange_tables`' ``first``, ``meas_of``, ``gw``, ``capped``), ascending, that can take
-    ``ca``; pair ``(a, b)``'s place in the exchange list (``[lo_p, stop)``: ``a``'s row) is
-    looked up where a uniform is read at it or the gate is capped (there ``(a, b)`` may be no
-    pair).  The ``b`` of the first accepted exchange, or -1."""
-    first, meas_of, gw, capped = gates
-    need_p = capped[ca] or u_row.shape[0] > 0
-    hi = first[ca + 1]
-    for q in range(_first_above(meas_of, first[ca], hi, after), hi):
-        b = meas_of[q]
-        cb = c[b]
-        if cb == ca or (extended and (cnt[ca] > 1 or (cb >= 0 and cnt[cb] > 1))):
-            continue
-        wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
-        if wa <= 0.0:
-            continue
-        p = -1
-        if need_p:
-            lo_p = _first_above(pair_b, lo_p, stop, b - 1)
-            if lo_p == stop or pair_b[lo_p] != b:
-                continue
-            p = lo_p
-        if _exchange(p, a, b, ca, cb, wa, gw[q], c, own, u_row, rng):
-            return b
-    return -1
-
-
-def _row_visit(a, ca, after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row,
-               tables, own, wmap, rng):
-    """The pairs ``(a, b)`` of row ``a`` with ``b > after`` (from place ``cursor`` on) while
-    ``c[a] = ca``, up to the first accepted exchange: its ``b``, or -1 (none).  ``wmap[l]``:
-    ``a``'s weight for cluster ``l`` (0 outside its gate)."""
-    row, lptr, ent, lw, first, meas_of, gw, capped = tables
-    j = _own_place(a, ca, ptr, idx) if ca >= 0 else -1
-    if j < 0:  # clutter, new (or a value off the gate): every pair, as the scan visits it
-        for p in range(cursor, stop):
-            b = pair_b[p]
-            cb = c[b]
-            if cb == ca or (extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1))):
-                continue
-            wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
-            if wa > 0.0 and _exchange(p, a, b, ca, cb, wa, own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first),
-                                      c, own, u_row, rng):
-                return b
-        return -1
-    if lptr.shape[0] == 0:
-        return _gate_walk(a, ca, after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx,
-                          w_first, u_row, (first, meas_of, gw, capped), own, wmap, rng)
-    for q in range(_first_at(ent, lptr[j], lptr[j + 1], cursor), lptr[j + 1]):
-        b = ent[q, 1]
-        cb = c[b]
-        if cb == ca or (extended and (cnt[ca] > 1 or (cb >= 0 and cnt[cb] > 1))):
-            continue
-        wa = wmap[cb] if cb >= 0 else own_weight(a, cb, w_clutter, w_newbase, ptr, idx, w_first)
-        if wa > 0.0 and _exchange(ent[q, 0], a, b, ca, cb, wa, lw[q], c, own, u_row, rng):
-            return b
-    return -1
-
-
 def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, w_first, u_row, tables, own, rng):
     """:func:`swap_scan`'s pass, move for move, visiting only the proposals that can be accepted
     (``tables``: :func:`exchange_tables`).  The exchange list is sorted by ``(a, b)``; while
@@ -426,27 +369,75 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     partners ``b`` of ``a`` that gate ``l`` are visited, ascending: from ``a``'s list entry for
     ``l`` (:func:`exchange_lists`), or, without lists, from cluster ``l``'s gate; after an
     accepted exchange ``a``'s value changed and its partners after that ``b`` are visited anew.
-    While ``a`` is clutter or new, each of its pairs is visited.  ``a``'s weights sit in a
-    cluster-indexed table while its pairs are visited (the gate test and the weight in one
-    load)."""
-    row = tables[0]
-    wmap = np.zeros(cnt.shape[0])
+    While ``a`` is clutter or new, each of its pairs is visited.
+
+    ``a``'s weights and CSR places sit in cluster-indexed tables while its pairs are visited
+    (the gate test and the weight in one load); each measurement's CSR place for its value is
+    kept (``jown``), so a gate walk starts next to ``a`` (or the partner it just exchanged
+    with) in the gate, not from a search.  One kernel, no helper taking arrays: numba counts a
+    reference per array passed, which cost a third of the pass."""
+    row, lptr, ent, lw, first, meas_of, gw, capped, gpos, pos_of = tables
+    lists, predrawn, M = lptr.shape[0] > 0, u_row.shape[0] > 0, c.shape[0]
+    jown = np.empty(M, dtype=np.int64)
+    for m in range(M):
+        jown[m] = _own_place(m, c[m], ptr, idx) if c[m] >= 0 else -1
+    wmap, jmap = np.zeros(cnt.shape[0]), np.zeros(cnt.shape[0], dtype=np.int64)
     accepted = 0
-    for a in range(c.shape[0]):
+    for a in range(M):
         lo, stop = row[a], row[a + 1]
         if lo == stop:
             continue
         for j in range(ptr[a + 1] - 1, ptr[a] - 1, -1):  # backwards: the first of a repeated cluster wins
-            wmap[idx[j]] = w_first[j]
-        after = a
+            wmap[idx[j]], jmap[idx[j]] = w_first[j], j
+        after, after_q = a, -1  # a's partners after ``after`` are visited; after_q: its place in the gate, or -1
         while True:
-            cursor = lo if after == a else _first_above(pair_b, lo, stop, after)
-            b = _row_visit(a, c[a], after, cursor, stop, c, cnt, extended, pair_b, w_clutter, w_newbase, ptr, idx,
-                           w_first, u_row, tables, own, wmap, rng)
-            if b < 0:
+            ca, j, hit, p, wb, jb = c[a], jown[a], -1, -1, 0.0, -1
+            if j < 0 or lists:  # clutter, new or a value off the gate (every pair), or the lists
+                cursor = lo if after == a else _first_above(pair_b, lo, stop, after)
+                n_visit = stop - cursor if j < 0 else lptr[j + 1] - _first_at(ent, lptr[j], lptr[j + 1], cursor)
+                q0 = cursor if j < 0 else lptr[j + 1] - n_visit
+            else:  # walk ca's gate from after's place on (found from jown when known)
+                q0 = gpos[j] if after == a else after_q
+                if q0 < 0:
+                    q0 = _first_above(meas_of, first[ca], first[ca + 1], after)
+                while q0 < first[ca + 1] and meas_of[q0] <= after:
+                    q0 += 1
+                n_visit = first[ca + 1] - q0
+                lo_p = lo if after == a or not (capped[ca] or predrawn) else _first_above(pair_b, lo, stop, after)
+            for q in range(q0, q0 + n_visit):
+                b = pair_b[q] if j < 0 else (ent[q, 1] if lists else meas_of[q])
+                cb = c[b]
+                if cb == ca or (extended and ((ca >= 0 and cnt[ca] > 1) or (cb >= 0 and cnt[cb] > 1))):
+                    continue
+                wa = wmap[cb] if cb >= 0 else (w_clutter[a] if cb == CLUTTER else w_newbase[a])
+                if wa <= 0.0:
+                    continue
+                if j < 0:
+                    p, wb = q, own_weight(b, ca, w_clutter, w_newbase, ptr, idx, w_first)
+                    jb = _own_place(b, ca, ptr, idx) if ca >= 0 else -1
+                elif lists:
+                    p, wb, jb = ent[q, 0], lw[q], ent[q, 2]
+                else:
+                    wb, jb = gw[q], pos_of[q]
+                    if capped[ca] or predrawn:  # (a, b)'s place in the list (none: a capped gate's non-pair)
+                        lo_p = _first_above(pair_b, lo_p, stop, b - 1)
+                        if lo_p == stop or pair_b[lo_p] != b:
+                            continue
+                        p = lo_p
+                new = wa * wb
+                if new <= 0.0:
+                    continue
+                u = u_row[p] if predrawn else rng.random()
+                if u * (own[a] * own[b]) < new:
+                    after_q = gpos[jown[b]] if cb >= 0 and jown[b] >= 0 else -1
+                    c[a], c[b], own[a], own[b] = cb, ca, wa, wb
+                    jown[a], jown[b] = (jmap[cb] if cb >= 0 else -1), jb
+                    hit = b
+                    break
+            if hit < 0:
                 break
             accepted += 1
-            after = b
+            after = hit
         for j in range(ptr[a], ptr[a + 1]):
             wmap[idx[j]] = 0.0
     return accepted
@@ -462,8 +453,6 @@ _own_place = jit(_own_place, inline=True)
 pass_uniforms = jit(pass_uniforms)  # noqa: F811
 _first_at = jit(_first_at, inline=True)
 _first_above = jit(_first_above, inline=True)
-_gate_walk = jit(_gate_walk, inline=True)
-_row_visit = jit(_row_visit, inline=True)
 swap_scan = jit(swap_scan)  # noqa: F811
 gates_by_cluster = jit(gates_by_cluster)  # noqa: F811
 _pair_rows = jit(_pair_rows)
