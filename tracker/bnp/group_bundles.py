@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BlockArrays", "Candidates", "Gate", "Grid", "Members", "Records", "Scratch", "Sums", "Sweeps",
+__all__ = ["BlockArrays", "Candidates", "Gate", "Grid", "Members", "Records", "Sums", "Sweeps",
            "Tables", "Urn"]
 
 
@@ -133,16 +133,6 @@ class Candidates(NamedTuple):
     mark: np.ndarray
     logw: np.ndarray
     w: np.ndarray
-
-
-class Scratch(NamedTuple):
-    """2x2 and 2-vector buffers of a score: ``A`` = C + R, ``Si`` its inverse, ``r`` the residual,
-    ``Sir`` = Si r."""
-
-    A: np.ndarray
-    Si: np.ndarray
-    r: np.ndarray
-    Sir: np.ndarray
 
 
 class Records(NamedTuple):

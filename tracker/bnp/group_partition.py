@@ -49,8 +49,8 @@ from __future__ import annotations
 import numpy as np
 
 from bnptrack.tracker.numerics import jit
-from bnptrack.tracker.bnp.group_bundles import Candidates, Gate, Grid, Members, Records, Scratch, Sums, Tables
-from bnptrack.tracker.bnp.group_fma import dot2, gemv2
+from bnptrack.tracker.bnp.group_bundles import Candidates, Gate, Grid, Members, Records, Sums, Tables
+from bnptrack.tracker.bnp.group_fma import fma, gemv2, sum2
 from bnptrack.tracker.bnp.group_grid import (CAP_FACTOR, MARGIN, _cell_ij, _grid_geometry, _heap_pop, _heap_push,
                                            _place, _unplace, median)
 
@@ -104,25 +104,33 @@ def _urn_of(t, n, v_star, urn) -> float:
     return np.log(v_star[t]) if urn.occupied and n[t] == 0 else np.log(n[t] + v_star[t] - urn.d)
 
 
-def _score(t, l, urn, mem, tab, buf, log2pi) -> float:
+def _block_term(r0, r1, a, b, e, f, log2pi) -> float:
+    """One block's term of a score: ``-r' A^-1 r / 2 - log det(A) / 2 - log 2 pi`` for
+    ``A = [[a, b], [e, f]]`` (``C + R``) and ``r = (r0, r1)`` (``v - mu``), with the operations of
+    :func:`_inv_into`, :func:`~tracker.bnp.group_fma.gemv2` and :func:`~tracker.bnp.group_fma.dot2`
+    in their order, on scalars: the same double, and no array passed (a compiled helper taking
+    arrays costs a reference count per array and call)."""
+    det = a * f - b * e
+    s00, s01, s10, s11 = f / det, -b / det, -e / det, a / det
+    y0 = fma(s00, r0, s01 * r1) + 0.0
+    y1 = fma(s10, r0, s11 * r1) + 0.0
+    return -0.5 * sum2(r0, y0, r1, y1) - 0.5 * np.log(det) - log2pi
+
+
+def _score(t, l, urn, mem, tab, log2pi) -> float:
     """Log weight of object ``l`` at table ``t`` given its log urn weight ``urn``: plus each block's
-    predictive, as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``; ``mem``, ``tab``,
-    ``buf``: :class:`~tracker.bnp.group_bundles.Members`, :class:`~tracker.bnp.group_bundles.Tables`,
-    :class:`~tracker.bnp.group_bundles.Scratch`)."""
-    v, R, t_mu, t_cov, A, Si, r, Sir = mem.v, mem.R, tab.mu, tab.cov, buf.A, buf.Si, buf.r, buf.Sir
+    predictive (:func:`_block_term`), as the full scan adds them (``log2pi`` = ``np.log(2.0 * np.pi)``;
+    ``mem``, ``tab``: :class:`~tracker.bnp.group_bundles.Members`, :class:`~tracker.bnp.group_bundles.Tables`)."""
+    v, R, t_mu, t_cov = mem.v, mem.R, tab.mu, tab.cov
     out = urn
     for p in range(v.shape[0]):
-        for i in range(2):  # t_cov + R and v - mu, into buffers
-            r[i] = v[p, l, i] - t_mu[p, t, i]
-            for j in range(2):
-                A[i, j] = t_cov[p, t, i, j] + R[p, l, i, j]
-        det = _inv_into(A, Si)
-        gemv2(Si, r, Sir)  # = Si @ r, into a buffer
-        out += -0.5 * dot2(r, Sir) - 0.5 * np.log(det) - log2pi
+        out += _block_term(v[p, l, 0] - t_mu[p, t, 0], v[p, l, 1] - t_mu[p, t, 1], t_cov[p, t, 0, 0] + R[p, l, 0, 0],
+                           t_cov[p, t, 0, 1] + R[p, l, 0, 1], t_cov[p, t, 1, 0] + R[p, l, 1, 0],
+                           t_cov[p, t, 1, 1] + R[p, l, 1, 1], log2pi)
     return out
 
 
-def _score_candidates(l, m0, m, top, mem, tab, cands, buf, gate) -> int:
+def _score_candidates(l, m0, m, top, mem, tab, cands, gate) -> int:
     r"""Score the gathered tables ``cands.cand[m0:m]`` in order (:func:`_score`), except (``gate.on``)
     those excluded by the exact quadratic form of the indexed block ``q``: with the other terms bounded
     (module docstring: :math:`\det(C + R) \ge \det R`, the other blocks' quadratic forms >= 0),
@@ -143,7 +151,12 @@ def _score_candidates(l, m0, m, top, mem, tab, cands, buf, gate) -> int:
             det = a * f - b * e
             if det > 0.0 and urn[t] + c - 0.5 * (f * r0 * r0 - (b + e) * r0 * r1 + a * r1 * r1) / det < top - MARGIN:
                 continue
-        logw[t] = _score(t, l, urn[t], mem, tab, buf, gate.log2pi)
+        out = urn[t]  # _score's sum, written out: an inlined helper would count references per table
+        for p in range(v.shape[0]):
+            out += _block_term(v[p, l, 0] - t_mu[p, t, 0], v[p, l, 1] - t_mu[p, t, 1],
+                               t_cov[p, t, 0, 0] + R[p, l, 0, 0], t_cov[p, t, 0, 1] + R[p, l, 0, 1],
+                               t_cov[p, t, 1, 0] + R[p, l, 1, 0], t_cov[p, t, 1, 1] + R[p, l, 1, 1], gate.log2pi)
+        logw[t] = out
         top = max(top, logw[t])
         cand[kept] = t
         kept += 1
@@ -356,7 +369,6 @@ def gated_kernel(sw, urn, gate_on, min_p, stats):
     cand, mark = np.empty(T, dtype=np.int64), np.full(T, -1, dtype=np.int64)
     logw, w = np.empty(T), np.empty(T)
     cands = Candidates(cand, mark, logw, w)
-    buf = Scratch(np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty(2))
     cov, B, e = np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
     recs = Records(np.zeros(1, dtype=np.int64), np.empty(4 * L + 16, dtype=np.int64), np.empty(4 * L + 16),
                    np.empty((4 * L + 16, 2)), np.empty((4 * L + 16, 2, 2)))
@@ -379,16 +391,16 @@ def gated_kernel(sw, urn, gate_on, min_p, stats):
                 counts[1] = _heap_push(heap, counts[1], old)
             stamp += 1
             free = heap[0]
-            logw[free] = _score(free, l, np.log(alpha + d * counts[0]), mem, tab, buf, gate.log2pi)
+            logw[free] = _score(free, l, np.log(alpha + d * counts[0]), mem, tab, gate.log2pi)
             mark[free], cand[0], m = stamp, free, 1
             top_lb = logw[free]
             if live[old]:
-                logw[old] = _score(old, l, log_urn[old], mem, tab, buf, gate.log2pi)
+                logw[old] = _score(old, l, log_urn[old], mem, tab, gate.log2pi)
                 mark[old], cand[1], m = stamp, old, 2
                 top_lb = max(top_lb, logw[old])
             m0 = m
             m = _gather(l, top_lb, m, stamp, mem, tab, grid, cands, gate)
-            m = _score_candidates(l, m0, m, top_lb, mem, tab, cands, buf, gate)
+            m = _score_candidates(l, m0, m, top_lb, mem, tab, cands, gate)
             stats[0] += 1
             stats[1] += m
             _insertion_sort(cand, m)
@@ -421,6 +433,7 @@ _inv_into = jit(_inv_into)
 _move = jit(_move)
 lmax2 = jit(lmax2, inline=True)
 _refresh = jit(_refresh)
+_block_term = jit(_block_term, inline=True)
 _score = jit(_score, inline=True)
 _urn_of = jit(_urn_of, inline=True)
 _insertion_sort = jit(_insertion_sort, inline=True)
