@@ -28,8 +28,8 @@ LONG_MODULES: dict[str, int] = {}
 #: Classes still over MAX_CLASS_LINES, each with its current length as its ceiling.
 LONG_CLASSES: dict[str, int] = {}
 
-#: numba kernels still over MAX_KERNEL_ARGS positional arguments, each with its current count as
-#: its ceiling: an entry goes when its arguments are bundled.
+#: numba kernels still over MAX_KERNEL_ARGS positional arguments, each with its exact count
+#: (an entry changes or goes when its arguments are bundled).
 WIDE_KERNELS: dict[str, int] = {
     "tracker/bnp/gibbs_sweeps.py:_sweep_kernel": 26, "tracker/bnp/gibbs_sweeps.py:_site_pass": 23,
     "tracker/bnp/gibbs.py:_chains_kernel": 23,
@@ -342,11 +342,10 @@ def _wide_kernels(path: Path) -> dict[str, int]:
 
 
 def test_kernel_arguments_are_bundled():
-    """A kernel over the limit is listed with its count as a ceiling, and leaves the list when its
-    arguments are bundled."""
+    """A kernel over the limit is listed with its exact count, which ratchets: a new wide kernel, a
+    wider one, and one bundled (narrower, or within the limit) each fail until the list says so."""
     wide = {k: n for p in sorted((ROOT / "tracker").rglob("*.py")) for k, n in _wide_kernels(p).items()}
-    assert {k: n for k, n in wide.items() if n > WIDE_KERNELS.get(k, MAX_KERNEL_ARGS)} == {}
-    assert sorted(k for k in WIDE_KERNELS if k not in wide) == []
+    assert wide == WIDE_KERNELS
 
 
 def test_the_kernel_rule_sees_a_wide_kernel(tmp_path):
