@@ -215,9 +215,10 @@ class RerunSink(RowLogger, ChunkSender):
             pos, cov, tcls, tcol, ccl = self._track_arrays(tracks, labels)
             x0, x1, y0, y1 = self._geo.bounds  # a name (under its dot): about 1/10 of the width, 1/16 of the height
             shown = labels_shown(pos, np.argsort(tcls, kind="stable"), (0.1 * (x1 - x0), 0.06 * (y1 - y0)))
-            if self._legend_track is None and labels:  # the legend says what a track's colour means
+            if labels and (self._legend_track is None or (self._legend_track[1] == "its label" and (ccl >= 0).any())):
+                # the legend says what a track's colour means (a motion cluster's, once one appears)
                 meaning = "its motion cluster" if (ccl >= 0).any() else "its label"
-                self._legend_track = (unpack_rgba(int(tcol[0]))[:3], meaning)
+                self._legend_track = (unpack_rgba(int(tcol[int(np.argmax(ccl >= 0))]))[:3], meaning)
                 self._log_legend()
             idx = assignment_index(frame.n_measurements, estimate.assignments, labels)
             truth = frame.truth
