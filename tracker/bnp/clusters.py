@@ -77,12 +77,12 @@ def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarr
     """Above 200 clusters: the pairs ``i < j`` of a KD-tree (:func:`_near_pairs`) whose
     existences sum to at most 1, all ``undecided`` (the exact test decides them)."""
     r = c.existence
-    ii, jj = _near_pairs(c, max_d2)
+    ii, jj = _near_pairs(c, max_d2, r <= 0.5)
     both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
     return ii[both], jj[both], np.ones(int(both.sum()), dtype=bool)
 
 
-def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
+def _near_pairs(c: _Clusters, max_d2: float, weak: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a grid on positions:
     :func:`ball_hits`; the same pairs as a KD-tree's ball queries).
 
@@ -93,7 +93,10 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     \max(\lambda_i, \lambda_j)`: each cluster queries the ball of radius
     :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`.
     The pairs returned are those of the test below (the same numpy expression, in key order);
-    the balls only have to hold them."""
+    the balls only have to hold them.  With ``weak`` (N,) bool, only the pairs with at least one
+    weak member (:func:`weak_ball_hits`: the same pairs, in the same order, as those of all
+    clusters with a weak member); a pair of existences summing to at most 1 has a member of
+    existence at most 0.5."""
     n = len(c.labels)
     if n <= 200:  # few clusters: every pair (cheaper than a tree)
         lo, hi = np.triu_indices(n, k=1)
@@ -105,7 +108,10 @@ def _near_pairs(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarray]:
     if ok.size < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
-    a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
+    if weak is None:
+        a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
+    else:
+        a, b = weak_ball_hits(np.ascontiguousarray(pos[ok]), radius, np.ascontiguousarray(weak[ok]))
     i, j = ok[a], ok[b]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     key = unique_ints(lo[lo < hi] * len(c.labels) + hi[lo < hi])
@@ -217,5 +223,65 @@ def ball_hits(pos: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return out_a[:count].copy(), out_b[:count].copy()
 
 
+def _grid_members(pos: np.ndarray, idx: np.ndarray, x0: float, y0: float, h: float, nx: int, ny: int
+                  ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Cell lists of the points ``idx`` on :func:`ball_hits`' grid: ``members[start[c]:start[c + 1]]``
+    the points of cell ``c`` (in ``idx`` order)."""
+    cell = np.empty(idx.size, dtype=np.int64)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for q in range(idx.size):
+        k = idx[q]
+        cell[q] = min(int((pos[k, 0] - x0) / h), nx - 1) * ny + min(int((pos[k, 1] - y0) / h), ny - 1)
+        start[cell[q] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill, members = start[:-1].copy(), np.empty(idx.size, dtype=np.int64)
+    for q in range(idx.size):
+        members[fill[cell[q]]] = idx[q]
+        fill[cell[q]] += 1
+    return start, members
+
+
+def weak_ball_hits(pos: np.ndarray, radius: np.ndarray, weak: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`ball_hits`' pairs ``(a, b)`` with ``weak[a]`` or ``weak[b]`` (the same test, the
+    same grid): a weak point's ball searches every point, another's only the weak points.
+    In no particular order."""
+    n = pos.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    x0, x1, y0, y1 = pos[:, 0].min(), pos[:, 0].max(), pos[:, 1].min(), pos[:, 1].max()
+    h = np.median(radius)
+    if not (np.isfinite(h) and h > 1e-9 * max(x1 - x0, y1 - y0, 1.0)):
+        h = max(x1 - x0, y1 - y0, 1.0)
+    while (np.floor((x1 - x0) / h) + 1.0) * (np.floor((y1 - y0) / h) + 1.0) > 4.0 * n + 16.0:
+        h *= 2.0
+    nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
+    start_all, members_all = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
+    start_weak, members_weak = _grid_members(pos, np.flatnonzero(weak), x0, y0, h, nx, ny)
+    out_a, out_b, count = np.empty(4 * n, dtype=np.int64), np.empty(4 * n, dtype=np.int64), 0
+    for a in range(n):
+        r = radius[a] * (1.0 + 1e-6)
+        r2 = radius[a] * radius[a] * (1.0 + 1e-6)
+        if not np.isfinite(r2):  # no ball (a query with a radius that is not finite finds nothing)
+            continue
+        start, members = (start_all, members_all) if weak[a] else (start_weak, members_weak)
+        i0, i1 = _cell_range(pos[a, 0] - r - x0, pos[a, 0] + r - x0, h, nx)
+        j0, j1 = _cell_range(pos[a, 1] - r - y0, pos[a, 1] + r - y0, h, ny)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for k in range(start[i * ny + j], start[i * ny + j + 1]):
+                    b = members[k]
+                    dx, dy = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
+                    if b != a and dx * dx + dy * dy <= r2:
+                        if count == out_a.size:
+                            out_a, out_b = np.concatenate((out_a, out_a)), np.concatenate((out_b, out_b))
+                        out_a[count], out_b[count] = a, b
+                        count += 1
+    return out_a[:count].copy(), out_b[:count].copy()
+
+
 _cell_range = jit(_cell_range)
 ball_hits = jit(ball_hits)
+_grid_members = jit(_grid_members)
+weak_ball_hits = jit(weak_ball_hits)
