@@ -193,10 +193,11 @@ def test_near_pairs_grid_equals_the_kdtree_pairs(seed, n, spread):
 
 
 @pytest.mark.parametrize("seed,n,spread", [(1, 201, 500.0), (2, 800, 20000.0), (3, 2000, 40000.0), (4, 400, 0.0)])
-def test_near_pairs_of_weak_clusters_are_the_all_pairs_with_a_weak_member(seed, n, spread):
-    """With ``weak`` (``weak_ball_hits``), ``_near_pairs`` returns exactly the unrestricted pairs
-    that have a weak member, in the same order: clusters of every size of covariance, a NaN mean,
-    a covariance not positive definite, some on top of each other, about a third weak."""
+def test_exclusive_near_pairs_are_the_near_pairs_whose_existences_sum_to_at_most_1(seed, n, spread):
+    """With ``exclusive`` (``exclusive_ball_hits``), ``_near_pairs`` returns exactly the
+    unrestricted pairs whose existences sum to at most 1, in the same order: clusters of every size
+    of covariance, a NaN mean and a NaN existence, a covariance not positive definite, some on top
+    of each other, existences on both sides of 0.5 (and at it)."""
     rng = np.random.default_rng(seed)
     mean = np.column_stack([rng.uniform(0, spread, n), rng.normal(0, 5, n), rng.uniform(0, spread, n),
                             rng.normal(0, 5, n), np.zeros(n)])
@@ -206,12 +207,13 @@ def test_near_pairs_of_weak_clusters_are_the_all_pairs_with_a_weak_member(seed, 
     cov = np.tile(np.diag([100.0, 25.0, 100.0, 25.0, 1e-4]), (n, 1, 1)) * scale[:, None, None]
     cov[:, 0, 2] = cov[:, 2, 0] = 60.0 * rng.uniform(-1, 1, n) * scale
     cov[11, 0, 0] = -50.0
-    r = rng.choice([0.2, 0.5, 0.9], n, p=[0.3, 0.05, 0.65])
+    r = rng.choice([0.2, 0.5, 0.6, 0.9], n, p=[0.3, 0.05, 0.1, 0.55])
+    r[12] = np.nan
     c = _Clusters(tuple(str(i) for i in range(n)), mean, cov, r, np.ones(n))
     with np.errstate(invalid="ignore"):
         lo, hi = _near_pairs(c, 9.0)
-        got = _near_pairs(c, 9.0, r <= 0.5)
-    keep = (r[lo] <= 0.5) | (r[hi] <= 0.5)
+        got = _near_pairs(c, 9.0, exclusive=True)
+        keep = r[lo] + r[hi] <= 1.0
     assert keep.sum() > 20 and (~keep).sum() > 20
     for g, w in zip(got, (lo[keep], hi[keep])):
         np.testing.assert_array_equal(g, w, strict=True)

@@ -77,12 +77,12 @@ def _merge_candidates(c: _Clusters, max_d2: float) -> tuple[np.ndarray, np.ndarr
     """Above 200 clusters: the pairs ``i < j`` of a KD-tree (:func:`_near_pairs`) whose
     existences sum to at most 1, all ``undecided`` (the exact test decides them)."""
     r = c.existence
-    ii, jj = _near_pairs(c, max_d2, r <= 0.5)
+    ii, jj = _near_pairs(c, max_d2, exclusive=True)
     both = r[ii] + r[jj] <= 1.0  # pairs that may both be one
     return ii[both], jj[both], np.ones(int(both.sum()), dtype=bool)
 
 
-def _near_pairs(c: _Clusters, max_d2: float, weak: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _near_pairs(c: _Clusters, max_d2: float, exclusive: bool = False) -> tuple[np.ndarray, np.ndarray]:
     r"""Pairs ``i < j`` that can be within ``max_d2`` (a superset, from a grid on positions:
     :func:`ball_hits`; the same pairs as a KD-tree's ball queries).
 
@@ -93,10 +93,9 @@ def _near_pairs(c: _Clusters, max_d2: float, weak: np.ndarray | None = None) -> 
     \max(\lambda_i, \lambda_j)`: each cluster queries the ball of radius
     :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`.
     The pairs returned are those of the test below (the same numpy expression, in key order);
-    the balls only have to hold them.  With ``weak`` (N,) bool, only the pairs with at least one
-    weak member (:func:`weak_ball_hits`: the same pairs, in the same order, as those of all
-    clusters with a weak member); a pair of existences summing to at most 1 has a member of
-    existence at most 0.5."""
+    the balls only have to hold them.  ``exclusive``: only the pairs whose existences sum to at
+    most 1 (:func:`exclusive_ball_hits`; the same pairs, in the same order, as those of all
+    clusters that pass that test)."""
     n = len(c.labels)
     if n <= 200:  # few clusters: every pair (cheaper than a tree)
         lo, hi = np.triu_indices(n, k=1)
@@ -108,10 +107,10 @@ def _near_pairs(c: _Clusters, max_d2: float, weak: np.ndarray | None = None) -> 
     if ok.size < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
-    if weak is None:
-        a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
+    if exclusive:
+        a, b = exclusive_ball_hits(np.ascontiguousarray(pos[ok]), radius, np.ascontiguousarray(c.existence[ok]))
     else:
-        a, b = weak_ball_hits(np.ascontiguousarray(pos[ok]), radius, np.ascontiguousarray(weak[ok]))
+        a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
     i, j = ok[a], ok[b]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     key = unique_ints(lo[lo < hi] * len(c.labels) + hi[lo < hi])
@@ -242,11 +241,11 @@ def _grid_members(pos: np.ndarray, idx: np.ndarray, x0: float, y0: float, h: flo
     return start, members
 
 
-def weak_ball_hits(pos: np.ndarray, radius: np.ndarray, weak: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """:func:`ball_hits`' pairs ``(a, b)`` with ``weak[a]`` or ``weak[b]`` (the same test, the
-    same grid): a weak point's ball searches every point, another's only the weak points.
-    In no particular order."""
+def exclusive_ball_hits(pos: np.ndarray, radius: np.ndarray, existence: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`ball_hits`' pairs ``(a, b)`` with ``existence[a] + existence[b] <= 1`` (the same
+    test, the same grid).  Such a pair has a member of existence at most 0.5 (weak): a weak point's ball searches every
+    point, another's only the weak points.  In no particular order."""
     n = pos.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
@@ -258,6 +257,7 @@ def weak_ball_hits(pos: np.ndarray, radius: np.ndarray, weak: np.ndarray
         h *= 2.0
     nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
     start_all, members_all = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
+    weak = existence <= 0.5
     start_weak, members_weak = _grid_members(pos, np.flatnonzero(weak), x0, y0, h, nx, ny)
     out_a, out_b, count = np.empty(4 * n, dtype=np.int64), np.empty(4 * n, dtype=np.int64), 0
     for a in range(n):
@@ -273,7 +273,7 @@ def weak_ball_hits(pos: np.ndarray, radius: np.ndarray, weak: np.ndarray
                 for k in range(start[i * ny + j], start[i * ny + j + 1]):
                     b = members[k]
                     dx, dy = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
-                    if b != a and dx * dx + dy * dy <= r2:
+                    if b != a and existence[a] + existence[b] <= 1.0 and dx * dx + dy * dy <= r2:
                         if count == out_a.size:
                             out_a, out_b = np.concatenate((out_a, out_a)), np.concatenate((out_b, out_b))
                         out_a[count], out_b[count] = a, b
@@ -284,4 +284,4 @@ def weak_ball_hits(pos: np.ndarray, radius: np.ndarray, weak: np.ndarray
 _cell_range = jit(_cell_range)
 ball_hits = jit(ball_hits)
 _grid_members = jit(_grid_members)
-weak_ball_hits = jit(weak_ball_hits)
+exclusive_ball_hits = jit(exclusive_ball_hits)

@@ -305,9 +305,7 @@ def _candidate_pairs(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
     if len(c.labels) <= _ALL_PAIRS:  # bound, exclusion and the exact test in one compiled pass
         ii, jj, status = exclusive_pairs(c.mean, c.cov, r, float(max_d2), birth, dotted, took)
     else:
-        ii, jj = _near_pairs(c, max_d2, r <= 0.5)  # a pair passing r_i + r_j <= 1 has one
-        keep = r[ii] + r[jj] <= 1.0
-        ii, jj = ii[keep], jj[keep]
+        ii, jj = _near_pairs(c, max_d2, exclusive=True)  # existences summing to at most 1
         keep = ~distinct_pairs(birth, dotted, took, ii, jj)
         ii, jj = ii[keep], jj[keep]
         status = exact_status(c.mean, c.cov, ii, jj, float(max_d2))
