@@ -307,6 +307,58 @@ def unique_ints(x: np.ndarray) -> np.ndarray:
     return s[keep]
 
 
+#: Runs of this many keys are insertion-sorted before :func:`argsort_stable`'s merges.
+SORT_RUN = 16
+
+
+def argsort_stable(keys: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``np.argsort(keys, kind="stable")`` of a 1-d array of floats or integers, for the
+    kernels: the same permutation (a stable sort's is unique: equal keys keep their order,
+    NaNs go last), by a merge sort (runs of :data:`SORT_RUN` keys insertion-sorted, then
+    merged bottom-up).  One small kernel compiled once into the kernel cache, where numba's
+    own ``np.argsort`` and ``np.sort`` compile their generic sort code afresh in every process
+    (about 1 s of CPU each); a kernel sorts values as ``x[argsort_stable(x)]``."""
+    n = keys.shape[0]
+    src = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        src[i] = i
+    for lo in range(0, n, SORT_RUN):
+        hi = min(lo + SORT_RUN, n)
+        for i in range(lo + 1, hi):
+            v = src[i]
+            key = keys[v]
+            j = i
+            while j > lo:  # shift while key < the previous key (NaN: greater than any number)
+                prev = keys[src[j - 1]]
+                if not (key < prev or (prev != prev and key == key)):
+                    break
+                src[j] = src[j - 1]
+                j -= 1
+            src[j] = v
+    if n <= SORT_RUN:
+        return src
+    dst = np.empty(n, dtype=np.int64)
+    width = SORT_RUN
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            i, j = lo, mid
+            for k in range(lo, hi):  # the right run's key first only when strictly less
+                if j < hi and (i == mid or keys[src[j]] < keys[src[i]]
+                               or (keys[src[i]] != keys[src[i]] and keys[src[j]] == keys[src[j]])):
+                    dst[k] = src[j]
+                    j += 1
+                else:
+                    dst[k] = src[i]
+                    i += 1
+        src, dst = dst, src
+        width *= 2
+    return src
+
+
+argsort_stable = jit(argsort_stable)
+
+
 def logsumexp(a: np.ndarray, axis: int | None = None):
     """:math:`\\log \\sum \\exp(a)` over ``axis`` (an array), or over every entry when
     ``axis`` is ``None`` (a float).  Plain numpy: scipy's has a large per-call overhead on

@@ -33,7 +33,7 @@ from operator import itemgetter
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
@@ -431,7 +431,7 @@ def _partners_by_rank(ii, jj, rank, n):  # pragma: no cover - compiled
         keys = np.empty(seg.size, dtype=np.int64)
         for k in range(seg.size):
             keys[k] = rank[seg[k]]
-        srt = np.argsort(keys)
+        srt = argsort_stable(keys)  # ties are one partner: any order of them gives the same out
         m = optr[i]
         for k in range(seg.size):
             j = seg[srt[k]]

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 
 #: The sampler's assignment codes besides a cluster's index (:mod:`tracker.bnp.gibbs` exports them).
 CLUTTER = -1
@@ -93,12 +93,13 @@ def _members(ptr, idx, log_first, N, max_members):
     for l in range(N):
         if size[l] > max_members:
             lo = first[l]
-            order = np.argsort(-log_first[pos_of[lo:lo + size[l]]], kind="mergesort")
+            order = argsort_stable(-log_first[pos_of[lo:lo + size[l]]])
             for i in range(max_members, size[l]):
                 member[pos_of[lo + order[i]]] = False
-            kept = np.sort(meas_of[lo + order[:max_members]])
+            kept = meas_of[lo + order[:max_members]]
+            ascending = argsort_stable(kept)
             for i in range(max_members):
-                meas_of[lo + i] = kept[i]
+                meas_of[lo + i] = kept[ascending[i]]
             end[l] = lo + max_members
     return first, end, meas_of, member
 
@@ -133,10 +134,10 @@ def exchange_pairs(ptr, idx, log_first, N, max_members):
                         row[n] = b
                         n += 1
             if fill_pass == 1:
-                part = np.sort(row[:n])
+                part = argsort_stable(row[:n])
                 for i in range(n):
                     pair_a[out + i] = a
-                    pair_b[out + i] = part[i]
+                    pair_b[out + i] = row[part[i]]
             out += n
         if fill_pass == 0:
             pair_a, pair_b = np.empty(out, dtype=np.int64), np.empty(out, dtype=np.int64)
