@@ -277,7 +277,7 @@ def distinct_pairs(birth: np.ndarray, dotted: np.ndarray, taken: np.ndarray, ii:
 
 exclusive_candidates = jit(exclusive_candidates)
 pair_differences = jit(pair_differences)
-pair_status = jit(pair_status)
+pair_status = jit(pair_status, kernels_only=True)
 exact_status = jit(exact_status)
 exclusive_pairs = jit(exclusive_pairs)
 distinct_pairs = jit(distinct_pairs)
@@ -442,5 +442,5 @@ def _partners_by_rank(ii, jj, rank, n):  # pragma: no cover - compiled
     return optr, out
 
 
-_partners_by_rank = jit(_partners_by_rank)
+_partners_by_rank = jit(_partners_by_rank, kernels_only=True)
 greedy_groups = jit(greedy_groups)

@@ -444,19 +444,19 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     return accepted
 
 
-_members = jit(_members)
-exchange_pairs = jit(exchange_pairs)  # noqa: F811
+_members = jit(_members, kernels_only=True)
+exchange_pairs = jit(exchange_pairs, kernels_only=True)  # noqa: F811
 gate_bits = jit(gate_bits)  # noqa: F811
 gated = jit(gated, inline=True)  # noqa: F811
-own_weight = jit(own_weight)  # noqa: F811
+own_weight = jit(own_weight, kernels_only=True)  # noqa: F811
 _exchange = jit(_exchange, inline=True)
 _own_place = jit(_own_place, inline=True)
-pass_uniforms = jit(pass_uniforms)  # noqa: F811
+pass_uniforms = jit(pass_uniforms, kernels_only=True)  # noqa: F811
 _first_at = jit(_first_at, inline=True)
 _first_above = jit(_first_above, inline=True)
 swap_scan = jit(swap_scan)  # noqa: F811
-gates_by_cluster = jit(gates_by_cluster)  # noqa: F811
-_pair_rows = jit(_pair_rows)
-exchange_lists = jit(exchange_lists)  # noqa: F811
-exchange_tables = jit(exchange_tables)  # noqa: F811
-swap_pass = jit(swap_pass)  # noqa: F811
+gates_by_cluster = jit(gates_by_cluster, kernels_only=True)  # noqa: F811
+_pair_rows = jit(_pair_rows, kernels_only=True)
+exchange_lists = jit(exchange_lists, kernels_only=True)  # noqa: F811
+exchange_tables = jit(exchange_tables, kernels_only=True)  # noqa: F811
+swap_pass = jit(swap_pass, kernels_only=True)  # noqa: F811
