@@ -51,8 +51,8 @@ class _LazyKernel:
     its numba dispatcher, so a compiled kernel that calls another one finds a dispatcher, as if
     they had been decorated at import."""
 
-    def __init__(self, fn: Callable, inline: bool) -> None:
-        self.py_func, self.inline, self.dispatcher = fn, inline, None
+    def __init__(self, fn: Callable, inline: bool, kernels_only: bool = False) -> None:
+        self.py_func, self.inline, self.kernels_only, self.dispatcher = fn, inline, kernels_only, None
         self.__wrapped__, self.__name__, self.__qualname__, self.__doc__ = fn, fn.__name__, fn.__qualname__, fn.__doc__
 
     def __call__(self, *args: Any) -> Any:
@@ -62,18 +62,27 @@ class _LazyKernel:
         return dispatcher(*args)
 
 
+#: numba's options of every kernel (``no_cfunc_wrapper``: no kernel is called through a C
+#: function pointer).
+_NJIT_OPTIONS = {"cache": True, "nogil": True, "no_cfunc_wrapper": True}
+
+
 def _compile_pending(kernel: _LazyKernel) -> Any:
     """Decorate every pending kernel with numba and rebind the module names that held them."""
     import_numba()
     from numba import config, njit
+
+    from bnptrack.tracker._kernel_entry import kernels_only_dispatcher
 
     with _lock:
         before, config.CACHE_DIR = config.CACHE_DIR, kernel_cache_dir()
         try:  # numba picks a kernel's cache directory when it decorates it
             for k in _pending:
                 if k.dispatcher is None:
-                    opts = {"inline": "always"} if k.inline else {}
-                    k.dispatcher = njit(cache=True, nogil=True, no_cfunc_wrapper=True, **opts)(k.py_func)
+                    if k.kernels_only:
+                        k.dispatcher = kernels_only_dispatcher(k.py_func, _NJIT_OPTIONS, _decorate)
+                    else:
+                        k.dispatcher = njit(**_NJIT_OPTIONS, **({"inline": "always"} if k.inline else {}))(k.py_func)
                 _namespaces[id(k.py_func.__globals__)] = k.py_func.__globals__
         finally:
             config.CACHE_DIR = before
@@ -84,6 +93,19 @@ def _compile_pending(kernel: _LazyKernel) -> Any:
                     namespace[name] = value.dispatcher
         assert kernel.dispatcher is not None
         return kernel.dispatcher
+
+
+def _decorate(fn: Callable) -> Any:
+    """``fn`` decorated as the kernels are (the Python call of a kernels-only kernel:
+    :mod:`tracker._kernel_entry`), cached in the kernel cache folder."""
+    from numba import config, njit
+
+    with _lock:
+        before, config.CACHE_DIR = config.CACHE_DIR, kernel_cache_dir()
+        try:
+            return njit(**_NJIT_OPTIONS)(fn)
+        finally:
+            config.CACHE_DIR = before
 
 
 def import_numba() -> None:
@@ -249,13 +271,15 @@ def kernel_cache_dir() -> str:
     return os.path.join(base, kernel_sources_digest())
 
 
-def jit(fn: F, inline: bool = False) -> F:
+def jit(fn: F, inline: bool = False, kernels_only: bool = False) -> F:
     """``fn`` compiled with numba (``cache=True, nogil=True``; ``inline="always"`` when
     ``inline``) if :data:`JIT`, else ``fn`` itself (the same code, interpreted).  numba is
-    imported at the first call of any kernel (:class:`_LazyKernel`)."""
+    imported at the first call of any kernel (:class:`_LazyKernel`).  ``kernels_only``: only
+    other kernels call it, so numba builds no Python wrapper for it (a Python call compiles a
+    second copy: :mod:`tracker._kernel_entry`)."""
     if not JIT:
         return fn
-    kernel = _LazyKernel(fn, inline)
+    kernel = _LazyKernel(fn, inline, kernels_only)
     with _lock:
         _pending.append(kernel)
         _defined.append(kernel)
@@ -268,8 +292,12 @@ def kernel_bindings(modules: Iterable[Any]) -> list[tuple[Any, str, Callable]]:
     to its function runs the code of those modules interpreted, e.g. to compare it with the
     compiled code; empty without :data:`JIT`."""
     return [(module, name, value.py_func) for module in modules for name, value in sorted(vars(module).items())
-            if isinstance(value, _LazyKernel) or (type(value).__module__.startswith("numba.")
-                                                  and callable(getattr(value, "py_func", None)))]
+            if isinstance(value, _LazyKernel) or (_is_dispatcher(value) and callable(getattr(value, "py_func", None)))]
+
+
+def _is_dispatcher(value: Any) -> bool:
+    """Whether ``value`` is a numba dispatcher (one of :mod:`tracker._kernel_entry`'s too)."""
+    return any(c.__module__.startswith("numba.") for c in type(value).__mro__[:-1])
 
 
 def kernel_file_prefixes() -> list[str]:
@@ -305,6 +333,58 @@ def unique_ints(x: np.ndarray) -> np.ndarray:
     keep[0] = True
     np.not_equal(s[1:], s[:-1], out=keep[1:])
     return s[keep]
+
+
+#: Runs of this many keys are insertion-sorted before :func:`argsort_stable`'s merges.
+SORT_RUN = 16
+
+
+def argsort_stable(keys: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``np.argsort(keys, kind="stable")`` of a 1-d array of floats or integers, for the
+    kernels: the same permutation (a stable sort's is unique: equal keys keep their order,
+    NaNs go last), by a merge sort (runs of :data:`SORT_RUN` keys insertion-sorted, then
+    merged bottom-up).  One small kernel compiled once into the kernel cache, where numba's
+    own ``np.argsort`` and ``np.sort`` compile their generic sort code afresh in every process
+    (about 1 s of CPU each); a kernel sorts values as ``x[argsort_stable(x)]``."""
+    n = keys.shape[0]
+    src = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        src[i] = i
+    for lo in range(0, n, SORT_RUN):
+        hi = min(lo + SORT_RUN, n)
+        for i in range(lo + 1, hi):
+            v = src[i]
+            key = keys[v]
+            j = i
+            while j > lo:  # shift while key < the previous key (NaN: greater than any number)
+                prev = keys[src[j - 1]]
+                if not (key < prev or (prev != prev and key == key)):
+                    break
+                src[j] = src[j - 1]
+                j -= 1
+            src[j] = v
+    if n <= SORT_RUN:
+        return src
+    dst = np.empty(n, dtype=np.int64)
+    width = SORT_RUN
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            i, j = lo, mid
+            for k in range(lo, hi):  # the right run's key first only when strictly less
+                if j < hi and (i == mid or keys[src[j]] < keys[src[i]]
+                               or (keys[src[i]] != keys[src[i]] and keys[src[j]] == keys[src[j]])):
+                    dst[k] = src[j]
+                    j += 1
+                else:
+                    dst[k] = src[i]
+                    i += 1
+        src, dst = dst, src
+        width *= 2
+    return src
+
+
+argsort_stable = jit(argsort_stable, kernels_only=True)
 
 
 def logsumexp(a: np.ndarray, axis: int | None = None):

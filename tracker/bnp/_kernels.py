@@ -115,8 +115,8 @@ def clip01(x):  # pragma: no cover - compiled
     return 1.0 if x > 1.0 else x
 
 
-_pairwise_block = jit(_pairwise_block)
-np_sum = jit(np_sum)
+_pairwise_block = jit(_pairwise_block, kernels_only=True)
+np_sum = jit(np_sum, kernels_only=True)
 divide = jit(divide, inline=True)
 npmax = jit(npmax, inline=True)
 clip01 = jit(clip01, inline=True)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 from bnptrack.tracker.bnp._kernels import divide
 
 
@@ -109,7 +109,7 @@ def merge_groups(r, ii, jj):  # pragma: no cover - compiled
     the existences absorbed sum to at most 1.  Returns the groups of two or more as CSR
     (``ptr``, ``members``, leader first), leaders in the order they were formed."""
     n = r.shape[0]
-    order = np.argsort(-r, kind="mergesort")
+    order = argsort_stable(-r)
     rank = np.empty(n, dtype=np.int64)
     for k in range(n):
         rank[order[k]] = k
@@ -127,8 +127,11 @@ def merge_groups(r, ii, jj):  # pragma: no cover - compiled
         fill[a] += 1
         nb_rank[fill[b]] = rank[a]
         fill[b] += 1
-    for k in range(n):
-        nb_rank[deg[k]:deg[k + 1]].sort()
+    for k in range(n):  # each cluster's neighbours' ranks, ascending
+        seg = nb_rank[deg[k]:deg[k + 1]].copy()
+        ascending = argsort_stable(seg)
+        for q in range(seg.shape[0]):
+            nb_rank[deg[k] + q] = seg[ascending[q]]
     free = np.ones(n, dtype=np.bool_)
     ptr = np.zeros(n + 1, dtype=np.int64)
     members = np.empty(n, dtype=np.int64)

@@ -169,5 +169,5 @@ def _split_rhat_kernel(hs, hss, n):
     return 1000.0 if 1000.0 < top else top
 
 
-_log_joint_kernel = jit(_log_joint_kernel)
-_split_rhat_kernel = jit(_split_rhat_kernel)
+_log_joint_kernel = jit(_log_joint_kernel, kernels_only=True)
+_split_rhat_kernel = jit(_split_rhat_kernel, kernels_only=True)

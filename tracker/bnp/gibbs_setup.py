@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 from bnptrack.tracker.bnp.gibbs_problem import GibbsProblem
 from bnptrack.tracker.bnp.swap_moves import CLUTTER, PAIR_MEMBERS
 from bnptrack.tracker.bnp.swap_moves import exchange_pairs as _exchange_pairs
@@ -154,7 +154,7 @@ def _setup_kernel(ptr, idx, log_first, log_lik, log_clutter, log_new, N, extende
             alt[m] = _npmax(log_clutter[m], la + log_new[m])
             for j in range(ptr[m], ptr[m + 1]):
                 best[m] = log_first[j] if j == ptr[m] else _npmax(best[m], log_first[j])
-        order = np.argsort(-best, kind="mergesort")
+        order = argsort_stable(-best)
         for k in range(2):  # forward, reversed; k == 0, not a literal True/False: one compile of _greedy
             by = order if k == 0 else order[::-1].copy()
             start = _greedy(ptr, idx, log_first, N, alt, best, by, extended, k == 0)

@@ -131,5 +131,5 @@ def _sweep_kernel(c, cnt, st, par, extended, w_clutter, w_newbase, ptr, idx, w_f
 
 # the helpers are replaced by their compiled versions, which the compiled driver calls
 _half_add = jit(_half_add, inline=True)
-_site_pass = jit(_site_pass)
+_site_pass = jit(_site_pass, kernels_only=True)
 _sweeps = jit(_sweep_kernel)

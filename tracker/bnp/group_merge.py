@@ -33,7 +33,7 @@ from operator import itemgetter
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
@@ -277,7 +277,7 @@ def distinct_pairs(birth: np.ndarray, dotted: np.ndarray, taken: np.ndarray, ii:
 
 exclusive_candidates = jit(exclusive_candidates)
 pair_differences = jit(pair_differences)
-pair_status = jit(pair_status)
+pair_status = jit(pair_status, kernels_only=True)
 exact_status = jit(exact_status)
 exclusive_pairs = jit(exclusive_pairs)
 distinct_pairs = jit(distinct_pairs)
@@ -431,7 +431,7 @@ def _partners_by_rank(ii, jj, rank, n):  # pragma: no cover - compiled
         keys = np.empty(seg.size, dtype=np.int64)
         for k in range(seg.size):
             keys[k] = rank[seg[k]]
-        srt = np.argsort(keys)
+        srt = argsort_stable(keys)  # ties are one partner: any order of them gives the same out
         m = optr[i]
         for k in range(seg.size):
             j = seg[srt[k]]
@@ -442,5 +442,5 @@ def _partners_by_rank(ii, jj, rank, n):  # pragma: no cover - compiled
     return optr, out
 
 
-_partners_by_rank = jit(_partners_by_rank)
+_partners_by_rank = jit(_partners_by_rank, kernels_only=True)
 greedy_groups = jit(greedy_groups)

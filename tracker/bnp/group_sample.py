@@ -107,7 +107,7 @@ def _compact(z, G, T):  # pragma: no cover - compiled
     return out
 
 
-_table_priors = jit(_table_priors)
+_table_priors = jit(_table_priors, kernels_only=True)
 _compact = jit(_compact)
 
 

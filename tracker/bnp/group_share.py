@@ -178,7 +178,7 @@ def _share_moments(N, m, P, K, KHP, s_mu, w, o):  # pragma: no cover - compiled
     return new_mean, sym
 
 
-_share_moments = jit(_share_moments)
+_share_moments = jit(_share_moments, kernels_only=True)
 _share_velocity_kernel = jit(_share_velocity_kernel)
 
 

@@ -106,7 +106,7 @@ def theta_sums(R: np.ndarray, v: np.ndarray, slot: np.ndarray, n_used: int, h_la
     return mean, cov
 
 
-theta_sums = jit(theta_sums)
+theta_sums = jit(theta_sums, kernels_only=True)
 
 
 def _transition_kernel(z, ids, v0, R0, hl0, he0, v1, R1, hl1, he1, n_blocks):  # pragma: no cover - compiled

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 
 #: The sampler's assignment codes besides a cluster's index (:mod:`tracker.bnp.gibbs` exports them).
 CLUTTER = -1
@@ -93,12 +93,13 @@ def _members(ptr, idx, log_first, N, max_members):
     for l in range(N):
         if size[l] > max_members:
             lo = first[l]
-            order = np.argsort(-log_first[pos_of[lo:lo + size[l]]], kind="mergesort")
+            order = argsort_stable(-log_first[pos_of[lo:lo + size[l]]])
             for i in range(max_members, size[l]):
                 member[pos_of[lo + order[i]]] = False
-            kept = np.sort(meas_of[lo + order[:max_members]])
+            kept = meas_of[lo + order[:max_members]]
+            ascending = argsort_stable(kept)
             for i in range(max_members):
-                meas_of[lo + i] = kept[i]
+                meas_of[lo + i] = kept[ascending[i]]
             end[l] = lo + max_members
     return first, end, meas_of, member
 
@@ -133,10 +134,10 @@ def exchange_pairs(ptr, idx, log_first, N, max_members):
                         row[n] = b
                         n += 1
             if fill_pass == 1:
-                part = np.sort(row[:n])
+                part = argsort_stable(row[:n])
                 for i in range(n):
                     pair_a[out + i] = a
-                    pair_b[out + i] = part[i]
+                    pair_b[out + i] = row[part[i]]
             out += n
         if fill_pass == 0:
             pair_a, pair_b = np.empty(out, dtype=np.int64), np.empty(out, dtype=np.int64)
@@ -443,19 +444,19 @@ def swap_pass(c, cnt, extended, pair_a, pair_b, w_clutter, w_newbase, ptr, idx, 
     return accepted
 
 
-_members = jit(_members)
-exchange_pairs = jit(exchange_pairs)  # noqa: F811
+_members = jit(_members, kernels_only=True)
+exchange_pairs = jit(exchange_pairs, kernels_only=True)  # noqa: F811
 gate_bits = jit(gate_bits)  # noqa: F811
 gated = jit(gated, inline=True)  # noqa: F811
-own_weight = jit(own_weight)  # noqa: F811
+own_weight = jit(own_weight, kernels_only=True)  # noqa: F811
 _exchange = jit(_exchange, inline=True)
 _own_place = jit(_own_place, inline=True)
-pass_uniforms = jit(pass_uniforms)  # noqa: F811
+pass_uniforms = jit(pass_uniforms, kernels_only=True)  # noqa: F811
 _first_at = jit(_first_at, inline=True)
 _first_above = jit(_first_above, inline=True)
 swap_scan = jit(swap_scan)  # noqa: F811
-gates_by_cluster = jit(gates_by_cluster)  # noqa: F811
-_pair_rows = jit(_pair_rows)
-exchange_lists = jit(exchange_lists)  # noqa: F811
-exchange_tables = jit(exchange_tables)  # noqa: F811
-swap_pass = jit(swap_pass)  # noqa: F811
+gates_by_cluster = jit(gates_by_cluster, kernels_only=True)  # noqa: F811
+_pair_rows = jit(_pair_rows, kernels_only=True)
+exchange_lists = jit(exchange_lists, kernels_only=True)  # noqa: F811
+exchange_tables = jit(exchange_tables, kernels_only=True)  # noqa: F811
+swap_pass = jit(swap_pass, kernels_only=True)  # noqa: F811

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from bnptrack.tracker.numerics import jit
+from bnptrack.tracker.numerics import argsort_stable, jit
 
 #: Measurement kinds of :func:`ukf_innovation_kernel` (``h`` and which residual is wrapped).
 KIND_BEARING_RANGE, KIND_RANGE, KIND_XY = 0, 1, 2
@@ -448,7 +448,7 @@ def loglik_balls(z_pred: np.ndarray, S_inv: np.ndarray, log_det: np.ndarray, Z: 
                             keys, dist = _grown(keys, L), _grown(dist, L)
                         keys[L], dist[L] = pts[q] * N + n, D2
                         L += 1
-    order = np.argsort(keys[:L], kind="mergesort")
+    order = argsort_stable(keys[:L])
     ti, mi, ll = np.empty(L, np.int64), np.empty(L, np.int64), np.empty(L)
     out = 0
     for i in range(L):
