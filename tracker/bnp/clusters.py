@@ -175,6 +175,20 @@ def _cell_range(lo: float, hi: float, h: float, n: int) -> tuple[int, int]:  # p
     return int(min(max(np.floor(lo / h), 0.0), n - 1.0)), int(min(max(np.floor(hi / h), 0.0), n - 1.0))
 
 
+def _grid_shape(pos: np.ndarray, radius: np.ndarray) -> tuple[float, float, float, int, int]:  # pragma: no cover - compiled
+    """The grid of :func:`ball_hits` over ``pos`` (n >= 1): its corner ``(x0, y0)``, cell width
+    ``h`` (about the median radius, doubled until at most 4 n + 16 cells) and cells ``nx x ny``."""
+    n = pos.shape[0]
+    x0, x1, y0, y1 = pos[:, 0].min(), pos[:, 0].max(), pos[:, 1].min(), pos[:, 1].max()
+    h = np.median(radius)
+    if not (np.isfinite(h) and h > 1e-9 * max(x1 - x0, y1 - y0, 1.0)):
+        h = max(x1 - x0, y1 - y0, 1.0)
+    while (np.floor((x1 - x0) / h) + 1.0) * (np.floor((y1 - y0) / h) + 1.0) > 4.0 * n + 16.0:
+        h *= 2.0
+    nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
+    return x0, y0, h, nx, ny
+
+
 def ball_hits(pos: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Pairs ``(a, b)``, ``a != b``, with point ``b`` within about ``radius[a]`` of point ``a``
     (squared distance at most ``radius[a]^2 (1 + 1e-6)``: a superset of the ball's points) from
@@ -183,24 +197,8 @@ def ball_hits(pos: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarr
     n = pos.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    x0, x1, y0, y1 = pos[:, 0].min(), pos[:, 0].max(), pos[:, 1].min(), pos[:, 1].max()
-    h = np.median(radius)
-    if not (np.isfinite(h) and h > 1e-9 * max(x1 - x0, y1 - y0, 1.0)):
-        h = max(x1 - x0, y1 - y0, 1.0)
-    while (np.floor((x1 - x0) / h) + 1.0) * (np.floor((y1 - y0) / h) + 1.0) > 4.0 * n + 16.0:
-        h *= 2.0
-    nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
-    cell = np.empty(n, dtype=np.int64)
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    for k in range(n):
-        cell[k] = min(int((pos[k, 0] - x0) / h), nx - 1) * ny + min(int((pos[k, 1] - y0) / h), ny - 1)
-        start[cell[k] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    fill, members = start[:-1].copy(), np.empty(n, dtype=np.int64)
-    for k in range(n):
-        members[fill[cell[k]]] = k
-        fill[cell[k]] += 1
+    x0, y0, h, nx, ny = _grid_shape(pos, radius)
+    start, members = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
     out_a, out_b, count = np.empty(4 * n, dtype=np.int64), np.empty(4 * n, dtype=np.int64), 0
     for a in range(n):
         r = radius[a] * (1.0 + 1e-6)
@@ -249,13 +247,7 @@ def exclusive_ball_hits(pos: np.ndarray, radius: np.ndarray, existence: np.ndarr
     n = pos.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    x0, x1, y0, y1 = pos[:, 0].min(), pos[:, 0].max(), pos[:, 1].min(), pos[:, 1].max()
-    h = np.median(radius)
-    if not (np.isfinite(h) and h > 1e-9 * max(x1 - x0, y1 - y0, 1.0)):
-        h = max(x1 - x0, y1 - y0, 1.0)
-    while (np.floor((x1 - x0) / h) + 1.0) * (np.floor((y1 - y0) / h) + 1.0) > 4.0 * n + 16.0:
-        h *= 2.0
-    nx, ny = int(np.floor((x1 - x0) / h)) + 1, int(np.floor((y1 - y0) / h)) + 1
+    x0, y0, h, nx, ny = _grid_shape(pos, radius)
     start_all, members_all = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
     weak = existence <= 0.5
     start_weak, members_weak = _grid_members(pos, np.flatnonzero(weak), x0, y0, h, nx, ny)
@@ -282,6 +274,7 @@ def exclusive_ball_hits(pos: np.ndarray, radius: np.ndarray, existence: np.ndarr
 
 
 _cell_range = jit(_cell_range)
+_grid_shape = jit(_grid_shape)
 ball_hits = jit(ball_hits)
 _grid_members = jit(_grid_members)
 exclusive_ball_hits = jit(exclusive_ball_hits)
