@@ -434,12 +434,16 @@ def split_pipeline_overrides(overrides: Sequence[str]) -> tuple[tuple[str, ...],
     return tuple(to_pipe), tuple(to_model)
 
 
+#: Where an unknown pipeline key's error sends the user.
+PIPELINE_KEYS_LISTED_IN = "docs/pipeline.md, 'The pipeline file', lists the keys"
+
+
 def apply_pipeline_overrides(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
     """Apply ``--set`` items (see :func:`split_pipeline_overrides`); the tracker's items
     are appended to ``tracker.overrides`` (checked by :mod:`pipeline.preflight`)."""
     to_pipe, to_model = split_pipeline_overrides(overrides)
     try:
-        cfg = apply_overrides(cfg, to_pipe)
+        cfg = apply_overrides(cfg, to_pipe, listed_in=PIPELINE_KEYS_LISTED_IN)
     except ValueError as exc:  # __post_init__ errors surface as ValidationError -> ConfigError
         raise ConfigError(str(exc)) from None
     if to_model:

@@ -130,8 +130,8 @@ def apply_split_overrides(
         head, dot, _ = split_item(item, names)[0].partition(".")
         dest = head if dot and head in typed else ("params" if head in ModelParams.__struct_fields__ else "tracker")
         typed[dest].append(item)
-    return (apply_overrides(params, p_over, typed["params"], names),
-            apply_overrides(config, t_over, typed["tracker"], names))
+    return (apply_overrides(params, p_over, typed["params"], names, "docs/models.md lists the keys"),
+            apply_overrides(config, t_over, typed["tracker"], names, "docs/trackers.md lists the keys"))
 
 
 # --------------------------------------------------------------------------- params

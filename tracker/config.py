@@ -85,11 +85,17 @@ def did_you_mean(key: str, known: Sequence[str], n: int = 1, prefix: str = "") -
     return f" (did you mean {', '.join(close[:-1])} or {close[-1]}?)" if len(close) > 1 else f" (did you mean {close[0]}?)"
 
 
-def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: str | None = None) -> None:
+#: Where an unknown key's error sends the user when the known keys are too many to list.
+KEYS_LISTED_IN = "docs/models.md and docs/trackers.md list the keys"
+
+
+def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: str | None = None,
+                listed_in: str = KEYS_LISTED_IN) -> None:
     """Set ``data[a][b]...= value`` for ``key = "a.b..."``.  A missing table under an empty
     table (a name-keyed table such as ``sensors``: ``--set sensors.radar0.x=5``) is created;
     the struct validation that follows checks its keys.  Errors name the key as ``shown``
-    (default ``key``)."""
+    (default ``key``) and, for an unknown key among many, the page that lists them
+    (``listed_in``)."""
     parts = key.split(".")
     node, created = data, False
     for i, part in enumerate(parts[:-1]):
@@ -105,7 +111,7 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: 
         node = child
     if parts[-1] not in node and not created:
         known = ", ".join(sorted(node)) or "(none)"
-        where = f"known here: {known}" if len(node) <= KNOWN_LISTED else "docs/models.md and docs/trackers.md list the keys"
+        where = f"known here: {known}" if len(node) <= KNOWN_LISTED else listed_in
         typed = shown or key
         table = typed.rsplit(".", 1)[0] + "." if "." in typed else ""
         raise ConfigError(f"{origin}: unknown key '{typed}'{did_you_mean(parts[-1], list(node), 3, table)} "
@@ -128,10 +134,11 @@ def split_item(item: str, names: ArgNames = CLI_NAMES) -> tuple[str, str]:
 
 
 def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
-                    names: ArgNames = CLI_NAMES) -> S:
+                    names: ArgNames = CLI_NAMES, listed_in: str = KEYS_LISTED_IN) -> S:
     """Return a copy of ``obj`` with ``key=value`` overrides applied and re-validated.
     ``typed``: the same items as the user typed them (e.g. ``tracker.sweeps=10`` for
-    ``sweeps=10``), named in the errors instead; ``names``: how the errors name the items."""
+    ``sweeps=10``), named in the errors instead; ``names``: how the errors name the items;
+    ``listed_in``: where an unknown key's error says the keys of ``obj`` are documented."""
     if not overrides:
         return obj
     data = msgspec.to_builtins(obj)
@@ -139,7 +146,8 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
     keys = {}
     for item, as_typed in zip(overrides, shown):
         key, text = split_item(item, names)
-        _set_dotted(data, key, parse_value(text), names.set_item.format(as_typed), split_item(as_typed, names)[0])
+        _set_dotted(data, key, parse_value(text), names.set_item.format(as_typed), split_item(as_typed, names)[0],
+                    listed_in)
         keys[key] = as_typed
     try:
         return msgspec.convert(data, type(obj))

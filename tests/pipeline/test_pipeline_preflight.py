@@ -133,6 +133,22 @@ def test_unknown_bare_set_key_gives_tracks_error(vo_log, tmp_path):
     assert_refused(res, out, "unknown key 'source.foo'")
 
 
+@pytest.mark.parametrize("item, page", [
+    ("source.foo=1", "(docs/pipeline.md, 'The pipeline file', lists the keys)"),
+    ("zenoh.foo=1", "(docs/pipeline.md, 'The pipeline file', lists the keys)"),
+    ("params.foo=1", "(docs/models.md lists the keys)"),
+    ("tracker.foo=1", "(docs/trackers.md lists the keys)"),
+    ("objects.foo=1", "(docs/trackers.md lists the keys)"),
+])
+def test_unknown_key_names_the_page_that_lists_its_table(item, page, tmp_path):
+    """An unknown key of a table too large to list is sent to the page documenting that table:
+    pipeline keys to docs/pipeline.md, model parameters to docs/models.md, tracker settings to
+    docs/trackers.md."""
+    out = tmp_path / "r"
+    res = cli("launch", "--set", item, "--out", out)
+    assert_refused(res, out, f"unknown key '{item.partition('=')[0]}' {page}")
+
+
 @pytest.mark.integration  # a real replay: stage processes over Zenoh
 def test_replay_set_bare_keys_equal_track_with_the_same_set(vo_log, tmp_path):
     """``replay LOG --set p_detect=0.9 --set sweeps=8 --set tracker.burn_in=2`` runs the tracker
