@@ -82,13 +82,23 @@ def _trackable_note(channel) -> str:
     return ""
 
 
+def _unposed_note(name: str, kind: str) -> str:
+    """The sensor row's note for a sensor whose frames carry no pose (not the default sensor)."""
+    from bnptrack.tracker.models.measurement import KINDS
+
+    entry = KINDS.get(kind)
+    default = ("its field of view and clutter region are the default sensor's, at (0, 0) facing +y"
+               if entry is not None and entry.world_frame else "it is tracked as if at (0, 0) facing +y")
+    return f", no pose in its frames: give --params a [sensors.{name}] table with x, y, heading_deg (else {default})"
+
+
 def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements);
     a sensor whose stamps look like another unit gets ``track``'s warning."""
     import numpy as np
 
     from bnptrack.sources.mcap_log import iter_frames
-    from bnptrack.tracker.input_checks import check_spacing, warn
+    from bnptrack.tracker.input_checks import DEFAULT_SENSOR_NAMES, check_spacing, warn
 
     sensors: dict[tuple[str, str], list] = {}
     stamps, n_meas, truth, error = [], 0, 0, None
@@ -111,7 +121,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
                        f"{truth} with truth)")]
     for (name, kind), (n, poses, _) in sensors.items():
-        pose = ""
+        pose = _unposed_note(name, kind) if name not in DEFAULT_SENSOR_NAMES else ""
         if poses:
             p = sorted(poses)[0]
             pose = f", pose ({p[0]:g}, {p[1]:g}, {np.rad2deg(p[2]):g} deg)" + (f" and {len(poses) - 1} more" if len(poses) > 1 else "")

@@ -157,3 +157,12 @@ def test_info_lists_channels_sensors_time_and_record(tmp_path):
     assert CliRunner().invoke(main, ["simulate", "--seed", "2", "--out", str(sim), "-q"]).exit_code == 0
     out = CliRunner().invoke(main, ["info", str(sim)]).output
     assert "record.scenario   vo2017" in out and "record.seed       2" in out and "/truth" in out
+    assert "sensor            sim0: kind bearing_range, 100 frames\n" in out  # the default sensor: no note
+
+
+def test_info_says_a_sensor_without_pose_needs_one(tmp_path):
+    log = tmp_path / "unposed.mcap"
+    _user_log(log, np.deg2rad(90.0), send_pose=False)
+    out = CliRunner().invoke(main, ["info", str(log)]).output
+    assert ("sensor            radar0: kind bearing_range, 60 frames, no pose in its frames: give --params a "
+            "[sensors.radar0] table with x, y, heading_deg (else it is tracked as if at (0, 0) facing +y)\n") in out
