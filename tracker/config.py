@@ -75,11 +75,12 @@ def parse_value(text: str) -> Any:
         return text
 
 
-def did_you_mean(key: str, known: Sequence[str], n: int = 1, prefix: str = "") -> str:
-    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib; up to ``n``
-    of them, closest first: `` (did you mean 'x', 'y' or 'z'?)``), else ``""``; each shown
-    after ``prefix`` (the dotted table of a nested key: ``'tracker.sweeps'``)."""
-    close = [f"'{prefix}{c}'" for c in difflib.get_close_matches(key, list(known), n=n, cutoff=0.6)]
+def did_you_mean(key: str, known: Sequence[str], n: int = 1, prefix: str = "", cutoff: float = 0.6) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``key`` (difflib, similarity at
+    least ``cutoff``; up to ``n`` of them, closest first: `` (did you mean 'x', 'y' or 'z'?)``),
+    else ``""``; each shown after ``prefix`` (the dotted table of a nested key:
+    ``'tracker.sweeps'``)."""
+    close = [f"'{prefix}{c}'" for c in difflib.get_close_matches(key, list(known), n=n, cutoff=cutoff)]
     if not close:
         return ""
     return f" (did you mean {', '.join(close[:-1])} or {close[-1]}?)" if len(close) > 1 else f" (did you mean {close[0]}?)"

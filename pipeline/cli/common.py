@@ -8,7 +8,6 @@ traceback instead.
 
 from __future__ import annotations
 
-import difflib
 import contextlib
 import functools
 import os
@@ -23,7 +22,7 @@ import click
 
 from bnptrack.tracker.messages import CodecError
 from bnptrack.sources.mcap_log import McapLogError
-from bnptrack.tracker.config import ConfigError
+from bnptrack.tracker.config import ConfigError, did_you_mean
 
 __all__ = [
     "EXIT_ERROR",
@@ -60,8 +59,8 @@ class Choice(click.Choice):
 
     def get_invalid_choice_message(self, value: Any, ctx: click.Context | None) -> str:
         message = super().get_invalid_choice_message(value, ctx)
-        close = difflib.get_close_matches(str(value), [str(c) for c in self.choices], n=1, cutoff=0.5)
-        return f"{message.rstrip('.')} (did you mean {close[0]!r}?)" if close else message
+        hint = did_you_mean(str(value), [str(c) for c in self.choices], cutoff=0.5)
+        return f"{message.rstrip('.')}{hint}" if hint else message
 
 
 class CliError(click.ClickException):
