@@ -118,12 +118,15 @@ def screenshot(
     start of a view's name, e.g. ``"scene"``) captures that view alone.  Raises
     :class:`ViewerUnavailable` with the reason (e.g. no Vulkan/GL adapter: install
     ``mesa-vulkan-drivers``) when the viewer cannot start or render, :class:`ValueError` for a
-    frame outside the recording, :class:`TimeoutError` after ``timeout`` seconds.
+    frame outside the recording or an ``out_png`` that is not a ``.png`` name, is the
+    recording, or is an existing file other than a PNG (an existing PNG is replaced),
+    :class:`TimeoutError` after ``timeout`` seconds.
     """
     import tempfile
 
     path = _check_rrd(path).resolve()
     out_png = Path(out_png)
+    _check_png_out(out_png, path)
     width, height = (int(v) for v in size)
     if width < 64 or height < 64:
         raise ValueError(f"size must be at least 64x64, got {width}x{height}")
@@ -145,6 +148,24 @@ def screenshot(
             return out_png
         finally:
             _stop(proc)
+
+
+#: The bytes every PNG file starts with.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _check_png_out(out_png: Path, recording: Path) -> None:
+    """A screenshot goes to a ``.png`` file that is not the recording and, if it exists, is a
+    PNG (a picture being regenerated); anything else is a :class:`ValueError` naming it."""
+    if out_png.suffix.lower() != ".png":
+        raise ValueError(f"--screenshot {out_png}: the picture is a PNG; give a file name ending in .png")
+    if out_png.exists():
+        if out_png.resolve() == recording:
+            raise ValueError(f"--screenshot {out_png}: the picture would overwrite the recording it renders")
+        with open(out_png, "rb") as f:
+            if f.read(len(PNG_MAGIC)) != PNG_MAGIC:
+                raise ValueError(f"--screenshot {out_png}: the file exists and is not a PNG; "
+                                 f"choose another name or remove it")
 
 
 def _viewer_client_class() -> Any:

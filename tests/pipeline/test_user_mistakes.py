@@ -456,6 +456,26 @@ def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
     assert not (tmp_path / "s.png").exists()
 
 
+@pytest.mark.parametrize("target, fragment", [
+    ("rec.rrd", "the picture is a PNG; give a file name ending in .png"),
+    ("shot.jpg", "the picture is a PNG; give a file name ending in .png"),
+    ("notes.png", "the file exists and is not a PNG; choose another name or remove it"),
+    ("rec.png", "the picture would overwrite the recording it renders"),
+])
+def test_a_screenshot_never_replaces_the_recording_or_a_file_other_than_a_png(tmp_path, target, fragment):
+    """Refused before the viewer starts; the file named keeps its bytes."""
+    body = b"RRF2\x00)\x00\x00" + bytes(64)
+    (tmp_path / "rec.rrd").write_bytes(body)
+    (tmp_path / "rec.png").write_bytes(body)  # a recording under a .png name
+    (tmp_path / "notes.png").write_bytes(b"my notes")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    rec = tmp_path / ("rec.png" if target == "rec.png" else "rec.rrd")
+    res = _run("view", rec, "--screenshot", tmp_path / target)
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: --screenshot {tmp_path / target}: {fragment}"
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
 def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
     log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)
     res = _run("info", log)
