@@ -21,12 +21,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bnptrack.sinks.crossings import CrossingResult
-from bnptrack.sinks.metrics import OspaResult
-from bnptrack.sinks.metrics import OSPA_C, OSPA_P
+from bnptrack.sinks.metrics import OSPA_C, OSPA_P, OspaResult
 from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.sink import SinkSet, make_sink
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import McapLogError, first_frames, iter_frames
 from bnptrack.sources.scenarios import OpenScenario, parse_crossings
@@ -450,6 +450,7 @@ def track_to_sinks(
     topic_map: Mapping[str, str] | None = None,
     window: FrameWindow | None = None,
     lag: int = 0,
+    stop: StopOnSignal | None = None,
 ) -> TrackResult:
     """Track the frames of an MCAP log (those of ``window``; default: all; with ``lag`` > 0
     the fixed-lag output of :mod:`tracker.lag`) and record each frame,
@@ -461,6 +462,7 @@ def track_to_sinks(
 
     A damaged input is processed up to its readable end (a frame beyond ``bounds`` ends it
     too); the outputs then hold that prefix and :attr:`TrackResult.error` holds the error.
+    A signal held by ``stop`` ends the input at the next frame, as if the log ended there.
     """
 
     online: dict[int, Estimate] = {}
@@ -475,6 +477,8 @@ def track_to_sinks(
         frames = iter_frames(Path(log), dict(topic_map or {}))
         if window is not None:
             frames = window.cut(frames)
+        if stop is not None:
+            frames = stop.until_stopped(frames)
         return track_frames(tracker, frames, seed, write, crossings, bounds, lag,
                             lambda frame, est: online.__setitem__(frame.frame, est))
 

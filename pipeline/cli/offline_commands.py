@@ -38,6 +38,7 @@ from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.offline import (TrackResult, check_output_path, check_outputs, default_tracks_path,
                               open_sinks, read_log_start, refuse_existing, track_to_sinks)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
+from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
 from bnptrack.sources.frame_window import FrameWindow
@@ -295,6 +296,8 @@ def track(
     written, then the error is reported and the exit code is 2. A frame that jumps beyond
     --max-frame-gap / --max-gap-s, or that does not come after the previous one, is skipped:
     the run goes on, the skipped frames are named and the exit code is 3 (as in `replay`).
+    Ctrl-C or SIGTERM ends the run at the next frame as if the log ended there (complete
+    files, the summary, exit code 130); a second one stops at once.
 
     \b
     Examples:
@@ -314,18 +317,24 @@ def track(
                           metadata=read_metadata(log), seed=seed)
     check_output_path(log, io.out)
     _header(log, setup, quiet)
-    with compile_progress(tracker_name, quiet):
-        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag)
+    with compile_progress(tracker_name, quiet), StopOnSignal() as stop:
+        res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag, stop)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
-    _track_outcome(res, io.out)
+    _track_outcome(res, io.out, stop.signal_name)
 
 
-def _track_outcome(res: TrackResult, out: Path) -> None:
-    """``track``'s error after the summary: a damaged log (exit 2), or frames beyond the
-    bounds skipped (exit 3: how many, the first reasons)."""
+def _track_outcome(res: TrackResult, out: Path, signal_name: str | None = None) -> None:
+    """``track``'s error after the summary: a damaged log (exit 2), a stop by a signal (exit
+    130: the frames tracked and written before it), or frames beyond the bounds skipped (exit
+    3: how many, the first reasons)."""
     if res.error is not None:
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}")
+    if signal_name is not None:
+        last = f" (up to log frame {res.frames[-1].frame})" if res.frames else ""
+        click.echo(f"Interrupted by {signal_name}: tracked and wrote {res.n_frames} frame(s){last}; "
+                   f"the outputs are complete files", err=True)
+        raise SystemExit(130)
     if res.skipped:
         first = "; ".join(why for _, why in res.skipped[:3]) + ("; ..." if len(res.skipped) > 3 else "")
         raise IncompleteError(f"output incomplete: {len(res.skipped)} frame(s) beyond the frame bounds skipped "
@@ -397,13 +406,15 @@ class _TrackIO:
             except ValueError as exc:
                 raise CliError(str(exc)) from None
 
-    def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0) -> TrackResult:
-        """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the sinks."""
+    def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0,
+            stop: StopOnSignal | None = None) -> TrackResult:
+        """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the
+        sinks (up to a signal held by ``stop``)."""
         check_frames(setup.params, self.head, setup.choice.source)  # a misspelt sensor: an error before tracking
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,
-                              window, lag)
+                              window, lag, stop)
 
 
 def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> tuple[FrameWindow, tuple[str, ...]]:
