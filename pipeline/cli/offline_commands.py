@@ -287,10 +287,9 @@ def track(
     Reads the frames of LOG (/measurements with /truth when present), runs the tracker
     frame by frame and writes --out with the input frames, one /tracks message per frame
     and LOG's metadata record (plus tracker, tracker_seed, tracker_params,
-    tracker_config). Prints mean OSPA (c=100 m, p=1, on position), mean OSPA(2) and mean
-    cardinality error when the log has truth, the final tracks with their names and the labels
-    reported in all, and the time per frame (with --lag: online step + lag layer), the lines
-    `launch` and `replay` print.
+    tracker_config). Prints the lines `launch` and `replay` print: mean OSPA (c=100 m, p=1),
+    OSPA(2) and cardinality error with truth, the final tracks, the labels reported, the time
+    per frame (with --lag: online step + lag layer).
 
     A truncated or corrupt LOG is processed up to its last readable frame; that prefix is
     written, then the error is reported and the exit code is 2. A frame that jumps beyond
