@@ -295,8 +295,7 @@ def track(
     written, then the error is reported and the exit code is 2. A frame that jumps beyond
     --max-frame-gap / --max-gap-s, or that does not come after the previous one, is skipped:
     the run goes on, the skipped frames are named and the exit code is 3 (as in `replay`).
-    Ctrl-C or SIGTERM ends the run at the next frame as if the log ended there (complete
-    files, the summary, exit code 130); a second one stops at once.
+    Ctrl-C or SIGTERM ends the run at the next frame as if the log ended (exit code 130).
 
     \b
     Examples:
