@@ -15,9 +15,8 @@ call on two numbers, most of the kernel's time.  OpenBLAS (0.3.31, Haswell kerne
 :func:`gemv2` and :func:`dot2` compute exactly these with ``llvm.fma.f64`` (:func:`fma`, a numba
 intrinsic: one instruction on a CPU with FMA, a correctly rounded libm call otherwise): the
 same doubles as that BLAS, bit for bit, including signed zeros, infinities and NaNs.  That ties
-the kernel to this formula: a BLAS that rounds differently (another CPU's kernels, e.g. an AMD
-EPYC's ``ddot``, which differs in the last bits) would have given other last bits before, and
-now gives the formula's.  ``tests/tracker/test_group_fma.py`` checks the compiled products
+the kernel to this formula on every machine, whatever its BLAS rounds (another CPU's kernels,
+e.g. an AMD EPYC's ``ddot``, differ in the last bits).  ``tests/tracker/test_group_fma.py`` checks the compiled products
 against the formula in exact arithmetic, and BLAS's within a dot product's error bound.
 Interpreted (``BNPTRACK_NO_JIT=1``), :func:`fma` is the correctly rounded ``a b + c`` in exact
 rational arithmetic.
