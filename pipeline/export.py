@@ -2,7 +2,8 @@
 
 One row per track per frame: ``frame, stamp_ns, label, name, px, vx, py, vy, omega`` (the state;
 ``name`` the track's display name, :func:`tracker.types.display_name`, as the viewer shows it),
-``var_px .. var_omega`` (the covariance diagonal) and ``existence``.  When the run has truth
+``var_px .. var_omega`` (the covariance diagonal), ``existence`` and ``cluster`` (the motion
+cluster of a two-level tracker's object, the viewer's track colour; empty for other trackers).  When the run has truth
 (``/truth``), a second table holds one row per frame: ``frame, stamp_ns, n_true, n_tracks,
 n_measurements, ospa, ospa_localisation, ospa_cardinality, cardinality_error`` (OSPA c = 100 m,
 p = 1 on position, as ``bnptrack track`` prints).
@@ -19,7 +20,8 @@ from bnptrack.sources.mcap_log import read_log
 from bnptrack.tracker.types import display_name
 
 STATE_NAMES = ("px", "vx", "py", "vy", "omega")
-TRACK_COLUMNS = ("frame", "stamp_ns", "label", "name", *STATE_NAMES, *(f"var_{n}" for n in STATE_NAMES), "existence")
+TRACK_COLUMNS = ("frame", "stamp_ns", "label", "name", *STATE_NAMES, *(f"var_{n}" for n in STATE_NAMES), "existence",
+                 "cluster")
 METRIC_COLUMNS = ("frame", "stamp_ns", "n_true", "n_tracks", "n_measurements", "ospa", "ospa_localisation",
                   "ospa_cardinality", "cardinality_error")
 
@@ -44,7 +46,8 @@ def run_tables(run: str | os.PathLike) -> tuple[list[tuple], list[tuple]]:
     for est in log.tracks:
         for t in est.tracks:
             tracks.append((est.frame, est.stamp_ns, t.label, display_name(t.label), *map(float, t.state),
-                           *map(float, t.covariance.diagonal()), float(t.existence)))
+                           *map(float, t.covariance.diagonal()), float(t.existence),
+                           None if t.cluster is None else int(t.cluster)))
         f = frames.get(est.frame)
         if f is not None and f.truth is not None:
             m = frame_metrics(f, est)
