@@ -95,6 +95,7 @@ class _RobotScanner:
         self.offset = 0
         self.schemas: dict[int, Schema] = {}
         self.decoders: dict[int, tuple[Callable[[bytes], Any], MessageReader | None, str]] = {}
+        self.per_topic: dict[str, int] = {}  # messages read of each topic (for the errors)
 
     def run(self) -> None:
         """Read the file to its end (or raise McapLogError; ``pending`` holds what was read)."""
@@ -147,14 +148,17 @@ class _RobotScanner:
         if dec is None:
             return
         decode, reader, topic = dec
+        self.per_topic[topic] = k = self.per_topic.get(topic, 0) + 1
         try:
             msg = decode(rec.data)
             if reader is None:
                 self.tf.add(msg)
                 return
             scan = reader.scan(msg)
-        except Exception as exc:  # a message the library or the reader cannot read
-            raise self._error("invalid", f"{topic} message {self.n_messages}: {type(exc).__name__}: {exc}",
+        except ValueError as exc:  # the reader's check of a decoded message
+            raise self._error("invalid", f"{topic}'s message {k}: {exc}", topic) from exc
+        except Exception as exc:  # bytes the decoder cannot read
+            raise self._error("invalid", f"{topic}'s message {k} cannot be decoded: {type(exc).__name__}: {exc}",
                               topic) from exc
         stamp = scan.stamp_ns if scan.stamp_ns is not None else rec.log_time
         pending = self.pending

@@ -309,6 +309,24 @@ def test_radar_rows_are_checked_at_the_edge():
         RadarScanReader().scan(msg((0.5, 10.0), (0.1, -2.0)))
 
 
+def test_a_bad_ros_message_is_named_by_its_channel_s_count(logs, tmp_path):
+    """The error counts the channel's own messages (the file's count, /tf_static included, is
+    the McapLogError's) and gives the reader's reason without a Python class name."""
+    from bnptrack.sources.mcap_log import McapLogError, iter_frames
+
+    radar = logs["radar"][:8]
+    scans = [rl.radar_scan(f) for f in radar]
+    scans[5]["returns"][0]["range"] = -5.0
+    items = [("/tf_static", "tf2_msgs/msg/TFMessage", rl.tf_static(TF), 1)]
+    items += [("/radar/scan", "radar_msgs/msg/RadarScan", m, f.stamp_ns + rl.LOG_DELAY_NS) for f, m in zip(radar, scans)]
+    path = rl.write_ros2(tmp_path / "bad.mcap", items)
+    with pytest.raises(McapLogError) as err:
+        list(iter_frames(path, {"/radar/scan": "/measurements"}))
+    text = str(err.value)
+    assert "/radar/scan's message 6: return 0 has a negative range -5.0" in text, text
+    assert "ValueError" not in text
+
+
 # --------------------------------------------------------------------------- the pipeline
 
 
