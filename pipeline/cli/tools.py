@@ -216,6 +216,8 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None, overwrite:
                               if res.metrics_path else []))
     except ValueError as exc:
         raise CliError(str(exc)) from None
+
+
 # --------------------------------------------------------------------------- view
 
 
@@ -226,7 +228,14 @@ def _parse_size(text: str) -> tuple[int, int]:
         raise click.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 1600x900", param_hint="--size") from None
     if w < 64 or h < 64:
         raise click.BadParameter(f"{text!r}: at least 64x64", param_hint="--size")
+    if w > MAX_SIDE or h > MAX_SIDE:
+        raise click.BadParameter(f"{text!r}: at most {MAX_SIDE} pixels a side (the renderer's largest picture)",
+                                 param_hint="--size")
     return w, h
+
+
+#: The largest side of a screenshot: the largest texture every wgpu adapter supports.
+MAX_SIDE = 8192
 
 
 @click.command()

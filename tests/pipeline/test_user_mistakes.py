@@ -476,6 +476,20 @@ def test_a_screenshot_never_replaces_the_recording_or_a_file_other_than_a_png(tm
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
+@pytest.mark.parametrize("size, fragment", [
+    ("1600by900", "'1600by900': expected WIDTHxHEIGHT, e.g. 1600x900"),
+    ("32x900", "'32x900': at least 64x64"),
+    ("100000x900", "'100000x900': at most 8192 pixels a side (the renderer's largest picture)"),
+])
+def test_a_screenshot_size_out_of_range_is_refused_before_the_viewer_starts(tmp_path, size, fragment):
+    rec = tmp_path / "rec.rrd"
+    rec.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64))
+    res = _run("view", rec, "--screenshot", tmp_path / "s.png", "--size", size)
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: Invalid value for --size: {fragment}"
+    assert not (tmp_path / "s.png").exists()
+
+
 def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
     log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)
     res = _run("info", log)
