@@ -170,14 +170,9 @@ class _FramePairer:
         self.saw_truth = False
 
     def add_measurements(self, msg: MeasurementsMsg) -> list[tuple[MeasurementsMsg, TruthMsg | None]]:
-        if self.last_frame is not None and msg.frame <= self.last_frame:
-            raise CodecError(
-                TOPIC_MEASUREMENTS,
-                msg.frame,
-                f"frame index {msg.frame} is not greater than the previous frame "
-                f"{self.last_frame} (frame indices must increase)",
-            )
-        self.last_frame = msg.frame
+        # a frame index that does not advance (repeated, or back) is passed on: the reader of
+        # the frames skips it by the frame bounds (tracker.types.FrameGate), as a stamp that goes back
+        self.last_frame = msg.frame if self.last_frame is None else max(self.last_frame, msg.frame)
         out: list[tuple[MeasurementsMsg, TruthMsg | None]] = []
         if self.pending is not None:
             out.append((self.pending, None))

@@ -101,7 +101,7 @@ def missing_entries(gaps: Mapping[str, Iterable[int]], tracker_rejected: Iterabl
     for name, stream_gaps in gaps.items():
         add(name, [g for g in stream_gaps if g not in by_tracker],
             "never received (gap)" if name != "tracks" else "no /tracks from the tracker (gap)")
-    add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; see the dead letters)")
+    add("tracks", by_tracker, "the tracker rejected the frame (frame bounds; each reason is in health.jsonl)")
     add("measurements", sink_rejected, "the sink rejected the frame (frame bounds; none of its messages were written)")
     for name, seqs in mismatched.items():
         add(name, seqs, "for another frame than its /measurements (dropped)")

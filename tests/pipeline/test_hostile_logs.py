@@ -60,12 +60,18 @@ def _hostile(tmp_path: Path, kind: str) -> Path:
                 f = dataclasses.replace(f, stamp_ns=frames[3].stamp_ns)
             if kind == "long-gap" and i >= 15:  # 2,000 frames and 2 h later, the log goes on
                 f = dataclasses.replace(f, frame=f.frame + 2000, stamp_ns=f.stamp_ns + 7200 * S)
+            if kind == "repeat" and i == 20:  # numbered like the frame before it
+                f = dataclasses.replace(f, frame=frames[19].frame)
+            if kind == "jump" and i == 25:  # one frame numbered 10**9, then the numbers go on
+                f = dataclasses.replace(f, frame=10**9)
             w.write_frame(f)
     return log
 
 
 # the fast subset runs the stamp that goes back; the long gap (slow) is also run with a lag below
 @pytest.mark.parametrize("kind, skipped", [("stamp-back", [17]),
+                                           pytest.param("repeat", [20], marks=pytest.mark.slow),  # stamp-back's path
+                                           pytest.param("jump", [25], marks=pytest.mark.slow),  # stamp-back's path
                                            pytest.param("long-gap", list(range(15, 25)), marks=pytest.mark.slow)])
 def test_track_and_the_pipeline_give_the_same_output_on_a_hostile_log(tmp_path, kind, skipped):
     log = _hostile(tmp_path, kind)

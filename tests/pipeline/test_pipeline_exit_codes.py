@@ -128,7 +128,7 @@ def test_replay_of_a_log_with_a_frame_jump_exits_3(tmp_path):
     assert res.returncode == 3, res.stderr
     assert res.stderr.splitlines()[-1] == (
         "Error: output incomplete: /tracks of 3 frame(s), seq 10-12: the tracker rejected the frame (frame "
-        "bounds; see the dead letters); /measurements of 3 frame(s), seq 10-12: the sink rejected the frame "
+        "bounds; each reason is in health.jsonl); /measurements of 3 frame(s), seq 10-12: the sink rejected the frame "
         f"(frame bounds; none of its messages were written) -- files are in {out}/")
     s = json.loads((out / SUMMARY_NAME).read_text())
     assert s["frames_written"] == 10 and s["output_complete"] is False
