@@ -434,8 +434,6 @@ def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
     (:func:`pipeline.cli.run_figures.figure_rows`), crossings kept (a log with crossings),
     files."""
     rows = [("tracker", f"{tracker_name} (seed {seed})"), ("frames", str(res.n_frames))]
-    if lag:
-        rows.append(("lag", f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"))
     rows += figure_rows(RunFigures.of_track(res, lag))
     if res.crossings is not None:
         kept = sum(p.kept for p in res.crossings.pairs)

@@ -67,6 +67,8 @@ class RunFigures:
 def figure_rows(f: RunFigures) -> list[tuple[str, str]]:
     """The summary rows of ``f`` (``key``, ``value``)."""
     rows: list[tuple[str, str]] = []
+    if f.lag:
+        rows.append(("lag", lag_text(f.lag, f.frames)))
     if f.ospa is not None:
         rows.append(("mean OSPA", f"{f.ospa:.2f} m (c={f.c:g}, p={f.p:g}, position; {f.frames_scored} frames)"))
         if f.ospa2 is not None:
@@ -85,6 +87,15 @@ def figure_rows(f: RunFigures) -> list[tuple[str, str]]:
             text += " (the whole step: online step + lag layer)"
         rows.append(("ms per frame", text))
     return rows
+
+
+def lag_text(lag: int, frames: int) -> str:
+    """What ``--lag`` did: each frame re-decided with the ``lag`` frames after it (or, in a run
+    no longer than the lag, with every later frame)."""
+    if frames and lag >= frames:
+        return (f"{lag} scan(s), longer than the run's {frames} frame(s): each frame re-decided with "
+                f"every frame after it, smoothed")
+    return f"{lag} scan(s): each frame re-decided with the {lag} after it, smoothed"
 
 
 def _p95(values: Sequence[float]) -> float:

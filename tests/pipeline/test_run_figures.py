@@ -45,6 +45,14 @@ def test_a_lagged_run_says_its_time_is_the_whole_step():
     assert rows["ms per frame"] == "median 2.50, p95 3.85 (the whole step: online step + lag layer)"
 
 
+def test_every_lagged_run_says_its_lag_and_a_lag_longer_than_the_run_says_so():
+    res = TrackResult("ddp", FRAMES, 2, final_names=("T1.0", "T3.z2"), labels=3)
+    for rows in (figure_rows(RunFigures.of_track(res, 3)), figure_rows(RunFigures.of_summary(_summary(), 3))):
+        assert rows[0] == ("lag", "3 scan(s): each frame re-decided with the 3 after it, smoothed")
+    assert figure_rows(RunFigures.of_summary(_summary(), 4))[0] == (
+        "lag", "4 scan(s), longer than the run's 4 frame(s): each frame re-decided with every frame after it, smoothed")
+
+
 def test_a_run_without_truth_or_timing_prints_what_it_has():
     res = TrackResult("ddp", (FrameMetrics(0, 3, 0, float("nan")),), 0, final_names=(), labels=0)
     assert figure_rows(RunFigures.of_track(res)) == [
