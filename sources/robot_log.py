@@ -91,6 +91,8 @@ class _RobotScanner:
         self.pending: list[_Pending] = []
         self.in_order = True
         """Whether ``pending`` is in time order as read (no sort needed)."""
+        self.max_stamp = 0  # the latest stamp read so far (kept once the order breaks)
+        self.latest = (0, "", 0)  # the message stamped furthest before one read earlier: (ns, topic, its count)
         self.n_messages = 0
         self.offset = 0
         self.schemas: dict[int, Schema] = {}
@@ -164,6 +166,9 @@ class _RobotScanner:
         pending = self.pending
         if pending and stamp < pending[-1][0]:
             self.in_order = False
+            self.max_stamp = max(self.max_stamp, pending[-1][0])
+            if self.max_stamp - stamp > self.latest[0]:
+                self.latest = (self.max_stamp - stamp, topic, k)
         pending.append((stamp, len(pending), reader.kind, scan, scan.frame_id or topic))
 
 
@@ -210,6 +215,8 @@ def _frames(scanner: _RobotScanner) -> Iterator[Frame]:
     """The pending messages as frames in time order (file order among equal stamps),
     numbered from 1, placed by the static transforms."""
     pending = scanner.pending if scanner.in_order else sorted(scanner.pending, key=lambda p: (p[0], p[1]))
+    if not scanner.in_order:
+        _warn_if_far_out_of_order(scanner, pending)
     poses: dict[str, Any] = {}
     for k, (stamp, _, kind, scan, sensor) in enumerate(pending, start=1):
         if sensor not in poses:
@@ -220,6 +227,26 @@ def _frames(scanner: _RobotScanner) -> Iterator[Frame]:
         if pose is not None and kind == "xy":
             z = pose.place(z)
         yield Frame.checked(k, stamp, sensor, kind, z, pose=frame_pose)
+
+
+#: A message stamped more than this many median periods before one read earlier is named in a
+#: warning: ordering it by its stamp moves it far (a clock jump, or a wrong stamp).
+FAR_OUT_OF_ORDER_PERIODS = 10
+
+
+def _warn_if_far_out_of_order(scanner: _RobotScanner, ordered: list[_Pending]) -> None:
+    """Warn when the sort by stamp moved a message further than
+    :data:`FAR_OUT_OF_ORDER_PERIODS` median periods of the log's messages."""
+    from bnptrack.tracker.input_checks import warn
+
+    late_ns, topic, k = scanner.latest
+    stamps = [p[0] for p in ordered]
+    steps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+    period = steps[len(steps) // 2] if steps else 0
+    if late_ns > FAR_OUT_OF_ORDER_PERIODS * max(period, 1):
+        warn(f"{scanner.path}: {topic}'s message {k} is stamped {late_ns / 1e9:.6g} s before a message read "
+             f"earlier ({late_ns / max(period, 1):.0f} periods of {period / 1e9:.6g} s); frames follow the stamps, "
+             f"so it is tracked that much earlier than the file puts it: check the sensor's clock")
 
 
 def iter_robot_frames(path: str | os.PathLike, topics: Iterable[str]) -> Iterator[Frame]:

@@ -327,6 +327,35 @@ def test_a_bad_ros_message_is_named_by_its_channel_s_count(logs, tmp_path):
     assert "ValueError" not in text
 
 
+def test_a_message_stamped_far_before_those_read_earlier_warns(logs, tmp_path):
+    """Frames follow the stamps; one stamped 18 periods early is named in a warning, while a
+    log whose channels interleave within a period is ordered silently."""
+    import warnings
+
+    from bnptrack.sources.mcap_log import iter_frames
+
+    radar = logs["radar"][:20]
+    items = [("/tf_static", "tf2_msgs/msg/TFMessage", rl.tf_static(TF), 1)]
+    for i, f in enumerate(radar):
+        msg = rl.radar_scan(f)
+        if i == 19:  # stamped like the first message: 18 periods before the one read before it
+            msg["header"] = rl.header(radar[0].stamp_ns - 1, f.sensor)
+        items.append(("/radar/scan", "radar_msgs/msg/RadarScan", msg, f.stamp_ns + rl.LOG_DELAY_NS))
+    path = rl.write_ros2(tmp_path / "early.mcap", items)
+    with pytest.warns(UserWarning) as caught:
+        frames = list(iter_frames(path, {"/radar/scan": "/measurements"}))
+    assert frames[0].stamp_ns < radar[0].stamp_ns  # ordered by its stamp: the first frame
+    texts = [str(w.message) for w in caught]
+    assert len(texts) == 1 and "/radar/scan's message 20 is stamped 18 s before a message read earlier" in texts[0]
+    near = [radar[i] for i in (0, 2, 1, 3, 4, 5, 6)]  # two neighbours out of file order
+    path = rl.write_ros2(tmp_path / "near.mcap", items[:1] + [
+        ("/radar/scan", "radar_msgs/msg/RadarScan", rl.radar_scan(f), 10 + j) for j, f in enumerate(near)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = list(iter_frames(path, {"/radar/scan": "/measurements"}))
+    assert [f.stamp_ns for f in got] == [f.stamp_ns for f in radar[:7]]
+
+
 # --------------------------------------------------------------------------- the pipeline
 
 
