@@ -26,6 +26,7 @@ from bnptrack.sinks.run_scorer import RunScorer
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sinks.sink import SinkSet, make_sink
 from bnptrack.sinks.records import Sink, SinkOptions, SinkRecord
+from bnptrack.pipeline.output_paths import check_output_path
 from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sources.frame_window import FrameWindow
 from bnptrack.sources.mcap_log import McapLogError, first_frames, iter_frames
@@ -58,9 +59,7 @@ __all__ = [
     "track_log",
     "track_to_sinks",
     "open_sinks",
-    "check_outputs",
     "default_tracks_path",
-    "check_output_path",
 ]
 
 
@@ -393,37 +392,6 @@ def default_tracks_path(log: str | os.PathLike, tracker: str) -> Path:
     """``<LOG stem>-<tracker>.tracks.mcap`` next to the log."""
     log = Path(log)
     return log.with_name(f"{log.stem}-{tracker}.tracks.mcap")
-
-
-def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
-    """Refuse an output path that is the input log itself."""
-    if Path(out).resolve() == Path(log).resolve():
-        raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
-
-
-def refuse_existing(outputs: Mapping[str, Path], overwrite: bool, option: str = "--out") -> None:
-    """Refuse output files that exist already (a finished run would be replaced by this one,
-    complete or not) unless ``overwrite``; the error suggests another ``option``."""
-    if overwrite:
-        return
-    taken = sorted({str(p) for p in outputs.values() if Path(p).exists()})
-    if taken:
-        which = taken[0] if len(taken) == 1 else f"{', '.join(taken[:-1])} and {taken[-1]}"
-        raise ConfigError(f"{which} exist{'s' if len(taken) == 1 else ''}: give --overwrite to replace "
-                          f"{'it' if len(taken) == 1 else 'them'}, or another {option}")
-
-
-def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
-    """Refuse outputs (sink name -> file) that overwrite the input log or one another."""
-    from bnptrack.sinks.sink import SINKS
-
-    seen: dict[Path, str] = {}
-    for name, path in outputs.items():
-        check_output_path(log, path)
-        other = seen.setdefault(Path(path).resolve(), name)
-        entry = SINKS.get(name)
-        if other != name and not (entry is not None and entry.beside == other):
-            raise ValueError(f"{path}: the {name} output would overwrite the {other} output")
 
 
 def open_sinks(outputs: Mapping[str, Path], options: SinkOptions) -> SinkSet:

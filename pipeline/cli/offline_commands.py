@@ -35,8 +35,8 @@ from bnptrack.pipeline.cli.common import (
 from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
-from bnptrack.pipeline.offline import (TrackResult, check_output_path, check_outputs, default_tracks_path,
-                              open_sinks, read_log_start, refuse_existing, track_to_sinks)
+from bnptrack.pipeline.offline import TrackResult, default_tracks_path, open_sinks, read_log_start, track_to_sinks
+from bnptrack.pipeline.output_paths import check_output_path, check_outputs, refuse_existing
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names

@@ -200,7 +200,7 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None, overwrite:
     """
     from bnptrack.pipeline.export import export as do_export
     from bnptrack.pipeline.export import metrics_path
-    from bnptrack.pipeline.offline import refuse_existing
+    from bnptrack.pipeline.output_paths import refuse_existing
 
     if csv_out is None and parquet_out is None:
         raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")

@@ -490,6 +490,19 @@ def test_a_screenshot_size_out_of_range_is_refused_before_the_viewer_starts(tmp_
     assert not (tmp_path / "s.png").exists()
 
 
+def test_an_existing_recording_names_the_option_that_chose_it(tmp_path):
+    from bnptrack.pipeline.output_paths import refuse_existing
+
+    rrd, mcap = tmp_path / "r.rrd", tmp_path / "t.mcap"
+    rrd.write_bytes(b"RRF2")
+    with pytest.raises(ValueError, match=r"r\.rrd exists: give --overwrite to replace it, or another --rrd$"):
+        refuse_existing({"mcap": mcap, "rerun": rrd}, False)
+    mcap.write_bytes(b"x")
+    with pytest.raises(ValueError, match=r"t\.mcap exist: give --overwrite to replace them, or another --out or --rrd$"):
+        refuse_existing({"mcap": mcap, "rerun": rrd}, False)
+    refuse_existing({"mcap": mcap, "rerun": rrd}, True)  # --overwrite
+
+
 def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
     log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)
     res = _run("info", log)

@@ -523,7 +523,8 @@ def test_repair_argument_errors(tmp_path):
 def track_log_with_rrd(log, out, rrd, tracker, seed, metadata, *, params=None):
     """What ``bnptrack track LOG --out OUT --rrd RRD`` does in-process: the ``mcap`` and
     ``rerun`` sinks of the table, the recording written by a child process."""
-    from bnptrack.pipeline.offline import check_outputs, open_sinks, track_to_sinks
+    from bnptrack.pipeline.offline import open_sinks, track_to_sinks
+    from bnptrack.pipeline.output_paths import check_outputs
     from bnptrack.sinks.records import SinkOptions
 
     outputs = {"mcap": Path(out), "rerun": Path(rrd)}
