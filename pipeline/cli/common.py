@@ -16,13 +16,16 @@ import typing
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from bnptrack.tracker.messages import CodecError
 from bnptrack.sources.mcap_log import McapLogError
 from bnptrack.tracker.config import ConfigError, did_you_mean
+
+if TYPE_CHECKING:
+    from bnptrack.sources.frame_window import FrameWindow
 
 __all__ = [
     "EXIT_ERROR",
@@ -312,6 +315,21 @@ def open_live(live: str) -> str:
 START_HELP = ("Start at T seconds of log time after the first frame (12.5 or 12.5s), or at frame number "
               "N (40f).")
 END_HELP = "End at T seconds of log time after the first frame, or at frame N (both included)."
+
+
+def window_of(start: str | None, end: str | None) -> FrameWindow:
+    """The frame window of ``--start`` / ``--end`` (:func:`parse_offset` each), checked: an end
+    before the start is a usage error naming both options as typed."""
+    from bnptrack.sources.frame_window import FrameWindow
+
+    start_s, start_frame = parse_offset(start, "--start")
+    end_s, end_frame = parse_offset(end, "--end")
+    window = FrameWindow(start_s=start_s, start_frame=start_frame, end_s=end_s, end_frame=end_frame)
+    try:
+        window.check()
+    except ValueError:  # the options cannot mix units at one end: the end is before the start
+        raise click.BadParameter(f"{end!r} is before --start {start!r}", param_hint="--end") from None
+    return window
 
 
 def parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:

@@ -26,7 +26,7 @@ from bnptrack.pipeline.cli.common import (
     echo_rows,
     live_view,
     open_live,
-    parse_offset,
+    window_of,
     require_measurements,
     TOPIC_HELP,
     topic_map,
@@ -418,14 +418,7 @@ class _TrackIO:
 def _window(start: str | None, end: str | None, overrides: tuple[str, ...]) -> tuple[FrameWindow, tuple[str, ...]]:
     """``--start`` / ``--end`` and the ``source.KEY`` items of ``--set`` (the window of ``replay``),
     and the other ``--set`` items."""
-    start_s, start_frame = parse_offset(start, "--start")
-    end_s, end_frame = parse_offset(end, "--end")
-    window = FrameWindow(start_s=start_s, start_frame=start_frame, end_s=end_s, end_frame=end_frame)
-    try:
-        window.check()
-    except ValueError:  # the options cannot mix units at one end: the end is before the start
-        raise click.BadParameter(f"{end!r} is before --start {start!r}", param_hint="--end") from None
-    return window_overrides(overrides, window)
+    return window_overrides(overrides, window_of(start, end))
 
 
 def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,

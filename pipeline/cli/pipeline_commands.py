@@ -29,7 +29,7 @@ from bnptrack.pipeline.cli.common import (
     literal_choices,
     one_viewer,
     open_live,
-    parse_offset,
+    window_of,
     require_measurements,
     topic_map,
 )
@@ -259,13 +259,12 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     mapping = topic_map(topics)
     require_measurements(log, mapping)  # at once, as `track` (the source checks it again)
     cfg = load_pipeline(None)
-    start_s, start_frame = parse_offset(start, "--start")
-    end_s, end_frame = parse_offset(end, "--end")
+    window = window_of(start, end)
     cfg = _ms.structs.replace(
         cfg,
         source=_ms.structs.replace(cfg.source, kind="mcap", log=str(log), rate=0.0 if afap else rate,
-                                   start_s=start_s, start_frame=start_frame, end_s=end_s,
-                                   end_frame=end_frame, topics=mapping),
+                                   start_s=window.start_s, start_frame=window.start_frame, end_s=window.end_s,
+                                   end_frame=window.end_frame, topics=mapping),
         tracker=_ms.structs.replace(cfg.tracker, tracker=tracker_name, seed=seed, lag=lag or 0,
                                     config=config_arg or "", params=params_arg or ""),
     )

@@ -70,6 +70,18 @@ def test_a_bad_window_is_one_line_exit_2_and_writes_nothing(log, tmp_path, args,
     assert not out.exists()
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--start", "30f", "--end", "20f"], "Error: Invalid value for --end: '20f' is before --start '30f'"),
+    (["--start", "30", "--end", "20s"], "Error: Invalid value for --end: '20s' is before --start '30'"),
+])
+def test_replay_names_the_options_of_a_window_that_ends_before_it_starts(log, tmp_path, args, message):
+    out = tmp_path / "run"
+    res = invoke("replay", log, *args, "--out", out)
+    assert res.exit_code == 2
+    assert message in res.output
+    assert not out.exists()
+
+
 def test_a_window_with_no_frame_of_the_log_is_an_error_before_writing(log, tmp_path):
     out = tmp_path / "empty.mcap"
     res = invoke("track", log, "--start", "101f", "--out", out)
