@@ -144,6 +144,24 @@ def gated(mean: np.ndarray, cov: np.ndarray, dt: float, pos: np.ndarray, pos_cov
     return np.einsum("ki,ki->k", d, np.linalg.solve(S, d[..., None])[..., 0]) <= GATE
 
 
+def _may_gate(mean: np.ndarray, cov: np.ndarray, dt: np.ndarray, pos: np.ndarray, pos_cov: np.ndarray) -> np.ndarray:
+    r"""For each state ``(mean[g], cov[g])`` run ``dt[g]`` seconds forward, whether any position
+    ``pos`` (K, 2) may lie in its :func:`gated` gate: a necessary condition, checked for every pair
+    at once, so that :func:`gated` runs only for the states it holds.  With ``d`` the difference
+    and ``S`` the summed covariance, :math:`d^\top S^{-1} d \ge \lVert d\rVert^2 / \mathrm{tr}\,S`
+    (S positive definite): a pair with :math:`\lVert d\rVert^2 > \chi^2\, \mathrm{tr}\,S` (a
+    relative slack of 1e-6 for rounding) is outside.  Values that are not finite fail no pair."""
+    if not pos.shape[0]:
+        return np.zeros(mean.shape[0], dtype=bool)
+    px, py = mean[:, 0] + dt * mean[:, 1], mean[:, 2] + dt * mean[:, 3]
+    tr = (cov[:, 0, 0] + dt * (cov[:, 0, 1] + cov[:, 1, 0]) + dt * dt * cov[:, 1, 1]
+          + cov[:, 2, 2] + dt * (cov[:, 2, 3] + cov[:, 3, 2]) + dt * dt * cov[:, 3, 3])
+    d2 = (px[:, None] - pos[None, :, 0]) ** 2 + (py[:, None] - pos[None, :, 1]) ** 2
+    bound = GATE * (tr[:, None] + pos_cov[None, :, 0, 0] + pos_cov[None, :, 1, 1]) * (1.0 + 1e-6)
+    with np.errstate(invalid="ignore"):
+        return np.any(~(d2 > bound), axis=1)
+
+
 def settle(counts: np.ndarray, learned: np.ndarray, pend: np.ndarray, real: bool, deaths: int = 0) -> None:
     """Count the outcome of pending track-frames ``pend`` (pending vectors, any leading shape):
     per class; the young ones' odds sums; the established ones' missed scans as a live object's
@@ -250,8 +268,11 @@ def _ended(cal: ExistenceCalibration, state: CalibrationState, src: np.ndarray, 
     new = [t for t, i in zip(est.tracks, src.tolist()) if i < 0]
     pos = np.array([t.state[[0, 2]] for t in new]).reshape(-1, 2)
     pos_cov = np.array([t.covariance[np.ix_([0, 2], [0, 2])] for t in new]).reshape(-1, 2, 2)
-    reborn = np.array([bool(new) and gated(state.mean[i], state.cov[i], (est.stamp_ns - int(state.rows[i, _STAMP])) * 1e-9,
-                                           pos, pos_cov).any() for i in gone.tolist()], dtype=bool)
+    dt = (est.stamp_ns - state.rows[gone, _STAMP]) * 1e-9
+    near = _may_gate(state.mean[gone], state.cov[gone], dt, pos, pos_cov)
+    reborn = np.array([bool(may) and gated(state.mean[i], state.cov[i], (est.stamp_ns - int(state.rows[i, _STAMP])) * 1e-9,
+                                           pos, pos_cov).any() for i, may in zip(gone.tolist(), near.tolist())],
+                      dtype=bool)
     settle(counts, learned, state.pending[gone[reborn]], True)
     expired = ~reborn & (state.rows[gone, _LAST] < est.frame - REBIRTH_SCANS)
     dead = gone[expired]

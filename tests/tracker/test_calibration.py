@@ -181,3 +181,31 @@ def test_a_snapshot_without_the_calibration_loads_and_starts_it_afresh():
     assert old.cal_labels == () and not old.cal_counts.any() and old.labels == states[-1].labels
     (_, est, new), = run(tr, frames[12:13], seed=7, state=old)
     assert new.cal_labels == est.labels and not new.cal_counts.any()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_gate_prefilter_keeps_every_state_with_a_gated_position(seed):
+    from bnptrack.tracker.calibration import _may_gate, gated
+
+    rng = np.random.default_rng(seed)
+    G, K = 40, 30
+    mean = rng.normal(0, 200, (G, 5))
+    A = rng.normal(size=(G, 5, 5)) * rng.uniform(0.5, 60, (G, 1, 1))
+    cov = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(5)
+    dt = rng.uniform(0.5, 4.0, G)
+    pos = rng.normal(0, 300, (K, 2))
+    B = rng.normal(size=(K, 2, 2)) * rng.uniform(1, 30, (K, 1, 1))
+    pos_cov = B @ np.swapaxes(B, 1, 2) + 0.1 * np.eye(2)
+    exact = np.array([gated(mean[g], cov[g], dt[g], pos, pos_cov).any() for g in range(G)])
+    may = _may_gate(mean, cov, dt, pos, pos_cov)
+    assert exact.any() and not exact.all() and not may.all()  # both outcomes occur
+    assert np.all(may[exact])  # a necessary condition: never drops a state gate holds
+    # hand-computed: cov I (run 1 s: position variance 1 + 1 = 2 per axis) and pos_cov I give
+    # tr S = 6, so the bound keeps |d|^2 <= 13.8 x 6 = 82.8 (d = 9 m) and drops d = 10 m
+    one = np.zeros((1, 5))
+    eye = np.eye(5)[None]
+    assert _may_gate(one, eye, np.ones(1), np.array([[9.0, 0.0]]), np.eye(2)[None]).tolist() == [True]
+    assert _may_gate(one, eye, np.ones(1), np.array([[10.0, 0.0]]), np.eye(2)[None]).tolist() == [False]
+    nan = np.full((1, 5), np.nan)
+    assert _may_gate(nan, eye, np.ones(1), np.array([[0.0, 0.0]]), np.eye(2)[None]).tolist() == [True]
+    assert _may_gate(one, eye, np.ones(1), np.zeros((0, 2)), np.zeros((0, 2, 2))).tolist() == [False]

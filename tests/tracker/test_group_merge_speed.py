@@ -141,3 +141,24 @@ def test_label_arrays_equal_the_taken_dict_route(seed: int) -> None:
         for a, b in zip(got, want):
             np.testing.assert_array_equal(a, b, strict=True)
     assert (got[2] >= 0).any() and (got[2] < 0).any()  # both kinds present
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_oldest_members_is_the_first_smallest_birth_of_each_group(seed: int) -> None:
+    from bnptrack.tracker.bnp.clusters import oldest_members
+
+    rng = np.random.default_rng(seed)
+    n = 60
+    birth = rng.integers(-3, 3, n)  # many ties: the first of them in group order wins
+    members = rng.permutation(n)
+    sizes = rng.integers(2, 6, 20)
+    sizes = sizes[np.cumsum(sizes) <= n]
+    ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    members = members[:ptr[-1]].astype(np.int64)
+    got = oldest_members(ptr, members, birth)
+    want = [min(members[a:b].tolist(), key=lambda k: birth[k]) for a, b in zip(ptr[:-1], ptr[1:])]
+    assert got.tolist() == want
+    # hand-built: groups [4, 2, 7] (births 1, 0, 0) and [1, 3] (births 5, 5)
+    birth = np.array([9, 5, 0, 5, 1, 9, 9, 0])
+    got = oldest_members(np.array([0, 3, 5]), np.array([4, 2, 7, 1, 3]), birth)
+    assert got.tolist() == [2, 1]

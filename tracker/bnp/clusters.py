@@ -128,21 +128,34 @@ def _merge_groups(c: _Clusters, groups: list[list[int]]) -> _Clusters:
     return _apply_groups(c, ptr, np.concatenate([np.asarray(g, dtype=np.int64) for g in groups]))
 
 
-def _apply_groups(c: _Clusters, ptr: np.ndarray, members: np.ndarray) -> _Clusters:
+def _apply_groups(c: _Clusters, ptr: np.ndarray, members: np.ndarray, oldest: np.ndarray | None = None) -> _Clusters:
     """:func:`_merge_groups` of the groups in CSR form (``members[ptr[g]:ptr[g + 1]]``, leader
-    first), the arithmetic in :func:`tracker.bnp._merge_kernels.merge_moments`."""
-    return _relabel(c, ptr, members, *_k.merge_moments(c.mean, c.cov, c.existence, ptr, members))
+    first), the arithmetic in :func:`tracker.bnp._merge_kernels.merge_moments`; ``oldest``: each
+    group's :func:`oldest_members` when known."""
+    return _relabel(c, ptr, members, *_k.merge_moments(c.mean, c.cov, c.existence, ptr, members), oldest)
+
+
+def oldest_members(ptr: np.ndarray, members: np.ndarray, birth: np.ndarray) -> np.ndarray:
+    """Each group's (``members[ptr[g]:ptr[g + 1]]``) oldest member: the first, in group order, of
+    those with the smallest ``birth`` (the member ``min(group, key=birth)`` picks)."""
+    gid = np.repeat(np.arange(ptr.size - 1), np.diff(ptr))
+    order = np.lexsort((np.arange(members.size), birth[members], gid))
+    return members[order[ptr[:-1]]]
 
 
 def _relabel(c: _Clusters, ptr: np.ndarray, members: np.ndarray, mean: np.ndarray, cov: np.ndarray,
-             r: np.ndarray, keep: np.ndarray) -> _Clusters:
+             r: np.ndarray, keep: np.ndarray, oldest: np.ndarray | None = None) -> _Clusters:
     """The clusters after the merge of the groups ``members[ptr[g]:ptr[g + 1]]`` (leader first)
     whose moments are ``mean``, ``cov``, ``r`` (every row) and rows ``keep``: each leader takes
-    its oldest member's label."""
+    its oldest member's label (``oldest``: each group's, when known)."""
     labels = list(c.labels)
-    for a, b in zip(ptr[:-1].tolist(), ptr[1:].tolist()):
-        group = members[a:b].tolist()
-        labels[group[0]] = min((c.labels[i] for i in group), key=_birth_frame)
+    if oldest is None:
+        for a, b in zip(ptr[:-1].tolist(), ptr[1:].tolist()):
+            group = members[a:b].tolist()
+            labels[group[0]] = min((c.labels[i] for i in group), key=_birth_frame)
+    else:
+        for leader, k in zip(members[ptr[:-1]].tolist(), oldest.tolist()):
+            labels[leader] = c.labels[k]
     kept = np.flatnonzero(keep)
     return _Clusters(tuple(labels[k] for k in kept.tolist()), mean[kept], cov[kept],
                      np.minimum(r[kept], 1.0), c.popularity[kept])

@@ -34,7 +34,7 @@ from operator import itemgetter
 import numpy as np
 
 from bnptrack.tracker.numerics import argsort_stable, jit
-from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs
+from bnptrack.tracker.bnp.clusters import _apply_groups, _Clusters, _near_pairs, oldest_members
 
 #: Up to this many clusters :func:`tracker.bnp.clusters._near_pairs` returns every pair.
 _ALL_PAIRS = 200
@@ -336,15 +336,18 @@ def merge_exclusive(c: _Clusters, max_d2: float, taken: dict[str, int] | None,
     ptr, members = greedy_groups(ii, jj, c.existence, np.argsort(-c.existence, kind="stable"))
     if ptr.size == 1:
         return c, {}
+    birth = arrays[0] if arrays is not None else np.fromiter(map(birth_frame, c.labels), dtype=np.int64, count=n)
+    first = oldest_members(ptr, members, birth)  # each group's oldest member (min by birth_frame)
     renamed, moved = {}, {}
-    for g in range(ptr.size - 1):
-        group = members[ptr[g]:ptr[g + 1]].tolist()
-        oldest = min((c.labels[k] for k in group), key=birth_frame)
-        final = oldest if reported is None else merged_label(c.labels, c.existence, group, reported)
+    labels = c.labels
+    for a, b, k in zip(ptr[:-1].tolist(), ptr[1:].tolist(), first.tolist()):
+        group = members[a:b].tolist()
+        oldest = labels[k]
+        final = oldest if reported is None else merged_label(labels, c.existence, group, reported)
         if final != oldest:
             moved[oldest] = final
-        renamed.update({c.labels[k]: final for k in group if c.labels[k] != final})
-    merged = _apply_groups(c, ptr, members)  # each group under its oldest member's label
+        renamed.update({labels[k]: final for k in group if labels[k] != final})
+    merged = _apply_groups(c, ptr, members, first)  # each group under its oldest member's label
     if moved:
         merged = replace(merged, labels=tuple(moved.get(lab, lab) for lab in merged.labels))
     return merged, renamed
