@@ -33,7 +33,9 @@ last line printed is one JSON object ``{"results": [...]}``.
 2000 m half disc, bearing noise 2 deg, range noise 10 m, P_D 0.98, 15 clutter per scan, births
 anywhere: the vo2017 model unchanged), N objects placed and moving as above, so at N = 1000 a
 frame holds about 1000 measurements in a field vo2017 fills with 10.  The tracker starts with
-one track at each true state (existence 1), one period before frame 0.
+one track at each true state (existence 1), one period before frame 0, of position and velocity
+std ``--seed-std`` (10 m, 2 m/s: tighter than the filter holds in this field, about 20 m and
+8 m/s from frame 6 on, so frames 1-5 gate fewer pairs than the rest of the run).
 """
 
 from __future__ import annotations
@@ -104,15 +106,15 @@ def simulate(n: int, frames: int, seed: int, clutter_ratio: float, dense: bool =
     return params, out, before
 
 
-def seeded_state(tracker, x: np.ndarray):
+def seeded_state(tracker, x: np.ndarray, pos_std: float = 10.0, vel_std: float = 2.0):
     """The tracker's initial state holding one track per row of ``x`` (existence 1, popularity
-    1, covariance 10 m / 2 m/s / 0.01 rad/s; the group level's clusters empty; a GLMB with one
-    hypothesis holding them all)."""
+    1, covariance ``pos_std`` m / ``vel_std`` m/s / 0.01 rad/s; the group level's clusters empty;
+    a GLMB with one hypothesis holding them all)."""
     import dataclasses
 
     state = tracker.initial_state()
     n = len(x)
-    cov = np.repeat(np.diag([10.0**2, 2.0**2, 10.0**2, 2.0**2, 0.01**2])[None], n, axis=0)
+    cov = np.repeat(np.diag([pos_std**2, vel_std**2, pos_std**2, vel_std**2, 0.01**2])[None], n, axis=0)
     # "<frame>.<index>" as births are, of a frame long before the run: tracks that exist before
     # it are not births of its first frames (the object level's alpha posterior counts the
     # births of frame k - birth_lag, which would count these 1000s if labelled frame -1)
@@ -139,14 +141,14 @@ def tracked_fraction(truth_pos: np.ndarray, track_pos: np.ndarray, radius: float
 
 
 def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: float, name: str = "ddp-mb",
-            dense: bool = False) -> dict:
+            dense: bool = False, seed_std: tuple[float, float] = (10.0, 2.0)) -> dict:
     from bnptrack.sinks.metrics import ospa
     from bnptrack.tracker.registry import build
     from bnptrack.tracker.state import tracker_frame_rng
 
     params, fr, before = simulate(n, frames, seed, clutter_ratio, dense)
     tracker = build(name, params)
-    state = seeded_state(tracker, before) if dense else tracker.initial_state()
+    state = seeded_state(tracker, before, *seed_std) if dense else tracker.initial_state()
     ms, cpu, ospas, fracs, t_start = [], [], [], [], time.perf_counter()
     digest = hashlib.sha1()
     n_meas = []
@@ -179,6 +181,17 @@ def run_one(n: int, frames: int, seed: int, clutter_ratio: float, budget_s: floa
             "ms_first": [round(x, 1) for x in ms[:10]], "ms_last": [round(x, 1) for x in ms[-5:]]}
 
 
+def _seed_std(text: str) -> tuple[float, float]:
+    """``--seed-std POS,VEL``: two positive numbers."""
+    try:
+        pos, vel = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected POS,VEL (two numbers), got {text!r}") from None
+    if not (pos > 0 and vel > 0 and np.isfinite(pos) and np.isfinite(vel)):
+        raise argparse.ArgumentTypeError(f"POS and VEL must be positive and finite, got {text!r}")
+    return pos, vel
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ns", default="10,100,300,1000,3000")
@@ -190,11 +203,13 @@ def main() -> None:
                     "of docs/performance.md) or ddp (the two-level default of the commands)")
     ap.add_argument("--mode", choices=("scale", "dense"), default="scale",
                     help="scale: the field grows with N (constant density); dense: the vo2017 field for every N")
+    ap.add_argument("--seed-std", type=_seed_std, default=(10.0, 2.0), metavar="POS,VEL",
+                    help="dense mode: the initial tracks' position (m) and velocity (m/s) std (default 10,2)")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one is not None:
         print(json.dumps(run_one(args.one, args.frames, args.seed, args.clutter_ratio, args.budget_s, args.tracker,
-                                 args.mode == "dense")))
+                                 args.mode == "dense", args.seed_std)))
         return
     results = []
     print("| N | meas/frame | frames | ms/frame (median) | fps | CPU ms/frame (median) | peak RSS MiB | OSPA "
@@ -202,7 +217,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|")
     for n in [int(x) for x in args.ns.split(",")]:
         cmd = [sys.executable, __file__, "--one", str(n), "--frames", str(args.frames), "--seed", str(args.seed),
-               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s), "--tracker", args.tracker, "--mode", args.mode]
+               "--clutter-ratio", str(args.clutter_ratio), "--budget-s", str(args.budget_s), "--tracker", args.tracker,
+               "--mode", args.mode, "--seed-std", ",".join(map(str, args.seed_std))]
         out = subprocess.run(cmd, capture_output=True, text=True)
         if out.returncode != 0:
             print(f"| {n} | failed: {out.stderr.strip().splitlines()[-1:]} |", flush=True)
