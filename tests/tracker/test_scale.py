@@ -17,7 +17,7 @@ from scipy.optimize import linear_sum_assignment
 from bnptrack.tracker.bnp import BnpConfig, make_tracker
 from bnptrack.tracker.bnp import filter as bnp_filter
 from bnptrack.tracker.bnp.assignment import best_permutation
-from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs, ball_hits
+from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs, ball_hits, exclusive_ball_hits, exclusive_near_pairs
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
 from bnptrack.tracker.models.measurement import BearingRange, RangeOnly
@@ -253,3 +253,34 @@ def test_jpda_block_on_its_edges_equals_the_dense_matrix(seed, monkeypatch):
     assignment._solve_block(r_idx, c_idx, pos, meas, p, p_det, want, linear_sum_assignment)
     assert 10 < (want >= 0).sum() < L  # some clusters take a measurement, some are missed
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_exclusive_near_pairs_are_the_ball_hits_that_pass_the_test_once_each(seed):
+    """Each pair of ``exclusive_ball_hits`` (either direction) that passes ``_near_pairs``' test,
+    found once: equal variances on top of each other (ties), a variance whose ball overflows (its
+    pairs found from the other side), variances that are not positive."""
+    rng = np.random.default_rng(seed)
+    n = 300
+    pos = rng.uniform(0, 3000, (n, 2))
+    pos[10:14] = pos[9]
+    lam = rng.choice([100.0, 2500.0, 90000.0], n, p=[0.6, 0.35, 0.05])
+    lam[9:14] = 400.0
+    lam[20] = 1e306  # radius^2 overflows: no ball
+    lam[21] = -5.0  # not positive: no ball
+    r = rng.choice([0.2, 0.5, 0.9], n, p=[0.4, 0.1, 0.5])
+    r[20] = r[21] = 0.1
+    r[9:14] = 0.3
+    max_d2 = 9.0
+    with np.errstate(invalid="ignore", over="ignore"):
+        radius = np.sqrt(2.0 * max_d2 * lam) * (1.0 + 1e-9)
+        a, b = exclusive_ball_hits(pos, radius, r)
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        key = np.unique(lo * n + hi)
+        lo, hi = key // n, key % n
+        near = np.sum((pos[lo] - pos[hi]) ** 2, axis=1) <= max_d2 * (lam[lo] + lam[hi]) * (1.0 + 1e-9)
+        got_a, got_b = exclusive_near_pairs(pos, radius, r, lam, max_d2)
+    got = got_a * n + got_b
+    assert np.all(got_a < got_b) and np.unique(got).size == got.size  # each pair once
+    np.testing.assert_array_equal(np.sort(got), key[near])
+    assert near.sum() > 50 and np.any((lo == 20) & near) and np.any((lo >= 9) & (hi <= 13) & near)

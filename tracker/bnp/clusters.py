@@ -107,10 +107,12 @@ def _near_pairs(c: _Clusters, max_d2: float, exclusive: bool = False) -> tuple[n
     if ok.size < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(2.0 * max_d2 * lam[ok]) * (1.0 + 1e-9)
-    if exclusive:
-        a, b = exclusive_ball_hits(np.ascontiguousarray(pos[ok]), radius, np.ascontiguousarray(c.existence[ok]))
-    else:
-        a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
+    if exclusive:  # the pairs once each, already through the test below: in key order
+        a, b = exclusive_near_pairs(np.ascontiguousarray(pos[ok]), radius, np.ascontiguousarray(c.existence[ok]),
+                                    np.ascontiguousarray(lam[ok]), float(max_d2))
+        key = np.sort(ok[a] * len(c.labels) + ok[b])
+        return key // len(c.labels), key % len(c.labels)
+    a, b = ball_hits(np.ascontiguousarray(pos[ok]), radius)
     i, j = ok[a], ok[b]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     key = unique_ints(lo[lo < hi] * len(c.labels) + hi[lo < hi])
@@ -286,8 +288,55 @@ def exclusive_ball_hits(pos: np.ndarray, radius: np.ndarray, existence: np.ndarr
     return out_a[:count].copy(), out_b[:count].copy()
 
 
+def exclusive_near_pairs(pos: np.ndarray, radius: np.ndarray, existence: np.ndarray, lam: np.ndarray, max_d2: float
+                         ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    r""":func:`exclusive_ball_hits`' pairs that pass :func:`_near_pairs`' test
+    :math:`\lVert \Delta p\rVert^2 \le d^2_{max} (\lambda_a + \lambda_b)` (the same expression),
+    each once as ``(a, b)`` with ``a < b``, in no particular order.  A pair that passes the test
+    lies in the ball of its member of larger :math:`\lambda` (``radius`` grows with it), so only
+    that member's search keeps it (ties: the smaller index; a member whose ball is not finite
+    searches nothing and leaves the pair to the other): no pair is found twice."""
+    n = pos.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    x0, y0, h, nx, ny = _grid_shape(pos, radius)
+    start_all, members_all = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
+    weak = existence <= 0.5
+    start_weak, members_weak = _grid_members(pos, np.flatnonzero(weak), x0, y0, h, nx, ny)
+    finite = np.empty(n, dtype=np.bool_)
+    for a in range(n):
+        finite[a] = np.isfinite(radius[a] * radius[a] * (1.0 + 1e-6))
+    out_a, out_b, count = np.empty(2 * n, dtype=np.int64), np.empty(2 * n, dtype=np.int64), 0
+    for a in range(n):
+        if not finite[a]:
+            continue
+        r = radius[a] * (1.0 + 1e-6)
+        r2 = radius[a] * radius[a] * (1.0 + 1e-6)
+        start, members = (start_all, members_all) if weak[a] else (start_weak, members_weak)
+        i0, i1 = _cell_range(pos[a, 0] - r - x0, pos[a, 0] + r - x0, h, nx)
+        j0, j1 = _cell_range(pos[a, 1] - r - y0, pos[a, 1] + r - y0, h, ny)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for k in range(start[i * ny + j], start[i * ny + j + 1]):
+                    b = members[k]
+                    if b == a or (finite[b] and (lam[b] > lam[a] or (lam[b] == lam[a] and b < a))):
+                        continue  # b's search keeps this pair
+                    dx, dy = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
+                    if not (existence[a] + existence[b] <= 1.0 and dx * dx + dy * dy <= r2):
+                        continue
+                    lo, hi = min(a, b), max(a, b)
+                    ex, ey = pos[lo, 0] - pos[hi, 0], pos[lo, 1] - pos[hi, 1]
+                    if ex * ex + ey * ey <= max_d2 * (lam[lo] + lam[hi]) * (1.0 + 1e-9):
+                        if count == out_a.size:
+                            out_a, out_b = np.concatenate((out_a, out_a)), np.concatenate((out_b, out_b))
+                        out_a[count], out_b[count] = lo, hi
+                        count += 1
+    return out_a[:count].copy(), out_b[:count].copy()
+
+
 _cell_range = jit(_cell_range)
 _grid_shape = jit(_grid_shape)
 ball_hits = jit(ball_hits)
 _grid_members = jit(_grid_members)
 exclusive_ball_hits = jit(exclusive_ball_hits)
+exclusive_near_pairs = jit(exclusive_near_pairs)
