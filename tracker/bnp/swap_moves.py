@@ -74,27 +74,15 @@ def _members(ptr, idx, log_first, N, max_members):
     gate's measurements, or, when the gate holds more than ``max_members``, the
     ``max_members`` of highest ``log_first`` (ties: the lower index); ``member[j]`` whether
     pair ``j`` is one."""
-    M = ptr.shape[0] - 1
-    size = np.zeros(N, dtype=np.int64)
-    for j in range(idx.shape[0]):
-        size[idx[j]] += 1
-    first = np.zeros(N + 1, dtype=np.int64)
-    for l in range(N):
-        first[l + 1] = first[l] + size[l]
-    meas_of = np.empty(idx.shape[0], dtype=np.int64)
-    pos_of = np.empty(idx.shape[0], dtype=np.int64)
-    end = first[:N].copy()
-    for m in range(M):  # measurements ascending within each cluster
-        for j in range(ptr[m], ptr[m + 1]):
-            meas_of[end[idx[j]]] = m
-            pos_of[end[idx[j]]] = j
-            end[idx[j]] += 1
+    first, meas_of, pos_of = gates_by_cluster(ptr, idx, N)  # measurements ascending within each cluster
+    end = first[1:].copy()
     member = np.ones(idx.shape[0], dtype=np.bool_)
     for l in range(N):
-        if size[l] > max_members:
+        size = first[l + 1] - first[l]
+        if size > max_members:
             lo = first[l]
-            order = argsort_stable(-log_first[pos_of[lo:lo + size[l]]])
-            for i in range(max_members, size[l]):
+            order = argsort_stable(-log_first[pos_of[lo:lo + size]])
+            for i in range(max_members, size):
                 member[pos_of[lo + order[i]]] = False
             kept = meas_of[lo + order[:max_members]]
             ascending = argsort_stable(kept)
