@@ -18,10 +18,10 @@ from bnptrack.pipeline.offline import TrackResult, read_log_start, track_frames
 from bnptrack.pipeline.resolve import tracker_setup
 from bnptrack.sinks.mcap_writer import McapLogWriter
 from bnptrack.sources.mcap_log import LogContents, iter_frames, read_log, read_metadata
-from bnptrack.sources.scenarios import open_scenario
+from bnptrack.sources.scenarios import open_scenario, scenario_names
 from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
-from bnptrack.tracker.config import PYTHON_NAMES, ConfigError
+from bnptrack.tracker.config import PYTHON_NAMES, ConfigError, did_you_mean
 from bnptrack.tracker.input_checks import SCAN_FRAMES, check_frames
 from bnptrack.tracker.models.params import ModelParams, load_params
 from bnptrack.tracker.registry import Tracker
@@ -44,6 +44,7 @@ def simulate(
     Frames do not carry their parameter set: pass the same ``params`` (and ``scenario``) to
     :func:`track`, or track the log written with ``out``, whose record names them.
     """
+    _check_scenario("simulate", scenario)
     opened = open_scenario(scenario, params, seed, tuple(overrides), names=PYTHON_NAMES)
     sc, p = opened.scenario, opened.params
     frames = list(simulate_sensors(sc, p, seed, list(p.sensors)) if p.sensors else _simulate_frames(sc, p, seed))
@@ -73,6 +74,7 @@ def make_tracker(
     regions), as a log's record does; without it new objects are expected anywhere in the
     field of view.  Run it with ``state = tracker.initial_state()`` and
     ``state, estimate = tracker.step(state, frame, rng)``, or with :func:`track`."""
+    _check_scenario("make_tracker", scenario)
     meta = {"scenario": scenario} if scenario else None
     return tracker_setup(name, params=params, config=config, overrides=tuple(overrides), metadata=meta,
                          names=PYTHON_NAMES).tracker
@@ -130,6 +132,7 @@ def track(
     if is_log and scenario:
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
                           "scenario; scenario= is for a list of frames")
+    _check_scenario("track", scenario)
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
     if params is None and not is_log:
         params = "vo2017"
@@ -163,3 +166,17 @@ def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:
     except ValueError as exc:
         raise ConfigError(f"track(topics=...): {exc}") from None
     return mapping
+
+
+def _check_scenario(function: str, scenario: str | None) -> None:
+    """An unknown ``scenario`` is a :class:`ConfigError` naming the argument (the command line
+    only warns about an unknown name in a log's record: the log may come from another version)."""
+    if scenario is None:
+        return
+    known = scenario_names()
+    if not isinstance(scenario, str):
+        raise ConfigError(f"{function}(scenario={scenario!r}): expected a scenario name (a str), "
+                          f"got {type(scenario).__name__}")
+    if scenario not in known:
+        raise ConfigError(f"{function}(scenario={scenario!r}): unknown scenario{did_you_mean(scenario, known)}; "
+                          f"valid scenarios: {', '.join(known)}")
