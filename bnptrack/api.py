@@ -17,7 +17,8 @@ from pathlib import Path
 from bnptrack.pipeline.offline import TrackResult, read_log_start, track_frames
 from bnptrack.pipeline.resolve import tracker_setup
 from bnptrack.sinks.mcap_writer import McapLogWriter
-from bnptrack.sources.mcap_log import LogContents, iter_frames, read_log, read_metadata
+from bnptrack.sources.mcap_log import LogContents, iter_frames, read_metadata
+from bnptrack.sources.mcap_log import read_log as _read_log
 from bnptrack.sources.scenarios import open_scenario, scenario_names
 from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
@@ -80,6 +81,16 @@ def make_tracker(
                          names=PYTHON_NAMES).tracker
 
 
+def read_log(path: PathLike, strict: bool = True) -> LogContents:
+    """Read a whole log (metadata, frames with truth, tracks) in one pass.
+
+    A truncated or damaged file raises :class:`bnptrack.sources.log_errors.McapLogError`; with
+    ``strict=False`` it returns what was readable, with the error in ``.error``.  A missing
+    path is a :class:`ConfigError` (``no such file``)."""
+    _check_log_path("read_log", path)
+    return _read_log(path, strict)
+
+
 @dataclass(frozen=True)
 class TrackRun:
     """What :func:`track` returns: one estimate per frame, plus the run's scores."""
@@ -133,6 +144,8 @@ def track(
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
                           "scenario; scenario= is for a list of frames")
     _check_scenario("track", scenario)
+    if is_log:
+        _check_log_path("track", frames)
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
     if params is None and not is_log:
         params = "vo2017"
@@ -149,9 +162,11 @@ def track(
     online: list[Estimate] = []
     result = track_frames(setup.tracker, source, seed, lambda _f, est, _m: estimates.append(est), lag=lag,
                           on_online=lambda _f, est: online.append(est))
+    run = TrackRun(estimates, result, online, noted)
     if result.error is not None:
+        result.error.run = run  # the readable prefix, as `bnptrack track` writes it before exit 2
         raise result.error
-    return TrackRun(estimates, result, online, noted)
+    return run
 
 
 def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:
@@ -180,3 +195,12 @@ def _check_scenario(function: str, scenario: str | None) -> None:
     if scenario not in known:
         raise ConfigError(f"{function}(scenario={scenario!r}): unknown scenario{did_you_mean(scenario, known)}; "
                           f"valid scenarios: {', '.join(known)}")
+
+
+def _check_log_path(function: str, path: PathLike) -> None:
+    """A log path that is not a file is a :class:`ConfigError` naming it (not a damaged log)."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{function}({os.fspath(path)!r}): {p} is a folder, not a log")
+    if not p.exists():
+        raise ConfigError(f"{function}({os.fspath(path)!r}): no such file: {p}")

@@ -17,3 +17,25 @@ from bnptrack.tracker.config import ConfigError
 def test_an_unknown_scenario_is_an_error_with_the_close_name(call):
     with pytest.raises(ConfigError, match=r"\(scenario='vo2071'\): unknown scenario \(did you mean 'vo2017'\?\)"):
         call()
+
+
+def test_a_truncated_log_raises_with_the_run_of_its_readable_frames(tmp_path):
+    """The error keeps the estimates of the frames read before the damage (``exc.run``), the
+    same as those of the intact log's first frames."""
+    frames = bnptrack.simulate("vo2017", seed=1)[:20]
+    log = bnptrack.write_log(tmp_path / "whole.mcap", frames, {"scenario": "vo2017", "params": "vo2017"})
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.7)])
+    whole = bnptrack.track(log, seed=0)
+    with pytest.raises(bnptrack.sources.mcap_log.McapLogError, match="truncated after frame") as caught:
+        bnptrack.track(cut, seed=0)
+    part = caught.value.run.estimates
+    assert 0 < len(part) < len(frames)
+    assert [[t.label for t in e.tracks] for e in part] == [[t.label for t in e.tracks] for e in whole.estimates[:len(part)]]
+
+
+@pytest.mark.parametrize("call", [lambda p: bnptrack.track(p), lambda p: bnptrack.read_log(p)])
+def test_a_missing_log_is_no_such_file(tmp_path, call):
+    missing = tmp_path / "nope.mcap"
+    with pytest.raises(ConfigError, match=f"no such file: {missing}$"):
+        call(missing)
