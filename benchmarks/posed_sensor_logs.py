@@ -75,7 +75,7 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     for name, kind, pose, in_frames in (("radar", "bearing_range", RADAR, False), ("lidar", "xy", LIDAR, True)):
         frames, _params = posed_log(kind, pose, pose_in_frames=in_frames, n_frames=a.frames)
-        write_log(a.out / f"{name}_at_pose.mcap", frames)
+        write_log(a.out / f"{name}_at_pose.mcap", frames, overwrite=True)
         (a.out / f"{name}.toml").write_text(params_toml(kind, None if in_frames else pose))
         print(f"wrote {a.out / f'{name}_at_pose.mcap'} and {a.out / f'{name}.toml'}")
 

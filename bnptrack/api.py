@@ -35,27 +35,33 @@ PathLike = str | os.PathLike
 
 def simulate(
     scenario: str = "vo2017", seed: int = 1, *, params: str = "vo2017", overrides: Sequence[str] = (),
-    out: PathLike | None = None,
+    out: PathLike | None = None, overwrite: bool = False,
 ) -> list[Frame]:
     """The frames of scenario ``scenario`` simulated with ``seed`` (as ``bnptrack simulate``).
 
     ``params`` is a built-in parameter set or a TOML file; ``overrides`` are ``--set`` items
     (``"p_detect=0.9"``, ``"scene.n_objects=12"``).  With ``out``, the frames are also written
-    to that MCAP log with its scenario record, ready for ``bnptrack track`` or ``replay``.
+    to that MCAP log with its scenario record, ready for ``bnptrack track`` or ``replay``
+    (an existing file is replaced only with ``overwrite=True``).
     Frames do not carry their parameter set: pass the same ``params`` (and ``scenario``) to
     :func:`track`, or track the log written with ``out``, whose record names them.
     """
     _check_scenario("simulate", scenario)
+    if out is not None:
+        _refuse_existing("simulate(out=...)", out, overwrite)
     opened = open_scenario(scenario, params, seed, tuple(overrides), names=PYTHON_NAMES)
     sc, p = opened.scenario, opened.params
     frames = list(simulate_sensors(sc, p, seed, list(p.sensors)) if p.sensors else _simulate_frames(sc, p, seed))
     if out is not None:
-        write_log(out, frames, opened.metadata)
+        write_log(out, frames, opened.metadata, overwrite=overwrite)
     return frames
 
 
-def write_log(path: PathLike, frames: Iterable[Frame], metadata: dict[str, str] | None = None) -> Path:
-    """Write ``frames`` (measurements, and truth where a frame has it) to an MCAP log."""
+def write_log(path: PathLike, frames: Iterable[Frame], metadata: dict[str, str] | None = None, *,
+              overwrite: bool = False) -> Path:
+    """Write ``frames`` (measurements, and truth where a frame has it) to an MCAP log.  An
+    existing file is replaced only with ``overwrite=True`` (as the command line's ``--overwrite``)."""
+    _refuse_existing("write_log", path, overwrite)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with McapLogWriter(path, dict(metadata or {})) as writer:
@@ -204,3 +210,13 @@ def _check_log_path(function: str, path: PathLike) -> None:
         raise ConfigError(f"{function}({os.fspath(path)!r}): {p} is a folder, not a log")
     if not p.exists():
         raise ConfigError(f"{function}({os.fspath(path)!r}): no such file: {p}")
+
+
+def _refuse_existing(call: str, path: PathLike, overwrite: bool) -> None:
+    """An output path that is a folder, or an existing file without ``overwrite``, is a
+    :class:`ConfigError` naming the call."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{call}: {p} is a folder; give a file path")
+    if p.exists() and not overwrite:
+        raise ConfigError(f"{call}: {p} exists: pass overwrite=True to replace it, or another path")

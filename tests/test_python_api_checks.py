@@ -39,3 +39,15 @@ def test_a_missing_log_is_no_such_file(tmp_path, call):
     missing = tmp_path / "nope.mcap"
     with pytest.raises(ConfigError, match=f"no such file: {missing}$"):
         call(missing)
+
+
+def test_write_log_and_simulate_replace_a_file_only_with_overwrite(tmp_path):
+    frames = bnptrack.simulate("vo2017", seed=1)[:3]
+    log = bnptrack.write_log(tmp_path / "a.mcap", frames)
+    with pytest.raises(ConfigError, match=r"^write_log: .*a\.mcap exists: pass overwrite=True to replace it"):
+        bnptrack.write_log(log, frames[:1])
+    with pytest.raises(ConfigError, match=r"^simulate\(out=\.\.\.\): .*a\.mcap exists"):
+        bnptrack.simulate("vo2017", seed=1, out=log)
+    assert len(bnptrack.read_log(log).frames) == 3  # refused: untouched
+    bnptrack.write_log(log, frames[:1], overwrite=True)
+    assert len(bnptrack.read_log(log).frames) == 1
