@@ -10,6 +10,7 @@ Walk-through: docs/python.md.
 from __future__ import annotations
 
 import os
+from numbers import Integral
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,8 @@ from bnptrack.sources.synthetic import simulate as _simulate_frames
 from bnptrack.sources.synthetic import simulate_sensors
 from bnptrack.tracker.config import PYTHON_NAMES, ConfigError, did_you_mean
 from bnptrack.tracker.input_checks import SCAN_FRAMES, check_frames
-from bnptrack.tracker.models.params import ModelParams, load_params
+from bnptrack.tracker.models.params import ModelParams
+from bnptrack.tracker.models.params import load_params as _load_params
 from bnptrack.tracker.registry import Tracker
 from bnptrack.tracker.types import Estimate, Frame
 
@@ -47,6 +49,8 @@ def simulate(
     :func:`track`, or track the log written with ``out``, whose record names them.
     """
     _check_scenario("simulate", scenario)
+    _check_seed("simulate", seed)
+    _check_items("simulate", "overrides", overrides)
     if out is not None:
         _refuse_existing("simulate(out=...)", out, overwrite)
     opened = open_scenario(scenario, params, seed, tuple(overrides), names=PYTHON_NAMES)
@@ -82,9 +86,17 @@ def make_tracker(
     field of view.  Run it with ``state = tracker.initial_state()`` and
     ``state, estimate = tracker.step(state, frame, rng)``, or with :func:`track`."""
     _check_scenario("make_tracker", scenario)
+    _check_items("make_tracker", "overrides", overrides)
     meta = {"scenario": scenario} if scenario else None
     return tracker_setup(name, params=params, config=config, overrides=tuple(overrides), metadata=meta,
                          names=PYTHON_NAMES).tracker
+
+
+def load_params(source: str | os.PathLike = "vo2017", overrides: Sequence[str] = ()) -> ModelParams:
+    """Parameter set ``source`` (a built-in name or a TOML file; docs/models.md) with the
+    ``--set`` items ``overrides`` (``["clutter_rate=20"]``) applied."""
+    _check_items("load_params", "overrides", overrides)
+    return _load_params(source, tuple(overrides), names=PYTHON_NAMES)
 
 
 def read_log(path: PathLike, strict: bool = True) -> LogContents:
@@ -150,6 +162,9 @@ def track(
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
                           "scenario; scenario= is for a list of frames")
     _check_scenario("track", scenario)
+    _check_seed("track", seed)
+    _check_items("track", "overrides", overrides)
+    _check_items("track", "topics", topics)
     if is_log:
         _check_log_path("track", frames)
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
@@ -220,3 +235,23 @@ def _refuse_existing(call: str, path: PathLike, overwrite: bool) -> None:
         raise ConfigError(f"{call}: {p} is a folder; give a file path")
     if p.exists() and not overwrite:
         raise ConfigError(f"{call}: {p} exists: pass overwrite=True to replace it, or another path")
+
+
+#: What each sequence-of-str argument holds, for its error.
+_ITEMS = {"overrides": "'key=value' strings", "topics": "channel names ('/radar/scan' or 'SRC=/measurements')"}
+
+
+def _check_items(call: str, arg: str, value: object) -> None:
+    """``value`` is a list (any sequence) of str; a bare str, whose characters would be read
+    as items, is a :class:`ConfigError` naming the argument."""
+    if isinstance(value, (str, bytes)):
+        raise ConfigError(f"{call}({arg}={value!r}): expected a list of {_ITEMS[arg]}, got a str "
+                          f"(write [{value!r}])")
+    if not isinstance(value, Sequence) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{call}({arg}={value!r}): expected a list of {_ITEMS[arg]}")
+
+
+def _check_seed(call: str, seed: object) -> None:
+    """A seed is an integer >= 0 (numpy's ``default_rng`` takes no other)."""
+    if isinstance(seed, bool) or not isinstance(seed, Integral) or seed < 0:
+        raise ConfigError(f"{call}(seed={seed!r}): seed must be an integer >= 0")

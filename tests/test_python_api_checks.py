@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import bnptrack
@@ -51,3 +52,28 @@ def test_write_log_and_simulate_replace_a_file_only_with_overwrite(tmp_path):
     assert len(bnptrack.read_log(log).frames) == 3  # refused: untouched
     bnptrack.write_log(log, frames[:1], overwrite=True)
     assert len(bnptrack.read_log(log).frames) == 1
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    (lambda: bnptrack.track([], overrides="p_detect=0.9"),
+     r"^track\(overrides='p_detect=0\.9'\): expected a list of 'key=value' strings, got a str \(write \['p_detect=0\.9'\]\)$"),
+    (lambda: bnptrack.make_tracker(overrides="p_detect=0.9"), r"^make_tracker\(overrides='p_detect=0\.9'\): expected a list"),
+    (lambda: bnptrack.simulate(overrides="p_detect=0.9"), r"^simulate\(overrides='p_detect=0\.9'\): expected a list"),
+    (lambda: bnptrack.load_params("vo2017", "p_detect=0.9"), r"^load_params\(overrides='p_detect=0\.9'\): expected a list"),
+    (lambda: bnptrack.track("x.mcap", topics="/radar/scan"), r"^track\(topics='/radar/scan'\): expected a list of channel names"),
+    (lambda: bnptrack.make_tracker(overrides=[0.9]), r"^make_tracker\(overrides=\[0\.9\]\): expected a list of 'key=value' strings$"),
+    (lambda: bnptrack.simulate(seed=-1), r"^simulate\(seed=-1\): seed must be an integer >= 0$"),
+    (lambda: bnptrack.track([], seed=1.5), r"^track\(seed=1\.5\): seed must be an integer >= 0$"),
+])
+def test_a_str_for_a_list_and_a_bad_seed_name_the_argument(call, message):
+    with pytest.raises(ConfigError, match=message):
+        call()
+
+
+def test_load_params_names_its_python_arguments():
+    with pytest.raises(ConfigError, match=r"^overrides item 'p_detc=0\.9': unknown key 'p_detc' \(did you mean 'p_detect'\?\)"):
+        bnptrack.load_params("vo2017", ["p_detc=0.9"])
+
+
+def test_a_numpy_integer_is_a_seed():
+    assert len(bnptrack.simulate("vo2017", seed=np.int64(1))) == 100
