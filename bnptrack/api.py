@@ -192,15 +192,21 @@ def track(
 
 def _topic_map(log: Path, topics: Sequence[str]) -> dict[str, str]:
     """``topics`` as the channel mapping of :func:`sources.mcap_log.iter_frames`, checked
-    against the log (a channel bnptrack cannot read is a :class:`ConfigError`)."""
+    against the log (a channel bnptrack cannot read, or no channel read as ``/measurements``,
+    is a :class:`ConfigError`)."""
     from bnptrack.pipeline.config import parse_topic_item
+    from bnptrack.sources.channels import channel_list
+    from bnptrack.sources.mcap_log import missing_measurements_message
+    from bnptrack.tracker.messages import TOPIC_MEASUREMENTS
     from bnptrack.sources.robot_log import robot_topics
 
     try:
         mapping = dict(parse_topic_item(t) for t in topics)
-        robot_topics(log, mapping)
+        robot_topics(log, mapping, channels := channel_list(log))
     except ValueError as exc:
         raise ConfigError(f"track(topics=...): {exc}") from None
+    if not any(mapping.get(c.topic, c.topic) == TOPIC_MEASUREMENTS for c in channels):
+        raise ConfigError(f"track({os.fspath(log)!r}): {missing_measurements_message(log, channels, 'topics=[{!r}]')}")
     return mapping
 
 

@@ -403,18 +403,23 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str] | None:
 # --------------------------------------------------------------------------- channels
 
 
-def missing_measurements_message(path: str | os.PathLike, channels: list[ChannelInfo]) -> str:
-    """The error for a log without a ``/measurements`` channel: its channels and how to map one."""
+def missing_measurements_message(path: str | os.PathLike, channels: list[ChannelInfo],
+                                 topic_item: str = "--topic {}") -> str:
+    """The error for a log without a ``/measurements`` channel: its channels and how to map one
+    (``topic_item``: how the caller gives a channel, the command line's ``--topic {}`` or a
+    Python call's ``topics=['{}']``).  A log with no channel at all has no frames, and says so."""
+    if not channels:
+        return f"{os.fspath(path)} has no channels: the log has no frames, so there is nothing to track"
     listing = "; ".join(f"{c.topic} ({c.schema or 'no schema'}, {c.message_encoding}, {c.messages} messages)"
                         for c in channels) or "none"
     from bnptrack.sources.channels import trackable_listing
 
     robot = trackable_listing(channels)
     if robot != "none":
-        return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel; choose its measurements with --topic. "
+        return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel; choose its measurements with {topic_item.format('CHANNEL')}. "
                 f"Trackable channels: {robot}")
     example = next((c.topic for c in channels if c.topic not in (TOPIC_TRUTH, TOPIC_TRACKS)), "/radar/detections")
     return (f"{os.fspath(path)} has no {TOPIC_MEASUREMENTS} channel, so there is nothing to track. "
             f"Its channels: {listing}. To read a channel as the measurements, map it: "
-            f"--topic {example}={TOPIC_MEASUREMENTS} (its payload must still follow the "
+            f"{topic_item.format(f'{example}={TOPIC_MEASUREMENTS}')} (its payload must still follow the "
             f"/measurements contract of docs/formats.md: JSON, frame, stamp_ns, sensor, kind, z)")

@@ -77,3 +77,32 @@ def test_load_params_names_its_python_arguments():
 
 def test_a_numpy_integer_is_a_seed():
     assert len(bnptrack.simulate("vo2017", seed=np.int64(1))) == 100
+
+
+def test_a_log_written_with_no_frames_says_so_without_a_topic_hint(tmp_path):
+    from click.testing import CliRunner
+
+    from bnptrack.pipeline.cli import main
+
+    log = bnptrack.write_log(tmp_path / "none.mcap", [], {"scenario": "vo2017", "params": "vo2017"})
+    message = f"{log} has no channels: the log has no frames, so there is nothing to track"
+    with pytest.raises(ConfigError, match=f"^track\\('{log}'\\): {message}$"):
+        bnptrack.track(log)
+    res = CliRunner().invoke(main, ["track", str(log), "-q"])
+    assert res.exit_code == 2 and res.output.strip() == f"Error: {message}"
+    res = CliRunner().invoke(main, ["info", str(log)])
+    assert res.exit_code == 0 and "frames            0 (the log has no channels)\n" in res.output
+
+
+def test_a_log_without_measurements_names_the_topics_argument(tmp_path):
+    from bnptrack.sinks.mcap_writer import McapLogWriter
+
+    frames = bnptrack.simulate("vo2017", seed=1)[:2]
+    run = bnptrack.track(frames)
+    log = tmp_path / "tracks.mcap"
+    with McapLogWriter(log, {}) as writer:
+        for est in run.estimates:
+            writer.write_tracks(est)
+    with pytest.raises(ConfigError, match=r"has no /measurements channel, so there is nothing to track\. Its channels: "
+                                          r"/tracks .*map it: topics=\['/radar/detections=/measurements'\]"):
+        bnptrack.track(log)

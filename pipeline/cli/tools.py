@@ -57,7 +57,7 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
         robot_topics(log, mapping, channels)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    rows += _frame_rows(log, mapping)
+    rows += _frame_rows(log, mapping) if channels else [("frames", "0 (the log has no channels)")]
     meta = read_metadata(log)
     if meta:
         rows += [(f"record.{k}", v) for k, v in meta.items()]
