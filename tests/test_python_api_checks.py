@@ -106,3 +106,35 @@ def test_a_log_without_measurements_names_the_topics_argument(tmp_path):
     with pytest.raises(ConfigError, match=r"has no /measurements channel, so there is nothing to track\. Its channels: "
                                           r"/tracks .*map it: topics=\['/radar/detections=/measurements'\]"):
         bnptrack.track(log)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ('[sourc]\nlog = "x.mcap"\n', r": unknown key 'sourc' \(did you mean 'source'\?\)$"),
+    ('[source]\nlgo = "x.mcap"\n', r": unknown key 'lgo' in \[source\] \(did you mean 'log'\?\)$"),
+])
+def test_a_misspelt_pipeline_table_or_key_gets_the_close_name(tmp_path, text, message):
+    from bnptrack.pipeline.config import load_pipeline
+
+    path = tmp_path / "pipeline.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=f"^{path}{message}"):
+        load_pipeline(path)
+
+
+def test_a_misspelt_key_of_a_params_list_item_lists_the_known_keys(tmp_path):
+    path = tmp_path / "p.toml"
+    path.write_text('extends = "vo2017"\n[[birth]]\nweight = 1\n')
+    with pytest.raises(ConfigError, match=r": unknown key 'weight' in birth\[0\] \(known: r, mean, std\)$"):
+        bnptrack.load_params(path)
+
+
+def test_info_on_a_log_without_a_record_names_the_default_model(tmp_path):
+    from click.testing import CliRunner
+
+    from bnptrack.pipeline.cli import main
+
+    log = bnptrack.write_log(tmp_path / "bare.mcap", bnptrack.simulate("vo2017", seed=1)[:2])
+    res = CliRunner().invoke(main, ["info", str(log)])
+    assert res.exit_code == 0, res.output
+    assert ("record            none (no bnptrack.scenario metadata: track uses the vo2017 model unless "
+            "--params says otherwise)") in res.output

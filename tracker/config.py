@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import msgspec
+import msgspec.inspect
 
 S = TypeVar("S", bound=msgspec.Struct)
 
@@ -178,7 +179,40 @@ def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:
     try:
         return msgspec.convert(data, cls)
     except msgspec.ValidationError as exc:
-        raise ConfigError(f"{origin}: {exc}") from None
+        raise ConfigError(f"{origin}: {_unknown_field(str(exc), cls) or exc}") from None
+
+
+_UNKNOWN_FIELD = re.compile(r"Object contains unknown field `(?P<key>[^`]+)`(?: - at `\$(?P<at>[^`]*)`)?")
+
+
+def _unknown_field(message: str, cls: type) -> str:
+    """msgspec's unknown-field error as ``unknown key 'x' in [table] (did you mean 'y'?)``
+    (the known keys are those of the struct at that path); ``""`` for any other error."""
+    m = _UNKNOWN_FIELD.fullmatch(message)
+    if m is None:
+        return ""
+    key, at = m["key"], (m["at"] or "").lstrip(".")
+    node: Any = msgspec.inspect.type_info(cls)
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", at):
+        node = _child(node, part)
+    known = [f.encode_name for f in node.fields] if isinstance(node, msgspec.inspect.StructType) else []
+    where = f" in {at}" if "[" in at else f" in [{at}]" if at else ""
+    hint = did_you_mean(key, known) or (f" (known: {', '.join(known)})" if 0 < len(known) <= KNOWN_LISTED else "")
+    return f"unknown key '{key}'{where}{hint}"
+
+
+def _child(node: Any, part: str) -> Any:
+    """The type of ``part`` (a field name, a dict key or a ``[i]`` index) inside ``node``."""
+    ins = msgspec.inspect
+    while isinstance(node, ins.UnionType):  # an optional table: its non-None member
+        node = next((t for t in node.types if not isinstance(t, ins.NoneType)), None)
+    if isinstance(node, ins.StructType):
+        return next((f.type for f in node.fields if f.encode_name == part), None)
+    if isinstance(node, ins.DictType):
+        return node.value_type
+    if isinstance(node, (ins.ListType, ins.TupleType, ins.VarTupleType)) and part.startswith("["):
+        return getattr(node, "item_type", None)
+    return None
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -42,6 +42,7 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
       bnptrack info recordings/vo2017-s1.mcap
       bnptrack info robot.mcap --topic /radar/scan   # your ROS 2 log: the frames and sensors of one channel
     """
+    from bnptrack.pipeline.resolve import DEFAULT_PARAMS
     from bnptrack.sources.mcap_log import log_channels
     from bnptrack.sources.robot_log import robot_topics
 
@@ -62,7 +63,8 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
     if meta:
         rows += [(f"record.{k}", v) for k, v in meta.items()]
     else:
-        rows.append(("record", "none (no bnptrack.scenario metadata: give --params to track)"))
+        rows.append(("record", f"none (no bnptrack.scenario metadata: track uses the {DEFAULT_PARAMS} model "
+                               "unless --params says otherwise)"))
     echo_rows(rows)
 
 
