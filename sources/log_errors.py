@@ -23,7 +23,11 @@ class McapLogError(Exception):
     last_frame: last frame index delivered to the caller (``None`` if none).
     reason: what went wrong (for ``"invalid"``, the CodecError text naming topic and frame).
     topic, frame: topic and frame of the offending message, when known.
+    run: set by :func:`bnptrack.track` before it raises the error: the ``TrackRun`` of the
+        frames read before the problem (``None`` elsewhere).
     """
+
+    run: object = None
 
     def __init__(
         self,
