@@ -205,8 +205,8 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               metavar="R", help="Replay speed against the log's time stamps (1 = real time).")
 @click.option("--as-fast-as-possible", "afap", is_flag=True, help="Publish frames without pacing.")
-@click.option("--tracker", "tracker_name", default="ddp", show_default=True,
-              help=f"Tracker: {', '.join(TRACKERS)} (as `bnptrack track --tracker`).")
+@click.option("--tracker", "tracker_name", type=Choice(TRACKERS), default="ddp", show_default=True,
+              help="Tracker (as `bnptrack track --tracker`).")
 @click.option("--config", "config_arg", metavar="NAME|FILE.toml", default=None,
               help="Tracker settings preset or TOML file (as `bnptrack track --config`).")
 @click.option("--params", "params_arg", metavar="NAME|FILE.toml", default=None,

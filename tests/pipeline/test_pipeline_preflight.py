@@ -53,8 +53,10 @@ def assert_refused(res: subprocess.CompletedProcess, out: Path, needle: str) -> 
 
 def test_replay_unknown_tracker_fails_before_starting(vo_log, tmp_path):
     out = tmp_path / "r"
-    res = cli("replay", vo_log, "--tracker", "foo", "--out", out)
-    assert_refused(res, out, "unknown tracker 'foo'; valid trackers: ddp, dpyp, glmb")
+    res = cli("replay", vo_log, "--tracker", "ddpp", "--out", out)
+    # the same error as track's: the option's choices and the closest one
+    assert_refused(res, out, "Invalid value for '--tracker': 'ddpp' is not one of 'ddp', 'dpyp', 'glmb'")
+    assert res.stderr.rstrip().endswith("(did you mean 'ddp'?)")
 
 
 @pytest.mark.parametrize("toml, needle", [
