@@ -25,8 +25,13 @@ S = TypeVar("S", bound=msgspec.Struct)
 # --- constraint aliases: the validated scalar types of every config struct ----------------
 NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
 PosInt = Annotated[int, msgspec.Meta(ge=1)]
-NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+#: The largest value of a non-negative or positive setting: every setting is finite, and its
+#: square (a variance of a standard deviation) stays far from overflowing.
+FINITE_MAX = 1e12
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0, le=FINITE_MAX)]
+"""A finite value ``0 <= x <= 1e12``."""
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=FINITE_MAX)]
+"""A finite value ``0 < x <= 1e12``."""
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 """A probability, ``0 <= p <= 1``."""
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]

@@ -51,6 +51,17 @@ def test_unknown_key_did_you_mean(tmp_path, text, fragment):
     assert fragment in str(ei.value)
 
 
+@pytest.mark.parametrize("item", ["sigma_bearing_deg=1e308", "sigma_range=inf", "range_max=inf", "T=inf",
+                                  "clutter_rate=1e300", "sigma_accel=nan", "sigma_accel=-inf"])
+def test_a_setting_must_be_finite(item):
+    """Every non-negative or positive setting is finite and at most 1e12 (its square stays
+    finite): an infinite, NaN or overflowing value is an error naming the item."""
+    with pytest.raises(ConfigError, match=rf"^--set '{item}': expected `float` (<= 1000000000000.0|>= 0.0)$"):
+        apply_overrides(load_params("vo2017"), [item])
+    key = item.partition("=")[0]
+    assert apply_overrides(load_params("vo2017"), [f"{key}=1e12"]).__getattribute__(key) == 1e12
+
+
 def test_set_did_you_mean():
     with pytest.raises(ConfigError, match="did you mean 'sigma_range'"):
         apply_overrides(load_params("vo2017"), ["sigma_rang=3"])
