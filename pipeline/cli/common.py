@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import os
 import sys
 import typing
@@ -64,6 +65,17 @@ class Choice(click.Choice):
         message = super().get_invalid_choice_message(value, ctx)
         hint = did_you_mean(str(value), [str(c) for c in self.choices], cutoff=0.5)
         return f"{message.rstrip('.')}{hint}" if hint else message
+
+
+class FiniteRange(click.FloatRange):
+    """:class:`click.FloatRange` that also refuses ``inf`` and ``nan`` (which compare as in
+    range or not at all)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
 
 
 class CliError(click.ClickException):

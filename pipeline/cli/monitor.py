@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from bnptrack.pipeline.cli.common import SET_HELP_ZENOH, clean_errors
+from bnptrack.pipeline.cli.common import FiniteRange, SET_HELP_ZENOH, clean_errors
 
 __all__ = ["monitor", "event_line"]
 
@@ -20,9 +20,9 @@ __all__ = ["monitor", "event_line"]
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file (for its [zenoh] TLS settings).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_ZENOH)
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+@click.option("--duration", type=FiniteRange(min=0, min_open=True), default=None, metavar="SECONDS",
               help="Stop after this long (default: until Ctrl-C).")
-@click.option("--connect-timeout", type=click.FloatRange(min=0), default=1.0, show_default=True,
+@click.option("--connect-timeout", type=FiniteRange(min=0), default=1.0, show_default=True,
               metavar="SECONDS", help="Give up when no router answers within this long.")
 @clean_errors
 def monitor(run_id: str, connect: tuple[str, ...], pipeline_file: Path | None, overrides: tuple[str, ...],

@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from bnptrack.pipeline.cli.common import (
+    FiniteRange,
     Choice,
     CONNECT_VIEW_HELP,
     END_HELP,
@@ -232,7 +233,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     "stamps); the run goes on and exits 3 naming the skipped frames (docs/pipeline.md, \"Bad input\").",
 )
 @click.option(
-    "--max-gap-s", type=click.FloatRange(min=0, min_open=True), default=3600.0, show_default=True,
+    "--max-gap-s", type=FiniteRange(min=0, min_open=True), default=3600.0, show_default=True,
     metavar="SECONDS", help="Likewise for a time stamp more than SECONDS after the previous "
     "frame's, or before it.",
 )

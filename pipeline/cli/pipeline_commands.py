@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from bnptrack.pipeline.cli.common import (
+    FiniteRange,
     Choice,
     CONNECT_VIEW_HELP,
     END_HELP,
@@ -136,7 +137,7 @@ _LAG_OPT = click.option(
 )
 
 _TIMEOUT_OPT = click.option(
-    "--timeout", type=click.FloatRange(min=0, min_open=True), default=None, metavar="SECONDS",
+    "--timeout", type=FiniteRange(min=0, min_open=True), default=None, metavar="SECONDS",
     help="Stop everything and fail if the pipeline has not finished after this long.",
 )
 
@@ -202,7 +203,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 
 @click.command()
 @click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+@click.option("--rate", type=FiniteRange(min=0, min_open=True), default=1.0, show_default=True,
               metavar="R", help="Replay speed against the log's time stamps (1 = real time).")
 @click.option("--as-fast-as-possible", "afap", is_flag=True, help="Publish frames without pacing.")
 @click.option("--tracker", "tracker_name", type=Choice(TRACKERS), default="ddp", show_default=True,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from bnptrack.pipeline.cli.common import Choice, CliError, clean_errors, echo_rows, topic_map
+from bnptrack.pipeline.cli.common import FiniteRange, Choice, CliError, clean_errors, echo_rows, topic_map
 from bnptrack.tracker.config import did_you_mean
 from bnptrack.tracker.message_units import described_schema
 from bnptrack.tracker.messages import MSG_TYPES
@@ -259,7 +259,7 @@ MAX_SIDE = 8192
 )
 @click.option("--size", default="1600x900", show_default=True, metavar="WxH", help="With --screenshot: picture size.")
 @click.option(
-    "--timeout", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
+    "--timeout", type=FiniteRange(min=1.0), default=60.0, show_default=True,
     help="With --screenshot: give up after this many seconds."
 )
 @click.option("--web", is_flag=True, help="Serve the web viewer on 127.0.0.1 (open the printed URL) instead of a native window.")

@@ -503,6 +503,17 @@ def test_an_existing_recording_names_the_option_that_chose_it(tmp_path):
     refuse_existing({"mcap": mcap, "rerun": rrd}, True)  # --overwrite
 
 
+@pytest.mark.parametrize("args", [["replay", "--rate", "inf"], ["replay", "--rate", "nan"],
+                                  ["track", "--max-gap-s", "nan"], ["replay", "--timeout", "inf"]])
+def test_a_number_option_must_be_finite(tmp_path, args):
+    log = _log(tmp_path / "run.mcap", sensor="sim0", n=3)
+    command, option, value = args
+    res = _run(command, log, option, value, "--out", tmp_path / "out")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: Invalid value for '{option}': '{value}' is not a finite number"
+    assert not (tmp_path / "out").exists()
+
+
 def test_info_warns_of_stamps_in_milliseconds_as_track_does(tmp_path):
     log = _log(tmp_path / "ms.mcap", sensor="radar0", dt_ns=500)
     res = _run("info", log)
