@@ -28,6 +28,7 @@ from typing import Literal
 import msgspec
 
 from bnptrack.sinks.sink import RRD_NAME, TRACKS_NAME
+from bnptrack.pipeline.endpoints import check_endpoint
 from bnptrack.tracker.config import ConfigError, NonNeg, NonNegInt, PosInt, Positive, apply_overrides, convert, load_toml, split_item
 from bnptrack.tracker.input_checks import SIM_SENSOR
 
@@ -143,7 +144,14 @@ class ZenohConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         """TLS, authentication or access control is configured."""
         return bool(self.acl or self.users_file or self.user or self.tls.files() or self.tls.mtls)
 
+    def check_endpoints(self) -> None:
+        """:func:`check_endpoint` of every endpoint, named by its key (``zenoh.connect``)."""
+        for key in ("router_listen", "connect", "listen"):
+            for endpoint in getattr(self, key):
+                check_endpoint(endpoint, f"zenoh.{key}")
+
     def __post_init__(self) -> None:
+        self.check_endpoints()
         if self.mode == "peer" and self.secured:
             raise ValueError(
                 "zenoh.mode = 'peer' cannot be combined with TLS, authentication or access "

@@ -90,6 +90,10 @@ def _check_sink(cfg: PipelineConfig) -> None:
 
 def _check_zenoh(cfg: PipelineConfig) -> None:
     z = cfg.zenoh
+    try:
+        z.check_endpoints()  # also those an option set after the file was read
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     if not z.embedded_router and not z.connect and z.mode == "client":
         raise ConfigError("zenoh.connect: a client needs router endpoints (or set "
                           "zenoh.embedded_router = true)")

@@ -173,7 +173,8 @@ def _blame(message: str, keys: dict[str, str], names: ArgNames) -> str:
     if m is not None:
         path = m["path"]
         for key, as_typed in keys.items():
-            if path == key or path.startswith((f"{key}.", f"{key}[")):
+            # the item's own value, or the table holding it (a check across the table's keys)
+            if path == key or path.startswith((f"{key}.", f"{key}[")) or key.startswith(f"{path}."):
                 what = m["what"]
                 return f"{names.set_item.format(as_typed)}: {what[:1].lower()}{what[1:]}"
     return f"{names.set_all}: {message}"

@@ -78,6 +78,19 @@ class FiniteRange(click.FloatRange):
         return number
 
 
+def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]) -> tuple[str, ...]:
+    """Callback of an ENDPOINT option (``--connect``, ``--listen``): each a Zenoh endpoint
+    (:func:`pipeline.config.check_endpoint`), else a usage error naming it."""
+    from bnptrack.pipeline.endpoints import check_endpoint
+
+    for value in values:
+        try:
+            check_endpoint(value, "")
+        except ValueError as exc:
+            raise click.BadParameter(str(exc).strip(), ctx, param) from None
+    return values
+
+
 class CliError(click.ClickException):
     """A failure reported as one line on stderr, exit code 2."""
 

@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from bnptrack.pipeline.cli.common import (
+    checked_endpoints,
     FiniteRange,
     Choice,
     CONNECT_VIEW_HELP,
@@ -320,8 +321,10 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
 @click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
-@click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.")
-@click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).")
+@click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.",
+              callback=checked_endpoints)
+@click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).",
+              callback=checked_endpoints)
 @click.option("--mode", type=Choice(literal_choices(ZenohConfig, "mode")), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
@@ -389,7 +392,7 @@ def end_process(code: int) -> None:
 @click.command()
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file: its [zenoh] table (TLS, router_extra) is used.")
-@click.option("--listen", multiple=True, metavar="ENDPOINT",
+@click.option("--listen", multiple=True, metavar="ENDPOINT", callback=checked_endpoints,
               help="Endpoint(s) to listen on. Default: tcp/127.0.0.1:7447 (this host only; "
                    "give e.g. tcp/0.0.0.0:7447 for other hosts, with TLS and --set zenoh.acl=true).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_ZENOH)
