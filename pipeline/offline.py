@@ -83,7 +83,9 @@ class SimulationResult:
 
 def simulate_to_log(opened: OpenScenario, seed: int, out: str | os.PathLike) -> SimulationResult:
     """Simulate an opened scenario (:func:`sources.scenarios.open_scenario`: its scene and
-    final parameters) with ``seed`` and write an MCAP log with its record."""
+    final parameters) with ``seed`` and write an MCAP log with its record.  The log is written
+    beside ``out`` under a temporary name and renamed at the end: a failure leaves no partial
+    log (and an existing ``out`` as it was)."""
     sc, params = opened.scenario, opened.params
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -91,12 +93,17 @@ def simulate_to_log(opened: OpenScenario, seed: int, out: str | os.PathLike) -> 
     # a parameter set that declares sensors ([sensors.NAME]) is simulated with all of them:
     # one frame per sensor per scan, interleaved (sources.synthetic.simulate_sensors)
     frames = simulate_sensors(sc, params, seed, list(params.sensors)) if params.sensors else simulate(sc, params, seed)
-    with McapLogWriter(out, dict(opened.metadata)) as writer:
-        for frame in frames:
-            writer.write_frame(frame)
-            n_frames += 1
-            n_meas += frame.n_measurements
-            n_targets += len(frame.truth.ids) if frame.truth is not None else 0
+    part = out.with_name(f".{out.name}.part")
+    try:
+        with McapLogWriter(part, dict(opened.metadata)) as writer:
+            for frame in frames:
+                writer.write_frame(frame)
+                n_frames += 1
+                n_meas += frame.n_measurements
+                n_targets += len(frame.truth.ids) if frame.truth is not None else 0
+        os.replace(part, out)
+    finally:
+        part.unlink(missing_ok=True)
     return SimulationResult(str(out), n_frames, n_meas, n_targets, out.stat().st_size)
 
 

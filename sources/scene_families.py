@@ -87,6 +87,7 @@ from bnptrack.sources.scene_geometry import (
 )
 from bnptrack.sources.scene_groups import _all_groups, pitman_yor_sizes
 from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError, apply_overrides
+from bnptrack.tracker.messages import MAX_OBJECTS
 from bnptrack.tracker.models.motion import CoordinatedTurn
 
 __all__ = [
@@ -165,7 +166,8 @@ class SceneFamily(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def __post_init__(self) -> None:
         checks = [
-            (self.n_objects >= 0, "n_objects must be >= 0"),
+            (0 <= self.n_objects <= MAX_OBJECTS, f"n_objects must be in [0, {MAX_OBJECTS}] (a /truth message "
+             f"holds at most {MAX_OBJECTS} objects)"),
             (1 <= self.n_min <= self.n_max, "need 1 <= n_min <= n_max"),
             (self.crossing_pairs >= 0, "crossing_pairs must be >= 0"),
             (0.0 <= self.crossing_sep <= 20.0, "crossing_sep must be in [0, 20] m"),

@@ -587,3 +587,30 @@ def test_binary_data_and_a_folder_as_a_params_file(tmp_path):
         read_toml(blob)
     with pytest.raises(ConfigError, match=r": a folder, not a TOML file$"):
         read_toml(tmp_path)
+
+
+def test_a_simulation_that_fails_leaves_no_partial_log(tmp_path, monkeypatch):
+    """The log is renamed into place at the end: a failure mid-run leaves nothing (and an
+    existing log given with --overwrite as it was)."""
+    from bnptrack.pipeline import offline
+
+    real = offline.simulate
+
+    def failing(*args):
+        for k, frame in enumerate(real(*args)):
+            if k == 5:
+                raise ValueError("frame 5: a failure in the simulator")
+            yield frame
+
+    monkeypatch.setattr(offline, "simulate", failing)
+    out = tmp_path / "s.mcap"
+    res = _run("simulate", "--seed", "1", "--out", out)
+    assert res.exit_code == 2 and "a failure in the simulator" in res.output
+    assert list(tmp_path.iterdir()) == []
+    out.write_bytes(b"an earlier log")
+    res = _run("simulate", "--seed", "1", "--out", out, "--overwrite")
+    assert res.exit_code == 2
+    assert out.read_bytes() == b"an earlier log" and list(tmp_path.iterdir()) == [out]
+    assert _run("simulate", "--scenario", "random", "--set", "scene.n_objects=10001", "--out", out,
+                "--overwrite").output.strip().endswith(
+        "--set 'scene.n_objects=10001': n_objects must be in [0, 10000] (a /truth message holds at most 10000 objects)")
