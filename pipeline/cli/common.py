@@ -91,6 +91,12 @@ def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[
     return values
 
 
+class InternalError(click.ClickException):
+    """A failure inside bnptrack, not a user's mistake: one line, exit code 1."""
+
+    exit_code = 1
+
+
 class CliError(click.ClickException):
     """A failure reported as one line on stderr, exit code 2."""
 
@@ -132,6 +138,9 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
         except Exception as exc:
             if not isinstance(exc, _expected()) or os.environ.get("BNPTRACK_DEBUG"):
                 raise
+            if _numerical(exc):
+                raise InternalError(f"numerical failure inside bnptrack ({type(exc).__name__}: {exc}); "
+                                    "BNPTRACK_DEBUG=1 shows the traceback: please report it with the command") from exc
             raise CliError(_describe(exc)) from exc
 
     return wrapper
@@ -157,6 +166,13 @@ def one_line_warnings() -> Iterator[None]:
 
         warnings.showwarning = one_line
         yield
+
+
+def _numerical(exc: BaseException) -> bool:
+    """A failure of bnptrack's own numerics (numpy's ``LinAlgError``, a ``ValueError``), not a
+    mistake of the user's: reported as an internal error."""
+    np = sys.modules.get("numpy")
+    return np is not None and isinstance(exc, np.linalg.LinAlgError)
 
 
 def _describe(exc: BaseException) -> str:
