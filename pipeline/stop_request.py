@@ -25,6 +25,8 @@ class StopOnSignal:
 
     def __init__(self) -> None:
         self.signal_name: str | None = None
+        self.cut_short = False
+        """Whether the signal ended the input early (not merely came after its end)."""
         self._old: dict[int, Any] = {}
 
     def __enter__(self) -> StopOnSignal:
@@ -52,5 +54,6 @@ class StopOnSignal:
         """``items`` up to the first signal: nothing more is read after it."""
         for item in items:
             if self.signal_name is not None:
+                self.cut_short = True
                 return
             yield item

@@ -159,20 +159,19 @@ class _FramePairer:
     """Pair ``/measurements`` with ``/truth`` of the same frame index, in order.
 
     A frame is released as soon as both halves are seen, or (without truth) when the next
-    frame's measurements arrive or the stream ends.  Truth for a frame already released, or
-    for a frame without measurements, is dropped.
+    frame's measurements arrive or the stream ends.  A truth waits for its measurements until
+    measurements of a later frame number arrive; a truth whose frame never comes is dropped.
+    A frame number that does not advance (repeated, or back) is passed on all the same: the
+    reader of the frames skips it by the frame bounds (:class:`tracker.types.FrameGate`), as a
+    stamp that goes back.
     """
 
     def __init__(self) -> None:
         self.pending: MeasurementsMsg | None = None
         self.truths: dict[int, TruthMsg] = {}
-        self.last_frame: int | None = None
         self.saw_truth = False
 
     def add_measurements(self, msg: MeasurementsMsg) -> list[tuple[MeasurementsMsg, TruthMsg | None]]:
-        # a frame index that does not advance (repeated, or back) is passed on: the reader of
-        # the frames skips it by the frame bounds (tracker.types.FrameGate), as a stamp that goes back
-        self.last_frame = msg.frame if self.last_frame is None else max(self.last_frame, msg.frame)
         out: list[tuple[MeasurementsMsg, TruthMsg | None]] = []
         if self.pending is not None:
             out.append((self.pending, None))
@@ -195,7 +194,7 @@ class _FramePairer:
             pair = (self.pending, msg)
             self.pending = None
             return [pair]
-        if (self.last_frame is None or msg.frame > self.last_frame) and msg.frame not in self.truths:
+        if msg.frame not in self.truths:  # measurements of a later frame number drop it
             self.truths[msg.frame] = msg
         return []
 

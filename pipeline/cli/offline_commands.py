@@ -320,7 +320,7 @@ def track(
         res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag, stop)
     if not quiet:
         echo_rows(_track_rows(res, tracker_name, seed, io.out, io.rrd, lag))
-    _track_outcome(res, io.out, stop.signal_name)
+    _track_outcome(res, io.out, stop.signal_name if stop.cut_short else None)
 
 
 def _track_outcome(res: TrackResult, out: Path, signal_name: str | None = None) -> None:
@@ -331,7 +331,8 @@ def _track_outcome(res: TrackResult, out: Path, signal_name: str | None = None) 
         raise CliError(f"{res.error} -- processed and wrote the {res.n_frames} readable frame(s) to {out}")
     if signal_name is not None:
         last = f" (up to log frame {res.frames[-1].frame})" if res.frames else ""
-        click.echo(f"Interrupted by {signal_name}: tracked and wrote {res.n_frames} frame(s){last}; "
+        skipped = f"; {len(res.skipped)} frame(s) beyond the frame bounds skipped" if res.skipped else ""
+        click.echo(f"Interrupted by {signal_name}: tracked and wrote {res.n_frames} frame(s){last}{skipped}; "
                    f"the outputs are complete files", err=True)
         raise SystemExit(130)
     if res.skipped:

@@ -39,7 +39,7 @@ def test_the_first_signal_ends_the_items_and_a_second_interrupts():
             seen.append(k)
             if k == 3:
                 signal.raise_signal(signal.SIGTERM)
-        assert stop.signal_name == "SIGTERM"
+        assert stop.signal_name == "SIGTERM" and stop.cut_short
         with pytest.raises(KeyboardInterrupt):
             signal.raise_signal(signal.SIGINT)
     assert seen == [0, 1, 2, 3]
@@ -62,3 +62,10 @@ def test_a_signal_ends_track_with_complete_outputs_and_exit_130(tmp_path, monkey
         topics = [ch.topic for _, ch, _ in make_reader(f).iter_messages()]
     assert topics.count("/tracks") == 12 and topics.count("/measurements") == 12
     assert signal.getsignal(sig) is before  # the command puts the handlers back
+
+
+def test_a_signal_after_the_input_ended_does_not_cut_the_run_short():
+    with StopOnSignal() as stop:
+        assert list(stop.until_stopped(range(3))) == [0, 1, 2]
+        signal.raise_signal(signal.SIGTERM)  # while the outputs are closed, say
+    assert stop.signal_name == "SIGTERM" and not stop.cut_short

@@ -510,3 +510,22 @@ def test_reader_imports_neither_pipeline_nor_sinks():
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pipeline', 'sinks', 'zenoh', 'rerun')); "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=str(root))
+
+
+def test_a_jumped_frame_number_keeps_the_later_frames_truth_in_either_order():
+    """One frame numbered 10**9: the frames after it still pair with their truth, whether a
+    log writes each frame's truth after its measurements (bnptrack's writer) or before."""
+    from types import SimpleNamespace as Msg
+
+    from bnptrack.sources.mcap_log import _FramePairer
+
+    numbers = [1, 2, 10**9, 3, 4]
+    for truth_first in (False, True):
+        pairer, got = _FramePairer(), []
+        for k in numbers:
+            m, t = Msg(frame=k, what="m"), Msg(frame=k, what="t")
+            for msg in ((t, m) if truth_first else (m, t)):
+                add = pairer.add_truth if msg.what == "t" else pairer.add_measurements
+                got += add(msg)
+        got += pairer.finish(complete_only=False)
+        assert [(a.frame, b is not None and b.frame) for a, b in got] == [(k, k) for k in numbers], truth_first
