@@ -136,7 +136,7 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             os.dup2(devnull, sys.stdout.fileno())
             raise SystemExit(141) from None
         except Exception as exc:
-            if not isinstance(exc, _expected()) or os.environ.get("BNPTRACK_DEBUG"):
+            if not isinstance(exc, _expected()) and not _numerical(exc) or os.environ.get("BNPTRACK_DEBUG"):
                 raise
             if _numerical(exc):
                 raise InternalError(f"numerical failure inside bnptrack ({type(exc).__name__}: {exc}); "
@@ -169,8 +169,10 @@ def one_line_warnings() -> Iterator[None]:
 
 
 def _numerical(exc: BaseException) -> bool:
-    """A failure of bnptrack's own numerics (numpy's ``LinAlgError``, a ``ValueError``), not a
+    """A failure of bnptrack's own numerics (numpy's ``LinAlgError``, an overflow), not a
     mistake of the user's: reported as an internal error."""
+    if isinstance(exc, (FloatingPointError, OverflowError)):
+        return True
     np = sys.modules.get("numpy")
     return np is not None and isinstance(exc, np.linalg.LinAlgError)
 

@@ -616,18 +616,21 @@ def test_a_simulation_that_fails_leaves_no_partial_log(tmp_path, monkeypatch):
         "--set 'scene.n_objects=10001': n_objects must be in [0, 10000] (a /truth message holds at most 10000 objects)")
 
 
-def test_a_numerical_failure_is_an_internal_error_not_a_user_error(tmp_path, monkeypatch):
-    """numpy's LinAlgError (a ValueError) inside a run is reported as bnptrack's own failure,
-    exit 1, asking for a report, not as a mistake of the user's (exit 2)."""
+@pytest.mark.parametrize("error", [np.linalg.LinAlgError("Singular matrix"), OverflowError("Singular matrix"),
+                                   FloatingPointError("Singular matrix")])
+def test_a_numerical_failure_is_an_internal_error_not_a_user_error(tmp_path, monkeypatch, error):
+    """numpy's LinAlgError (a ValueError) or an overflow inside a run is reported as bnptrack's
+    own failure on one line, exit 1, asking for a report: not as a mistake of the user's (exit
+    2), nor as a traceback."""
     from bnptrack.pipeline import offline
 
     def singular(*args, **kwargs):
-        raise np.linalg.LinAlgError("Singular matrix")
+        raise error
 
     monkeypatch.setattr(offline, "track_frames", singular)
     log = _log(tmp_path / "run.mcap", sensor="sim0", n=3)
     res = _run("track", log, "--out", tmp_path / "t.mcap")
     assert res.exit_code == 1, res.output
     assert _one_line(res.output, "Error:") == (
-        "Error: numerical failure inside bnptrack (LinAlgError: Singular matrix); BNPTRACK_DEBUG=1 shows the "
+        f"Error: numerical failure inside bnptrack ({type(error).__name__}: Singular matrix); BNPTRACK_DEBUG=1 shows the "
         "traceback: please report it with the command")
