@@ -17,7 +17,7 @@ from scipy.optimize import linear_sum_assignment
 from bnptrack.tracker.bnp import BnpConfig, make_tracker
 from bnptrack.tracker.bnp import filter as bnp_filter
 from bnptrack.tracker.bnp.assignment import best_permutation
-from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs, ball_hits, exclusive_ball_hits, exclusive_near_pairs
+from bnptrack.tracker.bnp.clusters import _Clusters, _near_pairs, ball_hits, exclusive_near_pairs
 from bnptrack.tracker import filtering as kf
 from bnptrack.tracker.bnp.gibbs import CLUTTER, NEW, GibbsProblem, log_joint
 from bnptrack.tracker.models.measurement import BearingRange, RangeOnly
@@ -194,7 +194,7 @@ def test_near_pairs_grid_equals_the_kdtree_pairs(seed, n, spread):
 
 @pytest.mark.parametrize("seed,n,spread", [(1, 201, 500.0), (2, 800, 20000.0), (3, 2000, 40000.0), (4, 400, 0.0)])
 def test_exclusive_near_pairs_are_the_near_pairs_whose_existences_sum_to_at_most_1(seed, n, spread):
-    """With ``exclusive`` (``exclusive_ball_hits``), ``_near_pairs`` returns exactly the
+    """With ``exclusive`` (``exclusive_near_pairs``), ``_near_pairs`` returns exactly the
     unrestricted pairs whose existences sum to at most 1, in the same order: clusters of every size
     of covariance, a NaN mean and a NaN existence, a covariance not positive definite, some on top
     of each other, existences on both sides of 0.5 (and at it)."""
@@ -257,7 +257,7 @@ def test_jpda_block_on_its_edges_equals_the_dense_matrix(seed, monkeypatch):
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_exclusive_near_pairs_are_the_ball_hits_that_pass_the_test_once_each(seed):
-    """Each pair of ``exclusive_ball_hits`` (either direction) that passes ``_near_pairs``' test,
+    """Each pair of ``ball_hits`` whose existences sum to at most 1 (either direction) that passes ``_near_pairs``' test,
     found once: equal variances on top of each other (ties), a variance whose ball overflows (its
     pairs found from the other side), variances that are not positive."""
     rng = np.random.default_rng(seed)
@@ -274,7 +274,8 @@ def test_exclusive_near_pairs_are_the_ball_hits_that_pass_the_test_once_each(see
     max_d2 = 9.0
     with np.errstate(invalid="ignore", over="ignore"):
         radius = np.sqrt(2.0 * max_d2 * lam) * (1.0 + 1e-9)
-        a, b = exclusive_ball_hits(pos, radius, r)
+        a, b = ball_hits(pos, radius)
+        a, b = a[r[a] + r[b] <= 1.0], b[r[a] + r[b] <= 1.0]  # the pairs whose existences sum to at most 1
         lo, hi = np.minimum(a, b), np.maximum(a, b)
         key = np.unique(lo * n + hi)
         lo, hi = key // n, key % n

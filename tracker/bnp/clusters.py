@@ -94,7 +94,7 @@ def _near_pairs(c: _Clusters, max_d2: float, exclusive: bool = False) -> tuple[n
     :math:`\sqrt{2 d^2_{max} \lambda_i}`, which holds every partner with a smaller :math:`\lambda`.
     The pairs returned are those of the test below (the same numpy expression, in key order);
     the balls only have to hold them.  ``exclusive``: only the pairs whose existences sum to at
-    most 1 (:func:`exclusive_ball_hits`; the same pairs, in the same order, as those of all
+    most 1 (:func:`exclusive_near_pairs`; the same pairs, in the same order, as those of all
     clusters that pass that test)."""
     n = len(c.labels)
     if n <= 200:  # few clusters: every pair (cheaper than a tree)
@@ -254,43 +254,9 @@ def _grid_members(pos: np.ndarray, idx: np.ndarray, x0: float, y0: float, h: flo
     return start, members
 
 
-def exclusive_ball_hits(pos: np.ndarray, radius: np.ndarray, existence: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """:func:`ball_hits`' pairs ``(a, b)`` with ``existence[a] + existence[b] <= 1`` (the same
-    test, the same grid).  Such a pair has a member of existence at most 0.5 (weak): a weak point's ball searches every
-    point, another's only the weak points.  In no particular order."""
-    n = pos.shape[0]
-    if n == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    x0, y0, h, nx, ny = _grid_shape(pos, radius)
-    start_all, members_all = _grid_members(pos, np.arange(n), x0, y0, h, nx, ny)
-    weak = existence <= 0.5
-    start_weak, members_weak = _grid_members(pos, np.flatnonzero(weak), x0, y0, h, nx, ny)
-    out_a, out_b, count = np.empty(4 * n, dtype=np.int64), np.empty(4 * n, dtype=np.int64), 0
-    for a in range(n):
-        r = radius[a] * (1.0 + 1e-6)
-        r2 = radius[a] * radius[a] * (1.0 + 1e-6)
-        if not np.isfinite(r2):  # no ball (a query with a radius that is not finite finds nothing)
-            continue
-        start, members = (start_all, members_all) if weak[a] else (start_weak, members_weak)
-        i0, i1 = _cell_range(pos[a, 0] - r - x0, pos[a, 0] + r - x0, h, nx)
-        j0, j1 = _cell_range(pos[a, 1] - r - y0, pos[a, 1] + r - y0, h, ny)
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                for k in range(start[i * ny + j], start[i * ny + j + 1]):
-                    b = members[k]
-                    dx, dy = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
-                    if b != a and existence[a] + existence[b] <= 1.0 and dx * dx + dy * dy <= r2:
-                        if count == out_a.size:
-                            out_a, out_b = np.concatenate((out_a, out_a)), np.concatenate((out_b, out_b))
-                        out_a[count], out_b[count] = a, b
-                        count += 1
-    return out_a[:count].copy(), out_b[:count].copy()
-
-
 def exclusive_near_pairs(pos: np.ndarray, radius: np.ndarray, existence: np.ndarray, lam: np.ndarray, max_d2: float
                          ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    r""":func:`exclusive_ball_hits`' pairs that pass :func:`_near_pairs`' test
+    r""":func:`ball_hits`' pairs ``(a, b)`` with ``existence[a] + existence[b] <= 1`` that pass :func:`_near_pairs`' test
     :math:`\lVert \Delta p\rVert^2 \le d^2_{max} (\lambda_a + \lambda_b)` (the same expression),
     each once as ``(a, b)`` with ``a < b``, in no particular order.  A pair that passes the test
     lies in the ball of its member of larger :math:`\lambda` (``radius`` grows with it), so only
@@ -338,5 +304,4 @@ _cell_range = jit(_cell_range)
 _grid_shape = jit(_grid_shape)
 ball_hits = jit(ball_hits)
 _grid_members = jit(_grid_members)
-exclusive_ball_hits = jit(exclusive_ball_hits)
 exclusive_near_pairs = jit(exclusive_near_pairs)
