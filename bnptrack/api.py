@@ -155,8 +155,9 @@ def track(
     ``lag`` > 0 gives the fixed-lag output (as ``bnptrack track --lag``; docs/trackers.md,
     "Fixed-lag output"), with the online estimates in :attr:`TrackRun.online`.
     """
-    if not isinstance(lag, int) or lag < 0:
+    if isinstance(lag, bool) or not isinstance(lag, Integral) or lag < 0:
         raise ConfigError(f"track(lag={lag!r}): lag must be an integer >= 0 (scans)")
+    lag = int(lag)
     is_log = isinstance(frames, (str, os.PathLike))
     if is_log and scenario:
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "

@@ -64,6 +64,8 @@ def test_write_log_and_simulate_replace_a_file_only_with_overwrite(tmp_path):
     (lambda: bnptrack.make_tracker(overrides=[0.9]), r"^make_tracker\(overrides=\[0\.9\]\): expected a list of 'key=value' strings$"),
     (lambda: bnptrack.simulate(seed=-1), r"^simulate\(seed=-1\): seed must be an integer >= 0$"),
     (lambda: bnptrack.track([], seed=1.5), r"^track\(seed=1\.5\): seed must be an integer >= 0$"),
+    (lambda: bnptrack.track([], lag=True), r"^track\(lag=True\): lag must be an integer >= 0 \(scans\)$"),
+    (lambda: bnptrack.track([], lag=2.0), r"^track\(lag=2\.0\): lag must be an integer >= 0 \(scans\)$"),
 ])
 def test_a_str_for_a_list_and_a_bad_seed_name_the_argument(call, message):
     with pytest.raises(ConfigError, match=message):
@@ -77,6 +79,12 @@ def test_load_params_names_its_python_arguments():
 
 def test_a_numpy_integer_is_a_seed():
     assert len(bnptrack.simulate("vo2017", seed=np.int64(1))) == 100
+
+
+def test_a_numpy_integer_is_a_lag():
+    frames = bnptrack.simulate("vo2017", seed=1)[:6]
+    run = bnptrack.track(frames, lag=np.int64(2))
+    assert len(run.estimates) == 6 and len(run.online) == 6
 
 
 def test_a_log_written_with_no_frames_says_so_without_a_topic_hint(tmp_path):
