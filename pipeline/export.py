@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bnptrack.sources.mcap_log import read_log
+from bnptrack.tracker.config import ConfigError
 from bnptrack.tracker.types import display_name
 
 STATE_NAMES = ("px", "vx", "py", "vy", "omega")
@@ -59,6 +60,23 @@ def run_tables(run: str | os.PathLike) -> tuple[list[tuple], list[tuple]]:
 def metrics_path(out: Path) -> Path:
     """``OUT.metrics.EXT`` beside ``OUT.EXT``."""
     return out.with_name(f"{out.stem}.metrics{out.suffix}")
+
+
+def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> None:
+    """Refuse tables (option -> file) that would replace the run, one another or a table's
+    metrics file, and a name that is itself a metrics file's (``OUT.metrics.EXT``)."""
+    seen: dict[Path, str] = {}
+    for option, out in outputs.items():
+        if out.resolve() == Path(run).resolve():
+            raise ConfigError(f"{option} {out}: the table would overwrite the run {os.fspath(run)}")
+        if out.stem.endswith(".metrics"):
+            table = out.with_name(out.stem.removesuffix(".metrics") + out.suffix)
+            raise ConfigError(f"{option} {out}: that is the name of the metrics table beside a track table; "
+                              f"give the track table's name ({table} writes {table} and {out})")
+        for path in (out, metrics_path(out)):
+            other = seen.setdefault(path.resolve(), option)
+            if other != option:
+                raise ConfigError(f"{option} {out}: the same file as {other}'s table")
 
 
 def export(run: str | os.PathLike, out: str | os.PathLike, fmt: str = "csv") -> ExportResult:

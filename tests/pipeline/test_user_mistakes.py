@@ -559,6 +559,24 @@ def test_export_refuses_an_existing_table_without_overwrite(tmp_path):
     assert _run("export", run, "--csv", csv, "--overwrite").exit_code == 0
 
 
+@pytest.mark.parametrize(("args", "message"), [
+    (["--csv", "{d}/t.metrics.csv"], "--csv {d}/t.metrics.csv: that is the name of the metrics table beside a track "
+     "table; give the track table's name ({d}/t.csv writes {d}/t.csv and {d}/t.metrics.csv)"),
+    (["--csv", "{d}/run.mcap", "--overwrite"], "--csv {d}/run.mcap: the table would overwrite the run {d}/run.mcap"),
+    (["--csv", "{d}/a.csv", "--parquet", "{d}/a.csv"], "--parquet {d}/a.csv: the same file as --csv's table"),
+])
+def test_export_refuses_tables_that_replace_the_run_or_each_other(tmp_path, args, message):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    run = tmp_path / "run.mcap"
+    assert _run("track", log, "--tracker", "ddp-mb", "--out", run, "-q").exit_code == 0
+    before = run.read_bytes()
+    res = _run("export", run, *[a.format(d=tmp_path) for a in args])
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == "Error: " + message.format(d=tmp_path)
+    assert run.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap", "run.mcap"]
+
+
 # --------------------------------------------------------------------------- a log given as a settings file
 
 
