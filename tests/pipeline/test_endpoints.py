@@ -41,7 +41,7 @@ def test_a_pipeline_file_s_endpoint_is_checked_with_its_key(tmp_path):
     (["router", "--listen", "garbage"], "Error: Invalid value for '--listen': 'garbage': expected a Zenoh endpoint"),
     (["monitor", "--run", "x", "--connect", "tcp/x"], "Error: Invalid value for '--connect': 'tcp/x': expected tcp/HOST:PORT"),
     (["stage", "sink", "--run", "r1", "--connect", "garbage"], "Error: Invalid value for '--connect': 'garbage'"),
-    (["launch", "--connect", "garbage", "--set", "source.frames=3"], "Error: zenoh.connect 'garbage': expected a Zenoh endpoint"),
+    (["launch", "--connect", "garbage", "--set", "source.frames=3"], "Error: Invalid value for '--connect': 'garbage': expected a Zenoh endpoint"),
 ])
 def test_commands_refuse_a_malformed_endpoint_before_starting(tmp_path, args, line):
     out = tmp_path / "run"
