@@ -19,11 +19,14 @@ own ``rerun analytics`` choice.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +53,25 @@ def _check_rrd(path: str | os.PathLike) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def _rrd_named(path: Path, folder: Path) -> Iterator[Path]:
+    """``path`` under a name ending in ``.rrd`` (the viewer tells a recording by its suffix and
+    waits on any other): ``path`` itself, else a link to it (a copy where links are not
+    allowed) in ``folder``, removed on exit."""
+    if path.suffix == ".rrd":
+        yield path
+        return
+    named = folder / (path.name + ".rrd")
+    try:
+        named.symlink_to(path.resolve())
+    except OSError:
+        shutil.copyfile(path, named)
+    try:
+        yield named
+    finally:
+        named.unlink(missing_ok=True)
+
+
 def open_viewer(path: str | os.PathLike, *, web: bool = False,
                 extra_args: Sequence[str] = ()) -> int:
     """Open ``path`` in the Rerun viewer and wait until it is closed; returns its exit code.
@@ -62,10 +84,7 @@ def open_viewer(path: str | os.PathLike, *, web: bool = False,
     from bnptrack.sinks.rerun_tools import rerun_cli, rerun_env
 
     path = _check_rrd(path)
-    cmd = [*rerun_cli(), str(path), "--bind", "127.0.0.1"]  # its server: this machine only
-    if web:
-        cmd += ["--web-viewer"]
-    elif sys.platform.startswith("linux") and not (
+    if not web and sys.platform.startswith("linux") and not (
         os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
     ):
         raise ViewerUnavailable(
@@ -73,12 +92,15 @@ def open_viewer(path: str | os.PathLike, *, web: bool = False,
             "`bnptrack view FILE.rrd --screenshot OUT.png` to render it headless, or `--web` to "
             "serve the web viewer"
         )
-    cmd += list(extra_args)
     env = rerun_env(analytics=True, quiet=False)  # the user's own viewer, the user's settings
-    try:
-        return subprocess.call(cmd, env=env)
-    except OSError as exc:
-        raise ViewerUnavailable(f"cannot run `{cmd[0]}`: {exc}") from exc
+    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp, _rrd_named(path, Path(tmp)) as named:
+        cmd = [*rerun_cli(), str(named), "--bind", "127.0.0.1"]  # its server: this machine only
+        cmd += ["--web-viewer"] if web else []
+        cmd += list(extra_args)
+        try:
+            return subprocess.call(cmd, env=env)
+        except OSError as exc:
+            raise ViewerUnavailable(f"cannot run `{cmd[0]}`: {exc}") from exc
 
 
 def _tail(path: Path, n: int = 2000) -> str:
@@ -122,8 +144,6 @@ def screenshot(
     recording, or is an existing file other than a PNG (an existing PNG is replaced),
     :class:`TimeoutError` after ``timeout`` seconds.
     """
-    import tempfile
-
     path = _check_rrd(path).resolve()
     out_png = Path(out_png)
     _check_png_out(out_png, path)
@@ -134,12 +154,12 @@ def screenshot(
     cli = _cli()
     deadline = time.monotonic() + timeout
     port = free_port()
-    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="bnptrack-view-") as tmp, _rrd_named(path, Path(tmp)) as named:
         log = Path(tmp) / "viewer.log"
         proc = _start_headless(cli, port, (width, height), log)
         try:
             client = _connect(client_cls, proc, port, deadline, log)
-            _call(lambda: client.open(str(path)), proc, deadline, log)
+            _call(lambda: client.open(str(named)), proc, deadline, log)
             state = _wait_loaded(client, proc, deadline, log)
             k = _pick_frame(state, path, timeline, frame)
             png = _capture(client, proc, deadline, log, timeline, k, lambda: _view_id(state, view))

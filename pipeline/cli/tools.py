@@ -337,7 +337,10 @@ def _check_recording(path: Path) -> None:
     if head.startswith(MCAP_MAGIC):
         raise CliError(f"{path} is an MCAP log; view expects a Rerun .rrd recording: for the tracks of a log, "
                        f"`bnptrack track LOG --rrd FILE.rrd` records one (a run of launch / replay writes run.rrd)")
-    if head and not head.startswith(RRD_MAGIC):
+    if not head:
+        raise CliError(f"{path} is empty (0 bytes): not a Rerun recording; view expects a Rerun .rrd recording, "
+                       f"e.g. from `bnptrack track LOG --rrd FILE.rrd`")
+    if not head.startswith(RRD_MAGIC):
         raise CliError(f"{path} is not a Rerun recording (it starts with {head!r}, not {RRD_MAGIC!r}); "
                        f"view expects a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
 

@@ -456,6 +456,16 @@ def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
     assert not (tmp_path / "s.png").exists()
 
 
+def test_view_of_an_empty_file_says_it_is_empty_at_once(tmp_path):
+    empty = tmp_path / "run.rrd"
+    empty.write_bytes(b"")
+    res = _run("view", empty, "--screenshot", tmp_path / "s.png")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (f"Error: {empty} is empty (0 bytes): not a Rerun recording; view expects "
+                                               "a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
+    assert not (tmp_path / "s.png").exists()
+
+
 @pytest.mark.parametrize("target, fragment", [
     ("rec.rrd", "the picture is a PNG; give a file name ending in .png"),
     ("shot.jpg", "the picture is a PNG; give a file name ending in .png"),

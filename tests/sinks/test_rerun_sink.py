@@ -19,6 +19,7 @@ os.environ.setdefault("RUST_LOG", "error")
 
 import json  # noqa: E402
 import pickle  # noqa: E402
+import shutil  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -847,6 +848,34 @@ def test_headless_screenshot_is_not_blank(recording, tmp_path):
     assert stats["distinct"] > 20, stats
     with pytest.raises(ValueError, match="outside"):
         screenshot(recording, tmp_path / "bad.png", frame=N_FRAMES + 50, timeout=90)
+    other_name = tmp_path / "recording.data"  # the viewer tells a recording by its .rrd suffix
+    shutil.copyfile(recording, other_name)
+    screenshot(other_name, tmp_path / "other.png", frame=20, size=(640, 360), timeout=90)
+    assert png_stats(tmp_path / "other.png")["variance"] > 50.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.png", "recording.data", "shot.png"]
+
+
+def test_the_viewer_opens_a_recording_under_another_suffix_by_an_rrd_name(recording, tmp_path, monkeypatch):
+    import bnptrack.pipeline.view as view
+
+    other_name = tmp_path / "recording.data"
+    shutil.copyfile(recording, other_name)
+    seen = []
+
+    def fake_call(cmd, env):
+        opened = Path(cmd[len(view_cli)])
+        seen.append((opened.suffix, opened.read_bytes() == other_name.read_bytes(), opened))
+        return 0
+
+    from bnptrack.sinks.rerun_tools import rerun_cli
+    view_cli = rerun_cli()
+    monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setattr(view.subprocess, "call", fake_call)
+    assert view.open_viewer(other_name) == 0
+    assert seen[0][:2] == (".rrd", True)
+    assert not seen[0][2].exists()  # the link is gone once the viewer closes
+    assert view.open_viewer(recording) == 0
+    assert seen[1][2] == recording
 
 
 def test_open_viewer_without_display_says_what_to_do(recording, monkeypatch):
