@@ -160,7 +160,7 @@ def screenshot(
         try:
             client = _connect(client_cls, proc, port, deadline, log)
             _call(lambda: client.open(str(named)), proc, deadline, log)
-            state = _wait_loaded(client, proc, deadline, log)
+            state = _wait_loaded(client, proc, deadline, log, path)
             k = _pick_frame(state, path, timeline, frame)
             png = _capture(client, proc, deadline, log, timeline, k, lambda: _view_id(state, view))
             out_png.parent.mkdir(parents=True, exist_ok=True)
@@ -300,11 +300,25 @@ def _connect(client_cls: Any, proc: subprocess.Popen, port: int, deadline: float
     raise TimeoutError(f"the headless viewer did not start listening on {url}: {last}")
 
 
-def _wait_loaded(client: Any, proc: subprocess.Popen, deadline: float, log: Path) -> Any:
+#: Seconds the viewer may load nothing and show no frame before a recording counts as holding none.
+IDLE_EMPTY_S = 5.0
+
+
+def _wait_loaded(client: Any, proc: subprocess.Popen, deadline: float, log: Path, path: Path) -> Any:
+    """The viewer's state once the recording is loaded with its timelines; a :class:`ValueError`
+    when the viewer loads nothing and shows no timeline for :data:`IDLE_EMPTY_S` seconds (a
+    recording without frames, e.g. one repaired from its first bytes)."""
+    idle_since = time.monotonic()
     while True:
         state = _call(client.get_state, proc, deadline, log)
-        if not state.loading and state.recordings and state.recordings[0].timelines:
+        has_frames = bool(state.recordings) and bool(state.recordings[0].timelines)
+        if not state.loading and has_frames:
             return state
+        if state.loading or has_frames:
+            idle_since = time.monotonic()
+        elif time.monotonic() - idle_since > IDLE_EMPTY_S:
+            raise ValueError(f"{path} holds no frames the viewer can show (a recording repaired from its first "
+                             f"bytes keeps only what was complete)")
         if time.monotonic() > deadline:
             raise TimeoutError("the headless viewer did not finish loading the recording in time")
         time.sleep(0.1)

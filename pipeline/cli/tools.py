@@ -6,6 +6,9 @@ studies) and ``schema`` (the JSON Schema of a channel).
 from __future__ import annotations
 
 import json
+import os
+import re
+import shlex
 from pathlib import Path
 
 import click
@@ -306,7 +309,7 @@ def view(
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
-    _check_recording(rrd)
+    _check_recording(rrd, complete=repair_out is None)
     try:
         if repair_out is not None:
             out = repair(rrd, repair_out)
@@ -324,14 +327,17 @@ def view(
         raise CliError(f"the Rerun viewer exited with code {code}")
 
 
-def _check_recording(path: Path) -> None:
+def _check_recording(path: Path, complete: bool = True) -> None:
     """A file that is not a Rerun recording is an error naming what it is: an MCAP log (the
-    command that records one), or another file."""
+    command that records one), or another file; with ``complete``, so is a recording without
+    its footer (its writer stopped before the end: ``--repair`` recovers it)."""
     from bnptrack.sources.channels import MCAP_MAGIC
 
     try:
         with open(path, "rb") as f:
             head = f.read(8)
+            f.seek(max(0, f.seek(0, os.SEEK_END) - RRD_FOOTER_TAIL))
+            tail = f.read()
     except OSError:
         return  # the viewer's own error names it
     if head.startswith(MCAP_MAGIC):
@@ -343,10 +349,16 @@ def _check_recording(path: Path) -> None:
     if not head.startswith(RRD_MAGIC):
         raise CliError(f"{path} is not a Rerun recording (it starts with {head!r}, not {RRD_MAGIC!r}); "
                        f"view expects a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
+    if complete and not RRD_FOOTER.fullmatch(tail[:8]):
+        raise CliError(f"{path} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash); "
+                       f"`bnptrack view {shlex.quote(str(path))} --repair FIXED.rrd` keeps its complete frames")
 
 
 #: The bytes every Rerun recording (.rrd) starts with (then the format version).
 RRD_MAGIC = b"RRF"
+#: A complete recording's last bytes: "RRF", the format version, "FOOT", then 4 more bytes.
+RRD_FOOTER = re.compile(rb"RRF.FOOT", re.DOTALL)
+RRD_FOOTER_TAIL = 12
 
 
 # --------------------------------------------------------------------------- experiment

@@ -456,6 +456,17 @@ def test_view_of_an_mcap_log_says_it_expects_a_recording(tmp_path):
     assert not (tmp_path / "s.png").exists()
 
 
+def test_view_of_a_recording_cut_short_names_the_repair_at_once(tmp_path):
+    cut = tmp_path / "run.rrd"
+    cut.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64))  # no footer: its writer stopped before the end
+    res = _run("view", cut, "--screenshot", tmp_path / "s.png")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (
+        f"Error: {cut} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash); "
+        f"`bnptrack view {cut} --repair FIXED.rrd` keeps its complete frames")
+    assert not (tmp_path / "s.png").exists()
+
+
 def test_view_of_an_empty_file_says_it_is_empty_at_once(tmp_path):
     empty = tmp_path / "run.rrd"
     empty.write_bytes(b"")
@@ -474,7 +485,7 @@ def test_view_of_an_empty_file_says_it_is_empty_at_once(tmp_path):
 ])
 def test_a_screenshot_never_replaces_the_recording_or_a_file_other_than_a_png(tmp_path, target, fragment):
     """Refused before the viewer starts; the file named keeps its bytes."""
-    body = b"RRF2\x00)\x00\x00" + bytes(64)
+    body = b"RRF2\x00)\x00\x00" + bytes(64) + b"RRF2FOOT\x01\x00\x00\x00"  # a complete recording's ends
     (tmp_path / "rec.rrd").write_bytes(body)
     (tmp_path / "rec.png").write_bytes(body)  # a recording under a .png name
     (tmp_path / "notes.png").write_bytes(b"my notes")
@@ -493,7 +504,7 @@ def test_a_screenshot_never_replaces_the_recording_or_a_file_other_than_a_png(tm
 ])
 def test_a_screenshot_size_out_of_range_is_refused_before_the_viewer_starts(tmp_path, size, fragment):
     rec = tmp_path / "rec.rrd"
-    rec.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64))
+    rec.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64) + b"RRF2FOOT\x01\x00\x00\x00")
     res = _run("view", rec, "--screenshot", tmp_path / "s.png", "--size", size)
     assert res.exit_code == 2, res.output
     assert _one_line(res.output, "Error:") == f"Error: Invalid value for --size: {fragment}"
