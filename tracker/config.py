@@ -32,6 +32,16 @@ NonNeg = Annotated[float, msgspec.Meta(ge=0.0, le=FINITE_MAX)]
 """A finite value ``0 <= x <= 1e12``."""
 Positive = Annotated[float, msgspec.Meta(gt=0.0, le=FINITE_MAX)]
 """A finite value ``0 < x <= 1e12``."""
+#: The largest mean clutter per scan: a million false alarms a scan is no tracking scene, and the
+#: simulator draws every one of them (a larger rate would fill the machine's memory).
+CLUTTER_MAX = 1e6
+ClutterRate = Annotated[float, msgspec.Meta(ge=0.0, le=CLUTTER_MAX)]
+"""A mean clutter count per scan, ``0 <= x <= 1e6``."""
+#: The most Gibbs sweeps (or chain steps) per frame: the default is 6-30, and each sweep's
+#: random numbers are drawn before it (a billion would fill the machine's memory).
+SWEEPS_MAX = 10_000
+Sweeps = Annotated[int, msgspec.Meta(ge=1, le=SWEEPS_MAX)]
+"""A number of sweeps per frame, ``1 <= n <= 10000``."""
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 """A probability, ``0 <= p <= 1``."""
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]

@@ -136,8 +136,13 @@ def clean_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             os.dup2(devnull, sys.stdout.fileno())
             raise SystemExit(141) from None
         except Exception as exc:
-            if not isinstance(exc, _expected()) and not _numerical(exc) or os.environ.get("BNPTRACK_DEBUG"):
+            known = isinstance(exc, (_expected(), MemoryError)) or _numerical(exc)
+            if not known or os.environ.get("BNPTRACK_DEBUG"):
                 raise
+            if isinstance(exc, MemoryError):
+                raise InternalError(f"out of memory ({exc or type(exc).__name__}): a setting far beyond what the "
+                                    "scene needs (e.g. clutter_rate, sweeps, scene.n_objects) asks for more than "
+                                    "this machine has") from exc
             if _numerical(exc):
                 raise InternalError(f"numerical failure inside bnptrack ({type(exc).__name__}: {exc}); "
                                     "BNPTRACK_DEBUG=1 shows the traceback: please report it with the command") from exc

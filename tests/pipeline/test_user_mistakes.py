@@ -655,6 +655,22 @@ def test_a_simulation_that_fails_leaves_no_partial_log(tmp_path, monkeypatch):
         "--set 'scene.n_objects=10001': n_objects must be in [0, 10000] (a /truth message holds at most 10000 objects)")
 
 
+def test_running_out_of_memory_is_one_line_naming_the_settings_that_ask_for_it(tmp_path, monkeypatch):
+    from bnptrack.pipeline import offline
+
+    def too_big(*args, **kwargs):
+        return np.empty((10**15, 2))  # numpy's MemoryError: "Unable to allocate ..."
+
+    monkeypatch.setattr(offline, "track_frames", too_big)
+    log = _log(tmp_path / "run.mcap", sensor="sim0", n=3)
+    res = _run("track", log, "--out", tmp_path / "t.mcap")
+    assert res.exit_code == 1, res.output
+    line = _one_line(res.output, "Error:")
+    assert line.startswith("Error: out of memory (Unable to allocate "), line
+    assert line.endswith("a setting far beyond what the scene needs (e.g. clutter_rate, sweeps, scene.n_objects) "
+                         "asks for more than this machine has"), line
+
+
 @pytest.mark.parametrize("error", [np.linalg.LinAlgError("Singular matrix"), OverflowError("Singular matrix"),
                                    FloatingPointError("Singular matrix")])
 def test_a_numerical_failure_is_an_internal_error_not_a_user_error(tmp_path, monkeypatch, error):

@@ -52,7 +52,7 @@ def test_unknown_key_did_you_mean(tmp_path, text, fragment):
 
 
 @pytest.mark.parametrize("item", ["sigma_bearing_deg=1e308", "sigma_range=inf", "range_max=inf", "T=inf",
-                                  "clutter_rate=1e300", "sigma_accel=nan", "sigma_accel=-inf"])
+                                  "sigma_accel=nan", "sigma_accel=-inf"])
 def test_a_setting_must_be_finite(item):
     """Every non-negative or positive setting is finite and at most 1e12 (its square stays
     finite): an infinite, NaN or overflowing value is an error naming the item."""
@@ -60,6 +60,19 @@ def test_a_setting_must_be_finite(item):
         apply_overrides(load_params("vo2017"), [item])
     key = item.partition("=")[0]
     assert apply_overrides(load_params("vo2017"), [f"{key}=1e12"]).__getattribute__(key) == 1e12
+
+
+@pytest.mark.parametrize(("item", "message"), [
+    ("clutter_rate=1e300", "expected `float` <= 1000000.0"),
+    ("clutter_rate=1e9", "expected `float` <= 1000000.0"),
+    ("range_clutter_rate=2e6", "expected `float` <= 1000000.0"),
+])
+def test_a_clutter_rate_is_at_most_a_million_a_scan(item, message):
+    """The simulator draws every clutter point: a billion a scan would fill the machine's memory."""
+    with pytest.raises(ConfigError, match=rf"^--set '{item}': {message}$"):
+        apply_overrides(load_params("vo2017"), [item])
+    key = item.partition("=")[0]
+    assert getattr(apply_overrides(load_params("vo2017"), [f"{key}=1e6"]), key) == 1e6
 
 
 def test_set_did_you_mean():
@@ -72,3 +85,19 @@ def test_extends_cycle(tmp_path):
     _write(tmp_path, "b.toml", 'extends = "a.toml"\n')
     with pytest.raises(ConfigError, match="extends cycle"):
         load_params(str(tmp_path / "a.toml"))
+
+
+@pytest.mark.parametrize(("tracker", "item"), [("ddp", "sweeps=1000000000"), ("ddp-mb", "sweeps=10001"),
+                                               ("ddp", "objects.sweeps=20000"), ("glmb", "chain_length=100000")])
+def test_sweeps_per_frame_are_at_most_ten_thousand(tracker, item):
+    """Each sweep's random numbers are drawn before it: a billion sweeps would fill the memory."""
+    from bnptrack.tracker.registry import kind
+
+    preset = kind(tracker).presets[tracker]
+    with pytest.raises(ConfigError, match=rf"^--set '{item}': expected `int` <= 10000$"):
+        apply_overrides(preset, [item])
+    key = item.partition("=")[0]
+    done = apply_overrides(preset, [f"{key}=10000"])
+    for part in key.split("."):
+        done = getattr(done, part)
+    assert done == 10000

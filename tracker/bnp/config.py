@@ -6,13 +6,13 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, PositiveProb, Prob
+from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, OpenProb, PosInt, Positive, PositiveProb, Prob, Sweeps
 
 
 class BnpConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Settings of the DDP-EMM / DPY-STP trackers (model physics live in ``ModelParams``)."""
 
-    sweeps: PosInt = 30
+    sweeps: Sweeps = 30
     """Gibbs sweeps per chain and frame (including burn-in)."""
     burn_in: NonNegInt = 5
     swap_moves: bool = True

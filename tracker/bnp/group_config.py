@@ -7,7 +7,7 @@ from typing import Literal
 import msgspec
 
 from bnptrack.tracker.bnp.config import TRACKER_PRESETS, BnpConfig
-from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, PosInt, Positive, PositiveProb, Prob
+from bnptrack.tracker.config import Fraction, NonNeg, NonNegInt, PosInt, Positive, PositiveProb, Prob, Sweeps
 
 __all__ = ["GROUP_PRESETS", "GroupConfig"]
 
@@ -75,7 +75,7 @@ class GroupConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (:func:`tracker.bnp.group_theta.fov_moments`)."""
     centroid_drift_std: Positive = 10.0
     """phi on the centroid: it moves with theta's velocity plus this random walk (m per scan)."""
-    sweeps: PosInt = 6
+    sweeps: Sweeps = 6
     """Gibbs sweeps over the object assignments per frame (the last one is kept)."""
     sharing: bool = True
     """Members' velocities take their cluster's leave-one-out theta as a pseudo-measurement."""

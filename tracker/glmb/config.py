@@ -7,7 +7,7 @@ from typing import Any, Literal, Protocol
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.config import Fraction, NonNeg, OpenProb, PosInt, Positive, PositiveProb
+from bnptrack.tracker.config import Fraction, NonNeg, OpenProb, PosInt, Positive, PositiveProb, Sweeps
 from bnptrack.tracker.models.params import BirthComponent
 from bnptrack.tracker.types import Frame
 
@@ -33,7 +33,7 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Cap on the number of hypotheses kept after pruning (the demo's ``H_max``)."""
     prune_threshold: Fraction = 1e-15
     """Hypotheses with normalised weight at or below this are dropped (``hyp_threshold``)."""
-    chain_length: PosInt = 10
+    chain_length: Sweeps = 10
     """Maximum Gibbs sweeps per chain: a parent's request is split into parallel chains of at
     most this many sweeps, all started at the same point (short-chain multi-simulation)."""
     start: Literal["optimal", "missed"] = "optimal"

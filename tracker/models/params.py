@@ -17,7 +17,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.config import (CLI_NAMES, ArgNames, ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
+from bnptrack.tracker.config import (CLI_NAMES, ArgNames, ClutterRate, ConfigError, HalfFovDeg, NonNeg, Positive, Prob, StateList, apply_overrides, convert, did_you_mean,
                             load_toml, read_toml)
 from bnptrack.tracker.input_checks import check_sensor_spec
 from bnptrack.tracker.models.clutter import ClutterModel, Detection
@@ -67,9 +67,9 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Survival probability per scan of an object predicted outside the field of view
     (trackers only; the surveillance region is the sensor's field of view)."""
     p_detect: Prob = 0.98
-    clutter_rate: NonNeg = 15.0
-    """Mean number of clutter measurements per scan."""
-    range_clutter_rate: NonNeg | None = None
+    clutter_rate: ClutterRate = 15.0
+    """Mean number of clutter measurements per scan (at most 1e6)."""
+    range_clutter_rate: ClutterRate | None = None
     """Mean clutter per scan of the range-only sensor (``None``: ``clutter_rate``).  The
     ``snr`` scenario sets 2 (``docs/models.md``: range space is one-dimensional)."""
     sigma_bearing_deg: Positive = 2.0

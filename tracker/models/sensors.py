@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import msgspec
 
-from bnptrack.tracker.config import HalfFovDeg, NonNeg, Positive, Prob
+from bnptrack.tracker.config import ClutterRate, HalfFovDeg, NonNeg, Positive, Prob
 
 
 class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -41,7 +41,7 @@ class SensorSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sigma_range: Positive | None = None
     sigma_xy: Positive | None = None
     p_detect: Prob | None = None
-    clutter_rate: NonNeg | None = None
+    clutter_rate: ClutterRate | None = None
 
 
 @dataclass(frozen=True)
