@@ -168,6 +168,8 @@ def track(
     _check_items("track", "topics", topics)
     if is_log:
         _check_log_path("track", frames)
+    else:
+        frames = _frames_arg(frames)
     metadata = read_metadata(frames) if is_log else ({"scenario": scenario} if scenario else None)
     if params is None and not is_log:
         params = "vo2017"
@@ -256,6 +258,34 @@ def _check_items(call: str, arg: str, value: object) -> None:
                           f"(write [{value!r}])")
     if not isinstance(value, Sequence) or not all(isinstance(v, str) for v in value):
         raise ConfigError(f"{call}({arg}={value!r}): expected a list of {_ITEMS[arg]}")
+
+
+def _frames_arg(frames: object) -> Iterable[Frame]:
+    """``track``'s ``frames`` when not a log's path: a list (checked whole) or an iterable
+    (checked item by item as it is read) of :class:`Frame`, else a :class:`ConfigError`."""
+    if isinstance(frames, LogContents):
+        raise ConfigError("track(frames=<LogContents>): give its .frames, or the log's path")
+    if isinstance(frames, (bytes, Frame)) or not isinstance(frames, Iterable):
+        raise ConfigError(f"track(frames={frames!r:.60}): expected a log's path or a list of bnptrack Frames "
+                          f"(bnptrack.simulate gives one), got {type(frames).__name__}")
+    if isinstance(frames, Sequence):
+        bad = next((i for i, f in enumerate(frames) if not isinstance(f, Frame)), None)
+        if bad is not None:
+            raise ConfigError(_not_a_frame(bad, frames[bad]))
+        return frames
+    return _each_frame(frames)
+
+
+def _each_frame(frames: Iterable[object]) -> Iterable[Frame]:
+    for i, f in enumerate(frames):
+        if not isinstance(f, Frame):
+            raise ConfigError(_not_a_frame(i, f))
+        yield f
+
+
+def _not_a_frame(i: int, item: object) -> str:
+    return (f"track(frames): item {i} ({item!r:.40}, type {type(item).__name__}) is not a bnptrack Frame "
+            "(bnptrack.simulate and bnptrack.read_log(...).frames give Frames)")
 
 
 def _check_seed(call: str, seed: object) -> None:

@@ -81,6 +81,26 @@ def test_a_numpy_integer_is_a_seed():
     assert len(bnptrack.simulate("vo2017", seed=np.int64(1))) == 100
 
 
+@pytest.mark.parametrize(("frames", "message"), [
+    (None, r"^track\(frames=None\): expected a log's path or a list of bnptrack Frames \(bnptrack\.simulate gives one\), got NoneType$"),
+    (5, r"^track\(frames=5\): expected a log's path or a list of bnptrack Frames .*, got int$"),
+    (b"run.mcap", r"^track\(frames=b'run\.mcap'\): expected a log's path .*, got bytes$"),
+    (["a", "b"], r"^track\(frames\): item 0 \('a', type str\) is not a bnptrack Frame \(bnptrack\.simulate and "),
+    ((x for x in [1]), r"^track\(frames\): item 0 \(1, type int\) is not a bnptrack Frame"),
+])
+def test_frames_that_are_not_frames_are_named(frames, message):
+    with pytest.raises(ConfigError, match=message):
+        bnptrack.track(frames)
+
+
+def test_a_log_read_whole_is_given_by_its_frames(tmp_path):
+    log = bnptrack.write_log(tmp_path / "a.mcap", bnptrack.simulate("vo2017", seed=1)[:3])
+    with pytest.raises(ConfigError, match=r"^track\(frames=<LogContents>\): give its \.frames, or the log's path$"):
+        bnptrack.track(bnptrack.read_log(log))
+    assert len(bnptrack.track(bnptrack.read_log(log).frames).estimates) == 3
+    assert len(bnptrack.track(iter(bnptrack.read_log(log).frames)).estimates) == 3
+
+
 def test_a_numpy_integer_is_a_lag():
     frames = bnptrack.simulate("vo2017", seed=1)[:6]
     run = bnptrack.track(frames, lag=np.int64(2))
