@@ -61,7 +61,12 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
         robot_topics(log, mapping, channels)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    rows += _frame_rows(log, mapping) if channels else [("frames", "0 (the log has no channels)")]
+    if mapping and channels:
+        from bnptrack.pipeline.offline import read_log_start
+
+        read_log_start(log, mapping)  # a mapped channel that is not measurements: one line naming it
+    frame_rows, error = _frame_rows(log, mapping) if channels else ([("frames", "0 (the log has no channels)")], None)
+    rows += frame_rows
     meta = read_metadata(log)
     if meta:
         rows += [(f"record.{k}", v) for k, v in meta.items()]
@@ -69,6 +74,8 @@ def info(log: Path, topics: tuple[str, ...]) -> None:
         rows.append(("record", f"none (no bnptrack.scenario metadata: track uses the {DEFAULT_PARAMS} model "
                                "unless --params says otherwise)"))
     echo_rows(rows)
+    if error is not None:
+        raise CliError(f"{error} -- the lines above describe the frames before it")
 
 
 def _trackable_note(channel) -> str:
@@ -97,9 +104,10 @@ def _unposed_note(name: str, kind: str) -> str:
     return f", no pose in its frames: give --params a [sensors.{name}] table with x, y, heading_deg (else {default})"
 
 
-def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
-    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements);
-    a sensor whose stamps look like another unit gets ``track``'s warning."""
+def _frame_rows(log: Path, topic_map: dict[str, str]) -> tuple[list[tuple[str, str]], McapLogError | None]:
+    """Frames, sensors / kinds and time rows of ``bnptrack info`` (empty without /measurements),
+    and the error that ended reading early (None: the whole log was read); a sensor whose
+    stamps look like another unit gets ``track``'s warning."""
     import numpy as np
 
     from bnptrack.sources.mcap_log import iter_frames
@@ -120,7 +128,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     except McapLogError as exc:
         error = exc
     if not stamps:
-        return [("frames", "0" + (f" ({error})" if error else " (no /measurements: give --topic with a trackable channel)"))]
+        return [("frames", "0" + ("" if error else " (no /measurements: give --topic with a trackable channel)"))], error
     for note in filter(None, (check_spacing(name, times) for name, times in _sensor_stamps(sensors).items())):
         warn(note)
     rows = [("frames", f"{len(stamps)} ({n_meas} measurements, {n_meas / len(stamps):.1f} per frame; "
@@ -138,9 +146,7 @@ def _frame_rows(log: Path, topic_map: dict[str, str]) -> list[tuple[str, str]]:
     rows.append(("time", f"{stamp_text(stamps[0])} to {stamp_text(stamps[-1])}{origin} (span {duration_text(span)}), {rate}"
                  + (f", dt median {duration_text(float(np.median(dt)))}, min {duration_text(float(dt.min()))}, "
                     f"max {duration_text(float(dt.max()))}" if dt.size else "")))
-    if error is not None:
-        rows.append(("error", str(error)))
-    return rows
+    return rows, error
 
 
 def _sensor_stamps(sensors: dict[tuple[str, str], list]) -> dict[str, list[int]]:

@@ -689,3 +689,26 @@ def test_a_numerical_failure_is_an_internal_error_not_a_user_error(tmp_path, mon
     assert _one_line(res.output, "Error:") == (
         f"Error: numerical failure inside bnptrack ({type(error).__name__}: Singular matrix); BNPTRACK_DEBUG=1 shows the "
         "traceback: please report it with the command")
+
+
+def test_info_on_a_truncated_log_describes_its_frames_then_exits_2(tmp_path):
+    whole = _log(tmp_path / "whole.mcap", sensor="sim0", n=30)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    res = _run("info", cut)
+    assert res.exit_code == 2, res.output
+    frames = int(_one_line(res.output, "frames").split()[1])
+    assert 0 < frames < 30
+    line = _one_line(res.output, "Error:")
+    assert line.startswith(f"Error: {cut}: truncated after frame {frames} "), line
+    assert line.endswith("-- the lines above describe the frames before it"), line
+    assert _run("info", whole).exit_code == 0
+
+
+def test_info_with_a_bnptrack_channel_mapped_as_measurements_names_it(tmp_path):
+    log = tmp_path / "sim.mcap"
+    assert _run("simulate", "--seed", "2", "--out", log, "-q").exit_code == 0
+    res = _run("info", log, "--topic", "/truth")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (f"Error: {log}: channel /truth holds bnptrack /truth messages, not "
+                                               "measurements: --topic /truth=/measurements cannot be tracked")
