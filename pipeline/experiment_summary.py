@@ -50,12 +50,12 @@ class RunScores:
 
 
 def ci_halfwidth(a: np.ndarray) -> float:
-    """Half-width of the 95 % confidence interval of the mean of ``a`` (Student's t); 0 for
-    fewer than two values."""
+    """Half-width of the 95 % confidence interval of the mean of ``a`` (Student's t); nan (no
+    interval) for fewer than two values."""
     from scipy.stats import t
 
     n = a.size
-    return float(t.ppf(0.975, n - 1) * a.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0
+    return float(t.ppf(0.975, n - 1) * a.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
 
 
 def _spread(key: str, a: np.ndarray) -> dict:
@@ -124,6 +124,11 @@ def _legend(rows: list[dict]) -> str:
     return text
 
 
+def _half(ci: float) -> str:
+    """An interval's half-width in the table: ``n/a`` when there is none (a single run)."""
+    return "n/a" if np.isnan(ci) else f"{ci:.2f}"
+
+
 def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
     """``summary.md`` (the table) and ``summary.csv`` (every column) in ``out``."""
     md, csv_path = out / "summary.md", out / "summary.csv"
@@ -136,7 +141,7 @@ def write_summary(rows: list[dict], out: Path, title: str) -> tuple[Path, Path]:
              "| variant | tracker | runs | " + " | ".join(h for _, h in metrics) + " |",
              "|---|---|---|" + "---|" * len(metrics)]
     for r in rows:
-        cells = " | ".join(f"{r[k]:.2f} ± {r[k + '_ci']:.2f}" for k, _ in metrics)
+        cells = " | ".join(f"{r[k]:.2f} ± {_half(r[k + '_ci'])}" for k, _ in metrics)
         lines.append(f"| {r['variant']} | {r['tracker']} | {r['runs']} | {cells} |")
     md.write_text("\n".join(lines) + "\n")
     return md, csv_path

@@ -427,7 +427,7 @@ def experiment(name: str, runs: int, seed: int, params_name: str, out: Path | No
     if not quiet:
         click.echo(res.summary_md.read_text())
         rows = [("took", f"{res.seconds:.1f} s for {len(res.rows) and res.rows[0]['runs']} run(s) per condition"),
-                ("summary", f"{res.summary_md} , {res.summary_csv}")]
+                ("summary", f"{res.summary_md}, {res.summary_csv}")]
         rows += [("plot", str(p)) for p in res.plots]
         rows += [("recording", str(p)) for p in res.recordings]
         echo_rows(rows)
