@@ -17,7 +17,7 @@ from bnptrack.pipeline.stages import SUMMARY_NAME, write_atomic
 from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.supervisor import StageProcess
 
-__all__ = ["source_reports", "foreign_eos", "unsent_eos", "check_eos", "describe_missing", "SinkWait"]
+__all__ = ["source_reports", "foreign_eos", "unsent_eos", "check_eos", "describe_missing", "seq_ranges", "SinkWait"]
 
 
 def source_reports(stages: Sequence[StageProcess]) -> tuple[dict | None, dict | None] | None:
@@ -105,8 +105,9 @@ class SinkWait:
         return now - self.since < self.idle_s
 
 
-def _ranges(seqs: Sequence[int], limit: int = 8) -> str:
-    """``[1, 2, 3, 7]`` -> ``"1-3, 7"`` (at most ``limit`` ranges, then ``"..."``)."""
+def seq_ranges(seqs: Sequence[int], limit: int = 8) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"`` (at most ``limit`` ranges, then ``"..."``): sequence
+    numbers, seq ``n`` being the source's ``n + 1``-th frame."""
     parts: list[str] = []
     start = prev = None
     for x in [*seqs, None]:
@@ -134,6 +135,6 @@ def describe_missing(summary: RunSummary | None) -> str:
     for m in summary.missing:
         seqs = m.get("seqs") or []  # none, with from_seq: the rest of a run of unknown length
         where = f"from seq {m['from_seq']} on" if not seqs and m.get("from_seq") is not None else \
-            f"of {len(seqs)} frame(s), seq {_ranges(seqs)}"
+            f"of {len(seqs)} frame(s), seq {seq_ranges(seqs)}"
         parts.append(f"{m.get('topic')} {where}: {m.get('why')}")
     return "; ".join(parts)

@@ -52,7 +52,9 @@ def _report_launch(res: Any, quiet: bool, paced: bool = True, lag: int = 0) -> N
         restarts = ", ".join(f"{k} {v}" for k, v in res.restarts.items() if v) or "none"
         rows = [("run", res.run), ("out", f"{res.out}/")]
         if summary is not None:
-            gap_text = ", ".join(f"{k} {v}" for k, v in summary.gaps.items() if v) or "none"
+            from bnptrack.pipeline.outcome import seq_ranges
+
+            gap_text = ", ".join(f"{k} seq {seq_ranges(v)}" for k, v in summary.gaps.items() if v) or "none"
             rows.append(("frames", f"{summary.frames_written} "
                                    f"({summary.tracks_written} /tracks; gaps: {gap_text})"))
             from bnptrack.pipeline.outcome import describe_missing

@@ -16,7 +16,7 @@ import pytest
 from bnptrack.pipeline.cli import EXIT_INCOMPLETE, IncompleteError
 from bnptrack.pipeline.cli.pipeline_commands import _report_launch
 from bnptrack.pipeline.launch import Launcher
-from bnptrack.pipeline.outcome import _ranges, describe_missing
+from bnptrack.pipeline.outcome import describe_missing, seq_ranges
 from bnptrack.pipeline.stages.summary import RunSummary
 from bnptrack.pipeline.supervisor import LaunchResult
 from bnptrack.pipeline.membus import MemoryNetwork
@@ -39,8 +39,8 @@ def _summary(cfg) -> dict:
 
 
 def test_ranges_and_describe_missing_reference_text():
-    assert _ranges([1, 2, 3, 7, 9, 10]) == "1-3, 7, 9-10"
-    assert _ranges(list(range(0, 40, 2)), limit=3) == "0, 2, 4, ... (20 in all)"
+    assert seq_ranges([1, 2, 3, 7, 9, 10]) == "1-3, 7, 9-10"
+    assert seq_ranges(list(range(0, 40, 2)), limit=3) == "0, 2, 4, ... (20 in all)"
     assert describe_missing(RunSummary(complete=True)) == ""
     assert describe_missing(None) == "the sink wrote no sink.json"
     text = describe_missing(RunSummary(complete=False, last_seq=8, missing=[
@@ -204,3 +204,17 @@ def test_the_launcher_reads_sink_json_typed_and_names_a_malformed_one(tmp_path, 
     with pytest.raises(IncompleteError) as exc:
         _report_launch(res, quiet=True)
     assert exc.value.exit_code == 3 and "\n" not in exc.value.message
+
+
+def test_a_launch_summary_gives_its_gaps_as_sequence_number_ranges(capsys):
+    from types import SimpleNamespace
+
+    from bnptrack.pipeline.cli.pipeline_commands import _report_launch
+
+    summary = RunSummary(complete=True, output_complete=True, frames_written=40, tracks_written=37,
+                         gaps={"measurements": [], "tracks": [33, 34, 35]})
+    res = SimpleNamespace(summary=summary, restarts={}, run="r1", out="o", elapsed_s=1.0, files=[],
+                          interrupted=False, incomplete="", ok=True)
+    _report_launch(res, quiet=False)
+    frames = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("frames"))
+    assert frames.split(None, 1)[1] == "40 (37 /tracks; gaps: tracks seq 33-35)"
