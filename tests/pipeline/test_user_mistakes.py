@@ -551,6 +551,14 @@ def test_info_of_nanosecond_stamps_gives_no_warning(tmp_path):
 # --------------------------------------------------------------------------- existing outputs
 
 
+@pytest.mark.parametrize("args", [("--set", "sigma_range=2000"), ("--scenario", "snr", "--snr", "-1000")])
+def test_simulate_writes_a_log_with_a_large_range_noise(tmp_path, args):
+    out = tmp_path / "noisy.mcap"
+    res = _run("simulate", "--seed", "1", *args, "--out", out, "-q")
+    assert res.exit_code == 0, res.output
+    assert _run("info", out).exit_code == 0
+
+
 def test_simulate_refuses_an_existing_out_without_overwrite(tmp_path):
     out = tmp_path / "sim.mcap"
     out.write_bytes(b"mine")

@@ -120,6 +120,25 @@ def test_range_only_model():
     np.testing.assert_allclose(ro.logpdf(np.array([[53.0]]), x), stats.norm(50, 5).logpdf(53.0))
 
 
+def test_a_negative_noisy_range_is_written_as_the_same_point_in_canonical_polar_form():
+    br = BearingRange(sigma_bearing=0.01, sigma_range=2000.0)
+    x = np.array([[30.0, 0, 40.0, 0, 0]] * 400)  # range 50 m: most draws with sigma 2 km are negative
+    raw = br.h(x) + np.random.default_rng(3).standard_normal((400, 2)) * [0.01, 2000.0]
+    z = br.sample(np.random.default_rng(3), x)
+    neg = raw[:, 1] < 0
+    assert neg.sum() > 100 and (z[:, 1] >= 0).all() and (z[:, 0] >= -np.pi).all() and (z[:, 0] < np.pi).all()
+    np.testing.assert_array_equal(z[~neg], np.stack([wrap_angle(raw[~neg, 0]), raw[~neg, 1]], 1))
+    np.testing.assert_allclose(z[neg, 1], -raw[neg, 1])
+    # the same point of the plane: r [sin b, cos b]
+    pos_raw = raw[:, 1:] * np.stack([np.sin(raw[:, 0]), np.cos(raw[:, 0])], 1)
+    np.testing.assert_allclose(br.to_cartesian(z)[0], pos_raw, atol=1e-6)
+    ro = RangeOnly(sigma_range=2000.0)
+    raw_r = ro.h(x) + 2000.0 * np.random.default_rng(4).standard_normal((400, 1))
+    zr = ro.sample(np.random.default_rng(4), x)
+    assert (raw_r < 0).sum() > 100
+    np.testing.assert_array_equal(zr, np.abs(raw_r))
+
+
 def test_to_cartesian_matches_monte_carlo():
     br = BearingRange(sigma_bearing=np.deg2rad(1), sigma_range=5.0)
     z = np.array([[0.3, 1200.0]])

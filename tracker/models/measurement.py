@@ -151,12 +151,18 @@ class BearingRange:
         return d
 
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
-        """Draw one noisy measurement per state row; bearing wrapped."""
+        """Draw one noisy measurement per state row in canonical polar form: a negative noisy
+        range ``r`` is written as the same point of the plane, range ``|r|`` at the opposite
+        bearing (``+ pi``); bearing wrapped."""
         zp = self.h(np.atleast_2d(x))
         if self.noise is None:
             z = zp + rng.standard_normal(zp.shape) * np.array([self.sigma_bearing, self.sigma_range])
         else:
             z = zp + rng.standard_normal(zp.shape) @ np.linalg.cholesky(self.R).T
+        behind = z[:, 1] < 0.0
+        if behind.any():
+            z[behind, 1] = -z[behind, 1]
+            z[behind, 0] += np.pi
         z[:, 0] = wrap_angle(z[:, 0])
         return z
 
@@ -244,9 +250,11 @@ class RangeOnly:
         return np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
 
     def sample(self, rng: np.random.Generator, x: np.ndarray) -> np.ndarray:
+        """Draw one noisy range per state row; a negative noisy range ``r`` is written as
+        ``|r|`` (the same ring of points around the sensor)."""
         zp = self.h(np.atleast_2d(x))
         sigma = self.sigma_range if self.noise is None else np.sqrt(self.R[0, 0])
-        return zp + sigma * rng.standard_normal(zp.shape)
+        return np.abs(zp + sigma * rng.standard_normal(zp.shape))
 
     def logpdf(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         return gaussian_logpdf(self.residual(np.atleast_2d(z), self.h(np.atleast_2d(x))), self.R)
