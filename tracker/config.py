@@ -10,8 +10,11 @@ not a TOML literal is taken as a plain string).  Errors name the offending key a
 from __future__ import annotations
 
 import difflib
+import json
 import re
 import tomllib
+import types as types_mod
+import typing
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,39 +109,85 @@ def did_you_mean(key: str, known: Sequence[str], n: int = 1, prefix: str = "", c
 KEYS_LISTED_IN = "docs/models.md and docs/trackers.md list the keys"
 
 
-def _set_dotted(data: dict[str, Any], key: str, value: Any, origin: str, shown: str | None = None,
-                listed_in: str = KEYS_LISTED_IN) -> None:
-    """Set ``data[a][b]...= value`` for ``key = "a.b..."``.  A missing table under an empty
-    table (a name-keyed table such as ``sensors``: ``--set sensors.radar0.x=5``) is created;
-    the struct validation that follows checks its keys.  Errors name the key as ``shown``
-    (default ``key``) and, for an unknown key among many, the page that lists them
-    (``listed_in``)."""
+@dataclass(frozen=True)
+class _Item:
+    """One ``--set`` item being applied: how errors name it (``origin``, the key as typed
+    ``shown``, its value's text), where the keys are listed, and the struct type it sets."""
+
+    origin: str
+    shown: str
+    text: str
+    listed_in: str
+    cls: type
+    names: ArgNames
+
+
+def _set_dotted(data: dict[str, Any], key: str, value: Any, item: _Item) -> None:
+    """Set ``data[a][b]...= value`` for ``key = "a.b..."``.  A missing table of a name-keyed
+    table (a dict field such as ``sensors``: ``--set sensors.radar0.x=5``) is created; each key
+    is checked against the struct type at its place (``item.cls``).  Errors name the key as
+    typed and the close known key."""
     parts = key.split(".")
-    node, created = data, False
+    node, tp = data, _unwrap(msgspec.inspect.type_info(item.cls))
     for i, part in enumerate(parts[:-1]):
-        child = node.get(part)
-        named = i > 0 and (created or _named_tables(node))
-        if child is None and part not in node and named:
+        child, child_tp = node.get(part), _unwrap(_child(tp, part))
+        if child is None and part not in node and isinstance(tp, msgspec.inspect.DictType) and _is_table(child_tp):
             child = node[part] = {}
-        created = created or named
         if not isinstance(child, dict):
-            raise ConfigError(f"{origin}: '{'.'.join(parts[: i + 1])}' is not a table"
+            raise ConfigError(f"{item.origin}: '{'.'.join(parts[: i + 1])}' is not a table"
                               + (did_you_mean(part, list(node), prefix="".join(f"{q}." for q in parts[:i]))
                                  if part not in node else ""))
-        node = child
-    if parts[-1] not in node and not created:
-        known = ", ".join(sorted(node)) or "(none)"
-        where = f"known here: {known}" if len(node) <= KNOWN_LISTED else listed_in
-        typed = shown or key
-        table = typed.rsplit(".", 1)[0] + "." if "." in typed else ""
-        raise ConfigError(f"{origin}: unknown key '{typed}'{did_you_mean(parts[-1], list(node), 3, table)} "
-                          f"({where})")
+        node, tp = child, child_tp
+    _check_last(node, tp, parts[-1], value, item)
     node[parts[-1]] = value
 
 
-def _named_tables(node: dict[str, Any]) -> bool:
-    """``node`` is a table of named tables (every value a table, or empty: e.g. ``sensors``)."""
-    return all(isinstance(v, dict) for v in node.values())
+def _check_last(node: dict[str, Any], tp: Any, last: str, value: Any, item: _Item) -> None:
+    """Raise :class:`ConfigError` unless ``last`` is a key of the table ``node`` (of type ``tp``)
+    that may take ``value``: a known field of a struct, any name of a name-keyed table (whose
+    tables take a table, not a value)."""
+    typed = item.shown
+    if isinstance(tp, msgspec.inspect.DictType):
+        if _is_table(_unwrap(tp.value_type)) and not isinstance(value, dict):
+            fields = _fields(_unwrap(tp.value_type))
+            example = item.names.set_item.format(f"{typed}.{_example_key(_unwrap(tp.value_type), value)}={item.text}")
+            raise ConfigError(f"{item.origin}: '{typed}' is a table of keys, not a value: set one of its keys, "
+                              f"e.g. {example}" + (f" (its keys: {', '.join(fields)})" if fields else ""))
+        return
+    known = _fields(tp) if isinstance(tp, msgspec.inspect.StructType) else list(node)
+    if last in known or (tp is None and last in node):
+        return
+    where = f"known here: {', '.join(sorted(known)) or '(none)'}" if len(known) <= KNOWN_LISTED else item.listed_in
+    table = typed.rsplit(".", 1)[0] + "." if "." in typed else ""
+    raise ConfigError(f"{item.origin}: unknown key '{typed}'{did_you_mean(last, known, 3, table)} ({where})")
+
+
+def _example_key(node: Any, value: Any) -> str:
+    """The first key of the struct type ``node`` that takes ``value`` (``KEY`` if none does)."""
+    for f in msgspec.structs.fields(node.cls) if isinstance(node, msgspec.inspect.StructType) else ():
+        try:
+            msgspec.convert(value, f.type)
+        except msgspec.ValidationError:
+            continue
+        return f.encode_name
+    return "KEY"
+
+
+def _unwrap(node: Any) -> Any:
+    """An optional type's non-None member (else ``node``)."""
+    while isinstance(node, msgspec.inspect.UnionType):
+        node = next((t for t in node.types if not isinstance(t, msgspec.inspect.NoneType)), None)
+    return node
+
+
+def _is_table(node: Any) -> bool:
+    """``node`` (a msgspec type) is a table: a struct or a dict."""
+    return isinstance(node, (msgspec.inspect.StructType, msgspec.inspect.DictType))
+
+
+def _fields(node: Any) -> list[str]:
+    """The keys of the struct type ``node`` (none for another type)."""
+    return [f.encode_name for f in node.fields] if isinstance(node, msgspec.inspect.StructType) else []
 
 
 def split_item(item: str, names: ArgNames = CLI_NAMES) -> tuple[str, str]:
@@ -163,13 +212,13 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
     keys = {}
     for item, as_typed in zip(overrides, shown):
         key, text = split_item(item, names)
-        _set_dotted(data, key, parse_value(text), names.set_item.format(as_typed), split_item(as_typed, names)[0],
-                    listed_in)
+        _set_dotted(data, key, parse_value(text), _Item(names.set_item.format(as_typed), split_item(as_typed, names)[0],
+                                                        text, listed_in, type(obj), names))
         keys[key] = as_typed
     try:
         return msgspec.convert(data, type(obj))
     except msgspec.ValidationError as exc:
-        raise ConfigError(_blame(str(exc), keys, names)) from None
+        raise ConfigError(_blame(concrete_path(str(exc), data, type(obj)), keys, names)) from None
 
 
 _AT = re.compile(r"^(?P<what>.*) - at `\$\.(?P<path>[^`]*)`$")
@@ -195,7 +244,62 @@ def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:
     try:
         return msgspec.convert(data, cls)
     except msgspec.ValidationError as exc:
-        raise ConfigError(f"{origin}: {_unknown_field(str(exc), cls) or exc}") from None
+        message = concrete_path(str(exc), data, cls)
+        raise ConfigError(f"{origin}: {_unknown_field(message, cls) or message}") from None
+
+
+_AT_PATH = re.compile(r" - at `\$(?P<path>[^`]*)`$")
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def concrete_path(message: str, data: Any, cls: type) -> str:
+    """msgspec's error ``message`` about plain ``data`` validated into ``cls``, with each
+    ``[...]`` of its path (a key of a dict: ``$.sensors[...].x``) replaced by the key whose
+    value fails (``$.sensors.radar0.x``); ``message`` itself when there is none to replace."""
+    m = _AT_PATH.search(message)
+    if m is None or "[...]" not in m["path"]:
+        return message
+    out, node, tp = [], data, cls
+    for part in re.findall(r"\.[^.\[\]]+|\[\d+\]|\[\.\.\.\]", m["path"]):
+        tp = _py_unwrap(tp)
+        args = typing.get_args(tp)
+        if part == "[...]" and isinstance(node, dict) and len(args) == 2:
+            key = next((k for k, v in node.items() if not _valid(v, args[1])), None)
+            if key is None:
+                return message
+            out.append(f".{key}" if _BARE_KEY.fullmatch(str(key)) else f".{json.dumps(str(key))}")
+            node, tp = node[key], args[1]
+        elif part.startswith("[") and part != "[...]" and isinstance(node, list) and args:
+            node, tp = node[int(part[1:-1])], args[0]
+            out.append(part)
+        elif part.startswith(".") and isinstance(node, dict) and isinstance(tp, type) and issubclass(tp, msgspec.Struct):
+            types = {f.encode_name: f.type for f in msgspec.structs.fields(tp)}
+            node, tp = node.get(part[1:]), types.get(part[1:])
+            out.append(part)
+        else:
+            return message
+    return f"{message[: m.start()]} - at `${''.join(out)}`"
+
+
+def _py_unwrap(tp: Any) -> Any:
+    """The type inside ``Annotated`` and optional (``X | None``) annotations."""
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is typing.Annotated:
+            tp = typing.get_args(tp)[0]
+        elif origin in (typing.Union, types_mod.UnionType):
+            tp = next(a for a in typing.get_args(tp) if a is not type(None))
+        else:
+            return tp
+
+
+def _valid(value: Any, tp: Any) -> bool:
+    """``value`` validates as ``tp``."""
+    try:
+        msgspec.convert(value, tp)
+    except msgspec.ValidationError:
+        return False
+    return True
 
 
 _UNKNOWN_FIELD = re.compile(r"Object contains unknown field `(?P<key>[^`]+)`(?: - at `\$(?P<at>[^`]*)`)?")

@@ -101,3 +101,26 @@ def test_sweeps_per_frame_are_at_most_ten_thousand(tracker, item):
     for part in key.split("."):
         done = getattr(done, part)
     assert done == 10000
+
+
+@pytest.mark.parametrize("item, message", [
+    ("sensors.radar0.headng_deg=90", "^--set 'sensors.radar0.headng_deg=90': unknown key 'sensors.radar0.headng_deg' "
+                                     r"\(did you mean 'sensors.radar0.heading_deg'\?\) \(known here: .*\bx, y\)$"),
+    ('sensors.radar0.x="abc"', "^--set 'sensors.radar0.x=\"abc\"': expected `float`, got `str`$"),
+    ("sensors.radar0=5", r"^--set 'sensors.radar0=5': 'sensors.radar0' is a table of keys, not a value: set one of "
+                         r"its keys, e.g. --set 'sensors.radar0.x=5' \(its keys: kind, x, y, heading_deg, .*\)$"),
+])
+def test_a_bad_sensor_item_names_the_item_the_sensor_and_the_close_key(item, message):
+    with pytest.raises(ConfigError, match=message):
+        load_params("vo2017", [item])
+
+
+def test_a_bad_value_in_a_sensor_table_of_a_file_names_the_sensor(tmp_path):
+    path = _write(tmp_path, "p.toml", 'extends = "vo2017"\n[sensors.radar0]\nx = 1.0\n[sensors.radar1]\nx = "abc"\n')
+    with pytest.raises(ConfigError, match=r"^.*p\.toml: Expected `float`, got `str` - at `\$\.sensors\.radar1\.x`$"):
+        load_params(path)
+
+
+def test_a_sensor_table_set_whole_is_a_table():
+    p = load_params("vo2017", ["sensors.radar0={x=1500.0, heading_deg=30.0}"])
+    assert (p.sensors["radar0"].x, p.sensors["radar0"].heading_deg) == (1500.0, 30.0)
