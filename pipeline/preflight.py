@@ -43,7 +43,7 @@ def check_pipeline(cfg: PipelineConfig, overwrite: bool = False) -> None:
         from bnptrack.pipeline.stages import build_stage_tracker
 
         setup = build_stage_tracker(cfg.tracker, metadata)
-        check_frames(setup.params, head, setup.choice.source)
+        check_frames(setup.params, head, setup.choice.source, setup.set_sensors)
     else:
         check_frames(None, head)
 

@@ -286,6 +286,17 @@ class TrackerSetup:
     """The output's ``bnptrack.scenario`` record: the input's plus tracker, tracker_seed,
     tracker_params, tracker_config and (with overrides) tracker_overrides."""
 
+    @property
+    def set_sensors(self) -> dict[str, str]:
+        """The sensors whose ``[sensors.NAME]`` table only the ``--set`` items declare: name ->
+        the first such item, as typed (named by :func:`tracker.input_checks.check_frames`)."""
+        out: dict[str, str] = {}
+        for item in self.overrides:
+            parts = split_item(item)[0].removeprefix("params.").split(".")
+            if len(parts) >= 2 and parts[0] == "sensors" and parts[1] not in self.choice.params.sensors:
+                out.setdefault(parts[1], item)
+        return out
+
     def describe_params(self) -> str:
         """The params line of ``bnptrack track``'s header (with the ``--set`` items of the params)."""
         p_over, _ = split_overrides(self.overrides, type(self.config))

@@ -410,7 +410,7 @@ class _TrackIO:
             stop: StopOnSignal | None = None) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the
         sinks (up to a signal held by ``stop``)."""
-        check_frames(setup.params, self.head, setup.choice.source)  # a misspelt sensor: an error before tracking
+        check_frames(setup.params, self.head, setup.choice.source, setup.set_sensors)  # a misspelt sensor: an error before tracking
         check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,

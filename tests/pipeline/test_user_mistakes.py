@@ -75,6 +75,18 @@ def test_misspelt_table_in_the_params_file_names_the_file_and_the_table_to_renam
     assert "did you mean 'rader0'" not in line
 
 
+@pytest.mark.parametrize("command", ["track", "replay"])
+def test_a_misspelt_sensor_of_a_set_item_names_the_item_and_the_close_sensor(tmp_path, command):
+    log = _log(tmp_path / "radar.mcap", sensor="radar0")
+    extra = ("--as-fast-as-possible",) if command == "replay" else ()
+    res = _run(command, log, "--set", "sensors.radr0.x=1500", "--out", tmp_path / "t", *extra, "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (
+        "Error: --set 'sensors.radr0.x=1500' declares sensor 'radr0', which the log does not have: the log's sensor "
+        "'radar0' (frame 1) has no [sensors.radar0] table and no pose in its frames "
+        "(did you mean --set 'sensors.radar0.x=1500'?)")
+
+
 def test_unrelated_sensor_name_says_to_add_its_table(tmp_path):
     log = _log(tmp_path / "radar.mcap", sensor="lidar_front")
     res = _run("track", log, "--params", _params(tmp_path), "--out", tmp_path / "t.mcap", "-q")
