@@ -95,7 +95,7 @@ import msgspec
 import numpy as np
 
 from bnptrack.sources.scene import Scenario, TargetSpec
-from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError
+from bnptrack.tracker.config import CLI_NAMES, ArgNames, ConfigError, did_you_mean
 from bnptrack.tracker.models.motion import CoordinatedTurn
 from bnptrack.tracker.models.params import ModelParams
 
@@ -265,7 +265,8 @@ def get_scenario(name: str, seed: int | None = None, scene: Sequence[str] = (),
         return SCENARIOS[name]
     if not is_generated(name):
         raise ConfigError(
-            f"unknown scenario {name!r}; valid scenarios: {', '.join(scenario_names())}"
+            f"unknown scenario {name!r}{did_you_mean(name, scenario_names())}; valid scenarios: "
+            f"{', '.join(scenario_names())}"
         )
     if seed is None:
         raise ConfigError(f"scenario {name!r} is generated: it needs a scene seed")

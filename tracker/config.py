@@ -218,7 +218,8 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
     try:
         return msgspec.convert(data, type(obj))
     except msgspec.ValidationError as exc:
-        raise ConfigError(_blame(concrete_path(str(exc), data, type(obj)), keys, names)) from None
+        raise ConfigError(_blame(_valid_values(concrete_path(str(exc), data, type(obj)), type(obj)), keys,
+                                 names)) from None
 
 
 _AT = re.compile(r"^(?P<what>.*) - at `\$\.(?P<path>[^`]*)`$")
@@ -244,7 +245,7 @@ def convert(data: dict[str, Any], cls: type[S], origin: str) -> S:
     try:
         return msgspec.convert(data, cls)
     except msgspec.ValidationError as exc:
-        message = concrete_path(str(exc), data, cls)
+        message = _valid_values(concrete_path(str(exc), data, cls), cls)
         raise ConfigError(f"{origin}: {_unknown_field(message, cls) or message}") from None
 
 
@@ -300,6 +301,28 @@ def _valid(value: Any, tp: Any) -> bool:
     except msgspec.ValidationError:
         return False
     return True
+
+
+_BAD_ENUM = re.compile(r"(?P<what>Invalid enum value (?P<value>.*?)) - at `\$(?P<at>[^`]*)`")
+
+
+def _valid_values(message: str, cls: type) -> str:
+    """msgspec's invalid-enum error with the valid values of the field at its path and the
+    close one (``Invalid enum value 'mcp', not one of synthetic, mcap (did you mean 'mcap'?)``);
+    any other error unchanged."""
+    m = _BAD_ENUM.fullmatch(message)
+    if m is None:
+        return message
+    node: Any = msgspec.inspect.type_info(cls)
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", m["at"].lstrip(".")):
+        node = _child(node, part)
+    node = _unwrap(node)
+    values = ([str(v) for v in node.values] if isinstance(node, msgspec.inspect.LiteralType) else
+              [str(v.value) for v in node.cls] if isinstance(node, msgspec.inspect.EnumType) else [])
+    if not values:
+        return message
+    typed = m["value"].strip("'\"")
+    return (f"{m['what']}, not one of {', '.join(values)}{did_you_mean(typed, values)} - at `${m['at']}`")
 
 
 _UNKNOWN_FIELD = re.compile(r"Object contains unknown field `(?P<key>[^`]+)`(?: - at `\$(?P<at>[^`]*)`)?")

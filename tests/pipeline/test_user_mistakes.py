@@ -563,6 +563,20 @@ def test_info_of_nanosecond_stamps_gives_no_warning(tmp_path):
 # --------------------------------------------------------------------------- existing outputs
 
 
+@pytest.mark.parametrize("item, message", [
+    ("source.kind=mcp", "Error: --set 'source.kind=mcp': invalid enum value 'mcp', not one of mcap, synthetic "
+                        "(did you mean 'mcap'?)"),
+    ("source.scenario=randm", "Error: source.scenario: unknown scenario 'randm' (did you mean 'random'?); valid "
+                              "scenarios: vo2017, dpy5, proximity, snr, random, random-cv, groups, groups-pl, groups-py"),
+])
+def test_a_misspelt_source_value_of_launch_gets_the_close_one(tmp_path, item, message):
+    out = tmp_path / "run"
+    res = _run("launch", "--set", item, "--set", f"out={out}")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == message
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("args", [("--set", "sigma_range=2000"), ("--scenario", "snr", "--snr", "-1000")])
 def test_simulate_writes_a_log_with_a_large_range_noise(tmp_path, args):
     out = tmp_path / "noisy.mcap"
