@@ -223,19 +223,20 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
 
 
 _AT = re.compile(r"^(?P<what>.*) - at `\$\.(?P<path>[^`]*)`$")
+#: A struct's own check of one key (``__post_init__``): ``[sensors.radar0] kind = 'x' is ...``.
+_TABLE_KEY = re.compile(r"^\[(?P<table>[^\]]+)\] (?P<key>[A-Za-z0-9_]+) = ")
 
 
 def _blame(message: str, keys: dict[str, str], names: ArgNames) -> str:
     """A validation error of overridden data, naming the ``--set`` item (as typed) whose key
     holds the bad value (``--set 'p_detect=1.5': expected `float` <= 1.0``); all items when
     the value at fault is none of theirs."""
-    m = _AT.match(message)
-    if m is not None:
-        path = m["path"]
+    m, t = _AT.match(message), _TABLE_KEY.match(message)
+    path, what = (m["path"], m["what"]) if m else (f"{t['table']}.{t['key']}", message) if t else ("", "")
+    if path:
         for key, as_typed in keys.items():
             # the item's own value, or the table holding it (a check across the table's keys)
             if path == key or path.startswith((f"{key}.", f"{key}[")) or key.startswith(f"{path}."):
-                what = m["what"]
                 return f"{names.set_item.format(as_typed)}: {what[:1].lower()}{what[1:]}"
     return f"{names.set_all}: {message}"
 

@@ -109,6 +109,8 @@ def test_sweeps_per_frame_are_at_most_ten_thousand(tracker, item):
     ('sensors.radar0.x="abc"', "^--set 'sensors.radar0.x=\"abc\"': expected `float`, got `str`$"),
     ("sensors.radar0=5", r"^--set 'sensors.radar0=5': 'sensors.radar0' is a table of keys, not a value: set one of "
                          r"its keys, e.g. --set 'sensors.radar0.x=5' \(its keys: kind, x, y, heading_deg, .*\)$"),
+    ("sensors.radar0.kind='rnge'", "^--set \"sensors.radar0.kind='rnge'\": \\[sensors.radar0\\] kind = 'rnge' is not a "
+                                   r"measurement kind \(did you mean 'range'\?\) \(known: bearing_range, range, xy\)$"),
 ])
 def test_a_bad_sensor_item_names_the_item_the_sensor_and_the_close_key(item, message):
     with pytest.raises(ConfigError, match=message):

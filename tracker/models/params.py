@@ -99,8 +99,8 @@ class ModelParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     def __post_init__(self) -> None:
         for name, spec in self.sensors.items():  # at load, not at the sensor's first frame
             if spec.kind is not None and spec.kind not in KINDS:
-                raise ValueError(f"[sensors.{name}] kind = {spec.kind!r} is not a measurement kind "
-                                 f"(known: {', '.join(KINDS)})")
+                raise ValueError(f"[sensors.{name}] kind = {spec.kind!r} is not a measurement kind"
+                                 f"{did_you_mean(spec.kind, list(KINDS))} (known: {', '.join(KINDS)})")
             check_sensor_spec(name, spec.heading_deg)
 
     # --- model factories -------------------------------------------------------------
