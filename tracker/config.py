@@ -155,7 +155,7 @@ def _check_last(node: dict[str, Any], tp: Any, last: str, value: Any, item: _Ite
                               f"e.g. {example}" + (f" (its keys: {', '.join(fields)})" if fields else ""))
         return
     known = _fields(tp) if isinstance(tp, msgspec.inspect.StructType) else list(node)
-    if last in known or (tp is None and last in node):
+    if last in known:
         return
     where = f"known here: {', '.join(sorted(known)) or '(none)'}" if len(known) <= KNOWN_LISTED else item.listed_in
     table = typed.rsplit(".", 1)[0] + "." if "." in typed else ""
