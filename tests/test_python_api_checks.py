@@ -141,6 +141,7 @@ def test_a_log_without_measurements_names_the_topics_argument(tmp_path):
     ('[source]\nlgo = "x.mcap"\n', r": unknown key 'lgo' in \[source\] \(did you mean 'log'\?\)$"),
     ('[source]\nkind = "mcp"\n', r": Invalid enum value 'mcp', not one of mcap, synthetic \(did you mean 'mcap'\?\) "
                                  r"- at `\$\.source\.kind`$"),
+    ('[source]\nkind = "mcap"\n[source.topics]\n"/a" = 5\n', r": Expected `str`, got `int` - at `\$\.source\.topics\.\"/a\"`$"),
 ])
 def test_a_misspelt_pipeline_table_or_key_gets_the_close_name(tmp_path, text, message):
     from bnptrack.pipeline.config import load_pipeline
