@@ -1,16 +1,18 @@
 """Checks of a run's output files before anything is written: an output that is the input log
 (:func:`check_output_path`), outputs that would overwrite one another (:func:`check_outputs`),
-and files that exist already (:func:`refuse_existing`, unless ``--overwrite``)."""
+and files that exist already (:func:`refuse_existing`, unless ``--overwrite``); and the commands
+printed for an output (:func:`view_command`: paths shell-quoted, so that they can be pasted)."""
 
 from __future__ import annotations
 
 import os
+import shlex
 from collections.abc import Mapping
 from pathlib import Path
 
 from bnptrack.tracker.config import ConfigError
 
-__all__ = ["check_output_path", "check_outputs", "refuse_existing"]
+__all__ = ["check_output_path", "check_outputs", "refuse_existing", "view_command"]
 
 
 def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
@@ -45,3 +47,9 @@ def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
         entry = SINKS.get(name)
         if other != name and not (entry is not None and entry.beside == other):
             raise ValueError(f"{path}: the {name} output would overwrite the {other} output")
+
+
+def view_command(rrd: str | os.PathLike) -> str:
+    """``bnptrack view RRD``, the path shell-quoted (a path with a space or a quote pastes as one
+    argument)."""
+    return f"bnptrack view {shlex.quote(str(rrd))}"

@@ -37,7 +37,7 @@ from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.offline import TrackResult, default_tracks_path, open_sinks, read_log_start, track_to_sinks
-from bnptrack.pipeline.output_paths import check_output_path, check_outputs, refuse_existing
+from bnptrack.pipeline.output_paths import check_output_path, check_outputs, refuse_existing, view_command
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
@@ -436,5 +436,5 @@ def _track_rows(res: TrackResult, tracker_name: str, seed: int, out: Path,
                      "labels (scan c-5 vs c+5, gate 100 m)"))
     rows.append(("wrote", f"{out} ({out.stat().st_size} bytes)"))
     if rrd is not None:
-        rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; bnptrack view {rrd})"))
+        rows.append(("recording", f"{rrd} ({rrd.stat().st_size} bytes; {view_command(rrd)})"))
     return rows

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from bnptrack.tracker.messages import to_estimate, to_frame, to_truth
+from bnptrack.pipeline.output_paths import view_command
 from bnptrack.pipeline.stages.base import StageIOError, settle_heap
 from bnptrack.pipeline.stages.delivery import GAP, NO_TRUTH, Accepted
 from bnptrack.pipeline.stages.health import StageInfo
@@ -168,4 +169,4 @@ class SinkWriting:
     def _view_command(self) -> str:
         """The command that opens the recording (``""``: no ``run.rrd`` was written)."""
         rrd = self.ctx.out / self.sink_cfg.rrd_name
-        return f"bnptrack view {rrd}" if str(rrd) in self.files else ""
+        return view_command(rrd) if str(rrd) in self.files else ""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -746,3 +747,28 @@ def test_info_with_a_bnptrack_channel_mapped_as_measurements_names_it(tmp_path):
     assert res.exit_code == 2, res.output
     assert _one_line(res.output, "Error:") == (f"Error: {log}: channel /truth holds bnptrack /truth messages, not "
                                                "measurements: --topic /truth=/measurements cannot be tracked")
+
+
+# --------------------------------------------------------------------------- output options
+
+
+def test_a_printed_view_command_quotes_a_path_with_spaces(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    folder = tmp_path / "dir with space"
+    folder.mkdir()
+    rrd = folder / "my run.rrd"
+    res = _run("track", log, "--tracker", "ddp-mb", "--out", folder / "my run.mcap", "--rrd", rrd)
+    assert res.exit_code == 0, res.output
+    assert _one_line(res.output, "recording").endswith(f"bytes; bnptrack view '{rrd}')")
+
+
+def test_sink_json_view_command_quotes_the_run_folder():
+    from types import SimpleNamespace
+
+    from bnptrack.pipeline.stages.sink_write import SinkWriting
+
+    sink = SimpleNamespace(ctx=SimpleNamespace(out=Path("run one")), sink_cfg=SimpleNamespace(rrd_name="run.rrd"),
+                           files=[str(Path("run one") / "run.rrd")])
+    assert SinkWriting._view_command(sink) == "bnptrack view 'run one/run.rrd'"
+    plain = SimpleNamespace(ctx=SimpleNamespace(out=Path("/o")), sink_cfg=sink.sink_cfg, files=["/o/run.rrd"])
+    assert SinkWriting._view_command(plain) == "bnptrack view /o/run.rrd"
