@@ -33,6 +33,8 @@ __all__ = [
     "EXIT_INCOMPLETE",
     "CliError",
     "Choice",
+    "NAME",
+    "PathName",
     "IncompleteError",
     "clean_errors",
     "echo_rows",
@@ -76,6 +78,33 @@ class FiniteRange(click.FloatRange):
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
+
+
+class _NotEmpty(click.ParamType):
+    """A value that names something (a file, a preset, a run): an empty one (``--out ""``, an
+    unset shell variable) is a usage error naming the option, before it can mean a default or
+    the current folder."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and value == "":
+            name = max(param.opts, key=len) if param is not None and param.opts else "value"
+            rest = "" if param is None or param.required else ", or leave the option out"
+            raise click.UsageError(f"empty {name}: give a name{rest}", ctx)
+        return super().convert(value, param, ctx)
+
+
+class PathName(_NotEmpty, click.Path):
+    """:class:`click.Path` that refuses an empty value (``empty --out``)."""
+
+
+class TextName(_NotEmpty, click.types.StringParamType):
+    """A text option (a preset or file name, a run id) that refuses an empty value."""
+
+    name = "text"
+
+
+#: A non-empty text option (``--params``, ``--config``, ``--run``).
+NAME = TextName()
 
 
 def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]) -> tuple[str, ...]:

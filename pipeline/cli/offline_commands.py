@@ -20,6 +20,8 @@ from bnptrack.pipeline.cli.common import (
     START_HELP,
     VIEW_HELP,
     CliError,
+    NAME,
+    PathName,
     IncompleteError,
     LazyHelpOption,
     clean_errors,
@@ -83,6 +85,7 @@ def _check_sinks(ctx: click.Context, param: click.Parameter, names: tuple[str, .
     "--params",
     "params_arg",
     metavar="NAME|FILE.toml",
+    type=NAME,
     default=DEFAULT_PARAMS,
     show_default=True,
     help=f"Model parameter set: built-in {_BUILTIN}, or a TOML file of ModelParams fields.",
@@ -102,7 +105,7 @@ def _check_sinks(ctx: click.Context, param: click.Parameter, names: tuple[str, .
 )
 @click.option(
     "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=PathName(dir_okay=False, path_type=Path),
     default=None,
     help="Output MCAP file. Default: recordings/<scenario>-s<seed>.mcap (directory created).",
 )
@@ -191,6 +194,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     "--config",
     "config_arg",
     metavar="NAME|FILE.toml",
+    type=NAME,
     default=None,
     cls=LazyHelpOption,
     help_text=config_help,
@@ -199,6 +203,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
     "--params",
     "params_arg",
     metavar="NAME|FILE.toml",
+    type=NAME,
     default=None,
     help=f"Model parameters ({', '.join(BUILTIN_PARAMS)} or a TOML file). Default: the set named in the "
     f"log's bnptrack.scenario record (with its snr_db and overrides), else {DEFAULT_PARAMS}.",
@@ -213,14 +218,14 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 )
 @click.option(
     "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=PathName(dir_okay=False, path_type=Path),
     default=None,
     help="Output MCAP file (input frames + /tracks). Default: <LOG stem>-<tracker>.tracks.mcap "
     "next to LOG.",
 )
 @click.option(
     "--rrd",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=PathName(dir_okay=False, path_type=Path),
     default=None,
     metavar="FILE.rrd",
     help="Also record the run for the Rerun viewer (scene, assignments, tracks, truth, OSPA, "

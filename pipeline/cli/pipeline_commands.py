@@ -25,6 +25,8 @@ from bnptrack.pipeline.cli.common import (
     TOPIC_HELP,
     VIEW_HELP,
     CliError,
+    NAME,
+    PathName,
     IncompleteError,
     clean_errors,
     echo_rows,
@@ -161,9 +163,9 @@ def _check_router_endpoints(endpoints: list[str]) -> None:
 @click.argument("pipeline_file", metavar="[PIPELINE.toml]", required=False,
                 type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
-@click.option("--run", "run_id", default=None, metavar="RUN",
+@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN",
               help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
 @click.option("--connect", "connect", multiple=True, metavar="ENDPOINT|URL",
               help="Use this Zenoh router (e.g. tcp/10.0.0.5:7447) instead of an embedded one; "
@@ -224,14 +226,14 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--as-fast-as-possible", "afap", is_flag=True, help="Publish frames without pacing.")
 @click.option("--tracker", "tracker_name", type=Choice(TRACKERS), default="ddp", show_default=True,
               help="Tracker (as `bnptrack track --tracker`).")
-@click.option("--config", "config_arg", metavar="NAME|FILE.toml", default=None,
+@click.option("--config", "config_arg", metavar="NAME|FILE.toml", type=NAME, default=None,
               help="Tracker settings preset or TOML file (as `bnptrack track --config`).")
-@click.option("--params", "params_arg", metavar="NAME|FILE.toml", default=None,
+@click.option("--params", "params_arg", metavar="NAME|FILE.toml", type=NAME, default=None,
               help="Model parameters. Default: the log's bnptrack.scenario record (as `track`).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Tracker seed.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
-@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
+@click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
 @click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
 @click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)
@@ -335,16 +337,16 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 @click.argument("role", type=Choice(literal_choices(PipelineConfig, "stages", element=True)))
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
-@click.option("--run", "run_id", default=None, metavar="RUN", help="Run id (the same for every stage).")
+@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN", help="Run id (the same for every stage).")
 @click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.",
               callback=checked_endpoints)
 @click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).",
               callback=checked_endpoints)
 @click.option("--mode", type=Choice(literal_choices(ZenohConfig, "mode")), default=None, help="Zenoh mode (default: client; peer also needs --connect or --listen).")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory (tracker snapshot, sink files). Default: recordings/<run>/.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
-@click.option("--name", default=None, help="Stage name (default: the role).")
+@click.option("--name", type=NAME, default=None, help="Stage name (default: the role).")
 @click.option("--parent-pid", type=int, default=None, hidden=True)
 @click.option("--link-fd", type=int, default=None, hidden=True)
 @click.option("--log-level", default="INFO", show_default=True, help="Logging level.")

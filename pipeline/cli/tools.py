@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from bnptrack.pipeline.cli.common import FiniteRange, Choice, CliError, clean_errors, echo_rows, topic_map
+from bnptrack.pipeline.cli.common import FiniteRange, Choice, CliError, PathName, clean_errors, echo_rows, topic_map
 from bnptrack.tracker.config import did_you_mean
 from bnptrack.tracker.message_units import described_schema
 from bnptrack.tracker.messages import MSG_TYPES
@@ -189,11 +189,11 @@ def duration_text(seconds: float) -> str:
 
 @click.command()
 @click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="RUN.mcap")
-@click.option("--csv", "csv_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--csv", "csv_out", type=PathName(dir_okay=False, path_type=Path), default=None,
               help="Write the track table as CSV (metrics beside it: OUT.metrics.csv).")
 @click.option("--overwrite", is_flag=True, help="Replace output files that exist (without it, an existing "
               "output is refused with exit code 2 before anything is written).")
-@click.option("--parquet", "parquet_out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--parquet", "parquet_out", type=PathName(dir_okay=False, path_type=Path), default=None,
               help="Write the track table as Parquet (metrics: OUT.metrics.parquet).")
 @clean_errors
 def export(run: Path, csv_out: Path | None, parquet_out: Path | None, overwrite: bool) -> None:

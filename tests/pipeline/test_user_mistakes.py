@@ -772,3 +772,33 @@ def test_sink_json_view_command_quotes_the_run_folder():
     assert SinkWriting._view_command(sink) == "bnptrack view 'run one/run.rrd'"
     plain = SimpleNamespace(ctx=SimpleNamespace(out=Path("/o")), sink_cfg=sink.sink_cfg, files=["/o/run.rrd"])
     assert SinkWriting._view_command(plain) == "bnptrack view /o/run.rrd"
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["launch", "--out", ""], "--out"),
+    (["launch", "--run", ""], "--run"),
+    (["simulate", "--out", ""], "--out"),
+    (["simulate", "--params", ""], "--params"),
+    (["track", "{log}", "--out", ""], "--out"),
+    (["track", "{log}", "--rrd", ""], "--rrd"),
+    (["track", "{log}", "--params", ""], "--params"),
+    (["track", "{log}", "--config", ""], "--config"),
+    (["export", "{log}", "--csv", ""], "--csv"),
+    (["export", "{log}", "--parquet", ""], "--parquet"),
+    (["replay", "{log}", "--params", ""], "--params"),
+    (["replay", "{log}", "--out", ""], "--out"),
+    (["stage", "sink", "--name", ""], "--name"),
+])
+def test_an_empty_name_is_refused_naming_the_option(tmp_path, monkeypatch, args, option):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    monkeypatch.chdir(tmp_path)
+    res = _run(*[a.format(log=log) for a in args])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: empty {option}: give a name, or leave the option out"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
+
+
+def test_an_empty_required_name_is_refused_without_suggesting_to_leave_it_out():
+    res = _run("monitor", "--run", "")
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == "Error: empty --run: give a name"
