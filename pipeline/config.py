@@ -52,6 +52,7 @@ __all__ = [
     "apply_pipeline_overrides",
     "dump_pipeline",
     "check_run_id",
+    "run_id_problem",
     "make_run_id",
     "resolve_run",
 ]
@@ -382,7 +383,7 @@ class PipelineConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def __post_init__(self) -> None:
         if self.run and not RUN_RE.match(self.run):
-            raise ValueError(f"run id {self.run!r} must match {RUN_RE.pattern}")
+            raise ValueError(run_id_problem(self.run, "run"))
         if len(set(self.stages)) != len(self.stages):
             raise ValueError(f"stages {self.stages!r} lists a stage twice")
 
@@ -465,12 +466,17 @@ def dump_pipeline(cfg: PipelineConfig) -> bytes:
     return msgspec.json.format(msgspec.json.encode(cfg), indent=2)
 
 
-def check_run_id(run: str) -> str:
+def run_id_problem(run: str, name: str = "run id") -> str:
+    """The one-line error of a run id that is not one Zenoh key chunk (:data:`RUN_RE`), naming it
+    as ``name`` (``--run``, ``run``)."""
+    return (f"{name} {run!r}: letters, digits, '_', '.', '-' (first a letter or digit), at most 128 "
+            "characters (a run id is one Zenoh key chunk)")
+
+
+def check_run_id(run: str, name: str = "run id") -> str:
+    """``run``, unless it is no run id (:func:`run_id_problem`: a :class:`ConfigError`)."""
     if not RUN_RE.match(run):
-        raise ConfigError(
-            f"run id {run!r}: use letters, digits, '_', '.', '-' (at most 128 characters; "
-            "it becomes a Zenoh key chunk)"
-        )
+        raise ConfigError(run_id_problem(run, name))
     return run
 
 

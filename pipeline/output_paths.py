@@ -12,13 +12,19 @@ from pathlib import Path
 
 from bnptrack.tracker.config import ConfigError
 
-__all__ = ["check_output_path", "check_outputs", "refuse_existing", "view_command"]
+__all__ = ["check_output_path", "check_outputs", "refuse_existing", "sink_option", "view_command"]
 
 
-def check_output_path(log: str | os.PathLike, out: str | os.PathLike) -> None:
-    """Refuse an output path that is the input log itself."""
+def check_output_path(log: str | os.PathLike, out: str | os.PathLike, option: str = "--out") -> None:
+    """Refuse an output path (given as ``option``) that is the input log itself."""
     if Path(out).resolve() == Path(log).resolve():
-        raise ConfigError(f"--out {out}: the output would overwrite the input log {log}")
+        raise ConfigError(f"{option} {out}: the output would overwrite the input log {log}")
+
+
+def sink_option(name: str) -> str:
+    """The option of ``track`` that chose the sink ``name``'s file: ``--out`` (the MCAP log),
+    ``--rrd`` (the Rerun recording), else ``--sink NAME`` (a file next to ``--out``)."""
+    return {"mcap": "--out", "rerun": "--rrd"}.get(name, f"--sink {name}")
 
 
 def refuse_existing(outputs: Mapping[str, Path], overwrite: bool, option: str = "--out") -> None:
@@ -37,16 +43,18 @@ def refuse_existing(outputs: Mapping[str, Path], overwrite: bool, option: str = 
 
 
 def check_outputs(log: str | os.PathLike, outputs: Mapping[str, Path]) -> None:
-    """Refuse outputs (sink name -> file) that overwrite the input log or one another."""
+    """Refuse outputs (sink name -> file) that overwrite the input log or one another, naming
+    the options that chose them (:func:`sink_option`)."""
     from bnptrack.sinks.sink import SINKS
 
     seen: dict[Path, str] = {}
     for name, path in outputs.items():
-        check_output_path(log, path)
+        check_output_path(log, path, sink_option(name))
         other = seen.setdefault(Path(path).resolve(), name)
         entry = SINKS.get(name)
         if other != name and not (entry is not None and entry.beside == other):
-            raise ValueError(f"{path}: the {name} output would overwrite the {other} output")
+            raise ConfigError(f"{sink_option(name)} {path}: the same file as {sink_option(other)}; "
+                              "give each output its own name")
 
 
 def view_command(rrd: str | os.PathLike) -> str:

@@ -9,7 +9,7 @@ publishes.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from itertools import islice
 from typing import Annotated
 
@@ -54,21 +54,26 @@ class FrameWindow(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             raise ValueError(f"{prefix}end_frame = {self.end_frame} is before {prefix}start_frame = "
                              f"{self.start_frame}")
 
-    def describe(self, prefix: str = "source.") -> str:
-        """The keys that are set, e.g. ``source.start_frame = 500, source.frames = 3``."""
-        return ", ".join(f"{prefix}{key} = {getattr(self, key):g}" for key in WINDOW_KEYS
+    def describe(self, prefix: str = "source.", typed: Mapping[str, str] | None = None) -> str:
+        """The keys that are set, e.g. ``source.start_frame = 500, source.frames = 3``; a key
+        in ``typed`` as the option that set it (``--start 200s``)."""
+        typed = typed or {}
+        return ", ".join(typed.get(key) or f"{prefix}{key} = {getattr(self, key):g}" for key in WINDOW_KEYS
                          if getattr(self, key) not in (None, 0))
 
-    def check_not_empty(self, frames: Iterable[Frame], log: str, prefix: str = "source.") -> None:
+    def check_not_empty(self, frames: Iterable[Frame], log: str, prefix: str = "source.",
+                        typed: Mapping[str, str] | None = None) -> None:
         """Raise ``ValueError`` (one line naming ``log`` and the window) when the window holds
         none of ``frames`` (read up to the window's first frame, or to the end when it has none;
-        pass a fresh iterator: what is read is consumed)."""
+        pass a fresh iterator: what is read is consumed).  ``typed``: as in :meth:`describe`."""
         if next(self.cut(frames), None) is None:
-            raise ValueError(self.no_frame(log, prefix, "; `bnptrack info LOG` lists a log's frames and times"))
+            raise ValueError(self.no_frame(log, prefix, "; `bnptrack info LOG` lists a log's frames and times",
+                                           typed))
 
-    def no_frame(self, what: str, prefix: str = "source.", hint: str = "") -> str:
+    def no_frame(self, what: str, prefix: str = "source.", hint: str = "",
+                 typed: Mapping[str, str] | None = None) -> str:
         """The one-line error of a window that holds no frame of ``what``."""
-        return f"{what}: no frame in the window {self.describe(prefix) or '(all frames)'}{hint}"
+        return f"{what}: no frame in the window {self.describe(prefix, typed) or '(all frames)'}{hint}"
 
     def cut(self, frames: Iterable[Frame]) -> Iterator[Frame]:
         """The window's frames of ``frames``, read no further than its end (call :meth:`check`

@@ -34,6 +34,7 @@ __all__ = [
     "CliError",
     "Choice",
     "NAME",
+    "RUN",
     "PathName",
     "IncompleteError",
     "clean_errors",
@@ -48,6 +49,8 @@ __all__ = [
     "one_viewer",
     "open_live",
     "parse_offset",
+    "typed_window",
+    "check_window_holds",
     "START_HELP",
     "END_HELP",
 ]
@@ -103,8 +106,27 @@ class TextName(_NotEmpty, click.types.StringParamType):
     name = "text"
 
 
-#: A non-empty text option (``--params``, ``--config``, ``--run``).
+#: A non-empty text option (``--params``, ``--config``, ``--name``).
 NAME = TextName()
+
+
+class RunId(TextName):
+    """``--run``: a run id (:data:`pipeline.config.RUN_RE`), else a usage error naming the
+    option as typed."""
+
+    name = "run"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        from bnptrack.pipeline.config import RUN_RE, run_id_problem
+
+        run = super().convert(value, param, ctx)
+        if not RUN_RE.match(run):
+            raise click.UsageError(run_id_problem(run, "--run"), ctx)
+        return run
+
+
+#: ``--run`` of ``launch``, ``replay``, ``stage``, ``monitor``.
+RUN = RunId()
 
 
 def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]) -> tuple[str, ...]:
@@ -407,6 +429,33 @@ def window_of(start: str | None, end: str | None) -> FrameWindow:
     except ValueError:  # the options cannot mix units at one end: the end is before the start
         raise click.BadParameter(f"{end!r} is before --start {start!r}", param_hint="--end") from None
     return window
+
+
+def check_window_holds(log: Path, topics: dict[str, str], window: FrameWindow, typed: dict[str, str]) -> None:
+    """``track`` / ``replay``: a window that holds none of the log's frames is an error before
+    anything is written, naming ``--start`` / ``--end`` as typed (:func:`typed_window`)."""
+    from bnptrack.sources.frame_window import FrameWindow
+    from bnptrack.sources.mcap_log import iter_frames
+
+    if window != FrameWindow():
+        try:
+            window.check_not_empty(iter_frames(log, topics), str(log), typed=typed)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+
+
+def typed_window(window: FrameWindow, start: str | None, end: str | None) -> dict[str, str]:
+    """The keys of ``window`` that ``--start`` / ``--end`` set, each as the option was typed
+    (``{"start_s": "--start 200s"}``), for errors about the window
+    (:meth:`sources.frame_window.FrameWindow.describe`); a key a ``--set source.KEY`` item
+    changed afterwards is left out."""
+    typed = {}
+    for text, opt in ((start, "--start"), (end, "--end")):
+        seconds, frame = parse_offset(text, opt)
+        key, value = (f"{opt[2:]}_s", seconds) if frame is None else (f"{opt[2:]}_frame", frame)
+        if text is not None and getattr(window, key) == value:
+            typed[key] = f"{opt} {text}"
+    return typed
 
 
 def parse_offset(text: str | None, opt: str) -> tuple[float | None, int | None]:

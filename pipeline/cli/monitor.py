@@ -9,13 +9,13 @@ from typing import Any
 
 import click
 
-from bnptrack.pipeline.cli.common import NAME, FiniteRange, checked_endpoints, SET_HELP_ZENOH, clean_errors
+from bnptrack.pipeline.cli.common import RUN, FiniteRange, checked_endpoints, SET_HELP_ZENOH, clean_errors
 
 __all__ = ["monitor", "event_line"]
 
 
 @click.command()
-@click.option("--run", "run_id", type=NAME, required=True, metavar="RUN", help="Run id to watch.")
+@click.option("--run", "run_id", type=RUN, required=True, metavar="RUN", help="Run id to watch.")
 @click.option("--connect", multiple=True, required=True, metavar="ENDPOINT", help="Router endpoint.",
               callback=checked_endpoints)
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),

@@ -30,6 +30,8 @@ from bnptrack.pipeline.cli.common import (
     live_view,
     open_live,
     window_of,
+    typed_window,
+    check_window_holds,
     require_measurements,
     TOPIC_HELP,
     topic_map,
@@ -39,13 +41,13 @@ from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.offline import TrackResult, default_tracks_path, open_sinks, read_log_start, track_to_sinks
-from bnptrack.pipeline.output_paths import check_output_path, check_outputs, refuse_existing, view_command
+from bnptrack.pipeline.output_paths import check_outputs, refuse_existing, view_command
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
 from bnptrack.sinks.records import SinkOptions
 from bnptrack.sources.frame_window import FrameWindow
-from bnptrack.sources.mcap_log import iter_frames, read_metadata
+from bnptrack.sources.mcap_log import read_metadata
 from bnptrack.sources.scenarios import OpenScenario, open_scenario, scenario_names
 from bnptrack.tracker.input_checks import check_frames
 from bnptrack.tracker.models.params import BUILTIN_PARAMS
@@ -315,11 +317,10 @@ def track(
     window, overrides = _window(start, end, overrides)
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
                        sink_names, overwrite)
-    io.check_window(window)
+    check_window_holds(log, io.topics, window, typed_window(window, start, end))
     io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
-    check_output_path(log, io.out)
     _header(log, setup, quiet)
     with compile_progress(tracker_name, quiet), StopOnSignal() as stop:
         res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag, stop)
@@ -386,6 +387,7 @@ class _TrackIO:
         if live is not None and rrd is None:
             rrd = out.with_suffix(".rrd")
         outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
+        check_outputs(log, outputs)
         refuse_existing(outputs, overwrite)
         io = cls(log, outputs, mapping, live)
         io.head = head
@@ -403,20 +405,11 @@ class _TrackIO:
     def _live_url(self) -> str | None:
         return open_live(self.live) if self.live is not None else None
 
-    def check_window(self, window: FrameWindow) -> None:
-        """A window that holds none of the log's frames is an error before anything is written."""
-        if window != FrameWindow():
-            try:
-                window.check_not_empty(iter_frames(self.log, self.topics), str(self.log))
-            except ValueError as exc:
-                raise CliError(str(exc)) from None
-
     def run(self, setup: TrackerSetup, seed: int, bounds, window: FrameWindow, lag: int = 0,
             stop: StopOnSignal | None = None) -> TrackResult:
         """Track the log's frames of ``window`` with ``setup``'s tracker and record them to the
         sinks (up to a signal held by ``stop``)."""
         check_frames(setup.params, self.head, setup.choice.source, setup.set_sensors)  # a misspelt sensor: an error before tracking
-        check_outputs(self.log, self.outputs)
         self.params = setup.params
         return track_to_sinks(self.log, self.sinks, setup.tracker, seed, setup.metadata, bounds, self.topics,
                               window, lag, stop)

@@ -26,6 +26,7 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     NAME,
+    RUN,
     PathName,
     IncompleteError,
     clean_errors,
@@ -34,6 +35,8 @@ from bnptrack.pipeline.cli.common import (
     one_viewer,
     open_live,
     window_of,
+    typed_window,
+    check_window_holds,
     require_measurements,
     topic_map,
 )
@@ -163,7 +166,7 @@ def _check_router_endpoints(endpoints: list[str]) -> None:
 @click.argument("pipeline_file", metavar="[PIPELINE.toml]", required=False,
                 type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
-@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN",
+@click.option("--run", "run_id", type=RUN, default=None, metavar="RUN",
               help="Run id (key-expression chunk). Default: <scenario>-<time>-<hex>.")
 @click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
@@ -232,7 +235,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
               help="Model parameters. Default: the log's bnptrack.scenario record (as `track`).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Tracker seed.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=SET_HELP_PIPE)
-@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
+@click.option("--run", "run_id", type=RUN, default=None, metavar="RUN", help="Run id. Default: <log stem>-<time>-<hex>.")
 @click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/<run>/.")
 @click.option("--start", "start", metavar="T|Nf", default=None, help=START_HELP)
@@ -290,6 +293,11 @@ def replay(log: Path, rate: float, afap: bool, tracker_name: str, config_arg: st
     from bnptrack.pipeline.config import apply_pipeline_overrides
 
     cfg = apply_pipeline_overrides(cfg, overrides)
+    if start is not None or end is not None:  # named as typed, before the pipeline's own checks
+        from bnptrack.sources.frame_window import FrameWindow
+
+        replayed = FrameWindow.of(cfg.source)
+        check_window_holds(Path(cfg.source.log), dict(cfg.source.topics), replayed, typed_window(replayed, start, end))
     if run_id:
         cfg = _ms.structs.replace(cfg, run=run_id)
     if out:
@@ -337,7 +345,7 @@ def _replay_loop(cfg: Any, loops: int, timeout: float | None, quiet: bool, overw
 @click.argument("role", type=Choice(literal_choices(PipelineConfig, "stages", element=True)))
 @click.option("--pipeline", "pipeline_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               default=None, help="Pipeline file (.toml, or the .json the launcher writes).")
-@click.option("--run", "run_id", type=NAME, default=None, metavar="RUN", help="Run id (the same for every stage).")
+@click.option("--run", "run_id", type=RUN, default=None, metavar="RUN", help="Run id (the same for every stage).")
 @click.option("--connect", multiple=True, metavar="ENDPOINT", help="Router endpoint, e.g. tcp/10.0.0.5:7447.",
               callback=checked_endpoints)
 @click.option("--listen", multiple=True, metavar="ENDPOINT", help="Endpoint to listen on (peer mode).",

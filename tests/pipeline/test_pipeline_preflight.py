@@ -245,7 +245,7 @@ def test_replay_and_launch_with_a_window_past_the_end_fail_before_starting(vo_lo
     pipeline of 0 frames that runs for about 10 s and writes empty outputs)."""
     out = tmp_path / "r"
     res = cli("replay", vo_log, "--start", "500f", "--out", out)
-    assert_refused(res, out, f"{vo_log}: no frame in the window source.start_frame = 500; `bnptrack info LOG`")
+    assert_refused(res, out, f"{vo_log}: no frame in the window --start 500f; `bnptrack info LOG`")
     res = cli("launch", "--set", "source.end_s=10", "--set", "source.start_s=200", "--out", out)
     assert_refused(res, out, "source.end_s = 10 is before source.start_s = 200")
     res = cli("launch", "--set", "source.start_frame=101", "--out", out)

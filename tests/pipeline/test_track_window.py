@@ -78,7 +78,7 @@ def test_a_window_with_no_frame_of_the_log_is_an_error_before_writing(log, tmp_p
     out = tmp_path / "empty.mcap"
     res = invoke("track", log, "--start", "101f", "--out", out)
     assert res.exit_code == 2
-    assert f"Error: {log}: no frame in the window source.start_frame = 101; `bnptrack info LOG`" in res.output
+    assert f"Error: {log}: no frame in the window --start 101f; `bnptrack info LOG`" in res.output
     assert not out.exists()
     # the last frame alone is a window
     res = invoke("track", log, "--tracker", "ddp-mb", *FAST_SET, "--start", "100f", "--out", out, "-q")

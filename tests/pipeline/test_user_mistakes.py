@@ -802,3 +802,43 @@ def test_an_empty_required_name_is_refused_without_suggesting_to_leave_it_out():
     res = _run("monitor", "--run", "")
     assert res.exit_code == 2, res.output
     assert res.output.strip() == "Error: empty --run: give a name"
+
+
+def test_an_rrd_that_is_the_input_log_names_rrd(tmp_path):
+    log = _log(tmp_path / "copy.mcap", sensor="sim0", n=3)
+    before = log.read_bytes()
+    res = _run("track", log, "--out", tmp_path / "x1.mcap", "--rrd", log, "--overwrite")
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: --rrd {log}: the output would overwrite the input log {log}"
+    assert log.read_bytes() == before
+
+
+def test_outputs_on_one_file_name_both_options_before_anything_is_printed(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    same = tmp_path / "same.mcap"
+    res = _run("track", log, "--out", same, "--rrd", same)
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: --rrd {same}: the same file as --out; give each output its own name"
+    assert not same.exists()
+
+
+@pytest.mark.parametrize("cmd", ["track", "replay"])
+@pytest.mark.parametrize(("args", "window"), [
+    (["--start", "200s"], "--start 200s"),
+    (["--start", "40f", "--end", "50f"], "--start 40f, --end 50f"),
+    (["--start", "1s", "--set", "source.start_s=200"], "source.start_s = 200"),
+])
+def test_an_empty_window_names_the_options_as_typed(tmp_path, cmd, args, window):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run(cmd, log, "--out", tmp_path / "out", "-q", *args)
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == (f"Error: {log}: no frame in the window {window}; `bnptrack info LOG` lists a "
+                                  "log's frames and times")
+
+
+@pytest.mark.parametrize("cmd", [["launch"], ["stage", "sink"], ["monitor"]])
+def test_a_bad_run_id_names_run_as_typed(cmd):
+    res = _run(*cmd, "--run", "bad/run")
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == ("Error: --run 'bad/run': letters, digits, '_', '.', '-' (first a letter or digit), "
+                                  "at most 128 characters (a run id is one Zenoh key chunk)")
