@@ -1,5 +1,5 @@
-"""Checks of a run's output files before anything is written: an output that is the input log
-(:func:`check_output_path`), outputs that would overwrite one another (:func:`check_outputs`),
+"""Checks of a run's output files before anything is written: a place where no file can be
+written (:func:`check_writable`), an output that is the input log (:func:`check_output_path`), outputs that would overwrite one another (:func:`check_outputs`),
 and files that exist already (:func:`refuse_existing`, unless ``--overwrite``); and the commands
 printed for an output (:func:`view_command`: paths shell-quoted, so that they can be pasted)."""
 
@@ -7,12 +7,38 @@ from __future__ import annotations
 
 import os
 import shlex
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
 from bnptrack.tracker.config import ConfigError
 
-__all__ = ["check_output_path", "check_outputs", "refuse_existing", "sink_option", "view_command"]
+__all__ = ["check_writable", "check_output_path", "check_outputs", "refuse_existing", "sink_option", "view_command"]
+
+
+def check_writable(path: str | os.PathLike, option: str, folder: bool = False) -> None:
+    """Refuse, naming ``option`` as typed, an output ``path`` (a file; ``folder``: a folder the
+    run creates or fills) that cannot be written: a folder where a file is wanted or the
+    reverse, a parent that is a file, a folder where no file can be created (read-only, ``/proc``).
+    Checked by creating an unnamed file in the nearest existing folder, which leaves nothing
+    behind."""
+    path = Path(path)
+    if path.exists() and path.is_dir() != folder:
+        raise ConfigError(f"{option} {path}: " + ("a file, not a folder" if folder else "a folder, not a file"))
+    where = path if folder and path.exists() else _nearest_existing(path)
+    if not where.is_dir():
+        raise ConfigError(f"{option} {path}: cannot create it: {where} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{option} {path}: cannot write there ({where}: {exc.strerror or exc})") from None
+
+
+def _nearest_existing(path: Path) -> Path:
+    """The nearest parent of ``path`` that exists (as typed when one does, e.g. ``vo.mcap`` of
+    ``vo.mcap/x.mcap``)."""
+    return next((p for p in path.parents if p.exists()), None) or next(p for p in path.absolute().parents if p.exists())
 
 
 def check_output_path(log: str | os.PathLike, out: str | os.PathLike, option: str = "--out") -> None:

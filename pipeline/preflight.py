@@ -195,16 +195,9 @@ def refuse_other_run(cfg: PipelineConfig, overwrite: bool) -> None:
 
 
 def _check_out(out: Path) -> None:
-    """``out`` is a directory, or can be created: its nearest existing ancestor is a
-    writable directory."""
-    if out.exists():
-        if not out.is_dir():
-            raise ConfigError(f"--out {out}: exists and is not a directory")
-        if not os.access(out, os.W_OK | os.X_OK):
-            raise ConfigError(f"--out {out}: the directory is not writable")
-        return
-    parent = out.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"--out {out}: cannot create it ({parent} is not a writable directory)")
+    """``out`` is a folder, or can be created: its nearest existing parent is a folder in which
+    a file can be created (:func:`pipeline.output_paths.check_writable`)."""
+    from bnptrack.pipeline.output_paths import check_writable
+
+    check_writable(out, "--out", folder=True)
+

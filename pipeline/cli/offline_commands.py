@@ -41,7 +41,8 @@ from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.offline import TrackResult, default_tracks_path, open_sinks, read_log_start, track_to_sinks
-from bnptrack.pipeline.output_paths import check_outputs, refuse_existing, view_command
+from bnptrack.pipeline.output_paths import (check_outputs, check_writable, refuse_existing, sink_option,
+                                            view_command)
 from bnptrack.pipeline.resolve import DEFAULT_PARAMS, TRACKERS, TrackerSetup, tracker_setup, window_overrides
 from bnptrack.pipeline.stop_request import StopOnSignal
 from bnptrack.sinks.sink import SINKS, SinkSet, check_sink_names
@@ -149,6 +150,7 @@ def simulate(
 
     if out is None:
         out = Path("recordings") / f"{scenario}-s{seed}.mcap"
+    check_writable(out, "--out")
     refuse_existing({"mcap": out}, overwrite)
     opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
     res = simulate_to_log(opened, seed, out)
@@ -388,6 +390,8 @@ class _TrackIO:
             rrd = out.with_suffix(".rrd")
         outputs = sink_outputs(out, rrd, extra, lambda name: out.with_suffix(Path(SINKS[name].filename).suffix))
         check_outputs(log, outputs)
+        for name, path in outputs.items():
+            check_writable(path, sink_option(name))
         refuse_existing(outputs, overwrite)
         io = cls(log, outputs, mapping, live)
         io.head = head

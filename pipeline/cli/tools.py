@@ -211,11 +211,14 @@ def export(run: Path, csv_out: Path | None, parquet_out: Path | None, overwrite:
     """
     from bnptrack.pipeline.export import check_export_outputs, metrics_path
     from bnptrack.pipeline.export import export as do_export
-    from bnptrack.pipeline.output_paths import refuse_existing
+    from bnptrack.pipeline.output_paths import check_writable, refuse_existing
 
     if csv_out is None and parquet_out is None:
         raise CliError("give --csv OUT.csv and/or --parquet OUT.parquet")
-    check_export_outputs(run, {o: p for o, p in (("--csv", csv_out), ("--parquet", parquet_out)) if p is not None})
+    tables = {o: p for o, p in (("--csv", csv_out), ("--parquet", parquet_out)) if p is not None}
+    check_export_outputs(run, tables)
+    for option, path in tables.items():
+        check_writable(path, option)
     outs = [p for p in (csv_out, parquet_out) if p is not None]
     refuse_existing({str(p): p for out in outs for p in (out, metrics_path(out))}, overwrite,
                     "--csv / --parquet file")

@@ -88,7 +88,7 @@ def test_launch_out_that_is_a_file_is_refused(tmp_path):
     pipe.write_text(f'out = "{out}"\n')
     res = cli("launch", pipe)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
-    assert f"--out {out}: exists and is not a directory" in res.stderr
+    assert f"--out {out}: a file, not a folder" in res.stderr
     assert out.read_text() == "x"
 
 

@@ -842,3 +842,36 @@ def test_a_bad_run_id_names_run_as_typed(cmd):
     assert res.exit_code == 2, res.output
     assert res.output.strip() == ("Error: --run 'bad/run': letters, digits, '_', '.', '-' (first a letter or digit), "
                                   "at most 128 characters (a run id is one Zenoh key chunk)")
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["simulate", "--out", "{name}"], "--out"),
+    (["track", "{log}", "--out", "{name}"], "--out"),
+    (["track", "{log}", "--out", "t.mcap", "--rrd", "{name}"], "--rrd"),
+    (["export", "{log}", "--csv", "{name}"], "--csv"),
+    (["launch", "--out", "{name}"], "--out"),
+])
+def test_an_output_under_a_file_says_the_file_is_no_folder(tmp_path, monkeypatch, args, option):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    (tmp_path / "vo.mcap").write_bytes(b"mine")
+    monkeypatch.chdir(tmp_path)
+    res = _run(*[a.format(log=log, name="vo.mcap/x.mcap") for a in args])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: {option} vo.mcap/x.mcap: cannot create it: vo.mcap is a file, not a folder"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap", "vo.mcap"]
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["simulate", "--out", "{name}"], "--out"),
+    (["track", "{log}", "--out", "{tmp}/t.mcap", "--rrd", "{name}"], "--rrd"),
+    (["export", "{log}", "--parquet", "{name}"], "--parquet"),
+    (["launch", "--out", "{folder}"], "--out"),
+])
+def test_an_output_where_no_file_can_be_made_says_so_without_the_temporary_name(tmp_path, args, option):
+    if not Path("/proc/self").exists():
+        pytest.skip("needs /proc, a folder in which no file can be created")
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    res = _run(*[a.format(log=log, tmp=tmp_path, name="/proc/x.mcap", folder="/proc/x") for a in args])
+    assert res.exit_code == 2, res.output
+    target = "/proc/x" if args[0] == "launch" else "/proc/x.mcap"
+    assert res.output.strip() == f"Error: {option} {target}: cannot write there (/proc: No such file or directory)"
