@@ -64,9 +64,11 @@ def metrics_path(out: Path) -> Path:
 
 def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> None:
     """Refuse tables (option -> file) that would replace the run, one another or a table's
-    metrics file, and a name that is itself a metrics file's (``OUT.metrics.EXT``)."""
+    metrics file, a name that is itself a metrics file's (``OUT.metrics.EXT``), and a name
+    whose suffix is the other format's (``--csv out.parquet``)."""
     seen: dict[Path, str] = {}
     for option, out in outputs.items():
+        _check_suffix(option, out)
         if out.resolve() == Path(run).resolve():
             raise ConfigError(f"{option} {out}: the table would overwrite the run {os.fspath(run)}")
         if out.stem.endswith(".metrics"):
@@ -77,6 +79,19 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
             other = seen.setdefault(path.resolve(), option)
             if other != option:
                 raise ConfigError(f"{option} {out}: the same file as {other}'s table")
+
+
+#: Each table option: the suffix of the other format and the option that writes it.
+_OTHER_FORMAT = {"--csv": (".parquet", "--parquet", "Parquet"), "--parquet": (".csv", "--csv", "CSV")}
+
+
+def _check_suffix(option: str, out: Path) -> None:
+    """Refuse ``--csv X.parquet`` and ``--parquet X.csv`` (a table in the other format than its
+    name says); any other suffix is the user's choice."""
+    suffix, other, name = _OTHER_FORMAT.get(option, ("", "", ""))
+    if suffix and out.suffix.lower() == suffix:
+        raise ConfigError(f"{option} {out}: a {name} file's name; give {other} {out} to write {name}, or a "
+                          f"name that does not end in {suffix}")
 
 
 def export(run: str | os.PathLike, out: str | os.PathLike, fmt: str = "csv") -> ExportResult:

@@ -97,7 +97,16 @@ class _NotEmpty(click.ParamType):
 
 
 class PathName(_NotEmpty, click.Path):
-    """:class:`click.Path` that refuses an empty value (``empty --out``)."""
+    """:class:`click.Path` that refuses an empty value (``empty --out``) and, for a file
+    (``dir_okay=False``), a name that ends in a path separator (``--csv newdir/``: a folder's
+    name, which would otherwise be written as the file ``newdir``)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        seps = tuple(s for s in (os.sep, os.altsep) if s)
+        if not self.dir_okay and isinstance(value, str) and value.endswith(seps):
+            name = max(param.opts, key=len) if param is not None and param.opts else "value"
+            raise click.UsageError(f"{name} {value}: names a folder; give a file name", ctx)
+        return super().convert(value, param, ctx)
 
 
 class TextName(_NotEmpty, click.types.StringParamType):

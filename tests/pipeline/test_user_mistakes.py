@@ -875,3 +875,43 @@ def test_an_output_where_no_file_can_be_made_says_so_without_the_temporary_name(
     assert res.exit_code == 2, res.output
     target = "/proc/x" if args[0] == "launch" else "/proc/x.mcap"
     assert res.output.strip() == f"Error: {option} {target}: cannot write there (/proc: No such file or directory)"
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--csv", "out.parquet"], "--csv out.parquet: a Parquet file's name; give --parquet out.parquet to write Parquet, "
+     "or a name that does not end in .parquet"),
+    (["--parquet", "p2.csv"], "--parquet p2.csv: a CSV file's name; give --csv p2.csv to write CSV, or a name that "
+     "does not end in .csv"),
+])
+def test_export_refuses_a_table_named_for_the_other_format(tmp_path, monkeypatch, args, message):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    monkeypatch.chdir(tmp_path)
+    res = _run("export", log, *args)
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: {message}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
+
+
+def test_export_keeps_other_unusual_suffixes(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    run = tmp_path / "run.mcap"
+    assert _run("track", log, "--tracker", "ddp-mb", "--out", run, "-q").exit_code == 0
+    res = _run("export", run, "--csv", tmp_path / "t.txt")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "t.txt").read_text().startswith("frame,")
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["export", "{log}", "--csv", "newdir/"], "--csv"),
+    (["export", "{log}", "--parquet", "newdir/"], "--parquet"),
+    (["simulate", "--out", "newdir/"], "--out"),
+    (["track", "{log}", "--out", "newdir/"], "--out"),
+    (["track", "{log}", "--rrd", "newdir/"], "--rrd"),
+])
+def test_a_file_option_ending_in_a_separator_names_a_folder(tmp_path, monkeypatch, args, option):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    monkeypatch.chdir(tmp_path)
+    res = _run(*[a.format(log=log) for a in args])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == f"Error: {option} newdir/: names a folder; give a file name"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
