@@ -68,7 +68,6 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
     whose suffix is the other format's (``--csv out.parquet``)."""
     seen: dict[Path, str] = {}
     for option, out in outputs.items():
-        _check_suffix(option, out)
         if out.resolve() == Path(run).resolve():
             raise ConfigError(f"{option} {out}: the table would overwrite the run {os.fspath(run)}")
         if out.stem.endswith(".metrics"):
@@ -79,6 +78,7 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
             other = seen.setdefault(path.resolve(), option)
             if other != option:
                 raise ConfigError(f"{option} {out}: the same file as {other}'s table")
+        _check_suffix(option, out)
 
 
 #: Each table option: the suffix of the other format and the option that writes it.
