@@ -34,6 +34,7 @@ __all__ = [
     "CliError",
     "Choice",
     "NAME",
+    "URL",
     "RUN",
     "PathName",
     "IncompleteError",
@@ -88,11 +89,14 @@ class _NotEmpty(click.ParamType):
     unset shell variable) is a usage error naming the option, before it can mean a default or
     the current folder."""
 
+    #: What the error asks for (``empty --connect: give a URL``).
+    what = "name"
+
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and value == "":
             name = max(param.opts, key=len) if param is not None and param.opts else "value"
             rest = "" if param is None or param.required else ", or leave the option out"
-            raise click.UsageError(f"empty {name}: give a name{rest}", ctx)
+            raise click.UsageError(f"empty {name}: give a {self.what}{rest}", ctx)
         return super().convert(value, param, ctx)
 
 
@@ -117,6 +121,16 @@ class TextName(_NotEmpty, click.types.StringParamType):
 
 #: A non-empty text option (``--params``, ``--config``, ``--name``).
 NAME = TextName()
+
+
+class UrlText(TextName):
+    """A viewer URL option (``--connect URL``) that refuses an empty value."""
+
+    what = "URL"
+
+
+#: ``--connect URL`` of ``track`` and ``replay``.
+URL = UrlText()
 
 
 class RunId(TextName):

@@ -21,6 +21,7 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     NAME,
+    URL,
     PathName,
     IncompleteError,
     LazyHelpOption,
@@ -257,7 +258,7 @@ def _simulate_rows(opened: OpenScenario, params_arg: str, overrides: tuple[str, 
 @click.option("--end", "end", metavar="T|Nf", default=None, help=END_HELP)
 @click.option("--view", is_flag=True, help=VIEW_HELP + " Writes --rrd (default: the --out "
               "file with the suffix .rrd).")
-@click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@click.option("--connect", "view_connect", type=URL, metavar="URL", default=None, help=CONNECT_VIEW_HELP)
 @click.option("--sink", "sink_names", multiple=True, metavar="NAME", callback=_check_sinks,
               help="Also record to the sink NAME of the table of sinks (sinks/sink.py), next to --out "
               "with its file suffix (--sink foxglove: a foxglove.SceneUpdate channel beside /tracks in --out); mcap "

@@ -26,6 +26,7 @@ from bnptrack.pipeline.cli.common import (
     VIEW_HELP,
     CliError,
     NAME,
+    URL,
     RUN,
     PathName,
     IncompleteError,
@@ -249,7 +250,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
 @click.option("--topic", "topics", multiple=True, metavar="SRC[=/measurements]",
               help=TOPIC_HELP + " (source.topics of the pipeline file)")
 @click.option("--view", is_flag=True, help=VIEW_HELP)
-@click.option("--connect", "view_connect", metavar="URL", default=None, help=CONNECT_VIEW_HELP)
+@click.option("--connect", "view_connect", type=URL, metavar="URL", default=None, help=CONNECT_VIEW_HELP)
 @_LAG_OPT
 @_TIMEOUT_OPT
 @_OVERWRITE_OPT

@@ -788,13 +788,16 @@ def test_sink_json_view_command_quotes_the_run_folder():
     (["replay", "{log}", "--params", ""], "--params"),
     (["replay", "{log}", "--out", ""], "--out"),
     (["stage", "sink", "--name", ""], "--name"),
+    (["track", "{log}", "--connect", ""], "--connect"),
+    (["replay", "{log}", "--connect", ""], "--connect"),
 ])
 def test_an_empty_name_is_refused_naming_the_option(tmp_path, monkeypatch, args, option):
     log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
     monkeypatch.chdir(tmp_path)
     res = _run(*[a.format(log=log) for a in args])
     assert res.exit_code == 2, res.output
-    assert res.output.strip() == f"Error: empty {option}: give a name, or leave the option out"
+    what = "URL" if option == "--connect" else "name"
+    assert res.output.strip() == f"Error: empty {option}: give a {what}, or leave the option out"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
 
 
