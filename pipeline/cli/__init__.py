@@ -5,6 +5,8 @@ Subcommands are thin: they parse options, call the library and print a summary.
 \b
 - :mod:`pipeline.cli.common`: error handling (one line, exit code 2), summary rows, shared
   option texts and registry-derived choices;
+- :mod:`pipeline.cli.option_types`: the types of the options that name something (an empty
+  value refused);
 - :mod:`pipeline.cli.offline_commands`: ``simulate``, ``track``;
 - :mod:`pipeline.cli.tools`: ``info``, ``export``, ``view``, ``experiment``, ``schema``;
 - :mod:`pipeline.cli.pipeline_commands`: ``launch``, ``replay``, ``stage``, ``router``;

@@ -33,10 +33,6 @@ __all__ = [
     "EXIT_INCOMPLETE",
     "CliError",
     "Choice",
-    "NAME",
-    "URL",
-    "RUN",
-    "PathName",
     "IncompleteError",
     "clean_errors",
     "echo_rows",
@@ -82,74 +78,6 @@ class FiniteRange(click.FloatRange):
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
-
-
-class _NotEmpty(click.ParamType):
-    """A value that names something (a file, a preset, a run): an empty one (``--out ""``, an
-    unset shell variable) is a usage error naming the option, before it can mean a default or
-    the current folder."""
-
-    #: What the error asks for (``empty --connect: give a URL``).
-    what = "name"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        if isinstance(value, str) and value == "":
-            name = max(param.opts, key=len) if param is not None and param.opts else "value"
-            rest = "" if param is None or param.required else ", or leave the option out"
-            raise click.UsageError(f"empty {name}: give a {self.what}{rest}", ctx)
-        return super().convert(value, param, ctx)
-
-
-class PathName(_NotEmpty, click.Path):
-    """:class:`click.Path` that refuses an empty value (``empty --out``) and, for a file
-    (``dir_okay=False``), a name that ends in a path separator (``--csv newdir/``: a folder's
-    name, which would otherwise be written as the file ``newdir``)."""
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        seps = tuple(s for s in (os.sep, os.altsep) if s)
-        if not self.dir_okay and isinstance(value, str) and value.endswith(seps):
-            name = max(param.opts, key=len) if param is not None and param.opts else "value"
-            raise click.UsageError(f"{name} {value}: names a folder; give a file name", ctx)
-        return super().convert(value, param, ctx)
-
-
-class TextName(_NotEmpty, click.types.StringParamType):
-    """A text option (a preset or file name, a run id) that refuses an empty value."""
-
-    name = "text"
-
-
-#: A non-empty text option (``--params``, ``--config``, ``--name``).
-NAME = TextName()
-
-
-class UrlText(TextName):
-    """A viewer URL option (``--connect URL``) that refuses an empty value."""
-
-    what = "URL"
-
-
-#: ``--connect URL`` of ``track`` and ``replay``.
-URL = UrlText()
-
-
-class RunId(TextName):
-    """``--run``: a run id (:data:`pipeline.config.RUN_RE`), else a usage error naming the
-    option as typed."""
-
-    name = "run"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        from bnptrack.pipeline.config import RUN_RE, run_id_problem
-
-        run = super().convert(value, param, ctx)
-        if not RUN_RE.match(run):
-            raise click.UsageError(run_id_problem(run, "--run"), ctx)
-        return run
-
-
-#: ``--run`` of ``launch``, ``replay``, ``stage``, ``monitor``.
-RUN = RunId()
 
 
 def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]) -> tuple[str, ...]:

@@ -9,7 +9,8 @@ from typing import Any
 
 import click
 
-from bnptrack.pipeline.cli.common import RUN, FiniteRange, checked_endpoints, SET_HELP_ZENOH, clean_errors
+from bnptrack.pipeline.cli.option_types import RUN
+from bnptrack.pipeline.cli.common import FiniteRange, checked_endpoints, SET_HELP_ZENOH, clean_errors
 
 __all__ = ["monitor", "event_line"]
 

@@ -20,9 +20,6 @@ from bnptrack.pipeline.cli.common import (
     START_HELP,
     VIEW_HELP,
     CliError,
-    NAME,
-    URL,
-    PathName,
     IncompleteError,
     LazyHelpOption,
     clean_errors,
@@ -40,6 +37,7 @@ from bnptrack.pipeline.cli.common import (
 )
 from bnptrack.pipeline.compile_notice import compile_progress
 from bnptrack.pipeline.config import sink_outputs
+from bnptrack.pipeline.cli.option_types import NAME, URL, PathName
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.offline import TrackResult, default_tracks_path, open_sinks, read_log_start, track_to_sinks
 from bnptrack.pipeline.output_paths import (check_outputs, check_writable, refuse_existing, sink_option,

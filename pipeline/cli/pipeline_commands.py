@@ -25,10 +25,6 @@ from bnptrack.pipeline.cli.common import (
     TOPIC_HELP,
     VIEW_HELP,
     CliError,
-    NAME,
-    URL,
-    RUN,
-    PathName,
     IncompleteError,
     clean_errors,
     echo_rows,
@@ -41,6 +37,7 @@ from bnptrack.pipeline.cli.common import (
     require_measurements,
     topic_map,
 )
+from bnptrack.pipeline.cli.option_types import NAME, URL, RUN, PathName
 from bnptrack.pipeline.cli.run_figures import RunFigures, figure_rows
 from bnptrack.pipeline.compile_notice import FirstCompile
 from bnptrack.pipeline.config import PipelineConfig, ZenohConfig

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import click
 
-from bnptrack.pipeline.cli.common import FiniteRange, Choice, CliError, PathName, clean_errors, echo_rows, topic_map
+from bnptrack.pipeline.cli.common import FiniteRange, Choice, CliError, clean_errors, echo_rows, topic_map
+from bnptrack.pipeline.cli.option_types import PathName
 from bnptrack.tracker.config import did_you_mean
 from bnptrack.tracker.message_units import described_schema
 from bnptrack.tracker.messages import MSG_TYPES
