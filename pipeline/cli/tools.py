@@ -319,7 +319,7 @@ def view(
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
-    _check_recording(rrd, complete=repair_out is None)
+    _check_recording(rrd, footer="error" if screenshot_path is not None else "warn" if repair_out is None else "")
     try:
         if repair_out is not None:
             out = repair(rrd, repair_out)
@@ -337,10 +337,12 @@ def view(
         raise CliError(f"the Rerun viewer exited with code {code}")
 
 
-def _check_recording(path: Path, complete: bool = True) -> None:
+def _check_recording(path: Path, footer: str = "error") -> None:
     """A file that is not a Rerun recording is an error naming what it is: an MCAP log (the
-    command that records one), or another file; with ``complete``, so is a recording without
-    its footer (its writer stopped before the end: ``--repair`` recovers it)."""
+    command that records one), or another file.  A recording without its footer (its writer
+    stopped before the end, or is still writing) is an error with ``footer="error"`` (a
+    screenshot would wait for it), a warning with ``"warn"`` (the viewer shows what it reads),
+    with either naming ``--repair``."""
     from bnptrack.sources.channels import MCAP_MAGIC
 
     try:
@@ -359,9 +361,12 @@ def _check_recording(path: Path, complete: bool = True) -> None:
     if not head.startswith(RRD_MAGIC):
         raise CliError(f"{path} is not a Rerun recording (it starts with {head!r}, not {RRD_MAGIC!r}); "
                        f"view expects a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
-    if complete and not RRD_FOOTER.fullmatch(tail[:8]):
-        raise CliError(f"{path} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash); "
-                       f"`bnptrack view {shlex.quote(str(path))} --repair FIXED.rrd` keeps its complete frames")
+    if footer and not RRD_FOOTER.fullmatch(tail[:8]):
+        why = (f"{path} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash, or is "
+               f"still writing); `bnptrack view {shlex.quote(str(path))} --repair FIXED.rrd` keeps its complete frames")
+        if footer == "error":
+            raise CliError(why)
+        click.echo(f"warning: {why}", err=True)
 
 
 #: The bytes every Rerun recording (.rrd) starts with (then the format version).

@@ -475,9 +475,23 @@ def test_view_of_a_recording_cut_short_names_the_repair_at_once(tmp_path):
     res = _run("view", cut, "--screenshot", tmp_path / "s.png")
     assert res.exit_code == 2, res.output
     assert _one_line(res.output, "Error:") == (
-        f"Error: {cut} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash); "
-        f"`bnptrack view {cut} --repair FIXED.rrd` keeps its complete frames")
+        f"Error: {cut} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash, or is "
+        f"still writing); `bnptrack view {cut} --repair FIXED.rrd` keeps its complete frames")
     assert not (tmp_path / "s.png").exists()
+
+
+def test_the_viewer_opens_a_recording_without_footer_with_a_warning(tmp_path, monkeypatch):
+    """A window shows what the viewer reads of a recording still being written."""
+    import bnptrack.pipeline.view as view
+
+    growing = tmp_path / "run.rrd"
+    growing.write_bytes(b"RRF2\x00)\x00\x00" + bytes(64))
+    opened = []
+    monkeypatch.setattr(view, "open_viewer", lambda path, web=False: opened.append(path) or 0)
+    res = CliRunner().invoke(main, ["view", str(growing)])
+    assert res.exit_code == 0, res.output
+    assert opened == [growing]
+    assert res.stderr.startswith(f"warning: {growing} is incomplete: it has no footer"), res.stderr
 
 
 def test_view_of_an_empty_file_says_it_is_empty_at_once(tmp_path):
