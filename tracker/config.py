@@ -225,6 +225,8 @@ def apply_overrides(obj: S, overrides: Sequence[str], typed: Sequence[str] = (),
 _AT = re.compile(r"^(?P<what>.*) - at `\$\.(?P<path>[^`]*)`$")
 #: A struct's own check of one key (``__post_init__``): ``[sensors.radar0] kind = 'x' is ...``.
 _TABLE_KEY = re.compile(r"^\[(?P<table>[^\]]+)\] (?P<key>[A-Za-z0-9_]+) = ")
+#: A struct's own check naming its key first: ``source.scenario: unknown ...``, ``run 'x': ...``.
+_LEADING_KEY = re.compile(r"^(?P<key>[A-Za-z_][A-Za-z0-9_.]*)(?=: | ')")
 
 
 def _blame(message: str, keys: dict[str, str], names: ArgNames) -> str:
@@ -233,6 +235,11 @@ def _blame(message: str, keys: dict[str, str], names: ArgNames) -> str:
     the value at fault is none of theirs."""
     m, t = _AT.match(message), _TABLE_KEY.match(message)
     path, what = (m["path"], m["what"]) if m else (f"{t['table']}.{t['key']}", message) if t else ("", "")
+    lead = _LEADING_KEY.match(message)
+    if not path and lead and lead["key"] in keys:  # a struct's own check that names its key first
+        path, what = lead["key"], message.removeprefix(f"{lead['key']}: ")
+        if what.startswith(f"{path} '") and "': " in what:  # "run 'x': ..." -> "...": the item says the value
+            what = what.split("': ", 1)[1]
     if path:
         for key, as_typed in keys.items():
             # the item's own value, or the table holding it (a check across the table's keys)

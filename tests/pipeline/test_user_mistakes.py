@@ -932,3 +932,14 @@ def test_a_file_option_ending_in_a_separator_names_a_folder(tmp_path, monkeypatc
     assert res.exit_code == 2, res.output
     assert res.output.strip() == f"Error: {option} newdir/: names a folder; give a file name"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
+
+
+def test_a_set_item_a_struct_check_refuses_is_named():
+    """A check of the settings' own (not a type's) that names its key first is blamed on the
+    --set item that set that key."""
+    from bnptrack.pipeline.config import load_pipeline
+
+    with pytest.raises(ValueError) as ei:
+        load_pipeline(None, ['run="bad/x"'])
+    assert str(ei.value) == ("--set 'run=\"bad/x\"': letters, digits, '_', '.', '-' (first a letter or digit), "
+                             "at most 128 characters (a run id is one Zenoh key chunk)")
