@@ -144,7 +144,8 @@ def screenshot(
     recording, or is an existing file other than a PNG (an existing PNG is replaced),
     :class:`TimeoutError` after ``timeout`` seconds.
     """
-    path = _check_rrd(path).resolve()
+    given = _check_rrd(path)
+    path = given.resolve()
     out_png = Path(out_png)
     _check_png_out(out_png, path)
     width, height = (int(v) for v in size)
@@ -160,7 +161,7 @@ def screenshot(
         try:
             client = _connect(client_cls, proc, port, deadline, log)
             _call(lambda: client.open(str(named)), proc, deadline, log)
-            state = _wait_loaded(client, proc, deadline, log, path)
+            state = _wait_loaded(client, proc, deadline, log, given)
             k = _pick_frame(state, path, timeline, frame)
             png = _capture(client, proc, deadline, log, timeline, k, lambda: _view_id(state, view))
             out_png.parent.mkdir(parents=True, exist_ok=True)
@@ -317,8 +318,8 @@ def _wait_loaded(client: Any, proc: subprocess.Popen, deadline: float, log: Path
         if state.loading or has_frames:
             idle_since = time.monotonic()
         elif time.monotonic() - idle_since > IDLE_EMPTY_S:
-            raise ValueError(f"{path} holds no frames the viewer can show (a recording repaired from its first "
-                             f"bytes keeps only what was complete)")
+            raise ValueError(f"{path} holds no frames the viewer can show (a recording cut short before its "
+                             f"first complete frame, or one with no frame data)")
         if time.monotonic() > deadline:
             raise TimeoutError("the headless viewer did not finish loading the recording in time")
         time.sleep(0.1)

@@ -319,7 +319,7 @@ def view(
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
-    _check_recording(rrd, footer="error" if screenshot_path is not None else "warn" if repair_out is None else "")
+    _check_recording(rrd, footer="warn" if repair_out is None else "")
     try:
         if repair_out is not None:
             out = repair(rrd, repair_out)
@@ -340,9 +340,8 @@ def view(
 def _check_recording(path: Path, footer: str = "error") -> None:
     """A file that is not a Rerun recording is an error naming what it is: an MCAP log (the
     command that records one), or another file.  A recording without its footer (its writer
-    stopped before the end, or is still writing) is an error with ``footer="error"`` (a
-    screenshot would wait for it), a warning with ``"warn"`` (the viewer shows what it reads),
-    with either naming ``--repair``."""
+    stopped before the end, or is still writing) is an error with ``footer="error"``, a
+    warning with ``"warn"`` (the viewer shows what it reads of it), either naming ``--repair``."""
     from bnptrack.sources.channels import MCAP_MAGIC
 
     try:
