@@ -70,6 +70,9 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
     for option, out in outputs.items():
         if out.resolve() == Path(run).resolve():
             raise ConfigError(f"{option} {out}: the table would overwrite the run {os.fspath(run)}")
+        if metrics_path(out).resolve() == Path(run).resolve():
+            raise ConfigError(f"{option} {out}: its metrics table {metrics_path(out)} would overwrite the run "
+                              f"{os.fspath(run)}")
         if out.stem.endswith(".metrics"):
             table = out.with_name(out.stem.removesuffix(".metrics") + out.suffix)
             raise ConfigError(f"{option} {out}: that is the name of the metrics table beside a track table; "

@@ -51,9 +51,10 @@ class Viewer:
 
 
 def is_viewer_url(text: str) -> bool:
-    """True for a Rerun URL (``rerun+http://...``, ``rerun://...``) -- as opposed to a Zenoh
-    endpoint (``tcp/HOST:PORT``), which ``launch --connect`` also takes."""
-    return text.partition("://")[0] in _SCHEMES
+    """True for a Rerun URL (``rerun+http://...``, ``rerun://...``) or a bare port (``9876``, a
+    viewer on this machine, as :func:`viewer_url` reads it) -- as opposed to a Zenoh endpoint
+    (``tcp/HOST:PORT``), which ``launch --connect`` also takes."""
+    return text.partition("://")[0] in _SCHEMES or text.strip().isdigit()
 
 
 def viewer_url(text: str) -> str:

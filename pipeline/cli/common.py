@@ -15,7 +15,7 @@ import os
 import sys
 import typing
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -83,14 +83,21 @@ class FiniteRange(click.FloatRange):
 def checked_endpoints(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]) -> tuple[str, ...]:
     """Callback of an ENDPOINT option (``--connect``, ``--listen``): each a Zenoh endpoint
     (:func:`pipeline.config.check_endpoint`), else a usage error naming it."""
+    check_option_endpoints(values, param=param, ctx=ctx)
+    return values
+
+
+def check_option_endpoints(values: Iterable[str], hint: str | None = None, param: click.Parameter | None = None,
+                           ctx: click.Context | None = None) -> None:
+    """Each of ``values`` is a Zenoh endpoint (:func:`pipeline.endpoints.check_endpoint`), else
+    a usage error naming the option (``param``, or ``hint`` such as ``'--connect'``)."""
     from bnptrack.pipeline.endpoints import check_endpoint
 
     for value in values:
         try:
             check_endpoint(value, "")
         except ValueError as exc:
-            raise click.BadParameter(str(exc).strip(), ctx, param) from None
-    return values
+            raise click.BadParameter(str(exc).strip(), ctx, param, param_hint=hint) from None
 
 
 class InternalError(click.ClickException):

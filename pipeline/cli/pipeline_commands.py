@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from bnptrack.pipeline.cli.common import (
+    check_option_endpoints,
     checked_endpoints,
     FiniteRange,
     Choice,
@@ -148,18 +149,6 @@ _TIMEOUT_OPT = click.option(
 )
 
 
-def _check_router_endpoints(endpoints: list[str]) -> None:
-    """``launch --connect``'s router endpoints, each a Zenoh endpoint (else a usage error naming
-    the option, as the other commands' ``--connect``)."""
-    from bnptrack.pipeline.endpoints import check_endpoint
-
-    for value in endpoints:
-        try:
-            check_endpoint(value, "")
-        except ValueError as exc:
-            raise click.BadParameter(str(exc).strip(), param_hint="'--connect'") from None
-
-
 @click.command()
 @click.argument("pipeline_file", metavar="[PIPELINE.toml]", required=False,
                 type=click.Path(exists=True, dir_okay=False, path_type=Path))
@@ -213,7 +202,7 @@ def launch(pipeline_file: Path | None, overrides: tuple[str, ...], run_id: str |
     routers = [c for c in connect if not is_viewer_url(c)]
     if len(viewers) > 1:
         raise click.UsageError("--connect: give at most one Rerun viewer URL")
-    _check_router_endpoints(routers)
+    check_option_endpoints(routers, "'--connect'")
     if routers:
         cfg = _ms.structs.replace(cfg, zenoh=_ms.structs.replace(
             cfg.zenoh, embedded_router=False, connect=routers))

@@ -131,6 +131,7 @@ def test_viewer_urls():
             viewer_url(bad)
     assert is_viewer_url("rerun+http://h:1/proxy") and is_viewer_url("rerun://h:1/proxy")
     assert not is_viewer_url("tcp/127.0.0.1:7447") and not is_viewer_url("tls/h:7447")
+    assert is_viewer_url("9876") and viewer_url("9876") == "rerun+http://127.0.0.1:9876/proxy"  # a port: a viewer
     with pytest.raises(ConfigError, match=r"no Rerun viewer at rerun\+http://127.0.0.1:\d+/proxy"):
         check_viewer(str(_free_port()))
 

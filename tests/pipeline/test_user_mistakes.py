@@ -634,6 +634,18 @@ def test_export_refuses_an_existing_table_without_overwrite(tmp_path):
     assert _run("export", run, "--csv", csv, "--overwrite").exit_code == 0
 
 
+def test_export_refuses_a_metrics_table_onto_the_run(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    run = tmp_path / "r.metrics.mcap"
+    assert _run("track", log, "--tracker", "ddp-mb", "--out", run, "-q").exit_code == 0
+    before = run.read_bytes()
+    res = _run("export", run, "--csv", tmp_path / "r.mcap", "--overwrite")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == (f"Error: --csv {tmp_path / 'r.mcap'}: its metrics table {run} would "
+                                               f"overwrite the run {run}")
+    assert run.read_bytes() == before
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--csv", "{d}/t.metrics.csv"], "--csv {d}/t.metrics.csv: that is the name of the metrics table beside a track "
      "table; give the track table's name ({d}/t.csv writes {d}/t.csv and {d}/t.metrics.csv)"),
