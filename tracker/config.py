@@ -45,6 +45,11 @@ ClutterRate = Annotated[float, msgspec.Meta(ge=0.0, le=CLUTTER_MAX)]
 SWEEPS_MAX = 10_000
 Sweeps = Annotated[int, msgspec.Meta(ge=1, le=SWEEPS_MAX)]
 """A number of sweeps per frame, ``1 <= n <= 10000``."""
+#: The most GLMB hypotheses requested or kept per frame: the default is 500-1,000, and every
+#: requested hypothesis is sampled and held (a billion would fill the machine's memory).
+HYPOTHESES_MAX = 100_000
+Hypotheses = Annotated[int, msgspec.Meta(ge=1, le=HYPOTHESES_MAX)]
+"""A number of hypotheses per frame, ``1 <= n <= 100000``."""
 Prob = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 """A probability, ``0 <= p <= 1``."""
 OpenProb = Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)]

@@ -126,3 +126,15 @@ def test_a_bad_value_in_a_sensor_table_of_a_file_names_the_sensor(tmp_path):
 def test_a_sensor_table_set_whole_is_a_table():
     p = load_params("vo2017", ["sensors.radar0={x=1500.0, heading_deg=30.0}"])
     assert (p.sensors["radar0"].x, p.sensors["radar0"].heading_deg) == (1500.0, 30.0)
+
+
+@pytest.mark.parametrize("item", ["max_hypotheses=1000000000", "max_hypotheses_after=100001"])
+def test_glmb_hypotheses_per_frame_are_at_most_a_hundred_thousand(item):
+    """Every requested hypothesis is sampled and held: a billion would fill the memory."""
+    from bnptrack.tracker.registry import kind
+
+    preset = kind("glmb").presets["glmb"]
+    with pytest.raises(ConfigError, match=rf"^--set '{item}': expected `int` <= 100000$"):
+        apply_overrides(preset, [item])
+    key = item.partition("=")[0]
+    assert getattr(apply_overrides(preset, [f"{key}=100000"]), key) == 100000

@@ -7,7 +7,7 @@ from typing import Any, Literal, Protocol
 import msgspec
 import numpy as np
 
-from bnptrack.tracker.config import Fraction, NonNeg, OpenProb, PosInt, Positive, PositiveProb, Sweeps
+from bnptrack.tracker.config import Fraction, Hypotheses, NonNeg, OpenProb, PosInt, Positive, PositiveProb, Sweeps
 from bnptrack.tracker.models.params import BirthComponent
 from bnptrack.tracker.types import Frame
 
@@ -26,10 +26,10 @@ class GlmbConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     gate_prob: OpenProb = 0.99999
     """Chi-square gate probability on the predicted measurement; pairs outside are impossible
     (Vo's demo uses 0.9999999)."""
-    max_hypotheses: PosInt = 1000
+    max_hypotheses: Hypotheses = 1000
     """Requested Gibbs samples per frame over all parent hypotheses (the demo's ``H_upd``);
     parent ``h`` gets ``round(max_hypotheses * sqrt(w_h) / sum sqrt(w))`` and at least one."""
-    max_hypotheses_after: PosInt = 500
+    max_hypotheses_after: Hypotheses = 500
     """Cap on the number of hypotheses kept after pruning (the demo's ``H_max``)."""
     prune_threshold: Fraction = 1e-15
     """Hypotheses with normalised weight at or below this are dropped (``hyp_threshold``)."""
