@@ -180,7 +180,8 @@ def track(
     mapping = _topic_map(Path(frames), topics) if is_log else None
     noted = check_frames(setup.params, read_log_start(frames, mapping) if is_log else
                          list(frames[:SCAN_FRAMES]) if isinstance(frames, Sequence) else [],
-                         None if isinstance(params, ModelParams) else setup.choice.source)
+                         None if isinstance(params, ModelParams) else setup.choice.source, setup.set_sensors,
+                         "overrides item")
     source = iter_frames(Path(frames), mapping) if is_log else frames
     estimates: list[Estimate] = []
     online: list[Estimate] = []

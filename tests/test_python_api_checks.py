@@ -169,3 +169,10 @@ def test_info_on_a_log_without_a_record_names_the_default_model(tmp_path):
     assert res.exit_code == 0, res.output
     assert ("record            none (no bnptrack.scenario metadata: track uses the vo2017 model unless "
             "--params says otherwise)") in res.output
+
+
+def test_a_misspelt_sensor_in_overrides_names_the_overrides_item():
+    frames = bnptrack.simulate("vo2017", seed=1)[:3]
+    with pytest.raises(ConfigError, match=r"^overrides item 'sensors\.sm0\.x=5' declares sensor 'sm0', .* "
+                                          r"\(did you mean overrides item 'sensors\.sim0\.x=5'\?\)$"):
+        bnptrack.track(frames, overrides=["sensors.sm0.x=5"])

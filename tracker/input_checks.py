@@ -82,12 +82,12 @@ def check_sensor_spec(name: str, heading_deg: float) -> None:
 
 
 def check_frames(params: Any, frames: Iterable[Any], source: str | None = None,
-                 set_sensors: Mapping[str, str] | None = None) -> tuple[str, ...]:
+                 set_sensors: Mapping[str, str] | None = None, set_name: str = "--set") -> tuple[str, ...]:
     """Check the first frames of a run against ``params`` (a
     :class:`~tracker.models.params.ModelParams`, or None: only the stamps and poses are
     checked), read from ``source`` (the params file or set, named in messages) and the
     ``--set`` items ``set_sensors`` (sensor name -> the item that declares its table, when
-    only an item does): raise :class:`ConfigError` for a misspelt sensor name, warn
+    only an item does; ``set_name`` names such an item, e.g. ``--set``): raise :class:`ConfigError` for a misspelt sensor name, warn
     (:func:`warn`) for a sensor with no pose anywhere, stamps in another unit and pose
     headings in degrees.  Returns the messages of the warnings raised."""
     frames = list(frames)
@@ -96,7 +96,7 @@ def check_frames(params: Any, frames: Iterable[Any], source: str | None = None,
     raised: list[str] = []
     for f in frames:
         if declared and f.sensor not in declared and f.pose is None:
-            raise ConfigError(_misspelt(f.sensor, f.frame, declared, source, set_sensors or {}))
+            raise ConfigError(_misspelt(f.sensor, f.frame, declared, source, set_sensors or {}, set_name))
         stamps.setdefault(f.sensor, []).append(int(f.stamp_ns))
     degrees = next((f for f in frames if f.pose is not None and abs(float(f.pose[2])) > 2 * math.pi), None)
     if degrees is not None:
@@ -136,20 +136,20 @@ def _unposed(frames: list[Any], declared: Mapping[str, Any]) -> list[str]:
 
 
 def _misspelt(sensor: str, frame: int, declared: Mapping[str, Any], source: str | None,
-              set_sensors: Mapping[str, str]) -> str:
+              set_sensors: Mapping[str, str], set_name: str = "--set") -> str:
     """The error for a log's sensor with neither a ``[sensors.NAME]`` table nor a pose while
     the parameters (from ``source``, and the ``--set`` items of ``set_sensors``) declare other
     sensors: which side to fix."""
     where = source or "the parameters"
-    tables = ", ".join(f"[sensors.{n}]" + (f" (from --set {set_sensors[n]!r})" if n in set_sensors else "")
+    tables = ", ".join(f"[sensors.{n}]" + (f" (from {set_name} {set_sensors[n]!r})" if n in set_sensors else "")
                        for n in declared)
     close = get_close_matches(sensor, list(declared), n=1, cutoff=0.6)
     if close and close[0] in set_sensors:
         item = set_sensors[close[0]]
         fixed = item.replace(f"sensors.{close[0]}", f"sensors.{sensor}", 1)
-        return (f"--set {item!r} declares sensor {close[0]!r}, which the log does not have: the log's sensor "
+        return (f"{set_name} {item!r} declares sensor {close[0]!r}, which the log does not have: the log's sensor "
                 f"{sensor!r} (frame {frame}) has no [sensors.{sensor}] table and no pose in its frames "
-                f"(did you mean --set {fixed!r}?)")
+                f"(did you mean {set_name} {fixed!r}?)")
     if close:
         fix = (f"rename that table to [sensors.{sensor}] if it is this sensor, or, if the log misspells "
                f"{close[0]!r}, fix the name in the log")
