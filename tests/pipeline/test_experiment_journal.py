@@ -43,6 +43,17 @@ def test_interval_is_students_t_over_runs():
     assert row["ospa_ci"] == pytest.approx(2.484138, rel=1e-6)
 
 
+def test_a_single_run_has_no_interval_in_the_table(tmp_path):
+    from bnptrack.pipeline.experiment_summary import write_summary
+
+    md, csv_path = write_summary(summarise([scores(0, 1.5)]), tmp_path, "one run")
+    row = next(line for line in md.read_text().splitlines() if line.startswith("| v |"))
+    assert row.startswith("| v | A | 1 | 1.50 ± n/a | 0.00 ± n/a | 1.50 ± n/a | 1.50 ± n/a |"), row
+    assert table(tmp_path)[0]["ospa_ci"] == "nan"
+    md, _ = write_summary(summarise([scores(0, 1.0), scores(1, 2.0)]), tmp_path, "two runs")
+    assert "n/a" not in md.read_text()
+
+
 @pytest.mark.slow
 def test_resumed_experiment_equals_an_uninterrupted_one(tmp_path):
     whole, parts = tmp_path / "whole", tmp_path / "parts"
