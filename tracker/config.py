@@ -169,13 +169,8 @@ def _check_last(node: dict[str, Any], tp: Any, last: str, value: Any, item: _Ite
 
 def _example_key(node: Any, value: Any) -> str:
     """The first key of the struct type ``node`` that takes ``value`` (``KEY`` if none does)."""
-    for f in msgspec.structs.fields(node.cls) if isinstance(node, msgspec.inspect.StructType) else ():
-        try:
-            msgspec.convert(value, f.type)
-        except msgspec.ValidationError:
-            continue
-        return f.encode_name
-    return "KEY"
+    fields = msgspec.structs.fields(node.cls) if isinstance(node, msgspec.inspect.StructType) else ()
+    return next((f.encode_name for f in fields if _valid(value, f.type)), "KEY")
 
 
 def _unwrap(node: Any) -> Any:
@@ -360,8 +355,7 @@ def _unknown_field(message: str, cls: type) -> str:
 def _child(node: Any, part: str) -> Any:
     """The type of ``part`` (a field name, a dict key or a ``[i]`` index) inside ``node``."""
     ins = msgspec.inspect
-    while isinstance(node, ins.UnionType):  # an optional table: its non-None member
-        node = next((t for t in node.types if not isinstance(t, ins.NoneType)), None)
+    node = _unwrap(node)  # an optional table: its non-None member
     if isinstance(node, ins.StructType):
         return next((f.type for f in node.fields if f.encode_name == part), None)
     if isinstance(node, ins.DictType):
