@@ -823,13 +823,8 @@ def test_sink_json_view_command_quotes_the_run_folder():
     (["replay", "{log}", "--connect", ""], "--connect"),
 ])
 def test_an_empty_name_is_refused_naming_the_option(tmp_path, monkeypatch, args, option):
-    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
-    monkeypatch.chdir(tmp_path)
-    res = _run(*[a.format(log=log) for a in args])
-    assert res.exit_code == 2, res.output
     what = "URL" if option == "--connect" else "name"
-    assert res.output.strip() == f"Error: empty {option}: give a {what}, or leave the option out"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
+    _refused_before_writing(tmp_path, monkeypatch, args, f"Error: empty {option}: give a {what}, or leave the option out")
 
 
 def test_an_empty_required_name_is_refused_without_suggesting_to_leave_it_out():
@@ -943,11 +938,16 @@ def test_export_keeps_other_unusual_suffixes(tmp_path):
     (["track", "{log}", "--rrd", "newdir/"], "--rrd"),
 ])
 def test_a_file_option_ending_in_a_separator_names_a_folder(tmp_path, monkeypatch, args, option):
+    _refused_before_writing(tmp_path, monkeypatch, args, f"Error: {option} newdir/: names a folder; give a file name")
+
+
+def _refused_before_writing(tmp_path, monkeypatch, args, line):
+    """``args`` (``{log}``: a small log in ``tmp_path``) exit 2 with ``line`` alone, writing nothing."""
     log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
     monkeypatch.chdir(tmp_path)
     res = _run(*[a.format(log=log) for a in args])
     assert res.exit_code == 2, res.output
-    assert res.output.strip() == f"Error: {option} newdir/: names a folder; give a file name"
+    assert res.output.strip() == line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
 
 
