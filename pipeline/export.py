@@ -81,6 +81,7 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
             other = seen.setdefault(path.resolve(), option)
             if other != option:
                 raise ConfigError(f"{option} {out}: the same file as {other}'s table")
+    for option, out in outputs.items():  # after the checks across tables: their clash is the mistake
         _check_suffix(option, out)
 
 

@@ -54,7 +54,12 @@ def is_viewer_url(text: str) -> bool:
     """True for a Rerun URL (``rerun+http://...``, ``rerun://...``) or a bare port (``9876``, a
     viewer on this machine, as :func:`viewer_url` reads it) -- as opposed to a Zenoh endpoint
     (``tcp/HOST:PORT``), which ``launch --connect`` also takes."""
-    return text.partition("://")[0] in _SCHEMES or text.strip().isdigit()
+    return text.partition("://")[0] in _SCHEMES or _is_port(text.strip())
+
+
+def _is_port(text: str) -> bool:
+    """``text`` is a port number in ASCII digits (``9876``; not ``²``)."""
+    return text.isascii() and text.isdigit()
 
 
 def viewer_url(text: str) -> str:
@@ -62,7 +67,9 @@ def viewer_url(text: str) -> str:
     as for ``rerun --connect``; a URL must use ``rerun://``, ``rerun+http://`` or
     ``rerun+https://`` and the path ``/proxy``."""
     text = text.strip()
-    if text.isdigit():
+    if _is_port(text):
+        if not 0 < int(text) <= 65535:
+            raise ConfigError(f"--connect {text}: a port is 1-65535")
         return f"rerun+http://127.0.0.1:{int(text)}/proxy"
     parts = urlsplit(text)
     try:

@@ -16,15 +16,22 @@ from bnptrack.tracker.config import ConfigError
 __all__ = ["check_writable", "check_output_path", "check_outputs", "refuse_existing", "sink_option", "view_command"]
 
 
-def check_writable(path: str | os.PathLike, option: str, folder: bool = False) -> None:
+def check_writable(path: str | os.PathLike, option: str, folder: bool = False, renamed: bool = False) -> None:
     """Refuse, naming ``option`` as typed, an output ``path`` (a file; ``folder``: a folder the
     run creates or fills) that cannot be written: a folder where a file is wanted or the
     reverse, a parent that is a file, a folder where no file can be created (read-only, ``/proc``).
-    Checked by creating an unnamed file in the nearest existing folder, which leaves nothing
-    behind."""
+    An existing file the run may write (``/dev/null``, a file in a read-only folder) passes,
+    unless the run writes beside it and renames onto it (``renamed``): then only a regular file
+    does (a rename would put a file in a device's place).  Checked by creating an unnamed file in
+    the nearest existing folder, which leaves nothing behind."""
     path = Path(path)
     if path.exists() and path.is_dir() != folder:
         raise ConfigError(f"{option} {path}: " + ("a file, not a folder" if folder else "a folder, not a file"))
+    if not folder and path.exists():
+        if renamed and not path.is_file():
+            raise ConfigError(f"{option} {path}: not a regular file (a device or a pipe); give a file name")
+        if not renamed and os.access(path, os.W_OK):
+            return
     where = path if folder and path.exists() else _nearest_existing(path)
     if not where.is_dir():
         raise ConfigError(f"{option} {path}: cannot create it: {where} is a file, not a folder")

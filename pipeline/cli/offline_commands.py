@@ -149,7 +149,7 @@ def simulate(
 
     if out is None:
         out = Path("recordings") / f"{scenario}-s{seed}.mcap"
-    check_writable(out, "--out")
+    check_writable(out, "--out", renamed=True)  # written beside it, then renamed onto it
     refuse_existing({"mcap": out}, overwrite)
     opened = open_scenario(scenario, params_arg, seed, overrides, snr_db)
     res = simulate_to_log(opened, seed, out)

@@ -23,10 +23,15 @@ class _NotEmpty(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and value == "":
-            name = max(param.opts, key=len) if param is not None and param.opts else "value"
+            name = _option_name(param)
             rest = "" if param is None or param.required else ", or leave the option out"
             raise click.UsageError(f"empty {name}: give a {self.what}{rest}", ctx)
         return super().convert(value, param, ctx)
+
+
+def _option_name(param: click.Parameter | None) -> str:
+    """The option as a user types it (its longest name: ``--out``)."""
+    return max(param.opts, key=len) if param is not None and param.opts else "value"
 
 
 class PathName(_NotEmpty, click.Path):
@@ -37,8 +42,7 @@ class PathName(_NotEmpty, click.Path):
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         seps = tuple(s for s in (os.sep, os.altsep) if s)
         if not self.dir_okay and isinstance(value, str) and value.endswith(seps):
-            name = max(param.opts, key=len) if param is not None and param.opts else "value"
-            raise click.UsageError(f"{name} {value}: names a folder; give a file name", ctx)
+            raise click.UsageError(f"{_option_name(param)} {value}: names a folder; give a file name", ctx)
         return super().convert(value, param, ctx)
 
 
@@ -67,6 +71,7 @@ class RunId(TextName):
     option as typed."""
 
     name = "run"
+    what = "run id"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         from bnptrack.pipeline.config import RUN_RE, run_id_problem

@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shlex
 from pathlib import Path
 
 import click
@@ -280,7 +279,7 @@ MAX_SIDE = 8192
 @click.option(
     "--repair",
     "repair_out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=PathName(dir_okay=False, path_type=Path),
     default=None,
     metavar="OUT.rrd",
     help="Rewrite a damaged recording (e.g. its writer was killed before the footer) into OUT.rrd, "
@@ -361,8 +360,10 @@ def _check_recording(path: Path, footer: str = "error") -> None:
         raise CliError(f"{path} is not a Rerun recording (it starts with {head!r}, not {RRD_MAGIC!r}); "
                        f"view expects a Rerun .rrd recording, e.g. from `bnptrack track LOG --rrd FILE.rrd`")
     if footer and not RRD_FOOTER.fullmatch(tail[:8]):
+        from bnptrack.pipeline.output_paths import view_command
+
         why = (f"{path} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash, or is "
-               f"still writing); `bnptrack view {shlex.quote(str(path))} --repair FIXED.rrd` keeps its complete frames")
+               f"still writing); `{view_command(path)} --repair FIXED.rrd` keeps its complete frames")
         if footer == "error":
             raise CliError(why)
         click.echo(f"warning: {why}", err=True)
@@ -412,7 +413,7 @@ Examples:
               help="Experiment seed; run i uses SeedSequence(seed, spawn_key=(crc32(NAME), i)).")
 @click.option("--params", "params_name", type=Choice(BUILTIN_PARAMS), default=DEFAULT_EXPERIMENT_PARAMS,
               show_default=True, help="Model parameter set.")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=PathName(file_okay=False, path_type=Path), default=None,
               help="Output directory. Default: recordings/experiments/NAME-PARAMS-sSEED.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Local worker processes (default: one per core).")

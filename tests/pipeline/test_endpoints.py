@@ -51,3 +51,15 @@ def test_commands_refuse_a_malformed_endpoint_before_starting(tmp_path, args, li
     errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
     assert len(errors) == 1 and errors[0].startswith(line), res.output
     assert "Traceback" not in res.output and not out.exists()
+
+
+def test_launch_connect_with_a_port_means_a_viewer_on_this_machine(tmp_path):
+    from bnptrack.pipeline.ports import free_port
+
+    port = free_port()  # nothing listens there
+    res = CliRunner().invoke(main, ["launch", "--connect", str(port), "--out", str(tmp_path / "run")])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip().startswith(f"Error: no Rerun viewer at rerun+http://127.0.0.1:{port}/proxy")
+    assert not (tmp_path / "run").exists()
+    res = CliRunner().invoke(main, ["launch", "--connect", "99999", "--out", str(tmp_path / "run")])
+    assert res.exit_code == 2 and res.output.strip() == "Error: --connect 99999: a port is 1-65535"

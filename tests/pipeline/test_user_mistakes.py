@@ -4,7 +4,9 @@ one-line warning naming the fix otherwise (tracker/input_checks.py, pipeline.off
 from __future__ import annotations
 
 import json
+import os
 import re
+import stat
 import warnings
 from pathlib import Path
 
@@ -651,6 +653,9 @@ def test_export_refuses_a_metrics_table_onto_the_run(tmp_path):
      "table; give the track table's name ({d}/t.csv writes {d}/t.csv and {d}/t.metrics.csv)"),
     (["--csv", "{d}/run.mcap", "--overwrite"], "--csv {d}/run.mcap: the table would overwrite the run {d}/run.mcap"),
     (["--csv", "{d}/a.csv", "--parquet", "{d}/a.csv"], "--parquet {d}/a.csv: the same file as --csv's table"),
+    (["--csv", "{d}/a.parquet", "--parquet", "{d}/a.parquet"], "--parquet {d}/a.parquet: the same file as --csv's table"),
+    (["--csv", "{d}/t.PARQUET"], "--csv {d}/t.PARQUET: a Parquet file's name; give --parquet {d}/t.PARQUET to write "
+     "Parquet, or a name that does not end in .parquet"),
 ])
 def test_export_refuses_tables_that_replace_the_run_or_each_other(tmp_path, args, message):
     log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
@@ -960,3 +965,30 @@ def test_a_set_item_a_struct_check_refuses_is_named():
         load_pipeline(None, ['run="bad/x"'])
     assert str(ei.value) == ("--set 'run=\"bad/x\"': letters, digits, '_', '.', '-' (first a letter or digit), "
                              "at most 128 characters (a run id is one Zenoh key chunk)")
+
+
+def test_simulate_never_renames_its_log_onto_a_device_or_a_pipe(tmp_path):
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    res = _run("simulate", "--seed", "1", "--out", pipe, "--overwrite", "-q")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:") == f"Error: --out {pipe}: not a regular file (a device or a pipe); give a file name"
+    assert stat.S_ISFIFO(pipe.stat().st_mode)
+
+
+def test_an_existing_file_that_can_be_written_passes_in_a_folder_that_takes_no_new_file(tmp_path, monkeypatch):
+    """A file written in place (track, export) needs the file writable, not its folder; a file
+    replaced by a rename (simulate) needs the folder."""
+    from bnptrack.pipeline import output_paths
+
+    def no_new_file(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    existing = tmp_path / "kept.mcap"
+    existing.write_bytes(b"x")
+    monkeypatch.setattr(output_paths.tempfile, "TemporaryFile", no_new_file)
+    output_paths.check_writable(existing, "--out")
+    with pytest.raises(ValueError, match=rf"^--out {re.escape(str(existing))}: cannot write there \("):
+        output_paths.check_writable(existing, "--out", renamed=True)
+    with pytest.raises(ValueError, match=r"^--out .*new\.mcap: cannot write there \("):
+        output_paths.check_writable(tmp_path / "new.mcap", "--out")
