@@ -828,14 +828,14 @@ def test_sink_json_view_command_quotes_the_run_folder():
     (["replay", "{log}", "--connect", ""], "--connect"),
 ])
 def test_an_empty_name_is_refused_naming_the_option(tmp_path, monkeypatch, args, option):
-    what = "URL" if option == "--connect" else "name"
+    what = {"--connect": "URL", "--run": "run id"}.get(option, "name")
     _refused_before_writing(tmp_path, monkeypatch, args, f"Error: empty {option}: give a {what}, or leave the option out")
 
 
 def test_an_empty_required_name_is_refused_without_suggesting_to_leave_it_out():
     res = _run("monitor", "--run", "")
     assert res.exit_code == 2, res.output
-    assert res.output.strip() == "Error: empty --run: give a name"
+    assert res.output.strip() == "Error: empty --run: give a run id"
 
 
 def test_an_rrd_that_is_the_input_log_names_rrd(tmp_path):
