@@ -317,11 +317,12 @@ def track(
 
     window, overrides = _window(start, end, overrides)
     io = _TrackIO.open(log, out or default_tracks_path(log, tracker_name), rrd, topics, view, view_connect,
-                       sink_names, overwrite)
+                       sink_names)
     check_window_holds(log, io.topics, window, typed_window(window, start, end))
-    io.build()
     setup = tracker_setup(tracker_name, params=params_arg, config=config_arg, overrides=overrides,
                           metadata=read_metadata(log), seed=seed)
+    io.refuse_existing(overwrite)  # every option checked first: a mistake is named before an existing file
+    io.build()
     _header(log, setup, quiet)
     with compile_progress(tracker_name, quiet), StopOnSignal() as stop:
         res = io.run(setup, seed, FrameBounds(max_frame_gap, max_gap_s, resync_frames), window, lag, stop)
@@ -379,8 +380,9 @@ class _TrackIO:
 
     @classmethod
     def open(cls, log: Path, out: Path, rrd: Path | None, topics: tuple[str, ...], view: bool,
-             view_connect: str | None, extra: tuple[str, ...], overwrite: bool) -> _TrackIO:
-        """Check the options and choose the sinks (existing files refused unless ``overwrite``)."""
+             view_connect: str | None, extra: tuple[str, ...]) -> _TrackIO:
+        """Check the log and the options, and choose the sinks (files that exist already are
+        refused by :meth:`refuse_existing`, once the tracker's settings are checked too)."""
         mapping = topic_map(topics)
         require_measurements(log, mapping)
         head = read_log_start(log, mapping)
@@ -391,15 +393,18 @@ class _TrackIO:
         check_outputs(log, outputs)
         for name, path in outputs.items():
             check_writable(path, sink_option(name))
-        refuse_existing(outputs, overwrite)
         io = cls(log, outputs, mapping, live)
         io.head = head
         return io
 
+    def refuse_existing(self, overwrite: bool) -> None:
+        """Refuse output files that exist unless ``overwrite`` (:func:`pipeline.output_paths.refuse_existing`)."""
+        refuse_existing(self.outputs, overwrite)
+
     def build(self) -> None:
-        """Build the sinks now, before the tracker: a sink that starts work at once does it
-        beside the tracker's imports (the Rerun recording's child process imports rerun on the
-        other core, :mod:`sinks.rerun_process`).  The command's context closes them at the
+        """Build the sinks now, before the tracker runs: a sink that starts work at once does it
+        beside the tracker's first step, which loads or compiles its kernels (the Rerun
+        recording's child process imports rerun on the other core, :mod:`sinks.rerun_process`).  The command's context closes them at the
         end whatever happens (:meth:`run` closes them first, normally)."""
         options = SinkOptions(self.out, params=lambda: self.params, live=self._live_url, process=True,
                               source=str(self.log))

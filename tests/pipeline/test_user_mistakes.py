@@ -992,3 +992,15 @@ def test_an_existing_file_that_can_be_written_passes_in_a_folder_that_takes_no_n
         output_paths.check_writable(existing, "--out", renamed=True)
     with pytest.raises(ValueError, match=r"^--out .*new\.mcap: cannot write there \("):
         output_paths.check_writable(tmp_path / "new.mcap", "--out")
+
+
+def test_track_names_a_settings_mistake_before_an_existing_output(tmp_path):
+    log = _log(tmp_path / "a.mcap", sensor="sim0", n=3)
+    out = tmp_path / "t.mcap"
+    out.write_bytes(b"an earlier run")
+    res = _run("track", log, "--out", out, "--set", "p_detc=0.9")
+    assert res.exit_code == 2, res.output
+    assert _one_line(res.output, "Error:").startswith("Error: --set 'p_detc=0.9': unknown key 'p_detc' (did you mean 'p_detect'?)")
+    res = _run("track", log, "--out", out)
+    assert res.exit_code == 2 and _one_line(res.output, "Error:").startswith(f"Error: {out} exists")
+    assert out.read_bytes() == b"an earlier run"
