@@ -321,10 +321,7 @@ def _valid_values(message: str, cls: type) -> str:
     m = _BAD_ENUM.fullmatch(message)
     if m is None:
         return message
-    node: Any = msgspec.inspect.type_info(cls)
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", m["at"].lstrip(".")):
-        node = _child(node, part)
-    node = _unwrap(node)
+    node = _type_at(cls, m["at"])
     values = ([str(v) for v in node.values] if isinstance(node, msgspec.inspect.LiteralType) else
               [str(v.value) for v in node.cls] if isinstance(node, msgspec.inspect.EnumType) else [])
     if not values:
@@ -343,13 +340,19 @@ def _unknown_field(message: str, cls: type) -> str:
     if m is None:
         return ""
     key, at = m["key"], (m["at"] or "").lstrip(".")
-    node: Any = msgspec.inspect.type_info(cls)
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", at):
-        node = _child(node, part)
-    known = [f.encode_name for f in node.fields] if isinstance(node, msgspec.inspect.StructType) else []
+    known = _fields(_type_at(cls, at))
     where = f" in {at}" if "[" in at else f" in [{at}]" if at else ""
     hint = did_you_mean(key, known) or (f" (known: {', '.join(known)})" if 0 < len(known) <= KNOWN_LISTED else "")
     return f"unknown key '{key}'{where}{hint}"
+
+
+def _type_at(cls: type, at: str) -> Any:
+    """The msgspec type (optional types unwrapped) at the error path ``at`` (``.source.kind``,
+    ``sensors.radar0.x``, ``topics[0]``) inside ``cls``."""
+    node: Any = msgspec.inspect.type_info(cls)
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", at.lstrip(".")):
+        node = _child(node, part)
+    return _unwrap(node)
 
 
 def _child(node: Any, part: str) -> Any:
