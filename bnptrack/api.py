@@ -49,7 +49,7 @@ def simulate(
     :func:`track`, or track the log written with ``out``, whose record names them.
     """
     _check_scenario("simulate", scenario)
-    _check_seed("simulate", seed)
+    _check_count("simulate", "seed", seed)
     _check_items("simulate", "overrides", overrides)
     if out is not None:
         _refuse_existing("simulate(out=...)", out, overwrite)
@@ -155,15 +155,14 @@ def track(
     ``lag`` > 0 gives the fixed-lag output (as ``bnptrack track --lag``; docs/trackers.md,
     "Fixed-lag output"), with the online estimates in :attr:`TrackRun.online`.
     """
-    if isinstance(lag, bool) or not isinstance(lag, Integral) or lag < 0:
-        raise ConfigError(f"track(lag={lag!r}): lag must be an integer >= 0 (scans)")
+    _check_count("track", "lag", lag, " (scans)")
     lag = int(lag)
     is_log = isinstance(frames, (str, os.PathLike))
     if is_log and scenario:
         raise ConfigError(f"track({os.fspath(frames)!r}, scenario={scenario!r}): a log's own record names its "
                           "scenario; scenario= is for a list of frames")
     _check_scenario("track", scenario)
-    _check_seed("track", seed)
+    _check_count("track", "seed", seed)
     _check_items("track", "overrides", overrides)
     _check_items("track", "topics", topics)
     if is_log:
@@ -289,7 +288,7 @@ def _not_a_frame(i: int, item: object) -> str:
             "(bnptrack.simulate and bnptrack.read_log(...).frames give Frames)")
 
 
-def _check_seed(call: str, seed: object) -> None:
-    """A seed is an integer >= 0 (numpy's ``default_rng`` takes no other)."""
-    if isinstance(seed, bool) or not isinstance(seed, Integral) or seed < 0:
-        raise ConfigError(f"{call}(seed={seed!r}): seed must be an integer >= 0")
+def _check_count(call: str, name: str, value: object, unit: str = "") -> None:
+    """A seed or a lag is an integer >= 0 (a numpy integer too; not a bool or a float)."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < 0:
+        raise ConfigError(f"{call}({name}={value!r}): {name} must be an integer >= 0{unit}")

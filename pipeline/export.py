@@ -67,12 +67,11 @@ def check_export_outputs(run: str | os.PathLike, outputs: dict[str, Path]) -> No
     metrics file, a name that is itself a metrics file's (``OUT.metrics.EXT``), and a name
     whose suffix is the other format's (``--csv out.parquet``)."""
     seen: dict[Path, str] = {}
+    run_path = Path(run).resolve()
     for option, out in outputs.items():
-        if out.resolve() == Path(run).resolve():
-            raise ConfigError(f"{option} {out}: the table would overwrite the run {os.fspath(run)}")
-        if metrics_path(out).resolve() == Path(run).resolve():
-            raise ConfigError(f"{option} {out}: its metrics table {metrics_path(out)} would overwrite the run "
-                              f"{os.fspath(run)}")
+        for path, what in ((out, "the table"), (metrics_path(out), f"its metrics table {metrics_path(out)}")):
+            if path.resolve() == run_path:
+                raise ConfigError(f"{option} {out}: {what} would overwrite the run {os.fspath(run)}")
         if out.stem.endswith(".metrics"):
             table = out.with_name(out.stem.removesuffix(".metrics") + out.suffix)
             raise ConfigError(f"{option} {out}: that is the name of the metrics table beside a track table; "

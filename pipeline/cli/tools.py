@@ -318,7 +318,7 @@ def view(
 
     if screenshot_path is None and frame is not None:
         raise click.UsageError("--frame needs --screenshot")
-    _check_recording(rrd, footer="warn" if repair_out is None else "")
+    _check_recording(rrd, footer=repair_out is None)
     try:
         if repair_out is not None:
             out = repair(rrd, repair_out)
@@ -336,11 +336,11 @@ def view(
         raise CliError(f"the Rerun viewer exited with code {code}")
 
 
-def _check_recording(path: Path, footer: str = "error") -> None:
+def _check_recording(path: Path, footer: bool = True) -> None:
     """A file that is not a Rerun recording is an error naming what it is: an MCAP log (the
-    command that records one), or another file.  A recording without its footer (its writer
-    stopped before the end, or is still writing) is an error with ``footer="error"``, a
-    warning with ``"warn"`` (the viewer shows what it reads of it), either naming ``--repair``."""
+    command that records one), or another file.  With ``footer``, a recording without its
+    footer (its writer stopped before the end, or is still writing) gets a warning naming
+    ``--repair`` (the viewer shows what it reads of it)."""
     from bnptrack.sources.channels import MCAP_MAGIC
 
     try:
@@ -362,11 +362,9 @@ def _check_recording(path: Path, footer: str = "error") -> None:
     if footer and not RRD_FOOTER.fullmatch(tail[:8]):
         from bnptrack.pipeline.output_paths import view_command
 
-        why = (f"{path} is incomplete: it has no footer (its writer stopped before the end, e.g. a crash, or is "
-               f"still writing); `{view_command(path)} --repair FIXED.rrd` keeps its complete frames")
-        if footer == "error":
-            raise CliError(why)
-        click.echo(f"warning: {why}", err=True)
+        click.echo(f"warning: {path} is incomplete: it has no footer (its writer stopped before the end, e.g. a "
+                   f"crash, or is still writing); `{view_command(path)} --repair FIXED.rrd` keeps its complete "
+                   "frames", err=True)
 
 
 #: The bytes every Rerun recording (.rrd) starts with (then the format version).
