@@ -270,9 +270,8 @@ def _ended(cal: ExistenceCalibration, state: CalibrationState, src: np.ndarray, 
     pos_cov = np.array([t.covariance[np.ix_([0, 2], [0, 2])] for t in new]).reshape(-1, 2, 2)
     dt = (est.stamp_ns - state.rows[gone, _STAMP]) * 1e-9
     near = _may_gate(state.mean[gone], state.cov[gone], dt, pos, pos_cov)
-    reborn = np.array([bool(may) and gated(state.mean[i], state.cov[i], (est.stamp_ns - int(state.rows[i, _STAMP])) * 1e-9,
-                                           pos, pos_cov).any() for i, may in zip(gone.tolist(), near.tolist())],
-                      dtype=bool)
+    reborn = np.array([bool(may) and gated(state.mean[i], state.cov[i], t, pos, pos_cov).any()
+                       for i, may, t in zip(gone.tolist(), near.tolist(), dt.tolist())], dtype=bool)
     settle(counts, learned, state.pending[gone[reborn]], True)
     expired = ~reborn & (state.rows[gone, _LAST] < est.frame - REBIRTH_SCANS)
     dead = gone[expired]
